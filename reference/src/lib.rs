@@ -1,0 +1,1 @@
+//! Ground truth for penumbra: CPU reference renderer and image metrics.
