@@ -1,1 +1,2 @@
 //! penumbra
+include!(concat!(env!("OUT_DIR"), "/shaders.rs"));

@@ -1,2 +1,14 @@
 //! Spherical math shared by penumbra's techniques and the CPU reference renderer.
 //! Pure CPU code, no Vulkan: it builds and tests fast.
+//!
+//! * [`sg`]: spherical Gaussians (f64 [`sg::Sg`], f32 [`sg::Sg32`]; GLSL mirror in
+//!   `glsl/include/sg.glsl`).
+//! * [`sh`]: real spherical harmonics of any order (rotation, double and triple products).
+//! * [`quad`]: quadrature rules used to validate the closed forms.
+//! * [`nnls`]: non-negative least squares.
+//! * [`envmap`]: lat-long environment maps, SG fitting and SG-prefiltered maps (`Gamma_L`).
+//! * [`brdf`]: SG fits of Blinn-Phong, Cook-Torrance and Ashikhmin-Shirley lobes.
+
+pub mod quad;
+pub mod sg;
+pub mod special;

@@ -1,0 +1,457 @@
+//! Image metrics between a reference image A and a test image B (linear RGB radiance).
+//!
+//! Conventions (stated in every [`Comparison`]):
+//! - Statistics run over the pixels where **both** images are finite; pixels with a NaN or
+//!   infinite channel are counted per image ([`Comparison::non_finite_a`],
+//!   [`Comparison::non_finite_b`]) and excluded, never propagated.
+//! - MSE, RMSE, mean and max absolute error are over all channels of the compared pixels.
+//! - **PSNR** is on linear radiance with peak = the largest finite channel value of the
+//!   reference A (1.0 if A has none above 0): `10 log10(peak^2 / MSE)`. Identical images give
+//!   `psnr_db = None` (JSON `null`) and `identical = true`.
+//! - **Relative RMSE** is `sqrt(mean((b - a)^2 / (a^2 + 0.01)))` per channel (the "relMSE" of the
+//!   denoising literature with epsilon 0.01, robust to black pixels).
+//! - **FLIP** (NVIDIA's LDR FLIP via the `nv-flip` crate; the crate has no HDR-FLIP): both images
+//!   are mapped to display sRGB by `x * 2^exposure`, clamp to [0, 1], the sRGB transfer function
+//!   and 8-bit quantisation; exposure 0 by default, 67 pixels per degree. Mean FLIP is reported.
+//! - The **false-colour difference** PNG shows the per-pixel mean absolute error over channels,
+//!   divided by the image's maximum of that quantity ([`Comparison::diff_scale`]), through the
+//!   magma colour map; pixels non-finite in either image are cyan.
+
+use crate::image::{write_png_rgb8, Image, ImageError};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Pixels per degree used for FLIP (the FLIP paper's default: 0.7 m from a 0.7 m wide 4K monitor).
+pub const FLIP_PIXELS_PER_DEGREE: f32 = 67.0;
+/// Epsilon of the relative MSE denominator.
+pub const REL_EPSILON: f64 = 0.01;
+
+/// The result of comparing a reference image A with a test image B.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Comparison {
+    /// Name (usually the path) of the reference image A.
+    pub reference: String,
+    /// Name (usually the path) of the test image B.
+    pub test: String,
+    pub width: u32,
+    pub height: u32,
+    /// Pixels finite in both images, over which the statistics run.
+    pub pixels_compared: u64,
+    /// Pixels of A with a NaN or infinite channel (excluded).
+    pub non_finite_a: u64,
+    /// Pixels of B with a NaN or infinite channel (excluded).
+    pub non_finite_b: u64,
+    /// True when every compared channel is bit-for-bit equal (and nothing was excluded).
+    pub identical: bool,
+    /// PSNR in dB on linear radiance; `None` (JSON null) when MSE = 0 (infinite PSNR).
+    pub psnr_db: Option<f64>,
+    /// The peak used by PSNR.
+    pub psnr_peak: f64,
+    /// How the peak was chosen.
+    pub psnr_peak_rule: String,
+    pub mse: f64,
+    pub rmse: f64,
+    /// `sqrt(mean((b - a)^2 / (a^2 + 0.01)))` over channels.
+    pub rel_rmse: f64,
+    pub mean_abs_error: f64,
+    pub max_abs_error: f64,
+    /// Pixel (x, y) of the maximum absolute error.
+    pub max_abs_error_at: [u32; 2],
+    /// Mean FLIP error in [0, 1] (LDR FLIP after the tone mapping below).
+    pub flip_mean: f64,
+    /// Tone mapping applied before FLIP.
+    pub flip_tonemap: String,
+    pub flip_pixels_per_degree: f32,
+    /// Error value mapped to the top of the colour map in the difference image.
+    pub diff_scale: f64,
+}
+
+impl Comparison {
+    /// A human-readable multi-line summary.
+    pub fn summary(&self) -> String {
+        let psnr = match self.psnr_db {
+            Some(p) => format!("{p:.3} dB"),
+            None => "inf (identical)".into(),
+        };
+        let mut s = format!(
+            "A (reference): {}\nB (test):      {}\nsize:          {}x{} ({} pixels compared)\n",
+            self.reference, self.test, self.width, self.height, self.pixels_compared
+        );
+        if self.non_finite_a + self.non_finite_b > 0 {
+            s += &format!(
+                "non-finite:    {} pixels in A, {} in B (excluded)\n",
+                self.non_finite_a, self.non_finite_b
+            );
+        }
+        s += &format!(
+            "PSNR:          {psnr} (peak {:.6} = {})\nRMSE:          {:.6e}\nrel. RMSE:     {:.6e}\nmean |err|:    {:.6e}\nmax |err|:     {:.6e} at ({}, {})\nFLIP (mean):   {:.6} ({})",
+            self.psnr_peak,
+            self.psnr_peak_rule,
+            self.rmse,
+            self.rel_rmse,
+            self.mean_abs_error,
+            self.max_abs_error,
+            self.max_abs_error_at[0],
+            self.max_abs_error_at[1],
+            self.flip_mean,
+            self.flip_tonemap
+        );
+        s
+    }
+}
+
+/// sRGB transfer function of a linear value in [0, 1].
+pub fn srgb_encode(x: f32) -> f32 {
+    if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Tone map a linear image to 8-bit sRGB: `x * 2^exposure`, clamp, sRGB, quantise.
+/// Non-finite channels map to 0.
+pub fn to_srgb8(img: &Image, exposure: f32) -> Vec<u8> {
+    let scale = exposure.exp2();
+    img.pixels
+        .iter()
+        .flat_map(|p| p.iter().copied())
+        .map(|c| {
+            let c = if c.is_finite() { (c * scale).clamp(0.0, 1.0) } else { 0.0 };
+            (srgb_encode(c) * 255.0 + 0.5).floor().clamp(0.0, 255.0) as u8
+        })
+        .collect()
+}
+
+fn check_same_size(a: &Image, an: &str, b: &Image, bn: &str) -> Result<(), ImageError> {
+    for (img, n) in [(a, an), (b, bn)] {
+        if img.width == 0 || img.height == 0 {
+            return Err(ImageError::Empty { path: n.into(), width: img.width, height: img.height });
+        }
+        if img.pixels.len() != img.width as usize * img.height as usize {
+            return Err(ImageError::BadBuffer {
+                path: n.into(),
+                width: img.width,
+                height: img.height,
+                len: img.pixels.len(),
+            });
+        }
+    }
+    if a.width != b.width || a.height != b.height {
+        return Err(ImageError::SizeMismatch {
+            a_path: an.into(),
+            a_width: a.width,
+            a_height: a.height,
+            b_path: bn.into(),
+            b_width: b.width,
+            b_height: b.height,
+        });
+    }
+    Ok(())
+}
+
+/// Mean FLIP between two same-size images after [`to_srgb8`] with `exposure`.
+pub fn flip_mean(a: &Image, b: &Image, exposure: f32) -> f64 {
+    let ra = nv_flip::FlipImageRgb8::with_data(a.width, a.height, &to_srgb8(a, exposure));
+    let rb = nv_flip::FlipImageRgb8::with_data(b.width, b.height, &to_srgb8(b, exposure));
+    let err = nv_flip::flip(ra, rb, FLIP_PIXELS_PER_DEGREE);
+    let v = err.to_vec();
+    v.iter().map(|&e| e as f64).sum::<f64>() / v.len().max(1) as f64
+}
+
+/// Compare a reference `a` with a test image `b`; `a_name`/`b_name` label them in errors and
+/// in the result.
+pub fn compare(a: &Image, a_name: &str, b: &Image, b_name: &str) -> Result<Comparison, ImageError> {
+    check_same_size(a, a_name, b, b_name)?;
+    let mut n = 0u64;
+    let (mut se, mut rel, mut ae) = (0.0f64, 0.0f64, 0.0f64);
+    let mut max_ae = 0.0f64;
+    let mut max_at = [0u32; 2];
+    let mut identical = true;
+    let mut peak = 0.0f64;
+    let (mut nfa, mut nfb) = (0u64, 0u64);
+    for (i, (pa, pb)) in a.pixels.iter().zip(&b.pixels).enumerate() {
+        let fa = pa.iter().all(|c| c.is_finite());
+        let fb = pb.iter().all(|c| c.is_finite());
+        nfa += (!fa) as u64;
+        nfb += (!fb) as u64;
+        if fa {
+            for &c in pa {
+                peak = peak.max(c as f64);
+            }
+        }
+        if !(fa && fb) {
+            identical = false;
+            continue;
+        }
+        n += 1;
+        for c in 0..3 {
+            let (x, y) = (pa[c] as f64, pb[c] as f64);
+            if pa[c] != pb[c] {
+                identical = false;
+            }
+            let d = y - x;
+            se += d * d;
+            rel += d * d / (x * x + REL_EPSILON);
+            ae += d.abs();
+            if d.abs() > max_ae {
+                max_ae = d.abs();
+                max_at = [(i % a.width as usize) as u32, (i / a.width as usize) as u32];
+            }
+        }
+    }
+    let m = (3 * n).max(1) as f64;
+    let mse = se / m;
+    let peak_rule;
+    if peak <= 0.0 {
+        peak = 1.0;
+        peak_rule = "1.0 (reference has no positive finite value)".to_string();
+    } else {
+        peak_rule = "max finite channel value of the reference A".to_string();
+    }
+    let psnr_db = if mse > 0.0 { Some(10.0 * (peak * peak / mse).log10()) } else { None };
+    let exposure = 0.0;
+    Ok(Comparison {
+        reference: a_name.into(),
+        test: b_name.into(),
+        width: a.width,
+        height: a.height,
+        pixels_compared: n,
+        non_finite_a: nfa,
+        non_finite_b: nfb,
+        identical: identical && n > 0,
+        psnr_db,
+        psnr_peak: peak,
+        psnr_peak_rule: peak_rule,
+        mse,
+        rmse: mse.sqrt(),
+        rel_rmse: (rel / m).sqrt(),
+        mean_abs_error: ae / m,
+        max_abs_error: max_ae,
+        max_abs_error_at: max_at,
+        flip_mean: flip_mean(a, b, exposure),
+        flip_tonemap: format!(
+            "LDR FLIP on x*2^{exposure} clamped to [0,1], sRGB-encoded, 8-bit; {FLIP_PIXELS_PER_DEGREE} px/deg"
+        ),
+        flip_pixels_per_degree: FLIP_PIXELS_PER_DEGREE,
+        diff_scale: diff_scale(a, b),
+    })
+}
+
+fn pixel_error(pa: &[f32; 3], pb: &[f32; 3]) -> Option<f64> {
+    if pa.iter().chain(pb.iter()).all(|c| c.is_finite()) {
+        Some((0..3).map(|c| (pb[c] as f64 - pa[c] as f64).abs()).sum::<f64>() / 3.0)
+    } else {
+        None
+    }
+}
+
+fn diff_scale(a: &Image, b: &Image) -> f64 {
+    a.pixels.iter().zip(&b.pixels).filter_map(|(pa, pb)| pixel_error(pa, pb)).fold(0.0, f64::max)
+}
+
+/// The false-colour difference image as 8-bit RGB: per-pixel mean absolute error / `scale`
+/// through the magma colour map, cyan where either image is non-finite.
+pub fn diff_rgb8(a: &Image, b: &Image, scale: f64) -> Vec<u8> {
+    let lut = nv_flip::magma_lut().to_vec();
+    let mut out = Vec::with_capacity(a.pixels.len() * 3);
+    for (pa, pb) in a.pixels.iter().zip(&b.pixels) {
+        match pixel_error(pa, pb) {
+            Some(e) => {
+                let t = if scale > 0.0 { (e / scale).clamp(0.0, 1.0) } else { 0.0 };
+                let i = ((t * 255.0).round() as usize).min(255);
+                out.extend_from_slice(&lut[3 * i..3 * i + 3]);
+            }
+            None => out.extend_from_slice(&[0, 255, 255]),
+        }
+    }
+    out
+}
+
+/// Write the false-colour difference PNG of two same-size images (scale = max error).
+pub fn write_diff_png(a: &Image, b: &Image, path: &Path) -> Result<f64, ImageError> {
+    check_same_size(a, "A", b, "B")?;
+    let scale = diff_scale(a, b);
+    write_png_rgb8(path, a.width, a.height, &diff_rgb8(a, b, scale))?;
+    Ok(scale)
+}
+
+/// Read two EXR files, compare them (A = reference) and optionally write the false-colour
+/// difference PNG.
+pub fn compare_files(
+    a: impl AsRef<Path>,
+    b: impl AsRef<Path>,
+    diff_png: Option<&Path>,
+) -> Result<Comparison, ImageError> {
+    let (a, b) = (a.as_ref(), b.as_ref());
+    let ia = Image::read_exr(a)?;
+    let ib = Image::read_exr(b)?;
+    let c = compare(&ia, &a.display().to_string(), &ib, &b.display().to_string())?;
+    if let Some(p) = diff_png {
+        write_png_rgb8(p, ia.width, ia.height, &diff_rgb8(&ia, &ib, c.diff_scale))?;
+    }
+    Ok(c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn gradient(w: u32, h: u32) -> Image {
+        Image::from_fn(w, h, |x, y| {
+            let t = (x + y * w) as f32 / (w * h) as f32;
+            [t, 0.5 * t + 0.1, 2.0 * (1.0 - t)]
+        })
+    }
+
+    #[test]
+    fn constant_offset_known_psnr_rmse() {
+        let a = gradient(32, 16);
+        let peak = a.pixels.iter().flat_map(|p| p.iter()).fold(0.0f32, |m, &c| m.max(c)) as f64;
+        let d = 0.01f32;
+        let b = Image { pixels: a.pixels.iter().map(|p| p.map(|c| c + d)).collect(), ..a.clone() };
+        let c = compare(&a, "a", &b, "b").unwrap();
+        // Every channel differs by d (up to f32 rounding of c + d).
+        assert!((c.rmse - d as f64).abs() < 1e-6, "rmse {}", c.rmse);
+        assert!((c.mean_abs_error - d as f64).abs() < 1e-6);
+        assert!((c.max_abs_error - d as f64).abs() < 1e-6);
+        let expect = 10.0 * (peak * peak / (d as f64 * d as f64)).log10();
+        assert!((c.psnr_db.unwrap() - expect).abs() < 1e-3, "{:?} vs {expect}", c.psnr_db);
+        assert_eq!(c.psnr_peak, peak);
+        assert!(!c.identical);
+        assert_eq!(c.pixels_compared, 32 * 16);
+        // relMSE: mean of d^2/(a^2+eps), computed independently.
+        let rel: f64 = a
+            .pixels
+            .iter()
+            .flat_map(|p| p.iter())
+            .map(|&x| (d as f64).powi(2) / ((x as f64).powi(2) + REL_EPSILON))
+            .sum::<f64>()
+            / (3.0 * 32.0 * 16.0);
+        assert!((c.rel_rmse - rel.sqrt()).abs() < 1e-4 * rel.sqrt());
+    }
+
+    #[test]
+    fn single_pixel_error() {
+        let a = Image::from_fn(10, 10, |_, _| [0.5, 0.5, 0.5]);
+        let mut b = a.clone();
+        b.set(3, 7, [0.5, 1.5, 0.5]);
+        let c = compare(&a, "a", &b, "b").unwrap();
+        // MSE = 1^2 / 300 channels; peak 0.5.
+        let mse = 1.0 / 300.0;
+        assert!((c.mse - mse).abs() < 1e-12);
+        assert!((c.rmse - mse.sqrt()).abs() < 1e-9);
+        assert!((c.psnr_db.unwrap() - 10.0 * (0.25 / mse).log10()).abs() < 1e-9);
+        assert_eq!(c.max_abs_error, 1.0);
+        assert_eq!(c.max_abs_error_at, [3, 7]);
+        assert!((c.mean_abs_error - 1.0 / 300.0).abs() < 1e-12);
+        assert!(c.flip_mean > 0.0 && c.flip_mean < 0.05, "flip {}", c.flip_mean);
+    }
+
+    #[test]
+    fn identical_images_infinite_psnr_is_null_in_json() {
+        let a = gradient(16, 16);
+        let c = compare(&a, "a", &a, "a").unwrap();
+        assert!(c.identical);
+        assert_eq!(c.psnr_db, None);
+        assert_eq!(c.rmse, 0.0);
+        assert_eq!(c.flip_mean, 0.0);
+        let j = serde_json::to_string(&c).unwrap();
+        assert!(j.contains("\"psnr_db\":null"), "{j}");
+        let back: Comparison = serde_json::from_str(&j).unwrap();
+        assert_eq!(back, c);
+    }
+
+    #[test]
+    fn size_mismatch_is_an_error_naming_both() {
+        let e = compare(&gradient(4, 4), "ref.exr", &gradient(4, 5), "test.exr").unwrap_err();
+        let m = e.to_string();
+        assert!(m.contains("ref.exr") && m.contains("test.exr") && m.contains("4x5"), "{m}");
+    }
+
+    #[test]
+    fn nan_pixels_are_counted_and_excluded() {
+        let a = gradient(8, 8);
+        let mut b = a.clone();
+        b.set(1, 1, [f32::NAN, 0.0, 0.0]);
+        b.set(2, 1, [0.0, f32::INFINITY, 0.0]);
+        let c = compare(&a, "a", &b, "b").unwrap();
+        assert_eq!(c.non_finite_b, 2);
+        assert_eq!(c.non_finite_a, 0);
+        assert_eq!(c.pixels_compared, 62);
+        assert_eq!(c.mse, 0.0);
+        assert!(!c.identical);
+        assert!(c.flip_mean.is_finite());
+        let rgb = diff_rgb8(&a, &b, 1.0);
+        assert_eq!(&rgb[3 * 9..3 * 9 + 3], &[0, 255, 255]);
+    }
+
+    #[test]
+    fn flip_grows_with_error() {
+        let a = gradient(32, 32);
+        let small = Image { pixels: a.pixels.iter().map(|p| p.map(|c| c * 1.02)).collect(), ..a.clone() };
+        let big = Image { pixels: a.pixels.iter().map(|p| p.map(|c| c * 1.5)).collect(), ..a.clone() };
+        let fs = compare(&a, "a", &small, "s").unwrap().flip_mean;
+        let fb = compare(&a, "a", &big, "b").unwrap().flip_mean;
+        assert!(fs < fb, "{fs} {fb}");
+    }
+
+    #[test]
+    fn exr_round_trip_and_file_errors() {
+        let dir = std::env::temp_dir().join(format!("penumbra-ref-metrics-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let a = gradient(12, 7);
+        let pa = dir.join("a.exr");
+        a.write_exr(&pa).unwrap();
+        let back = Image::read_exr(&pa).unwrap();
+        assert_eq!(back, a);
+        // Half-float RGBA file.
+        let ph = dir.join("half.exr");
+        exr::prelude::write_rgba_file(&ph, 12, 7, |x, y| {
+            let p = a.get(x as u32, y as u32);
+            (
+                exr::prelude::f16::from_f32(p[0]),
+                exr::prelude::f16::from_f32(p[1]),
+                exr::prelude::f16::from_f32(p[2]),
+                exr::prelude::f16::from_f32(1.0),
+            )
+        })
+        .unwrap();
+        let diff = dir.join("diff.png");
+        let c = compare_files(&pa, &ph, Some(&diff)).unwrap();
+        assert!(c.max_abs_error < 2e-3, "half rounding {}", c.max_abs_error);
+        assert!(std::fs::metadata(&diff).unwrap().len() > 0);
+        // Missing file.
+        let missing = dir.join("missing.exr");
+        let m = compare_files(&pa, &missing, None).unwrap_err().to_string();
+        assert!(m.contains("missing.exr") && m.contains("not found"), "{m}");
+        // Not an EXR.
+        let junk = dir.join("junk.exr");
+        std::fs::write(&junk, b"hello").unwrap();
+        let m = Image::read_exr(&junk).unwrap_err().to_string();
+        assert!(m.contains("junk.exr"), "{m}");
+        // Luminance-only EXR: unsupported channels.
+        let py = dir.join("y.exr");
+        let ch = exr::prelude::AnyChannels::sort(smallvec_one(exr::prelude::AnyChannel::new(
+            "Y",
+            exr::prelude::FlatSamples::F32(vec![0.5; 4]),
+        )));
+        exr::prelude::Image::from_channels((2, 2), ch).write().to_file(&py).unwrap();
+        let m = Image::read_exr(&py).unwrap_err().to_string();
+        assert!(m.contains("y.exr") && m.contains("unsupported channels") && m.contains("Y"), "{m}");
+        // Size mismatch from files.
+        let pb = dir.join("b.exr");
+        gradient(5, 5).write_exr(&pb).unwrap();
+        let m = compare_files(&pa, &pb, None).unwrap_err().to_string();
+        assert!(m.contains("a.exr") && m.contains("b.exr") && m.contains("12x7"), "{m}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    fn smallvec_one(
+        c: exr::prelude::AnyChannel<exr::prelude::FlatSamples>,
+    ) -> exr::prelude::SmallVec<[exr::prelude::AnyChannel<exr::prelude::FlatSamples>; 4]> {
+        let mut v = exr::prelude::SmallVec::new();
+        v.push(c);
+        v
+    }
+}
