@@ -436,6 +436,7 @@ mod tests {
             "Y",
             exr::prelude::FlatSamples::F32(vec![0.5; 4]),
         )));
+        use exr::prelude::WritableImage;
         exr::prelude::Image::from_channels((2, 2), ch).write().to_file(&py).unwrap();
         let m = Image::read_exr(&py).unwrap_err().to_string();
         assert!(m.contains("y.exr") && m.contains("unsupported channels") && m.contains("Y"), "{m}");

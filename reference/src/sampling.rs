@@ -333,6 +333,7 @@ impl EnvLight {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use glam::Vec3Swizzles;
 
     #[test]
     fn alias_table_matches_weights() {
