@@ -1,1 +1,15 @@
-//! Engine.
+//! penumbra's engine: Vulkan context and memory, resources, the explicit render graph, the
+//! executor with per-pass GPU timestamps, profiling and dumps.
+
+pub mod context;
+pub mod exec;
+pub mod glsl_compile;
+pub mod graph;
+pub mod profile;
+pub mod shader;
+
+pub use ash;
+pub use ash::vk;
+pub use context::{Context, ContextDesc, GpuBuffer, GpuImage, ValidationLog};
+pub use exec::{Bind, Engine, FrameOutput, PhysBuffer, PhysImage, RecordContext};
+pub use graph::{Access, BufferHandle, Graph, ImageDesc, ImageHandle, ImportedImage, PassKind};

@@ -5,6 +5,7 @@
 //! - [`render`]: Monte Carlo direct lighting with exact visibility ([`render::render`]).
 
 pub mod brdf;
+pub mod cli;
 pub mod geometry;
 pub mod image;
 pub mod metrics;

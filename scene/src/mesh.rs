@@ -135,7 +135,7 @@ impl MeshData {
     }
 }
 
-/// Edge statistics of a mesh after welding vertices with identical positions.
+/// Edge statistics of a mesh after welding coincident vertices (see [`MeshData::weld_ids`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct EdgeStats {
     /// Edges used by exactly one triangle (holes, open borders).
@@ -145,20 +145,11 @@ pub struct EdgeStats {
 }
 
 impl MeshData {
-    /// Boundary and non-manifold edge counts. Vertices at bit-identical positions are welded
+    /// Boundary and non-manifold edge counts. Coincident vertices are welded
     /// first, so UV / normal seams do not count as borders.
     pub fn edge_stats(&self) -> EdgeStats {
         use std::collections::HashMap;
-        let mut weld: HashMap<[u32; 3], u32> = HashMap::new();
-        let ids: Vec<u32> = self
-            .positions
-            .iter()
-            .map(|p| {
-                let key = [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()].map(|b| if b == 0x8000_0000 { 0 } else { b });
-                let n = weld.len() as u32;
-                *weld.entry(key).or_insert(n)
-            })
-            .collect();
+        let ids = self.weld_ids();
         let mut edges: HashMap<(u32, u32), u32> = HashMap::new();
         for t in self.indices.chunks_exact(3) {
             let v = [t[0], t[1], t[2]].map(|i| ids.get(i as usize).copied().unwrap_or(u32::MAX));
@@ -179,6 +170,47 @@ impl MeshData {
             }
         }
         s
+    }
+
+    /// For each vertex, the id of its welded vertex: vertices closer than 1e-6 of the bounding
+    /// box diagonal share an id.
+    pub fn weld_ids(&self) -> Vec<u32> {
+        use std::collections::HashMap;
+        let Some((lo, hi)) = self.bounds() else { return Vec::new() };
+        let eps = ((hi - lo).length() * 1e-6).max(1e-12);
+        let cell = |p: Vec3| {
+            let q = ((p - lo) / eps).floor();
+            [q.x as i64, q.y as i64, q.z as i64]
+        };
+        let mut grid: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
+        let mut ids = Vec::with_capacity(self.positions.len());
+        let mut reps: Vec<Vec3> = Vec::new();
+        for p in &self.positions {
+            let c = cell(*p);
+            let mut found = None;
+            'search: for dx in -1..=1 {
+                for dy in -1..=1 {
+                    for dz in -1..=1 {
+                        if let Some(v) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) {
+                            for &r in v {
+                                if reps[r as usize].distance(*p) <= eps {
+                                    found = Some(r);
+                                    break 'search;
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+            let id = found.unwrap_or_else(|| {
+                reps.push(*p);
+                let r = reps.len() as u32 - 1;
+                grid.entry(c).or_default().push(r);
+                r
+            });
+            ids.push(id);
+        }
+        ids
     }
 
     /// True when the mesh is a closed 2-manifold (no boundary or non-manifold edges), as
@@ -425,7 +457,7 @@ impl MeshData {
         let mut outer = Vec::new();
         outer.push(Vec2::new(0.0, 0.0));
         outer.push(Vec2::new(r * 0.5, 0.0));
-        for k in 0..=rings {
+        for k in 1..=rings {
             let s = k as f32 / rings as f32;
             let rr = r * (0.5 + 0.5 * s);
             outer.push(Vec2::new(rr, d * s * s));

@@ -1,0 +1,527 @@
+//! The Vulkan context: instance, device choice, one graphics+compute queue, gpu-allocator memory,
+//! debug-utils names and labels, and the validation-message log.
+//!
+//! Headless by default; a window surface can be used by passing the surface's instance
+//! extensions in [`ContextDesc::instance_extensions`] (see `ash_window::enumerate_required_extensions`).
+//! An application with its own instance/device uses [`Context::from_external`].
+
+use anyhow::{anyhow, bail, Context as _, Result};
+use ash::vk;
+use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme, Allocator, AllocatorCreateDesc};
+use gpu_allocator::MemoryLocation;
+use std::ffi::{c_char, CStr, CString};
+use std::mem::ManuallyDrop;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+
+use crate::graph::ImageDesc;
+
+/// Messages reported by the validation layer (or any debug-utils source).
+#[derive(Default, Debug)]
+pub struct ValidationLog {
+    errors: AtomicUsize,
+    warnings: AtomicUsize,
+    messages: Mutex<Vec<String>>,
+}
+
+impl ValidationLog {
+    pub fn error_count(&self) -> usize {
+        self.errors.load(Ordering::SeqCst)
+    }
+    pub fn warning_count(&self) -> usize {
+        self.warnings.load(Ordering::SeqCst)
+    }
+    /// Error messages (warnings are counted, not kept).
+    pub fn errors(&self) -> Vec<String> {
+        self.messages.lock().map(|m| m.clone()).unwrap_or_default()
+    }
+    fn push(&self, severity: vk::DebugUtilsMessageSeverityFlagsEXT, msg: String) {
+        if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) {
+            self.errors.fetch_add(1, Ordering::SeqCst);
+            if let Ok(mut m) = self.messages.lock() {
+                if m.len() < 1000 {
+                    m.push(msg);
+                }
+            }
+        } else if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::WARNING) {
+            self.warnings.fetch_add(1, Ordering::SeqCst);
+        }
+    }
+}
+
+unsafe extern "system" fn debug_callback(
+    severity: vk::DebugUtilsMessageSeverityFlagsEXT,
+    _types: vk::DebugUtilsMessageTypeFlagsEXT,
+    data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
+    user: *mut std::ffi::c_void,
+) -> vk::Bool32 {
+    if data.is_null() || user.is_null() {
+        return vk::FALSE;
+    }
+    let log = &*(user as *const ValidationLog);
+    let d = &*data;
+    let msg = if d.p_message.is_null() { String::new() } else { CStr::from_ptr(d.p_message).to_string_lossy().into_owned() };
+    if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) && std::env::var_os("PENUMBRA_QUIET_VALIDATION").is_none() {
+        eprintln!("[vulkan] {msg}");
+    }
+    log.push(severity, msg);
+    vk::FALSE
+}
+
+/// How to create a [`Context`].
+#[derive(Clone, Debug, Default)]
+pub struct ContextDesc {
+    /// Enable the Khronos validation layer with synchronization validation.
+    pub validation: bool,
+    /// Extra instance extensions (e.g. for a window surface).
+    pub instance_extensions: Vec<CString>,
+    /// Pick the physical device whose name contains this (else: discrete > integrated > virtual > CPU).
+    pub device_name: Option<String>,
+    /// Enable VK_KHR_swapchain (for a window).
+    pub swapchain: bool,
+}
+
+/// An image with its memory and a view of all mips.
+pub struct GpuImage {
+    pub name: String,
+    pub image: vk::Image,
+    pub view: vk::ImageView,
+    pub desc: ImageDesc,
+    pub usage: vk::ImageUsageFlags,
+    pub(crate) allocation: Option<Allocation>,
+}
+
+/// A buffer with its memory (mapped if host visible).
+pub struct GpuBuffer {
+    pub name: String,
+    pub buffer: vk::Buffer,
+    pub size: u64,
+    pub usage: vk::BufferUsageFlags,
+    pub host_visible: bool,
+    pub(crate) allocation: Option<Allocation>,
+}
+
+impl GpuBuffer {
+    /// The mapped bytes of a host-visible buffer.
+    pub fn mapped(&self) -> Option<&[u8]> {
+        let a = self.allocation.as_ref()?;
+        let p = a.mapped_ptr()?;
+        Some(unsafe { std::slice::from_raw_parts(p.as_ptr() as *const u8, self.size as usize) })
+    }
+    /// Writes `data` at the start of a host-visible buffer (only while the GPU does not use it).
+    pub fn write(&mut self, data: &[u8]) -> Result<()> {
+        let a = self.allocation.as_mut().ok_or_else(|| anyhow!("buffer '{}' has no memory", self.name))?;
+        let s = a.mapped_slice_mut().ok_or_else(|| anyhow!("buffer '{}' is not host visible", self.name))?;
+        if data.len() > s.len() {
+            bail!("buffer '{}': {} bytes do not fit in {}", self.name, data.len(), s.len());
+        }
+        s[..data.len()].copy_from_slice(data);
+        Ok(())
+    }
+}
+
+pub struct Context {
+    pub entry: ash::Entry,
+    pub instance: ash::Instance,
+    pub physical: vk::PhysicalDevice,
+    pub device: ash::Device,
+    pub queue: vk::Queue,
+    pub queue_family: u32,
+    pub device_name: String,
+    /// Nanoseconds per timestamp tick.
+    pub timestamp_period: f64,
+    pub timestamp_valid_bits: u32,
+    pub push_descriptor: ash::khr::push_descriptor::Device,
+    pub debug_utils: Option<ash::ext::debug_utils::Device>,
+    debug_instance: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    pub validation: Arc<ValidationLog>,
+    pub validation_enabled: bool,
+    allocator: ManuallyDrop<Mutex<Allocator>>,
+    owned: bool,
+}
+
+fn device_rank(t: vk::PhysicalDeviceType) -> u32 {
+    match t {
+        vk::PhysicalDeviceType::DISCRETE_GPU => 0,
+        vk::PhysicalDeviceType::INTEGRATED_GPU => 1,
+        vk::PhysicalDeviceType::VIRTUAL_GPU => 2,
+        vk::PhysicalDeviceType::CPU => 3,
+        _ => 4,
+    }
+}
+
+impl Context {
+    /// Creates an instance and a device of its own.
+    pub fn new(desc: &ContextDesc) -> Result<Arc<Context>> {
+        let entry = unsafe { ash::Entry::load() }
+            .map_err(|e| anyhow!("cannot load the Vulkan loader ({e}); install libvulkan1 and a driver (mesa-vulkan-drivers)"))?;
+        let layer_name = c"VK_LAYER_KHRONOS_validation";
+        let layers_avail = unsafe { entry.enumerate_instance_layer_properties()? };
+        let has_layer = layers_avail.iter().any(|l| l.layer_name_as_c_str().map_or(false, |n| n == layer_name));
+        if desc.validation && !has_layer {
+            bail!("validation requested but VK_LAYER_KHRONOS_validation is not installed (apt-get install vulkan-validationlayers)");
+        }
+        let ext_avail = unsafe { entry.enumerate_instance_extension_properties(None)? };
+        let has_ext = |n: &CStr| ext_avail.iter().any(|e| e.extension_name_as_c_str().map_or(false, |x| x == n));
+        let debug_ext = ash::ext::debug_utils::NAME;
+        let has_debug = has_ext(debug_ext);
+        let mut exts: Vec<*const c_char> = desc.instance_extensions.iter().map(|e| e.as_ptr()).collect();
+        if has_debug {
+            exts.push(debug_ext.as_ptr());
+        }
+        let layers: Vec<*const c_char> = if desc.validation { vec![layer_name.as_ptr()] } else { vec![] };
+        let app = vk::ApplicationInfo::default()
+            .application_name(c"penumbra")
+            .engine_name(c"penumbra")
+            .api_version(vk::API_VERSION_1_3);
+        let enables = [vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION];
+        let mut features = vk::ValidationFeaturesEXT::default().enabled_validation_features(&enables);
+        let validation = Arc::new(ValidationLog::default());
+        let severity = vk::DebugUtilsMessageSeverityFlagsEXT::ERROR | vk::DebugUtilsMessageSeverityFlagsEXT::WARNING;
+        let types = vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
+            | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+            | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE;
+        let mut messenger_info = vk::DebugUtilsMessengerCreateInfoEXT::default()
+            .message_severity(severity)
+            .message_type(types)
+            .pfn_user_callback(Some(debug_callback))
+            .user_data(Arc::as_ptr(&validation) as *mut std::ffi::c_void);
+        let mut ci = vk::InstanceCreateInfo::default()
+            .application_info(&app)
+            .enabled_extension_names(&exts)
+            .enabled_layer_names(&layers);
+        if desc.validation {
+            ci = ci.push_next(&mut features);
+        }
+        if has_debug {
+            // Also catches messages from vkCreateInstance/vkDestroyInstance.
+            ci = ci.push_next(&mut messenger_info);
+        }
+        let instance = unsafe { entry.create_instance(&ci, None) }.context("vkCreateInstance")?;
+        let debug_instance = if has_debug {
+            let di = ash::ext::debug_utils::Instance::new(&entry, &instance);
+            let m = unsafe { di.create_debug_utils_messenger(&messenger_info, None) }.context("debug messenger")?;
+            Some((di, m))
+        } else {
+            None
+        };
+
+        // ---- physical device
+        let phys = unsafe { instance.enumerate_physical_devices()? };
+        let mut candidates = Vec::new();
+        let mut rejected = Vec::new();
+        for p in phys {
+            let props = unsafe { instance.get_physical_device_properties(p) };
+            let name = props.device_name_as_c_str().map(|c| c.to_string_lossy().into_owned()).unwrap_or_default();
+            if vk::api_version_minor(props.api_version) < 3 && vk::api_version_major(props.api_version) == 1 {
+                rejected.push(format!("{name}: Vulkan 1.3 required"));
+                continue;
+            }
+            let dev_exts = unsafe { instance.enumerate_device_extension_properties(p)? };
+            let has = |n: &CStr| dev_exts.iter().any(|e| e.extension_name_as_c_str().map_or(false, |x| x == n));
+            if !has(ash::khr::push_descriptor::NAME) {
+                rejected.push(format!("{name}: VK_KHR_push_descriptor missing"));
+                continue;
+            }
+            let qf = unsafe { instance.get_physical_device_queue_family_properties(p) };
+            let Some(family) = qf.iter().position(|q| {
+                q.queue_flags.contains(vk::QueueFlags::GRAPHICS | vk::QueueFlags::COMPUTE) && q.timestamp_valid_bits > 0
+            }) else {
+                rejected.push(format!("{name}: no graphics+compute queue with timestamps"));
+                continue;
+            };
+            if let Some(want) = &desc.device_name {
+                if !name.to_lowercase().contains(&want.to_lowercase()) {
+                    rejected.push(format!("{name}: not '{want}'"));
+                    continue;
+                }
+            }
+            candidates.push((device_rank(props.device_type), p, family as u32, name, props, qf[family].timestamp_valid_bits));
+        }
+        candidates.sort_by_key(|c| c.0);
+        let Some((_, physical, queue_family, device_name, props, ts_bits)) = candidates.into_iter().next() else {
+            bail!("no usable Vulkan device: {}", if rejected.is_empty() { "none found".into() } else { rejected.join("; ") });
+        };
+
+        // ---- device
+        let mut dev_exts = vec![ash::khr::push_descriptor::NAME.as_ptr()];
+        if desc.swapchain {
+            dev_exts.push(ash::khr::swapchain::NAME.as_ptr());
+        }
+        let avail = unsafe { instance.get_physical_device_features(physical) };
+        let f10 = vk::PhysicalDeviceFeatures::default()
+            .tessellation_shader(avail.tessellation_shader == vk::TRUE)
+            .geometry_shader(avail.geometry_shader == vk::TRUE)
+            .shader_storage_image_write_without_format(avail.shader_storage_image_write_without_format == vk::TRUE)
+            .fill_mode_non_solid(avail.fill_mode_non_solid == vk::TRUE)
+            .sampler_anisotropy(avail.sampler_anisotropy == vk::TRUE);
+        let mut f12 = vk::PhysicalDeviceVulkan12Features::default().host_query_reset(true).scalar_block_layout(true);
+        let mut f13 = vk::PhysicalDeviceVulkan13Features::default().synchronization2(true).dynamic_rendering(true);
+        let prio = [1.0f32];
+        let qci = [vk::DeviceQueueCreateInfo::default().queue_family_index(queue_family).queue_priorities(&prio)];
+        let dci = vk::DeviceCreateInfo::default()
+            .queue_create_infos(&qci)
+            .enabled_extension_names(&dev_exts)
+            .enabled_features(&f10)
+            .push_next(&mut f12)
+            .push_next(&mut f13);
+        let device = unsafe { instance.create_device(physical, &dci, None) }.context("vkCreateDevice")?;
+        let queue = unsafe { device.get_device_queue(queue_family, 0) };
+        let ctx = Self::assemble(
+            entry,
+            instance,
+            physical,
+            device,
+            queue,
+            queue_family,
+            device_name,
+            props.limits.timestamp_period as f64,
+            ts_bits,
+            debug_instance,
+            validation,
+            desc.validation,
+            true,
+        )?;
+        Ok(Arc::new(ctx))
+    }
+
+    /// Wraps an application's instance/device/queue. The device must have been created with
+    /// Vulkan 1.3 `synchronization2` and `dynamicRendering`, Vulkan 1.2 `hostQueryReset` and
+    /// `scalarBlockLayout`, and `VK_KHR_push_descriptor`. penumbra does not destroy them.
+    #[allow(clippy::too_many_arguments)]
+    pub fn from_external(
+        entry: ash::Entry,
+        instance: ash::Instance,
+        physical: vk::PhysicalDevice,
+        device: ash::Device,
+        queue: vk::Queue,
+        queue_family: u32,
+    ) -> Result<Arc<Context>> {
+        let props = unsafe { instance.get_physical_device_properties(physical) };
+        let name = props.device_name_as_c_str().map(|c| c.to_string_lossy().into_owned()).unwrap_or_default();
+        let qf = unsafe { instance.get_physical_device_queue_family_properties(physical) };
+        let bits = qf.get(queue_family as usize).map(|q| q.timestamp_valid_bits).unwrap_or(0);
+        let ctx = Self::assemble(
+            entry,
+            instance,
+            physical,
+            device,
+            queue,
+            queue_family,
+            name,
+            props.limits.timestamp_period as f64,
+            bits,
+            None,
+            Arc::new(ValidationLog::default()),
+            false,
+            false,
+        )?;
+        Ok(Arc::new(ctx))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn assemble(
+        entry: ash::Entry,
+        instance: ash::Instance,
+        physical: vk::PhysicalDevice,
+        device: ash::Device,
+        queue: vk::Queue,
+        queue_family: u32,
+        device_name: String,
+        timestamp_period: f64,
+        timestamp_valid_bits: u32,
+        debug_instance: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+        validation: Arc<ValidationLog>,
+        validation_enabled: bool,
+        owned: bool,
+    ) -> Result<Context> {
+        let allocator = Allocator::new(&AllocatorCreateDesc {
+            instance: instance.clone(),
+            device: device.clone(),
+            physical_device: physical,
+            debug_settings: Default::default(),
+            buffer_device_address: false,
+            allocation_sizes: Default::default(),
+        })
+        .context("gpu-allocator")?;
+        let push_descriptor = ash::khr::push_descriptor::Device::new(&instance, &device);
+        let debug_utils = debug_instance.as_ref().map(|_| ash::ext::debug_utils::Device::new(&instance, &device));
+        Ok(Context {
+            entry,
+            instance,
+            physical,
+            device,
+            queue,
+            queue_family,
+            device_name,
+            timestamp_period,
+            timestamp_valid_bits,
+            push_descriptor,
+            debug_utils,
+            debug_instance,
+            validation,
+            validation_enabled,
+            allocator: ManuallyDrop::new(Mutex::new(allocator)),
+            owned,
+        })
+    }
+
+    /// Names a Vulkan object for validation messages and capture tools.
+    pub fn set_name<H: vk::Handle>(&self, handle: H, name: &str) {
+        if let Some(du) = &self.debug_utils {
+            let Ok(n) = CString::new(name) else { return };
+            let info = vk::DebugUtilsObjectNameInfoEXT::default().object_handle(handle).object_name(&n);
+            unsafe {
+                let _ = du.set_debug_utils_object_name(&info);
+            }
+        }
+    }
+
+    pub fn begin_label(&self, cmd: vk::CommandBuffer, name: &str) {
+        if let Some(du) = &self.debug_utils {
+            let Ok(n) = CString::new(name) else { return };
+            let label = vk::DebugUtilsLabelEXT::default().label_name(&n);
+            unsafe { du.cmd_begin_debug_utils_label(cmd, &label) };
+        }
+    }
+
+    pub fn end_label(&self, cmd: vk::CommandBuffer) {
+        if let Some(du) = &self.debug_utils {
+            unsafe { du.cmd_end_debug_utils_label(cmd) };
+        }
+    }
+
+    fn allocate(&self, name: &str, req: vk::MemoryRequirements, location: MemoryLocation, linear: bool) -> Result<Allocation> {
+        let mut a = self.allocator.lock().map_err(|_| anyhow!("allocator lock poisoned"))?;
+        a.allocate(&AllocationCreateDesc {
+            name,
+            requirements: req,
+            location,
+            linear,
+            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+        })
+        .with_context(|| format!("allocating memory for '{name}'"))
+    }
+
+    /// Creates a 2D image (all mips/layers in one view).
+    pub fn create_image(&self, name: &str, desc: &ImageDesc, usage: vk::ImageUsageFlags) -> Result<GpuImage> {
+        if desc.width == 0 || desc.height == 0 {
+            bail!("image '{name}' has a zero extent {}x{}", desc.width, desc.height);
+        }
+        let ci = vk::ImageCreateInfo::default()
+            .image_type(vk::ImageType::TYPE_2D)
+            .format(desc.format)
+            .extent(vk::Extent3D { width: desc.width, height: desc.height, depth: 1 })
+            .mip_levels(desc.mip_levels)
+            .array_layers(desc.array_layers)
+            .samples(vk::SampleCountFlags::TYPE_1)
+            .tiling(vk::ImageTiling::OPTIMAL)
+            .usage(usage)
+            .sharing_mode(vk::SharingMode::EXCLUSIVE)
+            .initial_layout(vk::ImageLayout::UNDEFINED);
+        let image = unsafe { self.device.create_image(&ci, None) }.with_context(|| format!("vkCreateImage '{name}'"))?;
+        let req = unsafe { self.device.get_image_memory_requirements(image) };
+        let allocation = match self.allocate(name, req, MemoryLocation::GpuOnly, false) {
+            Ok(a) => a,
+            Err(e) => {
+                unsafe { self.device.destroy_image(image, None) };
+                return Err(e);
+            }
+        };
+        unsafe { self.device.bind_image_memory(image, allocation.memory(), allocation.offset())? };
+        let view_type = if desc.array_layers > 1 { vk::ImageViewType::TYPE_2D_ARRAY } else { vk::ImageViewType::TYPE_2D };
+        let vci = vk::ImageViewCreateInfo::default()
+            .image(image)
+            .view_type(view_type)
+            .format(desc.format)
+            .subresource_range(vk::ImageSubresourceRange {
+                aspect_mask: desc.aspect(),
+                base_mip_level: 0,
+                level_count: desc.mip_levels,
+                base_array_layer: 0,
+                layer_count: desc.array_layers,
+            });
+        let view = unsafe { self.device.create_image_view(&vci, None) }?;
+        self.set_name(image, name);
+        self.set_name(view, &format!("{name}.view"));
+        Ok(GpuImage { name: name.to_string(), image, view, desc: desc.clone(), usage, allocation: Some(allocation) })
+    }
+
+    /// Creates a buffer; host-visible ones are persistently mapped.
+    pub fn create_buffer(&self, name: &str, size: u64, usage: vk::BufferUsageFlags, host_visible: bool) -> Result<GpuBuffer> {
+        let size = size.max(4);
+        let ci = vk::BufferCreateInfo::default().size(size).usage(usage).sharing_mode(vk::SharingMode::EXCLUSIVE);
+        let buffer = unsafe { self.device.create_buffer(&ci, None) }.with_context(|| format!("vkCreateBuffer '{name}'"))?;
+        let req = unsafe { self.device.get_buffer_memory_requirements(buffer) };
+        let loc = if host_visible { MemoryLocation::CpuToGpu } else { MemoryLocation::GpuOnly };
+        let allocation = match self.allocate(name, req, loc, true) {
+            Ok(a) => a,
+            Err(e) => {
+                unsafe { self.device.destroy_buffer(buffer, None) };
+                return Err(e);
+            }
+        };
+        unsafe { self.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset())? };
+        self.set_name(buffer, name);
+        Ok(GpuBuffer { name: name.to_string(), buffer, size, usage, host_visible, allocation: Some(allocation) })
+    }
+
+    /// A host-visible buffer holding `data` (meshes, constants): contents visible to the GPU at
+    /// the next queue submission.
+    pub fn create_buffer_with_data(&self, name: &str, data: &[u8], usage: vk::BufferUsageFlags) -> Result<GpuBuffer> {
+        let mut b = self.create_buffer(name, data.len() as u64, usage, true)?;
+        b.write(data)?;
+        Ok(b)
+    }
+
+    pub fn destroy_image(&self, mut img: GpuImage) {
+        unsafe {
+            self.device.destroy_image_view(img.view, None);
+            self.device.destroy_image(img.image, None);
+        }
+        if let Some(a) = img.allocation.take() {
+            if let Ok(mut al) = self.allocator.lock() {
+                let _ = al.free(a);
+            }
+        }
+    }
+
+    pub fn destroy_buffer(&self, mut buf: GpuBuffer) {
+        unsafe { self.device.destroy_buffer(buf.buffer, None) };
+        if let Some(a) = buf.allocation.take() {
+            if let Ok(mut al) = self.allocator.lock() {
+                let _ = al.free(a);
+            }
+        }
+    }
+
+    pub fn wait_idle(&self) -> Result<()> {
+        unsafe { self.device.device_wait_idle()? };
+        Ok(())
+    }
+
+    /// Creates a shader module from SPIR-V bytes (as embedded by build.rs).
+    pub fn create_shader_module(&self, name: &str, spirv: &[u8]) -> Result<vk::ShaderModule> {
+        let words = ash::util::read_spv(&mut std::io::Cursor::new(spirv)).with_context(|| format!("shader '{name}' is not SPIR-V"))?;
+        let ci = vk::ShaderModuleCreateInfo::default().code(&words);
+        let m = unsafe { self.device.create_shader_module(&ci, None) }.with_context(|| format!("shader module '{name}'"))?;
+        self.set_name(m, name);
+        Ok(m)
+    }
+}
+
+impl Drop for Context {
+    fn drop(&mut self) {
+        unsafe {
+            let _ = self.device.device_wait_idle();
+            ManuallyDrop::drop(&mut self.allocator);
+            if self.owned {
+                self.device.destroy_device(None);
+                if let Some((di, m)) = self.debug_instance.take() {
+                    di.destroy_debug_utils_messenger(m, None);
+                }
+                self.instance.destroy_instance(None);
+            }
+        }
+    }
+}

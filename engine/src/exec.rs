@@ -1,0 +1,673 @@
+//! The executor: allocates a compiled graph's resources (transients from a pool reused across
+//! frames, persistent resources kept by name, imported ones as given), records every live pass
+//! between timestamp queries and a debug label with its barriers in one `vkCmdPipelineBarrier2`,
+//! submits, and collects results (readbacks, timings) when the frame's fence has signalled,
+//! without stalling the frames still in flight.
+
+use crate::context::{Context, GpuBuffer, GpuImage};
+use crate::graph::compile::{Barrier, CompiledGraph, ResourceState};
+use crate::graph::{
+    BufferHandle, External, Graph, GraphHandle, ImageDesc, ImageHandle, Origin, Problem, ResourceDesc,
+};
+use crate::profile::Profiler;
+use anyhow::{anyhow, bail, Context as _, Result};
+use ash::vk;
+use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// A resolved image for pass recording.
+#[derive(Clone, Debug)]
+pub struct PhysImage {
+    pub image: vk::Image,
+    pub view: vk::ImageView,
+    pub desc: ImageDesc,
+}
+
+/// A resolved buffer for pass recording.
+#[derive(Clone, Copy, Debug)]
+pub struct PhysBuffer {
+    pub buffer: vk::Buffer,
+    pub size: u64,
+}
+
+/// What a pass's record closure gets.
+pub struct RecordContext<'a> {
+    pub ctx: &'a Context,
+    pub cmd: vk::CommandBuffer,
+    pub pass: &'a str,
+    declared: Vec<(u32, crate::graph::Access)>,
+    images: &'a [Option<PhysImage>],
+    buffers: &'a [Option<PhysBuffer>],
+    names: &'a [String],
+}
+
+impl<'a> RecordContext<'a> {
+    pub fn device(&self) -> &ash::Device {
+        &self.ctx.device
+    }
+
+    fn check(&self, id: u32) -> Result<()> {
+        if !self.declared.iter().any(|d| d.0 == id) {
+            let resource = self.names.get(id as usize).cloned().unwrap_or_else(|| format!("#{id}"));
+            return Err(anyhow!(Problem::Undeclared { pass: self.pass.to_string(), resource }.to_string()));
+        }
+        Ok(())
+    }
+
+    /// The image behind a handle this pass declared.
+    pub fn image(&self, h: ImageHandle) -> Result<&PhysImage> {
+        self.check(h.raw().0)?;
+        self.images
+            .get(h.raw().0 as usize)
+            .and_then(|i| i.as_ref())
+            .ok_or_else(|| anyhow!("pass '{}': image #{} is not allocated", self.pass, h.raw().0))
+    }
+
+    fn name(&self, id: u32) -> String {
+        self.names.get(id as usize).cloned().unwrap_or_default()
+    }
+
+    /// Checks that the pass declared `id` with an access satisfying `ok`, for a descriptor of `what`.
+    fn check_bind(&self, id: u32, what: &str, ok: impl Fn(crate::graph::Access) -> bool) -> Result<()> {
+        self.check(id)?;
+        let declared: Vec<_> = self.declared.iter().filter(|d| d.0 == id).map(|d| d.1).collect();
+        if !declared.iter().any(|a| ok(*a)) {
+            bail!(
+                "pass '{}' binds '{}' as {what}, but declared it as {:?}",
+                self.pass,
+                self.name(id),
+                declared
+            );
+        }
+        Ok(())
+    }
+
+    /// Pushes descriptors (VK_KHR_push_descriptor) for `set`, binding i = `binds[i]`. Every
+    /// binding is checked against the pass's declarations: a storage image declared as sampled
+    /// (or any other mismatch) is an error, and image layouts come from the declared access.
+    pub fn push_descriptors(
+        &self,
+        bind_point: vk::PipelineBindPoint,
+        layout: vk::PipelineLayout,
+        set: u32,
+        binds: &[Bind],
+    ) -> Result<()> {
+        use crate::graph::Access as A;
+        let mut image_infos: Vec<[vk::DescriptorImageInfo; 1]> = Vec::new();
+        let mut buffer_infos: Vec<[vk::DescriptorBufferInfo; 1]> = Vec::new();
+        let mut kinds = Vec::new();
+        for b in binds {
+            match *b {
+                Bind::SampledImage(h, sampler) => {
+                    self.check_bind(h.raw().0, "a sampled image", |a| {
+                        matches!(a, A::VertexShaderReadSampled | A::FragmentShaderReadSampled | A::ComputeShaderReadSampled)
+                    })?;
+                    let img = self.image(h)?;
+                    image_infos.push([vk::DescriptorImageInfo {
+                        sampler,
+                        image_view: img.view,
+                        image_layout: vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
+                    }]);
+                    kinds.push((vk::DescriptorType::COMBINED_IMAGE_SAMPLER, image_infos.len() - 1));
+                }
+                Bind::StorageImage(h) => {
+                    self.check_bind(h.raw().0, "a storage image", |a| {
+                        matches!(
+                            a,
+                            A::FragmentShaderReadStorage
+                                | A::ComputeShaderReadStorage
+                                | A::ComputeShaderWriteStorage
+                                | A::ComputeShaderReadWriteStorage
+                        )
+                    })?;
+                    let img = self.image(h)?;
+                    image_infos.push([vk::DescriptorImageInfo {
+                        sampler: vk::Sampler::null(),
+                        image_view: img.view,
+                        image_layout: vk::ImageLayout::GENERAL,
+                    }]);
+                    kinds.push((vk::DescriptorType::STORAGE_IMAGE, image_infos.len() - 1));
+                }
+                Bind::UniformBuffer(h) => {
+                    self.check_bind(h.raw().0, "a uniform buffer", |a| a == A::AnyShaderReadUniform)?;
+                    let buf = self.buffer(h)?;
+                    buffer_infos.push([vk::DescriptorBufferInfo { buffer: buf.buffer, offset: 0, range: vk::WHOLE_SIZE }]);
+                    kinds.push((vk::DescriptorType::UNIFORM_BUFFER, buffer_infos.len() - 1));
+                }
+                Bind::StorageBuffer(h) => {
+                    self.check_bind(h.raw().0, "a storage buffer", |a| {
+                        matches!(
+                            a,
+                            A::VertexShaderReadStorage
+                                | A::FragmentShaderReadStorage
+                                | A::ComputeShaderReadStorage
+                                | A::ComputeShaderWriteStorage
+                                | A::ComputeShaderReadWriteStorage
+                        )
+                    })?;
+                    let buf = self.buffer(h)?;
+                    buffer_infos.push([vk::DescriptorBufferInfo { buffer: buf.buffer, offset: 0, range: vk::WHOLE_SIZE }]);
+                    kinds.push((vk::DescriptorType::STORAGE_BUFFER, buffer_infos.len() - 1));
+                }
+            }
+        }
+        let writes: Vec<vk::WriteDescriptorSet> = kinds
+            .iter()
+            .enumerate()
+            .map(|(binding, (ty, idx))| {
+                let w = vk::WriteDescriptorSet::default().dst_binding(binding as u32).descriptor_type(*ty);
+                match *ty {
+                    vk::DescriptorType::UNIFORM_BUFFER | vk::DescriptorType::STORAGE_BUFFER => w.buffer_info(&buffer_infos[*idx]),
+                    _ => w.image_info(&image_infos[*idx]),
+                }
+            })
+            .collect();
+        unsafe { self.ctx.push_descriptor.cmd_push_descriptor_set(self.cmd, bind_point, layout, set, &writes) };
+        Ok(())
+    }
+
+    /// The buffer behind a handle this pass declared.
+    pub fn buffer(&self, h: BufferHandle) -> Result<PhysBuffer> {
+        self.check(h.raw().0)?;
+        self.buffers
+            .get(h.raw().0 as usize)
+            .and_then(|b| *b)
+            .ok_or_else(|| anyhow!("pass '{}': buffer #{} is not allocated", self.pass, h.raw().0))
+    }
+}
+
+/// One descriptor binding for [`RecordContext::push_descriptors`].
+#[derive(Clone, Copy, Debug)]
+pub enum Bind {
+    SampledImage(ImageHandle, vk::Sampler),
+    StorageImage(ImageHandle),
+    UniformBuffer(BufferHandle),
+    StorageBuffer(BufferHandle),
+}
+
+/// The results of one frame, available once its fence signalled.
+#[derive(Debug, Default)]
+pub struct FrameOutput {
+    pub frame: u64,
+    /// Contents of the graph's readback buffers, by name.
+    pub readbacks: BTreeMap<String, Vec<u8>>,
+    /// GPU milliseconds per live pass, in recording order.
+    pub gpu_ms: Vec<(String, f64)>,
+}
+
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+enum PoolKey {
+    Image(ImageDesc, vk::ImageUsageFlags),
+    Buffer(u64, vk::BufferUsageFlags, bool),
+}
+
+enum PoolItem {
+    Image(GpuImage),
+    Buffer(GpuBuffer),
+}
+
+struct InFlight {
+    frame: u64,
+    passes: Vec<String>,
+    transients: Vec<(PoolKey, PoolItem)>,
+    readbacks: Vec<(String, usize)>,
+}
+
+struct FrameSlot {
+    cmd_pool: vk::CommandPool,
+    cmd: vk::CommandBuffer,
+    fence: vk::Fence,
+    queries: vk::QueryPool,
+    query_capacity: u32,
+    in_flight: Option<InFlight>,
+}
+
+struct Persistent {
+    desc: ResourceDesc,
+    item: PoolItem,
+    state: ResourceState,
+}
+
+/// Pool statistics (for tests and dumps).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PoolStats {
+    pub created: usize,
+    pub reused: usize,
+}
+
+/// Runs graphs on a [`Context`]. Keeps `frames_in_flight` frames on the GPU at once.
+pub struct Engine {
+    pub ctx: Arc<Context>,
+    slots: Vec<FrameSlot>,
+    next_slot: usize,
+    frame: u64,
+    free: Vec<(PoolKey, PoolItem)>,
+    persistent: HashMap<String, Persistent>,
+    pub profiler: Profiler,
+    pub pool_stats: PoolStats,
+    /// Write timestamps around every pass.
+    pub timestamps: bool,
+}
+
+const MAX_QUERIES: u32 = 256;
+
+impl Engine {
+    pub fn new(ctx: Arc<Context>, frames_in_flight: usize) -> Result<Self> {
+        let mut slots = Vec::new();
+        for i in 0..frames_in_flight.max(1) {
+            let d = &ctx.device;
+            let cmd_pool = unsafe {
+                d.create_command_pool(
+                    &vk::CommandPoolCreateInfo::default()
+                        .queue_family_index(ctx.queue_family)
+                        .flags(vk::CommandPoolCreateFlags::TRANSIENT),
+                    None,
+                )?
+            };
+            let cmd = unsafe {
+                d.allocate_command_buffers(
+                    &vk::CommandBufferAllocateInfo::default()
+                        .command_pool(cmd_pool)
+                        .level(vk::CommandBufferLevel::PRIMARY)
+                        .command_buffer_count(1),
+                )?[0]
+            };
+            let fence = unsafe { d.create_fence(&vk::FenceCreateInfo::default(), None)? };
+            let queries = unsafe {
+                d.create_query_pool(
+                    &vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(MAX_QUERIES),
+                    None,
+                )?
+            };
+            ctx.set_name(cmd_pool, &format!("frame_slot{i}.cmd_pool"));
+            ctx.set_name(cmd, &format!("frame_slot{i}.cmd"));
+            ctx.set_name(fence, &format!("frame_slot{i}.fence"));
+            ctx.set_name(queries, &format!("frame_slot{i}.timestamps"));
+            slots.push(FrameSlot { cmd_pool, cmd, fence, queries, query_capacity: MAX_QUERIES, in_flight: None });
+        }
+        Ok(Engine {
+            ctx,
+            slots,
+            next_slot: 0,
+            frame: 0,
+            free: Vec::new(),
+            persistent: HashMap::new(),
+            profiler: Profiler::default(),
+            pool_stats: PoolStats::default(),
+            timestamps: true,
+        })
+    }
+
+    /// Frames submitted so far.
+    pub fn frame_index(&self) -> u64 {
+        self.frame
+    }
+
+    /// Declares a persistent image in `graph`, carrying its state from the previous frame.
+    /// A changed description (e.g. a resize) starts it afresh.
+    pub fn persistent_image(&mut self, graph: &mut Graph, name: &str, desc: ImageDesc) -> ImageHandle {
+        let state = self.persistent_state(name, &ResourceDesc::Image(desc.clone()));
+        graph.persistent_image(name, desc, state)
+    }
+
+    /// Declares a persistent buffer in `graph`.
+    pub fn persistent_buffer(&mut self, graph: &mut Graph, name: &str, size: u64) -> BufferHandle {
+        let d = ResourceDesc::Buffer(crate::graph::BufferDesc { size, host_visible: false });
+        let state = self.persistent_state(name, &d);
+        graph.persistent_buffer(name, size, state)
+    }
+
+    fn persistent_state(&mut self, name: &str, desc: &ResourceDesc) -> Option<ResourceState> {
+        match self.persistent.get(name) {
+            Some(p) if &p.desc == desc => Some(p.state.clone()),
+            Some(_) => {
+                // Described differently now: drop it once the GPU is done with it.
+                if let Some(p) = self.persistent.remove(name) {
+                    let _ = self.ctx.wait_idle();
+                    self.destroy_item(p.item);
+                }
+                None
+            }
+            None => None,
+        }
+    }
+
+    fn destroy_item(&self, item: PoolItem) {
+        match item {
+            PoolItem::Image(i) => self.ctx.destroy_image(i),
+            PoolItem::Buffer(b) => self.ctx.destroy_buffer(b),
+        }
+    }
+
+    fn take(&mut self, key: PoolKey, name: &str) -> Result<PoolItem> {
+        if let Some(pos) = self.free.iter().position(|(k, _)| *k == key) {
+            self.pool_stats.reused += 1;
+            let (_, item) = self.free.swap_remove(pos);
+            // Re-label the pooled object with its current use.
+            match &item {
+                PoolItem::Image(i) => {
+                    self.ctx.set_name(i.image, name);
+                    self.ctx.set_name(i.view, &format!("{name}.view"));
+                }
+                PoolItem::Buffer(b) => self.ctx.set_name(b.buffer, name),
+            }
+            return Ok(item);
+        }
+        self.pool_stats.created += 1;
+        Ok(match &key {
+            PoolKey::Image(desc, usage) => PoolItem::Image(self.ctx.create_image(name, desc, *usage)?),
+            PoolKey::Buffer(size, usage, host) => PoolItem::Buffer(self.ctx.create_buffer(name, *size, *usage, *host)?),
+        })
+    }
+
+    /// Waits for a slot's frame and collects its output.
+    fn retire(&mut self, slot: usize) -> Result<Option<FrameOutput>> {
+        let Some(f) = self.slots[slot].in_flight.take() else { return Ok(None) };
+        let d = &self.ctx.device;
+        let s = &self.slots[slot];
+        unsafe { d.wait_for_fences(&[s.fence], true, u64::MAX).context("waiting for a frame")? };
+        unsafe { d.reset_fences(&[s.fence])? };
+        let mut out = FrameOutput { frame: f.frame, ..Default::default() };
+        if self.timestamps && !f.passes.is_empty() {
+            let n = (f.passes.len() * 2) as u32;
+            let mut ts = vec![0u64; n as usize];
+            unsafe {
+                d.get_query_pool_results(s.queries, 0, &mut ts, vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT)
+                    .context("reading timestamps")?;
+            }
+            let mask = if self.ctx.timestamp_valid_bits >= 64 { u64::MAX } else { (1u64 << self.ctx.timestamp_valid_bits) - 1 };
+            for (i, name) in f.passes.iter().enumerate() {
+                let ticks = (ts[2 * i + 1] & mask).wrapping_sub(ts[2 * i] & mask) & mask;
+                let ms = ticks as f64 * self.ctx.timestamp_period * 1e-6;
+                self.profiler.add_gpu(name, ms);
+                out.gpu_ms.push((name.clone(), ms));
+            }
+            self.profiler.end_frame();
+        }
+        for (name, idx) in &f.readbacks {
+            if let (_, PoolItem::Buffer(b)) = &f.transients[*idx] {
+                out.readbacks.insert(name.clone(), b.mapped().map(|m| m.to_vec()).unwrap_or_default());
+            }
+        }
+        self.free.extend(f.transients);
+        Ok(Some(out))
+    }
+
+    /// Compiles, records and submits a frame. Returns the outputs of frames that completed
+    /// meanwhile (the oldest in-flight frame when every slot is busy). On a graph or recording
+    /// error nothing is submitted and every problem is reported together.
+    pub fn submit(&mut self, mut graph: Graph) -> Result<(CompiledGraph, Vec<FrameOutput>)> {
+        let t0 = Instant::now();
+        let compiled = graph.compile()?;
+        self.profiler.add_cpu("graph compile", t0.elapsed().as_secs_f64() * 1e3);
+
+        let slot = self.next_slot;
+        let mut done = Vec::new();
+        if let Some(o) = self.retire(slot)? {
+            done.push(o);
+        }
+        let t1 = Instant::now();
+
+        // ---- resolve resources
+        let n = graph.resources.len();
+        let mut images: Vec<Option<PhysImage>> = vec![None; n];
+        let mut buffers: Vec<Option<PhysBuffer>> = vec![None; n];
+        let mut transients: Vec<(PoolKey, PoolItem)> = Vec::new();
+        let mut readbacks = Vec::new();
+        let names: Vec<String> = graph.resources.iter().map(|r| r.name.clone()).collect();
+        for (i, (res, info)) in graph.resources.iter().zip(compiled.resources.iter()).enumerate() {
+            if info.first_pass.is_none() {
+                continue;
+            }
+            match (&res.origin, &res.desc, res.external) {
+                (Origin::Imported { .. }, ResourceDesc::Image(d), External::Image(image, view)) => {
+                    images[i] = Some(PhysImage { image, view, desc: d.clone() });
+                }
+                (Origin::Imported { .. }, ResourceDesc::Buffer(b), External::Buffer(buffer)) => {
+                    buffers[i] = Some(PhysBuffer { buffer, size: b.size });
+                }
+                (Origin::Imported { .. }, _, _) => bail!("imported resource '{}' has no Vulkan handle", res.name),
+                (Origin::Persistent { .. }, desc, _) => {
+                    if !self.persistent.contains_key(&res.name) {
+                        let item = match desc {
+                            ResourceDesc::Image(d) => {
+                                let usage = info.image_usage
+                                    | vk::ImageUsageFlags::SAMPLED
+                                    | vk::ImageUsageFlags::STORAGE
+                                    | vk::ImageUsageFlags::TRANSFER_SRC
+                                    | vk::ImageUsageFlags::TRANSFER_DST;
+                                let usage = if crate::graph::access::is_depth_format(d.format) {
+                                    info.image_usage | vk::ImageUsageFlags::SAMPLED
+                                } else {
+                                    usage
+                                };
+                                PoolItem::Image(self.ctx.create_image(&res.name, d, usage)?)
+                            }
+                            ResourceDesc::Buffer(b) => PoolItem::Buffer(self.ctx.create_buffer(
+                                &res.name,
+                                b.size,
+                                info.buffer_usage
+                                    | vk::BufferUsageFlags::STORAGE_BUFFER
+                                    | vk::BufferUsageFlags::TRANSFER_SRC
+                                    | vk::BufferUsageFlags::TRANSFER_DST,
+                                false,
+                            )?),
+                        };
+                        self.persistent.insert(
+                            res.name.clone(),
+                            Persistent { desc: desc.clone(), item, state: ResourceState::default() },
+                        );
+                    }
+                    let p = &self.persistent[&res.name];
+                    match &p.item {
+                        PoolItem::Image(img) => {
+                            if !img.usage.contains(info.image_usage) {
+                                bail!("persistent image '{}' was created without usage {:?}", res.name, info.image_usage);
+                            }
+                            images[i] = Some(PhysImage { image: img.image, view: img.view, desc: img.desc.clone() })
+                        }
+                        PoolItem::Buffer(b) => buffers[i] = Some(PhysBuffer { buffer: b.buffer, size: b.size }),
+                    }
+                }
+                (_, ResourceDesc::Image(d), _) => {
+                    let key = PoolKey::Image(d.clone(), info.image_usage);
+                    let item = self.take(key.clone(), &res.name)?;
+                    if let PoolItem::Image(img) = &item {
+                        images[i] = Some(PhysImage { image: img.image, view: img.view, desc: d.clone() });
+                    }
+                    transients.push((key, item));
+                }
+                (origin, ResourceDesc::Buffer(b), _) => {
+                    let extra = match origin {
+                        Origin::Readback => vk::BufferUsageFlags::TRANSFER_DST,
+                        _ => vk::BufferUsageFlags::empty(),
+                    };
+                    let key = PoolKey::Buffer(b.size, info.buffer_usage | extra, b.host_visible);
+                    let mut item = self.take(key.clone(), &res.name)?;
+                    if let PoolItem::Buffer(buf) = &mut item {
+                        if let Some(data) = &res.init_data {
+                            buf.write(data)?;
+                        }
+                        buffers[i] = Some(PhysBuffer { buffer: buf.buffer, size: b.size });
+                    }
+                    if matches!(origin, Origin::Readback) {
+                        readbacks.push((res.name.clone(), transients.len()));
+                    }
+                    transients.push((key, item));
+                }
+            }
+        }
+
+        // ---- record
+        let mut records = graph.take_records();
+        let d = &self.ctx.device;
+        let s = &self.slots[slot];
+        let cmd = s.cmd;
+        unsafe {
+            d.reset_command_pool(s.cmd_pool, vk::CommandPoolResetFlags::empty())?;
+            d.begin_command_buffer(
+                cmd,
+                &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
+            )?;
+        }
+        let live: Vec<usize> = compiled.live_passes().map(|(i, _)| i).collect();
+        let timestamps = self.timestamps && (live.len() as u32) * 2 <= s.query_capacity;
+        if timestamps {
+            unsafe { d.cmd_reset_query_pool(cmd, s.queries, 0, (live.len() * 2) as u32) };
+        }
+        let mut errors: Vec<String> = Vec::new();
+        let mut pass_names = Vec::new();
+        for (qi, &pi) in live.iter().enumerate() {
+            let cp = &compiled.passes[pi];
+            self.ctx.begin_label(cmd, &cp.name);
+            if timestamps {
+                unsafe { d.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, s.queries, (qi * 2) as u32) };
+            }
+            emit_barriers(d, cmd, &cp.barriers, &images, &buffers);
+            let mut rc = RecordContext {
+                ctx: &self.ctx,
+                cmd,
+                pass: &cp.name,
+                declared: cp.uses.iter().map(|u| (u.0, u.1)).collect(),
+                images: &images,
+                buffers: &buffers,
+                names: &names,
+            };
+            if let Some(f) = records.get_mut(pi).and_then(|r| r.take()) {
+                if let Err(e) = f(&mut rc) {
+                    errors.push(format!("pass '{}': {e:#}", cp.name));
+                }
+            }
+            if timestamps {
+                unsafe {
+                    d.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, s.queries, (qi * 2 + 1) as u32)
+                };
+            }
+            self.ctx.end_label(cmd);
+            pass_names.push(cp.name.clone());
+        }
+        emit_barriers(d, cmd, &compiled.final_barriers, &images, &buffers);
+        unsafe { d.end_command_buffer(cmd)? };
+        self.profiler.add_cpu("record", t1.elapsed().as_secs_f64() * 1e3);
+        if !errors.is_empty() {
+            self.free.extend(transients);
+            bail!("recording failed, frame not submitted; {} error(s):\n  - {}", errors.len(), errors.join("\n  - "));
+        }
+
+        // ---- submit
+        let cmd_infos = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
+        let submit = [vk::SubmitInfo2::default().command_buffer_infos(&cmd_infos)];
+        unsafe { d.queue_submit2(self.ctx.queue, &submit, s.fence).context("vkQueueSubmit2")? };
+        for (res, info) in graph.resources.iter().zip(compiled.resources.iter()) {
+            if matches!(res.origin, Origin::Persistent { .. }) && info.first_pass.is_some() {
+                if let Some(p) = self.persistent.get_mut(&res.name) {
+                    p.state = info.final_state.clone();
+                }
+            }
+        }
+        self.slots[slot].in_flight = Some(InFlight {
+            frame: self.frame,
+            passes: if timestamps { pass_names } else { Vec::new() },
+            transients,
+            readbacks,
+        });
+        self.frame += 1;
+        self.next_slot = (slot + 1) % self.slots.len();
+        Ok((compiled, done))
+    }
+
+    /// Waits for every frame in flight and returns their outputs in submission order.
+    pub fn drain(&mut self) -> Result<Vec<FrameOutput>> {
+        let mut out = Vec::new();
+        for i in 0..self.slots.len() {
+            let slot = (self.next_slot + i) % self.slots.len();
+            if let Some(o) = self.retire(slot)? {
+                out.push(o);
+            }
+        }
+        out.sort_by_key(|o| o.frame);
+        Ok(out)
+    }
+}
+
+/// Converts compiled barriers to one `vkCmdPipelineBarrier2`.
+fn emit_barriers(
+    d: &ash::Device,
+    cmd: vk::CommandBuffer,
+    barriers: &[Barrier],
+    images: &[Option<PhysImage>],
+    buffers: &[Option<PhysBuffer>],
+) {
+    if barriers.is_empty() {
+        return;
+    }
+    let mut ib = Vec::new();
+    let mut bb = Vec::new();
+    for b in barriers {
+        let r = b.resource as usize;
+        if b.image {
+            let Some(img) = images.get(r).and_then(|i| i.as_ref()) else { continue };
+            ib.push(
+                vk::ImageMemoryBarrier2::default()
+                    .src_stage_mask(b.src_stage)
+                    .src_access_mask(b.src_access)
+                    .dst_stage_mask(b.dst_stage)
+                    .dst_access_mask(b.dst_access)
+                    .old_layout(b.old_layout)
+                    .new_layout(b.new_layout)
+                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .image(img.image)
+                    .subresource_range(vk::ImageSubresourceRange {
+                        aspect_mask: img.desc.aspect(),
+                        base_mip_level: 0,
+                        level_count: img.desc.mip_levels,
+                        base_array_layer: 0,
+                        layer_count: img.desc.array_layers,
+                    }),
+            );
+        } else {
+            let Some(buf) = buffers.get(r).and_then(|b| *b) else { continue };
+            bb.push(
+                vk::BufferMemoryBarrier2::default()
+                    .src_stage_mask(b.src_stage)
+                    .src_access_mask(b.src_access)
+                    .dst_stage_mask(b.dst_stage)
+                    .dst_access_mask(b.dst_access)
+                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .buffer(buf.buffer)
+                    .offset(0)
+                    .size(vk::WHOLE_SIZE),
+            );
+        }
+    }
+    let dep = vk::DependencyInfo::default().image_memory_barriers(&ib).buffer_memory_barriers(&bb);
+    unsafe { d.cmd_pipeline_barrier2(cmd, &dep) };
+}
+
+impl Drop for Engine {
+    fn drop(&mut self) {
+        let _ = self.ctx.wait_idle();
+        for i in 0..self.slots.len() {
+            if let Some(f) = self.slots[i].in_flight.take() {
+                self.free.extend(f.transients);
+            }
+        }
+        for (_, item) in std::mem::take(&mut self.free) {
+            self.destroy_item(item);
+        }
+        for (_, p) in std::mem::take(&mut self.persistent) {
+            self.destroy_item(p.item);
+        }
+        let d = &self.ctx.device;
+        for s in &self.slots {
+            unsafe {
+                d.destroy_query_pool(s.queries, None);
+                d.destroy_fence(s.fence, None);
+                d.destroy_command_pool(s.cmd_pool, None);
+            }
+        }
+    }
+}

@@ -1,0 +1,420 @@
+//! The one table: every way a pass can touch a resource, mapped to a synchronization2 stage,
+//! access mask and image layout, plus the usage flags the resource needs for it.
+//!
+//! Barriers are derived only from these declarations; nothing is guessed from pass code.
+
+use ash::vk;
+use serde::Serialize;
+
+/// How a pass uses a resource. Each variant names the pipeline stage and the kind of access.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
+pub enum Access {
+    // ---- images
+    /// Written as a colour attachment (load op clear/dont-care or load).
+    ColorAttachmentWrite,
+    /// Depth test and depth write.
+    DepthAttachmentWrite,
+    /// Depth test only, read-only depth layout.
+    DepthAttachmentRead,
+    /// `sampler2D`/`texelFetch` in a vertex shader.
+    VertexShaderReadSampled,
+    /// `sampler2D`/`texelFetch` in a fragment shader.
+    FragmentShaderReadSampled,
+    /// `sampler2D`/`texelFetch` in a compute shader.
+    ComputeShaderReadSampled,
+    // ---- images or buffers
+    /// Storage image/buffer read in a fragment shader.
+    FragmentShaderReadStorage,
+    /// Storage image/buffer read in a compute shader.
+    ComputeShaderReadStorage,
+    /// Storage image/buffer write in a compute shader (no read of previous contents).
+    ComputeShaderWriteStorage,
+    /// Storage image/buffer read-modify-write in a compute shader.
+    ComputeShaderReadWriteStorage,
+    /// Copy/blit source.
+    TransferSrc,
+    /// Copy/blit/clear destination.
+    TransferDst,
+    // ---- buffers
+    /// Storage buffer read in a vertex shader.
+    VertexShaderReadStorage,
+    /// Uniform buffer read by any shader stage.
+    AnyShaderReadUniform,
+    /// Vertex buffer binding.
+    VertexBuffer,
+    /// Index buffer binding.
+    IndexBuffer,
+    /// Indirect draw/dispatch arguments.
+    IndirectBuffer,
+    /// Read by the host after the frame's fence (readback).
+    HostRead,
+}
+
+/// Which resource types an access applies to.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize)]
+pub enum Applies {
+    Image,
+    Buffer,
+    Both,
+}
+
+/// What an [`Access`] means to Vulkan.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub struct AccessInfo {
+    pub stage: vk::PipelineStageFlags2,
+    pub access: vk::AccessFlags2,
+    /// Image layout during the access (`UNDEFINED` for buffer-only accesses).
+    pub layout: vk::ImageLayout,
+    /// The access writes (creates a new version of the resource).
+    pub write: bool,
+    /// The access also reads the previous contents (read-modify-write).
+    pub reads_previous: bool,
+    pub applies: Applies,
+    pub image_usage: vk::ImageUsageFlags,
+    pub buffer_usage: vk::BufferUsageFlags,
+    /// The access needs a depth/stencil format (`Some(true)`), a colour format (`Some(false)`),
+    /// or does not care (`None`).
+    pub depth_format: Option<bool>,
+}
+
+impl Access {
+    /// Every access kind, in declaration order (for tests and documentation).
+    pub const ALL: [Access; 18] = [
+        Access::ColorAttachmentWrite,
+        Access::DepthAttachmentWrite,
+        Access::DepthAttachmentRead,
+        Access::VertexShaderReadSampled,
+        Access::FragmentShaderReadSampled,
+        Access::ComputeShaderReadSampled,
+        Access::FragmentShaderReadStorage,
+        Access::ComputeShaderReadStorage,
+        Access::ComputeShaderWriteStorage,
+        Access::ComputeShaderReadWriteStorage,
+        Access::TransferSrc,
+        Access::TransferDst,
+        Access::VertexShaderReadStorage,
+        Access::AnyShaderReadUniform,
+        Access::VertexBuffer,
+        Access::IndexBuffer,
+        Access::IndirectBuffer,
+        Access::HostRead,
+    ];
+
+    /// The table.
+    pub fn info(self) -> AccessInfo {
+        use vk::AccessFlags2 as A;
+        use vk::BufferUsageFlags as BU;
+        use vk::ImageLayout as L;
+        use vk::ImageUsageFlags as IU;
+        use vk::PipelineStageFlags2 as S;
+        let (stage, access, layout, write, reads_previous, applies, image_usage, buffer_usage, depth) = match self {
+            Access::ColorAttachmentWrite => (
+                S::COLOR_ATTACHMENT_OUTPUT,
+                A::COLOR_ATTACHMENT_WRITE | A::COLOR_ATTACHMENT_READ,
+                L::COLOR_ATTACHMENT_OPTIMAL,
+                true,
+                false,
+                Applies::Image,
+                IU::COLOR_ATTACHMENT,
+                BU::empty(),
+                Some(false),
+            ),
+            Access::DepthAttachmentWrite => (
+                S::EARLY_FRAGMENT_TESTS | S::LATE_FRAGMENT_TESTS,
+                A::DEPTH_STENCIL_ATTACHMENT_READ | A::DEPTH_STENCIL_ATTACHMENT_WRITE,
+                L::DEPTH_ATTACHMENT_OPTIMAL,
+                true,
+                false,
+                Applies::Image,
+                IU::DEPTH_STENCIL_ATTACHMENT,
+                BU::empty(),
+                Some(true),
+            ),
+            Access::DepthAttachmentRead => (
+                S::EARLY_FRAGMENT_TESTS | S::LATE_FRAGMENT_TESTS,
+                A::DEPTH_STENCIL_ATTACHMENT_READ,
+                L::DEPTH_READ_ONLY_OPTIMAL,
+                false,
+                false,
+                Applies::Image,
+                IU::DEPTH_STENCIL_ATTACHMENT,
+                BU::empty(),
+                Some(true),
+            ),
+            Access::VertexShaderReadSampled => (
+                S::VERTEX_SHADER,
+                A::SHADER_SAMPLED_READ,
+                L::SHADER_READ_ONLY_OPTIMAL,
+                false,
+                false,
+                Applies::Image,
+                IU::SAMPLED,
+                BU::empty(),
+                None,
+            ),
+            Access::FragmentShaderReadSampled => (
+                S::FRAGMENT_SHADER,
+                A::SHADER_SAMPLED_READ,
+                L::SHADER_READ_ONLY_OPTIMAL,
+                false,
+                false,
+                Applies::Image,
+                IU::SAMPLED,
+                BU::empty(),
+                None,
+            ),
+            Access::ComputeShaderReadSampled => (
+                S::COMPUTE_SHADER,
+                A::SHADER_SAMPLED_READ,
+                L::SHADER_READ_ONLY_OPTIMAL,
+                false,
+                false,
+                Applies::Image,
+                IU::SAMPLED,
+                BU::empty(),
+                None,
+            ),
+            Access::FragmentShaderReadStorage => (
+                S::FRAGMENT_SHADER,
+                A::SHADER_STORAGE_READ,
+                L::GENERAL,
+                false,
+                false,
+                Applies::Both,
+                IU::STORAGE,
+                BU::STORAGE_BUFFER,
+                Some(false),
+            ),
+            Access::ComputeShaderReadStorage => (
+                S::COMPUTE_SHADER,
+                A::SHADER_STORAGE_READ,
+                L::GENERAL,
+                false,
+                false,
+                Applies::Both,
+                IU::STORAGE,
+                BU::STORAGE_BUFFER,
+                Some(false),
+            ),
+            Access::ComputeShaderWriteStorage => (
+                S::COMPUTE_SHADER,
+                A::SHADER_STORAGE_WRITE,
+                L::GENERAL,
+                true,
+                false,
+                Applies::Both,
+                IU::STORAGE,
+                BU::STORAGE_BUFFER,
+                Some(false),
+            ),
+            Access::ComputeShaderReadWriteStorage => (
+                S::COMPUTE_SHADER,
+                A::SHADER_STORAGE_READ | A::SHADER_STORAGE_WRITE,
+                L::GENERAL,
+                true,
+                true,
+                Applies::Both,
+                IU::STORAGE,
+                BU::STORAGE_BUFFER,
+                Some(false),
+            ),
+            Access::TransferSrc => (
+                S::COPY,
+                A::TRANSFER_READ,
+                L::TRANSFER_SRC_OPTIMAL,
+                false,
+                false,
+                Applies::Both,
+                IU::TRANSFER_SRC,
+                BU::TRANSFER_SRC,
+                None,
+            ),
+            Access::TransferDst => (
+                S::COPY | S::CLEAR,
+                A::TRANSFER_WRITE,
+                L::TRANSFER_DST_OPTIMAL,
+                true,
+                false,
+                Applies::Both,
+                IU::TRANSFER_DST,
+                BU::TRANSFER_DST,
+                None,
+            ),
+            Access::VertexShaderReadStorage => (
+                S::VERTEX_SHADER,
+                A::SHADER_STORAGE_READ,
+                L::UNDEFINED,
+                false,
+                false,
+                Applies::Buffer,
+                IU::empty(),
+                BU::STORAGE_BUFFER,
+                None,
+            ),
+            Access::AnyShaderReadUniform => (
+                S::VERTEX_SHADER
+                    | S::TESSELLATION_CONTROL_SHADER
+                    | S::TESSELLATION_EVALUATION_SHADER
+                    | S::GEOMETRY_SHADER
+                    | S::FRAGMENT_SHADER
+                    | S::COMPUTE_SHADER,
+                A::UNIFORM_READ,
+                L::UNDEFINED,
+                false,
+                false,
+                Applies::Buffer,
+                IU::empty(),
+                BU::UNIFORM_BUFFER,
+                None,
+            ),
+            Access::VertexBuffer => (
+                S::VERTEX_ATTRIBUTE_INPUT,
+                A::VERTEX_ATTRIBUTE_READ,
+                L::UNDEFINED,
+                false,
+                false,
+                Applies::Buffer,
+                IU::empty(),
+                BU::VERTEX_BUFFER,
+                None,
+            ),
+            Access::IndexBuffer => (
+                S::INDEX_INPUT,
+                A::INDEX_READ,
+                L::UNDEFINED,
+                false,
+                false,
+                Applies::Buffer,
+                IU::empty(),
+                BU::INDEX_BUFFER,
+                None,
+            ),
+            Access::IndirectBuffer => (
+                S::DRAW_INDIRECT,
+                A::INDIRECT_COMMAND_READ,
+                L::UNDEFINED,
+                false,
+                false,
+                Applies::Buffer,
+                IU::empty(),
+                BU::INDIRECT_BUFFER,
+                None,
+            ),
+            Access::HostRead => (
+                S::HOST,
+                A::HOST_READ,
+                L::UNDEFINED,
+                false,
+                false,
+                Applies::Buffer,
+                IU::empty(),
+                BU::empty(),
+                None,
+            ),
+        };
+        AccessInfo {
+            stage,
+            access,
+            layout,
+            write,
+            reads_previous,
+            applies,
+            image_usage,
+            buffer_usage,
+            depth_format: depth,
+        }
+    }
+
+    pub fn is_write(self) -> bool {
+        self.info().write
+    }
+}
+
+/// True for depth and depth/stencil formats.
+pub fn is_depth_format(f: vk::Format) -> bool {
+    matches!(
+        f,
+        vk::Format::D16_UNORM
+            | vk::Format::D32_SFLOAT
+            | vk::Format::D24_UNORM_S8_UINT
+            | vk::Format::D32_SFLOAT_S8_UINT
+            | vk::Format::D16_UNORM_S8_UINT
+            | vk::Format::X8_D24_UNORM_PACK32
+    )
+}
+
+/// True for formats with a stencil aspect.
+pub fn has_stencil(f: vk::Format) -> bool {
+    matches!(
+        f,
+        vk::Format::D24_UNORM_S8_UINT | vk::Format::D32_SFLOAT_S8_UINT | vk::Format::D16_UNORM_S8_UINT | vk::Format::S8_UINT
+    )
+}
+
+/// Bytes per texel of the formats the engine allocates (for dumps and readback).
+pub fn format_texel_bytes(f: vk::Format) -> u64 {
+    use vk::Format as F;
+    match f {
+        F::R8_UNORM | F::R8_UINT | F::S8_UINT => 1,
+        F::R16_SFLOAT | F::R16_UINT | F::D16_UNORM | F::R8G8_UNORM => 2,
+        F::R8G8B8A8_UNORM | F::R8G8B8A8_SRGB | F::B8G8R8A8_UNORM | F::B8G8R8A8_SRGB | F::R32_SFLOAT | F::R32_UINT
+        | F::D32_SFLOAT | F::D24_UNORM_S8_UINT | F::R16G16_SFLOAT | F::A2B10G10R10_UNORM_PACK32
+        | F::B10G11R11_UFLOAT_PACK32 | F::X8_D24_UNORM_PACK32 => 4,
+        F::D32_SFLOAT_S8_UINT => 5,
+        F::R16G16B16A16_SFLOAT | F::R32G32_SFLOAT | F::R32G32_UINT => 8,
+        F::R32G32B32_SFLOAT => 12,
+        F::R32G32B32A32_SFLOAT | F::R32G32B32A32_UINT => 16,
+        _ => 4,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table_is_consistent() {
+        for a in Access::ALL {
+            let i = a.info();
+            assert!(!i.stage.is_empty(), "{a:?} has no stage");
+            assert!(!i.access.is_empty(), "{a:?} has no access mask");
+            match i.applies {
+                Applies::Image => {
+                    assert_ne!(i.layout, vk::ImageLayout::UNDEFINED, "{a:?}");
+                    assert!(!i.image_usage.is_empty(), "{a:?}");
+                }
+                Applies::Buffer => assert_eq!(i.layout, vk::ImageLayout::UNDEFINED, "{a:?}"),
+                Applies::Both => {
+                    assert_ne!(i.layout, vk::ImageLayout::UNDEFINED, "{a:?}");
+                    assert!(!i.image_usage.is_empty() && !i.buffer_usage.is_empty(), "{a:?}");
+                }
+            }
+            // A write access must carry a write bit in its mask; a read access none.
+            let writes = vk::AccessFlags2::SHADER_STORAGE_WRITE
+                | vk::AccessFlags2::COLOR_ATTACHMENT_WRITE
+                | vk::AccessFlags2::DEPTH_STENCIL_ATTACHMENT_WRITE
+                | vk::AccessFlags2::TRANSFER_WRITE
+                | vk::AccessFlags2::HOST_WRITE;
+            assert_eq!(i.write, i.access.intersects(writes), "{a:?} write flag disagrees with its mask");
+            if i.reads_previous {
+                assert!(i.write);
+            }
+        }
+    }
+
+    #[test]
+    fn specific_rows() {
+        let s = Access::ComputeShaderReadSampled.info();
+        assert_eq!(s.stage, vk::PipelineStageFlags2::COMPUTE_SHADER);
+        assert_eq!(s.access, vk::AccessFlags2::SHADER_SAMPLED_READ);
+        assert_eq!(s.layout, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL);
+        let w = Access::ComputeShaderWriteStorage.info();
+        assert_eq!(w.layout, vk::ImageLayout::GENERAL);
+        assert_eq!(w.access, vk::AccessFlags2::SHADER_STORAGE_WRITE);
+        let d = Access::DepthAttachmentWrite.info();
+        assert_eq!(d.layout, vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL);
+        assert_eq!(d.depth_format, Some(true));
+        assert_eq!(Access::TransferDst.info().layout, vk::ImageLayout::TRANSFER_DST_OPTIMAL);
+        assert_eq!(Access::HostRead.info().stage, vk::PipelineStageFlags2::HOST);
+    }
+}

@@ -1,0 +1,161 @@
+//! Command-line glue for `penumbra reference` and `penumbra compare` (the binary owns scene
+//! loading and the subcommand enum; these are the argument structs and the actions).
+
+use crate::metrics::compare_files;
+use crate::render::{render, Mode, ReferenceOptions};
+use anyhow::{bail, Context as _};
+use clap::Args;
+use penumbra_scene::Scene;
+use std::path::PathBuf;
+
+/// `penumbra reference [SCENE] --frame K --spp N [--size WxH] --out DIR`
+#[derive(Args, Clone, Debug)]
+pub struct ReferenceArgs {
+    /// Scene file (as for `render`); the built-in default scene when omitted.
+    pub scene: Option<PathBuf>,
+    /// Frame index K (scene time K / fps unless --time is given).
+    #[arg(long, default_value_t = 0)]
+    pub frame: u32,
+    /// Scene time in seconds (overrides --frame / --fps).
+    #[arg(long)]
+    pub time: Option<f32>,
+    /// Frames per second for --frame.
+    #[arg(long, default_value_t = 30.0)]
+    pub fps: f32,
+    /// Samples per pixel.
+    #[arg(long, default_value_t = 256)]
+    pub spp: u32,
+    /// Image size WxH.
+    #[arg(long, default_value = "320x240")]
+    pub size: String,
+    /// Output directory (reference.exr, reference_stderr.exr, reference.json).
+    #[arg(long, default_value = "reference-out")]
+    pub out: PathBuf,
+    /// Random seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// What to evaluate.
+    #[arg(long, value_enum, default_value_t = Mode::Exact)]
+    pub mode: Mode,
+    /// Hide the progress bar (it is hidden anyway when stderr is not a terminal).
+    #[arg(long)]
+    pub no_progress: bool,
+}
+
+/// `penumbra compare A.exr B.exr [--json] [--diff OUT.png]` (A is the reference).
+#[derive(Args, Clone, Debug)]
+pub struct CompareArgs {
+    /// Reference image (EXR).
+    pub a: PathBuf,
+    /// Test image (EXR).
+    pub b: PathBuf,
+    /// Print the comparison as JSON.
+    #[arg(long)]
+    pub json: bool,
+    /// Write a false-colour difference image (PNG).
+    #[arg(long)]
+    pub diff: Option<PathBuf>,
+}
+
+/// Parse "WxH" (also "W*H" or "W,H").
+pub fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
+    let parts: Vec<&str> = s.trim().split(['x', 'X', '*', ',']).collect();
+    if parts.len() != 2 {
+        bail!("size '{s}' is not WxH (e.g. 320x240)");
+    }
+    let w: u32 = parts[0].trim().parse().with_context(|| format!("size '{s}': bad width"))?;
+    let h: u32 = parts[1].trim().parse().with_context(|| format!("size '{s}': bad height"))?;
+    if w == 0 || h == 0 {
+        bail!("size '{s}' is empty");
+    }
+    Ok((w, h))
+}
+
+impl ReferenceArgs {
+    pub fn options(&self) -> anyhow::Result<ReferenceOptions> {
+        let (width, height) = parse_size(&self.size)?;
+        Ok(ReferenceOptions {
+            width,
+            height,
+            spp: self.spp,
+            frame: self.frame,
+            time: self.time,
+            fps: self.fps,
+            seed: self.seed,
+            mode: self.mode,
+            progress: !self.no_progress,
+        })
+    }
+}
+
+/// Render the reference of `scene` (already loaded by the caller) and write it to `args.out`.
+pub fn run_reference(args: &ReferenceArgs, scene: &Scene) -> anyhow::Result<()> {
+    let opts = args.options()?;
+    let img = render(scene, &opts).with_context(|| format!("reference render of scene '{}'", scene.name))?;
+    let s = img.write(&args.out)?;
+    println!(
+        "reference: scene '{}' frame {} (t = {:.4} s), {}x{}, {} spp, {} triangles, {:.2} s",
+        s.scene, opts.frame, s.time_s, opts.width, opts.height, opts.spp, s.triangles, s.render_seconds
+    );
+    println!(
+        "noise: relative standard error mean {:.3e}, median {:.3e}, max {:.3e} ({} pixels); mean absolute s.e. {:.3e}",
+        s.noise.mean_rel_std_error,
+        s.noise.median_rel_std_error,
+        s.noise.max_rel_std_error,
+        s.noise.pixels_measured,
+        s.noise.mean_std_error
+    );
+    println!("wrote {} and {}", s.image.display(), s.std_error_image.display());
+    Ok(())
+}
+
+/// Compare two EXR files and print the metrics (JSON with `--json`).
+pub fn run_compare(args: &CompareArgs) -> anyhow::Result<()> {
+    let c = compare_files(&args.a, &args.b, args.diff.as_deref())?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&c)?);
+    } else {
+        println!("{}", c.summary());
+        if let Some(d) = &args.diff {
+            println!("diff:          {} (scale {:.6e} = top of the colour map)", d.display(), c.diff_scale);
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct R {
+        #[command(flatten)]
+        a: ReferenceArgs,
+    }
+    #[derive(Parser)]
+    struct C {
+        #[command(flatten)]
+        a: CompareArgs,
+    }
+
+    #[test]
+    fn parses_arguments() {
+        let r = R::try_parse_from(["x", "s.toml", "--frame", "3", "--spp", "16", "--size", "64x32", "--out", "o"]).unwrap();
+        let o = r.a.options().unwrap();
+        assert_eq!((o.width, o.height, o.spp, o.frame), (64, 32, 16, 3));
+        assert!((o.time_s() - 0.1).abs() < 1e-6);
+        assert!(R::try_parse_from(["x", "--size", "64"]).unwrap().a.options().is_err());
+        let c = C::try_parse_from(["x", "a.exr", "b.exr", "--json", "--diff", "d.png"]).unwrap();
+        assert!(c.a.json && c.a.diff.is_some());
+        assert_eq!(parse_size(" 320 x 240 ").unwrap(), (320, 240));
+        assert!(parse_size("0x5").is_err());
+    }
+
+    #[test]
+    fn compare_reports_missing_file() {
+        let e = run_compare(&CompareArgs { a: "nope_a.exr".into(), b: "nope_b.exr".into(), json: true, diff: None })
+            .unwrap_err();
+        assert!(format!("{e:#}").contains("nope_a.exr"));
+    }
+}

@@ -1,0 +1,677 @@
+//! glTF 2.0 loading (`.gltf` with embedded or external buffers, `.glb`) through the `gltf`
+//! crate: meshes (triangles), node hierarchy, metallic-roughness materials (mapped to
+//! [`BrdfKind::CookTorrance`]), base-colour and metallic-roughness textures, animations
+//! (translation / rotation / scale / morph weights; step and linear, cubic-spline keys use
+//! their values linearly), skins and morph targets.
+//!
+//! Every accessor is checked (type, component type, bounds, finite values) before use, so a
+//! malformed file gives a [`SceneError`] naming the file and the problem instead of a panic.
+//! Required extensions are not supported (e.g. `KHR_draco_mesh_compression`) and are
+//! reported by name.
+
+use crate::error::{read_file, SceneError};
+use crate::motion::{AnimChannel, Animation, Channel, Deformation, Interp, MorphTarget, Rig, Skin, Track};
+use crate::texture::{srgb_to_linear, Texture};
+use crate::{Material, MaterialExtra, MeshData, NodeMotion, Object, ObjectInfo, Scene};
+use glam::{Mat4, Quat, Vec2, Vec3};
+use gltf::accessor::{DataType, Dimensions};
+use gltf::mesh::Mode;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// One triangle primitive of the file.
+#[derive(Clone, Debug)]
+pub struct Primitive {
+    pub mesh: MeshData,
+    /// Index into [`GltfAsset::materials`].
+    pub material: Option<usize>,
+    pub joints: Option<Vec<[u16; 4]>>,
+    pub weights: Option<Vec<[f32; 4]>>,
+    pub targets: Vec<MorphTarget>,
+    /// Default morph weights of the glTF mesh.
+    pub default_weights: Vec<f32>,
+}
+
+/// A primitive placed by a node of the default scene.
+#[derive(Clone, Debug)]
+pub struct Part {
+    pub name: String,
+    pub node: usize,
+    /// Index into [`GltfAsset::primitives`].
+    pub primitive: usize,
+    pub skin: Option<usize>,
+}
+
+/// Everything read from a glTF file.
+#[derive(Clone, Debug)]
+pub struct GltfAsset {
+    pub path: PathBuf,
+    pub primitives: Vec<Primitive>,
+    pub parts: Vec<Part>,
+    pub materials: Vec<Material>,
+    pub extras: Vec<MaterialExtra>,
+    pub textures: Vec<Texture>,
+    /// Node hierarchy, animations and skins (no animation selected).
+    pub rig: Rig,
+    pub animation_names: Vec<String>,
+    pub warnings: Vec<String>,
+}
+
+fn gerr(path: &Path, m: impl Into<String>) -> SceneError {
+    SceneError::Gltf { path: path.to_path_buf(), message: m.into() }
+}
+
+/// Load a `.glb` or `.gltf` file.
+pub fn load(path: &Path) -> Result<GltfAsset, SceneError> {
+    let bytes = read_file(path)?;
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    // The gltf crate has debug assertions on accessor layouts; everything is checked first,
+    // but a panic inside it must still never escape as a crash.
+    let p = path.to_path_buf();
+    match std::panic::catch_unwind(move || load_bytes(&p, &bytes, &base)) {
+        Ok(r) => r,
+        Err(_) => Err(gerr(path, "malformed file (the glTF reader failed on inconsistent data)")),
+    }
+}
+
+/// Load from memory; `base` resolves external URIs, `path` is used in messages.
+pub fn load_bytes(path: &Path, bytes: &[u8], base: &Path) -> Result<GltfAsset, SceneError> {
+    if bytes.is_empty() {
+        return Err(gerr(path, "file is empty"));
+    }
+    // Required extensions first, by name (validation would only say "unsupported").
+    let raw = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| gerr(path, describe(&e)))?;
+    if let Some(ext) = raw.document.extensions_required().next() {
+        return Err(SceneError::Unsupported {
+            path: path.to_path_buf(),
+            feature: format!("glTF extension {ext} (listed in extensionsRequired)"),
+        });
+    }
+    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| gerr(path, describe(&e)))?;
+    let doc = gltf.document;
+    let blob = gltf.blob;
+    // Buffers: check external files exist so the message names them.
+    for b in doc.buffers() {
+        if let gltf::buffer::Source::Uri(uri) = b.source() {
+            check_uri(path, base, uri, &format!("buffer {}", b.index()))?;
+        } else if blob.is_none() {
+            return Err(gerr(path, format!("buffer {} refers to the GLB binary chunk, which is missing", b.index())));
+        }
+    }
+    let buffers = gltf::import_buffers(&doc, Some(base), blob).map_err(|e| match e {
+        gltf::Error::BufferLength { buffer, expected, actual } => gerr(
+            path,
+            format!("buffer {buffer} is truncated: expected {expected} bytes but the data has {actual}"),
+        ),
+        other => gerr(path, format!("cannot load buffers: {}", describe(&other))),
+    })?;
+    let bufs: Vec<&[u8]> = buffers.iter().map(|d| d.0.as_slice()).collect();
+    let get = |b: gltf::Buffer| bufs.get(b.index()).copied();
+    let mut warnings = Vec::new();
+    let label = path.display().to_string();
+
+    // Textures and materials.
+    let mut textures = Vec::new();
+    let mut image_map: HashMap<(usize, bool), usize> = HashMap::new();
+    let mut load_image = |img: gltf::Image, srgb: bool, textures: &mut Vec<Texture>| -> Result<usize, SceneError> {
+        if let Some(&t) = image_map.get(&(img.index(), srgb)) {
+            return Ok(t);
+        }
+        if let gltf::image::Source::Uri { uri, .. } = img.source() {
+            check_uri(path, base, uri, &format!("image {}", img.index()))?;
+        }
+        let data = gltf::image::Data::from_source(img.source(), Some(base), &buffers)
+            .map_err(|e| gerr(path, format!("image {} cannot be decoded: {}", img.index(), describe(&e))))?;
+        let name = img.name().map(str::to_string).unwrap_or_else(|| format!("image{}", img.index()));
+        let tex = convert_image(&name, &data, srgb).ok_or_else(|| SceneError::Unsupported {
+            path: path.to_path_buf(),
+            feature: format!("image pixel format {:?} (image {})", data.format, img.index()),
+        })?;
+        textures.push(tex);
+        image_map.insert((img.index(), srgb), textures.len() - 1);
+        Ok(textures.len() - 1)
+    };
+    let mut materials = Vec::new();
+    let mut extras = Vec::new();
+    for m in doc.materials() {
+        let pbr = m.pbr_metallic_roughness();
+        let c = pbr.base_color_factor();
+        let base_rgb = Vec3::new(c[0], c[1], c[2]);
+        let metallic = pbr.metallic_factor().clamp(0.0, 1.0);
+        let roughness = pbr.roughness_factor().clamp(0.0, 1.0);
+        let name = m.name().map(str::to_string).unwrap_or_else(|| format!("material{}", m.index().unwrap_or(0)));
+        if !base_rgb.is_finite() || !metallic.is_finite() || !roughness.is_finite() {
+            return Err(gerr(path, format!("material '{name}' has non-finite factors")));
+        }
+        let mut mat = Material::glossy(
+            &name,
+            base_rgb * (1.0 - metallic),
+            Vec3::splat(0.04).lerp(base_rgb, metallic),
+            roughness,
+        );
+        mat.name = name.clone();
+        let mut ex = MaterialExtra { two_sided: m.double_sided(), ..Default::default() };
+        if let Some(info) = pbr.base_color_texture() {
+            if info.tex_coord() != 0 {
+                warnings.push(format!("{label}: material '{name}': base colour uses TEXCOORD_{}, reading TEXCOORD_0", info.tex_coord()));
+            }
+            ex.albedo_map = Some(load_image(info.texture().source(), true, &mut textures)?);
+            // The texture carries the colour: the factor multiplies it.
+            mat.albedo = base_rgb * (1.0 - metallic);
+        }
+        if let Some(info) = pbr.metallic_roughness_texture() {
+            ex.roughness_map = Some(load_image(info.texture().source(), false, &mut textures)?);
+        }
+        materials.push(mat);
+        extras.push(ex);
+    }
+
+    // Primitives.
+    let mut primitives = Vec::new();
+    let mut prim_index: HashMap<(usize, usize), usize> = HashMap::new();
+    for mesh in doc.meshes() {
+        let mesh_name = mesh.name().map(str::to_string).unwrap_or_else(|| format!("mesh{}", mesh.index()));
+        let default_weights = mesh.weights().map(|w| w.to_vec()).unwrap_or_default();
+        for prim in mesh.primitives() {
+            let pname = if mesh.primitives().len() > 1 { format!("{mesh_name}.{}", prim.index()) } else { mesh_name.clone() };
+            if prim.mode() != Mode::Triangles {
+                warnings.push(format!("{label}: mesh '{pname}': primitive mode {:?} is not triangles, skipped", prim.mode()));
+                continue;
+            }
+            let p = read_primitive(path, &label, &pname, &prim, &get, default_weights.clone(), &mut warnings)?;
+            prim_index.insert((mesh.index(), prim.index()), primitives.len());
+            primitives.push(p);
+        }
+    }
+
+    // Nodes.
+    let n_nodes = doc.nodes().len();
+    let mut parent = vec![None; n_nodes];
+    let mut rest = Vec::with_capacity(n_nodes);
+    for node in doc.nodes() {
+        for ch in node.children() {
+            if parent[ch.index()].is_some() || ch.index() == node.index() {
+                return Err(gerr(path, format!("node {} has more than one parent (not a tree)", ch.index())));
+            }
+            parent[ch.index()] = Some(node.index());
+        }
+        let (t, r, s) = node.transform().decomposed();
+        let (t, r, s) = (Vec3::from_array(t), Quat::from_array(r), Vec3::from_array(s));
+        if !t.is_finite() || !r.is_finite() || !s.is_finite() {
+            return Err(gerr(path, format!("node {} has a non-finite (NaN/Inf) transform", node.index())));
+        }
+        rest.push((t, norm_quat(r), s));
+    }
+    // Cycles: walk up from each node.
+    for n in 0..n_nodes {
+        let (mut k, mut steps) = (n, 0);
+        while let Some(p) = parent[k] {
+            k = p;
+            steps += 1;
+            if steps > n_nodes {
+                return Err(gerr(path, format!("node {n} is part of a cycle in the node hierarchy")));
+            }
+        }
+    }
+
+    // Skins.
+    let mut skins = Vec::new();
+    for skin in doc.skins() {
+        let joints: Vec<usize> = skin.joints().map(|j| j.index()).collect();
+        let ibm = match skin.inverse_bind_matrices() {
+            Some(acc) => {
+                check_accessor(path, &acc, &[Dimensions::Mat4], &[DataType::F32], "inverse bind matrices")?;
+                let r = skin.reader(get);
+                let v: Vec<Mat4> = r
+                    .read_inverse_bind_matrices()
+                    .ok_or_else(|| out_of_bounds(path, &acc, "inverse bind matrices"))?
+                    .map(|m| Mat4::from_cols_array_2d(&m))
+                    .collect();
+                if v.len() < joints.len() {
+                    return Err(gerr(path, format!("skin {} has {} joints but {} inverse bind matrices", skin.index(), joints.len(), v.len())));
+                }
+                if v.iter().any(|m| !m.is_finite()) {
+                    return Err(gerr(path, format!("skin {} has a non-finite inverse bind matrix", skin.index())));
+                }
+                v
+            }
+            None => vec![Mat4::IDENTITY; joints.len()],
+        };
+        skins.push(Skin { joints, inverse_bind: ibm });
+    }
+
+    // Animations.
+    let mut animations = Vec::new();
+    let mut animation_names = Vec::new();
+    for anim in doc.animations() {
+        let name = anim.name().map(str::to_string).unwrap_or_else(|| format!("animation{}", anim.index()));
+        let mut channels = Vec::new();
+        let mut duration: f32 = 0.0;
+        for ch in anim.channels() {
+            let what = format!("animation '{name}' channel {}", ch.index());
+            let sampler = ch.sampler();
+            check_accessor(path, &sampler.input(), &[Dimensions::Scalar], &[DataType::F32], &format!("{what} times"))?;
+            let out = sampler.output();
+            let reader = ch.reader(get);
+            let times: Vec<f32> = reader.read_inputs().ok_or_else(|| out_of_bounds(path, &sampler.input(), &what))?.collect();
+            let cubic = sampler.interpolation() == gltf::animation::Interpolation::CubicSpline;
+            if cubic {
+                warnings.push(format!("{label}: {what}: cubic-spline keys are interpolated linearly"));
+            }
+            let interp = if sampler.interpolation() == gltf::animation::Interpolation::Step { Interp::Step } else { Interp::Linear };
+            let node = ch.target().node().index();
+            use gltf::animation::util::ReadOutputs;
+            let norm = [DataType::F32, DataType::I8, DataType::U8, DataType::I16, DataType::U16];
+            let outputs = match ch.target().property() {
+                gltf::animation::Property::Translation | gltf::animation::Property::Scale => {
+                    check_accessor(path, &out, &[Dimensions::Vec3], &[DataType::F32], &what)?
+                }
+                gltf::animation::Property::Rotation => check_accessor(path, &out, &[Dimensions::Vec4], &norm, &what)?,
+                gltf::animation::Property::MorphTargetWeights => check_accessor(path, &out, &[Dimensions::Scalar], &norm, &what)?,
+            };
+            let _ = outputs;
+            let outs = reader.read_outputs().ok_or_else(|| out_of_bounds(path, &out, &what))?;
+            let bad = |m: String| gerr(path, format!("{what}: {m}"));
+            let target = match outs {
+                ReadOutputs::Translations(it) => {
+                    let v: Vec<Vec3> = pick_values(it.map(Vec3::from_array).collect(), cubic);
+                    if v.iter().any(|x| !x.is_finite()) {
+                        return Err(bad("non-finite (NaN/Inf) translation".into()));
+                    }
+                    Channel::Translation(Track::new(times.clone(), v, interp, false).map_err(bad)?)
+                }
+                ReadOutputs::Scales(it) => {
+                    let v: Vec<Vec3> = pick_values(it.map(Vec3::from_array).collect(), cubic);
+                    if v.iter().any(|x| !x.is_finite()) {
+                        return Err(bad("non-finite (NaN/Inf) scale".into()));
+                    }
+                    Channel::Scale(Track::new(times.clone(), v, interp, false).map_err(bad)?)
+                }
+                ReadOutputs::Rotations(it) => {
+                    let v: Vec<Quat> = pick_values(it.into_f32().map(Quat::from_array).collect(), cubic);
+                    if v.iter().any(|x| !x.is_finite()) {
+                        return Err(bad("non-finite (NaN/Inf) rotation".into()));
+                    }
+                    let v = v.into_iter().map(|q| norm_quat(q)).collect();
+                    Channel::Rotation(Track::new(times.clone(), v, interp, false).map_err(bad)?)
+                }
+                ReadOutputs::MorphTargetWeights(it) => {
+                    let flat: Vec<f32> = it.into_f32().collect();
+                    if flat.iter().any(|x| !x.is_finite()) {
+                        return Err(bad("non-finite (NaN/Inf) morph weight".into()));
+                    }
+                    let per = if times.is_empty() { 0 } else { flat.len() / times.len() };
+                    let per = if cubic { per / 3 } else { per };
+                    if per == 0 {
+                        return Err(bad("no morph weights".into()));
+                    }
+                    let chunks: Vec<Vec<f32>> = flat.chunks(per).map(|c| c.to_vec()).collect();
+                    let chunks = pick_values(chunks, cubic);
+                    Channel::Weights(Track::new(times.clone(), chunks, interp, false).map_err(bad)?)
+                }
+            };
+            duration = duration.max(times.last().copied().unwrap_or(0.0));
+            channels.push(AnimChannel { node, target });
+        }
+        animations.push(Animation { name: name.clone(), channels, duration });
+        animation_names.push(name);
+    }
+
+    // Parts: primitives placed by the nodes of the default (or first) scene.
+    let roots: Vec<usize> = match doc.default_scene().or_else(|| doc.scenes().next()) {
+        Some(s) => s.nodes().map(|n| n.index()).collect(),
+        None => (0..n_nodes).filter(|&n| parent[n].is_none()).collect(),
+    };
+    let mut parts = Vec::new();
+    let mut stack: Vec<usize> = roots.into_iter().rev().collect();
+    let nodes: Vec<gltf::Node> = doc.nodes().collect();
+    let mut visited = vec![false; n_nodes];
+    while let Some(n) = stack.pop() {
+        if std::mem::replace(&mut visited[n], true) {
+            continue;
+        }
+        let node = &nodes[n];
+        if let Some(mesh) = node.mesh() {
+            for prim in mesh.primitives() {
+                if let Some(&pi) = prim_index.get(&(mesh.index(), prim.index())) {
+                    let skin = node.skin().map(|s| s.index());
+                    if let (Some(s), Some(j)) = (skin, &primitives[pi].joints) {
+                        let nj = skins[s].joints.len();
+                        if let Some(bad) = j.iter().flatten().find(|&&x| x as usize >= nj) {
+                            return Err(gerr(path, format!("mesh '{}': joint index {bad} is out of range (skin {s} has {nj} joints)", primitives[pi].mesh.name)));
+                        }
+                    }
+                    let name = node.name().map(str::to_string).unwrap_or_else(|| primitives[pi].mesh.name.clone());
+                    parts.push(Part { name, node: n, primitive: pi, skin });
+                }
+            }
+        }
+        for ch in node.children().collect::<Vec<_>>().into_iter().rev() {
+            stack.push(ch.index());
+        }
+    }
+    if parts.is_empty() {
+        return Err(SceneError::invalid(path, "empty scene: the glTF file has no triangle meshes in its scene"));
+    }
+    Ok(GltfAsset {
+        path: path.to_path_buf(),
+        primitives,
+        parts,
+        materials,
+        extras,
+        textures,
+        rig: Rig { parent, rest, animations, skins, animation: None },
+        animation_names,
+        warnings,
+    })
+}
+
+fn norm_quat(q: Quat) -> Quat {
+    let l = q.length();
+    if l.is_finite() && l > 1e-8 {
+        q / l
+    } else {
+        Quat::IDENTITY
+    }
+}
+
+/// Cubic-spline outputs are (in-tangent, value, out-tangent) triples: keep the values.
+fn pick_values<T: Clone>(v: Vec<T>, cubic: bool) -> Vec<T> {
+    if cubic {
+        v.chunks(3).filter_map(|c| c.get(1).cloned()).collect()
+    } else {
+        v
+    }
+}
+
+/// A readable message for a gltf crate error.
+fn describe(e: &gltf::Error) -> String {
+    match e {
+        gltf::Error::Binary(b) => format!("malformed or truncated GLB container: {b:?}"),
+        gltf::Error::Deserialize(d) => format!("malformed JSON: {d}"),
+        gltf::Error::Io(io) => format!("I/O error: {io}"),
+        other => other.to_string(),
+    }
+}
+
+fn check_uri(path: &Path, base: &Path, uri: &str, what: &str) -> Result<(), SceneError> {
+    if uri.starts_with("data:") {
+        return Ok(());
+    }
+    if uri.contains("://") {
+        return Err(SceneError::Unsupported { path: path.to_path_buf(), feature: format!("URI scheme in {what}: {uri}") });
+    }
+    let decoded = percent_decode(uri);
+    let file = base.join(&decoded);
+    if !file.is_file() {
+        return Err(gerr(path, format!("{what} references missing file '{decoded}' ({})", file.display())));
+    }
+    Ok(())
+}
+
+fn percent_decode(s: &str) -> String {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' && i + 2 < b.len() + 0 && i + 2 <= b.len() - 1 {
+            if let Ok(v) = u8::from_str_radix(&s[i + 1..i + 3], 16) {
+                out.push(v);
+                i += 3;
+                continue;
+            }
+        }
+        out.push(b[i]);
+        i += 1;
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+fn out_of_bounds(path: &Path, acc: &gltf::Accessor, what: &str) -> SceneError {
+    gerr(path, format!("{what}: accessor {} lies outside its buffer (truncated data?)", acc.index()))
+}
+
+/// Check an accessor's element type and layout so reading it cannot hit the gltf crate's
+/// assertions.
+fn check_accessor(path: &Path, acc: &gltf::Accessor, dims: &[Dimensions], types: &[DataType], what: &str) -> Result<(), SceneError> {
+    if !dims.contains(&acc.dimensions()) || !types.contains(&acc.data_type()) {
+        return Err(gerr(path, format!("{what}: accessor {} has type {:?} {:?}, expected one of {:?} {:?}", acc.index(), acc.dimensions(), acc.data_type(), dims, types)));
+    }
+    if acc.count() == 0 {
+        return Err(gerr(path, format!("{what}: accessor {} is empty", acc.index())));
+    }
+    if let Some(view) = acc.view() {
+        if let Some(stride) = view.stride() {
+            if stride < acc.size() {
+                return Err(gerr(path, format!("{what}: buffer view {} stride {stride} is smaller than an element ({} bytes)", view.index(), acc.size())));
+            }
+        }
+    } else if acc.sparse().is_none() {
+        return Err(gerr(path, format!("{what}: accessor {} has no buffer view", acc.index())));
+    }
+    if let Some(sp) = acc.sparse() {
+        if sp.count() == 0 {
+            return Err(gerr(path, format!("{what}: sparse accessor {} has no entries", acc.index())));
+        }
+    }
+    Ok(())
+}
+
+#[allow(clippy::too_many_arguments)]
+fn read_primitive<'a, 's, F>(
+    path: &Path,
+    label: &str,
+    name: &str,
+    prim: &'a gltf::Primitive<'a>,
+    get: &F,
+    default_weights: Vec<f32>,
+    warnings: &mut Vec<String>,
+) -> Result<Primitive, SceneError>
+where
+    F: Clone + Fn(gltf::Buffer<'a>) -> Option<&'s [u8]>,
+{
+    use gltf::Semantic;
+    let what = |s: &str| format!("mesh '{name}' {s}");
+    let pos_acc = prim.get(&Semantic::Positions).ok_or_else(|| gerr(path, what("has no POSITION attribute")))?;
+    check_accessor(path, &pos_acc, &[Dimensions::Vec3], &[DataType::F32], &what("POSITION"))?;
+    let n = pos_acc.count();
+    let norm_types = [DataType::F32, DataType::U8, DataType::U16];
+    for (sem, dims, types) in [
+        (Semantic::Normals, Dimensions::Vec3, &[DataType::F32][..]),
+        (Semantic::TexCoords(0), Dimensions::Vec2, &norm_types[..]),
+        (Semantic::Joints(0), Dimensions::Vec4, &[DataType::U8, DataType::U16][..]),
+        (Semantic::Weights(0), Dimensions::Vec4, &norm_types[..]),
+    ] {
+        if let Some(acc) = prim.get(&sem) {
+            check_accessor(path, &acc, &[dims], types, &what(&format!("{sem:?}")))?;
+            if acc.count() != n {
+                return Err(gerr(path, what(&format!("{sem:?} has {} elements for {n} vertices", acc.count()))));
+            }
+        }
+    }
+    if let Some(acc) = prim.indices() {
+        check_accessor(path, &acc, &[Dimensions::Scalar], &[DataType::U8, DataType::U16, DataType::U32], &what("indices"))?;
+    }
+    for (k, t) in prim.morph_targets().enumerate() {
+        for (acc, s) in [(t.positions(), "POSITION"), (t.normals(), "NORMAL"), (t.tangents(), "TANGENT")] {
+            if let Some(acc) = acc {
+                check_accessor(path, &acc, &[Dimensions::Vec3], &[DataType::F32], &what(&format!("morph target {k} {s}")))?;
+                if acc.count() != n {
+                    return Err(gerr(path, what(&format!("morph target {k} {s} has {} elements for {n} vertices", acc.count()))));
+                }
+            }
+        }
+    }
+    let r = prim.reader(get.clone());
+    let positions: Vec<Vec3> = r
+        .read_positions()
+        .ok_or_else(|| out_of_bounds(path, &pos_acc, &what("POSITION")))?
+        .map(Vec3::from_array)
+        .collect();
+    let normals: Vec<Vec3> = match r.read_normals() {
+        Some(it) => it.map(Vec3::from_array).collect(),
+        None if prim.get(&Semantic::Normals).is_some() => return Err(out_of_bounds(path, &prim.get(&Semantic::Normals).unwrap(), &what("NORMAL"))),
+        None => Vec::new(),
+    };
+    let uvs: Vec<Vec2> = match r.read_tex_coords(0) {
+        Some(it) => it.into_f32().map(Vec2::from_array).collect(),
+        None if prim.get(&Semantic::TexCoords(0)).is_some() => return Err(gerr(path, what("TEXCOORD_0 lies outside its buffer"))),
+        None => Vec::new(),
+    };
+    let indices: Vec<u32> = match r.read_indices() {
+        Some(it) => it.into_u32().collect(),
+        None if prim.indices().is_some() => return Err(out_of_bounds(path, &prim.indices().unwrap(), &what("indices"))),
+        None => (0..n as u32).collect(),
+    };
+    let joints = match r.read_joints(0) {
+        Some(it) => Some(it.into_u16().collect::<Vec<_>>()),
+        None if prim.get(&Semantic::Joints(0)).is_some() => return Err(gerr(path, what("JOINTS_0 lies outside its buffer"))),
+        None => None,
+    };
+    let weights = match r.read_weights(0) {
+        Some(it) => Some(it.into_f32().collect::<Vec<_>>()),
+        None if prim.get(&Semantic::Weights(0)).is_some() => return Err(gerr(path, what("WEIGHTS_0 lies outside its buffer"))),
+        None => None,
+    };
+    if joints.is_some() != weights.is_some() {
+        return Err(gerr(path, what("has JOINTS_0 without WEIGHTS_0 or the reverse")));
+    }
+    if let Some(w) = &weights {
+        if w.iter().flatten().any(|x| !x.is_finite()) {
+            return Err(gerr(path, what("has non-finite (NaN/Inf) skin weights")));
+        }
+    }
+    let mut targets = Vec::new();
+    for (k, (p, nrm, _)) in r.read_morph_targets().enumerate() {
+        let positions: Vec<Vec3> = p.map(|it| it.map(Vec3::from_array).collect()).unwrap_or_else(|| vec![Vec3::ZERO; n]);
+        let normals: Option<Vec<Vec3>> = nrm.map(|it| it.map(Vec3::from_array).collect());
+        if positions.len() != n || normals.as_ref().map_or(false, |v| v.len() != n) {
+            return Err(gerr(path, what(&format!("morph target {k} lies outside its buffer"))));
+        }
+        if positions.iter().chain(normals.iter().flatten()).any(|v| !v.is_finite()) {
+            return Err(gerr(path, what(&format!("morph target {k} has non-finite (NaN/Inf) values"))));
+        }
+        targets.push(MorphTarget { positions, normals });
+    }
+    let mut mesh = MeshData { name: name.to_string(), positions, normals, uvs, indices };
+    // The repair may drop triangles but never vertices, so per-vertex data stays aligned.
+    mesh.validate_and_repair(label, warnings).map_err(|m| SceneError::invalid(path, m))?;
+    Ok(Primitive { mesh, material: prim.material().index(), joints, weights, targets, default_weights })
+}
+
+fn convert_image(name: &str, d: &gltf::image::Data, srgb: bool) -> Option<Texture> {
+    use gltf::image::Format as F;
+    let n = (d.width * d.height) as usize;
+    let (ch, bytes) = match d.format {
+        F::R8 => (1, 1),
+        F::R8G8 => (2, 1),
+        F::R8G8B8 => (3, 1),
+        F::R8G8B8A8 => (4, 1),
+        F::R16 => (1, 2),
+        F::R16G16 => (2, 2),
+        F::R16G16B16 => (3, 2),
+        F::R16G16B16A16 => (4, 2),
+        F::R32G32B32FLOAT => (3, 4),
+        F::R32G32B32A32FLOAT => (4, 4),
+    };
+    if d.pixels.len() < n * ch * bytes {
+        return None;
+    }
+    let comp = |i: usize| -> f32 {
+        match bytes {
+            1 => d.pixels[i] as f32 / 255.0,
+            2 => u16::from_le_bytes([d.pixels[2 * i], d.pixels[2 * i + 1]]) as f32 / 65535.0,
+            _ => f32::from_le_bytes([d.pixels[4 * i], d.pixels[4 * i + 1], d.pixels[4 * i + 2], d.pixels[4 * i + 3]]),
+        }
+    };
+    let texels = (0..n)
+        .map(|p| {
+            let c: Vec<f32> = (0..ch).map(|k| comp(p * ch + k)).collect();
+            let mut t = match ch {
+                1 => [c[0], c[0], c[0], 1.0],
+                2 => [c[0], c[1], 0.0, 1.0],
+                3 => [c[0], c[1], c[2], 1.0],
+                _ => [c[0], c[1], c[2], c[3]],
+            };
+            if srgb && bytes != 4 {
+                for v in &mut t[..3] {
+                    *v = srgb_to_linear(*v);
+                }
+            }
+            t
+        })
+        .collect();
+    Some(Texture { name: name.into(), width: d.width, height: d.height, texels })
+}
+
+/// Add the asset's parts to `scene` as objects placed by `placement`, playing `animation`
+/// (index; ignored when the file has none). `material` overrides every part's material.
+/// Returns the range of the new objects.
+pub fn instantiate(
+    scene: &mut Scene,
+    asset: &GltfAsset,
+    placement: Mat4,
+    animation: Option<usize>,
+    material: Option<usize>,
+    path: &Path,
+) -> Result<std::ops::Range<usize>, SceneError> {
+    let rig = Arc::new(Rig { animation: animation.filter(|&a| a < asset.rig.animations.len()), ..asset.rig.clone() });
+    let tex0 = scene.textures.len();
+    scene.textures.extend(asset.textures.iter().cloned());
+    let mat0 = scene.materials.len();
+    scene.material_extras.resize(mat0, MaterialExtra::default());
+    for (m, e) in asset.materials.iter().zip(&asset.extras) {
+        scene.materials.push(m.clone());
+        scene.material_extras.push(MaterialExtra {
+            albedo_map: e.albedo_map.map(|t| t + tex0),
+            roughness_map: e.roughness_map.map(|t| t + tex0),
+            ..e.clone()
+        });
+    }
+    let mut default_mat = None;
+    let mesh0 = scene.meshes.len();
+    scene.meshes.extend(asset.primitives.iter().map(|p| p.mesh.clone()));
+    scene.object_info.resize(scene.objects.len(), ObjectInfo::default());
+    let first = scene.objects.len();
+    scene.warnings.extend(asset.warnings.iter().cloned());
+    for part in &asset.parts {
+        let prim = &asset.primitives[part.primitive];
+        let mat = match (material, prim.material) {
+            (Some(m), _) => m,
+            (None, Some(m)) => mat0 + m,
+            (None, None) => *default_mat.get_or_insert_with(|| {
+                scene.materials.push(Material::glossy("gltf_default", Vec3::splat(0.8), Vec3::splat(0.04), 0.5));
+                scene.material_extras.push(MaterialExtra::default());
+                scene.materials.len() - 1
+            }),
+        };
+        let mut info = ObjectInfo { source: Some(path.to_path_buf()), ..Default::default() };
+        info.thin_shell = prim.material.map_or(false, |m| asset.extras[m].two_sided);
+        let transform;
+        if !prim.targets.is_empty() {
+            info.deformations.push(Deformation::Morph {
+                rig: rig.clone(),
+                node: part.node,
+                targets: prim.targets.clone(),
+                default_weights: prim.default_weights.clone(),
+            });
+        }
+        match (part.skin, &prim.joints, &prim.weights) {
+            (Some(s), Some(j), Some(w)) => {
+                // Skinned vertices are placed by the joints (the node transform is ignored).
+                info.deformations.push(Deformation::Skin { rig: rig.clone(), skin: s, joints: j.clone(), weights: w.clone() });
+                transform = placement;
+            }
+            _ => {
+                transform = placement * rig.global(part.node, 0.0);
+                if rig.node_animated(part.node) {
+                    info.node = Some(NodeMotion { rig: rig.clone(), node: part.node, placement });
+                }
+            }
+        }
+        scene.objects.push(Object { name: part.name.clone(), mesh: mesh0 + part.primitive, material: mat, transform });
+        scene.object_info.push(info);
+    }
+    Ok(first..scene.objects.len())
+}
