@@ -41,7 +41,7 @@ pub fn erf(x: f64) -> f64 {
             n += 1.0;
             term *= 2.0 * x2 / (2.0 * n + 1.0);
             sum += term;
-            if term < sum * 1e-17 {
+            if term <= sum * 1e-17 || n > 200.0 {
                 break;
             }
         }

@@ -1,1 +1,17 @@
-//! Passes.
+//! One module per render-graph pass. Each pass owns its shaders (under `glsl/`), its parameters
+//! with documented defaults, and its tests. A pass is created once (pipelines) and added to each
+//! frame's graph with `add`, which declares every resource use and returns the new handles.
+
+pub mod env;
+pub mod gbuffer;
+pub mod readback;
+pub mod scene_gpu;
+pub mod shade_env;
+pub mod tonemap;
+pub mod util;
+
+pub use env::EnvMapGpu;
+pub use gbuffer::{GBuffer, GBufferPass};
+pub use scene_gpu::{FrameConstants, SceneGpu};
+pub use shade_env::ShadeEnvPass;
+pub use tonemap::TonemapPass;

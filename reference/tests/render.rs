@@ -12,15 +12,23 @@ fn camera(eye: Vec3, target: Vec3, fov: f32) -> Camera {
     Camera { eye, target, up: Vec3::Y, fov_y_deg: fov, near: 0.01, far: 100.0 }
 }
 
+/// A scene with only what the test sets (built from the default scene so that fields the scene
+/// crate adds keep their defaults).
 fn plane_scene(material: Material, env: Environment, cam: Camera) -> Scene {
-    Scene {
-        name: "plane".into(),
-        camera: cam,
-        environment: Some(env),
-        meshes: vec![MeshData::plane(40.0, 1)],
-        materials: vec![material],
-        objects: vec![Object { name: "ground".into(), mesh: 0, material: 0, transform: Mat4::IDENTITY }],
-    }
+    let mut s = Scene::default_scene();
+    s.name = "plane".into();
+    s.camera = cam;
+    s.environment = Some(env);
+    s.meshes = vec![MeshData::plane(40.0, 1)];
+    s.materials = vec![material];
+    s.objects = vec![Object { name: "ground".into(), mesh: 0, material: 0, transform: Mat4::IDENTITY }];
+    s.lights.clear();
+    s.medium = None;
+    s.material_extras.clear();
+    s.object_info.clear();
+    s.material_animations.clear();
+    s.camera_path = None;
+    s
 }
 
 fn opts(w: u32, h: u32, spp: u32, seed: u64) -> ReferenceOptions {

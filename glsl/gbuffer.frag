@@ -1,0 +1,37 @@
+#version 450
+#include "common.glsl"
+
+layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
+
+layout(location = 0) in vec3 v_world;
+layout(location = 1) in vec3 v_normal;
+layout(location = 2) in vec2 v_uv;
+layout(location = 3) in vec4 v_clip;
+layout(location = 4) in vec4 v_prev_clip;
+layout(location = 5) flat in uvec2 v_ids;
+
+layout(location = 0) out vec4 o_position;  // world position, linear distance to the eye
+layout(location = 1) out vec4 o_normal;    // octahedral normal.xy, octahedral tangent.xy
+layout(location = 2) out vec4 o_uv_mat;    // uv, material index, instance id + 1 (0 = sky)
+layout(location = 3) out vec2 o_motion;    // pixels moved since the previous frame
+
+void main() {
+    vec3 n = normalize(v_normal);
+    vec3 v = cam.eye.xyz - v_world;
+    if (!gl_FrontFacing) n = -n;  // two-sided shading
+    // Tangent from screen-space derivatives of position and uv (local frame for anisotropic BRDFs).
+    vec3 dp1 = dFdx(v_world), dp2 = dFdy(v_world);
+    vec2 duv1 = dFdx(v_uv), duv2 = dFdy(v_uv);
+    vec3 t = dp1 * duv2.y - dp2 * duv1.y;
+    t -= n * dot(n, t);
+    if (dot(t, t) < 1e-20) {
+        t = abs(n.y) < 0.99 ? cross(vec3(0, 1, 0), n) : cross(vec3(1, 0, 0), n);
+    }
+    t = normalize(t);
+    o_position = vec4(v_world, length(v));
+    o_normal = vec4(oct_encode(n), oct_encode(t));
+    o_uv_mat = vec4(v_uv, float(v_ids.x), float(v_ids.y + 1u));
+    vec2 ndc = v_clip.xy / v_clip.w;
+    vec2 prev_ndc = v_prev_clip.xy / v_prev_clip.w;
+    o_motion = (ndc - prev_ndc) * 0.5 * cam.params.xy;
+}

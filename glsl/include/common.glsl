@@ -1,0 +1,72 @@
+// Shared declarations: camera block, encodings, lat-long mapping (same convention as
+// penumbra_scene::Environment::direction: v = 0 is +Y, phi = 2*pi*u grows from -Z towards +X).
+#ifndef PENUMBRA_COMMON_GLSL
+#define PENUMBRA_COMMON_GLSL
+
+#define PI 3.14159265358979323846
+
+struct CameraData {
+    mat4 view_proj;
+    mat4 prev_view_proj;
+    mat4 inv_view_proj;
+    vec4 eye;          // xyz eye position
+    vec4 params;       // x width, y height, z env mip count, w env intensity
+    vec4 env_rot;      // x cos(rotation), y sin(rotation), z exposure, w unused
+    vec4 sh[9];        // irradiance SH (already convolved with the clamped cosine), rgb
+};
+
+struct InstanceData {
+    mat4 model;
+    mat4 prev_model;
+    mat4 normal_matrix;
+    uvec4 ids;         // x material, y instance id
+};
+
+struct MaterialData {
+    vec4 albedo_kind;  // rgb albedo, w kind (0 diffuse, 1 Blinn-Phong, 2 Cook-Torrance, 3 Ashikhmin-Shirley)
+    vec4 spec_rough;   // rgb specular F0, w roughness
+    vec4 extra;        // x Blinn-Phong shininess
+};
+
+vec2 oct_wrap(vec2 v) {
+    return (1.0 - abs(v.yx)) * vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);
+}
+
+vec2 oct_encode(vec3 n) {
+    n /= (abs(n.x) + abs(n.y) + abs(n.z));
+    vec2 e = n.z >= 0.0 ? n.xy : oct_wrap(n.xy);
+    return e;
+}
+
+vec3 oct_decode(vec2 e) {
+    vec3 n = vec3(e.x, e.y, 1.0 - abs(e.x) - abs(e.y));
+    if (n.z < 0.0) n.xy = oct_wrap(n.xy);
+    return normalize(n);
+}
+
+// Lat-long (u, v) for a world direction, after undoing the environment rotation about +Y.
+vec2 dir_to_latlong(vec3 d, vec2 cos_sin_rot) {
+    // Rotate by -rotation about +Y.
+    float c = cos_sin_rot.x, s = cos_sin_rot.y;
+    vec3 r = vec3(c * d.x - s * d.z, d.y, s * d.x + c * d.z);
+    float theta = acos(clamp(r.y, -1.0, 1.0));
+    float phi = atan(r.x, -r.z);
+    if (phi < 0.0) phi += 2.0 * PI;
+    return vec2(phi / (2.0 * PI), theta / PI);
+}
+
+// Irradiance from 9 SH coefficients (Ramamoorthi and Hanrahan 2001), already convolved.
+vec3 sh9_irradiance(vec4 sh[9], vec3 n) {
+    vec3 r = sh[0].rgb * 0.282095;
+    r += sh[1].rgb * 0.488603 * n.y;
+    r += sh[2].rgb * 0.488603 * n.z;
+    r += sh[3].rgb * 0.488603 * n.x;
+    r += sh[4].rgb * 1.092548 * n.x * n.y;
+    r += sh[5].rgb * 1.092548 * n.y * n.z;
+    r += sh[6].rgb * 0.315392 * (3.0 * n.z * n.z - 1.0);
+    r += sh[7].rgb * 1.092548 * n.x * n.z;
+    r += sh[8].rgb * 0.546274 * (n.x * n.x - n.y * n.y);
+    return max(r, vec3(0.0));
+}
+
+#endif

@@ -1,0 +1,251 @@
+//! The environment map on the GPU: an RGBA32F lat-long image with a box-filtered mip chain
+//! (uploaded once by the `env_upload` transfer pass into a persistent image), and its
+//! 9-coefficient SH irradiance (Ramamoorthi and Hanrahan 2001) for diffuse shading.
+//!
+//! Orientation: `penumbra_scene::Environment::direction` (v = 0 is +Y); the scene's `rotation`
+//! turns the map about +Y, the shader undoes it per lookup.
+
+use crate::util::bytes_of;
+use glam::Vec3;
+use penumbra_engine::graph::ImageDesc;
+use penumbra_engine::{vk, Access, Engine, Graph, ImageHandle, PassKind};
+use penumbra_scene::Environment;
+
+/// CPU-side environment data ready for the GPU.
+#[derive(Clone, Debug)]
+pub struct EnvMapGpu {
+    pub width: u32,
+    pub height: u32,
+    /// RGBA texels of every mip level, level 0 first.
+    pub mips: Vec<(u32, u32, Vec<[f32; 4]>)>,
+    /// Irradiance SH (already convolved with the clamped cosine), rgb per coefficient.
+    pub sh: [[f32; 3]; 9],
+    pub intensity: f32,
+    pub rotation: f32,
+    /// Texels that were NaN/Inf/negative and were replaced by 0.
+    pub repaired_texels: usize,
+}
+
+/// Real SH basis, bands 0..2, in the order used by `sh9_irradiance` in `common.glsl`.
+pub fn sh9_basis(d: Vec3) -> [f32; 9] {
+    [
+        0.282095,
+        0.488603 * d.y,
+        0.488603 * d.z,
+        0.488603 * d.x,
+        1.092548 * d.x * d.y,
+        1.092548 * d.y * d.z,
+        0.315392 * (3.0 * d.z * d.z - 1.0),
+        1.092548 * d.x * d.z,
+        0.546274 * (d.x * d.x - d.y * d.y),
+    ]
+}
+
+/// Irradiance from the convolved coefficients (CPU twin of the shader).
+pub fn sh9_irradiance(sh: &[[f32; 3]; 9], n: Vec3) -> Vec3 {
+    let b = sh9_basis(n);
+    let mut r = Vec3::ZERO;
+    for i in 0..9 {
+        r += Vec3::from_array(sh[i]) * b[i];
+    }
+    r.max(Vec3::ZERO)
+}
+
+/// World direction of lat-long (u, v) with the map turned by `rotation` about +Y.
+pub fn world_direction(u: f32, v: f32, rotation: f32) -> Vec3 {
+    let r = Environment::direction(u, v);
+    let (s, c) = rotation.sin_cos();
+    Vec3::new(c * r.x + s * r.z, r.y, -s * r.x + c * r.z)
+}
+
+impl EnvMapGpu {
+    pub fn new(env: Option<&Environment>) -> Self {
+        let black;
+        let env = match env {
+            Some(e) if e.width > 0 && e.height > 0 && e.texels.len() == (e.width * e.height) as usize => e,
+            _ => {
+                black = Environment { width: 4, height: 2, texels: vec![[0.0; 3]; 8], intensity: 0.0, rotation: 0.0 };
+                &black
+            }
+        };
+        let mut repaired = 0;
+        let base: Vec<[f32; 4]> = env
+            .texels
+            .iter()
+            .map(|t| {
+                let ok = t.iter().all(|c| c.is_finite() && *c >= 0.0);
+                if !ok {
+                    repaired += 1;
+                }
+                if ok { [t[0], t[1], t[2], 1.0] } else { [0.0, 0.0, 0.0, 1.0] }
+            })
+            .collect();
+        // SH projection, weighted by texel solid angle (2 pi / W)(pi / H) sin(theta); f64 sums
+        // so a 1e4-bright sun does not swamp the sky's contribution.
+        let (w, h) = (env.width, env.height);
+        let mut acc = [[0f64; 3]; 9];
+        let dw = (2.0 * std::f64::consts::PI / w as f64) * (std::f64::consts::PI / h as f64);
+        for j in 0..h {
+            let v = (j as f32 + 0.5) / h as f32;
+            let sin_t = (std::f64::consts::PI * v as f64).sin();
+            for i in 0..w {
+                let u = (i as f32 + 0.5) / w as f32;
+                let d = world_direction(u, v, env.rotation);
+                let b = sh9_basis(d);
+                let t = base[(j * w + i) as usize];
+                for k in 0..9 {
+                    for c in 0..3 {
+                        acc[k][c] += t[c] as f64 * b[k] as f64 * dw * sin_t;
+                    }
+                }
+            }
+        }
+        let band = [std::f64::consts::PI, 2.0 * std::f64::consts::PI / 3.0, std::f64::consts::PI / 4.0];
+        let mut sh = [[0f32; 3]; 9];
+        for k in 0..9 {
+            let l = if k == 0 { 0 } else if k < 4 { 1 } else { 2 };
+            for c in 0..3 {
+                sh[k][c] = (acc[k][c] * band[l]) as f32;
+            }
+        }
+        // Box-filtered mip chain down to 1x1.
+        let mut mips = vec![(w, h, base)];
+        while mips.last().map_or(false, |m| m.0 > 1 || m.1 > 1) {
+            let (pw, ph, prev) = mips.last().unwrap();
+            let (nw, nh) = ((pw / 2).max(1), (ph / 2).max(1));
+            let mut next = vec![[0f32; 4]; (nw * nh) as usize];
+            for y in 0..nh {
+                for x in 0..nw {
+                    let mut s = [0f32; 4];
+                    let mut n = 0.0;
+                    for dy in 0..2 {
+                        for dx in 0..2 {
+                            let sx = (x * 2 + dx).min(pw - 1);
+                            let sy = (y * 2 + dy).min(ph - 1);
+                            let t = prev[(sy * pw + sx) as usize];
+                            for c in 0..4 {
+                                s[c] += t[c];
+                            }
+                            n += 1.0;
+                        }
+                    }
+                    next[(y * nw + x) as usize] = s.map(|c| c / n);
+                }
+            }
+            mips.push((nw, nh, next));
+        }
+        EnvMapGpu {
+            width: w,
+            height: h,
+            mips,
+            sh,
+            intensity: env.intensity,
+            rotation: env.rotation,
+            repaired_texels: repaired,
+        }
+    }
+
+    pub fn desc(&self) -> ImageDesc {
+        ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, self.width, self.height).with_mips(self.mips.len() as u32)
+    }
+
+    /// Declares the persistent `env_map` image; on its first frame adds the `env_upload` pass.
+    /// Returns the handle to sample.
+    pub fn add(&self, engine: &mut Engine, graph: &mut Graph) -> ImageHandle {
+        let img = engine.persistent_image(graph, "env_map", self.desc());
+        if !graph.persistent_is_new(img) {
+            return img;
+        }
+        let mut data = Vec::new();
+        let mut regions = Vec::new();
+        for (level, (w, h, texels)) in self.mips.iter().enumerate() {
+            regions.push(
+                vk::BufferImageCopy::default()
+                    .buffer_offset(data.len() as u64)
+                    .image_subresource(vk::ImageSubresourceLayers {
+                        aspect_mask: vk::ImageAspectFlags::COLOR,
+                        mip_level: level as u32,
+                        base_array_layer: 0,
+                        layer_count: 1,
+                    })
+                    .image_extent(vk::Extent3D { width: *w, height: *h, depth: 1 }),
+            );
+            data.extend_from_slice(&bytes_of(texels));
+        }
+        let staging = graph.create_buffer_init("env_staging", data);
+        let mut p = graph.pass("env_upload", PassKind::Transfer);
+        p.read(staging, Access::TransferSrc);
+        let img = p.write(img, Access::TransferDst);
+        p.record(move |rc| {
+            let src = rc.buffer(staging)?;
+            let dst = rc.image(img)?;
+            unsafe {
+                rc.device().cmd_copy_buffer_to_image(
+                    rc.cmd,
+                    src.buffer,
+                    dst.image,
+                    vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                    &regions,
+                )
+            };
+            Ok(())
+        });
+        img
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn uniform(w: u32, h: u32, l: f32) -> Environment {
+        Environment { width: w, height: h, texels: vec![[l; 3]; (w * h) as usize], intensity: 1.0, rotation: 0.3 }
+    }
+
+    #[test]
+    fn uniform_environment_gives_pi_irradiance() {
+        let e = EnvMapGpu::new(Some(&uniform(64, 32, 2.0)));
+        for n in [Vec3::X, Vec3::Y, Vec3::NEG_Y, Vec3::new(0.3, -0.5, 0.8).normalize()] {
+            let irr = sh9_irradiance(&e.sh, n);
+            // Midpoint quadrature of sin(theta) on 32 rows: relative error ~ 1e-3.
+            assert!((irr.x / (2.0 * std::f32::consts::PI) - 1.0).abs() < 2e-3, "{n:?}: {irr:?}");
+        }
+        assert_eq!(e.mips.last().unwrap().0, 1);
+        assert_eq!(e.mips.len(), 7);
+    }
+
+    #[test]
+    fn upper_hemisphere_light_matches_clamped_cosine() {
+        // L = 1 above the horizon, 0 below: E(+Y) = pi, E(-Y) = 0, E(horizontal) = pi/2.
+        let (w, h) = (128u32, 64u32);
+        let texels = (0..h)
+            .flat_map(|j| (0..w).map(move |_| if j < h / 2 { [1.0; 3] } else { [0.0; 3] }))
+            .collect();
+        let env = Environment { width: w, height: h, texels, intensity: 1.0, rotation: 0.0 };
+        let e = EnvMapGpu::new(Some(&env));
+        let pi = std::f32::consts::PI;
+        // Order-2 SH of a hemispherical step: known ringing; bounds from Ramamoorthi-Hanrahan (~9% max error).
+        assert!((sh9_irradiance(&e.sh, Vec3::Y).x - pi).abs() < 0.1 * pi);
+        assert!(sh9_irradiance(&e.sh, Vec3::NEG_Y).x < 0.1 * pi);
+        assert!((sh9_irradiance(&e.sh, Vec3::X).x - pi / 2.0).abs() < 0.02 * pi);
+    }
+
+    #[test]
+    fn bad_texels_are_repaired_and_counted() {
+        let mut env = uniform(8, 4, 1.0);
+        env.texels[3] = [f32::NAN, 1.0, 1.0];
+        env.texels[5] = [f32::INFINITY, 1.0, 1.0];
+        env.texels[6] = [-1.0, 1.0, 1.0];
+        let e = EnvMapGpu::new(Some(&env));
+        assert_eq!(e.repaired_texels, 3);
+        assert!(e.sh.iter().flatten().all(|c| c.is_finite()));
+        assert!(e.mips.iter().all(|m| m.2.iter().flatten().all(|c| c.is_finite())));
+    }
+
+    #[test]
+    fn missing_environment_is_black() {
+        let e = EnvMapGpu::new(None);
+        assert_eq!(e.intensity, 0.0);
+        assert!(e.sh.iter().flatten().all(|c| *c == 0.0));
+    }
+}

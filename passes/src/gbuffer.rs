@@ -1,0 +1,179 @@
+//! The raster G-buffer pass: world position and eye distance, octahedral normal and tangent
+//! (local frame), uv + material index + instance id, motion vectors in pixels, and depth.
+
+use crate::scene_gpu::{DrawList, SceneHandles, Vertex};
+use crate::util::{layouts, Pipeline};
+use anyhow::{Context as _, Result};
+use penumbra_engine::graph::ImageDesc;
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{vk, Access, Bind, Context, Graph, ImageHandle, PassKind};
+use std::sync::Arc;
+
+pub const POSITION_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
+pub const NORMAL_FORMAT: vk::Format = vk::Format::R16G16B16A16_SFLOAT;
+pub const UV_MAT_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
+pub const MOTION_FORMAT: vk::Format = vk::Format::R16G16_SFLOAT;
+pub const DEPTH_FORMAT: vk::Format = vk::Format::D32_SFLOAT;
+
+/// The G-buffer images of one frame.
+#[derive(Clone, Copy, Debug)]
+pub struct GBuffer {
+    pub position: ImageHandle,
+    pub normal: ImageHandle,
+    pub uv_mat: ImageHandle,
+    pub motion: ImageHandle,
+    pub depth: ImageHandle,
+    pub width: u32,
+    pub height: u32,
+}
+
+pub struct GBufferPass {
+    pipeline: Pipeline,
+}
+
+impl GBufferPass {
+    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
+        let d = &ctx.device;
+        let (set_layout, layout) = layouts(
+            ctx,
+            "gbuffer",
+            &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
+            vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT,
+            0,
+        )?;
+        let vs = ctx.create_shader_module("gbuffer.vert", shaders.get("gbuffer.vert")?)?;
+        let fs = ctx.create_shader_module("gbuffer.frag", shaders.get("gbuffer.frag")?)?;
+        let stages = [
+            vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::VERTEX).module(vs).name(c"main"),
+            vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::FRAGMENT).module(fs).name(c"main"),
+        ];
+        let bindings = [vk::VertexInputBindingDescription {
+            binding: 0,
+            stride: std::mem::size_of::<Vertex>() as u32,
+            input_rate: vk::VertexInputRate::VERTEX,
+        }];
+        let attrs = [
+            vk::VertexInputAttributeDescription { location: 0, binding: 0, format: vk::Format::R32G32B32_SFLOAT, offset: 0 },
+            vk::VertexInputAttributeDescription { location: 1, binding: 0, format: vk::Format::R32G32B32_SFLOAT, offset: 12 },
+            vk::VertexInputAttributeDescription { location: 2, binding: 0, format: vk::Format::R32G32_SFLOAT, offset: 24 },
+        ];
+        let vi = vk::PipelineVertexInputStateCreateInfo::default()
+            .vertex_binding_descriptions(&bindings)
+            .vertex_attribute_descriptions(&attrs);
+        let ia = vk::PipelineInputAssemblyStateCreateInfo::default().topology(vk::PrimitiveTopology::TRIANGLE_LIST);
+        let vp = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
+        let rs = vk::PipelineRasterizationStateCreateInfo::default()
+            .polygon_mode(vk::PolygonMode::FILL)
+            .cull_mode(vk::CullModeFlags::NONE)
+            .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
+            .line_width(1.0);
+        let ms = vk::PipelineMultisampleStateCreateInfo::default().rasterization_samples(vk::SampleCountFlags::TYPE_1);
+        let ds = vk::PipelineDepthStencilStateCreateInfo::default()
+            .depth_test_enable(true)
+            .depth_write_enable(true)
+            .depth_compare_op(vk::CompareOp::LESS);
+        let blend = [vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA); 4];
+        let cb = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend);
+        let dyn_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
+        let dy = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dyn_states);
+        let formats = [POSITION_FORMAT, NORMAL_FORMAT, UV_MAT_FORMAT, MOTION_FORMAT];
+        let mut rendering = vk::PipelineRenderingCreateInfo::default()
+            .color_attachment_formats(&formats)
+            .depth_attachment_format(DEPTH_FORMAT);
+        let ci = [vk::GraphicsPipelineCreateInfo::default()
+            .stages(&stages)
+            .vertex_input_state(&vi)
+            .input_assembly_state(&ia)
+            .viewport_state(&vp)
+            .rasterization_state(&rs)
+            .multisample_state(&ms)
+            .depth_stencil_state(&ds)
+            .color_blend_state(&cb)
+            .dynamic_state(&dy)
+            .layout(layout)
+            .push_next(&mut rendering)];
+        let res = unsafe { d.create_graphics_pipelines(vk::PipelineCache::null(), &ci, None) };
+        unsafe {
+            d.destroy_shader_module(vs, None);
+            d.destroy_shader_module(fs, None);
+        }
+        let pipeline = res.map_err(|(_, e)| e).context("gbuffer pipeline")?[0];
+        ctx.set_name(pipeline, "gbuffer");
+        Ok(GBufferPass { pipeline: Pipeline::from_raw(ctx, pipeline, layout, set_layout) })
+    }
+
+    /// Declares the G-buffer images and the `gbuffer` pass that fills them.
+    pub fn add(&self, graph: &mut Graph, scene: &SceneHandles, draws: DrawList, width: u32, height: u32) -> GBuffer {
+        let position = graph.create_image("gb_position", ImageDesc::new_2d(POSITION_FORMAT, width, height));
+        let normal = graph.create_image("gb_normal", ImageDesc::new_2d(NORMAL_FORMAT, width, height));
+        let uv_mat = graph.create_image("gb_uv_mat", ImageDesc::new_2d(UV_MAT_FORMAT, width, height));
+        let motion = graph.create_image("gb_motion", ImageDesc::new_2d(MOTION_FORMAT, width, height));
+        let depth = graph.create_image("gb_depth", ImageDesc::new_2d(DEPTH_FORMAT, width, height));
+        let mut p = graph.pass("gbuffer", PassKind::Raster);
+        let position = p.write(position, Access::ColorAttachmentWrite);
+        let normal = p.write(normal, Access::ColorAttachmentWrite);
+        let uv_mat = p.write(uv_mat, Access::ColorAttachmentWrite);
+        let motion = p.write(motion, Access::ColorAttachmentWrite);
+        let depth = p.write(depth, Access::DepthAttachmentWrite);
+        let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
+        let instances = p.read(scene.instances, Access::VertexShaderReadStorage);
+        let vertices = p.read(scene.vertices, Access::VertexBuffer);
+        let indices = p.read(scene.indices, Access::IndexBuffer);
+        let pipeline = self.pipeline.pipeline;
+        let layout = self.pipeline.layout;
+        p.record(move |rc| {
+            let d = rc.device();
+            let color = |h: ImageHandle| -> Result<vk::RenderingAttachmentInfo<'static>> {
+                Ok(vk::RenderingAttachmentInfo::default()
+                    .image_view(rc.image(h)?.view)
+                    .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+                    .load_op(vk::AttachmentLoadOp::CLEAR)
+                    .store_op(vk::AttachmentStoreOp::STORE)
+                    .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: [0.0; 4] } }))
+            };
+            let colors = [color(position)?, color(normal)?, color(uv_mat)?, color(motion)?];
+            let depth_att = vk::RenderingAttachmentInfo::default()
+                .image_view(rc.image(depth)?.view)
+                .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
+                .load_op(vk::AttachmentLoadOp::CLEAR)
+                .store_op(vk::AttachmentStoreOp::STORE)
+                .clear_value(vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } });
+            let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width, height } };
+            let info = vk::RenderingInfo::default()
+                .render_area(area)
+                .layer_count(1)
+                .color_attachments(&colors)
+                .depth_attachment(&depth_att);
+            let vb = rc.buffer(vertices)?;
+            let ib = rc.buffer(indices)?;
+            unsafe {
+                d.cmd_begin_rendering(rc.cmd, &info);
+                d.cmd_set_viewport(
+                    rc.cmd,
+                    0,
+                    &[vk::Viewport { x: 0.0, y: 0.0, width: width as f32, height: height as f32, min_depth: 0.0, max_depth: 1.0 }],
+                );
+                d.cmd_set_scissor(rc.cmd, 0, &[area]);
+                d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+            }
+            rc.push_descriptors(
+                vk::PipelineBindPoint::GRAPHICS,
+                layout,
+                0,
+                &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)],
+            )?;
+            unsafe {
+                if !draws.is_empty() {
+                    d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb.buffer], &[0]);
+                    d.cmd_bind_index_buffer(rc.cmd, ib.buffer, 0, vk::IndexType::UINT32);
+                }
+                for (m, inst) in &draws {
+                    d.cmd_draw_indexed(rc.cmd, m.index_count, 1, m.first_index, m.vertex_offset, *inst);
+                }
+                d.cmd_end_rendering(rc.cmd);
+            }
+            Ok(())
+        });
+        GBuffer { position, normal, uv_mat, motion, depth, width, height }
+    }
+}

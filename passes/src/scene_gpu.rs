@@ -1,0 +1,219 @@
+//! The scene's GPU data: one vertex and one index buffer for all meshes, the material table
+//! (uploaded once), and per-frame camera constants and instance transforms (host-initialised
+//! graph buffers).
+
+use crate::util::bytes_of;
+use anyhow::{bail, Result};
+use glam::{Mat4, Vec3};
+use penumbra_engine::{vk, BufferHandle, Context, GpuBuffer, Graph};
+use penumbra_scene::{BrdfKind, Frame, Scene};
+use std::sync::Arc;
+
+/// Interleaved vertex: position, normal, uv (32 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Vertex {
+    pub pos: [f32; 3],
+    pub normal: [f32; 3],
+    pub uv: [f32; 2],
+}
+
+/// std140 layout of `CameraData` in `glsl/include/common.glsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct FrameConstants {
+    pub view_proj: [[f32; 4]; 4],
+    pub prev_view_proj: [[f32; 4]; 4],
+    pub inv_view_proj: [[f32; 4]; 4],
+    pub eye: [f32; 4],
+    /// width, height, env mip count, env intensity
+    pub params: [f32; 4],
+    /// cos(rotation), sin(rotation), exposure, unused
+    pub env_rot: [f32; 4],
+    pub sh: [[f32; 4]; 9],
+}
+
+/// std430 layout of `InstanceData`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+struct InstanceData {
+    model: [[f32; 4]; 4],
+    prev_model: [[f32; 4]; 4],
+    normal_matrix: [[f32; 4]; 4],
+    ids: [u32; 4],
+}
+
+/// std430 layout of `MaterialData`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+struct MaterialData {
+    albedo_kind: [f32; 4],
+    spec_rough: [f32; 4],
+    extra: [f32; 4],
+}
+
+#[derive(Clone, Copy, Debug)]
+pub struct MeshRange {
+    pub first_index: u32,
+    pub index_count: u32,
+    pub vertex_offset: i32,
+}
+
+pub struct SceneGpu {
+    ctx: Arc<Context>,
+    vertices: Option<GpuBuffer>,
+    indices: Option<GpuBuffer>,
+    materials: Option<GpuBuffer>,
+    pub meshes: Vec<MeshRange>,
+    pub vertex_count: usize,
+    pub triangle_count: usize,
+}
+
+/// Handles of the scene's buffers in one frame's graph.
+#[derive(Clone, Copy, Debug)]
+pub struct SceneHandles {
+    pub vertices: BufferHandle,
+    pub indices: BufferHandle,
+    pub materials: BufferHandle,
+    pub camera: BufferHandle,
+    pub instances: BufferHandle,
+}
+
+/// Per-frame draw list: (mesh range, instance index).
+pub type DrawList = Vec<(MeshRange, u32)>;
+
+impl SceneGpu {
+    pub fn new(ctx: &Arc<Context>, scene: &Scene) -> Result<Self> {
+        let mut verts = Vec::new();
+        let mut idx = Vec::new();
+        let mut meshes = Vec::new();
+        for (mi, m) in scene.meshes.iter().enumerate() {
+            if m.positions.len() != m.normals.len() || m.positions.len() != m.uvs.len() {
+                bail!("mesh {mi} '{}': positions, normals and uvs differ in count", m.name);
+            }
+            if let Some(bad) = m.indices.iter().find(|&&i| i as usize >= m.positions.len()) {
+                bail!("mesh {mi} '{}': index {bad} out of range ({} vertices)", m.name, m.positions.len());
+            }
+            meshes.push(MeshRange {
+                first_index: idx.len() as u32,
+                index_count: m.indices.len() as u32,
+                vertex_offset: verts.len() as i32,
+            });
+            for i in 0..m.positions.len() {
+                verts.push(Vertex {
+                    pos: m.positions[i].to_array(),
+                    normal: m.normals[i].to_array(),
+                    uv: m.uvs[i].to_array(),
+                });
+            }
+            idx.extend_from_slice(&m.indices);
+        }
+        let materials: Vec<MaterialData> = scene
+            .materials
+            .iter()
+            .map(|m| MaterialData {
+                albedo_kind: [
+                    m.albedo.x,
+                    m.albedo.y,
+                    m.albedo.z,
+                    match m.kind {
+                        BrdfKind::Diffuse => 0.0,
+                        BrdfKind::BlinnPhong => 1.0,
+                        BrdfKind::CookTorrance => 2.0,
+                        BrdfKind::AshikhminShirley => 3.0,
+                    },
+                ],
+                spec_rough: [m.specular.x, m.specular.y, m.specular.z, m.roughness],
+                extra: [m.shininess, 0.0, 0.0, 0.0],
+            })
+            .collect();
+        let vertex_count = verts.len();
+        let triangle_count = idx.len() / 3;
+        let (vertices, indices) = if verts.is_empty() || idx.is_empty() {
+            (None, None)
+        } else {
+            (
+                Some(ctx.create_buffer_with_data("scene.vertices", &bytes_of(&verts), vk::BufferUsageFlags::VERTEX_BUFFER)?),
+                Some(ctx.create_buffer_with_data("scene.indices", &bytes_of(&idx), vk::BufferUsageFlags::INDEX_BUFFER)?),
+            )
+        };
+        let mat_bytes = if materials.is_empty() { vec![0u8; 48] } else { bytes_of(&materials) };
+        let materials = Some(ctx.create_buffer_with_data("scene.materials", &mat_bytes, vk::BufferUsageFlags::STORAGE_BUFFER)?);
+        Ok(SceneGpu { ctx: ctx.clone(), vertices, indices, materials, meshes, vertex_count, triangle_count })
+    }
+
+    /// Imports the static buffers and creates this frame's constants; returns the handles and
+    /// the draw list (empty meshes skipped).
+    pub fn add(&self, graph: &mut Graph, frame: &Frame, constants: &FrameConstants) -> (SceneHandles, DrawList) {
+        let import = |g: &mut Graph, name: &str, b: &Option<GpuBuffer>| match b {
+            Some(b) => g.import_buffer(name, b.buffer, b.size, b.usage),
+            // An empty scene still declares the buffers; they are never bound.
+            None => g.create_buffer_init(name, vec![0u8; 4]),
+        };
+        let vertices = import(graph, "scene.vertices", &self.vertices);
+        let indices = import(graph, "scene.indices", &self.indices);
+        let materials = import(graph, "scene.materials", &self.materials);
+        let mut inst = Vec::new();
+        let mut draws = Vec::new();
+        for (i, it) in frame.instances.iter().enumerate() {
+            let normal = it.world.inverse().transpose();
+            inst.push(InstanceData {
+                model: it.world.to_cols_array_2d(),
+                prev_model: it.prev_world.to_cols_array_2d(),
+                normal_matrix: normal.to_cols_array_2d(),
+                ids: [it.material as u32, i as u32, 0, 0],
+            });
+            if let Some(r) = self.meshes.get(it.mesh) {
+                if r.index_count > 0 {
+                    draws.push((*r, i as u32));
+                }
+            }
+        }
+        if inst.is_empty() {
+            inst.push(InstanceData {
+                model: Mat4::IDENTITY.to_cols_array_2d(),
+                prev_model: Mat4::IDENTITY.to_cols_array_2d(),
+                normal_matrix: Mat4::IDENTITY.to_cols_array_2d(),
+                ids: [0; 4],
+            });
+        }
+        let camera = graph.create_buffer_init("frame.camera", bytes_of(std::slice::from_ref(constants)));
+        let instances = graph.create_buffer_init("frame.instances", bytes_of(&inst));
+        (SceneHandles { vertices, indices, materials, camera, instances }, draws)
+    }
+
+    pub fn vertex_buffer(&self) -> Option<vk::Buffer> {
+        self.vertices.as_ref().map(|b| b.buffer)
+    }
+}
+
+impl FrameConstants {
+    /// Camera matrices for `frame` at `width` x `height`; `prev` is the previous frame's camera
+    /// (the same camera on the first frame).
+    pub fn new(frame: &Frame, prev_view_proj: Option<Mat4>, width: u32, height: u32) -> Self {
+        let aspect = width as f32 / height.max(1) as f32;
+        let vp = frame.camera.proj(aspect) * frame.camera.view();
+        let eye: Vec3 = frame.camera.eye;
+        FrameConstants {
+            view_proj: vp.to_cols_array_2d(),
+            prev_view_proj: prev_view_proj.unwrap_or(vp).to_cols_array_2d(),
+            inv_view_proj: vp.inverse().to_cols_array_2d(),
+            eye: [eye.x, eye.y, eye.z, 1.0],
+            params: [width as f32, height as f32, 1.0, 1.0],
+            env_rot: [1.0, 0.0, 1.0, 0.0],
+            sh: [[0.0; 4]; 9],
+        }
+    }
+
+    pub fn view_proj(&self) -> Mat4 {
+        Mat4::from_cols_array_2d(&self.view_proj)
+    }
+}
+
+impl Drop for SceneGpu {
+    fn drop(&mut self) {
+        for b in [self.vertices.take(), self.indices.take(), self.materials.take()].into_iter().flatten() {
+            self.ctx.destroy_buffer(b);
+        }
+    }
+}

@@ -1,0 +1,77 @@
+//! Environment-lit shading without shadows (`glsl/shade_env.comp`): diffuse from SH irradiance,
+//! glossy from the mip-filtered environment map with an analytic environment BRDF.
+
+use crate::gbuffer::GBuffer;
+use crate::scene_gpu::SceneHandles;
+use crate::util::{compute_pipeline, groups, Pipeline, Sampler};
+use anyhow::Result;
+use penumbra_engine::graph::ImageDesc;
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{vk, Access, Bind, Context, Graph, ImageHandle, PassKind};
+use std::sync::Arc;
+
+pub const HDR_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
+
+pub struct ShadeEnvPass {
+    pipeline: Pipeline,
+    nearest: Sampler,
+    linear: Sampler,
+}
+
+impl ShadeEnvPass {
+    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
+        use vk::DescriptorType as T;
+        let pipeline = compute_pipeline(
+            ctx,
+            shaders,
+            "shade_env.comp",
+            &[
+                T::UNIFORM_BUFFER,
+                T::STORAGE_BUFFER,
+                T::COMBINED_IMAGE_SAMPLER,
+                T::COMBINED_IMAGE_SAMPLER,
+                T::COMBINED_IMAGE_SAMPLER,
+                T::COMBINED_IMAGE_SAMPLER,
+                T::STORAGE_IMAGE,
+            ],
+            0,
+        )?;
+        Ok(ShadeEnvPass { pipeline, nearest: Sampler::nearest(ctx)?, linear: Sampler::latlong(ctx)? })
+    }
+
+    /// Adds the `shade_env` pass; returns the linear HDR radiance image.
+    pub fn add(&self, graph: &mut Graph, scene: &SceneHandles, gb: &GBuffer, env: ImageHandle) -> ImageHandle {
+        let (w, h) = (gb.width, gb.height);
+        let hdr = graph.create_image("hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
+        let mut p = graph.pass("shade_env", PassKind::Compute);
+        let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
+        let materials = p.read(scene.materials, Access::ComputeShaderReadStorage);
+        let pos = p.read(gb.position, Access::ComputeShaderReadSampled);
+        let nrm = p.read(gb.normal, Access::ComputeShaderReadSampled);
+        let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
+        let env = p.read(env, Access::ComputeShaderReadSampled);
+        let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
+        let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
+        let (nearest, linear) = (self.nearest.sampler, self.linear.sampler);
+        p.record(move |rc| {
+            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
+            rc.push_descriptors(
+                vk::PipelineBindPoint::COMPUTE,
+                layout,
+                0,
+                &[
+                    Bind::UniformBuffer(camera),
+                    Bind::StorageBuffer(materials),
+                    Bind::SampledImage(pos, nearest),
+                    Bind::SampledImage(nrm, nearest),
+                    Bind::SampledImage(uvm, nearest),
+                    Bind::SampledImage(env, linear),
+                    Bind::StorageImage(hdr),
+                ],
+            )?;
+            unsafe { rc.device().cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1) };
+            Ok(())
+        });
+        hdr
+    }
+}

@@ -1,0 +1,151 @@
+//! Pipeline helpers shared by the passes: push-descriptor set layouts, compute pipelines,
+//! samplers. Every object is named for validation messages.
+
+use anyhow::{Context as _, Result};
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{vk, Context};
+use std::sync::Arc;
+
+/// A pipeline with its layout and push-descriptor set layout; destroyed on drop.
+pub struct Pipeline {
+    ctx: Arc<Context>,
+    pub pipeline: vk::Pipeline,
+    pub layout: vk::PipelineLayout,
+    pub set_layout: vk::DescriptorSetLayout,
+}
+
+impl Pipeline {
+    /// Takes ownership of objects created elsewhere (graphics pipelines).
+    pub fn from_raw(ctx: &Arc<Context>, pipeline: vk::Pipeline, layout: vk::PipelineLayout, set_layout: vk::DescriptorSetLayout) -> Self {
+        Pipeline { ctx: ctx.clone(), pipeline, layout, set_layout }
+    }
+}
+
+impl Drop for Pipeline {
+    fn drop(&mut self) {
+        unsafe {
+            self.ctx.device.destroy_pipeline(self.pipeline, None);
+            self.ctx.device.destroy_pipeline_layout(self.layout, None);
+            self.ctx.device.destroy_descriptor_set_layout(self.set_layout, None);
+        }
+    }
+}
+
+/// A push-descriptor set layout with binding i of type `types[i]`, visible to `stages`, and a
+/// pipeline layout with `push_bytes` of push constants.
+pub fn layouts(
+    ctx: &Context,
+    name: &str,
+    types: &[vk::DescriptorType],
+    stages: vk::ShaderStageFlags,
+    push_bytes: u32,
+) -> Result<(vk::DescriptorSetLayout, vk::PipelineLayout)> {
+    let bindings: Vec<_> = types
+        .iter()
+        .enumerate()
+        .map(|(i, t)| {
+            vk::DescriptorSetLayoutBinding::default()
+                .binding(i as u32)
+                .descriptor_type(*t)
+                .descriptor_count(1)
+                .stage_flags(stages)
+        })
+        .collect();
+    let set_layout = unsafe {
+        ctx.device.create_descriptor_set_layout(
+            &vk::DescriptorSetLayoutCreateInfo::default()
+                .flags(vk::DescriptorSetLayoutCreateFlags::PUSH_DESCRIPTOR_KHR)
+                .bindings(&bindings),
+            None,
+        )?
+    };
+    ctx.set_name(set_layout, &format!("{name}.set_layout"));
+    let ranges = [vk::PushConstantRange { stage_flags: stages, offset: 0, size: push_bytes }];
+    let sets = [set_layout];
+    let mut ci = vk::PipelineLayoutCreateInfo::default().set_layouts(&sets);
+    if push_bytes > 0 {
+        ci = ci.push_constant_ranges(&ranges);
+    }
+    let layout = unsafe { ctx.device.create_pipeline_layout(&ci, None)? };
+    ctx.set_name(layout, &format!("{name}.layout"));
+    Ok((set_layout, layout))
+}
+
+/// A compute pipeline from `shader` (e.g. `"tonemap.comp"`).
+pub fn compute_pipeline(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    shader: &str,
+    types: &[vk::DescriptorType],
+    push_bytes: u32,
+) -> Result<Pipeline> {
+    let (set_layout, layout) = layouts(ctx, shader, types, vk::ShaderStageFlags::COMPUTE, push_bytes)?;
+    let module = ctx.create_shader_module(shader, shaders.get(shader)?)?;
+    let stage = vk::PipelineShaderStageCreateInfo::default()
+        .stage(vk::ShaderStageFlags::COMPUTE)
+        .module(module)
+        .name(c"main");
+    let ci = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
+    let res = unsafe { ctx.device.create_compute_pipelines(vk::PipelineCache::null(), &ci, None) };
+    unsafe { ctx.device.destroy_shader_module(module, None) };
+    let pipeline = res.map_err(|(_, e)| e).with_context(|| format!("compute pipeline '{shader}'"))?[0];
+    ctx.set_name(pipeline, shader);
+    Ok(Pipeline { ctx: ctx.clone(), pipeline, layout, set_layout })
+}
+
+/// A sampler; destroyed on drop.
+pub struct Sampler {
+    ctx: Arc<Context>,
+    pub sampler: vk::Sampler,
+}
+
+impl Sampler {
+    /// Linear filtering with mips; U repeats (lat-long seam), V clamps (poles).
+    pub fn latlong(ctx: &Arc<Context>) -> Result<Self> {
+        let ci = vk::SamplerCreateInfo::default()
+            .mag_filter(vk::Filter::LINEAR)
+            .min_filter(vk::Filter::LINEAR)
+            .mipmap_mode(vk::SamplerMipmapMode::LINEAR)
+            .address_mode_u(vk::SamplerAddressMode::REPEAT)
+            .address_mode_v(vk::SamplerAddressMode::CLAMP_TO_EDGE)
+            .address_mode_w(vk::SamplerAddressMode::CLAMP_TO_EDGE)
+            .max_lod(vk::LOD_CLAMP_NONE);
+        let sampler = unsafe { ctx.device.create_sampler(&ci, None)? };
+        ctx.set_name(sampler, "latlong_sampler");
+        Ok(Sampler { ctx: ctx.clone(), sampler })
+    }
+
+    /// Nearest, clamped: for `texelFetch` of G-buffer images.
+    pub fn nearest(ctx: &Arc<Context>) -> Result<Self> {
+        let ci = vk::SamplerCreateInfo::default()
+            .mag_filter(vk::Filter::NEAREST)
+            .min_filter(vk::Filter::NEAREST)
+            .mipmap_mode(vk::SamplerMipmapMode::NEAREST)
+            .address_mode_u(vk::SamplerAddressMode::CLAMP_TO_EDGE)
+            .address_mode_v(vk::SamplerAddressMode::CLAMP_TO_EDGE)
+            .address_mode_w(vk::SamplerAddressMode::CLAMP_TO_EDGE);
+        let sampler = unsafe { ctx.device.create_sampler(&ci, None)? };
+        ctx.set_name(sampler, "nearest_sampler");
+        Ok(Sampler { ctx: ctx.clone(), sampler })
+    }
+}
+
+impl Drop for Sampler {
+    fn drop(&mut self) {
+        unsafe { self.ctx.device.destroy_sampler(self.sampler, None) };
+    }
+}
+
+/// Workgroups of `local` covering `n`.
+pub fn groups(n: u32, local: u32) -> u32 {
+    n.div_ceil(local)
+}
+
+/// Raw bytes of plain-old-data values (f32/u32 arrays and #[repr(C)] structs of them).
+pub fn bytes_of<T: Copy>(v: &[T]) -> Vec<u8> {
+    let n = std::mem::size_of_val(v);
+    let mut out = vec![0u8; n];
+    // SAFETY: T is Copy plain data (only f32/u32 fields are used here); we copy its bytes.
+    unsafe { std::ptr::copy_nonoverlapping(v.as_ptr() as *const u8, out.as_mut_ptr(), n) };
+    out
+}

@@ -1,0 +1,397 @@
+//! Round trips for every loader: glTF (.gltf embedded / external buffer, .glb), animations,
+//! skinning, morph targets, textures, EXR (several encodings), Radiance HDR.
+
+mod common;
+use common::*;
+use glam::{Mat4, Vec3};
+use penumbra_scene::{BrdfKind, Environment, Scene, SceneError};
+use serde_json::json;
+use std::path::Path;
+
+fn approx(a: Vec3, b: Vec3, eps: f32) -> bool {
+    (a - b).abs().max_element() < eps
+}
+
+#[test]
+fn gltf_embedded_external_and_glb_give_the_same_scene() {
+    let dir = temp_dir("roundtrip");
+    let (pos, idx) = tetra();
+    // .gltf with an external .bin
+    let mut bin = Bin::default();
+    let doc = simple(&mut bin, &pos, &idx, Some("tet data.bin".into()));
+    std::fs::write(dir.join("tet data.bin"), &bin.bytes).unwrap();
+    std::fs::write(dir.join("ext.gltf"), serde_json::to_vec(&doc).unwrap()).unwrap();
+    // .gltf with a data URI
+    let doc2 = simple(&mut Bin::default(), &pos, &idx, Some(bin.data_uri()));
+    std::fs::write(dir.join("emb.gltf"), serde_json::to_vec(&doc2).unwrap()).unwrap();
+    // .glb
+    let doc3 = simple(&mut Bin::default(), &pos, &idx, None);
+    std::fs::write(dir.join("bin.glb"), glb(&doc3, &bin.bytes)).unwrap();
+
+    for f in ["ext.gltf", "emb.gltf", "bin.glb"] {
+        let s = Scene::load(dir.join(f)).unwrap_or_else(|e| panic!("{e}"));
+        // model + ground plane
+        assert_eq!(s.objects.len(), 2, "{f}");
+        let m = &s.meshes[s.objects[0].mesh];
+        assert_eq!(m.positions.len(), 4);
+        assert_eq!(m.indices, idx);
+        for (k, p) in m.positions.iter().enumerate() {
+            assert_eq!(p.to_array(), [pos[3 * k], pos[3 * k + 1], pos[3 * k + 2]]);
+        }
+        // Normals were missing: computed, unit length, and the repair is reported.
+        assert!(m.normals.iter().all(|n| (n.length() - 1.0).abs() < 1e-5));
+        assert!(s.warnings.iter().any(|w| w.contains(f) && w.contains("no normals")), "{:?}", s.warnings);
+        assert!(m.is_closed());
+        // Node translation.
+        assert_eq!(s.objects[0].transform, Mat4::from_translation(Vec3::Y));
+        // Metallic-roughness material mapped to Cook-Torrance: metal -> no diffuse, F0 = base.
+        let mat = &s.materials[s.objects[0].material];
+        assert_eq!(mat.kind, BrdfKind::CookTorrance);
+        assert_eq!(mat.name, "metal");
+        assert!(approx(mat.albedo, Vec3::ZERO, 1e-6) && approx(mat.specular, Vec3::new(0.8, 0.6, 0.2), 1e-6));
+        assert!((mat.roughness - 0.3).abs() < 1e-6);
+        // Bare model scene: environment, ground under the model, camera sees the model.
+        assert!(s.environment.is_some());
+        let ground = s.world_at(1, 0.0).transform_point3(Vec3::ZERO);
+        assert!((ground.y - 1.0).abs() < 1e-6, "ground at the model's lowest point");
+        let c = &s.camera;
+        let center = Vec3::new(0.5, 1.5, 0.5);
+        let clip = c.proj(1.0) * c.view() * center.extend(1.0);
+        assert!(clip.w > 0.0 && (clip.x / clip.w).abs() < 0.2 && (clip.y / clip.w).abs() < 0.2);
+        for corner in [Vec3::new(0.0, 1.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(0.0, 2.0, 0.0), Vec3::new(0.0, 1.0, 1.0)] {
+            let q = c.proj(1.0) * c.view() * corner.extend(1.0);
+            assert!(q.w > c.near && (q.x / q.w).abs() < 1.0 && (q.y / q.w).abs() < 1.0, "{f}: {corner} not in view");
+        }
+        let r = s.requirements();
+        assert!(r.environment_light && !r.moving_objects && !r.deforming_objects);
+    }
+}
+
+#[test]
+fn gltf_node_animation_moves_object_with_prev_transform() {
+    let dir = temp_dir("nodeanim");
+    let (pos, idx) = tetra();
+    let mut bin = Bin::default();
+    let p = bin.f32s(&pos, "VEC3");
+    let i = bin.u32s(&idx);
+    let times = bin.f32s(&[0.0, 2.0], "SCALAR");
+    let trans = bin.f32s(&[0.0, 0.0, 0.0, 2.0, 0.0, 0.0], "VEC3");
+    let rot = bin.f32s(&[0.0, 0.0, 0.0, 1.0, 0.0, (0.5f32).sqrt(), 0.0, (0.5f32).sqrt()], "VEC4");
+    let doc = bin.document(
+        None,
+        json!({
+            "scenes": [{"nodes": [0]}],
+            "nodes": [{"children": [1], "scale": [2.0, 2.0, 2.0]}, {"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": p}, "indices": i}]}],
+            "animations": [{"name": "slide", "samplers": [
+                {"input": times, "output": trans},
+                {"input": times, "output": rot, "interpolation": "STEP"}],
+                "channels": [
+                    {"sampler": 0, "target": {"node": 1, "path": "translation"}},
+                    {"sampler": 1, "target": {"node": 1, "path": "rotation"}}]}],
+        }),
+    );
+    let f = dir.join("anim.glb");
+    std::fs::write(&f, glb(&doc, &bin.bytes)).unwrap();
+    let s = Scene::load(&f).unwrap();
+    assert!(s.requirements().moving_objects);
+    // At t = 1: translation halfway (1, 0, 0) in the child, scaled by the parent's 2.
+    let w = s.world_at(0, 1.0);
+    assert!(approx(w.transform_point3(Vec3::ZERO), Vec3::new(2.0, 0.0, 0.0), 1e-5));
+    // Step rotation: still identity before t = 2, 90 degrees about Y at the end.
+    assert!(approx(w.transform_vector3(Vec3::X), Vec3::new(2.0, 0.0, 0.0), 1e-5));
+    let w2 = s.world_at(0, 2.0);
+    assert!(approx(w2.transform_vector3(Vec3::X), Vec3::new(0.0, 0.0, -2.0), 1e-5));
+    // Frame reports the motion and the previous transform.
+    let fr = s.at(1.0, Some(0.5));
+    let inst = &fr.instances[0];
+    assert!(inst.moved);
+    assert!(approx(inst.prev_world.transform_point3(Vec3::ZERO), Vec3::new(1.0, 0.0, 0.0), 1e-5));
+    assert!(!fr.instances[1].moved, "ground plane is static");
+    // Playback loops: t = 2.5 equals t = 0.5.
+    assert!(s.world_at(0, 2.5).abs_diff_eq(s.world_at(0, 0.5), 1e-6));
+}
+
+/// A vertical strip of two quads skinned to two joints; joint 1 bends 90 degrees about Z.
+fn rigged(bin: &mut Bin) -> serde_json::Value {
+    let pos = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 0.0, 2.0, 0.0, 1.0, 2.0, 0.0];
+    let idx = [0, 1, 3, 0, 3, 2, 2, 3, 5, 2, 5, 4];
+    let p = bin.f32s(&pos, "VEC3");
+    let i = bin.u32s(&idx);
+    let j = bin.u16x4(&[[0, 0, 0, 0], [0, 0, 0, 0], [0, 1, 0, 0], [0, 1, 0, 0], [1, 0, 0, 0], [1, 0, 0, 0]]);
+    let w = bin.f32s(
+        &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.5, 0.5, 0.0, 0.0, 0.5, 0.5, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+        "VEC4",
+    );
+    let mut ibm = Vec::new();
+    ibm.extend_from_slice(&Mat4::IDENTITY.to_cols_array());
+    ibm.extend_from_slice(&Mat4::from_translation(Vec3::new(0.0, -1.0, 0.0)).to_cols_array());
+    let ibm = bin.f32s(&ibm, "MAT4");
+    let times = bin.f32s(&[0.0, 1.0], "SCALAR");
+    let s = std::f32::consts::FRAC_1_SQRT_2;
+    let rot = bin.f32s(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, s, s], "VEC4");
+    bin.document(
+        None,
+        json!({
+            "scenes": [{"nodes": [0, 2]}],
+            "nodes": [
+                {"name": "root", "children": [1]},
+                {"name": "upper", "translation": [0.0, 1.0, 0.0]},
+                {"name": "strip", "mesh": 0, "skin": 0, "translation": [5.0, 0.0, 0.0]}],
+            "skins": [{"joints": [0, 1], "inverseBindMatrices": ibm}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": p, "JOINTS_0": j, "WEIGHTS_0": w}, "indices": i}]}],
+            "animations": [{"samplers": [{"input": times, "output": rot}],
+                "channels": [{"sampler": 0, "target": {"node": 1, "path": "rotation"}}]}],
+        }),
+    )
+}
+
+#[test]
+fn gltf_skinning_bends_the_strip() {
+    let dir = temp_dir("skin");
+    let mut bin = Bin::default();
+    let doc = rigged(&mut bin);
+    let f = dir.join("rig.glb");
+    std::fs::write(&f, glb(&doc, &bin.bytes)).unwrap();
+    let s = Scene::load(&f).unwrap_or_else(|e| panic!("{e}"));
+    let r = s.requirements();
+    assert!(r.deforming_objects && !r.moving_objects, "{r:?}");
+    // Skinned mesh ignores its node's translation (glTF rule).
+    assert_eq!(s.objects[0].transform, Mat4::IDENTITY);
+    // t = 0: rest pose.
+    let m0 = s.deformed_mesh(0, 0.0);
+    assert!(approx(m0.positions[4], Vec3::new(0.0, 2.0, 0.0), 1e-5));
+    // t = 1: joint 1 rotated 90 degrees about Z at (0,1,0): (0,2,0) -> (-1,1,0), (1,2,0) -> (-1,2,0).
+    let m1 = s.deformed_mesh(0, 1.0);
+    assert!(approx(m1.positions[4], Vec3::new(-1.0, 1.0, 0.0), 1e-5), "{:?}", m1.positions[4]);
+    assert!(approx(m1.positions[5], Vec3::new(-1.0, 2.0, 0.0), 1e-5), "{:?}", m1.positions[5]);
+    // Half weights at the joint: (1,1,0) -> average of (1,1,0) and (0,2,0) = (0.5,1.5,0).
+    assert!(approx(m1.positions[3], Vec3::new(0.5, 1.5, 0.0), 1e-5), "{:?}", m1.positions[3]);
+    // Root-bound vertices stay.
+    assert!(approx(m1.positions[1], Vec3::new(1.0, 0.0, 0.0), 1e-6));
+    // t = 0.5: 45 degrees.
+    let m = s.deformed_mesh(0, 0.5);
+    let h = std::f32::consts::FRAC_1_SQRT_2;
+    assert!(approx(m.positions[4], Vec3::new(-h, 1.0 + h, 0.0), 1e-5), "{:?}", m.positions[4]);
+    // Normals stay unit; the frame flags the deformation.
+    assert!(m.normals.iter().all(|n| (n.length() - 1.0).abs() < 1e-4));
+    let fr = s.at(0.5, Some(0.4));
+    assert!(fr.instances[0].deformed && fr.instances[0].prev_deformed_mesh.is_some());
+    assert!(!s.at(0.5, None).instances[0].deformed);
+}
+
+#[test]
+fn gltf_morph_target_weights_animate() {
+    let dir = temp_dir("morph");
+    let mut bin = Bin::default();
+    let p = bin.f32s(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0], "VEC3");
+    let i = bin.u32s(&[0, 1, 2]);
+    let d = bin.f32s(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "VEC3");
+    let times = bin.f32s(&[0.0, 2.0], "SCALAR");
+    let weights = bin.f32s(&[0.0, 1.0], "SCALAR");
+    let doc = bin.document(
+        None,
+        json!({
+            "scenes": [{"nodes": [0]}],
+            "nodes": [{"mesh": 0}],
+            "meshes": [{"weights": [0.25], "primitives": [{"attributes": {"POSITION": p}, "indices": i, "targets": [{"POSITION": d}]}]}],
+            "animations": [{"samplers": [{"input": times, "output": weights}],
+                "channels": [{"sampler": 0, "target": {"node": 0, "path": "weights"}}]}],
+        }),
+    );
+    let f = dir.join("morph.glb");
+    std::fs::write(&f, glb(&doc, &bin.bytes)).unwrap();
+    let s = Scene::load(&f).unwrap_or_else(|e| panic!("{e}"));
+    assert!(s.requirements().deforming_objects);
+    for (t, z) in [(0.0f32, 0.0f32), (1.0, 0.5), (2.0, 1.0)] {
+        let m = s.deformed_mesh(0, t);
+        assert!((m.positions[2].z - z).abs() < 1e-6, "t={t}: {:?}", m.positions[2]);
+        assert_eq!(m.positions[0], Vec3::ZERO);
+    }
+    // Without animation the mesh default weight applies.
+    let f2 = dir.join("scene.toml");
+    std::fs::write(
+        &f2,
+        "[camera]\neye = [0, 0, 3]\ntarget = 0\n[environment]\nprocedural = \"sky\"\n[[object]]\nfile = \"morph.glb\"\nanimation = false\n",
+    )
+    .unwrap();
+    let s = Scene::load(&f2).unwrap_or_else(|e| panic!("{e}"));
+    assert!((s.deformed_mesh(0, 1.0).positions[2].z - 0.25).abs() < 1e-6);
+    assert!(!s.requirements().deforming_objects);
+}
+
+#[test]
+fn gltf_base_color_texture_is_loaded_linear() {
+    let dir = temp_dir("texture");
+    // 2x1 PNG: sRGB 255 and 128.
+    let img = image::RgbaImage::from_raw(2, 1, vec![255, 0, 0, 255, 128, 128, 128, 255]).unwrap();
+    img.save(dir.join("tex.png")).unwrap();
+    let (pos, idx) = tetra();
+    let mut bin = Bin::default();
+    let p = bin.f32s(&pos, "VEC3");
+    let uv = bin.f32s(&[0.0; 8], "VEC2");
+    let i = bin.u32s(&idx);
+    let doc = bin.document(
+        Some(bin.data_uri_placeholder()),
+        json!({
+            "scenes": [{"nodes": [0]}],
+            "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": p, "TEXCOORD_0": uv}, "indices": i, "material": 0}]}],
+            "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}, "metallicFactor": 0.0}}],
+            "textures": [{"source": 0}],
+            "images": [{"uri": "tex.png"}],
+        }),
+    );
+    let mut doc = doc;
+    doc["buffers"][0]["uri"] = json!(bin.data_uri());
+    std::fs::write(dir.join("t.gltf"), serde_json::to_vec(&doc).unwrap()).unwrap();
+    let s = Scene::load(dir.join("t.gltf")).unwrap_or_else(|e| panic!("{e}"));
+    let ex = s.material_extra(s.objects[0].material);
+    let tex = &s.textures[ex.albedo_map.unwrap()];
+    assert_eq!((tex.width, tex.height), (2, 1));
+    assert_eq!(tex.texels[0], [1.0, 0.0, 0.0, 1.0]);
+    assert!((tex.texels[1][0] - 0.2158605).abs() < 1e-4, "sRGB 128 -> linear {}", tex.texels[1][0]);
+    assert!(s.requirements().spatially_varying_materials);
+}
+
+trait Placeholder {
+    fn data_uri_placeholder(&self) -> String;
+}
+impl Placeholder for Bin {
+    fn data_uri_placeholder(&self) -> String {
+        String::new()
+    }
+}
+
+#[test]
+fn real_assets_load() {
+    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets");
+    let s = Scene::load(assets.join("bunny.glb")).unwrap();
+    let m = &s.meshes[s.objects[0].mesh];
+    assert_eq!(m.positions.len(), 2826);
+    assert_eq!(m.triangle_count(), 5648);
+    assert!(m.is_closed(), "{:?}", m.edge_stats());
+    // suzi (open mesh) from the shared assets, when present.
+    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/assets/suzi.glb");
+    if shared.exists() {
+        let s = Scene::load(&shared).unwrap();
+        let m = &s.meshes[s.objects[0].mesh];
+        assert!(!m.is_closed());
+        assert_eq!(m.edge_stats().boundary, 160);
+    }
+}
+
+fn write_exr(path: &Path, w: usize, h: usize, encoding: exr::prelude::Encoding, half: bool, alpha: bool) {
+    use exr::prelude::*;
+    let f = |x: usize, y: usize| (x as f32 * 0.5 + 0.25, y as f32 * 2.0 + 1.0, (x + y) as f32 * 100.0);
+    let attrs = LayerAttributes::named("main");
+    let result = match (half, alpha) {
+        (false, false) => {
+            let ch = SpecificChannels::rgb(|p: Vec2<usize>| f(p.x(), p.y()));
+            Image::from_layer(Layer::new((w, h), attrs, encoding, ch)).write().to_file(path)
+        }
+        (true, true) => {
+            let ch = SpecificChannels::rgba(|p: Vec2<usize>| {
+                let (r, g, b) = f(p.x(), p.y());
+                (f16::from_f32(r), f16::from_f32(g), f16::from_f32(b), f16::from_f32(0.5))
+            });
+            Image::from_layer(Layer::new((w, h), attrs, encoding, ch)).write().to_file(path)
+        }
+        (true, false) => {
+            let ch = SpecificChannels::rgb(|p: Vec2<usize>| {
+                let (r, g, b) = f(p.x(), p.y());
+                (f16::from_f32(r), f16::from_f32(g), f16::from_f32(b))
+            });
+            Image::from_layer(Layer::new((w, h), attrs, encoding, ch)).write().to_file(path)
+        }
+        (false, true) => unreachable!(),
+    };
+    result.unwrap();
+}
+
+#[test]
+fn exr_round_trips_in_several_encodings() {
+    use exr::prelude::*;
+    let dir = temp_dir("exr");
+    let (w, h) = (37, 19);
+    let cases = [
+        ("f32-scan-none", Compression::Uncompressed, Blocks::ScanLines, false, false),
+        ("half-tiled-zip", Compression::ZIP16, Blocks::Tiles(Vec2(16, 8)), true, true),
+        ("half-scan-piz", Compression::PIZ, Blocks::ScanLines, true, false),
+        ("half-scan-rle", Compression::RLE, Blocks::ScanLines, true, true),
+        ("f32-tiled-zips", Compression::ZIP1, Blocks::Tiles(Vec2(8, 8)), false, false),
+    ];
+    for (name, compression, blocks, half, alpha) in cases {
+        let p = dir.join(format!("{name}.exr"));
+        write_exr(&p, w, h, Encoding { compression, blocks, line_order: LineOrder::Increasing }, half, alpha);
+        let env = Environment::load(&p).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!((env.width, env.height), (w as u32, h as u32), "{name}");
+        for (x, y) in [(0, 0), (5, 3), (36, 18), (20, 10)] {
+            let t = env.texels[y * w + x];
+            let e = [x as f32 * 0.5 + 0.25, y as f32 * 2.0 + 1.0, (x + y) as f32 * 100.0];
+            for k in 0..3 {
+                let tol = if half { e[k].abs() * 1e-3 + 1e-3 } else { 0.0 };
+                assert!((t[k] - e[k]).abs() <= tol, "{name} ({x},{y})[{k}]: {} vs {}", t[k], e[k]);
+            }
+        }
+    }
+}
+
+#[test]
+fn dwab_environment_loads() {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets/sunset-dwab.exr");
+    let env = Environment::load(&p).unwrap_or_else(|e| panic!("{e}"));
+    assert!(env.width >= 2 * env.height / 2 && env.width > 0);
+    let max = env.texels.iter().flatten().fold(0.0f32, |m, &c| m.max(c));
+    let mean = env.texels.iter().flatten().sum::<f32>() / (env.texels.len() * 3) as f32;
+    assert!(max > 10.0 && mean > 0.0 && mean < max, "max {max} mean {mean}");
+    // The sun is above the horizon: the brightest texel is in the upper half.
+    let k = env.texels.iter().enumerate().max_by(|a, b| a.1[0].total_cmp(&b.1[0])).unwrap().0;
+    assert!((k as u32 / env.width) < env.height / 2);
+}
+
+#[test]
+fn hdr_round_trip() {
+    let dir = temp_dir("hdr");
+    let (w, h) = (8usize, 4usize);
+    let px: Vec<image::Rgb<f32>> = (0..w * h).map(|i| image::Rgb([i as f32 * 0.5, 1.0, 100.0 + i as f32])).collect();
+    let p = dir.join("env.hdr");
+    let file = std::io::BufWriter::new(std::fs::File::create(&p).unwrap());
+    image::codecs::hdr::HdrEncoder::new(file).encode(&px, w, h).unwrap();
+    let env = Environment::load(&p).unwrap();
+    assert_eq!((env.width, env.height), (8, 4));
+    for (i, t) in env.texels.iter().enumerate() {
+        let e = px[i].0;
+        for k in 0..3 {
+            // RGBE keeps 8 bits of mantissa per pixel (relative to the largest channel).
+            assert!((t[k] - e[k]).abs() <= e[0].max(e[1]).max(e[2]) / 128.0, "{i}: {t:?} vs {e:?}");
+        }
+    }
+}
+
+#[test]
+fn environment_orientation_convention() {
+    // A map that is bright only in the column at u = 0.25 (towards +X), upper half.
+    let (w, h) = (16u32, 8u32);
+    let mut texels = vec![[0.0f32; 3]; (w * h) as usize];
+    texels[(2 * w + 4) as usize] = [1.0, 1.0, 1.0];
+    let env = Environment { width: w, height: h, texels, intensity: 2.0, rotation: 0.0 };
+    let d = Environment::direction(4.5 / 16.0, 2.5 / 8.0);
+    assert!(d.x > 0.6 && d.y > 0.6 && d.z.abs() < 0.2, "{d}");
+    assert_eq!(env.radiance(d), Vec3::splat(2.0));
+    // Rotating the map by 90 degrees about +Y moves that texel from +X to -Z.
+    let rotated = Environment { rotation: std::f32::consts::FRAC_PI_2, ..env.clone() };
+    let d2 = glam::Quat::from_rotation_y(std::f32::consts::FRAC_PI_2) * d;
+    assert!(d2.z < -0.6);
+    assert_eq!(rotated.radiance(d2), Vec3::splat(2.0));
+    assert_eq!(rotated.radiance(d), Vec3::ZERO);
+    let (u, v) = Environment::uv(Vec3::Z);
+    assert!((u - 0.5).abs() < 1e-6 && (v - 0.5).abs() < 1e-6);
+}
+
+#[test]
+fn error_type_is_displayable_with_path() {
+    let e = SceneError::UnknownFormat { path: "a/b.obj".into() };
+    assert_eq!(e.path(), Path::new("a/b.obj"));
+    assert!(e.to_string().starts_with("a/b.obj: "));
+}
