@@ -232,7 +232,7 @@ fn gltf_base_color_texture_is_loaded_linear() {
     let uv = bin.f32s(&[0.0; 8], "VEC2");
     let i = bin.u32s(&idx);
     let doc = bin.document(
-        Some(bin.data_uri_placeholder()),
+        Some(bin.data_uri()),
         json!({
             "scenes": [{"nodes": [0]}],
             "nodes": [{"mesh": 0}],
@@ -242,8 +242,6 @@ fn gltf_base_color_texture_is_loaded_linear() {
             "images": [{"uri": "tex.png"}],
         }),
     );
-    let mut doc = doc;
-    doc["buffers"][0]["uri"] = json!(bin.data_uri());
     std::fs::write(dir.join("t.gltf"), serde_json::to_vec(&doc).unwrap()).unwrap();
     let s = Scene::load(dir.join("t.gltf")).unwrap_or_else(|e| panic!("{e}"));
     let ex = s.material_extra(s.objects[0].material);
@@ -252,15 +250,6 @@ fn gltf_base_color_texture_is_loaded_linear() {
     assert_eq!(tex.texels[0], [1.0, 0.0, 0.0, 1.0]);
     assert!((tex.texels[1][0] - 0.2158605).abs() < 1e-4, "sRGB 128 -> linear {}", tex.texels[1][0]);
     assert!(s.requirements().spatially_varying_materials);
-}
-
-trait Placeholder {
-    fn data_uri_placeholder(&self) -> String;
-}
-impl Placeholder for Bin {
-    fn data_uri_placeholder(&self) -> String {
-        String::new()
-    }
 }
 
 #[test]
@@ -377,7 +366,7 @@ fn environment_orientation_convention() {
     texels[(2 * w + 4) as usize] = [1.0, 1.0, 1.0];
     let env = Environment { width: w, height: h, texels, intensity: 2.0, rotation: 0.0 };
     let d = Environment::direction(4.5 / 16.0, 2.5 / 8.0);
-    assert!(d.x > 0.6 && d.y > 0.6 && d.z.abs() < 0.2, "{d}");
+    assert!(d.x > 0.6 && d.y > 0.5 && d.z.abs() < 0.2, "{d}");
     assert_eq!(env.radiance(d), Vec3::splat(2.0));
     // Rotating the map by 90 degrees about +Y moves that texel from +X to -Z.
     let rotated = Environment { rotation: std::f32::consts::FRAC_PI_2, ..env.clone() };
