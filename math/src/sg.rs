@@ -34,18 +34,22 @@
 //!   `0.5 + 0.5 erf(t c) / erf(t)`, `c = dot(p, n)`,
 //!   `t = lambda sqrt((0.5 lambda + A) / ((lambda + B) lambda + C))`, with the paper's fitted
 //!   `A = 0.65173, B = 1.34183, C = 7.22167`. It is exact at `c = -1, 0, 1` and for
-//!   `lambda -> 0`. Measured against the exact form (test `hemisphere_approx_error`) its
-//!   worst relative error over `lambda in [1e-4, 1e5]`, `c in [-1, 1]` restricted to where the
-//!   integral is at least 1e-3 of the full-sphere integral is below 4% (most of the range is
-//!   well below 1%); the absolute error is below 0.4% of the full-sphere integral.
+//!   `lambda -> 0`. Measured against the exact form (test `hemisphere_approx_error`, grid
+//!   `lambda in [1e-4, 1e5]` x `c in [-1, 1]`): absolute error at most 0.44% of the full-sphere
+//!   integral `2 pi mu (1 - exp(-2 lambda))/lambda`; relative error at most 2.5% where the
+//!   hemisphere integral is at least 10% of the full-sphere integral (it grows, up to ~35%, where
+//!   the lobe is mostly below the horizon and the integral is only 1-10% of the full one).
 //!
 //! # Clamped cosine
 //! [`clamped_cosine_sg`] approximates `max(0, dot(n, w))` by `G(w; n, 2.133, 1.170)`, the fit of
 //! Wang et al. 2009 ("All-frequency rendering of dynamic, spatially-varying reflectance"), used by
-//! the integral-SG paper. Its relative L2 error over the sphere is 7.0% (test
-//! `clamped_cosine_fit_error`, which also checks it is within 1% of the L2-optimal
-//! single-lobe fit); the irradiance from a constant environment is `2.946 L` instead of `pi L`
-//! (-6.2%).
+//! the integral-SG paper. Its relative L2 error over the sphere is 17.7% (test
+//! `clamped_cosine_fit_error`, which also verifies it is within 1% of the L2-optimal single lobe,
+//! found at `lambda = 2.144, mu = 1.177`); the irradiance from a constant environment is
+//! `3.398 L` instead of `pi L` (+8.2%): the lobe's tail below the horizon counts. Integrating the
+//! product lobe over the upper hemisphere only ([`irradiance_sg_cosine_hemisphere`]) removes most
+//! of that bias (+0.5%/-0.5%/-3.8% in test `convolution_and_irradiance_vs_quadrature`, against
+//! +6%/+24%/+26% for the full-sphere inner product).
 
 use crate::quad;
 use crate::special::{erf, one_minus_exp_neg_over_x, one_minus_exp_neg_over_x_f32};
