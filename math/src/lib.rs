@@ -10,5 +10,6 @@
 //! * [`brdf`]: SG fits of Blinn-Phong, Cook-Torrance and Ashikhmin-Shirley lobes.
 
 pub mod quad;
+pub mod sh;
 pub mod sg;
 pub mod special;
