@@ -27,8 +27,12 @@ pub enum SceneError {
     #[error("{}: {message}", path.display())]
     Invalid { path: PathBuf, message: String },
     /// A mesh that must be closed (for the chosen technique) has borders or non-manifold edges.
-    #[error("{}: object '{object}' is not a closed mesh ({boundary} boundary edges, {non_manifold} non-manifold edges); {why}", path.display())]
-    NotClosed { path: PathBuf, object: String, boundary: usize, non_manifold: usize, why: String },
+    /// `path` is the scene file, `mesh_file` the file the mesh came from.
+    #[error("{}: object '{object}' (mesh from {}) is not a closed mesh ({boundary} boundary edges, {non_manifold} non-manifold edges); {why}", path.display(), mesh_file.display())]
+    NotClosed { path: PathBuf, mesh_file: PathBuf, object: String, boundary: usize, non_manifold: usize, why: String },
+    /// An error in a file referenced from a scene file (`path`, at `line`).
+    #[error("{}: line {line}: {source}", path.display())]
+    Referenced { path: PathBuf, line: usize, source: Box<SceneError> },
     /// The file extension is not one `Scene::load` understands.
     #[error("{}: unknown scene file type (expected .toml, .glb or .gltf)", path.display())]
     UnknownFormat { path: PathBuf },
@@ -45,7 +49,16 @@ impl SceneError {
             | SceneError::Image { path, .. }
             | SceneError::Invalid { path, .. }
             | SceneError::NotClosed { path, .. }
+            | SceneError::Referenced { path, .. }
             | SceneError::UnknownFormat { path } => path,
+        }
+    }
+
+    /// The innermost error (through [`SceneError::Referenced`]).
+    pub fn root_cause(&self) -> &SceneError {
+        match self {
+            SceneError::Referenced { source, .. } => source.root_cause(),
+            e => e,
         }
     }
 

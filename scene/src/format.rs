@@ -84,7 +84,7 @@ struct SceneFile {
     name: Option<String>,
     technique: Option<String>,
     camera: CameraSpec,
-    environment: Option<EnvSpec>,
+    environment: Option<Spanned<EnvSpec>>,
     #[serde(default)]
     light: Vec<Spanned<LightSpec>>,
     medium: Option<MediumSpec>,
@@ -329,6 +329,10 @@ impl Ctx<'_> {
         let (l, c) = line_col(self.text, span.start);
         SceneError::invalid(self.path, format!("line {l}, column {c}: {msg}"))
     }
+    /// Wrap an error from a referenced file with the scene file and line.
+    fn referenced(&self, span: std::ops::Range<usize>) -> impl Fn(SceneError) -> SceneError + '_ {
+        move |e| SceneError::Referenced { path: self.path.to_path_buf(), line: line_col(self.text, span.start).0, source: Box::new(e) }
+    }
     fn resolve(&self, file: &str) -> PathBuf {
         self.dir.join(file)
     }
@@ -417,8 +421,10 @@ pub fn parse_toml(path: &Path, text: &str, options: &LoadOptions) -> Result<Scen
 
     // Environment.
     if let Some(e) = &file.environment {
+        let span = e.span();
+        let e = e.get_ref();
         let mut env = match (&e.file, &e.procedural) {
-            (Some(f), None) => Environment::load(&ctx.resolve(f))?,
+            (Some(f), None) => Environment::load(&ctx.resolve(f)).map_err(ctx.referenced(span))?,
             (None, Some(p)) if p == "sky" => Environment::procedural_sky(256, 128),
             (None, Some(p)) => {
                 return Err(SceneError::invalid(path, format!("environment.procedural: unknown '{p}' (known: sky)")))
@@ -572,7 +578,7 @@ pub fn parse_toml(path: &Path, text: &str, options: &LoadOptions) -> Result<Scen
             (None, Some(f)) => {
                 let fp = ctx.resolve(f);
                 if !assets.contains_key(&fp) {
-                    let a = gltf_load::load(&fp)?;
+                    let a = gltf_load::load(&fp).map_err(ctx.referenced(span.clone()))?;
                     assets.insert(fp.clone(), a);
                 }
                 let asset = &assets[&fp];
@@ -847,7 +853,7 @@ fn material(
     for (spec, srgb, slot) in [(&m.albedo_map, true, 0), (&m.roughness_map, false, 1)] {
         let Some(t) = spec else { continue };
         let tex = match (&t.file, &t.pattern) {
-            (Some(f), None) => Texture::load(&ctx.resolve(f), srgb)?,
+            (Some(f), None) => Texture::load(&ctx.resolve(f), srgb).map_err(ctx.referenced(span.clone()))?,
             (None, Some(p)) => {
                 let pat = match p.as_str() {
                     "checker" => Pattern::Checker,

@@ -88,6 +88,27 @@ pub fn load_bytes(path: &Path, bytes: &[u8], base: &Path) -> Result<GltfAsset, S
             feature: format!("glTF extension {ext} (listed in extensionsRequired)"),
         });
     }
+    // gltf-json's validation indexes the POSITION accessor without a bounds check.
+    {
+        use gltf::json::validation::Checked;
+        let root = raw.document.as_json();
+        for (mi, m) in root.meshes.iter().enumerate() {
+            for (pi, p) in m.primitives.iter().enumerate() {
+                for (sem, idx) in &p.attributes {
+                    if idx.value() >= root.accessors.len() {
+                        let name = match sem {
+                            Checked::Valid(s) => s.to_string(),
+                            Checked::Invalid => "an invalid attribute".into(),
+                        };
+                        return Err(gerr(
+                            path,
+                            format!("mesh {mi} primitive {pi}: {name} refers to accessor {} which does not exist ({} accessors)", idx.value(), root.accessors.len()),
+                        ));
+                    }
+                }
+            }
+        }
+    }
     let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| gerr(path, describe(&e)))?;
     let doc = gltf.document;
     let blob = gltf.blob;

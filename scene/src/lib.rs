@@ -668,8 +668,9 @@ impl Scene {
             }
             let stats = *checked[o.mesh].get_or_insert_with(|| self.meshes[o.mesh].edge_stats());
             if stats != EdgeStats::default() {
-                let path = info.source.or_else(|| self.source.clone()).unwrap_or_else(|| PathBuf::from(&self.name));
+                let path = self.source.clone().unwrap_or_else(|| PathBuf::from(&self.name));
                 return Err(SceneError::NotClosed {
+                    mesh_file: info.source.unwrap_or_else(|| path.clone()),
                     path,
                     object: o.name.clone(),
                     boundary: stats.boundary,
