@@ -31,6 +31,9 @@ pub enum Pattern {
 impl Texture {
     /// Bilinear lookup with repeat wrapping.
     pub fn sample(&self, uv: Vec2) -> Vec4 {
+        if self.width == 0 || self.height == 0 || self.texels.len() < (self.width * self.height) as usize {
+            return Vec4::ONE;
+        }
         let (w, h) = (self.width as f32, self.height as f32);
         let x = uv.x * w - 0.5;
         let y = uv.y * h - 0.5;
@@ -48,7 +51,7 @@ impl Texture {
 
     /// A procedural texture of `size` x `size` texels.
     pub fn pattern(name: &str, pattern: Pattern, size: u32, scale: f32, a: Vec4, b: Vec4) -> Self {
-        let size = size.clamp(1, 4096);
+        let size = size.clamp(1, 2048);
         let mut texels = Vec::with_capacity((size * size) as usize);
         for j in 0..size {
             for i in 0..size {
