@@ -95,21 +95,34 @@ pub fn ggx_g1(alpha: f32, cos: f32) -> f32 {
 
 impl Brdf {
     pub fn from_material(m: &Material) -> Self {
-        let albedo = sanitize(m.albedo);
-        let specular = sanitize(m.specular).min(Vec3::ONE);
-        let roughness = finite_or(m.roughness, 1.0).clamp(0.0, 1.0);
-        let shininess = finite_or(m.shininess, 1.0).clamp(0.0, 1e6);
+        Self::new(m.kind, m.albedo, m.specular, m.roughness, m.shininess, None)
+    }
+
+    /// From raw parameters; `shininess_v` is the Ashikhmin-Shirley exponent along the
+    /// bitangent (`None` = isotropic). Non-finite or negative inputs are sanitized.
+    pub fn new(
+        kind: BrdfKind,
+        albedo: Vec3,
+        specular: Vec3,
+        roughness: f32,
+        shininess: f32,
+        shininess_v: Option<f32>,
+    ) -> Self {
+        let albedo = sanitize(albedo);
+        let specular = sanitize(specular).min(Vec3::ONE);
+        let roughness = finite_or(roughness, 1.0).clamp(0.0, 1.0);
+        let shininess = finite_or(shininess, 1.0).clamp(0.0, 1e6);
         let alpha = (roughness * roughness).max(1e-3);
-        let (nu, nv) = (shininess, shininess);
+        let nu = shininess;
+        let nv = shininess_v.map_or(shininess, |v| finite_or(v, shininess).clamp(0.0, 1e6));
         let (ld, ls) = (luminance(albedo), luminance(specular));
-        let p_spec = match m.kind {
+        let p_spec = match kind {
             BrdfKind::Diffuse => 0.0,
-            _ if ld + ls <= 0.0 => 0.5,
+            _ if ls <= 0.0 => 0.0,
+            _ if ld <= 0.0 => 1.0,
             _ => (ls / (ld + ls)).clamp(0.05, 0.95),
         };
-        let p_spec = if m.kind != BrdfKind::Diffuse && ld <= 0.0 { 1.0 } else { p_spec };
-        let p_spec = if m.kind != BrdfKind::Diffuse && ls <= 0.0 && ld > 0.0 { 0.0 } else { p_spec };
-        Brdf { kind: m.kind, albedo, specular, alpha, shininess, nu, nv, p_spec }
+        Brdf { kind, albedo, specular, alpha, shininess, nu, nv, p_spec }
     }
 
     /// BRDF value (no cosine). Zero unless both directions are above the surface.

@@ -20,7 +20,11 @@ pub struct TriData {
     pub n: [Vec3; 3],
     /// World-space dP/du (zero if the mesh has no usable UVs).
     pub tangent: Vec3,
+    /// Vertex texture coordinates (zero if the mesh has none).
+    pub uv: [Vec2; 3],
     pub material: u32,
+    /// Whether the triangle blocks shadow rays (`ObjectInfo::casts_shadow`).
+    pub casts_shadow: bool,
 }
 
 /// A surface hit.
@@ -33,6 +37,8 @@ pub struct Hit {
     /// Unit interpolated shading normal, on the same side as `ng`.
     pub ns: Vec3,
     pub tangent: Vec3,
+    /// Interpolated texture coordinates.
+    pub uv: Vec2,
     pub material: u32,
     pub triangle: u32,
 }
@@ -51,23 +57,28 @@ fn a(v: Vec3) -> Vec3A {
 }
 
 impl Geometry {
-    /// Gather the instances' triangles in world space. Errors name the object and mesh at fault.
+    /// Gather the instances' triangles in world space (deformed meshes when the frame has them).
+    /// Errors name the object and mesh at fault.
     pub fn new(scene: &Scene, frame: &Frame) -> Result<Self, String> {
         let mut tris = Vec::new();
         let mut data = Vec::new();
         let mut extent = 1.0f32;
         for inst in &frame.instances {
             let obj_name = scene.objects.get(inst.object).map(|o| o.name.as_str()).unwrap_or("?");
-            let mesh = scene.meshes.get(inst.mesh).ok_or_else(|| {
-                format!("object '{obj_name}' refers to mesh {} of {}", inst.mesh, scene.meshes.len())
-            })?;
-            if inst.material >= scene.materials.len() {
+            let mesh = match inst.deformed_mesh.as_deref() {
+                Some(m) => m,
+                None => scene.meshes.get(inst.mesh).ok_or_else(|| {
+                    format!("object '{obj_name}' refers to mesh {} of {}", inst.mesh, scene.meshes.len())
+                })?,
+            };
+            if inst.material >= frame.materials.len() {
                 return Err(format!(
                     "object '{obj_name}' refers to material {} of {}",
                     inst.material,
-                    scene.materials.len()
+                    frame.materials.len()
                 ));
             }
+            let casts_shadow = scene.object_info(inst.object).casts_shadow;
             if !inst.world.is_finite() {
                 return Err(format!("object '{obj_name}' has a non-finite world transform"));
             }
@@ -127,7 +138,8 @@ impl Geometry {
                 };
                 extent = extent.max(p0.abs().max_element()).max(p1.abs().max_element()).max(p2.abs().max_element());
                 tris.push(Triangle { v0: a(p0), v1: a(p1), v2: a(p2) });
-                data.push(TriData { v0: p0, e1, e2, n, tangent, material: inst.material as u32 });
+                let uv = if has_uv { [mesh.uvs[i0], mesh.uvs[i1], mesh.uvs[i2]] } else { [Vec2::ZERO; 3] };
+                data.push(TriData { v0: p0, e1, e2, n, tangent, uv, material: inst.material as u32, casts_shadow });
             }
         }
         let bvh = if tris.is_empty() {
@@ -182,19 +194,23 @@ impl Geometry {
         if ns == Vec3::ZERO {
             ns = ng;
         }
-        if ns.dot(ng) < 0.0 {
-            // Vertex normals disagree with the winding: trust the vertex normals' side.
-            return Some(Hit { t: hit.t, p, ng: -ng, ns, tangent: td.tangent, material: td.material, triangle: ti });
-        }
-        Some(Hit { t: hit.t, p, ng, ns, tangent: td.tangent, material: td.material, triangle: ti })
+        let uv = td.uv[0] * b0 + td.uv[1] * b1 + td.uv[2] * b2;
+        // Vertex normals that disagree with the winding: trust the vertex normals' side.
+        let ng = if ns.dot(ng) < 0.0 { -ng } else { ng };
+        Some(Hit { t: hit.t, p, ng, ns, tangent: td.tangent, uv, material: td.material, triangle: ti })
     }
 
-    /// True if nothing blocks `o + t d` for `t` in (0, tmax).
+    /// True if no shadow-casting triangle blocks `o + t d` for `t` in (0, tmax).
     pub fn unoccluded(&self, o: Vec3, d: Vec3, tmax: f32) -> bool {
         let Some(bvh) = self.bvh.as_ref() else { return true };
-        let tris = &self.tris;
+        let (tris, data) = (&self.tris, &self.data);
         bvh.ray_traverse_miss(Self::ray(o, d, tmax), |ray, id| {
-            tris[bvh.primitive_indices[id] as usize].intersect(ray)
+            let k = bvh.primitive_indices[id] as usize;
+            if data[k].casts_shadow {
+                tris[k].intersect(ray)
+            } else {
+                f32::INFINITY
+            }
         })
     }
 }

@@ -8,6 +8,7 @@ pub mod brdf;
 pub mod cli;
 pub mod geometry;
 pub mod image;
+pub mod lights;
 pub mod metrics;
 pub mod render;
 pub mod sampling;

@@ -20,6 +20,7 @@
 
 use crate::brdf::Brdf;
 use crate::geometry::Geometry;
+use crate::lights::LocalLight;
 use crate::image::{Image, ImageError};
 use crate::sampling::{luminance, EnvLight, Frame as ShadingFrame, Pcg32};
 use glam::{Vec3, Vec4};
@@ -170,11 +171,106 @@ impl ReferenceImage {
     }
 }
 
+/// A material at one frame: base BRDF parameters, optional texture maps.
+pub(crate) struct MaterialEval {
+    base: Brdf,
+    material: penumbra_scene::Material,
+    shininess_v: Option<f32>,
+    albedo_map: Option<usize>,
+    roughness_map: Option<usize>,
+}
+
+/// A homogeneous medium.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct MediumEval {
+    sigma_t: Vec3,
+    sigma_s: Vec3,
+    g: f32,
+    /// Mean extinction, used to sample distances.
+    sigma_bar: f32,
+}
+
+impl MediumEval {
+    fn transmittance(&self, d: f32) -> Vec3 {
+        if d.is_infinite() {
+            Vec3::select(self.sigma_t.cmpgt(Vec3::ZERO), Vec3::ZERO, Vec3::ONE)
+        } else {
+            (-self.sigma_t * d).exp()
+        }
+    }
+    /// Henyey-Greenstein for the angle between the light's propagation direction before and
+    /// after scattering.
+    fn phase(&self, cos_theta: f32) -> f32 {
+        let g = self.g;
+        let d = (1.0 + g * g - 2.0 * g * cos_theta).max(1e-12);
+        (1.0 - g * g) / (4.0 * std::f32::consts::PI * d * d.sqrt())
+    }
+}
+
+/// How light scatters at a shading point: a BRDF times cosine at a surface, or the phase
+/// function in the medium.
+enum Scatter<'a> {
+    Surface { brdf: Brdf, frame: ShadingFrame, wo: Vec3, ng: Vec3, _p: std::marker::PhantomData<&'a ()> },
+    /// `d`: direction of the camera ray (light leaves towards `-d`).
+    Medium { m: &'a MediumEval, d: Vec3 },
+}
+
+impl Scatter<'_> {
+    /// Scattering throughput for light arriving from world direction `wi` (BRDF * cos, or phase).
+    fn eval(&self, wi: Vec3) -> Vec3 {
+        match self {
+            Scatter::Surface { brdf, frame, wo, ng, .. } => {
+                if wi.dot(*ng) <= 0.0 {
+                    return Vec3::ZERO; // below the geometric surface: blocked by it
+                }
+                let l = frame.to_local(wi);
+                brdf.eval(*wo, l) * l.z.max(0.0)
+            }
+            Scatter::Medium { m, d } => Vec3::splat(m.phase(wi.dot(*d))),
+        }
+    }
+    fn pdf(&self, wi: Vec3) -> f32 {
+        match self {
+            Scatter::Surface { brdf, frame, wo, .. } => brdf.pdf(*wo, frame.to_local(wi)),
+            Scatter::Medium { m, d } => m.phase(wi.dot(*d)),
+        }
+    }
+    fn sample(&self, rng: &mut Pcg32) -> Option<Vec3> {
+        match self {
+            Scatter::Surface { brdf, frame, wo, ng, .. } => {
+                let ul = rng.next_f32();
+                let u = rng.next_vec2();
+                let wi = frame.to_world(brdf.sample(*wo, ul, u)?).normalize();
+                (wi.dot(*ng) > 0.0).then_some(wi)
+            }
+            Scatter::Medium { m, d } => {
+                let u = rng.next_vec2();
+                let g = m.g;
+                // cos of the angle between the propagation directions (-wi) and (-d).
+                let cos_t = if g.abs() < 1e-3 {
+                    1.0 - 2.0 * u.x
+                } else {
+                    let s = (1.0 - g * g) / (1.0 - g + 2.0 * g * u.x);
+                    ((1.0 + g * g - s * s) / (2.0 * g)).clamp(-1.0, 1.0)
+                };
+                let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+                let phi = std::f32::consts::TAU * u.y;
+                let f = ShadingFrame::new(*d, Vec3::ZERO);
+                // wi makes angle theta with d (wi . d = cos(angle between -wi and -d)).
+                Some(f.to_world(Vec3::new(sin_t * phi.cos(), sin_t * phi.sin(), cos_t)).normalize())
+            }
+        }
+    }
+}
+
 /// Everything a pixel sample needs.
 pub(crate) struct Context {
     pub geo: Geometry,
     pub env: EnvLight,
-    pub brdfs: Vec<Brdf>,
+    pub lights: Vec<LocalLight>,
+    pub medium: Option<MediumEval>,
+    pub materials: Vec<MaterialEval>,
+    pub textures: Vec<penumbra_scene::Texture>,
     pub inv_view_proj: glam::Mat4,
 }
 
@@ -197,14 +293,44 @@ impl Context {
             Some(e) => EnvLight::new(e).map_err(serr)?,
             None => EnvLight::black(),
         };
-        let brdfs = scene.materials.iter().map(Brdf::from_material).collect();
+        let mut materials = Vec::with_capacity(frame.materials.len());
+        for (i, m) in frame.materials.iter().enumerate() {
+            let x = scene.material_extra(i);
+            for (what, map) in [("albedo_map", x.albedo_map), ("roughness_map", x.roughness_map)] {
+                if let Some(k) = map {
+                    let ok = scene.textures.get(k).is_some_and(|t| {
+                        t.width > 0 && t.height > 0 && t.texels.len() == t.width as usize * t.height as usize
+                    });
+                    if !ok {
+                        return Err(serr(format!("material '{}': {what} refers to a missing or empty texture {k}", m.name)));
+                    }
+                }
+            }
+            materials.push(MaterialEval {
+                base: Brdf::new(m.kind, m.albedo, m.specular, m.roughness, m.shininess, x.shininess_v),
+                material: m.clone(),
+                shininess_v: x.shininess_v,
+                albedo_map: x.albedo_map,
+                roughness_map: x.roughness_map,
+            });
+        }
+        let lights = frame.lights.iter().filter_map(LocalLight::new).collect();
+        let medium = scene.medium.as_ref().and_then(|m| {
+            let st = m.sigma_a.max(Vec3::ZERO) + m.sigma_s.max(Vec3::ZERO);
+            (st.is_finite() && st.max_element() > 0.0 && m.g.is_finite()).then(|| MediumEval {
+                sigma_t: st,
+                sigma_s: m.sigma_s.max(Vec3::ZERO),
+                g: m.g.clamp(-0.999, 0.999),
+                sigma_bar: (st.x + st.y + st.z) / 3.0,
+            })
+        });
         let aspect = opts.width as f32 / opts.height as f32;
         let vp = frame.camera.proj(aspect) * frame.camera.view();
         let inv_view_proj = vp.inverse();
         if !inv_view_proj.is_finite() {
             return Err(serr("camera has a singular view-projection matrix".into()));
         }
-        Ok(Context { geo, env, brdfs, inv_view_proj })
+        Ok(Context { geo, env, lights, medium, materials, textures: scene.textures.clone(), inv_view_proj })
     }
 
     /// Primary ray through normalized device coordinates (Vulkan: y = -1 at the top).
@@ -215,45 +341,121 @@ impl Context {
         (n, (f - n).normalize())
     }
 
-    /// One sample of the radiance arriving through the pixel: primary ray + direct lighting.
-    pub(crate) fn sample(&self, ndc_x: f32, ndc_y: f32, rng: &mut Pcg32) -> Vec3 {
-        let (o, d) = self.camera_ray(ndc_x, ndc_y);
-        let Some(hit) = self.geo.intersect(o, d, f32::INFINITY) else {
-            return self.env.radiance(d);
-        };
-        let wo_w = -d;
-        let ng = if hit.ng.dot(wo_w) >= 0.0 { hit.ng } else { -hit.ng };
-        let ns = if hit.ns.dot(ng) >= 0.0 { hit.ns } else { -hit.ns };
-        let brdf = &self.brdfs[hit.material as usize];
-        let frame = ShadingFrame::new(ns, hit.tangent);
-        let wo = frame.to_local(wo_w);
-        let origin = hit.p + ng * self.geo.epsilon();
+    fn transmittance(&self, d: f32) -> Vec3 {
+        self.medium.as_ref().map_or(Vec3::ONE, |m| m.transmittance(d))
+    }
+
+    /// The BRDF at a hit, with texture maps applied.
+    fn brdf_at(&self, material: u32, uv: glam::Vec2) -> Brdf {
+        let me = &self.materials[material as usize];
+        if me.albedo_map.is_none() && me.roughness_map.is_none() {
+            return me.base;
+        }
+        let m = &me.material;
+        let mut albedo = m.albedo;
+        let (mut roughness, mut shininess, mut sv) = (m.roughness, m.shininess, me.shininess_v);
+        if let Some(k) = me.albedo_map {
+            albedo *= self.textures[k].sample(uv).truncate();
+        }
+        if let Some(k) = me.roughness_map {
+            roughness = (roughness * self.textures[k].sample(uv).y).clamp(0.0, 1.0);
+            // As for animated roughness: the Phong-type exponents follow 2 / r^2 - 2.
+            let s = 2.0 / (roughness * roughness).max(1e-4) - 2.0;
+            if let Some(v) = sv.as_mut() {
+                *v *= s / shininess.max(1e-6);
+            }
+            shininess = s;
+        }
+        Brdf::new(m.kind, albedo, m.specular, roughness, shininess, sv)
+    }
+
+    /// Direct lighting scattered at `x` by `sc`: environment, area and delta lights by light
+    /// sampling, plus one scatter (BRDF/phase) sample, combined by the power heuristic.
+    fn direct(&self, x: Vec3, sc: &Scatter, rng: &mut Pcg32) -> Vec3 {
         let mut l = Vec3::ZERO;
-        // Environment sample.
+        // Environment sample (environment light is not attenuated by the medium).
         let ue = [rng.next_f32(), rng.next_f32(), rng.next_f32(), rng.next_f32()];
-        if let Some((wi_w, le, pdf_l)) = self.env.sample(ue) {
-            if wi_w.dot(ng) > 0.0 {
-                let wi = frame.to_local(wi_w);
-                let f = brdf.eval(wo, wi);
-                if f != Vec3::ZERO && self.geo.unoccluded(origin, wi_w, f32::INFINITY) {
-                    let w = power_heuristic(pdf_l, brdf.pdf(wo, wi));
-                    l += f * le * (wi.z * w / pdf_l);
+        if let Some((wi, le, pdf_l)) = self.env.sample(ue) {
+            let f = sc.eval(wi);
+            if f != Vec3::ZERO && self.geo.unoccluded(x, wi, f32::INFINITY) {
+                let w = power_heuristic(pdf_l, sc.pdf(wi));
+                l += f * le * (w / pdf_l);
+            }
+        }
+        // Local lights, one sample each.
+        for light in &self.lights {
+            let u = rng.next_vec2();
+            let Some(ls) = light.sample(x, u) else { continue };
+            let f = sc.eval(ls.wi);
+            if f == Vec3::ZERO || !self.geo.unoccluded(x, ls.wi, ls.dist * (1.0 - 1e-4)) {
+                continue;
+            }
+            let tr = self.transmittance(ls.dist);
+            match ls.pdf {
+                None => l += f * ls.li * tr,
+                Some(p) => {
+                    let w = power_heuristic(p, sc.pdf(ls.wi));
+                    l += f * ls.li * tr * (w / p);
                 }
             }
         }
-        // BRDF sample.
-        let ul = rng.next_f32();
-        let ub = rng.next_vec2();
-        if let Some(wi) = brdf.sample(wo, ul, ub) {
-            let wi_w = frame.to_world(wi).normalize();
-            let pdf_b = brdf.pdf(wo, wi);
-            if pdf_b > 0.0 && wi_w.dot(ng) > 0.0 {
-                let f = brdf.eval(wo, wi);
-                if f != Vec3::ZERO && self.geo.unoccluded(origin, wi_w, f32::INFINITY) {
-                    let le = self.env.radiance(wi_w);
-                    let w = if self.env.can_sample() { power_heuristic(pdf_b, self.env.pdf(wi_w)) } else { 1.0 };
-                    l += f * le * (wi.z * w / pdf_b);
+        // Scatter sample.
+        if let Some(wi) = sc.sample(rng) {
+            let pdf_s = sc.pdf(wi);
+            let f = sc.eval(wi);
+            if pdf_s > 0.0 && f != Vec3::ZERO {
+                if self.geo.unoccluded(x, wi, f32::INFINITY) {
+                    let w = if self.env.can_sample() { power_heuristic(pdf_s, self.env.pdf(wi)) } else { 1.0 };
+                    l += f * self.env.radiance(wi) * (w / pdf_s);
                 }
+                for light in self.lights.iter().filter(|l| !l.is_delta()) {
+                    if let Some((t, le, pdf_l)) = light.hit_radiance_pdf(x, wi) {
+                        if self.geo.unoccluded(x, wi, t * (1.0 - 1e-4)) {
+                            let w = power_heuristic(pdf_s, pdf_l);
+                            l += f * le * self.transmittance(t) * (w / pdf_s);
+                        }
+                    }
+                }
+            }
+        }
+        l
+    }
+
+    /// One sample of the radiance arriving through the pixel: primary ray, single scattering
+    /// along it in the medium (if any) and direct lighting at the first surface.
+    pub(crate) fn sample(&self, ndc_x: f32, ndc_y: f32, rng: &mut Pcg32) -> Vec3 {
+        let (o, d) = self.camera_ray(ndc_x, ndc_y);
+        let hit = self.geo.intersect(o, d, f32::INFINITY);
+        let t_hit = hit.as_ref().map_or(f32::INFINITY, |h| h.t);
+        let mut l = Vec3::ZERO;
+        let mut surface_tr = Vec3::ONE;
+        if let Some(m) = &self.medium {
+            surface_tr = m.transmittance(t_hit);
+            // In-scattering: distance sampled ~ exp(-sigma_bar t) truncated to [0, t_hit].
+            let sb = m.sigma_bar;
+            let mass = if t_hit.is_finite() { -(-sb * t_hit).exp_m1() } else { 1.0 };
+            let u = rng.next_f32();
+            let t = -(-u * mass).ln_1p() / sb;
+            if mass > 0.0 && t.is_finite() && t < t_hit {
+                let pdf_t = sb * (-sb * t).exp() / mass;
+                let x = o + d * t;
+                let sc = Scatter::Medium { m, d };
+                let li = self.direct(x, &sc, rng);
+                l += m.transmittance(t) * m.sigma_s * li / pdf_t;
+            }
+        }
+        match hit {
+            None => l += surface_tr * self.env.radiance(d),
+            Some(hit) => {
+                let wo_w = -d;
+                let ng = if hit.ng.dot(wo_w) >= 0.0 { hit.ng } else { -hit.ng };
+                let ns = if hit.ns.dot(ng) >= 0.0 { hit.ns } else { -hit.ns };
+                let brdf = self.brdf_at(hit.material, hit.uv);
+                let frame = ShadingFrame::new(ns, hit.tangent);
+                let wo = frame.to_local(wo_w);
+                let origin = hit.p + ng * self.geo.epsilon();
+                let sc = Scatter::Surface { brdf, frame, wo, ng, _p: std::marker::PhantomData };
+                l += surface_tr * self.direct(origin, &sc, rng);
             }
         }
         if l.is_finite() {
