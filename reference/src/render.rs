@@ -369,9 +369,10 @@ impl Context {
         Brdf::new(m.kind, albedo, m.specular, roughness, shininess, sv)
     }
 
-    /// Direct lighting scattered at `x` by `sc`: environment, area and delta lights by light
+    /// Direct lighting scattered at `p` by `sc`: environment, area and delta lights by light
     /// sampling, plus one scatter (BRDF/phase) sample, combined by the power heuristic.
-    fn direct(&self, x: Vec3, sc: &Scatter, rng: &mut Pcg32) -> Vec3 {
+    /// Lights are sampled from `p`; shadow rays start at `x` (`p` offset off the surface).
+    fn direct(&self, p: Vec3, x: Vec3, sc: &Scatter, rng: &mut Pcg32) -> Vec3 {
         let mut l = Vec3::ZERO;
         // Environment sample (environment light is not attenuated by the medium).
         let ue = [rng.next_f32(), rng.next_f32(), rng.next_f32(), rng.next_f32()];
@@ -385,7 +386,7 @@ impl Context {
         // Local lights, one sample each.
         for light in &self.lights {
             let u = rng.next_vec2();
-            let Some(ls) = light.sample(x, u) else { continue };
+            let Some(ls) = light.sample(p, u) else { continue };
             let f = sc.eval(ls.wi);
             if f == Vec3::ZERO || !self.geo.unoccluded(x, ls.wi, ls.dist * (1.0 - 1e-4)) {
                 continue;
@@ -409,7 +410,7 @@ impl Context {
                     l += f * self.env.radiance(wi) * (w / pdf_s);
                 }
                 for light in self.lights.iter().filter(|l| !l.is_delta()) {
-                    if let Some((t, le, pdf_l)) = light.hit_radiance_pdf(x, wi) {
+                    if let Some((t, le, pdf_l)) = light.hit_radiance_pdf(p, wi) {
                         if self.geo.unoccluded(x, wi, t * (1.0 - 1e-4)) {
                             let w = power_heuristic(pdf_s, pdf_l);
                             l += f * le * self.transmittance(t) * (w / pdf_s);
@@ -440,7 +441,7 @@ impl Context {
                 let pdf_t = sb * (-sb * t).exp() / mass;
                 let x = o + d * t;
                 let sc = Scatter::Medium { m, d };
-                let li = self.direct(x, &sc, rng);
+                let li = self.direct(x, x, &sc, rng);
                 l += m.transmittance(t) * m.sigma_s * li / pdf_t;
             }
         }
@@ -455,7 +456,7 @@ impl Context {
                 let wo = frame.to_local(wo_w);
                 let origin = hit.p + ng * self.geo.epsilon();
                 let sc = Scatter::Surface { brdf, frame, wo, ng, _p: std::marker::PhantomData };
-                l += surface_tr * self.direct(origin, &sc, rng);
+                l += surface_tr * self.direct(hit.p, origin, &sc, rng);
             }
         }
         if l.is_finite() {

@@ -274,3 +274,120 @@ fn writes_exr_and_json() {
     assert_eq!(j["options"]["spp"], 4);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+fn light(kind: penumbra_scene::LightKind, position: Vec3, color: Vec3, intensity: f32) -> penumbra_scene::Light {
+    penumbra_scene::Light {
+        name: "l".into(),
+        kind,
+        position,
+        direction: Vec3::NEG_Y,
+        color,
+        intensity,
+        motion: penumbra_scene::RigidMotion::Static,
+    }
+}
+
+/// Image mean and its standard error per channel.
+fn mean_se(r: &penumbra_reference::ReferenceImage) -> [(f64, f64); 3] {
+    let n = r.radiance.pixels.len() as f64;
+    [0, 1, 2].map(|c| {
+        let m = r.radiance.pixels.iter().map(|p| p[c] as f64).sum::<f64>() / n;
+        let se = r.std_error.pixels.iter().map(|p| (p[c] as f64).powi(2)).sum::<f64>().sqrt() / n;
+        (m, se)
+    })
+}
+
+/// Point light of intensity I at height h over a Lambertian plane point (no environment):
+/// L_o = albedo / pi * I / h^2. A sphere light of radiance Le and radius R at height h:
+/// irradiance pi Le (R/h)^2, so L_o = albedo Le (R/h)^2.
+#[test]
+fn local_lights_over_diffuse_plane() {
+    let albedo = 0.7f32;
+    let base = || {
+        let mut s = plane_scene(
+            Material::diffuse("d", Vec3::splat(albedo)),
+            uniform_env([0.0; 3], 1.0),
+            camera(Vec3::new(4.0, 1.5, 0.0), Vec3::ZERO, 0.02),
+        );
+        s.environment = None;
+        s
+    };
+    let h = 2.0f32;
+    let mut s = base();
+    s.lights.push(light(penumbra_scene::LightKind::Point, Vec3::new(0.0, h, 0.0), Vec3::new(1.0, 2.0, 3.0), 5.0));
+    let r = render(&s, &opts(2, 2, 16, 1)).unwrap();
+    for (c, (m, se)) in mean_se(&r).into_iter().enumerate() {
+        let expect = (albedo / std::f32::consts::PI * 5.0 * (c + 1) as f32 / (h * h)) as f64;
+        eprintln!("point light: channel {c}: {m:.6} vs {expect:.6} (se {se:.1e})");
+        assert!((m - expect).abs() <= 5.0 * se + 1e-4 * expect, "{m} vs {expect}");
+    }
+    let radius = 0.5f32;
+    let mut s = base();
+    s.lights.push(light(penumbra_scene::LightKind::Sphere { radius }, Vec3::new(0.0, h, 0.0), Vec3::new(3.0, 2.0, 1.0), 1.0));
+    let r = render(&s, &opts(2, 2, 4096, 2)).unwrap();
+    for (c, (m, se)) in mean_se(&r).into_iter().enumerate() {
+        let expect = (albedo * (3 - c) as f32 * (radius / h).powi(2)) as f64;
+        eprintln!("sphere light: channel {c}: {m:.6} vs {expect:.6} (se {se:.1e})");
+        assert!((m - expect).abs() <= 5.0 * se, "{m} vs {expect}");
+    }
+}
+
+/// Pure absorption between camera and surface: L = albedo L_env exp(-sigma_a d) (the
+/// environment itself is not attenuated on its way in, see the render module docs).
+#[test]
+fn absorbing_medium_attenuates_the_view_ray() {
+    let albedo = Vec3::new(0.5, 0.6, 0.7);
+    let eye = Vec3::new(0.0, 3.0, 3.0);
+    let mut s = plane_scene(Material::diffuse("d", albedo), uniform_env([1.0; 3], 1.0), camera(eye, Vec3::ZERO, 0.005));
+    let sa = Vec3::new(0.1, 0.2, 0.3);
+    s.medium = Some(penumbra_scene::Medium { sigma_a: sa, sigma_s: Vec3::ZERO, g: 0.0 });
+    let r = render(&s, &opts(2, 2, 2048, 3)).unwrap();
+    let dist = eye.length() - 0.01; // from the near plane
+    for (c, (m, se)) in mean_se(&r).into_iter().enumerate() {
+        let expect = (albedo[c] * (-sa[c] * dist).exp()) as f64;
+        eprintln!("absorbing medium: channel {c}: {m:.6} vs {expect:.6} (se {se:.1e})");
+        assert!((m - expect).abs() <= 5.0 * se + 1e-4 * expect, "{m} vs {expect}");
+    }
+}
+
+/// Single scattering of a point light in an infinite homogeneous medium (no surfaces), seen
+/// along a camera ray: L = integral_0^inf T(t) sigma_s p(wi . d) I T(r) / r^2 dt, evaluated
+/// here by composite Simpson quadrature in f64 for a forward-scattering Henyey-Greenstein
+/// medium.
+#[test]
+fn single_scattering_of_a_point_light_matches_quadrature() {
+    let eye = Vec3::ZERO;
+    let mut s = plane_scene(Material::diffuse("d", Vec3::ONE), uniform_env([0.0; 3], 1.0), camera(eye, Vec3::new(0.0, 0.0, -1.0), 0.01));
+    s.objects.clear();
+    s.environment = None;
+    let p = Vec3::new(0.0, 1.0, -3.0);
+    let i0 = 10.0f32;
+    s.lights.push(light(penumbra_scene::LightKind::Point, p, Vec3::ONE, i0));
+    let (sa, ss, g) = (0.05f32, Vec3::new(0.1, 0.2, 0.3), 0.6f32);
+    s.medium = Some(penumbra_scene::Medium { sigma_a: Vec3::splat(sa), sigma_s: ss, g });
+    let r = render(&s, &opts(1, 1, 200_000, 4)).unwrap();
+    let [(m0, se0), (m1, se1), (m2, se2)] = mean_se(&r);
+    let hg = |c: f64| {
+        let g = g as f64;
+        (1.0 - g * g) / (4.0 * std::f64::consts::PI * (1.0 + g * g - 2.0 * g * c).powf(1.5))
+    };
+    for (c, (m, se)) in [(m0, se0), (m1, se1), (m2, se2)].into_iter().enumerate() {
+        let st = (sa + ss[c]) as f64;
+        let f = |t: f64| {
+            let x = [0.0, 0.0, -t];
+            let v = [p.x as f64 - x[0], p.y as f64 - x[1], p.z as f64 - x[2]];
+            let rr = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            let cos = -v[2] / rr; // wi . d with d = -Z
+            (-st * t).exp() * ss[c] as f64 * hg(cos) * i0 as f64 * (-st * rr).exp() / (rr * rr)
+        };
+        let (t0, t1, n) = (0.01f64, 200.0f64, 400_000usize);
+        let hstep = (t1 - t0) / n as f64;
+        let mut acc = f(t0) + f(t1);
+        for k in 1..n {
+            acc += f(t0 + k as f64 * hstep) * if k % 2 == 1 { 4.0 } else { 2.0 };
+        }
+        let expect = acc * hstep / 3.0;
+        eprintln!("single scattering: channel {c}: {m:.6} vs quadrature {expect:.6} (se {se:.1e})");
+        assert!((m - expect).abs() <= 5.0 * se, "{m} vs {expect} +- {se}");
+    }
+}
