@@ -284,14 +284,13 @@ pub fn load_bytes(path: &Path, bytes: &[u8], base: &Path) -> Result<GltfAsset, S
             let node = ch.target().node().index();
             use gltf::animation::util::ReadOutputs;
             let norm = [DataType::F32, DataType::I8, DataType::U8, DataType::I16, DataType::U16];
-            let outputs = match ch.target().property() {
+            match ch.target().property() {
                 gltf::animation::Property::Translation | gltf::animation::Property::Scale => {
                     check_accessor(path, &out, &[Dimensions::Vec3], &[DataType::F32], &what)?
                 }
                 gltf::animation::Property::Rotation => check_accessor(path, &out, &[Dimensions::Vec4], &norm, &what)?,
                 gltf::animation::Property::MorphTargetWeights => check_accessor(path, &out, &[Dimensions::Scalar], &norm, &what)?,
-            };
-            let _ = outputs;
+            }
             let outs = reader.read_outputs().ok_or_else(|| out_of_bounds(path, &out, &what))?;
             let bad = |m: String| gerr(path, format!("{what}: {m}"));
             let target = match outs {
@@ -314,7 +313,7 @@ pub fn load_bytes(path: &Path, bytes: &[u8], base: &Path) -> Result<GltfAsset, S
                     if v.iter().any(|x| !x.is_finite()) {
                         return Err(bad("non-finite (NaN/Inf) rotation".into()));
                     }
-                    let v = v.into_iter().map(|q| norm_quat(q)).collect();
+                    let v = v.into_iter().map(norm_quat).collect();
                     Channel::Rotation(Track::new(times.clone(), v, interp, false).map_err(bad)?)
                 }
                 ReadOutputs::MorphTargetWeights(it) => {
@@ -436,8 +435,8 @@ fn percent_decode(s: &str) -> String {
     let mut out = Vec::with_capacity(b.len());
     let mut i = 0;
     while i < b.len() {
-        if b[i] == b'%' && i + 2 < b.len() + 0 && i + 2 <= b.len() - 1 {
-            if let Ok(v) = u8::from_str_radix(&s[i + 1..i + 3], 16) {
+        if b[i] == b'%' && i + 2 < b.len() {
+            if let Some(v) = std::str::from_utf8(&b[i + 1..i + 3]).ok().and_then(|h| u8::from_str_radix(h, 16).ok()) {
                 out.push(v);
                 i += 3;
                 continue;
