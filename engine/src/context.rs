@@ -200,7 +200,12 @@ impl Context {
         let instance = unsafe { entry.create_instance(&ci, None) }.context("vkCreateInstance")?;
         let debug_instance = if has_debug {
             let di = ash::ext::debug_utils::Instance::new(&entry, &instance);
-            let m = unsafe { di.create_debug_utils_messenger(&messenger_info, None) }.context("debug messenger")?;
+            let info = vk::DebugUtilsMessengerCreateInfoEXT::default()
+                .message_severity(severity)
+                .message_type(types)
+                .pfn_user_callback(Some(debug_callback))
+                .user_data(Arc::as_ptr(&validation) as *mut std::ffi::c_void);
+            let m = unsafe { di.create_debug_utils_messenger(&info, None) }.context("debug messenger")?;
             Some((di, m))
         } else {
             None
@@ -256,7 +261,7 @@ impl Context {
             .fill_mode_non_solid(avail.fill_mode_non_solid == vk::TRUE)
             .sampler_anisotropy(avail.sampler_anisotropy == vk::TRUE);
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default().host_query_reset(true).scalar_block_layout(true);
-        let mut f13 = vk::PhysicalDeviceVulkan13Features::default().synchronization2(true).dynamic_rendering(true);
+        let mut f13 = vk::PhysicalDeviceVulkan13Features::default().synchronization2(true).dynamic_rendering(true).maintenance4(true);
         let prio = [1.0f32];
         let qci = [vk::DeviceQueueCreateInfo::default().queue_family_index(queue_family).queue_priorities(&prio)];
         let dci = vk::DeviceCreateInfo::default()
@@ -286,7 +291,7 @@ impl Context {
     }
 
     /// Wraps an application's instance/device/queue. The device must have been created with
-    /// Vulkan 1.3 `synchronization2` and `dynamicRendering`, Vulkan 1.2 `hostQueryReset` and
+    /// Vulkan 1.3 `synchronization2`, `dynamicRendering` and `maintenance4`, Vulkan 1.2 `hostQueryReset` and
     /// `scalarBlockLayout`, and `VK_KHR_push_descriptor`. penumbra does not destroy them.
     #[allow(clippy::too_many_arguments)]
     pub fn from_external(

@@ -37,6 +37,9 @@ pub struct ReferenceArgs {
     /// What to evaluate.
     #[arg(long, value_enum, default_value_t = Mode::Exact)]
     pub mode: Mode,
+    /// SG lobes fitted to the environment in --mode sg-lighting.
+    #[arg(long, default_value_t = 16)]
+    pub sg_lobes: u32,
     /// Hide the progress bar (it is hidden anyway when stderr is not a terminal).
     #[arg(long)]
     pub no_progress: bool,
@@ -83,6 +86,7 @@ impl ReferenceArgs {
             fps: self.fps,
             seed: self.seed,
             mode: self.mode,
+            sg_lobes: self.sg_lobes,
             progress: !self.no_progress,
         })
     }
@@ -105,6 +109,9 @@ pub fn run_reference(args: &ReferenceArgs, scene: &Scene) -> anyhow::Result<()> 
         s.noise.pixels_measured,
         s.noise.mean_std_error
     );
+    if let Some(e) = s.sg_fit_rel_l2 {
+        println!("SG lighting: {} lobes, relative L2 fit error {e:.4}", opts.sg_lobes);
+    }
     println!("wrote {} and {}", s.image.display(), s.std_error_image.display());
     Ok(())
 }

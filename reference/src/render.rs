@@ -37,6 +37,10 @@ pub enum Mode {
     /// Exact lighting and BRDFs, exact visibility.
     #[default]
     Exact,
+    /// The environment replaced by its K-lobe SG fit (`penumbra_math::envmap`,
+    /// `ReferenceOptions::sg_lobes`), evaluated exactly per direction; exact BRDFs, local lights
+    /// and visibility. Tells a technique's visibility error apart from its SG lighting error.
+    SgLighting,
 }
 
 /// Options of [`render`].
@@ -54,8 +58,15 @@ pub struct ReferenceOptions {
     pub fps: f32,
     pub seed: u64,
     pub mode: Mode,
+    /// Number of SG lobes fitted to the environment in [`Mode::SgLighting`].
+    #[serde(default = "default_sg_lobes")]
+    pub sg_lobes: u32,
     /// Show a progress bar on stderr (only if stderr is a terminal).
     pub progress: bool,
+}
+
+fn default_sg_lobes() -> u32 {
+    16
 }
 
 impl Default for ReferenceOptions {
@@ -69,6 +80,7 @@ impl Default for ReferenceOptions {
             fps: 30.0,
             seed: 0,
             mode: Mode::Exact,
+            sg_lobes: default_sg_lobes(),
             progress: false,
         }
     }
@@ -127,6 +139,8 @@ pub struct ReferenceImage {
     pub triangles: usize,
     /// Wall-clock seconds of BVH build and rendering.
     pub render_seconds: f64,
+    /// [`Mode::SgLighting`]: relative L2 error of the SG fit of the environment.
+    pub sg_fit_rel_l2: Option<f64>,
 }
 
 /// Summary written next to the images.
@@ -138,6 +152,7 @@ pub struct ReferenceSummary {
     pub triangles: usize,
     pub render_seconds: f64,
     pub noise: NoiseStats,
+    pub sg_fit_rel_l2: Option<f64>,
     pub image: PathBuf,
     pub std_error_image: PathBuf,
     pub estimator: String,
@@ -160,6 +175,7 @@ impl ReferenceImage {
             triangles: self.triangles,
             render_seconds: self.render_seconds,
             noise: self.noise.clone(),
+            sg_fit_rel_l2: self.sg_fit_rel_l2,
             image,
             std_error_image,
             estimator: "direct lighting, env importance sampling + BRDF sampling, power-heuristic MIS, exact BVH visibility".into(),
@@ -272,6 +288,7 @@ pub(crate) struct Context {
     pub materials: Vec<MaterialEval>,
     pub textures: Vec<penumbra_scene::Texture>,
     pub inv_view_proj: glam::Mat4,
+    pub sg_fit_rel_l2: Option<f64>,
 }
 
 fn power_heuristic(a: f32, b: f32) -> f32 {
@@ -289,9 +306,26 @@ impl Context {
         let t = opts.time_s();
         let frame = scene.at(t, None);
         let geo = Geometry::new(scene, &frame).map_err(serr)?;
-        let env = match &scene.environment {
-            Some(e) => EnvLight::new(e).map_err(serr)?,
-            None => EnvLight::black(),
+        let mut sg_fit_rel_l2 = None;
+        let env = match (&scene.environment, opts.mode) {
+            (Some(e), Mode::Exact) => EnvLight::new(e).map_err(serr)?,
+            (Some(e), Mode::SgLighting) => {
+                let fit = penumbra_math::envmap::fit_sg_lighting(
+                    e.width as usize,
+                    e.height as usize,
+                    &e.texels,
+                    opts.sg_lobes.max(1) as usize,
+                )
+                .map_err(|err| serr(format!("SG fit of the environment: {err}")))?;
+                sg_fit_rel_l2 = Some(fit.rel_l2_error);
+                let lobes: Vec<(Vec3, f32, Vec3)> = fit
+                    .lobes
+                    .iter()
+                    .map(|l| (l.axis.as_vec3(), l.lambda as f32, l.mu.as_vec3()))
+                    .collect();
+                EnvLight::from_sg(e, &lobes).map_err(serr)?
+            }
+            (None, _) => EnvLight::black(),
         };
         let mut materials = Vec::with_capacity(frame.materials.len());
         for (i, m) in frame.materials.iter().enumerate() {
@@ -330,7 +364,7 @@ impl Context {
         if !inv_view_proj.is_finite() {
             return Err(serr("camera has a singular view-projection matrix".into()));
         }
-        Ok(Context { geo, env, lights, medium, materials, textures: scene.textures.clone(), inv_view_proj })
+        Ok(Context { geo, env, lights, medium, materials, textures: scene.textures.clone(), inv_view_proj, sg_fit_rel_l2 })
     }
 
     /// Primary ray through normalized device coordinates (Vulkan: y = -1 at the top).
@@ -560,6 +594,7 @@ pub fn render(scene: &Scene, opts: &ReferenceOptions) -> Result<ReferenceImage, 
         time_s: opts.time_s(),
         triangles: ctx.geo.triangle_count(),
         render_seconds: start.elapsed().as_secs_f64(),
+        sg_fit_rel_l2: ctx.sg_fit_rel_l2,
     })
 }
 

@@ -189,6 +189,14 @@ pub struct EnvLight {
     /// Solid angle of one texel of each row.
     row_solid_angle: Vec<f32>,
     table: Option<AliasTable>,
+    /// SG lighting (world-space axis, sharpness, RGB amplitude): when set, radiance is the
+    /// exact sum of these lobes and `texels` only drive importance sampling.
+    sg: Option<Vec<(Vec3, f32, Vec3)>>,
+}
+
+/// Sum of SG lobes `mu exp(lambda (dot(axis, d) - 1))` at unit `d`.
+pub fn eval_sg_sum(lobes: &[(Vec3, f32, Vec3)], d: Vec3) -> Vec3 {
+    lobes.iter().map(|(a, l, mu)| *mu * (-0.5 * *l * (*a - d).length_squared()).exp()).sum()
 }
 
 impl EnvLight {
@@ -203,7 +211,37 @@ impl EnvLight {
             row_cos: vec![1.0, -1.0],
             row_solid_angle: vec![4.0 * PI],
             table: None,
+            sg: None,
         }
+    }
+
+    /// Lighting made of SG lobes given in the map's frame (axes before `rotation`, amplitudes
+    /// before `intensity`, as fitted to `env`'s texels); rotation and intensity of `env` are
+    /// applied. Importance sampling uses the lobes tabulated at `env`'s resolution.
+    pub fn from_sg(env: &Environment, lobes: &[(Vec3, f32, Vec3)]) -> Result<Self, String> {
+        let mut e = EnvLight::new(env)?;
+        let world: Vec<(Vec3, f32, Vec3)> = lobes
+            .iter()
+            .map(|(a, l, mu)| (e.to_world(a.normalize_or_zero()), l.max(0.0), *mu * env.intensity))
+            .collect();
+        if world.iter().any(|(a, l, mu)| !a.is_finite() || !l.is_finite() || !mu.is_finite()) {
+            return Err("SG lighting has non-finite lobes".into());
+        }
+        let (w, h) = (env.width as usize, env.height as usize);
+        let mut weights = Vec::with_capacity(w * h);
+        let mut texels = Vec::with_capacity(w * h);
+        for j in 0..h {
+            for i in 0..w {
+                let d_map = Environment::direction((i as f32 + 0.5) / w as f32, (j as f32 + 0.5) / h as f32);
+                let v = eval_sg_sum(&world, e.to_world(d_map));
+                texels.push(v);
+                weights.push(luminance(v.max(Vec3::ZERO)) as f64 * e.row_solid_angle[j] as f64);
+            }
+        }
+        e.texels = texels;
+        e.table = AliasTable::new(&weights);
+        e.sg = Some(world);
+        Ok(e)
     }
 
     pub fn new(env: &Environment) -> Result<Self, String> {
@@ -265,6 +303,7 @@ impl EnvLight {
             row_cos,
             row_solid_angle,
             table,
+            sg: None,
         })
     }
 
@@ -287,6 +326,9 @@ impl EnvLight {
 
     /// Radiance arriving from world direction `d` (unit).
     pub fn radiance(&self, d: Vec3) -> Vec3 {
+        if let Some(sg) = &self.sg {
+            return eval_sg_sum(sg, d);
+        }
         self.texels[self.texel_index(d)]
     }
 
@@ -326,7 +368,11 @@ impl EnvLight {
         if pdf <= 0.0 {
             return None;
         }
-        Some((d, self.texels[k], pdf))
+        let l = match &self.sg {
+            Some(sg) => eval_sg_sum(sg, d),
+            None => self.texels[k],
+        };
+        Some((d, l, pdf))
     }
 }
 

@@ -108,6 +108,24 @@ pub fn load_bytes(path: &Path, bytes: &[u8], base: &Path) -> Result<GltfAsset, S
                 }
             }
         }
+        // Animation channels index nodes and samplers without checks in the gltf crate.
+        for (ai, a) in root.animations.iter().enumerate() {
+            for (ci, c) in a.channels.iter().enumerate() {
+                if c.target.node.value() >= root.nodes.len() {
+                    return Err(gerr(path, format!("animation {ai} channel {ci} targets node {} which does not exist", c.target.node.value())));
+                }
+                if c.sampler.value() >= a.samplers.len() {
+                    return Err(gerr(path, format!("animation {ai} channel {ci} uses sampler {} which does not exist", c.sampler.value())));
+                }
+            }
+            for (si, smp) in a.samplers.iter().enumerate() {
+                for acc in [smp.input.value(), smp.output.value()] {
+                    if acc >= root.accessors.len() {
+                        return Err(gerr(path, format!("animation {ai} sampler {si} refers to accessor {acc} which does not exist")));
+                    }
+                }
+            }
+        }
     }
     let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| gerr(path, describe(&e)))?;
     let doc = gltf.document;

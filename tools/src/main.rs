@@ -1,1 +1,227 @@
-fn main() {}
+//! `penumbra`: render scenes on the GPU, render ground truth on the CPU, compare images.
+//!
+//! Exit codes: 0 success; 1 a run-time failure (Vulkan, validation errors with --validate);
+//! 2 bad input (scene/model/image files, arguments).
+
+use anyhow::{Context as _, Result};
+use clap::{Args, Parser, Subcommand};
+use penumbra::engine::graph::dump;
+use penumbra::{RenderSettings, Renderer};
+use penumbra_reference::cli::{parse_size, CompareArgs, ReferenceArgs};
+use penumbra_reference::image::{write_png_rgb8, Image};
+use penumbra_scene::{Scene, SceneError};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "penumbra", version, about = "Vulkan rendering of dynamic scenes under all-frequency lighting", long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Render frames of a scene on the GPU (the built-in default scene without SCENE).
+    ///
+    /// Writes DIR/frame_NNNN.exr (linear float radiance) and DIR/frame_NNNN.png (tone-mapped
+    /// sRGB) per frame, DIR/graph.json, DIR/graph.dot and DIR/graph.txt (the last frame's
+    /// compiled render graph: passes, culled passes and why, barriers, resources) and
+    /// DIR/profile.json (per-pass GPU median/min/max ms from timestamps, CPU compile and record ms).
+    Render(RenderArgs),
+    /// Render CPU ground truth (Monte Carlo, exact visibility) of a scene frame.
+    Reference(ReferenceArgs),
+    /// Compare two EXR images (A is the reference): PSNR, RMSE, FLIP, difference image.
+    Compare(CompareArgs),
+}
+
+#[derive(Args)]
+struct RenderArgs {
+    /// Scene file (.toml) or a bare glTF model (.glb/.gltf); the built-in default scene when omitted.
+    scene: Option<PathBuf>,
+    /// Number of frames; frame k is the scene at time k / fps.
+    #[arg(long, default_value_t = 1)]
+    frames: u32,
+    /// Frames per second of scene time.
+    #[arg(long, default_value_t = 30.0)]
+    fps: f32,
+    /// Image size WxH.
+    #[arg(long, default_value = "640x480")]
+    size: String,
+    /// Output directory.
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+    /// Enable the Khronos validation layer with synchronization validation; exit 1 (printing the
+    /// count and the messages) if it reported any error.
+    #[arg(long)]
+    validate: bool,
+    /// Also print the compiled graph of the last frame as text.
+    #[arg(long)]
+    dump_graph: bool,
+    /// Also print the per-pass GPU timing table.
+    #[arg(long)]
+    profile: bool,
+    /// Exposure applied before tone mapping.
+    #[arg(long, default_value_t = 1.0)]
+    exposure: f32,
+    /// Use the Vulkan device whose name contains this.
+    #[arg(long)]
+    device: Option<String>,
+}
+
+/// An error caused by the user's input: exit code 2.
+#[derive(Debug)]
+struct BadInput(String);
+impl std::fmt::Display for BadInput {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+impl std::error::Error for BadInput {}
+
+fn bad(e: impl std::fmt::Display) -> anyhow::Error {
+    anyhow::Error::new(BadInput(e.to_string()))
+}
+
+fn load_scene(path: Option<&Path>) -> Result<Scene> {
+    let scene = match path {
+        None => Scene::default_scene(),
+        Some(p) => Scene::load(p).map_err(|e: SceneError| bad(e))?,
+    };
+    for w in &scene.warnings {
+        eprintln!("warning: {w}");
+    }
+    Ok(scene)
+}
+
+fn write_frame(out: &Path, index: u32, img: &penumbra::FrameImages) -> Result<()> {
+    let exr = out.join(format!("frame_{index:04}.exr"));
+    let hdr = Image::from_fn(img.width, img.height, |x, y| {
+        let p = img.hdr[(y * img.width + x) as usize];
+        [p[0], p[1], p[2]]
+    });
+    hdr.write_exr(&exr).with_context(|| format!("writing {}", exr.display()))?;
+    let png = out.join(format!("frame_{index:04}.png"));
+    let rgb: Vec<u8> = img.ldr.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect();
+    write_png_rgb8(&png, img.width, img.height, &rgb).with_context(|| format!("writing {}", png.display()))?;
+    Ok(())
+}
+
+fn render(args: &RenderArgs) -> Result<()> {
+    let (width, height) = parse_size(&args.size).map_err(bad)?;
+    if args.frames == 0 {
+        return Err(bad("--frames must be at least 1"));
+    }
+    if !(args.fps.is_finite() && args.fps > 0.0) {
+        return Err(bad("--fps must be a positive number"));
+    }
+    let scene = load_scene(args.scene.as_deref())?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let settings = RenderSettings {
+        width,
+        height,
+        tonemap: penumbra_passes::tonemap::TonemapParams { exposure: args.exposure },
+        ..Default::default()
+    };
+    let ctx = penumbra::engine::Context::new(&penumbra::engine::ContextDesc {
+        validation: args.validate,
+        device_name: args.device.clone(),
+        ..Default::default()
+    })?;
+    let mut r = Renderer::new(ctx, &scene, settings)?;
+    if r.repaired_env_texels() > 0 {
+        eprintln!("warning: {} environment texels were NaN/Inf/negative and were set to 0", r.repaired_env_texels());
+    }
+    println!(
+        "penumbra: scene '{}' ({} objects, {} vertices, {} triangles) at {width}x{height} on {}",
+        scene.name,
+        scene.objects.len(),
+        r.scene_gpu().vertex_count,
+        r.scene_gpu().triangle_count,
+        r.context().device_name
+    );
+    let mut written = 0;
+    let mut prev_t = None;
+    for k in 0..args.frames {
+        let t = k as f32 / args.fps;
+        let frame = scene.at(t, prev_t);
+        prev_t = Some(t);
+        for img in r.render(&frame, None, true)? {
+            write_frame(&args.out, img.frame as u32, &img)?;
+            written += 1;
+        }
+    }
+    for img in r.finish()? {
+        write_frame(&args.out, img.frame as u32, &img)?;
+        written += 1;
+    }
+    let graph = r.last_graph.as_ref().context("no frame was compiled")?;
+    let timings = r.engine.profiler.gpu_stats();
+    let json = dump::to_json(graph, Some(&timings));
+    std::fs::write(args.out.join("graph.json"), serde_json::to_string_pretty(&json)? + "\n")?;
+    std::fs::write(args.out.join("graph.dot"), dump::to_dot(graph))?;
+    let text = dump::to_text(graph, Some(&timings));
+    std::fs::write(args.out.join("graph.txt"), &text)?;
+    let mut profile = r.engine.profiler.to_json();
+    profile["device"] = serde_json::json!(r.context().device_name);
+    profile["size"] = serde_json::json!([width, height]);
+    profile["scene"] = serde_json::json!(scene.name);
+    std::fs::write(args.out.join("profile.json"), serde_json::to_string_pretty(&profile)? + "\n")?;
+    println!("wrote {written} frame(s), graph.json, graph.dot, graph.txt and profile.json to {}", args.out.display());
+    if args.dump_graph {
+        print!("{text}");
+    }
+    if args.profile {
+        print!("{}", r.engine.profiler.table());
+    }
+    if args.validate {
+        let log = r.context().validation.clone();
+        drop(r);
+        let n = log.error_count();
+        println!("validation: {n} error(s), {} warning(s)", log.warning_count());
+        if n > 0 {
+            for m in log.errors() {
+                println!("  {m}");
+            }
+            anyhow::bail!("the validation layer reported {n} error(s)");
+        }
+    }
+    Ok(())
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.cmd {
+        Cmd::Render(a) => render(&a),
+        Cmd::Reference(a) => {
+            let scene = load_scene(a.scene.as_deref())?;
+            a.options().map_err(bad)?;
+            penumbra_reference::cli::run_reference(&a, &scene)
+        }
+        Cmd::Compare(a) => {
+            for p in [&a.a, &a.b] {
+                if !p.exists() {
+                    return Err(bad(format!("{}: no such file", p.display())));
+                }
+            }
+            penumbra_reference::cli::run_compare(&a).map_err(|e| {
+                // Image decoding problems are bad input.
+                if format!("{e:#}").contains(".exr") { bad(format!("{e:#}")) } else { e }
+            })
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            if e.downcast_ref::<BadInput>().is_some() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::from(1)
+            }
+        }
+    }
+}

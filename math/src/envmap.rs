@@ -1,0 +1,614 @@
+//! Lat-long HDR environment maps: SG-prefiltered maps (`Gamma_L`) and fitting K spherical
+//! Gaussians to a map.
+//!
+//! # Map convention
+//! Same as `penumbra_scene::Environment::direction`: `width x height` linear-RGB texels, row 0 is
+//! the +Y pole; the pixel centre `(u, v) = ((x + 0.5)/width, (y + 0.5)/height)` maps to
+//! `phi = 2 pi u`, `theta = pi v`, `d = (sin(theta) sin(phi), cos(theta), -sin(theta) cos(phi))`.
+//! Texel `(x, y)` is treated as constant over its solid angle
+//! `(cos(theta_top) - cos(theta_bottom)) 2 pi / width`.
+//!
+//! # SG fit ([`SgEnvFitter`], [`fit_sg_lighting`])
+//! Least squares on solid-angle-weighted texels,
+//! `min sum_i w_i |L_i - sum_k G_k(d_i)|^2` with non-negative RGB amplitudes:
+//! 1. *Selection* (matching pursuit on luminance): for a ladder of sharpness values
+//!    (`lambda_min` .. the map's resolution limit, ratio `ladder_ratio`) the correlation maps
+//!    `C_lambda(a) = sum_i w_i Y_i G(d_i; a, lambda)` are computed once (a sharpness-matched
+//!    mip level and output grid, with culling of the lobe support). Each step picks the
+//!    `(a, lambda)` maximising the energy decrease `max(R, 0)^2 / |G|^2` of the residual
+//!    correlation `R = C - sum_k mu_k <G_k, G_(a,lambda)>` (analytic SG inner products, so the
+//!    residual never has to be re-convolved), refines the axis by a parabolic fit on the score
+//!    grid, and subtracts the lobe with its optimal amplitude. The brightest region (e.g. a sun
+//!    1e4 x brighter than the sky) is thus taken first by a lobe of matching sharpness, and the
+//!    sky is fit from the residual.
+//! 2. *Amplitudes*: exact discrete NNLS per RGB channel at full resolution (Gram matrix
+//!    `sum_i w_i G_k G_l` and right-hand side `sum_i w_i G_k L_i`; [`crate::nnls`]).
+//! 3. *Refinement* (between 1 and 2): a few passes of coordinate search over each lobe's
+//!    sharpness (factors `2^(+-1/2)`, `2^(+-1/4)`), each candidate re-solving the NNLS, on a
+//!    reduced map (at most 128 rows; lobes sharper than it resolves are left alone).
+//!
+//! The reported error is the relative L2 error over the sphere at full resolution,
+//! `sqrt(sum_i w_i |L_i - fit_i|^2 / sum_i w_i |L_i|^2)` (RGB summed).
+//!
+//! # Prefiltered maps ([`prefilter`])
+//! `Gamma_L(a, lambda) = int L(w) G(w; a, lambda, 1) dw` (paper eq. 10). We store the normalised
+//! value `Gamma_L(a, lambda) / int G(w; a, lambda, 1) dw` (the average of `L` under the lobe; the
+//! normalisation uses the discrete weights, so a constant map stays exactly constant), in
+//! lat-long maps of the same convention. Multiply by `Sg::sphere_integral` to get `Gamma_L`.
+
+use crate::nnls::nnls_gram;
+use crate::sg::{Sg, SgRgb};
+use glam::DVec3;
+use rayon::prelude::*;
+use std::f64::consts::PI;
+
+/// Errors for environment-map input.
+#[derive(Debug, Clone, PartialEq)]
+pub enum EnvError {
+    /// Width or height is zero.
+    Empty,
+    /// `texels.len() != width * height`.
+    SizeMismatch { expected: usize, got: usize },
+    /// A texel is NaN or infinite (negative values are clamped to 0 instead).
+    NonFinite { index: usize },
+    /// Invalid option (message says which).
+    BadOption(&'static str),
+}
+
+impl std::fmt::Display for EnvError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            EnvError::Empty => write!(f, "environment map is empty"),
+            EnvError::SizeMismatch { expected, got } => {
+                write!(f, "environment map has {got} texels, expected {expected}")
+            }
+            EnvError::NonFinite { index } => write!(f, "environment map texel {index} is not finite"),
+            EnvError::BadOption(m) => write!(f, "invalid option: {m}"),
+        }
+    }
+}
+impl std::error::Error for EnvError {}
+
+/// Direction of lat-long coordinates `(u, v)` in `[0,1]^2` (see the module docs).
+pub fn latlong_direction(u: f64, v: f64) -> DVec3 {
+    let phi = u * 2.0 * PI;
+    let theta = v * PI;
+    DVec3::new(theta.sin() * phi.sin(), theta.cos(), -theta.sin() * phi.cos())
+}
+
+/// Inverse of [`latlong_direction`].
+pub fn latlong_uv(d: DVec3) -> (f64, f64) {
+    let theta = d.y.clamp(-1.0, 1.0).acos();
+    let mut phi = d.x.atan2(-d.z);
+    if phi < 0.0 {
+        phi += 2.0 * PI;
+    }
+    (phi / (2.0 * PI), theta / PI)
+}
+
+/// A lat-long map in f64 with precomputed texel directions and solid angles.
+#[derive(Clone, Debug)]
+pub struct LatLong {
+    /// Width in texels.
+    pub width: usize,
+    /// Height in texels.
+    pub height: usize,
+    /// Linear RGB, row-major, row 0 = +Y pole.
+    pub rgb: Vec<DVec3>,
+    dirs: Vec<DVec3>,
+    row_weight: Vec<f64>,
+}
+
+impl LatLong {
+    /// Validates and converts `[f32; 3]` texels. Negative components are clamped to 0.
+    pub fn new(width: usize, height: usize, texels: &[[f32; 3]]) -> Result<Self, EnvError> {
+        if width == 0 || height == 0 {
+            return Err(EnvError::Empty);
+        }
+        if texels.len() != width * height {
+            return Err(EnvError::SizeMismatch { expected: width * height, got: texels.len() });
+        }
+        let mut rgb = Vec::with_capacity(texels.len());
+        for (i, t) in texels.iter().enumerate() {
+            if !t.iter().all(|c| c.is_finite()) {
+                return Err(EnvError::NonFinite { index: i });
+            }
+            rgb.push(DVec3::new(t[0].max(0.0) as f64, t[1].max(0.0) as f64, t[2].max(0.0) as f64));
+        }
+        Ok(Self::from_rgb(width, height, rgb))
+    }
+
+    fn from_rgb(width: usize, height: usize, rgb: Vec<DVec3>) -> Self {
+        let mut dirs = Vec::with_capacity(width * height);
+        for y in 0..height {
+            for x in 0..width {
+                dirs.push(latlong_direction((x as f64 + 0.5) / width as f64, (y as f64 + 0.5) / height as f64));
+            }
+        }
+        let row_weight = (0..height)
+            .map(|y| {
+                let t0 = PI * y as f64 / height as f64;
+                let t1 = PI * (y + 1) as f64 / height as f64;
+                (t0.cos() - t1.cos()) * 2.0 * PI / width as f64
+            })
+            .collect();
+        Self { width, height, rgb, dirs, row_weight }
+    }
+
+    /// Direction of texel `i` (row-major index).
+    pub fn dir(&self, i: usize) -> DVec3 {
+        self.dirs[i]
+    }
+
+    /// Solid angle of a texel of row `y`.
+    pub fn solid_angle(&self, y: usize) -> f64 {
+        self.row_weight[y]
+    }
+
+    /// Relative L2 error over the sphere of an RGB SG lighting against this map.
+    pub fn relative_l2_error(&self, lobes: &[SgRgb]) -> f64 {
+        let (num, den) = (0..self.height)
+            .into_par_iter()
+            .map(|y| {
+                let w = self.row_weight[y];
+                let mut n = 0.0;
+                let mut d = 0.0;
+                for x in 0..self.width {
+                    let i = y * self.width + x;
+                    let f = SgRgb::eval_sum(lobes, self.dirs[i]);
+                    n += w * (f - self.rgb[i]).length_squared();
+                    d += w * self.rgb[i].length_squared();
+                }
+                (n, d)
+            })
+            .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+        if den > 0.0 {
+            (num / den).sqrt()
+        } else if num > 0.0 {
+            f64::INFINITY
+        } else {
+            0.0
+        }
+    }
+
+    /// 2x2 solid-angle-weighted box downsample (requires even width and height).
+    pub fn downsample(&self) -> Option<LatLong> {
+        if self.width % 2 != 0 || self.height % 2 != 0 || self.height < 2 {
+            return None;
+        }
+        let (w2, h2) = (self.width / 2, self.height / 2);
+        let mut rgb = vec![DVec3::ZERO; w2 * h2];
+        for y in 0..h2 {
+            let (wa, wb) = (self.row_weight[2 * y], self.row_weight[2 * y + 1]);
+            for x in 0..w2 {
+                let a = self.rgb[2 * y * self.width + 2 * x] + self.rgb[2 * y * self.width + 2 * x + 1];
+                let b = self.rgb[(2 * y + 1) * self.width + 2 * x] + self.rgb[(2 * y + 1) * self.width + 2 * x + 1];
+                rgb[y * w2 + x] = (a * wa + b * wb) / (2.0 * (wa + wb));
+            }
+        }
+        Some(LatLong::from_rgb(w2, h2, rgb))
+    }
+
+    /// Total `int L dw` (RGB).
+    pub fn integral(&self) -> DVec3 {
+        let mut s = DVec3::ZERO;
+        for y in 0..self.height {
+            for x in 0..self.width {
+                s += self.rgb[y * self.width + x] * self.row_weight[y];
+            }
+        }
+        s
+    }
+}
+
+/// Truncation of the SG support: texels with `lambda (1 - cos) > SUPPORT_CUTOFF` are skipped
+/// (relative contribution below `exp(-30) ~ 1e-13`).
+const SUPPORT_CUTOFF: f64 = 30.0;
+
+/// `(sum_i w_i L_i G(d_i; a, lambda), sum_i w_i G(d_i; a, lambda))` for lobe axis `a` over
+/// `src`, visiting only the lobe's support.
+fn convolve_at(src: &LatLong, a: DVec3, lambda: f64, values: &dyn Fn(usize) -> DVec3) -> (DVec3, f64) {
+    let (h, w) = (src.height, src.width);
+    let cos_cut = 1.0 - SUPPORT_CUTOFF / lambda.max(1e-300);
+    let mut acc = DVec3::ZERO;
+    let mut wsum = 0.0;
+    let mut visit_row = |y: usize, x0: isize, n: usize| {
+        let wr = src.row_weight[y];
+        for k in 0..n {
+            let x = (x0 + k as isize).rem_euclid(w as isize) as usize;
+            let i = y * w + x;
+            let om = 1.0 - a.dot(src.dirs[i]);
+            let g = (-lambda * om.max(0.0)).exp() * wr;
+            acc += values(i) * g;
+            wsum += g;
+        }
+    };
+    if cos_cut <= -1.0 {
+        for y in 0..h {
+            visit_row(y, 0, w);
+        }
+        return (acc, wsum);
+    }
+    let big_theta = cos_cut.acos();
+    let ta = a.y.clamp(-1.0, 1.0).acos();
+    let (ua, _) = latlong_uv(a);
+    let dtheta = PI / h as f64;
+    let dphi = 2.0 * PI / w as f64;
+    let y0 = (((ta - big_theta) / dtheta).floor() - 1.0).max(0.0) as usize;
+    let y1 = ((((ta + big_theta) / dtheta).ceil() + 1.0) as usize).min(h);
+    let (sa, ca) = (ta.sin(), ta.cos());
+    for y in y0..y1 {
+        let t = (y as f64 + 0.5) * dtheta;
+        let (st, ct) = (t.sin(), t.cos());
+        let denom = sa * st;
+        let half = if denom < 1e-12 {
+            PI
+        } else {
+            let q = (cos_cut - ca * ct) / denom;
+            if q <= -1.0 {
+                PI
+            } else if q >= 1.0 {
+                // ring centre misses the cap; its texels may still touch it: one texel margin
+                2.0 * dphi
+            } else {
+                q.acos() + 2.0 * dphi
+            }
+        };
+        if half >= PI {
+            visit_row(y, 0, w);
+        } else {
+            let xc = ua * w as f64 - 0.5;
+            let x0 = (xc - half / dphi).floor() as isize;
+            let x1 = (xc + half / dphi).ceil() as isize;
+            let n = ((x1 - x0 + 1) as usize).min(w);
+            visit_row(y, x0, n);
+        }
+    }
+    (acc, wsum)
+}
+
+/// One level of a prefiltered environment: the map convolved with a normalised SG of
+/// sharpness `lambda`.
+#[derive(Clone, Debug)]
+pub struct PrefilteredLevel {
+    /// SG sharpness of this level.
+    pub lambda: f64,
+    /// Width in texels.
+    pub width: usize,
+    /// Height in texels.
+    pub height: usize,
+    /// `Gamma_L(a, lambda) / int G(.; a, lambda, 1)` per texel (linear RGB, same lat-long
+    /// convention as the input).
+    pub texels: Vec<[f32; 3]>,
+}
+
+/// Mip pyramid of a map (level 0 = full resolution).
+fn pyramid(map: &LatLong) -> Vec<LatLong> {
+    let mut levels = vec![map.clone()];
+    while levels.last().unwrap().height > 4 {
+        match levels.last().unwrap().downsample() {
+            Some(l) => levels.push(l),
+            None => break,
+        }
+    }
+    levels
+}
+
+/// Coarsest pyramid level whose texels are at most half the lobe's angular width.
+fn level_for(levels: &[LatLong], lambda: f64) -> &LatLong {
+    let sigma = 1.0 / lambda.max(1e-300).sqrt();
+    let mut best = &levels[0];
+    for l in levels {
+        if PI / l.height as f64 <= 0.5 * sigma {
+            best = l;
+        }
+    }
+    best
+}
+
+/// Output height used for sharpness `lambda`: texel at most ~2/3 of the lobe width, at least 8,
+/// at most `max_height`.
+fn out_height(lambda: f64, max_height: usize) -> usize {
+    let need = (1.5 * PI * lambda.max(0.0).sqrt()).ceil() as usize;
+    need.next_power_of_two().max(8).min(max_height.max(1))
+}
+
+/// Convolves `src` with a normalised SG of sharpness `lambda` onto an `ow x oh` lat-long grid.
+fn convolve_map(src: &LatLong, lambda: f64, ow: usize, oh: usize, values: &(dyn Fn(usize) -> DVec3 + Sync)) -> Vec<(DVec3, f64)> {
+    (0..oh)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            (0..ow).map(move |x| {
+                let a = latlong_direction((x as f64 + 0.5) / ow as f64, (y as f64 + 0.5) / oh as f64);
+                convolve_at(src, a, lambda, values)
+            })
+        })
+        .collect()
+}
+
+/// Prefiltered environment maps for each sharpness in `lambdas` (paper's `Gamma_L`, normalised;
+/// see the module docs). The output of level `lambda` has height
+/// `min(max_height, pow2(1.5 pi sqrt(lambda)))` (at least 8) and twice that width; the source is
+/// the coarsest mip level that still resolves the lobe.
+pub fn prefilter(width: usize, height: usize, texels: &[[f32; 3]], lambdas: &[f64], max_height: usize) -> Result<Vec<PrefilteredLevel>, EnvError> {
+    let map = LatLong::new(width, height, texels)?;
+    if lambdas.iter().any(|l| !(l.is_finite() && *l >= 0.0)) {
+        return Err(EnvError::BadOption("lambdas must be finite and >= 0"));
+    }
+    let levels = pyramid(&map);
+    Ok(lambdas
+        .iter()
+        .map(|&lambda| {
+            let src = level_for(&levels, lambda);
+            let oh = out_height(lambda, max_height.min(height));
+            let ow = (oh * width / height).max(1);
+            let vals = |i: usize| src.rgb[i];
+            let conv = convolve_map(src, lambda, ow, oh, &vals);
+            let texels = conv
+                .iter()
+                .map(|(v, w)| {
+                    let c = if *w > 0.0 { *v / *w } else { DVec3::ZERO };
+                    [c.x as f32, c.y as f32, c.z as f32]
+                })
+                .collect();
+            PrefilteredLevel { lambda, width: ow, height: oh, texels }
+        })
+        .collect())
+}
+
+/// Options of the SG environment fit.
+#[derive(Clone, Debug)]
+pub struct SgFitOptions {
+    /// Smallest sharpness of the selection ladder (default 0.5: a lobe covering the sphere).
+    pub lambda_min: f64,
+    /// Largest sharpness; `None` = the map's resolution limit `2 (height/pi)^2`.
+    pub lambda_max: Option<f64>,
+    /// Ratio between consecutive ladder sharpness values (default 1.6).
+    pub ladder_ratio: f64,
+    /// Sharpness-refinement passes over all lobes (default 2; 0 disables).
+    pub refine_passes: usize,
+}
+
+impl Default for SgFitOptions {
+    fn default() -> Self {
+        Self { lambda_min: 0.5, lambda_max: None, ladder_ratio: 1.6, refine_passes: 2 }
+    }
+}
+
+/// Result of an SG environment fit.
+#[derive(Clone, Debug)]
+pub struct SgEnvFit {
+    /// Fitted lobes (RGB amplitudes >= 0, in radiance units of the map). Lobes whose amplitude
+    /// came out zero are removed, so there may be fewer than requested.
+    pub lobes: Vec<SgRgb>,
+    /// Relative L2 error over the sphere at full resolution (see the module docs).
+    pub rel_l2_error: f64,
+}
+
+struct CorrLevel {
+    lambda: f64,
+    ow: usize,
+    oh: usize,
+    axes: Vec<DVec3>,
+    corr: Vec<f64>, // luminance correlation with the map
+}
+
+/// Reusable fitter: validates the map and precomputes the correlation maps once, then fits any
+/// number of lobes with [`SgEnvFitter::fit`].
+pub struct SgEnvFitter {
+    map: LatLong,
+    reduced: LatLong,
+    levels: Vec<CorrLevel>,
+    opts: SgFitOptions,
+}
+
+fn luminance(c: DVec3) -> f64 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+impl SgEnvFitter {
+    /// Prepares the fit of a `width x height` map (see the module docs for the convention).
+    pub fn new(width: usize, height: usize, texels: &[[f32; 3]], opts: SgFitOptions) -> Result<Self, EnvError> {
+        let map = LatLong::new(width, height, texels)?;
+        if !(opts.lambda_min > 0.0 && opts.lambda_min.is_finite()) {
+            return Err(EnvError::BadOption("lambda_min must be > 0"));
+        }
+        if !(opts.ladder_ratio > 1.0 && opts.ladder_ratio.is_finite()) {
+            return Err(EnvError::BadOption("ladder_ratio must be > 1"));
+        }
+        let lmax = opts.lambda_max.unwrap_or(2.0 * (height as f64 / PI).powi(2)).max(opts.lambda_min);
+        let pyr = pyramid(&map);
+        let mut lambdas = vec![];
+        let mut l = opts.lambda_min;
+        while l <= lmax * (1.0 + 1e-9) {
+            lambdas.push(l);
+            l *= opts.ladder_ratio;
+        }
+        let levels = lambdas
+            .iter()
+            .map(|&lambda| {
+                let src = level_for(&pyr, lambda);
+                let oh = out_height(lambda, height);
+                let ow = (oh * width / height).max(1);
+                let vals = |i: usize| DVec3::splat(luminance(src.rgb[i]));
+                let conv = convolve_map(src, lambda, ow, oh, &vals);
+                let axes = (0..oh)
+                    .flat_map(|y| (0..ow).map(move |x| latlong_direction((x as f64 + 0.5) / ow as f64, (y as f64 + 0.5) / oh as f64)))
+                    .collect();
+                CorrLevel { lambda, ow, oh, axes, corr: conv.iter().map(|c| c.0.x).collect() }
+            })
+            .collect();
+        // reduced map for the refinement passes: at most 128 rows
+        let mut reduced = map.clone();
+        while reduced.height > 128 {
+            match reduced.downsample() {
+                Some(r) => reduced = r,
+                None => break,
+            }
+        }
+        Ok(Self { map, reduced, levels, opts })
+    }
+
+    /// The validated map.
+    pub fn map(&self) -> &LatLong {
+        &self.map
+    }
+
+    /// Fits `k` lobes (`k >= 1`).
+    pub fn fit(&self, k: usize) -> Result<SgEnvFit, EnvError> {
+        if k == 0 {
+            return Err(EnvError::BadOption("need at least one lobe"));
+        }
+        // 1. matching pursuit on luminance
+        let mut chosen: Vec<Sg> = Vec::new();
+        for _ in 0..k {
+            let best = self
+                .levels
+                .par_iter()
+                .enumerate()
+                .map(|(li, lv)| {
+                    let unit_norm2 = Sg::new(DVec3::Z, lv.lambda, 1.0).inner_product(&Sg::new(DVec3::Z, lv.lambda, 1.0));
+                    let mut best = (f64::NEG_INFINITY, 0usize, 0.0);
+                    for (i, a) in lv.axes.iter().enumerate() {
+                        let probe = Sg { axis: *a, lambda: lv.lambda, mu: 1.0 };
+                        let r = lv.corr[i] - probe.convolve(&chosen);
+                        if r > 0.0 {
+                            let score = r * r / unit_norm2;
+                            if score > best.0 {
+                                best = (score, i, r);
+                            }
+                        }
+                    }
+                    (best.0, li, best.1, best.2, unit_norm2)
+                })
+                .reduce(|| (f64::NEG_INFINITY, 0, 0, 0.0, 1.0), |a, b| if b.0 > a.0 { b } else { a });
+            if !best.0.is_finite() || best.0 <= 0.0 {
+                break; // nothing left to explain
+            }
+            let (_, li, idx, r, n2) = best;
+            let lv = &self.levels[li];
+            let axis = self.refine_axis(lv, idx, &chosen);
+            let mu = r / n2;
+            chosen.push(Sg { axis, lambda: lv.lambda, mu });
+        }
+        // 2. exact NNLS at full resolution (+ 3. sharpness refinement on the reduced map)
+        let mut shapes: Vec<Sg> = chosen.iter().map(|g| Sg { mu: 1.0, ..*g }).collect();
+        // sharpness the reduced map can resolve
+        let lim = 2.0 * (self.reduced.height as f64 / PI).powi(2);
+        for _ in 0..self.opts.refine_passes {
+            for j in 0..shapes.len() {
+                if shapes[j].lambda * 2f64.sqrt() > lim {
+                    continue;
+                }
+                let mut best_err = nnls_rgb(&self.reduced, &shapes).1;
+                let base = shapes[j].lambda;
+                for f in [2f64.sqrt(), 1.0 / 2f64.sqrt(), 2f64.powf(0.25), 2f64.powf(-0.25)] {
+                    let mut trial = shapes.clone();
+                    trial[j].lambda = base * f;
+                    let e = nnls_rgb(&self.reduced, &trial).1;
+                    if e < best_err * (1.0 - 1e-9) {
+                        best_err = e;
+                        shapes = trial;
+                    }
+                }
+            }
+        }
+        let (lobes, _) = nnls_rgb(&self.map, &shapes);
+        let lobes: Vec<SgRgb> = lobes.into_iter().filter(|l| l.mu.max_element() > 0.0).collect();
+        let rel_l2_error = self.map.relative_l2_error(&lobes);
+        Ok(SgEnvFit { lobes, rel_l2_error })
+    }
+
+    /// Parabolic sub-texel refinement of the argmax of the residual correlation on its grid.
+    fn refine_axis(&self, lv: &CorrLevel, idx: usize, chosen: &[Sg]) -> DVec3 {
+        let (x, y) = ((idx % lv.ow) as isize, (idx / lv.ow) as isize);
+        let r = |xi: isize, yi: isize| -> f64 {
+            let i = yi as usize * lv.ow + xi.rem_euclid(lv.ow as isize) as usize;
+            lv.corr[i] - Sg { axis: lv.axes[i], lambda: lv.lambda, mu: 1.0 }.convolve(chosen)
+        };
+        let c0 = r(x, y);
+        let vertex = |m: f64, p: f64| -> f64 {
+            let d = m - 2.0 * c0 + p;
+            if d < 0.0 {
+                (0.5 * (m - p) / d).clamp(-0.5, 0.5)
+            } else {
+                0.0
+            }
+        };
+        let dx = vertex(r(x - 1, y), r(x + 1, y));
+        let dy = if y >= 1 && y + 1 < lv.oh as isize { vertex(r(x, y - 1), r(x, y + 1)) } else { 0.0 };
+        latlong_direction((x as f64 + dx + 0.5) / lv.ow as f64, (y as f64 + dy + 0.5) / lv.oh as f64)
+    }
+}
+
+/// NNLS of RGB amplitudes for fixed lobe shapes over `map`; returns the lobes and the squared
+/// residual norm (RGB summed, solid-angle weighted).
+fn nnls_rgb(map: &LatLong, shapes: &[Sg]) -> (Vec<SgRgb>, f64) {
+    let k = shapes.len();
+    let (q, b, ll) = (0..map.height)
+        .into_par_iter()
+        .map(|y| {
+            let w = map.solid_angle(y);
+            let mut q = vec![0.0; k * k];
+            let mut b = vec![DVec3::ZERO; k];
+            let mut ll = 0.0;
+            let mut g = vec![0.0; k];
+            for x in 0..map.width {
+                let i = y * map.width + x;
+                let d = map.dir(i);
+                for (j, s) in shapes.iter().enumerate() {
+                    g[j] = s.eval(d);
+                }
+                let l = map.rgb[i];
+                ll += w * l.length_squared();
+                for a in 0..k {
+                    if g[a] == 0.0 {
+                        continue;
+                    }
+                    let wa = w * g[a];
+                    b[a] += l * wa;
+                    for c in a..k {
+                        q[a * k + c] += wa * g[c];
+                    }
+                }
+            }
+            (q, b, ll)
+        })
+        .reduce(
+            || (vec![0.0; k * k], vec![DVec3::ZERO; k], 0.0),
+            |mut a, b| {
+                for (x, y) in a.0.iter_mut().zip(&b.0) {
+                    *x += y;
+                }
+                for (x, y) in a.1.iter_mut().zip(&b.1) {
+                    *x += *y;
+                }
+                (a.0, a.1, a.2 + b.2)
+            },
+        );
+    let mut q = q;
+    for a in 0..k {
+        for c in 0..a {
+            q[a * k + c] = q[c * k + a];
+        }
+    }
+    let mut mus = vec![DVec3::ZERO; k];
+    let mut resid = ll;
+    for ch in 0..3 {
+        let bc: Vec<f64> = b.iter().map(|v| v[ch]).collect();
+        let x = nnls_gram(&q, &bc);
+        // |L - A x|^2 = |L|^2 - 2 b.x + x^T Q x
+        let qx: f64 = (0..k).map(|i| x[i] * (0..k).map(|j| q[i * k + j] * x[j]).sum::<f64>()).sum();
+        resid += qx - 2.0 * bc.iter().zip(&x).map(|(u, v)| u * v).sum::<f64>();
+        for i in 0..k {
+            mus[i][ch] = x[i];
+        }
+    }
+    let lobes = shapes.iter().zip(mus).map(|(s, mu)| SgRgb { axis: s.axis, lambda: s.lambda, mu }).collect();
+    (lobes, resid.max(0.0))
+}
+
+/// One-shot convenience: fit `k` SGs to a `width x height` lat-long map with default options.
+pub fn fit_sg_lighting(width: usize, height: usize, texels: &[[f32; 3]], k: usize) -> Result<SgEnvFit, EnvError> {
+    SgEnvFitter::new(width, height, texels, SgFitOptions::default())?.fit(k)
+}

@@ -1,0 +1,166 @@
+//! Non-negative least squares in normal-equation form (Lawson–Hanson active set).
+//!
+//! Minimises `|A x - y|^2` subject to `x >= 0` given the Gram matrix `Q = A^T A` and `b = A^T y`
+//! (so the number of rows of `A`, e.g. environment-map texels, never enters the solver).
+
+/// Solves `min_x>=0 x^T Q x / 2 - b^T x` for a symmetric positive semi-definite `n x n` row-major
+/// `q`. Singular sub-problems (duplicate columns) are regularised with a relative `1e-12` ridge.
+/// Returns the solution (all entries finite and `>= 0`).
+pub fn nnls_gram(q: &[f64], b: &[f64]) -> Vec<f64> {
+    let n = b.len();
+    assert_eq!(q.len(), n * n, "Gram matrix must be n x n");
+    let mut x = vec![0.0; n];
+    let mut passive = vec![false; n];
+    let scale = (0..n).map(|i| q[i * n + i].abs()).fold(0.0, f64::max).max(1e-300);
+    let tol = 1e-12 * scale * b.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-300) / scale.sqrt();
+    let grad = |x: &[f64]| -> Vec<f64> { (0..n).map(|i| b[i] - (0..n).map(|j| q[i * n + j] * x[j]).sum::<f64>()).collect() };
+    for _outer in 0..(3 * n + 10) {
+        let w = grad(&x);
+        // most positive gradient among the active (zero) set
+        let mut best = None;
+        let mut wmax = tol;
+        for i in 0..n {
+            if !passive[i] && w[i] > wmax {
+                wmax = w[i];
+                best = Some(i);
+            }
+        }
+        let Some(j) = best else { break };
+        passive[j] = true;
+        for _inner in 0..(3 * n + 10) {
+            let idx: Vec<usize> = (0..n).filter(|&i| passive[i]).collect();
+            let s_p = solve_spd(q, n, &idx, b);
+            if s_p.iter().all(|&v| v > 0.0) {
+                for (k, &i) in idx.iter().enumerate() {
+                    x[i] = s_p[k];
+                }
+                break;
+            }
+            // step towards s until the first passive variable hits zero
+            let mut alpha = 1.0f64;
+            for (k, &i) in idx.iter().enumerate() {
+                if s_p[k] <= 0.0 {
+                    let denom = x[i] - s_p[k];
+                    if denom > 0.0 {
+                        alpha = alpha.min(x[i] / denom);
+                    }
+                }
+            }
+            for (k, &i) in idx.iter().enumerate() {
+                x[i] += alpha * (s_p[k] - x[i]);
+                if x[i] <= 1e-15 * (1.0 + x[i].abs()) || s_p[k] <= 0.0 && alpha >= 1.0 {
+                    x[i] = 0.0;
+                    passive[i] = false;
+                }
+            }
+            if idx.iter().all(|&i| !passive[i]) {
+                break;
+            }
+        }
+    }
+    for v in x.iter_mut() {
+        if !(v.is_finite() && *v > 0.0) {
+            *v = 0.0;
+        }
+    }
+    x
+}
+
+/// Cholesky solve of `Q[idx, idx] s = b[idx]` with a tiny ridge for robustness.
+fn solve_spd(q: &[f64], n: usize, idx: &[usize], b: &[f64]) -> Vec<f64> {
+    let m = idx.len();
+    let mut a = vec![0.0; m * m];
+    for (r, &i) in idx.iter().enumerate() {
+        for (c, &j) in idx.iter().enumerate() {
+            a[r * m + c] = q[i * n + j];
+        }
+    }
+    let tr = (0..m).map(|i| a[i * m + i]).sum::<f64>() / m.max(1) as f64;
+    for i in 0..m {
+        a[i * m + i] += 1e-12 * tr.max(1e-300);
+    }
+    // Cholesky in place (lower)
+    for j in 0..m {
+        let mut d = a[j * m + j];
+        for k in 0..j {
+            d -= a[j * m + k] * a[j * m + k];
+        }
+        let d = d.max(1e-300).sqrt();
+        a[j * m + j] = d;
+        for i in (j + 1)..m {
+            let mut s = a[i * m + j];
+            for k in 0..j {
+                s -= a[i * m + k] * a[j * m + k];
+            }
+            a[i * m + j] = s / d;
+        }
+    }
+    let mut y: Vec<f64> = idx.iter().map(|&i| b[i]).collect();
+    for i in 0..m {
+        for k in 0..i {
+            y[i] -= a[i * m + k] * y[k];
+        }
+        y[i] /= a[i * m + i];
+    }
+    for i in (0..m).rev() {
+        for k in (i + 1)..m {
+            y[i] -= a[k * m + i] * y[k];
+        }
+        y[i] /= a[i * m + i];
+    }
+    y
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn gram(a: &[Vec<f64>], y: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        let n = a[0].len();
+        let mut q = vec![0.0; n * n];
+        let mut b = vec![0.0; n];
+        for (row, yi) in a.iter().zip(y) {
+            for i in 0..n {
+                b[i] += row[i] * yi;
+                for j in 0..n {
+                    q[i * n + j] += row[i] * row[j];
+                }
+            }
+        }
+        (q, b)
+    }
+
+    #[test]
+    fn unconstrained_solution_when_positive() {
+        let a = vec![vec![1.0, 0.0], vec![0.0, 2.0], vec![1.0, 1.0]];
+        let x_true = [0.5, 1.5];
+        let y: Vec<f64> = a.iter().map(|r| r[0] * x_true[0] + r[1] * x_true[1]).collect();
+        let (q, b) = gram(&a, &y);
+        let x = nnls_gram(&q, &b);
+        assert!((x[0] - 0.5).abs() < 1e-10 && (x[1] - 1.5).abs() < 1e-10, "{x:?}");
+    }
+
+    #[test]
+    fn kkt_conditions_hold() {
+        // y pulls the second coefficient negative: the solution must clamp it and satisfy KKT
+        let a = vec![vec![1.0, 1.0, 0.0], vec![1.0, 0.9, 0.1], vec![0.0, 1.0, 1.0], vec![0.5, 0.0, 1.0]];
+        let y = [1.0, 1.2, -2.0, 0.3];
+        let (q, b) = gram(&a, &y);
+        let x = nnls_gram(&q, &b);
+        let n = 3;
+        for i in 0..n {
+            let g: f64 = b[i] - (0..n).map(|j| q[i * n + j] * x[j]).sum::<f64>();
+            assert!(x[i] >= 0.0);
+            if x[i] > 0.0 {
+                assert!(g.abs() < 1e-9, "gradient {g} at free variable {i}");
+            } else {
+                assert!(g <= 1e-9, "positive gradient {g} at clamped variable {i}");
+            }
+        }
+        // duplicate columns are handled (singular Gram)
+        let a2: Vec<Vec<f64>> = a.iter().map(|r| vec![r[0], r[0], r[1]]).collect();
+        let (q2, b2) = gram(&a2, &y);
+        let x2 = nnls_gram(&q2, &b2);
+        assert!(x2.iter().all(|v| v.is_finite() && *v >= 0.0));
+    }
+}

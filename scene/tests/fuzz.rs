@@ -1,0 +1,113 @@
+//! Mutated and truncated glTF / scene files never panic (not even a panic caught inside the
+//! loader): every outcome is Ok or a SceneError naming the file.
+
+mod common;
+use common::*;
+use penumbra_scene::Scene;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+static PANICS: AtomicUsize = AtomicUsize::new(0);
+
+/// xorshift, deterministic.
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+}
+
+#[test]
+fn mutated_inputs_never_panic() {
+    let prev = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        PANICS.fetch_add(1, Ordering::SeqCst);
+        prev(info);
+    }));
+    let dir = temp_dir("fuzz");
+    // A skinned, animated, morphing file exercises most readers.
+    let mut bin = Bin::default();
+    let (pos, idx) = tetra();
+    let p = bin.f32s(&pos, "VEC3");
+    let n = bin.f32s(&[0.0, 0.0, 1.0].repeat(4), "VEC3");
+    let uv = bin.f32s(&[0.5; 8], "VEC2");
+    let i = bin.u32s(&idx);
+    let j = bin.u16x4(&[[0, 1, 0, 0]; 4]);
+    let w = bin.f32s(&[0.5, 0.5, 0.0, 0.0].repeat(4), "VEC4");
+    let d = bin.f32s(&[0.0, 0.1, 0.0].repeat(4), "VEC3");
+    let times = bin.f32s(&[0.0, 1.0], "SCALAR");
+    let tr = bin.f32s(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0], "VEC3");
+    let wt = bin.f32s(&[0.0, 1.0], "SCALAR");
+    let ibm = bin.f32s(&glam::Mat4::IDENTITY.to_cols_array().repeat(2), "MAT4");
+    let doc = bin.document(
+        None,
+        serde_json::json!({
+            "scenes": [{"nodes": [0, 2]}],
+            "nodes": [{"children": [1]}, {"translation": [0.0, 1.0, 0.0]}, {"mesh": 0, "skin": 0}],
+            "skins": [{"joints": [0, 1], "inverseBindMatrices": ibm}],
+            "meshes": [{"weights": [0.0], "primitives": [{"attributes": {"POSITION": p, "NORMAL": n, "TEXCOORD_0": uv, "JOINTS_0": j, "WEIGHTS_0": w}, "indices": i, "targets": [{"POSITION": d}], "material": 0}]}],
+            "materials": [{"pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0]}}],
+            "animations": [{"samplers": [{"input": times, "output": tr}, {"input": times, "output": wt}],
+                "channels": [{"sampler": 0, "target": {"node": 1, "path": "translation"}},
+                             {"sampler": 1, "target": {"node": 2, "path": "weights"}}]}],
+        }),
+    );
+    let good = glb(&doc, &bin.bytes);
+    let s = Scene::load({
+        let f = dir.join("good.glb");
+        std::fs::write(&f, &good).unwrap();
+        f
+    })
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert!(s.requirements().deforming_objects);
+    let json = serde_json::to_string(&doc).unwrap();
+    // PENUMBRA_FUZZ_ITERS / PENUMBRA_FUZZ_SEED run longer or other campaigns by hand.
+    let iters: usize = std::env::var("PENUMBRA_FUZZ_ITERS").ok().and_then(|v| v.parse().ok()).unwrap_or(400);
+    let seed: u64 = std::env::var("PENUMBRA_FUZZ_SEED").ok().and_then(|v| v.parse().ok()).unwrap_or(0x9e3779b97f4a7c15);
+    let mut rng = Rng(seed | 1);
+    let f = dir.join("m.glb");
+    let g = dir.join("m.gltf");
+    let mut errors = 0;
+    for k in 0..iters {
+        // Binary mutation: flip a few bytes of the GLB.
+        let mut b = good.clone();
+        for _ in 0..1 + k % 4 {
+            let at = (rng.next() as usize) % b.len();
+            b[at] = rng.next() as u8;
+        }
+        std::fs::write(&f, &b).unwrap();
+        match Scene::load(&f) {
+            Ok(s) => {
+                for t in [0.0, 0.5, 1.0] {
+                    let fr = s.at(t, Some(t - 0.1));
+                    assert!(fr.instances.iter().all(|i| i.world.is_finite()));
+                }
+            }
+            Err(e) => {
+                errors += 1;
+                assert!(e.to_string().contains("m.glb"), "{e}");
+            }
+        }
+        // JSON mutation: change a digit of the document (a .gltf with a data URI buffer).
+        let mut text: Vec<u8> = json.clone().into_bytes();
+        let digits: Vec<usize> = text.iter().enumerate().filter(|(_, c)| c.is_ascii_digit()).map(|(i, _)| i).collect();
+        let at = digits[(rng.next() as usize) % digits.len()];
+        text[at] = b"0123456789"[(rng.next() % 10) as usize];
+        let mut v: serde_json::Value = match serde_json::from_slice(&text) {
+            Ok(v) => v,
+            Err(_) => continue,
+        };
+        v["buffers"][0]["uri"] = serde_json::json!(bin.data_uri());
+        std::fs::write(&g, serde_json::to_vec(&v).unwrap()).unwrap();
+        match Scene::load(&g) {
+            Ok(s) => {
+                let _ = s.at(0.7, Some(0.2));
+            }
+            Err(e) => assert!(e.to_string().contains("m.gltf"), "{e}"),
+        }
+    }
+    assert!(errors > 0);
+    assert_eq!(PANICS.load(Ordering::SeqCst), 0, "a loader panicked (caught or not)");
+}
