@@ -458,6 +458,17 @@ mod tests {
             }
         }
         assert!(mismatches <= 5, "{mismatches}");
+        // Same lookup as the scene crate's own Environment::radiance (nearest texel).
+        env.intensity = 1.7;
+        let e2 = EnvLight::new(&env).unwrap();
+        let mut differ = 0;
+        for _ in 0..1000 {
+            let d = uniform_hemisphere(rng.next_vec2()).zxy() * if rng.next_f32() < 0.5 { 1.0 } else { -1.0 };
+            if (e2.radiance(d) - env.radiance(d)).length() > 1e-5 * env.radiance(d).length().max(1.0) {
+                differ += 1;
+            }
+        }
+        assert!(differ <= 5, "{differ}");
         // And the map's +Y pole is world +Y whatever the rotation.
         assert_eq!(e1.radiance(Vec3::Y), e0.radiance(Vec3::Y));
     }

@@ -391,3 +391,40 @@ fn single_scattering_of_a_point_light_matches_quadrature() {
         assert!((m - expect).abs() <= 5.0 * se, "{m} vs {expect} +- {se}");
     }
 }
+
+/// SG-lighting mode on an unoccluded Lambertian plane: the pixel must equal
+/// albedo / pi * integral over the upper hemisphere of (sum of the fitted SG lobes, rotated and
+/// scaled like the map) * cos, computed here by midpoint quadrature.
+#[test]
+fn sg_lighting_mode_matches_quadrature_of_the_fit() {
+    let mut env = Environment::procedural_sky(32, 16);
+    env.rotation = 0.5;
+    env.intensity = 2.0;
+    let k = 6usize;
+    let fit = penumbra_math::envmap::fit_sg_lighting(32, 16, &env.texels, k).unwrap();
+    let albedo = 0.5f32;
+    let s = plane_scene(Material::diffuse("d", Vec3::splat(albedo)), env, camera(Vec3::new(0.0, 3.0, 3.0), Vec3::ZERO, 0.01));
+    let o = ReferenceOptions { mode: penumbra_reference::Mode::SgLighting, sg_lobes: k as u32, ..opts(2, 2, 4096, 9) };
+    let r = render(&s, &o).unwrap();
+    assert_eq!(r.sg_fit_rel_l2, Some(fit.rel_l2_error));
+    // Quadrature: E = int_{y > 0} L(R_y(rot) d_map) ... expressed in world space:
+    // L_world(w) = intensity * sum_k mu_k exp(lambda_k (dot(R axis_k, w) - 1)).
+    let rot = glam::DQuat::from_rotation_y(0.5);
+    let (nt, np) = (400usize, 800usize);
+    let mut e = glam::DVec3::ZERO;
+    for i in 0..nt {
+        let th = (i as f64 + 0.5) / nt as f64 * std::f64::consts::FRAC_PI_2;
+        for j in 0..np {
+            let ph = (j as f64 + 0.5) / np as f64 * std::f64::consts::TAU;
+            let w = glam::DVec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin());
+            let l: glam::DVec3 = fit.lobes.iter().map(|g| g.mu * 2.0 * (g.lambda * ((rot * g.axis).dot(w) - 1.0)).exp()).sum();
+            e += l * th.cos() * th.sin();
+        }
+    }
+    e *= (std::f64::consts::FRAC_PI_2 / nt as f64) * (std::f64::consts::TAU / np as f64);
+    for (c, (m, se)) in mean_se(&r).into_iter().enumerate() {
+        let expect = albedo as f64 / std::f64::consts::PI * e[c];
+        eprintln!("SG lighting ({} lobes, fit error {:.3}): channel {c}: {m:.5} vs {expect:.5} (se {se:.1e})", fit.lobes.len(), fit.rel_l2_error);
+        assert!((m - expect).abs() <= 5.0 * se + 1e-4 * expect, "{m} vs {expect}");
+    }
+}
