@@ -25,7 +25,7 @@
 //!    `sum_i w_i G_k G_l` and right-hand side `sum_i w_i G_k L_i`; [`crate::nnls`]).
 //! 3. *Refinement* (between 1 and 2): a few passes of coordinate search over each lobe's
 //!    sharpness (factors `2^(+-1/2)`, `2^(+-1/4)`), each candidate re-solving the NNLS, on a
-//!    reduced map (at most 128 rows; lobes sharper than it resolves are left alone).
+//!    reduced map (at most 64 rows; lobes sharper than it resolves are left alone).
 //!
 //! The reported error is the relative L2 error over the sphere at full resolution,
 //! `sqrt(sum_i w_i |L_i - fit_i|^2 / sum_i w_i |L_i|^2)` (RGB summed).
@@ -207,9 +207,9 @@ const SUPPORT_CUTOFF: f64 = 30.0;
 
 /// `(sum_i w_i L_i G(d_i; a, lambda), sum_i w_i G(d_i; a, lambda))` for lobe axis `a` over
 /// `src`, visiting only the lobe's support.
-fn convolve_at(src: &LatLong, a: DVec3, lambda: f64, values: &dyn Fn(usize) -> DVec3) -> (DVec3, f64) {
+fn convolve_at(src: &LatLong, a: DVec3, lambda: f64, cutoff: f64, values: &dyn Fn(usize) -> DVec3) -> (DVec3, f64) {
     let (h, w) = (src.height, src.width);
-    let cos_cut = 1.0 - SUPPORT_CUTOFF / lambda.max(1e-300);
+    let cos_cut = 1.0 - cutoff / lambda.max(1e-300);
     let mut acc = DVec3::ZERO;
     let mut wsum = 0.0;
     let mut visit_row = |y: usize, x0: isize, n: usize| {
@@ -294,33 +294,33 @@ fn pyramid(map: &LatLong) -> Vec<LatLong> {
     levels
 }
 
-/// Coarsest pyramid level whose texels are at most half the lobe's angular width.
-fn level_for(levels: &[LatLong], lambda: f64) -> &LatLong {
+/// Coarsest pyramid level whose texels are at most `frac` of the lobe's angular width.
+fn level_for(levels: &[LatLong], lambda: f64, frac: f64) -> &LatLong {
     let sigma = 1.0 / lambda.max(1e-300).sqrt();
     let mut best = &levels[0];
     for l in levels {
-        if PI / l.height as f64 <= 0.5 * sigma {
+        if PI / l.height as f64 <= frac * sigma {
             best = l;
         }
     }
     best
 }
 
-/// Output height used for sharpness `lambda`: texel at most ~2/3 of the lobe width, at least 8,
-/// at most `max_height`.
-fn out_height(lambda: f64, max_height: usize) -> usize {
-    let need = (1.5 * PI * lambda.max(0.0).sqrt()).ceil() as usize;
+/// Output height used for sharpness `lambda`: texel at most `1/density` of the lobe width, at
+/// least 8, at most `max_height`.
+fn out_height(lambda: f64, max_height: usize, density: f64) -> usize {
+    let need = (density * PI * lambda.max(0.0).sqrt()).ceil() as usize;
     need.next_power_of_two().max(8).min(max_height.max(1))
 }
 
 /// Convolves `src` with a normalised SG of sharpness `lambda` onto an `ow x oh` lat-long grid.
-fn convolve_map(src: &LatLong, lambda: f64, ow: usize, oh: usize, values: &(dyn Fn(usize) -> DVec3 + Sync)) -> Vec<(DVec3, f64)> {
+fn convolve_map(src: &LatLong, lambda: f64, ow: usize, oh: usize, cutoff: f64, values: &(dyn Fn(usize) -> DVec3 + Sync)) -> Vec<(DVec3, f64)> {
     (0..oh)
         .into_par_iter()
         .flat_map_iter(|y| {
             (0..ow).map(move |x| {
                 let a = latlong_direction((x as f64 + 0.5) / ow as f64, (y as f64 + 0.5) / oh as f64);
-                convolve_at(src, a, lambda, values)
+                convolve_at(src, a, lambda, cutoff, values)
             })
         })
         .collect()
@@ -339,11 +339,11 @@ pub fn prefilter(width: usize, height: usize, texels: &[[f32; 3]], lambdas: &[f6
     Ok(lambdas
         .iter()
         .map(|&lambda| {
-            let src = level_for(&levels, lambda);
-            let oh = out_height(lambda, max_height.min(height));
+            let src = level_for(&levels, lambda, 0.5);
+            let oh = out_height(lambda, max_height.min(height), 1.5);
             let ow = (oh * width / height).max(1);
             let vals = |i: usize| src.rgb[i];
-            let conv = convolve_map(src, lambda, ow, oh, &vals);
+            let conv = convolve_map(src, lambda, ow, oh, SUPPORT_CUTOFF, &vals);
             let texels = conv
                 .iter()
                 .map(|(v, w)| {
@@ -427,20 +427,21 @@ impl SgEnvFitter {
         let levels = lambdas
             .iter()
             .map(|&lambda| {
-                let src = level_for(&pyr, lambda);
-                let oh = out_height(lambda, height);
+                // selection only needs ~1e-6 accuracy and a grid of about one lobe width
+                let src = level_for(&pyr, lambda, 1.0);
+                let oh = out_height(lambda, height, 1.0);
                 let ow = (oh * width / height).max(1);
                 let vals = |i: usize| DVec3::splat(luminance(src.rgb[i]));
-                let conv = convolve_map(src, lambda, ow, oh, &vals);
+                let conv = convolve_map(src, lambda, ow, oh, 14.0, &vals);
                 let axes = (0..oh)
                     .flat_map(|y| (0..ow).map(move |x| latlong_direction((x as f64 + 0.5) / ow as f64, (y as f64 + 0.5) / oh as f64)))
                     .collect();
                 CorrLevel { lambda, ow, oh, axes, corr: conv.iter().map(|c| c.0.x).collect() }
             })
             .collect();
-        // reduced map for the refinement passes: at most 128 rows
+        // reduced map for the refinement passes: at most 64 rows
         let mut reduced = map.clone();
-        while reduced.height > 128 {
+        while reduced.height > 64 {
             match reduced.downsample() {
                 Some(r) => reduced = r,
                 None => break,

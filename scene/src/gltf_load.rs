@@ -114,11 +114,17 @@ pub fn load_bytes(path: &Path, bytes: &[u8], base: &Path) -> Result<GltfAsset, S
                 if c.target.node.value() >= root.nodes.len() {
                     return Err(gerr(path, format!("animation {ai} channel {ci} targets node {} which does not exist", c.target.node.value())));
                 }
+                if matches!(c.target.path, Checked::Invalid) {
+                    return Err(gerr(path, format!("animation {ai} channel {ci} has an invalid target path")));
+                }
                 if c.sampler.value() >= a.samplers.len() {
                     return Err(gerr(path, format!("animation {ai} channel {ci} uses sampler {} which does not exist", c.sampler.value())));
                 }
             }
             for (si, smp) in a.samplers.iter().enumerate() {
+                if matches!(smp.interpolation, Checked::Invalid) {
+                    return Err(gerr(path, format!("animation {ai} sampler {si} has an invalid interpolation")));
+                }
                 for acc in [smp.input.value(), smp.output.value()] {
                     if acc >= root.accessors.len() {
                         return Err(gerr(path, format!("animation {ai} sampler {si} refers to accessor {acc} which does not exist")));

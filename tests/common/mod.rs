@@ -1,0 +1,28 @@
+//! Helpers shared by the integration tests (lavapipe).
+#![allow(dead_code)]
+
+use penumbra::{FrameImages, RenderSettings, Renderer};
+use penumbra_scene::Scene;
+
+/// Renders `frames` frames of `scene` and returns every frame's images.
+pub fn render_frames(scene: &Scene, w: u32, h: u32, frames: u32, validation: bool) -> (Renderer, Vec<FrameImages>) {
+    let settings = RenderSettings { width: w, height: h, ..Default::default() };
+    let mut r = Renderer::new_headless(scene, settings, validation).expect("renderer");
+    let mut out = Vec::new();
+    let mut prev = None;
+    for k in 0..frames {
+        let t = k as f32 / 30.0;
+        let f = scene.at(t, prev);
+        prev = Some(t);
+        out.extend(r.render(&f, None, true).expect("render"));
+    }
+    out.extend(r.finish().expect("finish"));
+    (r, out)
+}
+
+pub fn hdr_image(img: &FrameImages) -> penumbra_reference::image::Image {
+    penumbra_reference::image::Image::from_fn(img.width, img.height, |x, y| {
+        let p = img.hdr[(y * img.width + x) as usize];
+        [p[0], p[1], p[2]]
+    })
+}
