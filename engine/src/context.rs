@@ -299,7 +299,8 @@ impl Context {
 
     /// Wraps an application's instance/device/queue. The device must have been created with
     /// Vulkan 1.3 `synchronization2`, `dynamicRendering` and `maintenance4`, Vulkan 1.2 `hostQueryReset` and
-    /// `scalarBlockLayout`, and `VK_KHR_push_descriptor`. penumbra does not destroy them.
+    /// `scalarBlockLayout`, and `VK_KHR_push_descriptor`. penumbra does not destroy them. Pass a
+    /// clone of your `Entry`: the loader library must outlive your own use of the handles.
     #[allow(clippy::too_many_arguments)]
     pub fn from_external(
         entry: ash::Entry,

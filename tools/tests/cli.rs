@@ -1,0 +1,97 @@
+//! The `penumbra` binary: outputs, dumps, exit codes and messages on bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn penumbra(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_penumbra")).args(args).output().expect("run penumbra")
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn text(o: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+#[test]
+fn render_default_scene_writes_frames_dumps_and_profile() {
+    let out = tmp("render_default");
+    let o = penumbra(&[
+        "render",
+        "--size",
+        "64x48",
+        "--frames",
+        "2",
+        "--out",
+        out.to_str().unwrap(),
+        "--validate",
+        "--profile",
+        "--dump-graph",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    for f in ["frame_0000.exr", "frame_0000.png", "frame_0001.exr", "frame_0001.png", "graph.json", "graph.dot", "graph.txt", "profile.json"] {
+        assert!(out.join(f).exists(), "missing {f}");
+    }
+    let t = text(&o);
+    assert!(t.contains("validation: 0 error(s)"), "{t}");
+    assert!(t.contains("gbuffer") && t.contains("median ms"), "{t}");
+    let graph: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("graph.json")).unwrap()).unwrap();
+    let passes: Vec<_> = graph["passes"].as_array().unwrap().iter().map(|p| p["name"].as_str().unwrap().to_string()).collect();
+    assert_eq!(passes, ["gbuffer", "shade_env", "tonemap", "readback"]);
+    assert!(graph["passes"][0]["gpu_ms"]["median"].as_f64().unwrap() > 0.0);
+    let profile: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("profile.json")).unwrap()).unwrap();
+    assert_eq!(profile["frames"], 2);
+}
+
+fn expect_bad_input(args: &[&str], needles: &[&str]) {
+    let o = penumbra(args);
+    let t = text(&o);
+    assert_eq!(o.status.code(), Some(2), "args {args:?}: {t}");
+    assert!(!t.contains("panicked"), "{t}");
+    for n in needles {
+        assert!(t.contains(n), "args {args:?}: expected '{n}' in: {t}");
+    }
+}
+
+#[test]
+fn bad_input_exits_2_with_the_file_and_problem() {
+    let d = tmp("bad_input");
+    let missing = d.join("nope.toml");
+    expect_bad_input(&["render", missing.to_str().unwrap(), "--out", d.to_str().unwrap()], &["nope.toml", "cannot read"]);
+    let broken = d.join("broken.toml");
+    std::fs::write(&broken, "[camera]\neye = [0, 1, 2]\nbogus_key = 3\n").unwrap();
+    expect_bad_input(&["render", broken.to_str().unwrap(), "--out", d.to_str().unwrap()], &["broken.toml", "line"]);
+    let glb = d.join("truncated.glb");
+    std::fs::write(&glb, b"glTF\x02\x00\x00\x00garbage").unwrap();
+    expect_bad_input(&["render", glb.to_str().unwrap(), "--out", d.to_str().unwrap()], &["truncated.glb"]);
+    let draco = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets/bunny-draco.glb");
+    if draco.exists() {
+        expect_bad_input(&["render", draco.to_str().unwrap(), "--out", d.to_str().unwrap()], &["KHR_draco_mesh_compression"]);
+    }
+    expect_bad_input(&["render", "--size", "0x10", "--out", d.to_str().unwrap()], &["size"]);
+    expect_bad_input(&["render", "--size", "abc", "--out", d.to_str().unwrap()], &["size"]);
+    expect_bad_input(&["compare", missing.to_str().unwrap(), missing.to_str().unwrap()], &["nope.toml"]);
+    let not_exr = d.join("x.exr");
+    std::fs::write(&not_exr, b"not an exr").unwrap();
+    expect_bad_input(&["compare", not_exr.to_str().unwrap(), not_exr.to_str().unwrap()], &["x.exr"]);
+}
+
+#[test]
+fn help_documents_every_command_and_flag() {
+    let o = penumbra(&["--help"]);
+    assert!(o.status.success());
+    let t = text(&o);
+    for c in ["render", "reference", "compare"] {
+        assert!(t.contains(c), "{t}");
+    }
+    let o = penumbra(&["render", "--help"]);
+    let t = text(&o);
+    for f in ["--frames", "--size", "--out", "--validate", "--dump-graph", "--profile", "graph.json", "profile.json"] {
+        assert!(t.contains(f), "render --help lacks {f}: {t}");
+    }
+}
