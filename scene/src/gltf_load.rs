@@ -218,6 +218,9 @@ pub fn load_bytes(path: &Path, bytes: &[u8], base: &Path) -> Result<GltfAsset, S
     for mesh in doc.meshes() {
         let mesh_name = mesh.name().map(str::to_string).unwrap_or_else(|| format!("mesh{}", mesh.index()));
         let default_weights = mesh.weights().map(|w| w.to_vec()).unwrap_or_default();
+        if default_weights.iter().any(|w| !w.is_finite()) {
+            return Err(gerr(path, format!("mesh '{mesh_name}' has non-finite (NaN/Inf) morph weights")));
+        }
         for prim in mesh.primitives() {
             let pname = if mesh.primitives().len() > 1 { format!("{mesh_name}.{}", prim.index()) } else { mesh_name.clone() };
             if prim.mode() != Mode::Triangles {
@@ -398,6 +401,8 @@ pub fn load_bytes(path: &Path, bytes: &[u8], base: &Path) -> Result<GltfAsset, S
     if parts.is_empty() {
         return Err(SceneError::invalid(path, "empty scene: the glTF file has no triangle meshes in its scene"));
     }
+    let rig = Rig { parent, rest, animations, skins, animation: None };
+    rig.check_finite().map_err(|m| gerr(path, m))?;
     Ok(GltfAsset {
         path: path.to_path_buf(),
         primitives,
@@ -405,7 +410,7 @@ pub fn load_bytes(path: &Path, bytes: &[u8], base: &Path) -> Result<GltfAsset, S
         materials,
         extras,
         textures,
-        rig: Rig { parent, rest, animations, skins, animation: None },
+        rig,
         animation_names,
         warnings,
     })

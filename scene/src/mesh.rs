@@ -264,6 +264,11 @@ impl MeshData {
         if let Some((k, p)) = self.positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
             return Err(format!("mesh '{}': vertex {} has a non-finite position (NaN/Inf) {:?}", self.name, k, p));
         }
+        /// Coordinates beyond this are rejected: products with transforms would overflow f32.
+        const MAX_COORD: f32 = 1e15;
+        if let Some((k, p)) = self.positions.iter().enumerate().find(|(_, p)| p.abs().max_element() > MAX_COORD) {
+            return Err(format!("mesh '{}': vertex {} has an out-of-range position {:?} (|coordinate| > 1e15)", self.name, k, p));
+        }
         if !self.normals.is_empty() && self.normals.len() != nv {
             return Err(format!("mesh '{}': {} normals for {} vertices", self.name, self.normals.len(), nv));
         }

@@ -386,6 +386,54 @@ impl Rig {
         false
     }
 
+    /// Checks that every node's global transform (and every skin joint matrix) is finite at
+    /// rest and at each key time of each animation (and halfway between keys), so that
+    /// huge-but-finite input cannot overflow into NaN/Inf during playback.
+    pub fn check_finite(&self) -> Result<(), String> {
+        let mut times = vec![0.0f32];
+        for a in &self.animations {
+            for c in &a.channels {
+                let ts: &[f32] = match &c.target {
+                    Channel::Translation(k) | Channel::Scale(k) => &k.times,
+                    Channel::Rotation(k) => &k.times,
+                    Channel::Weights(k) => &k.times,
+                };
+                for w in ts.windows(2) {
+                    times.push(0.5 * (w[0] + w[1]));
+                }
+                times.extend_from_slice(ts);
+            }
+        }
+        times.sort_by(f32::total_cmp);
+        times.dedup();
+        let anims: Vec<Option<usize>> = std::iter::once(None).chain((0..self.animations.len()).map(Some)).collect();
+        for anim in anims {
+            let rig = Rig { animation: anim, ..self.clone() };
+            for &t in &times {
+                for n in 0..self.parent.len() {
+                    if !rig.global(n, t).is_finite() {
+                        return Err(format!("node {n} has a non-finite (overflowing) transform at t = {t}"));
+                    }
+                }
+                for (s, _) in self.skins.iter().enumerate() {
+                    if rig.joint_matrices(s, t).iter().any(|m| !m.is_finite()) {
+                        return Err(format!("skin {s} has a non-finite (overflowing) joint matrix at t = {t}"));
+                    }
+                }
+                for a in &rig.animations {
+                    for c in &a.channels {
+                        if let Channel::Weights(_) = c.target {
+                            if rig.morph_weights(c.node, t).is_some_and(|w| w.iter().any(|x| !x.is_finite())) {
+                                return Err(format!("node {} has non-finite morph weights at t = {t}", c.node));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Whether node `n`'s global transform changes over time.
     pub fn node_animated(&self, n: usize) -> bool {
         self.animation.map_or(false, |a| {
