@@ -1,5 +1,5 @@
 #version 450
-// Environment-lit shading without shadows: diffuse from 9-coefficient SH irradiance, specular
+// Environment- and local-light shading without shadows: diffuse from 9-coefficient SH irradiance, specular
 // from the mip-filtered environment map along the reflection direction with an analytic
 // split-sum environment BRDF (Karis 2014, mobile approximation).
 #include "common.glsl"
@@ -13,6 +13,52 @@ layout(set = 0, binding = 3) uniform sampler2D gb_normal;
 layout(set = 0, binding = 4) uniform sampler2D gb_uv_mat;
 layout(set = 0, binding = 5) uniform sampler2D env_map;
 layout(set = 0, binding = 6, rgba32f) uniform writeonly image2D hdr;
+layout(set = 0, binding = 7) readonly buffer Lights { LightData lights[]; };
+layout(push_constant) uniform Push { uint light_count; } pc;
+
+// Radiance reflected from local lights, unshadowed. Point and spot lights: radiant intensity
+// `power` (W/sr); sphere lights: emitted radiance `power`, treated as a point of intensity
+// power * pi * r^2 (exact for a sphere's irradiance at normal incidence, far from it).
+vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
+    vec3 sum = vec3(0.0);
+    for (uint i = 0u; i < pc.light_count; ++i) {
+        LightData l = lights[i];
+        vec3 to_l = l.pos_kind.xyz - pos;
+        float d2 = max(dot(to_l, to_l), 1e-8);
+        vec3 wi = to_l * inversesqrt(d2);
+        float ndl = dot(n, wi);
+        if (ndl <= 0.0) continue;
+        vec3 intensity = l.power_cos_inner.rgb;
+        int lk = int(l.pos_kind.w + 0.5);
+        if (lk == 1) {
+            float c = dot(-wi, normalize(l.dir_cos_outer.xyz));
+            intensity *= smoothstep(l.dir_cos_outer.w, l.power_cos_inner.w, c);
+        } else if (lk == 2) {
+            intensity *= PI * l.extra.x * l.extra.x;
+        }
+        vec3 f = albedo / PI;
+        if (kind != 0) {
+            vec3 h = normalize(wi + v);
+            float ndh = max(dot(n, h), 0.0);
+            float ndv = max(dot(n, v), 1e-4);
+            vec3 F = m.spec_rough.rgb + (1.0 - m.spec_rough.rgb) * pow(1.0 - max(dot(wi, h), 0.0), 5.0);
+            if (kind == 1) {
+                float s = m.extra.x;
+                f += F * (s + 8.0) / (8.0 * PI) * pow(ndh, s);
+            } else {
+                float a = roughness * roughness;
+                float a2 = a * a;
+                float dd = ndh * ndh * (a2 - 1.0) + 1.0;
+                float D = a2 / (PI * dd * dd);
+                float k = a * 0.5;
+                float G = ndl / (ndl * (1.0 - k) + k) * ndv / (ndv * (1.0 - k) + k);
+                f += F * D * G / (4.0 * ndl * ndv);
+            }
+        }
+        sum += f * intensity * ndl / d2;
+    }
+    return sum;
+}
 
 vec3 env_lookup(vec3 d, float lod) {
     vec2 uv = dir_to_latlong(normalize(d), cam.env_rot.xy);
@@ -49,9 +95,9 @@ void main() {
     vec3 albedo = m.albedo_kind.rgb;
     int kind = int(m.albedo_kind.w + 0.5);
     vec3 color = albedo / PI * sh9_irradiance(cam.sh, n) * cam.params.w;
+    float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
+    color += local_lights(pos, n, v, albedo, kind, m, roughness);
     if (kind != 0) {
-        float roughness = kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w;
-        roughness = clamp(roughness, 0.02, 1.0);
         vec3 r = reflect(-v, n);
         float lod = roughness * (cam.params.z - 1.0);
         color += env_lookup(r, lod) * env_brdf_approx(m.spec_rough.rgb, roughness, ndv);

@@ -28,6 +28,13 @@ struct MaterialData {
     vec4 extra;        // x Blinn-Phong shininess
 };
 
+struct LightData {
+    vec4 pos_kind;         // xyz position, w kind (0 point, 1 spot, 2 sphere)
+    vec4 dir_cos_outer;    // xyz direction (spot), w cos(outer half-angle)
+    vec4 power_cos_inner;  // rgb colour * intensity, w cos(inner half-angle)
+    vec4 extra;            // x sphere radius
+};
+
 vec2 oct_wrap(vec2 v) {
     return (1.0 - abs(v.yx)) * vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);
 }

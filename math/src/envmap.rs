@@ -11,7 +11,8 @@
 //! # SG fit ([`SgEnvFitter`], [`fit_sg_lighting`])
 //! Least squares on solid-angle-weighted texels,
 //! `min sum_i w_i |L_i - sum_k G_k(d_i)|^2` with non-negative RGB amplitudes:
-//! 1. *Selection* (matching pursuit on luminance): for a ladder of sharpness values
+//! 1. *Selection* (matching pursuit on the compressed luminance `Y^p`, see
+//!    [`SgFitOptions::selection_power`]): for a ladder of sharpness values
 //!    (`lambda_min` .. the map's resolution limit, ratio `ladder_ratio`) the correlation maps
 //!    `C_lambda(a) = sum_i w_i Y_i G(d_i; a, lambda)` are computed once (a sharpness-matched
 //!    mip level and output grid, with culling of the lobe support). Each step picks the
@@ -20,11 +21,12 @@
 //!    residual never has to be re-convolved), refines the axis by a parabolic fit on the score
 //!    grid, and subtracts the lobe with its optimal amplitude. The brightest region (e.g. a sun
 //!    1e4 x brighter than the sky) is thus taken first by a lobe of matching sharpness, and the
-//!    sky is fit from the residual.
+//!    sky is fit from the residual (compression keeps the sun's residual from taking all lobes).
 //! 2. *Amplitudes*: exact discrete NNLS per RGB channel at full resolution (Gram matrix
-//!    `sum_i w_i G_k G_l` and right-hand side `sum_i w_i G_k L_i`; [`crate::nnls`]).
+//!    `sum_i w_i G_k G_l` and right-hand side `sum_i w_i G_k L_i`; [`crate::nnls`]), with the
+//!    robust down-weighting of extremely bright texels ([`SgFitOptions::robust_cap`]).
 //! 3. *Refinement* (between 1 and 2): a few passes of coordinate search over each lobe's
-//!    sharpness (factors `2^(+-1/2)`, `2^(+-1/4)`), each candidate re-solving the NNLS, on a
+//!    sharpness (factors `2^(+-1/2)`), each candidate re-solving the NNLS, on a
 //!    reduced map (at most 64 rows; lobes sharper than it resolves are left alone).
 //!
 //! The reported error is the relative L2 error over the sphere at full resolution,
@@ -365,13 +367,27 @@ pub struct SgFitOptions {
     pub lambda_max: Option<f64>,
     /// Ratio between consecutive ladder sharpness values (default 1.6).
     pub ladder_ratio: f64,
-    /// Sharpness-refinement passes over all lobes (default 2; 0 disables).
+    /// Sharpness-refinement passes over all lobes (default 1; 0 disables).
     pub refine_passes: usize,
+    /// Lobe *selection* runs on the compressed luminance `Y^p`, `p = selection_power`
+    /// (default 0.5; 1 = plain luminance). Since `G(w; a, lambda, mu)^p = G(w; a, p lambda, mu^p)`
+    /// a lobe-shaped feature keeps its axis and its sharpness is recovered exactly as
+    /// `lambda_selected / p`, while a sun 1e4 x brighter than the sky only dominates the
+    /// selection by 1e2: it still gets its own lobe first, and the remaining lobes go to the sky
+    /// instead of to the sun's residual. Amplitudes are always fit to the uncompressed map.
+    pub selection_power: f64,
+    /// Robust amplitude fit: texels whose luminance `Y` exceeds `robust_cap x` the median
+    /// luminance get their least-squares weight scaled by `(cap / Y)^2`, i.e. their residual is
+    /// measured relative to their own value (default `Some(100.0)`; `None` = plain solid-angle
+    /// weighted L2). Without it, broad sky lobes are bent to patch the difference between a sun
+    /// disk and its Gaussian lobe (an error of thousands of sky units on a few texels) and the sky
+    /// is ruined. The reported error is always the plain relative L2.
+    pub robust_cap: Option<f64>,
 }
 
 impl Default for SgFitOptions {
     fn default() -> Self {
-        Self { lambda_min: 0.5, lambda_max: None, ladder_ratio: 1.6, refine_passes: 2 }
+        Self { lambda_min: 0.5, lambda_max: None, ladder_ratio: 1.6, refine_passes: 1, selection_power: 0.5, robust_cap: Some(100.0) }
     }
 }
 
@@ -398,6 +414,9 @@ struct CorrLevel {
 pub struct SgEnvFitter {
     map: LatLong,
     reduced: LatLong,
+    /// per-texel robust weight factors for `map` and `reduced`
+    rw_map: Vec<f64>,
+    rw_reduced: Vec<f64>,
     levels: Vec<CorrLevel>,
     opts: SgFitOptions,
 }
@@ -417,10 +436,17 @@ impl SgEnvFitter {
             return Err(EnvError::BadOption("ladder_ratio must be > 1"));
         }
         let lmax = opts.lambda_max.unwrap_or(2.0 * (height as f64 / PI).powi(2)).max(opts.lambda_min);
-        let pyr = pyramid(&map);
+        // selection map: compressed luminance
+        let p = opts.selection_power;
+        if !(p > 0.0 && p <= 1.0) {
+            return Err(EnvError::BadOption("selection_power must be in (0, 1]"));
+        }
+        let lum: Vec<f64> = map.rgb.iter().map(|c| luminance(*c).max(0.0).powf(p)).collect();
+        let sel_map = LatLong::from_rgb(width, height, lum.iter().map(|v| DVec3::splat(*v)).collect());
+        let pyr = pyramid(&sel_map);
         let mut lambdas = vec![];
-        let mut l = opts.lambda_min;
-        while l <= lmax * (1.0 + 1e-9) {
+        let mut l = opts.lambda_min * p;
+        while l <= lmax * p * (1.0 + 1e-9) {
             lambdas.push(l);
             l *= opts.ladder_ratio;
         }
@@ -431,7 +457,7 @@ impl SgEnvFitter {
                 let src = level_for(&pyr, lambda, 1.0);
                 let oh = out_height(lambda, height, 1.0);
                 let ow = (oh * width / height).max(1);
-                let vals = |i: usize| DVec3::splat(luminance(src.rgb[i]));
+                let vals = |i: usize| src.rgb[i];
                 let conv = convolve_map(src, lambda, ow, oh, 14.0, &vals);
                 let axes = (0..oh)
                     .flat_map(|y| (0..ow).map(move |x| latlong_direction((x as f64 + 0.5) / ow as f64, (y as f64 + 0.5) / oh as f64)))
@@ -447,7 +473,22 @@ impl SgEnvFitter {
                 None => break,
             }
         }
-        Ok(Self { map, reduced, levels, opts })
+        let robust = |m: &LatLong| -> Result<Vec<f64>, EnvError> {
+            let lum: Vec<f64> = m.rgb.iter().map(|c| luminance(*c)).collect();
+            match opts.robust_cap {
+                None => Ok(vec![1.0; lum.len()]),
+                Some(f) if f > 0.0 => {
+                    let mut sorted = lum.clone();
+                    sorted.sort_by(|a, b| a.partial_cmp(b).unwrap());
+                    let cap = f * sorted[sorted.len() / 2];
+                    Ok(lum.iter().map(|&y| if cap > 0.0 && y > cap { (cap / y).powi(2) } else { 1.0 }).collect())
+                }
+                Some(_) => Err(EnvError::BadOption("robust_cap must be > 0")),
+            }
+        };
+        let rw_map = robust(&map)?;
+        let rw_reduced = robust(&reduced)?;
+        Ok(Self { map, reduced, rw_map, rw_reduced, levels, opts })
     }
 
     /// The validated map.
@@ -460,19 +501,20 @@ impl SgEnvFitter {
         if k == 0 {
             return Err(EnvError::BadOption("need at least one lobe"));
         }
-        // 1. matching pursuit on luminance
+        // 1. matching pursuit on (clamped) luminance, residual correlation maps kept up to date
+        //    incrementally (one analytic SG inner product per grid point and step, culled)
+        let mut resid: Vec<Vec<f64>> = self.levels.iter().map(|l| l.corr.clone()).collect();
         let mut chosen: Vec<Sg> = Vec::new();
         for _ in 0..k {
             let best = self
                 .levels
                 .par_iter()
+                .zip(resid.par_iter())
                 .enumerate()
-                .map(|(li, lv)| {
+                .map(|(li, (lv, rs))| {
                     let unit_norm2 = Sg::new(DVec3::Z, lv.lambda, 1.0).inner_product(&Sg::new(DVec3::Z, lv.lambda, 1.0));
                     let mut best = (f64::NEG_INFINITY, 0usize, 0.0);
-                    for (i, a) in lv.axes.iter().enumerate() {
-                        let probe = Sg { axis: *a, lambda: lv.lambda, mu: 1.0 };
-                        let r = lv.corr[i] - probe.convolve(&chosen);
+                    for (i, &r) in rs.iter().enumerate() {
                         if r > 0.0 {
                             let score = r * r / unit_norm2;
                             if score > best.0 {
@@ -488,12 +530,23 @@ impl SgEnvFitter {
             }
             let (_, li, idx, r, n2) = best;
             let lv = &self.levels[li];
-            let axis = self.refine_axis(lv, idx, &chosen);
-            let mu = r / n2;
-            chosen.push(Sg { axis, lambda: lv.lambda, mu });
+            let axis = refine_axis(lv, &resid[li], idx);
+            // `g` lives in the compressed selection domain; the fitted shape has lambda / p
+            let g = Sg { axis, lambda: lv.lambda, mu: r / n2 };
+            chosen.push(g);
+            self.levels.par_iter().zip(resid.par_iter_mut()).for_each(|(lv, rs)| {
+                // <G_k, G_a> ~ exp(-l l' (1 - a.a') / (l + l')): skip where below exp(-40)
+                let c = lv.lambda * g.lambda / (lv.lambda + g.lambda);
+                for (i, a) in lv.axes.iter().enumerate() {
+                    if c * (1.0 - a.dot(g.axis)) < 40.0 {
+                        rs[i] -= Sg { axis: *a, lambda: lv.lambda, mu: 1.0 }.inner_product(&g);
+                    }
+                }
+            });
         }
         // 2. exact NNLS at full resolution (+ 3. sharpness refinement on the reduced map)
-        let mut shapes: Vec<Sg> = chosen.iter().map(|g| Sg { mu: 1.0, ..*g }).collect();
+        let p = self.opts.selection_power;
+        let mut shapes: Vec<Sg> = chosen.iter().map(|g| Sg { axis: g.axis, lambda: g.lambda / p, mu: 1.0 }).collect();
         // sharpness the reduced map can resolve
         let lim = 2.0 * (self.reduced.height as f64 / PI).powi(2);
         for _ in 0..self.opts.refine_passes {
@@ -501,12 +554,12 @@ impl SgEnvFitter {
                 if shapes[j].lambda * 2f64.sqrt() > lim {
                     continue;
                 }
-                let mut best_err = nnls_rgb(&self.reduced, &shapes).1;
+                let mut best_err = nnls_rgb(&self.reduced, &self.rw_reduced, &shapes).1;
                 let base = shapes[j].lambda;
-                for f in [2f64.sqrt(), 1.0 / 2f64.sqrt(), 2f64.powf(0.25), 2f64.powf(-0.25)] {
+                for f in [2f64.sqrt(), 1.0 / 2f64.sqrt()] {
                     let mut trial = shapes.clone();
                     trial[j].lambda = base * f;
-                    let e = nnls_rgb(&self.reduced, &trial).1;
+                    let e = nnls_rgb(&self.reduced, &self.rw_reduced, &trial).1;
                     if e < best_err * (1.0 - 1e-9) {
                         best_err = e;
                         shapes = trial;
@@ -514,48 +567,47 @@ impl SgEnvFitter {
                 }
             }
         }
-        let (lobes, _) = nnls_rgb(&self.map, &shapes);
+        let (lobes, _) = nnls_rgb(&self.map, &self.rw_map, &shapes);
         let lobes: Vec<SgRgb> = lobes.into_iter().filter(|l| l.mu.max_element() > 0.0).collect();
         let rel_l2_error = self.map.relative_l2_error(&lobes);
         Ok(SgEnvFit { lobes, rel_l2_error })
     }
 
-    /// Parabolic sub-texel refinement of the argmax of the residual correlation on its grid.
-    fn refine_axis(&self, lv: &CorrLevel, idx: usize, chosen: &[Sg]) -> DVec3 {
-        let (x, y) = ((idx % lv.ow) as isize, (idx / lv.ow) as isize);
-        let r = |xi: isize, yi: isize| -> f64 {
-            let i = yi as usize * lv.ow + xi.rem_euclid(lv.ow as isize) as usize;
-            lv.corr[i] - Sg { axis: lv.axes[i], lambda: lv.lambda, mu: 1.0 }.convolve(chosen)
-        };
-        let c0 = r(x, y);
-        let vertex = |m: f64, p: f64| -> f64 {
-            let d = m - 2.0 * c0 + p;
-            if d < 0.0 {
-                (0.5 * (m - p) / d).clamp(-0.5, 0.5)
-            } else {
-                0.0
-            }
-        };
-        let dx = vertex(r(x - 1, y), r(x + 1, y));
-        let dy = if y >= 1 && y + 1 < lv.oh as isize { vertex(r(x, y - 1), r(x, y + 1)) } else { 0.0 };
-        latlong_direction((x as f64 + dx + 0.5) / lv.ow as f64, (y as f64 + dy + 0.5) / lv.oh as f64)
-    }
+}
+
+/// Parabolic sub-texel refinement of the argmax `idx` of the residual correlation `rs`.
+fn refine_axis(lv: &CorrLevel, rs: &[f64], idx: usize) -> DVec3 {
+    let (x, y) = ((idx % lv.ow) as isize, (idx / lv.ow) as isize);
+    let r = |xi: isize, yi: isize| -> f64 { rs[yi as usize * lv.ow + xi.rem_euclid(lv.ow as isize) as usize] };
+    let c0 = r(x, y);
+    let vertex = |m: f64, p: f64| -> f64 {
+        let d = m - 2.0 * c0 + p;
+        if d < 0.0 {
+            (0.5 * (m - p) / d).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        }
+    };
+    let dx = vertex(r(x - 1, y), r(x + 1, y));
+    let dy = if y >= 1 && y + 1 < lv.oh as isize { vertex(r(x, y - 1), r(x, y + 1)) } else { 0.0 };
+    latlong_direction((x as f64 + dx + 0.5) / lv.ow as f64, (y as f64 + dy + 0.5) / lv.oh as f64)
 }
 
 /// NNLS of RGB amplitudes for fixed lobe shapes over `map`; returns the lobes and the squared
 /// residual norm (RGB summed, solid-angle weighted).
-fn nnls_rgb(map: &LatLong, shapes: &[Sg]) -> (Vec<SgRgb>, f64) {
+fn nnls_rgb(map: &LatLong, rw: &[f64], shapes: &[Sg]) -> (Vec<SgRgb>, f64) {
     let k = shapes.len();
     let (q, b, ll) = (0..map.height)
         .into_par_iter()
         .map(|y| {
-            let w = map.solid_angle(y);
+            let w0 = map.solid_angle(y);
             let mut q = vec![0.0; k * k];
             let mut b = vec![DVec3::ZERO; k];
             let mut ll = 0.0;
             let mut g = vec![0.0; k];
             for x in 0..map.width {
                 let i = y * map.width + x;
+                let w = w0 * rw[i];
                 let d = map.dir(i);
                 for (j, s) in shapes.iter().enumerate() {
                     g[j] = s.eval(d);

@@ -94,13 +94,16 @@ fn sun_sky_map(w: usize, h: usize) -> (Vec<[f32; 3]>, DVec3, f64) {
 
 #[test]
 fn robust_to_a_sun_1e4_brighter_than_the_sky() {
-    let (w, h) = (512, 256);
+    let (w, h) = (256, 128);
     let (t, sun_dir, _) = sun_sky_map(w, h);
     let map = LatLong::new(w, h, &t).unwrap();
     let t0 = Instant::now();
     let fitter = SgEnvFitter::new(w, h, &t, SgFitOptions::default()).unwrap();
-    for k in [4usize, 8, 16] {
+    let unclamped = SgEnvFitter::new(w, h, &t, SgFitOptions { selection_power: 1.0, robust_cap: None, ..Default::default() }).unwrap();
+    for k in [4usize, 16] {
         let f = fitter.fit(k).unwrap();
+        let fu = unclamped.fit(k).unwrap();
+        println!("sun+sky K={k}: plain L2 (p=1, no robust weights) rel L2 {:.4} (sun-dominated L2 optimum direction)", fu.rel_l2_error);
         assert!(f.lobes.iter().all(|l| l.mu.is_finite() && l.mu.min_element() >= 0.0 && l.lambda.is_finite()));
         // sky-only error: texels farther than 10 degrees from the sun
         let (mut num, mut den) = (0.0, 0.0);
@@ -120,7 +123,7 @@ fn robust_to_a_sun_1e4_brighter_than_the_sky() {
         let energy_err = (energy.length() / map.integral().length() - 1.0).abs();
         let sun_lobe = f.lobes.iter().max_by(|a, b| a.mu.x.partial_cmp(&b.mu.x).unwrap()).unwrap();
         println!(
-            "sun+sky 512x256, K={k}: rel L2 {:.4}, sky-only rel L2 {sky_err:.4}, energy error {:.2}%, brightest lobe {:.2} deg from sun, lambda {:.0}; {:.2?}",
+            "sun+sky 256x128, K={k}: rel L2 {:.4}, sky-only rel L2 {sky_err:.4}, energy error {:.2}%, brightest lobe {:.2} deg from sun, lambda {:.0}; {:.2?}",
             f.rel_l2_error,
             100.0 * energy_err,
             sun_lobe.axis.angle_between(sun_dir).to_degrees(),
@@ -132,9 +135,8 @@ fn robust_to_a_sun_1e4_brighter_than_the_sky() {
         // norm remains with few lobes, but the fit must not blow up or ignore the sky
         assert!(f.rel_l2_error < 0.6);
         assert!(energy_err < 0.05);
-        if k >= 8 {
-            assert!(sky_err < 0.5, "sky must still be represented: {sky_err}");
-        }
+        // with clamped selection the sky gets lobes even at K = 4
+        assert!(sky_err < 0.35, "sky must still be represented: {sky_err}");
     }
 }
 
@@ -174,6 +176,7 @@ fn read_exr(path: &str) -> Result<(usize, usize, Vec<[f32; 3]>), String> {
 #[test]
 fn cc0_maps_fit_error() {
     let mut found = 0;
+    let mut sunset = None;
     for name in ["studio", "sunset", "forest", "sunset-dwab"] {
         let path = format!("/work/shared/assets/{name}.exr");
         if !std::path::Path::new(&path).exists() {
@@ -182,6 +185,26 @@ fn cc0_maps_fit_error() {
         }
         let (w, h, t) = read_exr(&path).unwrap_or_else(|e| panic!("{path}: {e}"));
         found += 1;
+        if name == "sunset" {
+            sunset = Some(t.clone());
+        }
+        if name == "sunset-dwab" {
+            // same image, lossy DWAB: must decode to nearly the same texels; fit one K only
+            if let Some(s) = &sunset {
+                let (mut num, mut den) = (0.0f64, 0.0f64);
+                for (a, b) in s.iter().zip(&t) {
+                    for c in 0..3 {
+                        num += ((a[c] - b[c]) as f64).powi(2);
+                        den += (a[c] as f64).powi(2);
+                    }
+                }
+                println!("sunset-dwab vs sunset: relative L2 texel difference {:.2e}", (num / den).sqrt());
+                assert!((num / den).sqrt() < 0.05);
+            }
+            let f = fit_sg_lighting(w, h, &t, 8).unwrap();
+            println!("{name} ({w}x{h}): K=8: rel L2 {:.4}", f.rel_l2_error);
+            continue;
+        }
         let t0 = Instant::now();
         let fitter = SgEnvFitter::new(w, h, &t, SgFitOptions::default()).unwrap();
         let prep = t0.elapsed();

@@ -119,6 +119,7 @@ impl GBufferPass {
         let instances = p.read(scene.instances, Access::VertexShaderReadStorage);
         let vertices = p.read(scene.vertices, Access::VertexBuffer);
         let indices = p.read(scene.indices, Access::IndexBuffer);
+        let deformed = scene.deformed_vertices.map(|h| p.read(h, Access::VertexBuffer));
         let pipeline = self.pipeline.pipeline;
         let layout = self.pipeline.layout;
         p.record(move |rc| {
@@ -146,6 +147,10 @@ impl GBufferPass {
                 .depth_attachment(&depth_att);
             let vb = rc.buffer(vertices)?;
             let ib = rc.buffer(indices)?;
+            let db = match deformed {
+                Some(h) => Some(rc.buffer(h)?),
+                None => None,
+            };
             unsafe {
                 d.cmd_begin_rendering(rc.cmd, &info);
                 d.cmd_set_viewport(
@@ -164,11 +169,20 @@ impl GBufferPass {
             )?;
             unsafe {
                 if !draws.is_empty() {
-                    d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb.buffer], &[0]);
                     d.cmd_bind_index_buffer(rc.cmd, ib.buffer, 0, vk::IndexType::UINT32);
                 }
-                for (m, inst) in &draws {
-                    d.cmd_draw_indexed(rc.cmd, m.index_count, 1, m.first_index, m.vertex_offset, *inst);
+                for pass_deformed in [false, true] {
+                    let buffer = if pass_deformed { db.map(|b| b.buffer) } else { Some(vb.buffer) };
+                    let Some(buffer) = buffer else { continue };
+                    let mut bound = false;
+                    for dr in draws.iter().filter(|dr| dr.deformed == pass_deformed) {
+                        if !bound {
+                            d.cmd_bind_vertex_buffers(rc.cmd, 0, &[buffer], &[0]);
+                            bound = true;
+                        }
+                        let m = dr.mesh;
+                        d.cmd_draw_indexed(rc.cmd, m.index_count, 1, m.first_index, m.vertex_offset, dr.instance);
+                    }
                 }
                 d.cmd_end_rendering(rc.cmd);
             }

@@ -6,7 +6,7 @@ use crate::util::bytes_of;
 use anyhow::{bail, Result};
 use glam::{Mat4, Vec3};
 use penumbra_engine::{vk, BufferHandle, Context, GpuBuffer, Graph};
-use penumbra_scene::{BrdfKind, Frame, Scene};
+use penumbra_scene::{BrdfKind, Frame, LightInstance, LightKind, Material, Scene};
 use std::sync::Arc;
 
 /// Interleaved vertex: position, normal, uv (32 bytes).
@@ -63,7 +63,6 @@ pub struct SceneGpu {
     ctx: Arc<Context>,
     vertices: Option<GpuBuffer>,
     indices: Option<GpuBuffer>,
-    materials: Option<GpuBuffer>,
     pub meshes: Vec<MeshRange>,
     pub vertex_count: usize,
     pub triangle_count: usize,
@@ -77,10 +76,24 @@ pub struct SceneHandles {
     pub materials: BufferHandle,
     pub camera: BufferHandle,
     pub instances: BufferHandle,
+    /// Vertices of this frame's deformed meshes (host-initialised).
+    pub deformed_vertices: Option<BufferHandle>,
+    /// Local lights of this frame (`LightData`), and their count.
+    pub lights: BufferHandle,
+    pub light_count: u32,
 }
 
-/// Per-frame draw list: (mesh range, instance index).
-pub type DrawList = Vec<(MeshRange, u32)>;
+/// One draw: a mesh range, the instance index, and whether its vertices come from the frame's
+/// deformed-vertex buffer (`vertex_offset` then indexes that buffer).
+#[derive(Clone, Copy, Debug)]
+pub struct Draw {
+    pub mesh: MeshRange,
+    pub instance: u32,
+    pub deformed: bool,
+}
+
+/// Per-frame draw list.
+pub type DrawList = Vec<Draw>;
 
 impl SceneGpu {
     pub fn new(ctx: &Arc<Context>, scene: &Scene) -> Result<Self> {
@@ -108,8 +121,23 @@ impl SceneGpu {
             }
             idx.extend_from_slice(&m.indices);
         }
-        let materials: Vec<MaterialData> = scene
-            .materials
+        let vertex_count = verts.len();
+        let triangle_count = idx.len() / 3;
+        let (vertices, indices) = if verts.is_empty() || idx.is_empty() {
+            (None, None)
+        } else {
+            (
+                Some(ctx.create_buffer_with_data("scene.vertices", &bytes_of(&verts), vk::BufferUsageFlags::VERTEX_BUFFER)?),
+                Some(ctx.create_buffer_with_data("scene.indices", &bytes_of(&idx), vk::BufferUsageFlags::INDEX_BUFFER)?),
+            )
+        };
+        Ok(SceneGpu { ctx: ctx.clone(), vertices, indices, meshes, vertex_count, triangle_count })
+    }
+}
+
+/// The material table in the layout of `MaterialData` (std430).
+fn material_table(materials: &[Material]) -> Vec<u8> {
+        let materials: Vec<MaterialData> = materials
             .iter()
             .map(|m| MaterialData {
                 albedo_kind: [
@@ -127,20 +155,47 @@ impl SceneGpu {
                 extra: [m.shininess, 0.0, 0.0, 0.0],
             })
             .collect();
-        let vertex_count = verts.len();
-        let triangle_count = idx.len() / 3;
-        let (vertices, indices) = if verts.is_empty() || idx.is_empty() {
-            (None, None)
-        } else {
-            (
-                Some(ctx.create_buffer_with_data("scene.vertices", &bytes_of(&verts), vk::BufferUsageFlags::VERTEX_BUFFER)?),
-                Some(ctx.create_buffer_with_data("scene.indices", &bytes_of(&idx), vk::BufferUsageFlags::INDEX_BUFFER)?),
-            )
-        };
-        let mat_bytes = if materials.is_empty() { vec![0u8; 48] } else { bytes_of(&materials) };
-        let materials = Some(ctx.create_buffer_with_data("scene.materials", &mat_bytes, vk::BufferUsageFlags::STORAGE_BUFFER)?);
-        Ok(SceneGpu { ctx: ctx.clone(), vertices, indices, materials, meshes, vertex_count, triangle_count })
-    }
+        if materials.is_empty() { vec![0u8; 48] } else { bytes_of(&materials) }
+}
+
+/// std430 layout of `LightData` in `common.glsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+struct LightData {
+    /// xyz position, w kind (0 point, 1 spot, 2 sphere)
+    pos_kind: [f32; 4],
+    /// xyz direction, w cos(outer cone)
+    dir_cos_outer: [f32; 4],
+    /// rgb power (colour * intensity), w cos(inner cone)
+    power_cos_inner: [f32; 4],
+    /// x sphere radius
+    extra: [f32; 4],
+}
+
+fn light_table(lights: &[LightInstance]) -> (Vec<u8>, u32) {
+    let data: Vec<LightData> = lights
+        .iter()
+        .map(|l| {
+            let (kind, cos_outer, cos_inner, radius) = match l.kind {
+                LightKind::Point => (0.0, -1.0, -1.0, 0.0),
+                LightKind::Spot { inner_deg, outer_deg } => {
+                    (1.0, outer_deg.to_radians().cos(), inner_deg.to_radians().cos(), 0.0)
+                }
+                LightKind::Sphere { radius } => (2.0, -1.0, -1.0, radius),
+            };
+            LightData {
+                pos_kind: [l.position.x, l.position.y, l.position.z, kind],
+                dir_cos_outer: [l.direction.x, l.direction.y, l.direction.z, cos_outer],
+                power_cos_inner: [l.power.x, l.power.y, l.power.z, cos_inner],
+                extra: [radius, 0.0, 0.0, 0.0],
+            }
+        })
+        .collect();
+    let n = data.len() as u32;
+    (if data.is_empty() { vec![0u8; 64] } else { bytes_of(&data) }, n)
+}
+
+impl SceneGpu {
 
     /// Imports the static buffers and creates this frame's constants; returns the handles and
     /// the draw list (empty meshes skipped).
@@ -152,9 +207,12 @@ impl SceneGpu {
         };
         let vertices = import(graph, "scene.vertices", &self.vertices);
         let indices = import(graph, "scene.indices", &self.indices);
-        let materials = import(graph, "scene.materials", &self.materials);
+        let materials = graph.create_buffer_init("frame.materials", material_table(&frame.materials));
+        let (light_bytes, light_count) = light_table(&frame.lights);
+        let lights = graph.create_buffer_init("frame.lights", light_bytes);
         let mut inst = Vec::new();
         let mut draws = Vec::new();
+        let mut deformed_verts: Vec<Vertex> = Vec::new();
         for (i, it) in frame.instances.iter().enumerate() {
             let normal = it.world.inverse().transpose();
             inst.push(InstanceData {
@@ -163,10 +221,24 @@ impl SceneGpu {
                 normal_matrix: normal.to_cols_array_2d(),
                 ids: [it.material as u32, i as u32, 0, 0],
             });
-            if let Some(r) = self.meshes.get(it.mesh) {
-                if r.index_count > 0 {
-                    draws.push((*r, i as u32));
+            let Some(r) = self.meshes.get(it.mesh) else { continue };
+            if r.index_count == 0 {
+                continue;
+            }
+            match &it.deformed_mesh {
+                // Same topology as the rest mesh: reuse its indices, offset into the new vertices.
+                Some(m) if m.positions.len() == m.normals.len() && m.positions.len() == m.uvs.len() => {
+                    let mesh = MeshRange { vertex_offset: deformed_verts.len() as i32, ..*r };
+                    for k in 0..m.positions.len() {
+                        deformed_verts.push(Vertex {
+                            pos: m.positions[k].to_array(),
+                            normal: m.normals[k].to_array(),
+                            uv: m.uvs[k].to_array(),
+                        });
+                    }
+                    draws.push(Draw { mesh, instance: i as u32, deformed: true });
                 }
+                _ => draws.push(Draw { mesh: *r, instance: i as u32, deformed: false }),
             }
         }
         if inst.is_empty() {
@@ -179,7 +251,9 @@ impl SceneGpu {
         }
         let camera = graph.create_buffer_init("frame.camera", bytes_of(std::slice::from_ref(constants)));
         let instances = graph.create_buffer_init("frame.instances", bytes_of(&inst));
-        (SceneHandles { vertices, indices, materials, camera, instances }, draws)
+        let deformed_vertices =
+            (!deformed_verts.is_empty()).then(|| graph.create_buffer_init("frame.deformed_vertices", bytes_of(&deformed_verts)));
+        (SceneHandles { vertices, indices, materials, camera, instances, deformed_vertices, lights, light_count }, draws)
     }
 
     pub fn vertex_buffer(&self) -> Option<vk::Buffer> {
@@ -212,7 +286,7 @@ impl FrameConstants {
 
 impl Drop for SceneGpu {
     fn drop(&mut self) {
-        for b in [self.vertices.take(), self.indices.take(), self.materials.take()].into_iter().flatten() {
+        for b in [self.vertices.take(), self.indices.take()].into_iter().flatten() {
             self.ctx.destroy_buffer(b);
         }
     }

@@ -1,5 +1,6 @@
-//! Environment-lit shading without shadows (`glsl/shade_env.comp`): diffuse from SH irradiance,
-//! glossy from the mip-filtered environment map with an analytic environment BRDF.
+//! Environment- and local-light shading without shadows (`glsl/shade_env.comp`): diffuse from SH
+//! irradiance, glossy from the mip-filtered environment map with an analytic environment BRDF,
+//! plus unshadowed point/spot/sphere lights with the material's BRDF.
 
 use crate::gbuffer::GBuffer;
 use crate::scene_gpu::SceneHandles;
@@ -33,8 +34,9 @@ impl ShadeEnvPass {
                 T::COMBINED_IMAGE_SAMPLER,
                 T::COMBINED_IMAGE_SAMPLER,
                 T::STORAGE_IMAGE,
+                T::STORAGE_BUFFER,
             ],
-            0,
+            4,
         )?;
         Ok(ShadeEnvPass { pipeline, nearest: Sampler::nearest(ctx)?, linear: Sampler::latlong(ctx)? })
     }
@@ -51,6 +53,8 @@ impl ShadeEnvPass {
         let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
         let env = p.read(env, Access::ComputeShaderReadSampled);
         let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
+        let lights = p.read(scene.lights, Access::ComputeShaderReadStorage);
+        let light_count = scene.light_count;
         let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
         let (nearest, linear) = (self.nearest.sampler, self.linear.sampler);
         p.record(move |rc| {
@@ -67,9 +71,14 @@ impl ShadeEnvPass {
                     Bind::SampledImage(uvm, nearest),
                     Bind::SampledImage(env, linear),
                     Bind::StorageImage(hdr),
+                    Bind::StorageBuffer(lights),
                 ],
             )?;
-            unsafe { rc.device().cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1) };
+            unsafe {
+                let d = rc.device();
+                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &light_count.to_le_bytes());
+                d.cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1);
+            }
             Ok(())
         });
         hdr

@@ -19,6 +19,11 @@ fn main() -> anyhow::Result<()> {
     if let Some(dir) = args.get(3) {
         let s = img.write(std::path::Path::new(dir))?;
         println!("wrote {}", s.image.display());
+        // A tone-mapped preview (exposure 0, clamp, sRGB) next to the EXR.
+        let png = std::path::Path::new(dir).join("reference.png");
+        let rgb = penumbra_reference::metrics::to_srgb8(&img.radiance, 0.0);
+        penumbra_reference::image::write_png_rgb8(&png, width, height, &rgb)?;
+        println!("wrote {}", png.display());
     }
     Ok(())
 }

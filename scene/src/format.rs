@@ -630,6 +630,7 @@ pub fn parse_toml(path: &Path, text: &str, options: &LoadOptions) -> Result<Scen
             }
         }
     }
+    scene.check_finite_motion().map_err(|m| SceneError::invalid(path, m))?;
     if scene.environment.is_none() && scene.lights.is_empty() {
         scene.warnings.push(format!("{}: no environment and no lights: the scene is unlit", path.display()));
     }

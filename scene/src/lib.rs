@@ -652,6 +652,39 @@ impl Scene {
         }
     }
 
+    /// Checks that every transform, light, camera and deformation stays finite at a set of
+    /// sample times (0 to 60 s); loaders call it so huge-but-finite parameters that overflow
+    /// during playback are reported at load time instead of producing NaN frames.
+    pub fn check_finite_motion(&self) -> Result<(), String> {
+        const TIMES: [f32; 10] = [0.0, 0.1, 0.5, 1.0, 1.7, 2.0, 3.3, 5.0, 10.0, 60.0];
+        for t in TIMES {
+            for i in 0..self.objects.len() {
+                if !self.world_at(i, t).is_finite() {
+                    return Err(format!("object '{}': its motion gives a non-finite transform at t = {t}", self.objects[i].name));
+                }
+                if self.object_info.get(i).is_some_and(|x| x.is_deforming())
+                    && self.deformed_mesh(i, t).positions.iter().any(|p| !p.is_finite())
+                {
+                    return Err(format!("object '{}': its deformation gives non-finite vertices at t = {t}", self.objects[i].name));
+                }
+            }
+            for l in &self.lights {
+                let (p, d) = light_at(l, t);
+                if !p.is_finite() || !d.is_finite() {
+                    return Err(format!("light '{}': its motion gives a non-finite position at t = {t}", l.name));
+                }
+            }
+            let c = self.camera_at(t);
+            if !c.view().is_finite() {
+                return Err(format!("camera: non-finite view at t = {t}"));
+            }
+            if self.materials_at(t).iter().any(|m| !m.albedo.is_finite() || !m.specular.is_finite() || !m.shininess.is_finite()) {
+                return Err(format!("a material animation gives non-finite values at t = {t}"));
+            }
+        }
+        Ok(())
+    }
+
     /// Total vertex count of the meshes used by the objects (each object counts its mesh).
     pub fn vertex_count(&self) -> usize {
         self.objects.iter().map(|o| self.meshes[o.mesh].positions.len()).sum()
@@ -731,6 +764,10 @@ impl Scene {
         scene.object_info.resize(scene.objects.len(), ObjectInfo::default());
         scene.object_info.last_mut().unwrap().casts_shadow = false;
         scene.camera = Camera::framing(lo, hi, 40.0);
+        scene.check_finite_motion().map_err(|m| SceneError::invalid(path, m))?;
+        if !scene.camera.view().is_finite() || !scene.camera.far.is_finite() {
+            return Err(SceneError::invalid(path, "the model's bounds are too large to frame"));
+        }
         Ok(scene)
     }
 

@@ -118,8 +118,9 @@ fn value_noise(x: f32, y: f32, period: i64) -> f32 {
     let s = |t: f32| t * t * (3.0 - 2.0 * t);
     let (i, j) = (x0 as i64, y0 as i64);
     let h = |a: i64, b: i64| hash2(a.rem_euclid(period), b.rem_euclid(period));
-    let a = h(i, j) + (h(i + 1, j) - h(i, j)) * s(fx);
-    let b = h(i, j + 1) + (h(i + 1, j + 1) - h(i, j + 1)) * s(fx);
+    let (i1, j1) = (i.wrapping_add(1), j.wrapping_add(1));
+    let a = h(i, j) + (h(i1, j) - h(i, j)) * s(fx);
+    let b = h(i, j1) + (h(i1, j1) - h(i, j1)) * s(fx);
     a + (b - a) * s(fy)
 }
 

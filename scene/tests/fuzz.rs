@@ -19,13 +19,25 @@ impl Rng {
     }
 }
 
+/// Count every panic of the process (caught or not).
+fn install_hook() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let prev = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            PANICS.fetch_add(1, Ordering::SeqCst);
+            prev(info);
+        }));
+    });
+}
+
+fn iterations(default: usize) -> usize {
+    std::env::var("PENUMBRA_FUZZ_ITERS").ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
 #[test]
 fn mutated_inputs_never_panic() {
-    let prev = std::panic::take_hook();
-    std::panic::set_hook(Box::new(move |info| {
-        PANICS.fetch_add(1, Ordering::SeqCst);
-        prev(info);
-    }));
+    install_hook();
     let dir = temp_dir("fuzz");
     // A skinned, animated, morphing file exercises most readers.
     let mut bin = Bin::default();
@@ -64,7 +76,7 @@ fn mutated_inputs_never_panic() {
     assert!(s.requirements().deforming_objects);
     let json = serde_json::to_string(&doc).unwrap();
     // PENUMBRA_FUZZ_ITERS / PENUMBRA_FUZZ_SEED run longer or other campaigns by hand.
-    let iters: usize = std::env::var("PENUMBRA_FUZZ_ITERS").ok().and_then(|v| v.parse().ok()).unwrap_or(400);
+    let iters = iterations(400);
     let seed: u64 = std::env::var("PENUMBRA_FUZZ_SEED").ok().and_then(|v| v.parse().ok()).unwrap_or(0x9e3779b97f4a7c15);
     let mut rng = Rng(seed | 1);
     let f = dir.join("m.glb");
@@ -110,4 +122,69 @@ fn mutated_inputs_never_panic() {
     }
     assert!(errors > 0);
     assert_eq!(PANICS.load(Ordering::SeqCst), 0, "a loader panicked (caught or not)");
+}
+
+/// Random numbers (including huge, tiny and negative ones) in the documented example scene.
+#[test]
+fn mutated_scene_files_never_panic() {
+    install_hook();
+    let src = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/example.toml")).unwrap();
+    let dir = temp_dir("fuzz-toml");
+    std::fs::create_dir_all(dir.join("assets")).unwrap();
+    for a in ["studio.exr", "bunny.glb"] {
+        std::fs::copy(format!("{}/../scenes/assets/{a}", env!("CARGO_MANIFEST_DIR")), dir.join("assets").join(a)).unwrap();
+    }
+    // Positions of numbers in the text.
+    let bytes = src.as_bytes();
+    let mut nums = Vec::new();
+    let mut i = 0;
+    while i < bytes.len() {
+        if bytes[i].is_ascii_digit() && (i == 0 || !bytes[i - 1].is_ascii_alphanumeric() && bytes[i - 1] != b'_' && bytes[i - 1] != b'.') {
+            let s = i;
+            while i < bytes.len() && (bytes[i].is_ascii_digit() || bytes[i] == b'.') {
+                i += 1;
+            }
+            nums.push((s, i));
+        } else {
+            i += 1;
+        }
+    }
+    // Only numbers outside comments.
+    nums.retain(|&(s, _)| {
+        let line_start = src[..s].rfind('\n').map_or(0, |k| k + 1);
+        !src[line_start..s].contains('#')
+    });
+    let repl = ["0", "-1", "1e30", "1e-30", "-1e30", "3.5", "1024", "nan", "inf", "100000", "0.999", "-0.5"];
+    let seed: u64 = std::env::var("PENUMBRA_FUZZ_SEED").ok().and_then(|v| v.parse().ok()).unwrap_or(0x1234_5678_9abc_def1);
+    let mut rng = Rng(seed | 1);
+    let f = dir.join("m.toml");
+    let (mut ok, mut err) = (0, 0);
+    for _ in 0..iterations(150) {
+        let mut text = src.clone();
+        let mut picks: Vec<usize> = (0..2).map(|_| (rng.next() as usize) % nums.len()).collect();
+        picks.sort();
+        picks.dedup();
+        for &k in picks.iter().rev() {
+            let (s, e) = nums[k];
+            text.replace_range(s..e, repl[(rng.next() as usize) % repl.len()]);
+        }
+        std::fs::write(&f, &text).unwrap();
+        match Scene::load(&f) {
+            Ok(s) => {
+                ok += 1;
+                for t in [0.0f32, 1.0, 2.0] {
+                    let fr = s.at(t, Some(t - 0.5));
+                    assert!(fr.instances.iter().all(|i| i.world.is_finite()), "{text}");
+                    assert!(fr.lights.iter().all(|l| l.position.is_finite() && l.direction.is_finite()), "{text}");
+                    assert!(fr.camera.view().is_finite());
+                }
+            }
+            Err(e) => {
+                err += 1;
+                assert!(e.to_string().contains("m.toml"), "{e}");
+            }
+        }
+    }
+    assert!(ok > 0 && err > 0, "ok {ok} err {err}");
+    assert_eq!(PANICS.load(Ordering::SeqCst), 0, "a loader panicked");
 }
