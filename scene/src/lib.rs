@@ -8,7 +8,6 @@
 //! - [`Scene::at`] evaluates every transform at time `t`.
 //! - [`MeshData`] positions/normals/uvs/indices, world transforms in [`Instance`].
 //! - [`Environment`] a lat-long RGB float map (see its docs for orientation).
-
 //!
 //! Additions (see the README-style docs on each item):
 //! - [`Scene::load`] reads a `.toml` scene file ([`format`]) or a bare `.glb`/`.gltf` model

@@ -356,6 +356,15 @@ fn hdr_round_trip() {
             assert!((t[k] - e[k]).abs() <= e[0].max(e[1]).max(e[2]) / 128.0, "{i}: {t:?} vs {e:?}");
         }
     }
+    // Through a scene file, with intensity and rotation.
+    let toml = "[camera]\neye = [0, 0, 3]\ntarget = 0\n[environment]\nfile = \"env.hdr\"\nintensity = 3\nrotation_deg = 90\n[[object]]\nmesh = { type = \"sphere\", radius = 1 }\n";
+    std::fs::write(dir.join("s.toml"), toml).unwrap();
+    let s = Scene::load(dir.join("s.toml")).unwrap_or_else(|e| panic!("{e}"));
+    let e = s.environment.as_ref().unwrap();
+    assert_eq!((e.width, e.height, e.intensity), (8, 4, 3.0));
+    assert!((e.rotation - std::f32::consts::FRAC_PI_2).abs() < 1e-6);
+    assert_eq!(e.texels, env.texels);
+    assert!(s.requirements().environment_light);
 }
 
 #[test]
