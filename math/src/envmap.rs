@@ -24,7 +24,9 @@
 //!    sky is fit from the residual (compression keeps the sun's residual from taking all lobes).
 //! 2. *Amplitudes*: exact discrete NNLS per RGB channel at full resolution (Gram matrix
 //!    `sum_i w_i G_k G_l` and right-hand side `sum_i w_i G_k L_i`; [`crate::nnls`]), with the
-//!    robust down-weighting of extremely bright texels ([`SgFitOptions::robust_cap`]).
+//!    robust down-weighting of extremely bright texels ([`SgFitOptions::robust_cap`]): a plain
+//!    L2 round, then three rounds of iteratively re-weighted NNLS with weights
+//!    `min(1, (cap / max(Y, F))^2)`, `Y` the texel luminance, `F` the current fit's.
 //! 3. *Refinement* (between 1 and 2): a few passes of coordinate search over each lobe's
 //!    sharpness (factors `2^(+-1/2)`), each candidate re-solving the NNLS, on a
 //!    reduced map (at most 64 rows; lobes sharper than it resolves are left alone).
@@ -376,9 +378,9 @@ pub struct SgFitOptions {
     /// selection by 1e2: it still gets its own lobe first, and the remaining lobes go to the sky
     /// instead of to the sun's residual. Amplitudes are always fit to the uncompressed map.
     pub selection_power: f64,
-    /// Robust amplitude fit: texels whose luminance `Y` exceeds `robust_cap x` the median
-    /// luminance get their least-squares weight scaled by `(cap / Y)^2`, i.e. their residual is
-    /// measured relative to their own value (default `Some(100.0)`; `None` = plain solid-angle
+    /// Robust amplitude fit: texels whose luminance `Y` (or the fit's) exceeds `robust_cap x`
+    /// the median luminance get their least-squares weight scaled by `(cap / max(Y, F))^2`, i.e.
+    /// their residual is measured relative to their own value (default `Some(100.0)`; `None` = plain solid-angle
     /// weighted L2). Without it, broad sky lobes are bent to patch the difference between a sun
     /// disk and its Gaussian lobe (an error of thousands of sky units on a few texels) and the sky
     /// is ruined. The reported error is always the plain relative L2.
@@ -414,9 +416,8 @@ struct CorrLevel {
 pub struct SgEnvFitter {
     map: LatLong,
     reduced: LatLong,
-    /// per-texel robust weight factors for `map` and `reduced`
-    rw_map: Vec<f64>,
-    rw_reduced: Vec<f64>,
+    /// robust cap (absolute luminance) or infinity
+    cap: f64,
     levels: Vec<CorrLevel>,
     opts: SgFitOptions,
 }
@@ -473,22 +474,46 @@ impl SgEnvFitter {
                 None => break,
             }
         }
-        let robust = |m: &LatLong| -> Result<Vec<f64>, EnvError> {
-            let lum: Vec<f64> = m.rgb.iter().map(|c| luminance(*c)).collect();
-            match opts.robust_cap {
-                None => Ok(vec![1.0; lum.len()]),
-                Some(f) if f > 0.0 => {
-                    let mut sorted = lum.clone();
-                    sorted.sort_by(|a, b| a.partial_cmp(b).unwrap());
-                    let cap = f * sorted[sorted.len() / 2];
-                    Ok(lum.iter().map(|&y| if cap > 0.0 && y > cap { (cap / y).powi(2) } else { 1.0 }).collect())
-                }
-                Some(_) => Err(EnvError::BadOption("robust_cap must be > 0")),
+        let cap = match opts.robust_cap {
+            None => f64::INFINITY,
+            Some(f) if f > 0.0 => {
+                let mut sorted: Vec<f64> = map.rgb.iter().map(|c| luminance(*c)).collect();
+                sorted.sort_by(|a, b| a.partial_cmp(b).unwrap());
+                let m = sorted[sorted.len() / 2];
+                if m > 0.0 { f * m } else { f64::INFINITY }
             }
+            Some(_) => return Err(EnvError::BadOption("robust_cap must be > 0")),
         };
-        let rw_map = robust(&map)?;
-        let rw_reduced = robust(&reduced)?;
-        Ok(Self { map, reduced, rw_map, rw_reduced, levels, opts })
+        Ok(Self { map, reduced, cap, levels, opts })
+    }
+
+    /// Robust weight factors `min(1, (cap / max(Y, F))^2)` with `F` the luminance of `fit`.
+    fn robust_weights(&self, m: &LatLong, fit: &[SgRgb]) -> Vec<f64> {
+        if !self.cap.is_finite() {
+            return vec![1.0; m.rgb.len()];
+        }
+        (0..m.rgb.len())
+            .into_par_iter()
+            .map(|i| {
+                let f = if fit.is_empty() { 0.0 } else { luminance(SgRgb::eval_sum(fit, m.dir(i))) };
+                let y = luminance(m.rgb[i]).max(f);
+                if y > self.cap { (self.cap / y).powi(2) } else { 1.0 }
+            })
+            .collect()
+    }
+
+    /// Iteratively re-weighted NNLS (3 rounds): bright texels, and texels where the fit
+    /// overshoots to bright values (around a sun lobe), are measured relative to their magnitude.
+    fn irls(&self, m: &LatLong, shapes: &[Sg]) -> Vec<SgRgb> {
+        // round 0: plain L2 (the sun gets its full amplitude); then re-weighted rounds
+        let mut lobes = nnls_rgb(m, &vec![1.0; m.rgb.len()], shapes).0;
+        if self.cap.is_finite() {
+            for _ in 0..3 {
+                let w = self.robust_weights(m, &lobes);
+                lobes = nnls_rgb(m, &w, shapes).0;
+            }
+        }
+        lobes
     }
 
     /// The validated map.
@@ -547,6 +572,9 @@ impl SgEnvFitter {
         // 2. exact NNLS at full resolution (+ 3. sharpness refinement on the reduced map)
         let p = self.opts.selection_power;
         let mut shapes: Vec<Sg> = chosen.iter().map(|g| Sg { axis: g.axis, lambda: g.lambda / p, mu: 1.0 }).collect();
+        // robust weights for the refinement from a first full-resolution fit
+        let first = self.irls(&self.map, &shapes);
+        let rw_reduced = self.robust_weights(&self.reduced, &first);
         // sharpness the reduced map can resolve
         let lim = 2.0 * (self.reduced.height as f64 / PI).powi(2);
         for _ in 0..self.opts.refine_passes {
@@ -554,12 +582,12 @@ impl SgEnvFitter {
                 if shapes[j].lambda * 2f64.sqrt() > lim {
                     continue;
                 }
-                let mut best_err = nnls_rgb(&self.reduced, &self.rw_reduced, &shapes).1;
+                let mut best_err = nnls_rgb(&self.reduced, &rw_reduced, &shapes).1;
                 let base = shapes[j].lambda;
                 for f in [2f64.sqrt(), 1.0 / 2f64.sqrt()] {
                     let mut trial = shapes.clone();
                     trial[j].lambda = base * f;
-                    let e = nnls_rgb(&self.reduced, &self.rw_reduced, &trial).1;
+                    let e = nnls_rgb(&self.reduced, &rw_reduced, &trial).1;
                     if e < best_err * (1.0 - 1e-9) {
                         best_err = e;
                         shapes = trial;
@@ -567,7 +595,7 @@ impl SgEnvFitter {
                 }
             }
         }
-        let (lobes, _) = nnls_rgb(&self.map, &self.rw_map, &shapes);
+        let lobes = self.irls(&self.map, &shapes);
         let lobes: Vec<SgRgb> = lobes.into_iter().filter(|l| l.mu.max_element() > 0.0).collect();
         let rel_l2_error = self.map.relative_l2_error(&lobes);
         Ok(SgEnvFit { lobes, rel_l2_error })

@@ -121,6 +121,11 @@ fn robust_to_a_sun_1e4_brighter_than_the_sky() {
         let sky_err = (num / den).sqrt();
         let energy = f.lobes.iter().map(|l| l.mu * l.unit().sphere_integral()).sum::<DVec3>();
         let energy_err = (energy.length() / map.integral().length() - 1.0).abs();
+        if std::env::var("SG_DEBUG").is_ok() {
+            for l in &f.lobes {
+                println!("   lobe {:.3?} lambda {:.1} mu {:.3?}", l.axis, l.lambda, l.mu);
+            }
+        }
         let sun_lobe = f.lobes.iter().max_by(|a, b| a.mu.x.partial_cmp(&b.mu.x).unwrap()).unwrap();
         println!(
             "sun+sky 256x128, K={k}: rel L2 {:.4}, sky-only rel L2 {sky_err:.4}, energy error {:.2}%, brightest lobe {:.2} deg from sun, lambda {:.0}; {:.2?}",

@@ -8,15 +8,21 @@ use serde_json::{json, Value};
 use std::collections::BTreeMap;
 use std::fmt::Write;
 
+/// Vulkan flags as text; empty masks print as `NONE` rather than nothing.
+fn flags<T: std::fmt::Debug>(f: T) -> String {
+    let s = format!("{f:?}");
+    if s.is_empty() { "NONE".into() } else { s }
+}
+
 fn barrier_json(b: &Barrier) -> Value {
     json!({
         "resource": b.name,
         "kind": if b.image { "image" } else { "buffer" },
         "reason": format!("{:?}", b.reason),
-        "src_stage": format!("{:?}", b.src_stage),
-        "src_access": format!("{:?}", b.src_access),
-        "dst_stage": format!("{:?}", b.dst_stage),
-        "dst_access": format!("{:?}", b.dst_access),
+        "src_stage": flags(b.src_stage),
+        "src_access": flags(b.src_access),
+        "dst_stage": flags(b.dst_stage),
+        "dst_access": flags(b.dst_access),
         "old_layout": if b.image { format!("{:?}", b.old_layout) } else { "-".into() },
         "new_layout": if b.image { format!("{:?}", b.new_layout) } else { "-".into() },
     })
@@ -88,8 +94,8 @@ pub fn to_json(g: &CompiledGraph, timings: Option<&BTreeMap<String, PassStats>>)
                     (Some(a), Some(b)) => json!([g.passes[a].name, g.passes[b].name]),
                     _ => Value::Null,
                 },
-                "image_usage": if r.desc.is_image() { format!("{:?}", r.image_usage) } else { "-".into() },
-                "buffer_usage": if r.desc.is_image() { "-".into() } else { format!("{:?}", r.buffer_usage) },
+                "image_usage": if r.desc.is_image() { flags(r.image_usage) } else { "-".into() },
+                "buffer_usage": if r.desc.is_image() { "-".into() } else { flags(r.buffer_usage) },
             })
         })
         .collect();
@@ -139,10 +145,13 @@ pub fn to_dot(g: &CompiledGraph) -> String {
             let barrier = p.barriers.iter().find(|b| b.resource == *r);
             let label = match barrier {
                 Some(b) if b.image => format!(
-                    "{a:?}\\n{:?} -> {:?}\\n{:?} -> {:?}",
-                    b.src_stage, b.dst_stage, b.old_layout, b.new_layout
+                    "{a:?}\\n{} -> {}\\n{:?} -> {:?}",
+                    flags(b.src_stage),
+                    flags(b.dst_stage),
+                    b.old_layout,
+                    b.new_layout
                 ),
-                Some(b) => format!("{a:?}\\n{:?} -> {:?}", b.src_stage, b.dst_stage),
+                Some(b) => format!("{a:?}\\n{} -> {}", flags(b.src_stage), flags(b.dst_stage)),
                 None => format!("{a:?}"),
             };
             let color = if barrier.is_some() { "red" } else { "black" };
@@ -224,13 +233,25 @@ pub fn to_text(g: &CompiledGraph, timings: Option<&BTreeMap<String, PassStats>>)
 fn barrier_text(b: &Barrier) -> String {
     if b.image {
         format!(
-            "{} ({:?}): {:?}/{:?} -> {:?}/{:?}, {:?} -> {:?}",
-            b.name, b.reason, b.src_stage, b.src_access, b.dst_stage, b.dst_access, b.old_layout, b.new_layout
+            "{} ({:?}): {}/{} -> {}/{}, {:?} -> {:?}",
+            b.name,
+            b.reason,
+            flags(b.src_stage),
+            flags(b.src_access),
+            flags(b.dst_stage),
+            flags(b.dst_access),
+            b.old_layout,
+            b.new_layout
         )
     } else {
         format!(
-            "{} ({:?}): {:?}/{:?} -> {:?}/{:?}",
-            b.name, b.reason, b.src_stage, b.src_access, b.dst_stage, b.dst_access
+            "{} ({:?}): {}/{} -> {}/{}",
+            b.name,
+            b.reason,
+            flags(b.src_stage),
+            flags(b.src_access),
+            flags(b.dst_stage),
+            flags(b.dst_access)
         )
     }
 }
