@@ -266,3 +266,15 @@ fn prefilter_constant_and_exact_sg() {
     println!("prefilter of an exact SG map: max error relative to the peak {worst:.2e}");
     assert!(worst < 5e-3);
 }
+
+#[test]
+fn zz_debug_sun() {
+    if std::env::var("SG_DEBUG").is_err() { return; }
+    let (w, h) = (256, 128);
+    let (t, _sun_dir, _) = sun_sky_map(w, h);
+    for (p, rc) in [(0.5, None), (0.5, Some(100.0)), (1.0, None)] {
+        let f = SgEnvFitter::new(w, h, &t, SgFitOptions { selection_power: p, robust_cap: rc, refine_passes: 0, ..Default::default() }).unwrap().fit(4).unwrap();
+        println!("p={p} rc={rc:?}: err {:.4}", f.rel_l2_error);
+        for l in &f.lobes { println!("   lobe {:.3?} lambda {:.1} mu {:.3?}", l.axis, l.lambda, l.mu); }
+    }
+}
