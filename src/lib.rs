@@ -106,6 +106,30 @@ impl Renderer {
         })
     }
 
+    /// What this renderer does not (yet) do for `scene`, to be shown to the user rather than
+    /// silently ignored.
+    pub fn limitations(scene: &Scene) -> Vec<String> {
+        let req = scene.requirements();
+        let mut v = Vec::new();
+        if scene.technique != penumbra_scene::DEFAULT_TECHNIQUE {
+            v.push(format!(
+                "technique '{}' is not implemented yet; rendering with '{}' (environment and local lights, no shadows)",
+                scene.technique,
+                penumbra_scene::DEFAULT_TECHNIQUE
+            ));
+        }
+        if req.spatially_varying_materials {
+            v.push("albedo/roughness texture maps are not applied yet; materials use their base values".into());
+        }
+        if req.medium {
+            v.push("the participating medium is not rendered yet (no volumetric passes)".into());
+        }
+        if req.local_lights || req.environment_light {
+            v.push("no shadows yet: visibility techniques are separate passes still to come".into());
+        }
+        v
+    }
+
     pub fn context(&self) -> &Arc<Context> {
         &self.engine.ctx
     }

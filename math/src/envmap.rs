@@ -11,25 +11,23 @@
 //! # SG fit ([`SgEnvFitter`], [`fit_sg_lighting`])
 //! Least squares on solid-angle-weighted texels,
 //! `min sum_i w_i |L_i - sum_k G_k(d_i)|^2` with non-negative RGB amplitudes:
-//! 1. *Selection* (matching pursuit on the compressed luminance `Y^p`, see
-//!    [`SgFitOptions::selection_power`]): for a ladder of sharpness values
+//! 0. *Sun/sky split* ([`SgFitOptions::sun_cap`]): texels brighter than 100 x the median
+//!    luminance are split into a sky part (clamped) and an excess part; each part is fit by
+//!    steps 1-3 with its own lobes (`max(1, K/8)` for the excess) and the lobe sets are joined.
+//!    Maps without such texels are fit in one part.
+//! 1. *Selection* (matching pursuit on luminance): for a ladder of sharpness values
 //!    (`lambda_min` .. the map's resolution limit, ratio `ladder_ratio`) the correlation maps
 //!    `C_lambda(a) = sum_i w_i Y_i G(d_i; a, lambda)` are computed once (a sharpness-matched
 //!    mip level and output grid, with culling of the lobe support). Each step picks the
 //!    `(a, lambda)` maximising the energy decrease `max(R, 0)^2 / |G|^2` of the residual
 //!    correlation `R = C - sum_k mu_k <G_k, G_(a,lambda)>` (analytic SG inner products, so the
-//!    residual never has to be re-convolved), refines the axis by a parabolic fit on the score
-//!    grid, and subtracts the lobe with its optimal amplitude. The brightest region (e.g. a sun
-//!    1e4 x brighter than the sky) is thus taken first by a lobe of matching sharpness, and the
-//!    sky is fit from the residual (compression keeps the sun's residual from taking all lobes).
-//! 2. *Amplitudes*: exact discrete NNLS per RGB channel at full resolution (Gram matrix
-//!    `sum_i w_i G_k G_l` and right-hand side `sum_i w_i G_k L_i`; [`crate::nnls`]), with the
-//!    robust down-weighting of extremely bright texels ([`SgFitOptions::robust_cap`]): a plain
-//!    L2 round, then three rounds of iteratively re-weighted NNLS with weights
-//!    `min(1, (cap / max(Y, F))^2)`, `Y` the texel luminance, `F` the current fit's.
-//! 3. *Refinement* (between 1 and 2): a few passes of coordinate search over each lobe's
-//!    sharpness (factors `2^(+-1/2)`), each candidate re-solving the NNLS, on a
-//!    reduced map (at most 64 rows; lobes sharper than it resolves are left alone).
+//!    residual is updated without re-convolving), refines the axis by a parabolic fit on the
+//!    score grid, and subtracts the lobe with its optimal amplitude.
+//! 2. *Refinement*: passes of coordinate search over each lobe's sharpness (factors
+//!    `2^(+-1/2)`, `2^(+-1/4)`), each candidate re-solving the NNLS, on a reduced map (at most 64 rows; lobes
+//!    sharper than it resolves are left alone).
+//! 3. *Amplitudes*: exact discrete NNLS per RGB channel at full resolution (Gram matrix
+//!    `sum_i w_i G_k G_l` and right-hand side `sum_i w_i G_k L_i`; [`crate::nnls`]).
 //!
 //! The reported error is the relative L2 error over the sphere at full resolution,
 //! `sqrt(sum_i w_i |L_i - fit_i|^2 / sum_i w_i |L_i|^2)` (RGB summed).
@@ -367,29 +365,23 @@ pub struct SgFitOptions {
     pub lambda_min: f64,
     /// Largest sharpness; `None` = the map's resolution limit `2 (height/pi)^2`.
     pub lambda_max: Option<f64>,
-    /// Ratio between consecutive ladder sharpness values (default 1.6).
+    /// Ratio between consecutive ladder sharpness values (default 2).
     pub ladder_ratio: f64,
-    /// Sharpness-refinement passes over all lobes (default 1; 0 disables).
+    /// Sharpness-refinement passes over the sky lobes (default 2; 0 disables).
     pub refine_passes: usize,
-    /// Lobe *selection* runs on the compressed luminance `Y^p`, `p = selection_power`
-    /// (default 0.5; 1 = plain luminance). Since `G(w; a, lambda, mu)^p = G(w; a, p lambda, mu^p)`
-    /// a lobe-shaped feature keeps its axis and its sharpness is recovered exactly as
-    /// `lambda_selected / p`, while a sun 1e4 x brighter than the sky only dominates the
-    /// selection by 1e2: it still gets its own lobe first, and the remaining lobes go to the sky
-    /// instead of to the sun's residual. Amplitudes are always fit to the uncompressed map.
-    pub selection_power: f64,
-    /// Robust amplitude fit: texels whose luminance `Y` (or the fit's) exceeds `robust_cap x`
-    /// the median luminance get their least-squares weight scaled by `(cap / max(Y, F))^2`, i.e.
-    /// their residual is measured relative to their own value (default `Some(100.0)`; `None` = plain solid-angle
-    /// weighted L2). Without it, broad sky lobes are bent to patch the difference between a sun
-    /// disk and its Gaussian lobe (an error of thousands of sky units on a few texels) and the sky
-    /// is ruined. The reported error is always the plain relative L2.
-    pub robust_cap: Option<f64>,
+    /// Sun/sky split (default `Some(100.0)`; `None` = one plain least-squares fit of the whole
+    /// map). Texels whose luminance `Y` exceeds `cap = sun_cap x median luminance` are split into
+    /// a sky part `L min(1, cap/Y)` and an excess part `L (1 - cap/Y)` (they sum to `L`). The
+    /// excess (a sun, studio lights) is fit by its own lobes (`max(1, K/8)` of the `K`), the sky
+    /// part by the rest. Without the split a sun 1e4 x brighter than the sky dominates the L2
+    /// norm: every lobe goes to the sun's disk-vs-Gaussian residual and broad lobes are bent to
+    /// patch it, so the sky is lost.
+    pub sun_cap: Option<f64>,
 }
 
 impl Default for SgFitOptions {
     fn default() -> Self {
-        Self { lambda_min: 0.5, lambda_max: None, ladder_ratio: 1.6, refine_passes: 1, selection_power: 0.5, robust_cap: Some(100.0) }
+        Self { lambda_min: 0.5, lambda_max: None, ladder_ratio: 2.0, refine_passes: 2, sun_cap: Some(100.0) }
     }
 }
 
@@ -411,52 +403,25 @@ struct CorrLevel {
     corr: Vec<f64>, // luminance correlation with the map
 }
 
-/// Reusable fitter: validates the map and precomputes the correlation maps once, then fits any
-/// number of lobes with [`SgEnvFitter::fit`].
-pub struct SgEnvFitter {
+/// One part (sky or sun excess) of the map with its selection correlation maps.
+struct Part {
     map: LatLong,
     reduced: LatLong,
-    /// robust cap (absolute luminance) or infinity
-    cap: f64,
     levels: Vec<CorrLevel>,
-    opts: SgFitOptions,
 }
 
-fn luminance(c: DVec3) -> f64 {
-    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
-}
-
-impl SgEnvFitter {
-    /// Prepares the fit of a `width x height` map (see the module docs for the convention).
-    pub fn new(width: usize, height: usize, texels: &[[f32; 3]], opts: SgFitOptions) -> Result<Self, EnvError> {
-        let map = LatLong::new(width, height, texels)?;
-        if !(opts.lambda_min > 0.0 && opts.lambda_min.is_finite()) {
-            return Err(EnvError::BadOption("lambda_min must be > 0"));
-        }
-        if !(opts.ladder_ratio > 1.0 && opts.ladder_ratio.is_finite()) {
-            return Err(EnvError::BadOption("ladder_ratio must be > 1"));
-        }
-        let lmax = opts.lambda_max.unwrap_or(2.0 * (height as f64 / PI).powi(2)).max(opts.lambda_min);
-        // selection map: compressed luminance
-        let p = opts.selection_power;
-        if !(p > 0.0 && p <= 1.0) {
-            return Err(EnvError::BadOption("selection_power must be in (0, 1]"));
-        }
-        let lum: Vec<f64> = map.rgb.iter().map(|c| luminance(*c).max(0.0).powf(p)).collect();
-        let sel_map = LatLong::from_rgb(width, height, lum.iter().map(|v| DVec3::splat(*v)).collect());
-        let pyr = pyramid(&sel_map);
-        let mut lambdas = vec![];
-        let mut l = opts.lambda_min * p;
-        while l <= lmax * p * (1.0 + 1e-9) {
-            lambdas.push(l);
-            l *= opts.ladder_ratio;
-        }
+impl Part {
+    fn new(map: LatLong, lambdas: &[f64]) -> Self {
+        let (width, height) = (map.width, map.height);
+        let lum = LatLong::from_rgb(width, height, map.rgb.iter().map(|c| DVec3::splat(luminance(*c))).collect());
+        let pyr = pyramid(&lum);
         let levels = lambdas
             .iter()
             .map(|&lambda| {
                 // selection only needs ~1e-6 accuracy and a grid of about one lobe width
                 let src = level_for(&pyr, lambda, 1.0);
-                let oh = out_height(lambda, height, 1.0);
+                // grid of at most 128 rows: sharper lobes are placed by the parabolic refinement
+                let oh = out_height(lambda, height.min(128), 1.0);
                 let ow = (oh * width / height).max(1);
                 let vals = |i: usize| src.rgb[i];
                 let conv = convolve_map(src, lambda, ow, oh, 14.0, &vals);
@@ -474,60 +439,11 @@ impl SgEnvFitter {
                 None => break,
             }
         }
-        let cap = match opts.robust_cap {
-            None => f64::INFINITY,
-            Some(f) if f > 0.0 => {
-                let mut sorted: Vec<f64> = map.rgb.iter().map(|c| luminance(*c)).collect();
-                sorted.sort_by(|a, b| a.partial_cmp(b).unwrap());
-                let m = sorted[sorted.len() / 2];
-                if m > 0.0 { f * m } else { f64::INFINITY }
-            }
-            Some(_) => return Err(EnvError::BadOption("robust_cap must be > 0")),
-        };
-        Ok(Self { map, reduced, cap, levels, opts })
+        Self { map, reduced, levels }
     }
 
-    /// Robust weight factors `min(1, (cap / max(Y, F))^2)` with `F` the luminance of `fit`.
-    fn robust_weights(&self, m: &LatLong, fit: &[SgRgb]) -> Vec<f64> {
-        if !self.cap.is_finite() {
-            return vec![1.0; m.rgb.len()];
-        }
-        (0..m.rgb.len())
-            .into_par_iter()
-            .map(|i| {
-                let f = if fit.is_empty() { 0.0 } else { luminance(SgRgb::eval_sum(fit, m.dir(i))) };
-                let y = luminance(m.rgb[i]).max(f);
-                if y > self.cap { (self.cap / y).powi(2) } else { 1.0 }
-            })
-            .collect()
-    }
-
-    /// Iteratively re-weighted NNLS (3 rounds): bright texels, and texels where the fit
-    /// overshoots to bright values (around a sun lobe), are measured relative to their magnitude.
-    fn irls(&self, m: &LatLong, shapes: &[Sg]) -> Vec<SgRgb> {
-        // round 0: plain L2 (the sun gets its full amplitude); then re-weighted rounds
-        let mut lobes = nnls_rgb(m, &vec![1.0; m.rgb.len()], shapes).0;
-        if self.cap.is_finite() {
-            for _ in 0..3 {
-                let w = self.robust_weights(m, &lobes);
-                lobes = nnls_rgb(m, &w, shapes).0;
-            }
-        }
-        lobes
-    }
-
-    /// The validated map.
-    pub fn map(&self) -> &LatLong {
-        &self.map
-    }
-
-    /// Fits `k` lobes (`k >= 1`).
-    pub fn fit(&self, k: usize) -> Result<SgEnvFit, EnvError> {
-        if k == 0 {
-            return Err(EnvError::BadOption("need at least one lobe"));
-        }
-        // 1. matching pursuit on (clamped) luminance, residual correlation maps kept up to date
-        //    incrementally (one analytic SG inner product per grid point and step, culled)
+    /// Matching pursuit: up to `k` unit-amplitude lobe shapes.
+    fn select(&self, k: usize) -> Vec<Sg> {
         let mut resid: Vec<Vec<f64>> = self.levels.iter().map(|l| l.corr.clone()).collect();
         let mut chosen: Vec<Sg> = Vec::new();
         for _ in 0..k {
@@ -556,7 +472,6 @@ impl SgEnvFitter {
             let (_, li, idx, r, n2) = best;
             let lv = &self.levels[li];
             let axis = refine_axis(lv, &resid[li], idx);
-            // `g` lives in the compressed selection domain; the fitted shape has lambda / p
             let g = Sg { axis, lambda: lv.lambda, mu: r / n2 };
             chosen.push(g);
             self.levels.par_iter().zip(resid.par_iter_mut()).for_each(|(lv, rs)| {
@@ -569,25 +484,24 @@ impl SgEnvFitter {
                 }
             });
         }
-        // 2. exact NNLS at full resolution (+ 3. sharpness refinement on the reduced map)
-        let p = self.opts.selection_power;
-        let mut shapes: Vec<Sg> = chosen.iter().map(|g| Sg { axis: g.axis, lambda: g.lambda / p, mu: 1.0 }).collect();
-        // robust weights for the refinement from a first full-resolution fit
-        let first = self.irls(&self.map, &shapes);
-        let rw_reduced = self.robust_weights(&self.reduced, &first);
-        // sharpness the reduced map can resolve
+        chosen.iter().map(|g| Sg { mu: 1.0, ..*g }).collect()
+    }
+
+    /// Sharpness refinement on the reduced map, then full-resolution NNLS.
+    fn fit_shapes(&self, mut shapes: Vec<Sg>, passes: usize) -> Vec<SgRgb> {
+        let ones_r = vec![1.0; self.reduced.rgb.len()];
         let lim = 2.0 * (self.reduced.height as f64 / PI).powi(2);
-        for _ in 0..self.opts.refine_passes {
+        for _ in 0..passes {
             for j in 0..shapes.len() {
                 if shapes[j].lambda * 2f64.sqrt() > lim {
                     continue;
                 }
-                let mut best_err = nnls_rgb(&self.reduced, &rw_reduced, &shapes).1;
+                let mut best_err = nnls_rgb(&self.reduced, &ones_r, &shapes).1;
                 let base = shapes[j].lambda;
-                for f in [2f64.sqrt(), 1.0 / 2f64.sqrt()] {
+                for f in [2f64.sqrt(), 1.0 / 2f64.sqrt(), 2f64.powf(0.25), 2f64.powf(-0.25)] {
                     let mut trial = shapes.clone();
                     trial[j].lambda = base * f;
-                    let e = nnls_rgb(&self.reduced, &rw_reduced, &trial).1;
+                    let e = nnls_rgb(&self.reduced, &ones_r, &trial).1;
                     if e < best_err * (1.0 - 1e-9) {
                         best_err = e;
                         shapes = trial;
@@ -595,12 +509,101 @@ impl SgEnvFitter {
                 }
             }
         }
-        let lobes = self.irls(&self.map, &shapes);
+        nnls_rgb(&self.map, &vec![1.0; self.map.rgb.len()], &shapes).0
+    }
+}
+
+/// Reusable fitter: validates the map and precomputes the selection correlation maps once, then
+/// fits any number of lobes with [`SgEnvFitter::fit`].
+pub struct SgEnvFitter {
+    map: LatLong,
+    sky: Part,
+    sun: Option<Part>,
+    opts: SgFitOptions,
+}
+
+fn luminance(c: DVec3) -> f64 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+impl SgEnvFitter {
+    /// Prepares the fit of a `width x height` map (see the module docs for the convention).
+    pub fn new(width: usize, height: usize, texels: &[[f32; 3]], opts: SgFitOptions) -> Result<Self, EnvError> {
+        let map = LatLong::new(width, height, texels)?;
+        if !(opts.lambda_min > 0.0 && opts.lambda_min.is_finite()) {
+            return Err(EnvError::BadOption("lambda_min must be > 0"));
+        }
+        if !(opts.ladder_ratio > 1.0 && opts.ladder_ratio.is_finite()) {
+            return Err(EnvError::BadOption("ladder_ratio must be > 1"));
+        }
+        let lmax = opts.lambda_max.unwrap_or(2.0 * (height as f64 / PI).powi(2)).max(opts.lambda_min);
+        let mut lambdas = vec![];
+        let mut l = opts.lambda_min;
+        while l <= lmax * (1.0 + 1e-9) {
+            lambdas.push(l);
+            l *= opts.ladder_ratio;
+        }
+        let cap = match opts.sun_cap {
+            None => f64::INFINITY,
+            Some(f) if f > 0.0 => {
+                let mut sorted: Vec<f64> = map.rgb.iter().map(|c| luminance(*c)).collect();
+                sorted.sort_by(|a, b| a.partial_cmp(b).unwrap());
+                let m = sorted[sorted.len() / 2];
+                if m > 0.0 {
+                    f * m
+                } else {
+                    f64::INFINITY
+                }
+            }
+            Some(_) => return Err(EnvError::BadOption("sun_cap must be > 0")),
+        };
+        let scale = |c: DVec3| -> f64 {
+            let y = luminance(c);
+            if y > cap {
+                cap / y
+            } else {
+                1.0
+            }
+        };
+        let has_sun = map.rgb.iter().any(|c| scale(*c) < 1.0);
+        let sky_rgb: Vec<DVec3> = map.rgb.iter().map(|c| *c * scale(*c)).collect();
+        let sky = Part::new(LatLong::from_rgb(width, height, sky_rgb), &lambdas);
+        // the excess is made of compact bright sources: only sharp lobes (lambda >= 16)
+        let sun_lambdas: Vec<f64> = lambdas.iter().copied().filter(|&l| l >= 16.0).collect();
+        let sun_lambdas = if sun_lambdas.is_empty() { vec![*lambdas.last().unwrap()] } else { sun_lambdas };
+        let sun = has_sun.then(|| {
+            let ex: Vec<DVec3> = map.rgb.iter().map(|c| *c * (1.0 - scale(*c))).collect();
+            Part::new(LatLong::from_rgb(width, height, ex), &sun_lambdas)
+        });
+        Ok(Self { map, sky, sun, opts })
+    }
+
+    /// The validated map.
+    pub fn map(&self) -> &LatLong {
+        &self.map
+    }
+
+    /// Fits `k` lobes (`k >= 1`).
+    pub fn fit(&self, k: usize) -> Result<SgEnvFit, EnvError> {
+        if k == 0 {
+            return Err(EnvError::BadOption("need at least one lobe"));
+        }
+        let mut lobes = Vec::new();
+        let mut k_sky = k;
+        if let Some(sun) = &self.sun {
+            let k_sun = (k / 8).max(1).min(k);
+            k_sky = k - k_sun;
+            let shapes = sun.select(k_sun);
+            lobes.extend(sun.fit_shapes(shapes, 0));
+        }
+        if k_sky > 0 {
+            let shapes = self.sky.select(k_sky);
+            lobes.extend(self.sky.fit_shapes(shapes, self.opts.refine_passes));
+        }
         let lobes: Vec<SgRgb> = lobes.into_iter().filter(|l| l.mu.max_element() > 0.0).collect();
         let rel_l2_error = self.map.relative_l2_error(&lobes);
         Ok(SgEnvFit { lobes, rel_l2_error })
     }
-
 }
 
 /// Parabolic sub-texel refinement of the argmax `idx` of the residual correlation `rs`.

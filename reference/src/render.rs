@@ -1,22 +1,36 @@
 //! The CPU reference renderer: Monte Carlo direct lighting with exact visibility.
 //!
 //! For every pixel of the scene camera (Vulkan clip space, pixel (0, 0) at the top left) it
-//! casts `spp` primary rays through jittered positions in the pixel and, at the first hit,
-//! estimates the direct lighting integral
-//! `L_o(wo) = integral f(wi, wo) L_env(wi) V(wi) cos(theta_i) dwi`
-//! with one environment sample (alias table over texels, weighted by luminance x solid angle)
-//! and one BRDF sample per primary ray, combined by multiple importance sampling with the power
-//! heuristic (beta = 2). Visibility `V` is traced exactly against every triangle of the scene at
-//! the frame's time (CWBVH from `obvhs`). Primary rays that miss see the environment.
-//! Only direct lighting: no interreflections, no emission from surfaces.
+//! casts `spp` primary rays through uniformly jittered positions in the pixel (starting on the
+//! near plane) and, at the first hit, estimates the direct lighting integral
+//! `L_o(wo) = integral f(wi, wo) L_i(wi) V(wi) cos(theta_i) dwi`
+//! with, per primary ray: one environment sample (alias table over texels, weighted by
+//! luminance x exact texel solid angle), one sample per local light (see [`crate::lights`])
+//! and one BRDF sample, combined by multiple importance sampling with the power heuristic
+//! (beta = 2). Visibility `V` is traced exactly against every shadow-casting triangle of the
+//! scene at the frame's time (deformed meshes included; `obvhs` CWBVH). Primary rays that miss
+//! see the environment. Only direct lighting: no interreflections, no surface emission.
 //!
-//! Surfaces are two-sided: the geometric normal is flipped towards the viewer. A direction
+//! Surfaces are two-sided: the geometric normal is flipped towards the viewer, and a direction
 //! below the geometric surface counts as blocked by it. Shading uses the interpolated vertex
-//! normal; where the viewer is below the shading hemisphere the BRDF is zero.
+//! normal (and dP/du as tangent); where the viewer is below the shading hemisphere the BRDF is
+//! zero. Materials are the frame's (animated) materials with `albedo_map` (multiplies albedo)
+//! and `roughness_map` (G channel multiplies roughness; Phong exponents follow
+//! `2 / r^2 - 2`) sampled bilinearly at the interpolated UV.
+//!
+//! **Medium** (`Scene::medium`): homogeneous, filling all space. Camera rays are attenuated by
+//! `exp(-sigma_t t)` (so the environment behind an infinite medium is invisible) and gain single
+//! scattering `integral T(t) sigma_s integral p(wi . d) L_i(x(t), wi) dwi dt`, estimated with one
+//! distance sample per primary ray (pdf proportional to `exp(-mean(sigma_t) t)` on
+//! `[0, t_hit]`) and the same light/phase-function MIS as surfaces, Henyey-Greenstein phase with
+//! `cos` = dot of the propagation directions. Local lights are attenuated by `exp(-sigma_t d)`
+//! on their way in; **environment light is not attenuated** on its way in (the usual fog
+//! convention: an infinite medium would otherwise extinguish it completely).
 //!
 //! Every pixel owns a PCG32 stream seeded by `(seed, pixel index)`, so the image is
 //! bit-for-bit identical for a seed whatever the number of threads. The per-pixel standard
-//! error of the mean is estimated from the samples' variance.
+//! error of the mean is the samples' standard deviation over sqrt(spp). Non-finite samples
+//! (never expected) count as zero.
 
 use crate::brdf::Brdf;
 use crate::geometry::Geometry;

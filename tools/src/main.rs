@@ -129,6 +129,9 @@ fn render(args: &RenderArgs) -> Result<()> {
         ..Default::default()
     })?;
     let mut r = Renderer::new(ctx, &scene, settings)?;
+    for l in Renderer::limitations(&scene) {
+        eprintln!("note: {l}");
+    }
     if r.repaired_env_texels() > 0 {
         eprintln!("warning: {} environment texels were NaN/Inf/negative and were set to 0", r.repaired_env_texels());
     }

@@ -273,6 +273,31 @@ pub(crate) fn transition(
     Some((state.write_stage, state.write_access, state.layout, BarrierReason::ReadAfterWrite))
 }
 
+/// Applies `info` to resource `rid`'s state and builds the barrier it needs, if any
+/// (`reason` overrides the derived one, for final barriers).
+fn barrier_for(
+    rid: u32,
+    res: &super::ResourceNode,
+    state: &mut ResourceState,
+    info: &AccessInfo,
+    reason: Option<BarrierReason>,
+) -> Option<Barrier> {
+    let is_image = res.desc.is_image();
+    let (src_stage, src_access, old_layout, derived) = transition(state, info, is_image)?;
+    Some(Barrier {
+        resource: rid,
+        name: res.name.clone(),
+        image: is_image,
+        src_stage,
+        src_access,
+        dst_stage: info.stage,
+        dst_access: info.access,
+        old_layout,
+        new_layout: if is_image { info.layout } else { vk::ImageLayout::UNDEFINED },
+        reason: reason.unwrap_or(derived),
+    })
+}
+
 fn initial_state(origin: &Origin) -> ResourceState {
     match origin {
         Origin::Imported { initial, initial_layout, .. } => {
@@ -496,21 +521,7 @@ pub(crate) fn compile(g: &Graph) -> Result<CompiledGraph, GraphError> {
             last[r] = Some(pi);
             image_usage[r] |= info.image_usage;
             buffer_usage[r] |= info.buffer_usage;
-            let is_image = res.desc.is_image();
-            if let Some((src_stage, src_access, old_layout, reason)) = transition(&mut states[r], &info, is_image) {
-                barriers.push(Barrier {
-                    resource: rid,
-                    name: res.name.clone(),
-                    image: is_image,
-                    src_stage,
-                    src_access,
-                    dst_stage: info.stage,
-                    dst_access: info.access,
-                    old_layout,
-                    new_layout: if is_image { info.layout } else { vk::ImageLayout::UNDEFINED },
-                    reason,
-                });
-            }
+            barriers.extend(barrier_for(rid, res, &mut states[r], &info, None));
         }
         passes.push(CompiledPass {
             name: p.name.clone(),
@@ -531,22 +542,7 @@ pub(crate) fn compile(g: &Graph) -> Result<CompiledGraph, GraphError> {
             _ => None,
         };
         if let Some(a) = final_access {
-            let info = a.info();
-            let is_image = res.desc.is_image();
-            if let Some((src_stage, src_access, old_layout, _)) = transition(&mut states[r], &info, is_image) {
-                final_barriers.push(Barrier {
-                    resource: r as u32,
-                    name: res.name.clone(),
-                    image: is_image,
-                    src_stage,
-                    src_access,
-                    dst_stage: info.stage,
-                    dst_access: info.access,
-                    old_layout,
-                    new_layout: if is_image { info.layout } else { vk::ImageLayout::UNDEFINED },
-                    reason: BarrierReason::Final,
-                });
-            }
+            final_barriers.extend(barrier_for(r as u32, res, &mut states[r], &a.info(), Some(BarrierReason::Final)));
         }
     }
 
