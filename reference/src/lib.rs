@@ -5,7 +5,7 @@
 //!   difference PNG between two linear RGB images ([`compare`], [`compare_files`]); the result
 //!   [`Comparison`] serializes to JSON (infinite PSNR of identical images is `null`).
 //! - [`image`]: [`Image`] (linear RGB float) with EXR read/write; errors name the file.
-//! - [`render`]: Monte Carlo direct lighting with exact visibility ([`render()`]), see its module
+//! - [`render`](mod@render): Monte Carlo direct lighting with exact visibility ([`render()`]), see its module
 //!   docs for the estimator; [`brdf`] defines the BRDFs, [`sampling`] the environment importance
 //!   sampling, [`lights`] the local lights, [`geometry`] the `obvhs` BVH.
 //! - [`cli`]: the `penumbra reference` / `penumbra compare` argument structs and actions.

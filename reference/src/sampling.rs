@@ -114,7 +114,7 @@ impl AliasTable {
     pub fn new(weights: &[f64]) -> Option<Self> {
         let n = weights.len();
         let total: f64 = weights.iter().map(|w| w.max(0.0)).sum();
-        if n == 0 || !(total > 0.0) || !total.is_finite() {
+        if n == 0 || total.is_nan() || total <= 0.0 || !total.is_finite() {
             return None;
         }
         let scaled: Vec<f64> = weights.iter().map(|w| w.max(0.0) * n as f64 / total).collect();
