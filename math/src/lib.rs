@@ -9,6 +9,7 @@
 //! * [`envmap`]: lat-long environment maps, SG fitting and SG-prefiltered maps (`Gamma_L`).
 //! * [`brdf`]: SG fits of Blinn-Phong, Cook-Torrance and Ashikhmin-Shirley lobes.
 
+pub mod brdf;
 pub mod envmap;
 pub mod nnls;
 pub mod quad;
