@@ -64,6 +64,11 @@ pub struct Comparison {
     pub flip_pixels_per_degree: f32,
     /// Error value mapped to the top of the colour map in the difference image.
     pub diff_scale: f64,
+    /// When A is a reference render with its standard-error image beside it
+    /// (`NAME_stderr.exr` next to `NAME.exr`): the RMS of A's per-pixel standard error over the
+    /// compared pixels, i.e. the part of the RMSE explained by the reference's own noise.
+    #[serde(default)]
+    pub reference_noise_rms: Option<f64>,
 }
 
 impl Comparison {
@@ -96,6 +101,12 @@ impl Comparison {
             self.flip_mean,
             self.flip_tonemap
         );
+        if let Some(n) = self.reference_noise_rms {
+            s += &format!(
+                "\nref. noise:    {n:.6e} RMS standard error of A (RMSE / noise = {:.2})",
+                if n > 0.0 { self.rmse / n } else { f64::INFINITY }
+            );
+        }
         s
     }
 }
@@ -235,7 +246,29 @@ pub fn compare(a: &Image, a_name: &str, b: &Image, b_name: &str) -> Result<Compa
         ),
         flip_pixels_per_degree: FLIP_PIXELS_PER_DEGREE,
         diff_scale: diff_scale(a, b),
+        reference_noise_rms: None,
     })
+}
+
+/// RMS over channels of a standard-error image, over the pixels finite in `a` and `b`.
+pub fn noise_rms(a: &Image, b: &Image, se: &Image) -> Option<f64> {
+    if se.width != a.width || se.height != a.height || se.pixels.len() != a.pixels.len() {
+        return None;
+    }
+    let (mut s, mut n) = (0.0f64, 0u64);
+    for ((pa, pb), e) in a.pixels.iter().zip(&b.pixels).zip(&se.pixels) {
+        if pa.iter().chain(pb.iter()).chain(e.iter()).all(|c| c.is_finite()) {
+            s += e.iter().map(|&c| (c as f64) * (c as f64)).sum::<f64>();
+            n += 3;
+        }
+    }
+    (n > 0).then(|| (s / n as f64).sqrt())
+}
+
+/// `DIR/NAME_stderr.exr` for `DIR/NAME.exr`.
+pub fn stderr_path(p: &Path) -> Option<std::path::PathBuf> {
+    let stem = p.file_stem()?.to_str()?;
+    Some(p.with_file_name(format!("{stem}_stderr.exr")))
 }
 
 fn pixel_error(pa: &[f32; 3], pb: &[f32; 3]) -> Option<f64> {
@@ -286,7 +319,11 @@ pub fn compare_files(
     let (a, b) = (a.as_ref(), b.as_ref());
     let ia = Image::read_exr(a)?;
     let ib = Image::read_exr(b)?;
-    let c = compare(&ia, &a.display().to_string(), &ib, &b.display().to_string())?;
+    let mut c = compare(&ia, &a.display().to_string(), &ib, &b.display().to_string())?;
+    if let Some(sp) = stderr_path(a).filter(|sp| sp.is_file()) {
+        let se = Image::read_exr(&sp)?;
+        c.reference_noise_rms = noise_rms(&ia, &ib, &se);
+    }
     if let Some(p) = diff_png {
         write_png_rgb8(p, ia.width, ia.height, &diff_rgb8(&ia, &ib, c.diff_scale))?;
     }
@@ -421,6 +458,12 @@ mod tests {
         let c = compare_files(&pa, &ph, Some(&diff)).unwrap();
         assert!(c.max_abs_error < 2e-3, "half rounding {}", c.max_abs_error);
         assert!(std::fs::metadata(&diff).unwrap().len() > 0);
+        assert_eq!(c.reference_noise_rms, None);
+        // A standard-error image beside A is picked up.
+        Image::from_fn(12, 7, |_, _| [0.5, 0.5, 0.5]).write_exr(dir.join("a_stderr.exr")).unwrap();
+        let c = compare_files(&pa, &ph, None).unwrap();
+        assert!((c.reference_noise_rms.unwrap() - 0.5).abs() < 1e-12);
+        assert!(c.summary().contains("ref. noise"));
         // Missing file.
         let missing = dir.join("missing.exr");
         let m = compare_files(&pa, &missing, None).unwrap_err().to_string();
