@@ -1,0 +1,134 @@
+// Spherical Gaussians (SGs), f32 mirror of penumbra_math::sg::Sg32 (same formulas; see the
+// Rust module docs for derivations and measured errors).
+//
+//   G(w; p, lambda, mu) = mu * exp(lambda * (dot(p, w) - 1))
+//
+// p: unit lobe axis, lambda >= 0: sharpness (angular std. dev. ~ 1/sqrt(lambda) rad),
+// mu: amplitude (value on the axis). For RGB lobes use a scalar SG with mu = 1 and multiply the
+// result by the RGB amplitude. Stable for lambda in [0, 1e5]: exponents are combined before
+// exp(), exp(lambda) is never formed, 1 - exp(-x) uses an expm1 polynomial near 0, and
+// dot(p, w) - 1 is computed as -|p - w|^2 / 2 (exact for unit vectors).
+//
+// Self-contained: needs no other include. Everything is prefixed sg_ / SG_.
+#ifndef PENUMBRA_SG_GLSL
+#define PENUMBRA_SG_GLSL
+
+const float SG_PI = 3.14159265358979323846;
+
+// Wang et al. 2009 clamped-cosine fit (relative L2 error 17.7% over the sphere; it is the
+// L2-optimal single lobe to 1%).
+const float SG_COS_LAMBDA = 2.133;
+const float SG_COS_MU = 1.170;
+
+struct SG {
+    vec3 axis;    // unit lobe axis
+    float lambda; // sharpness >= 0
+    float mu;     // amplitude
+};
+
+SG sg_make(vec3 axis, float lambda, float mu) {
+    SG g;
+    float l2 = dot(axis, axis);
+    g.axis = l2 > 0.0 ? axis * inversesqrt(l2) : vec3(0.0, 0.0, 1.0);
+    g.lambda = max(lambda, 0.0);
+    g.mu = mu;
+    return g;
+}
+
+// exp(x) - 1 without cancellation near 0 (Taylor series for |x| < 0.5, ~1 ulp).
+float sg_expm1(float x) {
+    if (abs(x) < 0.5) {
+        return x * (1.0 + x * (1.0 / 2.0 + x * (1.0 / 6.0 + x * (1.0 / 24.0 + x * (1.0 / 120.0
+            + x * (1.0 / 720.0 + x * (1.0 / 5040.0 + x * (1.0 / 40320.0))))))));
+    }
+    return exp(x) - 1.0;
+}
+
+// (1 - exp(-x)) / x for x >= 0, limit 1 at x = 0.
+float sg_one_minus_exp_neg_over_x(float x) {
+    if (x < 1e-4) {
+        return 1.0 - 0.5 * x;
+    }
+    return -sg_expm1(-x) / x;
+}
+
+// erf: odd Taylor series for |x| < 0.5 (relative accuracy near 0), Abramowitz & Stegun 7.1.26
+// otherwise (absolute error < 1.5e-7).
+float sg_erf(float x) {
+    float a = abs(x);
+    float r;
+    if (a < 0.5) {
+        float x2 = a * a;
+        r = 1.1283791670955126 * a * (1.0 + x2 * (-1.0 / 3.0 + x2 * (1.0 / 10.0 + x2 * (-1.0 / 42.0
+            + x2 * (1.0 / 216.0 + x2 * (-1.0 / 1320.0))))));
+    } else {
+        float t = 1.0 / (1.0 + 0.3275911 * a);
+        float poly = t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027 + t * 1.061405429))));
+        r = 1.0 - poly * exp(-a * a);
+    }
+    return x < 0.0 ? -r : r;
+}
+
+// Value at unit direction w.
+float sg_eval(SG g, vec3 w) {
+    vec3 d = g.axis - w;
+    return g.mu * exp(-0.5 * g.lambda * dot(d, d));
+}
+
+// Product of two SGs as one SG (exact). lm - l1 - l2 = -l1 l2 |p1 - p2|^2 / (lm + l1 + l2) <= 0.
+// Opposite lobes of equal sharpness give lambda = 0 (constant) and keep a's axis.
+SG sg_product(SG a, SG b) {
+    vec3 u = a.axis * a.lambda + b.axis * b.lambda;
+    float lm = length(u);
+    vec3 d = a.axis - b.axis;
+    float denom = lm + a.lambda + b.lambda;
+    float log_scale = denom > 0.0 ? -a.lambda * b.lambda * dot(d, d) / denom : 0.0;
+    SG r;
+    r.axis = lm > 0.0 ? u / lm : a.axis;
+    r.lambda = lm;
+    r.mu = a.mu * b.mu * exp(log_scale);
+    return r;
+}
+
+// Integral over the sphere: 2 pi mu (1 - exp(-2 lambda)) / lambda (4 pi mu at lambda = 0).
+float sg_sphere_integral(SG g) {
+    return 4.0 * SG_PI * g.mu * sg_one_minus_exp_neg_over_x(2.0 * g.lambda);
+}
+
+// Inner product int G1 G2 over the sphere (exact, exponents combined).
+float sg_inner_product(SG a, SG b) {
+    vec3 u = a.axis * a.lambda + b.axis * b.lambda;
+    float lm = length(u);
+    vec3 d = a.axis - b.axis;
+    float denom = lm + a.lambda + b.lambda;
+    float log_scale = denom > 0.0 ? -a.lambda * b.lambda * dot(d, d) / denom : 0.0;
+    return 4.0 * SG_PI * a.mu * b.mu * exp(log_scale) * sg_one_minus_exp_neg_over_x(2.0 * lm);
+}
+
+// Integral over the hemisphere dot(n, w) > 0 (n unit), Tokuyoshi 2022 approximation:
+// lerp between the exact lower (axis = -n) and upper (axis = n) integrals with factor
+// 0.5 + 0.5 erf(t c) / erf(t). Exact at c = -1, 0, 1 and lambda -> 0; absolute error <= 0.44% of
+// the sphere integral, relative error <= 2.5% where the result is >= 10% of the sphere integral.
+float sg_hemisphere_integral(SG g, vec3 n) {
+    float l = g.lambda;
+    float c = clamp(dot(g.axis, n), -1.0, 1.0);
+    float t = l * sqrt((0.5 * l + 0.6517328826907056) / ((l + 1.3418280033141288) * l + 7.221668779895671));
+    float et = sg_erf(t);
+    float f = et > 0.0 ? clamp(0.5 + 0.5 * sg_erf(t * c) / et, 0.0, 1.0) : 0.5 + 0.5 * c;
+    float e = exp(-l);
+    return 2.0 * SG_PI * g.mu * (e + (1.0 - e) * f) * sg_one_minus_exp_neg_over_x(l);
+}
+
+// SG approximation of the clamped cosine max(0, dot(n, w)) (Wang et al. 2009).
+SG sg_clamped_cosine(vec3 n) {
+    return sg_make(n, SG_COS_LAMBDA, SG_COS_MU);
+}
+
+// Irradiance-like integral int G(w) max(0, dot(n, w)) dw with the cosine as an SG and the
+// product integrated over the upper hemisphere only (removes the cosine SG's tail below the
+// horizon; see penumbra_math::sg::irradiance_sg_cosine_hemisphere).
+float sg_cosine_integral(SG g, vec3 n) {
+    return sg_hemisphere_integral(sg_product(g, sg_clamped_cosine(n)), n);
+}
+
+#endif // PENUMBRA_SG_GLSL
