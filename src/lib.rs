@@ -4,7 +4,9 @@
 //! each frame's render graph from the scene's requirements:
 //!
 //! ```text
-//! env_upload (first frame) -> gbuffer -> shade_env -> tonemap -> readback
+//! env_upload (first frame) -> gbuffer -> <technique passes> -> tonemap -> readback
+//!
+//! The technique (`passes::technique`) is the scene's `technique` or `RenderSettings::technique`.
 //! ```
 //!
 //! Embedding: create a [`Renderer`] on penumbra's own device ([`Renderer::new_headless`]) or on
@@ -23,7 +25,8 @@ use penumbra_engine::{vk, Access, Context, ContextDesc, Engine, FrameOutput, Gra
 use penumbra_passes::env::EnvMapGpu;
 use penumbra_passes::scene_gpu::FrameConstants;
 use penumbra_passes::tonemap::TonemapParams;
-use penumbra_passes::{GBufferPass, SceneGpu, ShadeEnvPass, TonemapPass};
+use penumbra_passes::technique::{Technique, TechniqueInputs};
+use penumbra_passes::{GBufferPass, SceneGpu, TonemapPass};
 use penumbra_scene::{Frame, Scene};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -43,11 +46,13 @@ pub struct RenderSettings {
     pub tonemap: TonemapParams,
     /// Frames the GPU may work on at once (readbacks arrive that many frames later).
     pub frames_in_flight: usize,
+    /// Overrides the scene's `technique` (an unimplemented name is then an error).
+    pub technique: Option<String>,
 }
 
 impl Default for RenderSettings {
     fn default() -> Self {
-        RenderSettings { width: 640, height: 480, tonemap: TonemapParams::default(), frames_in_flight: 2 }
+        RenderSettings { width: 640, height: 480, tonemap: TonemapParams::default(), frames_in_flight: 2, technique: None }
     }
 }
 
@@ -68,7 +73,7 @@ pub struct FrameImages {
 pub struct Renderer {
     // Passes hold pipelines on the context: drop them before the engine.
     gbuffer: GBufferPass,
-    shade: ShadeEnvPass,
+    technique: Box<dyn Technique>,
     tonemap: TonemapPass,
     scene_gpu: SceneGpu,
     env: EnvMapGpu,
@@ -93,9 +98,21 @@ impl Renderer {
         }
         let shaders = shader_library();
         let engine = Engine::new(ctx.clone(), settings.frames_in_flight)?;
+        let name = settings.technique.clone().unwrap_or_else(|| scene.technique.clone());
+        let technique = match penumbra_passes::technique::create(&name, &ctx, &shaders, scene)? {
+            Some(t) => t,
+            None if settings.technique.is_some() => bail!(
+                "technique '{name}' is not implemented (implemented: {})",
+                penumbra_passes::technique::IMPLEMENTED.join(", ")
+            ),
+            // A scene naming a technique still to come renders with the default (reported by
+            // `Renderer::limitations`).
+            None => penumbra_passes::technique::create(penumbra_scene::DEFAULT_TECHNIQUE, &ctx, &shaders, scene)?
+                .expect("the default technique exists"),
+        };
         Ok(Renderer {
             gbuffer: GBufferPass::new(&ctx, &shaders)?,
-            shade: ShadeEnvPass::new(&ctx, &shaders)?,
+            technique,
             tonemap: TonemapPass::new(&ctx, &shaders)?,
             scene_gpu: SceneGpu::new(&ctx, scene)?,
             env: EnvMapGpu::new(scene.environment.as_ref()),
@@ -111,7 +128,7 @@ impl Renderer {
     pub fn limitations(scene: &Scene) -> Vec<String> {
         let req = scene.requirements();
         let mut v = Vec::new();
-        if scene.technique != penumbra_scene::DEFAULT_TECHNIQUE {
+        if !penumbra_passes::technique::IMPLEMENTED.contains(&scene.technique.as_str()) {
             v.push(format!(
                 "technique '{}' is not implemented yet; rendering with '{}' (environment and local lights, no shadows)",
                 scene.technique,
@@ -146,7 +163,7 @@ impl Renderer {
     /// Builds the frame graph. With `target`, tone-mapped output goes into that imported image
     /// (it needs STORAGE usage, and TRANSFER_SRC when `readback`); with `readback`, the HDR and
     /// LDR images are copied to host memory and returned by [`Renderer::render`].
-    pub fn build_graph(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Graph {
+    pub fn build_graph(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Result<Graph> {
         let (w, h) = (self.settings.width, self.settings.height);
         let mut g = Graph::new();
         let mut constants = FrameConstants::new(frame, self.prev_view_proj, w, h);
@@ -160,7 +177,8 @@ impl Renderer {
         let env = self.env.add(&mut self.engine, &mut g);
         let (scene, draws) = self.scene_gpu.add(&mut g, frame, &constants);
         let gb = self.gbuffer.add(&mut g, &scene, draws, w, h);
-        let hdr = self.shade.add(&mut g, &scene, &gb, env);
+        let inputs = TechniqueInputs { frame, scene: &scene, gbuffer: &gb, env, env_data: &self.env };
+        let hdr = self.technique.add(&mut self.engine, &mut g, &inputs)?;
         let target = target.map(|t| g.import_image("target", t));
         let ldr = self.tonemap.add(&mut g, hdr, target, self.settings.tonemap);
         if readback {
@@ -168,12 +186,12 @@ impl Renderer {
         } else if target.is_none() {
             g.mark_output(ldr);
         }
-        g
+        Ok(g)
     }
 
     /// Builds, compiles and submits one frame; returns the frames that finished meanwhile.
     pub fn render(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Result<Vec<FrameImages>> {
-        let g = self.build_graph(frame, target, readback);
+        let g = self.build_graph(frame, target, readback)?;
         let (compiled, done) = self.engine.submit(g)?;
         self.last_graph = Some(compiled);
         Ok(done.into_iter().map(|o| self.decode(o)).collect())

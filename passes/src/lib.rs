@@ -7,6 +7,7 @@ pub mod gbuffer;
 pub mod readback;
 pub mod scene_gpu;
 pub mod shade_env;
+pub mod technique;
 pub mod tonemap;
 pub mod util;
 

@@ -19,6 +19,20 @@ pub struct ShadeEnvPass {
     linear: Sampler,
 }
 
+impl crate::technique::Technique for ShadeEnvPass {
+    fn name(&self) -> &'static str {
+        "env"
+    }
+    fn add(
+        &mut self,
+        _engine: &mut penumbra_engine::Engine,
+        graph: &mut Graph,
+        inputs: &crate::technique::TechniqueInputs,
+    ) -> Result<ImageHandle> {
+        Ok(ShadeEnvPass::add(self, graph, inputs.scene, inputs.gbuffer, inputs.env))
+    }
+}
+
 impl ShadeEnvPass {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
         use vk::DescriptorType as T;

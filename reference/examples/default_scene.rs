@@ -6,8 +6,9 @@ fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let (width, height) = penumbra_reference::cli::parse_size(args.get(1).map(String::as_str).unwrap_or("320x240"))?;
     let spp: u32 = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(256);
+    let seed: u64 = std::env::var("SEED").ok().map(|s| s.parse()).transpose()?.unwrap_or(0);
     let scene = penumbra_scene::Scene::default_scene();
-    let opts = penumbra_reference::ReferenceOptions { width, height, spp, progress: true, ..Default::default() };
+    let opts = penumbra_reference::ReferenceOptions { width, height, spp, seed, progress: true, ..Default::default() };
     let img = penumbra_reference::render(&scene, &opts)?;
     println!(
         "default scene {width}x{height}, {spp} spp, {} triangles, {} threads: {:.2} s",

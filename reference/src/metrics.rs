@@ -14,8 +14,9 @@
 //!   are mapped to display sRGB by `x * 2^exposure`, clamp to [0, 1], the sRGB transfer function
 //!   and 8-bit quantisation; exposure 0 by default, 67 pixels per degree. Mean FLIP is reported.
 //! - The **false-colour difference** PNG shows the per-pixel mean absolute error over channels,
-//!   divided by the image's maximum of that quantity ([`Comparison::diff_scale`]), through the
-//!   magma colour map; pixels non-finite in either image are cyan.
+//!   divided by the 99th percentile of that quantity over the image (its maximum if the
+//!   percentile is zero; [`Comparison::diff_scale`]) and clamped, through the magma colour map;
+//!   pixels non-finite in either image are cyan.
 
 use crate::image::{write_png_rgb8, Image, ImageError};
 use serde::{Deserialize, Serialize};
@@ -62,7 +63,8 @@ pub struct Comparison {
     /// Tone mapping applied before FLIP.
     pub flip_tonemap: String,
     pub flip_pixels_per_degree: f32,
-    /// Error value mapped to the top of the colour map in the difference image.
+    /// Error value mapped to the top of the colour map in the difference image (99th
+    /// percentile of the per-pixel mean absolute error, or its maximum if that is zero).
     pub diff_scale: f64,
     /// When A is a reference render with its standard-error image beside it
     /// (`NAME_stderr.exr` next to `NAME.exr`): the RMS of A's per-pixel standard error over the
@@ -279,8 +281,20 @@ fn pixel_error(pa: &[f32; 3], pb: &[f32; 3]) -> Option<f64> {
     }
 }
 
+/// The 99th percentile of the per-pixel error (the maximum if that is zero), so that a few
+/// fireflies do not turn the rest of the difference image black.
 fn diff_scale(a: &Image, b: &Image) -> f64 {
-    a.pixels.iter().zip(&b.pixels).filter_map(|(pa, pb)| pixel_error(pa, pb)).fold(0.0, f64::max)
+    let mut e: Vec<f64> = a.pixels.iter().zip(&b.pixels).filter_map(|(pa, pb)| pixel_error(pa, pb)).collect();
+    if e.is_empty() {
+        return 0.0;
+    }
+    e.sort_by(|x, y| x.total_cmp(y));
+    let p99 = e[((e.len() - 1) as f64 * 0.99) as usize];
+    if p99 > 0.0 {
+        p99
+    } else {
+        e[e.len() - 1]
+    }
 }
 
 /// The false-colour difference image as 8-bit RGB: per-pixel mean absolute error / `scale`
@@ -301,7 +315,7 @@ pub fn diff_rgb8(a: &Image, b: &Image, scale: f64) -> Vec<u8> {
     out
 }
 
-/// Write the false-colour difference PNG of two same-size images (scale = max error).
+/// Write the false-colour difference PNG of two same-size images (scale: see module docs).
 pub fn write_diff_png(a: &Image, b: &Image, path: &Path) -> Result<f64, ImageError> {
     check_same_size(a, "A", b, "B")?;
     let scale = diff_scale(a, b);

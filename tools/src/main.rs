@@ -67,6 +67,9 @@ struct RenderArgs {
     /// Use the Vulkan device whose name contains this.
     #[arg(long)]
     device: Option<String>,
+    /// Override the scene's technique (implemented: env).
+    #[arg(long)]
+    technique: Option<String>,
 }
 
 /// An error caused by the user's input: exit code 2.
@@ -121,6 +124,7 @@ fn render(args: &RenderArgs) -> Result<()> {
         width,
         height,
         tonemap: penumbra_passes::tonemap::TonemapParams { exposure: args.exposure },
+        technique: args.technique.clone(),
         ..Default::default()
     };
     let ctx = penumbra::engine::Context::new(&penumbra::engine::ContextDesc {
@@ -128,6 +132,18 @@ fn render(args: &RenderArgs) -> Result<()> {
         device_name: args.device.clone(),
         ..Default::default()
     })?;
+    if let Some(t) = &args.technique {
+        if !penumbra_passes::technique::IMPLEMENTED.contains(&t.as_str()) {
+            return Err(bad(format!(
+                "--technique {t}: not implemented (implemented: {})",
+                penumbra_passes::technique::IMPLEMENTED.join(", ")
+            )));
+        }
+    }
+    let mut scene = scene;
+    if let Some(t) = &args.technique {
+        scene.technique = t.clone();
+    }
     let mut r = Renderer::new(ctx, &scene, settings)?;
     for l in Renderer::limitations(&scene) {
         eprintln!("note: {l}");

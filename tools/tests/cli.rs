@@ -71,6 +71,7 @@ fn bad_input_exits_2_with_the_file_and_problem() {
     expect_bad_input(&["render", glb.to_str().unwrap(), "--out", d.to_str().unwrap()], &["truncated.glb"]);
     let draco = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets/bunny-draco.glb");
     expect_bad_input(&["render", draco.to_str().unwrap(), "--out", d.to_str().unwrap()], &["bunny-draco.glb", "KHR_draco_mesh_compression"]);
+    expect_bad_input(&["render", "--technique", "nope", "--out", d.to_str().unwrap()], &["nope", "not implemented"]);
     expect_bad_input(&["render", "--size", "0x10", "--out", d.to_str().unwrap()], &["size"]);
     expect_bad_input(&["render", "--size", "abc", "--out", d.to_str().unwrap()], &["size"]);
     expect_bad_input(&["compare", missing.to_str().unwrap(), missing.to_str().unwrap()], &["nope.toml"]);

@@ -1,0 +1,42 @@
+//! Techniques: the pass chains that turn a frame's G-buffer into linear HDR radiance
+//! (shading plus whatever visibility method the technique implements).
+//!
+//! Adding a technique touches `passes/` (a module implementing [`Technique`] and a line in
+//! [`create`]), `glsl/`, a test and a scene; not the engine.
+
+use crate::env::EnvMapGpu;
+use crate::gbuffer::GBuffer;
+use crate::scene_gpu::SceneHandles;
+use anyhow::Result;
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{Context, Engine, Graph, ImageHandle};
+use penumbra_scene::{Frame, Scene};
+use std::sync::Arc;
+
+/// What a technique gets each frame.
+pub struct TechniqueInputs<'a> {
+    pub frame: &'a Frame,
+    pub scene: &'a SceneHandles,
+    pub gbuffer: &'a GBuffer,
+    /// The environment map (lat-long, mipped), sampled.
+    pub env: ImageHandle,
+    pub env_data: &'a EnvMapGpu,
+}
+
+pub trait Technique {
+    /// The name used in scene files (`technique = "..."`) and on the CLI.
+    fn name(&self) -> &'static str;
+    /// Declares the technique's passes; returns the HDR radiance image (RGBA32F, G-buffer size).
+    fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle>;
+}
+
+/// Techniques implemented so far.
+pub const IMPLEMENTED: &[&str] = &["env"];
+
+/// Creates the technique `name` for `scene`, or `None` if it is not implemented.
+pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &Scene) -> Result<Option<Box<dyn Technique>>> {
+    Ok(match name {
+        "env" => Some(Box::new(crate::shade_env::ShadeEnvPass::new(ctx, shaders)?)),
+        _ => None,
+    })
+}
