@@ -48,11 +48,13 @@ pub struct RenderSettings {
     pub frames_in_flight: usize,
     /// Overrides the scene's `technique` (an unimplemented name is then an error).
     pub technique: Option<String>,
+    /// Also read back every G-buffer and intermediate image ([`FrameImages::dumps`]).
+    pub dump_passes: bool,
 }
 
 impl Default for RenderSettings {
     fn default() -> Self {
-        RenderSettings { width: 640, height: 480, tonemap: TonemapParams::default(), frames_in_flight: 2, technique: None }
+        RenderSettings { width: 640, height: 480, tonemap: TonemapParams::default(), frames_in_flight: 2, technique: None, dump_passes: false }
     }
 }
 
@@ -67,6 +69,50 @@ pub struct FrameImages {
     /// Tone-mapped sRGB-encoded RGBA8.
     pub ldr: Vec<u8>,
     pub gpu_ms: Vec<(String, f64)>,
+    /// With `RenderSettings::dump_passes`: every intermediate image as linear RGBA f32
+    /// (name, pixels), e.g. `gb_normal`, `gb_depth`, `hdr`.
+    pub dumps: Vec<(String, Vec<[f32; 4]>)>,
+}
+
+/// IEEE half to f32.
+fn f16_to_f32(h: u16) -> f32 {
+    let sign = if h & 0x8000 != 0 { -1.0 } else { 1.0 };
+    let exp = ((h >> 10) & 0x1f) as i32;
+    let man = (h & 0x3ff) as f32;
+    match exp {
+        0 => sign * man * 2f32.powi(-24),
+        31 => {
+            if man == 0.0 {
+                sign * f32::INFINITY
+            } else {
+                f32::NAN
+            }
+        }
+        e => sign * (1.0 + man / 1024.0) * 2f32.powi(e - 15),
+    }
+}
+
+/// Decodes a tightly packed image readback of `format` to RGBA f32 (missing channels 0, alpha 1).
+pub fn decode_texels(format: vk::Format, bytes: &[u8]) -> Option<Vec<[f32; 4]>> {
+    let f32_at = |c: &[u8], i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
+    let f16_at = |c: &[u8], i: usize| f16_to_f32(u16::from_le_bytes([c[i], c[i + 1]]));
+    Some(match format {
+        vk::Format::R32G32B32A32_SFLOAT => {
+            bytes.chunks_exact(16).map(|c| [f32_at(c, 0), f32_at(c, 4), f32_at(c, 8), f32_at(c, 12)]).collect()
+        }
+        vk::Format::R16G16B16A16_SFLOAT => {
+            bytes.chunks_exact(8).map(|c| [f16_at(c, 0), f16_at(c, 2), f16_at(c, 4), f16_at(c, 6)]).collect()
+        }
+        vk::Format::R16G16_SFLOAT => bytes.chunks_exact(4).map(|c| [f16_at(c, 0), f16_at(c, 2), 0.0, 1.0]).collect(),
+        vk::Format::D32_SFLOAT | vk::Format::R32_SFLOAT => {
+            bytes.chunks_exact(4).map(|c| [f32_at(c, 0), f32_at(c, 0), f32_at(c, 0), 1.0]).collect()
+        }
+        vk::Format::R8G8B8A8_UNORM => bytes
+            .chunks_exact(4)
+            .map(|c| [c[0] as f32 / 255.0, c[1] as f32 / 255.0, c[2] as f32 / 255.0, c[3] as f32 / 255.0])
+            .collect(),
+        _ => return None,
+    })
 }
 
 /// Builds and runs penumbra's frame graph for one scene.
@@ -82,6 +128,7 @@ pub struct Renderer {
     prev_view_proj: Option<Mat4>,
     /// The last compiled graph (for dumps).
     pub last_graph: Option<CompiledGraph>,
+    dump_formats: Vec<(String, vk::Format)>,
 }
 
 impl Renderer {
@@ -120,6 +167,7 @@ impl Renderer {
             settings,
             prev_view_proj: None,
             last_graph: None,
+            dump_formats: Vec::new(),
         })
     }
 
@@ -181,6 +229,22 @@ impl Renderer {
         let hdr = self.technique.add(&mut self.engine, &mut g, &inputs)?;
         let target = target.map(|t| g.import_image("target", t));
         let ldr = self.tonemap.add(&mut g, hdr, target, self.settings.tonemap);
+        if self.settings.dump_passes {
+            let dumps: Vec<(penumbra_engine::ImageHandle, String)> = [
+                (gb.position, "gb_position"),
+                (gb.normal, "gb_normal"),
+                (gb.uv_mat, "gb_uv_mat"),
+                (gb.motion, "gb_motion"),
+                (gb.depth, "gb_depth"),
+                (hdr, "hdr"),
+            ]
+            .into_iter()
+            .map(|(h, n)| (h, format!("dump:{n}")))
+            .collect();
+            let refs: Vec<_> = dumps.iter().map(|(h, n)| (*h, n.as_str())).collect();
+            penumbra_passes::readback::add(&mut g, "dump_passes", &refs);
+            self.dump_formats = dumps.iter().map(|(h, n)| (n.clone(), g.image_desc(*h).format)).collect();
+        }
         if readback {
             penumbra_passes::readback::add(&mut g, "readback", &[(hdr, "hdr_readback"), (ldr, "ldr_readback")]);
         } else if target.is_none() {
@@ -208,17 +272,18 @@ impl Renderer {
         let hdr = o
             .readbacks
             .get("hdr_readback")
-            .map(|b| {
-                b.chunks_exact(16)
-                    .map(|c| {
-                        let f = |i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
-                        [f(0), f(4), f(8), f(12)]
-                    })
-                    .collect()
-            })
+            .and_then(|b| decode_texels(vk::Format::R32G32B32A32_SFLOAT, b))
             .unwrap_or_default();
         let ldr = o.readbacks.get("ldr_readback").cloned().unwrap_or_default();
-        FrameImages { frame: o.frame, width: w, height: h, hdr, ldr, gpu_ms: o.gpu_ms }
+        let dumps = self
+            .dump_formats
+            .iter()
+            .filter_map(|(name, fmt)| {
+                let bytes = o.readbacks.get(name)?;
+                Some((name.trim_start_matches("dump:").to_string(), decode_texels(*fmt, bytes)?))
+            })
+            .collect();
+        FrameImages { frame: o.frame, width: w, height: h, hdr, ldr, gpu_ms: o.gpu_ms, dumps }
     }
 }
 
@@ -240,5 +305,23 @@ impl Drop for Renderer {
     fn drop(&mut self) {
         // Pipelines and scene buffers are destroyed by the fields' drops: the GPU must be done.
         let _ = self.engine.ctx.wait_idle();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn half_floats_decode() {
+        assert_eq!(f16_to_f32(0x3c00), 1.0);
+        assert_eq!(f16_to_f32(0xc000), -2.0);
+        assert_eq!(f16_to_f32(0x7bff), 65504.0);
+        assert_eq!(f16_to_f32(0x0001), 2f32.powi(-24));
+        assert!(f16_to_f32(0x7c00).is_infinite());
+        assert!(f16_to_f32(0x7e00).is_nan());
+        let t = decode_texels(vk::Format::R16G16_SFLOAT, &[0x00, 0x3c, 0x00, 0xc0]).unwrap();
+        assert_eq!(t, vec![[1.0, -2.0, 0.0, 1.0]]);
+        assert!(decode_texels(vk::Format::BC1_RGB_UNORM_BLOCK, &[0; 8]).is_none());
     }
 }

@@ -61,6 +61,9 @@ struct RenderArgs {
     /// Also print the per-pass GPU timing table.
     #[arg(long)]
     profile: bool,
+    /// Also write every intermediate image (G-buffer, HDR) of every frame to DIR/passes/ as EXR.
+    #[arg(long)]
+    dump_passes: bool,
     /// Exposure applied before tone mapping.
     #[arg(long, default_value_t = 1.0)]
     exposure: f32,
@@ -107,6 +110,18 @@ fn write_frame(out: &Path, index: u32, img: &penumbra::FrameImages) -> Result<()
     let png = out.join(format!("frame_{index:04}.png"));
     let rgb: Vec<u8> = img.ldr.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect();
     write_png_rgb8(&png, img.width, img.height, &rgb).with_context(|| format!("writing {}", png.display()))?;
+    if !img.dumps.is_empty() {
+        let dir = out.join("passes");
+        std::fs::create_dir_all(&dir)?;
+        for (name, texels) in &img.dumps {
+            let path = dir.join(format!("frame_{index:04}_{name}.exr"));
+            let im = Image::from_fn(img.width, img.height, |x, y| {
+                let p = texels[(y * img.width + x) as usize];
+                [p[0], p[1], p[2]]
+            });
+            im.write_exr(&path).with_context(|| format!("writing {}", path.display()))?;
+        }
+    }
     Ok(())
 }
 
@@ -125,6 +140,7 @@ fn render(args: &RenderArgs) -> Result<()> {
         height,
         tonemap: penumbra_passes::tonemap::TonemapParams { exposure: args.exposure },
         technique: args.technique.clone(),
+        dump_passes: args.dump_passes,
         ..Default::default()
     };
     let ctx = penumbra::engine::Context::new(&penumbra::engine::ContextDesc {

@@ -32,17 +32,21 @@ fn render_default_scene_writes_frames_dumps_and_profile() {
         "--validate",
         "--profile",
         "--dump-graph",
+        "--dump-passes",
     ]);
     assert!(o.status.success(), "{}", text(&o));
     for f in ["frame_0000.exr", "frame_0000.png", "frame_0001.exr", "frame_0001.png", "graph.json", "graph.dot", "graph.txt", "profile.json"] {
         assert!(out.join(f).exists(), "missing {f}");
+    }
+    for f in ["gb_position", "gb_normal", "gb_uv_mat", "gb_motion", "gb_depth", "hdr"] {
+        assert!(out.join(format!("passes/frame_0001_{f}.exr")).exists(), "missing pass dump {f}");
     }
     let t = text(&o);
     assert!(t.contains("validation: 0 error(s)"), "{t}");
     assert!(t.contains("gbuffer") && t.contains("median ms"), "{t}");
     let graph: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("graph.json")).unwrap()).unwrap();
     let passes: Vec<_> = graph["passes"].as_array().unwrap().iter().map(|p| p["name"].as_str().unwrap().to_string()).collect();
-    assert_eq!(passes, ["gbuffer", "shade_env", "tonemap", "readback"]);
+    assert_eq!(passes, ["gbuffer", "shade_env", "tonemap", "dump_passes", "readback"]);
     assert!(graph["passes"][0]["gpu_ms"]["median"].as_f64().unwrap() > 0.0);
     let profile: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("profile.json")).unwrap()).unwrap();
     assert_eq!(profile["frames"], 2);
