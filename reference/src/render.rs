@@ -55,6 +55,13 @@ pub enum Mode {
     /// `ReferenceOptions::sg_lobes`), evaluated exactly per direction; exact BRDFs, local lights
     /// and visibility. Tells a technique's visibility error apart from its SG lighting error.
     SgLighting,
+    /// As `SgLighting`, and the specular lobes replaced by their SG approximation from
+    /// `penumbra_math::brdf` (closed-form warp of Wang et al. 2009, one lobe, per shading point):
+    /// Blinn-Phong exactly the math crate's lobe, Cook-Torrance the math crate's Beckmann lobe
+    /// with `m = roughness^2`. Diffuse terms, the cosine and visibility stay exact;
+    /// Ashikhmin-Shirley stays exact (its 7-lobe fit is an iterative optimisation, too slow per
+    /// shading point).
+    Sg,
 }
 
 /// Options of [`render`].
@@ -240,7 +247,16 @@ impl MediumEval {
 /// How light scatters at a shading point: a BRDF times cosine at a surface, or the phase
 /// function in the medium.
 enum Scatter<'a> {
-    Surface { brdf: Brdf, frame: ShadingFrame, wo: Vec3, ng: Vec3, _p: std::marker::PhantomData<&'a ()> },
+    Surface {
+        brdf: Brdf,
+        frame: ShadingFrame,
+        wo: Vec3,
+        ng: Vec3,
+        /// [`Mode::Sg`]: specular lobes (local axis, sharpness, RGB amplitude) replacing the
+        /// BRDF's specular term.
+        spec_sg: Option<[(Vec3, f32, Vec3); 1]>,
+        _p: std::marker::PhantomData<&'a ()>,
+    },
     /// `d`: direction of the camera ray (light leaves towards `-d`).
     Medium { m: &'a MediumEval, d: Vec3 },
 }
@@ -249,12 +265,18 @@ impl Scatter<'_> {
     /// Scattering throughput for light arriving from world direction `wi` (BRDF * cos, or phase).
     fn eval(&self, wi: Vec3) -> Vec3 {
         match self {
-            Scatter::Surface { brdf, frame, wo, ng, .. } => {
+            Scatter::Surface { brdf, frame, wo, ng, spec_sg, .. } => {
                 if wi.dot(*ng) <= 0.0 {
                     return Vec3::ZERO; // below the geometric surface: blocked by it
                 }
                 let l = frame.to_local(wi);
-                brdf.eval(*wo, l) * l.z.max(0.0)
+                if l.z <= 0.0 || wo.z <= 0.0 {
+                    return Vec3::ZERO;
+                }
+                match spec_sg {
+                    None => brdf.eval(*wo, l) * l.z,
+                    Some(lobes) => (brdf.eval_lambert(*wo, l) + crate::sampling::eval_sg_sum(lobes, l)) * l.z,
+                }
             }
             Scatter::Medium { m, d } => Vec3::splat(m.phase(wi.dot(*d))),
         }
@@ -303,6 +325,33 @@ pub(crate) struct Context {
     pub textures: Vec<penumbra_scene::Texture>,
     pub inv_view_proj: glam::Mat4,
     pub sg_fit_rel_l2: Option<f64>,
+    /// [`Mode::Sg`]: SG specular lobes.
+    pub sg_brdfs: bool,
+}
+
+/// The SG specular lobe of `penumbra_math::brdf` for a Blinn-Phong or Cook-Torrance BRDF at
+/// local outgoing direction `wo` (RGB amplitude: specular colour for Blinn-Phong; for
+/// Cook-Torrance the Schlick term is linear in F0, so lobes at F0 = 0 and 1 are combined).
+pub fn sg_specular(brdf: &Brdf, wo: Vec3) -> Option<[(Vec3, f32, Vec3); 1]> {
+    use penumbra_math::brdf::{BlinnPhong, CookTorrance};
+    if wo.z <= 0.0 {
+        return None;
+    }
+    let wo64 = wo.as_dvec3();
+    match brdf.kind {
+        penumbra_scene::BrdfKind::BlinnPhong => {
+            let g = BlinnPhong { shininess: brdf.shininess as f64 }.sg_warp(wo64);
+            Some([(g.axis.as_vec3(), g.lambda as f32, brdf.specular * g.mu as f32)])
+        }
+        penumbra_scene::BrdfKind::CookTorrance => {
+            let m = brdf.alpha as f64;
+            let g0 = CookTorrance { roughness: m, f0: 0.0 }.sg_warp(wo64);
+            let g1 = CookTorrance { roughness: m, f0: 1.0 }.sg_warp(wo64);
+            let mu = Vec3::splat(g0.mu as f32) + brdf.specular * (g1.mu - g0.mu) as f32;
+            Some([(g1.axis.as_vec3(), g1.lambda as f32, mu)])
+        }
+        _ => None,
+    }
 }
 
 fn power_heuristic(a: f32, b: f32) -> f32 {
@@ -323,7 +372,7 @@ impl Context {
         let mut sg_fit_rel_l2 = None;
         let env = match (&scene.environment, opts.mode) {
             (Some(e), Mode::Exact) => EnvLight::new(e).map_err(serr)?,
-            (Some(e), Mode::SgLighting) => {
+            (Some(e), Mode::SgLighting | Mode::Sg) => {
                 let fit = penumbra_math::envmap::fit_sg_lighting(
                     e.width as usize,
                     e.height as usize,
@@ -378,7 +427,17 @@ impl Context {
         if !inv_view_proj.is_finite() {
             return Err(serr("camera has a singular view-projection matrix".into()));
         }
-        Ok(Context { geo, env, lights, medium, materials, textures: scene.textures.clone(), inv_view_proj, sg_fit_rel_l2 })
+        Ok(Context {
+            geo,
+            env,
+            lights,
+            medium,
+            materials,
+            textures: scene.textures.clone(),
+            inv_view_proj,
+            sg_fit_rel_l2,
+            sg_brdfs: opts.mode == Mode::Sg,
+        })
     }
 
     /// Primary ray through normalized device coordinates (Vulkan: y = -1 at the top).
@@ -503,7 +562,8 @@ impl Context {
                 let frame = ShadingFrame::new(ns, hit.tangent);
                 let wo = frame.to_local(wo_w);
                 let origin = hit.p + ng * self.geo.epsilon();
-                let sc = Scatter::Surface { brdf, frame, wo, ng, _p: std::marker::PhantomData };
+                let spec_sg = if self.sg_brdfs { sg_specular(&brdf, wo) } else { None };
+                let sc = Scatter::Surface { brdf, frame, wo, ng, spec_sg, _p: std::marker::PhantomData };
                 l += surface_tr * self.direct(hit.p, origin, &sc, rng);
             }
         }

@@ -462,3 +462,47 @@ fn frame_time_moves_objects() {
     let t1 = render(&scene, &ReferenceOptions { time: Some(1.0), ..opts(16, 8, 4, 0) }).unwrap();
     assert_eq!(t1.radiance, f30.radiance);
 }
+
+/// Full SG mode on an unoccluded Blinn-Phong plane: the pixel must equal the quadrature of
+/// (SG lighting) x (albedo / pi + specular x the math crate's warped SG lobe for this wo) x cos
+/// over the upper hemisphere.
+#[test]
+fn sg_mode_matches_quadrature_of_sg_lighting_and_sg_brdf() {
+    let mut env = Environment::procedural_sky(32, 16);
+    env.rotation = -0.8;
+    let k = 6usize;
+    let fit = penumbra_math::envmap::fit_sg_lighting(32, 16, &env.texels, k).unwrap();
+    let (albedo, spec, s) = (0.2f32, 0.8f32, 30.0f32);
+    let mat = Material::blinn_phong("bp", Vec3::splat(albedo), Vec3::splat(spec), s);
+    let eye = Vec3::new(0.0, 3.0, 3.0);
+    let scene = plane_scene(mat, env, camera(eye, Vec3::ZERO, 0.01));
+    let o = ReferenceOptions { mode: penumbra_reference::Mode::Sg, sg_lobes: k as u32, ..opts(2, 2, 4096, 11) };
+    let r = render(&scene, &o).unwrap();
+    // The plane's shading frame: tangent +X (dP/du), normal +Y, bitangent n x t = -Z.
+    let (tx, by, nz) = (glam::DVec3::X, glam::DVec3::NEG_Z, glam::DVec3::Y);
+    let wo = eye.as_dvec3().normalize();
+    let wo_l = glam::DVec3::new(wo.dot(tx), wo.dot(by), wo.dot(nz));
+    let lobe = penumbra_math::brdf::BlinnPhong { shininess: s as f64 }.sg_warp(wo_l);
+    let rot = glam::DQuat::from_rotation_y(-0.8);
+    let (nt, np) = (600usize, 1200usize);
+    let mut acc = glam::DVec3::ZERO;
+    for i in 0..nt {
+        let th = (i as f64 + 0.5) / nt as f64 * std::f64::consts::FRAC_PI_2;
+        for j in 0..np {
+            let ph = (j as f64 + 0.5) / np as f64 * std::f64::consts::TAU;
+            let w = glam::DVec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin());
+            let l: glam::DVec3 = fit.lobes.iter().map(|g| g.mu * (g.lambda * ((rot * g.axis).dot(w) - 1.0)).exp()).sum();
+            let wl = glam::DVec3::new(w.dot(tx), w.dot(by), w.dot(nz));
+            let f = albedo as f64 / std::f64::consts::PI + spec as f64 * lobe.eval(wl);
+            acc += l * f * th.cos() * th.sin();
+        }
+    }
+    acc *= (std::f64::consts::FRAC_PI_2 / nt as f64) * (std::f64::consts::TAU / np as f64);
+    for (c, (m, se)) in mean_se(&r).into_iter().enumerate() {
+        eprintln!("SG mode: channel {c}: {m:.5} vs quadrature {:.5} (se {se:.1e})", acc[c]);
+        assert!((m - acc[c]).abs() <= 5.0 * se + 1e-4 * acc[c], "{m} vs {}", acc[c]);
+    }
+    // For information: the exact mode on the same pixel (the SG approximations' effect).
+    let ex = render(&scene, &ReferenceOptions { mode: penumbra_reference::Mode::Exact, ..o }).unwrap();
+    eprintln!("exact mode: {:?}", mean_se(&ex));
+}
