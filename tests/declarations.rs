@@ -71,6 +71,20 @@ fn undeclared_resource_use_is_caught() {
     });
     let err = e.submit(g).unwrap_err().to_string();
     assert!(err.contains("pass 'copy' used 'a' without declaring it"), "{err}");
+    // The engine recovers: the next (valid) frame runs.
+    let mut g = Graph::new();
+    let rb = g.create_readback("rb", 64);
+    let mut pass = g.pass("clear", PassKind::Transfer);
+    let rb = pass.write(rb, Access::TransferDst);
+    pass.record(move |rc| {
+        let b = rc.buffer(rb)?;
+        unsafe { rc.device().cmd_fill_buffer(rc.cmd, b.buffer, 0, 64, 7) };
+        Ok(())
+    });
+    e.submit(g).unwrap();
+    let out = e.drain().unwrap();
+    assert_eq!(out.len(), 1);
+    assert!(out[0].readbacks["rb"].chunks(4).all(|c| c == [7, 0, 0, 0]));
 }
 
 /// Pass `fill` writes a buffer with vkCmdFillBuffer; `copy` copies it to a readback buffer.

@@ -248,6 +248,8 @@ pub struct Engine {
     pub pool_stats: PoolStats,
     /// Write timestamps around every pass.
     pub timestamps: bool,
+    /// Outputs of frames that finished during a submit that then failed (returned next time).
+    pending: Vec<FrameOutput>,
 }
 
 const MAX_QUERIES: u32 = 256;
@@ -296,6 +298,7 @@ impl Engine {
             profiler: Profiler::default(),
             pool_stats: PoolStats::default(),
             timestamps: true,
+            pending: Vec::new(),
         })
     }
 
@@ -403,9 +406,8 @@ impl Engine {
         self.profiler.add_cpu("graph compile", t0.elapsed().as_secs_f64() * 1e3);
 
         let slot = self.next_slot;
-        let mut done = Vec::new();
         if let Some(o) = self.retire(slot)? {
-            done.push(o);
+            self.pending.push(o);
         }
         let t1 = Instant::now();
 
@@ -556,6 +558,7 @@ impl Engine {
         }
 
         // ---- submit
+        let done = std::mem::take(&mut self.pending);
         let cmd_infos = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
         let submit = [vk::SubmitInfo2::default().command_buffer_infos(&cmd_infos)];
         unsafe { d.queue_submit2(self.ctx.queue, &submit, s.fence).context("vkQueueSubmit2")? };
@@ -579,7 +582,7 @@ impl Engine {
 
     /// Waits for every frame in flight and returns their outputs in submission order.
     pub fn drain(&mut self) -> Result<Vec<FrameOutput>> {
-        let mut out = Vec::new();
+        let mut out = std::mem::take(&mut self.pending);
         for i in 0..self.slots.len() {
             let slot = (self.next_slot + i) % self.slots.len();
             if let Some(o) = self.retire(slot)? {
