@@ -13,7 +13,8 @@
 //! `min sum_i w_i |L_i - sum_k G_k(d_i)|^2` with non-negative RGB amplitudes:
 //! 0. *Sun/sky split* ([`SgFitOptions::sun_cap`]): texels brighter than 100 x the median
 //!    luminance are split into a sky part (clamped) and an excess part; each part is fit by
-//!    steps 1-3 with its own lobes (`max(1, K/8)` for the excess) and the lobe sets are joined.
+//!    steps 1-3 with its own lobes and the lobe sets are joined; matching pursuit gives each
+//!    next lobe to the part whose relative energy decrease is largest.
 //!    Maps without such texels are fit in one part.
 //! 1. *Selection* (matching pursuit on luminance): for a ladder of sharpness values
 //!    (`lambda_min` .. the map's resolution limit, ratio `ladder_ratio`) the correlation maps
@@ -23,9 +24,10 @@
 //!    correlation `R = C - sum_k mu_k <G_k, G_(a,lambda)>` (analytic SG inner products, so the
 //!    residual is updated without re-convolving), refines the axis by a parabolic fit on the
 //!    score grid, and subtracts the lobe with its optimal amplitude.
-//! 2. *Refinement*: passes of coordinate search over each lobe's sharpness (factors
-//!    `2^(+-1/2)`, `2^(+-1/4)`), each candidate re-solving the NNLS, on a reduced map (at most 64 rows; lobes
-//!    sharper than it resolves are left alone).
+//! 2. *Refinement*: passes of coordinate search over each lobe's sharpness (factor `2^(+-s)`)
+//!    and axis (`+-s/sqrt(lambda)` along two tangents), `s = 1/2, 1/4, ...` per pass, each trial
+//!    re-solving the RGB NNLS with an incrementally updated Gram matrix, on a reduced map (at most
+//!    64 rows; lobes sharper than it resolves are left alone).
 //! 3. *Amplitudes*: exact discrete NNLS per RGB channel at full resolution (Gram matrix
 //!    `sum_i w_i G_k G_l` and right-hand side `sum_i w_i G_k L_i`; [`crate::nnls`]).
 //!
@@ -442,69 +444,129 @@ impl Part {
         Self { map, reduced, levels }
     }
 
-    /// Matching pursuit: up to `k` unit-amplitude lobe shapes.
-    fn select(&self, k: usize) -> Vec<Sg> {
-        let mut resid: Vec<Vec<f64>> = self.levels.iter().map(|l| l.corr.clone()).collect();
-        let mut chosen: Vec<Sg> = Vec::new();
-        for _ in 0..k {
-            let best = self
-                .levels
-                .par_iter()
-                .zip(resid.par_iter())
-                .enumerate()
-                .map(|(li, (lv, rs))| {
-                    let unit_norm2 = Sg::new(DVec3::Z, lv.lambda, 1.0).inner_product(&Sg::new(DVec3::Z, lv.lambda, 1.0));
-                    let mut best = (f64::NEG_INFINITY, 0usize, 0.0);
-                    for (i, &r) in rs.iter().enumerate() {
-                        if r > 0.0 {
-                            let score = r * r / unit_norm2;
-                            if score > best.0 {
-                                best = (score, i, r);
-                            }
-                        }
-                    }
-                    (best.0, li, best.1, best.2, unit_norm2)
-                })
-                .reduce(|| (f64::NEG_INFINITY, 0, 0, 0.0, 1.0), |a, b| if b.0 > a.0 { b } else { a });
-            if !best.0.is_finite() || best.0 <= 0.0 {
-                break; // nothing left to explain
-            }
-            let (_, li, idx, r, n2) = best;
-            let lv = &self.levels[li];
-            let axis = refine_axis(lv, &resid[li], idx);
-            let g = Sg { axis, lambda: lv.lambda, mu: r / n2 };
-            chosen.push(g);
-            self.levels.par_iter().zip(resid.par_iter_mut()).for_each(|(lv, rs)| {
-                // <G_k, G_a> ~ exp(-l l' (1 - a.a') / (l + l')): skip where below exp(-40)
-                let c = lv.lambda * g.lambda / (lv.lambda + g.lambda);
-                for (i, a) in lv.axes.iter().enumerate() {
-                    if c * (1.0 - a.dot(g.axis)) < 40.0 {
-                        rs[i] -= Sg { axis: *a, lambda: lv.lambda, mu: 1.0 }.inner_product(&g);
-                    }
-                }
-            });
-        }
-        chosen.iter().map(|g| Sg { mu: 1.0, ..*g }).collect()
+    /// Luminance energy `sum_i w_i Y_i^2` of this part.
+    fn energy(&self) -> f64 {
+        (0..self.map.rgb.len()).map(|i| self.map.solid_angle(i / self.map.width) * luminance(self.map.rgb[i]).powi(2)).sum()
     }
 
-    /// Sharpness refinement on the reduced map, then full-resolution NNLS.
-    fn fit_shapes(&self, mut shapes: Vec<Sg>, passes: usize) -> Vec<SgRgb> {
-        let ones_r = vec![1.0; self.reduced.rgb.len()];
-        let lim = 2.0 * (self.reduced.height as f64 / PI).powi(2);
-        for _ in 0..passes {
-            for j in 0..shapes.len() {
-                if shapes[j].lambda * 2f64.sqrt() > lim {
-                    continue;
+    /// Best next matching-pursuit lobe for the residual correlations `resid`:
+    /// `(energy decrease, lobe with its optimal amplitude)`.
+    fn best_step(&self, resid: &[Vec<f64>]) -> Option<(f64, Sg)> {
+        let best = self
+            .levels
+            .par_iter()
+            .zip(resid.par_iter())
+            .enumerate()
+            .map(|(li, (lv, rs))| {
+                let unit_norm2 = Sg::new(DVec3::Z, lv.lambda, 1.0).inner_product(&Sg::new(DVec3::Z, lv.lambda, 1.0));
+                let mut best = (f64::NEG_INFINITY, 0usize, 0.0);
+                for (i, &r) in rs.iter().enumerate() {
+                    if r > 0.0 {
+                        let score = r * r / unit_norm2;
+                        if score > best.0 {
+                            best = (score, i, r);
+                        }
+                    }
                 }
-                let mut best_err = nnls_rgb(&self.reduced, &ones_r, &shapes).1;
-                let base = shapes[j].lambda;
-                for f in [2f64.sqrt(), 1.0 / 2f64.sqrt(), 2f64.powf(0.25), 2f64.powf(-0.25)] {
-                    let mut trial = shapes.clone();
-                    trial[j].lambda = base * f;
-                    let e = nnls_rgb(&self.reduced, &ones_r, &trial).1;
-                    if e < best_err * (1.0 - 1e-9) {
-                        best_err = e;
-                        shapes = trial;
+                (best.0, li, best.1, best.2, unit_norm2)
+            })
+            .reduce(|| (f64::NEG_INFINITY, 0, 0, 0.0, 1.0), |a, b| if b.0 > a.0 { b } else { a });
+        if !best.0.is_finite() || best.0 <= 0.0 {
+            return None; // nothing left to explain
+        }
+        let (score, li, idx, r, n2) = best;
+        let lv = &self.levels[li];
+        let axis = refine_axis(lv, &resid[li], idx);
+        Some((score, Sg { axis, lambda: lv.lambda, mu: r / n2 }))
+    }
+
+    /// Subtracts lobe `g` from the residual correlations.
+    fn subtract(&self, resid: &mut [Vec<f64>], g: &Sg) {
+        self.levels.par_iter().zip(resid.par_iter_mut()).for_each(|(lv, rs)| {
+            // <G_k, G_a> ~ exp(-l l' (1 - a.a') / (l + l')): skip where below exp(-40)
+            let c = lv.lambda * g.lambda / (lv.lambda + g.lambda);
+            for (i, a) in lv.axes.iter().enumerate() {
+                if c * (1.0 - a.dot(g.axis)) < 40.0 {
+                    rs[i] -= Sg { axis: *a, lambda: lv.lambda, mu: 1.0 }.inner_product(g);
+                }
+            }
+        });
+    }
+
+    /// Coordinate-search refinement of every lobe's sharpness and axis on the reduced map (each
+    /// trial re-solves the RGB NNLS with an incrementally updated Gram matrix), then
+    /// full-resolution NNLS.
+    fn fit_shapes(&self, mut shapes: Vec<Sg>, passes: usize) -> Vec<SgRgb> {
+        let m = &self.reduced;
+        let n = m.rgb.len();
+        let k = shapes.len();
+        if passes > 0 && k > 0 {
+            let lim = 2.0 * (m.height as f64 / PI).powi(2);
+            let w: Vec<f64> = (0..n).map(|i| m.solid_angle(i / m.width)).collect();
+            let col = |g: &Sg| -> Vec<f64> { (0..n).map(|i| g.eval(m.dir(i))).collect() };
+            let mut cols: Vec<Vec<f64>> = shapes.iter().map(col).collect();
+            let dotw = |a: &[f64], b: &[f64]| -> f64 { (0..n).map(|i| w[i] * a[i] * b[i]).sum() };
+            let rhs = |a: &[f64]| -> DVec3 { (0..n).map(|i| m.rgb[i] * (w[i] * a[i])).sum() };
+            let mut q = vec![0.0; k * k];
+            for a in 0..k {
+                for c in a..k {
+                    let v = dotw(&cols[a], &cols[c]);
+                    q[a * k + c] = v;
+                    q[c * k + a] = v;
+                }
+            }
+            let mut b: Vec<DVec3> = cols.iter().map(|c| rhs(c)).collect();
+            let ll: f64 = (0..n).map(|i| w[i] * m.rgb[i].length_squared()).sum();
+            let err = |q: &[f64], b: &[DVec3]| -> f64 {
+                let mut e = ll;
+                for ch in 0..3 {
+                    let bc: Vec<f64> = b.iter().map(|v| v[ch]).collect();
+                    let x = nnls_gram(q, &bc);
+                    let qx: f64 = (0..k).map(|i| x[i] * (0..k).map(|j| q[i * k + j] * x[j]).sum::<f64>()).sum();
+                    e += qx - 2.0 * bc.iter().zip(&x).map(|(u, v)| u * v).sum::<f64>();
+                }
+                e
+            };
+            let mut best = err(&q, &b);
+            for pass in 0..passes {
+                let step = 0.5f64.powi(pass as i32 + 1);
+                for j in 0..k {
+                    if shapes[j].lambda > lim {
+                        continue; // sharper than the reduced map resolves
+                    }
+                    let g = shapes[j];
+                    let (t1, t2) = crate::quad::orthonormal_basis(g.axis);
+                    let da = step / g.lambda.max(0.25).sqrt();
+                    let fl = 2f64.powf(step);
+                    let trials = [
+                        Sg { lambda: g.lambda * fl, ..g },
+                        Sg { lambda: g.lambda / fl, ..g },
+                        Sg { axis: (g.axis + t1 * da).normalize(), ..g },
+                        Sg { axis: (g.axis - t1 * da).normalize(), ..g },
+                        Sg { axis: (g.axis + t2 * da).normalize(), ..g },
+                        Sg { axis: (g.axis - t2 * da).normalize(), ..g },
+                    ];
+                    for t in trials {
+                        if t.lambda > lim {
+                            continue;
+                        }
+                        let c = col(&t);
+                        let mut q2 = q.clone();
+                        for a in 0..k {
+                            let v = if a == j { dotw(&c, &c) } else { dotw(&c, &cols[a]) };
+                            q2[a * k + j] = v;
+                            q2[j * k + a] = v;
+                        }
+                        let mut b2 = b.clone();
+                        b2[j] = rhs(&c);
+                        let e = err(&q2, &b2);
+                        if e < best * (1.0 - 1e-9) {
+                            best = e;
+                            q = q2;
+                            b = b2;
+                            cols[j] = c;
+                            shapes[j] = t;
+                        }
                     }
                 }
             }
@@ -588,17 +650,31 @@ impl SgEnvFitter {
         if k == 0 {
             return Err(EnvError::BadOption("need at least one lobe"));
         }
-        let mut lobes = Vec::new();
-        let mut k_sky = k;
-        if let Some(sun) = &self.sun {
-            let k_sun = (k / 8).max(1).min(k);
-            k_sky = k - k_sun;
-            let shapes = sun.select(k_sun);
-            lobes.extend(sun.fit_shapes(shapes, 0));
+        // matching pursuit over both parts: each lobe goes to the part whose *relative*
+        // energy decrease is largest (a sun cannot take every lobe, the sky cannot starve it)
+        let parts: Vec<&Part> = std::iter::once(&self.sky).chain(self.sun.as_ref()).collect();
+        let energies: Vec<f64> = parts.iter().map(|p| p.energy().max(1e-300)).collect();
+        let mut resid: Vec<Vec<Vec<f64>>> = parts.iter().map(|p| p.levels.iter().map(|l| l.corr.clone()).collect()).collect();
+        let mut shapes: Vec<Vec<Sg>> = vec![vec![]; parts.len()];
+        for _ in 0..k {
+            let mut best: Option<(f64, usize, Sg)> = None;
+            for (pi, part) in parts.iter().enumerate() {
+                if let Some((score, g)) = part.best_step(&resid[pi]) {
+                    let rel = score / energies[pi];
+                    if best.as_ref().is_none_or(|b| rel > b.0) {
+                        best = Some((rel, pi, g));
+                    }
+                }
+            }
+            let Some((_, pi, g)) = best else { break };
+            parts[pi].subtract(&mut resid[pi], &g);
+            shapes[pi].push(Sg { mu: 1.0, ..g });
         }
-        if k_sky > 0 {
-            let shapes = self.sky.select(k_sky);
-            lobes.extend(self.sky.fit_shapes(shapes, self.opts.refine_passes));
+        let mut lobes = Vec::new();
+        for (pi, part) in parts.iter().enumerate() {
+            if !shapes[pi].is_empty() {
+                lobes.extend(part.fit_shapes(std::mem::take(&mut shapes[pi]), self.opts.refine_passes));
+            }
         }
         let lobes: Vec<SgRgb> = lobes.into_iter().filter(|l| l.mu.max_element() > 0.0).collect();
         let rel_l2_error = self.map.relative_l2_error(&lobes);
