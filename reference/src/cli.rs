@@ -160,6 +160,36 @@ mod tests {
     }
 
     #[test]
+    fn reference_then_compare_end_to_end() {
+        let dir = std::env::temp_dir().join(format!("penumbra-ref-cli-{}", std::process::id()));
+        let out = dir.to_str().unwrap().to_string();
+        for (sub, seed, mode) in [("a", "1", "exact"), ("b", "2", "sg")] {
+            let r = R::try_parse_from([
+                "x", "--size", "8x6", "--spp", "4", "--seed", seed, "--mode", mode, "--sg-lobes", "4", "--no-progress",
+                "--out", &format!("{out}/{sub}"),
+            ])
+            .unwrap();
+            run_reference(&r.a, &Scene::default_scene()).unwrap();
+        }
+        let diff = dir.join("diff.png");
+        let c = C::try_parse_from([
+            "x",
+            &format!("{out}/a/reference.exr"),
+            &format!("{out}/b/reference.exr"),
+            "--json",
+            "--diff",
+            diff.to_str().unwrap(),
+        ])
+        .unwrap();
+        run_compare(&c.a).unwrap();
+        assert!(diff.is_file());
+        let j: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("b/reference.json")).unwrap()).unwrap();
+        assert!(j["sg_fit_rel_l2"].as_f64().is_some());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
     fn compare_reports_missing_file() {
         let e = run_compare(&CompareArgs { a: "nope_a.exr".into(), b: "nope_b.exr".into(), json: true, diff: None })
             .unwrap_err();

@@ -438,6 +438,19 @@ mod tests {
     }
 
     #[test]
+    fn tiny_and_extreme_images_do_not_panic() {
+        let a = Image::from_fn(1, 1, |_, _| [1.0, 2.0, 3.0]);
+        let b = Image::from_fn(1, 1, |_, _| [1.0, 2.0, 4.0]);
+        let c = compare(&a, "a", &b, "b").unwrap();
+        assert!((c.max_abs_error - 1.0).abs() < 1e-12 && c.flip_mean.is_finite());
+        let a = Image::from_fn(3, 1, |_, _| [1e30, -1e30, 0.0]);
+        let c = compare(&a, "a", &Image::new(3, 1), "b").unwrap();
+        assert!(c.rmse.is_finite() && c.flip_mean.is_finite());
+        let empty = Image::new(0, 0);
+        assert!(compare(&empty, "e", &empty, "e").unwrap_err().to_string().contains("empty"));
+    }
+
+    #[test]
     fn flip_grows_with_error() {
         let a = gradient(32, 32);
         let small = Image { pixels: a.pixels.iter().map(|p| p.map(|c| c * 1.02)).collect(), ..a.clone() };
