@@ -13,6 +13,8 @@ use penumbra_scene::{Scene, SceneError};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+mod bench;
+
 #[derive(Parser)]
 #[command(name = "penumbra", version, about = "Vulkan rendering of dynamic scenes under all-frequency lighting", long_about = None)]
 struct Cli {
@@ -33,6 +35,9 @@ enum Cmd {
     Reference(ReferenceArgs),
     /// Compare two EXR images (A is the reference): PSNR, RMSE, FLIP, difference image.
     Compare(CompareArgs),
+    /// Measure techniques against the CPU reference (PSNR, relative RMSE, FLIP) and against
+    /// each other in GPU ms per frame, in one run; writes bench.json.
+    Bench(bench::BenchArgs),
 }
 
 #[derive(Args)]
@@ -231,6 +236,16 @@ fn run(cli: Cli) -> Result<()> {
             let scene = load_scene(a.scene.as_deref())?;
             a.options().map_err(bad)?;
             penumbra_reference::cli::run_reference(&a, &scene)
+        }
+        Cmd::Bench(a) => {
+            parse_size(&a.size).map_err(bad)?;
+            for t in a.techniques.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+                if !penumbra_passes::technique::IMPLEMENTED.contains(&t) {
+                    return Err(bad(format!("technique '{t}' is not implemented")));
+                }
+            }
+            let scene = load_scene(a.scene.as_deref())?;
+            bench::run(&a, &scene)
         }
         Cmd::Compare(a) => {
             for p in [&a.a, &a.b] {

@@ -98,3 +98,23 @@ fn help_documents_every_command_and_flag() {
         assert!(t.contains(f), "render --help lacks {f}: {t}");
     }
 }
+
+#[test]
+fn bench_measures_techniques_against_the_reference() {
+    let out = tmp("bench");
+    let o = penumbra(&["bench", "--size", "64x48", "--spp", "16", "--frames", "2", "--out", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    for f in ["reference.exr", "env.exr", "env_diff.png", "bench.json"] {
+        assert!(out.join(f).exists(), "missing {f}");
+    }
+    let b: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
+    let env = &b["techniques"][0];
+    assert_eq!(env["technique"], "env");
+    assert_eq!(env["speed_ratio_vs_first"], 1.0);
+    assert!(env["gpu_ms_per_frame"].as_f64().unwrap() > 0.0);
+    // The unshadowed env technique agrees with ground truth up to its missing shadows: this
+    // fails if the GPU and CPU renderers disagree on camera, orientation or units.
+    let psnr = env["psnr_db"].as_f64().unwrap();
+    assert!(psnr > 20.0, "PSNR {psnr} dB");
+    expect_bad_input(&["bench", "--techniques", "env,nope", "--out", out.to_str().unwrap()], &["nope"]);
+}

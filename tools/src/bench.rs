@@ -1,0 +1,115 @@
+//! `penumbra bench`: each technique against ground truth on the same scene, camera and frame,
+//! and against each other in speed, in one run.
+
+use anyhow::{Context as _, Result};
+use clap::Args;
+use penumbra::{RenderSettings, Renderer};
+use penumbra_reference::cli::parse_size;
+use penumbra_reference::image::Image;
+use penumbra_reference::metrics::{compare, write_diff_png};
+use penumbra_reference::render::{render as reference_render, Mode, ReferenceOptions};
+use penumbra_scene::Scene;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct BenchArgs {
+    /// Scene file or glTF model; the built-in default scene when omitted.
+    pub scene: Option<PathBuf>,
+    /// Comma-separated techniques to measure (the first is the speed baseline of the ratios).
+    #[arg(long, default_value = "env")]
+    pub techniques: String,
+    /// Image size WxH.
+    #[arg(long, default_value = "160x120")]
+    pub size: String,
+    /// Scene frame K measured (time K / fps).
+    #[arg(long, default_value_t = 0)]
+    pub frame: u32,
+    #[arg(long, default_value_t = 30.0)]
+    pub fps: f32,
+    /// GPU frames rendered per technique at that time (timings are medians over them; progressive
+    /// techniques accumulate over them).
+    #[arg(long, default_value_t = 8)]
+    pub frames: u32,
+    /// Samples per pixel of the CPU reference.
+    #[arg(long, default_value_t = 64)]
+    pub spp: u32,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Output directory: reference.exr, <technique>.exr, <technique>_diff.png, bench.json.
+    #[arg(long, default_value = "bench-out")]
+    pub out: PathBuf,
+}
+
+pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
+    let (width, height) = parse_size(&args.size)?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let t = args.frame as f32 / args.fps;
+    let opts = ReferenceOptions {
+        width,
+        height,
+        spp: args.spp,
+        frame: args.frame,
+        time: Some(t),
+        fps: args.fps,
+        seed: args.seed,
+        mode: Mode::Exact,
+        progress: true,
+        ..Default::default()
+    };
+    let reference = reference_render(scene, &opts).context("reference render")?;
+    reference.radiance.write_exr(args.out.join("reference.exr"))?;
+    println!(
+        "reference: {} spp in {:.2} s, mean relative standard error {:.2e}",
+        args.spp, reference.render_seconds, reference.noise.mean_rel_std_error
+    );
+    let mut rows = Vec::new();
+    let mut baseline_ms = None;
+    for name in args.techniques.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+        let settings = RenderSettings { width, height, technique: Some(name.to_string()), ..Default::default() };
+        let mut r = Renderer::new_headless(scene, settings, false)?;
+        let frame = scene.at(t, Some(t));
+        let mut images = Vec::new();
+        for _ in 0..args.frames.max(1) {
+            images.extend(r.render(&frame, None, true)?);
+        }
+        images.extend(r.finish()?);
+        let last = images.last().context("no frame finished")?;
+        let img = Image::from_fn(width, height, |x, y| {
+            let p = last.hdr[(y * width + x) as usize];
+            [p[0], p[1], p[2]]
+        });
+        img.write_exr(args.out.join(format!("{name}.exr")))?;
+        let c = compare(&reference.radiance, "reference", &img, name)?;
+        write_diff_png(&reference.radiance, &img, &args.out.join(format!("{name}_diff.png")))?;
+        let stats = r.engine.profiler.gpu_stats();
+        let technique_ms: f64 =
+            stats.iter().filter(|(p, _)| !matches!(p.as_str(), "env_upload" | "readback")).map(|(_, s)| s.median_ms).sum();
+        let base = *baseline_ms.get_or_insert(technique_ms);
+        rows.push(serde_json::json!({
+            "technique": name,
+            "gpu_ms_per_frame": technique_ms,
+            "speed_ratio_vs_first": technique_ms / base,
+            "psnr_db": c.psnr_db,
+            "rel_rmse": c.rel_rmse,
+            "flip_mean": c.flip_mean,
+            "passes": stats,
+        }));
+        println!(
+            "{name:<14} {technique_ms:>9.2} ms/frame  x{:<6.2}  PSNR {:>6}  relRMSE {:.4}  FLIP {:.4}",
+            technique_ms / base,
+            c.psnr_db.map_or("inf".into(), |p| format!("{p:.2}")),
+            c.rel_rmse,
+            c.flip_mean
+        );
+    }
+    let report = serde_json::json!({
+        "scene": scene.name,
+        "size": [width, height],
+        "time_s": t,
+        "reference": {"spp": args.spp, "seconds": reference.render_seconds, "noise": reference.noise},
+        "techniques": rows,
+    });
+    std::fs::write(args.out.join("bench.json"), serde_json::to_string_pretty(&report)? + "\n")?;
+    println!("wrote {}", args.out.join("bench.json").display());
+    Ok(())
+}
