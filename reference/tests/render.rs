@@ -506,3 +506,20 @@ fn sg_mode_matches_quadrature_of_sg_lighting_and_sg_brdf() {
     let ex = render(&scene, &ReferenceOptions { mode: penumbra_reference::Mode::Exact, ..o }).unwrap();
     eprintln!("exact mode: {:?}", mean_se(&ex));
 }
+
+/// An infinite medium lit by a uniform environment L (not attenuated on its way in, see the
+/// render module docs), no surfaces: every camera ray sees
+/// integral_0^inf exp(-sigma_t t) sigma_s L dt = (sigma_s / sigma_t) L, for any phase function.
+#[test]
+fn medium_under_uniform_environment() {
+    let mut s = plane_scene(Material::diffuse("d", Vec3::ONE), uniform_env([2.0, 1.0, 0.5], 1.0), camera(Vec3::ZERO, Vec3::new(0.0, 0.3, -1.0), 50.0));
+    s.objects.clear();
+    let (sa, ss) = (Vec3::new(0.1, 0.2, 0.05), Vec3::new(0.3, 0.1, 0.2));
+    s.medium = Some(penumbra_scene::Medium { sigma_a: sa, sigma_s: ss, g: 0.7 });
+    let r = render(&s, &opts(4, 4, 256, 12)).unwrap();
+    for (c, (m, se)) in mean_se(&r).into_iter().enumerate() {
+        let expect = (ss[c] / (sa[c] + ss[c]) * [2.0, 1.0, 0.5][c]) as f64;
+        eprintln!("medium under uniform env: channel {c}: {m:.5} vs {expect:.5} (se {se:.1e})");
+        assert!((m - expect).abs() <= 5.0 * se + 1e-5, "{m} vs {expect}");
+    }
+}
