@@ -25,6 +25,7 @@ use penumbra_engine::{vk, Access, Context, ContextDesc, Engine, FrameOutput, Gra
 use penumbra_passes::env::EnvMapGpu;
 use penumbra_passes::scene_gpu::FrameConstants;
 use penumbra_passes::tonemap::TonemapParams;
+use penumbra_passes::effect::{Effect, EffectInputs, EffectOverrides};
 use penumbra_passes::technique::{Technique, TechniqueInputs};
 use penumbra_passes::{GBufferPass, SceneGpu, TonemapPass};
 use penumbra_scene::{Frame, Scene};
@@ -50,11 +51,17 @@ pub struct RenderSettings {
     pub technique: Option<String>,
     /// Also read back every G-buffer and intermediate image ([`FrameImages::dumps`]).
     pub dump_passes: bool,
+    /// Overrides of the scene's effect choices.
+    pub effects: EffectOverrides,
 }
 
 impl Default for RenderSettings {
     fn default() -> Self {
-        RenderSettings { width: 640, height: 480, tonemap: TonemapParams::default(), frames_in_flight: 2, technique: None, dump_passes: false }
+        RenderSettings { width: 640, height: 480, tonemap: TonemapParams::default(), frames_in_flight: 2,
+            technique: None,
+            dump_passes: false,
+            effects: EffectOverrides::default(),
+        }
     }
 }
 
@@ -120,6 +127,9 @@ pub struct Renderer {
     // Passes hold pipelines on the context: drop them before the engine.
     gbuffer: GBufferPass,
     technique: Box<dyn Technique>,
+    effects: Vec<Box<dyn Effect>>,
+    /// The scene as loaded (effects read its medium, lights, ...).
+    scene: Scene,
     tonemap: TonemapPass,
     scene_gpu: SceneGpu,
     env: EnvMapGpu,
@@ -157,9 +167,12 @@ impl Renderer {
             None => penumbra_passes::technique::create(penumbra_scene::DEFAULT_TECHNIQUE, &ctx, &shaders, scene)?
                 .expect("the default technique exists"),
         };
+        let effects = penumbra_passes::effect::create_for(scene, &ctx, &shaders, &settings.effects)?;
         Ok(Renderer {
             gbuffer: GBufferPass::new(&ctx, &shaders)?,
             technique,
+            effects,
+            scene: scene.clone(),
             tonemap: TonemapPass::new(&ctx, &shaders)?,
             scene_gpu: SceneGpu::new(&ctx, scene)?,
             env: EnvMapGpu::new(scene.environment.as_ref()),
@@ -224,9 +237,21 @@ impl Renderer {
         self.prev_view_proj = Some(constants.view_proj());
         let env = self.env.add(&mut self.engine, &mut g);
         let (scene, draws) = self.scene_gpu.add(&mut g, frame, &constants);
-        let gb = self.gbuffer.add(&mut g, &scene, draws, w, h);
+        let gb = self.gbuffer.add(&mut g, &scene, draws.clone(), w, h);
         let inputs = TechniqueInputs { frame, scene: &scene, gbuffer: &gb, env, env_data: &self.env };
-        let hdr = self.technique.add(&mut self.engine, &mut g, &inputs)?;
+        let mut hdr = self.technique.add(&mut self.engine, &mut g, &inputs)?;
+        let inputs = EffectInputs {
+            scene: &self.scene,
+            frame,
+            handles: &scene,
+            draws: &draws,
+            gbuffer: &gb,
+            env,
+            env_data: &self.env,
+        };
+        for e in &mut self.effects {
+            hdr = e.add(&mut self.engine, &mut g, &inputs, hdr)?;
+        }
         let target = target.map(|t| g.import_image("target", t));
         let ldr = self.tonemap.add(&mut g, hdr, target, self.settings.tonemap);
         if self.settings.dump_passes {

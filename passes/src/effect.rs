@@ -1,0 +1,52 @@
+//! Effects: pass chains a scene's requirements add after its technique, transforming the HDR
+//! radiance image (e.g. volumetric single scattering for scenes with a participating medium).
+//! The graph gets only the effects the scene needs: a scene without a medium has no volumetric
+//! passes.
+//!
+//! Adding an effect touches `passes/` (a module implementing [`Effect`] and a line in
+//! [`create_for`]), `glsl/`, a test and a scene; not the engine.
+
+use crate::env::EnvMapGpu;
+use crate::gbuffer::GBuffer;
+use crate::scene_gpu::{DrawList, SceneHandles};
+use anyhow::Result;
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{Context, Engine, Graph, ImageHandle};
+use penumbra_scene::{Frame, Scene};
+use std::sync::Arc;
+
+/// What an effect gets each frame.
+pub struct EffectInputs<'a> {
+    pub scene: &'a Scene,
+    pub frame: &'a Frame,
+    pub handles: &'a SceneHandles,
+    /// The frame's draws (mesh ranges, instance indices) for effects that rasterize geometry.
+    pub draws: &'a DrawList,
+    pub gbuffer: &'a GBuffer,
+    pub env: ImageHandle,
+    pub env_data: &'a EnvMapGpu,
+}
+
+pub trait Effect {
+    fn name(&self) -> &'static str;
+    /// Declares the effect's passes reading `hdr`; returns the new HDR image (or `hdr` itself
+    /// after a read-modify-write).
+    fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &EffectInputs, hdr: ImageHandle) -> Result<ImageHandle>;
+}
+
+/// Per-run overrides of the scene's effect choices (e.g. the CLI's `--volumetric`).
+#[derive(Clone, Debug, Default)]
+pub struct EffectOverrides {
+    /// Volumetric method override (`temporal` or `full`).
+    pub volumetric: Option<String>,
+}
+
+/// The effects `scene` requires, in the order they run. None exists yet for any requirement.
+pub fn create_for(
+    _scene: &Scene,
+    _ctx: &Arc<Context>,
+    _shaders: &ShaderLibrary,
+    _overrides: &EffectOverrides,
+) -> Result<Vec<Box<dyn Effect>>> {
+    Ok(Vec::new())
+}
