@@ -209,29 +209,25 @@ impl LatLong {
 /// (relative contribution below `exp(-30) ~ 1e-13`).
 const SUPPORT_CUTOFF: f64 = 30.0;
 
-/// `(sum_i w_i L_i G(d_i; a, lambda), sum_i w_i G(d_i; a, lambda))` for lobe axis `a` over
-/// `src`, visiting only the lobe's support.
-fn convolve_at(src: &LatLong, a: DVec3, lambda: f64, cutoff: f64, values: &dyn Fn(usize) -> DVec3) -> (DVec3, f64) {
-    let (h, w) = (src.height, src.width);
+/// Calls `f(i, g)` with `g = G(d_i; a, lambda, 1)` for the texels `i` of `grid` in the support
+/// `lambda (1 - dot(a, d_i)) <= cutoff` of a lobe about `a` (rows by angular distance, then the
+/// azimuth range of the cap per row, with a one-texel margin).
+fn for_each_in_support(grid: &LatLong, a: DVec3, lambda: f64, cutoff: f64, mut f: impl FnMut(usize, f64)) {
+    let (h, w) = (grid.height, grid.width);
     let cos_cut = 1.0 - cutoff / lambda.max(1e-300);
-    let mut acc = DVec3::ZERO;
-    let mut wsum = 0.0;
     let mut visit_row = |y: usize, x0: isize, n: usize| {
-        let wr = src.row_weight[y];
         for k in 0..n {
             let x = (x0 + k as isize).rem_euclid(w as isize) as usize;
             let i = y * w + x;
-            let om = 1.0 - a.dot(src.dirs[i]);
-            let g = (-lambda * om.max(0.0)).exp() * wr;
-            acc += values(i) * g;
-            wsum += g;
+            let om = 1.0 - a.dot(grid.dirs[i]);
+            f(i, (-lambda * om.max(0.0)).exp());
         }
     };
     if cos_cut <= -1.0 {
         for y in 0..h {
             visit_row(y, 0, w);
         }
-        return (acc, wsum);
+        return;
     }
     let big_theta = cos_cut.acos();
     let ta = a.y.clamp(-1.0, 1.0).acos();
@@ -268,6 +264,19 @@ fn convolve_at(src: &LatLong, a: DVec3, lambda: f64, cutoff: f64, values: &dyn F
             visit_row(y, x0, n);
         }
     }
+}
+
+/// `(sum_i w_i L_i G(d_i; a, lambda), sum_i w_i G(d_i; a, lambda))` for lobe axis `a` over
+/// `src`, visiting only the lobe's support.
+fn convolve_at(src: &LatLong, a: DVec3, lambda: f64, cutoff: f64, values: &dyn Fn(usize) -> DVec3) -> (DVec3, f64) {
+    let mut acc = DVec3::ZERO;
+    let mut wsum = 0.0;
+    let w = src.width;
+    for_each_in_support(src, a, lambda, cutoff, |i, g| {
+        let gw = g * src.row_weight[i / w];
+        acc += values(i) * gw;
+        wsum += gw;
+    });
     (acc, wsum)
 }
 
@@ -374,8 +383,8 @@ pub struct SgFitOptions {
     /// Sun/sky split (default `Some(100.0)`; `None` = one plain least-squares fit of the whole
     /// map). Texels whose luminance `Y` exceeds `cap = sun_cap x median luminance` are split into
     /// a sky part `L min(1, cap/Y)` and an excess part `L (1 - cap/Y)` (they sum to `L`). The
-    /// excess (a sun, studio lights) is fit by its own lobes (`max(1, K/8)` of the `K`), the sky
-    /// part by the rest. Without the split a sun 1e4 x brighter than the sky dominates the L2
+    /// excess (a sun, studio lights) is fit by its own lobes, the sky part by the rest (each
+    /// lobe goes to the part with the largest relative energy decrease). Without the split a sun 1e4 x brighter than the sky dominates the L2
     /// norm: every lobe goes to the sun's disk-vs-Gaussian residual and broad lobes are bent to
     /// patch it, so the sky is lost.
     pub sun_cap: Option<f64>,
@@ -422,15 +431,26 @@ impl Part {
             .map(|&lambda| {
                 // selection only needs ~1e-6 accuracy and a grid of about one lobe width
                 let src = level_for(&pyr, lambda, 1.0);
-                // grid of at most 128 rows: sharper lobes are placed by the parabolic refinement
-                let oh = out_height(lambda, height.min(128), 1.0);
+                let nonzero: Vec<usize> = (0..src.rgb.len()).filter(|&i| src.rgb[i].x > 0.0).collect();
+                let sparse = nonzero.len() * 20 < src.rgb.len();
+                // dense maps: grid of at most 128 rows (sharper lobes are placed by the parabolic
+                // refinement); sparse maps (a sun's excess) are scattered onto the full-resolution
+                // grid, which costs only (non-zero texels x lobe support)
+                let oh = out_height(lambda, if sparse { height } else { height.min(128) }, 1.0);
                 let ow = (oh * width / height).max(1);
-                let vals = |i: usize| src.rgb[i];
-                let conv = convolve_map(src, lambda, ow, oh, 14.0, &vals);
-                let axes = (0..oh)
-                    .flat_map(|y| (0..ow).map(move |x| latlong_direction((x as f64 + 0.5) / ow as f64, (y as f64 + 0.5) / oh as f64)))
-                    .collect();
-                CorrLevel { lambda, ow, oh, axes, corr: conv.iter().map(|c| c.0.x).collect() }
+                let grid = LatLong::from_rgb(ow, oh, vec![DVec3::ZERO; ow * oh]);
+                let corr = if sparse {
+                    let mut c = vec![0.0; ow * oh];
+                    for &i in &nonzero {
+                        let v = src.rgb[i].x * src.row_weight[i / src.width];
+                        for_each_in_support(&grid, src.dirs[i], lambda, 14.0, |j, g| c[j] += v * g);
+                    }
+                    c
+                } else {
+                    let vals = |i: usize| src.rgb[i];
+                    convolve_map(src, lambda, ow, oh, 14.0, &vals).iter().map(|c| c.0.x).collect()
+                };
+                CorrLevel { lambda, ow, oh, axes: grid.dirs, corr }
             })
             .collect();
         // reduced map for the refinement passes: at most 64 rows
@@ -631,7 +651,16 @@ impl SgEnvFitter {
         let sky_rgb: Vec<DVec3> = map.rgb.iter().map(|c| *c * scale(*c)).collect();
         let sky = Part::new(LatLong::from_rgb(width, height, sky_rgb), &lambdas);
         // the excess is made of compact bright sources: only sharp lobes (lambda >= 16)
-        let sun_lambdas: Vec<f64> = lambdas.iter().copied().filter(|&l| l >= 16.0).collect();
+        // and up to 4x the dense limit (angular width ~0.35 texel) so that a sun of one or two
+        // texels can be matched
+        let mut sun_lambdas: Vec<f64> = lambdas.iter().copied().filter(|&l| l >= 16.0).collect();
+        if opts.lambda_max.is_none() {
+            let mut l = *lambdas.last().unwrap();
+            while l * opts.ladder_ratio <= 4.0 * lmax * (1.0 + 1e-9) {
+                l *= opts.ladder_ratio;
+                sun_lambdas.push(l);
+            }
+        }
         let sun_lambdas = if sun_lambdas.is_empty() { vec![*lambdas.last().unwrap()] } else { sun_lambdas };
         let sun = has_sun.then(|| {
             let ex: Vec<DVec3> = map.rgb.iter().map(|c| *c * (1.0 - scale(*c))).collect();

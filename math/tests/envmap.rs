@@ -141,13 +141,13 @@ fn robust_to_a_sun_1e4_brighter_than_the_sky() {
             t0.elapsed()
         );
         assert!(sun_lobe.axis.angle_between(sun_dir) < 0.5f64.to_radians());
-        // the sun's disk is not a Gaussian: a residual of roughly 40% of the (sun-dominated) L2
-        // norm remains with few lobes, but the fit must not blow up or ignore the sky
-        assert!(f.rel_l2_error < 0.6);
-        // an L2 fit of a disk by a Gaussian does not conserve energy (the best L2 lobe is wider
-        // than the disk); only a sanity bound here, the value is reported above
-        assert!(energy_err < 0.6);
-        // with clamped selection the sky gets lobes even at K = 4
+        // the sun's disk (radius 1.5 texels here) is not a Gaussian, but its own sharp lobes
+        // capture it to a few percent of the (sun-dominated) L2 norm
+        assert!(f.rel_l2_error < 0.1, "{}", f.rel_l2_error);
+        // an L2 fit of a disk by Gaussians does not conserve energy exactly (reported above)
+        assert!(energy_err < 0.15);
+        // the sun/sky split gives the sky its own lobes even at K = 4 (the plain L2 fit spends
+        // them on the sun: sky-only error ~0.9 at K = 4, printed above)
         assert!(sky_err < 0.35, "sky must still be represented: {sky_err}");
     }
 }
