@@ -801,3 +801,28 @@ fn nnls_rgb(map: &LatLong, rw: &[f64], shapes: &[Sg]) -> (Vec<SgRgb>, f64) {
 pub fn fit_sg_lighting(width: usize, height: usize, texels: &[[f32; 3]], k: usize) -> Result<SgEnvFit, EnvError> {
     SgEnvFitter::new(width, height, texels, SgFitOptions::default())?.fit(k)
 }
+
+/// A default sharpness stack for [`prefilter`]: `1, 4, 16, ..., 4096` (glossy to near-mirror;
+/// a lobe of sharpness `lambda` has an angular width of about `1/sqrt(lambda)` rad).
+pub const DEFAULT_PREFILTER_LAMBDAS: [f64; 7] = [1.0, 4.0, 16.0, 64.0, 256.0, 1024.0, 4096.0];
+
+/// Projects a lat-long map onto real SH of order `order` (see [`crate::sh`] for the convention),
+/// per RGB channel, with solid-angle-weighted texels (each texel's value times its solid angle at
+/// its centre direction). Returns `[r, g, b]` coefficient vectors of `order^2` entries.
+pub fn project_sh(width: usize, height: usize, texels: &[[f32; 3]], order: usize) -> Result<[Vec<f64>; 3], EnvError> {
+    let map = LatLong::new(width, height, texels)?;
+    let n = crate::sh::sh_count(order);
+    let mut out = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
+    let mut y = vec![0.0; n];
+    for i in 0..map.rgb.len() {
+        let w = map.solid_angle(i / width);
+        crate::sh::eval_basis_into(order, map.dir(i), &mut y);
+        for c in 0..3 {
+            let v = map.rgb[i][c] * w;
+            for (o, yk) in out[c].iter_mut().zip(&y) {
+                *o += v * yk;
+            }
+        }
+    }
+    Ok(out)
+}
