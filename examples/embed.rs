@@ -15,10 +15,7 @@ pub fn run() -> Result<f64> {
     let entry = unsafe { ash::Entry::load()? };
     let app = vk::ApplicationInfo::default().api_version(vk::API_VERSION_1_3);
     let instance = unsafe { entry.create_instance(&vk::InstanceCreateInfo::default().application_info(&app), None)? };
-    let physical = unsafe { instance.enumerate_physical_devices()? }
-        .into_iter()
-        .next()
-        .context("no Vulkan device")?;
+    let physical = unsafe { instance.enumerate_physical_devices()? }.into_iter().next().context("no Vulkan device")?;
     let family = unsafe { instance.get_physical_device_queue_family_properties(physical) }
         .iter()
         .position(|q| q.queue_flags.contains(vk::QueueFlags::GRAPHICS | vk::QueueFlags::COMPUTE))
@@ -26,10 +23,8 @@ pub fn run() -> Result<f64> {
     // What penumbra needs from an external device (see Context::from_external).
     let exts = [ash::khr::push_descriptor::NAME.as_ptr()];
     let mut f12 = vk::PhysicalDeviceVulkan12Features::default().host_query_reset(true).scalar_block_layout(true);
-    let mut f13 = vk::PhysicalDeviceVulkan13Features::default()
-        .synchronization2(true)
-        .dynamic_rendering(true)
-        .maintenance4(true);
+    let mut f13 =
+        vk::PhysicalDeviceVulkan13Features::default().synchronization2(true).dynamic_rendering(true).maintenance4(true);
     let prio = [1.0];
     let qci = [vk::DeviceQueueCreateInfo::default().queue_family_index(family).queue_priorities(&prio)];
     let device = unsafe {
@@ -63,9 +58,8 @@ pub fn run() -> Result<f64> {
     };
     let req = unsafe { device.get_image_memory_requirements(image) };
     let props = unsafe { instance.get_physical_device_memory_properties(physical) };
-    let type_index = (0..props.memory_type_count)
-        .find(|&i| req.memory_type_bits & (1 << i) != 0)
-        .context("no memory type")?;
+    let type_index =
+        (0..props.memory_type_count).find(|&i| req.memory_type_bits & (1 << i) != 0).context("no memory type")?;
     let memory = unsafe {
         device.allocate_memory(
             &vk::MemoryAllocateInfo::default().allocation_size(req.size).memory_type_index(type_index),

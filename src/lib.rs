@@ -22,11 +22,11 @@ use glam::Mat4;
 use penumbra_engine::graph::compile::CompiledGraph;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Context, ContextDesc, Engine, FrameOutput, Graph, ImportedImage};
+use penumbra_passes::effect::{Effect, EffectInputs, EffectOverrides};
 use penumbra_passes::env::EnvMapGpu;
 use penumbra_passes::scene_gpu::FrameConstants;
-use penumbra_passes::tonemap::TonemapParams;
-use penumbra_passes::effect::{Effect, EffectInputs, EffectOverrides};
 use penumbra_passes::technique::{Technique, TechniqueInputs};
+use penumbra_passes::tonemap::TonemapParams;
 use penumbra_passes::{GBufferPass, SceneGpu, TonemapPass};
 use penumbra_scene::{Frame, Scene};
 use std::path::PathBuf;
@@ -57,7 +57,11 @@ pub struct RenderSettings {
 
 impl Default for RenderSettings {
     fn default() -> Self {
-        RenderSettings { width: 640, height: 480, tonemap: TonemapParams::default(), frames_in_flight: 2,
+        RenderSettings {
+            width: 640,
+            height: 480,
+            tonemap: TonemapParams::default(),
+            frames_in_flight: 2,
             technique: None,
             dump_passes: false,
             effects: EffectOverrides::default(),
@@ -314,7 +318,13 @@ impl Renderer {
 
 /// An imported image description for a tone-mapped target the application owns
 /// (`R8G8B8A8_UNORM`, usage STORAGE | TRANSFER_SRC), left ready for a transfer read.
-pub fn target_image(image: vk::Image, view: vk::ImageView, width: u32, height: u32, usage: vk::ImageUsageFlags) -> ImportedImage {
+pub fn target_image(
+    image: vk::Image,
+    view: vk::ImageView,
+    width: u32,
+    height: u32,
+    usage: vk::ImageUsageFlags,
+) -> ImportedImage {
     ImportedImage {
         image,
         view,

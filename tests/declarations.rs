@@ -51,7 +51,10 @@ fn storage_image_declared_as_sampled_is_caught_by_the_graph() {
         Ok(())
     });
     let err = e.submit(g).expect_err("a wrong binding must fail the frame").to_string();
-    assert!(err.contains("pass 'wrong' binds 'img' as a storage image, but declared it as [ComputeShaderReadSampled]"), "{err}");
+    assert!(
+        err.contains("pass 'wrong' binds 'img' as a storage image, but declared it as [ComputeShaderReadSampled]"),
+        "{err}"
+    );
     assert!(err.contains("not submitted"), "{err}");
     drop(p);
 }
@@ -111,7 +114,14 @@ fn fill_then_copy(e: &mut Engine, declare_fill_as_write: bool) -> Vec<u8> {
     let dst = pass.write(rb, Access::TransferDst);
     pass.record(move |rc| {
         let (s, d) = (rc.buffer(src)?, rc.buffer(dst)?);
-        unsafe { rc.device().cmd_copy_buffer(rc.cmd, s.buffer, d.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: 256 }]) };
+        unsafe {
+            rc.device().cmd_copy_buffer(
+                rc.cmd,
+                s.buffer,
+                d.buffer,
+                &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: 256 }],
+            )
+        };
         Ok(())
     });
     let (compiled, _) = e.submit(g).unwrap();

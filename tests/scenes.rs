@@ -66,5 +66,8 @@ fn a_bare_gltf_model_is_a_scene() {
     let centre: f32 = (40..56).flat_map(|x| (30..42).map(move |y| (x, y))).map(|(x, y)| lum(x, y)).sum::<f32>() / 192.0;
     let corner = 0.5 * (lum(1, 1) + lum(94, 1));
     assert!(centre > 0.01, "bare model renders black");
-    assert!((centre - corner).abs() > 0.05 * corner.max(centre), "no model in the centre: centre {centre}, corner {corner}");
+    assert!(
+        (centre - corner).abs() > 0.05 * corner.max(centre),
+        "no model in the centre: centre {centre}, corner {corner}"
+    );
 }

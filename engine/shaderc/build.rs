@@ -11,10 +11,7 @@ fn main() {
         "/usr/lib64".to_string(),
         "/usr/lib".to_string(),
     ];
-    let dir = candidates
-        .iter()
-        .filter(|d| !d.is_empty())
-        .find(|d| Path::new(d).join("libglslang.a").exists());
+    let dir = candidates.iter().filter(|d| !d.is_empty()).find(|d| Path::new(d).join("libglslang.a").exists());
     let Some(dir) = dir else {
         println!(
             "cargo:warning=libglslang.a not found: install Debian's libshaderc-dev glslang-dev spirv-tools \

@@ -60,8 +60,11 @@ unsafe extern "system" fn debug_callback(
     }
     let log = &*(user as *const ValidationLog);
     let d = &*data;
-    let msg = if d.p_message.is_null() { String::new() } else { CStr::from_ptr(d.p_message).to_string_lossy().into_owned() };
-    if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) && std::env::var_os("PENUMBRA_QUIET_VALIDATION").is_none() {
+    let msg =
+        if d.p_message.is_null() { String::new() } else { CStr::from_ptr(d.p_message).to_string_lossy().into_owned() };
+    if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR)
+        && std::env::var_os("PENUMBRA_QUIET_VALIDATION").is_none()
+    {
         eprintln!("[vulkan] {msg}");
     }
     log.push(severity, msg);
@@ -160,8 +163,9 @@ impl Context {
                 std::env::set_var("XDG_RUNTIME_DIR", &dir);
             }
         }
-        let entry = unsafe { ash::Entry::load() }
-            .map_err(|e| anyhow!("cannot load the Vulkan loader ({e}); install libvulkan1 and a driver (mesa-vulkan-drivers)"))?;
+        let entry = unsafe { ash::Entry::load() }.map_err(|e| {
+            anyhow!("cannot load the Vulkan loader ({e}); install libvulkan1 and a driver (mesa-vulkan-drivers)")
+        })?;
         let layer_name = c"VK_LAYER_KHRONOS_validation";
         let layers_avail = unsafe { entry.enumerate_instance_layer_properties()? };
         let has_layer = layers_avail.iter().any(|l| l.layer_name_as_c_str().map_or(false, |n| n == layer_name));
@@ -248,11 +252,21 @@ impl Context {
                     continue;
                 }
             }
-            candidates.push((device_rank(props.device_type), p, family as u32, name, props, qf[family].timestamp_valid_bits));
+            candidates.push((
+                device_rank(props.device_type),
+                p,
+                family as u32,
+                name,
+                props,
+                qf[family].timestamp_valid_bits,
+            ));
         }
         candidates.sort_by_key(|c| c.0);
         let Some((_, physical, queue_family, device_name, props, ts_bits)) = candidates.into_iter().next() else {
-            bail!("no usable Vulkan device: {}", if rejected.is_empty() { "none found".into() } else { rejected.join("; ") });
+            bail!(
+                "no usable Vulkan device: {}",
+                if rejected.is_empty() { "none found".into() } else { rejected.join("; ") }
+            );
         };
 
         // ---- device
@@ -268,7 +282,10 @@ impl Context {
             .fill_mode_non_solid(avail.fill_mode_non_solid == vk::TRUE)
             .sampler_anisotropy(avail.sampler_anisotropy == vk::TRUE);
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default().host_query_reset(true).scalar_block_layout(true);
-        let mut f13 = vk::PhysicalDeviceVulkan13Features::default().synchronization2(true).dynamic_rendering(true).maintenance4(true);
+        let mut f13 = vk::PhysicalDeviceVulkan13Features::default()
+            .synchronization2(true)
+            .dynamic_rendering(true)
+            .maintenance4(true);
         let prio = [1.0f32];
         let qci = [vk::DeviceQueueCreateInfo::default().queue_family_index(queue_family).queue_priorities(&prio)];
         let dci = vk::DeviceCreateInfo::default()
@@ -404,7 +421,13 @@ impl Context {
         }
     }
 
-    fn allocate(&self, name: &str, req: vk::MemoryRequirements, location: MemoryLocation, linear: bool) -> Result<Allocation> {
+    fn allocate(
+        &self,
+        name: &str,
+        req: vk::MemoryRequirements,
+        location: MemoryLocation,
+        linear: bool,
+    ) -> Result<Allocation> {
         let mut a = self.allocator.lock().map_err(|_| anyhow!("allocator lock poisoned"))?;
         a.allocate(&AllocationCreateDesc {
             name,
@@ -432,7 +455,8 @@ impl Context {
             .usage(usage)
             .sharing_mode(vk::SharingMode::EXCLUSIVE)
             .initial_layout(vk::ImageLayout::UNDEFINED);
-        let image = unsafe { self.device.create_image(&ci, None) }.with_context(|| format!("vkCreateImage '{name}'"))?;
+        let image =
+            unsafe { self.device.create_image(&ci, None) }.with_context(|| format!("vkCreateImage '{name}'"))?;
         let req = unsafe { self.device.get_image_memory_requirements(image) };
         let allocation = match self.allocate(name, req, MemoryLocation::GpuOnly, false) {
             Ok(a) => a,
@@ -442,18 +466,18 @@ impl Context {
             }
         };
         unsafe { self.device.bind_image_memory(image, allocation.memory(), allocation.offset())? };
-        let view_type = if desc.array_layers > 1 { vk::ImageViewType::TYPE_2D_ARRAY } else { vk::ImageViewType::TYPE_2D };
-        let vci = vk::ImageViewCreateInfo::default()
-            .image(image)
-            .view_type(view_type)
-            .format(desc.format)
-            .subresource_range(vk::ImageSubresourceRange {
-                aspect_mask: desc.aspect(),
-                base_mip_level: 0,
-                level_count: desc.mip_levels,
-                base_array_layer: 0,
-                layer_count: desc.array_layers,
-            });
+        let view_type =
+            if desc.array_layers > 1 { vk::ImageViewType::TYPE_2D_ARRAY } else { vk::ImageViewType::TYPE_2D };
+        let vci =
+            vk::ImageViewCreateInfo::default().image(image).view_type(view_type).format(desc.format).subresource_range(
+                vk::ImageSubresourceRange {
+                    aspect_mask: desc.aspect(),
+                    base_mip_level: 0,
+                    level_count: desc.mip_levels,
+                    base_array_layer: 0,
+                    layer_count: desc.array_layers,
+                },
+            );
         let view = unsafe { self.device.create_image_view(&vci, None) }?;
         self.set_name(image, name);
         self.set_name(view, &format!("{name}.view"));
@@ -461,10 +485,17 @@ impl Context {
     }
 
     /// Creates a buffer; host-visible ones are persistently mapped.
-    pub fn create_buffer(&self, name: &str, size: u64, usage: vk::BufferUsageFlags, host_visible: bool) -> Result<GpuBuffer> {
+    pub fn create_buffer(
+        &self,
+        name: &str,
+        size: u64,
+        usage: vk::BufferUsageFlags,
+        host_visible: bool,
+    ) -> Result<GpuBuffer> {
         let size = size.max(4);
         let ci = vk::BufferCreateInfo::default().size(size).usage(usage).sharing_mode(vk::SharingMode::EXCLUSIVE);
-        let buffer = unsafe { self.device.create_buffer(&ci, None) }.with_context(|| format!("vkCreateBuffer '{name}'"))?;
+        let buffer =
+            unsafe { self.device.create_buffer(&ci, None) }.with_context(|| format!("vkCreateBuffer '{name}'"))?;
         let req = unsafe { self.device.get_buffer_memory_requirements(buffer) };
         let loc = if host_visible { MemoryLocation::CpuToGpu } else { MemoryLocation::GpuOnly };
         let allocation = match self.allocate(name, req, loc, true) {
@@ -515,9 +546,11 @@ impl Context {
 
     /// Creates a shader module from SPIR-V bytes (as embedded by build.rs).
     pub fn create_shader_module(&self, name: &str, spirv: &[u8]) -> Result<vk::ShaderModule> {
-        let words = ash::util::read_spv(&mut std::io::Cursor::new(spirv)).with_context(|| format!("shader '{name}' is not SPIR-V"))?;
+        let words = ash::util::read_spv(&mut std::io::Cursor::new(spirv))
+            .with_context(|| format!("shader '{name}' is not SPIR-V"))?;
         let ci = vk::ShaderModuleCreateInfo::default().code(&words);
-        let m = unsafe { self.device.create_shader_module(&ci, None) }.with_context(|| format!("shader module '{name}'"))?;
+        let m = unsafe { self.device.create_shader_module(&ci, None) }
+            .with_context(|| format!("shader module '{name}'"))?;
         self.set_name(m, name);
         Ok(m)
     }

@@ -6,9 +6,7 @@
 
 use crate::context::{Context, GpuBuffer, GpuImage};
 use crate::graph::compile::{Barrier, CompiledGraph, ResourceState};
-use crate::graph::{
-    BufferHandle, External, Graph, GraphHandle, ImageDesc, ImageHandle, Origin, Problem, ResourceDesc,
-};
+use crate::graph::{BufferHandle, External, Graph, GraphHandle, ImageDesc, ImageHandle, Origin, Problem, ResourceDesc};
 use crate::profile::Profiler;
 use anyhow::{anyhow, bail, Context as _, Result};
 use ash::vk;
@@ -73,12 +71,7 @@ impl<'a> RecordContext<'a> {
         self.check(id)?;
         let declared: Vec<_> = self.declared.iter().filter(|d| d.0 == id).map(|d| d.1).collect();
         if !declared.iter().any(|a| ok(*a)) {
-            bail!(
-                "pass '{}' binds '{}' as {what}, but declared it as {:?}",
-                self.pass,
-                self.name(id),
-                declared
-            );
+            bail!("pass '{}' binds '{}' as {what}, but declared it as {:?}", self.pass, self.name(id), declared);
         }
         Ok(())
     }
@@ -101,7 +94,10 @@ impl<'a> RecordContext<'a> {
             match *b {
                 Bind::SampledImage(h, sampler) => {
                     self.check_bind(h.raw().0, "a sampled image", |a| {
-                        matches!(a, A::VertexShaderReadSampled | A::FragmentShaderReadSampled | A::ComputeShaderReadSampled)
+                        matches!(
+                            a,
+                            A::VertexShaderReadSampled | A::FragmentShaderReadSampled | A::ComputeShaderReadSampled
+                        )
                     })?;
                     let img = self.image(h)?;
                     image_infos.push([vk::DescriptorImageInfo {
@@ -132,7 +128,11 @@ impl<'a> RecordContext<'a> {
                 Bind::UniformBuffer(h) => {
                     self.check_bind(h.raw().0, "a uniform buffer", |a| a == A::AnyShaderReadUniform)?;
                     let buf = self.buffer(h)?;
-                    buffer_infos.push([vk::DescriptorBufferInfo { buffer: buf.buffer, offset: 0, range: vk::WHOLE_SIZE }]);
+                    buffer_infos.push([vk::DescriptorBufferInfo {
+                        buffer: buf.buffer,
+                        offset: 0,
+                        range: vk::WHOLE_SIZE,
+                    }]);
                     kinds.push((vk::DescriptorType::UNIFORM_BUFFER, buffer_infos.len() - 1));
                 }
                 Bind::StorageBuffer(h) => {
@@ -147,7 +147,11 @@ impl<'a> RecordContext<'a> {
                         )
                     })?;
                     let buf = self.buffer(h)?;
-                    buffer_infos.push([vk::DescriptorBufferInfo { buffer: buf.buffer, offset: 0, range: vk::WHOLE_SIZE }]);
+                    buffer_infos.push([vk::DescriptorBufferInfo {
+                        buffer: buf.buffer,
+                        offset: 0,
+                        range: vk::WHOLE_SIZE,
+                    }]);
                     kinds.push((vk::DescriptorType::STORAGE_BUFFER, buffer_infos.len() - 1));
                 }
             }
@@ -158,7 +162,9 @@ impl<'a> RecordContext<'a> {
             .map(|(binding, (ty, idx))| {
                 let w = vk::WriteDescriptorSet::default().dst_binding(binding as u32).descriptor_type(*ty);
                 match *ty {
-                    vk::DescriptorType::UNIFORM_BUFFER | vk::DescriptorType::STORAGE_BUFFER => w.buffer_info(&buffer_infos[*idx]),
+                    vk::DescriptorType::UNIFORM_BUFFER | vk::DescriptorType::STORAGE_BUFFER => {
+                        w.buffer_info(&buffer_infos[*idx])
+                    }
                     _ => w.image_info(&image_infos[*idx]),
                 }
             })
@@ -376,10 +382,19 @@ impl Engine {
             let n = (f.passes.len() * 2) as u32;
             let mut ts = vec![0u64; n as usize];
             unsafe {
-                d.get_query_pool_results(s.queries, 0, &mut ts, vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT)
-                    .context("reading timestamps")?;
+                d.get_query_pool_results(
+                    s.queries,
+                    0,
+                    &mut ts,
+                    vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+                )
+                .context("reading timestamps")?;
             }
-            let mask = if self.ctx.timestamp_valid_bits >= 64 { u64::MAX } else { (1u64 << self.ctx.timestamp_valid_bits) - 1 };
+            let mask = if self.ctx.timestamp_valid_bits >= 64 {
+                u64::MAX
+            } else {
+                (1u64 << self.ctx.timestamp_valid_bits) - 1
+            };
             for (i, name) in f.passes.iter().enumerate() {
                 let ticks = (ts[2 * i + 1] & mask).wrapping_sub(ts[2 * i] & mask) & mask;
                 let ms = ticks as f64 * self.ctx.timestamp_period * 1e-6;
@@ -465,7 +480,11 @@ impl Engine {
                     match &p.item {
                         PoolItem::Image(img) => {
                             if !img.usage.contains(info.image_usage) {
-                                bail!("persistent image '{}' was created without usage {:?}", res.name, info.image_usage);
+                                bail!(
+                                    "persistent image '{}' was created without usage {:?}",
+                                    res.name,
+                                    info.image_usage
+                                );
                             }
                             images[i] = Some(PhysImage { image: img.image, view: img.view, desc: img.desc.clone() })
                         }
@@ -524,7 +543,9 @@ impl Engine {
             let cp = &compiled.passes[pi];
             self.ctx.begin_label(cmd, &cp.name);
             if timestamps {
-                unsafe { d.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, s.queries, (qi * 2) as u32) };
+                unsafe {
+                    d.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, s.queries, (qi * 2) as u32)
+                };
             }
             emit_barriers(d, cmd, &cp.barriers, &images, &buffers);
             let mut rc = RecordContext {

@@ -61,11 +61,8 @@ impl Profiler {
     /// `profile.json`: GPU ms per pass (recording order) and CPU ms per phase.
     pub fn to_json(&self) -> serde_json::Value {
         let gpu = self.gpu_stats();
-        let passes: Vec<serde_json::Value> = self
-            .order
-            .iter()
-            .filter_map(|n| gpu.get(n).map(|s| serde_json::json!({"pass": n, "gpu_ms": s})))
-            .collect();
+        let passes: Vec<serde_json::Value> =
+            self.order.iter().filter_map(|n| gpu.get(n).map(|s| serde_json::json!({"pass": n, "gpu_ms": s}))).collect();
         let total: f64 = gpu.values().map(|s| s.median_ms).sum();
         serde_json::json!({
             "frames": self.frames,
@@ -78,13 +75,14 @@ impl Profiler {
     /// A printed table.
     pub fn table(&self) -> String {
         let gpu = self.gpu_stats();
-        let mut s = format!(
-            "{:<28} {:>10} {:>10} {:>10} {:>7}\n",
-            "pass (GPU)", "median ms", "min ms", "max ms", "frames"
-        );
+        let mut s =
+            format!("{:<28} {:>10} {:>10} {:>10} {:>7}\n", "pass (GPU)", "median ms", "min ms", "max ms", "frames");
         for n in &self.order {
             if let Some(t) = gpu.get(n) {
-                s += &format!("{:<28} {:>10.3} {:>10.3} {:>10.3} {:>7}\n", n, t.median_ms, t.min_ms, t.max_ms, t.samples);
+                s += &format!(
+                    "{:<28} {:>10.3} {:>10.3} {:>10.3} {:>7}\n",
+                    n, t.median_ms, t.min_ms, t.max_ms, t.samples
+                );
             }
         }
         for (n, t) in self.cpu_stats() {

@@ -21,7 +21,10 @@ impl ShaderLibrary {
     /// SPIR-V bytes of `name` (e.g. `"gbuffer.vert"`).
     pub fn get(&self, name: &str) -> Result<&[u8]> {
         self.shaders.get(name).map(|v| v.as_slice()).ok_or_else(|| {
-            anyhow!("shader '{name}' is not in the library (known: {})", self.shaders.keys().cloned().collect::<Vec<_>>().join(", "))
+            anyhow!(
+                "shader '{name}' is not in the library (known: {})",
+                self.shaders.keys().cloned().collect::<Vec<_>>().join(", ")
+            )
         })
     }
 
@@ -33,7 +36,8 @@ impl ShaderLibrary {
     /// embedded SPIR-V. Errors name the file and line.
     pub fn reload(&mut self, name: &str) -> Result<()> {
         let dir = self.source_dir.clone().ok_or_else(|| anyhow!("no shader source directory set"))?;
-        let words = crate::glsl_compile::compile_glsl_file(&dir.join(name), &dir.join("include")).map_err(|e| anyhow!(e))?;
+        let words =
+            crate::glsl_compile::compile_glsl_file(&dir.join(name), &dir.join("include")).map_err(|e| anyhow!(e))?;
         self.shaders.insert(name.to_string(), words.iter().flat_map(|w| w.to_le_bytes()).collect());
         Ok(())
     }

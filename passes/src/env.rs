@@ -77,7 +77,11 @@ impl EnvMapGpu {
                 if !ok {
                     repaired += 1;
                 }
-                if ok { [t[0], t[1], t[2], 1.0] } else { [0.0, 0.0, 0.0, 1.0] }
+                if ok {
+                    [t[0], t[1], t[2], 1.0]
+                } else {
+                    [0.0, 0.0, 0.0, 1.0]
+                }
             })
             .collect();
         // SH projection, weighted by texel solid angle (2 pi / W)(pi / H) sin(theta); f64 sums
@@ -103,7 +107,13 @@ impl EnvMapGpu {
         let band = [std::f64::consts::PI, 2.0 * std::f64::consts::PI / 3.0, std::f64::consts::PI / 4.0];
         let mut sh = [[0f32; 3]; 9];
         for k in 0..9 {
-            let l = if k == 0 { 0 } else if k < 4 { 1 } else { 2 };
+            let l = if k == 0 {
+                0
+            } else if k < 4 {
+                1
+            } else {
+                2
+            };
             for c in 0..3 {
                 sh[k][c] = (acc[k][c] * band[l]) as f32;
             }
@@ -218,9 +228,7 @@ mod tests {
     fn upper_hemisphere_light_matches_clamped_cosine() {
         // L = 1 above the horizon, 0 below: E(+Y) = pi, E(-Y) = 0, E(horizontal) = pi/2.
         let (w, h) = (128u32, 64u32);
-        let texels = (0..h)
-            .flat_map(|j| (0..w).map(move |_| if j < h / 2 { [1.0; 3] } else { [0.0; 3] }))
-            .collect();
+        let texels = (0..h).flat_map(|j| (0..w).map(move |_| if j < h / 2 { [1.0; 3] } else { [0.0; 3] })).collect();
         let env = Environment { width: w, height: h, texels, intensity: 1.0, rotation: 0.0 };
         let e = EnvMapGpu::new(Some(&env));
         let pi = std::f32::consts::PI;

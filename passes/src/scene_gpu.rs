@@ -127,8 +127,16 @@ impl SceneGpu {
             (None, None)
         } else {
             (
-                Some(ctx.create_buffer_with_data("scene.vertices", &bytes_of(&verts), vk::BufferUsageFlags::VERTEX_BUFFER)?),
-                Some(ctx.create_buffer_with_data("scene.indices", &bytes_of(&idx), vk::BufferUsageFlags::INDEX_BUFFER)?),
+                Some(ctx.create_buffer_with_data(
+                    "scene.vertices",
+                    &bytes_of(&verts),
+                    vk::BufferUsageFlags::VERTEX_BUFFER,
+                )?),
+                Some(ctx.create_buffer_with_data(
+                    "scene.indices",
+                    &bytes_of(&idx),
+                    vk::BufferUsageFlags::INDEX_BUFFER,
+                )?),
             )
         };
         Ok(SceneGpu { ctx: ctx.clone(), vertices, indices, meshes, vertex_count, triangle_count })
@@ -137,25 +145,29 @@ impl SceneGpu {
 
 /// The material table in the layout of `MaterialData` (std430).
 fn material_table(materials: &[Material]) -> Vec<u8> {
-        let materials: Vec<MaterialData> = materials
-            .iter()
-            .map(|m| MaterialData {
-                albedo_kind: [
-                    m.albedo.x,
-                    m.albedo.y,
-                    m.albedo.z,
-                    match m.kind {
-                        BrdfKind::Diffuse => 0.0,
-                        BrdfKind::BlinnPhong => 1.0,
-                        BrdfKind::CookTorrance => 2.0,
-                        BrdfKind::AshikhminShirley => 3.0,
-                    },
-                ],
-                spec_rough: [m.specular.x, m.specular.y, m.specular.z, m.roughness],
-                extra: [m.shininess, 0.0, 0.0, 0.0],
-            })
-            .collect();
-        if materials.is_empty() { vec![0u8; 48] } else { bytes_of(&materials) }
+    let materials: Vec<MaterialData> = materials
+        .iter()
+        .map(|m| MaterialData {
+            albedo_kind: [
+                m.albedo.x,
+                m.albedo.y,
+                m.albedo.z,
+                match m.kind {
+                    BrdfKind::Diffuse => 0.0,
+                    BrdfKind::BlinnPhong => 1.0,
+                    BrdfKind::CookTorrance => 2.0,
+                    BrdfKind::AshikhminShirley => 3.0,
+                },
+            ],
+            spec_rough: [m.specular.x, m.specular.y, m.specular.z, m.roughness],
+            extra: [m.shininess, 0.0, 0.0, 0.0],
+        })
+        .collect();
+    if materials.is_empty() {
+        vec![0u8; 48]
+    } else {
+        bytes_of(&materials)
+    }
 }
 
 /// std430 layout of `LightData` in `common.glsl`.
@@ -196,7 +208,6 @@ fn light_table(lights: &[LightInstance]) -> (Vec<u8>, u32) {
 }
 
 impl SceneGpu {
-
     /// Imports the static buffers and creates this frame's constants; returns the handles and
     /// the draw list (empty meshes skipped).
     pub fn add(&self, graph: &mut Graph, frame: &Frame, constants: &FrameConstants) -> (SceneHandles, DrawList) {
@@ -251,9 +262,12 @@ impl SceneGpu {
         }
         let camera = graph.create_buffer_init("frame.camera", bytes_of(std::slice::from_ref(constants)));
         let instances = graph.create_buffer_init("frame.instances", bytes_of(&inst));
-        let deformed_vertices =
-            (!deformed_verts.is_empty()).then(|| graph.create_buffer_init("frame.deformed_vertices", bytes_of(&deformed_verts)));
-        (SceneHandles { vertices, indices, materials, camera, instances, deformed_vertices, lights, light_count }, draws)
+        let deformed_vertices = (!deformed_verts.is_empty())
+            .then(|| graph.create_buffer_init("frame.deformed_vertices", bytes_of(&deformed_verts)));
+        (
+            SceneHandles { vertices, indices, materials, camera, instances, deformed_vertices, lights, light_count },
+            draws,
+        )
     }
 
     pub fn vertex_buffer(&self) -> Option<vk::Buffer> {

@@ -32,13 +32,20 @@ pub struct TonemapPass {
 impl TonemapPass {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
         use vk::DescriptorType as T;
-        let pipeline = compute_pipeline(ctx, shaders, "tonemap.comp", &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE], 4)?;
+        let pipeline =
+            compute_pipeline(ctx, shaders, "tonemap.comp", &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE], 4)?;
         Ok(TonemapPass { pipeline, nearest: Sampler::nearest(ctx)? })
     }
 
     /// Adds the `tonemap` pass writing into `target` (an imported image with STORAGE usage) or a
     /// new transient `ldr` image. Returns the written handle.
-    pub fn add(&self, graph: &mut Graph, hdr: ImageHandle, target: Option<ImageHandle>, params: TonemapParams) -> ImageHandle {
+    pub fn add(
+        &self,
+        graph: &mut Graph,
+        hdr: ImageHandle,
+        target: Option<ImageHandle>,
+        params: TonemapParams,
+    ) -> ImageHandle {
         let d = graph.image_desc(hdr).clone();
         let ldr = target.unwrap_or_else(|| graph.create_image("ldr", ImageDesc::new_2d(LDR_FORMAT, d.width, d.height)));
         let (w, h) = (d.width, d.height);

@@ -16,7 +16,12 @@ pub struct Pipeline {
 
 impl Pipeline {
     /// Takes ownership of objects created elsewhere (graphics pipelines).
-    pub fn from_raw(ctx: &Arc<Context>, pipeline: vk::Pipeline, layout: vk::PipelineLayout, set_layout: vk::DescriptorSetLayout) -> Self {
+    pub fn from_raw(
+        ctx: &Arc<Context>,
+        pipeline: vk::Pipeline,
+        layout: vk::PipelineLayout,
+        set_layout: vk::DescriptorSetLayout,
+    ) -> Self {
         Pipeline { ctx: ctx.clone(), pipeline, layout, set_layout }
     }
 }
@@ -81,10 +86,8 @@ pub fn compute_pipeline(
 ) -> Result<Pipeline> {
     let (set_layout, layout) = layouts(ctx, shader, types, vk::ShaderStageFlags::COMPUTE, push_bytes)?;
     let module = ctx.create_shader_module(shader, shaders.get(shader)?)?;
-    let stage = vk::PipelineShaderStageCreateInfo::default()
-        .stage(vk::ShaderStageFlags::COMPUTE)
-        .module(module)
-        .name(c"main");
+    let stage =
+        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::COMPUTE).module(module).name(c"main");
     let ci = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
     let res = unsafe { ctx.device.create_compute_pipelines(vk::PipelineCache::null(), &ci, None) };
     unsafe { ctx.device.destroy_shader_module(module, None) };

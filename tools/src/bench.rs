@@ -82,8 +82,11 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
         let c = compare(&reference.radiance, "reference", &img, name)?;
         write_diff_png(&reference.radiance, &img, &args.out.join(format!("{name}_diff.png")))?;
         let stats = r.engine.profiler.gpu_stats();
-        let technique_ms: f64 =
-            stats.iter().filter(|(p, _)| !matches!(p.as_str(), "env_upload" | "readback")).map(|(_, s)| s.median_ms).sum();
+        let technique_ms: f64 = stats
+            .iter()
+            .filter(|(p, _)| !matches!(p.as_str(), "env_upload" | "readback"))
+            .map(|(_, s)| s.median_ms)
+            .sum();
         let base = *baseline_ms.get_or_insert(technique_ms);
         rows.push(serde_json::json!({
             "technique": name,

@@ -255,7 +255,11 @@ fn run(cli: Cli) -> Result<()> {
             }
             penumbra_reference::cli::run_compare(&a).map_err(|e| {
                 // Image decoding problems are bad input.
-                if format!("{e:#}").contains(".exr") { bad(format!("{e:#}")) } else { e }
+                if format!("{e:#}").contains(".exr") {
+                    bad(format!("{e:#}"))
+                } else {
+                    e
+                }
             })
         }
     }

@@ -35,7 +35,16 @@ fn render_default_scene_writes_frames_dumps_and_profile() {
         "--dump-passes",
     ]);
     assert!(o.status.success(), "{}", text(&o));
-    for f in ["frame_0000.exr", "frame_0000.png", "frame_0001.exr", "frame_0001.png", "graph.json", "graph.dot", "graph.txt", "profile.json"] {
+    for f in [
+        "frame_0000.exr",
+        "frame_0000.png",
+        "frame_0001.exr",
+        "frame_0001.png",
+        "graph.json",
+        "graph.dot",
+        "graph.txt",
+        "profile.json",
+    ] {
         assert!(out.join(f).exists(), "missing {f}");
     }
     for f in ["gb_position", "gb_normal", "gb_uv_mat", "gb_motion", "gb_depth", "hdr"] {
@@ -44,11 +53,14 @@ fn render_default_scene_writes_frames_dumps_and_profile() {
     let t = text(&o);
     assert!(t.contains("validation: 0 error(s)"), "{t}");
     assert!(t.contains("gbuffer") && t.contains("median ms"), "{t}");
-    let graph: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("graph.json")).unwrap()).unwrap();
-    let passes: Vec<_> = graph["passes"].as_array().unwrap().iter().map(|p| p["name"].as_str().unwrap().to_string()).collect();
+    let graph: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("graph.json")).unwrap()).unwrap();
+    let passes: Vec<_> =
+        graph["passes"].as_array().unwrap().iter().map(|p| p["name"].as_str().unwrap().to_string()).collect();
     assert_eq!(passes, ["gbuffer", "shade_env", "tonemap", "dump_passes", "readback"]);
     assert!(graph["passes"][0]["gpu_ms"]["median"].as_f64().unwrap() > 0.0);
-    let profile: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("profile.json")).unwrap()).unwrap();
+    let profile: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("profile.json")).unwrap()).unwrap();
     assert_eq!(profile["frames"], 2);
 }
 
@@ -66,7 +78,10 @@ fn expect_bad_input(args: &[&str], needles: &[&str]) {
 fn bad_input_exits_2_with_the_file_and_problem() {
     let d = tmp("bad_input");
     let missing = d.join("nope.toml");
-    expect_bad_input(&["render", missing.to_str().unwrap(), "--out", d.to_str().unwrap()], &["nope.toml", "cannot read"]);
+    expect_bad_input(
+        &["render", missing.to_str().unwrap(), "--out", d.to_str().unwrap()],
+        &["nope.toml", "cannot read"],
+    );
     let broken = d.join("broken.toml");
     std::fs::write(&broken, "[camera]\neye = [0, 1, 2]\nbogus_key = 3\n").unwrap();
     expect_bad_input(&["render", broken.to_str().unwrap(), "--out", d.to_str().unwrap()], &["broken.toml", "line"]);
@@ -74,7 +89,10 @@ fn bad_input_exits_2_with_the_file_and_problem() {
     std::fs::write(&glb, b"glTF\x02\x00\x00\x00garbage").unwrap();
     expect_bad_input(&["render", glb.to_str().unwrap(), "--out", d.to_str().unwrap()], &["truncated.glb"]);
     let draco = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets/bunny-draco.glb");
-    expect_bad_input(&["render", draco.to_str().unwrap(), "--out", d.to_str().unwrap()], &["bunny-draco.glb", "KHR_draco_mesh_compression"]);
+    expect_bad_input(
+        &["render", draco.to_str().unwrap(), "--out", d.to_str().unwrap()],
+        &["bunny-draco.glb", "KHR_draco_mesh_compression"],
+    );
     expect_bad_input(&["render", "--technique", "nope", "--out", d.to_str().unwrap()], &["nope", "not implemented"]);
     expect_bad_input(&["render", "--size", "0x10", "--out", d.to_str().unwrap()], &["size"]);
     expect_bad_input(&["render", "--size", "abc", "--out", d.to_str().unwrap()], &["size"]);

@@ -9,22 +9,78 @@ use std::fmt;
 /// One problem found while validating a graph. Every variant names the pass and resource.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Problem {
-    DuplicateResource { resource: String },
-    DuplicatePass { pass: String },
-    UnknownHandle { pass: String },
-    HandleKind { pass: String, resource: String },
-    StaleWrite { pass: String, resource: String, version: u32, latest: u32 },
-    StaleRead { pass: String, resource: String, version: u32, latest: u32 },
-    WriteDeclaredAsRead { pass: String, resource: String, access: Access },
-    ReadDeclaredAsWrite { pass: String, resource: String, access: Access },
-    ReadBeforeWrite { pass: String, resource: String },
-    AccessKind { pass: String, resource: String, access: Access, is_image: bool },
-    Format { pass: String, resource: String, access: Access, format: vk::Format },
-    MissingUsage { pass: String, resource: String, access: Access, needed: String },
-    ConflictingLayouts { pass: String, resource: String, accesses: Vec<Access> },
-    PassKind { pass: String, kind: PassKind, access: Access },
+    DuplicateResource {
+        resource: String,
+    },
+    DuplicatePass {
+        pass: String,
+    },
+    UnknownHandle {
+        pass: String,
+    },
+    HandleKind {
+        pass: String,
+        resource: String,
+    },
+    StaleWrite {
+        pass: String,
+        resource: String,
+        version: u32,
+        latest: u32,
+    },
+    StaleRead {
+        pass: String,
+        resource: String,
+        version: u32,
+        latest: u32,
+    },
+    WriteDeclaredAsRead {
+        pass: String,
+        resource: String,
+        access: Access,
+    },
+    ReadDeclaredAsWrite {
+        pass: String,
+        resource: String,
+        access: Access,
+    },
+    ReadBeforeWrite {
+        pass: String,
+        resource: String,
+    },
+    AccessKind {
+        pass: String,
+        resource: String,
+        access: Access,
+        is_image: bool,
+    },
+    Format {
+        pass: String,
+        resource: String,
+        access: Access,
+        format: vk::Format,
+    },
+    MissingUsage {
+        pass: String,
+        resource: String,
+        access: Access,
+        needed: String,
+    },
+    ConflictingLayouts {
+        pass: String,
+        resource: String,
+        accesses: Vec<Access>,
+    },
+    PassKind {
+        pass: String,
+        kind: PassKind,
+        access: Access,
+    },
     /// Reported at record time: the pass used a handle it did not declare.
-    Undeclared { pass: String, resource: String },
+    Undeclared {
+        pass: String,
+        resource: String,
+    },
 }
 
 impl fmt::Display for Problem {

@@ -11,7 +11,11 @@ use std::fmt::Write;
 /// Vulkan flags as text; empty masks print as `NONE` rather than nothing.
 fn flags<T: std::fmt::Debug>(f: T) -> String {
     let s = format!("{f:?}");
-    if s.is_empty() { "NONE".into() } else { s }
+    if s.is_empty() {
+        "NONE".into()
+    } else {
+        s
+    }
 }
 
 fn barrier_json(b: &Barrier) -> Value {
@@ -53,12 +57,16 @@ pub fn to_json(g: &CompiledGraph, timings: Option<&BTreeMap<String, PassStats>>)
             let reads: Vec<Value> = p
                 .uses
                 .iter()
-                .filter_map(|(r, a, rv, _)| rv.map(|v| json!({"resource": name(*r), "version": v, "access": format!("{a:?}")})))
+                .filter_map(|(r, a, rv, _)| {
+                    rv.map(|v| json!({"resource": name(*r), "version": v, "access": format!("{a:?}")}))
+                })
                 .collect();
             let writes: Vec<Value> = p
                 .uses
                 .iter()
-                .filter_map(|(r, a, _, wv)| wv.map(|v| json!({"resource": name(*r), "version": v, "access": format!("{a:?}")})))
+                .filter_map(|(r, a, _, wv)| {
+                    wv.map(|v| json!({"resource": name(*r), "version": v, "access": format!("{a:?}")}))
+                })
                 .collect();
             let mut v = json!({
                 "index": i,
@@ -132,14 +140,11 @@ pub fn to_dot(g: &CompiledGraph) -> String {
         let res = &g.resources[*r as usize];
         let shape = if res.desc.is_image() { "ellipse" } else { "note" };
         let style = if res.transient { "" } else { ", style=bold" };
-        let _ = writeln!(
-            s,
-            "  \"r{r}v{v}\" [label=\"{} v{v}\", shape={shape}{style}];",
-            dot_escape(&res.name)
-        );
+        let _ = writeln!(s, "  \"r{r}v{v}\" [label=\"{} v{v}\", shape={shape}{style}];", dot_escape(&res.name));
     }
     for (i, p) in g.passes.iter().enumerate() {
-        let style = if p.culled.is_some() { ", style=dashed, color=gray" } else { ", style=filled, fillcolor=lightblue" };
+        let style =
+            if p.culled.is_some() { ", style=dashed, color=gray" } else { ", style=filled, fillcolor=lightblue" };
         let _ = writeln!(s, "  \"p{i}\" [label=\"{}\", shape=box{style}];", dot_escape(&p.name));
         for (r, a, rv, wv) in &p.uses {
             let barrier = p.barriers.iter().find(|b| b.resource == *r);
@@ -156,11 +161,16 @@ pub fn to_dot(g: &CompiledGraph) -> String {
             };
             let color = if barrier.is_some() { "red" } else { "black" };
             if let Some(v) = rv {
-                let _ = writeln!(s, "  \"r{r}v{v}\" -> \"p{i}\" [label=\"{}\", color={color}];", dot_escape(&label).replace("\\\\n", "\\n"));
+                let _ = writeln!(
+                    s,
+                    "  \"r{r}v{v}\" -> \"p{i}\" [label=\"{}\", color={color}];",
+                    dot_escape(&label).replace("\\\\n", "\\n")
+                );
             }
             if let Some(v) = wv {
                 let l = if rv.is_some() { format!("{a:?}") } else { label.clone() };
-                let _ = writeln!(s, "  \"p{i}\" -> \"r{r}v{v}\" [label=\"{}\"];", dot_escape(&l).replace("\\\\n", "\\n"));
+                let _ =
+                    writeln!(s, "  \"p{i}\" -> \"r{r}v{v}\" [label=\"{}\"];", dot_escape(&l).replace("\\\\n", "\\n"));
             }
         }
     }

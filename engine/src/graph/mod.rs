@@ -240,7 +240,11 @@ pub struct PassNode {
 
 impl fmt::Debug for PassNode {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("PassNode").field("name", &self.name).field("kind", &self.kind).field("uses", &self.uses).finish()
+        f.debug_struct("PassNode")
+            .field("name", &self.name)
+            .field("kind", &self.kind)
+            .field("uses", &self.uses)
+            .finish()
     }
 }
 
@@ -341,7 +345,13 @@ impl Graph {
     }
 
     /// An application-owned buffer whose contents are ready and visible (e.g. uploaded meshes).
-    pub fn import_buffer(&mut self, name: &str, buffer: vk::Buffer, size: u64, usage: vk::BufferUsageFlags) -> BufferHandle {
+    pub fn import_buffer(
+        &mut self,
+        name: &str,
+        buffer: vk::Buffer,
+        size: u64,
+        usage: vk::BufferUsageFlags,
+    ) -> BufferHandle {
         let origin = Origin::Imported {
             usage: Usage::Buffer(usage),
             initial: None,

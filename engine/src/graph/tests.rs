@@ -180,10 +180,24 @@ fn validation_reports_every_problem_together() {
     let text = err.to_string();
     let kinds: Vec<_> = err.problems.iter().map(std::mem::discriminant).collect();
     assert!(err.problems.len() >= 5, "{text}");
-    assert!(err.problems.iter().any(|p| matches!(p, Problem::ReadBeforeWrite { resource, .. } if resource == "never_written")), "{text}");
-    assert!(err.problems.iter().any(|p| matches!(p, Problem::AccessKind { resource, .. } if resource == "buf")), "{text}");
-    assert!(err.problems.iter().any(|p| matches!(p, Problem::Format { resource, .. } if resource == "depth")), "{text}");
-    assert!(err.problems.iter().any(|p| matches!(p, Problem::MissingUsage { resource, .. } if resource == "target")), "{text}");
+    assert!(
+        err.problems
+            .iter()
+            .any(|p| matches!(p, Problem::ReadBeforeWrite { resource, .. } if resource == "never_written")),
+        "{text}"
+    );
+    assert!(
+        err.problems.iter().any(|p| matches!(p, Problem::AccessKind { resource, .. } if resource == "buf")),
+        "{text}"
+    );
+    assert!(
+        err.problems.iter().any(|p| matches!(p, Problem::Format { resource, .. } if resource == "depth")),
+        "{text}"
+    );
+    assert!(
+        err.problems.iter().any(|p| matches!(p, Problem::MissingUsage { resource, .. } if resource == "target")),
+        "{text}"
+    );
     assert!(err.problems.iter().any(|p| matches!(p, Problem::PassKind { .. })), "{text}");
     assert!(kinds.len() == err.problems.len());
     assert!(text.contains("pass 'bad'"), "{text}");
@@ -208,8 +222,16 @@ fn stale_versions_are_rejected() {
     p.finish();
     g.mark_output(a2);
     let err = g.compile().unwrap_err();
-    assert!(err.problems.iter().any(|p| matches!(p, Problem::StaleRead { pass, version: 1, latest: 2, .. } if pass == "reads_old")), "{err}");
-    assert!(err.problems.iter().any(|p| matches!(p, Problem::StaleWrite { pass, .. } if pass == "writes_old")), "{err}");
+    assert!(
+        err.problems
+            .iter()
+            .any(|p| matches!(p, Problem::StaleRead { pass, version: 1, latest: 2, .. } if pass == "reads_old")),
+        "{err}"
+    );
+    assert!(
+        err.problems.iter().any(|p| matches!(p, Problem::StaleWrite { pass, .. } if pass == "writes_old")),
+        "{err}"
+    );
 }
 
 #[test]
