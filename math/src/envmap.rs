@@ -52,9 +52,17 @@ pub enum EnvError {
     /// Width or height is zero.
     Empty,
     /// `texels.len() != width * height`.
-    SizeMismatch { expected: usize, got: usize },
+    SizeMismatch {
+        /// `width * height`.
+        expected: usize,
+        /// Number of texels given.
+        got: usize,
+    },
     /// A texel is NaN or infinite (negative values are clamped to 0 instead).
-    NonFinite { index: usize },
+    NonFinite {
+        /// Row-major index of the first bad texel.
+        index: usize,
+    },
     /// Invalid option (message says which).
     BadOption(&'static str),
 }

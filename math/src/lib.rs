@@ -9,6 +9,8 @@
 //! * [`envmap`]: lat-long environment maps, SG fitting and SG-prefiltered maps (`Gamma_L`).
 //! * [`brdf`]: SG fits of Blinn-Phong, Cook-Torrance and Ashikhmin-Shirley lobes.
 
+#![warn(missing_docs)]
+
 pub mod brdf;
 pub mod envmap;
 pub mod nnls;

@@ -6,6 +6,9 @@
 /// Solves `min_x>=0 x^T Q x / 2 - b^T x` for a symmetric positive semi-definite `n x n` row-major
 /// `q`. Singular sub-problems (duplicate columns) are regularised with a relative `1e-12` ridge.
 /// Returns the solution (all entries finite and `>= 0`).
+///
+/// # Panics
+/// If `q.len() != b.len()^2`.
 pub fn nnls_gram(q: &[f64], b: &[f64]) -> Vec<f64> {
     let n = b.len();
     assert_eq!(q.len(), n * n, "Gram matrix must be n x n");

@@ -105,7 +105,10 @@ pub fn eval_basis(order: usize, d: DVec3) -> Vec<f64> {
     v
 }
 
-/// Value of the expansion `coeffs` (length must be a square) at unit direction `d`.
+/// Value of the expansion `coeffs` at unit direction `d`.
+///
+/// # Panics
+/// If `coeffs.len()` is not a square (use [`order_of`] to check).
 pub fn eval(coeffs: &[f64], d: DVec3) -> f64 {
     let order = order_of(coeffs.len()).expect("SH coefficient count must be a square");
     eval_basis(order, d).iter().zip(coeffs).map(|(a, b)| a * b).sum()
@@ -206,7 +209,10 @@ impl ShRotation {
         self.order
     }
 
-    /// Rotates `coeffs` (length `>= order^2`; extra coefficients are left unchanged).
+    /// Rotates `coeffs` (extra coefficients beyond `order^2` are left unchanged).
+    ///
+    /// # Panics
+    /// If `coeffs.len() < order^2`.
     pub fn apply(&self, coeffs: &[f64]) -> Vec<f64> {
         let (a, b, g) = self.euler_zyz;
         let mut c = coeffs.to_vec();
@@ -320,7 +326,10 @@ impl TripleProductTensor {
     }
 
     /// Triple product: coefficients of the projection of `f * g` onto this order,
-    /// `h_k = sum_ij C_ijk f_i g_j`. `f` and `g` must have `order^2` coefficients.
+    /// `h_k = sum_ij C_ijk f_i g_j`.
+    ///
+    /// # Panics
+    /// If `f` or `g` has fewer than `order^2` coefficients.
     pub fn product(&self, f: &[f64], g: &[f64]) -> Vec<f64> {
         let mut h = vec![0.0; sh_count(self.order)];
         for &(i, j, k, c) in &self.entries {
