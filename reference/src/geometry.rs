@@ -154,9 +154,10 @@ impl Geometry {
         self.tris.len()
     }
 
-    /// Offset for spawning rays off a surface.
-    pub fn epsilon(&self) -> f32 {
-        1e-4 * self.extent
+    /// Offset along the geometric normal for spawning rays off a surface at `p` (relative to the
+    /// point's magnitude, so that contacts stay tight in large scenes).
+    pub fn epsilon_at(&self, p: Vec3) -> f32 {
+        3e-5 * (1.0 + p.abs().max_element())
     }
 
     fn ray(o: Vec3, d: Vec3, tmax: f32) -> Ray {

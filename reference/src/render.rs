@@ -561,7 +561,7 @@ impl Context {
                 let brdf = self.brdf_at(hit.material, hit.uv);
                 let frame = ShadingFrame::new(ns, hit.tangent);
                 let wo = frame.to_local(wo_w);
-                let origin = hit.p + ng * self.geo.epsilon();
+                let origin = hit.p + ng * self.geo.epsilon_at(hit.p);
                 let spec_sg = if self.sg_brdfs { sg_specular(&brdf, wo) } else { None };
                 let sc = Scatter::Surface { brdf, frame, wo, ng, spec_sg, _p: std::marker::PhantomData };
                 l += surface_tr * self.direct(hit.p, origin, &sc, rng);
