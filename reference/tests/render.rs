@@ -151,7 +151,14 @@ fn white_furnace_each_brdf() {
                 assert!((p[1] - 1.0).abs() <= 5.0 * s[1], "{name}: {} +- {} != 1", p[1], s[1]);
             }
         }
-        eprintln!("furnace {name:18}: pixel albedo in [{lo:.4}, {hi:.4}], mean rel. s.e. {:.2e}", r.noise.mean_rel_std_error);
+        let (m, se) = mean_se(&r)[1];
+        eprintln!(
+            "furnace {name:18}: pixel albedo in [{lo:.4}, {hi:.4}], image mean {m:.4} +- {se:.1e}, mean rel. s.e. {:.2e}",
+            r.noise.mean_rel_std_error
+        );
+        if is_lambert {
+            assert!((m - 1.0).abs() <= 5.0 * se, "{name}: image mean {m} +- {se} != 1");
+        }
     }
 }
 
