@@ -44,7 +44,7 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData 
             vec3 F = m.spec_rough.rgb + (1.0 - m.spec_rough.rgb) * pow(1.0 - max(dot(wi, h), 0.0), 5.0);
             if (kind == 1) {
                 float s = m.extra.x;
-                f += F * (s + 8.0) / (8.0 * PI) * pow(ndh, s);
+                f += F * (s + 2.0) / (8.0 * PI) * pow(ndh, s);  // as penumbra-math and the reference
             } else {
                 float a = roughness * roughness;
                 float a2 = a * a;

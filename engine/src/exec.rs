@@ -412,27 +412,16 @@ impl Engine {
         Ok(Some(out))
     }
 
-    /// Compiles, records and submits a frame. Returns the outputs of frames that completed
-    /// meanwhile (the oldest in-flight frame when every slot is busy). On a graph or recording
-    /// error nothing is submitted and every problem is reported together.
-    pub fn submit(&mut self, mut graph: Graph) -> Result<(CompiledGraph, Vec<FrameOutput>)> {
-        let t0 = Instant::now();
-        let compiled = graph.compile()?;
-        self.profiler.add_cpu("graph compile", t0.elapsed().as_secs_f64() * 1e3);
-
-        let slot = self.next_slot;
-        if let Some(o) = self.retire(slot)? {
-            self.pending.push(o);
-        }
-        let t1 = Instant::now();
-
-        // ---- resolve resources
-        let n = graph.resources.len();
-        let mut images: Vec<Option<PhysImage>> = vec![None; n];
-        let mut buffers: Vec<Option<PhysBuffer>> = vec![None; n];
-        let mut transients: Vec<(PoolKey, PoolItem)> = Vec::new();
-        let mut readbacks = Vec::new();
-        let names: Vec<String> = graph.resources.iter().map(|r| r.name.clone()).collect();
+    /// Finds or allocates the Vulkan object of every live resource.
+    fn resolve(
+        &mut self,
+        graph: &Graph,
+        compiled: &CompiledGraph,
+        images: &mut [Option<PhysImage>],
+        buffers: &mut [Option<PhysBuffer>],
+        transients: &mut Vec<(PoolKey, PoolItem)>,
+        readbacks: &mut Vec<(String, usize)>,
+    ) -> Result<()> {
         for (i, (res, info)) in graph.resources.iter().zip(compiled.resources.iter()).enumerate() {
             if info.first_pass.is_none() {
                 continue;
@@ -518,6 +507,35 @@ impl Engine {
                     transients.push((key, item));
                 }
             }
+        }
+        Ok(())
+    }
+
+    /// Compiles, records and submits a frame. Returns the outputs of frames that completed
+    /// meanwhile (the oldest in-flight frame when every slot is busy). On a graph or recording
+    /// error nothing is submitted and every problem is reported together.
+    pub fn submit(&mut self, mut graph: Graph) -> Result<(CompiledGraph, Vec<FrameOutput>)> {
+        let t0 = Instant::now();
+        let compiled = graph.compile()?;
+        self.profiler.add_cpu("graph compile", t0.elapsed().as_secs_f64() * 1e3);
+
+        let slot = self.next_slot;
+        if let Some(o) = self.retire(slot)? {
+            self.pending.push(o);
+        }
+        let t1 = Instant::now();
+
+        // ---- resolve resources
+        let n = graph.resources.len();
+        let mut images: Vec<Option<PhysImage>> = vec![None; n];
+        let mut buffers: Vec<Option<PhysBuffer>> = vec![None; n];
+        let mut transients: Vec<(PoolKey, PoolItem)> = Vec::new();
+        let mut readbacks = Vec::new();
+        let names: Vec<String> = graph.resources.iter().map(|r| r.name.clone()).collect();
+        if let Err(e) = self.resolve(&graph, &compiled, &mut images, &mut buffers, &mut transients, &mut readbacks) {
+            // Nothing was recorded: the transients taken so far go back to the pool.
+            self.free.extend(transients);
+            return Err(e);
         }
 
         // ---- record
