@@ -4,7 +4,7 @@
 //! each frame's render graph from the scene's requirements:
 //!
 //! ```text
-//! env_upload (first frame) -> gbuffer -> <technique passes> -> tonemap -> readback
+//! env_upload, textures_upload (first frame) -> gbuffer -> <technique passes> -> tonemap -> readback
 //!
 //! The technique (`passes::technique`) is the scene's `technique` or `RenderSettings::technique`.
 //! ```
@@ -200,9 +200,6 @@ impl Renderer {
                 penumbra_scene::DEFAULT_TECHNIQUE
             ));
         }
-        if req.spatially_varying_materials {
-            v.push("albedo/roughness texture maps are not applied yet; materials use their base values".into());
-        }
         if req.medium {
             v.push("the participating medium is not rendered yet (no volumetric passes)".into());
         }
@@ -285,7 +282,14 @@ impl Renderer {
     /// Builds, compiles and submits one frame; returns the frames that finished meanwhile.
     pub fn render(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Result<Vec<FrameImages>> {
         let g = self.build_graph(frame, target, readback)?;
-        let (compiled, done) = self.engine.submit(g)?;
+        let (compiled, done) = match self.engine.submit(g) {
+            Ok(r) => r,
+            Err(e) => {
+                // One-time uploads declared in the failed frame must be declared again.
+                self.scene_gpu.invalidate_uploads();
+                return Err(e);
+            }
+        };
         self.last_graph = Some(compiled);
         Ok(done.into_iter().map(|o| self.decode(o)).collect())
     }

@@ -467,7 +467,7 @@ impl Context {
         };
         unsafe { self.device.bind_image_memory(image, allocation.memory(), allocation.offset())? };
         let view_type =
-            if desc.array_layers > 1 { vk::ImageViewType::TYPE_2D_ARRAY } else { vk::ImageViewType::TYPE_2D };
+            if desc.array_layers > 1 || desc.array_view { vk::ImageViewType::TYPE_2D_ARRAY } else { vk::ImageViewType::TYPE_2D };
         let vci =
             vk::ImageViewCreateInfo::default().image(image).view_type(view_type).format(desc.format).subresource_range(
                 vk::ImageSubresourceRange {

@@ -96,7 +96,10 @@ impl<'a> RecordContext<'a> {
                     self.check_bind(h.raw().0, "a sampled image", |a| {
                         matches!(
                             a,
-                            A::VertexShaderReadSampled | A::FragmentShaderReadSampled | A::ComputeShaderReadSampled
+                            A::VertexShaderReadSampled
+                                | A::FragmentShaderReadSampled
+                                | A::ComputeShaderReadSampled
+                                | A::AnyShaderReadSampled
                         )
                     })?;
                     let img = self.image(h)?;

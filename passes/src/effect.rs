@@ -41,12 +41,24 @@ pub struct EffectOverrides {
     pub volumetric: Option<String>,
 }
 
-/// The effects `scene` requires, in the order they run. None exists yet for any requirement.
+/// The effects `scene` requires, in the order they run: volumetric single scattering for a
+/// scene with a medium (method from the scene's `volumetric` key, overridden by
+/// `overrides.volumetric`).
 pub fn create_for(
-    _scene: &Scene,
-    _ctx: &Arc<Context>,
-    _shaders: &ShaderLibrary,
-    _overrides: &EffectOverrides,
+    scene: &Scene,
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    overrides: &EffectOverrides,
 ) -> Result<Vec<Box<dyn Effect>>> {
-    Ok(Vec::new())
+    let mut v: Vec<Box<dyn Effect>> = Vec::new();
+    if scene.medium.is_some() {
+        let name = overrides.volumetric.clone().or_else(|| scene.volumetric.clone()).unwrap_or_else(|| "temporal".into());
+        let method = crate::volumetric::VolumetricMethod::parse(&name)?;
+        let params = crate::volumetric::VolumetricParams { method, ..Default::default() };
+        v.push(Box::new(crate::volumetric::VolumetricEffect::new(scene, ctx, shaders, params)?));
+    } else if let Some(m) = &overrides.volumetric {
+        // Still reject a bad name, so typos are not silently ignored.
+        crate::volumetric::VolumetricMethod::parse(m)?;
+    }
+    Ok(v)
 }

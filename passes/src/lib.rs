@@ -9,6 +9,7 @@ pub mod readback;
 pub mod scene_gpu;
 pub mod shade_env;
 pub mod technique;
+pub mod textures;
 pub mod tonemap;
 pub mod util;
 

@@ -2,11 +2,12 @@
 //! (uploaded once), and per-frame camera constants and instance transforms (host-initialised
 //! graph buffers).
 
+use crate::textures::MaterialTextures;
 use crate::util::bytes_of;
 use anyhow::{bail, Result};
 use glam::{Mat4, Vec3};
-use penumbra_engine::{vk, BufferHandle, Context, GpuBuffer, Graph};
-use penumbra_scene::{BrdfKind, Frame, LightInstance, LightKind, Material, Scene};
+use penumbra_engine::{vk, BufferHandle, Context, GpuBuffer, Graph, ImageHandle};
+use penumbra_scene::{BrdfKind, Frame, LightInstance, LightKind, Material, MaterialExtra, Scene};
 use std::sync::Arc;
 
 /// Interleaved vertex: position, normal, uv (32 bytes).
@@ -66,6 +67,10 @@ pub struct SceneGpu {
     pub meshes: Vec<MeshRange>,
     pub vertex_count: usize,
     pub triangle_count: usize,
+    /// Texture maps of each material (layers of `textures`).
+    extras: Vec<MaterialExtra>,
+    /// The scene's texture maps as one 2D array.
+    pub textures: MaterialTextures,
 }
 
 /// Handles of the scene's buffers in one frame's graph.
@@ -81,6 +86,9 @@ pub struct SceneHandles {
     /// Local lights of this frame (`LightData`), and their count.
     pub lights: BufferHandle,
     pub light_count: u32,
+    /// Material texture maps: RGBA32F 2D array (`sampler2DArray`), one layer per scene texture,
+    /// indexed by `MaterialData.extra.y` (albedo) / `.z` (roughness, G channel).
+    pub textures: ImageHandle,
 }
 
 /// One draw: a mesh range, the instance index, and whether its vertices come from the frame's
@@ -139,15 +147,19 @@ impl SceneGpu {
                 )?),
             )
         };
-        Ok(SceneGpu { ctx: ctx.clone(), vertices, indices, meshes, vertex_count, triangle_count })
+        let extras = (0..scene.materials.len()).map(|i| scene.material_extra(i)).collect();
+        let textures = MaterialTextures::new(ctx, &scene.textures)?;
+        Ok(SceneGpu { ctx: ctx.clone(), vertices, indices, meshes, vertex_count, triangle_count, extras, textures })
     }
 }
 
 /// The material table in the layout of `MaterialData` (std430).
-fn material_table(materials: &[Material]) -> Vec<u8> {
+/// `extras` gives texture layers (albedo map, roughness map) per material index.
+fn material_table(materials: &[Material], extras: &[MaterialExtra]) -> Vec<u8> {
     let materials: Vec<MaterialData> = materials
         .iter()
-        .map(|m| MaterialData {
+        .enumerate()
+        .map(|(i, m)| MaterialData {
             albedo_kind: [
                 m.albedo.x,
                 m.albedo.y,
@@ -160,7 +172,12 @@ fn material_table(materials: &[Material]) -> Vec<u8> {
                 },
             ],
             spec_rough: [m.specular.x, m.specular.y, m.specular.z, m.roughness],
-            extra: [m.shininess, 0.0, 0.0, 0.0],
+            extra: [
+                m.shininess,
+                extras.get(i).and_then(|x| x.albedo_map).map_or(-1.0, |l| l as f32),
+                extras.get(i).and_then(|x| x.roughness_map).map_or(-1.0, |l| l as f32),
+                0.0,
+            ],
         })
         .collect();
     if materials.is_empty() {
@@ -218,7 +235,7 @@ impl SceneGpu {
         };
         let vertices = import(graph, "scene.vertices", &self.vertices);
         let indices = import(graph, "scene.indices", &self.indices);
-        let materials = graph.create_buffer_init("frame.materials", material_table(&frame.materials));
+        let materials = graph.create_buffer_init("frame.materials", material_table(&frame.materials, &self.extras));
         let (light_bytes, light_count) = light_table(&frame.lights);
         let lights = graph.create_buffer_init("frame.lights", light_bytes);
         let mut inst = Vec::new();
@@ -264,10 +281,15 @@ impl SceneGpu {
         let instances = graph.create_buffer_init("frame.instances", bytes_of(&inst));
         let deformed_vertices = (!deformed_verts.is_empty())
             .then(|| graph.create_buffer_init("frame.deformed_vertices", bytes_of(&deformed_verts)));
-        (
-            SceneHandles { vertices, indices, materials, camera, instances, deformed_vertices, lights, light_count },
-            draws,
-        )
+        let textures = self.textures.add(graph);
+        let handles =
+            SceneHandles { vertices, indices, materials, camera, instances, deformed_vertices, lights, light_count, textures };
+        (handles, draws)
+    }
+
+    /// One-time uploads must be declared again (the frame that declared them failed).
+    pub fn invalidate_uploads(&self) {
+        self.textures.invalidate_upload();
     }
 
     pub fn vertex_buffer(&self) -> Option<vk::Buffer> {

@@ -17,6 +17,7 @@ pub struct ShadeEnvPass {
     pipeline: Pipeline,
     nearest: Sampler,
     linear: Sampler,
+    repeat: Sampler,
 }
 
 impl crate::technique::Technique for ShadeEnvPass {
@@ -49,10 +50,16 @@ impl ShadeEnvPass {
                 T::COMBINED_IMAGE_SAMPLER,
                 T::STORAGE_IMAGE,
                 T::STORAGE_BUFFER,
+                T::COMBINED_IMAGE_SAMPLER,
             ],
             4,
         )?;
-        Ok(ShadeEnvPass { pipeline, nearest: Sampler::nearest(ctx)?, linear: Sampler::latlong(ctx)? })
+        Ok(ShadeEnvPass {
+            pipeline,
+            nearest: Sampler::nearest(ctx)?,
+            linear: Sampler::latlong(ctx)?,
+            repeat: Sampler::repeat(ctx)?,
+        })
     }
 
     /// Adds the `shade_env` pass; returns the linear HDR radiance image.
@@ -69,8 +76,9 @@ impl ShadeEnvPass {
         let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
         let lights = p.read(scene.lights, Access::ComputeShaderReadStorage);
         let light_count = scene.light_count;
+        let textures = p.read(scene.textures, Access::ComputeShaderReadSampled);
         let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
-        let (nearest, linear) = (self.nearest.sampler, self.linear.sampler);
+        let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
             unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
             rc.push_descriptors(
@@ -86,6 +94,7 @@ impl ShadeEnvPass {
                     Bind::SampledImage(env, linear),
                     Bind::StorageImage(hdr),
                     Bind::StorageBuffer(lights),
+                    Bind::SampledImage(textures, repeat),
                 ],
             )?;
             unsafe {

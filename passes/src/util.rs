@@ -118,6 +118,21 @@ impl Sampler {
         Ok(Sampler { ctx: ctx.clone(), sampler })
     }
 
+    /// Linear filtering with mips, repeating in u and v: material textures.
+    pub fn repeat(ctx: &Arc<Context>) -> Result<Self> {
+        let ci = vk::SamplerCreateInfo::default()
+            .mag_filter(vk::Filter::LINEAR)
+            .min_filter(vk::Filter::LINEAR)
+            .mipmap_mode(vk::SamplerMipmapMode::LINEAR)
+            .address_mode_u(vk::SamplerAddressMode::REPEAT)
+            .address_mode_v(vk::SamplerAddressMode::REPEAT)
+            .address_mode_w(vk::SamplerAddressMode::REPEAT)
+            .max_lod(vk::LOD_CLAMP_NONE);
+        let sampler = unsafe { ctx.device.create_sampler(&ci, None)? };
+        ctx.set_name(sampler, "repeat_sampler");
+        Ok(Sampler { ctx: ctx.clone(), sampler })
+    }
+
     /// Nearest, clamped: for `texelFetch` of G-buffer images.
     pub fn nearest(ctx: &Arc<Context>) -> Result<Self> {
         let ci = vk::SamplerCreateInfo::default()

@@ -84,7 +84,7 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
         let stats = r.engine.profiler.gpu_stats();
         let technique_ms: f64 = stats
             .iter()
-            .filter(|(p, _)| !matches!(p.as_str(), "env_upload" | "readback"))
+            .filter(|(p, _)| !(p.ends_with("_upload") || p.as_str() == "readback"))
             .map(|(_, s)| s.median_ms)
             .sum();
         let base = *baseline_ms.get_or_insert(technique_ms);

@@ -22,6 +22,9 @@ pub enum Access {
     FragmentShaderReadSampled,
     /// `sampler2D`/`texelFetch` in a compute shader.
     ComputeShaderReadSampled,
+    /// Sampled read by any shader stage (read-only data such as uploaded textures; mostly as an
+    /// imported resource's final/initial access).
+    AnyShaderReadSampled,
     // ---- images or buffers
     /// Storage image/buffer read in a fragment shader.
     FragmentShaderReadStorage,
@@ -79,13 +82,14 @@ pub struct AccessInfo {
 
 impl Access {
     /// Every access kind, in declaration order (for tests and documentation).
-    pub const ALL: [Access; 18] = [
+    pub const ALL: [Access; 19] = [
         Access::ColorAttachmentWrite,
         Access::DepthAttachmentWrite,
         Access::DepthAttachmentRead,
         Access::VertexShaderReadSampled,
         Access::FragmentShaderReadSampled,
         Access::ComputeShaderReadSampled,
+        Access::AnyShaderReadSampled,
         Access::FragmentShaderReadStorage,
         Access::ComputeShaderReadStorage,
         Access::ComputeShaderWriteStorage,
@@ -165,6 +169,22 @@ impl Access {
             ),
             Access::ComputeShaderReadSampled => (
                 S::COMPUTE_SHADER,
+                A::SHADER_SAMPLED_READ,
+                L::SHADER_READ_ONLY_OPTIMAL,
+                false,
+                false,
+                Applies::Image,
+                IU::SAMPLED,
+                BU::empty(),
+                None,
+            ),
+            Access::AnyShaderReadSampled => (
+                S::VERTEX_SHADER
+                    | S::TESSELLATION_CONTROL_SHADER
+                    | S::TESSELLATION_EVALUATION_SHADER
+                    | S::GEOMETRY_SHADER
+                    | S::FRAGMENT_SHADER
+                    | S::COMPUTE_SHADER,
                 A::SHADER_SAMPLED_READ,
                 L::SHADER_READ_ONLY_OPTIMAL,
                 false,

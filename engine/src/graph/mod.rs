@@ -80,11 +80,19 @@ pub struct ImageDesc {
     pub height: u32,
     pub mip_levels: u32,
     pub array_layers: u32,
+    /// View the image as a 2D array (`sampler2DArray`) even with one layer.
+    pub array_view: bool,
 }
 
 impl ImageDesc {
     pub fn new_2d(format: vk::Format, width: u32, height: u32) -> Self {
-        ImageDesc { format, width, height, mip_levels: 1, array_layers: 1 }
+        ImageDesc { format, width, height, mip_levels: 1, array_layers: 1, array_view: false }
+    }
+    /// A 2D array of `layers` layers, viewed as an array.
+    pub fn with_layers(mut self, layers: u32) -> Self {
+        self.array_layers = layers.max(1);
+        self.array_view = true;
+        self
     }
     pub fn with_mips(mut self, mips: u32) -> Self {
         self.mip_levels = mips;
