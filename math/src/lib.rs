@@ -13,6 +13,7 @@
 
 pub mod brdf;
 pub mod envmap;
+pub mod isg;
 pub mod nnls;
 pub mod quad;
 pub mod sh;
