@@ -182,7 +182,17 @@ fn render(args: &RenderArgs) -> Result<()> {
     );
     let mut written = 0;
     let mut prev_t = None;
+    // A progress bar on terminals only (hidden in CI and pipes).
+    let bar = indicatif::ProgressBar::with_draw_target(Some(args.frames as u64), indicatif::ProgressDrawTarget::stderr());
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {elapsed} (eta {eta})")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    if args.frames < 2 {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
     for k in 0..args.frames {
+        bar.inc(1);
         let t = k as f32 / args.fps;
         let frame = scene.at(t, prev_t);
         prev_t = Some(t);
@@ -195,6 +205,7 @@ fn render(args: &RenderArgs) -> Result<()> {
         write_frame(&args.out, img.frame as u32, &img)?;
         written += 1;
     }
+    bar.finish_and_clear();
     let graph = r.last_graph.as_ref().context("no frame was compiled")?;
     let timings = r.engine.profiler.gpu_stats();
     let json = dump::to_json(graph, Some(&timings));
