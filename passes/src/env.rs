@@ -239,6 +239,48 @@ mod tests {
     }
 
     #[test]
+    fn sun_1e5_times_the_sky_keeps_energy_and_stays_finite() {
+        let (w, h) = (256u32, 128u32);
+        let mut env = uniform(w, h, 0.5);
+        env.rotation = 0.0;
+        let sun = (20 * w + 77) as usize;
+        env.texels[sun] = [5e4; 3];
+        let e = EnvMapGpu::new(Some(&env));
+        assert!(e.sh.iter().flatten().all(|c| c.is_finite()));
+        assert!(e.mips.iter().all(|m| m.2.iter().flatten().all(|c| c.is_finite() && *c >= 0.0)));
+        // Mean irradiance over the sphere = pi x mean radiance (only the DC term survives).
+        let dw = |j: u32| {
+            (2.0 * std::f64::consts::PI / w as f64)
+                * (std::f64::consts::PI / h as f64)
+                * (std::f64::consts::PI * (j as f64 + 0.5) / h as f64).sin()
+        };
+        let mut energy = 0.0;
+        for j in 0..h {
+            for i in 0..w {
+                energy += env.texels[(j * w + i) as usize][0] as f64 * dw(j);
+            }
+        }
+        let mean_l = energy / (4.0 * std::f64::consts::PI);
+        let mut mean_e = 0.0;
+        let n = 20000;
+        for k in 0..n {
+            // Fibonacci sphere directions.
+            let z = 1.0 - 2.0 * (k as f64 + 0.5) / n as f64;
+            let phi = k as f64 * 2.399963229728653;
+            let r = (1.0 - z * z).sqrt();
+            let d = Vec3::new((r * phi.cos()) as f32, z as f32, (r * phi.sin()) as f32);
+            // Without the clamp at 0 (a sun's SH ringing goes negative): the DC term alone.
+            let b = sh9_basis(d);
+            mean_e += (0..9).map(|i| e.sh[i][0] as f64 * b[i] as f64).sum::<f64>();
+        }
+        mean_e /= n as f64;
+        assert!((mean_e / (std::f64::consts::PI * mean_l) - 1.0).abs() < 1e-3, "{mean_e} vs {}", std::f64::consts::PI * mean_l);
+        // The sun's side is brighter than the opposite side.
+        let sun_dir = world_direction((77.0 + 0.5) / w as f32, (20.0 + 0.5) / h as f32, 0.0);
+        assert!(sh9_irradiance(&e.sh, sun_dir).x > sh9_irradiance(&e.sh, -sun_dir).x);
+    }
+
+    #[test]
     fn bad_texels_are_repaired_and_counted() {
         let mut env = uniform(8, 4, 1.0);
         env.texels[3] = [f32::NAN, 1.0, 1.0];
