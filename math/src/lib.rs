@@ -17,5 +17,6 @@ pub mod isg;
 pub mod nnls;
 pub mod quad;
 pub mod sh;
+pub mod sphereset;
 pub mod sg;
 pub mod special;

@@ -1,0 +1,510 @@
+//! Sphere-set approximation of closed triangle meshes (the blockers of the ISG technique).
+//!
+//! Method (a voxel variant of the medial-axis approach of Bradshaw & O'Sullivan 2004, "Adaptive
+//! medial-axis approximation for sphere-tree construction"):
+//! 1. the mesh is voxelized (inside/outside by ray parity along X, per column);
+//! 2. the Euclidean distance transform of the outside gives, at each interior voxel, the radius of
+//!    the largest inscribed sphere there; the maximal balls (not inside a neighbour's ball)
+//!    approximate the medial axis and are the candidate spheres;
+//! 3. `count` spheres are chosen greedily (lazy greedy max-coverage, a `1 - 1/e` approximation of
+//!    the best `count`-subset) to cover the most interior voxels not covered yet.
+//!
+//! The spheres are inscribed (volume outside the mesh is only voxel-level). [`measure_coverage`]
+//! reports the fraction of the mesh volume they cover and the volume they put outside it.
+//!
+//! Each sphere is bound to its four nearest mesh vertices: for a deformed mesh the centre is
+//! `mean(deformed anchors) + (rest centre - mean(rest anchors))`, no refit ([`SphereSet::deformed`]).
+//!
+//! File format (text, `.spheres`): a line `penumbra-spheres 1 N`, then N lines
+//! `cx cy cz r a0 a1 a2 a3` (object space, anchor vertex indices); `#` starts a comment.
+
+use glam::{DVec3, Vec3};
+use std::collections::BinaryHeap;
+use std::fmt::Write as _;
+
+/// One sphere in object space, bound to four mesh vertices.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BoundSphere {
+    /// Rest centre (object space).
+    pub center: Vec3,
+    /// Radius.
+    pub radius: f32,
+    /// Anchor vertex indices (nearest mesh vertices to the centre).
+    pub anchors: [u32; 4],
+}
+
+/// A sphere set approximating one mesh.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SphereSet {
+    /// The spheres.
+    pub spheres: Vec<BoundSphere>,
+}
+
+/// Problems with the input mesh or a sphere file.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SphereError {
+    /// The mesh has no triangles, an index out of range or a non-finite position.
+    BadMesh(String),
+    /// A sphere file could not be parsed.
+    Parse(String),
+}
+
+impl std::fmt::Display for SphereError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SphereError::BadMesh(m) => write!(f, "bad mesh: {m}"),
+            SphereError::Parse(m) => write!(f, "bad sphere file: {m}"),
+        }
+    }
+}
+
+impl std::error::Error for SphereError {}
+
+/// Coverage of a mesh by a sphere set.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Coverage {
+    /// Mesh volume (from the voxelization).
+    pub mesh_volume: f64,
+    /// Fraction of the mesh volume inside at least one sphere.
+    pub covered: f64,
+    /// Volume inside spheres but outside the mesh, as a fraction of the mesh volume.
+    pub outside: f64,
+}
+
+fn check_mesh(positions: &[Vec3], indices: &[u32]) -> Result<(), SphereError> {
+    if indices.len() < 3 || indices.len() % 3 != 0 {
+        return Err(SphereError::BadMesh(format!("{} indices (need a positive multiple of 3)", indices.len())));
+    }
+    if let Some(i) = indices.iter().find(|&&i| i as usize >= positions.len()) {
+        return Err(SphereError::BadMesh(format!("index {i} out of range ({} vertices)", positions.len())));
+    }
+    if positions.iter().any(|p| !p.is_finite()) {
+        return Err(SphereError::BadMesh("non-finite vertex position".into()));
+    }
+    Ok(())
+}
+
+/// An inside/outside voxel grid of a mesh, with one voxel of padding on every side.
+struct Voxels {
+    origin: DVec3,
+    h: f64,
+    dims: [usize; 3],
+    inside: Vec<bool>,
+}
+
+impl Voxels {
+    fn idx(&self, x: usize, y: usize, z: usize) -> usize {
+        (z * self.dims[1] + y) * self.dims[0] + x
+    }
+    fn center(&self, x: usize, y: usize, z: usize) -> DVec3 {
+        self.origin + DVec3::new(x as f64 + 0.5, y as f64 + 0.5, z as f64 + 0.5) * self.h
+    }
+}
+
+fn voxelize(positions: &[Vec3], indices: &[u32], resolution: usize) -> Voxels {
+    let res = resolution.clamp(4, 512);
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for &i in indices {
+        let p = positions[i as usize].as_dvec3();
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    let ext = (hi - lo).max_element().max(1e-9);
+    let h = ext / res as f64;
+    let origin = lo - DVec3::splat(h);
+    let dims = [
+        ((hi.x - lo.x) / h).ceil() as usize + 2,
+        ((hi.y - lo.y) / h).ceil() as usize + 2,
+        ((hi.z - lo.z) / h).ceil() as usize + 2,
+    ];
+    let mut v = Voxels { origin, h, dims, inside: vec![false; dims[0] * dims[1] * dims[2]] };
+    // Bin triangles by the (y, z) columns their bounding boxes touch.
+    let (ny, nz) = (dims[1], dims[2]);
+    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); ny * nz];
+    let tris: Vec<[DVec3; 3]> = indices
+        .chunks_exact(3)
+        .map(|t| [0, 1, 2].map(|k| positions[t[k] as usize].as_dvec3()))
+        .collect();
+    for (ti, t) in tris.iter().enumerate() {
+        let ymin = t.iter().map(|p| p.y).fold(f64::INFINITY, f64::min);
+        let ymax = t.iter().map(|p| p.y).fold(f64::NEG_INFINITY, f64::max);
+        let zmin = t.iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
+        let zmax = t.iter().map(|p| p.z).fold(f64::NEG_INFINITY, f64::max);
+        let cy0 = (((ymin - origin.y) / h - 0.5).floor().max(0.0)) as usize;
+        let cy1 = ((((ymax - origin.y) / h - 0.5).ceil()).max(0.0) as usize).min(ny - 1);
+        let cz0 = (((zmin - origin.z) / h - 0.5).floor().max(0.0)) as usize;
+        let cz1 = ((((zmax - origin.z) / h - 0.5).ceil()).max(0.0) as usize).min(nz - 1);
+        for z in cz0..=cz1 {
+            for y in cy0..=cy1 {
+                bins[z * ny + y].push(ti as u32);
+            }
+        }
+    }
+    let mut xs = Vec::new();
+    for z in 0..nz {
+        for y in 0..ny {
+            // Tiny irrational offsets keep the ray off edges and vertices.
+            let py = origin.y + (y as f64 + 0.5 + 1.37e-7) * h;
+            let pz = origin.z + (z as f64 + 0.5 + 2.71e-7) * h;
+            xs.clear();
+            for &ti in &bins[z * ny + y] {
+                let [a, b, c] = tris[ti as usize];
+                // Barycentrics of (py, pz) in the triangle's (y, z) projection.
+                let d = (b.y - a.y) * (c.z - a.z) - (c.y - a.y) * (b.z - a.z);
+                if d.abs() < 1e-300 {
+                    continue;
+                }
+                let u = ((py - a.y) * (c.z - a.z) - (c.y - a.y) * (pz - a.z)) / d;
+                let w = ((b.y - a.y) * (pz - a.z) - (py - a.y) * (b.z - a.z)) / d;
+                if u < 0.0 || w < 0.0 || u + w > 1.0 {
+                    continue;
+                }
+                xs.push(a.x + u * (b.x - a.x) + w * (c.x - a.x));
+            }
+            xs.sort_by(|p, q| p.total_cmp(q));
+            let mut k = 0;
+            for x in 0..dims[0] {
+                let px = origin.x + (x as f64 + 0.5) * h;
+                while k < xs.len() && xs[k] < px {
+                    k += 1;
+                }
+                if k % 2 == 1 {
+                    let i = v.idx(x, y, z);
+                    v.inside[i] = true;
+                }
+            }
+        }
+    }
+    v
+}
+
+/// 1D squared distance transform (Felzenszwalb & Huttenlocher) of `f` in place.
+fn dt1(f: &mut [f64], v: &mut Vec<usize>, z: &mut Vec<f64>, out: &mut Vec<f64>) {
+    let n = f.len();
+    v.clear();
+    v.resize(n, 0);
+    z.clear();
+    z.resize(n + 1, 0.0);
+    out.clear();
+    out.resize(n, 0.0);
+    let mut k = 0usize;
+    // Find the first finite sample.
+    let Some(first) = f.iter().position(|x| x.is_finite()) else { return };
+    v[0] = first;
+    z[0] = f64::NEG_INFINITY;
+    z[1] = f64::INFINITY;
+    for q in first + 1..n {
+        if !f[q].is_finite() {
+            continue;
+        }
+        loop {
+            let p = v[k];
+            let s = ((f[q] + (q * q) as f64) - (f[p] + (p * p) as f64)) / (2.0 * (q as f64 - p as f64));
+            if s <= z[k] && k > 0 {
+                k -= 1;
+                continue;
+            }
+            if s <= z[k] {
+                // k == 0 and the new parabola dominates everywhere.
+                v[0] = q;
+                z[0] = f64::NEG_INFINITY;
+                z[1] = f64::INFINITY;
+                break;
+            }
+            k += 1;
+            v[k] = q;
+            z[k] = s;
+            z[k + 1] = f64::INFINITY;
+            break;
+        }
+    }
+    k = 0;
+    for q in 0..n {
+        while z[k + 1] < q as f64 {
+            k += 1;
+        }
+        let p = v[k];
+        out[q] = (q as f64 - p as f64).powi(2) + f[p];
+    }
+    f.copy_from_slice(out);
+}
+
+/// Squared distance (voxels) from every voxel centre to the nearest outside voxel centre.
+fn distance_to_outside(v: &Voxels) -> Vec<f64> {
+    let [nx, ny, nz] = v.dims;
+    let mut d: Vec<f64> = v.inside.iter().map(|&i| if i { f64::INFINITY } else { 0.0 }).collect();
+    let (mut vv, mut zz, mut out) = (Vec::new(), Vec::new(), Vec::new());
+    let mut line = Vec::new();
+    for z in 0..nz {
+        for y in 0..ny {
+            line.clear();
+            line.extend((0..nx).map(|x| d[v.idx(x, y, z)]));
+            dt1(&mut line, &mut vv, &mut zz, &mut out);
+            for x in 0..nx {
+                d[v.idx(x, y, z)] = line[x];
+            }
+        }
+    }
+    for z in 0..nz {
+        for x in 0..nx {
+            line.clear();
+            line.extend((0..ny).map(|y| d[v.idx(x, y, z)]));
+            dt1(&mut line, &mut vv, &mut zz, &mut out);
+            for y in 0..ny {
+                d[v.idx(x, y, z)] = line[y];
+            }
+        }
+    }
+    for y in 0..ny {
+        for x in 0..nx {
+            line.clear();
+            line.extend((0..nz).map(|z| d[v.idx(x, y, z)]));
+            dt1(&mut line, &mut vv, &mut zz, &mut out);
+            for z in 0..nz {
+                d[v.idx(x, y, z)] = line[z];
+            }
+        }
+    }
+    d
+}
+
+/// Visits the voxels whose centres are within `r` voxels of voxel-space point `c`.
+fn for_voxels_in_sphere(dims: [usize; 3], c: DVec3, r: f64, mut f: impl FnMut(usize, usize, usize)) {
+    let lo = (c - DVec3::splat(r)).floor().max(DVec3::ZERO);
+    let hi = (c + DVec3::splat(r)).ceil();
+    let r2 = r * r;
+    for z in lo.z as usize..=(hi.z as usize).min(dims[2] - 1) {
+        for y in lo.y as usize..=(hi.y as usize).min(dims[1] - 1) {
+            for x in lo.x as usize..=(hi.x as usize).min(dims[0] - 1) {
+                let p = DVec3::new(x as f64, y as f64, z as f64);
+                if p.distance_squared(c) <= r2 {
+                    f(x, y, z);
+                }
+            }
+        }
+    }
+}
+
+/// Approximates the closed mesh `(positions, indices)` by at most `count` spheres (fewer if the
+/// voxelized interior is covered earlier), voxelizing at 64 voxels along the longest axis.
+/// See the module docs for the method. `count == 0` gives an empty set.
+pub fn approximate_spheres(positions: &[Vec3], indices: &[u32], count: usize) -> Result<SphereSet, SphereError> {
+    approximate_spheres_with(positions, indices, count, 64)
+}
+
+/// [`approximate_spheres`] with an explicit voxel resolution (voxels along the longest axis,
+/// clamped to 4..512).
+pub fn approximate_spheres_with(
+    positions: &[Vec3],
+    indices: &[u32],
+    count: usize,
+    resolution: usize,
+) -> Result<SphereSet, SphereError> {
+    check_mesh(positions, indices)?;
+    if count == 0 {
+        return Ok(SphereSet::default());
+    }
+    let vox = voxelize(positions, indices, resolution);
+    let [nx, ny, nz] = vox.dims;
+    let d2 = distance_to_outside(&vox);
+    // Candidates: centres of maximal inscribed balls (the discrete medial axis): interior voxels
+    // whose ball is not contained in a neighbour's ball (r_n < r + |n - x|).
+    let mut cands: Vec<(usize, usize, usize, f64)> = Vec::new();
+    for z in 1..nz - 1 {
+        for y in 1..ny - 1 {
+            for x in 1..nx - 1 {
+                let c = d2[vox.idx(x, y, z)];
+                if c <= 0.0 {
+                    continue;
+                }
+                let r = c.sqrt();
+                let mut maximal = true;
+                'n: for dz in 0..3usize {
+                    for dy in 0..3usize {
+                        for dx in 0..3usize {
+                            let k = (dx != 1) as usize + (dy != 1) as usize + (dz != 1) as usize;
+                            if k == 0 {
+                                continue;
+                            }
+                            let rn = d2[vox.idx(x + dx - 1, y + dy - 1, z + dz - 1)].sqrt();
+                            if rn >= r + (k as f64).sqrt() - 1e-9 {
+                                maximal = false;
+                                break 'n;
+                            }
+                        }
+                    }
+                }
+                if maximal {
+                    // Radius to the surface: half a voxel short of the nearest outside centre.
+                    cands.push((x, y, z, (r - 0.5).max(0.5)));
+                }
+            }
+        }
+    }
+    // Bound the greedy cost: keep at most 20000 candidates (largest balls first, then strided).
+    if cands.len() > 20000 {
+        cands.sort_by(|a, b| b.3.total_cmp(&a.3));
+        let stride = cands.len().div_ceil(20000);
+        cands = cands.into_iter().step_by(stride).collect();
+    }
+    let mut covered = vec![false; vox.inside.len()];
+    let gain = |c: &(usize, usize, usize, f64), covered: &[bool]| {
+        let mut g = 0usize;
+        let p = DVec3::new(c.0 as f64, c.1 as f64, c.2 as f64);
+        for_voxels_in_sphere(vox.dims, p, c.3 + 0.5, |x, y, z| {
+            let i = vox.idx(x, y, z);
+            if vox.inside[i] && !covered[i] {
+                g += 1;
+            }
+        });
+        g
+    };
+    let mut heap: BinaryHeap<(usize, usize)> = cands.iter().enumerate().map(|(i, c)| (gain(c, &covered), i)).collect();
+    let mut chosen = Vec::new();
+    while chosen.len() < count {
+        let Some((_, i)) = heap.pop() else { break };
+        let g = gain(&cands[i], &covered);
+        if g == 0 {
+            continue;
+        }
+        if let Some(&(next, _)) = heap.peek() {
+            if g < next {
+                heap.push((g, i));
+                continue;
+            }
+        }
+        let c = cands[i];
+        for_voxels_in_sphere(vox.dims, DVec3::new(c.0 as f64, c.1 as f64, c.2 as f64), c.3 + 0.5, |x, y, z| {
+            let k = vox.idx(x, y, z);
+            covered[k] = true;
+        });
+        chosen.push(c);
+    }
+    let spheres = chosen
+        .iter()
+        .map(|&(x, y, z, r)| {
+            let center = vox.center(x, y, z).as_vec3();
+            BoundSphere { center, radius: ((r + 0.5) * vox.h) as f32, anchors: nearest4(positions, center) }
+        })
+        .collect();
+    Ok(SphereSet { spheres })
+}
+
+fn nearest4(positions: &[Vec3], c: Vec3) -> [u32; 4] {
+    let mut best = [(f32::INFINITY, 0u32); 4];
+    for (i, p) in positions.iter().enumerate() {
+        let d = p.distance_squared(c);
+        if d < best[3].0 {
+            best[3] = (d, i as u32);
+            best.sort_by(|a, b| a.0.total_cmp(&b.0));
+        }
+    }
+    let first = best[0].1;
+    best.map(|(d, i)| if d.is_finite() { i } else { first })
+}
+
+/// Coverage of `(positions, indices)` by `spheres` on a voxel grid of `resolution` voxels along
+/// the longest axis (independent of the grid used to build the set when the resolutions differ).
+pub fn measure_coverage(
+    positions: &[Vec3],
+    indices: &[u32],
+    spheres: &[BoundSphere],
+    resolution: usize,
+) -> Result<Coverage, SphereError> {
+    check_mesh(positions, indices)?;
+    let vox = voxelize(positions, indices, resolution);
+    let mut hit = vec![false; vox.inside.len()];
+    for s in spheres {
+        let c = (s.center.as_dvec3() - vox.origin) / vox.h - DVec3::splat(0.5);
+        let r = s.radius as f64 / vox.h;
+        if !(c.is_finite() && r.is_finite()) || r <= 0.0 {
+            continue;
+        }
+        for_voxels_in_sphere(vox.dims, c, r, |x, y, z| {
+            let i = vox.idx(x, y, z);
+            hit[i] = true;
+        });
+    }
+    let vol = vox.h.powi(3);
+    let inside = vox.inside.iter().filter(|&&b| b).count();
+    let covered = vox.inside.iter().zip(&hit).filter(|(i, h)| **i && **h).count();
+    // Counted on the padded grid (one voxel beyond the mesh bounds): enough for inscribed sets.
+    let out_grid = vox.inside.iter().zip(&hit).filter(|(i, h)| !**i && **h).count();
+    let inside_f = inside.max(1) as f64;
+    Ok(Coverage { mesh_volume: inside as f64 * vol, covered: covered as f64 / inside_f, outside: out_grid as f64 / inside_f })
+}
+
+impl SphereSet {
+    /// Sphere centres for deformed vertex positions (same vertex order as the rest mesh): each
+    /// centre moves with the mean of its four anchors. Anchors out of range keep the rest centre.
+    pub fn deformed(&self, rest: &[Vec3], deformed: &[Vec3]) -> Vec<BoundSphere> {
+        self.spheres
+            .iter()
+            .map(|s| {
+                let ok = s.anchors.iter().all(|&a| (a as usize) < rest.len() && (a as usize) < deformed.len());
+                if !ok {
+                    return *s;
+                }
+                let mean = |v: &[Vec3]| s.anchors.iter().map(|&a| v[a as usize]).sum::<Vec3>() / 4.0;
+                BoundSphere { center: s.center + mean(deformed) - mean(rest), ..*s }
+            })
+            .collect()
+    }
+
+    /// The file text (format in the module docs).
+    pub fn to_text(&self) -> String {
+        let mut s = format!("penumbra-spheres 1 {}\n", self.spheres.len());
+        for b in &self.spheres {
+            let _ = writeln!(
+                s,
+                "{} {} {} {} {} {} {} {}",
+                b.center.x, b.center.y, b.center.z, b.radius, b.anchors[0], b.anchors[1], b.anchors[2], b.anchors[3]
+            );
+        }
+        s
+    }
+
+    /// Parses the file text.
+    pub fn parse(text: &str) -> Result<SphereSet, SphereError> {
+        let mut lines = text
+            .lines()
+            .enumerate()
+            .map(|(i, l)| (i + 1, l.split('#').next().unwrap_or("").trim()))
+            .filter(|(_, l)| !l.is_empty());
+        let (_, head) = lines.next().ok_or_else(|| SphereError::Parse("empty file".into()))?;
+        let h: Vec<&str> = head.split_whitespace().collect();
+        if h.len() != 3 || h[0] != "penumbra-spheres" || h[1] != "1" {
+            return Err(SphereError::Parse(format!("line 1: expected `penumbra-spheres 1 N`, got `{head}`")));
+        }
+        let n: usize = h[2].parse().map_err(|_| SphereError::Parse(format!("line 1: bad count `{}`", h[2])))?;
+        let mut spheres = Vec::with_capacity(n.min(1 << 20));
+        for (ln, l) in lines {
+            let f: Vec<&str> = l.split_whitespace().collect();
+            if f.len() != 8 {
+                return Err(SphereError::Parse(format!("line {ln}: expected 8 fields, got {}", f.len())));
+            }
+            let num = |k: usize| {
+                f[k].parse::<f32>()
+                    .ok()
+                    .filter(|v| v.is_finite())
+                    .ok_or_else(|| SphereError::Parse(format!("line {ln}: bad number `{}`", f[k])))
+            };
+            let idx = |k: usize| {
+                f[k].parse::<u32>().map_err(|_| SphereError::Parse(format!("line {ln}: bad index `{}`", f[k])))
+            };
+            let radius = num(3)?;
+            if radius <= 0.0 {
+                return Err(SphereError::Parse(format!("line {ln}: radius {radius} <= 0")));
+            }
+            spheres.push(BoundSphere {
+                center: Vec3::new(num(0)?, num(1)?, num(2)?),
+                radius,
+                anchors: [idx(4)?, idx(5)?, idx(6)?, idx(7)?],
+            });
+        }
+        if spheres.len() != n {
+            return Err(SphereError::Parse(format!("header says {n} spheres, file has {}", spheres.len())));
+        }
+        Ok(SphereSet { spheres })
+    }
+}
