@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 mod bench;
+mod spheres;
 
 #[derive(Parser)]
 #[command(name = "penumbra", version, about = "Vulkan rendering of dynamic scenes under all-frequency lighting", long_about = None)]
@@ -38,6 +39,9 @@ enum Cmd {
     /// Measure techniques against the CPU reference (PSNR, relative RMSE, FLIP) and against
     /// each other in GPU ms per frame, in one run; writes bench.json.
     Bench(bench::BenchArgs),
+    /// Approximate a closed mesh by N spheres (blockers of the ISG technique) and report the
+    /// fraction of its volume they cover and the volume they put outside it.
+    Spheres(spheres::SpheresArgs),
 }
 
 #[derive(Args)]
@@ -257,6 +261,11 @@ fn run(cli: Cli) -> Result<()> {
             }
             let scene = load_scene(a.scene.as_deref())?;
             bench::run(&a, &scene)
+        }
+        Cmd::Spheres(a) => {
+            let scene = load_scene(Some(&a.mesh))?;
+            // Every failure here is about the input mesh or arguments.
+            spheres::run(&a, &scene).map_err(|e| bad(format!("{e:#}")))
         }
         Cmd::Compare(a) => {
             for p in [&a.a, &a.b] {

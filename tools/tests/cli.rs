@@ -136,3 +136,26 @@ fn bench_measures_techniques_against_the_reference() {
     assert!(psnr > 20.0, "PSNR {psnr} dB");
     expect_bad_input(&["bench", "--techniques", "env,nope", "--out", out.to_str().unwrap()], &["nope"]);
 }
+
+#[test]
+fn spheres_approximate_a_closed_mesh_and_refuse_an_open_one() {
+    let d = tmp("spheres");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let out = d.join("bunny.spheres");
+    let bunny = root.join("scenes/assets/bunny.glb");
+    let o = penumbra(&["spheres", bunny.to_str().unwrap(), "--count", "16", "--out", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("16 spheres"), "{}", text(&o));
+    let set = penumbra_math::sphereset::SphereSet::parse(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert_eq!(set.spheres.len(), 16);
+    assert!(set.spheres.iter().all(|s| s.radius > 0.0 && s.center.is_finite()));
+    let scene = root.join("scenes/hat_on_cloth.toml");
+    expect_bad_input(
+        &["spheres", scene.to_str().unwrap(), "--object", "cloth", "--out", out.to_str().unwrap()],
+        &["hat_on_cloth.toml", "cloth", "not a closed mesh"],
+    );
+    expect_bad_input(
+        &["spheres", bunny.to_str().unwrap(), "--object", "nope", "--out", out.to_str().unwrap()],
+        &["bunny.glb", "no object named 'nope'"],
+    );
+}
