@@ -36,12 +36,19 @@ enum Cmd {
     Reference(ReferenceArgs),
     /// Compare two EXR images (A is the reference): PSNR, RMSE, FLIP, difference image.
     Compare(CompareArgs),
-    /// Measure techniques against the CPU reference (PSNR, relative RMSE, FLIP) and against
-    /// each other in GPU ms per frame, in one run; writes bench.json.
-    Bench(bench::BenchArgs),
+    /// Benchmarks: accuracy against the CPU reference and speed ratios, in one run.
+    #[command(subcommand)]
+    Bench(BenchCmd),
     /// Approximate a closed mesh by N spheres (blockers of the ISG technique) and report the
     /// fraction of its volume they cover and the volume they put outside it.
     Spheres(spheres::SpheresArgs),
+}
+
+#[derive(Subcommand)]
+enum BenchCmd {
+    /// Techniques against the CPU reference (PSNR, relative RMSE, FLIP) and against each other
+    /// (GPU ms per frame and ratios), on the same scene, camera and frame; writes bench.json.
+    Techniques(bench::BenchArgs),
 }
 
 #[derive(Args)]
@@ -252,7 +259,7 @@ fn run(cli: Cli) -> Result<()> {
             a.options().map_err(bad)?;
             penumbra_reference::cli::run_reference(&a, &scene)
         }
-        Cmd::Bench(a) => {
+        Cmd::Bench(BenchCmd::Techniques(a)) => {
             parse_size(&a.size).map_err(bad)?;
             for t in a.techniques.split(',').map(str::trim).filter(|s| !s.is_empty()) {
                 if !penumbra_passes::technique::IMPLEMENTED.contains(&t) {

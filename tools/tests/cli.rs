@@ -107,7 +107,7 @@ fn help_documents_every_command_and_flag() {
     let o = penumbra(&["--help"]);
     assert!(o.status.success());
     let t = text(&o);
-    for c in ["render", "reference", "compare"] {
+    for c in ["render", "reference", "compare", "bench", "spheres"] {
         assert!(t.contains(c), "{t}");
     }
     let o = penumbra(&["render", "--help"]);
@@ -120,7 +120,7 @@ fn help_documents_every_command_and_flag() {
 #[test]
 fn bench_measures_techniques_against_the_reference() {
     let out = tmp("bench");
-    let o = penumbra(&["bench", "--size", "64x48", "--spp", "16", "--frames", "2", "--out", out.to_str().unwrap()]);
+    let o = penumbra(&["bench", "techniques", "--size", "64x48", "--spp", "16", "--frames", "2", "--out", out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", text(&o));
     for f in ["reference.exr", "env.exr", "env_diff.png", "bench.json"] {
         assert!(out.join(f).exists(), "missing {f}");
@@ -134,7 +134,7 @@ fn bench_measures_techniques_against_the_reference() {
     // fails if the GPU and CPU renderers disagree on camera, orientation or units.
     let psnr = env["psnr_db"].as_f64().unwrap();
     assert!(psnr > 20.0, "PSNR {psnr} dB");
-    expect_bad_input(&["bench", "--techniques", "env,nope", "--out", out.to_str().unwrap()], &["nope"]);
+    expect_bad_input(&["bench", "techniques", "--techniques", "env,nope", "--out", out.to_str().unwrap()], &["nope"]);
 }
 
 #[test]
