@@ -1,0 +1,110 @@
+//! The G-buffer holds what it claims: world positions on the right objects, unit normals through
+//! fp16 octahedral encoding (including the poles), instance ids, zero motion for a static frame.
+
+use penumbra::{RenderSettings, Renderer};
+use penumbra_scene::Scene;
+
+fn oct_decode(e: [f32; 2]) -> glam::Vec3 {
+    let mut n = glam::Vec3::new(e[0], e[1], 1.0 - e[0].abs() - e[1].abs());
+    if n.z < 0.0 {
+        let (x, y) = (n.x, n.y);
+        n.x = (1.0 - y.abs()) * if x >= 0.0 { 1.0 } else { -1.0 };
+        n.y = (1.0 - x.abs()) * if y >= 0.0 { 1.0 } else { -1.0 };
+    }
+    n.normalize()
+}
+
+#[test]
+fn gbuffer_positions_normals_ids_and_motion() {
+    let scene = Scene::default_scene();
+    let sphere = scene.objects.iter().position(|o| o.name == "sphere").expect("default scene has a sphere");
+    let centre = scene.objects[sphere].transform.w_axis.truncate();
+    let radius = scene.meshes[scene.objects[sphere].mesh].bounds().map(|(lo, hi)| 0.5 * (hi.x - lo.x)).unwrap();
+    let settings = RenderSettings { width: 160, height: 120, dump_passes: true, ..Default::default() };
+    let mut r = Renderer::new_headless(&scene, settings, false).unwrap();
+    let f = scene.at(0.0, None);
+    let mut out = r.render(&f, None, true).unwrap();
+    out.extend(r.finish().unwrap());
+    let img = &out[0];
+    let get = |name: &str| &img.dumps.iter().find(|(n, _)| n == name).unwrap_or_else(|| panic!("no dump {name}")).1;
+    let (pos, nrm, ids, motion) = (get("gb_position"), get("gb_normal"), get("gb_uv_mat"), get("gb_motion"));
+    let mut sphere_px = 0;
+    let mut worst_dot: f32 = 1.0;
+    let mut worst_radius: f32 = 0.0;
+    let mut up_facing = 0;
+    for i in 0..pos.len() {
+        if ids[i][3] < 0.5 {
+            continue; // sky
+        }
+        assert_eq!(motion[i][0], 0.0, "static frame has motion");
+        assert_eq!(motion[i][1], 0.0, "static frame has motion");
+        let n = oct_decode([nrm[i][0], nrm[i][1]]);
+        assert!((n.length() - 1.0).abs() < 1e-3);
+        let t = oct_decode([nrm[i][2], nrm[i][3]]);
+        assert!(n.dot(t).abs() < 2e-2, "tangent not orthogonal to normal: {}", n.dot(t));
+        if (ids[i][3] - 1.0).round() as usize == sphere {
+            sphere_px += 1;
+            let p = glam::Vec3::new(pos[i][0], pos[i][1], pos[i][2]);
+            worst_radius = worst_radius.max(((p - centre).length() - radius).abs());
+            worst_dot = worst_dot.min(n.dot((p - centre).normalize()));
+            if n.y > 0.99 {
+                up_facing += 1;
+            }
+        }
+    }
+    assert!(sphere_px > 500, "sphere covers {sphere_px} pixels");
+    // 48x24 tessellation: chords deviate from the sphere by at most r(1 - cos(pi/24)) = 0.006.
+    assert!(worst_radius < 0.0065, "positions off the sphere by {worst_radius}");
+    // Interpolated vertex normals vs the exact radial direction, through fp16 octahedral storage.
+    assert!(worst_dot > 0.999, "normal error: dot {worst_dot}");
+    assert!(up_facing > 0, "no pixel near the +Y pole of the sphere");
+}
+
+#[test]
+fn motion_vectors_match_reprojection_of_moving_objects() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/falling.toml");
+    let scene = Scene::load(&path).unwrap();
+    let (w, h) = (160u32, 120u32);
+    let settings = RenderSettings { width: w, height: h, dump_passes: true, frames_in_flight: 1, ..Default::default() };
+    let mut r = Renderer::new_headless(&scene, settings, false).unwrap();
+    let (t0, t1) = (4.0 / 30.0, 5.0 / 30.0);
+    r.render(&scene.at(t0, None), None, false).unwrap();
+    let f = scene.at(t1, Some(t0));
+    assert!(f.any_moved(), "falling scene must move between frames 4 and 5");
+    let mut out = r.render(&f, None, true).unwrap();
+    out.extend(r.finish().unwrap());
+    let img = out.last().unwrap();
+    let get = |name: &str| &img.dumps.iter().find(|(n, _)| n == name).unwrap().1;
+    let (pos, ids, motion) = (get("gb_position"), get("gb_uv_mat"), get("gb_motion"));
+    let aspect = w as f32 / h as f32;
+    let vp = f.camera.proj(aspect) * f.camera.view();
+    let prev_vp = f.prev_camera.proj(aspect) * f.prev_camera.view();
+    let to_px = |m: glam::Mat4, p: glam::Vec3| {
+        let c = m * p.extend(1.0);
+        glam::Vec2::new(c.x / c.w, c.y / c.w) * 0.5 * glam::Vec2::new(w as f32, h as f32)
+    };
+    let (mut checked, mut moving, mut worst) = (0, 0, 0.0f32);
+    for i in 0..pos.len() {
+        if ids[i][3] < 0.5 {
+            continue;
+        }
+        let inst = &f.instances[(ids[i][3] - 1.0).round() as usize];
+        if inst.deformed_mesh.is_some() {
+            continue;
+        }
+        let p = glam::Vec3::new(pos[i][0], pos[i][1], pos[i][2]);
+        let p_obj = inst.world.inverse().transform_point3(p);
+        let prev = inst.prev_world.transform_point3(p_obj);
+        let want = to_px(vp, p) - to_px(prev_vp, prev);
+        let got = glam::Vec2::new(motion[i][0], motion[i][1]);
+        let err = (want - got).length();
+        // fp16 storage of pixel offsets: relative 1e-3 plus interpolation/rounding slack.
+        worst = worst.max(err / (1.0 + want.length()));
+        checked += 1;
+        if want.length() > 0.5 {
+            moving += 1;
+        }
+    }
+    assert!(checked > 1000 && moving > 50, "checked {checked}, moving {moving}");
+    assert!(worst < 0.02, "motion vector error {worst} (relative to 1 + |motion| px)");
+}
