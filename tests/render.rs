@@ -77,3 +77,37 @@ fn graph_of_default_scene_and_resource_reuse() {
     assert_eq!(prof["frames"], 2);
     assert!(prof["passes"].as_array().unwrap().iter().any(|p| p["pass"] == "gbuffer"));
 }
+
+#[test]
+fn empty_scene_and_degenerate_meshes_render_cleanly() {
+    // No objects at all: only the environment is drawn.
+    let mut scene = Scene::empty("empty");
+    scene.environment = Some(penumbra_scene::Environment::procedural_sky(64, 32));
+    let (r, frames) = render_frames(&scene, 48, 32, 2, true);
+    let log = r.context().validation.clone();
+    drop(r);
+    assert_eq!(log.error_count(), 0, "{:#?}", log.errors());
+    assert!(frames.iter().all(|f| f.hdr.iter().flatten().all(|c| c.is_finite())));
+    // An object whose mesh has no triangles, and one whose triangles are all degenerate.
+    let mut scene = Scene::default_scene();
+    let mut empty = penumbra_scene::MeshData::default();
+    empty.name = "empty".into();
+    let mut flat = penumbra_scene::MeshData::plane(1.0, 1);
+    for p in &mut flat.positions {
+        *p = glam::Vec3::ZERO;
+    }
+    for (i, m) in [empty, flat].into_iter().enumerate() {
+        scene.meshes.push(m);
+        scene.objects.push(penumbra_scene::Object {
+            name: format!("degenerate{i}"),
+            mesh: scene.meshes.len() - 1,
+            material: 0,
+            transform: glam::Mat4::IDENTITY,
+        });
+    }
+    let (r, frames) = render_frames(&scene, 48, 32, 1, true);
+    let log = r.context().validation.clone();
+    drop(r);
+    assert_eq!(log.error_count(), 0, "{:#?}", log.errors());
+    assert!(frames[0].hdr.iter().flatten().all(|c| c.is_finite()));
+}
