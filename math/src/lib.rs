@@ -17,6 +17,7 @@ pub mod isg;
 pub mod nnls;
 pub mod quad;
 pub mod sh;
+pub mod shadow_field;
 pub mod sphereset;
 pub mod sg;
 pub mod special;

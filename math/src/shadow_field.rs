@@ -1,0 +1,748 @@
+//! Precomputed shadow fields (Zhou et al. 2005) with adaptive shell resolution (Tamura et al.,
+//! "adaptive shadow fields"): object occlusion fields (OOF) on concentric shells, order-4 SH
+//! (16 coefficients), 8-bit quantization with per-shell min/step, per-vertex self-occlusion
+//! transfer, and the CPU evaluation used by the `shadow-fields` technique.
+//!
+//! # Conventions
+//! * The field stores *visibility* `V(w) = 1` for unblocked directions (so occluders combine by
+//!   the SH triple product of their visibilities). A point inside a closed mesh sees `V = 0`.
+//! * Shell `c` (0-based) has radius `0.2 * Vr * (1 + c)` around the bounding-box centre, `Vr`
+//!   the bounding-sphere radius about that centre.
+//! * Shell sample `(s, t)` of resolution `R`: `theta = pi (s + 0.5) / R` from +z,
+//!   `phi = 2 pi t / R` from +x towards +y (the [`crate::sh`] frame). Interpolation is bilinear
+//!   (clamped in theta, periodic in phi) inside a shell and linear between the two nearest
+//!   shells; inside the innermost shell the innermost shell is used, outside the outermost the
+//!   object is ignored (unoccluded). The GPU mirror is `glsl/include/sf.glsl`.
+//! * Coefficient `e` of a shell is stored as `u8 q`, value `min[e] + q * step[e]`.
+
+use crate::sh::{eval_basis_into, sh_count, ShRotation, TripleProductTensor};
+use glam::{DMat3, DVec3, Vec3};
+use rayon::prelude::*;
+use std::f64::consts::PI;
+
+/// SH order of the fields (bands 0..3).
+pub const ORDER: usize = 4;
+/// Coefficients per sample point.
+pub const NCOEF: usize = 16;
+/// Floats of the block-diagonal SH rotation matrix of order 4 (1 + 9 + 25 + 49).
+pub const ROT_FLOATS: usize = 84;
+/// Visibility coefficient vector of an unoccluded point (`V = 1`): `sqrt(4 pi)` in band 0.
+pub const UNOCCLUDED_DC: f64 = 3.544907701811032;
+
+/// Precomputation parameters (defaults from the paper).
+#[derive(Clone, Debug)]
+pub struct Params {
+    /// Number of concentric shells `C` (paper: 32).
+    pub shells: usize,
+    /// Initial (fixed) polar resolution `R`: `R x R` samples per shell (paper: 64). Rounded up
+    /// to a power of two.
+    pub resolution: usize,
+    /// Occlusion map resolution per sample point: `map_res x 2 map_res` lat-long directions
+    /// (paper: 64x64 maps).
+    pub map_res: usize,
+    /// Adaptive threshold of eq. 1 (paper: 0.010).
+    pub threshold: f64,
+    /// Smallest resolution the adaptation may reach.
+    pub min_resolution: usize,
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Params { shells: 32, resolution: 64, map_res: 32, threshold: 0.010, min_resolution: 1 }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Ray casting (a small binary BVH over the object's triangles, any-hit queries)
+
+struct Node {
+    lo: DVec3,
+    hi: DVec3,
+    /// leaf: first triangle, count; inner: left child, 0 (right = left + 1 is not assumed)
+    a: u32,
+    b: u32,
+    leaf: bool,
+    right: u32,
+}
+
+/// Any-hit ray caster over a triangle soup.
+pub struct RayCaster {
+    tris: Vec<[DVec3; 3]>,
+    nodes: Vec<Node>,
+}
+
+impl RayCaster {
+    /// Builds the BVH (triangles referencing out-of-range vertices are skipped).
+    pub fn new(positions: &[Vec3], indices: &[u32]) -> Self {
+        let mut tris: Vec<[DVec3; 3]> = indices
+            .chunks_exact(3)
+            .filter(|t| t.iter().all(|&i| (i as usize) < positions.len()))
+            .map(|t| [0, 1, 2].map(|k| positions[t[k] as usize].as_dvec3()))
+            .collect();
+        let mut nodes = Vec::new();
+        if !tris.is_empty() {
+            let n = tris.len();
+            Self::build(&mut tris, 0, n, &mut nodes);
+        }
+        RayCaster { tris, nodes }
+    }
+
+    fn build(tris: &mut [[DVec3; 3]], start: usize, end: usize, nodes: &mut Vec<Node>) -> u32 {
+        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+        for t in &tris[start..end] {
+            for v in t {
+                lo = lo.min(*v);
+                hi = hi.max(*v);
+            }
+        }
+        let id = nodes.len() as u32;
+        nodes.push(Node { lo, hi, a: start as u32, b: (end - start) as u32, leaf: true, right: 0 });
+        if end - start <= 4 {
+            return id;
+        }
+        let ext = hi - lo;
+        let axis = if ext.x >= ext.y && ext.x >= ext.z { 0 } else if ext.y >= ext.z { 1 } else { 2 };
+        let mid = (start + end) / 2;
+        let key = |t: &[DVec3; 3]| (t[0][axis] + t[1][axis] + t[2][axis]) / 3.0;
+        tris[start..end].select_nth_unstable_by(mid - start, |p, q| key(p).total_cmp(&key(q)));
+        let l = Self::build(tris, start, mid, nodes);
+        let r = Self::build(tris, mid, end, nodes);
+        let n = &mut nodes[id as usize];
+        n.leaf = false;
+        n.a = l;
+        n.right = r;
+        id
+    }
+
+    /// Whether the ray `o + t d`, `t in (0, tmax)`, hits any triangle (both sides).
+    pub fn occluded(&self, o: DVec3, d: DVec3, tmax: f64) -> bool {
+        if self.nodes.is_empty() {
+            return false;
+        }
+        let inv = DVec3::ONE / d;
+        let mut stack = [0u32; 64];
+        let mut sp = 1;
+        while sp > 0 {
+            sp -= 1;
+            let n = &self.nodes[stack[sp] as usize];
+            let t0 = (n.lo - o) * inv;
+            let t1 = (n.hi - o) * inv;
+            let tn = t0.min(t1).max_element().max(0.0);
+            let tf = t0.max(t1).min_element().min(tmax);
+            if tn > tf || tf.is_nan() {
+                continue;
+            }
+            if n.leaf {
+                for t in &self.tris[n.a as usize..(n.a + n.b) as usize] {
+                    if hit(o, d, t, tmax) {
+                        return true;
+                    }
+                }
+            } else if sp + 2 <= stack.len() {
+                stack[sp] = n.a;
+                stack[sp + 1] = n.right;
+                sp += 2;
+            }
+        }
+        false
+    }
+}
+
+fn hit(o: DVec3, d: DVec3, t: &[DVec3; 3], tmax: f64) -> bool {
+    let e1 = t[1] - t[0];
+    let e2 = t[2] - t[0];
+    let p = d.cross(e2);
+    let det = e1.dot(p);
+    if det.abs() < 1e-14 {
+        return false;
+    }
+    let inv = 1.0 / det;
+    let s = o - t[0];
+    let u = s.dot(p) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return false;
+    }
+    let q = s.cross(e1);
+    let v = d.dot(q) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return false;
+    }
+    let tt = e2.dot(q) * inv;
+    tt > 0.0 && tt < tmax
+}
+
+// ---------------------------------------------------------------------------------------------
+// Sphere directions
+
+/// Direction of polar angles in the SH frame.
+pub fn polar_dir(theta: f64, phi: f64) -> DVec3 {
+    DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos())
+}
+
+/// A lat-long direction table `(direction, solid angle, basis values)` with `n x 2n` cells.
+pub struct DirTable {
+    /// `(direction, weight, Y_0..Y_15)`; weights sum to 4 pi.
+    pub dirs: Vec<(DVec3, f64, [f64; NCOEF])>,
+}
+
+impl DirTable {
+    /// `n` rings in theta, `2n` cells in phi, cell centres.
+    pub fn new(n: usize) -> Self {
+        let n = n.max(2);
+        let (dt, dp) = (PI / n as f64, PI / n as f64);
+        let mut dirs = Vec::with_capacity(2 * n * n);
+        for i in 0..n {
+            let th = (i as f64 + 0.5) * dt;
+            // exact solid angle of the ring cell
+            let w = ((i as f64 * dt).cos() - ((i + 1) as f64 * dt).cos()) * dp;
+            for j in 0..2 * n {
+                let d = polar_dir(th, (j as f64 + 0.5) * dp);
+                let mut y = [0.0; NCOEF];
+                eval_basis_into(ORDER, d, &mut y);
+                dirs.push((d, w, y));
+            }
+        }
+        DirTable { dirs }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Grids
+
+/// Bilinear sample of an `r x r` grid of coefficient vectors at polar angles (see module docs).
+pub fn sample_grid(grid: &[[f32; NCOEF]], r: usize, theta: f64, phi: f64) -> [f64; NCOEF] {
+    let (s0, s1, fs, t0, t1, ft) = grid_weights(r, theta, phi);
+    let mut out = [0.0; NCOEF];
+    for (idx, w) in [(s0 * r + t0, (1.0 - fs) * (1.0 - ft)), (s0 * r + t1, (1.0 - fs) * ft), (s1 * r + t0, fs * (1.0 - ft)), (s1 * r + t1, fs * ft)] {
+        for e in 0..NCOEF {
+            out[e] += w * grid[idx][e] as f64;
+        }
+    }
+    out
+}
+
+/// Indices and weights of the bilinear lookup: `(s0, s1, fs, t0, t1, ft)`.
+pub fn grid_weights(r: usize, theta: f64, phi: f64) -> (usize, usize, f64, usize, usize, f64) {
+    let r = r.max(1);
+    let rf = r as f64;
+    let u = (theta / PI * rf - 0.5).clamp(0.0, rf - 1.0);
+    let s0 = (u.floor() as usize).min(r - 1);
+    let s1 = (s0 + 1).min(r - 1);
+    let fs = u - s0 as f64;
+    let v = (phi / (2.0 * PI)).rem_euclid(1.0) * rf;
+    let t0 = (v.floor() as usize) % r;
+    let t1 = (t0 + 1) % r;
+    let ft = v - v.floor();
+    (s0, s1, fs, t0, t1, ft)
+}
+
+/// Polar angles `(theta, phi)` of sample `(s, t)` at resolution `r`.
+pub fn sample_angles(r: usize, s: usize, t: usize) -> (f64, f64) {
+    (PI * (s as f64 + 0.5) / r as f64, 2.0 * PI * t as f64 / r as f64)
+}
+
+/// Polar angles of a (non-zero) vector.
+pub fn angles_of(d: DVec3) -> (f64, f64) {
+    let len = d.length();
+    if !(len > 0.0) {
+        return (0.0, 0.0);
+    }
+    let theta = (d.z / len).clamp(-1.0, 1.0).acos();
+    let phi = d.y.atan2(d.x).rem_euclid(2.0 * PI);
+    (theta, phi)
+}
+
+/// Eq. 1: `1/(4 pi) int |sum (a_g - b_g) Y_g|`, by the table's quadrature.
+pub fn eq1_error(a: &[f64; NCOEF], b: &[f32; NCOEF], table: &DirTable) -> f64 {
+    let mut diff = [0.0; NCOEF];
+    for e in 0..NCOEF {
+        diff[e] = a[e] - b[e] as f64;
+    }
+    let mut s = 0.0;
+    for (_, w, y) in &table.dirs {
+        let v: f64 = diff.iter().zip(y).map(|(x, y)| x * y).sum();
+        s += w * v.abs();
+    }
+    s / (4.0 * PI)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Raw and quantized fields
+
+/// Unquantized field at the initial resolution on every shell (output of [`precompute`]).
+#[derive(Clone, Debug)]
+pub struct RawField {
+    /// Shell centre (object space).
+    pub center: Vec3,
+    /// Bounding-sphere radius about `center`.
+    pub bound_radius: f32,
+    /// Initial resolution `R` (power of two).
+    pub resolution: usize,
+    /// Per shell, `R * R` coefficient vectors, row `s` (theta) major.
+    pub shells: Vec<Vec<[f32; NCOEF]>>,
+    /// Per vertex self-occlusion diffuse transfer `V_self(w) max(n.w, 0) / pi` (object space).
+    pub self_transfer: Vec<[f32; NCOEF]>,
+    /// Seconds spent in the ray casting.
+    pub seconds: f64,
+    /// Rays cast.
+    pub rays: u64,
+}
+
+/// One quantized shell.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Shell {
+    /// Polar resolution `R_c` (`R_c x R_c` samples).
+    pub resolution: u32,
+    /// Per coefficient minimum.
+    pub min: [f32; NCOEF],
+    /// Per coefficient quantization step (`(max - min) / 255`).
+    pub step: [f32; NCOEF],
+    /// `R_c * R_c * 16` bytes, sample-major.
+    pub data: Vec<u8>,
+    /// Largest eq. 1 error of the re-interpolated samples against the initial ones (0 if not
+    /// reduced).
+    pub adapt_error: f32,
+}
+
+/// A quantized object occlusion field with self-transfer: what is stored in one file per object.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ObjectField {
+    /// Shell centre (object space).
+    pub center: Vec3,
+    /// Bounding-sphere radius `Vr`.
+    pub bound_radius: f32,
+    /// The shells, innermost first.
+    pub shells: Vec<Shell>,
+    /// Per vertex self-transfer (object space, not quantized).
+    pub self_transfer: Vec<[f32; NCOEF]>,
+}
+
+fn quantize(grid: &[[f32; NCOEF]], r: usize, adapt_error: f32) -> Shell {
+    let mut min = [f32::INFINITY; NCOEF];
+    let mut max = [f32::NEG_INFINITY; NCOEF];
+    for v in grid {
+        for e in 0..NCOEF {
+            min[e] = min[e].min(v[e]);
+            max[e] = max[e].max(v[e]);
+        }
+    }
+    let mut step = [0.0f32; NCOEF];
+    for e in 0..NCOEF {
+        if !min[e].is_finite() || !max[e].is_finite() {
+            min[e] = 0.0;
+            max[e] = 0.0;
+        }
+        step[e] = (max[e] - min[e]) / 255.0;
+    }
+    let mut data = Vec::with_capacity(grid.len() * NCOEF);
+    for v in grid {
+        for e in 0..NCOEF {
+            let q = if step[e] > 0.0 { ((v[e] - min[e]) / step[e]).round().clamp(0.0, 255.0) } else { 0.0 };
+            data.push(q as u8);
+        }
+    }
+    Shell { resolution: r as u32, min, step, data, adapt_error }
+}
+
+impl RawField {
+    /// The original (fixed-resolution) field: every shell at `R`, quantized.
+    pub fn to_fixed(&self) -> ObjectField {
+        ObjectField {
+            center: self.center,
+            bound_radius: self.bound_radius,
+            shells: self.shells.iter().map(|g| quantize(g, self.resolution, 0.0)).collect(),
+            self_transfer: self.self_transfer.clone(),
+        }
+    }
+
+    /// The adaptive field (section 4): per shell, halve `R` while every initial sample,
+    /// re-interpolated from the coarser grid (whose samples are bilinear from the initial
+    /// grid), stays within `threshold` of eq. 1. The error is always measured against the
+    /// initial samples (not the previous level), so it does not accumulate.
+    pub fn to_adaptive(&self, threshold: f64, min_resolution: usize) -> ObjectField {
+        let table = DirTable::new(12);
+        let r0 = self.resolution;
+        let shells = self
+            .shells
+            .par_iter()
+            .map(|g| {
+                let (r, grid, err) = adapt_shell(g, r0, threshold, min_resolution, &table);
+                quantize(&grid, r, err as f32)
+            })
+            .collect();
+        ObjectField {
+            center: self.center,
+            bound_radius: self.bound_radius,
+            shells,
+            self_transfer: self.self_transfer.clone(),
+        }
+    }
+}
+
+/// Adapts one shell: returns `(R_c, grid, largest error of the accepted level)`.
+pub fn adapt_shell(
+    g: &[[f32; NCOEF]],
+    r0: usize,
+    threshold: f64,
+    min_resolution: usize,
+    table: &DirTable,
+) -> (usize, Vec<[f32; NCOEF]>, f64) {
+    let mut r = r0;
+    let mut grid = g.to_vec();
+    let mut err_acc = 0.0;
+    while r / 2 >= min_resolution.max(1) && r >= 2 {
+        let r2 = r / 2;
+        let mut coarse = Vec::with_capacity(r2 * r2);
+        for s in 0..r2 {
+            for t in 0..r2 {
+                let (th, ph) = sample_angles(r2, s, t);
+                let v = sample_grid(g, r0, th, ph);
+                coarse.push(v.map(|x| x as f32));
+            }
+        }
+        let mut worst = 0.0f64;
+        'outer: for s in 0..r0 {
+            for t in 0..r0 {
+                let (th, ph) = sample_angles(r0, s, t);
+                let rec = sample_grid(&coarse, r2, th, ph);
+                worst = worst.max(eq1_error(&rec, &g[s * r0 + t], table));
+                if worst >= threshold {
+                    break 'outer;
+                }
+            }
+        }
+        if worst >= threshold {
+            break;
+        }
+        r = r2;
+        grid = coarse;
+        err_acc = worst;
+    }
+    (r, grid, err_acc)
+}
+
+/// Bounding-box centre and bounding-sphere radius about it.
+pub fn bounds(positions: &[Vec3]) -> (Vec3, f32) {
+    if positions.is_empty() {
+        return (Vec3::ZERO, 0.0);
+    }
+    let (lo, hi) = positions.iter().fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(l, h), p| (l.min(*p), h.max(*p)));
+    let c = (lo + hi) * 0.5;
+    let r = positions.iter().map(|p| (*p - c).length()).fold(0.0f32, f32::max);
+    (c, r)
+}
+
+/// Computes the object occlusion field at the initial resolution on every shell, and the
+/// per-vertex self-transfer. `progress(n)` is called with finished-sample
+/// increments (shell samples, then vertices; total `shells * R^2 + vertex count`), from any thread.
+pub fn precompute(
+    positions: &[Vec3],
+    normals: &[Vec3],
+    indices: &[u32],
+    params: &Params,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<RawField, String> {
+    if positions.is_empty() || indices.len() < 3 {
+        return Err("shadow field: empty mesh".into());
+    }
+    if params.shells == 0 || params.shells > 1024 {
+        return Err(format!("shadow field: shell count {} out of 1..=1024", params.shells));
+    }
+    if params.resolution == 0 || params.resolution > 1024 || params.map_res == 0 || params.map_res > 1024 {
+        return Err("shadow field: resolution and map resolution must be in 1..=1024".into());
+    }
+    if positions.iter().any(|p| !p.is_finite()) {
+        return Err("shadow field: non-finite vertex position".into());
+    }
+    let start = std::time::Instant::now();
+    let r = params.resolution.next_power_of_two();
+    let (center, vr) = bounds(positions);
+    if !(vr > 0.0) {
+        return Err("shadow field: degenerate mesh (zero bounding radius)".into());
+    }
+    let caster = RayCaster::new(positions, indices);
+    let table = DirTable::new(params.map_res);
+    let c = center.as_dvec3();
+    let eps = 1e-4 * vr as f64;
+    let far = 1e3 * vr as f64;
+    let ndir = table.dirs.len() as u64;
+    let shells: Vec<Vec<[f32; NCOEF]>> = (0..params.shells)
+        .map(|sh| {
+            let radius = 0.2 * vr as f64 * (1.0 + sh as f64);
+            (0..r * r)
+                .into_par_iter()
+                .map(|i| {
+                    let (th, ph) = sample_angles(r, i / r, i % r);
+                    let p = c + radius * polar_dir(th, ph);
+                    let mut o = [0.0f64; NCOEF];
+                    for (d, w, y) in &table.dirs {
+                        if !caster.occluded(p + *d * eps, *d, far) {
+                            for e in 0..NCOEF {
+                                o[e] += w * y[e];
+                            }
+                        }
+                    }
+                    progress(1);
+                    o.map(|x| x as f32)
+                })
+                .collect()
+        })
+        .collect();
+    let self_transfer: Vec<[f32; NCOEF]> = positions
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let n = normals.get(i).copied().unwrap_or(Vec3::ZERO).as_dvec3();
+            let n = if n.length_squared() > 0.0 { n.normalize() } else { DVec3::Z };
+            let p = p.as_dvec3() + n * (10.0 * eps);
+            let mut o = [0.0f64; NCOEF];
+            for (d, w, y) in &table.dirs {
+                let cs = n.dot(*d);
+                if cs > 0.0 && !caster.occluded(p, *d, far) {
+                    for e in 0..NCOEF {
+                        o[e] += w * cs / PI * y[e];
+                    }
+                }
+            }
+            progress(1);
+            o.map(|x| x as f32)
+        })
+        .collect();
+    let rays = (params.shells as u64 * (r * r) as u64 + positions.len() as u64) * ndir;
+    Ok(RawField { center, bound_radius: vr, resolution: r, shells, self_transfer, seconds: start.elapsed().as_secs_f64(), rays })
+}
+
+// ---------------------------------------------------------------------------------------------
+// Evaluation
+
+impl ObjectField {
+    /// Shell radius step `0.2 Vr` (the radius of shell `c` is `(c + 1)` times this).
+    pub fn shell_step(&self) -> f64 {
+        0.2 * self.bound_radius as f64
+    }
+
+    /// Dequantized coefficient vector of sample `idx` of shell `c`.
+    pub fn sample(&self, c: usize, idx: usize) -> [f64; NCOEF] {
+        let sh = &self.shells[c];
+        let mut out = [0.0; NCOEF];
+        for e in 0..NCOEF {
+            out[e] = sh.min[e] as f64 + sh.data[idx * NCOEF + e] as f64 * sh.step[e] as f64;
+        }
+        out
+    }
+
+    /// Dequantized whole shell grid.
+    pub fn shell_grid(&self, c: usize) -> Vec<[f32; NCOEF]> {
+        let r = self.shells[c].resolution as usize;
+        (0..r * r).map(|i| self.sample(c, i).map(|x| x as f32)).collect()
+    }
+
+    fn shell_lookup(&self, c: usize, theta: f64, phi: f64) -> [f64; NCOEF] {
+        let r = self.shells[c].resolution as usize;
+        let (s0, s1, fs, t0, t1, ft) = grid_weights(r, theta, phi);
+        let mut out = [0.0; NCOEF];
+        for (idx, w) in [(s0 * r + t0, (1.0 - fs) * (1.0 - ft)), (s0 * r + t1, (1.0 - fs) * ft), (s1 * r + t0, fs * (1.0 - ft)), (s1 * r + t1, fs * ft)] {
+            let v = self.sample(c, idx);
+            for e in 0..NCOEF {
+                out[e] += w * v[e];
+            }
+        }
+        out
+    }
+
+    /// Visibility coefficients (object frame) at object-space point `p`, or `None` outside the
+    /// outermost shell (the object is ignored there) or for an empty field.
+    pub fn ocv(&self, p: DVec3) -> Option<[f64; NCOEF]> {
+        let nc = self.shells.len();
+        if nc == 0 || !(self.bound_radius > 0.0) {
+            return None;
+        }
+        let q = p - self.center.as_dvec3();
+        let x = q.length() / self.shell_step() - 1.0;
+        if !x.is_finite() || x > (nc - 1) as f64 {
+            return None;
+        }
+        let (theta, phi) = angles_of(q);
+        let x = x.max(0.0);
+        let c0 = (x.floor() as usize).min(nc - 1);
+        let c1 = (c0 + 1).min(nc - 1);
+        let w = x - c0 as f64;
+        let a = self.shell_lookup(c0, theta, phi);
+        if w <= 0.0 || c1 == c0 {
+            return Some(a);
+        }
+        let b = self.shell_lookup(c1, theta, phi);
+        let mut out = [0.0; NCOEF];
+        for e in 0..NCOEF {
+            out[e] = (1.0 - w) * a[e] + w * b[e];
+        }
+        Some(out)
+    }
+
+    /// Bytes of the coefficient data (`sum R_c^2 * 16`), without tables.
+    pub fn data_bytes(&self) -> usize {
+        self.shells.iter().map(|s| s.data.len()).sum()
+    }
+
+    /// Bytes of the file [`ObjectField::to_bytes`] writes.
+    pub fn file_bytes(&self) -> usize {
+        self.to_bytes().len()
+    }
+
+    /// Per-shell resolutions, innermost first.
+    pub fn resolutions(&self) -> Vec<u32> {
+        self.shells.iter().map(|s| s.resolution).collect()
+    }
+
+    /// Serializes the field (little endian): `"PSF1"`, shell count, vertex count, centre,
+    /// `Vr`, then per shell `R`, adapt error, `min[16]`, `step[16]`, `R*R*16` bytes, then the
+    /// self-transfer as f32.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut b = Vec::new();
+        b.extend_from_slice(b"PSF1");
+        b.extend_from_slice(&(self.shells.len() as u32).to_le_bytes());
+        b.extend_from_slice(&(self.self_transfer.len() as u32).to_le_bytes());
+        for v in self.center.to_array().iter().chain([self.bound_radius].iter()) {
+            b.extend_from_slice(&v.to_le_bytes());
+        }
+        for s in &self.shells {
+            b.extend_from_slice(&s.resolution.to_le_bytes());
+            b.extend_from_slice(&s.adapt_error.to_le_bytes());
+            for v in s.min.iter().chain(s.step.iter()) {
+                b.extend_from_slice(&v.to_le_bytes());
+            }
+            b.extend_from_slice(&s.data);
+        }
+        for t in &self.self_transfer {
+            for v in t {
+                b.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        b
+    }
+
+    /// Parses [`ObjectField::to_bytes`]; errors (never panics) on truncated or corrupt input.
+    pub fn from_bytes(b: &[u8]) -> Result<Self, String> {
+        let mut pos = 0usize;
+        let mut take = |n: usize| -> Result<&[u8], String> {
+            let end = pos.checked_add(n).filter(|&e| e <= b.len()).ok_or("shadow field file: truncated")?;
+            let s = &b[pos..end];
+            pos = end;
+            Ok(s)
+        };
+        if take(4)? != b"PSF1" {
+            return Err("shadow field file: bad magic (expected PSF1)".into());
+        }
+        let u32v = |s: &[u8]| u32::from_le_bytes([s[0], s[1], s[2], s[3]]);
+        let f32v = |s: &[u8]| f32::from_le_bytes([s[0], s[1], s[2], s[3]]);
+        let nshell = u32v(take(4)?) as usize;
+        let nvert = u32v(take(4)?) as usize;
+        if nshell > 1024 {
+            return Err(format!("shadow field file: {nshell} shells (max 1024)"));
+        }
+        let mut hdr = [0f32; 4];
+        for h in &mut hdr {
+            *h = f32v(take(4)?);
+        }
+        if !hdr.iter().all(|x| x.is_finite()) || !(hdr[3] >= 0.0) {
+            return Err("shadow field file: non-finite centre or radius".into());
+        }
+        let mut shells = Vec::with_capacity(nshell);
+        for _ in 0..nshell {
+            let r = u32v(take(4)?);
+            if r == 0 || r > 4096 {
+                return Err(format!("shadow field file: shell resolution {r} out of 1..=4096"));
+            }
+            let adapt_error = f32v(take(4)?);
+            let mut min = [0f32; NCOEF];
+            let mut step = [0f32; NCOEF];
+            for v in min.iter_mut().chain(step.iter_mut()) {
+                *v = f32v(take(4)?);
+            }
+            if !min.iter().chain(step.iter()).all(|x| x.is_finite()) {
+                return Err("shadow field file: non-finite quantization table".into());
+            }
+            let data = take(r as usize * r as usize * NCOEF)?.to_vec();
+            shells.push(Shell { resolution: r, min, step, data, adapt_error });
+        }
+        if nvert.checked_mul(NCOEF * 4).map_or(true, |n| n > b.len()) {
+            return Err("shadow field file: truncated self-transfer".into());
+        }
+        let mut self_transfer = Vec::with_capacity(nvert);
+        for _ in 0..nvert {
+            let mut t = [0f32; NCOEF];
+            for v in &mut t {
+                *v = f32v(take(4)?);
+            }
+            self_transfer.push(t);
+        }
+        if pos != b.len() {
+            return Err("shadow field file: trailing bytes".into());
+        }
+        Ok(ObjectField { center: Vec3::new(hdr[0], hdr[1], hdr[2]), bound_radius: hdr[3], shells, self_transfer })
+    }
+}
+
+/// Block-diagonal order-4 SH rotation matrix of `r` (bands 0..3, row-major blocks, 84 floats):
+/// `rotated[l^2 + k] = sum_j M_l[k][j] c[l^2 + j]` is the coefficient vector of `f(R^T w)`.
+pub fn rotation_blocks(r: DMat3) -> [f64; ROT_FLOATS] {
+    let rot = ShRotation::new(ORDER, r);
+    let mut out = [0.0; ROT_FLOATS];
+    let mut off = 0;
+    for l in 0..ORDER {
+        let s = l * l;
+        let bw = 2 * l + 1;
+        for j in 0..bw {
+            let mut e = vec![0.0; sh_count(ORDER)];
+            e[s + j] = 1.0;
+            let col = rot.apply(&e);
+            for k in 0..bw {
+                out[off + k * bw + j] = col[s + k];
+            }
+        }
+        off += bw * bw;
+    }
+    out
+}
+
+/// Applies [`rotation_blocks`] to a coefficient vector.
+pub fn rotate(blocks: &[f64; ROT_FLOATS], c: &[f64; NCOEF]) -> [f64; NCOEF] {
+    let mut out = [0.0; NCOEF];
+    let mut off = 0;
+    for l in 0..ORDER {
+        let s = l * l;
+        let bw = 2 * l + 1;
+        for k in 0..bw {
+            out[s + k] = (0..bw).map(|j| blocks[off + k * bw + j] * c[s + j]).sum();
+        }
+        off += bw * bw;
+    }
+    out
+}
+
+/// Sparse triple product with a tensor of order 4: `h_k = sum C_ijk f_i g_j`.
+pub fn triple(t: &TripleProductTensor, f: &[f64; NCOEF], g: &[f64; NCOEF]) -> [f64; NCOEF] {
+    let mut h = [0.0; NCOEF];
+    for &(i, j, k, c) in &t.entries {
+        h[k as usize] += c * f[i as usize] * g[j as usize];
+    }
+    h
+}
+
+/// Order-4 SH of the clamped cosine lobe about unit `n`, divided by pi (the diffuse transfer
+/// without self-occlusion): zonal coefficients `A_l / pi` rotated to `n`.
+pub fn cosine_transfer(n: DVec3) -> [f64; NCOEF] {
+    // A_0 = pi, A_1 = 2 pi / 3, A_2 = pi / 4, A_3 = 0; Y_lm(n) scaled by sqrt(4 pi / (2l+1)) A_l
+    let a = [1.0, 2.0 / 3.0, 0.25, 0.0];
+    let mut y = [0.0; NCOEF];
+    let n = if n.length_squared() > 0.0 { n.normalize() } else { DVec3::Z };
+    eval_basis_into(ORDER, n, &mut y);
+    let mut out = [0.0; NCOEF];
+    for l in 0..ORDER {
+        let k = (4.0 * PI / (2 * l + 1) as f64).sqrt() * a[l];
+        for m in 0..2 * l + 1 {
+            out[l * l + m] = k * y[l * l + m];
+        }
+    }
+    out
+}
