@@ -5,13 +5,18 @@
 pub mod effect;
 pub mod env;
 pub mod gbuffer;
+pub mod isg;
+pub mod kdtree;
 pub mod readback;
 pub mod scene_gpu;
 pub mod shade_env;
 pub mod technique;
 pub mod textures;
 pub mod tonemap;
+pub mod trace;
+pub mod trace_bench;
 pub mod util;
+pub mod volumetric;
 
 pub use env::EnvMapGpu;
 pub use gbuffer::{GBuffer, GBufferPass};

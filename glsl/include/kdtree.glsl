@@ -1,0 +1,164 @@
+// kd-tree layout and traversal shared by the tracer (trace.comp) and techniques.
+//
+// Before including, declare the tree buffers with these names (any binding numbers):
+//   KD_TRIS     readonly vec4 kd_tris[]   3 per triangle (world-space v0, v1, v2; w unused)
+//   KD_NODES    readonly uvec4 kd_nodes[] node 0 is the root
+//   KD_REFS     readonly uint kd_refs[]   triangle indices of the leaves
+//   KD_HEADER   readonly uint kd_hdr[]    counters; scene box at KD_HDR_BOX (6 floats as bits)
+// by defining KD_TRIS(i), KD_NODE(i), KD_REF(i), KD_HDR(i) accessors.
+//
+// Node (uvec4): y < 3: interior, x = split (float bits), y = axis, z = left child (right = z + 1);
+//               y == 3: leaf, z = first ref, w = ref count; y == 4: pending (build only).
+#ifndef PENUMBRA_KDTREE_GLSL
+#define PENUMBRA_KDTREE_GLSL
+
+#define KD_HDR_BOX 8u
+#define KD_LEAF 3u
+#define KD_PENDING 4u
+// Short stack (Horn et al. 2007): entries beyond it are dropped and the ray restarts from the
+// root past the last cell it finished.
+#define KD_SHORT_STACK 8
+// Guard against pathological inputs (NaN rays): give up after this many leaf visits.
+#define KD_MAX_LEAVES 65536u
+
+struct KdHit {
+    float t;     // < 0: no hit
+    float b1;    // barycentrics of v1 and v2
+    float b2;
+    uint tri;
+};
+
+// Watertight ray/triangle test (Woop, Benthin and Wald 2013), per-ray constants first.
+struct KdRayW {
+    ivec3 k;     // kx, ky, kz
+    vec3 s;      // Sx, Sy, Sz
+};
+
+KdRayW kd_ray_setup(vec3 d) {
+    vec3 ad = abs(d);
+    int kz = ad.x > ad.y ? (ad.x > ad.z ? 0 : 2) : (ad.y > ad.z ? 1 : 2);
+    int kx = (kz + 1) % 3;
+    int ky = (kx + 1) % 3;
+    if (d[kz] < 0.0) { int tmp = kx; kx = ky; ky = tmp; }
+    KdRayW r;
+    r.k = ivec3(kx, ky, kz);
+    r.s = vec3(d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]);
+    return r;
+}
+
+// Returns true and t, b1, b2 when the ray hits the triangle with tmin <= t <= tmax.
+bool kd_intersect(KdRayW r, vec3 o, vec3 p0, vec3 p1, vec3 p2, float tmin, float tmax,
+                  out float t, out float b1, out float b2) {
+    vec3 A = p0 - o, B = p1 - o, C = p2 - o;
+    int kx = r.k.x, ky = r.k.y, kz = r.k.z;
+    float Ax = A[kx] - r.s.x * A[kz], Ay = A[ky] - r.s.y * A[kz];
+    float Bx = B[kx] - r.s.x * B[kz], By = B[ky] - r.s.y * B[kz];
+    float Cx = C[kx] - r.s.x * C[kz], Cy = C[ky] - r.s.y * C[kz];
+    float U = Cx * By - Cy * Bx;
+    float V = Ax * Cy - Ay * Cx;
+    float W = Bx * Ay - By * Ax;
+    // (The paper's double-precision fallback for U, V or W == 0 is left out: float64 is an
+    // optional device feature.)
+    if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return false;
+    float det = U + V + W;
+    if (det == 0.0) return false;
+    float Az = r.s.z * A[kz], Bz = r.s.z * B[kz], Cz = r.s.z * C[kz];
+    float T = U * Az + V * Bz + W * Cz;
+    if (det < 0.0) { T = -T; det = -det; U = -U; V = -V; W = -W; }
+    if (T < tmin * det || T > tmax * det) return false;
+    float inv = 1.0 / det;
+    t = T * inv;
+    b1 = V * inv;
+    b2 = W * inv;
+    return true;
+}
+
+vec3 kd_box_lo() { return vec3(uintBitsToFloat(KD_HDR(KD_HDR_BOX)), uintBitsToFloat(KD_HDR(KD_HDR_BOX + 1u)), uintBitsToFloat(KD_HDR(KD_HDR_BOX + 2u))); }
+vec3 kd_box_hi() { return vec3(uintBitsToFloat(KD_HDR(KD_HDR_BOX + 3u)), uintBitsToFloat(KD_HDR(KD_HDR_BOX + 4u)), uintBitsToFloat(KD_HDR(KD_HDR_BOX + 5u))); }
+
+// Traces o + t d for t in [tmin, tmax]. any_hit: stop at the first hit found (visibility).
+KdHit kd_trace(vec3 o, vec3 d, float tmin, float tmax, bool any_hit) {
+    KdHit h;
+    h.t = -1.0; h.b1 = 0.0; h.b2 = 0.0; h.tri = 0xffffffffu;
+    if (!(tmax >= tmin) || any(isnan(o)) || any(isnan(d)) || d == vec3(0.0)) return h;
+    vec3 lo = kd_box_lo(), hi = kd_box_hi();
+    if (lo.x > hi.x) return h; // empty tree
+    vec3 inv = 1.0 / d;
+    float t_enter = tmin, t_exit = tmax;
+    for (int a = 0; a < 3; a++) {
+        if (d[a] == 0.0) {
+            if (o[a] < lo[a] || o[a] > hi[a]) return h;
+        } else {
+            float ta = (lo[a] - o[a]) * inv[a], tb = (hi[a] - o[a]) * inv[a];
+            t_enter = max(t_enter, min(ta, tb));
+            t_exit = min(t_exit, max(ta, tb));
+        }
+    }
+    if (t_enter > t_exit) return h;
+    KdRayW rw = kd_ray_setup(d);
+
+    uint st_node[KD_SHORT_STACK];
+    float st_min[KD_SHORT_STACK], st_max[KD_SHORT_STACK];
+    int top = 0;       // ring position of the next push
+    int depth = 0;     // valid entries (<= KD_SHORT_STACK)
+    bool dropped = false;
+    float best = tmax;
+    float g_min = t_enter;
+    uint leaves = 0u;
+    uint node = 0u;
+    float cmin = t_enter, cmax = t_exit;
+    while (true) {
+        uvec4 nd = KD_NODE(node);
+        if (nd.y < 3u) {
+            uint axis = nd.y;
+            float split = uintBitsToFloat(nd.x);
+            float oa = o[axis], da = d[axis];
+            bool below = oa < split || (oa == split && da <= 0.0);
+            uint first = below ? nd.z : nd.z + 1u;
+            uint second = below ? nd.z + 1u : nd.z;
+            if (da == 0.0) { node = first; continue; }
+            float ts = (split - oa) * inv[axis];
+            if (ts > cmax || ts <= 0.0) {
+                node = first;
+            } else if (ts < cmin) {
+                node = second;
+            } else {
+                if (depth == KD_SHORT_STACK) dropped = true; else depth++;
+                st_node[top] = second; st_min[top] = ts; st_max[top] = cmax;
+                top = (top + 1) % KD_SHORT_STACK;
+                node = first;
+                cmax = ts;
+            }
+            continue;
+        }
+        // leaf
+        leaves++;
+        uint off = nd.z, cnt = (nd.y == KD_LEAF) ? nd.w : 0u;
+        for (uint j = 0u; j < cnt; j++) {
+            uint ti = KD_REF(off + j);
+            float t, b1, b2;
+            if (kd_intersect(rw, o, KD_TRI(3u * ti).xyz, KD_TRI(3u * ti + 1u).xyz, KD_TRI(3u * ti + 2u).xyz, tmin, best, t, b1, b2)) {
+                best = t; h.t = t; h.b1 = b1; h.b2 = b2; h.tri = ti;
+                if (any_hit) return h;
+            }
+        }
+        if (h.t >= 0.0 && best <= cmax) return h;
+        if (leaves >= KD_MAX_LEAVES) return h;
+        if (depth > 0) {
+            top = (top + KD_SHORT_STACK - 1) % KD_SHORT_STACK;
+            depth--;
+            node = st_node[top]; cmin = st_min[top]; cmax = st_max[top];
+            if (h.t >= 0.0 && cmin > best) return h;
+        } else if (dropped && cmax < t_exit) {
+            // restart from the root past the finished cells
+            g_min = max(g_min, cmax);
+            dropped = false;
+            node = 0u; cmin = g_min; cmax = t_exit;
+        } else {
+            return h;
+        }
+    }
+    return h;
+}
+
+#endif

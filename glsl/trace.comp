@@ -1,0 +1,28 @@
+#version 460
+#extension GL_GOOGLE_include_directive : require
+// The compute ray tracer: one ray per invocation through the kd-tree (include/kdtree.glsl).
+// Ray i: rays[2i] = (origin, tmin), rays[2i+1] = (direction, tmax); direction need not be unit.
+// Hit i: (t, b1, b2, triangle index as float bits); t < 0 is a miss. Any-hit mode reports the
+// first hit found (not the closest), whose t is only meaningful as "occluded".
+layout(local_size_x = 64) in;
+layout(std430, binding = 0) readonly buffer Tris { vec4 kd_tris[]; };
+layout(std430, binding = 1) readonly buffer Nodes { uvec4 kd_nodes[]; };
+layout(std430, binding = 2) readonly buffer Refs { uint kd_refs[]; };
+layout(std430, binding = 3) readonly buffer Header { uint kd_hdr[]; };
+layout(std430, binding = 4) readonly buffer Rays { vec4 rays[]; };
+layout(std430, binding = 5) writeonly buffer Hits { vec4 hits[]; };
+layout(push_constant) uniform Push { uint count; uint any_hit; } pc;
+
+#define KD_TRI(i) kd_tris[i]
+#define KD_NODE(i) kd_nodes[i]
+#define KD_REF(i) kd_refs[i]
+#define KD_HDR(i) kd_hdr[i]
+#include "kdtree.glsl"
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= pc.count) return;
+    vec4 a = rays[2u * i], b = rays[2u * i + 1u];
+    KdHit h = kd_trace(a.xyz, b.xyz, a.w, b.w, pc.any_hit != 0u);
+    hits[i] = vec4(h.t, h.b1, h.b2, uintBitsToFloat(h.tri));
+}

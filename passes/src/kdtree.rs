@@ -1,0 +1,390 @@
+//! kd-tree over the frame's world-space triangles, built on the GPU in compute passes
+//! (`glsl/kdtree_init.comp`, `glsl/kdtree_build.comp`), kept in persistent buffers and rebuilt only
+//! when geometry moved or deformed (static scenes build once).
+//!
+//! # Build (after Zhou, Hou, Wang and Guo 2008, with the differences listed)
+//! Breadth first, one compute dispatch per tree level; each workgroup (64 invocations) takes the
+//! pending nodes of the level in a persistent loop, so the host never reads counts back:
+//! - *large-node stage* (nodes with more than [`KdTreeParams::large_threshold`] references): the
+//!   references' tight bounds (clipped to the cell) are reduced in shared memory; if one side of
+//!   the cell is more than 25% empty the empty space is cut off, else the node is split at the
+//!   spatial median of the tight bounds' longest axis (Zhou et al.: same rules);
+//! - *small-node stage*: SAH (traversal cost 1, intersection cost 1.5) evaluated on 16 bins per
+//!   axis over the cell; a leaf when no split beats the leaf cost or the node has at most
+//!   [`KdTreeParams::leaf_size`] references, or at [`KdTreeParams::max_depth`].
+//!
+//! Differences from Zhou et al.: node-level parallelism (one workgroup per node) instead of
+//! triangle-chunk parallelism with segmented scans in the large-node stage; binned SAH (16 bins)
+//! instead of the exact SAH over all triangle-bound candidates with bit-mask triangle sets in the
+//! small-node stage; the triangle bounds are clipped to the cell as boxes (box of the triangle
+//! intersected with the cell), not by clipping the triangle; children's references are appended
+//! to one growing reference buffer (interior nodes' ranges are not compacted away), so the
+//! reference buffer holds every level's lists; storage is bounded by [`KdTreeParams`] and an
+//! overflow turns the node into a leaf (still correct) and sets a flag in [`KdStats`].
+//!
+//! References are assigned conservatively: a triangle goes to every child whose cell its clipped
+//! bounds touch within `eps` = 1e-5 x the scene extent, so rounding in the traversal cannot skip it.
+//!
+//! # Buffers (layout shared with `glsl/include/kdtree.glsl`)
+//! - `kdtree.tris`: 3 vec4 per triangle (world-space vertices);
+//! - `kdtree.nodes`: uvec4 per node (see the include);
+//! - `kdtree.refs`: u32 triangle indices;
+//! - `kdtree.header`: 128 u32 counters: 0 references allocated, 1 leaves, 2 references in leaves,
+//!   3 deepest leaf level, 4 overflow flags (1 references, 2 nodes), 5 empty leaves, 6 triangles,
+//!   8..14 scene box (f32 bits), 16+L nodes allocated on level L, 64+L first node of level L.
+
+use crate::util::{bytes_of, compute_pipeline, groups, Pipeline};
+use anyhow::{bail, Result};
+use glam::Vec3;
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, PassKind};
+use penumbra_scene::{Frame, Scene};
+use std::sync::Arc;
+
+pub const HEADER_WORDS: u64 = 128;
+const MAX_LEVELS: u32 = 40;
+
+/// Build parameters.
+#[derive(Clone, Copy, Debug)]
+pub struct KdTreeParams {
+    /// Deepest level (root = level 0); `None`: 8 + 1.3 log2(triangles) (Havran), at most 40.
+    pub max_depth: Option<u32>,
+    /// Nodes with at most this many references become leaves.
+    pub leaf_size: u32,
+    /// Nodes with more references are split by the large-node rules.
+    pub large_threshold: u32,
+    /// Node capacity per triangle (plus 1024).
+    pub nodes_per_triangle: u32,
+    /// Reference capacity per triangle (plus 4096); all levels' lists live in it.
+    pub refs_per_triangle: u32,
+}
+
+impl Default for KdTreeParams {
+    fn default() -> Self {
+        KdTreeParams { max_depth: None, leaf_size: 2, large_threshold: 256, nodes_per_triangle: 8, refs_per_triangle: 64 }
+    }
+}
+
+/// Build statistics (read back from `kdtree.header`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct KdStats {
+    pub triangles: u32,
+    pub nodes: u32,
+    pub leaves: u32,
+    pub empty_leaves: u32,
+    /// Triangle references in leaves.
+    pub leaf_refs: u32,
+    /// Deepest leaf level (root = 0).
+    pub depth: u32,
+    /// References allocated during the build (all levels).
+    pub refs_allocated: u32,
+    /// 1: reference storage overflowed, 2: node storage overflowed (nodes became leaves).
+    pub overflow: u32,
+    /// Bytes of the tree buffers (triangles, nodes, references, header) as allocated.
+    pub bytes_allocated: u64,
+    /// Bytes in use: triangles + nodes x 16 + references allocated x 4 + header.
+    pub bytes_used: u64,
+}
+
+/// Handles of the tree in one frame's graph (latest versions).
+#[derive(Clone, Copy, Debug)]
+pub struct KdTreeHandles {
+    pub tris: BufferHandle,
+    pub nodes: BufferHandle,
+    pub refs: BufferHandle,
+    pub header: BufferHandle,
+    pub triangles: u32,
+    /// Largest absolute coordinate (at least 1): scales ray offsets, see [`ray_epsilon`].
+    pub extent: f32,
+    /// The tree is (re)built in this frame's graph.
+    pub built_this_frame: bool,
+}
+
+/// Self-intersection offset policy of the tracer's users: a ray leaving a surface starts at
+/// `p + ng * ray_epsilon(extent)` with `ng` the geometric normal turned towards the ray (the same
+/// offset as the CPU reference, `1e-4 x` the largest absolute scene coordinate), and `tmin = 0`.
+/// The traversal itself honours `[tmin, tmax]` exactly.
+pub fn ray_epsilon(extent: f32) -> f32 {
+    1e-4 * extent.max(1.0)
+}
+
+/// The frame's world-space triangles (deformed meshes where the frame has them), degenerate
+/// triangles dropped, in instance order. Errors name the object at fault.
+pub fn world_triangles(scene: &Scene, frame: &Frame) -> Result<Vec<[Vec3; 3]>> {
+    let mut out = Vec::new();
+    for inst in &frame.instances {
+        let name = scene.objects.get(inst.object).map(|o| o.name.as_str()).unwrap_or("?");
+        let mesh = match inst.deformed_mesh.as_deref() {
+            Some(m) => m,
+            None => match scene.meshes.get(inst.mesh) {
+                Some(m) => m,
+                None => bail!("object '{name}' refers to mesh {} of {}", inst.mesh, scene.meshes.len()),
+            },
+        };
+        if !inst.world.is_finite() {
+            bail!("object '{name}' has a non-finite world transform");
+        }
+        let wp: Vec<Vec3> = mesh.positions.iter().map(|p| inst.world.transform_point3(*p)).collect();
+        for t in mesh.indices.chunks_exact(3) {
+            let (Some(&a), Some(&b), Some(&c)) = (wp.get(t[0] as usize), wp.get(t[1] as usize), wp.get(t[2] as usize)) else {
+                bail!("mesh '{}' of object '{name}' has an index out of range ({} vertices)", mesh.name, wp.len());
+            };
+            if !(a.is_finite() && b.is_finite() && c.is_finite()) {
+                bail!("mesh '{}' of object '{name}' has non-finite vertices", mesh.name);
+            }
+            if (b - a).cross(c - a).length_squared() <= 0.0 {
+                continue;
+            }
+            out.push([a, b, c]);
+        }
+    }
+    Ok(out)
+}
+
+/// Parses the header read back after a build (see [`KdTreeBuilder::add_stats_readback`]).
+pub fn parse_stats(header: &[u8], allocated: u64) -> Option<KdStats> {
+    if header.len() < HEADER_WORDS as usize * 4 {
+        return None;
+    }
+    let w = |i: usize| u32::from_le_bytes(header[4 * i..4 * i + 4].try_into().unwrap());
+    let triangles = w(6);
+    // Dispatch L writes the first node of level L + 1: the largest such entry is the total.
+    let nodes = (0..=MAX_LEVELS as usize).map(|l| w(64 + l)).max().unwrap_or(0);
+    let refs_allocated = w(0);
+    Some(KdStats {
+        triangles,
+        nodes,
+        leaves: w(1),
+        empty_leaves: w(5),
+        leaf_refs: w(2),
+        depth: w(3),
+        refs_allocated,
+        overflow: w(4),
+        bytes_allocated: allocated,
+        bytes_used: triangles as u64 * 48 + nodes as u64 * 16 + refs_allocated as u64 * 4 + HEADER_WORDS * 4,
+    })
+}
+
+/// Builds the tree (pipelines and the rebuild decision).
+pub struct KdTreeBuilder {
+    init: Pipeline,
+    build: Pipeline,
+    pub params: KdTreeParams,
+    /// Triangle count of the tree in the persistent buffers, if one was built.
+    built: Option<u32>,
+    /// Levels dispatched by the last build.
+    pub last_levels: u32,
+    /// Bytes allocated by the last build.
+    pub last_bytes: u64,
+    extent: f32,
+}
+
+impl KdTreeBuilder {
+    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
+        use vk::DescriptorType as T;
+        let init = compute_pipeline(ctx, shaders, "kdtree_init.comp", &[T::STORAGE_BUFFER; 4], 32)?;
+        let build = compute_pipeline(ctx, shaders, "kdtree_build.comp", &[T::STORAGE_BUFFER; 5], 32)?;
+        Ok(KdTreeBuilder { init, build, params: KdTreeParams::default(), built: None, last_levels: 0, last_bytes: 0, extent: 1.0 })
+    }
+
+    /// The tree of `frame`'s triangles: declared from the persistent buffers, rebuilt in this
+    /// graph when nothing was built yet, the triangle count changed, or an instance moved or
+    /// deformed.
+    pub fn add(&mut self, engine: &mut Engine, graph: &mut Graph, scene: &Scene, frame: &Frame) -> Result<KdTreeHandles> {
+        let changed = frame.any_moved() || frame.any_deformed();
+        if !changed && self.built.is_some() {
+            // Static geometry: declare the kept buffers (rebuilt if they were lost).
+            let n = self.built.unwrap_or(0);
+            let (probe, bytes) = self.persistent(engine, graph, n);
+            let fresh = [probe.tris, probe.nodes, probe.refs, probe.header].iter().any(|b| graph.persistent_is_new(*b));
+            if !fresh {
+                return Ok(KdTreeHandles { extent: self.extent, ..probe });
+            }
+            let tris = world_triangles(scene, frame)?;
+            if tris.len() != n as usize {
+                bail!("kd-tree: static geometry changed its triangle count ({n} -> {})", tris.len());
+            }
+            return self.build_into(graph, probe, bytes, &tris);
+        }
+        let tris = world_triangles(scene, frame)?;
+        self.add_triangles(engine, graph, &tris, true)
+    }
+
+    fn sizes(&self, n: u32) -> (u64, u64, u64, u32) {
+        let n64 = n as u64;
+        let tris = (n64 * 48).max(48);
+        let max_nodes = (n64 * self.params.nodes_per_triangle as u64 + 1024).min(u32::MAX as u64 / 2) & !1;
+        let refs = (n64 * self.params.refs_per_triangle as u64 + 4096).min(u32::MAX as u64 / 8);
+        (tris, max_nodes, refs, max_nodes as u32)
+    }
+
+    fn persistent(&self, engine: &mut Engine, graph: &mut Graph, n: u32) -> (KdTreeHandles, u64) {
+        let (tri_bytes, max_nodes, refs, _) = self.sizes(n);
+        let h = KdTreeHandles {
+            tris: engine.persistent_buffer(graph, "kdtree.tris", tri_bytes),
+            nodes: engine.persistent_buffer(graph, "kdtree.nodes", max_nodes * 16),
+            refs: engine.persistent_buffer(graph, "kdtree.refs", refs * 4),
+            header: engine.persistent_buffer(graph, "kdtree.header", HEADER_WORDS * 4),
+            triangles: n,
+            extent: 1.0,
+            built_this_frame: false,
+        };
+        (h, tri_bytes + max_nodes * 16 + refs * 4 + HEADER_WORDS * 4)
+    }
+
+    /// The tree of `tris`; built in this graph when `rebuild` or when the persistent buffers are
+    /// new (first use, size change).
+    pub fn add_triangles(&mut self, engine: &mut Engine, graph: &mut Graph, tris: &[[Vec3; 3]], rebuild: bool) -> Result<KdTreeHandles> {
+        if tris.len() > (u32::MAX / 64) as usize {
+            bail!("kd-tree: {} triangles is more than supported", tris.len());
+        }
+        let n = tris.len() as u32;
+        let (h, bytes) = self.persistent(engine, graph, n);
+        let fresh = [h.tris, h.nodes, h.refs, h.header].iter().any(|b| graph.persistent_is_new(*b));
+        if !(rebuild || fresh || self.built != Some(n)) {
+            return Ok(KdTreeHandles { extent: self.extent, ..h });
+        }
+        self.build_into(graph, h, bytes, tris)
+    }
+
+    fn build_into(&mut self, graph: &mut Graph, mut h: KdTreeHandles, bytes: u64, tris: &[[Vec3; 3]]) -> Result<KdTreeHandles> {
+        let n = tris.len() as u32;
+        let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(-f32::MAX));
+        let mut extent = 1.0f32;
+        for t in tris {
+            for v in t {
+                if !v.is_finite() {
+                    bail!("kd-tree: non-finite vertex {v}");
+                }
+                lo = lo.min(*v);
+                hi = hi.max(*v);
+                extent = extent.max(v.abs().max_element());
+            }
+        }
+        h.extent = extent;
+        let eps = 1e-5 * extent;
+        if n > 0 {
+            lo -= Vec3::splat(4.0 * eps);
+            hi += Vec3::splat(4.0 * eps);
+        }
+        let max_depth = self
+            .params
+            .max_depth
+            .unwrap_or_else(|| (8.0 + 1.3 * (n.max(1) as f32).log2()).round() as u32)
+            .clamp(1, MAX_LEVELS);
+        let (_, max_nodes, ref_cap, _) = self.sizes(n);
+
+        // ---- upload the triangles into the persistent buffer
+        let mut data = Vec::with_capacity(tris.len() * 12);
+        for t in tris {
+            for v in t {
+                data.extend_from_slice(&[v.x, v.y, v.z, 0.0]);
+            }
+        }
+        if data.is_empty() {
+            data = vec![0.0; 12];
+        }
+        let upload = graph.create_buffer_init("kdtree.upload", bytes_of(&data));
+        let size = data.len() as u64 * 4;
+        let mut p = graph.pass("kdtree_upload", PassKind::Transfer);
+        let src = p.read(upload, Access::TransferSrc);
+        let dst = p.write(h.tris, Access::TransferDst);
+        p.record(move |rc| {
+            let (s, d) = (rc.buffer(src)?, rc.buffer(dst)?);
+            unsafe { rc.device().cmd_copy_buffer(rc.cmd, s.buffer, d.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }]) };
+            Ok(())
+        });
+        h.tris = dst;
+
+        // ---- init: root, counters
+        let boxes = graph.create_buffer("kdtree.boxes", max_nodes * 32);
+        let mut push = [0u32; 8];
+        for a in 0..3 {
+            push[a] = lo[a].to_bits();
+            push[4 + a] = hi[a].to_bits();
+        }
+        push[3] = n;
+        let mut p = graph.pass("kdtree_init", PassKind::Compute);
+        let nodes = p.write(h.nodes, Access::ComputeShaderWriteStorage);
+        let bx = p.write(boxes, Access::ComputeShaderWriteStorage);
+        let refs = p.write(h.refs, Access::ComputeShaderWriteStorage);
+        let header = p.write(h.header, Access::ComputeShaderWriteStorage);
+        let (pipe, layout) = (self.init.pipeline, self.init.layout);
+        p.record(move |rc| {
+            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
+            rc.push_descriptors(
+                vk::PipelineBindPoint::COMPUTE,
+                layout,
+                0,
+                &[Bind::StorageBuffer(nodes), Bind::StorageBuffer(bx), Bind::StorageBuffer(refs), Bind::StorageBuffer(header)],
+            )?;
+            unsafe {
+                let d = rc.device();
+                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
+                d.cmd_dispatch(rc.cmd, groups(n.max(HEADER_WORDS as u32), 64), 1, 1);
+            }
+            Ok(())
+        });
+        let (mut nodes, mut bx, mut refs, mut header) = (nodes, bx, refs, header);
+
+        // ---- one pass per level
+        for level in 0..max_depth {
+            let push: [u32; 8] = [
+                level,
+                max_nodes as u32,
+                ref_cap.min(u32::MAX as u64) as u32,
+                max_depth,
+                eps.to_bits(),
+                self.params.leaf_size,
+                self.params.large_threshold,
+                0,
+            ];
+            let wgs = 1u32 << level.min(9);
+            let mut p = graph.pass(&format!("kdtree_level{level}"), PassKind::Compute);
+            let tr = p.read(h.tris, Access::ComputeShaderReadStorage);
+            nodes = p.write(nodes, Access::ComputeShaderReadWriteStorage);
+            bx = p.write(bx, Access::ComputeShaderReadWriteStorage);
+            refs = p.write(refs, Access::ComputeShaderReadWriteStorage);
+            header = p.write(header, Access::ComputeShaderReadWriteStorage);
+            let (pipe, layout) = (self.build.pipeline, self.build.layout);
+            let (nd, b, r, hd) = (nodes, bx, refs, header);
+            p.record(move |rc| {
+                unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
+                rc.push_descriptors(
+                    vk::PipelineBindPoint::COMPUTE,
+                    layout,
+                    0,
+                    &[
+                        Bind::StorageBuffer(tr),
+                        Bind::StorageBuffer(nd),
+                        Bind::StorageBuffer(b),
+                        Bind::StorageBuffer(r),
+                        Bind::StorageBuffer(hd),
+                    ],
+                )?;
+                unsafe {
+                    let d = rc.device();
+                    d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
+                    d.cmd_dispatch(rc.cmd, wgs, 1, 1);
+                }
+                Ok(())
+            });
+        }
+        h.nodes = nodes;
+        h.refs = refs;
+        h.header = header;
+        h.built_this_frame = true;
+        self.built = Some(n);
+        self.extent = extent;
+        self.last_levels = max_depth;
+        self.last_bytes = bytes;
+        Ok(h)
+    }
+
+    /// Copies the header into a readback buffer named `name` (parse with [`parse_stats`]).
+    pub fn add_stats_readback(graph: &mut Graph, tree: &mut KdTreeHandles, name: &str) -> BufferHandle {
+        let (rb, hd) = crate::trace::add_copy_to_readback(graph, tree.header, name, HEADER_WORDS * 4);
+        tree.header = hd;
+        rb
+    }
+}

@@ -1,0 +1,154 @@
+//! The compute ray tracer (`glsl/trace.comp`, traversal in `glsl/include/kdtree.glsl`): a pass
+//! hands a ray buffer and gets a hit buffer, through the kd-tree of [`crate::kdtree`].
+//!
+//! Rays: 32 bytes each, `(origin.xyz, tmin), (direction.xyz, tmax)` as f32 (see [`Ray`]).
+//! Hits: 16 bytes each, `(t, b1, b2, triangle index as u32 bits)`; `t < 0` is a miss. Any-hit
+//! mode stops at the first hit found (its `t` only says "occluded").
+//!
+//! Traversal: front-to-back kd-tree walk with a short stack of 8 entries (Horn et al. 2007):
+//! entries pushed beyond it drop the farthest one, and when the stack runs dry after a drop the
+//! ray restarts from the root with `tmin` moved past the finished cells (kd-restart). No per-ray
+//! stack lives in memory. Triangles are tested with the watertight test of Woop, Benthin and
+//! Wald (2013) (without its double-precision fallback). Self-intersection policy: the tracer
+//! honours `[tmin, tmax]` exactly; callers leaving a surface offset the origin along the
+//! geometric normal by [`crate::kdtree::ray_epsilon`] (as the CPU reference does).
+
+use crate::kdtree::KdTreeHandles;
+use crate::util::{bytes_of, compute_pipeline, groups, Pipeline};
+use anyhow::Result;
+use glam::Vec3;
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Graph, PassKind};
+use std::sync::Arc;
+
+pub const RAY_BYTES: u64 = 32;
+pub const HIT_BYTES: u64 = 16;
+
+/// Query kind.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TraceMode {
+    /// Visibility: any hit in `[tmin, tmax]`.
+    AnyHit,
+    /// The closest hit in `[tmin, tmax]`, with barycentrics and triangle index.
+    ClosestHit,
+}
+
+/// One ray as laid out in the ray buffer.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Ray {
+    pub origin: [f32; 3],
+    pub tmin: f32,
+    pub dir: [f32; 3],
+    pub tmax: f32,
+}
+
+impl Ray {
+    pub fn new(o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> Self {
+        Ray { origin: o.to_array(), tmin, dir: d.to_array(), tmax }
+    }
+}
+
+/// One decoded hit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    pub t: f32,
+    pub b1: f32,
+    pub b2: f32,
+    pub triangle: u32,
+}
+
+/// Decodes a hit buffer; `None` for misses.
+pub fn decode_hits(bytes: &[u8]) -> Vec<Option<Hit>> {
+    bytes
+        .chunks_exact(16)
+        .map(|c| {
+            let f = |i: usize| f32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap());
+            let t = f(0);
+            (t >= 0.0).then(|| Hit { t, b1: f(1), b2: f(2), triangle: f(3).to_bits() })
+        })
+        .collect()
+}
+
+/// The tracer's pipeline.
+pub struct Tracer {
+    pipeline: Pipeline,
+}
+
+impl Tracer {
+    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
+        let pipeline = compute_pipeline(ctx, shaders, "trace.comp", &[vk::DescriptorType::STORAGE_BUFFER; 6], 8)?;
+        Ok(Tracer { pipeline })
+    }
+
+    /// Adds a `trace` pass: every ray of `rays` (its size / 32 rays) through `tree`; returns the
+    /// hit buffer (transient, 16 bytes per ray).
+    pub fn add_trace(&self, graph: &mut Graph, tree: &KdTreeHandles, rays: BufferHandle, mode: TraceMode) -> BufferHandle {
+        let count = (graph.resource(rays).desc.bytes() / RAY_BYTES) as u32;
+        // Names follow the ray buffer's (unique per graph): `trace_any:<rays>`, `<rays>.hits`.
+        let rays_name = graph.resource(rays).name.clone();
+        let hits = graph.create_buffer(&format!("{rays_name}.hits"), (count as u64 * HIT_BYTES).max(HIT_BYTES));
+        let kind = if mode == TraceMode::AnyHit { "trace_any" } else { "trace_closest" };
+        let mut p = graph.pass(&format!("{kind}:{rays_name}"), PassKind::Compute);
+        let tris = p.read(tree.tris, Access::ComputeShaderReadStorage);
+        let nodes = p.read(tree.nodes, Access::ComputeShaderReadStorage);
+        let refs = p.read(tree.refs, Access::ComputeShaderReadStorage);
+        let header = p.read(tree.header, Access::ComputeShaderReadStorage);
+        let rays = p.read(rays, Access::ComputeShaderReadStorage);
+        let hits = p.write(hits, Access::ComputeShaderWriteStorage);
+        let push = [count, (mode == TraceMode::AnyHit) as u32];
+        let (pipe, layout) = (self.pipeline.pipeline, self.pipeline.layout);
+        p.record(move |rc| {
+            if count == 0 {
+                return Ok(());
+            }
+            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
+            rc.push_descriptors(
+                vk::PipelineBindPoint::COMPUTE,
+                layout,
+                0,
+                &[
+                    Bind::StorageBuffer(tris),
+                    Bind::StorageBuffer(nodes),
+                    Bind::StorageBuffer(refs),
+                    Bind::StorageBuffer(header),
+                    Bind::StorageBuffer(rays),
+                    Bind::StorageBuffer(hits),
+                ],
+            )?;
+            unsafe {
+                let d = rc.device();
+                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
+                d.cmd_dispatch(rc.cmd, groups(count, 64), 1, 1);
+            }
+            Ok(())
+        });
+        hits
+    }
+}
+
+/// `tracer.add_trace(...)` as a free function: rays in, hits out.
+pub fn add_trace(graph: &mut Graph, tracer: &Tracer, tree: &KdTreeHandles, rays: BufferHandle, mode: TraceMode) -> BufferHandle {
+    tracer.add_trace(graph, tree, rays, mode)
+}
+
+/// A host-initialised ray buffer.
+pub fn upload_rays(graph: &mut Graph, name: &str, rays: &[Ray]) -> BufferHandle {
+    graph.create_buffer_init(name, bytes_of(rays))
+}
+
+/// Copies `size` bytes of `src` into a new readback buffer `name`; returns (readback, src).
+pub fn add_copy_to_readback(graph: &mut Graph, src: BufferHandle, name: &str, size: u64) -> (BufferHandle, BufferHandle) {
+    let rb = graph.create_readback(name, size.max(4));
+    let mut p = graph.pass(&format!("readback_{name}"), PassKind::Transfer);
+    let s = p.read(src, Access::TransferSrc);
+    let d = p.write(rb, Access::TransferDst);
+    p.record(move |rc| {
+        let (sb, db) = (rc.buffer(s)?, rc.buffer(d)?);
+        if size > 0 {
+            unsafe { rc.device().cmd_copy_buffer(rc.cmd, sb.buffer, db.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }]) };
+        }
+        Ok(())
+    });
+    (d, s)
+}

@@ -1,0 +1,160 @@
+//! The GPU kd-tree tracer against an `obvhs` CPU BVH on the same rays (lavapipe): every built-in
+//! scene plus the bunny glTF, incoherent random rays, coherent camera rays and secondary rays off
+//! surfaces; any-hit agreement >= 99.99%, closest-hit distance within 1e-4 relative.
+
+use glam::Vec3;
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{Context, ContextDesc, Engine};
+use penumbra_passes::kdtree::{ray_epsilon, world_triangles, KdTreeBuilder};
+use penumbra_passes::trace::{Ray, Tracer};
+use penumbra_passes::trace_bench::{camera_rays, random_rays, run_gpu, surface_rays, CpuBvh};
+use penumbra_scene::Scene;
+use std::path::{Path, PathBuf};
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+}
+
+fn shaders(names: &[&str]) -> ShaderLibrary {
+    let mut lib = ShaderLibrary::from_embedded(&[], Some(root().join("glsl")));
+    for n in names {
+        lib.reload(n).unwrap_or_else(|e| panic!("{n}: {e}"));
+    }
+    lib
+}
+
+fn scene_paths() -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(root().join("scenes"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    v.sort();
+    v.push(root().join("scenes/assets/bunny.glb"));
+    v
+}
+
+#[derive(Default)]
+struct Tally {
+    any_total: usize,
+    any_diff: usize,
+    closest_total: usize,
+    closest_hitmiss_diff: usize,
+    both_hit: usize,
+    dist_bad: usize,
+    max_rel: f64,
+    diffs: Vec<String>,
+}
+
+#[test]
+fn kdtree_tracer_agrees_with_obvhs_on_every_scene() {
+    let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
+    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "trace.comp"]);
+    let mut engine = Engine::new(ctx.clone(), 1).unwrap();
+    let mut builder = KdTreeBuilder::new(&ctx, &lib).unwrap();
+    let tracer = Tracer::new(&ctx, &lib).unwrap();
+    let mut all = Tally::default();
+    for path in scene_paths() {
+        let name = path.file_stem().unwrap().to_string_lossy().to_string();
+        let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        // A mid-animation frame: moved and deformed geometry where the scene has it.
+        let frame = scene.at(0.5, Some(0.5 - 1.0 / 30.0));
+        let tris = world_triangles(&scene, &frame).unwrap();
+        let cpu = CpuBvh::new(&tris);
+        let extent = tris.iter().flatten().fold(1.0f32, |m, v| m.max(v.abs().max_element()));
+        let cam = camera_rays(&frame.camera, 48, 36);
+        let surf = surface_rays(&cpu, &tris, &cam, ray_epsilon(extent), 3);
+        let rnd_inf = random_rays(&tris, 2048, 1, false);
+        let rnd_fin = random_rays(&tris, 2048, 2, true);
+        let mut cam_fin = cam.clone();
+        for (i, r) in cam_fin.iter_mut().enumerate() {
+            r.tmax = 0.5 + 0.1 * (i % 97) as f32;
+        }
+        let sets: Vec<(Vec<Ray>, Vec<Ray>)> =
+            vec![(rnd_fin, rnd_inf.clone()), (cam_fin, cam.clone()), (surf.clone(), surf.clone()), (rnd_inf, Vec::new())];
+        let run = run_gpu(&mut engine, &mut builder, &tracer, &tris, &sets).unwrap();
+        let s = run.stats;
+        println!(
+            "{name}: {} tris, {} nodes, {} leaves ({} empty), {} leaf refs ({:.2}/tri), depth {}, {:.2} MB used, {:.2} MB allocated, overflow {}",
+            s.triangles,
+            s.nodes,
+            s.leaves,
+            s.empty_leaves,
+            s.leaf_refs,
+            s.leaf_refs as f64 / s.triangles.max(1) as f64,
+            s.depth,
+            s.bytes_used as f64 / 1e6,
+            s.bytes_allocated as f64 / 1e6,
+            s.overflow
+        );
+        let build_ms: f64 = run.gpu_ms.iter().filter(|(n, _)| n.starts_with("kdtree_")).map(|(_, ms)| ms).sum();
+        println!("{name}: build {build_ms:.1} ms on the device");
+        assert_eq!(s.triangles as usize, tris.len());
+        assert!(s.leaves > 0 && s.nodes >= s.leaves && s.leaf_refs as usize >= tris.len(), "{name}: {s:?}");
+        let mut t = Tally::default();
+        for (si, ((any, closest), (gany, gclosest))) in sets.iter().zip(&run.hits).enumerate() {
+            assert_eq!(gany.len(), any.len());
+            assert_eq!(gclosest.len(), closest.len());
+            for (i, (r, g)) in any.iter().zip(gany).enumerate() {
+                let c = cpu.occluded(r);
+                t.any_total += 1;
+                if c != g.is_some() {
+                    t.any_diff += 1;
+                    t.diffs.push(format!("{name} set {si} ray {i}: any-hit cpu {c} gpu {g:?} ({r:?})"));
+                }
+            }
+            for (i, (r, g)) in closest.iter().zip(gclosest).enumerate() {
+                let c = cpu.closest(r);
+                t.closest_total += 1;
+                match (c, g) {
+                    (Some((tc, _)), Some(h)) => {
+                        t.both_hit += 1;
+                        let rel = ((h.t - tc).abs() / tc.abs().max(1e-6)) as f64;
+                        t.max_rel = t.max_rel.max(rel);
+                        if rel > 1e-4 {
+                            t.dist_bad += 1;
+                            t.diffs.push(format!("{name} set {si} ray {i}: closest cpu {tc} gpu {} (rel {rel:.2e})", h.t));
+                        }
+                    }
+                    (None, None) => {}
+                    _ => {
+                        t.closest_hitmiss_diff += 1;
+                        t.diffs.push(format!("{name} set {si} ray {i}: closest cpu {c:?} gpu {g:?} ({r:?})"));
+                    }
+                }
+            }
+        }
+        println!(
+            "{name}: any-hit {}/{} differ, closest {}/{} hit/miss differ, {} of {} both-hit beyond 1e-4 (max rel {:.2e})",
+            t.any_diff, t.any_total, t.closest_hitmiss_diff, t.closest_total, t.dist_bad, t.both_hit, t.max_rel
+        );
+        all.any_total += t.any_total;
+        all.any_diff += t.any_diff;
+        all.closest_total += t.closest_total;
+        all.closest_hitmiss_diff += t.closest_hitmiss_diff;
+        all.both_hit += t.both_hit;
+        all.dist_bad += t.dist_bad;
+        all.max_rel = all.max_rel.max(t.max_rel);
+        all.diffs.extend(t.diffs);
+    }
+    for d in &all.diffs {
+        println!("difference: {d}");
+    }
+    let any_agree = 1.0 - all.any_diff as f64 / all.any_total as f64;
+    let closest_agree = 1.0 - (all.closest_hitmiss_diff + all.dist_bad) as f64 / all.closest_total as f64;
+    println!(
+        "total: any-hit agreement {:.5}% of {}, closest-hit agreement {:.5}% of {} ({} both hit, max rel distance error {:.2e})",
+        100.0 * any_agree,
+        all.any_total,
+        100.0 * closest_agree,
+        all.closest_total,
+        all.both_hit,
+        all.max_rel
+    );
+    assert!(all.any_total > 50_000 && all.both_hit > 10_000);
+    assert!(any_agree >= 0.9999, "any-hit agreement {any_agree}");
+    assert!(closest_agree >= 0.9999, "closest-hit agreement {closest_agree}");
+    let errors = ctx.validation.error_count();
+    assert_eq!(errors, 0, "validation errors: {:?}", ctx.validation.errors());
+    let _ = Vec3::ZERO;
+}
