@@ -1,7 +1,8 @@
 // kd-tree layout and traversal shared by the tracer (trace.comp) and techniques.
 //
 // Before including, declare the tree buffers with these names (any binding numbers):
-//   KD_TRIS     readonly vec4 kd_tris[]   3 per triangle (world-space v0, v1, v2; w unused)
+//   KD_TRIS     readonly vec4 kd_tris[]   3 per triangle (world-space v0, v1, v2; v0.w = 1:
+//                                         casts no shadow, skipped by any-hit queries)
 //   KD_NODES    readonly uvec4 kd_nodes[] node 0 is the root
 //   KD_REFS     readonly uint kd_refs[]   triangle indices of the leaves
 //   KD_HEADER   readonly uint kd_hdr[]    counters; scene box at KD_HDR_BOX (6 floats as bits)
@@ -136,8 +137,10 @@ KdHit kd_trace(vec3 o, vec3 d, float tmin, float tmax, bool any_hit) {
         uint off = nd.z, cnt = (nd.y == KD_LEAF) ? nd.w : 0u;
         for (uint j = 0u; j < cnt; j++) {
             uint ti = KD_REF(off + j);
+            vec4 v0 = KD_TRI(3u * ti);
+            if (any_hit && v0.w != 0.0) continue; // casts no shadow
             float t, b1, b2;
-            if (kd_intersect(rw, o, KD_TRI(3u * ti).xyz, KD_TRI(3u * ti + 1u).xyz, KD_TRI(3u * ti + 2u).xyz, tmin, best, t, b1, b2)) {
+            if (kd_intersect(rw, o, v0.xyz, KD_TRI(3u * ti + 1u).xyz, KD_TRI(3u * ti + 2u).xyz, tmin, best, t, b1, b2)) {
                 best = t; h.t = t; h.b1 = b1; h.b2 = b2; h.tri = ti;
                 if (any_hit) return h;
             }

@@ -26,7 +26,8 @@
 //! bounds touch within `eps` = 1e-5 x the scene extent, so rounding in the traversal cannot skip it.
 //!
 //! # Buffers (layout shared with `glsl/include/kdtree.glsl`)
-//! - `kdtree.tris`: 3 vec4 per triangle (world-space vertices);
+//! - `kdtree.tris`: 3 vec4 per triangle (world-space vertices; `w` of the first = 1: the
+//!   triangle casts no shadow and any-hit queries skip it);
 //! - `kdtree.nodes`: uvec4 per node (see the include);
 //! - `kdtree.refs`: u32 triangle indices;
 //! - `kdtree.header`: 128 u32 counters: 0 references allocated, 1 leaves, 2 references in leaves,
@@ -204,7 +205,7 @@ impl KdTreeBuilder {
             if tris.len() != n as usize {
                 bail!("kd-tree: static geometry changed its triangle count ({n} -> {})", tris.len());
             }
-            return self.build_into(graph, probe, bytes, &tris);
+            return self.build_into(graph, probe, bytes, &tris, None);
         }
         let tris = world_triangles(scene, frame)?;
         self.add_triangles(engine, graph, &tris, true)
@@ -235,6 +236,22 @@ impl KdTreeBuilder {
     /// The tree of `tris`; built in this graph when `rebuild` or when the persistent buffers are
     /// new (first use, size change).
     pub fn add_triangles(&mut self, engine: &mut Engine, graph: &mut Graph, tris: &[[Vec3; 3]], rebuild: bool) -> Result<KdTreeHandles> {
+        self.add_triangles_flagged(engine, graph, tris, None, rebuild)
+    }
+
+    /// As [`KdTreeBuilder::add_triangles`]; triangles with `no_shadow[i]` are skipped by any-hit
+    /// (visibility) queries (`ObjectInfo::casts_shadow == false`), closest-hit still finds them.
+    pub fn add_triangles_flagged(
+        &mut self,
+        engine: &mut Engine,
+        graph: &mut Graph,
+        tris: &[[Vec3; 3]],
+        no_shadow: Option<&[bool]>,
+        rebuild: bool,
+    ) -> Result<KdTreeHandles> {
+        if no_shadow.is_some_and(|f| f.len() != tris.len()) {
+            bail!("kd-tree: {} shadow flags for {} triangles", no_shadow.map_or(0, |f| f.len()), tris.len());
+        }
         if tris.len() > (u32::MAX / 64) as usize {
             bail!("kd-tree: {} triangles is more than supported", tris.len());
         }
@@ -244,10 +261,25 @@ impl KdTreeBuilder {
         if !(rebuild || fresh || self.built != Some(n)) {
             return Ok(KdTreeHandles { extent: self.extent, ..h });
         }
-        self.build_into(graph, h, bytes, tris)
+        self.build_into(graph, h, bytes, tris, no_shadow)
     }
 
-    fn build_into(&mut self, graph: &mut Graph, mut h: KdTreeHandles, bytes: u64, tris: &[[Vec3; 3]]) -> Result<KdTreeHandles> {
+    /// The kept tree's handles when one was built and its buffers survived (no rebuild).
+    pub fn add_kept(&mut self, engine: &mut Engine, graph: &mut Graph) -> Option<KdTreeHandles> {
+        let n = self.built?;
+        let (probe, _) = self.persistent(engine, graph, n);
+        let fresh = [probe.tris, probe.nodes, probe.refs, probe.header].iter().any(|b| graph.persistent_is_new(*b));
+        (!fresh).then_some(KdTreeHandles { extent: self.extent, ..probe })
+    }
+
+    fn build_into(
+        &mut self,
+        graph: &mut Graph,
+        mut h: KdTreeHandles,
+        bytes: u64,
+        tris: &[[Vec3; 3]],
+        no_shadow: Option<&[bool]>,
+    ) -> Result<KdTreeHandles> {
         let n = tris.len() as u32;
         let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(-f32::MAX));
         let mut extent = 1.0f32;
@@ -276,9 +308,10 @@ impl KdTreeBuilder {
 
         // ---- upload the triangles into the persistent buffer
         let mut data = Vec::with_capacity(tris.len() * 12);
-        for t in tris {
-            for v in t {
-                data.extend_from_slice(&[v.x, v.y, v.z, 0.0]);
+        for (i, t) in tris.iter().enumerate() {
+            let skip = no_shadow.is_some_and(|f| f[i]);
+            for (k, v) in t.iter().enumerate() {
+                data.extend_from_slice(&[v.x, v.y, v.z, if k == 0 && skip { 1.0 } else { 0.0 }]);
             }
         }
         if data.is_empty() {

@@ -1,0 +1,284 @@
+#version 460
+#extension GL_GOOGLE_include_directive : require
+// GPU Monte Carlo baseline ("mc"): per pixel, `spp` jittered primary rays traced through the
+// kd-tree (closest hit) and, at the first hit, direct lighting from the environment with one
+// environment sample (texel distribution proportional to luminance x solid angle, as the CPU
+// reference's alias table) and one BRDF sample, combined by the power heuristic; shadow rays are
+// any-hit queries through the same tree. Same estimator, BRDFs and conventions as
+// penumbra_reference (render.rs, brdf.rs, sampling.rs); see passes/src/mc.rs for what is left out.
+// Progressive: accum.rgb sums samples, accum.a counts them; hdr = accum.rgb / accum.a.
+layout(local_size_x = 8, local_size_y = 8) in;
+layout(std430, binding = 0) readonly buffer Tris { vec4 kd_tris[]; };
+layout(std430, binding = 1) readonly buffer Nodes { uvec4 kd_nodes[]; };
+layout(std430, binding = 2) readonly buffer Refs { uint kd_refs[]; };
+layout(std430, binding = 3) readonly buffer Header { uint kd_hdr[]; };
+// per triangle: (n0, material), (n1, casts_shadow), (n2, 0), (tangent, 0)
+layout(std430, binding = 4) readonly buffer TriData { vec4 tri_data[]; };
+// per material: (albedo, kind), (specular, alpha), (shininess nu, nv, p_spec, 0)
+layout(std430, binding = 5) readonly buffer Materials { vec4 mats[]; };
+// env texels: rgb radiance (intensity applied), w = pmf of the texel
+layout(std430, binding = 6) readonly buffer EnvTexels { vec4 env_texels[]; };
+// env CDFs: marginal over rows (h + 1 floats), then per row the conditional (w + 1 floats)
+layout(std430, binding = 7) readonly buffer EnvCdf { float env_cdf[]; };
+layout(binding = 8, rgba32f) uniform image2D accum;
+layout(binding = 9, rgba32f) uniform writeonly image2D hdr;
+layout(push_constant) uniform Push {
+    mat4 inv_view_proj;
+    uvec4 size_spp_seed;    // width, height, spp, frame seed
+    uvec4 env_info;         // env width, env height, reset, env can be sampled
+    vec4 env_rot;           // cos, sin of the environment rotation
+} pc;
+
+#define KD_TRI(i) kd_tris[i]
+#define KD_NODE(i) kd_nodes[i]
+#define KD_REF(i) kd_refs[i]
+#define KD_HDR(i) kd_hdr[i]
+#include "kdtree.glsl"
+
+#define M_PI 3.14159265358979323846
+#define M_TAU 6.28318530717958647692
+
+// ---- random numbers: PCG hash per (pixel, frame, counter)
+uint rng_state;
+uint pcg(uint v) {
+    uint s = v * 747796405u + 2891336453u;
+    uint w = ((s >> ((s >> 28u) + 4u)) ^ s) * 277803737u;
+    return (w >> 22u) ^ w;
+}
+float rnd() {
+    rng_state = pcg(rng_state);
+    return float(rng_state >> 8) * (1.0 / 16777216.0);
+}
+
+float luminance(vec3 c) { return dot(c, vec3(0.2126, 0.7152, 0.0722)); }
+
+// ---- environment (EnvLight of the reference)
+vec3 env_to_map(vec3 d) { float c = pc.env_rot.x, s = pc.env_rot.y; return vec3(c * d.x - s * d.z, d.y, s * d.x + c * d.z); }
+vec3 env_to_world(vec3 d) { float c = pc.env_rot.x, s = pc.env_rot.y; return vec3(c * d.x + s * d.z, d.y, -s * d.x + c * d.z); }
+uint env_texel(vec3 dw) {
+    vec3 d = env_to_map(dw);
+    float theta = acos(clamp(d.y, -1.0, 1.0));
+    float phi = atan(d.x, -d.z);
+    if (phi < 0.0) phi += M_TAU;
+    float u = phi / M_TAU, v = theta / M_PI;
+    int w = int(pc.env_info.x), h = int(pc.env_info.y);
+    int i = clamp(int(u * float(w)), 0, w - 1);
+    int j = clamp(int(v * float(h)), 0, h - 1);
+    return uint(j * w + i);
+}
+float row_solid_angle(uint j) {
+    float h = float(pc.env_info.y);
+    return (cos(M_PI * float(j) / h) - cos(M_PI * float(j + 1u) / h)) * M_TAU / float(pc.env_info.x);
+}
+vec3 env_radiance(vec3 d) { return env_texels[env_texel(d)].rgb; }
+float env_pdf(vec3 d) {
+    if (pc.env_info.w == 0u) return 0.0;
+    uint k = env_texel(d);
+    return env_texels[k].w / row_solid_angle(k / pc.env_info.x);
+}
+// first index i in [lo, hi) with cdf[i + 1] > u (cdf[lo] = 0, cdf[hi] = 1)
+uint cdf_search(uint base, uint n, float u) {
+    uint lo = 0u, hi = n;
+    while (lo + 1u < hi) {
+        uint mid = (lo + hi) / 2u;
+        if (env_cdf[base + mid] <= u) lo = mid; else hi = mid;
+    }
+    return lo;
+}
+bool env_sample(vec4 u, out vec3 d, out vec3 le, out float pdf) {
+    if (pc.env_info.w == 0u) return false;
+    uint w = pc.env_info.x, h = pc.env_info.y;
+    uint j = cdf_search(0u, h, u.x);
+    uint ix = cdf_search(h + 1u + j * (w + 1u), w, u.y);
+    float phi = M_TAU * (float(ix) + u.z) / float(w);
+    float c0 = cos(M_PI * float(j) / float(h)), c1 = cos(M_PI * float(j + 1u) / float(h));
+    float cos_t = clamp(c0 + (c1 - c0) * u.w, -1.0, 1.0);
+    float sin_t = sqrt(max(1.0 - cos_t * cos_t, 0.0));
+    d = normalize(env_to_world(vec3(sin_t * sin(phi), cos_t, -sin_t * cos(phi))));
+    uint k = env_texel(d);
+    pdf = env_texels[k].w / row_solid_angle(k / w);
+    if (!(pdf > 0.0)) return false;
+    le = env_texels[k].rgb;
+    return true;
+}
+
+// ---- BRDFs (brdf.rs), local frame: n = +Z, tangent = +X
+struct Brdf { uint kind; vec3 albedo; vec3 spec; float alpha; float nu; float nv; float p_spec; };
+
+vec3 schlick(vec3 f0, float c) { float m = clamp(1.0 - c, 0.0, 1.0); float m2 = m * m; return f0 + (1.0 - f0) * (m2 * m2 * m); }
+float ggx_d(float a, float ch) { if (ch <= 0.0) return 0.0; float a2 = a * a; float d = ch * ch * (a2 - 1.0) + 1.0; return a2 / (M_PI * d * d); }
+float ggx_g1(float a, float c) { if (c <= 0.0) return 0.0; float a2 = a * a; return 2.0 * c / (c + sqrt(a2 + (1.0 - a2) * c * c)); }
+float as_norm(float nu, float nv) { return sqrt((nu + 1.0) * (nv + 1.0)); }
+float as_lobe(float nu, float nv, vec3 h) {
+    if (h.z <= 0.0) return 0.0;
+    float s2 = h.x * h.x + h.y * h.y;
+    float e = s2 > 1e-12 ? (nu * h.x * h.x + nv * h.y * h.y) / s2 : 0.5 * (nu + nv);
+    return pow(h.z, e);
+}
+
+vec3 brdf_eval(Brdf b, vec3 wo, vec3 wi) {
+    float co = wo.z, ci = wi.z;
+    if (co <= 0.0 || ci <= 0.0) return vec3(0.0);
+    vec3 hs = wo + wi;
+    if (dot(hs, hs) == 0.0) return vec3(0.0);
+    vec3 h = normalize(hs);
+    if (b.kind == 0u) return b.albedo / M_PI;
+    if (b.kind == 1u) return b.albedo / M_PI + b.spec * ((b.nu + 2.0) / (8.0 * M_PI) * pow(max(h.z, 0.0), b.nu));
+    if (b.kind == 2u) {
+        float d = ggx_d(b.alpha, h.z);
+        float g = ggx_g1(b.alpha, ci) * ggx_g1(b.alpha, co);
+        return b.albedo / M_PI + schlick(b.spec, dot(wi, h)) * (d * g / (4.0 * ci * co));
+    }
+    float hdk = max(dot(wi, h), 1e-6);
+    float spec = as_norm(b.nu, b.nv) / (8.0 * M_PI) * as_lobe(b.nu, b.nv, h) / (hdk * max(ci, co));
+    vec3 f = schlick(b.spec, hdk);
+    float mi = 1.0 - ci / 2.0, mo = 1.0 - co / 2.0;
+    float pi5 = 1.0 - mi * mi * mi * mi * mi, po5 = 1.0 - mo * mo * mo * mo * mo;
+    vec3 diff = b.albedo * (1.0 - b.spec) * (28.0 / (23.0 * M_PI) * pi5 * po5);
+    return diff + f * spec;
+}
+
+float brdf_pdf(Brdf b, vec3 wo, vec3 wi) {
+    if (wo.z <= 0.0 || wi.z <= 0.0) return 0.0;
+    float pd = wi.z / M_PI;
+    if (b.p_spec <= 0.0) return pd;
+    vec3 hs = wo + wi;
+    vec3 h = dot(hs, hs) > 0.0 ? normalize(hs) : vec3(0.0);
+    float odh = dot(wo, h);
+    if (odh <= 0.0) return (1.0 - b.p_spec) * pd;
+    float ph = 0.0;
+    if (b.kind == 1u) ph = (b.nu + 2.0) / M_TAU * pow(max(h.z, 0.0), b.nu + 1.0);
+    else if (b.kind == 2u) ph = ggx_d(b.alpha, h.z) * h.z;
+    else if (b.kind == 3u) ph = as_norm(b.nu, b.nv) / M_TAU * as_lobe(b.nu, b.nv, h);
+    return (1.0 - b.p_spec) * pd + b.p_spec * ph / (4.0 * odh);
+}
+
+vec3 spherical(float cos_t, float phi) { float s = sqrt(max(1.0 - cos_t * cos_t, 0.0)); return vec3(s * cos(phi), s * sin(phi), cos_t); }
+
+bool brdf_sample(Brdf b, vec3 wo, float ul, vec2 u, out vec3 wi) {
+    if (wo.z <= 0.0) return false;
+    if (ul >= b.p_spec) {
+        float r = sqrt(u.x), phi = M_TAU * u.y;
+        wi = vec3(r * cos(phi), r * sin(phi), sqrt(max(1.0 - u.x, 0.0)));
+        return wi.z > 0.0;
+    }
+    vec3 h;
+    if (b.kind == 0u) return false;
+    if (b.kind == 1u) {
+        h = spherical(pow(1.0 - u.x, 1.0 / (b.nu + 2.0)), M_TAU * u.y);
+    } else if (b.kind == 2u) {
+        float a2 = b.alpha * b.alpha;
+        float cos2 = (1.0 - u.x) / (1.0 + (a2 - 1.0) * u.x);
+        h = spherical(sqrt(clamp(cos2, 0.0, 1.0)), M_TAU * u.y);
+    } else {
+        float r = sqrt((b.nu + 1.0) / (b.nv + 1.0));
+        float a = u.y, phi;
+        if (a < 0.25) phi = atan(r * tan(0.5 * M_PI * (4.0 * a)));
+        else if (a < 0.5) phi = M_PI - atan(r * tan(0.5 * M_PI * (4.0 * (0.5 - a))));
+        else if (a < 0.75) phi = M_PI + atan(r * tan(0.5 * M_PI * (4.0 * (a - 0.5))));
+        else phi = M_TAU - atan(r * tan(0.5 * M_PI * (4.0 * (1.0 - a))));
+        float s = sin(phi), c = cos(phi);
+        float e = b.nu * c * c + b.nv * s * s;
+        h = spherical(pow(1.0 - u.x, 1.0 / (e + 1.0)), phi);
+    }
+    float odh = dot(wo, h);
+    wi = 2.0 * odh * h - wo;
+    if (!(wi.z > 0.0 && odh > 0.0)) return false;
+    wi = normalize(wi);
+    return true;
+}
+
+float power_heuristic(float a, float b) { float a2 = a * a, b2 = b * b; return a2 + b2 > 0.0 ? a2 / (a2 + b2) : 0.0; }
+
+bool unoccluded(vec3 x, vec3 d) {
+    return kd_trace(x, d, 0.0, 3.0e38, true).t < 0.0;
+}
+
+vec3 radiance_sample(vec2 ndc) {
+    vec4 nr = pc.inv_view_proj * vec4(ndc, 0.0, 1.0);
+    vec4 fr = pc.inv_view_proj * vec4(ndc, 1.0, 1.0);
+    vec3 o = nr.xyz / nr.w;
+    vec3 d = normalize(fr.xyz / fr.w - o);
+    KdHit hit = kd_trace(o, d, 0.0, 3.0e38, false);
+    if (hit.t < 0.0) return env_radiance(d);
+    uint ti = hit.tri;
+    vec3 p0 = kd_tris[3u * ti].xyz, p1 = kd_tris[3u * ti + 1u].xyz, p2 = kd_tris[3u * ti + 2u].xyz;
+    vec3 p = o + d * hit.t;
+    float b1 = clamp(hit.b1, 0.0, 1.0), b2 = clamp(hit.b2, 0.0, 1.0);
+    float b0 = max(1.0 - b1 - b2, 0.0);
+    vec4 t0 = tri_data[4u * ti], t1 = tri_data[4u * ti + 1u], t2 = tri_data[4u * ti + 2u], t3 = tri_data[4u * ti + 3u];
+    vec3 ng = normalize(cross(p1 - p0, p2 - p0));
+    vec3 ns = t0.xyz * b0 + t1.xyz * b1 + t2.xyz * b2;
+    ns = dot(ns, ns) > 0.0 ? normalize(ns) : ng;
+    if (dot(ns, ng) < 0.0) ng = -ng;          // trust the vertex normals' side (reference)
+    vec3 wo_w = -d;
+    if (dot(ng, wo_w) < 0.0) ng = -ng;        // two-sided: towards the viewer
+    if (dot(ns, ng) < 0.0) ns = -ns;
+    // shading frame (sampling.rs Frame::new)
+    vec3 tt = t3.xyz - ns * dot(ns, t3.xyz);
+    if (dot(tt, tt) > 1e-12) tt = normalize(tt);
+    else {
+        float s = ns.z >= 0.0 ? 1.0 : -1.0;
+        float a = -1.0 / (s + ns.z);
+        float bb = ns.x * ns.y * a;
+        tt = vec3(1.0 + s * ns.x * ns.x * a, s * bb, -s * ns.x);
+    }
+    vec3 bt = cross(ns, tt);
+    mat3 to_world = mat3(tt, bt, ns);
+    vec3 wo = vec3(dot(wo_w, tt), dot(wo_w, bt), dot(wo_w, ns));
+    uint mi = floatBitsToUint(t0.w);
+    Brdf b;
+    vec4 m0 = mats[3u * mi], m1 = mats[3u * mi + 1u], m2 = mats[3u * mi + 2u];
+    b.kind = uint(m0.w); b.albedo = m0.rgb; b.spec = m1.rgb; b.alpha = m1.w; b.nu = m2.x; b.nv = m2.y; b.p_spec = m2.z;
+    vec3 x = p + ng * (3e-5 * (1.0 + max(max(abs(p.x), abs(p.y)), abs(p.z))));
+    vec3 l = vec3(0.0);
+    // environment sample
+    vec4 ue = vec4(rnd(), rnd(), rnd(), rnd());
+    vec3 wi, le;
+    float pdf_l;
+    if (env_sample(ue, wi, le, pdf_l)) {
+        vec3 f = vec3(0.0);
+        if (dot(wi, ng) > 0.0) {
+            vec3 lw = transpose(to_world) * wi;
+            if (lw.z > 0.0 && wo.z > 0.0) f = brdf_eval(b, wo, lw) * lw.z;
+        }
+        if (f != vec3(0.0) && unoccluded(x, wi)) {
+            float w = power_heuristic(pdf_l, brdf_pdf(b, wo, transpose(to_world) * wi));
+            l += f * le * (w / pdf_l);
+        }
+    }
+    // BRDF sample
+    float ul = rnd();
+    vec2 u2 = vec2(rnd(), rnd());
+    vec3 wl;
+    if (brdf_sample(b, wo, ul, u2, wl)) {
+        vec3 wi2 = normalize(to_world * wl);
+        if (dot(wi2, ng) > 0.0) {
+            vec3 lw = transpose(to_world) * wi2;
+            float pdf_s = brdf_pdf(b, wo, lw);
+            vec3 f = (lw.z > 0.0 && wo.z > 0.0) ? brdf_eval(b, wo, lw) * lw.z : vec3(0.0);
+            if (pdf_s > 0.0 && f != vec3(0.0) && unoccluded(x, wi2)) {
+                float w = pc.env_info.w != 0u ? power_heuristic(pdf_s, env_pdf(wi2)) : 1.0;
+                l += f * env_radiance(wi2) * (w / pdf_s);
+            }
+        }
+    }
+    return l;
+}
+
+void main() {
+    uvec2 px = gl_GlobalInvocationID.xy;
+    uint w = pc.size_spp_seed.x, h = pc.size_spp_seed.y;
+    if (px.x >= w || px.y >= h) return;
+    rng_state = pcg(pcg(px.y * w + px.x) ^ pcg(pc.size_spp_seed.w * 0x9E3779B9u + 17u));
+    vec4 acc = pc.env_info.z != 0u ? vec4(0.0) : imageLoad(accum, ivec2(px));
+    for (uint s = 0u; s < pc.size_spp_seed.z; s++) {
+        vec2 j = vec2(rnd(), rnd());
+        vec2 ndc = vec2(2.0 * (float(px.x) + j.x) / float(w) - 1.0, 2.0 * (float(px.y) + j.y) / float(h) - 1.0);
+        vec3 c = radiance_sample(ndc);
+        if (!any(isinf(c)) && !any(isnan(c))) acc.rgb += c;
+        acc.a += 1.0;
+    }
+    imageStore(accum, ivec2(px), acc);
+    imageStore(hdr, ivec2(px), vec4(acc.a > 0.0 ? acc.rgb / acc.a : vec3(0.0), 1.0));
+}
