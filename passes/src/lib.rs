@@ -11,7 +11,6 @@ pub mod mc;
 pub mod readback;
 pub mod scene_gpu;
 pub mod shade_env;
-pub mod shadow_fields;
 pub mod technique;
 pub mod textures;
 pub mod tonemap;
