@@ -10,7 +10,7 @@
 //! [environment]              # file = "x.exr" | "x.hdr", or procedural = "sky"; intensity; rotation_deg
 //! [[light]]                  # type = "point" | "spot" | "sphere", position, direction, color,
 //!                            # intensity, inner_deg, outer_deg, radius, motion = {...}
-//! [medium]                   # sigma_a, sigma_s, g (Henyey-Greenstein)
+//! [medium]                   # sigma_a, sigma_s, g (Henyey-Greenstein), volumetric = "temporal" | "full"
 //! [materials.NAME]           # type = "diffuse" | "blinn_phong" | "cook_torrance" | "ashikhmin_shirley",
 //!                            # albedo, specular, roughness, shininess, shininess_v, two_sided,
 //!                            # albedo_map / roughness_map = { file = "x.png" } | { pattern = "checker", ... },
@@ -160,6 +160,8 @@ struct MediumSpec {
     sigma_s: V3,
     #[serde(default)]
     g: f32,
+    /// "temporal" (default) or "full".
+    volumetric: Option<String>,
 }
 
 #[derive(Deserialize)]
@@ -500,6 +502,12 @@ pub fn parse_toml(path: &Path, text: &str, options: &LoadOptions) -> Result<Scen
             return Err(SceneError::invalid(path, format!("medium: g must be in (-1, 1), got {}", m.g)));
         }
         scene.medium = Some(Medium { sigma_a: a, sigma_s: s, g: m.g });
+        if let Some(v) = &m.volumetric {
+            if v != "temporal" && v != "full" {
+                return Err(SceneError::invalid(path, format!("medium: volumetric must be \"temporal\" or \"full\", got \"{v}\"")));
+            }
+            scene.volumetric = Some(v.clone());
+        }
     }
 
     // Materials.

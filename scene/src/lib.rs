@@ -425,6 +425,9 @@ pub struct Scene {
     pub technique: String,
     pub lights: Vec<Light>,
     pub medium: Option<Medium>,
+    /// Volumetric method of the medium's passes: `"temporal"` or `"full"`; `None` = temporal
+    /// (the `[medium]` table's `volumetric` key).
+    pub volumetric: Option<String>,
     /// Textures referenced by [`MaterialExtra`].
     pub textures: Vec<Texture>,
     /// Per-material extras, indexed like `materials` (may be shorter: missing = default).
@@ -789,6 +792,7 @@ impl Scene {
             technique: DEFAULT_TECHNIQUE.into(),
             lights: Vec::new(),
             medium: None,
+            volumetric: None,
             textures: Vec::new(),
             material_extras: Vec::new(),
             object_info: Vec::new(),

@@ -1,0 +1,272 @@
+//! `penumbra bench volumetric SCENE`: the temporal technique and the full baseline on the same
+//! frames, each on its own engine (same device), with per-pass GPU times, the per-frame speedup
+//! of the volumetric passes, the masked-pixel fraction, the difference between the two final
+//! images, and missed pixels (scattering changed in the full result since the previous frame,
+//! but the temporal frame reused the pixel: neither marched nor in the dilated mask).
+
+use super::{MarchMode, VolumetricEffect, VolumetricMethod, VolumetricParams};
+use crate::effect::{Effect, EffectInputs};
+use crate::env::EnvMapGpu;
+use crate::scene_gpu::FrameConstants;
+use crate::technique::Technique;
+use crate::{GBufferPass, SceneGpu};
+use anyhow::{bail, Result};
+use glam::Mat4;
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{Context, Engine, FrameOutput, Graph};
+use penumbra_scene::Scene;
+use std::sync::Arc;
+
+/// Options of [`bench_volumetric`].
+#[derive(Clone, Debug)]
+pub struct VolBenchOptions {
+    pub width: u32,
+    pub height: u32,
+    pub frames: u32,
+    pub fps: f32,
+    /// Time of the first frame in seconds.
+    pub start_time: f32,
+    /// The temporal method's reused-frame period (default 3).
+    pub reuse_frames: u32,
+    /// Samples per view ray (both methods).
+    pub samples: u32,
+}
+
+impl Default for VolBenchOptions {
+    fn default() -> Self {
+        VolBenchOptions { width: 320, height: 240, frames: 12, fps: 30.0, start_time: 0.0, reuse_frames: 3, samples: 48 }
+    }
+}
+
+/// One frame of the benchmark.
+#[derive(Clone, Debug)]
+pub struct VolBenchFrame {
+    pub frame: u32,
+    pub time: f32,
+    /// What the temporal method did (`full`, `refresh`, `masked`, `skipped`).
+    pub temporal_mode: String,
+    /// GPU ms per `vol_*` pass.
+    pub temporal_ms: Vec<(String, f64)>,
+    pub full_ms: Vec<(String, f64)>,
+    /// Sums over the `vol_*` passes.
+    pub temporal_total_ms: f64,
+    pub full_total_ms: f64,
+    /// `full_total_ms / temporal_total_ms`.
+    pub speedup: f64,
+    /// Fraction of pixels the temporal method marched this frame.
+    pub marched_fraction: f64,
+    /// Final HDR images, temporal vs full.
+    pub mean_abs: f64,
+    pub max_abs: f64,
+    /// PSNR with the full image's peak; `f64::INFINITY` when identical.
+    pub psnr: f64,
+    pub missed_pixels: u64,
+}
+
+/// The whole benchmark.
+#[derive(Clone, Debug)]
+pub struct VolBenchReport {
+    pub scene: String,
+    pub width: u32,
+    pub height: u32,
+    pub frames: Vec<VolBenchFrame>,
+    /// Sum of full ms over sum of temporal ms (all frames).
+    pub speedup: f64,
+    pub missed_pixels: u64,
+    pub notes: Vec<String>,
+}
+
+impl VolBenchReport {
+    /// A plain-text table (one line per frame, then the totals).
+    pub fn table(&self) -> String {
+        let mut s = format!(
+            "volumetric bench '{}' {}x{}\nframe  mode     temporal_ms  full_ms  speedup  marched  mean_abs  max_abs  psnr_dB  missed\n",
+            self.scene, self.width, self.height
+        );
+        for f in &self.frames {
+            s += &format!(
+                "{:5}  {:8} {:11.3} {:8.3} {:8.2} {:8.3} {:9.2e} {:8.2e} {:8.1} {:7}\n",
+                f.frame, f.temporal_mode, f.temporal_total_ms, f.full_total_ms, f.speedup, f.marched_fraction, f.mean_abs, f.max_abs, f.psnr, f.missed_pixels
+            );
+        }
+        s += &format!("overall speedup {:.2}x, missed pixels {}\n", self.speedup, self.missed_pixels);
+        for n in &self.notes {
+            s += &format!("note: {n}\n");
+        }
+        s
+    }
+}
+
+/// A minimal frame pipeline (G-buffer, technique, volumetric effect) on its own engine.
+struct Runner {
+    gbuffer: GBufferPass,
+    technique: Box<dyn Technique>,
+    effect: VolumetricEffect,
+    scene_gpu: SceneGpu,
+    env: EnvMapGpu,
+    engine: Engine,
+    prev_vp: Option<Mat4>,
+}
+
+struct RunOut {
+    hdr: Vec<[f32; 4]>,
+    scatter: Vec<[f32; 4]>,
+    mask: Option<Vec<u8>>,
+    mode: MarchMode,
+    frame_id: u32,
+    gpu_ms: Vec<(String, f64)>,
+}
+
+fn f32s(bytes: &[u8]) -> Vec<[f32; 4]> {
+    bytes
+        .chunks_exact(16)
+        .map(|c| {
+            let f = |i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
+            [f(0), f(4), f(8), f(12)]
+        })
+        .collect()
+}
+
+impl Runner {
+    fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: VolumetricParams) -> Result<Self> {
+        let technique = match crate::technique::create(&scene.technique, ctx, shaders, scene)? {
+            Some(t) => t,
+            None => crate::technique::create(penumbra_scene::DEFAULT_TECHNIQUE, ctx, shaders, scene)?
+                .ok_or_else(|| anyhow::anyhow!("no default technique"))?,
+        };
+        Ok(Runner {
+            gbuffer: GBufferPass::new(ctx, shaders)?,
+            technique,
+            effect: VolumetricEffect::new(scene, ctx, shaders, params)?,
+            scene_gpu: SceneGpu::new(ctx, scene)?,
+            env: EnvMapGpu::new(scene.environment.as_ref()),
+            engine: Engine::new(ctx.clone(), 1)?,
+            prev_vp: None,
+        })
+    }
+
+    fn frame(&mut self, scene: &Scene, frame: &penumbra_scene::Frame, w: u32, h: u32) -> Result<RunOut> {
+        let mut g = Graph::new();
+        let mut constants = FrameConstants::new(frame, self.prev_vp, w, h);
+        constants.params[2] = self.env.mips.len() as f32;
+        constants.params[3] = self.env.intensity;
+        constants.env_rot = [self.env.rotation.cos(), self.env.rotation.sin(), 1.0, 0.0];
+        for (i, c) in self.env.sh.iter().enumerate() {
+            constants.sh[i] = [c[0], c[1], c[2], 0.0];
+        }
+        self.prev_vp = Some(constants.view_proj());
+        let env = self.env.add(&mut self.engine, &mut g);
+        let (handles, draws) = self.scene_gpu.add(&mut g, frame, &constants);
+        let gb = self.gbuffer.add(&mut g, &handles, draws.clone(), w, h);
+        let ti = crate::technique::TechniqueInputs { frame, scene: &handles, gbuffer: &gb, env, env_data: &self.env };
+        let hdr = self.technique.add(&mut self.engine, &mut g, &ti)?;
+        let inputs = EffectInputs { scene, frame, handles: &handles, draws: &draws, gbuffer: &gb, env, env_data: &self.env };
+        let out = self.effect.add(&mut self.engine, &mut g, &inputs, hdr)?;
+        let info = self.effect.last.expect("effect info");
+        let mut rb = vec![(out, "vol_bench_hdr"), (info.scatter, "vol_bench_scatter")];
+        if let Some(m) = info.mask {
+            rb.push((m, "vol_bench_mask"));
+        }
+        crate::readback::add(&mut g, "vol_bench_readback", &rb);
+        let (_, mut done) = self.engine.submit(g)?;
+        done.extend(self.engine.drain()?);
+        let Some(o): Option<FrameOutput> = done.pop() else { bail!("no frame output") };
+        let get = |n: &str| o.readbacks.get(n).cloned().unwrap_or_default();
+        Ok(RunOut {
+            hdr: f32s(&get("vol_bench_hdr")),
+            scatter: f32s(&get("vol_bench_scatter")),
+            mask: info.mask.map(|_| get("vol_bench_mask")),
+            mode: info.mode,
+            frame_id: info.frame_id,
+            gpu_ms: o.gpu_ms.into_iter().filter(|(n, _)| n.starts_with("vol_")).collect(),
+        })
+    }
+}
+
+/// Changed beyond float noise (the march is deterministic per pixel).
+fn differs(a: [f32; 4], b: [f32; 4]) -> bool {
+    (0..3).any(|c| (a[c] - b[c]).abs() > 1e-4 * a[c].abs().max(b[c].abs()) + 1e-7)
+}
+
+/// Runs the temporal method and the full baseline on the same frames of `scene`.
+pub fn bench_volumetric(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, opts: &VolBenchOptions) -> Result<VolBenchReport> {
+    if scene.medium.is_none() {
+        bail!("scene '{}' has no [medium]: nothing volumetric to benchmark", scene.name);
+    }
+    if opts.width == 0 || opts.height == 0 || opts.width > 8192 || opts.height > 8192 || opts.frames == 0 {
+        bail!("bench volumetric: bad size {}x{} or frame count {}", opts.width, opts.height, opts.frames);
+    }
+    if !(opts.fps.is_finite() && opts.fps > 0.0) || !opts.start_time.is_finite() {
+        bail!("bench volumetric: fps must be positive and the start time finite");
+    }
+    let base = VolumetricParams { reuse_frames: opts.reuse_frames, samples: opts.samples, ..Default::default() };
+    let mut temporal = Runner::new(ctx, shaders, scene, VolumetricParams { method: VolumetricMethod::Temporal, ..base.clone() })?;
+    let mut full = Runner::new(ctx, shaders, scene, VolumetricParams { method: VolumetricMethod::Full, ..base })?;
+    let (w, h) = (opts.width, opts.height);
+    let mut frames = Vec::new();
+    let mut prev_full: Option<Vec<[f32; 4]>> = None;
+    let mut prev_t = None;
+    for k in 0..opts.frames {
+        let t = opts.start_time + k as f32 / opts.fps;
+        let frame = scene.at(t, prev_t);
+        prev_t = Some(t);
+        let a = temporal.frame(scene, &frame, w, h)?;
+        let b = full.frame(scene, &frame, w, h)?;
+        let n = (w * h) as usize;
+        if a.hdr.len() != n || b.hdr.len() != n || a.scatter.len() != n || b.scatter.len() != n {
+            bail!("bench volumetric: incomplete readbacks");
+        }
+        let marched = a.scatter.iter().filter(|p| p[3] == a.frame_id as f32).count();
+        // Missed: the full scattering changed since the previous frame, the temporal frame kept it.
+        let mut missed = 0u64;
+        if let Some(pf) = &prev_full {
+            for i in 0..n {
+                if differs(b.scatter[i], pf[i]) && a.scatter[i][3] != a.frame_id as f32 {
+                    missed += 1;
+                }
+            }
+        }
+        let (mut sum, mut max, mut se, mut peak) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        for i in 0..n {
+            for c in 0..3 {
+                let d = (a.hdr[i][c] as f64 - b.hdr[i][c] as f64).abs();
+                sum += d;
+                se += d * d;
+                max = max.max(d);
+                peak = peak.max(b.hdr[i][c] as f64);
+            }
+        }
+        let mse = se / (3 * n) as f64;
+        let psnr = if mse == 0.0 { f64::INFINITY } else { 10.0 * (peak.max(1e-12).powi(2) / mse).log10() };
+        let tt: f64 = a.gpu_ms.iter().map(|x| x.1).sum();
+        let ft: f64 = b.gpu_ms.iter().map(|x| x.1).sum();
+        let _ = &a.mask;
+        frames.push(VolBenchFrame {
+            frame: k,
+            time: t,
+            temporal_mode: format!("{:?}", a.mode).to_lowercase(),
+            temporal_ms: a.gpu_ms,
+            full_ms: b.gpu_ms,
+            temporal_total_ms: tt,
+            full_total_ms: ft,
+            speedup: if tt > 0.0 { ft / tt } else { f64::INFINITY },
+            marched_fraction: marched as f64 / n as f64,
+            mean_abs: sum / (3 * n) as f64,
+            max_abs: max,
+            psnr,
+            missed_pixels: missed,
+        });
+        prev_full = Some(b.scatter);
+    }
+    let tt: f64 = frames.iter().map(|f| f.temporal_total_ms).sum();
+    let ft: f64 = frames.iter().map(|f| f.full_total_ms).sum();
+    Ok(VolBenchReport {
+        scene: scene.name.clone(),
+        width: w,
+        height: h,
+        missed_pixels: frames.iter().map(|f| f.missed_pixels).sum(),
+        frames,
+        speedup: if tt > 0.0 { ft / tt } else { f64::INFINITY },
+        notes: temporal.effect.notes.clone(),
+    })
+}
