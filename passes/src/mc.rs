@@ -260,7 +260,7 @@ impl McTechnique {
     }
 
     /// Copies host data into a persistent buffer when it is new; returns its latest handle.
-    fn persistent_upload(engine: &mut Engine, graph: &mut Graph, name: &str, data: Vec<u8>, force: bool) -> BufferHandle {
+    pub(crate) fn persistent_upload(engine: &mut Engine, graph: &mut Graph, name: &str, data: Vec<u8>, force: bool) -> BufferHandle {
         let size = data.len().max(16) as u64;
         let h = engine.persistent_buffer(graph, name, size);
         if !(force || graph.persistent_is_new(h)) {

@@ -31,13 +31,14 @@ pub trait Technique {
 }
 
 /// Techniques implemented so far.
-pub const IMPLEMENTED: &[&str] = &["env", "mc"];
+pub const IMPLEMENTED: &[&str] = &["env", "mc", "shadowmaps"];
 
 /// Creates the technique `name` for `scene`, or `None` if it is not implemented.
 pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &Scene) -> Result<Option<Box<dyn Technique>>> {
     Ok(match name {
         "env" => Some(Box::new(crate::shade_env::ShadeEnvPass::new(ctx, shaders)?)),
         "mc" => Some(Box::new(crate::mc::McTechnique::new(ctx, shaders, _scene)?)),
+        "shadowmaps" => Some(Box::new(crate::shadowmaps::ShadowMapsTechnique::new(ctx, shaders, _scene)?)),
         _ => None,
     })
 }

@@ -158,3 +158,32 @@ fn kdtree_tracer_agrees_with_obvhs_on_every_scene() {
     assert_eq!(errors, 0, "validation errors: {:?}", ctx.validation.errors());
     let _ = Vec3::ZERO;
 }
+
+/// `bench_trace` runs in one go and reports plausible numbers (small sizes here; the table in the
+/// issue note comes from `penumbra bench trace SCENE` or `cargo test ... bench_table -- --ignored`).
+#[test]
+fn bench_trace_reports_build_and_ray_rates() {
+    let ctx = Context::new(&ContextDesc::default()).expect("context");
+    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "trace.comp"]);
+    let scene = Scene::load(root().join("scenes/assets/bunny.glb")).unwrap();
+    let r = penumbra_passes::trace_bench::bench_trace(&ctx, &lib, &scene, 64, 48, 4096).unwrap();
+    println!("{r}");
+    assert!(r.triangles > 1000 && r.stats.leaves > 0 && r.build_ms > 0.0);
+    assert_eq!(r.rows.len(), 2);
+    for row in &r.rows {
+        assert!(row.gpu_mrays > 0.0 && row.cpu_mrays > 0.0 && row.gpu_mrays.is_finite(), "{row:?}");
+    }
+}
+
+/// The bench table over every scene (slow; run with `--ignored`).
+#[test]
+#[ignore]
+fn bench_table() {
+    let ctx = Context::new(&ContextDesc::default()).expect("context");
+    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "trace.comp"]);
+    for path in scene_paths() {
+        let scene = Scene::load(&path).unwrap();
+        let r = penumbra_passes::trace_bench::bench_trace(&ctx, &lib, &scene, 320, 240, 76800).unwrap();
+        println!("== {}\n{r}", path.file_name().unwrap().to_string_lossy());
+    }
+}

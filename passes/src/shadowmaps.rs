@@ -1,0 +1,283 @@
+//! The shadow-map baseline, technique `shadowmaps` (`glsl/trace_shadowmap.comp`,
+//! `glsl/mc_shadowmaps.comp`): the comparison of the ISG and adaptive-visibility papers.
+//!
+//! The environment is replaced by [`ShadowMapsTechnique::count`] directional lights at stratified
+//! importance samples of it (the distribution of [`crate::mc::EnvTables`]: luminance x solid
+//! angle), each weighted `L / (K pdf)` so that without shadows the sum estimates the environment
+//! integral. Every light has an orthographic depth map of [`ShadowMapsTechnique::size`]^2
+//! texels over the scene's bounding sphere. Shading per G-buffer pixel: the sum over lights of
+//! BRDF (the reference's, `glsl/include/brdf_ref.glsl`) x cosine x lit fraction (3x3 PCF,
+//! slope-scaled bias of 1.5 texels + 1.5 texels x tan(theta)) x weight; sky pixels show the
+//! environment.
+//!
+//! Depth maps are rendered by casting one closest-hit ray per texel centre through the kd-tree
+//! (the same samples a rasterizer takes), in compute; they are kept in a persistent buffer and
+//! re-rendered only when the tree is rebuilt (geometry moved or deformed). Not handled: local
+//! lights, texture maps, the medium, `casts_shadow = false` (every triangle casts).
+
+use crate::kdtree::{world_triangles, KdTreeBuilder, KdTreeHandles};
+use crate::mc::{material_table, EnvTables, McTechnique};
+use crate::scene_gpu::FrameConstants;
+use crate::shade_env::HDR_FORMAT;
+use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
+use anyhow::Result;
+use glam::Vec3;
+use penumbra_engine::graph::ImageDesc;
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{vk, Access, Bind, Context, Engine, Graph, ImageHandle, PassKind};
+use penumbra_scene::{Frame, Scene};
+use std::sync::Arc;
+
+impl EnvTables {
+    fn search(cdf: &[f32], u: f32) -> usize {
+        // first i with cdf[i + 1] > u, as the shader's binary search
+        let n = cdf.len() - 1;
+        let (mut lo, mut hi) = (0usize, n);
+        while lo + 1 < hi {
+            let mid = (lo + hi) / 2;
+            if cdf[mid] <= u {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        lo
+    }
+
+    fn texel_of(&self, dw: Vec3) -> usize {
+        let (c, s) = (self.cos_rot, self.sin_rot);
+        let d = Vec3::new(c * dw.x - s * dw.z, dw.y, s * dw.x + c * dw.z);
+        let (u, v) = penumbra_scene::Environment::uv(d);
+        let i = ((u * self.width as f32) as i64).clamp(0, self.width as i64 - 1) as usize;
+        let j = ((v * self.height as f32) as i64).clamp(0, self.height as i64 - 1) as usize;
+        j * self.width as usize + i
+    }
+
+    /// Samples a world direction from four uniforms: (direction, radiance, solid-angle pdf).
+    pub fn sample(&self, u: [f32; 4]) -> Option<(Vec3, Vec3, f32)> {
+        if !self.can_sample {
+            return None;
+        }
+        let (w, h) = (self.width as usize, self.height as usize);
+        let j = Self::search(&self.cdf[0..h + 1], u[0]);
+        let base = h + 1 + j * (w + 1);
+        let ix = Self::search(&self.cdf[base..base + w + 1], u[1]);
+        let pi = std::f32::consts::PI;
+        let phi = std::f32::consts::TAU * (ix as f32 + u[2]) / w as f32;
+        let (c0, c1) = ((pi * j as f32 / h as f32).cos(), (pi * (j + 1) as f32 / h as f32).cos());
+        let cos_t = (c0 + (c1 - c0) * u[3]).clamp(-1.0, 1.0);
+        let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+        let dm = Vec3::new(sin_t * phi.sin(), cos_t, -sin_t * phi.cos());
+        let (c, s) = (self.cos_rot, self.sin_rot);
+        let d = Vec3::new(c * dm.x + s * dm.z, dm.y, -s * dm.x + c * dm.z).normalize();
+        let k = self.texel_of(d);
+        let row = k / w;
+        let sa = ((pi * row as f32 / h as f32).cos() - (pi * (row + 1) as f32 / h as f32).cos()) * std::f32::consts::TAU / w as f32;
+        let pdf = self.texels[k][3] / sa;
+        (pdf > 0.0 && pdf.is_finite()).then(|| (d, Vec3::new(self.texels[k][0], self.texels[k][1], self.texels[k][2]), pdf))
+    }
+}
+
+/// Technique `shadowmaps`.
+pub struct ShadowMapsTechnique {
+    depth_pipe: Pipeline,
+    shade_pipe: Pipeline,
+    nearest: Sampler,
+    pub builder: KdTreeBuilder,
+    scene: Scene,
+    env: EnvTables,
+    /// Number of directional lights / shadow maps (default 32).
+    pub count: u32,
+    /// Shadow-map resolution (default 256).
+    pub size: u32,
+    /// Shadow tests on (false: unshadowed, for comparisons).
+    pub visibility: bool,
+    /// Per map: (direction to the light, 0), (weight, 0), (right, 0), (up, 0).
+    maps: Vec<[f32; 4]>,
+    sphere: [f32; 4],
+    built: bool,
+}
+
+impl ShadowMapsTechnique {
+    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene) -> Result<Self> {
+        use vk::DescriptorType as T;
+        let depth_pipe = compute_pipeline(ctx, shaders, "trace_shadowmap.comp", &[T::STORAGE_BUFFER; 6], 32)?;
+        let shade_pipe = compute_pipeline(
+            ctx,
+            shaders,
+            "mc_shadowmaps.comp",
+            &[
+                T::COMBINED_IMAGE_SAMPLER,
+                T::COMBINED_IMAGE_SAMPLER,
+                T::COMBINED_IMAGE_SAMPLER,
+                T::STORAGE_BUFFER,
+                T::STORAGE_BUFFER,
+                T::STORAGE_BUFFER,
+                T::STORAGE_BUFFER,
+                T::STORAGE_IMAGE,
+            ],
+            128,
+        )?;
+        let mut t = ShadowMapsTechnique {
+            depth_pipe,
+            shade_pipe,
+            nearest: Sampler::nearest(ctx)?,
+            builder: KdTreeBuilder::new(ctx, shaders)?,
+            scene: scene.clone(),
+            env: EnvTables::new(scene.environment.as_ref()),
+            count: 32,
+            size: 256,
+            visibility: true,
+            maps: Vec::new(),
+            sphere: [0.0, 0.0, 0.0, 1.0],
+            built: false,
+        };
+        t.set_count(32);
+        Ok(t)
+    }
+
+    /// Chooses `k` light directions (stratified over the environment's sampling distribution).
+    pub fn set_count(&mut self, k: u32) {
+        let k = k.clamp(1, 1024);
+        self.count = k;
+        self.maps.clear();
+        let nx = (k as f32).sqrt().ceil() as u32;
+        let ny = k.div_ceil(nx);
+        for i in 0..k {
+            let u = [((i % nx) as f32 + 0.5) / nx as f32, ((i / nx) as f32 + 0.5) / ny as f32, 0.5, 0.5];
+            let (d, w) = match self.env.sample(u) {
+                Some((d, l, pdf)) => (d, l / (k as f32 * pdf)),
+                None => (Vec3::Y, Vec3::ZERO),
+            };
+            let right = if d.y.abs() < 0.99 { Vec3::Y.cross(d).normalize() } else { Vec3::X.cross(d).normalize() };
+            let up = d.cross(right);
+            self.maps.push([d.x, d.y, d.z, 0.0]);
+            self.maps.push([w.x, w.y, w.z, 0.0]);
+            self.maps.push([right.x, right.y, right.z, 0.0]);
+            self.maps.push([up.x, up.y, up.z, 0.0]);
+        }
+        self.built = false;
+    }
+
+    pub fn add_frame(
+        &mut self,
+        engine: &mut Engine,
+        graph: &mut Graph,
+        frame: &Frame,
+        gb: &crate::gbuffer::GBuffer,
+    ) -> Result<ImageHandle> {
+        let (k, s) = (self.count, self.size.clamp(16, 4096));
+        let geometry_changed = frame.any_moved() || frame.any_deformed();
+        let kept = if geometry_changed || !self.built { None } else { self.builder.add_kept(engine, graph) };
+        let (tree, rebuilt): (KdTreeHandles, bool) = match kept {
+            Some(t) => (t, false),
+            None => {
+                let tris = world_triangles(&self.scene, frame)?;
+                let (lo, hi) = crate::trace_bench::bounds(&tris);
+                let c = 0.5 * (lo + hi);
+                let r = (0.5 * (hi - lo).length()).max(1e-3);
+                self.sphere = [c.x, c.y, c.z, r];
+                self.built = true;
+                (self.builder.add_triangles(engine, graph, &tris, true)?, true)
+            }
+        };
+        let maps = graph.create_buffer_init("shadowmaps.maps", bytes_of(&self.maps));
+        let depth = engine.persistent_buffer(graph, "shadowmaps.depth", k as u64 * s as u64 * s as u64 * 4);
+        let depth = if rebuilt || graph.persistent_is_new(depth) {
+            let mut p = graph.pass("shadowmaps_depth", PassKind::Compute);
+            let tr = p.read(tree.tris, Access::ComputeShaderReadStorage);
+            let nd = p.read(tree.nodes, Access::ComputeShaderReadStorage);
+            let rf = p.read(tree.refs, Access::ComputeShaderReadStorage);
+            let hd = p.read(tree.header, Access::ComputeShaderReadStorage);
+            let mp = p.read(maps, Access::ComputeShaderReadStorage);
+            let dp = p.write(depth, Access::ComputeShaderWriteStorage);
+            let mut push = Vec::new();
+            push.extend(bytes_of(&[s, k, 0, 0]));
+            push.extend(bytes_of(&self.sphere));
+            let (pipe, layout) = (self.depth_pipe.pipeline, self.depth_pipe.layout);
+            p.record(move |rc| {
+                unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
+                rc.push_descriptors(
+                    vk::PipelineBindPoint::COMPUTE,
+                    layout,
+                    0,
+                    &[
+                        Bind::StorageBuffer(tr),
+                        Bind::StorageBuffer(nd),
+                        Bind::StorageBuffer(rf),
+                        Bind::StorageBuffer(hd),
+                        Bind::StorageBuffer(mp),
+                        Bind::StorageBuffer(dp),
+                    ],
+                )?;
+                unsafe {
+                    let d = rc.device();
+                    d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
+                    d.cmd_dispatch(rc.cmd, groups(s, 8), groups(s, 8), k);
+                }
+                Ok(())
+            });
+            dp
+        } else {
+            depth
+        };
+        let env_texels = McTechnique::persistent_upload(engine, graph, "shadowmaps.env_texels", bytes_of(&self.env.texels), false);
+        let materials = graph.create_buffer_init("shadowmaps.materials", bytes_of(&material_table(&frame.materials)));
+        let (w, h) = (gb.width, gb.height);
+        let hdr = graph.create_image("shadowmaps.hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
+        let inv_vp = FrameConstants::new(frame, None, w, h).inv_view_proj;
+        let mut push: Vec<u8> = Vec::with_capacity(128);
+        for c in inv_vp {
+            push.extend(bytes_of(&c));
+        }
+        push.extend(bytes_of(&[w, h, k, s]));
+        push.extend(bytes_of(&[self.env.width, self.env.height, self.visibility as u32, 0]));
+        push.extend(bytes_of(&[self.env.cos_rot, self.env.sin_rot, 0.0, 0.0]));
+        push.extend(bytes_of(&self.sphere));
+        let mut p = graph.pass("shadowmaps_shade", PassKind::Compute);
+        let pos = p.read(gb.position, Access::ComputeShaderReadSampled);
+        let nrm = p.read(gb.normal, Access::ComputeShaderReadSampled);
+        let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
+        let mats = p.read(materials, Access::ComputeShaderReadStorage);
+        let mp = p.read(maps, Access::ComputeShaderReadStorage);
+        let dp = p.read(depth, Access::ComputeShaderReadStorage);
+        let et = p.read(env_texels, Access::ComputeShaderReadStorage);
+        let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
+        let (pipe, layout) = (self.shade_pipe.pipeline, self.shade_pipe.layout);
+        let nearest = self.nearest.sampler;
+        p.record(move |rc| {
+            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
+            rc.push_descriptors(
+                vk::PipelineBindPoint::COMPUTE,
+                layout,
+                0,
+                &[
+                    Bind::SampledImage(pos, nearest),
+                    Bind::SampledImage(nrm, nearest),
+                    Bind::SampledImage(uvm, nearest),
+                    Bind::StorageBuffer(mats),
+                    Bind::StorageBuffer(mp),
+                    Bind::StorageBuffer(dp),
+                    Bind::StorageBuffer(et),
+                    Bind::StorageImage(hdr),
+                ],
+            )?;
+            unsafe {
+                let d = rc.device();
+                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
+                d.cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1);
+            }
+            Ok(())
+        });
+        Ok(hdr)
+    }
+}
+
+impl crate::technique::Technique for ShadowMapsTechnique {
+    fn name(&self) -> &'static str {
+        "shadowmaps"
+    }
+    fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
+        self.add_frame(engine, graph, inputs.frame, inputs.gbuffer)
+    }
+}
