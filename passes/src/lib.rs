@@ -5,7 +5,6 @@
 pub mod effect;
 pub mod env;
 pub mod gbuffer;
-pub mod isg;
 pub mod kdtree;
 pub mod mc;
 pub mod readback;
