@@ -29,10 +29,14 @@ struct KdHit {
     uint tri;
 };
 
-// Watertight ray/triangle test (Woop, Benthin and Wald 2013), per-ray constants first.
+// Watertight ray/triangle test (Woop, Benthin and Wald 2013). The per-ray permutation and shear
+// are folded into three rows (one-hot minus shear), so the per-triangle work is dot products
+// instead of dynamically indexed components: dot(row, A) = A[kx] - Sx A[kz] exactly (the other
+// products are zero).
 struct KdRayW {
-    ivec3 k;     // kx, ky, kz
-    vec3 s;      // Sx, Sy, Sz
+    vec3 r0;     // e_kx - Sx e_kz
+    vec3 r1;     // e_ky - Sy e_kz
+    vec3 r2;     // Sz e_kz
 };
 
 KdRayW kd_ray_setup(vec3 d) {
@@ -41,9 +45,13 @@ KdRayW kd_ray_setup(vec3 d) {
     int kx = (kz + 1) % 3;
     int ky = (kx + 1) % 3;
     if (d[kz] < 0.0) { int tmp = kx; kx = ky; ky = tmp; }
+    vec3 ex = vec3(0.0), ey = vec3(0.0), ez = vec3(0.0);
+    ex[kx] = 1.0; ey[ky] = 1.0; ez[kz] = 1.0;
+    float sx = d[kx] / d[kz], sy = d[ky] / d[kz], sz = 1.0 / d[kz];
     KdRayW r;
-    r.k = ivec3(kx, ky, kz);
-    r.s = vec3(d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]);
+    r.r0 = ex - sx * ez;
+    r.r1 = ey - sy * ez;
+    r.r2 = sz * ez;
     return r;
 }
 
@@ -51,10 +59,9 @@ KdRayW kd_ray_setup(vec3 d) {
 bool kd_intersect(KdRayW r, vec3 o, vec3 p0, vec3 p1, vec3 p2, float tmin, float tmax,
                   out float t, out float b1, out float b2) {
     vec3 A = p0 - o, B = p1 - o, C = p2 - o;
-    int kx = r.k.x, ky = r.k.y, kz = r.k.z;
-    float Ax = A[kx] - r.s.x * A[kz], Ay = A[ky] - r.s.y * A[kz];
-    float Bx = B[kx] - r.s.x * B[kz], By = B[ky] - r.s.y * B[kz];
-    float Cx = C[kx] - r.s.x * C[kz], Cy = C[ky] - r.s.y * C[kz];
+    float Ax = dot(r.r0, A), Ay = dot(r.r1, A);
+    float Bx = dot(r.r0, B), By = dot(r.r1, B);
+    float Cx = dot(r.r0, C), Cy = dot(r.r1, C);
     float U = Cx * By - Cy * Bx;
     float V = Ax * Cy - Ay * Cx;
     float W = Bx * Ay - By * Ax;
@@ -63,7 +70,7 @@ bool kd_intersect(KdRayW r, vec3 o, vec3 p0, vec3 p1, vec3 p2, float tmin, float
     if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return false;
     float det = U + V + W;
     if (det == 0.0) return false;
-    float Az = r.s.z * A[kz], Bz = r.s.z * B[kz], Cz = r.s.z * C[kz];
+    float Az = dot(r.r2, A), Bz = dot(r.r2, B), Cz = dot(r.r2, C);
     float T = U * Az + V * Bz + W * Cz;
     if (det < 0.0) { T = -T; det = -det; U = -U; V = -V; W = -W; }
     if (T < tmin * det || T > tmax * det) return false;

@@ -181,7 +181,11 @@ fn bench_trace_reports_build_and_ray_rates() {
 fn bench_table() {
     let ctx = Context::new(&ContextDesc::default()).expect("context");
     let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "trace.comp"]);
+    let only = std::env::var("BENCH_SCENE").ok();
     for path in scene_paths() {
+        if only.as_ref().is_some_and(|o| !path.to_string_lossy().contains(o.as_str())) {
+            continue;
+        }
         let scene = Scene::load(&path).unwrap();
         let r = penumbra_passes::trace_bench::bench_trace(&ctx, &lib, &scene, 320, 240, 76800).unwrap();
         println!("== {}\n{r}", path.file_name().unwrap().to_string_lossy());
