@@ -191,3 +191,53 @@ fn bench_table() {
         println!("== {}\n{r}", path.file_name().unwrap().to_string_lossy());
     }
 }
+
+/// `KdTreeBuilder::add` rebuilds when objects moved or deformed and keeps the tree of static
+/// geometry; the rebuilt tree traces the new triangle positions.
+#[test]
+fn tree_rebuilds_only_when_geometry_changes() {
+    use penumbra_engine::Graph;
+    use penumbra_passes::trace::{add_copy_to_readback, decode_hits, upload_rays, TraceMode, HIT_BYTES};
+    let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
+    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "trace.comp"]);
+    let tracer = Tracer::new(&ctx, &lib).unwrap();
+    for (file, dynamic) in [("falling.toml", true), ("hat_on_cloth.toml", true), ("chess.toml", false)] {
+        let scene = Scene::load(root().join("scenes").join(file)).unwrap();
+        let mut engine = Engine::new(ctx.clone(), 2).unwrap();
+        let mut builder = KdTreeBuilder::new(&ctx, &lib).unwrap();
+        let mut prev = None;
+        for k in 0..3 {
+            let t = 0.4 + k as f32 / 30.0;
+            let frame = scene.at(t, prev);
+            prev = Some(t);
+            let mut g = Graph::new();
+            let tree = builder.add(&mut engine, &mut g, &scene, &frame).unwrap();
+            let built = g.passes().iter().any(|p| p.name.starts_with("kdtree_level"));
+            assert_eq!(built, tree.built_this_frame);
+            let expect = k == 0 || (dynamic && (frame.any_moved() || frame.any_deformed()));
+            assert_eq!(built, expect, "{file} frame {k}: built {built}");
+            let tris = world_triangles(&scene, &frame).unwrap();
+            let cpu = CpuBvh::new(&tris);
+            let rays = camera_rays(&frame.camera, 32, 24);
+            let rb = upload_rays(&mut g, "rays", &rays);
+            let hits = tracer.add_trace(&mut g, &tree, rb, TraceMode::ClosestHit);
+            add_copy_to_readback(&mut g, hits, "hits", rays.len() as u64 * HIT_BYTES);
+            engine.submit(g).unwrap();
+            let out = engine.drain().unwrap().pop().unwrap();
+            let gpu = decode_hits(&out.readbacks["hits"]);
+            let mut bad = 0;
+            for (r, h) in rays.iter().zip(&gpu) {
+                match (cpu.closest(r), h) {
+                    (Some((tc, _)), Some(h)) if ((h.t - tc).abs() / tc.max(1e-6)) <= 1e-4 => {}
+                    (None, None) => {}
+                    _ => bad += 1,
+                }
+            }
+            assert!(bad <= 1, "{file} frame {k}: {bad} of {} camera rays disagree", rays.len());
+        }
+        if dynamic {
+            assert!(scene.at(0.5, Some(0.45)).any_moved() || scene.at(0.5, Some(0.45)).any_deformed());
+        }
+    }
+    assert_eq!(ctx.validation.error_count(), 0, "validation errors: {:?}", ctx.validation.errors());
+}
