@@ -72,6 +72,11 @@ pub struct VolBenchReport {
     pub frames: Vec<VolBenchFrame>,
     /// Sum of full ms over sum of temporal ms (all frames).
     pub speedup: f64,
+    /// Median GPU ms per `vol_*` pass over the frames that ran it, per method.
+    pub temporal_pass_ms: Vec<(String, f64)>,
+    pub full_pass_ms: Vec<(String, f64)>,
+    /// Mean marched fraction over the frames.
+    pub mean_marched_fraction: f64,
     pub missed_pixels: u64,
     pub notes: Vec<String>,
 }
@@ -89,7 +94,14 @@ impl VolBenchReport {
                 f.frame, f.temporal_mode, f.temporal_total_ms, f.full_total_ms, f.speedup, f.marched_fraction, f.mean_abs, f.max_abs, f.psnr, f.missed_pixels
             );
         }
-        s += &format!("overall speedup {:.2}x, missed pixels {}\n", self.speedup, self.missed_pixels);
+        s += &format!(
+            "overall speedup {:.2}x, mean marched fraction {:.3}, missed pixels {}\n",
+            self.speedup, self.mean_marched_fraction, self.missed_pixels
+        );
+        for (label, v) in [("temporal", &self.temporal_pass_ms), ("full", &self.full_pass_ms)] {
+            let parts: Vec<String> = v.iter().map(|(n, ms)| format!("{n} {ms:.3}")).collect();
+            s += &format!("median ms per pass, {label}: {}\n", parts.join(", "));
+        }
         for n in &self.notes {
             s += &format!("note: {n}\n");
         }
@@ -167,7 +179,7 @@ impl Runner {
         if let Some(m) = info.mask {
             rb.push((m, "vol_bench_mask"));
         }
-        crate::readback::add(&mut g, "vol_bench_readback", &rb);
+        crate::readback::add(&mut g, "bench_readback", &rb);
         let (_, mut done) = self.engine.submit(g)?;
         done.extend(self.engine.drain()?);
         let Some(o): Option<FrameOutput> = done.pop() else { bail!("no frame output") };
@@ -203,6 +215,15 @@ pub fn bench_volumetric(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Sce
     let mut temporal = Runner::new(ctx, shaders, scene, VolumetricParams { method: VolumetricMethod::Temporal, ..base.clone() })?;
     let mut full = Runner::new(ctx, shaders, scene, VolumetricParams { method: VolumetricMethod::Full, ..base })?;
     let (w, h) = (opts.width, opts.height);
+    // Warm-up (lavapipe compiles each pipeline on first use): two frames through every pass,
+    // then the temporal history is forgotten so the measured run starts with a full frame.
+    for k in 0..2 {
+        let t = opts.start_time + k as f32 / opts.fps;
+        let frame = scene.at(t, (k > 0).then_some(opts.start_time));
+        temporal.frame(scene, &frame, w, h)?;
+        full.frame(scene, &frame, w, h)?;
+    }
+    temporal.effect.reset();
     let mut frames = Vec::new();
     let mut prev_full: Option<Vec<[f32; 4]>> = None;
     let mut prev_t = None;
@@ -260,7 +281,32 @@ pub fn bench_volumetric(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Sce
     }
     let tt: f64 = frames.iter().map(|f| f.temporal_total_ms).sum();
     let ft: f64 = frames.iter().map(|f| f.full_total_ms).sum();
+    let medians = |pick: &dyn Fn(&VolBenchFrame) -> &Vec<(String, f64)>| {
+        let mut names: Vec<String> = Vec::new();
+        for f in &frames {
+            for (n, _) in pick(f) {
+                if !names.contains(n) {
+                    names.push(n.clone());
+                }
+            }
+        }
+        names
+            .into_iter()
+            .map(|n| {
+                let mut v: Vec<f64> = frames.iter().flat_map(|f| pick(f).iter().filter(|x| x.0 == n).map(|x| x.1)).collect();
+                v.sort_by(|a, b| a.total_cmp(b));
+                let m = v[v.len() / 2];
+                (n, m)
+            })
+            .collect::<Vec<_>>()
+    };
+    let temporal_pass_ms = medians(&|f| &f.temporal_ms);
+    let full_pass_ms = medians(&|f| &f.full_ms);
+    let mean_marched_fraction = frames.iter().map(|f| f.marched_fraction).sum::<f64>() / frames.len() as f64;
     Ok(VolBenchReport {
+        temporal_pass_ms,
+        full_pass_ms,
+        mean_marched_fraction,
         scene: scene.name.clone(),
         width: w,
         height: h,

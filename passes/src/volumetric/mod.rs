@@ -346,6 +346,12 @@ impl VolumetricEffect {
         block
     }
 
+    /// Forgets the history: the next frame recomputes every pixel.
+    pub fn reset(&mut self) {
+        self.last_key = None;
+        self.since_refresh = 0;
+    }
+
     /// Notes about fallbacks, for the user.
     pub fn notes(&self) -> &[String] {
         &self.notes
@@ -555,6 +561,8 @@ impl Effect for VolumetricEffect {
         } else {
             if graph.persistent_is_new(scatter) {
                 reason = Some("no history");
+            } else if self.last_key.is_none() {
+                reason = Some("reset");
             } else if self.last_key.as_ref() != Some(&key) {
                 reason = Some("camera, light or medium changed");
             } else if self.since_refresh + 1 >= self.params.reuse_frames {
