@@ -31,12 +31,13 @@ pub trait Technique {
 }
 
 /// Techniques implemented so far.
-pub const IMPLEMENTED: &[&str] = &["env", "mc", "shadowmaps"];
+pub const IMPLEMENTED: &[&str] = &["env", "isg", "mc", "shadowmaps"];
 
 /// Creates the technique `name` for `scene`, or `None` if it is not implemented.
 pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &Scene) -> Result<Option<Box<dyn Technique>>> {
     Ok(match name {
         "env" => Some(Box::new(crate::shade_env::ShadeEnvPass::new(ctx, shaders)?)),
+        "isg" => Some(Box::new(crate::isg::IsgTechnique::new(ctx, shaders, _scene, Default::default())?)),
         "mc" => Some(Box::new(crate::mc::McTechnique::new(ctx, shaders, _scene)?)),
         "shadowmaps" => Some(Box::new(crate::shadowmaps::ShadowMapsTechnique::new(ctx, shaders, _scene)?)),
         _ => None,

@@ -1,0 +1,159 @@
+// Integral spherical Gaussian (Iwasaki et al. 2012): the tabulated normalized ISG and the patch
+// visibility integral with sphere blockers. f32 mirror of penumbra_math::isg (IsgTable::eval,
+// visible_fraction). The including shader defines ISG_TABLE_BINDING and ISG_NODES_BINDING (set 0
+// storage buffers: the IsgTable::to_gpu floats and the sphere BVH, root 0, see passes/src/isg)
+// and ISG_MAX_SIDE (patches per side, <= 32).
+#ifndef PENUMBRA_ISG_GLSL
+#define PENUMBRA_ISG_GLSL
+
+#define ISG_HALF_PI 1.57079632679489662
+
+struct IsgNode {
+    vec4 sphere;  // xyz centre (world), w radius
+    ivec4 info;   // x left child (-1 for a leaf), y right child, z sphere index, w unused
+};
+
+layout(set = 0, binding = ISG_TABLE_BINDING) readonly buffer IsgTableBuf { float isg_t[]; };
+layout(set = 0, binding = ISG_NODES_BINDING) readonly buffer IsgNodes { IsgNode isg_nodes[]; };
+
+float isg_level_gamma(int l) {
+    return pow(10.0, isg_t[2] + float(l) / isg_t[0]);
+}
+
+float isg_lookup_level(int l, float th, float ph) {
+    int n = int(isg_t[1] + 0.5);
+    int levels = int(isg_t[3] + 0.5);
+    float k = sqrt(isg_level_gamma(l)) + 0.5;
+    float an = atan(k * ISG_HALF_PI);
+    float vt = (atan(k * (clamp(th, 0.0, 3.14159265) - ISG_HALF_PI)) / an + 1.0) * 0.5 * float(n - 1);
+    float vp = (atan(k * (clamp(ph, 0.0, 3.14159265) - ISG_HALF_PI)) / an + 1.0) * 0.5 * float(n - 1);
+    int i = clamp(int(floor(vt)), 0, n - 2);
+    int j = clamp(int(floor(vp)), 0, n - 2);
+    float a = clamp(vt - float(i), 0.0, 1.0);
+    float b = clamp(vp - float(j), 0.0, 1.0);
+    int base = 4 + levels + l * n * n;
+    float d00 = isg_t[base + i * n + j];
+    float d01 = isg_t[base + i * n + j + 1];
+    float d10 = isg_t[base + (i + 1) * n + j];
+    float d11 = isg_t[base + (i + 1) * n + j + 1];
+    return mix(mix(d00, d01, b), mix(d10, d11, b), a);
+}
+
+// Level position of a sharpness: (first level, weight of the next).
+vec2 isg_level_pos(float gamma) {
+    int levels = int(isg_t[3] + 0.5);
+    float x = clamp((log(max(gamma, 1e-2)) / log(10.0) - isg_t[2]) * isg_t[0], 0.0, float(levels - 1));
+    float l0 = min(floor(x), float(max(levels - 2, 0)));
+    return vec2(l0, clamp(x - l0, 0.0, 1.0));
+}
+
+// Normalized ISG S(theta, phi) / S(pi, pi), in [0, 1].
+float isg_eval(float th, float ph, float gamma) {
+    vec2 lp = isg_level_pos(gamma);
+    int l0 = int(lp.x);
+    float g = max(gamma, 1e-2);
+    float s0 = sqrt((g + 1.0) / (isg_level_gamma(l0) + 1.0));
+    float s1 = sqrt((g + 1.0) / (isg_level_gamma(l0 + 1) + 1.0));
+    float v0 = isg_lookup_level(l0, ISG_HALF_PI + (th - ISG_HALF_PI) * s0, ISG_HALF_PI + (ph - ISG_HALF_PI) * s0);
+    float v1 = lp.y > 0.0 ? isg_lookup_level(l0 + 1, ISG_HALF_PI + (th - ISG_HALF_PI) * s1, ISG_HALF_PI + (ph - ISG_HALF_PI) * s1) : 0.0;
+    return clamp(mix(v0, v1, lp.y), 0.0, 1.0);
+}
+
+// Limiting angle (half-width about the lobe axis) for the table's epsilon.
+float isg_limit(float gamma) {
+    vec2 lp = isg_level_pos(gamma);
+    int l0 = int(lp.x);
+    float a0 = isg_t[4 + l0], a1 = isg_t[4 + l0 + 1];
+    // Interpolate the lobe width (1/angle scales like sqrt(gamma)) rather than the angle.
+    float d = 1.0 / mix(1.0 / a0, 1.0 / a1, lp.y);
+    return clamp(d, 1e-5, ISG_HALF_PI);
+}
+
+vec3 isg_dir(float t, float p) {
+    return vec3(sin(t) * cos(p), cos(t), sin(t) * sin(p));
+}
+
+// Fraction of the hemisphere integral of the SG exp(gamma (dot(axis, w) - 1)) visible from p
+// (normal n) through the sphere BVH (node_count nodes). side: patches per side (<= ISG_MAX_SIDE);
+// lod: an inner node whose projected half-angle is below lod times the patch size is
+// rasterized as one sphere. Spheres containing p are skipped (the receiver's own proxy);
+// spheres entirely below the tangent plane are skipped.
+float isg_visible(vec3 p, vec3 n, vec3 axis, float gamma, int node_count, int side, float lod) {
+    if (node_count <= 0) return 1.0;
+    side = clamp(side, 1, ISG_MAX_SIDE);
+    float delta = isg_limit(gamma);
+    vec3 fz = axis;
+    vec3 fx = normalize(abs(fz.x) < 0.9 ? cross(vec3(1.0, 0.0, 0.0), fz) : cross(vec3(0.0, 1.0, 0.0), fz));
+    vec3 fy = cross(fz, fx);
+    float cone = min(delta * 1.41421356, 3.14159265);
+    float step_a = 2.0 * delta / float(side);
+    uint mask[ISG_MAX_SIDE];
+    for (int i = 0; i < side; ++i) mask[i] = 0u;
+    bool any_occ = false;
+    int stack[32];
+    int sp = 0;
+    stack[sp++] = 0;
+    int guard = 0;
+    while (sp > 0 && guard < 4096) {
+        ++guard;
+        int ni = stack[--sp];
+        if (ni < 0 || ni >= node_count) continue;
+        IsgNode node = isg_nodes[ni];
+        vec3 d = node.sphere.xyz - p;
+        float r = node.sphere.w;
+        if (!(r > 0.0)) continue;
+        if (dot(d, n) < -r) continue;  // below the tangent plane: nothing in it shadows p
+        float dist = length(d);
+        bool leaf = node.info.x < 0;
+        bool contains = dist <= r * (1.0 + 1e-4);
+        if (contains) {
+            if (!leaf && sp < 31) {
+                stack[sp++] = node.info.x;
+                stack[sp++] = node.info.y;
+            }
+            continue;
+        }
+        vec3 c = d / dist;
+        float psi = asin(clamp(r / dist, 0.0, 1.0));
+        float ang = acos(clamp(dot(c, fz), -1.0, 1.0));
+        if (ang - psi > cone) continue;  // cone-vs-sphere culling
+        if (!leaf && psi > lod * step_a && sp < 31) {
+            stack[sp++] = node.info.x;
+            stack[sp++] = node.info.y;
+            continue;
+        }
+        float cos_psi = cos(psi);
+        vec3 cl = vec3(dot(c, fx), dot(c, fy), dot(c, fz));
+        for (int i = 0; i < side; ++i) {
+            float t = ISG_HALF_PI - delta + step_a * (float(i) + 0.5);
+            // Rows whose theta is farther than psi from the centre's theta cannot be hit.
+            uint bits = 0u;
+            for (int j = 0; j < side; ++j) {
+                float ph = ISG_HALF_PI - delta + step_a * (float(j) + 0.5);
+                if (dot(isg_dir(t, ph), cl) >= cos_psi) bits |= 1u << uint(j);
+            }
+            mask[i] |= bits;
+            any_occ = any_occ || bits != 0u;
+        }
+    }
+    if (!any_occ) return 1.0;
+    float occ = 0.0;
+    for (int i = 0; i < side; ++i) {
+        uint bits = mask[i];
+        if (bits == 0u) continue;
+        float t0 = i == 0 ? 0.0 : ISG_HALF_PI - delta + step_a * float(i);
+        float t1 = i == side - 1 ? 3.14159265 : ISG_HALF_PI - delta + step_a * float(i + 1);
+        int j = 0;
+        while (j < side) {
+            if ((bits & (1u << uint(j))) == 0u) { ++j; continue; }
+            int j0 = j;
+            while (j < side && (bits & (1u << uint(j))) != 0u) ++j;
+            float p0 = j0 == 0 ? 0.0 : ISG_HALF_PI - delta + step_a * float(j0);
+            float p1 = j == side ? 3.14159265 : ISG_HALF_PI - delta + step_a * float(j);
+            occ += max(isg_eval(t1, p1, gamma) - isg_eval(t0, p1, gamma) - isg_eval(t1, p0, gamma) + isg_eval(t0, p0, gamma), 0.0);
+        }
+    }
+    return clamp(1.0 - occ, 0.0, 1.0);
+}
+
+#endif

@@ -1,0 +1,94 @@
+//! ISG technique CPU side: sphere sets of the scenes (coverage), per-frame sphere transform and
+//! deformation, BVH bounds.
+
+use glam::Vec3;
+use penumbra_math::sphereset::measure_coverage;
+use penumbra_passes::isg::{build_bvh, frame_spheres, merge_spheres, scene_sphere_sets, WorldSphere};
+use penumbra_scene::Scene;
+use std::path::PathBuf;
+
+fn scene(name: &str) -> Scene {
+    Scene::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(name)).expect("scene")
+}
+
+#[test]
+fn bvh_parents_bound_children() {
+    let mut seed = 7u64;
+    let mut rnd = || {
+        seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (seed >> 40) as f32 / (1u64 << 24) as f32
+    };
+    for n in [0usize, 1, 2, 3, 17, 200] {
+        let spheres: Vec<WorldSphere> = (0..n)
+            .map(|_| WorldSphere { center: Vec3::new(rnd(), rnd(), rnd()) * 10.0, radius: 0.05 + rnd() })
+            .collect();
+        let nodes = build_bvh(&spheres);
+        assert_eq!(nodes.len(), if n == 0 { 0 } else { 2 * n - 1 });
+        let mut leaves = vec![0; n];
+        for nd in &nodes {
+            if nd.info[0] < 0 {
+                leaves[nd.info[2] as usize] += 1;
+                continue;
+            }
+            for c in [nd.info[0], nd.info[1]] {
+                let ch = &nodes[c as usize];
+                let d = (Vec3::from_slice(&ch.sphere[..3]) - Vec3::from_slice(&nd.sphere[..3])).length();
+                assert!(d + ch.sphere[3] <= nd.sphere[3] * (1.0 + 1e-5) + 1e-5, "child outside parent");
+            }
+        }
+        assert!(leaves.iter().all(|&c| c == 1), "every sphere in exactly one leaf");
+    }
+    let a = WorldSphere { center: Vec3::ZERO, radius: 1.0 };
+    assert_eq!(merge_spheres(a, WorldSphere { center: Vec3::X * 0.2, radius: 0.1 }), a);
+}
+
+#[test]
+fn scene_sphere_sets_cover_and_follow_the_objects() {
+    let s = scene("falling.toml");
+    let sets = scene_sphere_sets(&s, 48);
+    for (i, o) in s.objects.iter().enumerate() {
+        let Some(set) = &sets[i] else {
+            println!("{}: no sphere set (thin shell, non-caster or open mesh)", o.name);
+            continue;
+        };
+        let m = &s.meshes[o.mesh];
+        let cov = measure_coverage(&m.positions, &m.indices, &set.spheres, 64).unwrap();
+        println!("{}: {} spheres, covered {:.3}, outside {:.4}", o.name, set.spheres.len(), cov.covered, cov.outside);
+        assert!(!set.spheres.is_empty());
+        assert!(cov.covered > 0.6 && cov.outside < 0.05, "{}: {cov:?}", o.name);
+    }
+    assert!(sets.iter().filter(|x| x.is_some()).count() >= 3, "bunny, pieces and cube have sets");
+    // Spheres move with the rigid motion.
+    let f0 = s.at(0.0, None);
+    let f1 = s.at(0.5, Some(0.0));
+    let w0 = frame_spheres(&s, &sets, &f0);
+    let w1 = frame_spheres(&s, &sets, &f1);
+    assert_eq!(w0.len(), w1.len());
+    assert!(w0.iter().zip(&w1).any(|(a, b)| (a.center - b.center).length() > 0.05), "nothing moved");
+
+    // Deforming hat: spheres follow the squash through their vertex anchors; cloth has none.
+    let s = scene("hat_on_cloth.toml");
+    let sets = scene_sphere_sets(&s, 32);
+    let cloth = s.objects.iter().position(|o| o.name == "cloth").unwrap();
+    let hat = s.objects.iter().position(|o| o.name == "hat").unwrap();
+    assert!(sets[cloth].is_none(), "thin shell must not get spheres");
+    let hs = sets[hat].as_ref().expect("hat sphere set");
+    let mut heights = Vec::new();
+    for t in [0.0f32, 0.5, 1.0] {
+        let f = s.at(t, None);
+        let w = frame_spheres(&s, &sets, &f);
+        assert_eq!(w.len(), hs.spheres.len());
+        let top = w.iter().map(|x| x.center.y).fold(f32::NEG_INFINITY, f32::max);
+        heights.push(top);
+        // Every sphere stays near the deformed surface's bounds.
+        let inst = f.instances.iter().find(|i| i.object == hat).unwrap();
+        let mesh = inst.deformed_mesh.as_deref().unwrap_or(&s.meshes[inst.mesh]);
+        let (lo, hi) = mesh.bounds().unwrap();
+        let (lo, hi) = (inst.world.transform_point3(lo), inst.world.transform_point3(hi));
+        for x in &w {
+            assert!(x.center.cmpge(lo.min(hi) - Vec3::splat(0.05)).all() && x.center.cmple(lo.max(hi) + Vec3::splat(0.05)).all());
+        }
+    }
+    println!("hat top sphere heights over time: {heights:?}");
+    assert!(heights.iter().any(|h| (h - heights[0]).abs() > 1e-3), "hat spheres do not deform");
+}

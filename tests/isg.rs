@@ -1,0 +1,74 @@
+//! The ISG technique on the Vulkan device (lavapipe): validation, accuracy against the CPU
+//! reference with SG lighting, extremes.
+
+use penumbra::{FrameImages, RenderSettings, Renderer};
+use penumbra_reference::image::Image;
+use penumbra_reference::metrics::compare;
+use penumbra_reference::render::{render as reference_render, Mode, ReferenceOptions};
+use penumbra_scene::Scene;
+use std::path::PathBuf;
+
+fn scene(name: &str) -> Scene {
+    Scene::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name)).expect("scene")
+}
+
+fn render(scene: &Scene, technique: &str, w: u32, h: u32, times: &[f32], validation: bool) -> (Renderer, Vec<FrameImages>) {
+    let settings = RenderSettings { width: w, height: h, technique: Some(technique.into()), ..Default::default() };
+    let mut r = Renderer::new_headless(scene, settings, validation).expect("renderer");
+    let mut out = Vec::new();
+    let mut prev = None;
+    for &t in times {
+        let f = scene.at(t, prev);
+        prev = Some(t);
+        out.extend(r.render(&f, None, true).expect("render"));
+    }
+    out.extend(r.finish().expect("finish"));
+    (r, out)
+}
+
+fn image(f: &FrameImages) -> Image {
+    Image::from_fn(f.width, f.height, |x, y| {
+        let p = f.hdr[(y * f.width + x) as usize];
+        [p[0], p[1], p[2]]
+    })
+}
+
+fn check_frames(frames: &[FrameImages], n: usize) {
+    assert_eq!(frames.len(), n);
+    for f in frames {
+        assert!(f.hdr.iter().flatten().all(|c| c.is_finite()), "non-finite radiance");
+        let mean: f32 = f.hdr.iter().map(|p| p[0] + p[1] + p[2]).sum::<f32>() / f.hdr.len() as f32;
+        assert!(mean > 0.05, "image is black (mean {mean})");
+        let ms: Vec<_> = f.gpu_ms.iter().filter(|(p, _)| p.starts_with("isg")).collect();
+        assert!(!ms.is_empty(), "no isg pass timed: {:?}", f.gpu_ms);
+        println!("gpu ms: {:?}", f.gpu_ms);
+    }
+}
+
+#[test]
+fn falling_and_hat_on_cloth_are_validation_clean() {
+    for (name, times) in [("falling.toml", [0.0f32, 0.6]), ("hat_on_cloth.toml", [0.0, 0.5])] {
+        let s = scene(name);
+        let (r, frames) = render(&s, "isg", 80, 60, &times, true);
+        let log = r.context().validation.clone();
+        check_frames(&frames, 2);
+        drop(r);
+        assert_eq!(log.error_count(), 0, "{name}: validation errors: {:#?}", log.errors());
+    }
+}
+
+#[test]
+fn isg_is_closer_to_the_sg_reference_than_unshadowed_shading() {
+    let s = scene("falling.toml");
+    let (w, h) = (96, 72);
+    let t = 1.2;
+    let opts = ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::SgLighting, ..Default::default() };
+    let reference = reference_render(&s, &opts).expect("reference");
+    let (_r, isg) = render(&s, "isg", w, h, &[t], false);
+    let (_r2, env) = render(&s, "env", w, h, &[t], false);
+    let ci = compare(&reference.radiance, "reference", &image(&isg[0]), "isg").unwrap();
+    let ce = compare(&reference.radiance, "reference", &image(&env[0]), "env").unwrap();
+    println!("isg vs SG-lighting reference: {}", ci.summary());
+    println!("env vs SG-lighting reference: {}", ce.summary());
+    assert!(ci.rel_rmse < ce.rel_rmse, "isg relRMSE {} not below env {}", ci.rel_rmse, ce.rel_rmse);
+}
