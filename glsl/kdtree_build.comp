@@ -1,4 +1,5 @@
 #version 460
+#extension GL_GOOGLE_include_directive : require
 // kd-tree build, one dispatch per tree level (breadth first, after Zhou et al. 2008): every
 // workgroup takes pending nodes of this level (persistent loop) and turns each into a leaf or an
 // interior node with two pending children of the next level.
@@ -10,7 +11,8 @@
 // A reference goes to a child when its triangle bounds, clipped to the cell, touch the child's
 // cell within eps (conservative: rounding in the traversal cannot skip a triangle).
 // Storage of children and their refs is allocated with atomics; on overflow the node becomes a
-// leaf (correct, slower) and the overflow flag is set.
+// leaf (correct, slower) and the overflow flag is set. Nodes with at most small_max references
+// are left to kdtree_small.comp (one invocation per node), dispatched after this one.
 layout(local_size_x = 64) in;
 layout(std430, binding = 0) readonly buffer Tris { vec4 tris[]; };
 layout(std430, binding = 1) buffer Nodes { uvec4 nodes[]; };
@@ -25,7 +27,7 @@ layout(push_constant) uniform Push {
     float eps;
     uint leaf_size;
     uint large_threshold;
-    uint pad;
+    uint small_max;     // nodes with at most this many refs are left to kdtree_small.comp
 } pc;
 
 #define NBINS 16
@@ -43,6 +45,8 @@ shared float s_split;
 shared uint s_mode;        // 0 leaf, 1 split
 shared uint s_child;
 shared uint s_off[2];
+
+#include "kdtree_build.glsl"
 
 uint f2o(float f) { uint u = floatBitsToUint(f); return (u & 0x80000000u) != 0u ? ~u : (u | 0x80000000u); }
 float o2f(uint u) { return uintBitsToFloat((u & 0x80000000u) != 0u ? (u & 0x7fffffffu) : ~u); }
@@ -63,10 +67,16 @@ void main() {
     uint next_avail = pc.max_nodes > next_base ? (pc.max_nodes - next_base) & ~1u : 0u;
     if (gl_WorkGroupID.x == 0u && tid == 0u && L + 1u < 48u) ctr[64u + L + 1u] = next_base;
 
-    for (uint k = gl_WorkGroupID.x; k < cnt; k += gl_NumWorkGroups.x) {
-        uint ni = base + k;
+    // Large nodes of this level: from the list their parents appended (parity L & 1), or every
+    // node of the level when that list overflowed.
+    uint par = L & 1u;
+    bool scan_all = ctr[KD_LIST_OVERFLOW + par] != 0u;
+    uint todo = scan_all ? cnt : min(ctr[KD_LIST_COUNT + par], KD_LIST_CAP);
+    for (uint k = gl_WorkGroupID.x; k < todo; k += gl_NumWorkGroups.x) {
+        uint ni = scan_all ? base + k : ctr[KD_LIST_BASE + par * KD_LIST_CAP + k];
         uvec4 nd = nodes[ni];
         uint off = nd.z, n = nd.w;
+        if (nd.y == 4u && n <= pc.small_max) continue;   // small node: kdtree_small.comp (uniform per workgroup)
         vec3 blo = boxes[2u * ni].xyz, bhi = boxes[2u * ni + 1u].xyz;
         bool make_leaf = nd.y != 4u || n <= pc.leaf_size || L + 1u >= pc.max_depth;
         if (tid == 0u) { s_mode = 0u; s_count[0] = 0u; s_count[1] = 0u; s_wpos[0] = 0u; s_wpos[1] = 0u; }
@@ -196,6 +206,8 @@ void main() {
                     nodes[ni] = uvec4(floatBitsToUint(split), axis, c, 0u);
                     nodes[c] = uvec4(0u, 4u, ol, s_count[0]);
                     nodes[c + 1u] = uvec4(0u, 4u, orr, s_count[1]);
+                    if (s_count[0] > pc.small_max) kd_list_append(L + 1u, c);
+                    if (s_count[1] > pc.small_max) kd_list_append(L + 1u, c + 1u);
                     vec3 lhi = bhi, rlo = blo;
                     lhi[axis] = split;
                     rlo[axis] = split;

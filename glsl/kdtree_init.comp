@@ -22,9 +22,11 @@ void main() {
         if (i >= 8u && i < 11u) v = floatBitsToUint(pc.lo[i - 8u]);
         if (i >= 11u && i < 14u) v = floatBitsToUint(pc.hi[i - 11u]);
         if (i == 16u) v = 1u;          // level 0 holds the root
+        if (i == 112u) v = 1u;         // large-node list of level 0: the root
         ctr[i] = v;
     }
     if (i == 0u) {
+        ctr[128] = 0u;                 // ... whose index is 0
         nodes[0] = uvec4(0u, 4u, 0u, n);
         boxes[0] = vec4(pc.lo.xyz, 0.0);
         boxes[1] = vec4(pc.hi.xyz, 0.0);

@@ -30,9 +30,10 @@
 //!   triangle casts no shadow and any-hit queries skip it);
 //! - `kdtree.nodes`: uvec4 per node (see the include);
 //! - `kdtree.refs`: u32 triangle indices;
-//! - `kdtree.header`: 128 u32 counters: 0 references allocated, 1 leaves, 2 references in leaves,
+//! - `kdtree.header`: 128 u32 counters, then the large-node lists: 0 references allocated, 1 leaves, 2 references in leaves,
 //!   3 deepest leaf level, 4 overflow flags (1 references, 2 nodes), 5 empty leaves, 6 triangles,
-//!   8..14 scene box (f32 bits), 16+L nodes allocated on level L, 64+L first node of level L.
+//!   8..14 scene box (f32 bits), 16+L nodes allocated on level L, 64+L first node of level L,
+//!   112/113 large-node list lengths (level parity), 114/115 list overflow flags; 128.. lists.
 
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline};
 use anyhow::{bail, Result};
@@ -42,7 +43,11 @@ use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, Pa
 use penumbra_scene::{Frame, Scene};
 use std::sync::Arc;
 
-pub const HEADER_WORDS: u64 = 128;
+/// Header words: 128 counters, then two large-node lists of 4096 entries
+/// (`glsl/include/kdtree_build.glsl`).
+pub const HEADER_WORDS: u64 = 128 + 2 * 4096;
+/// Words of the header holding the counters and statistics.
+pub const STATS_WORDS: u64 = 128;
 const MAX_LEVELS: u32 = 40;
 
 /// Build parameters.
@@ -54,6 +59,9 @@ pub struct KdTreeParams {
     pub leaf_size: u32,
     /// Nodes with more references are split by the large-node rules.
     pub large_threshold: u32,
+    /// Nodes with at most this many references are processed one per invocation
+    /// (`glsl/kdtree_small.comp`), larger ones one per workgroup.
+    pub small_max: u32,
     /// Node capacity per triangle (plus 1024).
     pub nodes_per_triangle: u32,
     /// Reference capacity per triangle (plus 4096); all levels' lists live in it.
@@ -62,7 +70,7 @@ pub struct KdTreeParams {
 
 impl Default for KdTreeParams {
     fn default() -> Self {
-        KdTreeParams { max_depth: None, leaf_size: 2, large_threshold: 256, nodes_per_triangle: 8, refs_per_triangle: 64 }
+        KdTreeParams { max_depth: None, leaf_size: 2, large_threshold: 256, small_max: 64, nodes_per_triangle: 8, refs_per_triangle: 64 }
     }
 }
 
@@ -144,7 +152,7 @@ pub fn world_triangles(scene: &Scene, frame: &Frame) -> Result<Vec<[Vec3; 3]>> {
 
 /// Parses the header read back after a build (see [`KdTreeBuilder::add_stats_readback`]).
 pub fn parse_stats(header: &[u8], allocated: u64) -> Option<KdStats> {
-    if header.len() < HEADER_WORDS as usize * 4 {
+    if header.len() < STATS_WORDS as usize * 4 {
         return None;
     }
     let w = |i: usize| u32::from_le_bytes(header[4 * i..4 * i + 4].try_into().unwrap());
@@ -170,6 +178,7 @@ pub fn parse_stats(header: &[u8], allocated: u64) -> Option<KdStats> {
 pub struct KdTreeBuilder {
     init: Pipeline,
     build: Pipeline,
+    small: Pipeline,
     pub params: KdTreeParams,
     /// Triangle count of the tree in the persistent buffers, if one was built.
     built: Option<u32>,
@@ -185,7 +194,8 @@ impl KdTreeBuilder {
         use vk::DescriptorType as T;
         let init = compute_pipeline(ctx, shaders, "kdtree_init.comp", &[T::STORAGE_BUFFER; 4], 32)?;
         let build = compute_pipeline(ctx, shaders, "kdtree_build.comp", &[T::STORAGE_BUFFER; 5], 32)?;
-        Ok(KdTreeBuilder { init, build, params: KdTreeParams::default(), built: None, last_levels: 0, last_bytes: 0, extent: 1.0 })
+        let small = compute_pipeline(ctx, shaders, "kdtree_small.comp", &[T::STORAGE_BUFFER; 5], 32)?;
+        Ok(KdTreeBuilder { init, build, small, params: KdTreeParams::default(), built: None, last_levels: 0, last_bytes: 0, extent: 1.0 })
     }
 
     /// The tree of `frame`'s triangles: declared from the persistent buffers, rebuilt in this
@@ -354,7 +364,7 @@ impl KdTreeBuilder {
             unsafe {
                 let d = rc.device();
                 d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
-                d.cmd_dispatch(rc.cmd, groups(n.max(HEADER_WORDS as u32), 64), 1, 1);
+                d.cmd_dispatch(rc.cmd, groups(n.max(STATS_WORDS as u32), 64), 1, 1);
             }
             Ok(())
         });
@@ -362,7 +372,7 @@ impl KdTreeBuilder {
 
         // ---- one pass per level
         for level in 0..max_depth {
-            let push: [u32; 8] = [
+            let mut push: [u32; 8] = [
                 level,
                 max_nodes as u32,
                 ref_cap.min(u32::MAX as u64) as u32,
@@ -372,36 +382,42 @@ impl KdTreeBuilder {
                 self.params.large_threshold,
                 0,
             ];
-            let wgs = 1u32 << level.min(9);
-            let mut p = graph.pass(&format!("kdtree_level{level}"), PassKind::Compute);
-            let tr = p.read(h.tris, Access::ComputeShaderReadStorage);
-            nodes = p.write(nodes, Access::ComputeShaderReadWriteStorage);
-            bx = p.write(bx, Access::ComputeShaderReadWriteStorage);
-            refs = p.write(refs, Access::ComputeShaderReadWriteStorage);
-            header = p.write(header, Access::ComputeShaderReadWriteStorage);
-            let (pipe, layout) = (self.build.pipeline, self.build.layout);
-            let (nd, b, r, hd) = (nodes, bx, refs, header);
-            p.record(move |rc| {
-                unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
-                rc.push_descriptors(
-                    vk::PipelineBindPoint::COMPUTE,
-                    layout,
-                    0,
-                    &[
-                        Bind::StorageBuffer(tr),
-                        Bind::StorageBuffer(nd),
-                        Bind::StorageBuffer(b),
-                        Bind::StorageBuffer(r),
-                        Bind::StorageBuffer(hd),
-                    ],
-                )?;
-                unsafe {
-                    let d = rc.device();
-                    d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
-                    d.cmd_dispatch(rc.cmd, wgs, 1, 1);
-                }
-                Ok(())
-            });
+            push[7] = self.params.small_max;
+            // Large nodes (one workgroup each), then small nodes (one invocation each).
+            for (stage, pipeline, wgs) in [
+                ("", &self.build, 1u32 << level.min(6)),
+                ("_small", &self.small, (1u32 << level.min(12)).div_ceil(64).min(64)),
+            ] {
+                let mut p = graph.pass(&format!("kdtree_level{level}{stage}"), PassKind::Compute);
+                let tr = p.read(h.tris, Access::ComputeShaderReadStorage);
+                nodes = p.write(nodes, Access::ComputeShaderReadWriteStorage);
+                bx = p.write(bx, Access::ComputeShaderReadWriteStorage);
+                refs = p.write(refs, Access::ComputeShaderReadWriteStorage);
+                header = p.write(header, Access::ComputeShaderReadWriteStorage);
+                let (pipe, layout) = (pipeline.pipeline, pipeline.layout);
+                let (nd, b, r, hd) = (nodes, bx, refs, header);
+                p.record(move |rc| {
+                    unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
+                    rc.push_descriptors(
+                        vk::PipelineBindPoint::COMPUTE,
+                        layout,
+                        0,
+                        &[
+                            Bind::StorageBuffer(tr),
+                            Bind::StorageBuffer(nd),
+                            Bind::StorageBuffer(b),
+                            Bind::StorageBuffer(r),
+                            Bind::StorageBuffer(hd),
+                        ],
+                    )?;
+                    unsafe {
+                        let d = rc.device();
+                        d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
+                        d.cmd_dispatch(rc.cmd, wgs, 1, 1);
+                    }
+                    Ok(())
+                });
+            }
         }
         h.nodes = nodes;
         h.refs = refs;
@@ -416,7 +432,7 @@ impl KdTreeBuilder {
 
     /// Copies the header into a readback buffer named `name` (parse with [`parse_stats`]).
     pub fn add_stats_readback(graph: &mut Graph, tree: &mut KdTreeHandles, name: &str) -> BufferHandle {
-        let (rb, hd) = crate::trace::add_copy_to_readback(graph, tree.header, name, HEADER_WORDS * 4);
+        let (rb, hd) = crate::trace::add_copy_to_readback(graph, tree.header, name, STATS_WORDS * 4);
         tree.header = hd;
         rb
     }

@@ -26,7 +26,7 @@ fn shadowmaps_approach_the_reference_and_shadows_help() {
 
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
     let mut lib = ShaderLibrary::from_embedded(&[], Some(root().join("glsl")));
-    for n in ["kdtree_init.comp", "kdtree_build.comp", "trace_shadowmap.comp", "mc_shadowmaps.comp", "gbuffer.vert", "gbuffer.frag"] {
+    for n in ["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "trace_shadowmap.comp", "mc_shadowmaps.comp", "gbuffer.vert", "gbuffer.frag"] {
         lib.reload(n).unwrap_or_else(|e| panic!("{n}: {e}"));
     }
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();

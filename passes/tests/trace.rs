@@ -49,7 +49,7 @@ struct Tally {
 #[test]
 fn kdtree_tracer_agrees_with_obvhs_on_every_scene() {
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
-    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "trace.comp"]);
+    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "trace.comp"]);
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     let mut builder = KdTreeBuilder::new(&ctx, &lib).unwrap();
     let tracer = Tracer::new(&ctx, &lib).unwrap();
@@ -164,7 +164,7 @@ fn kdtree_tracer_agrees_with_obvhs_on_every_scene() {
 #[test]
 fn bench_trace_reports_build_and_ray_rates() {
     let ctx = Context::new(&ContextDesc::default()).expect("context");
-    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "trace.comp"]);
+    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "trace.comp"]);
     let scene = Scene::load(root().join("scenes/assets/bunny.glb")).unwrap();
     let r = penumbra_passes::trace_bench::bench_trace(&ctx, &lib, &scene, 64, 48, 4096).unwrap();
     println!("{r}");
@@ -180,7 +180,7 @@ fn bench_trace_reports_build_and_ray_rates() {
 #[ignore]
 fn bench_table() {
     let ctx = Context::new(&ContextDesc::default()).expect("context");
-    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "trace.comp"]);
+    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "trace.comp"]);
     let only = std::env::var("BENCH_SCENE").ok();
     for path in scene_paths() {
         if only.as_ref().is_some_and(|o| !path.to_string_lossy().contains(o.as_str())) {
@@ -199,7 +199,7 @@ fn tree_rebuilds_only_when_geometry_changes() {
     use penumbra_engine::Graph;
     use penumbra_passes::trace::{add_copy_to_readback, decode_hits, upload_rays, TraceMode, HIT_BYTES};
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
-    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "trace.comp"]);
+    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "trace.comp"]);
     let tracer = Tracer::new(&ctx, &lib).unwrap();
     for (file, dynamic) in [("falling.toml", true), ("hat_on_cloth.toml", true), ("chess.toml", false)] {
         let scene = Scene::load(root().join("scenes").join(file)).unwrap();
