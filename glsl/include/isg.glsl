@@ -69,10 +69,6 @@ float isg_limit(float gamma) {
     return clamp(d, 1e-5, ISG_HALF_PI);
 }
 
-vec3 isg_dir(float t, float p) {
-    return vec3(sin(t) * cos(p), cos(t), sin(t) * sin(p));
-}
-
 // Fraction of the hemisphere integral of the SG exp(gamma (dot(axis, w) - 1)) visible from p
 // (normal n) through the sphere BVH (node_count nodes). side: patches per side (<= ISG_MAX_SIDE);
 // lod: an inner node whose projected half-angle is below lod times the patch size is
@@ -122,16 +118,41 @@ float isg_visible(vec3 p, vec3 n, vec3 axis, float gamma, int node_count, int si
             stack[sp++] = node.info.y;
             continue;
         }
+        // Patch centres inside the cap: per row theta_i, cos(phi - phi_c) >= q, i.e. phi within
+        // phi_c +- acos(q): an index range, no per-patch trigonometry.
         float cos_psi = cos(psi);
         vec3 cl = vec3(dot(c, fx), dot(c, fy), dot(c, fz));
+        float rho = length(cl.xz);
+        float phc = atan(cl.z, cl.x);
+        float phi0 = ISG_HALF_PI - delta;
         for (int i = 0; i < side; ++i) {
-            float t = ISG_HALF_PI - delta + step_a * (float(i) + 0.5);
-            // Rows whose theta is farther than psi from the centre's theta cannot be hit.
+            float t = phi0 + step_a * (float(i) + 0.5);
+            float st = sin(t), ct = cos(t);
+            float rhs = cos_psi - ct * cl.y;
+            float den = st * rho;
             uint bits = 0u;
-            for (int j = 0; j < side; ++j) {
-                float ph = ISG_HALF_PI - delta + step_a * (float(j) + 0.5);
-                if (dot(isg_dir(t, ph), cl) >= cos_psi) bits |= 1u << uint(j);
+            if (den <= 1e-7) {
+                bits = rhs <= 0.0 ? 0xffffffffu : 0u;
+            } else {
+                float q = rhs / den;
+                if (q <= -1.0) {
+                    bits = 0xffffffffu;
+                } else if (q <= 1.0) {
+                    float w = acos(q);
+                    for (int k = -1; k <= 1; ++k) {
+                        float a = phc + 6.28318531 * float(k) - w;
+                        float b = phc + 6.28318531 * float(k) + w;
+                        int j0 = max(int(ceil((a - phi0) / step_a - 0.5)), 0);
+                        int j1 = min(int(floor((b - phi0) / step_a - 0.5)), side - 1);
+                        if (j1 >= j0) {
+                            uint hi = j1 >= 31 ? 0xffffffffu : ((1u << uint(j1 + 1)) - 1u);
+                            uint lo = (1u << uint(j0)) - 1u;
+                            bits |= hi & ~lo;
+                        }
+                    }
+                }
             }
+            if (side < 32) bits &= (1u << uint(side)) - 1u;
             mask[i] |= bits;
             any_occ = any_occ || bits != 0u;
         }
