@@ -12,6 +12,7 @@ layout(set = 0, binding = 2) uniform sampler2D g_position;
 layout(set = 0, binding = 3) uniform sampler2D shadow_map;
 layout(set = 0, binding = 4) uniform sampler2D mask;
 layout(set = 0, binding = 5, rgba32f) uniform image2D scatter;
+layout(set = 0, binding = 6) uniform sampler2D intervals;  // hybrid: rgb front-most, a back-most
 
 void main() {
     ivec2 p = ivec2(gl_GlobalInvocationID.xy);
@@ -35,7 +36,16 @@ void main() {
     // Fixed per-pixel offset (interleaved gradient noise): identical inputs give identical
     // results, so unchanged pixels can be reused bit for bit.
     float j = fract(52.9829189 * fract(0.06711056 * float(p.x) + 0.00583715 * float(p.y)));
-    vec3 s = L.misc.z != 0u ? vol_inscatter(L, shadow_map, o, d, tmax, j) : vec3(0.0);
+    float t_front = 0.0, t_back = 1.0 / 0.0;
+    if (L.extra.x > 0.5) {
+        vec4 iv = texelFetch(intervals, p, 0);
+        // No shadow-volume face on this pixel: the whole ray is lit. A camera in shadow starts
+        // inside a volume: the shadowed interval then begins at the eye.
+        bool eye_shadowed = L.misc.z != 0u && vol_visibility(L, shadow_map, o) < 0.5;
+        t_front = eye_shadowed ? 0.0 : iv.r;
+        t_back = iv.a > 0.0 ? iv.a : (eye_shadowed ? 1.0 / 0.0 : -1.0);
+    }
+    vec3 s = L.misc.z != 0u ? vol_inscatter(L, shadow_map, o, d, tmax, j, t_front, t_back) : vec3(0.0);
     s = max(s, vec3(0.0));
     if (any(isnan(s)) || any(isinf(s))) s = vec3(0.0);
     imageStore(scatter, p, vec4(s, float(L.misc.w)));

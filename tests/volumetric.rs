@@ -148,10 +148,12 @@ fn bench(ctx: &Arc<Context>, scene: &Scene, frames: u32, w: u32, h: u32) -> VolB
 #[test]
 fn temporal_equals_full_on_linear_motion_with_no_missed_pixels() {
     let ctx = ctx();
-    let motion = "motion = { type = \"keyframes\", keys = [{ t = 0.0, position = [-0.8, 1.2, 0.0] }, { t = 2.0, position = [0.8, 1.2, 0.0] }] }";
+    let motion = "motion = { type = \"keyframes\", keys = [{ t = 0.0, position = [-0.4, 1.2, 0.0] }, { t = 1.0, position = [0.6, 1.2, 0.0] }] }";
     let scene = occluder_scene("vol_linear", MEDIUM, CAM, SPOT, motion);
     let rep = bench(&ctx, &scene, 6, 96, 72);
     assert_eq!(rep.missed_pixels, 0);
+    // The motion changes the scattering every frame (else the comparison would be vacuous).
+    assert!(rep.frames[1..].iter().all(|f| f.changed_pixels > 50), "{:?}", rep.frames.iter().map(|f| f.changed_pixels).collect::<Vec<_>>());
     let masked: Vec<_> = rep.frames.iter().filter(|f| f.temporal_mode == "masked").collect();
     assert!(masked.len() >= 3, "{:?}", rep.frames.iter().map(|f| &f.temporal_mode).collect::<Vec<_>>());
     for f in &rep.frames {
@@ -161,6 +163,46 @@ fn temporal_equals_full_on_linear_motion_with_no_missed_pixels() {
     for f in masked {
         assert!(f.marched_fraction > 0.0 && f.marched_fraction < 0.6, "marched {}", f.marched_fraction);
     }
+}
+
+#[test]
+fn skipping_the_masked_march_is_caught_as_missed_pixels() {
+    // Negative control: the same linear motion with the masked march disabled must show
+    // missed pixels and a difference, so zero above means something.
+    let ctx = ctx();
+    let motion = "motion = { type = \"keyframes\", keys = [{ t = 0.0, position = [-0.4, 1.2, 0.0] }, { t = 1.0, position = [0.6, 1.2, 0.0] }] }";
+    let scene = occluder_scene("vol_linear_nomask", MEDIUM, CAM, SPOT, motion);
+    let opts = VolBenchOptions { width: 64, height: 48, frames: 3, samples: 32, debug_skip_mask: true, ..Default::default() };
+    let rep = bench_volumetric(&ctx, &penumbra::shader_library(), &scene, &opts).expect("bench");
+    println!("{}", rep.table());
+    assert!(rep.missed_pixels > 20, "{}", rep.missed_pixels);
+    assert!(rep.frames[1].mean_abs > 0.0 && rep.frames[1].psnr < 60.0);
+}
+
+#[test]
+fn hybrid_intervals_match_plain_marching() {
+    let ctx = ctx();
+    let motion = "motion = { type = \"keyframes\", keys = [{ t = 0.0, position = [-0.4, 1.2, 0.0] }, { t = 1.0, position = [0.6, 1.2, 0.0] }] }";
+    let scene = occluder_scene("vol_hybrid", MEDIUM, CAM, SPOT, motion);
+    let run = |hybrid: bool| {
+        let opts = VolBenchOptions { width: 96, height: 72, frames: 3, samples: 32, hybrid, ..Default::default() };
+        let rep = bench_volumetric(&ctx, &penumbra::shader_library(), &scene, &opts).expect("bench");
+        println!("hybrid {hybrid}:\n{}", rep.table());
+        rep
+    };
+    let (plain, hybrid) = (run(false), run(true));
+    assert_eq!(ctx.validation.error_count(), 0, "{:?}", ctx.validation.errors());
+    assert_eq!(hybrid.missed_pixels, 0);
+    assert!(hybrid.temporal_pass_ms.iter().any(|(n, _)| n == "vol_volumes"));
+    let to_img = |v: &Vec<[f32; 4]>| penumbra_reference::image::Image::from_fn(96, 72, |x, y| {
+        let p = v[(y * 96 + x) as usize];
+        [p[0], p[1], p[2]]
+    });
+    let c = penumbra_reference::metrics::compare(&to_img(&plain.last_full_hdr), "plain", &to_img(&hybrid.last_full_hdr), "hybrid").unwrap();
+    let differing = plain.last_full_hdr.iter().zip(&hybrid.last_full_hdr).filter(|(a, b)| (0..3).any(|c| (a[c] - b[c]).abs() > 1e-3 * a[c].abs().max(1e-3))).count();
+    println!("hybrid vs plain full: PSNR {:?} dB, {} pixels differ by > 0.1%", c.psnr_db, differing);
+    assert!(c.psnr_db.unwrap_or(f64::INFINITY) > 45.0, "{:?}", c.psnr_db);
+    assert!(differing < 96 * 72 / 50, "{differing}");
 }
 
 #[test]
@@ -201,6 +243,10 @@ fn extremes_render_finite_and_consistent() {
         let rep = bench(&ctx, &scene, 4, 48, 36);
         println!("{name}: missed {} max_abs {:?}", rep.missed_pixels, rep.frames.iter().map(|f| f.max_abs).collect::<Vec<_>>());
         assert_eq!(rep.missed_pixels, 0, "{name}");
+        // Optical depth ~80 to the mover: its shadow is invisible through the dense medium.
+        if name != "dense" {
+            assert!(rep.frames[1..].iter().any(|f| f.changed_pixels > 0), "{name}: nothing changed");
+        }
         if name == "inside" {
             // Inside the mover's shadow volume every view ray crosses its boundary: all masked.
             for f in rep.frames.iter().filter(|f| f.temporal_mode == "masked") {

@@ -12,6 +12,7 @@ struct VolLight {
     vec4 sigma_s_bar;      // rgb scattering, w mean extinction
     vec4 sm;               // x face count (1 or 6), y near, z far, w tile size in texels
     uvec4 misc;            // x mode (0 every pixel, 1 masked pixels only), y samples, z has light, w frame id
+    vec4 extra;            // x 1 = hybrid: shadow-map lookups only between the shadow volumes' front/back
 };
 
 float vol_hg(float cos_t, float g) {
@@ -66,7 +67,9 @@ float vol_visibility(VolLight L, sampler2D sm, vec3 x) {
 // Single scattering along o + t d, t in [0, tmax] (tmax may be +inf): equiangular samples about
 // the light combined (balance heuristic) with exponential-distance samples; deterministic
 // stratification with the per-pixel offset j.
-vec3 vol_inscatter(VolLight L, sampler2D sm, vec3 o, vec3 d, float tmax, float j) {
+// Visibility is looked up only for t in [t_front, t_back] (the hybrid's shadowed interval;
+// [0, inf] without it): outside, the ray is lit.
+vec3 vol_inscatter(VolLight L, sampler2D sm, vec3 o, vec3 d, float tmax, float j, float t_front, float t_back) {
     vec3 lp = L.pos_kind.xyz;
     float delta = dot(lp - o, d);
     float D = max(length(lp - o - delta * d), 1e-4);
@@ -104,7 +107,7 @@ vec3 vol_inscatter(VolLight L, sampler2D sm, vec3 o, vec3 d, float tmax, float j
         if (I == vec3(0.0)) continue;
         float dist = sqrt(r2);
         vec3 wi = (lp - x) / max(dist, 1e-6);
-        float vis = vol_visibility(L, sm, x);
+        float vis = (t >= t_front && t <= t_back) ? vol_visibility(L, sm, x) : 1.0;
         if (vis <= 0.0) continue;
         vec3 tr = exp(-L.sigma_t_g.rgb * (t + dist));
         vec3 f = L.sigma_s_bar.rgb * tr * I / max(r2, 1e-12) * vol_hg(dot(wi, d), L.sigma_t_g.w) * vis;

@@ -30,11 +30,16 @@ pub struct VolBenchOptions {
     pub reuse_frames: u32,
     /// Samples per view ray (both methods).
     pub samples: u32,
+    /// Both methods use Wyman and Ramsey's shadow-volume intervals.
+    pub hybrid: bool,
+    /// Testing only: the temporal method skips its masked march (negative control).
+    #[doc(hidden)]
+    pub debug_skip_mask: bool,
 }
 
 impl Default for VolBenchOptions {
     fn default() -> Self {
-        VolBenchOptions { width: 320, height: 240, frames: 12, fps: 30.0, start_time: 0.0, reuse_frames: 3, samples: 48 }
+        VolBenchOptions { width: 320, height: 240, frames: 12, fps: 30.0, start_time: 0.0, reuse_frames: 3, samples: 48, hybrid: false, debug_skip_mask: false }
     }
 }
 
@@ -61,6 +66,8 @@ pub struct VolBenchFrame {
     /// PSNR with the full image's peak; `f64::INFINITY` when identical.
     pub psnr: f64,
     pub missed_pixels: u64,
+    /// Pixels whose full-method scattering changed since the previous frame.
+    pub changed_pixels: u64,
 }
 
 /// The whole benchmark.
@@ -79,19 +86,21 @@ pub struct VolBenchReport {
     pub mean_marched_fraction: f64,
     pub missed_pixels: u64,
     pub notes: Vec<String>,
+    /// The full method's final HDR image of the last frame (RGBA, row 0 at the top).
+    pub last_full_hdr: Vec<[f32; 4]>,
 }
 
 impl VolBenchReport {
     /// A plain-text table (one line per frame, then the totals).
     pub fn table(&self) -> String {
         let mut s = format!(
-            "volumetric bench '{}' {}x{}\nframe  mode     temporal_ms  full_ms  speedup  marched  mean_abs  max_abs  psnr_dB  missed\n",
+            "volumetric bench '{}' {}x{}\nframe  mode     temporal_ms  full_ms  speedup  marched  mean_abs  max_abs  psnr_dB  changed  missed\n",
             self.scene, self.width, self.height
         );
         for f in &self.frames {
             s += &format!(
-                "{:5}  {:8} {:11.3} {:8.3} {:8.2} {:8.3} {:9.2e} {:8.2e} {:8.1} {:7}\n",
-                f.frame, f.temporal_mode, f.temporal_total_ms, f.full_total_ms, f.speedup, f.marched_fraction, f.mean_abs, f.max_abs, f.psnr, f.missed_pixels
+                "{:5}  {:8} {:11.3} {:8.3} {:8.2} {:8.3} {:9.2e} {:8.2e} {:8.1} {:8} {:7}\n",
+                f.frame, f.temporal_mode, f.temporal_total_ms, f.full_total_ms, f.speedup, f.marched_fraction, f.mean_abs, f.max_abs, f.psnr, f.changed_pixels, f.missed_pixels
             );
         }
         s += &format!(
@@ -211,8 +220,9 @@ pub fn bench_volumetric(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Sce
     if !(opts.fps.is_finite() && opts.fps > 0.0) || !opts.start_time.is_finite() {
         bail!("bench volumetric: fps must be positive and the start time finite");
     }
-    let base = VolumetricParams { reuse_frames: opts.reuse_frames, samples: opts.samples, ..Default::default() };
-    let mut temporal = Runner::new(ctx, shaders, scene, VolumetricParams { method: VolumetricMethod::Temporal, ..base.clone() })?;
+    let base = VolumetricParams { reuse_frames: opts.reuse_frames, samples: opts.samples, hybrid: opts.hybrid, ..Default::default() };
+    let tp = VolumetricParams { method: VolumetricMethod::Temporal, debug_skip_mask: opts.debug_skip_mask, ..base.clone() };
+    let mut temporal = Runner::new(ctx, shaders, scene, tp)?;
     let mut full = Runner::new(ctx, shaders, scene, VolumetricParams { method: VolumetricMethod::Full, ..base })?;
     let (w, h) = (opts.width, opts.height);
     // Warm-up (lavapipe compiles each pipeline on first use): two frames through every pass,
@@ -226,6 +236,7 @@ pub fn bench_volumetric(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Sce
     temporal.effect.reset();
     let mut frames = Vec::new();
     let mut prev_full: Option<Vec<[f32; 4]>> = None;
+    let mut last_full_hdr = Vec::new();
     let mut prev_t = None;
     for k in 0..opts.frames {
         let t = opts.start_time + k as f32 / opts.fps;
@@ -239,11 +250,14 @@ pub fn bench_volumetric(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Sce
         }
         let marched = a.scatter.iter().filter(|p| p[3] == a.frame_id as f32).count();
         // Missed: the full scattering changed since the previous frame, the temporal frame kept it.
-        let mut missed = 0u64;
+        let (mut missed, mut changed) = (0u64, 0u64);
         if let Some(pf) = &prev_full {
             for i in 0..n {
-                if differs(b.scatter[i], pf[i]) && a.scatter[i][3] != a.frame_id as f32 {
-                    missed += 1;
+                if differs(b.scatter[i], pf[i]) {
+                    changed += 1;
+                    if a.scatter[i][3] != a.frame_id as f32 {
+                        missed += 1;
+                    }
                 }
             }
         }
@@ -276,8 +290,10 @@ pub fn bench_volumetric(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Sce
             max_abs: max,
             psnr,
             missed_pixels: missed,
+            changed_pixels: changed,
         });
         prev_full = Some(b.scatter);
+        last_full_hdr = b.hdr;
     }
     let tt: f64 = frames.iter().map(|f| f.temporal_total_ms).sum();
     let ft: f64 = frames.iter().map(|f| f.full_total_ms).sum();
@@ -314,5 +330,6 @@ pub fn bench_volumetric(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Sce
         frames,
         speedup: if tt > 0.0 { ft / tt } else { f64::INFINITY },
         notes: temporal.effect.notes.clone(),
+        last_full_hdr,
     })
 }

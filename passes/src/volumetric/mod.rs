@@ -46,6 +46,7 @@ use std::sync::Arc;
 pub const SCATTER_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
 pub const MASK_FORMAT: vk::Format = vk::Format::R8_UNORM;
 pub const SHADOW_FORMAT: vk::Format = vk::Format::D32_SFLOAT;
+pub const INTERVAL_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
 
 /// Which volumetric method runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -83,11 +84,19 @@ pub struct VolumetricParams {
     pub samples: u32,
     /// Shadow-map face size in texels (default 512; point lights use 6 faces of half that).
     pub shadow_size: u32,
+    /// Wyman and Ramsey's hybrid: rasterize the shadow volumes of every shadow caster into
+    /// front-most/back-most distances per pixel and look the shadow map up only in between
+    /// (default false: on lavapipe the extra volume pass costs more than the lookups it saves).
+    pub hybrid: bool,
+    /// Testing only: reuse the history on masked frames without marching (a negative control
+    /// for the missed-pixel metric).
+    #[doc(hidden)]
+    pub debug_skip_mask: bool,
 }
 
 impl Default for VolumetricParams {
     fn default() -> Self {
-        VolumetricParams { method: VolumetricMethod::Temporal, reuse_frames: 3, samples: 48, shadow_size: 512 }
+        VolumetricParams { method: VolumetricMethod::Temporal, reuse_frames: 3, samples: 48, shadow_size: 512, hybrid: false, debug_skip_mask: false }
     }
 }
 
@@ -130,6 +139,7 @@ struct VolLight {
     sigma_s_bar: [f32; 4],
     sm: [f32; 4],
     misc: [u32; 4],
+    extra: [f32; 4],
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -144,6 +154,7 @@ pub struct VolumetricEffect {
     medium: Medium,
     shadow: Pipeline,
     mask: Option<Pipeline>,
+    volumes: Option<Pipeline>,
     march: Pipeline,
     composite: Pipeline,
     nearest: Sampler,
@@ -229,17 +240,30 @@ impl VolumetricEffect {
         } else {
             None
         };
-        let march_types = [T::UNIFORM_BUFFER, T::STORAGE_BUFFER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE];
+        let volumes = if params.hybrid {
+            if feats.geometry_shader == vk::TRUE {
+                Some(volumes_pipeline(ctx, shaders)?)
+            } else {
+                notes.push("no geometry shaders on this device: no hybrid shadow-volume intervals".into());
+                None
+            }
+        } else {
+            None
+        };
+        let comp_types = [T::UNIFORM_BUFFER, T::STORAGE_BUFFER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE];
+        let mut march_types = comp_types.to_vec();
+        march_types.push(T::COMBINED_IMAGE_SAMPLER);
         let march = compute_pipeline(ctx, shaders, "vol_march.comp", &march_types, 0)?;
-        let composite = compute_pipeline(ctx, shaders, "vol_composite.comp", &march_types, 0)?;
+        let composite = compute_pipeline(ctx, shaders, "vol_composite.comp", &comp_types, 0)?;
         // Adjacency for meshes of objects that can move.
         let mut adj = Vec::new();
         let mut adj_ranges = vec![None; scene.meshes.len()];
-        if mask.is_some() {
+        if mask.is_some() || volumes.is_some() {
             for (oi, o) in scene.objects.iter().enumerate() {
                 let info = scene.object_info(oi);
                 let can_move = !matches!(info.motion, penumbra_scene::RigidMotion::Static) || info.node.is_some();
-                if !can_move || adj_ranges.get(o.mesh).is_none_or(|r: &Option<AdjRange>| r.is_some()) {
+                let needed = (mask.is_some() && can_move) || (volumes.is_some() && info.casts_shadow);
+                if !needed || adj_ranges.get(o.mesh).is_none_or(|r: &Option<AdjRange>| r.is_some()) {
                     continue;
                 }
                 let mesh = &scene.meshes[o.mesh];
@@ -267,6 +291,7 @@ impl VolumetricEffect {
             medium,
             shadow,
             mask,
+            volumes,
             march,
             composite,
             nearest: Sampler::nearest(ctx)?,
@@ -296,6 +321,7 @@ impl VolumetricEffect {
             sigma_s_bar: [ss.x, ss.y, ss.z, (st.x + st.y + st.z) / 3.0],
             sm: [1.0, 0.1, 1.0, self.params.shadow_size as f32],
             misc: [0, self.params.samples, 0, 0],
+            extra: [0.0; 4],
         };
         // The brightest light that is a point, spot or sphere (as a point of equal intensity).
         let light = f
@@ -393,6 +419,32 @@ fn mask_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline
     Ok(Pipeline::from_raw(ctx, p?, layout, set_layout))
 }
 
+fn volumes_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
+    let stages_f = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::GEOMETRY | vk::ShaderStageFlags::FRAGMENT;
+    let (set_layout, layout) = layouts(
+        ctx,
+        "vol_volumes",
+        &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
+        stages_f,
+        32,
+    )?;
+    let vs = ctx.create_shader_module("vol_mask.vert", shaders.get("vol_mask.vert")?)?;
+    let gs = ctx.create_shader_module("vol_mask.geom", shaders.get("vol_mask.geom")?)?;
+    let fs = ctx.create_shader_module("vol_volumes.frag", shaders.get("vol_volumes.frag")?)?;
+    let stages = [
+        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::VERTEX).module(vs).name(c"main"),
+        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::GEOMETRY).module(gs).name(c"main"),
+        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::FRAGMENT).module(fs).name(c"main"),
+    ];
+    let p = raster_pipeline_blend(ctx, &stages, layout, vk::PrimitiveTopology::TRIANGLE_LIST_WITH_ADJACENCY, &[INTERVAL_FORMAT], None, "vol_volumes", true);
+    unsafe {
+        ctx.device.destroy_shader_module(vs, None);
+        ctx.device.destroy_shader_module(gs, None);
+        ctx.device.destroy_shader_module(fs, None);
+    }
+    Ok(Pipeline::from_raw(ctx, p?, layout, set_layout))
+}
+
 fn raster_pipeline(
     ctx: &Arc<Context>,
     stages: &[vk::PipelineShaderStageCreateInfo],
@@ -401,6 +453,20 @@ fn raster_pipeline(
     colors: &[vk::Format],
     depth: Option<vk::Format>,
     name: &str,
+) -> Result<vk::Pipeline> {
+    raster_pipeline_blend(ctx, stages, layout, topology, colors, depth, name, false)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn raster_pipeline_blend(
+    ctx: &Arc<Context>,
+    stages: &[vk::PipelineShaderStageCreateInfo],
+    layout: vk::PipelineLayout,
+    topology: vk::PrimitiveTopology,
+    colors: &[vk::Format],
+    depth: Option<vk::Format>,
+    name: &str,
+    min_max: bool,
 ) -> Result<vk::Pipeline> {
     let bindings = [vk::VertexInputBindingDescription {
         binding: 0,
@@ -421,7 +487,21 @@ fn raster_pipeline(
         .depth_test_enable(depth.is_some())
         .depth_write_enable(depth.is_some())
         .depth_compare_op(vk::CompareOp::LESS_OR_EQUAL);
-    let blend: Vec<_> = colors.iter().map(|_| vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA)).collect();
+    // min_max: rgb keeps the minimum, alpha the maximum.
+    let blend: Vec<_> = colors
+        .iter()
+        .map(|_| {
+            vk::PipelineColorBlendAttachmentState::default()
+                .color_write_mask(vk::ColorComponentFlags::RGBA)
+                .blend_enable(min_max)
+                .src_color_blend_factor(vk::BlendFactor::ONE)
+                .dst_color_blend_factor(vk::BlendFactor::ONE)
+                .color_blend_op(vk::BlendOp::MIN)
+                .src_alpha_blend_factor(vk::BlendFactor::ONE)
+                .dst_alpha_blend_factor(vk::BlendFactor::ONE)
+                .alpha_blend_op(vk::BlendOp::MAX)
+        })
+        .collect();
     let cb = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend);
     let dyn_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
     let dy = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dyn_states);
@@ -576,7 +656,7 @@ impl Effect for VolumetricEffect {
             }
             if reason.is_some() {
                 MarchMode::Refresh
-            } else if movers.is_empty() {
+            } else if movers.is_empty() || self.params.debug_skip_mask {
                 MarchMode::Skipped
             } else {
                 MarchMode::Masked
@@ -589,7 +669,6 @@ impl Effect for VolumetricEffect {
         self.frame_id = self.frame_id.wrapping_add(1) % (1 << 23);
         block.misc[0] = (mode == MarchMode::Masked) as u32;
         block.misc[3] = self.frame_id;
-        let light_buf = graph.create_buffer_init("vol.light", bytes_of(std::slice::from_ref(&block)));
 
         // Mask pass.
         let mut mask = None;
@@ -658,6 +737,78 @@ impl Effect for VolumetricEffect {
             mask = Some(img);
         }
 
+        // Hybrid: front-most/back-most shadow-volume distances of every caster (current frame).
+        let mut intervals = None;
+        if let (Some(vp), true, false) = (self.volumes.as_ref(), has_light, mode == MarchMode::Skipped) {
+            let casters: Vec<(u32, AdjRange, i32)> = inputs
+                .draws
+                .iter()
+                .filter(|d| !d.deformed)
+                .filter(|d| {
+                    let obj = inputs.frame.instances.get(d.instance as usize).map(|i| i.object);
+                    obj.and_then(|o| self.casts_shadow.get(o).copied()).unwrap_or(true)
+                })
+                .filter_map(|d| Some((d.instance, *self.adj_ranges.get(d.mesh_index(inputs))?.as_ref()?, d.mesh.vertex_offset)))
+                .collect();
+            let all_covered = inputs.draws.iter().filter(|d| {
+                let obj = inputs.frame.instances.get(d.instance as usize).map(|i| i.object);
+                obj.and_then(|o| self.casts_shadow.get(o).copied()).unwrap_or(true)
+            }).count() == casters.len();
+            if all_covered {
+                if let Some(adj) = self.adjacency.as_ref() {
+                    let (pipeline, layout) = (vp.pipeline, vp.layout);
+                    let adj_h = graph.import_buffer("vol.adjacency_all", adj.buffer, adj.size, adj.usage);
+                    let img = graph.create_image("vol_intervals", ImageDesc::new_2d(INTERVAL_FORMAT, w, h));
+                    let mut p = graph.pass("vol_volumes", PassKind::Raster);
+                    let img = p.write(img, Access::ColorAttachmentWrite);
+                    let camera = p.read(sh.camera, Access::AnyShaderReadUniform);
+                    let instances = p.read(sh.instances, Access::VertexShaderReadStorage);
+                    let vertices = p.read(sh.vertices, Access::VertexBuffer);
+                    let adj_h = p.read(adj_h, Access::IndexBuffer);
+                    let lp = block.pos_kind;
+                    let near = cam.near;
+                    p.record(move |rc| {
+                        let d = rc.device();
+                        let att = vk::RenderingAttachmentInfo::default()
+                            .image_view(rc.image(img)?.view)
+                            .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+                            .load_op(vk::AttachmentLoadOp::CLEAR)
+                            .store_op(vk::AttachmentStoreOp::STORE)
+                            .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: [f32::INFINITY, f32::INFINITY, f32::INFINITY, 0.0] } });
+                        let atts = [att];
+                        let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
+                        let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&atts);
+                        let vb = rc.buffer(vertices)?.buffer;
+                        let ib = rc.buffer(adj_h)?.buffer;
+                        unsafe {
+                            d.cmd_begin_rendering(rc.cmd, &info);
+                            d.cmd_set_viewport(rc.cmd, 0, &[viewport(0.0, 0.0, w as f32, h as f32)]);
+                            d.cmd_set_scissor(rc.cmd, 0, &[area]);
+                            d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+                        }
+                        rc.push_descriptors(vk::PipelineBindPoint::GRAPHICS, layout, 0, &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)])?;
+                        unsafe {
+                            d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb], &[0]);
+                            d.cmd_bind_index_buffer(rc.cmd, ib, 0, vk::IndexType::UINT32);
+                            let mut pc = bytes_of(&[lp[0], lp[1], lp[2], near]);
+                            pc.extend(bytes_of(&[0u32, 0, 0, 0]));
+                            let stages = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::GEOMETRY | vk::ShaderStageFlags::FRAGMENT;
+                            d.cmd_push_constants(rc.cmd, layout, stages, 0, &pc);
+                            for (inst, r, vo) in &casters {
+                                d.cmd_draw_indexed(rc.cmd, r.index_count, 1, r.first_index, *vo, *inst);
+                            }
+                            d.cmd_end_rendering(rc.cmd);
+                        }
+                        Ok(())
+                    });
+                    intervals = Some(img);
+                }
+            }
+        }
+
+        block.extra[0] = intervals.is_some() as u32 as f32;
+        let light_buf = graph.create_buffer_init("vol.light", bytes_of(std::slice::from_ref(&block)));
+
         // March pass.
         let scatter = if mode == MarchMode::Skipped {
             scatter
@@ -668,6 +819,7 @@ impl Effect for VolumetricEffect {
             let pos = p.read(gb.position, Access::ComputeShaderReadSampled);
             let sm = p.read(smap, Access::ComputeShaderReadSampled);
             let mk = mask.map(|m| p.read(m, Access::ComputeShaderReadSampled));
+            let iv = intervals.map(|m| p.read(m, Access::ComputeShaderReadSampled));
             let access = if mode == MarchMode::Masked { Access::ComputeShaderReadWriteStorage } else { Access::ComputeShaderWriteStorage };
             let out = p.write(scatter, access);
             let (pipeline, layout, nearest) = (self.march.pipeline, self.march.layout, self.nearest.sampler);
@@ -684,6 +836,7 @@ impl Effect for VolumetricEffect {
                         Bind::SampledImage(sm, nearest),
                         Bind::SampledImage(mk.unwrap_or(pos), nearest),
                         Bind::StorageImage(out),
+                        Bind::SampledImage(iv.unwrap_or(pos), nearest),
                     ],
                 )?;
                 unsafe { rc.device().cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1) };
