@@ -3,24 +3,29 @@
 //! when geometry moved or deformed (static scenes build once).
 //!
 //! # Build (after Zhou, Hou, Wang and Guo 2008, with the differences listed)
-//! Breadth first, one compute dispatch per tree level; each workgroup (64 invocations) takes the
-//! pending nodes of the level in a persistent loop, so the host never reads counts back:
-//! - *large-node stage* (nodes with more than [`KdTreeParams::large_threshold`] references): the
-//!   references' tight bounds (clipped to the cell) are reduced in shared memory; if one side of
-//!   the cell is more than 25% empty the empty space is cut off, else the node is split at the
-//!   spatial median of the tight bounds' longest axis (Zhou et al.: same rules);
-//! - *small-node stage*: SAH (traversal cost 1, intersection cost 1.5) evaluated on 16 bins per
-//!   axis over the cell; a leaf when no split beats the leaf cost or the node has at most
-//!   [`KdTreeParams::leaf_size`] references, or at [`KdTreeParams::max_depth`].
+//! Breadth first, two compute dispatches per tree level, with no host read-back (every dispatch
+//! reads the level's node range from counters the previous one wrote):
+//! - `kdtree_level<L>` (`glsl/kdtree_build.comp`), nodes with more than
+//!   [`KdTreeParams::small_max`] references, one workgroup (64 invocations) per node, visiting only
+//!   the nodes their parents listed as large:
+//!   - *large-node stage* (more than [`KdTreeParams::large_threshold`] references): the
+//!     references' tight bounds (clipped to the cell) are reduced in shared memory; if one side of
+//!     the cell is more than 25% empty the empty space is cut off, else the node is split at the
+//!     spatial median of the tight bounds' longest axis (Zhou et al.: same rules);
+//!   - medium nodes: the SAH below, binned cooperatively;
+//! - `kdtree_level<L>_small` (`glsl/kdtree_small.comp`), *small-node stage*: one invocation per
+//!   node (as Zhou et al.), SAH (traversal cost 1, intersection cost 1.5) on 16 bins per axis over
+//!   the cell; a leaf when no split beats the leaf cost, at most [`KdTreeParams::leaf_size`]
+//!   references, or at [`KdTreeParams::max_depth`].
 //!
-//! Differences from Zhou et al.: node-level parallelism (one workgroup per node) instead of
-//! triangle-chunk parallelism with segmented scans in the large-node stage; binned SAH (16 bins)
-//! instead of the exact SAH over all triangle-bound candidates with bit-mask triangle sets in the
-//! small-node stage; the triangle bounds are clipped to the cell as boxes (box of the triangle
-//! intersected with the cell), not by clipping the triangle; children's references are appended
-//! to one growing reference buffer (interior nodes' ranges are not compacted away), so the
-//! reference buffer holds every level's lists; storage is bounded by [`KdTreeParams`] and an
-//! overflow turns the node into a leaf (still correct) and sets a flag in [`KdStats`].
+//! Differences from Zhou et al.: in the large-node stage one workgroup per node instead of
+//! triangle-chunk parallelism with segmented scans; binned SAH (16 bins) instead of the exact SAH
+//! over all triangle-bound candidates with bit-mask triangle sets; triangle bounds are clipped to
+//! the cell as boxes (the triangle's box intersected with the cell), not by clipping the
+//! triangle; children's references are appended to one growing reference buffer (interior
+//! nodes' lists are not compacted away), so the reference buffer holds every level's lists;
+//! storage is bounded by [`KdTreeParams`] and an overflow turns the node into a leaf (still
+//! correct, slower) and sets a flag in [`KdStats`].
 //!
 //! References are assigned conservatively: a triangle goes to every child whose cell its clipped
 //! bounds touch within `eps` = 1e-5 x the scene extent, so rounding in the traversal cannot skip it.
