@@ -92,3 +92,30 @@ fn scene_sphere_sets_cover_and_follow_the_objects() {
     println!("hat top sphere heights over time: {heights:?}");
     assert!(heights.iter().any(|h| (h - heights[0]).abs() > 1e-3), "hat spheres do not deform");
 }
+
+/// Writes the sphere sets of the ISG scenes beside them (`scenes/<scene>.<object>.spheres`),
+/// which the technique then loads instead of building them at start-up:
+/// `ISG_WRITE_SPHERES=1 cargo test -p penumbra-passes --test isg write_scene_sphere_files -- --ignored`.
+#[test]
+#[ignore]
+fn write_scene_sphere_files() {
+    if std::env::var_os("ISG_WRITE_SPHERES").is_none() {
+        return;
+    }
+    for name in ["falling.toml", "hat_on_cloth.toml"] {
+        let s = scene(name);
+        let sets = scene_sphere_sets(&s, 48);
+        for (o, set) in s.objects.iter().zip(&sets) {
+            let Some(set) = set else { continue };
+            let m = &s.meshes[o.mesh];
+            let cov = measure_coverage(&m.positions, &m.indices, &set.spheres, 64).unwrap();
+            let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(format!("{}.{}.spheres", s.name, o.name));
+            let text = format!(
+                "# {} spheres for object '{}' of scene '{}' (penumbra_math::sphereset, 64 voxels)\n# coverage: {:.3} of the mesh volume, {:.4} outside\n{}",
+                set.spheres.len(), o.name, s.name, cov.covered, cov.outside, set.to_text()
+            );
+            std::fs::write(&path, text).unwrap();
+            println!("{}: covered {:.3} outside {:.4}", path.display(), cov.covered, cov.outside);
+        }
+    }
+}
