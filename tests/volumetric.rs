@@ -229,7 +229,7 @@ fn extremes_render_finite_and_consistent() {
     // Camera inside the moving ball's shadow volume (under it, looking up past it) and inside
     // the medium; light inside the medium (always: the medium fills space).
     let under = "eye = [0.15, 0.3, 0.0]\ntarget = [0.2, 3.0, 0.6]";
-    let near_axis = "motion = { type = \"keyframes\", keys = [{ t = 0.0, position = [0.1, 1.2, 0.0] }, { t = 2.0, position = [0.2, 1.2, 0.0] }] }";
+    let near_axis = "motion = { type = \"keyframes\", keys = [{ t = 0.0, position = [0.05, 1.2, 0.0] }, { t = 1.0, position = [0.35, 1.2, 0.0] }] }";
     let cases = [
         ("thin", "sigma_a = 0.0\nsigma_s = 2e-5\ng = 0.0", CAM, linear),
         ("dense", "sigma_a = 5.0\nsigma_s = 15.0\ng = 0.6", CAM, linear),
