@@ -3,10 +3,10 @@
 
 mod common;
 
+use penumbra::engine::{Context, ContextDesc};
 use penumbra::passes::effect::EffectOverrides;
 use penumbra::passes::volumetric::bench::{bench_volumetric, VolBenchOptions, VolBenchReport};
 use penumbra::{RenderSettings, Renderer};
-use penumbra::engine::{Context, ContextDesc};
 use penumbra_scene::Scene;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -94,7 +94,8 @@ fn full_method_matches_the_cpu_reference() {
     let reference = penumbra_reference::render::render(&scene, &opts).expect("reference");
     let gpu = common::hdr_image(&img);
     let c = penumbra_reference::metrics::compare(&reference.radiance, "reference", &gpu, "gpu full").unwrap();
-    let sum = |im: &penumbra_reference::image::Image| im.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>();
+    let sum =
+        |im: &penumbra_reference::image::Image| im.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>();
     let (sr, sg) = (sum(&reference.radiance), sum(&gpu));
     // The occluder's volumetric shadow: the column under the ball is darker than beside it.
     let lum = |x: u32, y: u32| {
@@ -103,7 +104,10 @@ fn full_method_matches_the_cpu_reference() {
     };
     println!(
         "full vs CPU reference: PSNR {:?} dB, relRMSE {:?}, total energy ratio {:.4}, reference noise {:?}",
-        c.psnr_db, c.rel_rmse, sg / sr, reference.noise
+        c.psnr_db,
+        c.rel_rmse,
+        sg / sr,
+        reference.noise
     );
     assert!(sr > 0.0 && sg > 0.0);
     assert!((sg / sr - 1.0).abs() < 0.03, "energy ratio {}", sg / sr);
@@ -125,7 +129,12 @@ fn a_scene_without_medium_has_no_volumetric_passes_and_god_rays_has_them() {
     assert!(passes.iter().any(|p| p == "vol_march"), "{passes:?}");
     assert!(img.hdr.iter().flatten().all(|c| c.is_finite()));
     // A bad override is an error, not ignored.
-    let settings = RenderSettings { width: 8, height: 8, effects: EffectOverrides { volumetric: Some("fast".into()) }, ..Default::default() };
+    let settings = RenderSettings {
+        width: 8,
+        height: 8,
+        effects: EffectOverrides { volumetric: Some("fast".into()) },
+        ..Default::default()
+    };
     assert!(Renderer::new_headless(&god, settings, false).is_err());
 }
 
@@ -153,7 +162,11 @@ fn temporal_equals_full_on_linear_motion_with_no_missed_pixels() {
     let rep = bench(&ctx, &scene, 6, 96, 72);
     assert_eq!(rep.missed_pixels, 0);
     // The motion changes the scattering every frame (else the comparison would be vacuous).
-    assert!(rep.frames[1..].iter().all(|f| f.changed_pixels > 50), "{:?}", rep.frames.iter().map(|f| f.changed_pixels).collect::<Vec<_>>());
+    assert!(
+        rep.frames[1..].iter().all(|f| f.changed_pixels > 50),
+        "{:?}",
+        rep.frames.iter().map(|f| f.changed_pixels).collect::<Vec<_>>()
+    );
     let masked: Vec<_> = rep.frames.iter().filter(|f| f.temporal_mode == "masked").collect();
     assert!(masked.len() >= 3, "{:?}", rep.frames.iter().map(|f| &f.temporal_mode).collect::<Vec<_>>());
     for f in &rep.frames {
@@ -172,7 +185,8 @@ fn skipping_the_masked_march_is_caught_as_missed_pixels() {
     let ctx = ctx();
     let motion = "motion = { type = \"keyframes\", keys = [{ t = 0.0, position = [-0.4, 1.2, 0.0] }, { t = 1.0, position = [0.6, 1.2, 0.0] }] }";
     let scene = occluder_scene("vol_linear_nomask", MEDIUM, CAM, SPOT, motion);
-    let opts = VolBenchOptions { width: 64, height: 48, frames: 3, samples: 32, debug_skip_mask: true, ..Default::default() };
+    let opts =
+        VolBenchOptions { width: 64, height: 48, frames: 3, samples: 32, debug_skip_mask: true, ..Default::default() };
     let rep = bench_volumetric(&ctx, &penumbra::shader_library(), &scene, &opts).expect("bench");
     println!("{}", rep.table());
     assert!(rep.missed_pixels > 20, "{}", rep.missed_pixels);
@@ -194,12 +208,25 @@ fn hybrid_intervals_match_plain_marching() {
     assert_eq!(ctx.validation.error_count(), 0, "{:?}", ctx.validation.errors());
     assert_eq!(hybrid.missed_pixels, 0);
     assert!(hybrid.temporal_pass_ms.iter().any(|(n, _)| n == "vol_volumes"));
-    let to_img = |v: &Vec<[f32; 4]>| penumbra_reference::image::Image::from_fn(96, 72, |x, y| {
-        let p = v[(y * 96 + x) as usize];
-        [p[0], p[1], p[2]]
-    });
-    let c = penumbra_reference::metrics::compare(&to_img(&plain.last_full_hdr), "plain", &to_img(&hybrid.last_full_hdr), "hybrid").unwrap();
-    let differing = plain.last_full_hdr.iter().zip(&hybrid.last_full_hdr).filter(|(a, b)| (0..3).any(|c| (a[c] - b[c]).abs() > 1e-3 * a[c].abs().max(1e-3))).count();
+    let to_img = |v: &Vec<[f32; 4]>| {
+        penumbra_reference::image::Image::from_fn(96, 72, |x, y| {
+            let p = v[(y * 96 + x) as usize];
+            [p[0], p[1], p[2]]
+        })
+    };
+    let c = penumbra_reference::metrics::compare(
+        &to_img(&plain.last_full_hdr),
+        "plain",
+        &to_img(&hybrid.last_full_hdr),
+        "hybrid",
+    )
+    .unwrap();
+    let differing = plain
+        .last_full_hdr
+        .iter()
+        .zip(&hybrid.last_full_hdr)
+        .filter(|(a, b)| (0..3).any(|c| (a[c] - b[c]).abs() > 1e-3 * a[c].abs().max(1e-3)))
+        .count();
     println!("hybrid vs plain full: PSNR {:?} dB, {} pixels differ by > 0.1%", c.psnr_db, differing);
     assert!(c.psnr_db.unwrap_or(f64::INFINITY) > 45.0, "{:?}", c.psnr_db);
     assert!(differing < 96 * 72 / 50, "{differing}");
@@ -241,7 +268,11 @@ fn extremes_render_finite_and_consistent() {
     for (name, medium, cam, motion) in cases {
         let scene = occluder_scene(&format!("vol_{name}"), medium, cam, SPOT, motion);
         let rep = bench(&ctx, &scene, 4, 48, 36);
-        println!("{name}: missed {} max_abs {:?}", rep.missed_pixels, rep.frames.iter().map(|f| f.max_abs).collect::<Vec<_>>());
+        println!(
+            "{name}: missed {} max_abs {:?}",
+            rep.missed_pixels,
+            rep.frames.iter().map(|f| f.max_abs).collect::<Vec<_>>()
+        );
         assert_eq!(rep.missed_pixels, 0, "{name}");
         // Optical depth ~80 to the mover: its shadow is invisible through the dense medium.
         if name != "dense" {

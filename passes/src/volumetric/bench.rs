@@ -39,7 +39,17 @@ pub struct VolBenchOptions {
 
 impl Default for VolBenchOptions {
     fn default() -> Self {
-        VolBenchOptions { width: 320, height: 240, frames: 12, fps: 30.0, start_time: 0.0, reuse_frames: 3, samples: 48, hybrid: false, debug_skip_mask: false }
+        VolBenchOptions {
+            width: 320,
+            height: 240,
+            frames: 12,
+            fps: 30.0,
+            start_time: 0.0,
+            reuse_frames: 3,
+            samples: 48,
+            hybrid: false,
+            debug_skip_mask: false,
+        }
     }
 }
 
@@ -100,7 +110,17 @@ impl VolBenchReport {
         for f in &self.frames {
             s += &format!(
                 "{:5}  {:8} {:11.3} {:8.3} {:8.2} {:8.3} {:9.2e} {:8.2e} {:8.1} {:8} {:7}\n",
-                f.frame, f.temporal_mode, f.temporal_total_ms, f.full_total_ms, f.speedup, f.marched_fraction, f.mean_abs, f.max_abs, f.psnr, f.changed_pixels, f.missed_pixels
+                f.frame,
+                f.temporal_mode,
+                f.temporal_total_ms,
+                f.full_total_ms,
+                f.speedup,
+                f.marched_fraction,
+                f.mean_abs,
+                f.max_abs,
+                f.psnr,
+                f.changed_pixels,
+                f.missed_pixels
             );
         }
         s += &format!(
@@ -181,7 +201,8 @@ impl Runner {
         let gb = self.gbuffer.add(&mut g, &handles, draws.clone(), w, h);
         let ti = crate::technique::TechniqueInputs { frame, scene: &handles, gbuffer: &gb, env, env_data: &self.env };
         let hdr = self.technique.add(&mut self.engine, &mut g, &ti)?;
-        let inputs = EffectInputs { scene, frame, handles: &handles, draws: &draws, gbuffer: &gb, env, env_data: &self.env };
+        let inputs =
+            EffectInputs { scene, frame, handles: &handles, draws: &draws, gbuffer: &gb, env, env_data: &self.env };
         let out = self.effect.add(&mut self.engine, &mut g, &inputs, hdr)?;
         let info = self.effect.last.expect("effect info");
         let mut rb = vec![(out, "vol_bench_hdr"), (info.scatter, "vol_bench_scatter")];
@@ -210,18 +231,29 @@ fn differs(a: [f32; 4], b: [f32; 4]) -> bool {
 }
 
 /// Runs the temporal method and the full baseline on the same frames of `scene`.
-pub fn bench_volumetric(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, opts: &VolBenchOptions) -> Result<VolBenchReport> {
+pub fn bench_volumetric(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    opts: &VolBenchOptions,
+) -> Result<VolBenchReport> {
     if scene.medium.is_none() {
         bail!("scene '{}' has no [medium]: nothing volumetric to benchmark", scene.name);
     }
     if opts.width == 0 || opts.height == 0 || opts.width > 8192 || opts.height > 8192 || opts.frames == 0 {
         bail!("bench volumetric: bad size {}x{} or frame count {}", opts.width, opts.height, opts.frames);
     }
-    if !(opts.fps.is_finite() && opts.fps > 0.0) || !opts.start_time.is_finite() {
+    if !(opts.fps.is_finite() && opts.fps > 0.0 && opts.start_time.is_finite()) {
         bail!("bench volumetric: fps must be positive and the start time finite");
     }
-    let base = VolumetricParams { reuse_frames: opts.reuse_frames, samples: opts.samples, hybrid: opts.hybrid, ..Default::default() };
-    let tp = VolumetricParams { method: VolumetricMethod::Temporal, debug_skip_mask: opts.debug_skip_mask, ..base.clone() };
+    let base = VolumetricParams {
+        reuse_frames: opts.reuse_frames,
+        samples: opts.samples,
+        hybrid: opts.hybrid,
+        ..Default::default()
+    };
+    let tp =
+        VolumetricParams { method: VolumetricMethod::Temporal, debug_skip_mask: opts.debug_skip_mask, ..base.clone() };
     let mut temporal = Runner::new(ctx, shaders, scene, tp)?;
     let mut full = Runner::new(ctx, shaders, scene, VolumetricParams { method: VolumetricMethod::Full, ..base })?;
     let (w, h) = (opts.width, opts.height);
@@ -309,7 +341,8 @@ pub fn bench_volumetric(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Sce
         names
             .into_iter()
             .map(|n| {
-                let mut v: Vec<f64> = frames.iter().flat_map(|f| pick(f).iter().filter(|x| x.0 == n).map(|x| x.1)).collect();
+                let mut v: Vec<f64> =
+                    frames.iter().flat_map(|f| pick(f).iter().filter(|x| x.0 == n).map(|x| x.1)).collect();
                 v.sort_by(|a, b| a.total_cmp(b));
                 let m = v[v.len() / 2];
                 (n, m)

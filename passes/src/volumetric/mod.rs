@@ -25,11 +25,21 @@
 //! so they count as silhouette edges whenever the triangle faces the light (conservative, the
 //! mask only grows); they are listed in [`VolumetricEffect::notes`].
 //!
-//! Differences from the thesis: the mask is an R8 colour attachment tested in the compute
-//! march (a compute shader cannot stencil-test), dilated by one pixel; the hybrid shadow-volume
-//! front/back interval scheme of Wyman and Ramsey is not implemented (the equiangular
-//! quadrature integrates the lit parts with few samples instead); one light scatters (the
-//! brightest spot/point/sphere light).
+//! Hybrid (optional, [`VolumetricParams::hybrid`], Wyman and Ramsey): `vol_volumes` rasterizes
+//! the shadow volumes of every shadow caster (same geometry shader) into the front-most and
+//! back-most boundary distance per pixel (MIN/MAX blending); the march looks the shadow map up
+//! only between them (from the eye when the eye is in shadow) and treats the rest as lit.
+//! The lit segments are integrated by the same quadrature, not by an airlight closed form
+//! (the spot cone's smooth falloff has none); on lavapipe the extra pass costs about what the
+//! skipped lookups save, so it is off by default.
+//!
+//! Differences from the thesis: the mask is an R8 colour attachment (coverage, no depth test)
+//! tested in the compute march, dilated by one pixel, instead of a stencil buffer tested by a
+//! raster march (a compute shader cannot stencil-test; the result is the same set of pixels);
+//! no reprojection (any camera, light or medium change recomputes the frame); one light
+//! scatters (the brightest spot/point/sphere light; a sphere light as a point of equal power).
+//! The technique's surface shading is not attenuated on the light's way in (only on the way to
+//! the eye), unlike the CPU reference.
 
 pub mod bench;
 
@@ -96,7 +106,14 @@ pub struct VolumetricParams {
 
 impl Default for VolumetricParams {
     fn default() -> Self {
-        VolumetricParams { method: VolumetricMethod::Temporal, reuse_frames: 3, samples: 48, shadow_size: 512, hybrid: false, debug_skip_mask: false }
+        VolumetricParams {
+            method: VolumetricMethod::Temporal,
+            reuse_frames: 3,
+            samples: 48,
+            shadow_size: 512,
+            hybrid: false,
+            debug_skip_mask: false,
+        }
     }
 }
 
@@ -250,7 +267,14 @@ impl VolumetricEffect {
         } else {
             None
         };
-        let comp_types = [T::UNIFORM_BUFFER, T::STORAGE_BUFFER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE];
+        let comp_types = [
+            T::UNIFORM_BUFFER,
+            T::STORAGE_BUFFER,
+            T::COMBINED_IMAGE_SAMPLER,
+            T::COMBINED_IMAGE_SAMPLER,
+            T::COMBINED_IMAGE_SAMPLER,
+            T::STORAGE_IMAGE,
+        ];
         let mut march_types = comp_types.to_vec();
         march_types.push(T::COMBINED_IMAGE_SAMPLER);
         let march = compute_pipeline(ctx, shaders, "vol_march.comp", &march_types, 0)?;
@@ -332,9 +356,12 @@ impl VolumetricEffect {
         let Some(l) = light else { return block };
         let (kind_id, cos_o, cos_i, power) = match l.kind {
             LightKind::Point => (0.0, -1.0, -1.0, l.power),
-            LightKind::Spot { inner_deg, outer_deg } => {
-                (1.0, outer_deg.clamp(0.0, 180.0).to_radians().cos(), inner_deg.clamp(0.0, 180.0).to_radians().cos(), l.power)
-            }
+            LightKind::Spot { inner_deg, outer_deg } => (
+                1.0,
+                outer_deg.clamp(0.0, 180.0).to_radians().cos(),
+                inner_deg.clamp(0.0, 180.0).to_radians().cos(),
+                l.power,
+            ),
             LightKind::Sphere { radius } => (0.0, -1.0, -1.0, l.power * std::f32::consts::PI * radius * radius),
         };
         let dir = l.direction.try_normalize().unwrap_or(-Vec3::Y);
@@ -385,10 +412,20 @@ impl VolumetricEffect {
 }
 
 fn shadow_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
-    let (set_layout, layout) = layouts(ctx, "vol_shadow", &[vk::DescriptorType::STORAGE_BUFFER], vk::ShaderStageFlags::VERTEX, 64)?;
+    let (set_layout, layout) =
+        layouts(ctx, "vol_shadow", &[vk::DescriptorType::STORAGE_BUFFER], vk::ShaderStageFlags::VERTEX, 64)?;
     let vs = ctx.create_shader_module("vol_shadow.vert", shaders.get("vol_shadow.vert")?)?;
-    let stages = [vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::VERTEX).module(vs).name(c"main")];
-    let p = raster_pipeline(ctx, &stages, layout, vk::PrimitiveTopology::TRIANGLE_LIST, &[], Some(SHADOW_FORMAT), "vol_shadow");
+    let stages =
+        [vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::VERTEX).module(vs).name(c"main")];
+    let p = raster_pipeline(
+        ctx,
+        &stages,
+        layout,
+        vk::PrimitiveTopology::TRIANGLE_LIST,
+        &[],
+        Some(SHADOW_FORMAT),
+        "vol_shadow",
+    );
     unsafe { ctx.device.destroy_shader_module(vs, None) };
     Ok(Pipeline::from_raw(ctx, p?, layout, set_layout))
 }
@@ -410,7 +447,15 @@ fn mask_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline
         vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::GEOMETRY).module(gs).name(c"main"),
         vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::FRAGMENT).module(fs).name(c"main"),
     ];
-    let p = raster_pipeline(ctx, &stages, layout, vk::PrimitiveTopology::TRIANGLE_LIST_WITH_ADJACENCY, &[MASK_FORMAT], None, "vol_mask");
+    let p = raster_pipeline(
+        ctx,
+        &stages,
+        layout,
+        vk::PrimitiveTopology::TRIANGLE_LIST_WITH_ADJACENCY,
+        &[MASK_FORMAT],
+        None,
+        "vol_mask",
+    );
     unsafe {
         ctx.device.destroy_shader_module(vs, None);
         ctx.device.destroy_shader_module(gs, None);
@@ -436,7 +481,16 @@ fn volumes_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipel
         vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::GEOMETRY).module(gs).name(c"main"),
         vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::FRAGMENT).module(fs).name(c"main"),
     ];
-    let p = raster_pipeline_blend(ctx, &stages, layout, vk::PrimitiveTopology::TRIANGLE_LIST_WITH_ADJACENCY, &[INTERVAL_FORMAT], None, "vol_volumes", true);
+    let p = raster_pipeline_blend(
+        ctx,
+        &stages,
+        layout,
+        vk::PrimitiveTopology::TRIANGLE_LIST_WITH_ADJACENCY,
+        &[INTERVAL_FORMAT],
+        None,
+        "vol_volumes",
+        true,
+    );
     unsafe {
         ctx.device.destroy_shader_module(vs, None);
         ctx.device.destroy_shader_module(gs, None);
@@ -473,8 +527,15 @@ fn raster_pipeline_blend(
         stride: std::mem::size_of::<crate::scene_gpu::Vertex>() as u32,
         input_rate: vk::VertexInputRate::VERTEX,
     }];
-    let attrs = [vk::VertexInputAttributeDescription { location: 0, binding: 0, format: vk::Format::R32G32B32_SFLOAT, offset: 0 }];
-    let vi = vk::PipelineVertexInputStateCreateInfo::default().vertex_binding_descriptions(&bindings).vertex_attribute_descriptions(&attrs);
+    let attrs = [vk::VertexInputAttributeDescription {
+        location: 0,
+        binding: 0,
+        format: vk::Format::R32G32B32_SFLOAT,
+        offset: 0,
+    }];
+    let vi = vk::PipelineVertexInputStateCreateInfo::default()
+        .vertex_binding_descriptions(&bindings)
+        .vertex_attribute_descriptions(&attrs);
     let ia = vk::PipelineInputAssemblyStateCreateInfo::default().topology(topology);
     let vp = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
     let rs = vk::PipelineRasterizationStateCreateInfo::default()
@@ -535,7 +596,13 @@ impl Effect for VolumetricEffect {
         "volumetric"
     }
 
-    fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &EffectInputs, hdr: ImageHandle) -> Result<ImageHandle> {
+    fn add(
+        &mut self,
+        engine: &mut Engine,
+        graph: &mut Graph,
+        inputs: &EffectInputs,
+        hdr: ImageHandle,
+    ) -> Result<ImageHandle> {
         let gb = inputs.gbuffer;
         let (w, h) = (gb.width, gb.height);
         let sh = inputs.handles;
@@ -573,8 +640,11 @@ impl Effect for VolumetricEffect {
                     .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
                     .load_op(vk::AttachmentLoadOp::CLEAR)
                     .store_op(vk::AttachmentStoreOp::STORE)
-                    .clear_value(vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } });
-                let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: smw, height: smh } };
+                    .clear_value(vk::ClearValue {
+                        depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 },
+                    });
+                let area =
+                    vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: smw, height: smh } };
                 let info = vk::RenderingInfo::default().render_area(area).layer_count(1).depth_attachment(&att);
                 let vb = rc.buffer(vertices)?.buffer;
                 let ib = rc.buffer(indices)?.buffer;
@@ -594,7 +664,14 @@ impl Effect for VolumetricEffect {
                     for (fi, m) in mats.iter().enumerate() {
                         let (tx, ty) = if faces == 6 { ((fi as u32 % 3) * ts, (fi as u32 / 3) * ts) } else { (0, 0) };
                         d.cmd_set_viewport(rc.cmd, 0, &[viewport(tx as f32, ty as f32, ts as f32, ts as f32)]);
-                        d.cmd_set_scissor(rc.cmd, 0, &[vk::Rect2D { offset: vk::Offset2D { x: tx as i32, y: ty as i32 }, extent: vk::Extent2D { width: ts, height: ts } }]);
+                        d.cmd_set_scissor(
+                            rc.cmd,
+                            0,
+                            &[vk::Rect2D {
+                                offset: vk::Offset2D { x: tx as i32, y: ty as i32 },
+                                extent: vk::Extent2D { width: ts, height: ts },
+                            }],
+                        );
                         d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::VERTEX, 0, &bytes_of(&m.concat()));
                         for pass_deformed in [false, true] {
                             let buffer = if pass_deformed { db } else { Some(vb) };
@@ -606,7 +683,14 @@ impl Effect for VolumetricEffect {
                                     bound = true;
                                 }
                                 let mr = dr.mesh;
-                                d.cmd_draw_indexed(rc.cmd, mr.index_count, 1, mr.first_index, mr.vertex_offset, dr.instance);
+                                d.cmd_draw_indexed(
+                                    rc.cmd,
+                                    mr.index_count,
+                                    1,
+                                    mr.first_index,
+                                    mr.vertex_offset,
+                                    dr.instance,
+                                );
                             }
                         }
                     }
@@ -627,7 +711,22 @@ impl Effect for VolumetricEffect {
         };
         let mut key = bytes_of(std::slice::from_ref(&block));
         let cam = &inputs.frame.camera;
-        key.extend(bytes_of(&[cam.eye.x, cam.eye.y, cam.eye.z, cam.target.x, cam.target.y, cam.target.z, cam.up.x, cam.up.y, cam.up.z, cam.fov_y_deg, cam.near, cam.far, w as f32, h as f32]));
+        key.extend(bytes_of(&[
+            cam.eye.x,
+            cam.eye.y,
+            cam.eye.z,
+            cam.target.x,
+            cam.target.y,
+            cam.target.z,
+            cam.up.x,
+            cam.up.y,
+            cam.up.z,
+            cam.fov_y_deg,
+            cam.near,
+            cam.far,
+            w as f32,
+            h as f32,
+        ]));
         let movers: Vec<_> = inputs
             .draws
             .iter()
@@ -712,7 +811,12 @@ impl Effect for VolumetricEffect {
                     d.cmd_set_scissor(rc.cmd, 0, &[area]);
                     d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
                 }
-                rc.push_descriptors(vk::PipelineBindPoint::GRAPHICS, layout, 0, &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)])?;
+                rc.push_descriptors(
+                    vk::PipelineBindPoint::GRAPHICS,
+                    layout,
+                    0,
+                    &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)],
+                )?;
                 unsafe {
                     d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb], &[0]);
                     d.cmd_bind_index_buffer(rc.cmd, ib, 0, vk::IndexType::UINT32);
@@ -722,7 +826,9 @@ impl Effect for VolumetricEffect {
                         d.cmd_push_constants(
                             rc.cmd,
                             layout,
-                            vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::GEOMETRY | vk::ShaderStageFlags::FRAGMENT,
+                            vk::ShaderStageFlags::VERTEX
+                                | vk::ShaderStageFlags::GEOMETRY
+                                | vk::ShaderStageFlags::FRAGMENT,
                             0,
                             &pc,
                         );
@@ -748,12 +854,19 @@ impl Effect for VolumetricEffect {
                     let obj = inputs.frame.instances.get(d.instance as usize).map(|i| i.object);
                     obj.and_then(|o| self.casts_shadow.get(o).copied()).unwrap_or(true)
                 })
-                .filter_map(|d| Some((d.instance, *self.adj_ranges.get(d.mesh_index(inputs))?.as_ref()?, d.mesh.vertex_offset)))
+                .filter_map(|d| {
+                    Some((d.instance, *self.adj_ranges.get(d.mesh_index(inputs))?.as_ref()?, d.mesh.vertex_offset))
+                })
                 .collect();
-            let all_covered = inputs.draws.iter().filter(|d| {
-                let obj = inputs.frame.instances.get(d.instance as usize).map(|i| i.object);
-                obj.and_then(|o| self.casts_shadow.get(o).copied()).unwrap_or(true)
-            }).count() == casters.len();
+            let all_covered = inputs
+                .draws
+                .iter()
+                .filter(|d| {
+                    let obj = inputs.frame.instances.get(d.instance as usize).map(|i| i.object);
+                    obj.and_then(|o| self.casts_shadow.get(o).copied()).unwrap_or(true)
+                })
+                .count()
+                == casters.len();
             if all_covered {
                 if let Some(adj) = self.adjacency.as_ref() {
                     let (pipeline, layout) = (vp.pipeline, vp.layout);
@@ -774,10 +887,18 @@ impl Effect for VolumetricEffect {
                             .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
                             .load_op(vk::AttachmentLoadOp::CLEAR)
                             .store_op(vk::AttachmentStoreOp::STORE)
-                            .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: [f32::INFINITY, f32::INFINITY, f32::INFINITY, 0.0] } });
+                            .clear_value(vk::ClearValue {
+                                color: vk::ClearColorValue {
+                                    float32: [f32::INFINITY, f32::INFINITY, f32::INFINITY, 0.0],
+                                },
+                            });
                         let atts = [att];
-                        let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
-                        let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&atts);
+                        let area = vk::Rect2D {
+                            offset: vk::Offset2D::default(),
+                            extent: vk::Extent2D { width: w, height: h },
+                        };
+                        let info =
+                            vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&atts);
                         let vb = rc.buffer(vertices)?.buffer;
                         let ib = rc.buffer(adj_h)?.buffer;
                         unsafe {
@@ -786,13 +907,20 @@ impl Effect for VolumetricEffect {
                             d.cmd_set_scissor(rc.cmd, 0, &[area]);
                             d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
                         }
-                        rc.push_descriptors(vk::PipelineBindPoint::GRAPHICS, layout, 0, &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)])?;
+                        rc.push_descriptors(
+                            vk::PipelineBindPoint::GRAPHICS,
+                            layout,
+                            0,
+                            &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)],
+                        )?;
                         unsafe {
                             d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb], &[0]);
                             d.cmd_bind_index_buffer(rc.cmd, ib, 0, vk::IndexType::UINT32);
                             let mut pc = bytes_of(&[lp[0], lp[1], lp[2], near]);
                             pc.extend(bytes_of(&[0u32, 0, 0, 0]));
-                            let stages = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::GEOMETRY | vk::ShaderStageFlags::FRAGMENT;
+                            let stages = vk::ShaderStageFlags::VERTEX
+                                | vk::ShaderStageFlags::GEOMETRY
+                                | vk::ShaderStageFlags::FRAGMENT;
                             d.cmd_push_constants(rc.cmd, layout, stages, 0, &pc);
                             for (inst, r, vo) in &casters {
                                 d.cmd_draw_indexed(rc.cmd, r.index_count, 1, r.first_index, *vo, *inst);
@@ -820,7 +948,11 @@ impl Effect for VolumetricEffect {
             let sm = p.read(smap, Access::ComputeShaderReadSampled);
             let mk = mask.map(|m| p.read(m, Access::ComputeShaderReadSampled));
             let iv = intervals.map(|m| p.read(m, Access::ComputeShaderReadSampled));
-            let access = if mode == MarchMode::Masked { Access::ComputeShaderReadWriteStorage } else { Access::ComputeShaderWriteStorage };
+            let access = if mode == MarchMode::Masked {
+                Access::ComputeShaderReadWriteStorage
+            } else {
+                Access::ComputeShaderWriteStorage
+            };
             let out = p.write(scatter, access);
             let (pipeline, layout, nearest) = (self.march.pipeline, self.march.layout, self.nearest.sampler);
             p.record(move |rc| {
