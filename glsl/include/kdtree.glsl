@@ -16,9 +16,11 @@
 #define KD_HDR_BOX 8u
 #define KD_LEAF 3u
 #define KD_PENDING 4u
-// Short stack (Horn et al. 2007): entries beyond it are dropped and the ray restarts from the
-// root past the last cell it finished.
-#define KD_SHORT_STACK 8
+// Short stack (Horn et al. 2007) of 6 entries held in registers (a shift register: push moves
+// every entry down and drops the oldest, pop moves them up; no dynamically indexed arrays, which
+// a SIMD CPU driver would spill to memory); when it runs dry after a drop the ray restarts from
+// the root past the last cell it finished.
+#define KD_SHORT_STACK 6
 // Guard against pathological inputs (NaN rays): give up after this many leaf visits.
 #define KD_MAX_LEAVES 65536u
 
@@ -105,9 +107,9 @@ KdHit kd_trace(vec3 o, vec3 d, float tmin, float tmax, bool any_hit) {
     if (t_enter > t_exit) return h;
     KdRayW rw = kd_ray_setup(d);
 
-    uint st_node[KD_SHORT_STACK];
-    float st_min[KD_SHORT_STACK], st_max[KD_SHORT_STACK];
-    int top = 0;       // ring position of the next push
+    // entry i: node s<i>n, interval s<i>t (tmin, tmax); s0 is the top
+    uint s0n = 0u, s1n = 0u, s2n = 0u, s3n = 0u, s4n = 0u, s5n = 0u;
+    vec2 s0t = vec2(0.0), s1t = vec2(0.0), s2t = vec2(0.0), s3t = vec2(0.0), s4t = vec2(0.0), s5t = vec2(0.0);
     int depth = 0;     // valid entries (<= KD_SHORT_STACK)
     bool dropped = false;
     float best = tmax;
@@ -132,8 +134,9 @@ KdHit kd_trace(vec3 o, vec3 d, float tmin, float tmax, bool any_hit) {
                 node = second;
             } else {
                 if (depth == KD_SHORT_STACK) dropped = true; else depth++;
-                st_node[top] = second; st_min[top] = ts; st_max[top] = cmax;
-                top = (top + 1) % KD_SHORT_STACK;
+                s5n = s4n; s5t = s4t; s4n = s3n; s4t = s3t; s3n = s2n; s3t = s2t;
+                s2n = s1n; s2t = s1t; s1n = s0n; s1t = s0t;
+                s0n = second; s0t = vec2(ts, cmax);
                 node = first;
                 cmax = ts;
             }
@@ -155,9 +158,10 @@ KdHit kd_trace(vec3 o, vec3 d, float tmin, float tmax, bool any_hit) {
         if (h.t >= 0.0 && best <= cmax) return h;
         if (leaves >= KD_MAX_LEAVES) return h;
         if (depth > 0) {
-            top = (top + KD_SHORT_STACK - 1) % KD_SHORT_STACK;
             depth--;
-            node = st_node[top]; cmin = st_min[top]; cmax = st_max[top];
+            node = s0n; cmin = s0t.x; cmax = s0t.y;
+            s0n = s1n; s0t = s1t; s1n = s2n; s1t = s2t; s2n = s3n; s2t = s3t;
+            s3n = s4n; s3t = s4t; s4n = s5n; s4t = s5t;
             if (h.t >= 0.0 && cmin > best) return h;
         } else if (dropped && cmax < t_exit) {
             // restart from the root past the finished cells
