@@ -302,5 +302,34 @@ fn bench_builtin_volumetric_scenes() {
         let rep = bench_volumetric(&ctx, &penumbra::shader_library(), &scene, &opts).expect("bench");
         println!("{}", rep.table());
     }
+    let opts = VolBenchOptions { width: 160, height: 120, frames: 9, hybrid: true, ..Default::default() };
+    let rep = bench_volumetric(&ctx, &penumbra::shader_library(), &builtin("vol_dragon.toml"), &opts).expect("bench");
+    println!("hybrid:\n{}", rep.table());
     assert_eq!(ctx.validation.error_count(), 0, "{:?}", ctx.validation.errors());
+}
+
+#[test]
+fn scene_key_selects_the_method_and_bad_values_are_errors() {
+    let base = "name = \"k\"\n[camera]\neye = [0, 1, 3]\ntarget = [0, 0, 0]\n[[light]]\nname = \"p\"\ntype = \"point\"\nposition = [0, 2, 0]\nintensity = 5\n[[object]]\nname = \"b\"\nmesh = { type = \"cube\", size = 0.5 }\n[medium]\nsigma_a = 0.1\nsigma_s = 0.1\n";
+    let dir = std::env::temp_dir().join(format!("penumbra_vol_key_{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let load = |extra: &str| {
+        let p = dir.join("k.toml");
+        std::fs::write(&p, format!("{base}{extra}")).unwrap();
+        Scene::load(&p)
+    };
+    assert_eq!(load("").unwrap().volumetric, None);
+    assert_eq!(load("volumetric = \"full\"\n").unwrap().volumetric.as_deref(), Some("full"));
+    let err = load("volumetric = \"fast\"\n").unwrap_err().to_string();
+    assert!(err.contains("volumetric") && err.contains("fast"), "{err}");
+    // "full" from the scene: every frame marches every pixel, no mask pass.
+    let scene = load("volumetric = \"full\"\n").unwrap();
+    let settings = RenderSettings { width: 32, height: 24, ..Default::default() };
+    let mut r = Renderer::new_headless(&scene, settings, false).expect("renderer");
+    for k in 0..2 {
+        r.render(&scene.at(k as f32 / 30.0, None), None, false).expect("render");
+        let passes: Vec<String> = r.last_graph.as_ref().unwrap().live_passes().map(|(_, p)| p.name.clone()).collect();
+        assert!(passes.iter().any(|p| p == "vol_march") && !passes.iter().any(|p| p == "vol_mask"), "{passes:?}");
+    }
+    r.finish().expect("finish");
 }
