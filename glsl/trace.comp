@@ -20,9 +20,10 @@ layout(push_constant) uniform Push { uint count; uint any_hit; } pc;
 #include "kdtree.glsl"
 
 void main() {
-    uint i = gl_GlobalInvocationID.x;
-    if (i >= pc.count) return;
-    vec4 a = rays[2u * i], b = rays[2u * i + 1u];
-    KdHit h = kd_trace(a.xyz, b.xyz, a.w, b.w, pc.any_hit != 0u);
-    hits[i] = vec4(h.t, h.b1, h.b2, uintBitsToFloat(h.tri));
+    uint stride = gl_NumWorkGroups.x * 64u;
+    for (uint i = gl_GlobalInvocationID.x; i < pc.count; i += stride) {
+        vec4 a = rays[2u * i], b = rays[2u * i + 1u];
+        KdHit h = kd_trace(a.xyz, b.xyz, a.w, b.w, pc.any_hit != 0u);
+        hits[i] = vec4(h.t, h.b1, h.b2, uintBitsToFloat(h.tri));
+    }
 }

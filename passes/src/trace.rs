@@ -5,7 +5,7 @@
 //! Hits: 16 bytes each, `(t, b1, b2, triangle index as u32 bits)`; `t < 0` is a miss. Any-hit
 //! mode stops at the first hit found (its `t` only says "occluded").
 //!
-//! Traversal: front-to-back kd-tree walk with a short stack of 6 entries held in registers (Horn et al. 2007):
+//! Traversal: front-to-back kd-tree walk with a short stack of 8 entries (Horn et al. 2007):
 //! entries pushed beyond it drop the farthest one, and when the stack runs dry after a drop the
 //! ray restarts from the root with `tmin` moved past the finished cells (kd-restart). No per-ray
 //! stack lives in memory. Triangles are tested with the watertight test of Woop, Benthin and
@@ -23,6 +23,8 @@ use std::sync::Arc;
 
 pub const RAY_BYTES: u64 = 32;
 pub const HIT_BYTES: u64 = 16;
+/// Rays each invocation traces in turn (amortises the per-invocation cost of software drivers).
+pub const RAYS_PER_INVOCATION: u32 = 8;
 
 /// Query kind.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -119,7 +121,7 @@ impl Tracer {
             unsafe {
                 let d = rc.device();
                 d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
-                d.cmd_dispatch(rc.cmd, groups(count, 64), 1, 1);
+                d.cmd_dispatch(rc.cmd, groups(count, 64 * RAYS_PER_INVOCATION).max(1), 1, 1);
             }
             Ok(())
         });
