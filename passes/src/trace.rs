@@ -5,7 +5,7 @@
 //! Hits: 16 bytes each, `(t, b1, b2, triangle index as u32 bits)`; `t < 0` is a miss. Any-hit
 //! mode stops at the first hit found (its `t` only says "occluded").
 //!
-//! Traversal: front-to-back kd-tree walk with a short stack of 8 entries (Horn et al. 2007):
+//! Traversal: front-to-back kd-tree walk with a short stack of 6 entries held in registers (Horn et al. 2007):
 //! entries pushed beyond it drop the farthest one, and when the stack runs dry after a drop the
 //! ray restarts from the root with `tmin` moved past the finished cells (kd-restart). No per-ray
 //! stack lives in memory. Triangles are tested with the watertight test of Woop, Benthin and
