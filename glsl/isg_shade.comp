@@ -30,6 +30,7 @@ layout(push_constant) uniform Push {
     int patch_side;
     float lod;
     uint flags;  // bit 0: no shadows (debug)
+    float min_fraction;
 } pc;
 
 vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
@@ -110,14 +111,34 @@ void main() {
     SG cosg = sg_clamped_cosine(n);
     // Offset the shading point along the normal (G-buffer precision).
     vec3 p = pos + n * 1e-3 * max(1.0, length(pos));
+    // Diffuse: lobes carrying less than min_fraction of the unshadowed total take the
+    // energy-weighted mean visibility of the others instead of their own traversal.
+    vec3 unshadowed = vec3(0.0);
+    uint nl = min(pc.lobe_count, 64u);
+    for (uint k = 0u; k < nl; ++k) {
+        SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+        unshadowed += lobes[2u * k + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
+    }
+    float total = dot(unshadowed, vec3(0.2126, 0.7152, 0.0722));
     vec3 diffuse = vec3(0.0);
-    for (uint k = 0u; k < pc.lobe_count; ++k) {
+    vec3 skipped = vec3(0.0);
+    float vis_sum = 0.0, vis_w = 0.0;
+    for (uint k = 0u; k < nl; ++k) {
         SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
         vec3 mu = lobes[2u * k + 1u].rgb;
-        float e = sg_cosine_integral(l, n);
-        if (e * max(mu.r, max(mu.g, mu.b)) <= 0.0) continue;
-        diffuse += mu * e * visible(p, n, sg_product(l, cosg));
+        vec3 e = mu * max(sg_cosine_integral(l, n), 0.0);
+        float y = dot(e, vec3(0.2126, 0.7152, 0.0722));
+        if (y <= 0.0) continue;
+        if (y < pc.min_fraction * total) {
+            skipped += e;
+            continue;
+        }
+        float vk = visible(p, n, sg_product(l, cosg));
+        diffuse += e * vk;
+        vis_sum += vk * y;
+        vis_w += y;
     }
+    diffuse += skipped * (vis_w > 0.0 ? vis_sum / vis_w : 1.0);
     vec3 color = albedo / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
     color += local_lights(pos, n, v, albedo, kind, m, roughness);

@@ -37,7 +37,7 @@ pub const IMPLEMENTED: &[&str] = &["env", "isg", "mc", "shadowmaps"];
 pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &Scene) -> Result<Option<Box<dyn Technique>>> {
     Ok(match name {
         "env" => Some(Box::new(crate::shade_env::ShadeEnvPass::new(ctx, shaders)?)),
-        "isg" => Some(Box::new(crate::isg::IsgTechnique::new(ctx, shaders, _scene, Default::default())?)),
+        "isg" => Some(Box::new(crate::isg::IsgTechnique::new(ctx, shaders, _scene, crate::isg::IsgSettings::from_env())?)),
         "mc" => Some(Box::new(crate::mc::McTechnique::new(ctx, shaders, _scene)?)),
         "shadowmaps" => Some(Box::new(crate::shadowmaps::ShadowMapsTechnique::new(ctx, shaders, _scene)?)),
         _ => None,

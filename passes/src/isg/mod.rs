@@ -47,11 +47,52 @@ pub struct IsgSettings {
     /// BVH descent threshold: an inner node whose projected half-angle is below `lod` times the
     /// patch size is rasterized as one sphere.
     pub lod: f32,
+    /// Diffuse lighting lobes below this fraction of a pixel's unshadowed diffuse light take the
+    /// energy-weighted mean visibility of the others (0 evaluates every lobe).
+    pub min_lobe_fraction: f32,
+    /// False: visibility 1 everywhere (separates the shading error from the visibility error).
+    pub shadows: bool,
 }
 
 impl Default for IsgSettings {
     fn default() -> Self {
-        IsgSettings { lobes: 16, spheres_per_object: 48, patch_side: 12, epsilon: 0.01, lod: 0.5 }
+        IsgSettings { lobes: 16, spheres_per_object: 48, patch_side: 12, epsilon: 0.01, lod: 1.0, min_lobe_fraction: 0.02, shadows: true }
+    }
+}
+
+impl IsgSettings {
+    /// Defaults overridden by `PENUMBRA_ISG="key=value,..."` (keys: `lobes`, `spheres`, `side`,
+    /// `epsilon`, `lod`, `min_fraction`, `shadows` 0/1); unknown keys and bad values are ignored with a message
+    /// on stderr.
+    pub fn from_env() -> Self {
+        let mut s = IsgSettings::default();
+        if let Ok(v) = std::env::var("PENUMBRA_ISG") {
+            s.apply(&v);
+        }
+        s
+    }
+
+    /// Applies `key=value,...` overrides (see [`IsgSettings::from_env`]).
+    pub fn apply(&mut self, spec: &str) {
+        for kv in spec.split(',').map(str::trim).filter(|x| !x.is_empty()) {
+            let Some((k, v)) = kv.split_once('=') else {
+                eprintln!("isg: ignoring '{kv}' (expected key=value)");
+                continue;
+            };
+            let ok = match k.trim() {
+                "lobes" => v.trim().parse().map(|x: usize| self.lobes = x.clamp(1, 64)).is_ok(),
+                "spheres" => v.trim().parse().map(|x: usize| self.spheres_per_object = x.min(4096)).is_ok(),
+                "side" => v.trim().parse().map(|x: u32| self.patch_side = x.clamp(1, 32)).is_ok(),
+                "epsilon" => v.trim().parse().map(|x: f64| self.epsilon = x.clamp(1e-6, 0.5)).is_ok(),
+                "lod" => v.trim().parse().map(|x: f32| self.lod = x.max(0.0)).is_ok(),
+                "shadows" => v.trim().parse().map(|x: u32| self.shadows = x != 0).is_ok(),
+                "min_fraction" => v.trim().parse().map(|x: f32| self.min_lobe_fraction = x.clamp(0.0, 1.0)).is_ok(),
+                _ => false,
+            };
+            if !ok {
+                eprintln!("isg: ignoring '{kv}'");
+            }
+        }
     }
 }
 
@@ -235,7 +276,7 @@ impl IsgTechnique {
                 T::STORAGE_BUFFER,
                 T::STORAGE_BUFFER,
             ],
-            24,
+            28,
         )?;
         let table = IsgTable::default_table().to_gpu(settings.epsilon);
         let (lobes, _) = lighting_lobes(scene, settings.lobes);
@@ -294,13 +335,14 @@ impl crate::technique::Technique for IsgTechnique {
         let table = p.read(table, Access::ComputeShaderReadStorage);
         let lobes = p.read(lobes, Access::ComputeShaderReadStorage);
         let bvh = p.read(bvh, Access::ComputeShaderReadStorage);
-        let mut push = Vec::with_capacity(24);
+        let mut push = Vec::with_capacity(28);
         push.extend_from_slice(&scene.light_count.to_le_bytes());
         push.extend_from_slice(&self.lobe_count.to_le_bytes());
         push.extend_from_slice(&node_count.to_le_bytes());
         push.extend_from_slice(&(self.settings.patch_side.clamp(1, 32) as i32).to_le_bytes());
         push.extend_from_slice(&self.settings.lod.to_le_bytes());
-        push.extend_from_slice(&0u32.to_le_bytes());
+        push.extend_from_slice(&(!self.settings.shadows as u32).to_le_bytes());
+        push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
         let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
