@@ -333,3 +333,41 @@ fn scene_key_selects_the_method_and_bad_values_are_errors() {
     }
     r.finish().expect("finish");
 }
+
+#[test]
+fn odd_lights_render_finite_and_validation_clean() {
+    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
+    let motion = "motion = { type = \"keyframes\", keys = [{ t = 0.0, position = [-0.4, 1.2, 0.0] }, { t = 1.0, position = [0.6, 1.2, 0.0] }] }";
+    let lights = [
+        // Sphere light (scatters as a point of equal power), point light at the eye, a near-
+        // hemispherical spot (shadow-map fov clamped), and no light at all (attenuation only).
+        "name = \"s\"\ntype = \"sphere\"\nposition = [0.0, 2.5, 0.0]\nradius = 0.2\nintensity = 30",
+        "name = \"p\"\ntype = \"point\"\nposition = [0.0, 1.3, 4.0]\nintensity = 30",
+        "name = \"w\"\ntype = \"spot\"\nposition = [0.0, 2.5, 0.0]\ndirection = [0, -1, 0]\nintensity = 30\ninner_deg = 80\nouter_deg = 89",
+        "name = \"off\"\ntype = \"point\"\nposition = [0.0, 2.5, 0.0]\nintensity = 0",
+    ];
+    for (i, light) in lights.iter().enumerate() {
+        let scene = occluder_scene(&format!("vol_light{i}"), MEDIUM, CAM, light, motion);
+        let settings = RenderSettings { width: 48, height: 36, ..Default::default() };
+        let mut r = Renderer::new_headless(&scene, settings, true).expect("renderer");
+        let mut frames = Vec::new();
+        let mut prev = None;
+        for k in 0..3 {
+            let t = k as f32 / 30.0;
+            frames.extend(r.render(&scene.at(t, prev), None, true).expect("render"));
+            prev = Some(t);
+        }
+        frames.extend(r.finish().expect("finish"));
+        let log = r.context().validation.clone();
+        drop(r);
+        assert_eq!(log.error_count(), 0, "light {i}: {:?}", log.errors());
+        assert_eq!(frames.len(), 3);
+        let total: f64 = frames[2].hdr.iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum();
+        assert!(total.is_finite(), "light {i}");
+        if i < 3 {
+            assert!(total > 0.0, "light {i}: no in-scattering");
+        } else {
+            assert_eq!(total, 0.0, "an unlit medium over black surfaces is black");
+        }
+    }
+}
