@@ -79,8 +79,22 @@ fn render_one(scene: &Scene, method: &str, w: u32, h: u32) -> (Renderer, penumbr
 
 #[test]
 fn full_method_matches_the_cpu_reference() {
+    full_vs_reference("vol_ref", SPOT);
+}
+
+#[test]
+fn full_method_matches_the_cpu_reference_for_a_point_light() {
+    // Six shadow-map faces; the light sits above the ball, the ball's shadow falls on the floor
+    // and its volumetric shadow crosses face boundaries.
+    full_vs_reference(
+        "vol_ref_point",
+        "name = \"p\"\ntype = \"point\"\nposition = [0.3, 2.2, 0.3]\ncolor = [1.0, 0.9, 0.8]\nintensity = 15",
+    );
+}
+
+fn full_vs_reference(name: &str, light: &str) {
     std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
-    let scene = occluder_scene("vol_ref", MEDIUM, CAM, SPOT, "");
+    let scene = occluder_scene(name, MEDIUM, CAM, light, "");
     let (w, h) = (96, 72);
     let (r, img) = render_one(&scene, "full", w, h);
     let log = r.context().validation.clone();
@@ -103,7 +117,7 @@ fn full_method_matches_the_cpu_reference() {
         p[0] + p[1] + p[2]
     };
     println!(
-        "full vs CPU reference: PSNR {:?} dB, relRMSE {:?}, total energy ratio {:.4}, reference noise {:?}",
+        "{name}: full vs CPU reference: PSNR {:?} dB, relRMSE {:?}, total energy ratio {:.4}, reference noise {:?}",
         c.psnr_db,
         c.rel_rmse,
         sg / sr,
