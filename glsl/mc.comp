@@ -22,10 +22,13 @@ layout(std430, binding = 6) readonly buffer EnvTexels { vec4 env_texels[]; };
 layout(std430, binding = 7) readonly buffer EnvCdf { float env_cdf[]; };
 layout(binding = 8, rgba32f) uniform image2D accum;
 layout(binding = 9, rgba32f) uniform writeonly image2D hdr;
+// local lights (penumbra_reference::lights): (position, kind 0 point / 1 spot / 2 sphere),
+// (spot axis, cos outer), (power: intensity or radiance, cos inner), (sphere radius, 0, 0, 0)
+layout(std430, binding = 10) readonly buffer Lights { vec4 lights[]; };
 layout(push_constant) uniform Push {
     mat4 inv_view_proj;
     uvec4 size_spp_seed;    // width, height, spp, frame seed
-    uvec4 env_info;         // env width, env height, reset, env can be sampled
+    uvec4 env_info;         // env width, env height, bit 0 reset | bit 1 env can be sampled, light count
     vec4 env_rot;           // cos, sin of the environment rotation
 } pc;
 
@@ -72,7 +75,7 @@ float row_solid_angle(uint j) {
 }
 vec3 env_radiance(vec3 d) { return env_texels[env_texel(d)].rgb; }
 float env_pdf(vec3 d) {
-    if (pc.env_info.w == 0u) return 0.0;
+    if ((pc.env_info.z & 2u) == 0u) return 0.0;
     uint k = env_texel(d);
     return env_texels[k].w / row_solid_angle(k / pc.env_info.x);
 }
@@ -86,7 +89,7 @@ uint cdf_search(uint base, uint n, float u) {
     return lo;
 }
 bool env_sample(vec4 u, out vec3 d, out vec3 le, out float pdf) {
-    if (pc.env_info.w == 0u) return false;
+    if ((pc.env_info.z & 2u) == 0u) return false;
     uint w = pc.env_info.x, h = pc.env_info.y;
     uint j = cdf_search(0u, h, u.x);
     uint ix = cdf_search(h + 1u + j * (w + 1u), w, u.y);
@@ -108,6 +111,75 @@ float power_heuristic(float a, float b) { float a2 = a * a, b2 = b * b; return a
 
 bool unoccluded(vec3 x, vec3 d) {
     return kd_trace(x, d, 0.0, 3.0e38, true).t < 0.0;
+}
+
+bool unoccluded_to(vec3 x, vec3 d, float tmax) {
+    return kd_trace(x, d, 0.0, tmax, true).t < 0.0;
+}
+
+float smoothstep_ref(float e0, float e1, float x) {
+    if (e1 <= e0) return x >= e0 ? 1.0 : 0.0;
+    float t = clamp((x - e0) / (e1 - e0), 0.0, 1.0);
+    return t * t * (3.0 - 2.0 * t);
+}
+
+// Orthonormal frame around n (Duff et al. 2017), as sampling.rs Frame::new(n, 0).
+mat3 onb(vec3 n) {
+    float s = n.z >= 0.0 ? 1.0 : -1.0;
+    float a = -1.0 / (s + n.z);
+    float b = n.x * n.y * a;
+    vec3 t = vec3(1.0 + s * n.x * n.x * a, s * b, -s * n.x);
+    return mat3(t, cross(n, t), n);
+}
+
+// Distance along wi from x to sphere light k, or -1.
+float sphere_hit(uint k, vec3 x, vec3 wi) {
+    vec3 oc = x - lights[4u * k].xyz;
+    float r = lights[4u * k + 3u].x;
+    float b = dot(oc, wi), c = dot(oc, oc) - r * r;
+    if (c <= 0.0) return -1.0;
+    float disc = b * b - c;
+    if (disc < 0.0) return -1.0;
+    float t = -b - sqrt(disc);
+    return t > 0.0 ? t : -1.0;
+}
+
+float sphere_one_minus(uint k, vec3 x) {
+    vec3 v = lights[4u * k].xyz - x;
+    float r = lights[4u * k + 3u].x;
+    float sin2 = r * r / dot(v, v);
+    return sin2 / (1.0 + sqrt(max(1.0 - sin2, 0.0)));
+}
+
+// Samples light k from p: direction, distance, radiance (or intensity / d^2), pdf (0: delta).
+bool light_sample(uint k, vec3 p, vec2 u, out vec3 wi, out float dist, out vec3 li, out float pdf) {
+    vec4 l0 = lights[4u * k], l1 = lights[4u * k + 1u], l2 = lights[4u * k + 2u];
+    uint kind = uint(l0.w);
+    vec3 v = l0.xyz - p;
+    float d2 = dot(v, v);
+    if (kind < 2u) {
+        if (d2 <= 0.0) return false;
+        float d = sqrt(d2);
+        wi = v / d;
+        dist = d;
+        float f = kind == 1u ? smoothstep_ref(l1.w, l2.w, dot(-wi, l1.xyz)) : 1.0;
+        li = l2.rgb * (f / d2);
+        pdf = 0.0;
+        return f > 0.0;
+    }
+    float r = lights[4u * k + 3u].x;
+    if (d2 <= r * r) return false;
+    float d = sqrt(d2);
+    float one_minus = sphere_one_minus(k, p);
+    float cos_t = 1.0 - u.x * one_minus;
+    float sin_t = sqrt(max(1.0 - cos_t * cos_t, 0.0));
+    float phi = M_TAU * u.y;
+    wi = normalize(onb(v / d) * vec3(sin_t * cos(phi), sin_t * sin(phi), cos_t));
+    float t = sphere_hit(k, p, wi);
+    dist = t > 0.0 ? t : d - r;
+    li = l2.rgb;
+    pdf = 1.0 / (M_TAU * one_minus);
+    return true;
 }
 
 vec3 radiance_sample(vec2 ndc) {
@@ -161,6 +233,22 @@ vec3 radiance_sample(vec2 ndc) {
             l += f * le * (w / pdf_l);
         }
     }
+    // local lights, one sample each
+    uint nlights = pc.env_info.w;
+    for (uint k = 0u; k < nlights; k++) {
+        vec2 u = vec2(rnd(), rnd());
+        vec3 lwi, lli;
+        float ldist, lpdf;
+        if (!light_sample(k, p, u, lwi, ldist, lli, lpdf)) continue;
+        vec3 f = vec3(0.0);
+        if (dot(lwi, ng) > 0.0) {
+            vec3 lw = transpose(to_world) * lwi;
+            if (lw.z > 0.0 && wo.z > 0.0) f = brdf_eval(b, wo, lw) * lw.z;
+        }
+        if (f == vec3(0.0) || !unoccluded_to(x, lwi, ldist * (1.0 - 1e-4))) continue;
+        if (lpdf == 0.0) l += f * lli;
+        else l += f * lli * (power_heuristic(lpdf, brdf_pdf(b, wo, transpose(to_world) * lwi)) / lpdf);
+    }
     // BRDF sample
     float ul = rnd();
     vec2 u2 = vec2(rnd(), rnd());
@@ -172,8 +260,17 @@ vec3 radiance_sample(vec2 ndc) {
             float pdf_s = brdf_pdf(b, wo, lw);
             vec3 f = (lw.z > 0.0 && wo.z > 0.0) ? brdf_eval(b, wo, lw) * lw.z : vec3(0.0);
             if (pdf_s > 0.0 && f != vec3(0.0) && unoccluded(x, wi2)) {
-                float w = pc.env_info.w != 0u ? power_heuristic(pdf_s, env_pdf(wi2)) : 1.0;
+                float w = (pc.env_info.z & 2u) != 0u ? power_heuristic(pdf_s, env_pdf(wi2)) : 1.0;
                 l += f * env_radiance(wi2) * (w / pdf_s);
+            }
+            if (pdf_s > 0.0 && f != vec3(0.0)) {
+                for (uint k = 0u; k < nlights; k++) {
+                    if (uint(lights[4u * k].w) != 2u) continue;
+                    float t = sphere_hit(k, p, wi2);
+                    if (t < 0.0 || !unoccluded_to(x, wi2, t * (1.0 - 1e-4))) continue;
+                    float pdf_l = 1.0 / (M_TAU * sphere_one_minus(k, p));
+                    l += f * lights[4u * k + 2u].rgb * (power_heuristic(pdf_s, pdf_l) / pdf_s);
+                }
             }
         }
     }
@@ -185,7 +282,7 @@ void main() {
     uint w = pc.size_spp_seed.x, h = pc.size_spp_seed.y;
     if (px.x >= w || px.y >= h) return;
     rng_state = pcg(pcg(px.y * w + px.x) ^ pcg(pc.size_spp_seed.w * 0x9E3779B9u + 17u));
-    vec4 acc = pc.env_info.z != 0u ? vec4(0.0) : imageLoad(accum, ivec2(px));
+    vec4 acc = (pc.env_info.z & 1u) != 0u ? vec4(0.0) : imageLoad(accum, ivec2(px));
     for (uint s = 0u; s < pc.size_spp_seed.z; s++) {
         vec2 j = vec2(rnd(), rnd());
         vec2 ndc = vec2(2.0 * (float(px.x) + j.x) / float(w) - 1.0, 2.0 * (float(px.y) + j.y) / float(h) - 1.0);

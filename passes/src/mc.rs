@@ -5,19 +5,20 @@
 //! (`penumbra_reference::render`): a primary ray through a uniformly jittered position in the
 //! pixel (from the near plane, closest hit through the kd-tree), and at the hit one environment
 //! sample (texel chosen with probability proportional to luminance x texel solid angle, as the
-//! reference's alias table, here by marginal/conditional CDFs) and one BRDF sample (the
-//! reference's diffuse/specular mixture), combined by the power heuristic, each with an any-hit
-//! shadow ray through the tree. Same BRDFs (`penumbra_reference::brdf`), two-sided surfaces
+//! reference's alias table, here by marginal/conditional CDFs), one sample per local light
+//! (point, spot, sphere: `penumbra_reference::lights`) and one BRDF sample (the reference's
+//! diffuse/specular mixture), combined by the power heuristic (sphere lights and the environment;
+//! delta lights unweighted), each with an any-hit shadow ray through the tree. Same BRDFs (`penumbra_reference::brdf`), two-sided surfaces
 //! (geometric normal towards the viewer, directions below it blocked), shading normals and
 //! tangent frames, shadow-ray offset `3e-5 (1 + max |p|)` along the geometric normal, and
 //! `casts_shadow = false` objects ignored by shadow rays. Primary rays that miss see the
 //! environment.
 //!
 //! Progressive: a persistent RGBA32F image sums the samples (alpha counts them) and the output is
-//! the mean; it restarts when the camera, an object, a deformation or a material changed, when
+//! the mean; it restarts when the camera, an object, a deformation, a light or a material changed, when
 //! the tree was rebuilt, or when the image is new (first frame, resize).
 //!
-//! Not yet (the reference has them): local lights, texture maps (albedo/roughness), the
+//! Not yet (the reference has them): texture maps (albedo/roughness), the
 //! participating medium, anisotropic Ashikhmin-Shirley exponents (`shininess_v`); the renderer
 //! reports these as limitations of the scene.
 
@@ -136,6 +137,42 @@ pub fn material_table(materials: &[Material]) -> Vec<[f32; 4]> {
     out
 }
 
+/// Local lights as `penumbra_reference::lights::LocalLight::new` keeps them (lights that cannot
+/// emit are dropped): 4 vec4 each, the layout of `lights` in `glsl/mc.comp`.
+pub fn light_table(lights: &[penumbra_scene::LightInstance]) -> Vec<[f32; 4]> {
+    use penumbra_scene::LightKind;
+    let mut out = Vec::new();
+    for l in lights {
+        let p = l.power;
+        if !p.is_finite() || p.max_element() <= 0.0 || !l.position.is_finite() {
+            continue;
+        }
+        let power = p.max(Vec3::ZERO);
+        let pos = l.position;
+        match l.kind {
+            LightKind::Point => {
+                out.extend([[pos.x, pos.y, pos.z, 0.0], [0.0; 4], [power.x, power.y, power.z, 0.0], [0.0; 4]]);
+            }
+            LightKind::Spot { inner_deg, outer_deg } => {
+                let axis = l.direction.normalize_or_zero();
+                if axis == Vec3::ZERO || !axis.is_finite() {
+                    continue;
+                }
+                let ci = inner_deg.clamp(0.0, 180.0).to_radians().cos();
+                let co = outer_deg.clamp(0.0, 180.0).to_radians().cos();
+                out.extend([[pos.x, pos.y, pos.z, 1.0], [axis.x, axis.y, axis.z, co], [power.x, power.y, power.z, ci], [0.0; 4]]);
+            }
+            LightKind::Sphere { radius } => {
+                if !(radius.is_finite() && radius > 0.0) {
+                    continue;
+                }
+                out.extend([[pos.x, pos.y, pos.z, 2.0], [0.0; 4], [power.x, power.y, power.z, 0.0], [radius, 0.0, 0.0, 0.0]]);
+            }
+        }
+    }
+    out
+}
+
 /// World triangles with shading data (4 vec4 each: n0 + material bits, n1, n2, tangent) and
 /// shadow flags, in the order of [`crate::kdtree::world_triangles`] (degenerate ones dropped).
 pub fn world_triangles_shading(scene: &Scene, frame: &Frame) -> Result<(Vec<[Vec3; 3]>, Vec<[f32; 4]>, Vec<bool>)> {
@@ -244,6 +281,7 @@ impl McTechnique {
                 T::STORAGE_BUFFER,
                 T::STORAGE_IMAGE,
                 T::STORAGE_IMAGE,
+                T::STORAGE_BUFFER,
             ],
             112,
         )?;
@@ -306,12 +344,19 @@ impl McTechnique {
         let env_texels = Self::persistent_upload(engine, graph, "mc.env_texels", bytes_of(&self.env.texels), false);
         let env_cdf = Self::persistent_upload(engine, graph, "mc.env_cdf", bytes_of(&self.env.cdf), false);
         let materials = graph.create_buffer_init("mc.materials", bytes_of(&material_table(&frame.materials)));
+        let light_data = light_table(&frame.lights);
+        let light_count = (light_data.len() / 4) as u32;
+        let lights = graph.create_buffer_init(
+            "mc.lights",
+            if light_data.is_empty() { vec![0u8; 64] } else { bytes_of(&light_data) },
+        );
         let accum = engine.persistent_image(graph, "mc.accum", ImageDesc::new_2d(HDR_FORMAT, width, height));
         let reset = graph.persistent_is_new(accum)
             || rebuilt
             || geometry_changed
             || frame.camera_moved
             || !frame.materials_changed.is_empty()
+            || frame.lights.iter().any(|l| l.moved)
             || self.accumulated == 0;
         if reset {
             self.accumulated = 0;
@@ -323,7 +368,7 @@ impl McTechnique {
             push.extend(bytes_of(&c));
         }
         push.extend(bytes_of(&[width, height, self.spp, self.frame_index]));
-        push.extend(bytes_of(&[self.env.width, self.env.height, reset as u32, self.env.can_sample as u32]));
+        push.extend(bytes_of(&[self.env.width, self.env.height, reset as u32 | (self.env.can_sample as u32) << 1, light_count]));
         push.extend(bytes_of(&[self.env.cos_rot, self.env.sin_rot, 0.0, 0.0]));
         self.frame_index = self.frame_index.wrapping_add(1);
         self.accumulated += self.spp;
@@ -339,6 +384,7 @@ impl McTechnique {
         let ec = p.read(env_cdf, Access::ComputeShaderReadStorage);
         let accum = p.write(accum, Access::ComputeShaderReadWriteStorage);
         let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
+        let lt = p.read(lights, Access::ComputeShaderReadStorage);
         let (pipe, layout) = (self.pipeline.pipeline, self.pipeline.layout);
         p.record(move |rc| {
             unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
@@ -357,6 +403,7 @@ impl McTechnique {
                     Bind::StorageBuffer(ec),
                     Bind::StorageImage(accum),
                     Bind::StorageImage(hdr),
+                    Bind::StorageBuffer(lt),
                 ],
             )?;
             unsafe {
