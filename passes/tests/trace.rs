@@ -241,3 +241,36 @@ fn tree_rebuilds_only_when_geometry_changes() {
     }
     assert_eq!(ctx.validation.error_count(), 0, "validation errors: {:?}", ctx.validation.errors());
 }
+
+/// Degenerate inputs: no triangles (every ray misses), and rays with a zero, NaN or infinite
+/// direction, NaN origin or an empty interval (misses, no hang), next to valid ones.
+#[test]
+fn degenerate_inputs_are_misses() {
+    let ctx = Context::new(&ContextDesc::default()).expect("context");
+    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "trace.comp"]);
+    let mut engine = Engine::new(ctx.clone(), 1).unwrap();
+    let mut builder = KdTreeBuilder::new(&ctx, &lib).unwrap();
+    let tracer = Tracer::new(&ctx, &lib).unwrap();
+    let o = Vec3::new(0.0, 0.0, -5.0);
+    let valid = Ray::new(o, Vec3::Z, 0.0, f32::MAX);
+    let bad = vec![
+        valid,
+        Ray::new(o, Vec3::ZERO, 0.0, f32::MAX),
+        Ray::new(o, Vec3::new(f32::NAN, 0.0, 1.0), 0.0, f32::MAX),
+        Ray::new(Vec3::new(f32::NAN, 0.0, 0.0), Vec3::Z, 0.0, f32::MAX),
+        Ray::new(o, Vec3::new(f32::INFINITY, 0.0, 1.0), 0.0, f32::MAX),
+        Ray::new(o, Vec3::Z, 10.0, 1.0),
+        Ray::new(o, Vec3::Z, 0.0, 4.0),
+    ];
+    // empty scene
+    let run = run_gpu(&mut engine, &mut builder, &tracer, &[], &[(bad.clone(), bad.clone())]).unwrap();
+    assert_eq!(run.stats.triangles, 0);
+    assert!(run.hits[0].0.iter().chain(&run.hits[0].1).all(|h| h.is_none()), "{:?}", run.hits);
+    // one triangle across the z = 0 plane
+    let tri = [[Vec3::new(-1.0, -1.0, 0.0), Vec3::new(1.0, -1.0, 0.0), Vec3::new(0.0, 1.0, 0.0)]];
+    let run = run_gpu(&mut engine, &mut builder, &tracer, &tri, &[(bad.clone(), bad.clone())]).unwrap();
+    for (mode, hits) in [("any", &run.hits[0].0), ("closest", &run.hits[0].1)] {
+        assert!(hits[0].is_some_and(|h| (h.t - 5.0).abs() < 1e-5), "{mode}: valid ray {:?}", hits[0]);
+        assert!(hits[1..].iter().all(|h| h.is_none()), "{mode}: {hits:?}");
+    }
+}
