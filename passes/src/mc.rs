@@ -173,9 +173,12 @@ pub fn light_table(lights: &[penumbra_scene::LightInstance]) -> Vec<[f32; 4]> {
     out
 }
 
+/// Triangles, their shading data and their "casts no shadow" flags.
+pub type ShadingTriangles = (Vec<[Vec3; 3]>, Vec<[f32; 4]>, Vec<bool>);
+
 /// World triangles with shading data (4 vec4 each: n0 + material bits, n1, n2, tangent) and
 /// shadow flags, in the order of [`crate::kdtree::world_triangles`] (degenerate ones dropped).
-pub fn world_triangles_shading(scene: &Scene, frame: &Frame) -> Result<(Vec<[Vec3; 3]>, Vec<[f32; 4]>, Vec<bool>)> {
+pub fn world_triangles_shading(scene: &Scene, frame: &Frame) -> Result<ShadingTriangles> {
     let mut tris = Vec::new();
     let mut data = Vec::new();
     let mut no_shadow = Vec::new();

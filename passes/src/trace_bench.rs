@@ -160,14 +160,17 @@ pub fn surface_rays(bvh: &CpuBvh, tris: &[[Vec3; 3]], primary: &[Ray], eps: f32,
     out
 }
 
-/// Runs the tree build and the given ray sets on the GPU in one graph; returns the stats and,
-/// per set, the hits of (any-hit, closest-hit).
+/// Hits of one ray set: (any-hit, closest-hit).
+pub type SetHits = (Vec<Option<Hit>>, Vec<Option<Hit>>);
+
+/// Result of [`run_gpu`]: build statistics, per ray set its hits, per pass its GPU time.
 pub struct GpuTraceRun {
     pub stats: KdStats,
-    pub hits: Vec<(Vec<Option<Hit>>, Vec<Option<Hit>>)>,
+    pub hits: Vec<SetHits>,
     pub gpu_ms: Vec<(String, f64)>,
 }
 
+/// Builds the tree of `tris` and traces every (any-hit rays, closest-hit rays) set, in one graph.
 pub fn run_gpu(
     engine: &mut Engine,
     builder: &mut KdTreeBuilder,
