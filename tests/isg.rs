@@ -113,3 +113,22 @@ fn extremes_sun_and_zero_spheres() {
     println!("pixels darkened by shadows: {darker} of {}", a.hdr.len());
     assert!(darker > 20, "no visible shadows ({darker} pixels)");
 }
+
+#[test]
+fn gpu_lbvh_matches_cpu_bvh() {
+    // The GPU LBVH (default) and the CPU median-split BVH differ in tree shape, hence in which
+    // inner nodes the LOD rasterizes; leaves are the same spheres, so images must nearly agree.
+    // (Other tests in this process may see the variable while it is set; gpu_bvh=0 is valid
+    // for them too.)
+    let s = scene("falling.toml");
+    let (_r, gpu) = render(&s, "isg", 64, 48, &[1.0], true);
+    std::env::set_var("PENUMBRA_ISG", "gpu_bvh=0");
+    let (_r2, cpu) = render(&s, "isg", 64, 48, &[1.0], false);
+    std::env::remove_var("PENUMBRA_ISG");
+    assert!(gpu[0].gpu_ms.iter().any(|(p, _)| p == "isg_bvh"), "no isg_bvh pass: {:?}", gpu[0].gpu_ms);
+    assert!(!cpu[0].gpu_ms.iter().any(|(p, _)| p == "isg_bvh"));
+    let c = compare(&image(&cpu[0]), "cpu bvh", &image(&gpu[0]), "gpu lbvh").unwrap();
+    println!("GPU LBVH vs CPU BVH: PSNR {:?} relRMSE {:.4}", c.psnr_db, c.rel_rmse);
+    assert!(c.psnr_db.unwrap_or(f64::INFINITY) > 40.0 && c.rel_rmse < 0.03, "{}", c.summary());
+    assert_eq!(_r.context().validation.error_count(), 0, "validation: {:#?}", _r.context().validation.errors());
+}

@@ -6,10 +6,12 @@
 //!   [`penumbra_math::sphereset::approximate_spheres`], or loaded from
 //!   `<scene dir>/<scene name>.<object name>.spheres` when that file exists) is moved to world
 //!   space: deforming objects through the spheres' vertex anchors on the deformed mesh, then the
-//!   instance transform (radius times the largest axis scale). A binary BVH over the spheres is
+//!   instance transform (radius times the largest axis scale). A CPU binary BVH over the spheres is
 //!   built top-down by median splits on the longest axis of the centres (O(N log N); a few
 //!   hundred spheres take microseconds), inner nodes bound both children's spheres exactly. This
-//!   is the "simpler documented scheme": no GPU LBVH yet.
+//!   is the CPU fallback; by default the BVH is built on the GPU (`isg_bvh`,
+//!   `glsl/isg_bvh.comp`): Morton codes, bitonic sort and Karras 2012 LBVH in one workgroup,
+//!   bounding spheres bottom-up (up to 1024 spheres).
 //! * GPU (`isg_shade`, `glsl/isg_shade.comp` + `glsl/include/isg.glsl`): per pixel, K lighting
 //!   SGs (fitted once to the environment, `penumbra_math::envmap::fit_sg_lighting`); the BVH is
 //!   traversed per lobe with cone-vs-sphere culling, leaf (or small inner) spheres mark the
@@ -52,17 +54,23 @@ pub struct IsgSettings {
     pub min_lobe_fraction: f32,
     /// False: visibility 1 everywhere (separates the shading error from the visibility error).
     pub shadows: bool,
+    /// Build the BVH on the GPU (`isg_bvh` pass, LBVH over Morton codes, up to
+    /// [`GPU_BVH_MAX`] spheres); false or more spheres: the CPU median-split BVH.
+    pub gpu_bvh: bool,
 }
+
+/// Most spheres the one-workgroup GPU LBVH takes.
+pub const GPU_BVH_MAX: usize = 1024;
 
 impl Default for IsgSettings {
     fn default() -> Self {
-        IsgSettings { lobes: 16, spheres_per_object: 48, patch_side: 12, epsilon: 0.01, lod: 1.0, min_lobe_fraction: 0.02, shadows: true }
+        IsgSettings { lobes: 16, spheres_per_object: 48, patch_side: 12, epsilon: 0.01, lod: 1.0, min_lobe_fraction: 0.02, shadows: true, gpu_bvh: true }
     }
 }
 
 impl IsgSettings {
     /// Defaults overridden by `PENUMBRA_ISG="key=value,..."` (keys: `lobes`, `spheres`, `side`,
-    /// `epsilon`, `lod`, `min_fraction`, `shadows` 0/1); unknown keys and bad values are ignored with a message
+    /// `epsilon`, `lod`, `min_fraction`, `shadows` 0/1, `gpu_bvh` 0/1); unknown keys and bad values are ignored with a message
     /// on stderr.
     pub fn from_env() -> Self {
         let mut s = IsgSettings::default();
@@ -85,6 +93,7 @@ impl IsgSettings {
                 "side" => v.trim().parse().map(|x: u32| self.patch_side = x.clamp(1, 32)).is_ok(),
                 "epsilon" => v.trim().parse().map(|x: f64| self.epsilon = x.clamp(1e-6, 0.5)).is_ok(),
                 "lod" => v.trim().parse().map(|x: f32| self.lod = x.max(0.0)).is_ok(),
+                "gpu_bvh" => v.trim().parse().map(|x: u32| self.gpu_bvh = x != 0).is_ok(),
                 "shadows" => v.trim().parse().map(|x: u32| self.shadows = x != 0).is_ok(),
                 "min_fraction" => v.trim().parse().map(|x: f32| self.min_lobe_fraction = x.clamp(0.0, 1.0)).is_ok(),
                 _ => false,
@@ -241,6 +250,7 @@ pub fn lighting_lobes(scene: &Scene, k: usize) -> (Vec<[f32; 4]>, Option<f64>) {
 /// The `"isg"` technique.
 pub struct IsgTechnique {
     pipeline: Pipeline,
+    bvh_pipeline: Pipeline,
     nearest: Sampler,
     linear: Sampler,
     repeat: Sampler,
@@ -278,12 +288,14 @@ impl IsgTechnique {
             ],
             28,
         )?;
+        let bvh_pipeline = compute_pipeline(ctx, shaders, "isg_bvh.comp", &[T::STORAGE_BUFFER, T::STORAGE_BUFFER], 36)?;
         let table = IsgTable::default_table().to_gpu(settings.epsilon);
         let (lobes, _) = lighting_lobes(scene, settings.lobes);
         let lobe_count = (lobes.len() / 2) as u32;
         let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
         Ok(IsgTechnique {
             pipeline,
+            bvh_pipeline,
             nearest: Sampler::nearest(ctx)?,
             linear: Sampler::latlong(ctx)?,
             repeat: Sampler::repeat(ctx)?,
@@ -304,6 +316,41 @@ impl IsgTechnique {
     }
 }
 
+impl IsgTechnique {
+    /// The `isg_bvh` pass: LBVH of `spheres` (2..=GPU_BVH_MAX) on the GPU; returns the node
+    /// buffer and its node count.
+    fn add_gpu_bvh(&self, graph: &mut Graph, spheres: &[WorldSphere]) -> (penumbra_engine::BufferHandle, i32) {
+        let n = spheres.len();
+        let data: Vec<[f32; 4]> = spheres.iter().map(|s| [s.center.x, s.center.y, s.center.z, s.radius]).collect();
+        let (lo, hi) = spheres
+            .iter()
+            .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), s| (lo.min(s.center), hi.max(s.center)));
+        let inv = (hi - lo).max(Vec3::splat(1e-6)).recip();
+        let input = graph.create_buffer_init("isg_spheres", bytes_of(&data));
+        let nodes = graph.create_buffer("isg_bvh", ((2 * n - 1) * std::mem::size_of::<GpuNode>()) as u64);
+        let mut p = graph.pass("isg_bvh", PassKind::Compute);
+        let input = p.read(input, Access::ComputeShaderReadStorage);
+        let nodes = p.write(nodes, Access::ComputeShaderWriteStorage); // reads only its own writes
+        let mut push = Vec::with_capacity(36);
+        for v in [lo.x, lo.y, lo.z, 0.0, inv.x, inv.y, inv.z, 0.0] {
+            push.extend_from_slice(&f32::to_le_bytes(v));
+        }
+        push.extend_from_slice(&(n as i32).to_le_bytes());
+        let (pipeline, layout) = (self.bvh_pipeline.pipeline, self.bvh_pipeline.layout);
+        p.record(move |rc| {
+            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
+            rc.push_descriptors(vk::PipelineBindPoint::COMPUTE, layout, 0, &[Bind::StorageBuffer(input), Bind::StorageBuffer(nodes)])?;
+            unsafe {
+                let d = rc.device();
+                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
+                d.cmd_dispatch(rc.cmd, 1, 1, 1);
+            }
+            Ok(())
+        });
+        (nodes, (2 * n - 1) as i32)
+    }
+}
+
 impl crate::technique::Technique for IsgTechnique {
     fn name(&self) -> &'static str {
         "isg"
@@ -311,16 +358,20 @@ impl crate::technique::Technique for IsgTechnique {
 
     fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
         let spheres = frame_spheres(&self.scene, &self.sets, inputs.frame);
-        let nodes = build_bvh(&spheres);
         self.last_sphere_count = spheres.len();
-        self.last_node_count = nodes.len();
-        let node_count = nodes.len() as i32;
-        let nodes = if nodes.is_empty() { vec![GpuNode { sphere: [0.0; 4], info: [-1; 4] }] } else { nodes };
         let (scene, gb) = (inputs.scene, inputs.gbuffer);
         let (w, h) = (gb.width, gb.height);
         let table = graph.create_buffer_init("isg_table", self.table.as_ref().clone());
         let lobes = graph.create_buffer_init("isg_lobes", self.lobes.as_ref().clone());
-        let bvh = graph.create_buffer_init("isg_bvh", bytes_of(&nodes));
+        let (bvh, node_count) = if self.settings.gpu_bvh && spheres.len() >= 2 && spheres.len() <= GPU_BVH_MAX {
+            self.add_gpu_bvh(graph, &spheres)
+        } else {
+            let nodes = build_bvh(&spheres);
+            let count = nodes.len() as i32;
+            let nodes = if nodes.is_empty() { vec![GpuNode { sphere: [0.0; 4], info: [-1; 4] }] } else { nodes };
+            (graph.create_buffer_init("isg_bvh", bytes_of(&nodes)), count)
+        };
+        self.last_node_count = node_count as usize;
         let hdr = graph.create_image("hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
         let mut p = graph.pass("isg_shade", PassKind::Compute);
         let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
