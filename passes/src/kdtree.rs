@@ -75,7 +75,14 @@ pub struct KdTreeParams {
 
 impl Default for KdTreeParams {
     fn default() -> Self {
-        KdTreeParams { max_depth: None, leaf_size: 2, large_threshold: 256, small_max: 64, nodes_per_triangle: 8, refs_per_triangle: 64 }
+        KdTreeParams {
+            max_depth: None,
+            leaf_size: 2,
+            large_threshold: 256,
+            small_max: 64,
+            nodes_per_triangle: 8,
+            refs_per_triangle: 64,
+        }
     }
 }
 
@@ -140,7 +147,8 @@ pub fn world_triangles(scene: &Scene, frame: &Frame) -> Result<Vec<[Vec3; 3]>> {
         }
         let wp: Vec<Vec3> = mesh.positions.iter().map(|p| inst.world.transform_point3(*p)).collect();
         for t in mesh.indices.chunks_exact(3) {
-            let (Some(&a), Some(&b), Some(&c)) = (wp.get(t[0] as usize), wp.get(t[1] as usize), wp.get(t[2] as usize)) else {
+            let (Some(&a), Some(&b), Some(&c)) = (wp.get(t[0] as usize), wp.get(t[1] as usize), wp.get(t[2] as usize))
+            else {
                 bail!("mesh '{}' of object '{name}' has an index out of range ({} vertices)", mesh.name, wp.len());
             };
             if !(a.is_finite() && b.is_finite() && c.is_finite()) {
@@ -200,13 +208,28 @@ impl KdTreeBuilder {
         let init = compute_pipeline(ctx, shaders, "kdtree_init.comp", &[T::STORAGE_BUFFER; 4], 32)?;
         let build = compute_pipeline(ctx, shaders, "kdtree_build.comp", &[T::STORAGE_BUFFER; 5], 32)?;
         let small = compute_pipeline(ctx, shaders, "kdtree_small.comp", &[T::STORAGE_BUFFER; 5], 32)?;
-        Ok(KdTreeBuilder { init, build, small, params: KdTreeParams::default(), built: None, last_levels: 0, last_bytes: 0, extent: 1.0 })
+        Ok(KdTreeBuilder {
+            init,
+            build,
+            small,
+            params: KdTreeParams::default(),
+            built: None,
+            last_levels: 0,
+            last_bytes: 0,
+            extent: 1.0,
+        })
     }
 
     /// The tree of `frame`'s triangles: declared from the persistent buffers, rebuilt in this
     /// graph when nothing was built yet, the triangle count changed, or an instance moved or
     /// deformed.
-    pub fn add(&mut self, engine: &mut Engine, graph: &mut Graph, scene: &Scene, frame: &Frame) -> Result<KdTreeHandles> {
+    pub fn add(
+        &mut self,
+        engine: &mut Engine,
+        graph: &mut Graph,
+        scene: &Scene,
+        frame: &Frame,
+    ) -> Result<KdTreeHandles> {
         let changed = frame.any_moved() || frame.any_deformed();
         if !changed && self.built.is_some() {
             // Static geometry: declare the kept buffers (rebuilt if they were lost).
@@ -250,7 +273,13 @@ impl KdTreeBuilder {
 
     /// The tree of `tris`; built in this graph when `rebuild` or when the persistent buffers are
     /// new (first use, size change).
-    pub fn add_triangles(&mut self, engine: &mut Engine, graph: &mut Graph, tris: &[[Vec3; 3]], rebuild: bool) -> Result<KdTreeHandles> {
+    pub fn add_triangles(
+        &mut self,
+        engine: &mut Engine,
+        graph: &mut Graph,
+        tris: &[[Vec3; 3]],
+        rebuild: bool,
+    ) -> Result<KdTreeHandles> {
         self.add_triangles_flagged(engine, graph, tris, None, rebuild)
     }
 
@@ -339,7 +368,14 @@ impl KdTreeBuilder {
         let dst = p.write(h.tris, Access::TransferDst);
         p.record(move |rc| {
             let (s, d) = (rc.buffer(src)?, rc.buffer(dst)?);
-            unsafe { rc.device().cmd_copy_buffer(rc.cmd, s.buffer, d.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }]) };
+            unsafe {
+                rc.device().cmd_copy_buffer(
+                    rc.cmd,
+                    s.buffer,
+                    d.buffer,
+                    &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }],
+                )
+            };
             Ok(())
         });
         h.tris = dst;
@@ -364,7 +400,12 @@ impl KdTreeBuilder {
                 vk::PipelineBindPoint::COMPUTE,
                 layout,
                 0,
-                &[Bind::StorageBuffer(nodes), Bind::StorageBuffer(bx), Bind::StorageBuffer(refs), Bind::StorageBuffer(header)],
+                &[
+                    Bind::StorageBuffer(nodes),
+                    Bind::StorageBuffer(bx),
+                    Bind::StorageBuffer(refs),
+                    Bind::StorageBuffer(header),
+                ],
             )?;
             unsafe {
                 let d = rc.device();

@@ -74,9 +74,11 @@ impl EnvTables {
             })
             .collect();
         let pi = std::f64::consts::PI;
-        let row_sa: Vec<f64> =
-            (0..h).map(|j| ((j as f64 * pi / h as f64).cos() - ((j + 1) as f64 * pi / h as f64).cos()) * 2.0 * pi / w as f64).collect();
-        let weights: Vec<f64> = rad.iter().enumerate().map(|(i, t)| luminance(t.max(Vec3::ZERO)) * row_sa[i / w]).collect();
+        let row_sa: Vec<f64> = (0..h)
+            .map(|j| ((j as f64 * pi / h as f64).cos() - ((j + 1) as f64 * pi / h as f64).cos()) * 2.0 * pi / w as f64)
+            .collect();
+        let weights: Vec<f64> =
+            rad.iter().enumerate().map(|(i, t)| luminance(t.max(Vec3::ZERO)) * row_sa[i / w]).collect();
         let total: f64 = weights.iter().sum();
         let can_sample = total.is_finite() && total > 0.0;
         let mut cdf = Vec::with_capacity(h + 1 + h * (w + 1));
@@ -92,7 +94,13 @@ impl EnvTables {
             cdf.push(0.0);
             for i in 0..w {
                 a += weights[j * w + i];
-                cdf.push(if i + 1 == w { 1.0 } else if row_tot[j] > 0.0 { (a / row_tot[j]) as f32 } else { (i + 1) as f32 / w as f32 });
+                cdf.push(if i + 1 == w {
+                    1.0
+                } else if row_tot[j] > 0.0 {
+                    (a / row_tot[j]) as f32
+                } else {
+                    (i + 1) as f32 / w as f32
+                });
             }
         }
         let texels = rad
@@ -160,13 +168,23 @@ pub fn light_table(lights: &[penumbra_scene::LightInstance]) -> Vec<[f32; 4]> {
                 }
                 let ci = inner_deg.clamp(0.0, 180.0).to_radians().cos();
                 let co = outer_deg.clamp(0.0, 180.0).to_radians().cos();
-                out.extend([[pos.x, pos.y, pos.z, 1.0], [axis.x, axis.y, axis.z, co], [power.x, power.y, power.z, ci], [0.0; 4]]);
+                out.extend([
+                    [pos.x, pos.y, pos.z, 1.0],
+                    [axis.x, axis.y, axis.z, co],
+                    [power.x, power.y, power.z, ci],
+                    [0.0; 4],
+                ]);
             }
             LightKind::Sphere { radius } => {
                 if !(radius.is_finite() && radius > 0.0) {
                     continue;
                 }
-                out.extend([[pos.x, pos.y, pos.z, 2.0], [0.0; 4], [power.x, power.y, power.z, 0.0], [radius, 0.0, 0.0, 0.0]]);
+                out.extend([
+                    [pos.x, pos.y, pos.z, 2.0],
+                    [0.0; 4],
+                    [power.x, power.y, power.z, 0.0],
+                    [radius, 0.0, 0.0, 0.0],
+                ]);
             }
         }
     }
@@ -301,7 +319,13 @@ impl McTechnique {
     }
 
     /// Copies host data into a persistent buffer when it is new; returns its latest handle.
-    pub(crate) fn persistent_upload(engine: &mut Engine, graph: &mut Graph, name: &str, data: Vec<u8>, force: bool) -> BufferHandle {
+    pub(crate) fn persistent_upload(
+        engine: &mut Engine,
+        graph: &mut Graph,
+        name: &str,
+        data: Vec<u8>,
+        force: bool,
+    ) -> BufferHandle {
         let size = data.len().max(16) as u64;
         let h = engine.persistent_buffer(graph, name, size);
         if !(force || graph.persistent_is_new(h)) {
@@ -313,16 +337,31 @@ impl McTechnique {
         let d = p.write(h, Access::TransferDst);
         p.record(move |rc| {
             let (sb, db) = (rc.buffer(s)?, rc.buffer(d)?);
-            unsafe { rc.device().cmd_copy_buffer(rc.cmd, sb.buffer, db.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: sb.size.min(db.size) }]) };
+            unsafe {
+                rc.device().cmd_copy_buffer(
+                    rc.cmd,
+                    sb.buffer,
+                    db.buffer,
+                    &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: sb.size.min(db.size) }],
+                )
+            };
             Ok(())
         });
         d
     }
 
     /// Declares the tree (rebuilt when geometry changed) and the `mc` pass; returns the HDR image.
-    pub fn add_frame(&mut self, engine: &mut Engine, graph: &mut Graph, frame: &Frame, width: u32, height: u32) -> Result<ImageHandle> {
+    pub fn add_frame(
+        &mut self,
+        engine: &mut Engine,
+        graph: &mut Graph,
+        frame: &Frame,
+        width: u32,
+        height: u32,
+    ) -> Result<ImageHandle> {
         let geometry_changed = frame.any_moved() || frame.any_deformed();
-        let kept = if geometry_changed || self.tri_count.is_none() { None } else { self.builder.add_kept(engine, graph) };
+        let kept =
+            if geometry_changed || self.tri_count.is_none() { None } else { self.builder.add_kept(engine, graph) };
         // Triangle shading data lives beside the tree (same triangle order).
         let (tree, tridata, rebuilt): (KdTreeHandles, BufferHandle, bool) = match kept {
             Some(t) => {
@@ -349,10 +388,8 @@ impl McTechnique {
         let materials = graph.create_buffer_init("mc.materials", bytes_of(&material_table(&frame.materials)));
         let light_data = light_table(&frame.lights);
         let light_count = (light_data.len() / 4) as u32;
-        let lights = graph.create_buffer_init(
-            "mc.lights",
-            if light_data.is_empty() { vec![0u8; 64] } else { bytes_of(&light_data) },
-        );
+        let lights = graph
+            .create_buffer_init("mc.lights", if light_data.is_empty() { vec![0u8; 64] } else { bytes_of(&light_data) });
         let accum = engine.persistent_image(graph, "mc.accum", ImageDesc::new_2d(HDR_FORMAT, width, height));
         let reset = graph.persistent_is_new(accum)
             || rebuilt
@@ -371,7 +408,12 @@ impl McTechnique {
             push.extend(bytes_of(&c));
         }
         push.extend(bytes_of(&[width, height, self.spp, self.frame_index]));
-        push.extend(bytes_of(&[self.env.width, self.env.height, reset as u32 | (self.env.can_sample as u32) << 1, light_count]));
+        push.extend(bytes_of(&[
+            self.env.width,
+            self.env.height,
+            reset as u32 | (self.env.can_sample as u32) << 1,
+            light_count,
+        ]));
         push.extend(bytes_of(&[self.env.cos_rot, self.env.sin_rot, 0.0, 0.0]));
         self.frame_index = self.frame_index.wrapping_add(1);
         self.accumulated += self.spp;
@@ -426,7 +468,14 @@ impl McTechnique {
         let d = p.write(h, Access::TransferDst);
         p.record(move |rc| {
             let (sb, db) = (rc.buffer(s)?, rc.buffer(d)?);
-            unsafe { rc.device().cmd_copy_buffer(rc.cmd, sb.buffer, db.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: sb.size.min(db.size) }]) };
+            unsafe {
+                rc.device().cmd_copy_buffer(
+                    rc.cmd,
+                    sb.buffer,
+                    db.buffer,
+                    &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: sb.size.min(db.size) }],
+                )
+            };
             Ok(())
         });
         d
@@ -437,7 +486,12 @@ impl crate::technique::Technique for McTechnique {
     fn name(&self) -> &'static str {
         "mc"
     }
-    fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
+    fn add(
+        &mut self,
+        engine: &mut Engine,
+        graph: &mut Graph,
+        inputs: &crate::technique::TechniqueInputs,
+    ) -> Result<ImageHandle> {
         self.add_frame(engine, graph, inputs.frame, inputs.gbuffer.width, inputs.gbuffer.height)
     }
 }

@@ -72,9 +72,12 @@ impl EnvTables {
         let d = Vec3::new(c * dm.x + s * dm.z, dm.y, -s * dm.x + c * dm.z).normalize();
         let k = self.texel_of(d);
         let row = k / w;
-        let sa = ((pi * row as f32 / h as f32).cos() - (pi * (row + 1) as f32 / h as f32).cos()) * std::f32::consts::TAU / w as f32;
+        let sa = ((pi * row as f32 / h as f32).cos() - (pi * (row + 1) as f32 / h as f32).cos())
+            * std::f32::consts::TAU
+            / w as f32;
         let pdf = self.texels[k][3] / sa;
-        (pdf > 0.0 && pdf.is_finite()).then(|| (d, Vec3::new(self.texels[k][0], self.texels[k][1], self.texels[k][2]), pdf))
+        (pdf > 0.0 && pdf.is_finite())
+            .then(|| (d, Vec3::new(self.texels[k][0], self.texels[k][1], self.texels[k][2]), pdf))
     }
 }
 
@@ -221,7 +224,8 @@ impl ShadowMapsTechnique {
         } else {
             depth
         };
-        let env_texels = McTechnique::persistent_upload(engine, graph, "shadowmaps.env_texels", bytes_of(&self.env.texels), false);
+        let env_texels =
+            McTechnique::persistent_upload(engine, graph, "shadowmaps.env_texels", bytes_of(&self.env.texels), false);
         let materials = graph.create_buffer_init("shadowmaps.materials", bytes_of(&material_table(&frame.materials)));
         let (w, h) = (gb.width, gb.height);
         let hdr = graph.create_image("shadowmaps.hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
@@ -277,7 +281,12 @@ impl crate::technique::Technique for ShadowMapsTechnique {
     fn name(&self) -> &'static str {
         "shadowmaps"
     }
-    fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
+    fn add(
+        &mut self,
+        engine: &mut Engine,
+        graph: &mut Graph,
+        inputs: &crate::technique::TechniqueInputs,
+    ) -> Result<ImageHandle> {
         self.add_frame(engine, graph, inputs.frame, inputs.gbuffer)
     }
 }

@@ -85,7 +85,13 @@ impl Tracer {
 
     /// Adds a `trace` pass: every ray of `rays` (its size / 32 rays) through `tree`; returns the
     /// hit buffer (transient, 16 bytes per ray).
-    pub fn add_trace(&self, graph: &mut Graph, tree: &KdTreeHandles, rays: BufferHandle, mode: TraceMode) -> BufferHandle {
+    pub fn add_trace(
+        &self,
+        graph: &mut Graph,
+        tree: &KdTreeHandles,
+        rays: BufferHandle,
+        mode: TraceMode,
+    ) -> BufferHandle {
         let count = (graph.resource(rays).desc.bytes() / RAY_BYTES) as u32;
         // Names follow the ray buffer's (unique per graph): `trace_any:<rays>`, `<rays>.hits`.
         let rays_name = graph.resource(rays).name.clone();
@@ -130,7 +136,13 @@ impl Tracer {
 }
 
 /// `tracer.add_trace(...)` as a free function: rays in, hits out.
-pub fn add_trace(graph: &mut Graph, tracer: &Tracer, tree: &KdTreeHandles, rays: BufferHandle, mode: TraceMode) -> BufferHandle {
+pub fn add_trace(
+    graph: &mut Graph,
+    tracer: &Tracer,
+    tree: &KdTreeHandles,
+    rays: BufferHandle,
+    mode: TraceMode,
+) -> BufferHandle {
     tracer.add_trace(graph, tree, rays, mode)
 }
 
@@ -140,7 +152,12 @@ pub fn upload_rays(graph: &mut Graph, name: &str, rays: &[Ray]) -> BufferHandle 
 }
 
 /// Copies `size` bytes of `src` into a new readback buffer `name`; returns (readback, src).
-pub fn add_copy_to_readback(graph: &mut Graph, src: BufferHandle, name: &str, size: u64) -> (BufferHandle, BufferHandle) {
+pub fn add_copy_to_readback(
+    graph: &mut Graph,
+    src: BufferHandle,
+    name: &str,
+    size: u64,
+) -> (BufferHandle, BufferHandle) {
     let rb = graph.create_readback(name, size.max(4));
     let mut p = graph.pass(&format!("readback_{name}"), PassKind::Transfer);
     let s = p.read(src, Access::TransferSrc);
@@ -148,7 +165,14 @@ pub fn add_copy_to_readback(graph: &mut Graph, src: BufferHandle, name: &str, si
     p.record(move |rc| {
         let (sb, db) = (rc.buffer(s)?, rc.buffer(d)?);
         if size > 0 {
-            unsafe { rc.device().cmd_copy_buffer(rc.cmd, sb.buffer, db.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }]) };
+            unsafe {
+                rc.device().cmd_copy_buffer(
+                    rc.cmd,
+                    sb.buffer,
+                    db.buffer,
+                    &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }],
+                )
+            };
         }
         Ok(())
     });

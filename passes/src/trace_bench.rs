@@ -33,7 +33,8 @@ pub struct CpuBvh {
 impl CpuBvh {
     pub fn new(tris: &[[Vec3; 3]]) -> Self {
         let tris: Vec<Triangle> = tris.iter().map(|t| Triangle { v0: a(t[0]), v1: a(t[1]), v2: a(t[2]) }).collect();
-        let bvh = (!tris.is_empty()).then(|| build_cwbvh_from_tris(&tris, BvhBuildParams::medium_build(), &mut Default::default()));
+        let bvh = (!tris.is_empty())
+            .then(|| build_cwbvh_from_tris(&tris, BvhBuildParams::medium_build(), &mut Default::default()));
         CpuBvh { tris, bvh }
     }
 
@@ -46,7 +47,8 @@ impl CpuBvh {
         let bvh = self.bvh.as_ref()?;
         let mut hit = RayHit::none();
         let tris = &self.tris;
-        let found = bvh.ray_traverse(Self::oray(r), &mut hit, |ray, id| tris[bvh.primitive_indices[id] as usize].intersect(ray));
+        let found = bvh
+            .ray_traverse(Self::oray(r), &mut hit, |ray, id| tris[bvh.primitive_indices[id] as usize].intersect(ray));
         (found && hit.t.is_finite()).then(|| (hit.t, bvh.primitive_indices[hit.primitive_id as usize]))
     }
 
@@ -251,7 +253,11 @@ impl std::fmt::Display for BenchReport {
             if s.overflow != 0 { " (storage overflow: some leaves are large)" } else { "" }
         )?;
         writeln!(f, "obvhs CWBVH build (CPU): {:.2} ms", self.cpu_build_ms)?;
-        writeln!(f, "{:<26} {:>9} {:>12} {:>14} {:>8}", "rays (visibility)", "count", "GPU Mrays/s", "obvhs Mrays/s", "ratio")?;
+        writeln!(
+            f,
+            "{:<26} {:>9} {:>12} {:>14} {:>8}",
+            "rays (visibility)", "count", "GPU Mrays/s", "obvhs Mrays/s", "ratio"
+        )?;
         for r in &self.rows {
             writeln!(
                 f,
@@ -271,7 +277,14 @@ impl std::fmt::Display for BenchReport {
 /// traces coherent (camera, `w` x `h`) and incoherent (random) visibility rays on the GPU and
 /// the same rays through `obvhs` on all CPU cores, in one run. GPU times come from the
 /// engine's timestamps (`engine.timestamps` must be on).
-pub fn bench_trace(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, w: u32, h: u32, incoherent: usize) -> Result<BenchReport> {
+pub fn bench_trace(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    w: u32,
+    h: u32,
+    incoherent: usize,
+) -> Result<BenchReport> {
     let frame: Frame = scene.at(0.0, None);
     let tris = crate::kdtree::world_triangles(scene, &frame)?;
     let mut engine = Engine::new(ctx.clone(), 1)?;
@@ -285,14 +298,23 @@ pub fn bench_trace(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, w
     let cpu_build_ms = t0.elapsed().as_secs_f64() * 1e3;
     // Warm-up run (pipelines, allocations), then the measured one.
     run_gpu(&mut engine, &mut builder, &tracer, &tris, &[(coherent.clone(), Vec::new())])?;
-    let run = run_gpu(&mut engine, &mut builder, &tracer, &tris, &[(coherent.clone(), Vec::new()), (random.clone(), Vec::new())])?;
+    let run = run_gpu(
+        &mut engine,
+        &mut builder,
+        &tracer,
+        &tris,
+        &[(coherent.clone(), Vec::new()), (random.clone(), Vec::new())],
+    )?;
     let build_ms: f64 = run.gpu_ms.iter().filter(|(n, _)| n.starts_with("kdtree_")).map(|(_, ms)| ms).sum();
-    let trace_ms: Vec<f64> = run.gpu_ms.iter().filter(|(n, _)| n.starts_with("trace_any:")).map(|(_, ms)| *ms).collect();
+    let trace_ms: Vec<f64> =
+        run.gpu_ms.iter().filter(|(n, _)| n.starts_with("trace_any:")).map(|(_, ms)| *ms).collect();
     if trace_ms.len() != 2 {
         return Err(anyhow!("missing trace timestamps ({:?})", run.gpu_ms));
     }
     let mut rows = Vec::new();
-    for ((name, rays), ms) in [("coherent (camera)", &coherent), ("incoherent (random)", &random)].into_iter().zip(trace_ms) {
+    for ((name, rays), ms) in
+        [("coherent (camera)", &coherent), ("incoherent (random)", &random)].into_iter().zip(trace_ms)
+    {
         // Warm-up (thread pool, caches), then the best of three.
         let mut hits: usize = rays.par_iter().map(|r| cpu.occluded(r) as usize).sum();
         let mut cpu_s = f64::INFINITY;

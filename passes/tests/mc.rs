@@ -27,7 +27,8 @@ fn shaders(names: &[&str]) -> ShaderLibrary {
 fn frame(engine: &mut Engine, mc: &mut McTechnique, f: &penumbra_scene::Frame, w: u32, h: u32) -> (Image, usize) {
     let mut g = Graph::new();
     let hdr = mc.add_frame(engine, &mut g, f, w, h).unwrap();
-    let builds = g.passes().iter().filter(|p| p.name.starts_with("kdtree_level") && !p.name.ends_with("_small")).count();
+    let builds =
+        g.passes().iter().filter(|p| p.name.starts_with("kdtree_level") && !p.name.ends_with("_small")).count();
     penumbra_passes::readback::add(&mut g, "readback", &[(hdr, "hdr")]);
     engine.submit(g).unwrap();
     let out = engine.drain().unwrap().pop().unwrap();
@@ -37,10 +38,13 @@ fn frame(engine: &mut Engine, mc: &mut McTechnique, f: &penumbra_scene::Frame, w
         .map(|c| std::array::from_fn(|i| f32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap())))
         .collect();
     assert_eq!(px.len(), (w * h) as usize);
-    (Image::from_fn(w, h, |x, y| {
-        let p = px[(y * w + x) as usize];
-        [p[0], p[1], p[2]]
-    }), builds)
+    (
+        Image::from_fn(w, h, |x, y| {
+            let p = px[(y * w + x) as usize];
+            [p[0], p[1], p[2]]
+        }),
+        builds,
+    )
 }
 
 #[test]

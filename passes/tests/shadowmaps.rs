@@ -26,7 +26,15 @@ fn shadowmaps_approach_the_reference_and_shadows_help() {
 
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
     let mut lib = ShaderLibrary::from_embedded(&[], Some(root().join("glsl")));
-    for n in ["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "trace_shadowmap.comp", "mc_shadowmaps.comp", "gbuffer.vert", "gbuffer.frag"] {
+    for n in [
+        "kdtree_init.comp",
+        "kdtree_build.comp",
+        "kdtree_small.comp",
+        "trace_shadowmap.comp",
+        "mc_shadowmaps.comp",
+        "gbuffer.vert",
+        "gbuffer.frag",
+    ] {
         lib.reload(n).unwrap_or_else(|e| panic!("{n}: {e}"));
     }
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
@@ -56,7 +64,11 @@ fn shadowmaps_approach_the_reference_and_shadows_help() {
             [p[0], p[1], p[2]]
         });
         let c = compare(&reference.radiance, "reference", &img, "shadowmaps").unwrap();
-        println!("shadowmaps visibility {visibility}: PSNR {:.2} dB, rel RMSE {:.4}, depth passes {depth_passes}", c.psnr_db.unwrap_or(f64::INFINITY), c.rel_rmse);
+        println!(
+            "shadowmaps visibility {visibility}: PSNR {:.2} dB, rel RMSE {:.4}, depth passes {depth_passes}",
+            c.psnr_db.unwrap_or(f64::INFINITY),
+            c.rel_rmse
+        );
         results.push((c.psnr_db.unwrap_or(f64::INFINITY), depth_passes));
     }
     assert_eq!(results[0].1, 1, "first frame renders the depth maps");

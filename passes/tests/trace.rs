@@ -70,8 +70,12 @@ fn kdtree_tracer_agrees_with_obvhs_on_every_scene() {
         for (i, r) in cam_fin.iter_mut().enumerate() {
             r.tmax = 0.5 + 0.1 * (i % 97) as f32;
         }
-        let sets: Vec<(Vec<Ray>, Vec<Ray>)> =
-            vec![(rnd_fin, rnd_inf.clone()), (cam_fin, cam.clone()), (surf.clone(), surf.clone()), (rnd_inf, Vec::new())];
+        let sets: Vec<(Vec<Ray>, Vec<Ray>)> = vec![
+            (rnd_fin, rnd_inf.clone()),
+            (cam_fin, cam.clone()),
+            (surf.clone(), surf.clone()),
+            (rnd_inf, Vec::new()),
+        ];
         let run = run_gpu(&mut engine, &mut builder, &tracer, &tris, &sets).unwrap();
         let s = run.stats;
         println!(
@@ -113,7 +117,8 @@ fn kdtree_tracer_agrees_with_obvhs_on_every_scene() {
                         t.max_rel = t.max_rel.max(rel);
                         if rel > 1e-4 {
                             t.dist_bad += 1;
-                            t.diffs.push(format!("{name} set {si} ray {i}: closest cpu {tc} gpu {} (rel {rel:.2e})", h.t));
+                            t.diffs
+                                .push(format!("{name} set {si} ray {i}: closest cpu {tc} gpu {} (rel {rel:.2e})", h.t));
                         }
                     }
                     (None, None) => {}
