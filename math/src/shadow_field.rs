@@ -732,17 +732,100 @@ pub fn triple(t: &TripleProductTensor, f: &[f64; NCOEF], g: &[f64; NCOEF]) -> [f
 /// Order-4 SH of the clamped cosine lobe about unit `n`, divided by pi (the diffuse transfer
 /// without self-occlusion): zonal coefficients `A_l / pi` rotated to `n`.
 pub fn cosine_transfer(n: DVec3) -> [f64; NCOEF] {
-    // A_0 = pi, A_1 = 2 pi / 3, A_2 = pi / 4, A_3 = 0; Y_lm(n) scaled by sqrt(4 pi / (2l+1)) A_l
+    // c_lm = A_l Y_lm(n) with A_0 = pi, A_1 = 2 pi / 3, A_2 = pi / 4, A_3 = 0 (then / pi)
     let a = [1.0, 2.0 / 3.0, 0.25, 0.0];
     let mut y = [0.0; NCOEF];
     let n = if n.length_squared() > 0.0 { n.normalize() } else { DVec3::Z };
     eval_basis_into(ORDER, n, &mut y);
     let mut out = [0.0; NCOEF];
     for l in 0..ORDER {
-        let k = (4.0 * PI / (2 * l + 1) as f64).sqrt() * a[l];
+        let k = a[l];
         for m in 0..2 * l + 1 {
             out[l * l + m] = k * y[l * l + m];
         }
     }
     out
+}
+
+// ---------------------------------------------------------------------------------------------
+// Per-point shading (the CPU rendering path)
+
+/// One instance of a frame as seen by the shading: its field (if it casts shadows), the
+/// world-to-object transform and the object-to-world SH rotation.
+#[derive(Clone, Copy, Debug)]
+pub struct InstanceFrame<'a> {
+    /// The object's field; `None` = casts no shadow.
+    pub field: Option<&'a ObjectField>,
+    /// World to object space (inverse of the instance's world matrix).
+    pub world_to_local: glam::DMat4,
+    /// [`rotation_blocks`] of the instance's rotation (object to world).
+    pub rot: [f64; ROT_FLOATS],
+}
+
+impl<'a> InstanceFrame<'a> {
+    /// From an instance world matrix (rigid, optionally uniformly scaled).
+    pub fn new(field: Option<&'a ObjectField>, world: glam::DMat4) -> Self {
+        let (_, q, _) = world.to_scale_rotation_translation();
+        let q = if q.is_finite() { q.normalize() } else { glam::DQuat::IDENTITY };
+        let inv = world.inverse();
+        let world_to_local = if inv.is_finite() { inv } else { glam::DMat4::IDENTITY };
+        InstanceFrame { field, world_to_local, rot: rotation_blocks(DMat3::from_quat(q)) }
+    }
+}
+
+/// A point to shade: world position, receiver instance, albedo, object-space transfer.
+#[derive(Clone, Copy, Debug)]
+pub struct ShadePoint {
+    /// World position.
+    pub pos: DVec3,
+    /// Index of the receiving instance (excluded from the occluders).
+    pub inst: usize,
+    /// Diffuse albedo.
+    pub albedo: DVec3,
+    /// Transfer (self-occluded clamped cosine / pi) in the instance's object space.
+    pub transfer: [f64; NCOEF],
+}
+
+/// Occluded transfer in world space: `T (x) O_1 (x) O_2 ...` over the other instances whose
+/// shells contain the point; returns it and the number of occluders applied.
+pub fn occluded_transfer(p: &ShadePoint, insts: &[InstanceFrame], tensor: &TripleProductTensor) -> ([f64; NCOEF], usize) {
+    let Some(me) = insts.get(p.inst) else {
+        return (p.transfer, 0);
+    };
+    let mut u = rotate(&me.rot, &p.transfer);
+    let mut applied = 0;
+    for (j, inst) in insts.iter().enumerate() {
+        if j == p.inst {
+            continue;
+        }
+        let Some(field) = inst.field else { continue };
+        let local = inst.world_to_local.transform_point3(p.pos);
+        let Some(o) = field.ocv(local) else { continue };
+        let o = rotate(&inst.rot, &o);
+        u = triple(tensor, &o, &u);
+        applied += 1;
+    }
+    (u, applied)
+}
+
+/// Radiance of each point (`albedo * int L U`, clamped at 0) and the unclamped minimum channel,
+/// in parallel. `light[e]` is the rgb SH coefficient `e` of the environment radiance.
+pub fn shade_points(
+    points: &[ShadePoint],
+    insts: &[InstanceFrame],
+    light: &[[f64; 3]; NCOEF],
+    tensor: &TripleProductTensor,
+) -> Vec<(DVec3, f64)> {
+    points
+        .par_iter()
+        .map(|p| {
+            let (u, _) = occluded_transfer(p, insts, tensor);
+            let mut c = DVec3::ZERO;
+            for e in 0..NCOEF {
+                c += DVec3::from_array(light[e]) * u[e];
+            }
+            let c = c * p.albedo;
+            (c.max(DVec3::ZERO), c.min_element())
+        })
+        .collect()
 }

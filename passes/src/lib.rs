@@ -11,6 +11,7 @@ pub mod mc;
 pub mod readback;
 pub mod scene_gpu;
 pub mod shade_env;
+pub mod shadow_fields;
 pub mod shadowmaps;
 pub mod technique;
 pub mod textures;

@@ -31,7 +31,7 @@ pub trait Technique {
 }
 
 /// Techniques implemented so far.
-pub const IMPLEMENTED: &[&str] = &["env", "isg", "mc", "shadowmaps"];
+pub const IMPLEMENTED: &[&str] = &["env", "isg", "mc", "shadowmaps", "shadow-fields", "shadow-fields-fixed"];
 
 /// Creates the technique `name` for `scene`, or `None` if it is not implemented.
 pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &Scene) -> Result<Option<Box<dyn Technique>>> {
@@ -40,6 +40,7 @@ pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &
         "isg" => Some(Box::new(crate::isg::IsgTechnique::new(ctx, shaders, _scene, crate::isg::IsgSettings::from_env())?)),
         "mc" => Some(Box::new(crate::mc::McTechnique::new(ctx, shaders, _scene)?)),
         "shadowmaps" => Some(Box::new(crate::shadowmaps::ShadowMapsTechnique::new(ctx, shaders, _scene)?)),
+        "shadow-fields" | "shadow-fields-fixed" => Some(Box::new(crate::shadow_fields::ShadowFieldsTechnique::new(ctx, shaders, _scene, crate::shadow_fields::SfOptions { adaptive: name == "shadow-fields", ..Default::default() })?)),
         _ => None,
     })
 }
