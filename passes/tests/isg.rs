@@ -102,7 +102,7 @@ fn write_scene_sphere_files() {
     if std::env::var_os("ISG_WRITE_SPHERES").is_none() {
         return;
     }
-    for name in ["falling.toml", "hat_on_cloth.toml"] {
+    for name in ["falling.toml", "hat_on_cloth.toml", "isg_bunny.toml"] {
         let s = scene(name);
         let sets = scene_sphere_sets(&s, 48);
         for (o, set) in s.objects.iter().zip(&sets) {
