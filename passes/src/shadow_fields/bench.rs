@@ -94,8 +94,9 @@ pub fn bench(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, opts: &
     }
     let fixed = cpu_shade_points(&points, &ifx, &tech.light, &tech.tensor);
     let mut engine = Engine::new(ctx.clone(), 1)?;
+    // Warm-up: lavapipe compiles the pipeline at its first dispatch.
+    let mut gpu = gpu_shade_points(&mut engine, &tech, &frame, &points)?.0;
     let mut gpu_times = Vec::new();
-    let mut gpu = Vec::new();
     for _ in 0..opts.repeats.max(1) {
         let (g, ms) = gpu_shade_points(&mut engine, &tech, &frame, &points)?;
         gpu = g;
