@@ -12,9 +12,10 @@ layout(std430, binding = 0) readonly buffer Tris { vec4 kd_tris[]; };
 layout(std430, binding = 1) readonly buffer Nodes { uvec4 kd_nodes[]; };
 layout(std430, binding = 2) readonly buffer Refs { uint kd_refs[]; };
 layout(std430, binding = 3) readonly buffer Header { uint kd_hdr[]; };
-// per triangle: (n0, material), (n1, casts_shadow), (n2, 0), (tangent, 0)
+// per triangle: (n0, material bits), (n1, 0), (n2, 0), (tangent, 0), (uv0, uv1), (uv2, 0, 0)
 layout(std430, binding = 4) readonly buffer TriData { vec4 tri_data[]; };
-// per material: (albedo, kind), (specular, alpha), (shininess nu, nv, p_spec, 0)
+// per material: (albedo, kind), (specular, alpha), (shininess nu, nv, p_spec, 0),
+// (albedo map layer, roughness map layer (-1 none), roughness, shininess)
 layout(std430, binding = 5) readonly buffer Materials { vec4 mats[]; };
 // env texels: rgb radiance (intensity applied), w = pmf of the texel
 layout(std430, binding = 6) readonly buffer EnvTexels { vec4 env_texels[]; };
@@ -25,6 +26,8 @@ layout(binding = 9, rgba32f) uniform writeonly image2D hdr;
 // local lights (penumbra_reference::lights): (position, kind 0 point / 1 spot / 2 sphere),
 // (spot axis, cos outer), (power: intensity or radiance, cos inner), (sphere radius, 0, 0, 0)
 layout(std430, binding = 10) readonly buffer Lights { vec4 lights[]; };
+// material texture maps (passes/src/textures.rs): layers resampled to 256^2, repeat, bilinear
+layout(binding = 11) uniform sampler2DArray material_textures;
 layout(push_constant) uniform Push {
     mat4 inv_view_proj;
     uvec4 size_spp_seed;    // width, height, spp, frame seed
@@ -194,7 +197,7 @@ vec3 radiance_sample(vec2 ndc) {
     vec3 p = o + d * hit.t;
     float b1 = clamp(hit.b1, 0.0, 1.0), b2 = clamp(hit.b2, 0.0, 1.0);
     float b0 = max(1.0 - b1 - b2, 0.0);
-    vec4 t0 = tri_data[4u * ti], t1 = tri_data[4u * ti + 1u], t2 = tri_data[4u * ti + 2u], t3 = tri_data[4u * ti + 3u];
+    vec4 t0 = tri_data[6u * ti], t1 = tri_data[6u * ti + 1u], t2 = tri_data[6u * ti + 2u], t3 = tri_data[6u * ti + 3u];
     vec3 ng = normalize(cross(p1 - p0, p2 - p0));
     vec3 ns = t0.xyz * b0 + t1.xyz * b1 + t2.xyz * b2;
     ns = dot(ns, ns) > 0.0 ? normalize(ns) : ng;
@@ -215,7 +218,22 @@ vec3 radiance_sample(vec2 ndc) {
     mat3 to_world = mat3(tt, bt, ns);
     vec3 wo = vec3(dot(wo_w, tt), dot(wo_w, bt), dot(wo_w, ns));
     uint mi = floatBitsToUint(t0.w);
-    Brdf b = brdf_from_table(mats[3u * mi], mats[3u * mi + 1u], mats[3u * mi + 2u]);
+    Brdf b = brdf_from_table(mats[4u * mi], mats[4u * mi + 1u], mats[4u * mi + 2u]);
+    vec4 maps = mats[4u * mi + 3u];
+    if (maps.x >= 0.0 || maps.y >= 0.0) {
+        // render.rs brdf_at: maps at the interpolated uv, then Brdf::new's sanitising
+        vec4 t4 = tri_data[6u * ti + 4u];
+        vec2 uv = t4.xy * b0 + t4.zw * b1 + tri_data[6u * ti + 5u].xy * b2;
+        if (maps.x >= 0.0) b.albedo = max(b.albedo * textureLod(material_textures, vec3(uv, maps.x), 0.0).rgb, vec3(0.0));
+        if (maps.y >= 0.0) {
+            float r = clamp(maps.z * textureLod(material_textures, vec3(uv, maps.y), 0.0).g, 0.0, 1.0);
+            b.alpha = max(r * r, 1e-3);
+            b.nu = clamp(2.0 / max(r * r, 1e-4) - 2.0, 0.0, 1e6);
+            b.nv = b.nu;
+        }
+        float ld = dot(b.albedo, vec3(0.2126, 0.7152, 0.0722)), ls = dot(b.spec, vec3(0.2126, 0.7152, 0.0722));
+        b.p_spec = b.kind == 0u ? 0.0 : (ls <= 0.0 ? 0.0 : (ld <= 0.0 ? 1.0 : clamp(ls / (ld + ls), 0.05, 0.95)));
+    }
     vec3 x = p + ng * (3e-5 * (1.0 + max(max(abs(p.x), abs(p.y)), abs(p.z))));
     vec3 l = vec3(0.0);
     // environment sample

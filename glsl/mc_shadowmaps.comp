@@ -91,7 +91,7 @@ void main() {
     vec3 bt = cross(ns, tt);
     vec3 wo = vec3(dot(wo_w, tt), dot(wo_w, bt), dot(wo_w, ns));
     uint mi = uint(uvm.z + 0.5);
-    Brdf b = brdf_from_table(mats[3u * mi], mats[3u * mi + 1u], mats[3u * mi + 2u]);
+    Brdf b = brdf_from_table(mats[4u * mi], mats[4u * mi + 1u], mats[4u * mi + 2u]);
     vec3 l = vec3(0.0);
     for (uint k = 0u; k < pc.size_count.z; k++) {
         vec3 wi = maps[4u * k].xyz;

@@ -92,7 +92,7 @@ bool brdf_sample(Brdf b, vec3 wo, float ul, vec2 u, out vec3 wi) {
     return true;
 }
 
-// Material table of passes/src/mc.rs (3 vec4 per material).
+// Material table of passes/src/mc.rs (first 3 of its 4 vec4 per material).
 Brdf brdf_from_table(vec4 m0, vec4 m1, vec4 m2) {
     Brdf b;
     b.kind = uint(m0.w); b.albedo = m0.rgb; b.spec = m1.rgb; b.alpha = m1.w; b.nu = m2.x; b.nv = m2.y; b.p_spec = m2.z;

@@ -18,9 +18,11 @@
 //! the mean; it restarts when the camera, an object, a deformation, a light or a material changed, when
 //! the tree was rebuilt, or when the image is new (first frame, resize).
 //!
-//! Not yet (the reference has them): texture maps (albedo/roughness), the
-//! participating medium, anisotropic Ashikhmin-Shirley exponents (`shininess_v`); the renderer
-//! reports these as limitations of the scene.
+//! Texture maps (albedo multiplies, roughness G channel multiplies roughness and sets Phong-type
+//! exponents to `2 / r^2 - 2`) are sampled bilinearly from the scene's texture array
+//! ([`crate::textures`], layers resampled to 256^2, so slightly smoother than the reference's
+//! texels). Not yet (the reference has them): the participating medium, anisotropic
+//! Ashikhmin-Shirley exponents (`shininess_v`).
 
 use crate::kdtree::{KdTreeBuilder, KdTreeHandles};
 use crate::scene_gpu::FrameConstants;
@@ -112,10 +114,12 @@ impl EnvTables {
     }
 }
 
-/// Per-material parameters as the reference's `Brdf::new` sanitises them: 3 vec4 each.
-pub fn material_table(materials: &[Material]) -> Vec<[f32; 4]> {
+/// Per-material parameters as the reference's `Brdf::new` sanitises them, 4 vec4 each: (albedo,
+/// kind), (specular, GGX alpha), (shininess nu, nv, p_spec, 0), (albedo map layer, roughness map
+/// layer (-1: none), roughness, shininess). `extras` gives the maps (may be shorter).
+pub fn material_table(materials: &[Material], extras: &[penumbra_scene::MaterialExtra]) -> Vec<[f32; 4]> {
     let mut out = Vec::new();
-    for m in materials {
+    for (i, m) in materials.iter().enumerate() {
         let san = |v: Vec3| if v.is_finite() { v.max(Vec3::ZERO) } else { Vec3::ZERO };
         let albedo = san(m.albedo);
         let spec = san(m.specular).min(Vec3::ONE);
@@ -138,9 +142,12 @@ pub fn material_table(materials: &[Material]) -> Vec<[f32; 4]> {
         out.push([albedo.x, albedo.y, albedo.z, kind]);
         out.push([spec.x, spec.y, spec.z, alpha]);
         out.push([shin, shin, p_spec, 0.0]);
+        let layer = |l: Option<usize>| l.map_or(-1.0, |l| l as f32);
+        let x = extras.get(i);
+        out.push([layer(x.and_then(|x| x.albedo_map)), layer(x.and_then(|x| x.roughness_map)), rough, shin]);
     }
     if out.is_empty() {
-        out = vec![[0.0; 4]; 3];
+        out = vec![[0.0; 4]; 4];
     }
     out
 }
@@ -194,7 +201,8 @@ pub fn light_table(lights: &[penumbra_scene::LightInstance]) -> Vec<[f32; 4]> {
 /// Triangles, their shading data and their "casts no shadow" flags.
 pub type ShadingTriangles = (Vec<[Vec3; 3]>, Vec<[f32; 4]>, Vec<bool>);
 
-/// World triangles with shading data (4 vec4 each: n0 + material bits, n1, n2, tangent) and
+/// World triangles with shading data (6 vec4 each: n0 + material bits, n1, n2, tangent,
+/// (uv0, uv1), (uv2, 0, 0)) and
 /// shadow flags, in the order of [`crate::kdtree::world_triangles`] (degenerate ones dropped).
 pub fn world_triangles_shading(scene: &Scene, frame: &Frame) -> Result<ShadingTriangles> {
     let mut tris = Vec::new();
@@ -264,6 +272,10 @@ pub fn world_triangles_shading(scene: &Scene, frame: &Frame) -> Result<ShadingTr
             data.push([n[1].x, n[1].y, n[1].z, 0.0]);
             data.push([n[2].x, n[2].y, n[2].z, 0.0]);
             data.push([tangent.x, tangent.y, tangent.z, 0.0]);
+            let uv = |i: usize| if has_uv { mesh.uvs[i] } else { glam::Vec2::ZERO };
+            let (u0, u1, u2) = (uv(i0), uv(i1), uv(i2));
+            data.push([u0.x, u0.y, u1.x, u1.y]);
+            data.push([u2.x, u2.y, 0.0, 0.0]);
             no_shadow.push(!casts);
         }
     }
@@ -273,6 +285,9 @@ pub fn world_triangles_shading(scene: &Scene, frame: &Frame) -> Result<ShadingTr
 /// Technique `mc`.
 pub struct McTechnique {
     pipeline: Pipeline,
+    textures: crate::textures::MaterialTextures,
+    repeat: crate::util::Sampler,
+    extras: Vec<penumbra_scene::MaterialExtra>,
     pub builder: KdTreeBuilder,
     scene: Scene,
     env: EnvTables,
@@ -303,11 +318,15 @@ impl McTechnique {
                 T::STORAGE_IMAGE,
                 T::STORAGE_IMAGE,
                 T::STORAGE_BUFFER,
+                T::COMBINED_IMAGE_SAMPLER,
             ],
             112,
         )?;
         Ok(McTechnique {
             pipeline,
+            textures: crate::textures::MaterialTextures::new(ctx, &scene.textures)?,
+            repeat: crate::util::Sampler::repeat(ctx)?,
+            extras: (0..scene.materials.len()).map(|i| scene.material_extra(i)).collect(),
             builder: KdTreeBuilder::new(ctx, shaders)?,
             scene: scene.clone(),
             env: EnvTables::new(scene.environment.as_ref()),
@@ -366,7 +385,7 @@ impl McTechnique {
         let (tree, tridata, rebuilt): (KdTreeHandles, BufferHandle, bool) = match kept {
             Some(t) => {
                 let n = self.tri_count.unwrap_or(0);
-                let td = engine.persistent_buffer(graph, "mc.tridata", (n as u64 * 64).max(16));
+                let td = engine.persistent_buffer(graph, "mc.tridata", (n as u64 * 96).max(16));
                 if graph.persistent_is_new(td) {
                     let (_, data, _) = world_triangles_shading(&self.scene, frame)?;
                     let td = Self::persistent_upload_into(graph, td, bytes_of(&data));
@@ -385,7 +404,9 @@ impl McTechnique {
         };
         let env_texels = Self::persistent_upload(engine, graph, "mc.env_texels", bytes_of(&self.env.texels), false);
         let env_cdf = Self::persistent_upload(engine, graph, "mc.env_cdf", bytes_of(&self.env.cdf), false);
-        let materials = graph.create_buffer_init("mc.materials", bytes_of(&material_table(&frame.materials)));
+        let materials =
+            graph.create_buffer_init("mc.materials", bytes_of(&material_table(&frame.materials, &self.extras)));
+        let textures = self.textures.add(graph);
         let light_data = light_table(&frame.lights);
         let light_count = (light_data.len() / 4) as u32;
         let lights = graph
@@ -430,6 +451,8 @@ impl McTechnique {
         let accum = p.write(accum, Access::ComputeShaderReadWriteStorage);
         let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
         let lt = p.read(lights, Access::ComputeShaderReadStorage);
+        let tex = p.read(textures, Access::ComputeShaderReadSampled);
+        let repeat = self.repeat.sampler;
         let (pipe, layout) = (self.pipeline.pipeline, self.pipeline.layout);
         p.record(move |rc| {
             unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
@@ -449,6 +472,7 @@ impl McTechnique {
                     Bind::StorageImage(accum),
                     Bind::StorageImage(hdr),
                     Bind::StorageBuffer(lt),
+                    Bind::SampledImage(tex, repeat),
                 ],
             )?;
             unsafe {

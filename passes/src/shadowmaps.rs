@@ -226,7 +226,8 @@ impl ShadowMapsTechnique {
         };
         let env_texels =
             McTechnique::persistent_upload(engine, graph, "shadowmaps.env_texels", bytes_of(&self.env.texels), false);
-        let materials = graph.create_buffer_init("shadowmaps.materials", bytes_of(&material_table(&frame.materials)));
+        let materials =
+            graph.create_buffer_init("shadowmaps.materials", bytes_of(&material_table(&frame.materials, &[])));
         let (w, h) = (gb.width, gb.height);
         let hdr = graph.create_image("shadowmaps.hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
         let inv_vp = FrameConstants::new(frame, None, w, h).inv_view_proj;

@@ -101,35 +101,40 @@ fn mc_converges_to_the_cpu_reference() {
     assert_eq!(ctx.validation.error_count(), 0, "validation errors: {:?}", ctx.validation.errors());
 }
 
-/// Local lights (an orbiting sphere light beside the environment, ground with
-/// `casts_shadow = false`): the estimator matches the reference's light sampling and MIS.
+/// Local lights (coarse: an orbiting sphere light beside the environment, ground with
+/// `casts_shadow = false`) and texture maps (chess: albedo and roughness maps, Blinn-Phong and
+/// Cook-Torrance): the estimator matches the reference's light sampling, MIS and maps.
 #[test]
-fn mc_with_local_lights_converges_to_the_cpu_reference() {
+fn mc_with_local_lights_and_textures_converges_to_the_cpu_reference() {
     let (w, h) = (32u32, 24u32);
-    let scene = Scene::load(root().join("scenes/coarse.toml")).unwrap();
-    let t = 1.0;
-    let opts = ReferenceOptions { width: w, height: h, spp: 1024, time: Some(t), seed: 3, ..Default::default() };
-    let reference = render(&scene, &opts).unwrap();
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
     let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "mc.comp"]);
-    let mut engine = Engine::new(ctx.clone(), 1).unwrap();
-    let mut mc = McTechnique::new(&ctx, &lib, &scene).unwrap();
-    let f = scene.at(t, None);
-    assert!(!f.lights.is_empty());
-    let mut psnrs = Vec::new();
-    for k in 0..6 {
-        mc.spp = if k == 0 { 8 } else { mc.accumulated };
-        let (im, _) = frame(&mut engine, &mut mc, &f, w, h);
-        let c = compare(&reference.radiance, "reference", &im, "mc").unwrap();
-        let psnr = c.psnr_db.unwrap_or(f64::INFINITY);
-        println!("coarse: mc {} spp: PSNR {:.2} dB, rel RMSE {:.4}", mc.accumulated, psnr, c.rel_rmse);
-        psnrs.push((mc.accumulated, psnr));
+    for (file, t) in [("coarse.toml", 1.0f32), ("chess.toml", 0.0)] {
+        let scene = Scene::load(root().join("scenes").join(file)).unwrap();
+        let opts = ReferenceOptions { width: w, height: h, spp: 1024, time: Some(t), seed: 3, ..Default::default() };
+        let reference = render(&scene, &opts).unwrap();
+        let mut engine = Engine::new(ctx.clone(), 1).unwrap();
+        let mut mc = McTechnique::new(&ctx, &lib, &scene).unwrap();
+        let f = scene.at(t, None);
+        match file {
+            "coarse.toml" => assert!(!f.lights.is_empty()),
+            _ => assert!(!scene.textures.is_empty()),
+        }
+        let mut psnrs = Vec::new();
+        for k in 0..6 {
+            mc.spp = if k == 0 { 8 } else { mc.accumulated };
+            let (im, _) = frame(&mut engine, &mut mc, &f, w, h);
+            let c = compare(&reference.radiance, "reference", &im, "mc").unwrap();
+            let psnr = c.psnr_db.unwrap_or(f64::INFINITY);
+            println!("{file}: mc {} spp: PSNR {:.2} dB, rel RMSE {:.4}", mc.accumulated, psnr, c.rel_rmse);
+            psnrs.push((mc.accumulated, psnr));
+        }
+        for p in psnrs.windows(2) {
+            assert!(p[1].1 > p[0].1, "{file}: PSNR does not rise from {} to {} spp: {psnrs:?}", p[0].0, p[1].0);
+        }
+        // Noise-limited (256 spp against a 1024-spp reference): about 3 dB per doubling, no plateau.
+        let (first, last) = (psnrs[0].1, psnrs[psnrs.len() - 1].1);
+        assert!(last - first > 10.0 && last > 32.0, "{file}: {psnrs:?}");
     }
-    for p in psnrs.windows(2) {
-        assert!(p[1].1 > p[0].1, "PSNR does not rise from {} to {} spp: {psnrs:?}", p[0].0, p[1].0);
-    }
-    let (first, last) = (psnrs[0].1, psnrs[psnrs.len() - 1].1);
-    // Noise-limited (256 spp against a 1024-spp reference): about 3 dB per doubling, no plateau.
-    assert!(last - first > 10.0 && last > 32.0, "{psnrs:?}");
     assert_eq!(ctx.validation.error_count(), 0, "validation errors: {:?}", ctx.validation.errors());
 }
