@@ -105,13 +105,16 @@ fn write_scene_sphere_files() {
     for name in ["falling.toml", "hat_on_cloth.toml", "isg_bunny.toml"] {
         let s = scene(name);
         let sets = scene_sphere_sets(&s, 48);
+        let res: usize = std::env::var("ISG_SPHERE_RES").ok().and_then(|v| v.parse().ok()).unwrap_or(64);
+        let count: usize = std::env::var("ISG_SPHERE_COUNT").ok().and_then(|v| v.parse().ok()).unwrap_or(48);
         for (o, set) in s.objects.iter().zip(&sets) {
-            let Some(set) = set else { continue };
+            let Some(_) = set else { continue };
             let m = &s.meshes[o.mesh];
+            let set = &penumbra_math::sphereset::approximate_spheres_with(&m.positions, &m.indices, count, res).unwrap();
             let cov = measure_coverage(&m.positions, &m.indices, &set.spheres, 64).unwrap();
             let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(format!("{}.{}.spheres", s.name, o.name));
             let text = format!(
-                "# {} spheres for object '{}' of scene '{}' (penumbra_math::sphereset, 64 voxels)\n# coverage: {:.3} of the mesh volume, {:.4} outside\n{}",
+                "# {} spheres for object '{}' of scene '{}' (penumbra_math::sphereset, {res} voxels)\n# coverage: {:.3} of the mesh volume, {:.4} outside\n{}",
                 set.spheres.len(), o.name, s.name, cov.covered, cov.outside, set.to_text()
             );
             std::fs::write(&path, text).unwrap();
