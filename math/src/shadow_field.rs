@@ -284,7 +284,8 @@ pub struct RawField {
     pub self_transfer: Vec<[f32; NCOEF]>,
     /// Seconds spent in the ray casting.
     pub seconds: f64,
-    /// Rays cast.
+    /// Directions tested (an upper bound of the rays cast: outside the bounding sphere only the
+    /// directions inside its cone are cast).
     pub rays: u64,
 }
 
@@ -466,6 +467,12 @@ pub fn precompute(
     let eps = 1e-4 * vr as f64;
     let far = 1e3 * vr as f64;
     let ndir = table.dirs.len() as u64;
+    let mut full = [0.0f64; NCOEF];
+    for (_, w, y) in &table.dirs {
+        for e in 0..NCOEF {
+            full[e] += w * y[e];
+        }
+    }
     let shells: Vec<Vec<[f32; NCOEF]>> = (0..params.shells)
         .map(|sh| {
             let radius = 0.2 * vr as f64 * (1.0 + sh as f64);
@@ -474,11 +481,21 @@ pub fn precompute(
                 .map(|i| {
                     let (th, ph) = sample_angles(r, i / r, i % r);
                     let p = c + radius * polar_dir(th, ph);
-                    let mut o = [0.0f64; NCOEF];
+                    // Start unoccluded and subtract the blocked directions; outside the
+                    // bounding sphere only directions inside its cone can be blocked.
+                    let mut o = full;
+                    let to_c = c - p;
+                    let dist = to_c.length();
+                    let cone = if dist > 1.0001 * vr as f64 {
+                        (1.0 - (vr as f64 / dist).powi(2)).max(0.0).sqrt() - 1e-3
+                    } else {
+                        -2.0
+                    };
+                    let axis = if dist > 0.0 { to_c / dist } else { DVec3::Z };
                     for (d, w, y) in &table.dirs {
-                        if !caster.occluded(p + *d * eps, *d, far) {
+                        if d.dot(axis) >= cone && caster.occluded(p + *d * eps, *d, far) {
                             for e in 0..NCOEF {
-                                o[e] += w * y[e];
+                                o[e] -= w * y[e];
                             }
                         }
                     }
@@ -508,6 +525,7 @@ pub fn precompute(
             o.map(|x| x as f32)
         })
         .collect();
+    // upper bound (directions outside the bounding cone are not cast)
     let rays = (params.shells as u64 * (r * r) as u64 + positions.len() as u64) * ndir;
     Ok(RawField { center, bound_radius: vr, resolution: r, shells, self_transfer, seconds: start.elapsed().as_secs_f64(), rays })
 }

@@ -36,7 +36,7 @@ use std::sync::Arc;
 /// Options of the technique and of the precompute.
 #[derive(Clone, Debug)]
 pub struct SfOptions {
-    /// Precompute parameters. Default: 32 shells (paper), initial R = 32 (paper: 64), 12 x 24
+    /// Precompute parameters. Default: 32 shells (paper), initial R = 32 (paper: 64), 32 x 64
     /// directions per occlusion map (paper: 64 x 64), threshold 0.010 (paper).
     pub params: Params,
     /// Use the adaptive shells (else every shell at the initial resolution).
@@ -50,7 +50,7 @@ pub struct SfOptions {
 impl Default for SfOptions {
     fn default() -> Self {
         SfOptions {
-            params: Params { shells: 32, resolution: 32, map_res: 12, threshold: 0.010, min_resolution: 1 },
+            params: Params { shells: 32, resolution: 32, map_res: 32, threshold: 0.010, min_resolution: 1 },
             adaptive: true,
             cache_dir: Some(std::env::temp_dir().join("penumbra-shadow-fields")),
             progress: false,
