@@ -67,9 +67,9 @@ pub struct KdTreeParams {
     /// Nodes with at most this many references are processed one per invocation
     /// (`glsl/kdtree_small.comp`), larger ones one per workgroup.
     pub small_max: u32,
-    /// Node capacity per triangle (plus 1024).
+    /// Node capacity per triangle (plus 8192).
     pub nodes_per_triangle: u32,
-    /// Reference capacity per triangle (plus 4096); all levels' lists live in it.
+    /// Reference capacity per triangle (plus 32768); all levels' lists live in it.
     pub refs_per_triangle: u32,
 }
 
@@ -80,8 +80,8 @@ impl Default for KdTreeParams {
             leaf_size: 2,
             large_threshold: 256,
             small_max: 64,
-            nodes_per_triangle: 8,
-            refs_per_triangle: 64,
+            nodes_per_triangle: 12,
+            refs_per_triangle: 96,
         }
     }
 }
@@ -183,7 +183,9 @@ pub fn parse_stats(header: &[u8], allocated: u64) -> Option<KdStats> {
         refs_allocated,
         overflow: w(4),
         bytes_allocated: allocated,
-        bytes_used: triangles as u64 * 48 + nodes as u64 * 16 + refs_allocated as u64 * 4 + HEADER_WORDS * 4,
+        // (after an overflow the allocation counter overshoots the capacity)
+        bytes_used: (triangles as u64 * 48 + nodes as u64 * 16 + refs_allocated as u64 * 4 + HEADER_WORDS * 4)
+            .min(allocated.max(1)),
     })
 }
 
@@ -252,8 +254,8 @@ impl KdTreeBuilder {
     fn sizes(&self, n: u32) -> (u64, u64, u64, u32) {
         let n64 = n as u64;
         let tris = (n64 * 48).max(48);
-        let max_nodes = (n64 * self.params.nodes_per_triangle as u64 + 1024).min(u32::MAX as u64 / 2) & !1;
-        let refs = (n64 * self.params.refs_per_triangle as u64 + 4096).min(u32::MAX as u64 / 8);
+        let max_nodes = (n64 * self.params.nodes_per_triangle as u64 + 8192).min(u32::MAX as u64 / 2) & !1;
+        let refs = (n64 * self.params.refs_per_triangle as u64 + 32768).min(u32::MAX as u64 / 8);
         (tris, max_nodes, refs, max_nodes as u32)
     }
 
