@@ -85,3 +85,26 @@ fn shadow_fields_gpu_matches_cpu_and_is_validation_clean() {
     assert!(report.negative_fraction >= 0.0 && report.negative_fraction <= 1.0);
     assert_eq!(ctx.validation.error_count(), 0, "validation errors: {:#?}", ctx.validation.errors());
 }
+
+/// The benchmark table of the issue note on the built-in rigid scenes (slow: full precompute
+/// with the technique's defaults, or `SF_BENCH_R` / `SF_BENCH_MAP` overrides). Run with
+/// `cargo test -p penumbra-passes --test shadow_fields_gpu -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn shadow_fields_bench_builtin_scenes() {
+    let ctx = Context::new(&ContextDesc { validation: false, ..Default::default() }).expect("context");
+    let lib = shaders();
+    let mut sf = SfOptions { progress: true, ..Default::default() };
+    if let Some(r) = std::env::var("SF_BENCH_R").ok().and_then(|v| v.parse().ok()) {
+        sf.params.resolution = r;
+    }
+    if let Some(m) = std::env::var("SF_BENCH_MAP").ok().and_then(|v| v.parse().ok()) {
+        sf.params.map_res = m;
+    }
+    for name in ["sf_spheres.toml", "balls_on_dish.toml", "falling.toml"] {
+        let scene = Scene::load(root().join("scenes").join(name)).expect("scene");
+        let report = bench(&ctx, &lib, &scene, &BenchOptions { sf: sf.clone(), time: 0.7, cull: true, repeats: 3 }).unwrap();
+        println!("{report}");
+        assert!(report.adaptive_bytes <= report.fixed_bytes);
+    }
+}
