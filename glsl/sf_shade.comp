@@ -1,7 +1,9 @@
 #version 450
 // Shadow fields, per pixel: the G-buffer point's diffuse transfer (clamped cosine / pi, no
 // self-occlusion at pixels) times every other object's visibility from its shadow field
-// (triple products), double product with the environment SH. Sky pixels show the environment.
+// (triple products), double product with the environment SH; glossy materials add the
+// prefiltered environment along the reflection, times the occluders' visibility there.
+// Sky pixels show the environment.
 #include "common.glsl"
 #define SF_B0 7
 #include "sf.glsl"
@@ -20,6 +22,15 @@ layout(push_constant) uniform Push { uint n_inst; uint tensor_count; } pc;
 vec3 env_lookup(vec3 d, float lod) {
     vec2 uv = dir_to_latlong(normalize(d), cam.env_rot.xy);
     return textureLod(env_map, uv, lod).rgb * cam.params.w;
+}
+
+vec3 env_brdf_approx(vec3 f0, float roughness, float ndv) {
+    const vec4 c0 = vec4(-1.0, -0.0275, -0.572, 0.022);
+    const vec4 c1 = vec4(1.0, 0.0425, 1.04, -0.04);
+    vec4 r = roughness * c0 + c1;
+    float a004 = min(r.x * r.x, exp2(-9.28 * ndv)) * r.x + r.y;
+    vec2 ab = vec2(-1.04, 1.04) * a004 + r.zw;
+    return f0 * ab.x + ab.y;
 }
 
 // Order-4 SH of max(n.w, 0) / pi: A_l / pi * Y_lm(n), A = (pi, 2pi/3, pi/4, 0), Condon-Shortley real SH.
@@ -64,5 +75,16 @@ void main() {
     cosine_transfer(n, u);
     sf_accumulate(pos, self_inst, pc.n_inst, pc.tensor_count, u);
     vec3 color = max(m.albedo_kind.rgb * sf_double(u), vec3(0.0));
+    // Glossy materials: the prefiltered environment along the reflection (as the "env"
+    // technique), shadowed by the occluders' visibility in that direction.
+    int kind = int(m.albedo_kind.w + 0.5);
+    if (kind != 0) {
+        vec3 v = normalize(cam.eye.xyz - pos);
+        float ndv = max(dot(n, v), 1e-4);
+        float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
+        vec3 r = reflect(-v, n);
+        float vis = sf_visibility_along(pos, r, self_inst, pc.n_inst);
+        color += vis * env_lookup(r, roughness * (cam.params.z - 1.0)) * env_brdf_approx(m.spec_rough.rgb, roughness, ndv);
+    }
     imageStore(hdr, p, vec4(color, 1.0));
 }

@@ -374,3 +374,82 @@ fn shadow_fields_cosine_transfer_and_self_occlusion() {
     let vis = o[0] / (4.0 * PI).sqrt();
     assert!(vis > 0.6 && vis < 0.99, "visible fraction below the cube {vis}");
 }
+
+#[test]
+fn shadow_fields_glsl_basis_constants_match_the_sh_library() {
+    // The closed forms of `sf_basis` in glsl/include/sf.glsl, read from the file, evaluated
+    // at a few directions against penumbra_math::sh.
+    let src = std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../glsl/include/sf.glsl")).unwrap();
+    let body = &src[src.find("void sf_basis").expect("sf_basis in sf.glsl")..];
+    let body = &body[..body.find("\n}").unwrap()];
+    let lines: Vec<&str> = body.lines().filter(|l| l.trim_start().starts_with("y[")).collect();
+    assert_eq!(lines.len(), 16);
+    for d in [DVec3::new(0.3, -0.5, 0.8), DVec3::new(-0.9, 0.1, 0.2), DVec3::new(0.0, 1.0, 0.0)] {
+        let d = d.normalize();
+        let want = eval_basis(4, d);
+        for (i, l) in lines.iter().enumerate() {
+            // "y[i] = <expr>;" with x, yy, z: evaluate by substituting into a tiny evaluator
+            let expr = l.split('=').nth(1).unwrap().trim().trim_end_matches(';');
+            let got = eval_expr(expr, d.x, d.y, d.z);
+            assert!((got - want[i]).abs() < 1e-6, "y[{i}] = {expr}: {got} vs {}", want[i]);
+        }
+    }
+}
+
+/// Evaluates the products/sums of the basis closed forms (numbers, x, yy, z, + - * and
+/// parentheses).
+fn eval_expr(s: &str, x: f64, y: f64, z: f64) -> f64 {
+    fn sum(t: &[String], i: &mut usize, v: &(f64, f64, f64)) -> f64 {
+        let mut a = prod(t, i, v);
+        while *i < t.len() && (t[*i] == "+" || t[*i] == "-") {
+            let op = t[*i].clone();
+            *i += 1;
+            let b = prod(t, i, v);
+            a = if op == "+" { a + b } else { a - b };
+        }
+        a
+    }
+    fn prod(t: &[String], i: &mut usize, v: &(f64, f64, f64)) -> f64 {
+        let mut a = atom(t, i, v);
+        while *i < t.len() && t[*i] == "*" {
+            *i += 1;
+            a *= atom(t, i, v);
+        }
+        a
+    }
+    fn atom(t: &[String], i: &mut usize, v: &(f64, f64, f64)) -> f64 {
+        let tok = t[*i].clone();
+        *i += 1;
+        match tok.as_str() {
+            "-" => -atom(t, i, v),
+            "(" => {
+                let a = sum(t, i, v);
+                *i += 1; // ")"
+                a
+            }
+            "x" => v.0,
+            "yy" => v.1,
+            "z" => v.2,
+            n => n.parse().unwrap_or_else(|_| panic!("token {n}")),
+        }
+    }
+    let mut toks = Vec::new();
+    let mut cur = String::new();
+    for c in s.chars() {
+        if c.is_alphanumeric() || c == '.' {
+            cur.push(c);
+        } else {
+            if !cur.is_empty() {
+                toks.push(std::mem::take(&mut cur));
+            }
+            if !c.is_whitespace() {
+                toks.push(c.to_string());
+            }
+        }
+    }
+    if !cur.is_empty() {
+        toks.push(cur);
+    }
+    let mut i = 0;
+    sum(&toks, &mut i, &(x, y, z))
+}
