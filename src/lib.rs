@@ -200,11 +200,8 @@ impl Renderer {
                 penumbra_scene::DEFAULT_TECHNIQUE
             ));
         }
-        if req.medium {
-            v.push("the participating medium is not rendered yet (no volumetric passes)".into());
-        }
-        if req.local_lights || req.environment_light {
-            v.push("no shadows yet: visibility techniques are separate passes still to come".into());
+        if scene.technique == "env" && (req.local_lights || req.environment_light) {
+            v.push("technique 'env' renders no shadows (try --technique mc, shadowmaps, isg, ...)".into());
         }
         v
     }

@@ -397,10 +397,11 @@ impl Requirements {
 pub const DEFAULT_TECHNIQUE: &str = "env";
 
 /// Technique names accepted by [`Scene::load`] (use [`Scene::load_with`] for another list):
-/// `env` (environment lighting, the default), `shadow-fields`, `hsdt`, `isg`,
-/// `spherical-voronoi`, `volumetric-shadows`, `reference`.
+/// `env` (environment lighting, the default), `mc` (GPU Monte Carlo baseline), `shadowmaps`
+/// (shadow-map baseline), `isg`, `isg-vertex`, `shadow-fields`, `hsdt`, `spherical-voronoi`,
+/// `reference`. Volumetric methods are chosen in `[medium]`, not here.
 pub const KNOWN_TECHNIQUES: &[&str] =
-    &["env", "shadow-fields", "hsdt", "isg", "spherical-voronoi", "volumetric-shadows", "reference"];
+    &["env", "mc", "shadowmaps", "isg", "isg-vertex", "shadow-fields", "hsdt", "spherical-voronoi", "reference"];
 
 /// Options of [`Scene::load_with`].
 #[derive(Clone, Debug, Default)]

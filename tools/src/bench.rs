@@ -118,3 +118,67 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
     println!("wrote {}", args.out.join("bench.json").display());
     Ok(())
 }
+
+#[derive(Args)]
+pub struct VolumetricArgs {
+    /// A scene with a [medium].
+    pub scene: PathBuf,
+    /// Frames rendered by both methods.
+    #[arg(long, default_value_t = 12)]
+    pub frames: u32,
+    #[arg(long, default_value = "160x120")]
+    pub size: String,
+    #[arg(long, default_value_t = 30.0)]
+    pub fps: f32,
+    /// Time of the first frame (seconds).
+    #[arg(long, default_value_t = 0.0)]
+    pub start: f32,
+    /// The temporal method recomputes every pixel every n frames.
+    #[arg(long, default_value_t = 3)]
+    pub reuse_frames: u32,
+    /// Samples per view ray.
+    #[arg(long, default_value_t = 48)]
+    pub samples: u32,
+    /// Both methods use Wyman and Ramsey's shadow-volume intervals.
+    #[arg(long)]
+    pub hybrid: bool,
+}
+
+pub fn run_volumetric(args: &VolumetricArgs, scene: &Scene) -> Result<()> {
+    let (width, height) = parse_size(&args.size)?;
+    let ctx = penumbra::engine::Context::new(&Default::default())?;
+    let opts = penumbra_passes::volumetric::bench::VolBenchOptions {
+        width,
+        height,
+        frames: args.frames.max(1),
+        fps: args.fps,
+        start_time: args.start,
+        reuse_frames: args.reuse_frames.max(1),
+        samples: args.samples.max(1),
+        hybrid: args.hybrid,
+        ..Default::default()
+    };
+    let report = penumbra_passes::volumetric::bench::bench_volumetric(&ctx, &penumbra::shader_library(), scene, &opts)?;
+    print!("{}", report.table());
+    Ok(())
+}
+
+#[derive(Args)]
+pub struct TraceArgs {
+    /// Scene file or glTF model; the built-in default scene when omitted.
+    pub scene: Option<PathBuf>,
+    /// Camera rays WxH (coherent set; secondary rays leave the hit points).
+    #[arg(long, default_value = "160x120")]
+    pub size: String,
+    /// Number of incoherent (random) rays.
+    #[arg(long, default_value_t = 20000)]
+    pub incoherent: usize,
+}
+
+pub fn run_trace(args: &TraceArgs, scene: &Scene) -> Result<()> {
+    let (width, height) = parse_size(&args.size)?;
+    let ctx = penumbra::engine::Context::new(&Default::default())?;
+    let report = penumbra_passes::trace_bench::bench_trace(&ctx, &penumbra::shader_library(), scene, width, height, args.incoherent)?;
+    println!("{report}");
+    Ok(())
+}

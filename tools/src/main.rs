@@ -49,6 +49,12 @@ enum BenchCmd {
     /// Techniques against the CPU reference (PSNR, relative RMSE, FLIP) and against each other
     /// (GPU ms per frame and ratios), on the same scene, camera and frame; writes bench.json.
     Techniques(bench::BenchArgs),
+    /// Volumetric shadows: the temporal method against the full baseline on the same frames
+    /// (GPU ms per pass, speedup, marched fraction, image difference, missed pixels).
+    Volumetric(bench::VolumetricArgs),
+    /// The compute kd-tree tracer against obvhs on the CPU (all cores): build ms, memory, and
+    /// million rays/s for coherent and incoherent visibility rays, in one run.
+    Trace(bench::TraceArgs),
 }
 
 #[derive(Args)]
@@ -86,9 +92,12 @@ struct RenderArgs {
     /// Use the Vulkan device whose name contains this.
     #[arg(long)]
     device: Option<String>,
-    /// Override the scene's technique (implemented: env).
+    /// Override the scene's technique.
     #[arg(long)]
     technique: Option<String>,
+    /// Volumetric method for scenes with a medium: temporal (default) or full.
+    #[arg(long)]
+    volumetric: Option<String>,
 }
 
 /// An error caused by the user's input: exit code 2.
@@ -157,6 +166,7 @@ fn render(args: &RenderArgs) -> Result<()> {
         tonemap: penumbra_passes::tonemap::TonemapParams { exposure: args.exposure },
         technique: args.technique.clone(),
         dump_passes: args.dump_passes,
+        effects: penumbra_passes::effect::EffectOverrides { volumetric: args.volumetric.clone() },
         ..Default::default()
     };
     let ctx = penumbra::engine::Context::new(&penumbra::engine::ContextDesc {
@@ -171,6 +181,9 @@ fn render(args: &RenderArgs) -> Result<()> {
                 penumbra_passes::technique::IMPLEMENTED.join(", ")
             )));
         }
+    }
+    if let Some(v) = &args.volumetric {
+        penumbra_passes::volumetric::VolumetricMethod::parse(v).map_err(|e| bad(format!("--volumetric: {e}")))?;
     }
     let mut scene = scene;
     if let Some(t) = &args.technique {
@@ -258,6 +271,19 @@ fn run(cli: Cli) -> Result<()> {
             let scene = load_scene(a.scene.as_deref())?;
             a.options().map_err(bad)?;
             penumbra_reference::cli::run_reference(&a, &scene)
+        }
+        Cmd::Bench(BenchCmd::Volumetric(a)) => {
+            parse_size(&a.size).map_err(bad)?;
+            let scene = load_scene(Some(&a.scene))?;
+            if scene.medium.is_none() {
+                return Err(bad(format!("{}: the scene has no [medium]", a.scene.display())));
+            }
+            bench::run_volumetric(&a, &scene)
+        }
+        Cmd::Bench(BenchCmd::Trace(a)) => {
+            parse_size(&a.size).map_err(bad)?;
+            let scene = load_scene(a.scene.as_deref())?;
+            bench::run_trace(&a, &scene)
         }
         Cmd::Bench(BenchCmd::Techniques(a)) => {
             parse_size(&a.size).map_err(bad)?;

@@ -159,3 +159,26 @@ fn spheres_approximate_a_closed_mesh_and_refuse_an_open_one() {
         &["bunny.glb", "no object named 'nope'"],
     );
 }
+
+#[test]
+fn bench_trace_and_volumetric_run_and_report() {
+    let o = penumbra(&["bench", "trace", "--size", "32x24", "--incoherent", "500"]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("kd-tree:") && t.contains("obvhs") && t.contains("incoherent"), "{t}");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let vol = root.join("scenes/vol_dragon.toml");
+    let o = penumbra(&["bench", "volumetric", vol.to_str().unwrap(), "--frames", "3", "--size", "48x36"]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("overall speedup") && t.contains("missed pixels 0"), "{t}");
+    let no_medium = root.join("scenes/chess.toml");
+    expect_bad_input(&["bench", "volumetric", no_medium.to_str().unwrap()], &["chess.toml", "no [medium]"]);
+    let d = tmp("volumetric_flag");
+    let gr = root.join("scenes/god_rays.toml");
+    expect_bad_input(&["render", gr.to_str().unwrap(), "--volumetric", "bogus", "--out", d.to_str().unwrap()], &["bogus"]);
+    let o = penumbra(&["render", gr.to_str().unwrap(), "--volumetric", "full", "--size", "48x36", "--out", d.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    let g = std::fs::read_to_string(d.join("graph.txt")).unwrap();
+    assert!(g.contains("vol_march") && !g.contains("vol_mask"), "full method has no mover mask:\n{g}");
+}
