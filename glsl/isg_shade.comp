@@ -3,7 +3,8 @@
 // unshadowed SG-cosine integral times the ISG visible fraction of the lobe times the cosine SG;
 // specular: one SG lobe of the BRDF (Blinn-Phong / Cook-Torrance warp; Ashikhmin-Shirley as a
 // Cook-Torrance lobe of its mean roughness) times the cosine SG, Gamma_L = int L G_j from the
-// lighting lobes, times the ISG visible fraction of G_j (eq. 9). Local lights unshadowed.
+// prefiltered environment maps (or from the lighting lobes), times the ISG visible fraction of
+// G_j (eq. 9). Local lights unshadowed.
 #include "common.glsl"
 #include "sg.glsl"
 
@@ -23,6 +24,9 @@ layout(set = 0, binding = 10) readonly buffer Lobes { vec4 lobes[]; };  // 2 per
 #define ISG_NODES_BINDING 11
 #define ISG_MAX_SIDE 32
 #include "isg.glsl"
+// Prefiltered environment (penumbra_math::envmap::prefilter, Gamma_L / int G): [0] level count,
+// per level i at 1 + 4 i: lambda, width, height, offset of its RGB texels in this array.
+layout(set = 0, binding = 12) readonly buffer Prefiltered { float pf[]; };
 layout(push_constant) uniform Push {
     uint light_count;
     uint lobe_count;
@@ -31,6 +35,7 @@ layout(push_constant) uniform Push {
     float lod;
     uint flags;  // bit 0: no shadows (debug)
     float min_fraction;
+    uint specular_mode;  // 0: Gamma_L from the prefiltered maps (paper), 1: from the lighting SGs
 } pc;
 
 vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
@@ -77,6 +82,42 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData 
 vec3 env_lookup(vec3 d) {
     vec2 uv = dir_to_latlong(normalize(d), cam.env_rot.xy);
     return textureLod(env_map, uv, 0.0).rgb * cam.params.w;
+}
+
+vec3 pf_texel(int off, int w, int x, int y) {
+    int i = off + 3 * (y * w + x);
+    return vec3(pf[i], pf[i + 1], pf[i + 2]);
+}
+
+vec3 pf_level(int l, vec2 uv) {
+    int w = int(pf[2 + 4 * l] + 0.5), h = int(pf[3 + 4 * l] + 0.5), off = int(pf[4 + 4 * l] + 0.5);
+    float fx = uv.x * float(w) - 0.5;
+    float fy = clamp(uv.y * float(h) - 0.5, 0.0, float(h - 1));
+    int x0 = int(floor(fx));
+    int y0 = int(floor(fy));
+    float ax = fx - float(x0), ay = fy - float(y0);
+    int y1 = min(y0 + 1, h - 1);
+    x0 -= w * int(floor(float(x0) / float(w)));  // wrap (GLSL % is undefined for negatives)
+    x0 = clamp(x0, 0, w - 1);
+    int x1 = x0 + 1 == w ? 0 : x0 + 1;
+    vec3 a = mix(pf_texel(off, w, x0, y0), pf_texel(off, w, x1, y0), ax);
+    vec3 b = mix(pf_texel(off, w, x0, y1), pf_texel(off, w, x1, y1), ax);
+    return mix(a, b, ay);
+}
+
+// Normalised Gamma_L(dir, lambda): the environment convolved with a unit-integral SG, linear
+// in log(lambda) between the prefiltered levels (clamped at the ends).
+vec3 pf_eval(vec3 dir, float lambda) {
+    int levels = int(pf[0] + 0.5);
+    if (levels <= 0) return vec3(0.0);
+    vec2 uv = dir_to_latlong(dir, cam.env_rot.xy);
+    float ll = log(max(lambda, 1e-6));
+    int l = 0;
+    while (l + 1 < levels && log(pf[1 + 4 * (l + 1)]) <= ll) ++l;
+    if (l + 1 >= levels) return pf_level(levels - 1, uv) * cam.params.w;
+    float l0 = log(pf[1 + 4 * l]), l1 = log(pf[1 + 4 * (l + 1)]);
+    float t = clamp((ll - l0) / max(l1 - l0, 1e-6), 0.0, 1.0);
+    return mix(pf_level(l, uv), pf_level(l + 1, uv), t) * cam.params.w;
 }
 
 float visible(vec3 p, vec3 n, SG g) {
@@ -162,9 +203,14 @@ void main() {
         }
         SG gj = sg_product(gs, cosg);
         vec3 gamma_l = vec3(0.0);
-        for (uint k = 0u; k < pc.lobe_count; ++k) {
-            SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
-            gamma_l += lobes[2u * k + 1u].rgb * sg_inner_product(l, gj);
+        if (pc.specular_mode == 0u) {
+            // Eq. 10: int L G_j = mu_j Gamma_L(a_j, lambda_j), Gamma_L from the prefiltered maps.
+            gamma_l = pf_eval(gj.axis, gj.lambda) * sg_sphere_integral(gj);
+        } else {
+            for (uint k = 0u; k < pc.lobe_count; ++k) {
+                SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+                gamma_l += lobes[2u * k + 1u].rgb * sg_inner_product(l, gj);
+            }
         }
         if (max(gamma_l.r, max(gamma_l.g, gamma_l.b)) > 0.0) color += amp * gamma_l * visible(p, n, gj);
     }

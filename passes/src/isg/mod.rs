@@ -18,7 +18,8 @@
 //!   patches within the limiting angle they cover, and the occluded patches' ISGs (tabulated,
 //!   [`penumbra_math::isg::IsgTable`]) are subtracted. Diffuse: per lobe, unshadowed
 //!   SG-cosine integral times the visible fraction of the lobe times the cosine SG. Specular:
-//!   eq. 9 with `Gamma_L` from the lighting SGs (exact for SG lighting; no prefiltered map).
+//!   eq. 9 with `Gamma_L` from the SG-prefiltered environment maps (eq. 10), or optionally from
+//!   the lighting SGs (`prefiltered=0`, exact for SG lighting).
 //!
 //! Not done: thin shells (cloth) cast no shadow (no projected triangles), no per-vertex mode,
 //! local lights are unshadowed, Ashikhmin-Shirley uses one Cook-Torrance lobe.
@@ -54,6 +55,9 @@ pub struct IsgSettings {
     pub min_lobe_fraction: f32,
     /// False: visibility 1 everywhere (separates the shading error from the visibility error).
     pub shadows: bool,
+    /// Specular `Gamma_L` from the SG-prefiltered environment maps (the paper, eq. 10); false:
+    /// from the K lighting SGs (matches the SG-lighting reference).
+    pub prefiltered_specular: bool,
     /// Build the BVH on the GPU (`isg_bvh` pass, LBVH over Morton codes, up to
     /// [`GPU_BVH_MAX`] spheres); false or more spheres: the CPU median-split BVH.
     pub gpu_bvh: bool,
@@ -64,13 +68,13 @@ pub const GPU_BVH_MAX: usize = 1024;
 
 impl Default for IsgSettings {
     fn default() -> Self {
-        IsgSettings { lobes: 16, spheres_per_object: 48, patch_side: 12, epsilon: 0.01, lod: 1.0, min_lobe_fraction: 0.02, shadows: true, gpu_bvh: true }
+        IsgSettings { lobes: 16, spheres_per_object: 48, patch_side: 12, epsilon: 0.01, lod: 1.0, min_lobe_fraction: 0.02, shadows: true, prefiltered_specular: true, gpu_bvh: true }
     }
 }
 
 impl IsgSettings {
     /// Defaults overridden by `PENUMBRA_ISG="key=value,..."` (keys: `lobes`, `spheres`, `side`,
-    /// `epsilon`, `lod`, `min_fraction`, `shadows` 0/1, `gpu_bvh` 0/1); unknown keys and bad values are ignored with a message
+    /// `epsilon`, `lod`, `min_fraction`, `shadows` 0/1, `prefiltered` 0/1, `gpu_bvh` 0/1); unknown keys and bad values are ignored with a message
     /// on stderr.
     pub fn from_env() -> Self {
         let mut s = IsgSettings::default();
@@ -93,6 +97,7 @@ impl IsgSettings {
                 "side" => v.trim().parse().map(|x: u32| self.patch_side = x.clamp(1, 32)).is_ok(),
                 "epsilon" => v.trim().parse().map(|x: f64| self.epsilon = x.clamp(1e-6, 0.5)).is_ok(),
                 "lod" => v.trim().parse().map(|x: f32| self.lod = x.max(0.0)).is_ok(),
+                "prefiltered" => v.trim().parse().map(|x: u32| self.prefiltered_specular = x != 0).is_ok(),
                 "gpu_bvh" => v.trim().parse().map(|x: u32| self.gpu_bvh = x != 0).is_ok(),
                 "shadows" => v.trim().parse().map(|x: u32| self.shadows = x != 0).is_ok(),
                 "min_fraction" => v.trim().parse().map(|x: f32| self.min_lobe_fraction = x.clamp(0.0, 1.0)).is_ok(),
@@ -247,6 +252,31 @@ pub fn lighting_lobes(scene: &Scene, k: usize) -> (Vec<[f32; 4]>, Option<f64>) {
     (out, Some(fit.rel_l2_error))
 }
 
+/// SG sharpness levels of the prefiltered environment (0.25 and the math crate's default stack).
+pub const PREFILTER_LAMBDAS: [f64; 8] = [0.25, 1.0, 4.0, 16.0, 64.0, 256.0, 1024.0, 4096.0];
+
+/// The environment prefiltered with normalised SGs ([`PREFILTER_LAMBDAS`], at most 128 rows) in
+/// the layout of `Prefiltered` in `glsl/isg_shade.comp`; `[0.0]` (no levels) without an
+/// environment.
+pub fn prefiltered_env(scene: &Scene) -> Vec<f32> {
+    let Some(e) = scene.environment.as_ref() else { return vec![0.0] };
+    let Ok(levels) = penumbra_math::envmap::prefilter(e.width as usize, e.height as usize, &e.texels, &PREFILTER_LAMBDAS, 128)
+    else {
+        return vec![0.0];
+    };
+    let mut out = vec![levels.len() as f32];
+    let header = 1 + 4 * levels.len();
+    let mut offset = header;
+    for l in &levels {
+        out.extend([l.lambda as f32, l.width as f32, l.height as f32, offset as f32]);
+        offset += 3 * l.texels.len();
+    }
+    for l in &levels {
+        out.extend(l.texels.iter().flat_map(|t| t.map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 })));
+    }
+    out
+}
+
 /// The `"isg"` technique.
 pub struct IsgTechnique {
     pipeline: Pipeline,
@@ -259,6 +289,7 @@ pub struct IsgTechnique {
     sets: Vec<Option<SphereSet>>,
     table: Arc<Vec<u8>>,
     lobes: Arc<Vec<u8>>,
+    prefiltered: Arc<Vec<u8>>,
     lobe_count: u32,
     /// Spheres and BVH nodes of the last frame (for tests and reports).
     pub last_sphere_count: usize,
@@ -285,12 +316,14 @@ impl IsgTechnique {
                 T::STORAGE_BUFFER,
                 T::STORAGE_BUFFER,
                 T::STORAGE_BUFFER,
+                T::STORAGE_BUFFER,
             ],
-            28,
+            32,
         )?;
         let bvh_pipeline = compute_pipeline(ctx, shaders, "isg_bvh.comp", &[T::STORAGE_BUFFER, T::STORAGE_BUFFER], 36)?;
         let table = IsgTable::default_table().to_gpu(settings.epsilon);
         let (lobes, _) = lighting_lobes(scene, settings.lobes);
+        let prefiltered = prefiltered_env(scene);
         let lobe_count = (lobes.len() / 2) as u32;
         let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
         Ok(IsgTechnique {
@@ -304,6 +337,7 @@ impl IsgTechnique {
             settings,
             table: Arc::new(bytes_of(&table)),
             lobes: Arc::new(bytes_of(&lobes)),
+            prefiltered: Arc::new(bytes_of(&prefiltered)),
             lobe_count,
             last_sphere_count: 0,
             last_node_count: 0,
@@ -363,6 +397,7 @@ impl crate::technique::Technique for IsgTechnique {
         let (w, h) = (gb.width, gb.height);
         let table = graph.create_buffer_init("isg_table", self.table.as_ref().clone());
         let lobes = graph.create_buffer_init("isg_lobes", self.lobes.as_ref().clone());
+        let prefiltered = graph.create_buffer_init("isg_prefiltered", self.prefiltered.as_ref().clone());
         let (bvh, node_count) = if self.settings.gpu_bvh && spheres.len() >= 2 && spheres.len() <= GPU_BVH_MAX {
             self.add_gpu_bvh(graph, &spheres)
         } else {
@@ -386,7 +421,8 @@ impl crate::technique::Technique for IsgTechnique {
         let table = p.read(table, Access::ComputeShaderReadStorage);
         let lobes = p.read(lobes, Access::ComputeShaderReadStorage);
         let bvh = p.read(bvh, Access::ComputeShaderReadStorage);
-        let mut push = Vec::with_capacity(28);
+        let prefiltered = p.read(prefiltered, Access::ComputeShaderReadStorage);
+        let mut push = Vec::with_capacity(32);
         push.extend_from_slice(&scene.light_count.to_le_bytes());
         push.extend_from_slice(&self.lobe_count.to_le_bytes());
         push.extend_from_slice(&node_count.to_le_bytes());
@@ -394,6 +430,7 @@ impl crate::technique::Technique for IsgTechnique {
         push.extend_from_slice(&self.settings.lod.to_le_bytes());
         push.extend_from_slice(&(!self.settings.shadows as u32).to_le_bytes());
         push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
+        push.extend_from_slice(&(!self.settings.prefiltered_specular as u32).to_le_bytes());
         let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
@@ -415,6 +452,7 @@ impl crate::technique::Technique for IsgTechnique {
                     Bind::StorageBuffer(table),
                     Bind::StorageBuffer(lobes),
                     Bind::StorageBuffer(bvh),
+                    Bind::StorageBuffer(prefiltered),
                 ],
             )?;
             unsafe {
