@@ -48,7 +48,7 @@ fn shadow_fields_gpu_matches_cpu_and_is_validation_clean() {
         let tech = ShadowFieldsTechnique::with_fields(&ctx, &lib, &scene, fields.clone(), adaptive).unwrap();
         for t in [0.0f32, 1.3] {
             let frame = scene.at(t, None);
-            let points = vertex_points(&scene, &frame, &fields, false);
+            let points = vertex_points(&scene, &frame, &fields, None);
             let insts = instance_frames(&scene, &frame, &fields, adaptive);
             let cpu = cpu_shade_points(&points, &insts, &tech.light, &tech.tensor);
             let (gpu, ms) = gpu_shade_points(&mut engine, &tech, &frame, &points).unwrap();
@@ -78,7 +78,18 @@ fn shadow_fields_gpu_matches_cpu_and_is_validation_clean() {
         }
     }
     drop(engine);
-    let report = bench(&ctx, &lib, &scene, &BenchOptions { sf: opts, time: 0.7, cull: true, repeats: 1 }).unwrap();
+    // One file per object and variant, read back identical.
+    let dir = std::env::temp_dir().join(format!("sf_files_{}", std::process::id()));
+    let (reports, paths) = penumbra_passes::shadow_fields::precompute_files(&scene, &opts, &dir).unwrap();
+    assert_eq!(paths.len(), 2 * scene.meshes.len());
+    assert_eq!(reports.len(), scene.meshes.len());
+    for (i, p) in paths.iter().enumerate() {
+        let f = penumbra_math::shadow_field::ObjectField::from_bytes(&std::fs::read(p).unwrap()).unwrap();
+        let (fx, ad) = &fields.fields[i / 2];
+        assert_eq!(&f, if i % 2 == 0 { fx.as_ref() } else { ad.as_ref() }, "{}", p.display());
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    let report = bench(&ctx, &lib, &scene, &BenchOptions { sf: opts, time: 0.7, cull: Some(4.0 / 3.0), repeats: 1 }).unwrap();
     println!("{report}");
     assert!(report.adaptive_bytes < report.fixed_bytes);
     assert!(report.vertices > 0 && report.gpu_vs_cpu_rel_rmse < 1e-3);
@@ -103,7 +114,7 @@ fn shadow_fields_bench_builtin_scenes() {
     }
     for name in ["sf_spheres.toml", "balls_on_dish.toml", "falling.toml"] {
         let scene = Scene::load(root().join("scenes").join(name)).expect("scene");
-        let report = bench(&ctx, &lib, &scene, &BenchOptions { sf: sf.clone(), time: 0.7, cull: true, repeats: 3 }).unwrap();
+        let report = bench(&ctx, &lib, &scene, &BenchOptions { sf: sf.clone(), time: 0.7, cull: Some(4.0 / 3.0), repeats: 3 }).unwrap();
         println!("{report}");
         assert!(report.adaptive_bytes <= report.fixed_bytes);
     }

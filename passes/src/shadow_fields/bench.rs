@@ -18,15 +18,16 @@ pub struct BenchOptions {
     pub sf: SfOptions,
     /// Scene time of the measured frame (seconds).
     pub time: f32,
-    /// Cull vertices outside the view or facing away (as the paper does on the CPU).
-    pub cull: bool,
+    /// Cull vertices outside the view (at this aspect ratio) or facing away, as the paper does
+    /// on the CPU; `None` shades every vertex.
+    pub cull: Option<f32>,
     /// Timed repetitions (the median is reported).
     pub repeats: usize,
 }
 
 impl Default for BenchOptions {
     fn default() -> Self {
-        BenchOptions { sf: SfOptions::default(), time: 0.5, cull: true, repeats: 3 }
+        BenchOptions { sf: SfOptions::default(), time: 0.5, cull: Some(4.0 / 3.0), repeats: 3 }
     }
 }
 

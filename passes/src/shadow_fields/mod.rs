@@ -161,6 +161,30 @@ impl SceneFields {
     }
 }
 
+/// `penumbra precompute shadow-field` for the CLI: precomputes the fields of every mesh of
+/// `scene` and writes one file per object and variant, `<out>/<mesh>.fixed.psf` and
+/// `<out>/<mesh>.adaptive.psf` (mesh names sanitized, index-suffixed when repeated), read back
+/// with [`ObjectField::from_bytes`]. Returns the per-mesh reports and the paths written.
+pub fn precompute_files(scene: &Scene, options: &SfOptions, out: &std::path::Path) -> Result<(Vec<FieldReport>, Vec<PathBuf>)> {
+    let fields = SceneFields::build(scene, options)?;
+    std::fs::create_dir_all(out).map_err(|e| anyhow!("{}: {e}", out.display()))?;
+    let mut paths = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    for (mi, ((f, a), m)) in fields.fields.iter().zip(&scene.meshes).enumerate() {
+        let mut name: String = m.name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect();
+        if name.is_empty() || !seen.insert(name.clone()) {
+            name = format!("{name}_{mi}");
+            seen.insert(name.clone());
+        }
+        for (kind, field) in [("fixed", f), ("adaptive", a)] {
+            let p = out.join(format!("{name}.{kind}.psf"));
+            std::fs::write(&p, field.to_bytes()).map_err(|e| anyhow!("{}: {e}", p.display()))?;
+            paths.push(p);
+        }
+    }
+    Ok((fields.reports, paths))
+}
+
 /// Order-4 SH (rgb) of the environment radiance in world space (intensity and rotation
 /// applied); zero without an environment.
 pub fn env_light_sh(env: Option<&Environment>) -> [[f64; 3]; NCOEF] {
@@ -229,9 +253,11 @@ pub struct GpuPoint {
 }
 
 /// The points of a frame: every vertex of every instance (world position, self-transfer),
-/// optionally culled to the camera's view (outside the frustum or facing away).
-pub fn vertex_points(scene: &Scene, frame: &Frame, fields: &SceneFields, cull: bool) -> Vec<ShadePoint> {
-    let aspect = 1.0;
+/// optionally culled (`cull = Some(aspect)`) to the camera's view: vertices outside the
+/// frustum (5% margin) or whose normal faces away from the eye are dropped (paper 5.3).
+pub fn vertex_points(scene: &Scene, frame: &Frame, fields: &SceneFields, cull: Option<f32>) -> Vec<ShadePoint> {
+    let aspect = cull.filter(|a| a.is_finite() && *a > 0.0).unwrap_or(1.0);
+    let cull = cull.is_some();
     let vp = frame.camera.proj(aspect) * frame.camera.view();
     let eye = frame.camera.eye;
     let mut out = Vec::new();
