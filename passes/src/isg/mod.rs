@@ -180,6 +180,8 @@ pub fn build_bvh(spheres: &[WorldSphere]) -> Vec<GpuNode> {
 /// Sphere sets of a scene's objects (index = object), `None` for objects without one (thin
 /// shells, non-casters, open meshes).
 pub fn scene_sphere_sets(scene: &Scene, per_object: usize) -> Vec<Option<SphereSet>> {
+    // Objects sharing a mesh share its set (built once).
+    let mut built: std::collections::HashMap<usize, Option<SphereSet>> = std::collections::HashMap::new();
     scene
         .objects
         .iter()
@@ -201,7 +203,10 @@ pub fn scene_sphere_sets(scene: &Scene, per_object: usize) -> Vec<Option<SphereS
                     }
                 }
             }
-            approximate_spheres(&mesh.positions, &mesh.indices, per_object).ok()
+            built
+                .entry(o.mesh)
+                .or_insert_with(|| approximate_spheres(&mesh.positions, &mesh.indices, per_object).ok())
+                .clone()
         })
         .collect()
 }
