@@ -76,3 +76,89 @@ fn a_bare_gltf_model_is_a_scene() {
         "no model in the centre: centre {centre}, corner {corner}"
     );
 }
+
+/// Passes of each of `frames` consecutive frames of `scene` rendered with `technique`.
+fn passes_per_frame(scene: &Scene, technique: &str, frames: u32) -> Vec<Vec<String>> {
+    let settings = penumbra::RenderSettings {
+        width: 32,
+        height: 24,
+        technique: Some(technique.into()),
+        frames_in_flight: 1,
+        ..Default::default()
+    };
+    let mut r = penumbra::Renderer::new_headless(scene, settings, false).unwrap();
+    let mut out = Vec::new();
+    let mut prev = None;
+    for k in 0..frames {
+        let t = k as f32 / 30.0;
+        r.render(&scene.at(t, prev), None, false).unwrap();
+        prev = Some(t);
+        out.push(r.last_graph.as_ref().unwrap().live_passes().map(|(_, p)| p.name.clone()).collect());
+    }
+    r.finish().unwrap();
+    out
+}
+
+#[test]
+fn acceleration_structures_are_rebuilt_only_for_changing_geometry() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    let builds = |passes: &Vec<String>| passes.iter().filter(|p| p.starts_with("kdtree_")).count();
+    // chess: static geometry (only its materials animate).
+    let chess = Scene::load(dir.join("chess.toml")).unwrap();
+    assert!(chess.requirements().is_static_geometry());
+    let frames = passes_per_frame(&chess, "mc", 3);
+    assert!(builds(&frames[0]) > 0, "the first frame builds the kd-tree: {:?}", frames[0]);
+    assert_eq!(builds(&frames[1]), 0, "static scene rebuilt its kd-tree: {:?}", frames[1]);
+    assert_eq!(builds(&frames[2]), 0, "static scene rebuilt its kd-tree: {:?}", frames[2]);
+    // falling: objects move every frame.
+    let falling = Scene::load(dir.join("falling.toml")).unwrap();
+    assert!(!falling.requirements().is_static_geometry());
+    let frames = passes_per_frame(&falling, "mc", 3);
+    assert!(frames.iter().all(|f| builds(f) > 0), "moving scene must rebuild every frame: {frames:?}");
+}
+
+#[test]
+fn every_implemented_technique_renders_through_the_renderer_validation_clean() {
+    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    // A textured static scene and a moving one.
+    let scenes = [Scene::load(dir.join("chess.toml")).unwrap(), Scene::load(dir.join("falling.toml")).unwrap()];
+    let mut failures = Vec::new();
+    for technique in penumbra_passes::technique::IMPLEMENTED {
+        for scene in &scenes {
+            let settings = penumbra::RenderSettings {
+                width: 48,
+                height: 36,
+                technique: Some(technique.to_string()),
+                ..Default::default()
+            };
+            let mut r = match penumbra::Renderer::new_headless(scene, settings, true) {
+                Ok(r) => r,
+                Err(e) => {
+                    failures.push(format!("{technique}/{}: {e:#}", scene.name));
+                    continue;
+                }
+            };
+            let mut frames = Vec::new();
+            let mut prev = None;
+            for k in 0..2 {
+                let t = k as f32 / 30.0;
+                match r.render(&scene.at(t, prev), None, true) {
+                    Ok(f) => frames.extend(f),
+                    Err(e) => failures.push(format!("{technique}/{} frame {k}: {e:#}", scene.name)),
+                }
+                prev = Some(t);
+            }
+            frames.extend(r.finish().unwrap_or_default());
+            let log = r.context().validation.clone();
+            drop(r);
+            if log.error_count() > 0 {
+                failures.push(format!("{technique}/{}: {} validation errors: {:?}", scene.name, log.error_count(), log.errors()));
+            }
+            if frames.len() != 2 || frames.iter().any(|f| f.hdr.iter().flatten().any(|c| !c.is_finite())) {
+                failures.push(format!("{technique}/{}: missing frames or non-finite radiance", scene.name));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}

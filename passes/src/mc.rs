@@ -286,6 +286,8 @@ pub fn world_triangles_shading(scene: &Scene, frame: &Frame) -> Result<ShadingTr
 pub struct McTechnique {
     pipeline: Pipeline,
     textures: crate::textures::MaterialTextures,
+    /// The renderer's texture array for the frame being declared (see `Technique::add`).
+    scene_textures: Option<ImageHandle>,
     repeat: crate::util::Sampler,
     extras: Vec<penumbra_scene::MaterialExtra>,
     pub builder: KdTreeBuilder,
@@ -325,6 +327,7 @@ impl McTechnique {
         Ok(McTechnique {
             pipeline,
             textures: crate::textures::MaterialTextures::new(ctx, &scene.textures)?,
+            scene_textures: None,
             repeat: crate::util::Sampler::repeat(ctx)?,
             extras: (0..scene.materials.len()).map(|i| scene.material_extra(i)).collect(),
             builder: KdTreeBuilder::new(ctx, shaders)?,
@@ -406,7 +409,12 @@ impl McTechnique {
         let env_cdf = Self::persistent_upload(engine, graph, "mc.env_cdf", bytes_of(&self.env.cdf), false);
         let materials =
             graph.create_buffer_init("mc.materials", bytes_of(&material_table(&frame.materials, &self.extras)));
-        let textures = self.textures.add(graph);
+        // Inside the renderer the scene's texture array is already in the graph; standalone
+        // (tests, benches) the technique imports its own copy.
+        let textures = match self.scene_textures.take() {
+            Some(t) => t,
+            None => self.textures.add(graph),
+        };
         let light_data = light_table(&frame.lights);
         let light_count = (light_data.len() / 4) as u32;
         let lights = graph
@@ -516,6 +524,9 @@ impl crate::technique::Technique for McTechnique {
         graph: &mut Graph,
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {
-        self.add_frame(engine, graph, inputs.frame, inputs.gbuffer.width, inputs.gbuffer.height)
+        self.scene_textures = Some(inputs.scene.textures);
+        let r = self.add_frame(engine, graph, inputs.frame, inputs.gbuffer.width, inputs.gbuffer.height);
+        self.scene_textures = None;
+        r
     }
 }
