@@ -2,7 +2,8 @@
 // Shadow fields, per pixel: the G-buffer point's diffuse transfer (clamped cosine / pi, no
 // self-occlusion at pixels) times every other object's visibility from its shadow field
 // (triple products), double product with the environment SH; glossy materials add the
-// prefiltered environment along the reflection, times the occluders' visibility there.
+// prefiltered environment along the reflection, times the occluders' visibility there; local
+// lights are shadowed by the occluders' visibility toward them.
 // Sky pixels show the environment.
 #include "common.glsl"
 #define SF_B0 7
@@ -17,7 +18,53 @@ layout(set = 0, binding = 3) uniform sampler2D gb_normal;
 layout(set = 0, binding = 4) uniform sampler2D gb_uv_mat;
 layout(set = 0, binding = 5) uniform sampler2D env_map;
 layout(set = 0, binding = 6, rgba32f) uniform writeonly image2D hdr;
-layout(push_constant) uniform Push { uint n_inst; uint tensor_count; } pc;
+layout(set = 0, binding = 12) readonly buffer Lights { LightData lights[]; };
+layout(push_constant) uniform Push { uint n_inst; uint tensor_count; uint light_count; } pc;
+
+// Local lights (as shade_env.comp's local_lights, same BRDFs), each shadowed by the other
+// objects' order-4 visibility toward the light (their OOF evaluated along the light direction;
+// no source radiance fields: the light is treated as a point, occluders behind it included).
+vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness, uint self_inst) {
+    vec3 sum = vec3(0.0);
+    for (uint i = 0u; i < pc.light_count; ++i) {
+        LightData l = lights[i];
+        vec3 to_l = l.pos_kind.xyz - pos;
+        float d2 = max(dot(to_l, to_l), 1e-8);
+        vec3 wi = to_l * inversesqrt(d2);
+        float ndl = dot(n, wi);
+        if (ndl <= 0.0) continue;
+        vec3 intensity = l.power_cos_inner.rgb;
+        int lk = int(l.pos_kind.w + 0.5);
+        if (lk == 1) {
+            float c = dot(-wi, normalize(l.dir_cos_outer.xyz));
+            intensity *= smoothstep(l.dir_cos_outer.w, l.power_cos_inner.w, c);
+        } else if (lk == 2) {
+            intensity *= PI * l.extra.x * l.extra.x;
+        }
+        vec3 f = albedo / PI;
+        if (kind != 0) {
+            vec3 h = normalize(wi + v);
+            float ndh = max(dot(n, h), 0.0);
+            float ndv = max(dot(n, v), 1e-4);
+            vec3 F = m.spec_rough.rgb + (1.0 - m.spec_rough.rgb) * pow(1.0 - max(dot(wi, h), 0.0), 5.0);
+            if (kind == 1) {
+                float s = m.extra.x;
+                f += F * (s + 2.0) / (8.0 * PI) * pow(ndh, s);
+            } else {
+                float a = roughness * roughness;
+                float a2 = a * a;
+                float dd = ndh * ndh * (a2 - 1.0) + 1.0;
+                float D = a2 / (PI * dd * dd);
+                float k = a * 0.5;
+                float G = ndl / (ndl * (1.0 - k) + k) * ndv / (ndv * (1.0 - k) + k);
+                f += F * D * G / (4.0 * ndl * ndv);
+            }
+        }
+        float vis = sf_visibility_along(pos, wi, self_inst, pc.n_inst);
+        sum += vis * f * intensity * ndl / d2;
+    }
+    return sum;
+}
 
 vec3 env_lookup(vec3 d, float lod) {
     vec2 uv = dir_to_latlong(normalize(d), cam.env_rot.xy);
@@ -78,13 +125,14 @@ void main() {
     // Glossy materials: the prefiltered environment along the reflection (as the "env"
     // technique), shadowed by the occluders' visibility in that direction.
     int kind = int(m.albedo_kind.w + 0.5);
+    vec3 v = normalize(cam.eye.xyz - pos);
+    float ndv = max(dot(n, v), 1e-4);
+    float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
     if (kind != 0) {
-        vec3 v = normalize(cam.eye.xyz - pos);
-        float ndv = max(dot(n, v), 1e-4);
-        float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
         vec3 r = reflect(-v, n);
         float vis = sf_visibility_along(pos, r, self_inst, pc.n_inst);
         color += vis * env_lookup(r, roughness * (cam.params.z - 1.0)) * env_brdf_approx(m.spec_rough.rgb, roughness, ndv);
     }
+    color += local_lights(pos, n, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);
     imageStore(hdr, p, vec4(color, 1.0));
 }

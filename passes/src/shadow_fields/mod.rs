@@ -10,7 +10,9 @@
 //! * GPU: the same per point in `glsl/sf_points.comp` ([`ShadowFieldsTechnique::add_points`]),
 //!   and per G-buffer pixel in `glsl/sf_shade.comp` (the technique's image; pixels use the
 //!   clamped-cosine transfer of their normal, without self-occlusion, which the per-vertex
-//!   transfer carries only at vertices).
+//!   transfer carries only at vertices; glossy materials add the prefiltered environment along
+//!   the reflection and local lights are evaluated with the material BRDF, both shadowed by the
+//!   product of the other objects' visibilities in that direction).
 //!
 //! Registered as `shadow-fields` (adaptive) and `shadow-fields-fixed` (every shell at the
 //! initial resolution) so `penumbra bench --techniques shadow-fields,shadow-fields-fixed`
@@ -449,8 +451,9 @@ impl ShadowFieldsTechnique {
                 sb,
                 sb,
                 sb,
+                sb,
             ],
-            8,
+            12,
         )?;
         let points = compute_pipeline(ctx, shaders, "sf_points.comp", &[sb; 7], 12)?;
         let tensor = TripleProductTensor::new(sf::ORDER);
@@ -528,10 +531,10 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
         let env = p.read(inputs.env, Access::ComputeShaderReadSampled);
         let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
-        let r = [h.data, h.shells, h.insts, h.tensor, h.light].map(|b| p.read(b, Access::ComputeShaderReadStorage));
+        let r = [h.data, h.shells, h.insts, h.tensor, h.light, inputs.scene.lights].map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let (pipeline, layout) = (self.shade.pipeline, self.shade.layout);
         let (nearest, linear) = (self.nearest.sampler, self.linear.sampler);
-        let push: Vec<u8> = [h.inst_count, h.tensor_count].iter().flat_map(|x| x.to_le_bytes()).collect();
+        let push: Vec<u8> = [h.inst_count, h.tensor_count, inputs.scene.light_count].iter().flat_map(|x| x.to_le_bytes()).collect();
         p.record(move |rc| {
             unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
             let mut binds = vec![
