@@ -182,3 +182,89 @@ pub fn run_trace(args: &TraceArgs, scene: &Scene) -> Result<()> {
     println!("{report}");
     Ok(())
 }
+
+/// Shadow-field precompute parameters shared by `bench shadow-fields` and `precompute`.
+#[derive(Args, Clone)]
+pub struct FieldParams {
+    /// Concentric shells C.
+    #[arg(long, default_value_t = 32)]
+    pub shells: usize,
+    /// Initial polar resolution R (R x R samples per shell; paper 64).
+    #[arg(long, default_value_t = 32)]
+    pub resolution: usize,
+    /// Occlusion map resolution per sample (map_res x 2 map_res directions).
+    #[arg(long, default_value_t = 32)]
+    pub map_res: usize,
+    /// Adaptive threshold of eq. 1.
+    #[arg(long, default_value_t = 0.010)]
+    pub threshold: f64,
+}
+
+impl FieldParams {
+    fn options(&self) -> penumbra_passes::shadow_fields::SfOptions {
+        let mut o = penumbra_passes::shadow_fields::SfOptions::default();
+        o.params.shells = self.shells.max(1);
+        o.params.resolution = self.resolution.max(1);
+        o.params.map_res = self.map_res.max(2);
+        o.params.threshold = self.threshold;
+        o.progress = true;
+        o
+    }
+}
+
+#[derive(Args)]
+pub struct ShadowFieldsArgs {
+    /// Scene file or glTF model; the built-in default scene when omitted.
+    pub scene: Option<PathBuf>,
+    #[command(flatten)]
+    pub params: FieldParams,
+    /// Scene time of the measured frame (seconds).
+    #[arg(long, default_value_t = 0.5)]
+    pub time: f32,
+    /// Timed repetitions (median reported).
+    #[arg(long, default_value_t = 3)]
+    pub repeats: usize,
+}
+
+pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
+    let ctx = penumbra::engine::Context::new(&Default::default())?;
+    let opts = penumbra_passes::shadow_fields::bench::BenchOptions {
+        sf: args.params.options(),
+        time: args.time,
+        repeats: args.repeats.max(1),
+        ..Default::default()
+    };
+    let report = penumbra_passes::shadow_fields::bench::bench(&ctx, &penumbra::shader_library(), scene, &opts)?;
+    println!("{report}");
+    Ok(())
+}
+
+#[derive(Args)]
+pub struct ShadowFieldArgs {
+    /// Scene file or glTF model.
+    pub model: PathBuf,
+    #[command(flatten)]
+    pub params: FieldParams,
+    /// Output directory.
+    #[arg(long, default_value = "shadow-fields")]
+    pub out: PathBuf,
+}
+
+pub fn run_precompute_shadow_field(args: &ShadowFieldArgs, scene: &Scene) -> Result<()> {
+    let (reports, paths) = penumbra_passes::shadow_fields::precompute_files(scene, &args.params.options(), &args.out)?;
+    for r in &reports {
+        println!(
+            "{}: {} vertices, coefficients {} KB fixed -> {} KB adaptive ({:.0}% smaller), shells R = {:?}",
+            r.mesh,
+            r.vertices,
+            r.fixed_bytes / 1024,
+            r.adaptive_bytes / 1024,
+            100.0 * (1.0 - r.adaptive_bytes as f64 / r.fixed_bytes.max(1) as f64),
+            r.resolutions
+        );
+    }
+    for p in &paths {
+        println!("wrote {}", p.display());
+    }
+    Ok(())
+}

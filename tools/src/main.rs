@@ -39,6 +39,9 @@ enum Cmd {
     /// Benchmarks: accuracy against the CPU reference and speed ratios, in one run.
     #[command(subcommand)]
     Bench(BenchCmd),
+    /// Offline precomputation for techniques.
+    #[command(subcommand)]
+    Precompute(PrecomputeCmd),
     /// Approximate a closed mesh by N spheres (blockers of the ISG technique) and report the
     /// fraction of its volume they cover and the volume they put outside it.
     Spheres(spheres::SpheresArgs),
@@ -55,6 +58,17 @@ enum BenchCmd {
     /// The compute kd-tree tracer against obvhs on the CPU (all cores): build ms, memory, and
     /// million rays/s for coherent and incoherent visibility rays, in one run.
     Trace(bench::TraceArgs),
+    /// Shadow fields: per-shell resolutions after adaptation, data size fixed vs adaptive,
+    /// per-vertex error adaptive vs fixed and GPU vs CPU, ms per frame GPU vs CPU path.
+    /// (Image errors against the reference: `bench techniques --techniques env,shadow-fields,shadow-fields-fixed`.)
+    ShadowFields(bench::ShadowFieldsArgs),
+}
+
+#[derive(Subcommand)]
+enum PrecomputeCmd {
+    /// Object occlusion fields of every mesh of a scene or model (fixed and adaptive shells,
+    /// 8-bit SH coefficients), one file per object and variant: OUT/<mesh>.{fixed,adaptive}.psf.
+    ShadowField(bench::ShadowFieldArgs),
 }
 
 #[derive(Args)]
@@ -284,6 +298,14 @@ fn run(cli: Cli) -> Result<()> {
             parse_size(&a.size).map_err(bad)?;
             let scene = load_scene(a.scene.as_deref())?;
             bench::run_trace(&a, &scene)
+        }
+        Cmd::Bench(BenchCmd::ShadowFields(a)) => {
+            let scene = load_scene(a.scene.as_deref())?;
+            bench::run_shadow_fields(&a, &scene)
+        }
+        Cmd::Precompute(PrecomputeCmd::ShadowField(a)) => {
+            let scene = load_scene(Some(&a.model))?;
+            bench::run_precompute_shadow_field(&a, &scene)
         }
         Cmd::Bench(BenchCmd::Techniques(a)) => {
             parse_size(&a.size).map_err(bad)?;

@@ -182,3 +182,29 @@ fn bench_trace_and_volumetric_run_and_report() {
     let g = std::fs::read_to_string(d.join("graph.txt")).unwrap();
     assert!(g.contains("vol_march") && !g.contains("vol_mask"), "full method has no mover mask:\n{g}");
 }
+
+#[test]
+fn shadow_field_precompute_and_bench() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let scene = root.join("scenes/sf_spheres.toml");
+    let d = tmp("psf");
+    let small = ["--shells", "4", "--resolution", "8", "--map-res", "8"];
+    let mut args = vec!["precompute", "shadow-field", scene.to_str().unwrap(), "--out", d.to_str().unwrap()];
+    args.extend(small);
+    let o = penumbra(&args);
+    assert!(o.status.success(), "{}", text(&o));
+    let files: Vec<_> = std::fs::read_dir(&d).unwrap().flatten().map(|e| e.file_name().into_string().unwrap()).collect();
+    assert!(files.iter().any(|f| f.ends_with(".adaptive.psf")) && files.iter().any(|f| f.ends_with(".fixed.psf")), "{files:?}");
+    for f in &files {
+        let bytes = std::fs::read(d.join(f)).unwrap();
+        penumbra_math::shadow_field::ObjectField::from_bytes(&bytes).unwrap_or_else(|e| panic!("{f}: {e}"));
+    }
+    let mut args = vec!["bench", "shadow-fields", scene.to_str().unwrap(), "--repeats", "1"];
+    args.extend(small);
+    let o = penumbra(&args);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("per-shell R") && t.contains("GPU vs CPU") && t.contains("ms per frame"), "{t}");
+    let missing = root.join("scenes/nope.toml");
+    expect_bad_input(&["precompute", "shadow-field", missing.to_str().unwrap()], &["nope.toml"]);
+}
