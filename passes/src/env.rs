@@ -8,7 +8,7 @@
 use crate::util::bytes_of;
 use glam::Vec3;
 use penumbra_engine::graph::ImageDesc;
-use penumbra_engine::{vk, Access, Engine, Graph, ImageHandle, PassKind};
+use penumbra_engine::{vk, Engine, Graph, ImageHandle};
 use penumbra_scene::Environment;
 
 /// CPU-side environment data ready for the GPU.
@@ -182,25 +182,7 @@ impl EnvMapGpu {
             );
             data.extend_from_slice(&bytes_of(texels));
         }
-        let staging = graph.create_buffer_init("env_staging", data);
-        let mut p = graph.pass("env_upload", PassKind::Transfer);
-        p.read(staging, Access::TransferSrc);
-        let img = p.write(img, Access::TransferDst);
-        p.record(move |rc| {
-            let src = rc.buffer(staging)?;
-            let dst = rc.image(img)?;
-            unsafe {
-                rc.device().cmd_copy_buffer_to_image(
-                    rc.cmd,
-                    src.buffer,
-                    dst.image,
-                    vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-                    &regions,
-                )
-            };
-            Ok(())
-        });
-        img
+        crate::util::add_image_upload(graph, "env", img, data, regions)
     }
 }
 

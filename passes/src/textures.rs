@@ -9,7 +9,7 @@ use crate::util::bytes_of;
 use anyhow::Result;
 use glam::Vec2;
 use penumbra_engine::graph::ImageDesc;
-use penumbra_engine::{vk, Access, Context, GpuImage, Graph, ImageHandle, ImportedImage, PassKind};
+use penumbra_engine::{vk, Access, Context, GpuImage, Graph, ImageHandle, ImportedImage};
 use penumbra_scene::Texture;
 use std::cell::Cell;
 use std::sync::Arc;
@@ -155,24 +155,7 @@ impl TextureLayers {
                 data.extend_from_slice(&bytes_of(texels));
             }
         }
-        let staging = graph.create_buffer_init("textures_staging", data);
-        let mut p = graph.pass("textures_upload", PassKind::Transfer);
-        p.read(staging, Access::TransferSrc);
-        let img = p.write(img, Access::TransferDst);
-        p.record(move |rc| {
-            let (src, dst) = (rc.buffer(staging)?, rc.image(img)?);
-            unsafe {
-                rc.device().cmd_copy_buffer_to_image(
-                    rc.cmd,
-                    src.buffer,
-                    dst.image,
-                    vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-                    &regions,
-                )
-            };
-            Ok(())
-        });
-        img
+        crate::util::add_image_upload(graph, "textures", img, data, regions)
     }
 }
 

@@ -167,3 +167,34 @@ pub fn bytes_of<T: Copy>(v: &[T]) -> Vec<u8> {
     unsafe { std::ptr::copy_nonoverlapping(v.as_ptr() as *const u8, out.as_mut_ptr(), n) };
     out
 }
+
+/// Declares a `{name}_upload` transfer pass copying host `data` (through a host-initialised
+/// `{name}_staging` buffer) into `img` with `regions` (buffer offsets into `data`). Returns the
+/// written image handle.
+pub fn add_image_upload(
+    graph: &mut penumbra_engine::Graph,
+    name: &str,
+    img: penumbra_engine::ImageHandle,
+    data: Vec<u8>,
+    regions: Vec<vk::BufferImageCopy>,
+) -> penumbra_engine::ImageHandle {
+    use penumbra_engine::{Access, PassKind};
+    let staging = graph.create_buffer_init(&format!("{name}_staging"), data);
+    let mut p = graph.pass(&format!("{name}_upload"), PassKind::Transfer);
+    p.read(staging, Access::TransferSrc);
+    let img = p.write(img, Access::TransferDst);
+    p.record(move |rc| {
+        let (src, dst) = (rc.buffer(staging)?, rc.image(img)?);
+        unsafe {
+            rc.device().cmd_copy_buffer_to_image(
+                rc.cmd,
+                src.buffer,
+                dst.image,
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                &regions,
+            )
+        };
+        Ok(())
+    });
+    img
+}
