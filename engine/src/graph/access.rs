@@ -16,6 +16,10 @@ pub enum Access {
     DepthAttachmentWrite,
     /// Depth test only, read-only depth layout.
     DepthAttachmentRead,
+    /// Depth and stencil test/write on a depth-stencil format (e.g. a stencil mask).
+    DepthStencilAttachmentWrite,
+    /// Depth and stencil tests only (read-only depth-stencil layout).
+    DepthStencilAttachmentRead,
     /// `sampler2D`/`texelFetch` in a vertex shader.
     VertexShaderReadSampled,
     /// `sampler2D`/`texelFetch` in a fragment shader.
@@ -82,10 +86,12 @@ pub struct AccessInfo {
 
 impl Access {
     /// Every access kind, in declaration order (for tests and documentation).
-    pub const ALL: [Access; 19] = [
+    pub const ALL: [Access; 21] = [
         Access::ColorAttachmentWrite,
         Access::DepthAttachmentWrite,
         Access::DepthAttachmentRead,
+        Access::DepthStencilAttachmentWrite,
+        Access::DepthStencilAttachmentRead,
         Access::VertexShaderReadSampled,
         Access::FragmentShaderReadSampled,
         Access::ComputeShaderReadSampled,
@@ -138,6 +144,28 @@ impl Access {
                 S::EARLY_FRAGMENT_TESTS | S::LATE_FRAGMENT_TESTS,
                 A::DEPTH_STENCIL_ATTACHMENT_READ,
                 L::DEPTH_READ_ONLY_OPTIMAL,
+                false,
+                false,
+                Applies::Image,
+                IU::DEPTH_STENCIL_ATTACHMENT,
+                BU::empty(),
+                Some(true),
+            ),
+            Access::DepthStencilAttachmentWrite => (
+                S::EARLY_FRAGMENT_TESTS | S::LATE_FRAGMENT_TESTS,
+                A::DEPTH_STENCIL_ATTACHMENT_READ | A::DEPTH_STENCIL_ATTACHMENT_WRITE,
+                L::DEPTH_STENCIL_ATTACHMENT_OPTIMAL,
+                true,
+                false,
+                Applies::Image,
+                IU::DEPTH_STENCIL_ATTACHMENT,
+                BU::empty(),
+                Some(true),
+            ),
+            Access::DepthStencilAttachmentRead => (
+                S::EARLY_FRAGMENT_TESTS | S::LATE_FRAGMENT_TESTS,
+                A::DEPTH_STENCIL_ATTACHMENT_READ,
+                L::DEPTH_STENCIL_READ_ONLY_OPTIMAL,
                 false,
                 false,
                 Applies::Image,

@@ -1,6 +1,6 @@
 //! Graph compilation: validation, culling, barrier derivation, lifetimes.
 
-use super::access::{is_depth_format, Access, AccessInfo, Applies};
+use super::access::{has_stencil, is_depth_format, Access, AccessInfo, Applies};
 use super::{Graph, Origin, PassKind, ResourceDesc, Usage};
 use ash::vk;
 use std::collections::{BTreeMap, BTreeSet};
@@ -409,7 +409,14 @@ pub(crate) fn compile(g: &Graph) -> Result<CompiledGraph, GraphError> {
                 });
             }
             if let (ResourceDesc::Image(d), Some(want_depth)) = (&r.desc, info.depth_format) {
-                if is_depth_format(d.format) != want_depth {
+                // Depth-only layouts cannot describe a stencil aspect, and the other way round.
+                let stencil_mismatch = want_depth
+                    && match u.access {
+                        Access::DepthAttachmentWrite | Access::DepthAttachmentRead => has_stencil(d.format),
+                        Access::DepthStencilAttachmentWrite | Access::DepthStencilAttachmentRead => !has_stencil(d.format),
+                        _ => false,
+                    };
+                if is_depth_format(d.format) != want_depth || stencil_mismatch {
                     problems.push(Problem::Format {
                         pass: p.name.clone(),
                         resource: r.name.clone(),
@@ -444,6 +451,8 @@ pub(crate) fn compile(g: &Graph) -> Result<CompiledGraph, GraphError> {
                     Access::ColorAttachmentWrite
                         | Access::DepthAttachmentRead
                         | Access::DepthAttachmentWrite
+                        | Access::DepthStencilAttachmentRead
+                        | Access::DepthStencilAttachmentWrite
                         | Access::VertexBuffer
                         | Access::IndexBuffer
                         | Access::VertexShaderReadSampled

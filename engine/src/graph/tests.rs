@@ -336,3 +336,32 @@ fn dumps_are_deterministic_and_match_snapshot() {
         assert_eq!(got, &want, "snapshot {name} differs (rerun with UPDATE_SNAPSHOTS=1 if intended)");
     }
 }
+
+#[test]
+fn depth_stencil_formats_need_depth_stencil_accesses() {
+    let mut g = Graph::new();
+    let ds = g.create_image("mask", ImageDesc::new_2d(vk::Format::D32_SFLOAT_S8_UINT, 8, 8));
+    let d = g.create_image("depth", ImageDesc::new_2d(vk::Format::D32_SFLOAT, 8, 8));
+    let mut p = g.pass("wrong", PassKind::Raster);
+    p.write(ds, Access::DepthAttachmentWrite); // stencil aspect in a depth-only layout
+    p.write(d, Access::DepthStencilAttachmentWrite); // no stencil aspect
+    p.side_effect();
+    p.finish();
+    let err = g.compile().unwrap_err();
+    assert!(err.problems.iter().any(|p| matches!(p, Problem::Format { resource, .. } if resource == "mask")), "{err}");
+    assert!(err.problems.iter().any(|p| matches!(p, Problem::Format { resource, .. } if resource == "depth")), "{err}");
+
+    let mut g = Graph::new();
+    let ds = g.create_image("mask", ImageDesc::new_2d(vk::Format::D32_SFLOAT_S8_UINT, 8, 8));
+    let mut p = g.pass("stencil", PassKind::Raster);
+    let ds = p.write(ds, Access::DepthStencilAttachmentWrite);
+    p.finish();
+    let mut p = g.pass("test", PassKind::Raster);
+    p.read(ds, Access::DepthStencilAttachmentRead);
+    p.side_effect();
+    p.finish();
+    let c = g.compile().unwrap();
+    let b = &c.pass("test").unwrap().barriers[0];
+    assert_eq!((b.old_layout, b.new_layout), (L::DEPTH_STENCIL_ATTACHMENT_OPTIMAL, L::DEPTH_STENCIL_READ_ONLY_OPTIMAL));
+    assert_eq!(b.src_access, A::DEPTH_STENCIL_ATTACHMENT_READ | A::DEPTH_STENCIL_ATTACHMENT_WRITE);
+}
