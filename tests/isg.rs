@@ -97,8 +97,7 @@ fn psnr(c: &penumbra_reference::metrics::Comparison) -> f64 {
     c.psnr_db.unwrap_or(f64::INFINITY)
 }
 
-/// Every render that depends on `PENUMBRA_ISG` is in this one test (the variable is process
-/// wide; the other tests pass with any value of it).
+/// The variants are chosen with the scene's technique parameters.
 #[test]
 fn accuracy_against_both_references_and_bvh_variants() {
     let s = scene("falling.toml");
@@ -107,14 +106,15 @@ fn accuracy_against_both_references_and_bvh_variants() {
     let sg_opts = ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::SgLighting, ..Default::default() };
     let sg_ref = reference_render(&s, &sg_opts).expect("reference");
     let exact_ref = reference_render(&s, &ReferenceOptions { mode: Mode::Exact, ..sg_opts.clone() }).expect("reference");
-    std::env::remove_var("PENUMBRA_ISG");
     let (_r, isg) = render(&s, "isg", w, h, &[t], false);
     let (_r, env) = render(&s, "env", w, h, &[t], false);
-    std::env::set_var("PENUMBRA_ISG", "prefiltered=0");
-    let (_r, isg_sg) = render(&s, "isg", w, h, &[t], false);
-    std::env::set_var("PENUMBRA_ISG", "prefiltered=0,gpu_bvh=0");
-    let (_r, isg_cpu) = render(&s, "isg", w, h, &[t], false);
-    std::env::remove_var("PENUMBRA_ISG");
+    let with = |params: &[(&str, &str)]| {
+        let mut s = s.clone();
+        s.technique_params = params.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+        s
+    };
+    let (_r, isg_sg) = render(&with(&[("prefiltered", "false")]), "isg", w, h, &[t], false);
+    let (_r, isg_cpu) = render(&with(&[("prefiltered", "false"), ("gpu_bvh", "false")]), "isg", w, h, &[t], false);
     assert!(isg_sg[0].gpu_ms.iter().any(|(p, _)| p == "isg_bvh"), "no isg_bvh pass: {:?}", isg_sg[0].gpu_ms);
     assert!(!isg_cpu[0].gpu_ms.iter().any(|(p, _)| p == "isg_bvh"));
 

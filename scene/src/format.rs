@@ -6,6 +6,7 @@
 //! ```toml
 //! name = "my_scene"          # default: the file name
 //! technique = "env"          # visibility technique, default "env"
+//! [technique_params]         # key = value parameters of the technique (e.g. isg: lobes = 16)
 //! [camera]                   # eye, target, up, fov_deg, near, far; [[camera.keys]] t, eye, target, fov_deg
 //! [environment]              # file = "x.exr" | "x.hdr", or procedural = "sky"; intensity; rotation_deg
 //! [[light]]                  # type = "point" | "spot" | "sphere", position, direction, color,
@@ -83,6 +84,8 @@ fn yes() -> bool {
 struct SceneFile {
     name: Option<String>,
     technique: Option<String>,
+    #[serde(default)]
+    technique_params: BTreeMap<String, toml::Value>,
     camera: CameraSpec,
     environment: Option<Spanned<EnvSpec>>,
     #[serde(default)]
@@ -375,6 +378,21 @@ pub fn parse_toml(path: &Path, text: &str, options: &LoadOptions) -> Result<Scen
             ));
         }
         scene.technique = t.clone();
+    }
+    for (k, v) in &file.technique_params {
+        let text = match v {
+            toml::Value::String(s) => s.clone(),
+            toml::Value::Integer(i) => i.to_string(),
+            toml::Value::Float(f) => f.to_string(),
+            toml::Value::Boolean(b) => b.to_string(),
+            other => {
+                return Err(SceneError::invalid(
+                    path,
+                    format!("technique_params.{k}: expected a number, boolean or string, got {}", other.type_str()),
+                ))
+            }
+        };
+        scene.technique_params.insert(k.clone(), text);
     }
 
     // Camera.

@@ -424,6 +424,9 @@ pub struct Scene {
     pub objects: Vec<Object>,
     /// Visibility technique (default [`DEFAULT_TECHNIQUE`]).
     pub technique: String,
+    /// Technique parameters (`[technique_params]` in a scene file, `--param key=value` on the
+    /// command line), as text; the technique validates them (unknown keys are errors).
+    pub technique_params: std::collections::BTreeMap<String, String>,
     pub lights: Vec<Light>,
     pub medium: Option<Medium>,
     /// Volumetric method of the medium's passes: `"temporal"` or `"full"`; `None` = temporal
@@ -791,6 +794,7 @@ impl Scene {
             materials: Vec::new(),
             objects: Vec::new(),
             technique: DEFAULT_TECHNIQUE.into(),
+            technique_params: Default::default(),
             lights: Vec::new(),
             medium: None,
             volumetric: None,

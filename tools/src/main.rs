@@ -112,6 +112,10 @@ struct RenderArgs {
     /// Volumetric method for scenes with a medium: temporal (default) or full.
     #[arg(long)]
     volumetric: Option<String>,
+    /// A technique parameter KEY=VALUE (repeatable; overrides the scene's [technique_params]).
+    /// isg: lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, gpu_bvh.
+    #[arg(long = "param", value_name = "KEY=VALUE")]
+    params: Vec<String>,
 }
 
 /// An error caused by the user's input: exit code 2.
@@ -201,9 +205,20 @@ fn render(args: &RenderArgs) -> Result<()> {
     }
     let mut scene = scene;
     if let Some(t) = &args.technique {
+        if *t != scene.technique && !scene.technique_params.is_empty() {
+            eprintln!("note: the scene's [technique_params] belong to '{}' and are not used by '{t}'", scene.technique);
+            scene.technique_params.clear();
+        }
         scene.technique = t.clone();
     }
-    let mut r = Renderer::new(ctx, &scene, settings)?;
+    for p in &args.params {
+        let (k, v) = p.split_once('=').ok_or_else(|| bad(format!("--param {p}: expected KEY=VALUE")))?;
+        scene.technique_params.insert(k.trim().to_string(), v.trim().to_string());
+    }
+    let mut r = Renderer::new(ctx, &scene, settings).map_err(|e| {
+        let m = format!("{e:#}");
+        if m.contains("parameter") { bad(m) } else { e }
+    })?;
     for l in Renderer::limitations(&scene) {
         eprintln!("note: {l}");
     }

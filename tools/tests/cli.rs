@@ -94,6 +94,16 @@ fn bad_input_exits_2_with_the_file_and_problem() {
         &["bunny-draco.glb", "KHR_draco_mesh_compression"],
     );
     expect_bad_input(&["render", "--technique", "nope", "--out", d.to_str().unwrap()], &["nope", "not implemented"]);
+    expect_bad_input(&["render", "--technique", "env", "--param", "lobes=8", "--out", d.to_str().unwrap()], &["env", "takes no parameters"]);
+    expect_bad_input(
+        &["render", "--technique", "isg", "--param", "bogus=1", "--size", "16x12", "--out", d.to_str().unwrap()],
+        &["unknown isg parameter 'bogus'"],
+    );
+    expect_bad_input(
+        &["render", "--technique", "isg", "--param", "lobes=many", "--size", "16x12", "--out", d.to_str().unwrap()],
+        &["lobes", "many"],
+    );
+    expect_bad_input(&["render", "--param", "novalue", "--out", d.to_str().unwrap()], &["KEY=VALUE"]);
     expect_bad_input(&["render", "--size", "0x10", "--out", d.to_str().unwrap()], &["size"]);
     expect_bad_input(&["render", "--size", "abc", "--out", d.to_str().unwrap()], &["size"]);
     expect_bad_input(&["compare", missing.to_str().unwrap(), missing.to_str().unwrap()], &["nope.toml"]);

@@ -73,40 +73,43 @@ impl Default for IsgSettings {
 }
 
 impl IsgSettings {
-    /// Defaults overridden by `PENUMBRA_ISG="key=value,..."` (keys: `lobes`, `spheres`, `side`,
-    /// `epsilon`, `lod`, `min_fraction`, `shadows` 0/1, `prefiltered` 0/1, `gpu_bvh` 0/1); unknown keys and bad values are ignored with a message
-    /// on stderr.
-    pub fn from_env() -> Self {
+    /// Defaults with the scene's `technique_params` applied (see [`IsgSettings::set`]).
+    pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> anyhow::Result<Self> {
         let mut s = IsgSettings::default();
-        if let Ok(v) = std::env::var("PENUMBRA_ISG") {
-            s.apply(&v);
+        for (k, v) in params {
+            s.set(k, v)?;
         }
-        s
+        Ok(s)
     }
 
-    /// Applies `key=value,...` overrides (see [`IsgSettings::from_env`]).
-    pub fn apply(&mut self, spec: &str) {
-        for kv in spec.split(',').map(str::trim).filter(|x| !x.is_empty()) {
-            let Some((k, v)) = kv.split_once('=') else {
-                eprintln!("isg: ignoring '{kv}' (expected key=value)");
-                continue;
-            };
-            let ok = match k.trim() {
-                "lobes" => v.trim().parse().map(|x: usize| self.lobes = x.clamp(1, 64)).is_ok(),
-                "spheres" => v.trim().parse().map(|x: usize| self.spheres_per_object = x.min(4096)).is_ok(),
-                "side" => v.trim().parse().map(|x: u32| self.patch_side = x.clamp(1, 32)).is_ok(),
-                "epsilon" => v.trim().parse().map(|x: f64| self.epsilon = x.clamp(1e-6, 0.5)).is_ok(),
-                "lod" => v.trim().parse().map(|x: f32| self.lod = x.max(0.0)).is_ok(),
-                "prefiltered" => v.trim().parse().map(|x: u32| self.prefiltered_specular = x != 0).is_ok(),
-                "gpu_bvh" => v.trim().parse().map(|x: u32| self.gpu_bvh = x != 0).is_ok(),
-                "shadows" => v.trim().parse().map(|x: u32| self.shadows = x != 0).is_ok(),
-                "min_fraction" => v.trim().parse().map(|x: f32| self.min_lobe_fraction = x.clamp(0.0, 1.0)).is_ok(),
-                _ => false,
-            };
-            if !ok {
-                eprintln!("isg: ignoring '{kv}'");
+    /// Sets one parameter. Keys: `lobes` (K, default 16), `spheres` (per object, 48), `side`
+    /// (patches per side, 12), `epsilon` (0.01), `lod` (1.0), `min_fraction` (0.02), `shadows`,
+    /// `prefiltered`, `gpu_bvh` (true/false or 1/0). Unknown keys and bad values are errors.
+    pub fn set(&mut self, key: &str, value: &str) -> anyhow::Result<()> {
+        let v = value.trim();
+        let bad = || anyhow::anyhow!("isg parameter {key} = '{value}': not a valid value");
+        let flag = || match v {
+            "1" | "true" => Ok(true),
+            "0" | "false" => Ok(false),
+            _ => Err(bad()),
+        };
+        match key.trim() {
+            "lobes" => self.lobes = v.parse::<usize>().map_err(|_| bad())?.clamp(1, 64),
+            "spheres" => self.spheres_per_object = v.parse::<usize>().map_err(|_| bad())?.min(4096),
+            "side" => self.patch_side = v.parse::<u32>().map_err(|_| bad())?.clamp(1, 32),
+            "epsilon" => self.epsilon = v.parse::<f64>().ok().filter(|x| x.is_finite()).ok_or_else(bad)?.clamp(1e-6, 0.5),
+            "lod" => self.lod = v.parse::<f32>().ok().filter(|x| x.is_finite()).ok_or_else(bad)?.max(0.0),
+            "min_fraction" => {
+                self.min_lobe_fraction = v.parse::<f32>().ok().filter(|x| x.is_finite()).ok_or_else(bad)?.clamp(0.0, 1.0)
             }
+            "shadows" => self.shadows = flag()?,
+            "prefiltered" => self.prefiltered_specular = flag()?,
+            "gpu_bvh" => self.gpu_bvh = flag()?,
+            other => anyhow::bail!(
+                "unknown isg parameter '{other}' (known: lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, gpu_bvh)"
+            ),
         }
+        Ok(())
     }
 }
 
