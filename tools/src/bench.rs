@@ -38,6 +38,10 @@ pub struct BenchArgs {
     /// Output directory: reference.exr, <technique>.exr, <technique>_diff.png, bench.json.
     #[arg(long, default_value = "bench-out")]
     pub out: PathBuf,
+    /// Also compare against the reference with SG-approximated lighting and exact visibility
+    /// (tells a technique's visibility error from its SG lighting error); reference_sg.exr.
+    #[arg(long)]
+    pub sg_reference: bool,
 }
 
 pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
@@ -62,6 +66,20 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
         "reference: {} spp in {:.2} s, mean relative standard error {:.2e}",
         args.spp, reference.render_seconds, reference.noise.mean_rel_std_error
     );
+    let sg_reference = if args.sg_reference {
+        let r = reference_render(scene, &ReferenceOptions { mode: Mode::SgLighting, ..opts.clone() })
+            .context("SG-lighting reference render")?;
+        r.radiance.write_exr(args.out.join("reference_sg.exr"))?;
+        println!(
+            "SG-lighting reference: {} spp in {:.2} s, env SG fit rel. L2 {}",
+            args.spp,
+            r.render_seconds,
+            r.sg_fit_rel_l2.map_or("-".into(), |e| format!("{e:.3}"))
+        );
+        Some(r)
+    } else {
+        None
+    };
     let mut rows = Vec::new();
     let mut baseline_ms = None;
     for name in args.techniques.split(',').map(str::trim).filter(|s| !s.is_empty()) {
@@ -88,7 +106,12 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
             .map(|(_, s)| s.median_ms)
             .sum();
         let base = *baseline_ms.get_or_insert(technique_ms);
+        let vs_sg = match &sg_reference {
+            Some(sg) => Some(compare(&sg.radiance, "reference_sg", &img, name)?),
+            None => None,
+        };
         rows.push(serde_json::json!({
+            "vs_sg_reference": vs_sg.as_ref().map(|c| serde_json::json!({"psnr_db": c.psnr_db, "rel_rmse": c.rel_rmse, "flip_mean": c.flip_mean})),
             "technique": name,
             "gpu_ms_per_frame": technique_ms,
             "speed_ratio_vs_first": technique_ms / base,
@@ -106,6 +129,15 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
             c.rel_rmse,
             c.flip_mean
         );
+        if let Some(c) = &vs_sg {
+            println!(
+                "{:<14} vs the SG-lighting reference: PSNR {:>6}  relRMSE {:.4}  FLIP {:.4}",
+                "",
+                c.psnr_db.map_or("inf".into(), |p| format!("{p:.2}")),
+                c.rel_rmse,
+                c.flip_mean
+            );
+        }
     }
     let report = serde_json::json!({
         "scene": scene.name,

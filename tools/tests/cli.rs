@@ -130,9 +130,21 @@ fn help_documents_every_command_and_flag() {
 #[test]
 fn bench_measures_techniques_against_the_reference() {
     let out = tmp("bench");
-    let o = penumbra(&["bench", "techniques", "--size", "64x48", "--spp", "16", "--frames", "2", "--out", out.to_str().unwrap()]);
+    let o = penumbra(&[
+        "bench",
+        "techniques",
+        "--size",
+        "64x48",
+        "--spp",
+        "16",
+        "--frames",
+        "2",
+        "--sg-reference",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", text(&o));
-    for f in ["reference.exr", "env.exr", "env_diff.png", "bench.json"] {
+    for f in ["reference.exr", "reference_sg.exr", "env.exr", "env_diff.png", "bench.json"] {
         assert!(out.join(f).exists(), "missing {f}");
     }
     let b: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();
@@ -144,6 +156,8 @@ fn bench_measures_techniques_against_the_reference() {
     // fails if the GPU and CPU renderers disagree on camera, orientation or units.
     let psnr = env["psnr_db"].as_f64().unwrap();
     assert!(psnr > 20.0, "PSNR {psnr} dB");
+    let sg_psnr = env["vs_sg_reference"]["psnr_db"].as_f64().unwrap();
+    assert!(sg_psnr.is_finite() && sg_psnr > 10.0, "PSNR vs the SG-lighting reference {sg_psnr} dB");
     expect_bad_input(&["bench", "techniques", "--techniques", "env,nope", "--out", out.to_str().unwrap()], &["nope"]);
 }
 
