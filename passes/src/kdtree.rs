@@ -397,11 +397,10 @@ impl KdTreeBuilder {
         let header = p.write(h.header, Access::ComputeShaderWriteStorage);
         let (pipe, layout) = (self.init.pipeline, self.init.layout);
         p.record(move |rc| {
-            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
-            rc.push_descriptors(
-                vk::PipelineBindPoint::COMPUTE,
+            crate::util::bind_compute(
+                rc,
+                pipe,
                 layout,
-                0,
                 &[
                     Bind::StorageBuffer(nodes),
                     Bind::StorageBuffer(bx),
@@ -445,11 +444,10 @@ impl KdTreeBuilder {
                 let (pipe, layout) = (pipeline.pipeline, pipeline.layout);
                 let (nd, b, r, hd) = (nodes, bx, refs, header);
                 p.record(move |rc| {
-                    unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
-                    rc.push_descriptors(
-                        vk::PipelineBindPoint::COMPUTE,
+                    crate::util::bind_compute(
+                        rc,
+                        pipe,
                         layout,
-                        0,
                         &[
                             Bind::StorageBuffer(tr),
                             Bind::StorageBuffer(nd),

@@ -463,11 +463,10 @@ impl McTechnique {
         let repeat = self.repeat.sampler;
         let (pipe, layout) = (self.pipeline.pipeline, self.pipeline.layout);
         p.record(move |rc| {
-            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
-            rc.push_descriptors(
-                vk::PipelineBindPoint::COMPUTE,
+            crate::util::bind_compute(
+                rc,
+                pipe,
                 layout,
-                0,
                 &[
                     Bind::StorageBuffer(tris),
                     Bind::StorageBuffer(nodes),

@@ -80,11 +80,10 @@ impl ShadeEnvPass {
         let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
-            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
-            rc.push_descriptors(
-                vk::PipelineBindPoint::COMPUTE,
+            crate::util::bind_compute(
+                rc,
+                pipeline,
                 layout,
-                0,
                 &[
                     Bind::UniformBuffer(camera),
                     Bind::StorageBuffer(materials),

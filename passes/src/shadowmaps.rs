@@ -199,11 +199,10 @@ impl ShadowMapsTechnique {
             push.extend(bytes_of(&self.sphere));
             let (pipe, layout) = (self.depth_pipe.pipeline, self.depth_pipe.layout);
             p.record(move |rc| {
-                unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
-                rc.push_descriptors(
-                    vk::PipelineBindPoint::COMPUTE,
+                crate::util::bind_compute(
+                    rc,
+                    pipe,
                     layout,
-                    0,
                     &[
                         Bind::StorageBuffer(tr),
                         Bind::StorageBuffer(nd),
@@ -251,11 +250,10 @@ impl ShadowMapsTechnique {
         let (pipe, layout) = (self.shade_pipe.pipeline, self.shade_pipe.layout);
         let nearest = self.nearest.sampler;
         p.record(move |rc| {
-            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
-            rc.push_descriptors(
-                vk::PipelineBindPoint::COMPUTE,
+            crate::util::bind_compute(
+                rc,
+                pipe,
                 layout,
-                0,
                 &[
                     Bind::SampledImage(pos, nearest),
                     Bind::SampledImage(nrm, nearest),

@@ -55,11 +55,10 @@ impl TonemapPass {
         let (pipeline, layout, nearest) = (self.pipeline.pipeline, self.pipeline.layout, self.nearest.sampler);
         p.record(move |rc| {
             let d = rc.device();
-            unsafe { d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
-            rc.push_descriptors(
-                vk::PipelineBindPoint::COMPUTE,
+            crate::util::bind_compute(
+                rc,
+                pipeline,
                 layout,
-                0,
                 &[Bind::SampledImage(hdr, nearest), Bind::StorageImage(ldr)],
             )?;
             unsafe {

@@ -110,11 +110,10 @@ impl Tracer {
             if count == 0 {
                 return Ok(());
             }
-            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipe) };
-            rc.push_descriptors(
-                vk::PipelineBindPoint::COMPUTE,
+            crate::util::bind_compute(
+                rc,
+                pipe,
                 layout,
-                0,
                 &[
                     Bind::StorageBuffer(tris),
                     Bind::StorageBuffer(nodes),

@@ -198,3 +198,14 @@ pub fn add_image_upload(
     });
     img
 }
+
+/// Binds a compute pipeline and pushes its descriptors (checked against the pass's declarations).
+pub fn bind_compute(
+    rc: &penumbra_engine::RecordContext,
+    pipeline: vk::Pipeline,
+    layout: vk::PipelineLayout,
+    binds: &[penumbra_engine::Bind],
+) -> Result<()> {
+    unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
+    rc.push_descriptors(vk::PipelineBindPoint::COMPUTE, layout, 0, binds)
+}

@@ -380,8 +380,7 @@ impl IsgTechnique {
         push.extend_from_slice(&(n as i32).to_le_bytes());
         let (pipeline, layout) = (self.bvh_pipeline.pipeline, self.bvh_pipeline.layout);
         p.record(move |rc| {
-            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
-            rc.push_descriptors(vk::PipelineBindPoint::COMPUTE, layout, 0, &[Bind::StorageBuffer(input), Bind::StorageBuffer(nodes)])?;
+            crate::util::bind_compute(rc, pipeline, layout, &[Bind::StorageBuffer(input), Bind::StorageBuffer(nodes)])?;
             unsafe {
                 let d = rc.device();
                 d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
@@ -442,11 +441,10 @@ impl crate::technique::Technique for IsgTechnique {
         let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
-            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
-            rc.push_descriptors(
-                vk::PipelineBindPoint::COMPUTE,
+            crate::util::bind_compute(
+                rc,
+                pipeline,
                 layout,
-                0,
                 &[
                     Bind::UniformBuffer(camera),
                     Bind::StorageBuffer(materials),

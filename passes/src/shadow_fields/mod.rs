@@ -492,10 +492,9 @@ impl ShadowFieldsTechnique {
         let (pipeline, layout) = (self.points.pipeline, self.points.layout);
         let push: Vec<u8> = [n, h.inst_count, h.tensor_count].iter().flat_map(|x| x.to_le_bytes()).collect();
         p.record(move |rc| {
-            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
             let mut binds: Vec<Bind> = r.iter().map(|&b| Bind::StorageBuffer(b)).collect();
             binds.push(Bind::StorageBuffer(out));
-            rc.push_descriptors(vk::PipelineBindPoint::COMPUTE, layout, 0, &binds)?;
+            crate::util::bind_compute(rc, pipeline, layout, &binds)?;
             unsafe {
                 let d = rc.device();
                 d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
@@ -536,7 +535,6 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         let (nearest, linear) = (self.nearest.sampler, self.linear.sampler);
         let push: Vec<u8> = [h.inst_count, h.tensor_count, inputs.scene.light_count].iter().flat_map(|x| x.to_le_bytes()).collect();
         p.record(move |rc| {
-            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
             let mut binds = vec![
                 Bind::UniformBuffer(camera),
                 Bind::StorageBuffer(materials),
@@ -547,7 +545,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
                 Bind::StorageImage(hdr),
             ];
             binds.extend(r.iter().map(|&b| Bind::StorageBuffer(b)));
-            rc.push_descriptors(vk::PipelineBindPoint::COMPUTE, layout, 0, &binds)?;
+            crate::util::bind_compute(rc, pipeline, layout, &binds)?;
             unsafe {
                 let d = rc.device();
                 d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);

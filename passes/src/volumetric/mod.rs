@@ -956,11 +956,10 @@ impl Effect for VolumetricEffect {
             let out = p.write(scatter, access);
             let (pipeline, layout, nearest) = (self.march.pipeline, self.march.layout, self.nearest.sampler);
             p.record(move |rc| {
-                unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
-                rc.push_descriptors(
-                    vk::PipelineBindPoint::COMPUTE,
+                crate::util::bind_compute(
+                    rc,
+                    pipeline,
                     layout,
-                    0,
                     &[
                         Bind::UniformBuffer(camera),
                         Bind::StorageBuffer(lb),
@@ -988,11 +987,10 @@ impl Effect for VolumetricEffect {
         let out = p.write(out, Access::ComputeShaderWriteStorage);
         let (pipeline, layout, nearest) = (self.composite.pipeline, self.composite.layout, self.nearest.sampler);
         p.record(move |rc| {
-            unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
-            rc.push_descriptors(
-                vk::PipelineBindPoint::COMPUTE,
+            crate::util::bind_compute(
+                rc,
+                pipeline,
                 layout,
-                0,
                 &[
                     Bind::UniformBuffer(camera),
                     Bind::StorageBuffer(lb),
