@@ -11,6 +11,7 @@
 
 #![warn(missing_docs)]
 
+pub mod avs_maps;
 pub mod brdf;
 pub mod envmap;
 pub mod isg;
