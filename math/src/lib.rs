@@ -8,10 +8,12 @@
 //! * [`nnls`]: non-negative least squares.
 //! * [`envmap`]: lat-long environment maps, SG fitting and SG-prefiltered maps (`Gamma_L`).
 //! * [`brdf`]: SG fits of Blinn-Phong, Cook-Torrance and Ashikhmin-Shirley lobes.
+//! * [`vv`]: vectorized visibility and its spherical-Voronoi correspondence (offline data).
 
 #![warn(missing_docs)]
 
 pub mod avs_maps;
+pub mod avs_sampling;
 pub mod brdf;
 pub mod envmap;
 pub mod isg;
@@ -22,3 +24,4 @@ pub mod shadow_field;
 pub mod sphereset;
 pub mod sg;
 pub mod special;
+pub mod vv;
