@@ -1,0 +1,603 @@
+//! CPU parts of adaptive visibility sampling (Wang et al., "Parallel and adaptive visibility
+//! sampling", sections 4.1 and 4.3): the geometric error metric `e_g` (eq. 6), k-means clustering
+//! of vertices with it, a kd-tree over sample points with range search, the SH16 spatial
+//! visibility error `e_v` (eq. 7), the inverse-`e_g` interpolation weights (eq. 8) and one
+//! insert/erase step of the spatial adaptation.
+//!
+//! Positions are divided by the scene scale (the bounding-box diagonal of the vertices, see
+//! [`scene_scale`]) before `e_g` is evaluated, so `alpha` means the same for every scene (the
+//! paper: 0.1 - 0.5 "after the scene geometry scale is normalized").
+//!
+//! The SH16 projection of a visibility map is the order-4 real SH (`crate::sh` convention) of
+//! the visibility function over WORLD directions (`V = 1` on visible texels of the hemisphere,
+//! 0 elsewhere), so coefficients of points with different tangent frames are comparable;
+//! [`sh16_project`] is the CPU mirror of the GPU pass (`glsl/avs_sh.comp`).
+
+use crate::avs_maps::{texel_dir, texel_solid_angle, Frame, VisMap};
+use glam::{DVec3, Vec3};
+
+/// Number of SH coefficients of the spatial error (4 bands).
+pub const SH_COUNT: usize = 16;
+
+/// Bounding-box diagonal of `positions` (1 when empty or degenerate).
+pub fn scene_scale(positions: &[Vec3]) -> f32 {
+    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+    for p in positions.iter().filter(|p| p.is_finite()) {
+        lo = lo.min(*p);
+        hi = hi.max(*p);
+    }
+    let d = (hi - lo).length();
+    if d.is_finite() && d > 0.0 {
+        d
+    } else {
+        1.0
+    }
+}
+
+/// Eq. 6: `alpha |x_i - x_k| / scale + sqrt(2 - 2 n_i . n_k)` (normals unit length).
+pub fn e_g(alpha: f32, inv_scale: f32, xi: Vec3, ni: Vec3, xk: Vec3, nk: Vec3) -> f32 {
+    alpha * (xi - xk).length() * inv_scale + (2.0 - 2.0 * ni.dot(nk)).max(0.0).sqrt()
+}
+
+/// A surface point (vertex) with its unit normal.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SurfacePoint {
+    /// World position.
+    pub pos: Vec3,
+    /// Unit normal.
+    pub normal: Vec3,
+}
+
+/// k-means over `points` with the `e_g` metric (centres: mean position and renormalised mean
+/// normal), `iterations` Lloyd steps from `k` seeds spread along a Morton order; returns the
+/// index of the point nearest (in `e_g`) to each non-empty cluster's centre, sorted and without
+/// duplicates. `progress(done, total)` is called once per iteration.
+pub fn kmeans_eg(
+    points: &[SurfacePoint],
+    k: usize,
+    alpha: f32,
+    iterations: usize,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Vec<usize> {
+    let n = points.len();
+    if n == 0 || k == 0 {
+        return Vec::new();
+    }
+    if k >= n {
+        return (0..n).collect();
+    }
+    let pos: Vec<Vec3> = points.iter().map(|p| p.pos).collect();
+    let scale = scene_scale(&pos);
+    let inv = 1.0 / scale;
+    // Seeds: every (n/k)-th point along a Morton order of the positions (spatially spread).
+    let order = morton_order(&pos);
+    let mut centres: Vec<SurfacePoint> = (0..k).map(|c| points[order[(c * n) / k + n / (2 * k)]]).collect();
+    let mut assign = vec![0usize; n];
+    // Candidate centres of a point: rings of grid cells around it until the positional term
+    // alone exceeds the best e_g found.
+    let iterations = iterations.max(1);
+    for it in 0..iterations {
+        let grid = Grid::new(&centres.iter().map(|c| c.pos).collect::<Vec<_>>(), 0.0);
+        use rayon::prelude::*;
+        assign.par_iter_mut().enumerate().for_each(|(i, a)| {
+            let p = points[i];
+            let mut best = (f32::MAX, 0usize);
+            for ring in 0.. {
+                if !grid.visit_ring(p.pos, ring, |c, _| {
+                    let e = e_g(alpha, inv, p.pos, p.normal, centres[c].pos, centres[c].normal);
+                    if e < best.0 {
+                        best = (e, c);
+                    }
+                }) {
+                    break;
+                }
+                // later rings are at least ring * cell away: their e_g exceeds alpha * that
+                if alpha * ring as f32 * grid.cell * inv > best.0 {
+                    break;
+                }
+            }
+            *a = best.1;
+        });
+        let mut sum_p = vec![Vec3::ZERO; k];
+        let mut sum_n = vec![Vec3::ZERO; k];
+        let mut count = vec![0usize; k];
+        for (i, &c) in assign.iter().enumerate() {
+            sum_p[c] += points[i].pos;
+            sum_n[c] += points[i].normal;
+            count[c] += 1;
+        }
+        for c in 0..k {
+            if count[c] > 0 {
+                let nn = sum_n[c].normalize_or_zero();
+                centres[c] = SurfacePoint {
+                    pos: sum_p[c] / count[c] as f32,
+                    normal: if nn == Vec3::ZERO { centres[c].normal } else { nn },
+                };
+            }
+        }
+        progress(it + 1, iterations);
+    }
+    // Nearest member of each cluster to its centre.
+    let mut best = vec![(f32::MAX, usize::MAX); k];
+    for (i, &c) in assign.iter().enumerate() {
+        let e = e_g(alpha, inv, points[i].pos, points[i].normal, centres[c].pos, centres[c].normal);
+        if e < best[c].0 {
+            best[c] = (e, i);
+        }
+    }
+    let mut out: Vec<usize> = best.into_iter().filter(|b| b.1 != usize::MAX).map(|b| b.1).collect();
+    out.sort_unstable();
+    out.dedup();
+    out
+}
+
+fn morton_order(pos: &[Vec3]) -> Vec<usize> {
+    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+    for p in pos {
+        lo = lo.min(*p);
+        hi = hi.max(*p);
+    }
+    let ext = (hi - lo).max(Vec3::splat(1e-20));
+    let spread = |v: u32| -> u64 {
+        let mut x = v as u64 & 0x1fffff;
+        x = (x | x << 32) & 0x1f00000000ffff;
+        x = (x | x << 16) & 0x1f0000ff0000ff;
+        x = (x | x << 8) & 0x100f00f00f00f00f;
+        x = (x | x << 4) & 0x10c30c30c30c30c3;
+        (x | x << 2) & 0x1249249249249249
+    };
+    let code = |p: Vec3| {
+        let q = ((p - lo) / ext * 2097151.0).clamp(Vec3::ZERO, Vec3::splat(2097151.0));
+        spread(q.x as u32) | spread(q.y as u32) << 1 | spread(q.z as u32) << 2
+    };
+    let mut idx: Vec<usize> = (0..pos.len()).collect();
+    idx.sort_by_key(|&i| code(pos[i]));
+    idx
+}
+
+/// A uniform grid over points (cell lists), for nearest and range queries; also the layout the
+/// GPU range search reads (`cell_start`, `items`).
+#[derive(Clone, Debug)]
+pub struct Grid {
+    /// Lower corner.
+    pub lo: Vec3,
+    /// Cell edge.
+    pub cell: f32,
+    /// Cells per axis.
+    pub dims: [u32; 3],
+    /// `cells + 1` prefix offsets into `items`.
+    pub cell_start: Vec<u32>,
+    /// Point indices sorted by cell.
+    pub items: Vec<u32>,
+    points: Vec<Vec3>,
+}
+
+impl Grid {
+    /// Grid over `points` with cell edge `cell` (0: chosen for about 2 points per cell), at most
+    /// 128 cells per axis and 2^21 cells.
+    pub fn new(points: &[Vec3], cell: f32) -> Grid {
+        let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+        for p in points {
+            lo = lo.min(*p);
+            hi = hi.max(*p);
+        }
+        if points.is_empty() {
+            lo = Vec3::ZERO;
+            hi = Vec3::ZERO;
+        }
+        let ext = (hi - lo).max(Vec3::splat(1e-6));
+        let mut cell = if cell > 0.0 && cell.is_finite() {
+            cell
+        } else {
+            let vol = ext.x * ext.y * ext.z;
+            let area = ext.x * ext.y + ext.y * ext.z + ext.x * ext.z;
+            // surfaces: points spread over an area more than a volume
+            (area / (points.len().max(1) as f32 / 2.0)).sqrt().max((vol / points.len().max(1) as f32).cbrt()).max(1e-6)
+        };
+        let dims_for = |c: f32| {
+            let d = (ext / c).ceil();
+            [d.x.max(1.0) as u32, d.y.max(1.0) as u32, d.z.max(1.0) as u32]
+        };
+        let mut dims = dims_for(cell);
+        while dims.iter().any(|&d| d > 128) || (dims[0] as u64 * dims[1] as u64 * dims[2] as u64) > (1 << 21) {
+            cell *= 1.5;
+            dims = dims_for(cell);
+        }
+        let ncells = (dims[0] * dims[1] * dims[2]) as usize;
+        let mut g = Grid { lo, cell, dims, cell_start: vec![0; ncells + 1], items: vec![0; points.len()], points: points.to_vec() };
+        let cells: Vec<usize> = points.iter().map(|p| g.cell_index(g.cell_of(*p))).collect();
+        for &c in &cells {
+            g.cell_start[c + 1] += 1;
+        }
+        for c in 0..ncells {
+            g.cell_start[c + 1] += g.cell_start[c];
+        }
+        let mut fill = g.cell_start.clone();
+        for (i, &c) in cells.iter().enumerate() {
+            g.items[fill[c] as usize] = i as u32;
+            fill[c] += 1;
+        }
+        g
+    }
+
+    /// Integer cell of `p` (clamped to the grid).
+    pub fn cell_of(&self, p: Vec3) -> [i32; 3] {
+        let q = ((p - self.lo) / self.cell).floor();
+        [
+            (q.x as i32).clamp(0, self.dims[0] as i32 - 1),
+            (q.y as i32).clamp(0, self.dims[1] as i32 - 1),
+            (q.z as i32).clamp(0, self.dims[2] as i32 - 1),
+        ]
+    }
+
+    fn cell_index(&self, c: [i32; 3]) -> usize {
+        (c[0] as usize) + self.dims[0] as usize * (c[1] as usize + self.dims[1] as usize * c[2] as usize)
+    }
+
+    /// Points within `radius` of `q` (indices, unordered).
+    pub fn range(&self, q: Vec3, radius: f32) -> Vec<usize> {
+        let mut out = Vec::new();
+        if self.points.is_empty() {
+            return out;
+        }
+        let r2 = radius * radius;
+        let a = self.cell_of(q - Vec3::splat(radius));
+        let b = self.cell_of(q + Vec3::splat(radius));
+        for z in a[2]..=b[2] {
+            for y in a[1]..=b[1] {
+                for x in a[0]..=b[0] {
+                    let c = self.cell_index([x, y, z]);
+                    for &i in &self.items[self.cell_start[c] as usize..self.cell_start[c + 1] as usize] {
+                        if (self.points[i as usize] - q).length_squared() <= r2 {
+                            out.push(i as usize);
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Calls `f(index, squared distance)` for the points in the cells at Chebyshev distance
+    /// `ring` from the cell of `q`; returns false when the ring lies entirely outside the grid.
+    /// Points of rings beyond `ring` are at least `ring * cell` away from `q`.
+    pub fn visit_ring(&self, q: Vec3, ring: i32, mut f: impl FnMut(usize, f32)) -> bool {
+        let c = self.cell_of(q);
+        let mut inside = false;
+        for z in (c[2] - ring).max(0)..=(c[2] + ring).min(self.dims[2] as i32 - 1) {
+            for y in (c[1] - ring).max(0)..=(c[1] + ring).min(self.dims[1] as i32 - 1) {
+                for x in (c[0] - ring).max(0)..=(c[0] + ring).min(self.dims[0] as i32 - 1) {
+                    if (x - c[0]).abs() != ring && (y - c[1]).abs() != ring && (z - c[2]).abs() != ring {
+                        continue;
+                    }
+                    inside = true;
+                    let ci = self.cell_index([x, y, z]);
+                    for &i in &self.items[self.cell_start[ci] as usize..self.cell_start[ci + 1] as usize] {
+                        f(i as usize, (self.points[i as usize] - q).length_squared());
+                    }
+                }
+            }
+        }
+        inside
+    }
+
+    /// Index of the point nearest to `q` (Euclidean), `None` when empty.
+    pub fn nearest(&self, q: Vec3) -> Option<usize> {
+        let mut best = (f32::MAX, None);
+        for ring in 0.. {
+            if !self.visit_ring(q, ring, |i, d2| {
+                if d2 < best.0 {
+                    best = (d2, Some(i));
+                }
+            }) {
+                break;
+            }
+            let reach = ring as f32 * self.cell;
+            if best.1.is_some() && best.0 <= reach * reach {
+                break;
+            }
+        }
+        best.1
+    }
+}
+
+/// Order-4 SH (16 coefficients) of a visibility map of a point with frame `frame`, over world
+/// directions (see the module docs).
+pub fn sh16_project(map: &VisMap, frame: &Frame) -> [f32; SH_COUNT] {
+    let r = map.r;
+    let mut acc = [0f64; SH_COUNT];
+    let mut basis = [0f64; SH_COUNT];
+    for i in 0..r {
+        let sa = texel_solid_angle(i, r);
+        for j in 0..r {
+            if !map.get(i, j) {
+                continue;
+            }
+            let w = frame.to_world(texel_dir(i, j, r));
+            crate::sh::eval_basis_into(4, w, &mut basis);
+            for k in 0..SH_COUNT {
+                acc[k] += basis[k] * sa;
+            }
+        }
+    }
+    acc.map(|v| v as f32)
+}
+
+/// Eq. 7: `sum |c_i - c_k|`.
+pub fn e_v(a: &[f32; SH_COUNT], b: &[f32; SH_COUNT]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum()
+}
+
+/// `sum |c|` (the denominator of the relative error).
+pub fn sh_norm(a: &[f32; SH_COUNT]) -> f32 {
+    a.iter().map(|x| x.abs()).sum()
+}
+
+/// Eq. 8 weights of neighbours `(pos, normal)` at `(x, n)`: `1/e_g` normalised (an `e_g` below
+/// `1e-6` counts as `1e-6`). Empty for no neighbours.
+pub fn eq8_weights(alpha: f32, inv_scale: f32, x: Vec3, n: Vec3, neighbours: &[(Vec3, Vec3)]) -> Vec<f32> {
+    let inv: Vec<f32> = neighbours.iter().map(|(p, m)| 1.0 / e_g(alpha, inv_scale, x, n, *p, *m).max(1e-6)).collect();
+    let s: f32 = inv.iter().sum();
+    inv.into_iter().map(|w| w / s).collect()
+}
+
+/// Parameters of one spatial adaptation step.
+#[derive(Clone, Copy, Debug)]
+pub struct AdaptParams {
+    /// `alpha` of `e_g`.
+    pub alpha: f32,
+    /// Range-search radius (world units).
+    pub radius: f32,
+    /// Relative error above which points are inserted (paper: 0.10).
+    pub e_max: f32,
+    /// Relative error below which a point may be erased (paper: 0.05).
+    pub e_min: f32,
+}
+
+/// What one adaptation step decided.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct AdaptStep {
+    /// Relative interpolation error `e_v(x_i, x_avg) / sum |c_i|` per point (`None` without
+    /// neighbours in range).
+    pub rel_error: Vec<Option<f32>>,
+    /// Indices into the candidate pool to insert (nearest pool vertex to the midpoint of a point
+    /// and a neighbour with pairwise relative error above `e_max`), deduplicated, not already
+    /// sample points.
+    pub insert: Vec<usize>,
+    /// Indices into `points` to erase.
+    pub erase: Vec<usize>,
+}
+
+/// One step of section 4.3. `points` are the current sample points (their pool indices in
+/// `pool_index`), `sh` their SH16 visibility, `pool` the candidate vertices. A point's neighbours
+/// are the other points within `radius`; `x_avg` is their eq. 8 interpolation; relative error
+/// above `e_max`: every neighbour whose pairwise relative error exceeds `e_max` yields a new point
+/// at the pool vertex nearest to the pair's midpoint; below `e_min`: an erase candidate. Erasing
+/// takes candidates in order of increasing error and erases one only if none of its neighbours
+/// was erased in this step or is being inserted next to it, so no two adjacent points go at once.
+pub fn adapt_step(
+    points: &[SurfacePoint],
+    pool_index: &[usize],
+    sh: &[[f32; SH_COUNT]],
+    pool: &[SurfacePoint],
+    pool_grid: &Grid,
+    params: &AdaptParams,
+) -> AdaptStep {
+    let n = points.len();
+    let pos: Vec<Vec3> = points.iter().map(|p| p.pos).collect();
+    let grid = Grid::new(&pos, params.radius);
+    let scale = scene_scale(&pool.iter().map(|p| p.pos).collect::<Vec<_>>());
+    let inv = 1.0 / scale;
+    let mut step = AdaptStep { rel_error: vec![None; n], ..Default::default() };
+    let mut neighbours: Vec<Vec<usize>> = Vec::with_capacity(n);
+    let existing: std::collections::HashSet<usize> = pool_index.iter().copied().collect();
+    let mut inserted = std::collections::HashSet::new();
+    let mut grows = vec![false; n];
+    let mut candidates = Vec::new();
+    for i in 0..n {
+        let nb: Vec<usize> = grid
+            .range(points[i].pos, params.radius)
+            .into_iter()
+            .filter(|&j| j != i && points[j].normal.dot(points[i].normal) > 0.0)
+            .collect();
+        if nb.is_empty() {
+            neighbours.push(nb);
+            continue;
+        }
+        let pairs: Vec<(Vec3, Vec3)> = nb.iter().map(|&j| (points[j].pos, points[j].normal)).collect();
+        let w = eq8_weights(params.alpha, inv, points[i].pos, points[i].normal, &pairs);
+        let mut avg = [0f32; SH_COUNT];
+        for (k, &j) in nb.iter().enumerate() {
+            for c in 0..SH_COUNT {
+                avg[c] += w[k] * sh[j][c];
+            }
+        }
+        let norm = sh_norm(&sh[i]).max(1e-6);
+        let rel = e_v(&sh[i], &avg) / norm;
+        step.rel_error[i] = Some(rel);
+        if rel > params.e_max {
+            for &j in &nb {
+                if e_v(&sh[i], &sh[j]) / norm > params.e_max {
+                    let mid = 0.5 * (points[i].pos + points[j].pos);
+                    if let Some(v) = pool_grid.nearest(mid) {
+                        if !existing.contains(&v) && inserted.insert(v) {
+                            step.insert.push(v);
+                            grows[i] = true;
+                            grows[j] = true;
+                        }
+                    }
+                }
+            }
+        } else if rel < params.e_min {
+            candidates.push((rel, i));
+        }
+        neighbours.push(nb);
+    }
+    candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut blocked = grows;
+    for (_, i) in candidates {
+        if blocked[i] {
+            continue;
+        }
+        step.erase.push(i);
+        blocked[i] = true;
+        for &j in &neighbours[i] {
+            blocked[j] = true;
+        }
+    }
+    step.erase.sort_unstable();
+    step
+}
+
+/// The eq. 8 interpolation of `sh` at `x` from the points in range (helper for tests).
+pub fn interpolate_sh(
+    alpha: f32,
+    inv_scale: f32,
+    x: Vec3,
+    n: Vec3,
+    neighbours: &[(Vec3, Vec3, [f32; SH_COUNT])],
+) -> [f32; SH_COUNT] {
+    let pairs: Vec<(Vec3, Vec3)> = neighbours.iter().map(|(p, m, _)| (*p, *m)).collect();
+    let w = eq8_weights(alpha, inv_scale, x, n, &pairs);
+    let mut out = [0f32; SH_COUNT];
+    for (k, (_, _, c)) in neighbours.iter().enumerate() {
+        for i in 0..SH_COUNT {
+            out[i] += w[k] * c[i];
+        }
+    }
+    out
+}
+
+/// Frame of a sample point as the GPU passes use it (tangent from the world up hint).
+pub fn point_frame(normal: Vec3) -> Frame {
+    Frame::from_normal_hint(normal.as_dvec3(), DVec3::Y)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plane(nx: usize, nz: usize) -> Vec<SurfacePoint> {
+        let mut v = Vec::new();
+        for z in 0..nz {
+            for x in 0..nx {
+                v.push(SurfacePoint { pos: Vec3::new(x as f32, 0.0, z as f32), normal: Vec3::Y });
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn eg_metric() {
+        let a = e_g(0.3, 0.5, Vec3::ZERO, Vec3::Y, Vec3::new(2.0, 0.0, 0.0), Vec3::Y);
+        assert!((a - 0.3).abs() < 1e-6);
+        // opposite normals add 2
+        let b = e_g(0.3, 0.5, Vec3::ZERO, Vec3::Y, Vec3::ZERO, -Vec3::Y);
+        assert!((b - 2.0).abs() < 1e-6);
+        // perpendicular: sqrt(2)
+        let c = e_g(0.0, 1.0, Vec3::ZERO, Vec3::Y, Vec3::ONE, Vec3::X);
+        assert!((c - 2f32.sqrt()).abs() < 1e-6);
+    }
+
+    #[test]
+    fn kmeans_spreads_points_and_separates_normals() {
+        // a 20x20 plane: 16 clusters are spread (every quadrant gets some)
+        let p = plane(20, 20);
+        let s = kmeans_eg(&p, 16, 0.3, 8, &mut |_, _| {});
+        assert!(s.len() >= 12 && s.len() <= 16, "{}", s.len());
+        for q in 0..4 {
+            let (qx, qz) = (q % 2, q / 2);
+            let n = s.iter().filter(|&&i| (p[i].pos.x >= 10.0) as usize == qx && (p[i].pos.z >= 10.0) as usize == qz).count();
+            assert!(n >= 2, "quadrant {q} has {n} points");
+        }
+        // two coincident sheets with opposite normals never share a cluster representative side:
+        // both sides get sample points
+        let mut two = plane(10, 10);
+        two.extend(plane(10, 10).into_iter().map(|v| SurfacePoint { pos: v.pos, normal: -Vec3::Y }));
+        let s = kmeans_eg(&two, 8, 0.3, 8, &mut |_, _| {});
+        let up = s.iter().filter(|&&i| two[i].normal.y > 0.0).count();
+        assert!(up >= 2 && s.len() - up >= 2, "up {up} of {}", s.len());
+        // extremes: k >= n, empty
+        assert_eq!(kmeans_eg(&two[..3], 5, 0.3, 3, &mut |_, _| {}), vec![0, 1, 2]);
+        assert!(kmeans_eg(&[], 5, 0.3, 3, &mut |_, _| {}).is_empty());
+    }
+
+    #[test]
+    fn grid_queries_match_brute_force() {
+        let pts: Vec<Vec3> = (0..500)
+            .map(|i| {
+                let f = i as f32;
+                Vec3::new((f * 0.37).sin() * 3.0, (f * 0.11).cos(), (f * 0.73).sin() * 2.0)
+            })
+            .collect();
+        let g = Grid::new(&pts, 0.0);
+        for q in [Vec3::ZERO, Vec3::new(2.9, 1.0, -1.9), Vec3::new(10.0, 10.0, 10.0)] {
+            let mut a = g.range(q, 0.7);
+            a.sort();
+            let b: Vec<usize> = (0..pts.len()).filter(|&i| (pts[i] - q).length() <= 0.7).collect();
+            assert_eq!(a, b);
+            let n = g.nearest(q).unwrap();
+            let bn = (0..pts.len()).min_by(|&x, &y| (pts[x] - q).length().total_cmp(&(pts[y] - q).length())).unwrap();
+            assert!(((pts[n] - q).length() - (pts[bn] - q).length()).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn sh_projection_of_full_and_empty_maps() {
+        let f = point_frame(Vec3::Y);
+        let full = sh16_project(&VisMap::filled(32, true), &f);
+        // hemisphere around +y: c0 = 2 pi Y00, the y-linear coefficient (index 1, -0.4886 y) = -pi * 0.4886
+        assert!((full[0] - 2.0 * std::f32::consts::PI * 0.282095).abs() < 1e-3, "{}", full[0]);
+        assert!((full[1] + std::f32::consts::PI * 0.488603).abs() < 2e-3, "{}", full[1]);
+        let empty = sh16_project(&VisMap::filled(32, false), &f);
+        assert!(empty.iter().all(|c| *c == 0.0));
+        assert!(e_v(&full, &empty) > 1.0);
+    }
+
+    #[test]
+    fn weights_are_inverse_eg() {
+        let w = eq8_weights(0.3, 1.0, Vec3::ZERO, Vec3::Y, &[(Vec3::X, Vec3::Y), (Vec3::X * 2.0, Vec3::Y)]);
+        assert!((w[0] + w[1] - 1.0).abs() < 1e-6);
+        assert!((w[0] / w[1] - 2.0).abs() < 1e-4);
+        // a coincident neighbour dominates but stays finite
+        let w = eq8_weights(0.3, 1.0, Vec3::ZERO, Vec3::Y, &[(Vec3::ZERO, Vec3::Y), (Vec3::X, Vec3::Y)]);
+        assert!(w.iter().all(|x| x.is_finite()) && w[0] > 0.99);
+    }
+
+    #[test]
+    fn adaptation_inserts_at_a_shadow_edge_and_erases_in_flat_regions() {
+        // 1D row of points on a plane; the left half is occluded (SH of an empty map), the right
+        // free: points at the edge have large relative errors and get new points between them;
+        // interior points are interpolated exactly and become erase candidates, never two
+        // neighbours at once.
+        let pool = plane(41, 1);
+        let pool_grid = Grid::new(&pool.iter().map(|p| p.pos).collect::<Vec<_>>(), 0.0);
+        let idx: Vec<usize> = (0..41).step_by(4).collect();
+        let pts: Vec<SurfacePoint> = idx.iter().map(|&i| pool[i]).collect();
+        let f = point_frame(Vec3::Y);
+        let full = sh16_project(&VisMap::filled(16, true), &f);
+        let half = {
+            let mut h = full;
+            for c in h.iter_mut() {
+                *c *= 0.2;
+            }
+            h
+        };
+        let sh: Vec<[f32; SH_COUNT]> = pts.iter().map(|p| if p.pos.x < 20.0 { half } else { full }).collect();
+        let params = AdaptParams { alpha: 0.3, radius: 4.5, e_max: 0.10, e_min: 0.05 };
+        let st = adapt_step(&pts, &idx, &sh, &pool, &pool_grid, &params);
+        // the edge lies between x = 16 and x = 20: a point at x = 18 is inserted
+        assert!(st.insert.contains(&18), "{:?}", st.insert);
+        assert!(st.insert.iter().all(|&v| !idx.contains(&v)));
+        assert!(!st.erase.is_empty());
+        for w in st.erase.windows(2) {
+            assert!(w[1] > w[0] + 1, "adjacent points erased together: {:?}", st.erase);
+        }
+        // points next to the edge are not erased
+        assert!(!st.erase.contains(&4) && !st.erase.contains(&5), "{:?}", st.erase);
+        // a lone point (no neighbours) has no error and is kept
+        let st = adapt_step(&pts[..1], &idx[..1], &sh[..1], &pool, &pool_grid, &params);
+        assert_eq!(st.rel_error, vec![None]);
+        assert!(st.insert.is_empty() && st.erase.is_empty());
+    }
+}
