@@ -16,6 +16,7 @@ pub mod avs_maps;
 pub mod avs_sampling;
 pub mod brdf;
 pub mod envmap;
+pub mod hsdt;
 pub mod isg;
 pub mod nnls;
 pub mod quad;
