@@ -427,11 +427,13 @@ impl Default for IsgParams {
     }
 }
 
-/// Orthonormal frame whose `z` is `axis` (the SG lobe axis).
+/// Orthonormal frame whose `z` is `axis` (the SG lobe axis); the same frame as
+/// `isg_visible` in `glsl/include/isg.glsl` (so the patches coincide):
+/// `x = normalize(X x z)` (`Y x z` when `|z.x| >= 0.9`), `y = z x x`.
 pub fn local_frame(axis: DVec3) -> (DVec3, DVec3, DVec3) {
     let z = axis.try_normalize().unwrap_or(DVec3::Z);
-    let (x, y) = crate::quad::orthonormal_basis(z);
-    (x, y, z)
+    let x = if z.x.abs() < 0.9 { DVec3::X.cross(z) } else { DVec3::Y.cross(z) }.normalize();
+    (x, z.cross(x), z)
 }
 
 /// Fraction of the hemisphere integral of the SG `exp(gamma (dot(axis, w) - 1))` that is visible
@@ -448,6 +450,47 @@ pub fn visible_fraction(
     axis: DVec3,
     gamma: f64,
     spheres: &[Sphere],
+    params: &IsgParams,
+) -> f64 {
+    visible_fraction_with_triangles(table, p, n, axis, gamma, spheres, &[], params)
+}
+
+/// A thin-shell triangle (world space), an occluder from both sides.
+pub type Triangle = [DVec3; 3];
+
+/// Whether the direction `d` from `p` passes through the triangle (its projection on the
+/// sphere of directions about `p`); `None` when the triangle is skipped: its plane contains `p`
+/// or it lies entirely below the tangent plane of `n`.
+pub fn triangle_projection(p: DVec3, n: DVec3, t: &Triangle) -> Option<impl Fn(DVec3) -> bool> {
+    let (a, b, c) = (t[0] - p, t[1] - p, t[2] - p);
+    if a.dot(n).max(b.dot(n)).max(c.dot(n)) <= 0.0 {
+        return None;
+    }
+    let (la, lb, lc) = (a.length(), b.length(), c.length());
+    if !(la > 0.0 && lb > 0.0 && lc > 0.0) || !(la * lb * lc).is_finite() {
+        return None;
+    }
+    let (nab, nbc, nca) = (a.cross(b), b.cross(c), c.cross(a));
+    let det = a.dot(nbc);
+    if det.abs() <= 1e-7 * la * lb * lc {
+        return None;
+    }
+    let s = det.signum();
+    Some(move |d: DVec3| s * d.dot(nab) >= 0.0 && s * d.dot(nbc) >= 0.0 && s * d.dot(nca) >= 0.0)
+}
+
+/// [`visible_fraction`] with thin-shell occluders too: every patch whose centre direction
+/// passes through a triangle ([`triangle_projection`]) is occluded (the paper's projected
+/// triangle meshes, section 5).
+#[allow(clippy::too_many_arguments)]
+pub fn visible_fraction_with_triangles(
+    table: &IsgTable,
+    p: DVec3,
+    n: DVec3,
+    axis: DVec3,
+    gamma: f64,
+    spheres: &[Sphere],
+    triangles: &[Triangle],
     params: &IsgParams,
 ) -> f64 {
     let side = params.patch_side.clamp(1, 64);
@@ -485,6 +528,23 @@ pub fn visible_fraction(
             }
         }
     }
+    for t in triangles {
+        let Some(inside) = triangle_projection(p, n, t) else { continue };
+        for i in 0..side {
+            let th = FRAC_PI_2 - delta + 2.0 * delta * (i as f64 + 0.5) / side as f64;
+            for j in 0..side {
+                if occluded[i * side + j] {
+                    continue;
+                }
+                let ph = FRAC_PI_2 - delta + 2.0 * delta * (j as f64 + 0.5) / side as f64;
+                let dl = direction(th, ph);
+                if inside(fx * dl.x + fy * dl.y + fz * dl.z) {
+                    occluded[i * side + j] = true;
+                    any = true;
+                }
+            }
+        }
+    }
     if !any {
         return 1.0;
     }
@@ -507,6 +567,20 @@ pub fn visible_fraction(
 /// Brute-force reference of [`visible_fraction`]'s quantity (same sphere skipping rules):
 /// visible fraction of the hemisphere integral by a `res x res` midpoint rule over `(theta, phi)`.
 pub fn visible_fraction_brute(p: DVec3, n: DVec3, axis: DVec3, gamma: f64, spheres: &[Sphere], res: usize) -> f64 {
+    visible_fraction_brute_with_triangles(p, n, axis, gamma, spheres, &[], res)
+}
+
+/// [`visible_fraction_brute`] with thin-shell triangles (same skipping rules as
+/// [`visible_fraction_with_triangles`]).
+pub fn visible_fraction_brute_with_triangles(
+    p: DVec3,
+    n: DVec3,
+    axis: DVec3,
+    gamma: f64,
+    spheres: &[Sphere],
+    triangles: &[Triangle],
+    res: usize,
+) -> f64 {
     let (fx, fy, fz) = local_frame(axis);
     let n = n.try_normalize().unwrap_or(fz);
     let kept: Vec<(DVec3, f64)> = spheres
@@ -520,6 +594,7 @@ pub fn visible_fraction_brute(p: DVec3, n: DVec3, axis: DVec3, gamma: f64, spher
             Some((d / dist, (1.0 - (s.radius / dist).powi(2)).max(0.0).sqrt()))
         })
         .collect();
+    let tris: Vec<_> = triangles.iter().filter_map(|t| triangle_projection(p, n, t)).collect();
     let gamma = sanitize_gamma(gamma);
     // Midpoint rule refined about the lobe through a warp, as in the table.
     let k = warp_k(gamma);
@@ -540,7 +615,7 @@ pub fn visible_fraction_brute(p: DVec3, n: DVec3, axis: DVec3, gamma: f64, spher
             let w = (gamma * (dl.z - 1.0)).exp() * t.sin() * wt * wp;
             tot += w;
             let dw = fx * dl.x + fy * dl.y + fz * dl.z;
-            if !kept.iter().any(|(c, cp)| dw.dot(*c) >= *cp) {
+            if !kept.iter().any(|(c, cp)| dw.dot(*c) >= *cp) && !tris.iter().any(|inside| inside(dw)) {
                 vis += w;
             }
         }
