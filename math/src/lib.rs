@@ -24,5 +24,6 @@ pub mod sh;
 pub mod shadow_field;
 pub mod sphereset;
 pub mod sg;
+pub mod vv_sat;
 pub mod special;
 pub mod vv;
