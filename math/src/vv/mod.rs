@@ -34,6 +34,9 @@
 //! of `f`: `int_visible f = int_{hemisphere(n)} f - sum_loops (signed boundary integral of f)`.
 //! A vertex with no occluder has **no** sequence (empty visibility); a fully enclosed vertex
 //! has one loop of horizon points (`w = 0`) covering its whole hemisphere (`2 pi`).
+//! Winding numbers are taken relative to `-n` (the antipode of the shading normal counts as
+//! visible): after clamping, every loop lies in the closed hemisphere of `n`, and the fan from
+//! `n` ([`signed_solid_angle`]) integrates exactly that winding over the hemisphere.
 //!
 //! # Precompute choice
 //! The boundary is extracted from a fine visibility map traced on the CPU (a closest-hit BVH
@@ -63,8 +66,13 @@
 #![allow(clippy::needless_range_loop)]
 
 mod io;
+pub mod precompute;
+pub mod trace;
+#[cfg(test)]
+mod tests;
 
 pub use io::FORMAT_VERSION;
+pub use precompute::{precompute_visibility, Topology};
 
 use glam::{DVec3, Mat4, Vec3};
 

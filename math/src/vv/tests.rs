@@ -1,0 +1,175 @@
+//! Unit tests of the vv module on tiny hand-made models (the integration tests with scene
+//! meshes are in `tests/vv_precompute.rs`).
+
+use super::precompute::{trace_occluder, Topology};
+use super::trace::Tracer;
+use super::*;
+
+/// `n x n` quad grid of side `size` in the plane y = `y`, facing +y.
+pub(crate) fn grid(n: u32, size: f32, y: f32) -> (Vec<Vec3>, Vec<Vec3>, Vec<u32>) {
+    let mut p = Vec::new();
+    for i in 0..=n {
+        for j in 0..=n {
+            p.push(Vec3::new(size * (i as f32 / n as f32 - 0.5), y, size * (j as f32 / n as f32 - 0.5)));
+        }
+    }
+    let mut idx = Vec::new();
+    let id = |i: u32, j: u32| i * (n + 1) + j;
+    for i in 0..n {
+        for j in 0..n {
+            idx.extend([id(i, j), id(i, j + 1), id(i + 1, j), id(i + 1, j), id(i, j + 1), id(i + 1, j + 1)]);
+        }
+    }
+    let nrm = vec![Vec3::Y; p.len()];
+    (p, nrm, idx)
+}
+
+/// Axis-aligned box (flat normals, 24 vertices), outward facing.
+pub(crate) fn cuboid(c: Vec3, h: Vec3) -> (Vec<Vec3>, Vec<Vec3>, Vec<u32>) {
+    let mut p = Vec::new();
+    let mut nrm = Vec::new();
+    let mut idx = Vec::new();
+    for axis in 0..3 {
+        for s in [-1.0f32, 1.0] {
+            let mut n = Vec3::ZERO;
+            n[axis] = s;
+            let (u, v) = (n.any_orthonormal_vector(), n.cross(n.any_orthonormal_vector()));
+            let b = p.len() as u32;
+            for (a, bb) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
+                let q = n + u * a + v * bb;
+                p.push(c + q * h);
+                nrm.push(n);
+            }
+            idx.extend([b, b + 1, b + 2, b, b + 2, b + 3]);
+        }
+    }
+    (p, nrm, idx)
+}
+
+pub(crate) fn model(parts: &[((Vec<Vec3>, Vec<Vec3>, Vec<u32>), bool)]) -> VvModel {
+    VvModel::from_objects(parts.iter().map(|((p, n, i), occ)| ObjectMesh { positions: p, normals: n, indices: i, world: Mat4::IDENTITY, casts_shadow: *occ }))
+}
+
+/// Occluded solid angle at `p` by uniform hemisphere sampling (stratified) with the
+/// precompute's tracing conventions.
+fn traced_occluded_solid_angle(m: &VvModel, v: usize, n_samples: u32) -> f64 {
+    let topo = Topology::new(m);
+    let tracer = Tracer::new(&m.positions, &m.indices, &m.occluder);
+    let nn = m.normals[v].as_dvec3();
+    let f = frame(m.normals[v]);
+    let mut occ = 0;
+    for i in 0..n_samples {
+        for j in 0..n_samples {
+            // equal-area: uniform in the Lambert disk
+            let u = -1.0 + (i as f64 + 0.5) * 2.0 / n_samples as f64;
+            let w = -1.0 + (j as f64 + 0.5) * 2.0 / n_samples as f64;
+            if u * u + w * w >= 1.0 {
+                continue;
+            }
+            let d = lambert_inv(u, w, &f);
+            if trace_occluder(&tracer, &topo, &[topo.pos_group[v]], m.positions[v].as_dvec3(), nn, d).is_some() {
+                occ += 1;
+            }
+        }
+    }
+    // each disk cell of area (2/n)^2 is a solid angle 2 pi * area / pi
+    occ as f64 * 2.0 * (2.0 / n_samples as f64).powi(2)
+}
+
+fn occluded_solid_angle(vis: &VectorizedVisibility, m: &VvModel, v: usize) -> f64 {
+    synthesize(vis, v, m.positions[v], m.normals[v]).iter().map(|l| signed_solid_angle(l, m.normals[v])).sum()
+}
+
+#[test]
+fn box_over_floor_loop_matches_traced_occlusion() {
+    let m = model(&[(grid(4, 4.0, 0.0), false), (cuboid(Vec3::new(0.3, 1.0, 0.0), Vec3::new(0.5, 0.2, 0.4)), true)]);
+    let params = VvParams { resolution: 48, ..Default::default() };
+    let vis = precompute_visibility(&m, &params, &|_| {}).unwrap();
+    // the floor centre vertex (i = j = 2) sees one loop around the box
+    let v = 2 * 5 + 2;
+    assert_eq!(vis.vertex_sequences(v).len(), 1, "{:?}", vis.vertex_seqs[v]);
+    let a = occluded_solid_angle(&vis, &m, v);
+    let t = traced_occluded_solid_angle(&m, v, 200);
+    assert!(t > 0.3, "box subtends {t}");
+    assert!((a - t).abs() < 0.03 * t + 0.01, "loop {a} vs traced {t}");
+    // every point of that loop is on the box (w = 1)
+    for k in vis.vertex_sequences(v) {
+        assert!(vis.sequence(k).iter().all(|q| q[3] == 1.0 && (q[1] - 1.0).abs() <= 0.2001));
+        assert!(vis.sequence(k).len() >= 4 && vis.sequence(k).len() < 200);
+    }
+    // a floor corner far from the box: occluded much less
+    assert!(occluded_solid_angle(&vis, &m, 0) < a);
+}
+
+#[test]
+fn unoccluded_vertex_has_no_sequence_and_enclosed_vertex_a_horizon_loop() {
+    // a floor grid with nothing above: empty visibility everywhere
+    let m = model(&[(grid(2, 2.0, 0.0), true)]);
+    let vis = precompute_visibility(&m, &VvParams { resolution: 16, ..Default::default() }, &|_| {}).unwrap();
+    assert_eq!(vis.sequence_count(), 0);
+    assert!(vis.vertex_seqs.iter().all(|s| s[1] == 0));
+    // a floor inside a closed box: the centre vertex is fully enclosed
+    let m = model(&[(grid(2, 1.0, 0.0), false), (cuboid(Vec3::new(0.0, 0.5, 0.0), Vec3::new(1.0, 0.7, 1.0)), true)]);
+    let vis = precompute_visibility(&m, &VvParams { resolution: 24, ..Default::default() }, &|_| {}).unwrap();
+    let v = 4;
+    assert_eq!(vis.vertex_sequences(v).len(), 1);
+    let seq = vis.sequence(vis.vertex_sequences(v).start);
+    assert!(seq.iter().all(|q| q[3] == 0.0), "horizon points are directions");
+    let a = occluded_solid_angle(&vis, &m, v);
+    assert!((a - 2.0 * std::f64::consts::PI).abs() < 0.05, "enclosed: {a}");
+}
+
+#[test]
+fn points_behind_the_tangent_plane_are_clamped_to_the_horizon() {
+    let n = Vec3::Y;
+    let d = clamp_to_hemisphere(Vec3::new(1.0, -1.0, 0.0).normalize(), n);
+    assert!((d - Vec3::X).length() < 1e-6);
+    assert!(clamp_to_hemisphere(-n, n).dot(n).abs() < 1e-6);
+    // a cap of radius 30 deg centred on the horizon: half of it is behind the tangent plane;
+    // clamped, its loop encloses exactly the upper half
+    let cap = |c: Vec3, r: f32, m: usize| -> Vec<Vec3> {
+        let (u, v) = (c.any_orthonormal_vector(), c.cross(c.any_orthonormal_vector()));
+        (0..m).map(|i| {
+            let a = i as f32 * std::f32::consts::TAU / m as f32;
+            (c * r.cos() + (u * a.cos() + v * a.sin()) * r.sin()).normalize()
+        }).collect()
+    };
+    let r = 30f32.to_radians();
+    let l: Vec<Vec3> = cap(Vec3::X, r, 256).into_iter().map(|d| clamp_to_hemisphere(d, n)).collect();
+    let half = std::f64::consts::PI * (1.0 - (r as f64).cos());
+    let a = signed_solid_angle(&l, n);
+    assert!((a - half).abs() < 0.01 * half, "{a} vs {half}");
+    // the clamped loop says occluded exactly for directions inside the upper half of the cap
+    let inside = Vec3::new(0.95, 0.2, 0.0).normalize();
+    let outside = Vec3::new(0.7, 0.1, 0.7).normalize();
+    assert!(occluded_by(&[l.clone()], inside, n) && !occluded_by(&[l], outside, n));
+    // a cap wholly behind the plane (not around -n) encloses nothing once clamped
+    let below = Vec3::new(1.0, -1.0, 0.3).normalize();
+    let l: Vec<Vec3> = cap(below, 20f32.to_radians(), 64).into_iter().map(|d| clamp_to_hemisphere(d, n)).collect();
+    assert!(l.iter().all(|d| d.dot(n).abs() < 1e-6));
+    assert!(signed_solid_angle(&l, n).abs() < 1e-6);
+}
+
+#[test]
+fn file_roundtrip_and_malformed_files() {
+    let m = model(&[(grid(2, 4.0, 0.0), false), (cuboid(Vec3::new(0.0, 1.0, 0.0), Vec3::splat(0.4)), true)]);
+    let vis = precompute_visibility(&m, &VvParams { resolution: 16, ..Default::default() }, &|_| {}).unwrap();
+    let d = VvData { model_hash: m.hash(), vertex_count: m.positions.len() as u32, triangle_count: m.triangle_count() as u32, params: VvParams { resolution: 16, ..Default::default() }, corr: Correspondence { tri_offsets: vec![0; m.triangle_count() + 1], loop_offsets: vec![0], triples: vec![] }, vis, stats: VvStats::default() }.with_sizes();
+    let b = d.to_bytes();
+    let back = VvData::from_bytes(&b, "x.pvv").unwrap();
+    assert_eq!(back, d);
+    back.check_model(&m).unwrap();
+    for cut in [0, 3, 10, 40, b.len() - 1] {
+        let e = VvData::from_bytes(&b[..cut], "x.pvv").unwrap_err();
+        assert!(e.starts_with("x.pvv: ") && (e.contains("truncated") || e.contains("magic")), "{cut}: {e}");
+    }
+    let mut bad = b.clone();
+    bad[4] = 9;
+    assert!(VvData::from_bytes(&bad, "x.pvv").unwrap_err().contains("version 9"));
+    let mut bad = b.clone();
+    bad.push(0);
+    assert!(VvData::from_bytes(&bad, "x.pvv").unwrap_err().contains("trailing"));
+    let mut other = m.clone();
+    other.positions[0].x += 0.5;
+    assert!(back.check_model(&other).unwrap_err().contains("different model"));
+}
