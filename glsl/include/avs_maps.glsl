@@ -22,6 +22,30 @@
 #define AVS_PI 3.14159265358979323846
 #define AVS_NO_BOUNDARY 3.14159265358979323846
 
+// Accurate f32 sin on [-pi, pi] and asin on [-1, 1] (Vulkan only guarantees 2^-11 absolute for
+// sin and leaves asin loose; lavapipe's asin is off by ~1e-3): odd Taylor polynomial to x^11 after
+// folding to [-pi/2, pi/2] (error < 6e-8), Cephes asinf (~2.5e-7 relative).
+float avs_sin(float x) {
+    x = x > 0.5 * float(AVS_PI) ? float(AVS_PI) - x : (x < -0.5 * float(AVS_PI) ? -float(AVS_PI) - x : x);
+    float z = x * x;
+    return x * (1.0 + z * (-1.0 / 6.0 + z * (1.0 / 120.0 + z * (-1.0 / 5040.0 + z * (1.0 / 362880.0 + z * (-1.0 / 39916800.0))))));
+}
+float avs_asin(float x) {
+    float a = abs(x);
+    float r;
+    if (a > 0.5) {
+        float z = 0.5 * (1.0 - a);
+        float s = sqrt(z);
+        float p = (((4.2163199048e-2 * z + 2.4181311049e-2) * z + 4.5470025998e-2) * z + 7.4953002686e-2) * z + 1.6666752422e-1;
+        r = 0.5 * float(AVS_PI) - 2.0 * (s + s * z * p);
+    } else {
+        float z = a * a;
+        float p = (((4.2163199048e-2 * z + 2.4181311049e-2) * z + 4.5470025998e-2) * z + 7.4953002686e-2) * z + 1.6666752422e-1;
+        r = a + a * z * p;
+    }
+    return x < 0.0 ? -r : r;
+}
+
 uint avs_words_per_map(uint r) { return r * r / 32u; }
 uint avs_ssdf_words_per_map(uint r) { return r * r / 2u; }
 float avs_texel_angle(uint r) { return float(AVS_PI) / float(r); }
@@ -62,10 +86,17 @@ float avs_texel_solid_angle(uint i, uint r) {
 
 // Great-circle distance between (theta1, phi1) and (theta2, phi2) (haversine form).
 float avs_angular_distance(vec2 a, vec2 b) {
-    float s1 = sin(0.5 * (a.x - b.x));
-    float s2 = sin(0.5 * (a.y - b.y));
-    float h = s1 * s1 + sin(a.x) * sin(b.x) * s2 * s2;
-    return 2.0 * asin(sqrt(clamp(h, 0.0, 1.0)));
+    // h = sin^2(d/2) and c = cos^2(d/2) = 1 - h, each without cancellation where it is small, so
+    // both tiny and near-pi distances keep full f32 accuracy
+    float x = 0.5 * (a.x - b.x);
+    float s1 = avs_sin(x);
+    float c1 = avs_sin(0.5 * float(AVS_PI) - abs(x));
+    float s2 = avs_sin(0.5 * (a.y - b.y));
+    float w = avs_sin(a.x) * avs_sin(b.x) * s2 * s2;
+    float h = s1 * s1 + w;
+    float c = c1 * c1 - w;
+    return h <= 0.5 ? 2.0 * avs_asin(sqrt(clamp(h, 0.0, 1.0)))
+                    : float(AVS_PI) - 2.0 * avs_asin(sqrt(clamp(c, 0.0, 1.0)));
 }
 
 // Local frame from the normal alone (Duff et al. 2017), same as Frame::from_normal:

@@ -5,6 +5,7 @@
 pub mod effect;
 pub mod env;
 pub mod gbuffer;
+pub mod hsdt;
 pub mod isg;
 pub mod kdtree;
 pub mod mc;
