@@ -26,4 +26,5 @@ pub mod sphereset;
 pub mod sg;
 pub mod vv_sat;
 pub mod special;
+pub mod ssdf_integrate;
 pub mod vv;
