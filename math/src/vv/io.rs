@@ -2,7 +2,7 @@
 //!
 //! ```text
 //! magic "PNVV", version u32 (= FORMAT_VERSION), model_hash u64, vertex_count u32, triangle_count u32,
-//! params: resolution u32, refine_steps u32, tolerance_deg f32, max_segment_deg f32, seed u64,
+//! params: resolution u32, refine_steps u32, tolerance_deg f32, max_segment_deg f32, max_link_deg f32, seed u64,
 //! stats: visibility_seconds f64, correspondence_seconds f64, voronoi u32, propagated u32, relaxed u32,
 //! counts: points u32, vertex_points u32, sequences u32, loops u32, triples u32,
 //! points [f32; 4] x points, seq_offsets u32 x (sequences + 1), vertex_seqs [u32; 2] x vertex_count,
@@ -36,6 +36,7 @@ impl VvData {
         u(&mut b, p.refine_steps);
         b.extend_from_slice(&p.tolerance_deg.to_le_bytes());
         b.extend_from_slice(&p.max_segment_deg.to_le_bytes());
+        b.extend_from_slice(&p.max_link_deg.to_le_bytes());
         b.extend_from_slice(&p.seed.to_le_bytes());
         b.extend_from_slice(&self.stats.visibility_seconds.to_le_bytes());
         b.extend_from_slice(&self.stats.correspondence_seconds.to_le_bytes());
@@ -75,7 +76,7 @@ impl VvData {
         let model_hash = r.u64().map_err(err)?;
         let vertex_count = r.count("vertex count").map_err(err)?;
         let triangle_count = r.count("triangle count").map_err(err)?;
-        let params = VvParams { resolution: r.u32().map_err(err)?, refine_steps: r.u32().map_err(err)?, tolerance_deg: r.f32().map_err(err)?, max_segment_deg: r.f32().map_err(err)?, seed: r.u64().map_err(err)? };
+        let params = VvParams { resolution: r.u32().map_err(err)?, refine_steps: r.u32().map_err(err)?, tolerance_deg: r.f32().map_err(err)?, max_segment_deg: r.f32().map_err(err)?, max_link_deg: r.f32().map_err(err)?, seed: r.u64().map_err(err)? };
         params.validate().map_err(err)?;
         let mut stats = VvStats { visibility_seconds: r.f64().map_err(err)?, correspondence_seconds: r.f64().map_err(err)?, ..Default::default() };
         stats.voronoi_triples = r.u32().map_err(err)? as usize;

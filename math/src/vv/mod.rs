@@ -65,6 +65,8 @@
 
 #![allow(clippy::needless_range_loop)]
 
+pub mod corr;
+pub mod hull;
 mod io;
 pub mod precompute;
 pub mod trace;
@@ -92,13 +94,17 @@ pub struct VvParams {
     pub tolerance_deg: f32,
     /// Longest segment kept after simplification, degrees (long segments are split back).
     pub max_segment_deg: f32,
+    /// Largest angle between two linked entities (at the triangle centre), degrees: RGB
+    /// tripoints with a wider pair are not candidates, and a vertex without an entity this
+    /// close gets a virtual point.
+    pub max_link_deg: f32,
     /// Seed of the correspondence (random triangle order, Voronoi symbolic perturbation).
     pub seed: u64,
 }
 
 impl Default for VvParams {
     fn default() -> Self {
-        VvParams { resolution: 64, refine_steps: 6, tolerance_deg: 1.0, max_segment_deg: 20.0, seed: 1 }
+        VvParams { resolution: 64, refine_steps: 6, tolerance_deg: 1.0, max_segment_deg: 20.0, max_link_deg: 45.0, seed: 1 }
     }
 }
 
@@ -116,6 +122,9 @@ impl VvParams {
         }
         if !(self.max_segment_deg >= 1.0 && self.max_segment_deg <= 90.0) {
             return Err(format!("vv: max_segment_deg {} out of 1..=90", self.max_segment_deg));
+        }
+        if !(self.max_link_deg >= 1.0 && self.max_link_deg <= 180.0) {
+            return Err(format!("vv: max_link_deg {} out of 1..=180", self.max_link_deg));
         }
         Ok(())
     }
@@ -472,4 +481,80 @@ pub fn occluded_by(loops: &[Vec<Vec3>], d: Vec3, n: Vec3) -> bool {
         }
     }
     wn > 0
+}
+
+// ---------------------------------------------------------------------------------------------
+// Both stages
+
+/// Stage of [`compute`] reported to the progress callback.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// Per-vertex visibility: total = model vertex count.
+    Visibility,
+    /// Correspondence: total = 2 x triangle count.
+    Correspondence,
+}
+
+impl Stage {
+    /// Progress total of this stage for `model`.
+    pub fn total(self, model: &VvModel) -> u64 {
+        match self {
+            Stage::Visibility => model.positions.len() as u64,
+            Stage::Correspondence => 2 * model.triangle_count() as u64,
+        }
+    }
+}
+
+/// Precomputes the vectorized visibility and the correspondence of `model` (both stages,
+/// timed). `progress(stage, n)` receives finished-work increments, from any thread.
+pub fn compute(model: &VvModel, params: &VvParams, progress: &(dyn Fn(Stage, u64) + Sync)) -> Result<VvData, String> {
+    model.validate()?;
+    params.validate()?;
+    let t0 = std::time::Instant::now();
+    let mut vis = precompute_visibility(model, params, &|n| progress(Stage::Visibility, n))?;
+    let visibility_seconds = t0.elapsed().as_secs_f64();
+    let t1 = std::time::Instant::now();
+    let topo = Topology::new(model);
+    let (corr, stats) = corr::correspondence(model, &topo, &mut vis, params, &|n| progress(Stage::Correspondence, n))?;
+    let correspondence_seconds = t1.elapsed().as_secs_f64();
+    Ok(VvData {
+        model_hash: model.hash(),
+        vertex_count: model.positions.len() as u32,
+        triangle_count: model.triangle_count() as u32,
+        params: params.clone(),
+        vis,
+        corr,
+        stats: VvStats { visibility_seconds, correspondence_seconds, ..stats },
+    }
+    .with_sizes())
+}
+
+/// Cache file of `model` under `dir`: `<dir>/<name>-<model hash>-<params hash>.pvv` (`name`
+/// sanitized).
+pub fn cache_path(dir: &std::path::Path, name: &str, model: &VvModel, params: &VvParams) -> std::path::PathBuf {
+    let clean: String = name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect();
+    let ph = {
+        let m = VvModel { positions: vec![Vec3::new(params.resolution as f32, params.refine_steps as f32, params.tolerance_deg), Vec3::new(params.max_segment_deg, params.max_link_deg, params.seed as f32)], ..Default::default() };
+        m.hash() ^ params.seed
+    };
+    dir.join(format!("{clean}-{:016x}-{:08x}.pvv", model.hash(), ph as u32))
+}
+
+/// Reads the cached data of `model` from [`cache_path`] when it exists, was made for this model
+/// with these parameters and this format version; else computes it ([`compute`]) and writes
+/// the file (creating `dir`). Returns the data and the path. A stale or corrupt cache file is
+/// recomputed; I/O errors name the file.
+pub fn load_or_compute(model: &VvModel, params: &VvParams, dir: &std::path::Path, name: &str, progress: &(dyn Fn(Stage, u64) + Sync)) -> Result<(VvData, std::path::PathBuf), String> {
+    let path = cache_path(dir, name, model, params);
+    if path.exists() {
+        if let Ok(d) = VvData::read_for(&path, model) {
+            if d.params == *params {
+                return Ok((d, path));
+            }
+        }
+    }
+    let d = compute(model, params, progress)?;
+    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    d.write(&path)?;
+    Ok((d, path))
 }

@@ -173,3 +173,71 @@ fn file_roundtrip_and_malformed_files() {
     other.positions[0].x += 0.5;
     assert!(back.check_model(&other).unwrap_err().contains("different model"));
 }
+
+/// Checks the spherical Delaunay property: V - E + F = 2 (E = 3F/2), every site is a vertex
+/// of some face, and no site lies strictly inside a face's circumcircle (beyond the symbolic
+/// perturbation).
+fn check_delaunay(sites: &hull::Sites) {
+    let f = hull::convex_hull(&sites.dirs);
+    let n = sites.dirs.len();
+    assert_eq!(f.len(), 2 * n - 4, "Euler: {} faces for {n} sites", f.len());
+    let mut seen = vec![false; n];
+    for t in &f {
+        for &v in t {
+            seen[v] = true;
+        }
+        let (a, b, c) = (sites.dirs[t[0]], sites.dirs[t[1]], sites.dirs[t[2]]);
+        let cc = (b - a).cross(c - a).normalize();
+        let r = cc.dot(a);
+        for (i, s) in sites.dirs.iter().enumerate() {
+            if !t.contains(&i) {
+                assert!(cc.dot(*s) <= r + 1e-9, "site {i} inside the circumcircle of {t:?}");
+            }
+        }
+    }
+    assert!(seen.iter().all(|&s| s), "every site has a Voronoi cell");
+}
+
+#[test]
+fn spherical_voronoi_of_duplicate_and_cocircular_sites() {
+    use glam::DVec3;
+    // 12 sites on one small circle, 12 on the equator (cocircular), the poles, and every site
+    // duplicated (three colours seeing the same directions)
+    let mut input = Vec::new();
+    for i in 0..12 {
+        let a = i as f64 * std::f64::consts::TAU / 12.0;
+        input.push(DVec3::new(a.cos(), a.sin(), 0.0));
+        input.push(DVec3::new(0.5 * a.cos(), 0.5 * a.sin(), 0.75f64.sqrt()));
+    }
+    input.push(DVec3::Z);
+    input.push(-DVec3::Z);
+    let dup: Vec<DVec3> = input.iter().chain(input.iter()).chain(input.iter()).copied().collect();
+    let s = hull::sites(&dup, 7);
+    assert_eq!(s.dirs.len(), input.len(), "duplicates merged");
+    assert!(s.members.iter().all(|m| m.len() == 3));
+    check_delaunay(&s);
+    // deterministic for a seed
+    let s2 = hull::sites(&dup, 7);
+    assert_eq!(hull::convex_hull(&s.dirs), hull::convex_hull(&s2.dirs));
+    // all sites on one great circle (a fully enclosed triangle's horizon loops): no 3D hull,
+    // the fan still gives triangles over all sites
+    let ring: Vec<DVec3> = (0..16).map(|i| {
+        let a = i as f64 * std::f64::consts::TAU / 16.0;
+        DVec3::new(a.cos(), 0.0, a.sin())
+    }).collect();
+    let s = hull::sites(&ring, 3);
+    let f = hull::convex_hull(&s.dirs);
+    assert!(!f.is_empty());
+    let mut seen = [false; 16];
+    f.iter().flatten().for_each(|&v| seen[v] = true);
+    assert!(seen.iter().all(|&x| x));
+    // fewer than three sites
+    assert!(hull::convex_hull(&[DVec3::X, DVec3::Y]).is_empty());
+    // RGB tripoints of three identical colour sets: every site is its own zero-distance triple
+    let dirs: Vec<Vec3> = input.iter().map(|d| d.as_vec3()).collect();
+    let ents = [(0..26).collect::<Vec<u32>>(), (100..126).collect(), (200..226).collect()];
+    let c = corr::rgb_tripoints(&ents, &[dirs.clone(), dirs.clone(), dirs], 5, 0.0);
+    for i in 0..26u32 {
+        assert!(c.iter().any(|(t, d)| *t == [i, 100 + i, 200 + i] && *d < 1e-3), "site {i}");
+    }
+}
