@@ -1,9 +1,14 @@
 #version 450
-// Shadow fields, per pixel: the G-buffer point's diffuse transfer (clamped cosine / pi, no
-// self-occlusion at pixels) times every other object's visibility from its shadow field
-// (triple products), double product with the environment SH; glossy materials add the
-// prefiltered environment along the reflection, times the occluders' visibility there; local
-// lights are shadowed by the occluders' visibility toward them.
+// Shadow fields, per pixel. Diffuse: mode 0 (pixel) evaluates Fig. 3 of the paper at the
+// G-buffer point with the clamped-cosine transfer of its normal (no self-occlusion at pixels):
+// the other objects' visibility from their shadow fields (triple products), local lights
+// through their source radiance fields and the environment SH (double products); mode 1
+// (vertex) reads the per-vertex radiance (self-occlusion transfer included, computed by
+// sf_points.comp for the visible vertices and interpolated by the sf_vertex raster pass).
+// Glossy materials add the prefiltered environment along the reflection, times the occluders'
+// visibility there, and the local lights' specular lobe, times the visibility toward the light
+// of the occluders nearer than it. With srf = 0 local lights are evaluated pointwise (BRDF
+// times the occluders' visibility toward the light) instead of through their fields.
 // Sky pixels show the environment.
 #include "common.glsl"
 #define SF_B0 7
@@ -19,11 +24,12 @@ layout(set = 0, binding = 4) uniform sampler2D gb_uv_mat;
 layout(set = 0, binding = 5) uniform sampler2D env_map;
 layout(set = 0, binding = 6, rgba32f) uniform writeonly image2D hdr;
 layout(set = 0, binding = 12) readonly buffer Lights { LightData lights[]; };
-layout(push_constant) uniform Push { uint n_inst; uint tensor_count; uint light_count; } pc;
+layout(set = 0, binding = 13) uniform sampler2D vtx_radiance;
+layout(push_constant) uniform Push { uint n_inst; uint tensor_count; uint light_count; uint srf; uint window; uint mode; } pc;
 
-// Local lights (as shade_env.comp's local_lights, same BRDFs), each shadowed by the other
-// objects' order-4 visibility toward the light (their OOF evaluated along the light direction;
-// no source radiance fields: the light is treated as a point, occluders behind it included).
+// Local lights (as shade_env.comp's local_lights, same BRDFs), pointwise: the specular lobe
+// always, the diffuse lobe only with srf = 0 (else it comes through the source radiance fields),
+// each shadowed by the order-4 visibility toward the light of the other objects nearer than it.
 vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness, uint self_inst) {
     vec3 sum = vec3(0.0);
     for (uint i = 0u; i < pc.light_count; ++i) {
@@ -41,7 +47,7 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData 
         } else if (lk == 2) {
             intensity *= PI * l.extra.x * l.extra.x;
         }
-        vec3 f = albedo / PI;
+        vec3 f = pc.srf != 0u ? vec3(0.0) : albedo / PI;
         if (kind != 0) {
             vec3 h = normalize(wi + v);
             float ndh = max(dot(n, h), 0.0);
@@ -60,7 +66,8 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData 
                 f += F * D * G / (4.0 * ndl * ndv);
             }
         }
-        float vis = sf_visibility_along(pos, wi, self_inst, pc.n_inst);
+        if (all(equal(f, vec3(0.0)))) continue;
+        float vis = sf_visibility_along(pos, wi, self_inst, pc.n_inst, sqrt(d2));
         sum += vis * f * intensity * ndl / d2;
     }
     return sum;
@@ -118,10 +125,16 @@ void main() {
     vec3 n = oct_decode(texelFetch(gb_normal, p, 0).xy);
     MaterialData m = mats[uint(uvm.z)];
     uint self_inst = uint(uvm.w + 0.5) - 1u;
-    float u[16];
-    cosine_transfer(n, u);
-    sf_accumulate(pos, self_inst, pc.n_inst, pc.tensor_count, u);
-    vec3 color = max(m.albedo_kind.rgb * sf_double(u), vec3(0.0));
+    vec3 diffuse;
+    if (pc.mode == 1u) {
+        diffuse = texelFetch(vtx_radiance, p, 0).rgb;
+    } else {
+        float u[16];
+        cosine_transfer(n, u);
+        uint n_light = pc.srf != 0u ? pc.light_count : 0u;
+        diffuse = sf_shade_point(pos, self_inst, pc.n_inst, n_light, pc.tensor_count, pc.window, u);
+    }
+    vec3 color = max(m.albedo_kind.rgb * diffuse, vec3(0.0));
     // Glossy materials: the prefiltered environment along the reflection (as the "env"
     // technique), shadowed by the occluders' visibility in that direction.
     int kind = int(m.albedo_kind.w + 0.5);
@@ -130,7 +143,7 @@ void main() {
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
     if (kind != 0) {
         vec3 r = reflect(-v, n);
-        float vis = sf_visibility_along(pos, r, self_inst, pc.n_inst);
+        float vis = sf_visibility_along(pos, r, self_inst, pc.n_inst, 1e30);
         color += vis * env_lookup(r, roughness * (cam.params.z - 1.0)) * env_brdf_approx(m.spec_rough.rgb, roughness, ndv);
     }
     color += local_lights(pos, n, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);

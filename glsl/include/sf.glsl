@@ -14,12 +14,19 @@ struct SfShell {
     vec4 st[4];   // per coefficient step
 };
 
+// Objects (indices 0 .. n_inst - 1) and local lights (n_inst .. n_inst + n_light - 1).
 struct SfInst {
-    mat4 world_to_local;  // object space of the field (inverse of the rigid world transform)
+    mat4 world_to_local;  // object (light) frame of the field (inverse of the rigid world transform)
     vec4 center_step;     // xyz shell centre (object space), w shell radius step 0.2 Vr
-    uvec4 info;           // x first shell, y shell count (0 = no field), z casts shadow
+    uvec4 info;           // x first shell, y shell count (0 = no field), z casts shadow, w 1 = light
+    vec4 center_world;    // xyz world position of the shell centre (entity sort key)
+    vec4 light_a;         // lights: rgb power, w kind (0 point, 1 spot, 2 sphere)
+    vec4 light_b;         // lights: x cos(inner), y cos(outer), z sphere radius
     float rot[84];        // block-diagonal SH rotation local -> world (bands 0..3)
 };
+
+// Entities combined per point at most (penumbra_math::shadow_field::MAX_ENTITIES).
+#define SF_MAX_ENT 48
 
 struct SfEntry {
     uint ijk;  // i | j << 8 | k << 16
@@ -119,22 +126,6 @@ void sf_triple(float f[16], float g[16], uint count, out float h[16]) {
     }
 }
 
-// Occluded transfer at world point p of receiver instance `self_inst`: u = t (x) O_1 (x) ...
-// over every other instance; returns the number of occluders applied.
-uint sf_accumulate(vec3 p, uint self_inst, uint inst_count, uint tensor_count, inout float u[16]) {
-    uint applied = 0u;
-    for (uint j = 0u; j < inst_count; j++) {
-        if (j == self_inst) continue;
-        float o[16];
-        if (!sf_ocv(sf_inst[j], p, o)) continue;
-        float h[16];
-        sf_triple(o, u, tensor_count, h);
-        u = h;
-        applied++;
-    }
-    return applied;
-}
-
 vec3 sf_double(float u[16]) {
     vec3 c = vec3(0.0);
     for (int e = 0; e < 16; e++) c += sf_light[e].rgb * u[e];
@@ -162,14 +153,16 @@ void sf_basis(vec3 d, out float y[16]) {
     y[15] = -0.590043590 * x * (x * x - 3.0 * yy * yy);
 }
 
-// Product over the other instances of their visibility in world direction d at point p
-// (each clamped to [0, 1]): shadowing of the glossy environment term.
-float sf_visibility_along(vec3 p, vec3 d, uint self_inst, uint inst_count) {
+// Product over the other instances (whose centres are nearer than max_dist) of their
+// visibility in world direction d at point p (each clamped to [0, 1]): shadowing of the glossy
+// environment term and of local lights' specular term.
+float sf_visibility_along(vec3 p, vec3 d, uint self_inst, uint inst_count, float max_dist) {
     float y[16];
     sf_basis(d, y);
     float v = 1.0;
     for (uint j = 0u; j < inst_count; j++) {
         if (j == self_inst) continue;
+        if (!(distance(p, sf_inst[j].center_world.xyz) < max_dist)) continue;
         float o[16];
         if (!sf_ocv(sf_inst[j], p, o)) continue;
         float s = 0.0;
@@ -177,6 +170,135 @@ float sf_visibility_along(vec3 p, vec3 d, uint self_inst, uint inst_count) {
         v *= clamp(s, 0.0, 1.0);
     }
     return v;
+}
+
+// Window of the occluders' visibility (penumbra_math::shadow_field::Window): 0 none,
+// 1 Hanning, 2 Lanczos (window width 4).
+void sf_window(uint kind, inout float c[16]) {
+    if (kind == 0u) return;
+    vec3 s = kind == 1u ? vec3(0.853553391, 0.5, 0.146446609) : vec3(0.900316316, 0.636619772, 0.300105439);
+    for (int e = 1; e < 4; e++) c[e] *= s.x;
+    for (int e = 4; e < 9; e++) c[e] *= s.y;
+    for (int e = 9; e < 16; e++) c[e] *= s.z;
+}
+
+// Analytic radiance coefficients (unit power, light frame) of light `inst` at light-frame
+// point q (LightSource::rcv).
+void sf_light_analytic(SfInst inst, vec3 q, out float o[16]) {
+    sf_zero(o);
+    float r2 = dot(q, q);
+    if (!(r2 > 0.0)) return;
+    float r = sqrt(r2);
+    vec3 s = q / r;
+    float y[16];
+    sf_basis(-s, y);
+    int kind = int(inst.light_a.w + 0.5);
+    if (kind == 2) {
+        float a = inst.light_b.z;
+        if (!(r > a)) return;
+        float t = sqrt(max(1.0 - (a / r) * (a / r), 0.0));
+        float ip[4] = float[4](1.0 - t, (1.0 - t * t) / 2.0, (t - t * t * t) / 2.0, (-0.25 - 1.25 * t * t * t * t + 1.5 * t * t) / 2.0);
+        for (int l = 0; l < 4; l++)
+            for (int m = 0; m < 2 * l + 1; m++) o[l * l + m] = 2.0 * SF_PI * ip[l] * y[l * l + m];
+        return;
+    }
+    float f = 1.0;
+    if (kind == 1) {
+        float e0 = inst.light_b.y, e1 = inst.light_b.x;
+        if (e1 <= e0) {
+            f = s.z >= e0 ? 1.0 : 0.0;
+        } else {
+            float t = clamp((s.z - e0) / (e1 - e0), 0.0, 1.0);
+            f = t * t * (3.0 - 2.0 * t);
+        }
+    }
+    for (int e = 0; e < 16; e++) o[e] = f / r2 * y[e];
+}
+
+// Radiance coefficients (unit power, world frame) of light `inst` at world point pw: its source
+// radiance field inside the outermost shell (linear in r^2 RCV between shells), analytic
+// outside (ObjectField::rcv / LightFrame::rcv_world).
+void sf_rcv(SfInst inst, vec3 pw, out float o[16]) {
+    vec3 q = (inst.world_to_local * vec4(pw, 1.0)).xyz - inst.center_step.xyz;
+    float len = length(q);
+    uint nc = inst.info.y;
+    float step = inst.center_step.w;
+    float x = len / step - 1.0;
+    float loc[16];
+    if (nc == 0u || !(x <= float(nc - 1u))) {
+        sf_light_analytic(inst, q, loc);
+    } else if (!(len > 0.0)) {
+        sf_zero(loc);
+    } else {
+        float theta = acos(clamp(q.z / len, -1.0, 1.0));
+        float phi = atan(q.y, q.x);
+        if (phi < 0.0) phi += 2.0 * SF_PI;
+        x = max(x, 0.0);
+        uint c0 = min(uint(floor(x)), nc - 1u);
+        uint c1 = min(c0 + 1u, nc - 1u);
+        float w = c1 == c0 ? 0.0 : x - float(c0);
+        float r0 = step * float(c0 + 1u), r1 = step * float(c1 + 1u);
+        float inv = 1.0 / (len * len);
+        sf_zero(loc);
+        sf_shell_lookup(sf_shells[inst.info.x + c0], theta, phi, (1.0 - w) * r0 * r0 * inv, loc);
+        if (w > 0.0) sf_shell_lookup(sf_shells[inst.info.x + c1], theta, phi, w * r1 * r1 * inv, loc);
+    }
+    sf_rotate(inst, loc, o);
+}
+
+// Whether world point p lies inside the outermost shell of object j's field.
+bool sf_inside(SfInst inst, vec3 pw) {
+    uint nc = inst.info.y;
+    if (nc == 0u || inst.info.z == 0u) return false;
+    vec3 q = (inst.world_to_local * vec4(pw, 1.0)).xyz - inst.center_step.xyz;
+    return length(q) / inst.center_step.w - 1.0 <= float(nc - 1u);
+}
+
+// Radiance (before the albedo) at world point p of receiver `self_inst` with world-frame
+// transfer u (penumbra_math::shadow_field::shade_point, Fig. 3 of the paper): the entities
+// (other objects whose shells contain p, and lights) sorted by distance to their centres; each
+// occluder multiplies u by its (windowed) visibility, each light adds its power times the double
+// product of its radiance with the current u; the environment adds the double product with
+// the final u.
+vec3 sf_shade_point(vec3 p, uint self_inst, uint inst_count, uint light_count, uint tensor_count, uint window, inout float u[16]) {
+    uint ids[SF_MAX_ENT];
+    float ds[SF_MAX_ENT];
+    uint n = 0u;
+    uint total = inst_count + light_count;
+    for (uint j = 0u; j < total; j++) {
+        if (j == self_inst) continue;
+        if (j < inst_count && !sf_inside(sf_inst[j], p)) continue;
+        float d = distance(p, sf_inst[j].center_world.xyz);
+        if (n == uint(SF_MAX_ENT) && !(d < ds[n - 1u])) continue;
+        uint k = min(n, uint(SF_MAX_ENT) - 1u);
+        while (k > 0u && ds[k - 1u] > d) {
+            ds[k] = ds[k - 1u];
+            ids[k] = ids[k - 1u];
+            k--;
+        }
+        ds[k] = d;
+        ids[k] = j;
+        n = min(n + 1u, uint(SF_MAX_ENT));
+    }
+    vec3 c = vec3(0.0);
+    for (uint k = 0u; k < n; k++) {
+        uint j = ids[k];
+        if (j < inst_count) {
+            float o[16];
+            if (!sf_ocv(sf_inst[j], p, o)) continue;
+            sf_window(window, o);
+            float h[16];
+            sf_triple(o, u, tensor_count, h);
+            u = h;
+        } else {
+            float s[16];
+            sf_rcv(sf_inst[j], p, s);
+            float dp = 0.0;
+            for (int e = 0; e < 16; e++) dp += s[e] * u[e];
+            c += sf_inst[j].light_a.rgb * dp;
+        }
+    }
+    return c + sf_double(u);
 }
 
 #endif

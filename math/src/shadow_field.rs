@@ -28,6 +28,11 @@ pub const NCOEF: usize = 16;
 pub const ROT_FLOATS: usize = 84;
 /// Visibility coefficient vector of an unoccluded point (`V = 1`): `sqrt(4 pi)` in band 0.
 pub const UNOCCLUDED_DC: f64 = 3.544907701811032;
+/// The constant basis function `Y_0 = 1 / sqrt(4 pi)`.
+pub const Y0: f64 = 0.28209479177387814;
+/// Entities (occluders whose shells contain the point, plus lights) one point combines at most
+/// (the GPU's local sort array; the CPU path applies the same cap so both agree).
+pub const MAX_ENTITIES: usize = 48;
 
 /// Precomputation parameters (defaults from the paper).
 #[derive(Clone, Debug)]
@@ -361,14 +366,32 @@ impl RawField {
     /// grid), stays within `threshold` of eq. 1. The error is always measured against the
     /// initial samples (not the previous level), so it does not accumulate.
     pub fn to_adaptive(&self, threshold: f64, min_resolution: usize) -> ObjectField {
+        self.adapt(threshold, min_resolution, false)
+    }
+
+    /// The adaptive source radiance field: as [`RawField::to_adaptive`] with the threshold
+    /// relative to each shell's largest mean radiance (`max_s c_0 Y_0`), since radiance has
+    /// units and falls off as `1/r^2` across shells (visibility is in `[0, 1]`). A shell
+    /// without radiance collapses to the minimum resolution.
+    pub fn to_adaptive_relative(&self, threshold: f64, min_resolution: usize) -> ObjectField {
+        self.adapt(threshold, min_resolution, true)
+    }
+
+    fn adapt(&self, threshold: f64, min_resolution: usize, relative: bool) -> ObjectField {
         let table = DirTable::new(12);
         let r0 = self.resolution;
         let shells = self
             .shells
             .par_iter()
             .map(|g| {
-                let (r, grid, err) = adapt_shell(g, r0, threshold, min_resolution, &table);
-                quantize(&grid, r, err as f32)
+                let scale = if relative {
+                    g.iter().map(|v| v[0].abs() as f64 * Y0).fold(0.0, f64::max)
+                } else {
+                    1.0
+                };
+                // tiny absolute floor: a zero shell adapts all the way down
+                let (r, grid, err) = adapt_shell(g, r0, threshold * scale + if relative { 1e-30 } else { 0.0 }, min_resolution, &table);
+                quantize(&grid, r, (err / scale.max(1e-30)) as f32)
             })
             .collect();
         ObjectField {
@@ -778,6 +801,8 @@ pub struct InstanceFrame<'a> {
     pub world_to_local: glam::DMat4,
     /// [`rotation_blocks`] of the instance's rotation (object to world).
     pub rot: [f64; ROT_FLOATS],
+    /// World position of the field's shell centre (the entity sort key of [`shade_point`]).
+    pub center_world: DVec3,
 }
 
 impl<'a> InstanceFrame<'a> {
@@ -787,7 +812,8 @@ impl<'a> InstanceFrame<'a> {
         let q = if q.is_finite() { q.normalize() } else { glam::DQuat::IDENTITY };
         let inv = world.inverse();
         let world_to_local = if inv.is_finite() { inv } else { glam::DMat4::IDENTITY };
-        InstanceFrame { field, world_to_local, rot: rotation_blocks(DMat3::from_quat(q)) }
+        let c = field.map_or(glam::Vec3::ZERO, |f| f.center).as_dvec3();
+        InstanceFrame { field, world_to_local, rot: rotation_blocks(DMat3::from_quat(q)), center_world: world.transform_point3(c) }
     }
 }
 
@@ -827,22 +853,348 @@ pub fn occluded_transfer(p: &ShadePoint, insts: &[InstanceFrame], tensor: &Tripl
 }
 
 /// Radiance of each point (`albedo * int L U`, clamped at 0) and the unclamped minimum channel,
-/// in parallel. `light[e]` is the rgb SH coefficient `e` of the environment radiance.
+/// in parallel, without local lights (see [`shade_points_with`]). `light[e]` is the rgb SH coefficient `e` of the environment radiance.
 pub fn shade_points(
     points: &[ShadePoint],
     insts: &[InstanceFrame],
     light: &[[f64; 3]; NCOEF],
     tensor: &TripleProductTensor,
 ) -> Vec<(DVec3, f64)> {
+    shade_points_with(points, insts, &[], light, tensor, &ShadeOptions::default())
+}
+
+// ---------------------------------------------------------------------------------------------
+// Source radiance fields (local lights)
+
+/// A local light as its source radiance field describes it, for unit power, in the light's
+/// frame: the light at the origin, a spot pointing along `+z`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LightSource {
+    /// Radiant intensity 1 in every direction.
+    Point,
+    /// Intensity `smoothstep(cos_outer, cos_inner, s.z)` in direction `s` from the light (a
+    /// hard cut-off at `cos_outer` when `cos_inner <= cos_outer`), as the reference renderer.
+    Spot {
+        /// Cosine of the full-intensity half-angle.
+        cos_inner: f64,
+        /// Cosine of the cut-off half-angle.
+        cos_outer: f64,
+    },
+    /// A sphere of `radius` emitting radiance 1.
+    Sphere {
+        /// Sphere radius.
+        radius: f64,
+    },
+}
+
+fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
+    if e1 <= e0 {
+        return if x >= e0 { 1.0 } else { 0.0 };
+    }
+    let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// `int_t^1 P_l(x) dx` for `l = 0..3` (zonal SH of a cap of half-angle `acos t`, up to
+/// `2 pi`).
+fn cap_legendre(t: f64) -> [f64; 4] {
+    [1.0 - t, (1.0 - t * t) / 2.0, (t - t * t * t) / 2.0, (-0.25 - 1.25 * t.powi(4) + 1.5 * t * t) / 2.0]
+}
+
+impl LightSource {
+    /// Order-4 SH of the radiance arriving at light-frame point `p` from the light (unit
+    /// power), as a function of the incident direction (pointing towards the light): a point
+    /// or spot light is the projection of `delta(w - w_l) / r^2`, `Y(w_l) / r^2`; a sphere light
+    /// the projection of its radiance over the cap it subtends. Zero at the light and inside a
+    /// sphere light (as the reference: no light there).
+    pub fn rcv(&self, p: DVec3) -> [f64; NCOEF] {
+        let r2 = p.length_squared();
+        let mut out = [0.0; NCOEF];
+        if !(r2 > 0.0) || !r2.is_finite() {
+            return out;
+        }
+        let r = r2.sqrt();
+        let s = p / r; // from the light to p
+        let mut y = [0.0; NCOEF];
+        eval_basis_into(ORDER, -s, &mut y);
+        match *self {
+            LightSource::Point | LightSource::Spot { .. } => {
+                let f = match *self {
+                    LightSource::Spot { cos_inner, cos_outer } => smoothstep(cos_outer, cos_inner, s.z),
+                    _ => 1.0,
+                };
+                for e in 0..NCOEF {
+                    out[e] = f / r2 * y[e];
+                }
+            }
+            LightSource::Sphere { radius } => {
+                if !(r > radius) {
+                    return out;
+                }
+                let t = (1.0 - (radius / r).powi(2)).max(0.0).sqrt();
+                let ip = cap_legendre(t);
+                for l in 0..ORDER {
+                    for m in 0..2 * l + 1 {
+                        out[l * l + m] = 2.0 * PI * ip[l] * y[l * l + m];
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Computes the source radiance field of `src` (unit power) on `params.shells` shells around
+/// the light whose outermost radius is `reach` (shell `c` at `reach (c + 1) / C`, i.e. the
+/// object convention `0.2 Vr (1 + c)` with `Vr = reach / (0.2 C)`), `R x R` samples each. No
+/// self-transfer. `progress(n)` as for [`precompute`].
+pub fn precompute_srf(src: LightSource, reach: f64, params: &Params, progress: &(dyn Fn(u64) + Sync)) -> Result<RawField, String> {
+    if params.shells == 0 || params.shells > 1024 {
+        return Err(format!("source radiance field: shell count {} out of 1..=1024", params.shells));
+    }
+    if params.resolution == 0 || params.resolution > 1024 {
+        return Err("source radiance field: resolution must be in 1..=1024".into());
+    }
+    if !(reach > 0.0) || !reach.is_finite() {
+        return Err(format!("source radiance field: reach {reach} must be finite and > 0"));
+    }
+    let start = std::time::Instant::now();
+    let r = params.resolution.next_power_of_two();
+    let vr = reach / (0.2 * params.shells as f64);
+    let shells = (0..params.shells)
+        .map(|sh| {
+            let radius = 0.2 * vr * (1.0 + sh as f64);
+            let g: Vec<[f32; NCOEF]> = (0..r * r)
+                .into_par_iter()
+                .map(|i| {
+                    let (th, ph) = sample_angles(r, i / r, i % r);
+                    src.rcv(radius * polar_dir(th, ph)).map(|x| x as f32)
+                })
+                .collect();
+            progress((r * r) as u64);
+            g
+        })
+        .collect();
+    Ok(RawField {
+        center: Vec3::ZERO,
+        bound_radius: vr as f32,
+        resolution: r,
+        shells,
+        self_transfer: Vec::new(),
+        seconds: start.elapsed().as_secs_f64(),
+        rays: 0,
+    })
+}
+
+impl ObjectField {
+    /// Radiance coefficients (light frame) of a source radiance field at light-frame point
+    /// `p`, or `None` outside the outermost shell (the caller evaluates the light analytically
+    /// there). Between shells the interpolation is linear in `r^2 RCV` (exact for the `1/r^2`
+    /// falloff of a point light, where plain linear interpolation errs by up to 40% between the
+    /// two innermost shells); inside the innermost shell the innermost shell is scaled by
+    /// `r_0^2 / r^2`.
+    pub fn rcv(&self, p: DVec3) -> Option<[f64; NCOEF]> {
+        let nc = self.shells.len();
+        if nc == 0 || !(self.bound_radius > 0.0) {
+            return None;
+        }
+        let q = p - self.center.as_dvec3();
+        let len = q.length();
+        let step = self.shell_step();
+        let x = len / step - 1.0;
+        if !x.is_finite() || x > (nc - 1) as f64 {
+            return None;
+        }
+        if !(len > 0.0) {
+            return Some([0.0; NCOEF]);
+        }
+        let (theta, phi) = angles_of(q);
+        let xc = x.max(0.0);
+        let c0 = (xc.floor() as usize).min(nc - 1);
+        let c1 = (c0 + 1).min(nc - 1);
+        let w = if c1 == c0 { 0.0 } else { xc - c0 as f64 };
+        let r0 = step * (c0 as f64 + 1.0);
+        let r1 = step * (c1 as f64 + 1.0);
+        let a = self.shell_lookup(c0, theta, phi);
+        let b = if w > 0.0 { self.shell_lookup(c1, theta, phi) } else { [0.0; NCOEF] };
+        let inv = 1.0 / (len * len);
+        let mut out = [0.0; NCOEF];
+        for e in 0..NCOEF {
+            out[e] = ((1.0 - w) * r0 * r0 * a[e] + w * r1 * r1 * b[e]) * inv;
+        }
+        Some(out)
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Windowing of the occluders' visibility (ringing of order-4 products)
+
+/// Per-band window applied to every occluder's visibility vector before the triple products
+/// (Sloan, "Stupid spherical harmonics tricks"), with window width = the SH order (4).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Window {
+    /// No windowing (the paper).
+    #[default]
+    None,
+    /// `(1 + cos(pi l / 4)) / 2`: 1, 0.854, 0.5, 0.146.
+    Hanning,
+    /// `sinc(pi l / 4)`: 1, 0.900, 0.637, 0.300.
+    Lanczos,
+}
+
+impl Window {
+    /// Band factors `sigma_l`, `l = 0..3`.
+    pub fn sigma(self) -> [f64; ORDER] {
+        let mut s = [1.0; ORDER];
+        for (l, v) in s.iter_mut().enumerate().skip(1) {
+            let x = PI * l as f64 / ORDER as f64;
+            *v = match self {
+                Window::None => 1.0,
+                Window::Hanning => 0.5 * (1.0 + x.cos()),
+                Window::Lanczos => x.sin() / x,
+            };
+        }
+        s
+    }
+
+    /// Applies the window to a coefficient vector.
+    pub fn apply(self, c: &mut [f64; NCOEF]) {
+        if self == Window::None {
+            return;
+        }
+        let s = self.sigma();
+        for l in 1..ORDER {
+            for m in 0..2 * l + 1 {
+                c[l * l + m] *= s[l];
+            }
+        }
+    }
+
+    /// Parses `none`, `hanning`, `lanczos`.
+    pub fn parse(s: &str) -> Option<Self> {
+        match s.trim() {
+            "none" => Some(Window::None),
+            "hanning" | "hann" => Some(Window::Hanning),
+            "lanczos" => Some(Window::Lanczos),
+            _ => None,
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Per-point shading with local lights (Fig. 3)
+
+/// One local light of a frame: its source radiance field (or `None`: the analytic radiance
+/// everywhere), its frame and its rgb power.
+#[derive(Clone, Copy, Debug)]
+pub struct LightFrame<'a> {
+    /// The light's source radiance field (`None`: analytic radiance everywhere).
+    pub field: Option<&'a ObjectField>,
+    /// What the light is.
+    pub source: LightSource,
+    /// World to light frame.
+    pub world_to_local: glam::DMat4,
+    /// [`rotation_blocks`] of the light frame's rotation (light to world).
+    pub rot: [f64; ROT_FLOATS],
+    /// World position.
+    pub position: DVec3,
+    /// rgb power (colour times intensity).
+    pub power: DVec3,
+}
+
+impl<'a> LightFrame<'a> {
+    /// A light at `position`; a spot's `+z` is turned to `direction`.
+    pub fn new(field: Option<&'a ObjectField>, source: LightSource, position: DVec3, direction: DVec3, power: DVec3) -> Self {
+        let dir = if direction.is_finite() && direction.length_squared() > 0.0 { direction.normalize() } else { DVec3::Z };
+        let q = glam::DQuat::from_rotation_arc(DVec3::Z, dir);
+        let world = glam::DMat4::from_rotation_translation(q, position);
+        LightFrame { field, source, world_to_local: world.inverse(), rot: rotation_blocks(DMat3::from_quat(q)), position, power }
+    }
+
+    /// World-frame radiance coefficients (unit power) at world point `p`: the SRF inside its
+    /// outermost shell, the analytic radiance outside.
+    pub fn rcv_world(&self, p: DVec3) -> [f64; NCOEF] {
+        let local = self.world_to_local.transform_point3(p);
+        let c = self.field.and_then(|f| f.rcv(local)).unwrap_or_else(|| self.source.rcv(local));
+        rotate(&self.rot, &c)
+    }
+}
+
+/// Options of [`shade_points_with`].
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ShadeOptions {
+    /// Window of the occluders' visibility.
+    pub window: Window,
+}
+
+/// Radiance of one point (before the albedo) by Fig. 3 of the paper: the entities (other
+/// objects whose shells contain the point, and lights) sorted by the distance from the point
+/// to their centres; the transfer `U` (self-transfer rotated to world) is multiplied by each
+/// occluder's visibility in turn (triple product), and each light adds its power times the
+/// double product of its radiance with the current `U` (so only occluders nearer than the
+/// light shadow it); the environment adds the double product with the final `U`. At most
+/// [`MAX_ENTITIES`] nearest entities are used.
+pub fn shade_point(
+    p: &ShadePoint,
+    insts: &[InstanceFrame],
+    lights: &[LightFrame],
+    env: &[[f64; 3]; NCOEF],
+    tensor: &TripleProductTensor,
+    opts: &ShadeOptions,
+) -> DVec3 {
+    let mut u = match insts.get(p.inst) {
+        Some(me) => rotate(&me.rot, &p.transfer),
+        None => p.transfer,
+    };
+    // (distance, occluder index | light index + insts.len(), local coefficients)
+    let mut ents: Vec<(f64, usize, [f64; NCOEF])> = Vec::new();
+    for (j, inst) in insts.iter().enumerate() {
+        if j == p.inst {
+            continue;
+        }
+        let Some(field) = inst.field else { continue };
+        let local = inst.world_to_local.transform_point3(p.pos);
+        let Some(o) = field.ocv(local) else { continue };
+        ents.push(((p.pos - inst.center_world).length(), j, o));
+    }
+    for (i, l) in lights.iter().enumerate() {
+        ents.push(((p.pos - l.position).length(), insts.len() + i, [0.0; NCOEF]));
+    }
+    ents.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    ents.truncate(MAX_ENTITIES);
+    let mut c = DVec3::ZERO;
+    for (_, idx, o) in &ents {
+        if *idx < insts.len() {
+            let mut o = rotate(&insts[*idx].rot, o);
+            opts.window.apply(&mut o);
+            u = triple(tensor, &o, &u);
+        } else {
+            let l = &lights[*idx - insts.len()];
+            let s = l.rcv_world(p.pos);
+            let d: f64 = s.iter().zip(&u).map(|(a, b)| a * b).sum();
+            c += l.power * d;
+        }
+    }
+    for e in 0..NCOEF {
+        c += DVec3::from_array(env[e]) * u[e];
+    }
+    c
+}
+
+/// [`shade_point`] for every point in parallel, times the albedo: the radiance clamped at 0
+/// and the unclamped minimum channel.
+pub fn shade_points_with(
+    points: &[ShadePoint],
+    insts: &[InstanceFrame],
+    lights: &[LightFrame],
+    env: &[[f64; 3]; NCOEF],
+    tensor: &TripleProductTensor,
+    opts: &ShadeOptions,
+) -> Vec<(DVec3, f64)> {
     points
         .par_iter()
         .map(|p| {
-            let (u, _) = occluded_transfer(p, insts, tensor);
-            let mut c = DVec3::ZERO;
-            for e in 0..NCOEF {
-                c += DVec3::from_array(light[e]) * u[e];
-            }
-            let c = c * p.albedo;
+            let c = shade_point(p, insts, lights, env, tensor, opts) * p.albedo;
             (c.max(DVec3::ZERO), c.min_element())
         })
         .collect()

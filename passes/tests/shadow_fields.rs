@@ -6,7 +6,7 @@ use glam::{DMat3, DMat4, DVec3, Vec3};
 use penumbra_math::sh::{eval_basis, eval_basis_into, TripleProductTensor};
 use penumbra_math::shadow_field::{
     self as sf, cosine_transfer, eq1_error, occluded_transfer, rotate, rotation_blocks, sample_angles, sample_grid,
-    DirTable, InstanceFrame, ObjectField, Params, RawField, ShadePoint, NCOEF,
+    DirTable, InstanceFrame, LightFrame, LightSource, ObjectField, Params, RawField, ShadeOptions, ShadePoint, Window, NCOEF, Y0,
 };
 use penumbra_scene::MeshData;
 use std::f64::consts::PI;
@@ -452,4 +452,204 @@ fn eval_expr(s: &str, x: f64, y: f64, z: f64) -> f64 {
     }
     let mut i = 0;
     sum(&toks, &mut i, &(x, y, z))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Source radiance fields (local lights), windowing, Fig. 3 ordering
+
+fn srf_params() -> Params {
+    Params { shells: 8, resolution: 32, map_res: 8, threshold: 0.010, min_resolution: 1 }
+}
+
+/// Relative eq. 1 error of `got` against `want` (normalized by want's mean |radiance|).
+fn rel_eq1(got: &[f64; NCOEF], want: &[f64; NCOEF], table: &DirTable) -> f64 {
+    let mut num = 0.0;
+    let mut den = 0.0;
+    for (_, w, y) in &table.dirs {
+        let a: f64 = got.iter().zip(y).map(|(c, b)| c * b).sum();
+        let b: f64 = want.iter().zip(y).map(|(c, b)| c * b).sum();
+        num += w * (a - b).abs();
+        den += w * b.abs();
+    }
+    num / den.max(1e-300)
+}
+
+#[test]
+fn shadow_fields_srf_matches_the_analytic_lights() {
+    let table = DirTable::new(24);
+    let reach = 4.0;
+    let sources = [
+        ("point", LightSource::Point),
+        ("spot", LightSource::Spot { cos_inner: 25f64.to_radians().cos(), cos_outer: 40f64.to_radians().cos() }),
+        ("sphere", LightSource::Sphere { radius: 0.2 }),
+    ];
+    for (name, src) in sources {
+        let raw = sf::precompute_srf(src, reach, &srf_params(), &|_| {}).unwrap();
+        let fixed = raw.to_fixed();
+        let adaptive = raw.to_adaptive_relative(0.010, 1);
+        assert!((fixed.shell_step() * 8.0 - reach).abs() < 1e-6, "outermost shell at the reach");
+        // Points between shells, inside the innermost (r < 0.5) and in the spot's cone.
+        let mut worst = (0.0f64, 0.0f64);
+        let mut plain_worst = 0.0f64;
+        let mut inside_worst = 0.0f64;
+        for k in 0..60 {
+            let th = if name == "spot" { 0.05 + 0.01 * k as f64 } else { 0.2 + 0.045 * k as f64 };
+            let d = sf::polar_dir(th, 0.61 * k as f64);
+            let r = 0.3 + 3.6 * ((k * 37 % 60) as f64 / 60.0);
+            let p = d * r;
+            let want = src.rcv(p);
+            if want[0] == 0.0 {
+                continue;
+            }
+            let (gf, ga) = (fixed.rcv(p).unwrap(), adaptive.rcv(p).unwrap());
+            if r < fixed.shell_step() {
+                // inside the innermost shell: the innermost shell scaled by r0^2 / r^2 (exact
+                // for point and spot lights; a sphere light's cap widens faster near it)
+                inside_worst = inside_worst.max(rel_eq1(&gf, &want, &table));
+                continue;
+            }
+            worst.0 = worst.0.max(rel_eq1(&gf, &want, &table));
+            worst.1 = worst.1.max(rel_eq1(&ga, &want, &table));
+            // plain linear interpolation between the two shells (what r^2 scaling avoids)
+            let x = r / fixed.shell_step() - 1.0;
+            if x > 0.0 {
+                let (c0, w) = (x.floor(), x - x.floor());
+                let a = src.rcv(d * fixed.shell_step() * (c0 + 1.0));
+                let b = src.rcv(d * fixed.shell_step() * (c0 + 2.0));
+                let lin: [f64; NCOEF] = std::array::from_fn(|e| (1.0 - w) * a[e] + w * b[e]);
+                plain_worst = plain_worst.max(rel_eq1(&lin, &want, &table));
+            }
+        }
+        println!(
+            "{name}: SRF R per shell {:?}, {} -> {} B; largest relative eq.1 error fixed {:.4}, adaptive {:.4} (plain linear radial interpolation: {plain_worst:.3}; inside the innermost shell {inside_worst:.3})",
+            adaptive.resolutions(),
+            fixed.data_bytes(),
+            adaptive.data_bytes(),
+            worst.0,
+            worst.1
+        );
+        // Sources of error: bilinear blending of lobes 11 degrees apart (R = 32) and 8-bit
+        // quantization; a wrong frame, sign or radial law gives errors of order 1.
+        assert!(worst.0 < 0.2 && worst.1 < 0.3, "{name}: {worst:?}");
+        if name != "sphere" {
+            assert!(inside_worst < 0.2, "{name} inside the innermost shell: {inside_worst}");
+        }
+        if name != "spot" {
+            assert!(plain_worst > 2.0 * worst.0, "{name}: r^2 interpolation must beat plain linear ({plain_worst} vs {})", worst.0);
+        }
+        // Beyond the outermost shell: the caller's analytic fallback.
+        assert!(fixed.rcv(DVec3::new(0.0, 0.0, reach * 1.01)).is_none());
+        // At the light itself: no radiance, no NaN.
+        assert!(fixed.rcv(DVec3::ZERO).unwrap().iter().all(|x| *x == 0.0));
+    }
+    // The spot's cone: no radiance behind the light, full inside the inner cone.
+    let spot = LightSource::Spot { cos_inner: 0.9, cos_outer: 0.8 };
+    assert!(spot.rcv(DVec3::new(0.0, 0.0, -1.0)).iter().all(|x| *x == 0.0));
+    let a = spot.rcv(DVec3::new(0.0, 0.0, 2.0));
+    let b = LightSource::Point.rcv(DVec3::new(0.0, 0.0, 2.0));
+    assert!((a[0] - b[0]).abs() < 1e-12 && (b[0] - Y0 / 4.0).abs() < 1e-12);
+    // A small sphere light approaches a point light of intensity L pi a^2.
+    let s = LightSource::Sphere { radius: 0.01 }.rcv(DVec3::new(3.0, 0.0, 0.0));
+    let pt = LightSource::Point.rcv(DVec3::new(3.0, 0.0, 0.0));
+    for e in 0..NCOEF {
+        assert!((s[e] - PI * 1e-4 * pt[e]).abs() < 1e-3 * PI * 1e-4 * pt[0].abs() + 1e-12, "coef {e}");
+    }
+    // Inside a sphere light: nothing (as the reference).
+    assert!(LightSource::Sphere { radius: 0.5 }.rcv(DVec3::new(0.1, 0.0, 0.0)).iter().all(|x| *x == 0.0));
+}
+
+#[test]
+fn shadow_fields_srf_quantization_with_a_huge_dynamic_range() {
+    // 32 shells: the radiance of a point light falls 1024x from the innermost to the outermost
+    // shell, and a bright light (1e6) scales everything. Per-shell min/step keeps the relative
+    // quantization error of every shell at the same level.
+    let raw = sf::precompute_srf(LightSource::Point, 8.0, &Params { shells: 32, resolution: 8, ..srf_params() }, &|_| {}).unwrap();
+    let mut bright = raw.clone();
+    for g in &mut bright.shells {
+        for v in g.iter_mut() {
+            for x in v.iter_mut() {
+                *x *= 1e6;
+            }
+        }
+    }
+    for (label, rf) in [("unit", &raw), ("1e6", &bright)] {
+        let q = rf.to_fixed();
+        let mut per_shell = Vec::new();
+        for (c, g) in rf.shells.iter().enumerate() {
+            let scale = g[0][0].abs() as f64; // |c_0| is the same over a point light's shell
+            let mut worst = 0.0f64;
+            for (i, v) in g.iter().enumerate() {
+                let dq = q.sample(c, i);
+                for e in 0..NCOEF {
+                    worst = worst.max((dq[e] - v[e] as f64).abs() / scale);
+                }
+            }
+            per_shell.push(worst);
+        }
+        let (lo, hi) = per_shell.iter().fold((f64::MAX, 0.0f64), |(a, b), x| (a.min(*x), b.max(*x)));
+        println!("{label}: shell 0 |c0| {:.3e}, shell 31 |c0| {:.3e}; relative quantization error per shell {lo:.2e} .. {hi:.2e}", rf.shells[0][0][0], rf.shells[31][0][0]);
+        assert!((rf.shells[0][0][0] / rf.shells[31][0][0] - 1024.0).abs() < 1.0);
+        // half a step of a coefficient range of at most 2 max|Y_lm| / Y_0 ~ 5.3 |c_0|: 5.3 / 510,
+        // the same on every shell whatever its radiance
+        assert!(hi < 1.1e-2 && hi < 1.5 * lo, "{label}: {lo} .. {hi}");
+    }
+}
+
+#[test]
+fn shadow_fields_lights_are_shadowed_only_by_nearer_occluders() {
+    // Receiver at the origin facing +y, a unit-sphere occluder at (0, 1.4, 0); a point light
+    // above it (blocked) and a point light between the receiver and the occluder (not blocked).
+    let field = sphere_raw().to_fixed();
+    let tensor = TripleProductTensor::new(4);
+    let occ = DVec3::new(0.0, 1.4, 0.0);
+    let insts = [InstanceFrame::new(None, DMat4::IDENTITY), InstanceFrame::new(Some(&field), DMat4::from_translation(occ))];
+    let p = ShadePoint { pos: DVec3::ZERO, inst: 0, albedo: DVec3::ONE, transfer: cosine_transfer(DVec3::Y) };
+    let env = [[0.0; 3]; NCOEF];
+    let shade = |lpos: DVec3, with_occluder: bool| {
+        let l = [LightFrame::new(None, LightSource::Point, lpos, DVec3::Z, DVec3::ONE)];
+        let ins: Vec<InstanceFrame> = if with_occluder { insts.to_vec() } else { vec![insts[0], InstanceFrame { field: None, ..insts[1] }] };
+        sf::shade_point(&p, &ins, &l, &env, &tensor, &ShadeOptions::default()).x
+    };
+    let above = DVec3::new(0.0, 2.9, 0.0); // behind the occluder (its centre is nearer)
+    let below = DVec3::new(0.0, 0.25, 0.0); // nearer than the occluder's centre
+    let (a0, a1) = (shade(above, false), shade(above, true));
+    let (b0, b1) = (shade(below, false), shade(below, true));
+    // Unoccluded: order-3 reconstruction of cos / pi at the normal, times 1 / r^2.
+    assert!((a0 - 1.0 / PI / 2.9f64.powi(2)).abs() < 0.1 / PI / 2.9f64.powi(2), "{a0}");
+    println!("light behind the occluder: {a1:.4} of {a0:.4}; light in front: {b1:.4} of {b0:.4}");
+    assert!(a1 < 0.35 * a0, "a light behind an occluder is shadowed ({a1} vs {a0})");
+    assert_eq!(b1, b0, "an occluder farther than the light does not shadow it");
+}
+
+#[test]
+fn shadow_fields_window_reduces_ringing_of_overlapping_occluders() {
+    // As the overlapping-occluders test: 12 unit spheres around a receiver; the windowed
+    // visibilities ring less (fewer and smaller negative directions of the product).
+    let field = sphere_raw().to_fixed();
+    let tensor = TripleProductTensor::new(4);
+    let table = DirTable::new(24);
+    let mut insts = vec![InstanceFrame::new(None, DMat4::IDENTITY)];
+    for i in 0..12 {
+        let c = sf::polar_dir(0.9 + 0.25 * (i % 3) as f64, 2.0 * PI * i as f64 / 12.0);
+        insts.push(InstanceFrame::new(Some(&field), DMat4::from_translation(DVec3::new(c.x, c.z.abs() + 0.3, c.y).normalize() * 1.45)));
+    }
+    assert_eq!(Window::Hanning.sigma().map(|x| (x * 1e3).round()), [1000.0, 854.0, 500.0, 146.0]);
+    assert_eq!(Window::Lanczos.sigma().map(|x| (x * 1e3).round()), [1000.0, 900.0, 637.0, 300.0]);
+    assert_eq!(Window::parse("hanning"), Some(Window::Hanning));
+    assert_eq!(Window::parse("boxcar"), None);
+    let mut mins = Vec::new();
+    for w in [Window::None, Window::Hanning, Window::Lanczos] {
+        // the product of the windowed visibilities (transfer = constant 1)
+        let mut u = [0.0; NCOEF];
+        u[0] = (4.0 * PI).sqrt();
+        for inst in &insts[1..] {
+            let mut o = rotate(&inst.rot, &inst.field.unwrap().ocv(inst.world_to_local.transform_point3(DVec3::ZERO)).unwrap());
+            w.apply(&mut o);
+            u = sf::triple(&tensor, &o, &u);
+        }
+        let minv = table.dirs.iter().map(|(_, _, y)| u.iter().zip(y).map(|(a, b)| a * b).sum::<f64>()).fold(f64::MAX, f64::min);
+        println!("{w:?}: most negative visibility product {minv:.3}, DC {:.3}", u[0] * Y0);
+        mins.push(minv);
+    }
+    assert!(mins[1] > mins[0] && mins[2] > mins[0], "windows reduce the negative lobes: {mins:?}");
 }

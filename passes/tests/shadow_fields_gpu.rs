@@ -3,7 +3,7 @@
 
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{Context, ContextDesc, Engine};
-use penumbra_math::shadow_field::{InstanceFrame, Params};
+use penumbra_math::shadow_field::{InstanceFrame, Params, Window};
 use penumbra_passes::shadow_fields::bench::{bench, BenchOptions};
 use penumbra_passes::shadow_fields::{
     cpu_shade_points, gpu_shade_points, instance_frames, vertex_points, SceneFields, SfOptions, ShadowFieldsTechnique,
@@ -18,7 +18,7 @@ fn root() -> PathBuf {
 
 fn shaders() -> ShaderLibrary {
     let mut lib = ShaderLibrary::from_embedded(&[], Some(root().join("glsl")));
-    for n in ["sf_points.comp", "sf_shade.comp"] {
+    for n in ["sf_points.comp", "sf_shade.comp", "sf_vertex.vert", "sf_vertex.frag"] {
         lib.reload(n).unwrap_or_else(|e| panic!("{n}: {e}"));
     }
     lib
@@ -30,6 +30,7 @@ fn small_options() -> SfOptions {
         adaptive: true,
         cache_dir: None,
         progress: false,
+        ..Default::default()
     }
 }
 
@@ -50,12 +51,12 @@ fn shadow_fields_gpu_matches_cpu_and_is_validation_clean() {
             let frame = scene.at(t, None);
             let points = vertex_points(&scene, &frame, &fields, None);
             let insts = instance_frames(&scene, &frame, &fields, adaptive);
-            let cpu = cpu_shade_points(&points, &insts, &tech.light, &tech.tensor);
+            let cpu = cpu_shade_points(&points, &insts, &[], &tech.light, &tech.tensor, Window::None);
             let (gpu, ms) = gpu_shade_points(&mut engine, &tech, &frame, &points).unwrap();
             assert_eq!(gpu.len(), points.len());
             // The shadows matter: without occluders the radiance differs at many vertices.
             let lone: Vec<InstanceFrame> = insts.iter().map(|i| InstanceFrame { field: None, ..*i }).collect();
-            let unshadowed = cpu_shade_points(&points, &lone, &tech.light, &tech.tensor);
+            let unshadowed = cpu_shade_points(&points, &lone, &[], &tech.light, &tech.tensor, Window::None);
             let shadowed = cpu.iter().zip(&unshadowed).filter(|(a, b)| (a.0 - b.0).length() > 1e-3 * b.0.length().max(1e-3)).count();
             let peak = cpu.iter().map(|c| c.0.max_element()).fold(0.0f64, f64::max);
             let mut worst = 0.0f64;

@@ -256,6 +256,34 @@ pub struct ShadowFieldsArgs {
     /// Timed repetitions (median reported).
     #[arg(long, default_value_t = 3)]
     pub repeats: usize,
+    /// Image size WxH of the image comparison against the CPU reference.
+    #[arg(long, default_value = "128x96")]
+    pub size: String,
+    /// Samples per pixel of the CPU reference.
+    #[arg(long, default_value_t = 32)]
+    pub spp: u32,
+    /// Skip the image comparison (reference render and technique variants).
+    #[arg(long)]
+    pub no_images: bool,
+}
+
+/// The variants of the image comparison: (label, technique, [technique_params]).
+fn sf_variants(has_lights: bool) -> Vec<(&'static str, &'static str, Vec<(&'static str, &'static str)>)> {
+    let mut v = vec![
+        ("env (unshadowed)", "env", vec![]),
+        ("adaptive pixel", "shadow-fields", vec![("mode", "pixel")]),
+        ("fixed pixel", "shadow-fields-fixed", vec![("mode", "pixel")]),
+        ("adaptive vertex", "shadow-fields", vec![("mode", "vertex")]),
+        ("fixed vertex", "shadow-fields-fixed", vec![("mode", "vertex")]),
+        ("adaptive px hanning", "shadow-fields", vec![("mode", "pixel"), ("window", "hanning")]),
+        ("adaptive px lanczos", "shadow-fields", vec![("mode", "pixel"), ("window", "lanczos")]),
+        ("adaptive vx hanning", "shadow-fields", vec![("mode", "vertex"), ("window", "hanning")]),
+    ];
+    if has_lights {
+        v.push(("adaptive px no SRF", "shadow-fields", vec![("mode", "pixel"), ("srf", "false")]));
+        v.push(("adaptive vx no SRF", "shadow-fields", vec![("mode", "vertex"), ("srf", "false")]));
+    }
+    v
 }
 
 pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
@@ -268,6 +296,59 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
     };
     let report = penumbra_passes::shadow_fields::bench::bench(&ctx, &penumbra::shader_library(), scene, &opts)?;
     println!("{report}");
+    if args.no_images {
+        return Ok(());
+    }
+    // Image errors against the CPU reference (exact mode) of the same frame, every variant
+    // rendered through the renderer (fields from the precompute cache the bench just filled).
+    let (width, height) = parse_size(&args.size)?;
+    let ropts = ReferenceOptions { width, height, spp: args.spp, time: Some(args.time), mode: Mode::Exact, progress: true, ..Default::default() };
+    let reference = reference_render(scene, &ropts).context("reference render")?;
+    println!(
+        "image errors at {width}x{height}, t = {} s, against the CPU reference ({} spp, {:.1} s, noise {:.2e}):",
+        args.time, args.spp, reference.render_seconds, reference.noise.mean_rel_std_error
+    );
+    println!("{:<22} {:>8} {:>9} {:>8} {:>11}", "variant", "PSNR dB", "relRMSE", "FLIP", "GPU ms");
+    let mut images = Vec::new();
+    for (label, technique, params) in sf_variants(!scene.lights.is_empty()) {
+        let mut s = scene.clone();
+        s.technique_params = params.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+        for (k, v) in [("shells", args.params.shells.to_string()), ("resolution", args.params.resolution.to_string()), ("map_res", args.params.map_res.to_string()), ("threshold", args.params.threshold.to_string())] {
+            if technique != "env" {
+                s.technique_params.insert(k.into(), v);
+            }
+        }
+        let settings = RenderSettings { width, height, technique: Some(technique.to_string()), ..Default::default() };
+        let mut r = Renderer::new_headless(&s, settings, false).with_context(|| format!("variant {label}"))?;
+        let frame = s.at(args.time, Some(args.time));
+        let mut out = Vec::new();
+        for _ in 0..3 {
+            out.extend(r.render(&frame, None, true)?);
+        }
+        out.extend(r.finish()?);
+        let last = out.last().context("no frame finished")?;
+        let img = Image::from_fn(width, height, |x, y| {
+            let p = last.hdr[(y * width + x) as usize];
+            [p[0], p[1], p[2]]
+        });
+        let ms: f64 = r.engine.profiler.gpu_stats().iter().filter(|(p, _)| !(p.ends_with("_upload") || p.as_str() == "readback")).map(|(_, st)| st.median_ms).sum();
+        let c = compare(&reference.radiance, "reference", &img, label)?;
+        println!(
+            "{label:<22} {:>8} {:>9.4} {:>8.4} {ms:>11.2}",
+            c.psnr_db.map_or("inf".into(), |p| format!("{p:.2}")),
+            c.rel_rmse,
+            c.flip_mean
+        );
+        images.push((label, img));
+    }
+    if let (Some(a), Some(f)) = (images.iter().find(|(l, _)| *l == "adaptive pixel"), images.iter().find(|(l, _)| *l == "fixed pixel")) {
+        let c = compare(&f.1, "fixed", &a.1, "adaptive")?;
+        println!("adaptive vs fixed (pixel): PSNR {}  relRMSE {:.4}  FLIP {:.4}", c.psnr_db.map_or("inf".into(), |p| format!("{p:.2}")), c.rel_rmse, c.flip_mean);
+    }
+    if let (Some(a), Some(f)) = (images.iter().find(|(l, _)| *l == "adaptive vertex"), images.iter().find(|(l, _)| *l == "fixed vertex")) {
+        let c = compare(&f.1, "fixed", &a.1, "adaptive")?;
+        println!("adaptive vs fixed (vertex): PSNR {}  relRMSE {:.4}  FLIP {:.4}", c.psnr_db.map_or("inf".into(), |p| format!("{p:.2}")), c.rel_rmse, c.flip_mean);
+    }
     Ok(())
 }
 

@@ -1,10 +1,10 @@
-//! `penumbra bench shadow-fields SCENE` (to be wired by the CLI): per-shell resolutions after
-//! adaptation, data size fixed vs adaptive, per-vertex radiance error of adaptive vs fixed and
-//! of the GPU path vs the CPU path, negative-lobe statistics, and ms of the CPU and GPU paths on
-//! the same vertex set. Image errors against the reference renderer come from the existing
-//! `penumbra bench SCENE --techniques shadow-fields,shadow-fields-fixed`.
+//! `penumbra bench shadow-fields SCENE`: per-shell resolutions after adaptation (occlusion and
+//! source radiance fields), data size fixed vs adaptive, per-vertex radiance error of adaptive
+//! vs fixed and of the GPU path vs the CPU path, negative-lobe statistics, and ms of the CPU and
+//! GPU paths on the same (culled) vertex set; the CLI adds the image errors of the technique's
+//! variants against the reference renderer.
 
-use super::{cpu_shade_points, gpu_shade_points, instance_frames, vertex_points, FieldReport, SceneFields, SfOptions, ShadowFieldsTechnique};
+use super::{cpu_shade_points, gpu_shade_points, instance_frames, light_frames, vertex_points, FieldReport, SceneFields, SfOptions, ShadowFieldsTechnique};
 use anyhow::Result;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{Context, Engine};
@@ -36,6 +36,8 @@ impl Default for BenchOptions {
 pub struct BenchReport {
     pub scene: String,
     pub fields: Vec<FieldReport>,
+    /// Source radiance fields of the local lights.
+    pub lights: Vec<FieldReport>,
     /// Coefficient bytes over all meshes.
     pub fixed_bytes: usize,
     pub adaptive_bytes: usize,
@@ -86,14 +88,18 @@ pub fn bench(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, opts: &
     let points = vertex_points(scene, &frame, &fields, opts.cull);
     let ia = instance_frames(scene, &frame, &fields, true);
     let ifx = instance_frames(scene, &frame, &fields, false);
+    let srf = opts.sf.srf;
+    let la = light_frames(&frame, &fields, true, srf);
+    let lfx = light_frames(&frame, &fields, false, srf);
+    let window = opts.sf.window;
     let mut cpu_times = Vec::new();
     let mut cpu = Vec::new();
     for _ in 0..opts.repeats.max(1) {
         let t = std::time::Instant::now();
-        cpu = cpu_shade_points(&points, &ia, &tech.light, &tech.tensor);
+        cpu = cpu_shade_points(&points, &ia, &la, &tech.light, &tech.tensor, window);
         cpu_times.push(t.elapsed().as_secs_f64() * 1e3);
     }
-    let fixed = cpu_shade_points(&points, &ifx, &tech.light, &tech.tensor);
+    let fixed = cpu_shade_points(&points, &ifx, &lfx, &tech.light, &tech.tensor, window);
     let mut engine = Engine::new(ctx.clone(), 1)?;
     // Warm-up: lavapipe compiles the pipeline at its first dispatch.
     let mut gpu = gpu_shade_points(&mut engine, &tech, &frame, &points)?.0;
@@ -116,6 +122,7 @@ pub fn bench(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, opts: &
         adaptive_bytes: fields.reports.iter().map(|r| r.adaptive_bytes).sum(),
         precompute_seconds: fields.reports.iter().map(|r| r.seconds).sum(),
         fields: fields.reports.clone(),
+        lights: fields.light_reports.clone(),
         vertices: points.len(),
         cpu_ms: median(cpu_times),
         gpu_ms: median(gpu_times),
@@ -131,7 +138,7 @@ impl fmt::Display for BenchReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(f, "shadow fields: {}", self.scene)?;
         writeln!(f, "{:<20} {:>7} {:>7} {:>10} {:>10} {:>8}  per-shell R (innermost first)", "mesh", "verts", "tris", "fixed KB", "adapt KB", "precomp s")?;
-        for r in &self.fields {
+        for r in self.fields.iter().chain(&self.lights) {
             let res: Vec<String> = r.resolutions.iter().map(|x| x.to_string()).collect();
             writeln!(
                 f,
@@ -146,7 +153,11 @@ impl fmt::Display for BenchReport {
             )?;
         }
         let red = if self.fixed_bytes > 0 { 100.0 * (1.0 - self.adaptive_bytes as f64 / self.fixed_bytes as f64) } else { 0.0 };
-        writeln!(f, "total: fixed {:.1} KB, adaptive {:.1} KB ({red:.0}% smaller)", self.fixed_bytes as f64 / 1024.0, self.adaptive_bytes as f64 / 1024.0)?;
+        writeln!(f, "total OOF: fixed {:.1} KB, adaptive {:.1} KB ({red:.0}% smaller)", self.fixed_bytes as f64 / 1024.0, self.adaptive_bytes as f64 / 1024.0)?;
+        if !self.lights.is_empty() {
+            let (lf, la): (usize, usize) = (self.lights.iter().map(|r| r.fixed_bytes).sum(), self.lights.iter().map(|r| r.adaptive_bytes).sum());
+            writeln!(f, "total SRF: fixed {:.1} KB, adaptive {:.1} KB ({:.0}% smaller)", lf as f64 / 1024.0, la as f64 / 1024.0, 100.0 * (1.0 - la as f64 / lf.max(1) as f64))?;
+        }
         writeln!(f, "vertices shaded: {}", self.vertices)?;
         writeln!(
             f,

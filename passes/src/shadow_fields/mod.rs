@@ -1,22 +1,28 @@
 //! Technique `shadow-fields`: adaptive precomputed shadow fields (Tamura et al., after Zhou et
-//! al. 2005) for rigid objects under environment lighting.
+//! al. 2005) for rigid objects under environment lighting and local lights.
 //!
-//! * Precompute ([`SceneFields::build`]): one object occlusion field per mesh
+//! * Precompute ([`SceneFields::build`]): one object occlusion field (OOF) per mesh
 //!   (`penumbra_math::shadow_field`), fixed and adaptive, cached as one file per object and
-//!   variant (`<cache>/<hash>-{fixed,adaptive}.psf`).
-//! * CPU path ([`cpu_shade_points`]): per vertex, the self-occlusion transfer rotated to world,
-//!   triple products with every other object's interpolated, dequantized, rotated visibility,
-//!   double product with the environment's order-4 SH.
-//! * GPU: the same per point in `glsl/sf_points.comp` ([`ShadowFieldsTechnique::add_points`]),
-//!   and per G-buffer pixel in `glsl/sf_shade.comp` (the technique's image; pixels use the
-//!   clamped-cosine transfer of their normal, without self-occlusion, which the per-vertex
-//!   transfer carries only at vertices; glossy materials add the prefiltered environment along
-//!   the reflection and local lights are evaluated with the material BRDF, both shadowed by the
-//!   product of the other objects' visibilities in that direction).
+//!   variant (`<cache>/<hash>-{fixed,adaptive}.psf`), and one source radiance field (SRF) per
+//!   local light (same shells, adaptivity with a threshold relative to each shell's radiance,
+//!   and 8-bit quantization; analytic, so not cached).
+//! * CPU path ([`cpu_shade_points`]): per vertex, Fig. 3 of the paper: the self-occlusion
+//!   transfer rotated to world, the other objects and the lights sorted by distance, triple
+//!   products with each occluder's interpolated, dequantized, rotated visibility, double
+//!   products with each light's radiance field and finally with the environment's order-4 SH.
+//! * GPU: the same per point in `glsl/sf_points.comp` ([`ShadowFieldsTechnique::add_points`]).
+//!   The technique's image ([`SfMode`]): `vertex` computes the visible vertices (culled on the
+//!   CPU: front-facing triangles inside the view, paper 5.3) in `sf_points.comp`, interpolates
+//!   them across the triangles in a raster pass (`sf_vertex.vert/.frag`), and `sf_shade.comp`
+//!   multiplies the albedo; `pixel` evaluates the same per G-buffer pixel with the clamped-cosine
+//!   transfer of its normal (no self-occlusion). Glossy materials add the prefiltered
+//!   environment along the reflection and the local lights' specular lobe, each shadowed by the
+//!   occluders' visibility in that direction.
 //!
 //! Registered as `shadow-fields` (adaptive) and `shadow-fields-fixed` (every shell at the
 //! initial resolution) so `penumbra bench --techniques shadow-fields,shadow-fields-fixed`
-//! measures both against the reference in one run.
+//! measures both against the reference in one run. Parameters (`[technique_params]`,
+//! `--param`): see [`SfOptions::set`].
 
 pub mod bench;
 
@@ -28,12 +34,22 @@ use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, ImageHandle, PassKind};
 use penumbra_math::sh::TripleProductTensor;
 use penumbra_math::shadow_field::{
-    self as sf, InstanceFrame, ObjectField, Params, ShadePoint, NCOEF, ROT_FLOATS,
+    self as sf, InstanceFrame, LightFrame, LightSource, ObjectField, Params, ShadeOptions, ShadePoint, Window, NCOEF,
+    ROT_FLOATS,
 };
-use penumbra_scene::{Environment, Frame, Scene};
+use penumbra_scene::{Environment, Frame, LightKind, Scene};
 use std::hash::{Hash, Hasher};
 use std::path::PathBuf;
 use std::sync::Arc;
+
+/// How the technique's image gets its diffuse radiance.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SfMode {
+    /// Per visible vertex (the paper), interpolated across triangles; self-occlusion included.
+    Vertex,
+    /// Per G-buffer pixel with the clamped-cosine transfer of the pixel's normal.
+    Pixel,
+}
 
 /// Options of the technique and of the precompute.
 #[derive(Clone, Debug)]
@@ -47,6 +63,13 @@ pub struct SfOptions {
     pub cache_dir: Option<PathBuf>,
     /// Print precompute progress to stderr.
     pub progress: bool,
+    /// Diffuse shading per vertex or per pixel.
+    pub mode: SfMode,
+    /// Window of the occluders' visibility before the triple products.
+    pub window: Window,
+    /// Local lights through their source radiance fields (else pointwise, shadowed by the
+    /// occluders' visibility toward the light).
+    pub srf: bool,
 }
 
 impl Default for SfOptions {
@@ -56,7 +79,66 @@ impl Default for SfOptions {
             adaptive: true,
             cache_dir: Some(std::env::temp_dir().join("penumbra-shadow-fields")),
             progress: false,
+            mode: SfMode::Pixel,
+            window: Window::None,
+            srf: true,
         }
+    }
+}
+
+impl SfOptions {
+    /// Options from `[technique_params]` / `--param` (see [`SfOptions::set`]).
+    pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> Result<Self> {
+        let mut o = SfOptions::default();
+        for (k, v) in params {
+            o.set(k, v)?;
+        }
+        Ok(o)
+    }
+
+    /// Sets one parameter. Keys: `shells` (C, default 32, 1..=256), `resolution` (initial R,
+    /// 32, power of two 1..=256), `map_res` (occlusion map rows, 32, 2..=256), `threshold`
+    /// (eq. 1, 0.010, >= 0), `mode` (`pixel` | `vertex`), `window` (`none` | `hanning` |
+    /// `lanczos`), `srf` (local lights through source radiance fields: true/false or 1/0).
+    /// Unknown keys and bad values are errors.
+    pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
+        let v = value.trim();
+        let bad = |why: &str| anyhow!("shadow-fields parameter {key} = '{value}': {why}");
+        match key.trim() {
+            "shells" => {
+                self.params.shells = v.parse::<usize>().ok().filter(|x| (1..=256).contains(x)).ok_or_else(|| bad("expected an integer in 1..=256"))?
+            }
+            "resolution" => {
+                self.params.resolution = v
+                    .parse::<usize>()
+                    .ok()
+                    .filter(|x| (1..=256).contains(x) && x.is_power_of_two())
+                    .ok_or_else(|| bad("expected a power of two in 1..=256"))?
+            }
+            "map_res" => {
+                self.params.map_res = v.parse::<usize>().ok().filter(|x| (2..=256).contains(x)).ok_or_else(|| bad("expected an integer in 2..=256"))?
+            }
+            "threshold" => {
+                self.params.threshold = v.parse::<f64>().ok().filter(|x| x.is_finite() && *x >= 0.0).ok_or_else(|| bad("expected a finite number >= 0"))?
+            }
+            "mode" => {
+                self.mode = match v {
+                    "vertex" => SfMode::Vertex,
+                    "pixel" => SfMode::Pixel,
+                    _ => return Err(bad("expected pixel or vertex")),
+                }
+            }
+            "window" => self.window = Window::parse(v).ok_or_else(|| bad("expected none, hanning or lanczos"))?,
+            "srf" => {
+                self.srf = match v {
+                    "1" | "true" => true,
+                    "0" | "false" => false,
+                    _ => return Err(bad("expected true or false")),
+                }
+            }
+            other => anyhow::bail!("unknown shadow-fields parameter '{other}' (known: shells, resolution, map_res, threshold, mode, window, srf)"),
+        }
+        Ok(())
     }
 }
 
@@ -80,12 +162,61 @@ pub struct FieldReport {
     pub cached: bool,
 }
 
-/// Fixed and adaptive fields of every mesh of a scene.
+/// Fixed and adaptive fields of every mesh and every local light of a scene.
 pub struct SceneFields {
-    /// Per mesh: (fixed, adaptive).
+    /// Per mesh: (fixed, adaptive) occlusion fields.
     pub fields: Vec<(Arc<ObjectField>, Arc<ObjectField>)>,
     pub reports: Vec<FieldReport>,
+    /// Per scene light: (fixed, adaptive) source radiance fields (unit power, light frame).
+    pub lights: Vec<(Arc<ObjectField>, Arc<ObjectField>)>,
+    /// Per scene light: what it is.
+    pub light_sources: Vec<LightSource>,
+    /// Per scene light: sizes and per-shell resolutions (`mesh` is the light's name).
+    pub light_reports: Vec<FieldReport>,
     pub options: SfOptions,
+}
+
+/// The [`LightSource`] of a scene light kind (cone angles as the reference renderer).
+pub fn light_source(kind: &LightKind) -> LightSource {
+    match *kind {
+        LightKind::Point => LightSource::Point,
+        LightKind::Spot { inner_deg, outer_deg } => LightSource::Spot {
+            cos_inner: (inner_deg.clamp(0.0, 180.0) as f64).to_radians().cos(),
+            cos_outer: (outer_deg.clamp(0.0, 180.0) as f64).to_radians().cos(),
+        },
+        LightKind::Sphere { radius } => LightSource::Sphere { radius: radius.max(0.0) as f64 },
+    }
+}
+
+/// Outermost shell radius of light `li`'s source radiance field: twice the largest distance
+/// from the light (at t = 0) to a corner of the world bounds of the objects at t = 0 (at
+/// least 1). Beyond it the light is evaluated analytically (exact for point and spot lights).
+pub fn srf_reach(scene: &Scene, li: usize) -> f64 {
+    let frame = scene.at(0.0, None);
+    let Some(l) = frame.lights.get(li) else { return 1.0 };
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for inst in &frame.instances {
+        if let Some((a, b)) = scene.meshes.get(inst.mesh).and_then(|m| m.bounds()) {
+            for k in 0..8 {
+                let c = Vec3::new(if k & 1 == 0 { a.x } else { b.x }, if k & 2 == 0 { a.y } else { b.y }, if k & 4 == 0 { a.z } else { b.z });
+                let w = inst.world.transform_point3(c);
+                lo = lo.min(w);
+                hi = hi.max(w);
+            }
+        }
+    }
+    let mut d = 0.0f64;
+    if lo.is_finite() && hi.is_finite() {
+        for k in 0..8 {
+            let c = Vec3::new(if k & 1 == 0 { lo.x } else { hi.x }, if k & 2 == 0 { lo.y } else { hi.y }, if k & 4 == 0 { lo.z } else { hi.z });
+            d = d.max((c - l.position).length() as f64);
+        }
+    }
+    if d.is_finite() {
+        (2.0 * d).max(1.0)
+    } else {
+        1.0
+    }
 }
 
 fn cache_key(m: &penumbra_scene::MeshData, p: &Params) -> String {
@@ -154,7 +285,37 @@ impl SceneFields {
             });
             fields.push((Arc::new(fixed), Arc::new(adaptive)));
         }
-        Ok(SceneFields { fields, reports, options: options.clone() })
+        let mut lights = Vec::new();
+        let mut light_sources = Vec::new();
+        let mut light_reports = Vec::new();
+        for (li, l) in scene.lights.iter().enumerate() {
+            let src = light_source(&l.kind);
+            let reach = srf_reach(scene, li);
+            let raw = sf::precompute_srf(src, reach, &options.params, &|_| {}).map_err(|e| anyhow!("light {li} '{}': {e}", l.name))?;
+            let f = raw.to_fixed();
+            let a = raw.to_adaptive_relative(options.params.threshold, options.params.min_resolution);
+            light_reports.push(FieldReport {
+                mesh: format!("light '{}'", l.name),
+                vertices: 0,
+                triangles: 0,
+                fixed_bytes: f.data_bytes(),
+                adaptive_bytes: a.data_bytes(),
+                fixed_file_bytes: f.file_bytes(),
+                adaptive_file_bytes: a.file_bytes(),
+                resolutions: a.resolutions(),
+                seconds: raw.seconds,
+                rays: 0,
+                cached: false,
+            });
+            lights.push((Arc::new(f), Arc::new(a)));
+            light_sources.push(src);
+        }
+        Ok(SceneFields { fields, reports, lights, light_sources, light_reports, options: options.clone() })
+    }
+
+    /// The source radiance field of light `li` (adaptive or fixed).
+    pub fn light_field(&self, li: usize, adaptive: bool) -> Option<&ObjectField> {
+        self.lights.get(li).map(|(f, a)| if adaptive { a.as_ref() } else { f.as_ref() })
     }
 
     /// The field used for mesh `mesh` (adaptive or fixed).
@@ -245,59 +406,122 @@ pub fn instance_frames<'a>(scene: &Scene, frame: &Frame, fields: &'a SceneFields
         .collect()
 }
 
-/// A point for the GPU (std430 `SfPoint` of `glsl/sf_points.comp`, 96 bytes).
+/// Per-frame light setup for the CPU path: every light of the frame with its source radiance
+/// field (`srf`) or analytic everywhere (`!srf`). Lights the reference cannot emit from (zero or
+/// non-finite power or position, zero spot direction) get zero power.
+pub fn light_frames<'a>(frame: &Frame, fields: &'a SceneFields, adaptive: bool, srf: bool) -> Vec<LightFrame<'a>> {
+    frame
+        .lights
+        .iter()
+        .map(|l| {
+            let src = fields.light_sources.get(l.light).copied().unwrap_or_else(|| light_source(&l.kind));
+            let field = if srf { fields.light_field(l.light, adaptive) } else { None };
+            let ok = l.power.is_finite()
+                && l.position.is_finite()
+                && (!matches!(l.kind, LightKind::Spot { .. }) || l.direction.is_finite() && l.direction.length_squared() > 0.0);
+            let power = if ok { l.power.max(Vec3::ZERO).as_dvec3() } else { DVec3::ZERO };
+            let pos = if l.position.is_finite() { l.position.as_dvec3() } else { DVec3::ZERO };
+            LightFrame::new(field, src, pos, l.direction.as_dvec3(), power)
+        })
+        .collect()
+}
+
+/// A point for the GPU (std430 `SfPoint` of `glsl/sf_points.comp`, 112 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct GpuPoint {
-    pub pos_inst: [f32; 4],
+    pub pos: [f32; 4],
     pub albedo: [f32; 4],
+    /// x receiver instance, y output slot.
+    pub ids: [u32; 4],
     pub t: [f32; NCOEF],
 }
 
 /// The points of a frame: every vertex of every instance (world position, self-transfer),
-/// optionally culled (`cull = Some(aspect)`) to the camera's view: vertices outside the
-/// frustum (5% margin) or whose normal faces away from the eye are dropped (paper 5.3).
+/// optionally culled (`cull = Some(aspect)`) as the paper does on the CPU (5.3): only the
+/// vertices of triangles facing the eye (oriented by their vertex normals) and not entirely
+/// outside one plane of the view frustum (5% margin) are kept.
 pub fn vertex_points(scene: &Scene, frame: &Frame, fields: &SceneFields, cull: Option<f32>) -> Vec<ShadePoint> {
+    visible_vertices(scene, frame, fields, cull).0
+}
+
+/// [`vertex_points`] and each point's slot in the frame's per-vertex array (instances in
+/// order, each with its mesh's vertex count), the first slot of each instance, and the slot
+/// count.
+pub fn visible_vertices(scene: &Scene, frame: &Frame, fields: &SceneFields, cull: Option<f32>) -> (Vec<ShadePoint>, Vec<u32>, Vec<u32>, u32) {
     let aspect = cull.filter(|a| a.is_finite() && *a > 0.0).unwrap_or(1.0);
     let cull = cull.is_some();
     let vp = frame.camera.proj(aspect) * frame.camera.view();
     let eye = frame.camera.eye;
     let mut out = Vec::new();
+    let mut slots = Vec::new();
+    let mut bases = Vec::with_capacity(frame.instances.len());
+    let mut base = 0u32;
     for (ii, inst) in frame.instances.iter().enumerate() {
+        bases.push(base);
         let Some(mesh) = scene.meshes.get(inst.mesh) else { continue };
+        let nv = mesh.positions.len();
+        let this_base = base;
+        base += nv as u32;
         let Some((_, field)) = fields.fields.get(inst.mesh) else { continue };
         let albedo = frame.materials.get(inst.material).or(scene.materials.get(inst.material)).map_or(Vec3::splat(0.5), |m| m.albedo);
-        let nm = Mat3::from_mat4(inst.world).inverse().transpose();
-        for (vi, p) in mesh.positions.iter().enumerate() {
-            let wp = inst.world.transform_point3(*p);
-            if cull {
-                let n = (nm * mesh.normals.get(vi).copied().unwrap_or(Vec3::Y)).normalize_or_zero();
-                let c = vp * wp.extend(1.0);
-                let inside = c.w > 0.0 && c.x.abs() <= c.w * 1.05 && c.y.abs() <= c.w * 1.05;
-                if !inside || n.dot(eye - wp) < 0.0 {
+        let world: Vec<Vec3> = mesh.positions.iter().map(|p| inst.world.transform_point3(*p)).collect();
+        let keep = if cull {
+            let nm = Mat3::from_mat4(inst.world).inverse().transpose();
+            let clip: Vec<glam::Vec4> = world.iter().map(|w| vp * w.extend(1.0)).collect();
+            // outside codes: bit k set when beyond plane k (x-, x+, y-, y+, near)
+            let code = |c: &glam::Vec4| -> u32 {
+                let m = 1.05 * c.w;
+                ((c.x < -m) as u32) | ((c.x > m) as u32) << 1 | ((c.y < -m) as u32) << 2 | ((c.y > m) as u32) << 3 | ((c.w <= 0.0) as u32) << 4
+            };
+            let codes: Vec<u32> = clip.iter().map(code).collect();
+            let mut keep = vec![false; nv];
+            for t in mesh.indices.chunks_exact(3) {
+                let [a, b, c] = [t[0] as usize, t[1] as usize, t[2] as usize];
+                if a >= nv || b >= nv || c >= nv || codes[a] & codes[b] & codes[c] != 0 {
                     continue;
                 }
+                let mut fnrm = (world[b] - world[a]).cross(world[c] - world[a]);
+                let vn: Vec3 = [a, b, c].iter().map(|&k| nm * mesh.normals.get(k).copied().unwrap_or(Vec3::ZERO)).sum();
+                if fnrm.dot(vn) < 0.0 {
+                    fnrm = -fnrm;
+                }
+                let centroid = (world[a] + world[b] + world[c]) / 3.0;
+                let to_eye = eye - centroid;
+                // front facing, with a tolerance for edge-on triangles
+                if fnrm.dot(to_eye) >= -1e-4 * fnrm.length() * to_eye.length() {
+                    keep[a] = true;
+                    keep[b] = true;
+                    keep[c] = true;
+                }
+            }
+            keep
+        } else {
+            vec![true; nv]
+        };
+        for (vi, wp) in world.iter().enumerate() {
+            if !keep[vi] {
+                continue;
             }
             let t = field.self_transfer.get(vi).copied().unwrap_or([0.0; NCOEF]);
-            out.push(ShadePoint {
-                pos: wp.as_dvec3(),
-                inst: ii,
-                albedo: albedo.as_dvec3(),
-                transfer: t.map(|x| x as f64),
-            });
+            out.push(ShadePoint { pos: wp.as_dvec3(), inst: ii, albedo: albedo.as_dvec3(), transfer: t.map(|x| x as f64) });
+            slots.push(this_base + vi as u32);
         }
     }
-    out
+    (out, slots, bases, base)
 }
 
-/// The CPU rendering path: radiance per point and its unclamped minimum channel.
+/// The CPU rendering path: radiance per point and its unclamped minimum channel (occluders,
+/// local lights and the environment `light`, Fig. 3).
 pub fn cpu_shade_points(
     points: &[ShadePoint],
     insts: &[InstanceFrame],
+    lights: &[LightFrame],
     light: &[[f64; 3]; NCOEF],
     tensor: &TripleProductTensor,
+    window: Window,
 ) -> Vec<(DVec3, f64)> {
-    sf::shade_points(points, insts, light, tensor)
+    sf::shade_points_with(points, insts, lights, light, tensor, &ShadeOptions { window })
 }
 
 /// std430 `SfShell`.
@@ -309,13 +533,16 @@ struct GpuShell {
     step: [f32; NCOEF],
 }
 
-/// std430 `SfInst` (432 bytes).
+/// std430 `SfInst` (480 bytes).
 #[repr(C)]
 #[derive(Clone, Copy)]
 struct GpuInst {
     world_to_local: [[f32; 4]; 4],
     center_step: [f32; 4],
     info: [u32; 4],
+    center_world: [f32; 4],
+    light_a: [f32; 4],
+    light_b: [f32; 4],
     rot: [f32; ROT_FLOATS],
 }
 
@@ -327,6 +554,10 @@ pub struct GpuTables {
     /// First shell index and shell count per mesh.
     mesh_shells: Vec<(u32, u32)>,
     mesh_geom: Vec<(Vec3, f32)>,
+    /// First shell index and shell count of each scene light's source radiance field.
+    light_shells: Vec<(u32, u32)>,
+    light_geom: Vec<(Vec3, f32)>,
+    light_sources: Vec<LightSource>,
     pub tensor: Vec<u8>,
     pub tensor_count: u32,
 }
@@ -348,32 +579,84 @@ impl GpuTables {
                 data.extend_from_slice(&s.data);
             }
         }
+        let mut light_shells = Vec::new();
+        let mut light_geom = Vec::new();
+        for li in 0..fields.lights.len() {
+            let f = fields.light_field(li, adaptive).expect("light index in range");
+            light_shells.push((shells.len() as u32, f.shells.len() as u32));
+            light_geom.push((f.center, f.shell_step() as f32));
+            for s in &f.shells {
+                shells.push(GpuShell { info: [(data.len() / 4) as u32, s.resolution, 0, 0], min: s.min, step: s.step });
+                data.extend_from_slice(&s.data);
+            }
+        }
         let entries: Vec<[u32; 2]> = tensor
             .entries
             .iter()
             .map(|&(i, j, k, c)| [i as u32 | (j as u32) << 8 | (k as u32) << 16, (c as f32).to_bits()])
             .collect();
-        GpuTables { data, shells, mesh_shells, mesh_geom, tensor: bytes_of(&entries), tensor_count: entries.len() as u32 }
+        GpuTables {
+            data,
+            shells,
+            mesh_shells,
+            mesh_geom,
+            light_shells,
+            light_geom,
+            light_sources: fields.light_sources.clone(),
+            tensor: bytes_of(&entries),
+            tensor_count: entries.len() as u32,
+        }
     }
 
-    /// Per-instance records of a frame (rotation matrices computed once per instance).
-    fn instances(&self, casts: &[bool], frame: &Frame) -> Vec<GpuInst> {
-        frame
+    /// Per-instance records of a frame (rotation matrices computed once per instance), then
+    /// one per light (its source radiance field when `srf`, else none: analytic radiance).
+    fn instances(&self, casts: &[bool], frame: &Frame, srf: bool) -> Vec<GpuInst> {
+        let mut out: Vec<GpuInst> = frame
             .instances
             .iter()
             .map(|inst| {
-                let f = InstanceFrame::new(None, inst.world.as_dmat4());
-                let casts = casts.get(inst.object).copied().unwrap_or(true);
                 let (first, count) = self.mesh_shells.get(inst.mesh).copied().unwrap_or((0, 0));
                 let (c, step) = self.mesh_geom.get(inst.mesh).copied().unwrap_or((Vec3::ZERO, 1.0));
+                let f = InstanceFrame::new(None, inst.world.as_dmat4());
+                let casts = casts.get(inst.object).copied().unwrap_or(true);
+                let cw = inst.world.transform_point3(c);
                 GpuInst {
                     world_to_local: f.world_to_local.as_mat4().to_cols_array_2d(),
                     center_step: [c.x, c.y, c.z, step],
                     info: [first, count, casts as u32, 0],
+                    center_world: [cw.x, cw.y, cw.z, 0.0],
+                    light_a: [0.0; 4],
+                    light_b: [0.0; 4],
                     rot: f.rot.map(|x| x as f32),
                 }
             })
-            .collect()
+            .collect();
+        for l in &frame.lights {
+            let src = self.light_sources.get(l.light).copied().unwrap_or_else(|| light_source(&l.kind));
+            let ok = l.power.is_finite()
+                && l.position.is_finite()
+                && (!matches!(l.kind, LightKind::Spot { .. }) || l.direction.is_finite() && l.direction.length_squared() > 0.0);
+            let power = if ok { l.power.max(Vec3::ZERO) } else { Vec3::ZERO };
+            let pos = if l.position.is_finite() { l.position } else { Vec3::ZERO };
+            let lf = LightFrame::new(None, src, pos.as_dvec3(), l.direction.as_dvec3(), power.as_dvec3());
+            let (first, count) = if srf { self.light_shells.get(l.light).copied().unwrap_or((0, 0)) } else { (0, 0) };
+            let (c, step) = self.light_geom.get(l.light).copied().unwrap_or((Vec3::ZERO, 1.0));
+            let (kind, ci, co, rad) = match src {
+                LightSource::Point => (0.0, 1.0, 1.0, 0.0),
+                LightSource::Spot { cos_inner, cos_outer } => (1.0, cos_inner as f32, cos_outer as f32, 0.0),
+                LightSource::Sphere { radius } => (2.0, 1.0, 1.0, radius as f32),
+            };
+            out.push(GpuInst {
+                world_to_local: lf.world_to_local.as_mat4().to_cols_array_2d(),
+                center_step: [c.x, c.y, c.z, step],
+                info: [first, count, 1, 1],
+                center_world: [pos.x, pos.y, pos.z, 0.0],
+                light_a: [power.x, power.y, power.z, kind],
+                light_b: [ci, co, rad, 0.0],
+                rot: lf.rot.map(|x| x as f32),
+            });
+        }
+        out
     }
 }
 
@@ -385,13 +668,16 @@ pub struct SfHandles {
     pub insts: BufferHandle,
     pub tensor: BufferHandle,
     pub light: BufferHandle,
+    /// Object instances (the first records of `insts`), then `light_count` lights.
     pub inst_count: u32,
+    pub light_count: u32,
     pub tensor_count: u32,
 }
 
-/// Uploads the tables, this frame's instances and the lighting (host-initialised buffers).
-pub fn upload(graph: &mut Graph, tables: &GpuTables, casts: &[bool], frame: &Frame, light: &[[f64; 3]; NCOEF]) -> SfHandles {
-    let insts = tables.instances(casts, frame);
+/// Uploads the tables, this frame's instances and lights, and the environment lighting
+/// (host-initialised buffers).
+pub fn upload(graph: &mut Graph, tables: &GpuTables, casts: &[bool], frame: &Frame, light: &[[f64; 3]; NCOEF], srf: bool) -> SfHandles {
+    let insts = tables.instances(casts, frame, srf);
     let light4: Vec<[f32; 4]> = light.iter().map(|c| [c[0] as f32, c[1] as f32, c[2] as f32, 0.0]).collect();
     let mut data = tables.data.clone();
     data.resize(data.len().max(16), 0);
@@ -403,15 +689,18 @@ pub fn upload(graph: &mut Graph, tables: &GpuTables, casts: &[bool], frame: &Fra
         insts: graph.create_buffer_init("sf_insts", inst_bytes),
         tensor: graph.create_buffer_init("sf_tensor", tables.tensor.clone()),
         light: graph.create_buffer_init("sf_light", bytes_of(&light4)),
-        inst_count: insts.len() as u32,
+        inst_count: frame.instances.len() as u32,
+        light_count: frame.lights.len() as u32,
         tensor_count: tables.tensor_count,
     }
 }
 
-/// The technique: per-pixel shading pass, and the per-point pass of the GPU rendering path.
+/// The technique: the per-point pass (GPU rendering path), the per-vertex display raster pass
+/// and the per-pixel shading pass.
 pub struct ShadowFieldsTechnique {
     shade: Pipeline,
     points: Pipeline,
+    vertex: Pipeline,
     nearest: Sampler,
     linear: Sampler,
     pub fields: Arc<SceneFields>,
@@ -419,78 +708,177 @@ pub struct ShadowFieldsTechnique {
     pub light: [[f64; 3]; NCOEF],
     pub tensor: TripleProductTensor,
     pub adaptive: bool,
+    pub mode: SfMode,
+    pub window: Window,
+    pub srf: bool,
     /// Per object: casts shadows (`ObjectInfo::casts_shadow`).
     pub casts: Vec<bool>,
+    /// Per mesh: (first index, index count, vertex offset) in the scene's index/vertex buffers.
+    mesh_ranges: Vec<(u32, u32, i32)>,
+    scene: Arc<Scene>,
+}
+
+/// Format of the interpolated per-vertex radiance image.
+pub const VERTEX_RADIANCE_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
+
+fn vertex_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
+    use anyhow::Context as _;
+    let d = &ctx.device;
+    let sb = vk::DescriptorType::STORAGE_BUFFER;
+    let (set_layout, layout) = crate::util::layouts(
+        ctx,
+        "sf_vertex",
+        &[vk::DescriptorType::UNIFORM_BUFFER, sb, sb, sb],
+        vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT,
+        0,
+    )?;
+    let vs = ctx.create_shader_module("sf_vertex.vert", shaders.get("sf_vertex.vert")?)?;
+    let fs = ctx.create_shader_module("sf_vertex.frag", shaders.get("sf_vertex.frag")?)?;
+    let stages = [
+        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::VERTEX).module(vs).name(c"main"),
+        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::FRAGMENT).module(fs).name(c"main"),
+    ];
+    let bindings = [vk::VertexInputBindingDescription {
+        binding: 0,
+        stride: std::mem::size_of::<crate::scene_gpu::Vertex>() as u32,
+        input_rate: vk::VertexInputRate::VERTEX,
+    }];
+    let attrs = [vk::VertexInputAttributeDescription { location: 0, binding: 0, format: vk::Format::R32G32B32_SFLOAT, offset: 0 }];
+    let vi = vk::PipelineVertexInputStateCreateInfo::default().vertex_binding_descriptions(&bindings).vertex_attribute_descriptions(&attrs);
+    let ia = vk::PipelineInputAssemblyStateCreateInfo::default().topology(vk::PrimitiveTopology::TRIANGLE_LIST);
+    let vp = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
+    let rs = vk::PipelineRasterizationStateCreateInfo::default()
+        .polygon_mode(vk::PolygonMode::FILL)
+        .cull_mode(vk::CullModeFlags::NONE)
+        .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
+        .line_width(1.0);
+    let ms = vk::PipelineMultisampleStateCreateInfo::default().rasterization_samples(vk::SampleCountFlags::TYPE_1);
+    let ds = vk::PipelineDepthStencilStateCreateInfo::default().depth_test_enable(true).depth_write_enable(true).depth_compare_op(vk::CompareOp::LESS);
+    let blend = [vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA)];
+    let cb = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend);
+    let dyn_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
+    let dy = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dyn_states);
+    let formats = [VERTEX_RADIANCE_FORMAT];
+    let mut rendering =
+        vk::PipelineRenderingCreateInfo::default().color_attachment_formats(&formats).depth_attachment_format(crate::gbuffer::DEPTH_FORMAT);
+    let ci = [vk::GraphicsPipelineCreateInfo::default()
+        .stages(&stages)
+        .vertex_input_state(&vi)
+        .input_assembly_state(&ia)
+        .viewport_state(&vp)
+        .rasterization_state(&rs)
+        .multisample_state(&ms)
+        .depth_stencil_state(&ds)
+        .color_blend_state(&cb)
+        .dynamic_state(&dy)
+        .layout(layout)
+        .push_next(&mut rendering)];
+    let res = unsafe { d.create_graphics_pipelines(vk::PipelineCache::null(), &ci, None) };
+    unsafe {
+        d.destroy_shader_module(vs, None);
+        d.destroy_shader_module(fs, None);
+    }
+    let pipeline = match res {
+        Ok(p) => p[0],
+        Err((_, e)) => {
+            unsafe {
+                d.destroy_pipeline_layout(layout, None);
+                d.destroy_descriptor_set_layout(set_layout, None);
+            }
+            return Err(e).context("sf_vertex pipeline");
+        }
+    };
+    ctx.set_name(pipeline, "sf_vertex");
+    Ok(Pipeline::from_raw(ctx, pipeline, layout, set_layout))
 }
 
 impl ShadowFieldsTechnique {
     /// Precomputes (or loads) the fields of `scene` and builds the pipelines.
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, options: SfOptions) -> Result<Self> {
         let fields = Arc::new(SceneFields::build(scene, &options)?);
-        Self::with_fields(ctx, shaders, scene, fields, options.adaptive)
+        let mut t = Self::with_fields(ctx, shaders, scene, fields, options.adaptive)?;
+        t.mode = options.mode;
+        t.window = options.window;
+        t.srf = options.srf;
+        Ok(t)
     }
 
-    /// With fields built elsewhere (e.g. shared between the fixed and adaptive variants).
+    /// With fields built elsewhere (e.g. shared between the fixed and adaptive variants); mode,
+    /// window and srf from the fields' options.
     pub fn with_fields(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, fields: Arc<SceneFields>, adaptive: bool) -> Result<Self> {
         use vk::DescriptorType as T;
         let sb = T::STORAGE_BUFFER;
+        let sampled = T::COMBINED_IMAGE_SAMPLER;
         let shade = compute_pipeline(
             ctx,
             shaders,
             "sf_shade.comp",
-            &[
-                T::UNIFORM_BUFFER,
-                sb,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::STORAGE_IMAGE,
-                sb,
-                sb,
-                sb,
-                sb,
-                sb,
-                sb,
-            ],
-            12,
+            &[T::UNIFORM_BUFFER, sb, sampled, sampled, sampled, sampled, T::STORAGE_IMAGE, sb, sb, sb, sb, sb, sb, sampled],
+            24,
         )?;
-        let points = compute_pipeline(ctx, shaders, "sf_points.comp", &[sb; 7], 12)?;
+        let points = compute_pipeline(ctx, shaders, "sf_points.comp", &[sb; 7], 20)?;
+        let vertex = vertex_pipeline(ctx, shaders)?;
         let tensor = TripleProductTensor::new(sf::ORDER);
         let tables = GpuTables::new(&fields, adaptive, &tensor);
+        let mut mesh_ranges = Vec::new();
+        let (mut first, mut offset) = (0u32, 0i32);
+        for m in &scene.meshes {
+            mesh_ranges.push((first, m.indices.len() as u32, offset));
+            first += m.indices.len() as u32;
+            offset += m.positions.len() as i32;
+        }
+        let o = fields.options.clone();
         Ok(ShadowFieldsTechnique {
             shade,
             points,
+            vertex,
             nearest: Sampler::nearest(ctx)?,
             linear: Sampler::latlong(ctx)?,
-            fields,
             tables,
             light: env_light_sh(scene.environment.as_ref()),
             tensor,
             adaptive,
+            mode: o.mode,
+            window: o.window,
+            srf: o.srf,
             casts: casts_flags(scene),
+            mesh_ranges,
+            scene: Arc::new(scene.clone()),
+            fields,
         })
     }
 
-    /// Adds the per-point pass (GPU rendering path): returns the output buffer (`vec4` per
-    /// point: rgb radiance clamped at 0, w the unclamped minimum channel).
-    pub fn add_points(&self, graph: &mut Graph, h: &SfHandles, points: &[ShadePoint]) -> BufferHandle {
+    fn window_code(&self) -> u32 {
+        match self.window {
+            Window::None => 0,
+            Window::Hanning => 1,
+            Window::Lanczos => 2,
+        }
+    }
+
+    /// Adds the per-point pass (GPU rendering path): point `i` writes `vec4` (rgb radiance
+    /// times its albedo clamped at 0, w the unclamped minimum channel) at `slots[i]` (`None`:
+    /// at `i`) of the returned buffer of `out_len` entries, zero elsewhere.
+    pub fn add_points(&self, graph: &mut Graph, h: &SfHandles, points: &[ShadePoint], slots: Option<&[u32]>, out_len: u32) -> BufferHandle {
         let gp: Vec<GpuPoint> = points
             .iter()
-            .map(|p| GpuPoint {
-                pos_inst: [p.pos.x as f32, p.pos.y as f32, p.pos.z as f32, p.inst as f32],
+            .enumerate()
+            .map(|(i, p)| GpuPoint {
+                pos: [p.pos.x as f32, p.pos.y as f32, p.pos.z as f32, 1.0],
                 albedo: [p.albedo.x as f32, p.albedo.y as f32, p.albedo.z as f32, 1.0],
+                ids: [p.inst as u32, slots.and_then(|s| s.get(i).copied()).unwrap_or(i as u32).min(out_len.saturating_sub(1)), 0, 0],
                 t: p.transfer.map(|x| x as f32),
             })
             .collect();
         let n = gp.len() as u32;
-        let pts = graph.create_buffer_init("sf_points", if gp.is_empty() { vec![0u8; 96] } else { bytes_of(&gp) });
-        let out = graph.create_buffer("sf_point_radiance", (n.max(1) as u64) * 16);
+        let pts = graph.create_buffer_init("sf_points", if gp.is_empty() { vec![0u8; std::mem::size_of::<GpuPoint>()] } else { bytes_of(&gp) });
+        let out = graph.create_buffer_init("sf_point_radiance", vec![0u8; out_len.max(1) as usize * 16]);
         let mut p = graph.pass("sf_points", PassKind::Compute);
         let r = [h.data, h.shells, h.insts, h.tensor, h.light, pts].map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let out = p.write(out, Access::ComputeShaderWriteStorage);
         let (pipeline, layout) = (self.points.pipeline, self.points.layout);
-        let push: Vec<u8> = [n, h.inst_count, h.tensor_count].iter().flat_map(|x| x.to_le_bytes()).collect();
+        let n_light = if self.srf { h.light_count } else { 0 };
+        let push: Vec<u8> = [n, h.inst_count, h.tensor_count, n_light, self.window_code()].iter().flat_map(|x| x.to_le_bytes()).collect();
         p.record(move |rc| {
             let mut binds: Vec<Bind> = r.iter().map(|&b| Bind::StorageBuffer(b)).collect();
             binds.push(Bind::StorageBuffer(out));
@@ -506,6 +894,83 @@ impl ShadowFieldsTechnique {
         });
         out
     }
+
+    /// The per-vertex display (paper 5): the visible vertices' radiance (albedo 1) on the GPU,
+    /// interpolated across the triangles by a raster pass into a `w x h` image.
+    fn add_vertex_display(&self, graph: &mut Graph, h: &SfHandles, inputs: &crate::technique::TechniqueInputs, w: u32, hh: u32) -> ImageHandle {
+        let frame = inputs.frame;
+        let aspect = w as f32 / hh.max(1) as f32;
+        let (mut points, slots, bases, total) = visible_vertices(&self.scene, frame, &self.fields, Some(aspect));
+        for p in &mut points {
+            p.albedo = DVec3::ONE;
+        }
+        let rad = self.add_points(graph, h, &points, Some(&slots), total.max(1));
+        // base[instance] + gl_VertexIndex (which includes the mesh's vertex offset) = slot
+        let mut draws = Vec::new();
+        let mut base_of = vec![0i32; frame.instances.len().max(1)];
+        for (ii, inst) in frame.instances.iter().enumerate() {
+            let Some(&(first, count, offset)) = self.mesh_ranges.get(inst.mesh) else { continue };
+            base_of[ii] = bases[ii] as i32 - offset;
+            if count > 0 && self.fields.fields.get(inst.mesh).is_some() {
+                draws.push((first, count, offset, ii as u32));
+            }
+        }
+        let bases_buf = graph.create_buffer_init("sf_vertex_bases", bytes_of(&base_of));
+        let img = graph.create_image("sf_vertex_radiance", ImageDesc::new_2d(VERTEX_RADIANCE_FORMAT, w, hh));
+        let depth = graph.create_image("sf_vertex_depth", ImageDesc::new_2d(crate::gbuffer::DEPTH_FORMAT, w, hh));
+        let mut p = graph.pass("sf_vertex", PassKind::Raster);
+        let img = p.write(img, Access::ColorAttachmentWrite);
+        let depth = p.write(depth, Access::DepthAttachmentWrite);
+        let camera = p.read(inputs.scene.camera, Access::AnyShaderReadUniform);
+        let instances = p.read(inputs.scene.instances, Access::VertexShaderReadStorage);
+        let rad = p.read(rad, Access::VertexShaderReadStorage);
+        let bases_buf = p.read(bases_buf, Access::VertexShaderReadStorage);
+        let vertices = p.read(inputs.scene.vertices, Access::VertexBuffer);
+        let indices = p.read(inputs.scene.indices, Access::IndexBuffer);
+        let (pipeline, layout) = (self.vertex.pipeline, self.vertex.layout);
+        p.record(move |rc| {
+            let d = rc.device();
+            let color = [vk::RenderingAttachmentInfo::default()
+                .image_view(rc.image(img)?.view)
+                .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+                .load_op(vk::AttachmentLoadOp::CLEAR)
+                .store_op(vk::AttachmentStoreOp::STORE)
+                .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: [0.0; 4] } })];
+            let depth_att = vk::RenderingAttachmentInfo::default()
+                .image_view(rc.image(depth)?.view)
+                .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
+                .load_op(vk::AttachmentLoadOp::CLEAR)
+                .store_op(vk::AttachmentStoreOp::STORE)
+                .clear_value(vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } });
+            let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: hh } };
+            let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&color).depth_attachment(&depth_att);
+            let (vb, ib) = (rc.buffer(vertices)?, rc.buffer(indices)?);
+            unsafe {
+                d.cmd_begin_rendering(rc.cmd, &info);
+                d.cmd_set_viewport(rc.cmd, 0, &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: hh as f32, min_depth: 0.0, max_depth: 1.0 }]);
+                d.cmd_set_scissor(rc.cmd, 0, &[area]);
+                d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+            }
+            rc.push_descriptors(
+                vk::PipelineBindPoint::GRAPHICS,
+                layout,
+                0,
+                &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances), Bind::StorageBuffer(rad), Bind::StorageBuffer(bases_buf)],
+            )?;
+            unsafe {
+                if !draws.is_empty() {
+                    d.cmd_bind_index_buffer(rc.cmd, ib.buffer, 0, vk::IndexType::UINT32);
+                    d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb.buffer], &[0]);
+                }
+                for &(first, count, offset, inst) in &draws {
+                    d.cmd_draw_indexed(rc.cmd, count, 1, first, offset, inst);
+                }
+                d.cmd_end_rendering(rc.cmd);
+            }
+            Ok(())
+        });
+        img
+    }
 }
 
 impl crate::technique::Technique for ShadowFieldsTechnique {
@@ -518,9 +983,10 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
     }
 
     fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
-        let h = upload(graph, &self.tables, &self.casts, inputs.frame, &self.light);
+        let h = upload(graph, &self.tables, &self.casts, inputs.frame, &self.light, self.srf);
         let gb = inputs.gbuffer;
         let (w, hh) = (gb.width, gb.height);
+        let vtx = (self.mode == SfMode::Vertex).then(|| self.add_vertex_display(graph, &h, inputs, w, hh));
         let hdr = graph.create_image("hdr", ImageDesc::new_2d(crate::shade_env::HDR_FORMAT, w, hh));
         let mut p = graph.pass("sf_shade", PassKind::Compute);
         let camera = p.read(inputs.scene.camera, Access::AnyShaderReadUniform);
@@ -529,11 +995,17 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         let nrm = p.read(gb.normal, Access::ComputeShaderReadSampled);
         let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
         let env = p.read(inputs.env, Access::ComputeShaderReadSampled);
+        // pixel mode binds the environment in the (unused) vertex-radiance slot
+        let vtx = vtx.map(|v| p.read(v, Access::ComputeShaderReadSampled)).unwrap_or(env);
         let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
         let r = [h.data, h.shells, h.insts, h.tensor, h.light, inputs.scene.lights].map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let (pipeline, layout) = (self.shade.pipeline, self.shade.layout);
         let (nearest, linear) = (self.nearest.sampler, self.linear.sampler);
-        let push: Vec<u8> = [h.inst_count, h.tensor_count, inputs.scene.light_count].iter().flat_map(|x| x.to_le_bytes()).collect();
+        let mode = (self.mode == SfMode::Vertex) as u32;
+        let push: Vec<u8> = [h.inst_count, h.tensor_count, inputs.scene.light_count, self.srf as u32, self.window_code(), mode]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
         p.record(move |rc| {
             let mut binds = vec![
                 Bind::UniformBuffer(camera),
@@ -545,6 +1017,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
                 Bind::StorageImage(hdr),
             ];
             binds.extend(r.iter().map(|&b| Bind::StorageBuffer(b)));
+            binds.push(Bind::SampledImage(vtx, nearest));
             crate::util::bind_compute(rc, pipeline, layout, &binds)?;
             unsafe {
                 let d = rc.device();
@@ -582,8 +1055,8 @@ pub fn gpu_shade_points(
     points: &[ShadePoint],
 ) -> Result<(Vec<[f32; 4]>, f64)> {
     let mut g = Graph::new();
-    let h = upload(&mut g, &tech.tables, &tech.casts, frame, &tech.light);
-    let out = tech.add_points(&mut g, &h, points);
+    let h = upload(&mut g, &tech.tables, &tech.casts, frame, &tech.light, tech.srf);
+    let out = tech.add_points(&mut g, &h, points, None, points.len().max(1) as u32);
     add_readback(&mut g, out, "sf_points_out", points.len().max(1) as u64 * 16);
     engine.submit(g)?;
     let mut outs = engine.drain()?;
