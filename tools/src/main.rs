@@ -60,7 +60,8 @@ enum BenchCmd {
     Trace(bench::TraceArgs),
     /// Shadow fields: per-shell resolutions after adaptation, data size fixed vs adaptive,
     /// per-vertex error adaptive vs fixed and GPU vs CPU, ms per frame GPU vs CPU path.
-    /// (Image errors against the reference: `bench techniques --techniques env,shadow-fields,shadow-fields-fixed`.)
+    /// Then the image errors of the variants (adaptive/fixed, pixel/vertex mode, windows, with and
+    /// without source radiance fields) against the CPU reference at --size (skip: --no-images).
     ShadowFields(bench::ShadowFieldsArgs),
 }
 
