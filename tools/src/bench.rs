@@ -233,6 +233,16 @@ pub struct FieldParams {
 }
 
 impl FieldParams {
+    /// Rejects values the technique would reject (same ranges as its `[technique_params]`).
+    pub fn check(&self) -> Result<()> {
+        let mut o = penumbra_passes::shadow_fields::SfOptions::default();
+        o.set("shells", &self.shells.to_string())?;
+        o.set("resolution", &self.resolution.to_string())?;
+        o.set("map_res", &self.map_res.to_string())?;
+        o.set("threshold", &self.threshold.to_string())?;
+        Ok(())
+    }
+
     fn options(&self) -> penumbra_passes::shadow_fields::SfOptions {
         let mut o = penumbra_passes::shadow_fields::SfOptions::default();
         o.params.shells = self.shells.max(1);

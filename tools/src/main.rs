@@ -316,10 +316,12 @@ fn run(cli: Cli) -> Result<()> {
             bench::run_trace(&a, &scene)
         }
         Cmd::Bench(BenchCmd::ShadowFields(a)) => {
+            a.params.check().map_err(bad)?;
             let scene = load_scene(a.scene.as_deref())?;
             bench::run_shadow_fields(&a, &scene)
         }
         Cmd::Precompute(PrecomputeCmd::ShadowField(a)) => {
+            a.params.check().map_err(bad)?;
             let scene = load_scene(Some(&a.model))?;
             bench::run_precompute_shadow_field(&a, &scene)
         }

@@ -223,7 +223,8 @@ fn shadow_field_precompute_and_bench() {
         let bytes = std::fs::read(d.join(f)).unwrap();
         penumbra_math::shadow_field::ObjectField::from_bytes(&bytes).unwrap_or_else(|e| panic!("{f}: {e}"));
     }
-    let mut args = vec!["bench", "shadow-fields", scene.to_str().unwrap(), "--repeats", "1"];
+    // (the image comparison against the reference renders every variant: bench-sized, skipped here)
+    let mut args = vec!["bench", "shadow-fields", scene.to_str().unwrap(), "--repeats", "1", "--no-images"];
     args.extend(small);
     let o = penumbra(&args);
     let t = text(&o);
@@ -231,4 +232,10 @@ fn shadow_field_precompute_and_bench() {
     assert!(t.contains("per-shell R") && t.contains("GPU vs CPU") && t.contains("ms per frame"), "{t}");
     let missing = root.join("scenes/nope.toml");
     expect_bad_input(&["precompute", "shadow-field", missing.to_str().unwrap()], &["nope.toml"]);
+    expect_bad_input(&["bench", "shadow-fields", scene.to_str().unwrap(), "--resolution", "12"], &["resolution", "power of two"]);
+    expect_bad_input(&["precompute", "shadow-field", scene.to_str().unwrap(), "--shells", "0"], &["shells"]);
+    // technique parameters: unknown keys and bad values
+    let r = d.join("r");
+    expect_bad_input(&["render", scene.to_str().unwrap(), "--size", "16x12", "--out", r.to_str().unwrap(), "--param", "mode=sideways"], &["mode", "sideways"]);
+    expect_bad_input(&["render", scene.to_str().unwrap(), "--size", "16x12", "--out", r.to_str().unwrap(), "--param", "windw=hanning"], &["windw"]);
 }
