@@ -8,8 +8,10 @@
 #   mesa-vulkan-drivers                     lavapipe, the software Vulkan device used in CI
 #   vulkan-validationlayers                 Khronos validation + synchronization validation
 #                                           (--validate, and the test suite)
+#   xvfb libx11-xcb1 libxcursor1 libxrandr2  an X server without a screen, and the X libraries
+#   libxi6 libxkbcommon-x11-0               winit loads at run time: `penumbra view` windows in tests
 set -eu
-PKGS="libshaderc-dev glslang-dev spirv-tools libvulkan1 mesa-vulkan-drivers vulkan-validationlayers"
+PKGS="libshaderc-dev glslang-dev spirv-tools libvulkan1 mesa-vulkan-drivers vulkan-validationlayers xvfb libx11-xcb1 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0"
 missing=""
 for p in $PKGS; do
   dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"

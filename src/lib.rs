@@ -21,7 +21,7 @@ use anyhow::{bail, Result};
 use glam::Mat4;
 use penumbra_engine::graph::compile::CompiledGraph;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Context, ContextDesc, Engine, FrameOutput, Graph, ImportedImage};
+use penumbra_engine::{vk, Access, Context, ContextDesc, Engine, FrameOutput, Graph, ImportedImage, SubmitSync};
 use penumbra_passes::effect::{Effect, EffectInputs, EffectOverrides};
 use penumbra_passes::env::EnvMapGpu;
 use penumbra_passes::scene_gpu::FrameConstants;
@@ -83,6 +83,19 @@ pub struct FrameImages {
     /// With `RenderSettings::dump_passes`: every intermediate image as linear RGBA f32
     /// (name, pixels), e.g. `gb_normal`, `gb_depth`, `hdr`.
     pub dumps: Vec<(String, Vec<[f32; 4]>)>,
+    /// With readback and a target that is blitted into (not written as RGBA8 storage): the
+    /// target's texels as left by the blit, tightly packed in its format (e.g. BGRA8).
+    pub target: Option<TargetTexels>,
+}
+
+/// A read-back application target (see [`FrameImages::target`]).
+#[derive(Clone, Debug)]
+pub struct TargetTexels {
+    pub format: vk::Format,
+    pub width: u32,
+    pub height: u32,
+    /// Tightly packed texels, row 0 at the top.
+    pub bytes: Vec<u8>,
 }
 
 /// IEEE half to f32.
@@ -143,6 +156,8 @@ pub struct Renderer {
     /// The last compiled graph (for dumps).
     pub last_graph: Option<CompiledGraph>,
     dump_formats: Vec<(String, vk::Format)>,
+    /// Format of the blitted target of the last built frame (see [`FrameImages::target`]).
+    target_format: Option<(vk::Format, u32, u32)>,
 }
 
 impl Renderer {
@@ -185,6 +200,7 @@ impl Renderer {
             prev_view_proj: None,
             last_graph: None,
             dump_formats: Vec::new(),
+            target_format: None,
         })
     }
 
@@ -220,7 +236,8 @@ impl Renderer {
     }
 
     /// Builds the frame graph. With `target`, tone-mapped output goes into that imported image
-    /// (it needs STORAGE usage, and TRANSFER_SRC when `readback`); with `readback`, the HDR and
+    /// (written as a storage image when it is `R8G8B8A8_UNORM` with STORAGE usage, else blitted
+    /// into: it then needs TRANSFER_DST usage and a blittable colour format); with `readback`, the HDR and
     /// LDR images are copied to host memory and returned by [`Renderer::render`].
     pub fn build_graph(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Result<Graph> {
         let (w, h) = (self.settings.width, self.settings.height);
@@ -250,8 +267,17 @@ impl Renderer {
         for e in &mut self.effects {
             hdr = e.add(&mut self.engine, &mut g, &inputs, hdr)?;
         }
+        // The tone map writes a storage image: straight into an RGBA8 target with STORAGE usage,
+        // else into a transient image blitted into the target (a BGRA8/sRGB swapchain image).
+        let direct = target
+            .as_ref()
+            .is_some_and(|t| t.desc.format == penumbra_passes::tonemap::LDR_FORMAT && t.usage.contains(vk::ImageUsageFlags::STORAGE));
         let target = target.map(|t| g.import_image("target", t));
-        let ldr = self.tonemap.add(&mut g, hdr, target, self.settings.tonemap);
+        let ldr = self.tonemap.add(&mut g, hdr, target.filter(|_| direct), self.settings.tonemap);
+        let mut blitted = None;
+        if let (Some(t), false) = (target, direct) {
+            blitted = Some(penumbra_passes::blit::add(&mut g, "blit_target", ldr, t));
+        }
         if self.settings.dump_passes {
             let dumps: Vec<(penumbra_engine::ImageHandle, String)> = [
                 (gb.position, "gb_position"),
@@ -268,6 +294,14 @@ impl Renderer {
             penumbra_passes::readback::add(&mut g, "dump_passes", &refs);
             self.dump_formats = dumps.iter().map(|(h, n)| (n.clone(), g.image_desc(*h).format)).collect();
         }
+        self.target_format = blitted.map(|t| {
+            let d = g.image_desc(t);
+            (d.format, d.width, d.height)
+        });
+        if let (true, Some(t)) = (readback, blitted) {
+            // What the blit left in the application's (e.g. swapchain) image, in its format.
+            penumbra_passes::readback::add(&mut g, "readback_target", &[(t, "target_readback")]);
+        }
         if readback {
             penumbra_passes::readback::add(&mut g, "readback", &[(hdr, "hdr_readback"), (ldr, "ldr_readback")]);
         } else if target.is_none() {
@@ -278,8 +312,20 @@ impl Renderer {
 
     /// Builds, compiles and submits one frame; returns the frames that finished meanwhile.
     pub fn render(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Result<Vec<FrameImages>> {
+        self.render_with(frame, target, readback, &SubmitSync::default())
+    }
+
+    /// [`Renderer::render`] whose submission waits on and signals semaphores (a window's
+    /// swapchain: see `penumbra view`).
+    pub fn render_with(
+        &mut self,
+        frame: &Frame,
+        target: Option<ImportedImage>,
+        readback: bool,
+        sync: &SubmitSync,
+    ) -> Result<Vec<FrameImages>> {
         let g = self.build_graph(frame, target, readback)?;
-        let (compiled, done) = match self.engine.submit(g) {
+        let (compiled, done) = match self.engine.submit_with(g, sync) {
             Ok(r) => r,
             Err(e) => {
                 // One-time uploads declared in the failed frame must be declared again.
@@ -313,7 +359,10 @@ impl Renderer {
                 Some((name.trim_start_matches("dump:").to_string(), decode_texels(*fmt, bytes)?))
             })
             .collect();
-        FrameImages { frame: o.frame, width: w, height: h, hdr, ldr, gpu_ms: o.gpu_ms, dumps }
+        let target = self.target_format.zip(o.readbacks.get("target_readback").cloned()).map(
+            |((format, width, height), bytes)| TargetTexels { format, width, height, bytes },
+        );
+        FrameImages { frame: o.frame, width: w, height: h, hdr, ldr, gpu_ms: o.gpu_ms, dumps, target }
     }
 }
 

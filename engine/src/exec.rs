@@ -195,6 +195,15 @@ pub enum Bind {
     StorageBuffer(BufferHandle),
 }
 
+/// Semaphores a frame's submission waits on and signals, each with its stage mask (binary
+/// semaphores; e.g. a swapchain's acquire semaphore waited at `ALL_COMMANDS`, matching the
+/// [`crate::Access::Present`] initial state, and a render-finished semaphore for the present).
+#[derive(Clone, Debug, Default)]
+pub struct SubmitSync {
+    pub wait: Vec<(vk::Semaphore, vk::PipelineStageFlags2)>,
+    pub signal: Vec<(vk::Semaphore, vk::PipelineStageFlags2)>,
+}
+
 /// The results of one frame, available once its fence signalled.
 #[derive(Debug, Default)]
 pub struct FrameOutput {
@@ -517,7 +526,29 @@ impl Engine {
     /// Compiles, records and submits a frame. Returns the outputs of frames that completed
     /// meanwhile (the oldest in-flight frame when every slot is busy). On a graph or recording
     /// error nothing is submitted and every problem is reported together.
-    pub fn submit(&mut self, mut graph: Graph) -> Result<(CompiledGraph, Vec<FrameOutput>)> {
+    pub fn submit(&mut self, graph: Graph) -> Result<(CompiledGraph, Vec<FrameOutput>)> {
+        self.submit_with(graph, &SubmitSync::default())
+    }
+
+    /// Waits until the frame slot the next [`Engine::submit`] will use is free (its frame has
+    /// completed; the output is returned by that submit). A window acquires its swapchain image
+    /// after this, so the acquire semaphore of that slot is no longer waited on by the GPU.
+    pub fn wait_next_slot(&mut self) -> Result<()> {
+        if let Some(o) = self.retire(self.next_slot)? {
+            self.pending.push(o);
+        }
+        Ok(())
+    }
+
+    /// The frame slot the next submit uses (0..frames in flight): index per-slot objects such as
+    /// acquire semaphores with it.
+    pub fn next_slot(&self) -> usize {
+        self.next_slot
+    }
+
+    /// [`Engine::submit`] with semaphores to wait on and signal (a swapchain's acquire and
+    /// render-finished semaphores).
+    pub fn submit_with(&mut self, mut graph: Graph, sync: &SubmitSync) -> Result<(CompiledGraph, Vec<FrameOutput>)> {
         let t0 = Instant::now();
         let compiled = graph.compile()?;
         self.profiler.add_cpu("graph compile", t0.elapsed().as_secs_f64() * 1e3);
@@ -602,7 +633,15 @@ impl Engine {
         // ---- submit
         let done = std::mem::take(&mut self.pending);
         let cmd_infos = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
-        let submit = [vk::SubmitInfo2::default().command_buffer_infos(&cmd_infos)];
+        let sem = |&(semaphore, stage): &(vk::Semaphore, vk::PipelineStageFlags2)| {
+            vk::SemaphoreSubmitInfo::default().semaphore(semaphore).stage_mask(stage)
+        };
+        let waits: Vec<_> = sync.wait.iter().map(sem).collect();
+        let signals: Vec<_> = sync.signal.iter().map(sem).collect();
+        let submit = [vk::SubmitInfo2::default()
+            .command_buffer_infos(&cmd_infos)
+            .wait_semaphore_infos(&waits)
+            .signal_semaphore_infos(&signals)];
         unsafe { d.queue_submit2(self.ctx.queue, &submit, s.fence).context("vkQueueSubmit2")? };
         for (res, info) in graph.resources.iter().zip(compiled.resources.iter()) {
             if matches!(res.origin, Origin::Persistent { .. }) && info.first_pass.is_some() {
@@ -633,6 +672,17 @@ impl Engine {
         }
         out.sort_by_key(|o| o.frame);
         Ok(out)
+    }
+
+    /// Submits `graph` and waits for it alone; returns its output (readbacks, GPU times). Outputs
+    /// of other frames that complete meanwhile stay queued for the next `submit`/`drain`, so a
+    /// technique can run a round of GPU work whose results it needs on the CPU inside a frame
+    /// without taking the caller's results.
+    pub fn submit_wait(&mut self, graph: Graph) -> Result<FrameOutput> {
+        let slot = self.next_slot;
+        let (_, done) = self.submit(graph)?;
+        self.pending.extend(done);
+        self.retire(slot)?.ok_or_else(|| anyhow::anyhow!("submit_wait: the submitted frame is not in flight"))
     }
 }
 

@@ -11,5 +11,5 @@ pub mod shader;
 pub use ash;
 pub use ash::vk;
 pub use context::{Context, ContextDesc, GpuBuffer, GpuImage, ValidationLog};
-pub use exec::{Bind, Engine, FrameOutput, PhysBuffer, PhysImage, RecordContext};
+pub use exec::{Bind, Engine, FrameOutput, PhysBuffer, PhysImage, RecordContext, SubmitSync};
 pub use graph::{Access, BufferHandle, Graph, ImageDesc, ImageHandle, ImportedImage, PassKind};

@@ -15,6 +15,7 @@ use std::process::ExitCode;
 
 mod bench;
 mod spheres;
+mod view;
 
 #[derive(Parser)]
 #[command(name = "penumbra", version, about = "Vulkan rendering of dynamic scenes under all-frequency lighting", long_about = None)]
@@ -42,6 +43,10 @@ enum Cmd {
     /// Offline precomputation for techniques.
     #[command(subcommand)]
     Precompute(PrecomputeCmd),
+    /// Show a scene live in a window (Esc quits, Space pauses, Left/Right step while paused,
+    /// T next technique, P screenshot, G frame-graph dump); `--frames N --screenshot FILE` for
+    /// scripts (e.g. under xvfb-run).
+    View(view::ViewArgs),
     /// Approximate a closed mesh by N spheres (blockers of the ISG technique) and report the
     /// fraction of its volume they cover and the volume they put outside it.
     Spheres(spheres::SpheresArgs),
@@ -144,6 +149,59 @@ fn load_scene(path: Option<&Path>) -> Result<Scene> {
     Ok(scene)
 }
 
+/// Applies `--technique`, `--param` and `--volumetric` to a loaded scene (bad values: exit 2).
+fn apply_overrides(
+    mut scene: Scene,
+    technique: &Option<String>,
+    params: &[String],
+    volumetric: &Option<String>,
+) -> Result<Scene> {
+    if let Some(t) = technique {
+        if !penumbra_passes::technique::IMPLEMENTED.contains(&t.as_str()) {
+            return Err(bad(format!(
+                "--technique {t}: not implemented (implemented: {})",
+                penumbra_passes::technique::IMPLEMENTED.join(", ")
+            )));
+        }
+    }
+    if let Some(v) = volumetric {
+        penumbra_passes::volumetric::VolumetricMethod::parse(v).map_err(|e| bad(format!("--volumetric: {e}")))?;
+    }
+    if let Some(t) = technique {
+        if *t != scene.technique && !scene.technique_params.is_empty() {
+            eprintln!("note: the scene's [technique_params] belong to '{}' and are not used by '{t}'", scene.technique);
+            scene.technique_params.clear();
+        }
+        scene.technique = t.clone();
+    }
+    for p in params {
+        let (k, v) = p.split_once('=').ok_or_else(|| bad(format!("--param {p}: expected KEY=VALUE")))?;
+        scene.technique_params.insert(k.trim().to_string(), v.trim().to_string());
+    }
+    Ok(scene)
+}
+
+/// A renderer for `scene`; a bad technique parameter is bad input (exit 2).
+fn new_renderer(ctx: std::sync::Arc<penumbra::engine::Context>, scene: &Scene, settings: RenderSettings) -> Result<Renderer> {
+    Renderer::new(ctx, scene, settings).map_err(|e| {
+        let m = format!("{e:#}");
+        if m.contains("parameter") { bad(m) } else { e }
+    })
+}
+
+/// Prints the validation layer's counts; an error when it reported any (exit 1).
+fn report_validation(log: &penumbra::engine::ValidationLog) -> Result<()> {
+    let n = log.error_count();
+    println!("validation: {n} error(s), {} warning(s)", log.warning_count());
+    if n > 0 {
+        for m in log.errors() {
+            println!("  {m}");
+        }
+        anyhow::bail!("the validation layer reported {n} error(s)");
+    }
+    Ok(())
+}
+
 fn write_frame(out: &Path, index: u32, img: &penumbra::FrameImages) -> Result<()> {
     let exr = out.join(format!("frame_{index:04}.exr"));
     let hdr = Image::from_fn(img.width, img.height, |x, y| {
@@ -188,38 +246,13 @@ fn render(args: &RenderArgs) -> Result<()> {
         effects: penumbra_passes::effect::EffectOverrides { volumetric: args.volumetric.clone() },
         ..Default::default()
     };
+    let scene = apply_overrides(scene, &args.technique, &args.params, &args.volumetric)?;
     let ctx = penumbra::engine::Context::new(&penumbra::engine::ContextDesc {
         validation: args.validate,
         device_name: args.device.clone(),
         ..Default::default()
     })?;
-    if let Some(t) = &args.technique {
-        if !penumbra_passes::technique::IMPLEMENTED.contains(&t.as_str()) {
-            return Err(bad(format!(
-                "--technique {t}: not implemented (implemented: {})",
-                penumbra_passes::technique::IMPLEMENTED.join(", ")
-            )));
-        }
-    }
-    if let Some(v) = &args.volumetric {
-        penumbra_passes::volumetric::VolumetricMethod::parse(v).map_err(|e| bad(format!("--volumetric: {e}")))?;
-    }
-    let mut scene = scene;
-    if let Some(t) = &args.technique {
-        if *t != scene.technique && !scene.technique_params.is_empty() {
-            eprintln!("note: the scene's [technique_params] belong to '{}' and are not used by '{t}'", scene.technique);
-            scene.technique_params.clear();
-        }
-        scene.technique = t.clone();
-    }
-    for p in &args.params {
-        let (k, v) = p.split_once('=').ok_or_else(|| bad(format!("--param {p}: expected KEY=VALUE")))?;
-        scene.technique_params.insert(k.trim().to_string(), v.trim().to_string());
-    }
-    let mut r = Renderer::new(ctx, &scene, settings).map_err(|e| {
-        let m = format!("{e:#}");
-        if m.contains("parameter") { bad(m) } else { e }
-    })?;
+    let mut r = new_renderer(ctx, &scene, settings)?;
     for l in Renderer::limitations(&scene) {
         eprintln!("note: {l}");
     }
@@ -282,14 +315,7 @@ fn render(args: &RenderArgs) -> Result<()> {
     if args.validate {
         let log = r.context().validation.clone();
         drop(r);
-        let n = log.error_count();
-        println!("validation: {n} error(s), {} warning(s)", log.warning_count());
-        if n > 0 {
-            for m in log.errors() {
-                println!("  {m}");
-            }
-            anyhow::bail!("the validation layer reported {n} error(s)");
-        }
+        report_validation(&log)?;
     }
     Ok(())
 }
@@ -297,6 +323,7 @@ fn render(args: &RenderArgs) -> Result<()> {
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
         Cmd::Render(a) => render(&a),
+        Cmd::View(a) => view::view(&a),
         Cmd::Reference(a) => {
             let scene = load_scene(a.scene.as_deref())?;
             a.options().map_err(bad)?;

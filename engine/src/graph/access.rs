@@ -55,6 +55,12 @@ pub enum Access {
     IndirectBuffer,
     /// Read by the host after the frame's fence (readback).
     HostRead,
+    // ---- presentation
+    /// Owned by the presentation engine (a swapchain image): only as an imported image's
+    /// initial access (acquired; the acquire semaphore is waited at `ALL_COMMANDS`) or final
+    /// access (presented; the render-finished semaphore is signalled at `ALL_COMMANDS`), never
+    /// in a pass. Layout `PRESENT_SRC_KHR`, no memory access of the frame's own.
+    Present,
 }
 
 /// Which resource types an access applies to.
@@ -86,7 +92,7 @@ pub struct AccessInfo {
 
 impl Access {
     /// Every access kind, in declaration order (for tests and documentation).
-    pub const ALL: [Access; 21] = [
+    pub const ALL: [Access; 22] = [
         Access::ColorAttachmentWrite,
         Access::DepthAttachmentWrite,
         Access::DepthAttachmentRead,
@@ -108,6 +114,7 @@ impl Access {
         Access::IndexBuffer,
         Access::IndirectBuffer,
         Access::HostRead,
+        Access::Present,
     ];
 
     /// The table.
@@ -266,8 +273,9 @@ impl Access {
                 BU::STORAGE_BUFFER,
                 Some(false),
             ),
+            // Copies and blits (sync2 splits TRANSFER into COPY, BLIT, CLEAR, RESOLVE).
             Access::TransferSrc => (
-                S::COPY,
+                S::COPY | S::BLIT,
                 A::TRANSFER_READ,
                 L::TRANSFER_SRC_OPTIMAL,
                 false,
@@ -278,7 +286,7 @@ impl Access {
                 None,
             ),
             Access::TransferDst => (
-                S::COPY | S::CLEAR,
+                S::COPY | S::BLIT | S::CLEAR,
                 A::TRANSFER_WRITE,
                 L::TRANSFER_DST_OPTIMAL,
                 true,
@@ -351,6 +359,19 @@ impl Access {
             Access::HostRead => {
                 (S::HOST, A::HOST_READ, L::UNDEFINED, false, false, Applies::Buffer, IU::empty(), BU::empty(), None)
             }
+            // Execution-only dependency on the semaphore operation at ALL_COMMANDS: the layout
+            // transition to/from PRESENT_SRC_KHR is ordered with the acquire/present semaphores.
+            Access::Present => (
+                S::ALL_COMMANDS,
+                A::NONE,
+                L::PRESENT_SRC_KHR,
+                false,
+                false,
+                Applies::Image,
+                IU::empty(),
+                BU::empty(),
+                Some(false),
+            ),
         };
         AccessInfo {
             stage,
@@ -429,6 +450,11 @@ mod tests {
         for a in Access::ALL {
             let i = a.info();
             assert!(!i.stage.is_empty(), "{a:?} has no stage");
+            if a == Access::Present {
+                // The presentation engine's accesses are made visible by the semaphores.
+                assert!(i.access.is_empty() && !i.write && i.layout == vk::ImageLayout::PRESENT_SRC_KHR);
+                continue;
+            }
             assert!(!i.access.is_empty(), "{a:?} has no access mask");
             match i.applies {
                 Applies::Image => {
@@ -467,6 +493,10 @@ mod tests {
         assert_eq!(d.layout, vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL);
         assert_eq!(d.depth_format, Some(true));
         assert_eq!(Access::TransferDst.info().layout, vk::ImageLayout::TRANSFER_DST_OPTIMAL);
+        // Blits are transfers too (a swapchain target is blitted into): found by sync
+        // validation when the rows named COPY only.
+        assert!(Access::TransferSrc.info().stage.contains(vk::PipelineStageFlags2::BLIT));
+        assert!(Access::TransferDst.info().stage.contains(vk::PipelineStageFlags2::BLIT));
         assert_eq!(Access::HostRead.info().stage, vk::PipelineStageFlags2::HOST);
     }
 }

@@ -127,6 +127,10 @@ impl fmt::Display for Problem {
                 f,
                 "pass '{pass}' declares {accesses:?} on '{resource}': they need different image layouts at once"
             ),
+            Problem::PassKind { pass, access: Access::Present, .. } => write!(
+                f,
+                "pass '{pass}' declares Present, which is only an imported image's initial or final access"
+            ),
             Problem::PassKind { pass, kind, access } => {
                 write!(f, "pass '{pass}' is a {kind:?} pass but declares {access:?}")
             }
@@ -468,7 +472,8 @@ pub(crate) fn compile(g: &Graph) -> Result<CompiledGraph, GraphError> {
                         | Access::ComputeShaderReadWriteStorage
                 ),
             };
-            if !kind_fits {
+            // `Present` describes the presentation engine's ownership, not a pass's work.
+            if !kind_fits || u.access == Access::Present {
                 problems.push(Problem::PassKind { pass: p.name.clone(), kind: p.kind, access: u.access });
             }
             if let Some(v) = u.read_version {

@@ -153,7 +153,7 @@ fn read_write_chains_and_war() {
     assert_eq!(c.live_passes().count(), 4);
     let acc = &c.pass("accumulate").unwrap().barriers[0];
     assert_eq!(acc.reason, BarrierReason::WriteAfterWrite);
-    assert_eq!((acc.src_stage, acc.src_access), (S::COPY | S::CLEAR, A::TRANSFER_WRITE));
+    assert_eq!((acc.src_stage, acc.src_access), (S::COPY | S::BLIT | S::CLEAR, A::TRANSFER_WRITE));
     assert_eq!(acc.dst_access, A::SHADER_STORAGE_READ | A::SHADER_STORAGE_WRITE);
     let ow = &c.pass("overwrite").unwrap().barriers[0];
     assert_eq!(ow.reason, BarrierReason::WriteAfterRead);
@@ -364,4 +364,60 @@ fn depth_stencil_formats_need_depth_stencil_accesses() {
     let b = &c.pass("test").unwrap().barriers[0];
     assert_eq!((b.old_layout, b.new_layout), (L::DEPTH_STENCIL_ATTACHMENT_OPTIMAL, L::DEPTH_STENCIL_READ_ONLY_OPTIMAL));
     assert_eq!(b.src_access, A::DEPTH_STENCIL_ATTACHMENT_READ | A::DEPTH_STENCIL_ATTACHMENT_WRITE);
+}
+
+/// A swapchain image: blitted into, then presented. After its first present the image starts
+/// in `Present` (PRESENT_SRC layout, execution dependency on the acquire semaphore waited at
+/// ALL_COMMANDS); it ends in `Present`; no pass may declare `Present`.
+#[test]
+fn swapchain_image_barriers_chain_with_the_semaphores() {
+    let build = |initial: Option<Access>, bad_pass: bool| {
+        let mut g = Graph::new();
+        let src = g.create_image("ldr", ImageDesc::new_2d(vk::Format::R8G8B8A8_UNORM, 64, 32));
+        let sc = g.import_image(
+            "swapchain",
+            ImportedImage {
+                image: vk::Image::null(),
+                view: vk::ImageView::null(),
+                desc: ImageDesc::new_2d(vk::Format::B8G8R8A8_UNORM, 80, 40),
+                usage: vk::ImageUsageFlags::TRANSFER_DST,
+                initial,
+                initial_layout: vk::ImageLayout::UNDEFINED,
+                final_access: Some(Access::Present),
+            },
+        );
+        let mut p = g.pass("tonemap", PassKind::Compute);
+        let src = p.write(src, Access::ComputeShaderWriteStorage);
+        p.record(|_| Ok(()));
+        let mut p = g.pass("blit", PassKind::Transfer);
+        p.read(src, Access::TransferSrc);
+        let sc = p.write(sc, Access::TransferDst);
+        p.record(|_| Ok(()));
+        if bad_pass {
+            let mut p = g.pass("present_in_a_pass", PassKind::Transfer);
+            p.read(sc, Access::Present);
+            p.record(|_| Ok(()));
+        }
+        g.compile()
+    };
+    // First use: contents undefined.
+    let c = build(None, false).expect("valid graph");
+    let b = c.pass("blit").unwrap();
+    let s = b.barriers.iter().find(|b| b.name == "swapchain").unwrap();
+    assert_eq!((s.old_layout, s.new_layout), (L::UNDEFINED, L::TRANSFER_DST_OPTIMAL));
+    let l = b.barriers.iter().find(|b| b.name == "ldr").unwrap();
+    assert_eq!((l.src_stage, l.dst_stage), (S::COMPUTE_SHADER, S::COPY | S::BLIT));
+    // Presented before: wait for the acquire semaphore's stage, from PRESENT_SRC.
+    let c = build(Some(Access::Present), false).expect("valid graph");
+    let s = c.pass("blit").unwrap().barriers.iter().find(|b| b.name == "swapchain").unwrap().clone();
+    assert_eq!((s.old_layout, s.new_layout), (L::PRESENT_SRC_KHR, L::TRANSFER_DST_OPTIMAL));
+    assert_eq!(s.src_stage, S::ALL_COMMANDS);
+    assert_eq!(s.dst_stage, S::COPY | S::BLIT | S::CLEAR);
+    assert_eq!(c.final_barriers.len(), 1);
+    let f = &c.final_barriers[0];
+    assert_eq!((f.old_layout, f.new_layout), (L::TRANSFER_DST_OPTIMAL, L::PRESENT_SRC_KHR));
+    assert_eq!((f.src_stage, f.src_access), (S::COPY | S::BLIT | S::CLEAR, A::TRANSFER_WRITE));
+    assert_eq!((f.dst_stage, f.dst_access), (S::ALL_COMMANDS, A::NONE));
+    let err = build(Some(Access::Present), true).expect_err("Present in a pass");
+    assert!(err.to_string().contains("pass 'present_in_a_pass' declares Present"), "{err}");
 }

@@ -1,0 +1,116 @@
+//! `penumbra view` in a real window: an X server (Xvfb, installed by scripts/install-deps.sh)
+//! displays the window and lavapipe presents to it through a swapchain. The presented image is
+//! read back from the swapchain image and must equal, texel for texel, what `penumbra render`
+//! writes for the same frame; validation (with synchronization validation) must stay clean.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+fn tmp(name: &str) -> PathBuf {
+    let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn text(o: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+/// An Xvfb server on a free display, killed on drop.
+struct Xvfb {
+    child: Child,
+    display: String,
+}
+
+impl Xvfb {
+    fn start() -> Xvfb {
+        for n in 0..50 {
+            let num = 140 + (std::process::id() % 300) + n;
+            if Path::new(&format!("/tmp/.X11-unix/X{num}")).exists()
+                || Path::new(&format!("/tmp/.X{num}-lock")).exists()
+            {
+                continue;
+            }
+            let child = Command::new("Xvfb")
+                .args([format!(":{num}").as_str(), "-screen", "0", "640x480x24", "-nolisten", "tcp"])
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .spawn()
+                .expect("Xvfb is needed for the window tests (scripts/install-deps.sh installs the package xvfb)");
+            let t0 = Instant::now();
+            while t0.elapsed() < Duration::from_secs(10) {
+                if Path::new(&format!("/tmp/.X11-unix/X{num}")).exists() {
+                    return Xvfb { child, display: format!(":{num}") };
+                }
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            panic!("Xvfb :{num} did not start");
+        }
+        panic!("no free X display number");
+    }
+}
+
+impl Drop for Xvfb {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn penumbra(args: &[&str], display: Option<&str>) -> Output {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_penumbra"));
+    c.args(args).env_remove("WAYLAND_DISPLAY");
+    match display {
+        Some(d) => c.env("DISPLAY", d),
+        None => c.env_remove("DISPLAY"),
+    };
+    c.output().expect("run penumbra")
+}
+
+fn rgb(path: &Path) -> (u32, u32, Vec<u8>) {
+    let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let mut r = dec.read_info().unwrap();
+    let mut buf = vec![0; r.output_buffer_size().unwrap()];
+    let info = r.next_frame(&mut buf).unwrap();
+    assert_eq!(info.color_type, png::ColorType::Rgb, "{}", path.display());
+    buf.truncate(info.buffer_size());
+    (info.width, info.height, buf)
+}
+
+#[test]
+fn window_presents_what_render_writes_with_clean_validation() {
+    let x = Xvfb::start();
+    let out = tmp("view_present");
+    let shot = out.join("shot.png");
+    let o = penumbra(
+        &["view", "--size", "96x64", "--frames", "4", "--screenshot", shot.to_str().unwrap(), "--validate"],
+        Some(&x.display),
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("validation: 0 error(s)"), "{}", text(&o));
+    let o = penumbra(&["render", "--size", "96x64", "--frames", "4", "--out", out.to_str().unwrap()], None);
+    assert!(o.status.success(), "{}", text(&o));
+    let (w, h, presented) = rgb(&shot);
+    let (w2, h2, rendered) = rgb(&out.join("frame_0003.png"));
+    assert_eq!((w, h), (96, 64));
+    assert_eq!((w, h), (w2, h2));
+    let diff = presented.iter().zip(&rendered).map(|(a, b)| a.abs_diff(*b)).max().unwrap();
+    assert_eq!(diff, 0, "the presented frame differs from the rendered one (max channel difference {diff})");
+    // Not a blank window: the default scene has structure.
+    let mean = presented.iter().map(|&v| v as f64).sum::<f64>() / presented.len() as f64;
+    assert!(mean > 20.0 && mean < 235.0, "mean {mean}");
+}
+
+#[test]
+fn view_without_a_display_or_with_bad_flags_fails_cleanly() {
+    let o = penumbra(&["view", "--frames", "1"], None);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(text(&o).contains("cannot open a window"), "{}", text(&o));
+    let o = penumbra(&["view", "--screenshot", "x.png"], None);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("--screenshot needs --frames"), "{}", text(&o));
+    let o = penumbra(&["view", "--size", "0x10", "--frames", "1"], None);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+}
