@@ -2,7 +2,8 @@
 // visibility integral with sphere blockers. f32 mirror of penumbra_math::isg (IsgTable::eval,
 // visible_fraction). The including shader defines ISG_TABLE_BINDING and ISG_NODES_BINDING (set 0
 // storage buffers: the IsgTable::to_gpu floats and the sphere BVH, root 0, see passes/src/isg)
-// and ISG_MAX_SIDE (patches per side, <= 32).
+// and ISG_MAX_SIDE (patches per side, <= 32); optionally ISG_TRIS_BINDING and
+// ISG_TRI_NODES_BINDING (thin-shell triangles and their BVH).
 #ifndef PENUMBRA_ISG_GLSL
 #define PENUMBRA_ISG_GLSL
 
@@ -69,13 +70,128 @@ float isg_limit(float gamma) {
     return clamp(d, 1e-5, ISG_HALF_PI);
 }
 
+// Per-invocation patch mask of isg_visible (row i: bit j = patch (i, j) occluded).
+uint isg_mask[ISG_MAX_SIDE];
+
+// Bits of row i (patch centres at theta_i) whose centre lies in the cap of local centre
+// direction cl (rho = |cl.xz|, phc = atan(cl.z, cl.x)) and cosine radius cos_psi: per row,
+// cos(phi - phi_c) >= q, i.e. phi within phi_c +- acos(q): an index range, no per-patch
+// trigonometry.
+uint isg_cap_bits(int i, vec3 cl, float rho, float phc, float cos_psi, float phi0, float step_a, int side) {
+    float t = phi0 + step_a * (float(i) + 0.5);
+    float st = sin(t), ct = cos(t);
+    float rhs = cos_psi - ct * cl.y;
+    float den = st * rho;
+    uint bits = 0u;
+    if (den <= 1e-7) {
+        bits = rhs <= 0.0 ? 0xffffffffu : 0u;
+    } else {
+        float q = rhs / den;
+        if (q <= -1.0) {
+            bits = 0xffffffffu;
+        } else if (q <= 1.0) {
+            float w = acos(q);
+            for (int k = -1; k <= 1; ++k) {
+                float a = phc + 6.28318531 * float(k) - w;
+                float b = phc + 6.28318531 * float(k) + w;
+                int j0 = max(int(ceil((a - phi0) / step_a - 0.5)), 0);
+                int j1 = min(int(floor((b - phi0) / step_a - 0.5)), side - 1);
+                if (j1 >= j0) {
+                    uint hi = j1 >= 31 ? 0xffffffffu : ((1u << uint(j1 + 1)) - 1u);
+                    uint lo = (1u << uint(j0)) - 1u;
+                    bits |= hi & ~lo;
+                }
+            }
+        }
+    }
+    if (side < 32) bits &= (1u << uint(side)) - 1u;
+    return bits;
+}
+
+// Marks the patches covered by the cap (world unit centre direction c, angular radius psi);
+// true if any patch was marked.
+bool isg_mark_cap(vec3 c, float psi, vec3 fx, vec3 fy, vec3 fz, float delta, float step_a, int side) {
+    float cos_psi = cos(psi);
+    vec3 cl = vec3(dot(c, fx), dot(c, fy), dot(c, fz));
+    float rho = length(cl.xz);
+    float phc = atan(cl.z, cl.x);
+    float phi0 = ISG_HALF_PI - delta;
+    bool any_occ = false;
+    for (int i = 0; i < side; ++i) {
+        uint bits = isg_cap_bits(i, cl, rho, phc, cos_psi, phi0, step_a, side);
+        isg_mask[i] |= bits;
+        any_occ = any_occ || bits != 0u;
+    }
+    return any_occ;
+}
+
+#ifdef ISG_TRIS_BINDING
+// Thin-shell triangles (world space, 3 vec4 per triangle, xyz used) and their BVH of bounding
+// spheres (IsgNode, info.z = triangle index).
+layout(set = 0, binding = ISG_TRIS_BINDING) readonly buffer IsgTris { vec4 isg_tris[]; };
+layout(set = 0, binding = ISG_TRI_NODES_BINDING) readonly buffer IsgTriNodes { IsgNode isg_tri_nodes[]; };
+
+// Marks the patches whose centre direction, seen from p, passes through the triangle
+// (projected triangle: the spherical triangle of the three vertex directions; candidates from
+// its bounding cap, then three plane-side tests per candidate patch). Triangles whose plane
+// contains p and triangles entirely below the tangent plane are skipped.
+bool isg_mark_triangle(int t, vec3 p, vec3 n, vec3 fx, vec3 fy, vec3 fz, float delta, float cone, float step_a, int side) {
+    vec3 a = isg_tris[3 * t].xyz - p, b = isg_tris[3 * t + 1].xyz - p, c = isg_tris[3 * t + 2].xyz - p;
+    if (max(dot(a, n), max(dot(b, n), dot(c, n))) <= 0.0) return false;
+    float la = length(a), lb = length(b), lc = length(c);
+    if (!(la > 0.0 && lb > 0.0 && lc > 0.0)) return false;
+    vec3 nab = cross(a, b), nbc = cross(b, c), nca = cross(c, a);
+    float det = dot(a, nbc);
+    if (abs(det) <= 1e-7 * la * lb * lc) return false;  // p in the triangle's plane
+    float s = det > 0.0 ? 1.0 : -1.0;
+    vec3 ua = a / la, ub = b / lb, uc = c / lc;
+    vec3 m = ua + ub + uc;
+    float lm = length(m);
+    if (!(lm > 1e-6)) return false;
+    m /= lm;
+    float cos_psi = min(dot(m, ua), min(dot(m, ub), dot(m, uc)));
+    float psi = acos(clamp(cos_psi, -1.0, 1.0));
+    if (acos(clamp(dot(m, fz), -1.0, 1.0)) - psi > cone) return false;
+    vec3 cl = vec3(dot(m, fx), dot(m, fy), dot(m, fz));
+    float rho = length(cl.xz);
+    float phc = atan(cl.z, cl.x);
+    float phi0 = ISG_HALF_PI - delta;
+    bool any_occ = false;
+    for (int i = 0; i < side; ++i) {
+        // A cap wider than a quarter sphere is not convex: every patch is a candidate.
+        uint cand = cos_psi > 0.02 ? isg_cap_bits(i, cl, rho, phc, cos_psi, phi0, step_a, side)
+                                   : (side < 32 ? (1u << uint(side)) - 1u : 0xffffffffu);
+        cand &= ~isg_mask[i];
+        if (cand == 0u) continue;
+        float th = phi0 + step_a * (float(i) + 0.5);
+        float st = sin(th), ct = cos(th);
+        uint bits = 0u;
+        while (cand != 0u) {
+            int j = findLSB(cand);
+            cand &= cand - 1u;
+            float ph = phi0 + step_a * (float(j) + 0.5);
+            vec3 d = fx * (st * cos(ph)) + fy * ct + fz * (st * sin(ph));
+            if (s * dot(d, nab) >= 0.0 && s * dot(d, nbc) >= 0.0 && s * dot(d, nca) >= 0.0) bits |= 1u << uint(j);
+        }
+        isg_mask[i] |= bits;
+        any_occ = any_occ || bits != 0u;
+    }
+    return any_occ;
+}
+#endif
+
 // Fraction of the hemisphere integral of the SG exp(gamma (dot(axis, w) - 1)) visible from p
-// (normal n) through the sphere BVH (node_count nodes). side: patches per side (<= ISG_MAX_SIDE);
+// (normal n) through the sphere BVH (node_count nodes) and, with ISG_TRIS_BINDING, the
+// thin-shell triangle BVH (tri_node_count nodes). side: patches per side (<= ISG_MAX_SIDE);
 // lod: an inner node whose projected half-angle is below lod times the patch size is
 // rasterized as one sphere. Spheres containing p are skipped (the receiver's own proxy);
-// spheres entirely below the tangent plane are skipped.
-float isg_visible(vec3 p, vec3 n, vec3 axis, float gamma, int node_count, int side, float lod) {
-    if (node_count <= 0) return 1.0;
+// spheres entirely below the tangent plane are skipped. Mirror of
+// penumbra_math::isg::visible_fraction_with_triangles.
+float isg_visible(vec3 p, vec3 n, vec3 axis, float gamma, int node_count, int tri_node_count, int side, float lod) {
+#ifndef ISG_TRIS_BINDING
+    tri_node_count = 0;
+#endif
+    if (node_count <= 0 && tri_node_count <= 0) return 1.0;
     side = clamp(side, 1, ISG_MAX_SIDE);
     float delta = isg_limit(gamma);
     vec3 fz = axis;
@@ -83,12 +199,11 @@ float isg_visible(vec3 p, vec3 n, vec3 axis, float gamma, int node_count, int si
     vec3 fy = cross(fz, fx);
     float cone = min(delta * 1.41421356, 3.14159265);
     float step_a = 2.0 * delta / float(side);
-    uint mask[ISG_MAX_SIDE];
-    for (int i = 0; i < side; ++i) mask[i] = 0u;
+    for (int i = 0; i < side; ++i) isg_mask[i] = 0u;
     bool any_occ = false;
     int stack[32];
     int sp = 0;
-    stack[sp++] = 0;
+    if (node_count > 0) stack[sp++] = 0;
     int guard = 0;
     while (sp > 0 && guard < 4096) {
         ++guard;
@@ -118,49 +233,40 @@ float isg_visible(vec3 p, vec3 n, vec3 axis, float gamma, int node_count, int si
             stack[sp++] = node.info.y;
             continue;
         }
-        // Patch centres inside the cap: per row theta_i, cos(phi - phi_c) >= q, i.e. phi within
-        // phi_c +- acos(q): an index range, no per-patch trigonometry.
-        float cos_psi = cos(psi);
-        vec3 cl = vec3(dot(c, fx), dot(c, fy), dot(c, fz));
-        float rho = length(cl.xz);
-        float phc = atan(cl.z, cl.x);
-        float phi0 = ISG_HALF_PI - delta;
-        for (int i = 0; i < side; ++i) {
-            float t = phi0 + step_a * (float(i) + 0.5);
-            float st = sin(t), ct = cos(t);
-            float rhs = cos_psi - ct * cl.y;
-            float den = st * rho;
-            uint bits = 0u;
-            if (den <= 1e-7) {
-                bits = rhs <= 0.0 ? 0xffffffffu : 0u;
-            } else {
-                float q = rhs / den;
-                if (q <= -1.0) {
-                    bits = 0xffffffffu;
-                } else if (q <= 1.0) {
-                    float w = acos(q);
-                    for (int k = -1; k <= 1; ++k) {
-                        float a = phc + 6.28318531 * float(k) - w;
-                        float b = phc + 6.28318531 * float(k) + w;
-                        int j0 = max(int(ceil((a - phi0) / step_a - 0.5)), 0);
-                        int j1 = min(int(floor((b - phi0) / step_a - 0.5)), side - 1);
-                        if (j1 >= j0) {
-                            uint hi = j1 >= 31 ? 0xffffffffu : ((1u << uint(j1 + 1)) - 1u);
-                            uint lo = (1u << uint(j0)) - 1u;
-                            bits |= hi & ~lo;
-                        }
-                    }
-                }
-            }
-            if (side < 32) bits &= (1u << uint(side)) - 1u;
-            mask[i] |= bits;
-            any_occ = any_occ || bits != 0u;
+        any_occ = isg_mark_cap(c, psi, fx, fy, fz, delta, step_a, side) || any_occ;
+    }
+#ifdef ISG_TRIS_BINDING
+    // Thin shells: bounding spheres culled against the cone and the tangent plane, always
+    // descended to the triangles (a shell has no interior to rasterize as a sphere).
+    sp = 0;
+    if (tri_node_count > 0) stack[sp++] = 0;
+    guard = 0;
+    while (sp > 0 && guard < 16384) {
+        ++guard;
+        int ni = stack[--sp];
+        if (ni < 0 || ni >= tri_node_count) continue;
+        IsgNode node = isg_tri_nodes[ni];
+        vec3 d = node.sphere.xyz - p;
+        float r = node.sphere.w;
+        if (!(r >= 0.0)) continue;
+        if (dot(d, n) < -r) continue;
+        float dist = length(d);
+        if (dist > r) {
+            float psi = asin(clamp(r / dist, 0.0, 1.0));
+            if (acos(clamp(dot(d / dist, fz), -1.0, 1.0)) - psi > cone) continue;
+        }
+        if (node.info.x < 0) {
+            any_occ = isg_mark_triangle(node.info.z, p, n, fx, fy, fz, delta, cone, step_a, side) || any_occ;
+        } else if (sp < 31) {
+            stack[sp++] = node.info.x;
+            stack[sp++] = node.info.y;
         }
     }
+#endif
     if (!any_occ) return 1.0;
     float occ = 0.0;
     for (int i = 0; i < side; ++i) {
-        uint bits = mask[i];
+        uint bits = isg_mask[i];
         if (bits == 0u) continue;
         float t0 = i == 0 ? 0.0 : ISG_HALF_PI - delta + step_a * float(i);
         float t1 = i == side - 1 ? 3.14159265 : ISG_HALF_PI - delta + step_a * float(i + 1);

@@ -31,12 +31,12 @@ pub trait Technique {
 }
 
 /// Techniques implemented so far.
-pub const IMPLEMENTED: &[&str] = &["env", "isg", "mc", "shadowmaps", "shadow-fields", "shadow-fields-fixed"];
+pub const IMPLEMENTED: &[&str] = &["env", "isg", "isg-vertex", "mc", "shadowmaps", "shadow-fields", "shadow-fields-fixed"];
 
 /// Creates the technique `name` for `scene`, or `None` if it is not implemented.
 pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &Scene) -> Result<Option<Box<dyn Technique>>> {
     // Techniques without parameters refuse any, rather than ignore them.
-    if !matches!(name, "isg" | "shadow-fields" | "shadow-fields-fixed") && !_scene.technique_params.is_empty() {
+    if !matches!(name, "isg" | "isg-vertex" | "shadow-fields" | "shadow-fields-fixed") && !_scene.technique_params.is_empty() {
         anyhow::bail!(
             "technique '{name}' takes no parameters (got: {})",
             _scene.technique_params.keys().cloned().collect::<Vec<_>>().join(", ")
@@ -44,7 +44,13 @@ pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &
     }
     Ok(match name {
         "env" => Some(Box::new(crate::shade_env::ShadeEnvPass::new(ctx, shaders)?)),
-        "isg" => Some(Box::new(crate::isg::IsgTechnique::new(ctx, shaders, _scene, crate::isg::IsgSettings::from_params(&_scene.technique_params)?)?)),
+        "isg" | "isg-vertex" => {
+            let mut settings = crate::isg::IsgSettings { per_vertex: name == "isg-vertex", ..Default::default() };
+            for (k, v) in &_scene.technique_params {
+                settings.set(k, v)?;
+            }
+            Some(Box::new(crate::isg::IsgTechnique::new(ctx, shaders, _scene, settings)?))
+        }
         "mc" => Some(Box::new(crate::mc::McTechnique::new(ctx, shaders, _scene)?)),
         "shadowmaps" => Some(Box::new(crate::shadowmaps::ShadowMapsTechnique::new(ctx, shaders, _scene)?)),
         "shadow-fields" | "shadow-fields-fixed" => Some(Box::new(crate::shadow_fields::ShadowFieldsTechnique::new(ctx, shaders, _scene, crate::shadow_fields::SfOptions { adaptive: name == "shadow-fields", ..crate::shadow_fields::SfOptions::from_params(&_scene.technique_params)? })?)),

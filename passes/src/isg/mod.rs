@@ -1,5 +1,7 @@
-//! Integral spherical Gaussian shadows (Iwasaki et al. 2012) with sphere-set occluders:
-//! technique `"isg"` (per-pixel visibility).
+//! Integral spherical Gaussian shadows (Iwasaki et al. 2012) with sphere-set occluders and
+//! thin-shell triangles: technique `"isg"` (per-pixel visibility) and `"isg-vertex"` (per-vertex
+//! visibility interpolated by the raster, [`vertex`]); `mode = "pixel" | "vertex"` in
+//! `[technique_params]` / `--param mode=...` selects the same.
 //!
 //! Per frame:
 //! * CPU: every shadow-casting closed object's sphere set (built once at creation by
@@ -20,9 +22,15 @@
 //!   SG-cosine integral times the visible fraction of the lobe times the cosine SG. Specular:
 //!   eq. 9 with `Gamma_L` from the SG-prefiltered environment maps (eq. 10), or optionally from
 //!   the lighting SGs (`prefiltered=0`, exact for SG lighting).
+//! * Thin shells (objects marked `thin_shell`, and open meshes that cast shadows: no sphere
+//!   set) are not sphere-approximated: their world-space triangles (deformed per frame) go to
+//!   the GPU with a CPU BVH of their bounding spheres; the traversal culls nodes against the
+//!   lobe's cone and the tangent plane, and every leaf triangle marks the patches whose centre
+//!   direction passes through it (its projection on the hemisphere; the paper rasterizes the
+//!   projected triangles, as Kautz et al. 2004).
+//! * Per-vertex mode ([`vertex`]): the same visibilities at the mesh vertices, interpolated.
 //!
-//! Not done: thin shells (cloth) cast no shadow (no projected triangles), no per-vertex mode,
-//! local lights are unshadowed, Ashikhmin-Shirley uses one Cook-Torrance lobe.
+//! Not done: local lights are unshadowed, Ashikhmin-Shirley uses one Cook-Torrance lobe.
 
 use crate::shade_env::HDR_FORMAT;
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
@@ -35,6 +43,8 @@ use penumbra_math::isg::IsgTable;
 use penumbra_math::sphereset::{approximate_spheres, SphereSet};
 use penumbra_scene::{Frame, Scene};
 use std::sync::Arc;
+
+pub mod vertex;
 
 /// Parameters (paper defaults where the paper has one).
 #[derive(Clone, Debug, PartialEq)]
@@ -61,6 +71,13 @@ pub struct IsgSettings {
     /// Build the BVH on the GPU (`isg_bvh` pass, LBVH over Morton codes, up to
     /// [`GPU_BVH_MAX`] spheres); false or more spheres: the CPU median-split BVH.
     pub gpu_bvh: bool,
+    /// Per-vertex visibility (the paper's per-vertex shadowing) instead of per pixel.
+    pub per_vertex: bool,
+    /// Per-vertex mode: meshes are subdivided until their longest edge is at most this (world
+    /// units; 0: never).
+    pub max_edge: f32,
+    /// Thin shells (and open meshes) cast shadows by their projected triangles.
+    pub thin_shells: bool,
 }
 
 /// Most spheres the one-workgroup GPU LBVH takes.
@@ -68,7 +85,20 @@ pub const GPU_BVH_MAX: usize = 1024;
 
 impl Default for IsgSettings {
     fn default() -> Self {
-        IsgSettings { lobes: 16, spheres_per_object: 48, patch_side: 12, epsilon: 0.01, lod: 1.0, min_lobe_fraction: 0.02, shadows: true, prefiltered_specular: true, gpu_bvh: true }
+        IsgSettings {
+            lobes: 16,
+            spheres_per_object: 48,
+            patch_side: 12,
+            epsilon: 0.01,
+            lod: 1.0,
+            min_lobe_fraction: 0.02,
+            shadows: true,
+            prefiltered_specular: true,
+            gpu_bvh: true,
+            per_vertex: false,
+            max_edge: 0.1,
+            thin_shells: true,
+        }
     }
 }
 
@@ -84,7 +114,9 @@ impl IsgSettings {
 
     /// Sets one parameter. Keys: `lobes` (K, default 16), `spheres` (per object, 48), `side`
     /// (patches per side, 12), `epsilon` (0.01), `lod` (1.0), `min_fraction` (0.02), `shadows`,
-    /// `prefiltered`, `gpu_bvh` (true/false or 1/0). Unknown keys and bad values are errors.
+    /// `prefiltered`, `gpu_bvh`, `thin_shells` (true/false or 1/0), `mode` (`pixel` or
+    /// `vertex`), `max_edge` (per-vertex subdivision, world units, 0.1; 0: none). Unknown keys
+    /// and bad values are errors.
     pub fn set(&mut self, key: &str, value: &str) -> anyhow::Result<()> {
         let v = value.trim();
         let bad = || anyhow::anyhow!("isg parameter {key} = '{value}': not a valid value");
@@ -105,8 +137,17 @@ impl IsgSettings {
             "shadows" => self.shadows = flag()?,
             "prefiltered" => self.prefiltered_specular = flag()?,
             "gpu_bvh" => self.gpu_bvh = flag()?,
+            "thin_shells" => self.thin_shells = flag()?,
+            "mode" => {
+                self.per_vertex = match v {
+                    "pixel" => false,
+                    "vertex" => true,
+                    _ => return Err(bad()),
+                }
+            }
+            "max_edge" => self.max_edge = v.parse::<f32>().ok().filter(|x| x.is_finite() && *x >= 0.0).ok_or_else(bad)?,
             other => anyhow::bail!(
-                "unknown isg parameter '{other}' (known: lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, gpu_bvh)"
+                "unknown isg parameter '{other}' (known: lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, gpu_bvh, thin_shells, mode, max_edge)"
             ),
         }
         Ok(())
@@ -237,6 +278,53 @@ pub fn frame_spheres(scene: &Scene, sets: &[Option<SphereSet>], frame: &Frame) -
     out
 }
 
+/// Whether object `i` casts shadows as a thin shell (projected triangles): marked `thin_shell`,
+/// or an open mesh (no inside for spheres) that casts shadows.
+pub fn is_thin_caster(scene: &Scene, i: usize) -> bool {
+    let info = scene.object_info(i);
+    let Some(mesh) = scene.objects.get(i).and_then(|o| scene.meshes.get(o.mesh)) else { return false };
+    info.casts_shadow && (info.thin_shell || !mesh.is_closed())
+}
+
+/// World-space triangles of the frame's thin-shell casters (deformed meshes when deforming).
+pub fn frame_thin_triangles(scene: &Scene, frame: &Frame) -> Vec<[Vec3; 3]> {
+    let mut out = Vec::new();
+    for inst in &frame.instances {
+        if !is_thin_caster(scene, inst.object) {
+            continue;
+        }
+        let Some(rest) = scene.meshes.get(inst.mesh) else { continue };
+        let pos = match &inst.deformed_mesh {
+            Some(d) if d.positions.len() == rest.positions.len() => &d.positions,
+            _ => &rest.positions,
+        };
+        for t in rest.indices.chunks_exact(3) {
+            let Some(v) = t.iter().map(|&i| pos.get(i as usize).map(|p| inst.world.transform_point3(*p))).collect::<Option<Vec<_>>>()
+            else {
+                continue;
+            };
+            if v.iter().all(|p| p.is_finite()) {
+                out.push([v[0], v[1], v[2]]);
+            }
+        }
+    }
+    out
+}
+
+/// BVH over triangles' bounding spheres (centroid, farthest vertex); leaves index the triangles.
+pub fn build_triangle_bvh(tris: &[[Vec3; 3]]) -> Vec<GpuNode> {
+    let spheres: Vec<WorldSphere> = tris
+        .iter()
+        .map(|t| {
+            let c = (t[0] + t[1] + t[2]) / 3.0;
+            let r = t.iter().map(|p| (*p - c).length()).fold(0.0f32, f32::max);
+            // Degenerate (zero-size) triangles still get a leaf; the shader skips them.
+            WorldSphere { center: c, radius: r * (1.0 + 1e-5) + 1e-6 }
+        })
+        .collect();
+    build_bvh(&spheres)
+}
+
 /// Lighting SG lobes of the scene's environment in world space (intensity and rotation
 /// applied), as `[axis, lambda], [rgb mu, 0]` pairs; the fit's relative L2 error.
 pub fn lighting_lobes(scene: &Scene, k: usize) -> (Vec<[f32; 4]>, Option<f64>) {
@@ -285,50 +373,71 @@ pub fn prefiltered_env(scene: &Scene) -> Vec<f32> {
     out
 }
 
-/// The `"isg"` technique.
+/// The `"isg"` / `"isg-vertex"` technique.
 pub struct IsgTechnique {
     pipeline: Pipeline,
     bvh_pipeline: Pipeline,
+    /// Per-vertex mode: the vertex compute and raster pipelines.
+    vertex_pipelines: Option<(Pipeline, Pipeline)>,
     nearest: Sampler,
     linear: Sampler,
     repeat: Sampler,
     settings: IsgSettings,
     scene: Scene,
     sets: Vec<Option<SphereSet>>,
+    refined: std::collections::HashMap<usize, vertex::Refined>,
     table: Arc<Vec<u8>>,
     lobes: Arc<Vec<u8>>,
     prefiltered: Arc<Vec<u8>>,
     lobe_count: u32,
-    /// Spheres and BVH nodes of the last frame (for tests and reports).
+    /// Spheres, BVH nodes, thin-shell triangles and receiver vertices (per-vertex mode) of the
+    /// last frame (for tests and reports).
     pub last_sphere_count: usize,
     pub last_node_count: usize,
+    pub last_triangle_count: usize,
+    pub last_vertex_count: usize,
+}
+
+/// Descriptor types of `isg_shade.comp` (bindings 0..=14) and `isg_shade_vertex.comp` (plus 15).
+fn shade_types(per_vertex: bool) -> Vec<vk::DescriptorType> {
+    use vk::DescriptorType as T;
+    let mut t = vec![
+        T::UNIFORM_BUFFER,
+        T::STORAGE_BUFFER,
+        T::COMBINED_IMAGE_SAMPLER,
+        T::COMBINED_IMAGE_SAMPLER,
+        T::COMBINED_IMAGE_SAMPLER,
+        T::COMBINED_IMAGE_SAMPLER,
+        T::STORAGE_IMAGE,
+        T::STORAGE_BUFFER,
+        T::COMBINED_IMAGE_SAMPLER,
+        T::STORAGE_BUFFER,
+        T::STORAGE_BUFFER,
+        T::STORAGE_BUFFER,
+        T::STORAGE_BUFFER,
+        T::STORAGE_BUFFER,
+        T::STORAGE_BUFFER,
+    ];
+    if per_vertex {
+        t.push(T::COMBINED_IMAGE_SAMPLER);
+    }
+    t
 }
 
 impl IsgTechnique {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: IsgSettings) -> Result<Self> {
         use vk::DescriptorType as T;
-        let pipeline = compute_pipeline(
-            ctx,
-            shaders,
-            "isg_shade.comp",
-            &[
-                T::UNIFORM_BUFFER,
-                T::STORAGE_BUFFER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::STORAGE_IMAGE,
-                T::STORAGE_BUFFER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::STORAGE_BUFFER,
-                T::STORAGE_BUFFER,
-                T::STORAGE_BUFFER,
-                T::STORAGE_BUFFER,
-            ],
-            32,
-        )?;
+        let shade = if settings.per_vertex { "isg_shade_vertex.comp" } else { "isg_shade.comp" };
+        let pipeline = compute_pipeline(ctx, shaders, shade, &shade_types(settings.per_vertex), 36)?;
         let bvh_pipeline = compute_pipeline(ctx, shaders, "isg_bvh.comp", &[T::STORAGE_BUFFER, T::STORAGE_BUFFER], 36)?;
+        let vertex_pipelines = if settings.per_vertex {
+            Some((
+                compute_pipeline(ctx, shaders, "isg_vertex.comp", &[T::UNIFORM_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER], 28)?,
+                vertex::raster_pipeline(ctx, shaders)?,
+            ))
+        } else {
+            None
+        };
         let table = IsgTable::default_table().to_gpu(settings.epsilon);
         let (lobes, _) = lighting_lobes(scene, settings.lobes);
         let prefiltered = prefiltered_env(scene);
@@ -337,10 +446,12 @@ impl IsgTechnique {
         Ok(IsgTechnique {
             pipeline,
             bvh_pipeline,
+            vertex_pipelines,
             nearest: Sampler::nearest(ctx)?,
             linear: Sampler::latlong(ctx)?,
             repeat: Sampler::repeat(ctx)?,
             sets: scene_sphere_sets(scene, settings.spheres_per_object),
+            refined: Default::default(),
             scene: scene.clone(),
             settings,
             table: Arc::new(bytes_of(&table)),
@@ -349,6 +460,8 @@ impl IsgTechnique {
             lobe_count,
             last_sphere_count: 0,
             last_node_count: 0,
+            last_triangle_count: 0,
+            last_vertex_count: 0,
         })
     }
 
@@ -390,11 +503,141 @@ impl IsgTechnique {
         });
         (nodes, (2 * n - 1) as i32)
     }
+
+    /// Per-vertex mode: the `isg_vertex` compute pass over the frame's receiver vertices and
+    /// the `isg_vertex_raster` pass interpolating its output; returns the interpolated image.
+    #[allow(clippy::too_many_arguments)]
+    fn add_vertex_passes(
+        &mut self,
+        graph: &mut Graph,
+        inputs: &crate::technique::TechniqueInputs,
+        table: penumbra_engine::BufferHandle,
+        lobes: penumbra_engine::BufferHandle,
+        bvh: penumbra_engine::BufferHandle,
+        node_count: i32,
+        tris: penumbra_engine::BufferHandle,
+        tri_nodes: penumbra_engine::BufferHandle,
+        tri_node_count: i32,
+    ) -> Result<ImageHandle> {
+        let (w, h) = (inputs.gbuffer.width, inputs.gbuffer.height);
+        let recv = vertex::frame_receivers(&self.scene, inputs.frame, self.settings.max_edge, &mut self.refined);
+        self.last_vertex_count = recv.vertices.len();
+        let count = recv.vertices.len() as u32;
+        let index_count = recv.indices.len() as u32;
+        let verts = if recv.vertices.is_empty() { vec![vertex::IsgVertex::default()] } else { recv.vertices };
+        let indices = if recv.indices.is_empty() { vec![0u32; 3] } else { recv.indices };
+        let verts = graph.create_buffer_init("isg_vertices", bytes_of(&verts));
+        let index_buf = graph.create_buffer_init("isg_vertex_indices", bytes_of(&indices));
+        let vis = graph.create_buffer("isg_vertex_vis", (count.max(1) as u64) * 16);
+        let Some((compute, raster)) = &self.vertex_pipelines else { anyhow::bail!("isg: per-vertex pipelines missing") };
+        let (cp, cl) = (compute.pipeline, compute.layout);
+        let (rp, rl) = (raster.pipeline, raster.layout);
+        let scene = inputs.scene;
+        let mut p = graph.pass("isg_vertex", PassKind::Compute);
+        let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
+        let materials = p.read(scene.materials, Access::ComputeShaderReadStorage);
+        let verts_c = p.read(verts, Access::ComputeShaderReadStorage);
+        let vis = p.write(vis, Access::ComputeShaderWriteStorage);
+        let lobes = p.read(lobes, Access::ComputeShaderReadStorage);
+        let table = p.read(table, Access::ComputeShaderReadStorage);
+        let bvh = p.read(bvh, Access::ComputeShaderReadStorage);
+        let tris = p.read(tris, Access::ComputeShaderReadStorage);
+        let tri_nodes = p.read(tri_nodes, Access::ComputeShaderReadStorage);
+        let mut push = Vec::with_capacity(28);
+        push.extend_from_slice(&count.to_le_bytes());
+        push.extend_from_slice(&self.lobe_count.to_le_bytes());
+        push.extend_from_slice(&(if self.settings.shadows { node_count } else { 0 }).to_le_bytes());
+        push.extend_from_slice(&(if self.settings.shadows { tri_node_count } else { 0 }).to_le_bytes());
+        push.extend_from_slice(&(self.settings.patch_side.clamp(1, 32) as i32).to_le_bytes());
+        push.extend_from_slice(&self.settings.lod.to_le_bytes());
+        push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
+        p.record(move |rc| {
+            crate::util::bind_compute(
+                rc,
+                cp,
+                cl,
+                &[
+                    Bind::UniformBuffer(camera),
+                    Bind::StorageBuffer(materials),
+                    Bind::StorageBuffer(verts_c),
+                    Bind::StorageBuffer(vis),
+                    Bind::StorageBuffer(lobes),
+                    Bind::StorageBuffer(table),
+                    Bind::StorageBuffer(bvh),
+                    Bind::StorageBuffer(tris),
+                    Bind::StorageBuffer(tri_nodes),
+                ],
+            )?;
+            unsafe {
+                let d = rc.device();
+                d.cmd_push_constants(rc.cmd, cl, vk::ShaderStageFlags::COMPUTE, 0, &push);
+                if count > 0 {
+                    d.cmd_dispatch(rc.cmd, groups(count, 64), 1, 1);
+                }
+            }
+            Ok(())
+        });
+        let image = graph.create_image("isg_vis", ImageDesc::new_2d(vertex::VIS_FORMAT, w, h));
+        let depth = graph.create_image("isg_vis_depth", ImageDesc::new_2d(vertex::VIS_DEPTH_FORMAT, w, h));
+        let mut p = graph.pass("isg_vertex_raster", PassKind::Raster);
+        let image = p.write(image, Access::ColorAttachmentWrite);
+        let depth = p.write(depth, Access::DepthAttachmentWrite);
+        let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
+        let vis = p.read(vis, Access::VertexShaderReadStorage);
+        let verts_v = p.read(verts, Access::VertexBuffer);
+        let index_buf = p.read(index_buf, Access::IndexBuffer);
+        p.record(move |rc| {
+            let d = rc.device();
+            let colors = [vk::RenderingAttachmentInfo::default()
+                .image_view(rc.image(image)?.view)
+                .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+                .load_op(vk::AttachmentLoadOp::CLEAR)
+                .store_op(vk::AttachmentStoreOp::STORE)
+                // r < 0: no receiver triangle here (per-pixel fallback).
+                .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: [-1.0; 4] } })];
+            let depth_att = vk::RenderingAttachmentInfo::default()
+                .image_view(rc.image(depth)?.view)
+                .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
+                .load_op(vk::AttachmentLoadOp::CLEAR)
+                .store_op(vk::AttachmentStoreOp::DONT_CARE)
+                .clear_value(vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } });
+            let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
+            let info =
+                vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&colors).depth_attachment(&depth_att);
+            let vb = rc.buffer(verts_v)?;
+            let ib = rc.buffer(index_buf)?;
+            unsafe {
+                d.cmd_begin_rendering(rc.cmd, &info);
+                d.cmd_set_viewport(
+                    rc.cmd,
+                    0,
+                    &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: h as f32, min_depth: 0.0, max_depth: 1.0 }],
+                );
+                d.cmd_set_scissor(rc.cmd, 0, &[area]);
+                d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, rp);
+            }
+            rc.push_descriptors(vk::PipelineBindPoint::GRAPHICS, rl, 0, &[Bind::UniformBuffer(camera), Bind::StorageBuffer(vis)])?;
+            unsafe {
+                if count > 0 && index_count > 0 {
+                    d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb.buffer], &[0]);
+                    d.cmd_bind_index_buffer(rc.cmd, ib.buffer, 0, vk::IndexType::UINT32);
+                    d.cmd_draw_indexed(rc.cmd, index_count, 1, 0, 0, 0);
+                }
+                d.cmd_end_rendering(rc.cmd);
+            }
+            Ok(())
+        });
+        Ok(image)
+    }
 }
 
 impl crate::technique::Technique for IsgTechnique {
     fn name(&self) -> &'static str {
-        "isg"
+        if self.settings.per_vertex {
+            "isg-vertex"
+        } else {
+            "isg"
+        }
     }
 
     fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
@@ -414,6 +657,21 @@ impl crate::technique::Technique for IsgTechnique {
             (graph.create_buffer_init("isg_bvh", bytes_of(&nodes)), count)
         };
         self.last_node_count = node_count as usize;
+        // Thin shells: world-space triangles and their BVH (CPU, median splits).
+        let tris = if self.settings.thin_shells { frame_thin_triangles(&self.scene, inputs.frame) } else { Vec::new() };
+        self.last_triangle_count = tris.len();
+        let tri_nodes = build_triangle_bvh(&tris);
+        let tri_node_count = tri_nodes.len() as i32;
+        let tri_data: Vec<[f32; 4]> = tris.iter().flat_map(|t| t.map(|p| [p.x, p.y, p.z, 0.0])).collect();
+        let tri_data = if tri_data.is_empty() { vec![[0.0f32; 4]; 3] } else { tri_data };
+        let tri_nodes = if tri_nodes.is_empty() { vec![GpuNode { sphere: [0.0; 4], info: [-1; 4] }] } else { tri_nodes };
+        let tris_buf = graph.create_buffer_init("isg_thin_triangles", bytes_of(&tri_data));
+        let tri_bvh = graph.create_buffer_init("isg_thin_bvh", bytes_of(&tri_nodes));
+        let vertex_vis = if self.settings.per_vertex {
+            Some(self.add_vertex_passes(graph, inputs, table, lobes, bvh, node_count, tris_buf, tri_bvh, tri_node_count)?)
+        } else {
+            None
+        };
         let hdr = graph.create_image("hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
         let mut p = graph.pass("isg_shade", PassKind::Compute);
         let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
@@ -429,7 +687,10 @@ impl crate::technique::Technique for IsgTechnique {
         let lobes = p.read(lobes, Access::ComputeShaderReadStorage);
         let bvh = p.read(bvh, Access::ComputeShaderReadStorage);
         let prefiltered = p.read(prefiltered, Access::ComputeShaderReadStorage);
-        let mut push = Vec::with_capacity(32);
+        let tris_buf = p.read(tris_buf, Access::ComputeShaderReadStorage);
+        let tri_bvh = p.read(tri_bvh, Access::ComputeShaderReadStorage);
+        let vertex_vis = vertex_vis.map(|v| p.read(v, Access::ComputeShaderReadSampled));
+        let mut push = Vec::with_capacity(36);
         push.extend_from_slice(&scene.light_count.to_le_bytes());
         push.extend_from_slice(&self.lobe_count.to_le_bytes());
         push.extend_from_slice(&node_count.to_le_bytes());
@@ -438,29 +699,31 @@ impl crate::technique::Technique for IsgTechnique {
         push.extend_from_slice(&(!self.settings.shadows as u32).to_le_bytes());
         push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
         push.extend_from_slice(&(!self.settings.prefiltered_specular as u32).to_le_bytes());
+        push.extend_from_slice(&tri_node_count.to_le_bytes());
         let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
-            crate::util::bind_compute(
-                rc,
-                pipeline,
-                layout,
-                &[
-                    Bind::UniformBuffer(camera),
-                    Bind::StorageBuffer(materials),
-                    Bind::SampledImage(pos, nearest),
-                    Bind::SampledImage(nrm, nearest),
-                    Bind::SampledImage(uvm, nearest),
-                    Bind::SampledImage(env, linear),
-                    Bind::StorageImage(hdr),
-                    Bind::StorageBuffer(lights),
-                    Bind::SampledImage(textures, repeat),
-                    Bind::StorageBuffer(table),
-                    Bind::StorageBuffer(lobes),
-                    Bind::StorageBuffer(bvh),
-                    Bind::StorageBuffer(prefiltered),
-                ],
-            )?;
+            let mut binds = vec![
+                Bind::UniformBuffer(camera),
+                Bind::StorageBuffer(materials),
+                Bind::SampledImage(pos, nearest),
+                Bind::SampledImage(nrm, nearest),
+                Bind::SampledImage(uvm, nearest),
+                Bind::SampledImage(env, linear),
+                Bind::StorageImage(hdr),
+                Bind::StorageBuffer(lights),
+                Bind::SampledImage(textures, repeat),
+                Bind::StorageBuffer(table),
+                Bind::StorageBuffer(lobes),
+                Bind::StorageBuffer(bvh),
+                Bind::StorageBuffer(prefiltered),
+                Bind::StorageBuffer(tris_buf),
+                Bind::StorageBuffer(tri_bvh),
+            ];
+            if let Some(v) = vertex_vis {
+                binds.push(Bind::SampledImage(v, nearest));
+            }
+            crate::util::bind_compute(rc, pipeline, layout, &binds)?;
             unsafe {
                 let d = rc.device();
                 d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
@@ -470,4 +733,110 @@ impl crate::technique::Technique for IsgTechnique {
         });
         Ok(hdr)
     }
+}
+
+/// One visibility query of [`gpu_visibility`]: shading point, normal, SG lobe axis and
+/// sharpness.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VisibilityQuery {
+    pub p: Vec3,
+    pub n: Vec3,
+    pub axis: Vec3,
+    pub gamma: f32,
+}
+
+/// Evaluates `isg_visible` (`glsl/include/isg.glsl`) on the GPU for `queries` against
+/// `spheres` (CPU BVH) and thin-shell `triangles` (one compute dispatch of
+/// `glsl/isg_parity.comp` in a graph of its own): the shader side of the shader-vs-CPU parity
+/// test against [`penumbra_math::isg::visible_fraction_with_triangles`].
+pub fn gpu_visibility(
+    engine: &mut Engine,
+    shaders: &ShaderLibrary,
+    queries: &[VisibilityQuery],
+    spheres: &[WorldSphere],
+    triangles: &[[Vec3; 3]],
+    patch_side: u32,
+    epsilon: f64,
+    lod: f32,
+) -> Result<Vec<f32>> {
+    use vk::DescriptorType as T;
+    let ctx = engine.ctx.clone();
+    let pipeline = compute_pipeline(&ctx, shaders, "isg_parity.comp", &[T::STORAGE_BUFFER; 6], 20)?;
+    let table = IsgTable::default_table().to_gpu(epsilon);
+    let nodes = build_bvh(spheres);
+    let node_count = nodes.len() as i32;
+    let nodes = if nodes.is_empty() { vec![GpuNode { sphere: [0.0; 4], info: [-1; 4] }] } else { nodes };
+    let tri_nodes = build_triangle_bvh(triangles);
+    let tri_node_count = tri_nodes.len() as i32;
+    let tri_nodes = if tri_nodes.is_empty() { vec![GpuNode { sphere: [0.0; 4], info: [-1; 4] }] } else { tri_nodes };
+    let tri_data: Vec<[f32; 4]> = triangles.iter().flat_map(|t| t.map(|p| [p.x, p.y, p.z, 0.0])).collect();
+    let tri_data = if tri_data.is_empty() { vec![[0.0f32; 4]; 3] } else { tri_data };
+    let q: Vec<[f32; 4]> = queries
+        .iter()
+        .flat_map(|q| [[q.p.x, q.p.y, q.p.z, 0.0], [q.n.x, q.n.y, q.n.z, 0.0], [q.axis.x, q.axis.y, q.axis.z, q.gamma]])
+        .collect();
+    let q = if q.is_empty() { vec![[0.0f32; 4]; 3] } else { q };
+    let count = queries.len() as u32;
+    let mut graph = Graph::new();
+    let qb = graph.create_buffer_init("isg_queries", bytes_of(&q));
+    let out = graph.create_buffer("isg_parity_out", count.max(1) as u64 * 4);
+    let tb = graph.create_buffer_init("isg_table", bytes_of(&table));
+    let nb = graph.create_buffer_init("isg_bvh", bytes_of(&nodes));
+    let trb = graph.create_buffer_init("isg_thin_triangles", bytes_of(&tri_data));
+    let tnb = graph.create_buffer_init("isg_thin_bvh", bytes_of(&tri_nodes));
+    let mut p = graph.pass("isg_parity", PassKind::Compute);
+    let qb = p.read(qb, Access::ComputeShaderReadStorage);
+    let out_w = p.write(out, Access::ComputeShaderWriteStorage);
+    let tb = p.read(tb, Access::ComputeShaderReadStorage);
+    let nb = p.read(nb, Access::ComputeShaderReadStorage);
+    let trb = p.read(trb, Access::ComputeShaderReadStorage);
+    let tnb = p.read(tnb, Access::ComputeShaderReadStorage);
+    let mut push = Vec::with_capacity(20);
+    push.extend_from_slice(&count.to_le_bytes());
+    push.extend_from_slice(&node_count.to_le_bytes());
+    push.extend_from_slice(&tri_node_count.to_le_bytes());
+    push.extend_from_slice(&(patch_side.clamp(1, 32) as i32).to_le_bytes());
+    push.extend_from_slice(&lod.to_le_bytes());
+    let (pl, layout) = (pipeline.pipeline, pipeline.layout);
+    p.record(move |rc| {
+        crate::util::bind_compute(
+            rc,
+            pl,
+            layout,
+            &[
+                Bind::StorageBuffer(qb),
+                Bind::StorageBuffer(out_w),
+                Bind::StorageBuffer(tb),
+                Bind::StorageBuffer(nb),
+                Bind::StorageBuffer(trb),
+                Bind::StorageBuffer(tnb),
+            ],
+        )?;
+        unsafe {
+            let d = rc.device();
+            d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
+            if count > 0 {
+                d.cmd_dispatch(rc.cmd, groups(count, 64), 1, 1);
+            }
+        }
+        Ok(())
+    });
+    let rb = graph.create_readback("isg_parity", count.max(1) as u64 * 4);
+    let mut p = graph.pass("isg_parity_readback", PassKind::Transfer);
+    let src = p.read(out_w, Access::TransferSrc);
+    let dst = p.write(rb, Access::TransferDst);
+    p.record(move |rc| {
+        let (s, d) = (rc.buffer(src)?, rc.buffer(dst)?);
+        let region = vk::BufferCopy { src_offset: 0, dst_offset: 0, size: s.size.min(d.size) };
+        unsafe { rc.device().cmd_copy_buffer(rc.cmd, s.buffer, d.buffer, &[region]) };
+        Ok(())
+    });
+    let (_, mut done) = engine.submit(graph)?;
+    done.extend(engine.drain()?);
+    drop(pipeline);
+    let bytes = done
+        .into_iter()
+        .find_map(|o| o.readbacks.get("isg_parity").cloned())
+        .ok_or_else(|| anyhow::anyhow!("isg_parity: no readback"))?;
+    Ok(bytes.chunks_exact(4).take(queries.len()).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
 }

@@ -1,0 +1,247 @@
+// ISG shading (Iwasaki et al. 2012) per pixel: environment as K SG lobes; diffuse: per lobe, the
+// unshadowed SG-cosine integral times the ISG visible fraction of the lobe times the cosine SG;
+// specular: one SG lobe of the BRDF (Blinn-Phong / Cook-Torrance warp; Ashikhmin-Shirley as a
+// Cook-Torrance lobe of its mean roughness) times the cosine SG, Gamma_L = int L G_j from the
+// prefiltered environment maps (or from the lighting lobes), times the ISG visible fraction of
+// G_j (eq. 9). Local lights unshadowed. Included by isg_shade.comp (per pixel) and
+// isg_shade_vertex.comp (ISG_PER_VERTEX: the visibilities come interpolated from the mesh
+// vertices, isg_vertex.comp + isg_vertex.vert/.frag; pixels no vertex triangle covered fall
+// back to the per-pixel evaluation).
+#ifndef PENUMBRA_ISG_SHADE_GLSL
+#define PENUMBRA_ISG_SHADE_GLSL
+#include "common.glsl"
+#include "sg.glsl"
+
+layout(local_size_x = 8, local_size_y = 8) in;
+
+layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
+layout(set = 0, binding = 1) readonly buffer Materials { MaterialData mats[]; };
+layout(set = 0, binding = 2) uniform sampler2D gb_position;
+layout(set = 0, binding = 3) uniform sampler2D gb_normal;
+layout(set = 0, binding = 4) uniform sampler2D gb_uv_mat;
+layout(set = 0, binding = 5) uniform sampler2D env_map;
+layout(set = 0, binding = 6, rgba32f) uniform writeonly image2D hdr;
+layout(set = 0, binding = 7) readonly buffer Lights { LightData lights[]; };
+layout(set = 0, binding = 8) uniform sampler2DArray material_textures;
+layout(set = 0, binding = 10) readonly buffer Lobes { vec4 lobes[]; };  // 2 per lobe: axis+lambda, rgb mu
+#define ISG_TABLE_BINDING 9
+#define ISG_NODES_BINDING 11
+#define ISG_MAX_SIDE 32
+#define ISG_TRIS_BINDING 13
+#define ISG_TRI_NODES_BINDING 14
+#include "isg.glsl"
+#ifdef ISG_PER_VERTEX
+// Interpolated per-vertex visibilities: rgb diffuse (shadowed / unshadowed irradiance), a
+// specular (ISG visible fraction of G_j); r < 0: no vertex triangle covers the pixel.
+layout(set = 0, binding = 15) uniform sampler2D vertex_vis;
+#endif
+// Prefiltered environment (penumbra_math::envmap::prefilter, Gamma_L / int G): [0] level count,
+// per level i at 1 + 4 i: lambda, width, height, offset of its RGB texels in this array.
+layout(set = 0, binding = 12) readonly buffer Prefiltered { float pf[]; };
+layout(push_constant) uniform Push {
+    uint light_count;
+    uint lobe_count;
+    int node_count;
+    int patch_side;
+    float lod;
+    uint flags;  // bit 0: no shadows (debug)
+    float min_fraction;
+    uint specular_mode;  // 0: Gamma_L from the prefiltered maps (paper), 1: from the lighting SGs
+    int tri_node_count;  // thin-shell triangle BVH nodes
+} pc;
+
+vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
+    vec3 sum = vec3(0.0);
+    for (uint i = 0u; i < pc.light_count; ++i) {
+        LightData l = lights[i];
+        vec3 to_l = l.pos_kind.xyz - pos;
+        float d2 = max(dot(to_l, to_l), 1e-8);
+        vec3 wi = to_l * inversesqrt(d2);
+        float ndl = dot(n, wi);
+        if (ndl <= 0.0) continue;
+        vec3 intensity = l.power_cos_inner.rgb;
+        int lk = int(l.pos_kind.w + 0.5);
+        if (lk == 1) {
+            float c = dot(-wi, normalize(l.dir_cos_outer.xyz));
+            intensity *= smoothstep(l.dir_cos_outer.w, l.power_cos_inner.w, c);
+        } else if (lk == 2) {
+            intensity *= PI * l.extra.x * l.extra.x;
+        }
+        vec3 f = albedo / PI;
+        if (kind != 0) {
+            vec3 h = normalize(wi + v);
+            float ndh = max(dot(n, h), 0.0);
+            float ndv = max(dot(n, v), 1e-4);
+            vec3 F = m.spec_rough.rgb + (1.0 - m.spec_rough.rgb) * pow(1.0 - max(dot(wi, h), 0.0), 5.0);
+            if (kind == 1) {
+                float s = m.extra.x;
+                f += F * (s + 2.0) / (8.0 * PI) * pow(ndh, s);
+            } else {
+                float a = roughness * roughness;
+                float a2 = a * a;
+                float dd = ndh * ndh * (a2 - 1.0) + 1.0;
+                float D = a2 / (PI * dd * dd);
+                float k = a * 0.5;
+                float G = ndl / (ndl * (1.0 - k) + k) * ndv / (ndv * (1.0 - k) + k);
+                f += F * D * G / (4.0 * ndl * ndv);
+            }
+        }
+        sum += f * intensity * ndl / d2;
+    }
+    return sum;
+}
+
+vec3 env_lookup(vec3 d) {
+    vec2 uv = dir_to_latlong(normalize(d), cam.env_rot.xy);
+    return textureLod(env_map, uv, 0.0).rgb * cam.params.w;
+}
+
+vec3 pf_texel(int off, int w, int x, int y) {
+    int i = off + 3 * (y * w + x);
+    return vec3(pf[i], pf[i + 1], pf[i + 2]);
+}
+
+vec3 pf_level(int l, vec2 uv) {
+    int w = int(pf[2 + 4 * l] + 0.5), h = int(pf[3 + 4 * l] + 0.5), off = int(pf[4 + 4 * l] + 0.5);
+    float fx = uv.x * float(w) - 0.5;
+    float fy = clamp(uv.y * float(h) - 0.5, 0.0, float(h - 1));
+    int x0 = int(floor(fx));
+    int y0 = int(floor(fy));
+    float ax = fx - float(x0), ay = fy - float(y0);
+    int y1 = min(y0 + 1, h - 1);
+    x0 -= w * int(floor(float(x0) / float(w)));  // wrap (GLSL % is undefined for negatives)
+    x0 = clamp(x0, 0, w - 1);
+    int x1 = x0 + 1 == w ? 0 : x0 + 1;
+    vec3 a = mix(pf_texel(off, w, x0, y0), pf_texel(off, w, x1, y0), ax);
+    vec3 b = mix(pf_texel(off, w, x0, y1), pf_texel(off, w, x1, y1), ax);
+    return mix(a, b, ay);
+}
+
+// Normalised Gamma_L(dir, lambda): the environment convolved with a unit-integral SG, linear
+// in log(lambda) between the prefiltered levels (clamped at the ends).
+vec3 pf_eval(vec3 dir, float lambda) {
+    int levels = int(pf[0] + 0.5);
+    if (levels <= 0) return vec3(0.0);
+    vec2 uv = dir_to_latlong(dir, cam.env_rot.xy);
+    float ll = log(max(lambda, 1e-6));
+    int l = 0;
+    while (l + 1 < levels && log(pf[1 + 4 * (l + 1)]) <= ll) ++l;
+    if (l + 1 >= levels) return pf_level(levels - 1, uv) * cam.params.w;
+    float l0 = log(pf[1 + 4 * l]), l1 = log(pf[1 + 4 * (l + 1)]);
+    float t = clamp((ll - l0) / max(l1 - l0, 1e-6), 0.0, 1.0);
+    return mix(pf_level(l, uv), pf_level(l + 1, uv), t) * cam.params.w;
+}
+
+float visible(vec3 p, vec3 n, SG g) {
+    if ((pc.flags & 1u) != 0u) return 1.0;
+    return isg_visible(p, n, g.axis, g.lambda, pc.node_count, pc.tri_node_count, pc.patch_side, pc.lod);
+}
+
+void main() {
+    ivec2 px = ivec2(gl_GlobalInvocationID.xy);
+    ivec2 size = imageSize(hdr);
+    if (px.x >= size.x || px.y >= size.y) return;
+    vec4 uvm = texelFetch(gb_uv_mat, px, 0);
+    if (uvm.w < 0.5) {
+        vec2 ndc = (vec2(px) + 0.5) / vec2(size) * 2.0 - 1.0;
+        vec4 far_p = cam.inv_view_proj * vec4(ndc, 1.0, 1.0);
+        imageStore(hdr, px, vec4(env_lookup(far_p.xyz / far_p.w - cam.eye.xyz), 1.0));
+        return;
+    }
+    vec3 pos = texelFetch(gb_position, px, 0).xyz;
+    vec3 n = oct_decode(texelFetch(gb_normal, px, 0).xy);
+    MaterialData m = mats[uint(uvm.z)];
+    vec3 v = normalize(cam.eye.xyz - pos);
+    float ndv = max(dot(n, v), 1e-4);
+    vec3 albedo = m.albedo_kind.rgb;
+    int kind = int(m.albedo_kind.w + 0.5);
+    if (m.extra.y >= 0.0) albedo *= textureLod(material_textures, vec3(uvm.xy, m.extra.y), 0.0).rgb;
+    if (m.extra.z >= 0.0) {
+        float r = clamp(m.spec_rough.w * textureLod(material_textures, vec3(uvm.xy, m.extra.z), 0.0).g, 0.0, 1.0);
+        m.spec_rough.w = r;
+        m.extra.x = 2.0 / max(r * r, 1e-4) - 2.0;
+    }
+    SG cosg = sg_clamped_cosine(n);
+    // Offset the shading point along the normal (G-buffer precision).
+    vec3 p = pos + n * 1e-3 * max(1.0, length(pos));
+    vec4 vvis = vec4(-1.0);
+#ifdef ISG_PER_VERTEX
+    vvis = texelFetch(vertex_vis, px, 0);
+#endif
+    bool per_vertex = vvis.r >= 0.0;
+    vec3 diffuse = vec3(0.0);
+    uint nl = min(pc.lobe_count, 64u);
+    if (per_vertex) {
+        for (uint k = 0u; k < nl; ++k) {
+            SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+            diffuse += lobes[2u * k + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
+        }
+        diffuse *= (pc.flags & 1u) != 0u ? vec3(1.0) : clamp(vvis.rgb, 0.0, 1.0);
+    } else {
+        // Diffuse: lobes carrying less than min_fraction of the unshadowed total take the
+        // energy-weighted mean visibility of the others instead of their own traversal.
+        vec3 unshadowed = vec3(0.0);
+        for (uint k = 0u; k < nl; ++k) {
+            SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+            unshadowed += lobes[2u * k + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
+        }
+        float total = dot(unshadowed, vec3(0.2126, 0.7152, 0.0722));
+        vec3 skipped = vec3(0.0);
+        float vis_sum = 0.0, vis_w = 0.0;
+        for (uint k = 0u; k < nl; ++k) {
+            SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+            vec3 mu = lobes[2u * k + 1u].rgb;
+            vec3 e = mu * max(sg_cosine_integral(l, n), 0.0);
+            float y = dot(e, vec3(0.2126, 0.7152, 0.0722));
+            if (y <= 0.0) continue;
+            if (y < pc.min_fraction * total) {
+                skipped += e;
+                continue;
+            }
+            float vk = visible(p, n, sg_product(l, cosg));
+            diffuse += e * vk;
+            vis_sum += vk * y;
+            vis_w += y;
+        }
+        diffuse += skipped * (vis_w > 0.0 ? vis_sum / vis_w : 1.0);
+    }
+    vec3 color = albedo / PI * diffuse;
+    float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
+    color += local_lights(pos, n, v, albedo, kind, m, roughness);
+    if (kind != 0) {
+        vec3 r = reflect(-v, n);
+        SG gs;
+        vec3 amp;
+        if (kind == 1) {
+            float s = max(m.extra.x, 0.0);
+            gs = sg_make(r, s / (4.0 * ndv), (s + 2.0) / (8.0 * PI));
+            amp = m.spec_rough.rgb;
+        } else {
+            // Beckmann warp (Wang et al. 2009), m = roughness^2 as the reference's SG mode.
+            float mb = max(roughness * roughness, 1e-3);
+            float m2 = mb * mb;
+            float rz = max(dot(r, n), 1e-4);
+            float geo = min(1.0, 2.0 * rz / ndv);
+            vec3 F = m.spec_rough.rgb + (1.0 - m.spec_rough.rgb) * pow(1.0 - ndv, 5.0);
+            gs = sg_make(r, 2.0 / m2 / (4.0 * ndv), geo / (4.0 * rz * ndv) / (PI * m2));
+            amp = F;
+        }
+        SG gj = sg_product(gs, cosg);
+        vec3 gamma_l = vec3(0.0);
+        if (pc.specular_mode == 0u) {
+            // Eq. 10: int L G_j = mu_j Gamma_L(a_j, lambda_j), Gamma_L from the prefiltered maps.
+            gamma_l = pf_eval(gj.axis, gj.lambda) * sg_sphere_integral(gj);
+        } else {
+            for (uint k = 0u; k < pc.lobe_count; ++k) {
+                SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+                gamma_l += lobes[2u * k + 1u].rgb * sg_inner_product(l, gj);
+            }
+        }
+        if (max(gamma_l.r, max(gamma_l.g, gamma_l.b)) > 0.0) {
+            float vs = per_vertex ? ((pc.flags & 1u) != 0u ? 1.0 : clamp(vvis.a, 0.0, 1.0)) : visible(p, n, gj);
+            color += amp * gamma_l * vs;
+        }
+    }
+    imageStore(hdr, px, vec4(max(color, vec3(0.0)), 1.0));
+}
+#endif

@@ -1,0 +1,100 @@
+#version 450
+// ISG per-vertex shadowing (Iwasaki et al. 2012, section 5): the visibility integrals evaluated
+// at the (deformed, world-space) mesh vertices; the raster (isg_vertex.vert/.frag) interpolates
+// them and isg_shade_vertex.comp shades per pixel with them. Per vertex:
+//   rgb: diffuse visibility, sum_k e_k V_k / sum_k e_k per channel (e_k: unshadowed SG-cosine
+//        integral of lighting lobe k, V_k: ISG visible fraction of lobe k times the cosine SG);
+//   a:   specular visibility, the ISG visible fraction of G_j (eq. 9) for the vertex's material
+//        (base roughness; roughness maps are not applied per vertex) and view direction.
+#include "common.glsl"
+#include "sg.glsl"
+
+layout(local_size_x = 64) in;
+
+layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
+layout(set = 0, binding = 1) readonly buffer Materials { MaterialData mats[]; };
+// 2 per vertex: world position + material index, world normal + flags (bit 0: two-sided,
+// the normal is turned toward the eye).
+layout(set = 0, binding = 2) readonly buffer Verts { vec4 verts[]; };
+layout(set = 0, binding = 3) writeonly buffer Out { vec4 vis_out[]; };
+layout(set = 0, binding = 4) readonly buffer Lobes { vec4 lobes[]; };
+#define ISG_TABLE_BINDING 5
+#define ISG_NODES_BINDING 6
+#define ISG_TRIS_BINDING 7
+#define ISG_TRI_NODES_BINDING 8
+#define ISG_MAX_SIDE 32
+#include "isg.glsl"
+
+layout(push_constant) uniform Push {
+    uint vertex_count;
+    uint lobe_count;
+    int node_count;
+    int tri_node_count;
+    int patch_side;
+    float lod;
+    float min_fraction;
+} pc;
+
+float visible(vec3 p, vec3 n, SG g) {
+    return isg_visible(p, n, g.axis, g.lambda, pc.node_count, pc.tri_node_count, pc.patch_side, pc.lod);
+}
+
+void main() {
+    uint vi = gl_GlobalInvocationID.x;
+    if (vi >= pc.vertex_count) return;
+    vec4 a = verts[2u * vi], b = verts[2u * vi + 1u];
+    vec3 pos = a.xyz;
+    vec3 n = b.xyz;
+    float ln = length(n);
+    n = ln > 0.0 ? n / ln : vec3(0.0, 1.0, 0.0);
+    vec3 v = cam.eye.xyz - pos;
+    v = length(v) > 0.0 ? normalize(v) : n;
+    if ((uint(b.w + 0.5) & 1u) != 0u && dot(n, v) < 0.0) n = -n;
+    MaterialData m = mats[uint(max(a.w, 0.0) + 0.5)];
+    int kind = int(m.albedo_kind.w + 0.5);
+    float ndv = max(dot(n, v), 1e-4);
+    SG cosg = sg_clamped_cosine(n);
+    vec3 p = pos + n * 1e-3 * max(1.0, length(pos));
+    uint nl = min(pc.lobe_count, 64u);
+    vec3 unshadowed = vec3(0.0);
+    for (uint k = 0u; k < nl; ++k) {
+        SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+        unshadowed += lobes[2u * k + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
+    }
+    float total = dot(unshadowed, vec3(0.2126, 0.7152, 0.0722));
+    vec3 shadowed = vec3(0.0), skipped = vec3(0.0);
+    float vis_sum = 0.0, vis_w = 0.0;
+    for (uint k = 0u; k < nl; ++k) {
+        SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+        vec3 e = lobes[2u * k + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
+        float y = dot(e, vec3(0.2126, 0.7152, 0.0722));
+        if (y <= 0.0) continue;
+        if (y < pc.min_fraction * total) {
+            skipped += e;
+            continue;
+        }
+        float vk = visible(p, n, sg_product(l, cosg));
+        shadowed += e * vk;
+        vis_sum += vk * y;
+        vis_w += y;
+    }
+    shadowed += skipped * (vis_w > 0.0 ? vis_sum / vis_w : 1.0);
+    vec3 vd = vec3(1.0);
+    for (int c = 0; c < 3; ++c) {
+        if (unshadowed[c] > 0.0) vd[c] = clamp(shadowed[c] / unshadowed[c], 0.0, 1.0);
+    }
+    float vs = 1.0;
+    if (kind != 0) {
+        vec3 r = reflect(-v, n);
+        SG gs;
+        if (kind == 1) {
+            gs = sg_make(r, max(m.extra.x, 0.0) / (4.0 * ndv), 1.0);
+        } else {
+            float roughness = clamp(m.spec_rough.w, 0.02, 1.0);
+            float mb = max(roughness * roughness, 1e-3);
+            gs = sg_make(r, 2.0 / (mb * mb) / (4.0 * ndv), 1.0);
+        }
+        vs = visible(p, n, sg_product(gs, cosg));
+    }
+    vis_out[vi] = vec4(vd, vs);
+}

@@ -1,0 +1,273 @@
+//! Per-vertex ISG shadowing (the paper's per-vertex mode, section 5): the visibility integrals
+//! are evaluated at the mesh vertices in compute (`isg_vertex`, `glsl/isg_vertex.comp`), the
+//! raster interpolates them over the triangles (`isg_vertex_raster`, `glsl/isg_vertex.vert/.frag`,
+//! an RGBA32F image with its own depth buffer) and `isg_shade_vertex.comp` shades every pixel
+//! with them (pixels no receiver triangle covers fall back to the per-pixel evaluation).
+//!
+//! The receivers are every instance's mesh (deformed when the object deforms) in world space,
+//! built on the CPU per frame. A per-vertex method needs vertices where the shadows are: meshes
+//! whose longest edge exceeds `max_edge` (world units at the object's scale when first seen,
+//! e.g. a two-triangle floor) are split uniformly (every triangle into four, new vertices at the
+//! edge midpoints, shared edges split once, so no cracks) until it does; a split vertex is the
+//! midpoint of its two parents, so the subdivided surface is the original one and it follows the
+//! deformation.
+
+use crate::util::{layouts, Pipeline};
+use anyhow::{Context as _, Result};
+use glam::{Mat3, Mat4, Vec3};
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{vk, Context};
+use penumbra_scene::{Frame, MeshData, Scene};
+use std::collections::HashMap;
+use std::sync::Arc;
+
+/// Vertex as `isg_vertex.comp` reads it and `isg_vertex.vert` rasterizes it (32 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct IsgVertex {
+    /// World position, material index.
+    pub pos_mat: [f32; 4],
+    /// World normal, flags (bit 0: two-sided, the normal is turned toward the eye).
+    pub normal_flags: [f32; 4],
+}
+
+/// Subdivided topology of one mesh: vertices beyond the mesh's own are midpoints of two earlier
+/// ones (`splits`, in order), `indices` the subdivided triangles.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Refined {
+    pub base_vertices: usize,
+    pub splits: Vec<(u32, u32)>,
+    pub indices: Vec<u32>,
+    /// Subdivision levels applied (each splits every triangle into four).
+    pub levels: u32,
+}
+
+/// Most triangles a subdivided mesh may reach (levels stop before exceeding it).
+pub const MAX_REFINED_TRIANGLES: usize = 1 << 18;
+
+/// Uniform midpoint subdivision of `positions`/`indices` until the longest edge (after `scale`)
+/// is at most `max_edge` (no subdivision for `max_edge <= 0`, non-finite values or degenerate
+/// input), within [`MAX_REFINED_TRIANGLES`].
+pub fn refine(positions: &[Vec3], indices: &[u32], scale: f32, max_edge: f32) -> Refined {
+    let n = positions.len();
+    let valid: Vec<u32> = indices
+        .chunks_exact(3)
+        .filter(|t| t.iter().all(|&i| (i as usize) < n))
+        .flatten()
+        .copied()
+        .collect();
+    let mut out = Refined { base_vertices: n, splits: Vec::new(), indices: valid, levels: 0 };
+    if !(max_edge > 0.0 && max_edge.is_finite() && scale > 0.0 && scale.is_finite()) {
+        return out;
+    }
+    let longest = out
+        .indices
+        .chunks_exact(3)
+        .flat_map(|t| {
+            let [a, b, c] = [positions[t[0] as usize], positions[t[1] as usize], positions[t[2] as usize]];
+            [(a - b).length(), (b - c).length(), (c - a).length()]
+        })
+        .filter(|l| l.is_finite())
+        .fold(0.0f32, f32::max)
+        * scale;
+    if !(longest > max_edge) {
+        return out;
+    }
+    let mut levels = (longest / max_edge).log2().ceil().max(0.0) as u32;
+    while levels > 0 && (out.indices.len() / 3) << (2 * levels) > MAX_REFINED_TRIANGLES {
+        levels -= 1;
+    }
+    let mut count = n as u32;
+    for _ in 0..levels {
+        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut next = Vec::with_capacity(out.indices.len() * 4);
+        for t in out.indices.chunks_exact(3) {
+            let mut m = |a: u32, b: u32| {
+                let key = (a.min(b), a.max(b));
+                *mid.entry(key).or_insert_with(|| {
+                    out.splits.push(key);
+                    count += 1;
+                    count - 1
+                })
+            };
+            let (ab, bc, ca) = (m(t[0], t[1]), m(t[1], t[2]), m(t[2], t[0]));
+            next.extend_from_slice(&[t[0], ab, ca, ab, t[1], bc, ca, bc, t[2], ab, bc, ca]);
+        }
+        out.indices = next;
+        out.levels += 1;
+    }
+    out
+}
+
+impl Refined {
+    /// Positions and normals of the subdivided mesh from the base mesh's.
+    pub fn apply(&self, positions: &[Vec3], normals: &[Vec3]) -> (Vec<Vec3>, Vec<Vec3>) {
+        let mut p: Vec<Vec3> = positions.to_vec();
+        let mut n: Vec<Vec3> = (0..positions.len()).map(|i| normals.get(i).copied().unwrap_or(Vec3::Y)).collect();
+        for &(a, b) in &self.splits {
+            p.push(0.5 * (p[a as usize] + p[b as usize]));
+            n.push((n[a as usize] + n[b as usize]).try_normalize().unwrap_or(n[a as usize]));
+        }
+        (p, n)
+    }
+}
+
+/// The receivers of one frame: world-space vertices and triangles (indices into `vertices`).
+#[derive(Clone, Debug, Default)]
+pub struct Receivers {
+    pub vertices: Vec<IsgVertex>,
+    pub indices: Vec<u32>,
+}
+
+/// Builds the frame's receivers; `cache` keeps each object's subdivision (computed when the
+/// object is first seen, at its scale then).
+pub fn frame_receivers(scene: &Scene, frame: &Frame, max_edge: f32, cache: &mut HashMap<usize, Refined>) -> Receivers {
+    let mut out = Receivers::default();
+    for inst in &frame.instances {
+        let Some(rest) = scene.meshes.get(inst.mesh) else { continue };
+        let mesh: &MeshData = match &inst.deformed_mesh {
+            Some(d) if d.positions.len() == rest.positions.len() => d,
+            _ => rest,
+        };
+        if mesh.indices.is_empty() || mesh.positions.is_empty() {
+            continue;
+        }
+        let w: Mat4 = inst.world;
+        let scale = w.x_axis.truncate().length().max(w.y_axis.truncate().length()).max(w.z_axis.truncate().length());
+        let refined = cache
+            .entry(inst.object)
+            .or_insert_with(|| refine(&rest.positions, &rest.indices, scale, max_edge));
+        if refined.base_vertices != mesh.positions.len() {
+            *refined = refine(&rest.positions, &rest.indices, scale, max_edge);
+        }
+        let (p, n) = refined.apply(&mesh.positions, &mesh.normals);
+        let nm = Mat3::from_mat4(w.inverse().transpose());
+        let info = scene.object_info(inst.object);
+        let two_sided = info.thin_shell
+            || scene.material_extras.get(inst.material).is_some_and(|e| e.two_sided)
+            || !rest.is_closed();
+        let base = out.vertices.len() as u32;
+        for (pi, ni) in p.iter().zip(&n) {
+            let wp = w.transform_point3(*pi);
+            let wn = (nm * *ni).try_normalize().unwrap_or(Vec3::Y);
+            out.vertices.push(IsgVertex {
+                pos_mat: [wp.x, wp.y, wp.z, inst.material as f32],
+                normal_flags: [wn.x, wn.y, wn.z, if two_sided { 1.0 } else { 0.0 }],
+            });
+        }
+        out.indices.extend(refined.indices.iter().map(|i| base + i));
+    }
+    out
+}
+
+/// Format of the interpolated visibility image.
+pub const VIS_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
+/// Its depth buffer.
+pub const VIS_DEPTH_FORMAT: vk::Format = vk::Format::D32_SFLOAT;
+
+/// The raster pipeline of `isg_vertex_raster` (camera uniform + per-vertex visibility storage).
+pub fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
+    let d = &ctx.device;
+    let (set_layout, layout) = layouts(
+        ctx,
+        "isg_vertex_raster",
+        &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
+        vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT,
+        0,
+    )?;
+    let vs = ctx.create_shader_module("isg_vertex.vert", shaders.get("isg_vertex.vert")?)?;
+    let fs = ctx.create_shader_module("isg_vertex.frag", shaders.get("isg_vertex.frag")?)?;
+    let stages = [
+        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::VERTEX).module(vs).name(c"main"),
+        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::FRAGMENT).module(fs).name(c"main"),
+    ];
+    let bindings = [vk::VertexInputBindingDescription {
+        binding: 0,
+        stride: std::mem::size_of::<IsgVertex>() as u32,
+        input_rate: vk::VertexInputRate::VERTEX,
+    }];
+    let attrs =
+        [vk::VertexInputAttributeDescription { location: 0, binding: 0, format: vk::Format::R32G32B32_SFLOAT, offset: 0 }];
+    let vi =
+        vk::PipelineVertexInputStateCreateInfo::default().vertex_binding_descriptions(&bindings).vertex_attribute_descriptions(&attrs);
+    let ia = vk::PipelineInputAssemblyStateCreateInfo::default().topology(vk::PrimitiveTopology::TRIANGLE_LIST);
+    let vp = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
+    let rs = vk::PipelineRasterizationStateCreateInfo::default()
+        .polygon_mode(vk::PolygonMode::FILL)
+        .cull_mode(vk::CullModeFlags::NONE)
+        .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
+        .line_width(1.0);
+    let ms = vk::PipelineMultisampleStateCreateInfo::default().rasterization_samples(vk::SampleCountFlags::TYPE_1);
+    let ds = vk::PipelineDepthStencilStateCreateInfo::default()
+        .depth_test_enable(true)
+        .depth_write_enable(true)
+        .depth_compare_op(vk::CompareOp::LESS);
+    let blend = [vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA)];
+    let cb = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend);
+    let dyn_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
+    let dy = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dyn_states);
+    let formats = [VIS_FORMAT];
+    let mut rendering =
+        vk::PipelineRenderingCreateInfo::default().color_attachment_formats(&formats).depth_attachment_format(VIS_DEPTH_FORMAT);
+    let ci = [vk::GraphicsPipelineCreateInfo::default()
+        .stages(&stages)
+        .vertex_input_state(&vi)
+        .input_assembly_state(&ia)
+        .viewport_state(&vp)
+        .rasterization_state(&rs)
+        .multisample_state(&ms)
+        .depth_stencil_state(&ds)
+        .color_blend_state(&cb)
+        .dynamic_state(&dy)
+        .layout(layout)
+        .push_next(&mut rendering)];
+    let res = unsafe { d.create_graphics_pipelines(vk::PipelineCache::null(), &ci, None) };
+    unsafe {
+        d.destroy_shader_module(vs, None);
+        d.destroy_shader_module(fs, None);
+    }
+    let pipeline = res.map_err(|(_, e)| e).context("isg_vertex_raster pipeline")?[0];
+    ctx.set_name(pipeline, "isg_vertex_raster");
+    Ok(Pipeline::from_raw(ctx, pipeline, layout, set_layout))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn refine_splits_shared_edges_once_and_keeps_the_surface() {
+        let quad = [Vec3::new(0.0, 0.0, 0.0), Vec3::new(4.0, 0.0, 0.0), Vec3::new(4.0, 0.0, 4.0), Vec3::new(0.0, 0.0, 4.0)];
+        let idx = [0, 1, 2, 0, 2, 3];
+        let r = refine(&quad, &idx, 1.0, 1.0);
+        // Longest edge 4 sqrt 2 = 5.66 -> 3 levels (edges 0.71): 2 * 64 triangles, 9 x 9 grid.
+        assert_eq!(r.levels, 3);
+        assert_eq!(r.indices.len() / 3, 128);
+        assert_eq!(r.base_vertices + r.splits.len(), 81);
+        let (p, n) = r.apply(&quad, &[Vec3::Y; 4]);
+        assert!(p.iter().all(|v| v.y == 0.0 && v.x >= 0.0 && v.x <= 4.0 && v.z >= 0.0 && v.z <= 4.0));
+        assert!(n.iter().all(|v| *v == Vec3::Y));
+        let area: f32 = r
+            .indices
+            .chunks_exact(3)
+            .map(|t| 0.5 * (p[t[1] as usize] - p[t[0] as usize]).cross(p[t[2] as usize] - p[t[0] as usize]).length())
+            .sum();
+        assert!((area - 16.0).abs() < 1e-4, "area {area}");
+        // Every edge is shared by two triangles or on the boundary (no T-junctions).
+        let mut edges: HashMap<(u32, u32), u32> = HashMap::new();
+        for t in r.indices.chunks_exact(3) {
+            for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+                *edges.entry((a.min(b), a.max(b))).or_default() += 1;
+            }
+        }
+        assert_eq!(edges.values().filter(|&&c| c == 1).count(), 4 * 8);
+        // Nothing to do, bad thresholds, bad indices.
+        assert_eq!(refine(&quad, &idx, 1.0, 10.0).levels, 0);
+        assert_eq!(refine(&quad, &idx, 1.0, 0.0).levels, 0);
+        assert_eq!(refine(&quad, &idx, f32::NAN, 1.0).levels, 0);
+        assert_eq!(refine(&quad, &[0, 1, 9], 1.0, 1.0).indices.len(), 0);
+        // The triangle budget caps the levels.
+        let r = refine(&quad, &idx, 1.0, 1e-6);
+        assert!(r.indices.len() / 3 <= MAX_REFINED_TRIANGLES && r.levels > 0);
+    }
+}
