@@ -153,11 +153,6 @@ float ssdf_support_angle(float lambda) {
     return c <= -1.0 ? float(AVS_PI) : acos(c);
 }
 
-float ssdf_block_reach(float tc, float pc, float t0, float t1, float p0, float p1) {
-    return max(max(avs_angular_distance(vec2(tc, pc), vec2(t0, p0)), avs_angular_distance(vec2(tc, pc), vec2(t0, p1))),
-               max(avs_angular_distance(vec2(tc, pc), vec2(t1, p0)), avs_angular_distance(vec2(tc, pc), vec2(t1, p1))));
-}
-
 // Method (b): adaptive cells with iso-line boundaries (eq. 5).
 float ssdf_visible_cells(vec3 axis, float lambda, float mu, bool cosine, uint r) {
     SG g = sg_make(axis, lambda, mu);
@@ -197,14 +192,14 @@ float ssdf_visible_cells(vec3 axis, float lambda, float mu, bool cosine, uint r)
                 float t0 = float(i0) * h, t1 = float(i0 + b) * h;
                 float p0 = float(j0) * h, p1 = float(j0 + b) * h;
                 float tcb = 0.5 * (t0 + t1), pcb = 0.5 * (p0 + p1);
-                float corner = ssdf_block_reach(tcb, pcb, t0, t1, p0, p1);
+                // distance bounds: ds^2 = dtheta^2 + sin^2(theta) dphi^2 <= dtheta^2 + dphi^2
+                float corner = 0.7071067811865476 * float(b) * h;
                 if (avs_angular_distance(vec2(tcb, pcb), vec2(ta, pa)) - corner > ts) continue;
                 uint off = b > 1u ? b / 2u - 1u : 0u;
                 uint ci = i0 + off, cj = j0 + off;
                 float d = ssdf_raw(ci, cj, r);
                 if (b > 1u) {
-                    float tc = (float(ci) + 0.5) * h, pc = (float(cj) + 0.5) * h;
-                    float reach = ssdf_block_reach(tc, pc, t0, t1, p0, p1) + 1.4142135623730951 * h;
+                    float reach = 1.4142135623730951 * (float(b / 2u) + 1.5) * h;
                     if (d >= reach) {
                         total += ssdf_rect(g, cosine, t0, t1, p0, p1, 1u);
                     } else if (d > -reach) {

@@ -221,6 +221,27 @@ pub fn field_error(a: &[f64], b: &[f64]) -> (f64, f64) {
     (mx, sum / a.len().max(1) as f64)
 }
 
+/// A random visibility map of resolution `r`: 1 to 8 spherical-cap occluders with angular radii
+/// 0.05..0.85 rad and centres anywhere above (or slightly below) the horizon (the bench's maps).
+pub fn random_cap_map(r: u32, seed: u64) -> VisMap {
+    use glam::DVec3;
+    let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xD1B5_4A32_D192_ED03;
+    let mut next = move || {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let n = 1 + (next() * 8.0) as usize;
+    let caps: Vec<(DVec3, f64)> = (0..n)
+        .map(|_| {
+            let z = -0.2 + 1.2 * next();
+            let a = std::f64::consts::TAU * next();
+            let rr = (1.0 - z * z).max(0.0).sqrt();
+            (DVec3::new(rr * a.cos(), rr * a.sin(), z), (0.05 + 0.8 * next()).cos())
+        })
+        .collect();
+    VisMap::from_dir_fn(r, |w| caps.iter().all(|(c, ca)| w.dot(*c) < *ca))
+}
+
 /// Test maps: named random and adversarial visibility maps of resolution `r` (shared by the CPU
 /// tests, the GPU test and the bench). Deterministic for a given `seed`.
 pub fn test_maps(r: u32, seed: u64) -> Vec<(String, VisMap)> {

@@ -1199,3 +1199,356 @@ pub fn shade_points_with(
         })
         .collect()
 }
+
+// ---------------------------------------------------------------------------------------------
+// All-frequency variant: Haar wavelets on a cube map (CPU)
+
+/// All-frequency occlusion fields (Zhou et al. / Ng et al. 2004 style, CPU only): per sample
+/// point a binary visibility cube map (`6 x n x n`), each face transformed by the orthonormal
+/// 2D (non-standard) Haar transform, the largest `keep` fraction of coefficients kept (the
+/// paper: 5%) and quantized to 8 bits per shell (index `u16` + value `u8` per kept
+/// coefficient). Products of fields are taken in the pixel domain, which for Haar at the map
+/// resolution equals the wavelet triple product exactly (the product of two piecewise-constant
+/// maps is piecewise constant on the same pixels); see [`haar::HaarField::product_map`].
+pub mod haar {
+    use super::{angles_of, polar_dir, sample_angles, RayCaster};
+    use glam::{DVec3, Vec3};
+    use rayon::prelude::*;
+
+    /// Cube-map directions and solid angles (`6 n^2` pixels, faces +x -x +y -y +z -z).
+    pub struct CubeTable {
+        /// Face resolution (power of two).
+        pub n: usize,
+        /// Unit direction of each pixel centre.
+        pub dirs: Vec<DVec3>,
+        /// Solid angle of each pixel (sums to 4 pi).
+        pub w: Vec<f64>,
+    }
+
+    impl CubeTable {
+        /// A table of face resolution `n` (rounded up to a power of two, at least 2).
+        pub fn new(n: usize) -> Self {
+            let n = n.max(2).next_power_of_two();
+            let mut dirs = Vec::with_capacity(6 * n * n);
+            let mut w = Vec::with_capacity(6 * n * n);
+            for f in 0..6 {
+                for i in 0..n {
+                    for j in 0..n {
+                        let u = 2.0 * (j as f64 + 0.5) / n as f64 - 1.0;
+                        let v = 2.0 * (i as f64 + 0.5) / n as f64 - 1.0;
+                        let d = match f {
+                            0 => DVec3::new(1.0, v, -u),
+                            1 => DVec3::new(-1.0, v, u),
+                            2 => DVec3::new(u, 1.0, -v),
+                            3 => DVec3::new(u, -1.0, v),
+                            4 => DVec3::new(u, v, 1.0),
+                            _ => DVec3::new(-u, v, -1.0),
+                        };
+                        let l = d.length();
+                        // solid angle of the pixel ~ area / r^3 (midpoint rule)
+                        w.push((2.0 / n as f64).powi(2) / (l * l * l));
+                        dirs.push(d / l);
+                    }
+                }
+            }
+            let s: f64 = w.iter().sum();
+            let k = 4.0 * std::f64::consts::PI / s;
+            for x in &mut w {
+                *x *= k;
+            }
+            CubeTable { n, dirs, w }
+        }
+    }
+
+    /// Orthonormal non-standard 2D Haar transform of every `n x n` face of `m`, in place.
+    pub fn forward(m: &mut [f32], n: usize) {
+        let mut tmp = vec![0f32; n * n];
+        for face in m.chunks_exact_mut(n * n) {
+            let mut size = n;
+            while size > 1 {
+                let h = size / 2;
+                for i in 0..h {
+                    for j in 0..h {
+                        let a = face[(2 * i) * n + 2 * j];
+                        let b = face[(2 * i) * n + 2 * j + 1];
+                        let c = face[(2 * i + 1) * n + 2 * j];
+                        let d = face[(2 * i + 1) * n + 2 * j + 1];
+                        tmp[i * n + j] = (a + b + c + d) * 0.5;
+                        tmp[i * n + j + h] = (a - b + c - d) * 0.5;
+                        tmp[(i + h) * n + j] = (a + b - c - d) * 0.5;
+                        tmp[(i + h) * n + j + h] = (a - b - c + d) * 0.5;
+                    }
+                }
+                for i in 0..size {
+                    face[i * n..i * n + size].copy_from_slice(&tmp[i * n..i * n + size]);
+                }
+                size = h;
+            }
+        }
+    }
+
+    /// Inverse of [`forward`].
+    pub fn inverse(m: &mut [f32], n: usize) {
+        let mut tmp = vec![0f32; n * n];
+        for face in m.chunks_exact_mut(n * n) {
+            let mut size = 2;
+            while size <= n {
+                let h = size / 2;
+                for i in 0..h {
+                    for j in 0..h {
+                        let s = face[i * n + j];
+                        let hh = face[i * n + j + h];
+                        let v = face[(i + h) * n + j];
+                        let d = face[(i + h) * n + j + h];
+                        tmp[(2 * i) * n + 2 * j] = (s + hh + v + d) * 0.5;
+                        tmp[(2 * i) * n + 2 * j + 1] = (s - hh + v - d) * 0.5;
+                        tmp[(2 * i + 1) * n + 2 * j] = (s + hh - v - d) * 0.5;
+                        tmp[(2 * i + 1) * n + 2 * j + 1] = (s - hh - v + d) * 0.5;
+                    }
+                }
+                for i in 0..size {
+                    face[i * n..i * n + size].copy_from_slice(&tmp[i * n..i * n + size]);
+                }
+                size *= 2;
+            }
+        }
+    }
+
+    /// Keeps the `keep` fraction (at least the 6 face averages) of largest-magnitude
+    /// coefficients: `(index, value)` sorted by index.
+    pub fn truncate(c: &[f32], n: usize, keep: f64) -> Vec<(u16, f32)> {
+        let count = ((c.len() as f64 * keep).ceil() as usize).clamp(6, c.len());
+        let mut idx: Vec<usize> = (0..c.len()).collect();
+        // face averages first (always kept), then by magnitude
+        let is_avg = |i: usize| i % (n * n) == 0;
+        idx.sort_by(|&a, &b| is_avg(b).cmp(&is_avg(a)).then(c[b].abs().total_cmp(&c[a].abs())));
+        let mut out: Vec<(u16, f32)> = idx[..count].iter().map(|&i| (i as u16, c[i])).filter(|(_, v)| *v != 0.0).collect();
+        out.sort_by_key(|x| x.0);
+        out
+    }
+
+    /// Dense map of sparse coefficients (inverse transform).
+    pub fn reconstruct(sparse: &[(u16, f32)], n: usize) -> Vec<f32> {
+        let mut m = vec![0f32; 6 * n * n];
+        for &(i, v) in sparse {
+            if let Some(x) = m.get_mut(i as usize) {
+                *x = v;
+            }
+        }
+        inverse(&mut m, n);
+        m
+    }
+
+    /// `1/(4 pi) int |a - b|` of two maps (eq. 1 in the pixel domain).
+    pub fn l1(a: &[f32], b: &[f32], t: &CubeTable) -> f64 {
+        a.iter().zip(b).zip(&t.w).map(|((x, y), w)| w * (*x as f64 - *y as f64).abs()).sum::<f64>() / (4.0 * std::f64::consts::PI)
+    }
+
+    /// One quantized all-frequency shell: per sample the kept coefficients (u16 index, u8
+    /// value with the shell's min/step).
+    #[derive(Clone, Debug)]
+    pub struct HaarShell {
+        /// Polar resolution `R_c`.
+        pub resolution: usize,
+        /// Value quantization of the shell.
+        pub min: f32,
+        /// Quantization step.
+        pub step: f32,
+        /// Per sample `(index, quantized value)`.
+        pub samples: Vec<Vec<(u16, u8)>>,
+    }
+
+    /// An all-frequency object occlusion field.
+    #[derive(Clone, Debug)]
+    pub struct HaarField {
+        /// Cube face resolution of the maps.
+        pub n: usize,
+        /// Shell centre and bounding radius (as [`super::ObjectField`]).
+        pub center: Vec3,
+        /// Bounding-sphere radius `Vr`.
+        pub bound_radius: f32,
+        /// Shells, innermost first.
+        pub shells: Vec<HaarShell>,
+    }
+
+    fn quantize(r: usize, samples: &[Vec<(u16, f32)>]) -> HaarShell {
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for s in samples {
+            for &(_, v) in s {
+                lo = lo.min(v);
+                hi = hi.max(v);
+            }
+        }
+        if !lo.is_finite() {
+            lo = 0.0;
+            hi = 0.0;
+        }
+        let step = (hi - lo) / 255.0;
+        let samples = samples
+            .iter()
+            .map(|s| s.iter().map(|&(i, v)| (i, if step > 0.0 { ((v - lo) / step).round().clamp(0.0, 255.0) as u8 } else { 0 })).collect())
+            .collect();
+        HaarShell { resolution: r, min: lo, step, samples }
+    }
+
+    /// Raw (dense) visibility maps of every shell sample at resolution `r` (power of two).
+    pub fn raw_maps(positions: &[Vec3], indices: &[u32], shells: usize, r: usize, table: &CubeTable) -> (Vec3, f32, Vec<Vec<Vec<f32>>>) {
+        let (center, vr) = super::bounds(positions);
+        let caster = RayCaster::new(positions, indices);
+        let c = center.as_dvec3();
+        let eps = 1e-4 * vr as f64;
+        let far = 1e3 * vr as f64;
+        let maps = (0..shells)
+            .map(|sh| {
+                let radius = 0.2 * vr as f64 * (1.0 + sh as f64);
+                (0..r * r)
+                    .into_par_iter()
+                    .map(|i| {
+                        let (th, ph) = sample_angles(r, i / r, i % r);
+                        let p = c + radius * polar_dir(th, ph);
+                        table.dirs.iter().map(|d| if caster.occluded(p + *d * eps, *d, far) { 0.0 } else { 1.0 }).collect()
+                    })
+                    .collect()
+            })
+            .collect();
+        (center, vr, maps)
+    }
+
+    fn bilinear_map(maps: &[Vec<f32>], r: usize, theta: f64, phi: f64) -> Vec<f32> {
+        let (s0, s1, fs, t0, t1, ft) = super::grid_weights(r, theta, phi);
+        let mut out = vec![0f32; maps[0].len()];
+        for (idx, w) in [(s0 * r + t0, (1.0 - fs) * (1.0 - ft)), (s0 * r + t1, (1.0 - fs) * ft), (s1 * r + t0, fs * (1.0 - ft)), (s1 * r + t1, fs * ft)] {
+            if w > 0.0 {
+                for (o, x) in out.iter_mut().zip(&maps[idx]) {
+                    *o += (w as f32) * x;
+                }
+            }
+        }
+        out
+    }
+
+    impl HaarField {
+        /// Builds the fixed (`adaptive = false`) or adaptive field from raw maps: per shell the
+        /// maps are transformed and truncated to `keep`; adaptively, `R` is halved while every
+        /// initial sample's truncated map, re-interpolated from the coarser grid, stays within
+        /// `threshold` of eq. 1 (L1 in the pixel domain) of its own truncated map.
+        pub fn build(center: Vec3, vr: f32, maps: &[Vec<Vec<f32>>], r0: usize, table: &CubeTable, keep: f64, adaptive: bool, threshold: f64) -> Self {
+            let n = table.n;
+            let shells = maps
+                .par_iter()
+                .map(|g| {
+                    let trunc = |m: &Vec<f32>| {
+                        let mut c = m.clone();
+                        forward(&mut c, n);
+                        truncate(&c, n, keep)
+                    };
+                    let base: Vec<Vec<(u16, f32)>> = g.iter().map(trunc).collect();
+                    let dense: Vec<Vec<f32>> = base.iter().map(|s| reconstruct(s, n)).collect();
+                    let mut r = r0;
+                    let mut cur = base;
+                    while adaptive && r >= 2 {
+                        let r2 = r / 2;
+                        let coarse: Vec<Vec<f32>> = (0..r2 * r2)
+                            .map(|i| {
+                                let (th, ph) = sample_angles(r2, i / r2, i % r2);
+                                bilinear_map(&dense, r0, th, ph)
+                            })
+                            .collect();
+                        let coarse_t: Vec<Vec<(u16, f32)>> = coarse.iter().map(trunc).collect();
+                        let coarse_d: Vec<Vec<f32>> = coarse_t.iter().map(|s| reconstruct(s, n)).collect();
+                        let mut ok = true;
+                        'outer: for s in 0..r0 {
+                            for t in 0..r0 {
+                                let (th, ph) = sample_angles(r0, s, t);
+                                if l1(&bilinear_map(&coarse_d, r2, th, ph), &dense[s * r0 + t], table) >= threshold {
+                                    ok = false;
+                                    break 'outer;
+                                }
+                            }
+                        }
+                        if !ok {
+                            break;
+                        }
+                        r = r2;
+                        cur = coarse_t;
+                    }
+                    quantize(r, &cur)
+                })
+                .collect();
+            HaarField { n, center, bound_radius: vr, shells }
+        }
+
+        /// Bytes: per kept coefficient a `u16` index and a `u8` value, plus per sample a `u16`
+        /// count and per shell min/step.
+        pub fn bytes(&self) -> usize {
+            self.shells.iter().map(|s| 8 + s.samples.iter().map(|c| 2 + 3 * c.len()).sum::<usize>()).sum()
+        }
+
+        /// Per-shell resolutions.
+        pub fn resolutions(&self) -> Vec<usize> {
+            self.shells.iter().map(|s| s.resolution).collect()
+        }
+
+        fn sample_map(&self, c: usize, idx: usize) -> Vec<f32> {
+            let sh = &self.shells[c];
+            let sparse: Vec<(u16, f32)> = sh.samples[idx].iter().map(|&(i, q)| (i, sh.min + q as f32 * sh.step)).collect();
+            reconstruct(&sparse, self.n)
+        }
+
+        /// Visibility cube map (object frame) at object-space point `p` (bilinear in the shell,
+        /// linear between shells, as [`super::ObjectField::ocv`]); `None` outside.
+        pub fn map_at(&self, p: DVec3) -> Option<Vec<f32>> {
+            let nc = self.shells.len();
+            let q = p - self.center.as_dvec3();
+            let x = q.length() / (0.2 * self.bound_radius as f64) - 1.0;
+            if nc == 0 || !x.is_finite() || x > (nc - 1) as f64 {
+                return None;
+            }
+            let (theta, phi) = angles_of(q);
+            let x = x.max(0.0);
+            let c0 = (x.floor() as usize).min(nc - 1);
+            let c1 = (c0 + 1).min(nc - 1);
+            let w = (x - c0 as f64) as f32;
+            let shell = |c: usize| {
+                let r = self.shells[c].resolution;
+                let maps: Vec<Vec<f32>> = {
+                    let (s0, s1, _, t0, t1, _) = super::grid_weights(r, theta, phi);
+                    let mut m = vec![Vec::new(); r * r];
+                    for idx in [s0 * r + t0, s0 * r + t1, s1 * r + t0, s1 * r + t1] {
+                        if m[idx].is_empty() {
+                            m[idx] = self.sample_map(c, idx);
+                        }
+                    }
+                    for v in m.iter_mut() {
+                        if v.is_empty() {
+                            *v = vec![0.0; 6 * self.n * self.n];
+                        }
+                    }
+                    m
+                };
+                bilinear_map(&maps, r, theta, phi)
+            };
+            let a = shell(c0);
+            if c1 == c0 || w <= 0.0 {
+                return Some(a);
+            }
+            let b = shell(c1);
+            Some(a.iter().zip(&b).map(|(x, y)| (1.0 - w) * x + w * y).collect())
+        }
+
+        /// The product of the visibility maps of several (translated, unrotated) occluders at
+        /// world point `p` (`(field, centre offset)` pairs: the field's object origin in world
+        /// space): the wavelet triple product, evaluated in the pixel domain.
+        pub fn product_map(occluders: &[(&HaarField, DVec3)], p: DVec3, n: usize) -> Vec<f32> {
+            let mut v = vec![1f32; 6 * n * n];
+            for (f, origin) in occluders {
+                if let Some(m) = f.map_at(p - *origin) {
+                    for (a, b) in v.iter_mut().zip(&m) {
+                        *a *= b;
+                    }
+                }
+            }
+            v
+        }
+    }
+}

@@ -36,7 +36,8 @@
 //! of `B x B` texels is **fully visible** if the SSDF at its central texel exceeds the distance from
 //! that texel centre to the block's farthest corner plus a texel diagonal, **fully occluded** if it
 //! is below minus that, else split into 4 until single texels. Fully visible blocks are integrated
-//! with a 3x3 Gauss-Legendre rule in `(theta, phi)` (Jacobian `sin theta`). A boundary texel whose
+//! with a 3x3 Gauss-Legendre rule in `(theta, phi)` (Jacobian `sin theta`). (Distances inside a
+//! block are bounded with `ds^2 = dtheta^2 + sin^2(theta) dphi^2 <= dtheta^2 + dphi^2`.) A boundary texel whose
 //! 4-neighbours all have its sign is taken whole (or dropped); otherwise the corrected SSDF is
 //! linearised around the texel centre (central differences) and its zero iso-line is the line
 //! `theta = k phi + b` of eq. 5 (or `phi = k' theta + b'` when the line is steeper than 45 degrees
@@ -342,10 +343,9 @@ pub fn visible_cells(s: &SsdfView, lobe: &Sg, cosine: bool) -> f64 {
         let (t0, t1) = (i0 as f64 * h, (i0 + b) as f64 * h);
         let (p0, p1) = (j0 as f64 * h, (j0 + b) as f64 * h);
         let (tcb, pcb) = (0.5 * (t0 + t1), 0.5 * (p0 + p1));
-        let corner = [(t0, p0), (t0, p1), (t1, p0), (t1, p1)]
-            .iter()
-            .map(|&(t, p)| angular_distance(tcb, pcb, t, p))
-            .fold(0.0f64, f64::max);
+        // bound on the distance from the block centre to any of its points: the metric
+        // ds^2 = dtheta^2 + sin^2(theta) dphi^2 <= dtheta^2 + dphi^2
+        let corner = std::f64::consts::FRAC_1_SQRT_2 * b as f64 * h;
         if angular_distance(tcb, pcb, ta, pa) - corner > ts {
             continue;
         }
@@ -353,12 +353,9 @@ pub fn visible_cells(s: &SsdfView, lobe: &Sg, cosine: bool) -> f64 {
         let (ci, cj) = (i0 + b / 2 - if b > 1 { 1 } else { 0 }, j0 + b / 2 - if b > 1 { 1 } else { 0 });
         let d = s.raw(ci, cj);
         if b > 1 {
-            let (tc, pc) = ((ci as f64 + 0.5) * h, (cj as f64 + 0.5) * h);
-            let reach = [(t0, p0), (t0, p1), (t1, p0), (t1, p1)]
-                .iter()
-                .map(|&(t, p)| angular_distance(tc, pc, t, p))
-                .fold(0.0f64, f64::max)
-                + std::f64::consts::SQRT_2 * h;
+            // bound on the distance from the central texel's centre to any point of the block
+            // (same metric bound), plus a texel diagonal (the binary boundary is on texel edges)
+            let reach = std::f64::consts::SQRT_2 * ((b / 2) as f64 + 1.5) * h;
             if d >= reach {
                 total += rect(lobe, cosine, t0, t1, p0, p1, 1);
             } else if d > -reach {

@@ -134,6 +134,53 @@ impl Hsdt {
     }
 }
 
+/// Evaluator of the SSDF integrals of `glsl/include/ssdf_integrate.glsl` for (map, lobe) pairs
+/// (`glsl/hsdt_integrate_test.comp`; tests and `penumbra bench hsdt`).
+pub struct IntegrateEval {
+    pipe: Pipeline,
+}
+
+impl IntegrateEval {
+    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
+        let sb = vk::DescriptorType::STORAGE_BUFFER;
+        Ok(IntegrateEval { pipe: compute_pipeline(ctx, shaders, "hsdt_integrate_test.comp", &[sb; 5], 8)? })
+    }
+
+    /// Adds a pass `name` evaluating `n` (map, lobe) pairs: `lobes` = `n` x (axis.xyz, lambda) f32,
+    /// `params` = `n` x (mu, cosine 0/1, map index, methods 1 = (a) / 2 = (b) / 3 = both) f32,
+    /// `ssdf` the fp16 maps, `table` the `AxisTable` f32 data. Returns `n` x (a, b) f32.
+    #[allow(clippy::too_many_arguments)]
+    pub fn add(
+        &self,
+        graph: &mut Graph,
+        name: &str,
+        ssdf: BufferHandle,
+        table: BufferHandle,
+        lobes: BufferHandle,
+        params: BufferHandle,
+        n: u32,
+        r: u32,
+    ) -> BufferHandle {
+        let out = graph.create_buffer(&format!("{name}_out"), (n as u64 * 8).max(8));
+        let mut p = graph.pass(name, PassKind::Compute);
+        let ins = [ssdf, table, lobes, params].map(|b| p.read(b, Access::ComputeShaderReadStorage));
+        let o = p.write(out, Access::ComputeShaderWriteStorage);
+        let (pipe, layout) = (self.pipe.pipeline, self.pipe.layout);
+        p.record(move |rc| {
+            let mut binds: Vec<Bind> = ins.iter().map(|b| Bind::StorageBuffer(*b)).collect();
+            binds.push(Bind::StorageBuffer(o));
+            bind_compute(rc, pipe, layout, &binds)?;
+            unsafe {
+                let d = rc.device();
+                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&[r, n]));
+                d.cmd_dispatch(rc.cmd, groups(n, 16).max(1), 1, 1);
+            }
+            Ok(())
+        });
+        o
+    }
+}
+
 /// Decodes `n` fp16 SSDFs of resolution `r` from buffer bytes (`r * r` f32 per map).
 pub fn decode_ssdf(bytes: &[u8], n: usize, r: u32) -> Vec<Vec<f32>> {
     let words: Vec<u32> = bytes.chunks_exact(4).map(|c| u32::from_le_bytes(c.try_into().unwrap())).collect();

@@ -275,6 +275,10 @@ pub struct ShadowFieldsArgs {
     /// Skip the image comparison (reference render and technique variants).
     #[arg(long)]
     pub no_images: bool,
+    /// Also the all-frequency (Haar, largest 5% kept) fields' sizes fixed vs adaptive and
+    /// per-shell resolutions, with cube faces of this resolution (initial R = min(R, 16)).
+    #[arg(long)]
+    pub haar: Option<usize>,
 }
 
 /// The variants of the image comparison: (label, technique, [technique_params]).
@@ -306,6 +310,35 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
     };
     let report = penumbra_passes::shadow_fields::bench::bench(&ctx, &penumbra::shader_library(), scene, &opts)?;
     println!("{report}");
+    if let Some(n) = args.haar {
+        use penumbra_math::shadow_field::haar::{raw_maps, CubeTable, HaarField};
+        let table = CubeTable::new(n.clamp(2, 64));
+        let r0 = args.params.resolution.min(16);
+        println!("all frequency (Haar, 5% kept, 6x{0}x{0} cube maps, R = {r0}, {1} shells):", table.n, args.params.shells);
+        let (mut tf, mut ta) = (0usize, 0usize);
+        for m in &scene.meshes {
+            if m.indices.len() < 3 {
+                continue;
+            }
+            let t0 = std::time::Instant::now();
+            let (c, vr, maps) = raw_maps(&m.positions, &m.indices, args.params.shells, r0, &table);
+            let f = HaarField::build(c, vr, &maps, r0, &table, 0.05, false, args.params.threshold);
+            let a = HaarField::build(c, vr, &maps, r0, &table, 0.05, true, args.params.threshold);
+            let res: Vec<String> = a.resolutions().iter().map(|x| x.to_string()).collect();
+            println!(
+                "{:<20} fixed {:>8.1} KB  adaptive {:>8.1} KB ({:.0}% smaller, {:.1} s)  {}",
+                m.name,
+                f.bytes() as f64 / 1024.0,
+                a.bytes() as f64 / 1024.0,
+                100.0 * (1.0 - a.bytes() as f64 / f.bytes().max(1) as f64),
+                t0.elapsed().as_secs_f64(),
+                res.join(" ")
+            );
+            tf += f.bytes();
+            ta += a.bytes();
+        }
+        println!("total all-frequency: fixed {:.1} KB, adaptive {:.1} KB ({:.0}% smaller)", tf as f64 / 1024.0, ta as f64 / 1024.0, 100.0 * (1.0 - ta as f64 / tf.max(1) as f64));
+    }
     if args.no_images {
         return Ok(());
     }

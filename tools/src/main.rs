@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 mod bench;
+mod hsdt_bench;
 mod spheres;
 mod view;
 
@@ -68,6 +69,10 @@ enum BenchCmd {
     /// Then the image errors of the variants (adaptive/fixed, pixel/vertex mode, windows, with and
     /// without source radiance fields) against the CPU reference at --size (skip: --no-images).
     ShadowFields(bench::ShadowFieldsArgs),
+    /// Hemispherical distance transform (issue 8): t_S per point and per 1000 points on the GPU
+    /// against the CPU, GPU fp16 and the HSDT against the exact brute-force transform, and the two
+    /// SSDF lighting integrals against brute-force integration (errors per sharpness, us per lobe).
+    Hsdt(hsdt_bench::HsdtArgs),
 }
 
 #[derive(Subcommand)]
@@ -341,6 +346,10 @@ fn run(cli: Cli) -> Result<()> {
             parse_size(&a.size).map_err(bad)?;
             let scene = load_scene(a.scene.as_deref())?;
             bench::run_trace(&a, &scene)
+        }
+        Cmd::Bench(BenchCmd::Hsdt(a)) => {
+            a.resolutions().map_err(bad)?;
+            hsdt_bench::run(&a)
         }
         Cmd::Bench(BenchCmd::ShadowFields(a)) => {
             a.params.check().map_err(bad)?;
