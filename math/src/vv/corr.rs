@@ -115,6 +115,9 @@ impl Ctx {
                 continue;
             }
             let ((sa, pa), (sb, pb)) = (self.info[e[a] as usize], self.info[e[b] as usize]);
+            if !self.contiguous(st, a, b, e) || !self.contiguous(st, b, a, e) {
+                return false;
+            }
             let mut pairs: Vec<(u32, u32)> = st
                 .links
                 .iter()
@@ -144,9 +147,68 @@ impl Ctx {
         true
     }
 
+    /// Runs: along the sequence of `e[b]`, the links of each sequence of slot `a` form one
+    /// contiguous run (a region linked to two regions of another vertex is split into two arcs,
+    /// not interleaved); `e` must not land strictly inside the run of another sequence.
+    fn contiguous(&self, st: &TriState, a: usize, b: usize, e: &[u32; 3]) -> bool {
+        let ((sa, _), (sb, pb)) = (self.info[e[a] as usize], self.info[e[b] as usize]);
+        let tag = |g: u32| if self.is_real(g) { self.info[g as usize].0 } else { VIRTUAL_KEY | g };
+        let mut runs: Vec<(u32, u32)> = st
+            .links
+            .iter()
+            .filter(|l| self.is_real(l.e[b]) && l.e[a] != NONE && self.info[l.e[b] as usize].0 == sb)
+            .map(|l| (self.info[l.e[b] as usize].1, tag(l.e[a])))
+            .collect();
+        if runs.len() < 2 {
+            return true;
+        }
+        if runs.iter().any(|&(p, s)| p == pb && s == sa) {
+            return true;
+        }
+        runs.sort_unstable();
+        let next = runs.iter().position(|&(p, _)| p > pb).unwrap_or(0);
+        let prev = (next + runs.len() - 1) % runs.len();
+        let (sp, sn) = (runs[prev].1, runs[next].1);
+        !(sp == sn && sp != sa)
+    }
+
     fn has_pair(&self, st: &TriState, e: &[u32; 3]) -> bool {
         st.links.iter().any(|l| (0..3).all(|k| e[k] == NONE || l.e[k] == e[k]))
     }
+}
+
+/// Orders the links of one group along the sequences they link: by the position in the real
+/// slot with the most distinct entities, ties (several links on one entity, from the relaxed
+/// stage) by the other slots' positions unwrapped from the previous tie group's.
+fn order_loop(ctx: &Ctx, mut v: Vec<[u32; 3]>, key: [u32; 3]) -> Vec<[u32; 3]> {
+    let real: Vec<usize> = (0..3).filter(|&k| key[k] & VIRTUAL_KEY == 0).collect();
+    let pos = |e: &[u32; 3], k: usize| ctx.info[e[k] as usize].1;
+    let distinct = |k: usize| {
+        let mut p: Vec<u32> = v.iter().map(|e| pos(e, k)).collect();
+        p.sort_unstable();
+        p.dedup();
+        p.len()
+    };
+    let Some(&primary) = real.iter().max_by_key(|&&k| (distinct(k), std::cmp::Reverse(k))) else { return v };
+    let others: Vec<usize> = real.iter().copied().filter(|&k| k != primary).collect();
+    v.sort_by_key(|e| pos(e, primary));
+    let len = |k: usize| ctx.seq_len(key[k]);
+    let mut out: Vec<[u32; 3]> = Vec::with_capacity(v.len());
+    let mut i = 0;
+    // reference positions: the last link's (the cyclically previous group)
+    let mut refp: Vec<u32> = others.iter().map(|&k| v.last().map_or(0, |e| pos(e, k))).collect();
+    while i < v.len() {
+        let p = pos(&v[i], primary);
+        let j = (i..v.len()).find(|&j| pos(&v[j], primary) != p).unwrap_or(v.len());
+        let mut group = v[i..j].to_vec();
+        group.sort_by_key(|e| others.iter().zip(&refp).map(|(&k, &r)| (pos(e, k) + len(k) - r % len(k)) % len(k)).collect::<Vec<u32>>());
+        if let Some(last) = group.last() {
+            refp = others.iter().map(|&k| pos(last, k)).collect();
+        }
+        out.extend(group);
+        i = j;
+    }
+    out
 }
 
 fn add(st: &mut TriState, e: [u32; 3], kind: Kind) -> usize {
@@ -377,12 +439,19 @@ pub fn correspondence(model: &VvModel, topo: &Topology, vis: &mut VectorizedVisi
                 }
                 let mut e = [NONE; 3];
                 e[k] = g;
+                // real entities first (either order), then virtual points keyed by the
+                // lowest real slot, so one group gets one virtual point whatever slot started it
+                for c in [(k + 1) % 3, (k + 2) % 3, (k + 1) % 3] {
+                    if e[c] == NONE {
+                        if let Some(x) = best_completion(&ctx, &points, &st[t], t, e, c, false) {
+                            e[c] = x;
+                        }
+                    }
+                }
                 for c in [(k + 1) % 3, (k + 2) % 3] {
-                    let x = match best_completion(&ctx, &points, &st[t], t, e, c, false) {
-                        Some(x) => x,
-                        None => virtual_point(&ctx, &mut points, &mut virt, t, c, &e),
-                    };
-                    e[c] = x;
+                    if e[c] == NONE {
+                        e[c] = virtual_point(&ctx, &mut points, &mut virt, t, c, &e);
+                    }
                 }
                 add(&mut st[t], e, Kind::Relaxed);
                 stats.relaxed_triples += 1;
@@ -412,9 +481,12 @@ pub fn correspondence(model: &VvModel, topo: &Topology, vis: &mut VectorizedVisi
             if v.len() < 3 {
                 continue;
             }
-            let order: Vec<usize> = (0..3).filter(|&k| key[k] & VIRTUAL_KEY == 0).collect();
-            v.sort_by_key(|e| order.iter().map(|&k| ctx.info[e[k] as usize].1).collect::<Vec<u32>>());
+            v.sort_unstable();
             v.dedup();
+            let v = order_loop(&ctx, v, key);
+            if v.len() < 3 {
+                continue;
+            }
             corr.triples.extend_from_slice(&v);
             corr.loop_offsets.push(corr.triples.len() as u32);
         }
@@ -426,37 +498,65 @@ pub fn correspondence(model: &VvModel, topo: &Topology, vis: &mut VectorizedVisi
 /// Best entity for the empty slot `c` of the partial link `e` in triangle `t`: Rule 2 (and Rule
 /// 1 when `strict`) hold, every real pair within `max_link_deg`, smallest eq. 22.
 fn best_completion(ctx: &Ctx, points: &[[f32; 4]], st: &TriState, t: usize, e: [u32; 3], c: usize, strict: bool) -> Option<u32> {
-    let filled: Vec<Vec3> = (0..3).filter(|&k| k != c && ctx.is_real(e[k])).map(|k| ctx.dir(t, points, e[k])).collect();
+    let filled_k: Vec<usize> = (0..3).filter(|&k| k != c && ctx.is_real(e[k])).collect();
+    let filled: Vec<Vec3> = filled_k.iter().map(|&k| ctx.dir(t, points, e[k])).collect();
     if filled.is_empty() {
         return None;
     }
-    let mut best: Option<(f32, u32)> = None;
+    // sequences of slot c already linked (in this triangle) to the sequences of the filled
+    // entities: in the relaxed stage, they may be linked beyond the angle cap
+    let linked: Vec<u32> = if strict {
+        Vec::new()
+    } else {
+        let seqs: Vec<(usize, u32)> = filled_k.iter().map(|&k| (k, ctx.info[e[k] as usize].0)).collect();
+        let mut v: Vec<u32> = st
+            .links
+            .iter()
+            .filter(|l| ctx.is_real(l.e[c]) && seqs.iter().any(|&(k, s)| ctx.is_real(l.e[k]) && ctx.info[l.e[k] as usize].0 == s))
+            .map(|l| ctx.info[l.e[c] as usize].0)
+            .collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    };
+    let mut best: Option<(bool, f32, u32)> = None;
     for x in ctx.entities(t, c) {
         if strict && st.used[c].contains(&x) {
             continue;
         }
+        // relaxed reuse stays within one group: `x` must not be linked to other sequences of
+        // the filled slots (else a merged region would be counted once per group)
+        if !strict
+            && st.links.iter().any(|l| {
+                l.e[c] == x && filled_k.iter().any(|&k| ctx.is_real(l.e[k]) && ctx.info[l.e[k] as usize].0 != ctx.info[e[k] as usize].0)
+            })
+        {
+            continue;
+        }
         let d = ctx.dir(t, points, x);
-        if filled.iter().any(|f| f.dot(d) < ctx.cos_link) {
+        let near = filled.iter().all(|f| f.dot(d) >= ctx.cos_link);
+        if !near && !linked.contains(&ctx.info[x as usize].0) {
             continue;
         }
         let cost = filled.iter().map(|f| f.dot(d).clamp(-1.0, 1.0).acos()).sum::<f32>();
-        if best.is_some_and(|b| b.0 <= cost) {
+        // near candidates first, then the cheapest
+        if best.is_some_and(|b| (!b.0, b.1) <= (!near, cost)) {
             continue;
         }
         let mut full = e;
         full[c] = x;
         if ctx.rule2(st, &full) {
-            best = Some((cost, x));
+            best = Some((near, cost, x));
         }
     }
-    best.map(|b| b.1)
+    best.map(|b| b.2)
 }
 
 /// The virtual point standing for slot `c` of triangle `t` next to the sequence of the first
 /// real entity of `e`: the mean of that sequence's points (a position when all are positions,
 /// else the mean direction at the centre), so the loop collapses to it at vertex `c`.
 fn virtual_point(ctx: &Ctx, points: &mut Vec<[f32; 4]>, virt: &mut HashMap<(usize, usize, u32), u32>, t: usize, c: usize, e: &[u32; 3]) -> u32 {
-    let g = (0..3).map(|k| e[k]).find(|&g| ctx.is_real(g)).expect("a link has a real entity");
+    let g = (0..3).filter(|&k| k != c).map(|k| e[k]).find(|&g| ctx.is_real(g)).expect("a link has a real entity");
     let s = ctx.info[g as usize].0;
     if let Some(&v) = virt.get(&(t, c, s)) {
         return v;
