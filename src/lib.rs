@@ -169,13 +169,23 @@ impl Renderer {
 
     /// A renderer on an existing context (own or the application's).
     pub fn new(ctx: Arc<Context>, scene: &Scene, settings: RenderSettings) -> Result<Self> {
+        Self::new_with_shaders(ctx, scene, settings, &shader_library())
+    }
+
+    /// [`Renderer::new`] with another shader library, e.g. one recompiled from `glsl/` at run
+    /// time ([`ShaderLibrary::reload_all`], the viewer's hot reload).
+    pub fn new_with_shaders(
+        ctx: Arc<Context>,
+        scene: &Scene,
+        settings: RenderSettings,
+        shaders: &ShaderLibrary,
+    ) -> Result<Self> {
         if settings.width == 0 || settings.height == 0 || settings.width > 16384 || settings.height > 16384 {
             bail!("image size {}x{} is out of range (1..16384)", settings.width, settings.height);
         }
-        let shaders = shader_library();
         let engine = Engine::new(ctx.clone(), settings.frames_in_flight)?;
         let name = settings.technique.clone().unwrap_or_else(|| scene.technique.clone());
-        let technique = match penumbra_passes::technique::create(&name, &ctx, &shaders, scene)? {
+        let technique = match penumbra_passes::technique::create(&name, &ctx, shaders, scene)? {
             Some(t) => t,
             None if settings.technique.is_some() => bail!(
                 "technique '{name}' is not implemented (implemented: {})",
@@ -183,16 +193,16 @@ impl Renderer {
             ),
             // A scene naming a technique still to come renders with the default (reported by
             // `Renderer::limitations`).
-            None => penumbra_passes::technique::create(penumbra_scene::DEFAULT_TECHNIQUE, &ctx, &shaders, scene)?
+            None => penumbra_passes::technique::create(penumbra_scene::DEFAULT_TECHNIQUE, &ctx, shaders, scene)?
                 .expect("the default technique exists"),
         };
-        let effects = penumbra_passes::effect::create_for(scene, &ctx, &shaders, &settings.effects)?;
+        let effects = penumbra_passes::effect::create_for(scene, &ctx, shaders, &settings.effects)?;
         Ok(Renderer {
-            gbuffer: GBufferPass::new(&ctx, &shaders)?,
+            gbuffer: GBufferPass::new(&ctx, shaders)?,
             technique,
             effects,
             scene: scene.clone(),
-            tonemap: TonemapPass::new(&ctx, &shaders)?,
+            tonemap: TonemapPass::new(&ctx, shaders)?,
             scene_gpu: SceneGpu::new(&ctx, scene)?,
             env: EnvMapGpu::new(scene.environment.as_ref()),
             engine,

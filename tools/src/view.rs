@@ -10,7 +10,9 @@
 //! `Present` access declares), and present. No barrier is written here: the graph derives them.
 //!
 //! Keys: Esc/Q quit, Space pause/resume, Left/Right step one frame while paused, T next
-//! technique, P screenshot (PNG of the presented image), G write the frame graph dumps.
+//! technique, R reload shaders (recompile `glsl/` from source; on errors every failing file is
+//! printed and the running pipelines stay), P screenshot (PNG of the presented image), G write
+//! the frame graph dumps.
 
 use crate::{apply_overrides, bad, load_scene, new_renderer, report_validation};
 use anyhow::{anyhow, bail, Context as _, Result};
@@ -70,6 +72,29 @@ pub struct ViewArgs {
     /// A technique parameter KEY=VALUE (repeatable; overrides the scene's [technique_params]).
     #[arg(long = "param", value_name = "KEY=VALUE")]
     params: Vec<String>,
+    /// Scripted key presses before given frames, e.g. `2:t,4:r,5:p` (keys: q, space, left,
+    /// right, t, r, p, g), for demos and tests.
+    #[arg(long, default_value = "")]
+    keys: String,
+}
+
+const KEYS: [&str; 8] = ["q", "space", "left", "right", "t", "r", "p", "g"];
+
+/// Parses `FRAME:KEY,...`.
+fn parse_keys(s: &str) -> Result<Vec<(u32, String)>, String> {
+    s.split(',')
+        .map(str::trim)
+        .filter(|p| !p.is_empty())
+        .map(|p| {
+            let (f, k) = p.split_once(':').ok_or_else(|| format!("'{p}': expected FRAME:KEY"))?;
+            let f = f.trim().parse::<u32>().map_err(|_| format!("'{p}': '{f}' is not a frame number"))?;
+            let k = k.trim().to_lowercase();
+            if !KEYS.contains(&k.as_str()) {
+                return Err(format!("'{p}': unknown key '{k}' (keys: {})", KEYS.join(", ")));
+            }
+            Ok((f, k))
+        })
+        .collect()
 }
 
 pub fn view(args: &ViewArgs) -> Result<()> {
@@ -83,6 +108,7 @@ pub fn view(args: &ViewArgs) -> Result<()> {
     if args.screenshot.is_some() && args.frames.is_none() {
         return Err(bad("--screenshot needs --frames (interactively, press P)"));
     }
+    let script = parse_keys(&args.keys).map_err(|e| bad(format!("--keys: {e}")))?;
     let scene = apply_overrides(load_scene(args.scene.as_deref())?, &args.technique, &args.params, &args.volumetric)?;
     let settings = RenderSettings {
         width,
@@ -110,6 +136,9 @@ pub fn view(args: &ViewArgs) -> Result<()> {
         shots: 0,
         gpu_ms: 0.0,
         validation: None,
+        shaders: None,
+        t_cursor: None,
+        script,
     };
     event_loop.run_app(&mut app).context("window event loop")?;
     let validation = app.validation.clone();
@@ -143,6 +172,12 @@ struct Viewer<'a> {
     shots: u32,
     gpu_ms: f64,
     validation: Option<Arc<penumbra::engine::ValidationLog>>,
+    /// Scripted key presses (--keys): (frame, key).
+    script: Vec<(u32, String)>,
+    /// The technique T tried last.
+    t_cursor: Option<String>,
+    /// Shaders recompiled by R (the embedded ones until then).
+    shaders: Option<penumbra::engine::shader::ShaderLibrary>,
 }
 
 impl ApplicationHandler for Viewer<'_> {
@@ -175,33 +210,15 @@ impl ApplicationHandler for Viewer<'_> {
                 }
             }
             WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
-                let r = match event.logical_key.as_ref() {
-                    Key::Named(NamedKey::Escape) | Key::Character("q") => {
-                        event_loop.exit();
-                        Ok(())
-                    }
-                    Key::Named(NamedKey::Space) => {
-                        self.paused = !self.paused;
-                        Ok(())
-                    }
-                    Key::Named(NamedKey::ArrowRight) => {
-                        self.step += 1;
-                        Ok(())
-                    }
-                    Key::Named(NamedKey::ArrowLeft) => {
-                        self.step -= 1;
-                        Ok(())
-                    }
-                    Key::Character("t") => self.next_technique(),
-                    Key::Character("p") => {
-                        self.shots += 1;
-                        self.screenshot_next = Some(self.args.out.join(format!("screenshot_{:04}.png", self.shots)));
-                        Ok(())
-                    }
-                    Key::Character("g") => self.dump_graph(),
-                    _ => Ok(()),
+                let name = match event.logical_key.as_ref() {
+                    Key::Named(NamedKey::Escape) => "q".to_string(),
+                    Key::Named(NamedKey::Space) => "space".to_string(),
+                    Key::Named(NamedKey::ArrowRight) => "right".to_string(),
+                    Key::Named(NamedKey::ArrowLeft) => "left".to_string(),
+                    Key::Character(c) => c.to_lowercase(),
+                    _ => return,
                 };
-                if let Err(e) = r {
+                if let Err(e) = self.key(event_loop, &name) {
                     self.fail(event_loop, e);
                 }
             }
@@ -222,6 +239,25 @@ impl ApplicationHandler for Viewer<'_> {
 }
 
 impl Viewer<'_> {
+    /// One key press (from the window, or scripted by --keys).
+    fn key(&mut self, event_loop: &ActiveEventLoop, key: &str) -> Result<()> {
+        match key {
+            "q" => event_loop.exit(),
+            "space" => self.paused = !self.paused,
+            "right" => self.step += 1,
+            "left" => self.step -= 1,
+            "t" => self.next_technique()?,
+            "r" => self.reload_shaders()?,
+            "p" => {
+                self.shots += 1;
+                self.screenshot_next = Some(self.args.out.join(format!("screenshot_{:04}.png", self.shots)));
+            }
+            "g" => self.dump_graph()?,
+            _ => {}
+        }
+        Ok(())
+    }
+
     fn fail(&mut self, event_loop: &ActiveEventLoop, e: anyhow::Error) {
         if self.error.is_none() {
             self.error = Some(e);
@@ -233,21 +269,61 @@ impl Viewer<'_> {
         self.settings.technique.clone().unwrap_or_else(|| self.scene.technique.clone())
     }
 
+    /// Recompiles every shader from `glsl/` and rebuilds the renderer with them; a compile
+    /// error is printed (all failing files) and the current pipelines stay.
+    fn reload_shaders(&mut self) -> Result<()> {
+        let mut lib = penumbra::shader_library();
+        let changed = match lib.reload_all() {
+            Ok(c) => c,
+            Err(e) => {
+                eprintln!("shader reload failed, keeping the running shaders:\n{e:#}");
+                return Ok(());
+            }
+        };
+        let Some(s) = &mut self.state else { return Ok(()) };
+        let mut scene = self.scene.clone();
+        if let Some(t) = &self.settings.technique {
+            if *t != scene.technique {
+                scene.technique_params.clear();
+            }
+        }
+        match penumbra::Renderer::new_with_shaders(s.ctx.clone(), &scene, self.settings.clone(), &lib) {
+            Ok(r) => {
+                s.renderer = Some(r);
+                self.shaders = Some(lib);
+                println!("reloaded shaders ({} changed: {})", changed.len(), changed.join(", "));
+            }
+            Err(e) => eprintln!("shader reload failed, keeping the running shaders: {e:#}"),
+        }
+        Ok(())
+    }
+
     /// Recreates the renderer with the next implemented technique (same device and window).
     fn next_technique(&mut self) -> Result<()> {
         let list = penumbra_passes::technique::IMPLEMENTED;
-        let cur = self.technique();
+        // From the last one tried, so that one failing to build does not stop the cycle.
+        let cur = self.t_cursor.clone().unwrap_or_else(|| self.technique());
         let next = list[(list.iter().position(|t| *t == cur).map_or(0, |i| i + 1)) % list.len()];
+        self.t_cursor = Some(next.to_string());
         let Some(s) = &mut self.state else { return Ok(()) };
         let mut scene = self.scene.clone();
         if next != scene.technique {
             // The scene's parameters belong to its own technique.
             scene.technique_params.clear();
         }
-        self.settings.technique = Some(next.to_string());
-        s.renderer = None; // waits for the GPU, frees the old technique's pipelines first
-        s.renderer = Some(new_renderer(s.ctx.clone(), &scene, self.settings.clone())?);
-        println!("technique: {next}");
+        let mut settings = self.settings.clone();
+        settings.technique = Some(next.to_string());
+        let lib = self.shaders.clone().unwrap_or_else(penumbra::shader_library);
+        // The old renderer keeps running if the new technique cannot be created (e.g. it needs
+        // parameters the scene does not give).
+        match penumbra::Renderer::new_with_shaders(s.ctx.clone(), &scene, settings.clone(), &lib) {
+            Ok(r) => {
+                s.renderer = Some(r);
+                self.settings = settings;
+                println!("technique: {next}");
+            }
+            Err(e) => eprintln!("technique {next}: {e:#} (still showing {})", self.technique()),
+        }
         Ok(())
     }
 
@@ -268,6 +344,10 @@ impl Viewer<'_> {
     }
 
     fn draw(&mut self, event_loop: &ActiveEventLoop) -> Result<()> {
+        for (_, key) in self.script.iter().filter(|(f, _)| *f == self.frame).cloned().collect::<Vec<_>>() {
+            self.key(event_loop, &key)?;
+        }
+        self.script.retain(|(f, _)| *f != self.frame);
         let last = self.args.frames.is_some_and(|n| self.frame + 1 >= n);
         let advance = !self.paused || self.step != 0;
         let k = self.scene_frame();

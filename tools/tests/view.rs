@@ -103,6 +103,49 @@ fn window_presents_what_render_writes_with_clean_validation() {
     assert!(mean > 20.0 && mean < 235.0, "mean {mean}");
 }
 
+/// Scripted keys: T switches technique on the same window and device, R recompiles every shader
+/// from `glsl/` at run time (identical SPIR-V to the build's: 0 changed), P screenshots, G dumps
+/// the graph, whose swapchain image is blitted into and ends in PRESENT_SRC.
+#[test]
+fn scripted_keys_switch_technique_reload_shaders_and_dump() {
+    let x = Xvfb::start();
+    let out = tmp("view_keys");
+    let o = penumbra(
+        &[
+            "view",
+            "--size",
+            "64x48",
+            "--frames",
+            "5",
+            "--technique",
+            "mc",
+            "--keys",
+            "1:t,2:r,3:p,3:g",
+            "--out",
+            out.to_str().unwrap(),
+            "--validate",
+        ],
+        Some(&x.display),
+    );
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    // From mc (cheap to create, unlike isg's tables) to the next implemented technique.
+    let list = penumbra_passes::technique::IMPLEMENTED;
+    let next = list[(list.iter().position(|t| *t == "mc").unwrap() + 1) % list.len()];
+    assert!(t.contains(&format!("technique: {next}")), "{t}");
+    assert!(t.contains("reloaded shaders (0 changed"), "run-time compile differs from build.rs: {t}");
+    assert!(t.contains("validation: 0 error(s)"), "{t}");
+    let (w, h, _) = rgb(&out.join("screenshot_0001.png"));
+    assert_eq!((w, h), (64, 48));
+    let graph = std::fs::read_to_string(out.join("graph.txt")).unwrap();
+    assert!(graph.contains("blit_target (Transfer)"), "{graph}");
+    assert!(graph.contains("PRESENT_SRC_KHR -> TRANSFER_DST_OPTIMAL"), "{graph}");
+    assert!(graph.contains("TRANSFER_DST_OPTIMAL -> PRESENT_SRC_KHR"), "{graph}");
+    let o = penumbra(&["view", "--frames", "2", "--keys", "1:x"], Some(&x.display));
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("unknown key 'x'"), "{}", text(&o));
+}
+
 #[test]
 fn view_without_a_display_or_with_bad_flags_fails_cleanly() {
     let o = penumbra(&["view", "--frames", "1"], None);
