@@ -232,6 +232,19 @@ impl Renderer {
         v
     }
 
+    /// What this renderer does not do for its scene, with the technique actually used
+    /// (`RenderSettings::technique` overrides the scene's): [`Renderer::limitations`] plus what
+    /// the technique reports ([`Technique::limitations`]).
+    pub fn notes(&self) -> Vec<String> {
+        let mut scene = self.scene.clone();
+        if let Some(t) = &self.settings.technique {
+            scene.technique = t.clone();
+        }
+        let mut v = Self::limitations(&scene);
+        v.extend(self.technique.limitations(&self.scene));
+        v
+    }
+
     pub fn context(&self) -> &Arc<Context> {
         &self.engine.ctx
     }

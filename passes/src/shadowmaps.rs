@@ -280,6 +280,24 @@ impl crate::technique::Technique for ShadowMapsTechnique {
     fn name(&self) -> &'static str {
         "shadowmaps"
     }
+    fn limitations(&self, scene: &Scene) -> Vec<String> {
+        let req = scene.requirements();
+        let mut v = Vec::new();
+        if req.local_lights {
+            v.push(format!(
+                "shadowmaps: the {} local light(s) are not rendered (only the environment, as {} shadowed directional lights)",
+                scene.lights.len(),
+                self.count
+            ));
+        }
+        if req.spatially_varying_materials {
+            v.push("shadowmaps: texture maps are ignored (materials use their constant parameters)".into());
+        }
+        if (0..scene.objects.len()).any(|i| !scene.object_info(i).casts_shadow) {
+            v.push("shadowmaps: objects with casts_shadow = false still cast shadows".into());
+        }
+        v
+    }
     fn add(
         &mut self,
         engine: &mut Engine,

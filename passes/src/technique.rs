@@ -28,6 +28,11 @@ pub trait Technique {
     fn name(&self) -> &'static str;
     /// Declares the technique's passes; returns the HDR radiance image (RGBA32F, G-buffer size).
     fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle>;
+    /// What the technique ignores or approximates in `scene` (local lights it does not render,
+    /// texture maps, ...), shown to the user instead of a silently different image.
+    fn limitations(&self, _scene: &Scene) -> Vec<String> {
+        Vec::new()
+    }
 }
 
 /// Techniques implemented so far.

@@ -258,7 +258,7 @@ fn render(args: &RenderArgs) -> Result<()> {
         ..Default::default()
     })?;
     let mut r = new_renderer(ctx, &scene, settings)?;
-    for l in Renderer::limitations(&scene) {
+    for l in r.notes() {
         eprintln!("note: {l}");
     }
     if r.repaired_env_texels() > 0 {

@@ -318,9 +318,12 @@ impl Viewer<'_> {
         // parameters the scene does not give).
         match penumbra::Renderer::new_with_shaders(s.ctx.clone(), &scene, settings.clone(), &lib) {
             Ok(r) => {
+                println!("technique: {next}");
+                for l in r.notes() {
+                    eprintln!("note: {l}");
+                }
                 s.renderer = Some(r);
                 self.settings = settings;
-                println!("technique: {next}");
             }
             Err(e) => eprintln!("technique {next}: {e:#} (still showing {})", self.technique()),
         }
@@ -496,7 +499,7 @@ impl State {
                 return Err(e);
             }
         };
-        for l in Renderer::limitations(scene) {
+        for l in renderer.notes() {
             eprintln!("note: {l}");
         }
         let sem = || unsafe { ctx.device.create_semaphore(&vk::SemaphoreCreateInfo::default(), None) };
