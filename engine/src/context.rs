@@ -280,7 +280,8 @@ impl Context {
             .geometry_shader(avail.geometry_shader == vk::TRUE)
             .shader_storage_image_write_without_format(avail.shader_storage_image_write_without_format == vk::TRUE)
             .fill_mode_non_solid(avail.fill_mode_non_solid == vk::TRUE)
-            .sampler_anisotropy(avail.sampler_anisotropy == vk::TRUE);
+            .sampler_anisotropy(avail.sampler_anisotropy == vk::TRUE)
+            .pipeline_statistics_query(avail.pipeline_statistics_query == vk::TRUE);
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default().host_query_reset(true).scalar_block_layout(true);
         let mut f13 = vk::PhysicalDeviceVulkan13Features::default()
             .synchronization2(true)

@@ -22,6 +22,7 @@ pub mod trace;
 pub mod trace_bench;
 pub mod util;
 pub mod volumetric;
+pub mod vv;
 
 pub use env::EnvMapGpu;
 pub use gbuffer::{GBuffer, GBufferPass};

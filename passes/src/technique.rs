@@ -40,6 +40,10 @@ pub const IMPLEMENTED: &[&str] = &["env", "isg", "isg-vertex", "mc", "shadowmaps
 
 /// Creates the technique `name` for `scene`, or `None` if it is not implemented.
 pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &Scene) -> Result<Option<Box<dyn Technique>>> {
+    if name == "vv" {
+        let settings = crate::vv::VvSettings::from_params(&_scene.technique_params)?;
+        return Ok(Some(Box::new(crate::vv::VvTechnique::new(ctx, shaders, _scene, settings)?)));
+    }
     // Techniques without parameters refuse any, rather than ignore them.
     if !matches!(name, "isg" | "isg-vertex" | "shadow-fields" | "shadow-fields-fixed") && !_scene.technique_params.is_empty() {
         anyhow::bail!(

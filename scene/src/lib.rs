@@ -401,7 +401,7 @@ pub const DEFAULT_TECHNIQUE: &str = "env";
 /// (shadow-map baseline), `isg`, `isg-vertex`, `shadow-fields`, `hsdt`, `spherical-voronoi`,
 /// `reference`. Volumetric methods are chosen in `[medium]`, not here.
 pub const KNOWN_TECHNIQUES: &[&str] =
-    &["env", "mc", "shadowmaps", "isg", "isg-vertex", "shadow-fields", "hsdt", "spherical-voronoi", "reference"];
+    &["env", "mc", "shadowmaps", "isg", "isg-vertex", "shadow-fields", "hsdt", "spherical-voronoi", "vv", "reference"];
 
 /// Options of [`Scene::load_with`].
 #[derive(Clone, Debug, Default)]

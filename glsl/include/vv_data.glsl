@@ -1,0 +1,108 @@
+// vv technique: bindings, push constants and the two radiance evaluations (eq. 19 terms and
+// eq. 21) shared by the vertex, tessellation and fragment shaders of passes/src/vv.
+//
+// Flat arrays live in 2D images of width 4096 (texelFetch): vv_points (RGBA32F homogeneous
+// points of penumbra_math::vv::VectorizedVisibility), vv_ints (R32UI: seq_offsets,
+// vertex_seqs, tri_offsets, loop_offsets, triples, triangle vertex ids at the offsets in
+// pc.off0/off1), vv_verts (RGBA32F, 3 texels per model vertex: world position, normal, albedo).
+#ifndef PENUMBRA_VV_DATA_GLSL
+#define PENUMBRA_VV_DATA_GLSL
+#include "common.glsl"
+#include "vv_sat.glsl"
+
+layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
+layout(set = 0, binding = 1) uniform sampler2D vv_points;
+layout(set = 0, binding = 2) uniform usampler2D vv_ints;
+layout(set = 0, binding = 3) uniform sampler2D vv_verts;
+layout(set = 0, binding = 4) uniform sampler2D vv_sat_tex;
+layout(set = 0, binding = 5) uniform sampler2D vv_sat_blur;
+layout(push_constant) uniform Push {
+    ivec4 sat;    // x W, y H, z hemisphere arcs, w mode (0 fragment3, 1 fragment1, 2 tessellation, 3 tessellation3)
+    ivec4 off0;   // offsets in vv_ints: x seq_offsets, y vertex_seqs, z tri_offsets, w loop_offsets
+    ivec4 off1;   // x triples, y triangle vertex ids, z max tessellation level
+    vec4 par;     // x alpha', y zeta
+} pc;
+
+ivec2 vv_tc(int i) {
+    return ivec2(i & 4095, i >> 12);
+}
+int vv_int(int i) {
+    return int(texelFetch(vv_ints, vv_tc(i), 0).r);
+}
+vec4 vv_point(int i) {
+    return texelFetch(vv_points, vv_tc(i), 0);
+}
+vec3 vv_vert(int v, int k) {
+    return texelFetch(vv_verts, vv_tc(3 * v + k), 0).xyz;
+}
+int vv_tri_vertex(int t, int k) {
+    return vv_int(pc.off1.y + 3 * t + k);
+}
+
+// Radiance (diffuse, eq. 9/12) with the visibility of model vertex v synthesized at s (eq. 3).
+vec3 vv_eval_vertex(sampler2D sat, int v, vec3 s, vec3 n, vec3 albedo) {
+    ivec2 size = pc.sat.xy;
+    vec2 cs = cam.env_rot.xy;
+    vec3 nn = vv_nudge(vv_to_map(n, cs), 0.0);
+    VvAcc acc;
+    vv_acc_init(acc);
+    vv_add_hemisphere(sat, size, pc.par.x, nn, pc.sat.z, acc);
+    int first = vv_int(pc.off0.y + 2 * v), count = vv_int(pc.off0.y + 2 * v + 1);
+    for (int k = first; k < first + count; k++) {
+        int p0 = vv_int(pc.off0.x + k), p1 = vv_int(pc.off0.x + k + 1);
+        if (p1 - p0 < 2) continue;
+        vec3 d0 = vv_to_map(vv_synth(vv_point(p0), s, n, n), cs);
+        vec3 prev = d0;
+        for (int i = p0 + 1; i < p1; i++) {
+            vec3 d = vv_to_map(vv_synth(vv_point(i), s, n, n), cs);
+            vv_arc(sat, size, pc.par.x, prev, d, acc);
+            prev = d;
+        }
+        vv_arc(sat, size, pc.par.x, prev, d0, acc);
+    }
+    return albedo / PI * max(vv_finish(sat, size, nn, acc), vec3(0.0)) * cam.params.w;
+}
+
+// Interpolated direction of one triple (eq. 21, penumbra_math::vv::interpolate).
+vec3 vv_triple_dir(int j, vec3 lambda, vec3 s, vec3 n) {
+    vec3 a = vec3(0.0);
+    for (int k = 0; k < 3; k++) {
+        vec4 q = vv_point(vv_int(pc.off1.x + 3 * j + k));
+        vec3 d = q.xyz - q.w * s;
+        float l = length(d);
+        if (l > 1e-12) a += lambda[k] * (d / l);
+    }
+    float al = length(a);
+    return vv_synth(vec4(al > 1e-12 ? a / al : n, 0.0), vec3(0.0), n, n);
+}
+
+// Radiance with the interpolated vectorized visibility of triangle t (eq. 21), evaluated once.
+vec3 vv_eval_interp(sampler2D sat, int t, vec3 lambda, vec3 s, vec3 n, vec3 albedo) {
+    ivec2 size = pc.sat.xy;
+    vec2 cs = cam.env_rot.xy;
+    vec3 nn = vv_nudge(vv_to_map(n, cs), 0.0);
+    VvAcc acc;
+    vv_acc_init(acc);
+    vv_add_hemisphere(sat, size, pc.par.x, nn, pc.sat.z, acc);
+    int l0 = vv_int(pc.off0.z + t), l1 = vv_int(pc.off0.z + t + 1);
+    for (int l = l0; l < l1; l++) {
+        int a0 = vv_int(pc.off0.w + l), a1 = vv_int(pc.off0.w + l + 1);
+        if (a1 - a0 < 2) continue;
+        vec3 d0 = vv_to_map(vv_triple_dir(a0, lambda, s, n), cs);
+        vec3 prev = d0;
+        for (int j = a0 + 1; j < a1; j++) {
+            vec3 d = vv_to_map(vv_triple_dir(j, lambda, s, n), cs);
+            vv_arc(sat, size, pc.par.x, prev, d, acc);
+            prev = d;
+        }
+        vv_arc(sat, size, pc.par.x, prev, d0, acc);
+    }
+    return albedo / PI * max(vv_finish(sat, size, nn, acc), vec3(0.0)) * cam.params.w;
+}
+
+// Eq. 19: three syntheses, three evaluations, blended barycentrically.
+vec3 vv_eval_three(sampler2D sat, ivec3 vids, vec3 lambda, vec3 s, vec3 n, vec3 albedo) {
+    return lambda.x * vv_eval_vertex(sat, vids.x, s, n, albedo) + lambda.y * vv_eval_vertex(sat, vids.y, s, n, albedo)
+         + lambda.z * vv_eval_vertex(sat, vids.z, s, n, albedo);
+}
+#endif

@@ -1,0 +1,20 @@
+#version 450
+// vv per-fragment shading: fragment3 (eq. 19, three evaluations blended barycentrically) or
+// fragment1 (eq. 21, the interpolated vectorized visibility evaluated once).
+#include "vv_data.glsl"
+
+layout(location = 0) in vec3 v_world;
+layout(location = 1) in vec3 v_normal;
+layout(location = 2) in vec3 v_bary;
+layout(location = 3) flat in ivec3 v_vids;
+layout(location = 4) flat in vec3 v_albedo;
+layout(location = 0) out vec4 o_color;
+
+void main() {
+    vec3 n = normalize(v_normal);
+    vec3 lambda = max(v_bary, vec3(0.0));
+    lambda /= max(lambda.x + lambda.y + lambda.z, 1e-6);
+    vec3 c = pc.sat.w == 0 ? vv_eval_three(vv_sat_tex, v_vids, lambda, v_world, n, v_albedo)
+                           : vv_eval_interp(vv_sat_tex, gl_PrimitiveID, lambda, v_world, n, v_albedo);
+    o_color = vec4(c, 1.0);
+}

@@ -1,0 +1,678 @@
+//! Vectorized visibility with spherical-Voronoi correspondence (Leung et al. 2021, building on
+//! Ho et al. 2015): technique `"vv"` (issue 9, part B: integration, shading modes, bench).
+//!
+//! Offline (part A, `penumbra_math::vv`): per-vertex vectorized visibility of the scene's static
+//! objects (world space, object order) and per-triangle triple lists. Per frame:
+//! * `vv_sat_rows` + `vv_sat_cols` (compute): the summed-area tables of `l L_e(l)` (x, y, z
+//!   channels, RGB) of the lat-long lighting, fp32 with Kahan-compensated prefix sums (rows,
+//!   then columns), rebuilt every frame so the lighting may change; in `tessellation` modes a
+//!   second table of the Phong-blurred (alpha 256) lighting (eq. 17). Environment rotation and
+//!   intensity are applied at lookup (directions are rotated into map space).
+//! * `shade_env`: the background and the unshadowed local lights of the `env` technique (the
+//!   objects' pixels are then overdrawn).
+//! * `vv_shade` (raster, own depth): one non-indexed draw of the model's triangles. Modes
+//!   ([`VvMode`]): `fragment3` (eq. 19: three syntheses and three SAT evaluations per fragment
+//!   blended barycentrically, the previous method), `fragment1` (eq. 21: the interpolated
+//!   vectorized visibility evaluated once per fragment), `tessellation` (vertex shader: each
+//!   vertex's radiance under the original and the blurred lighting; tessellation control shader:
+//!   `n = 2^round(zeta Delta)` per edge/inside, eq. 17-18; evaluation shader: eq. 21 at every
+//!   tessellated vertex; fragments interpolate) and `tessellation3` (the same with eq. 19 at the
+//!   tessellated vertices: the previous method under dynamic tessellation). Triangles after
+//!   tessellation are counted with a pipeline-statistics query (clipping invocations).
+//!
+//! Shading is diffuse (eq. 9/12); non-diffuse materials get their diffuse part only (the
+//! specular cap ratio of eq. 14-16 exists on the CPU, `penumbra_math::vv_sat::cap_ratio`, not in
+//! the shaders yet). Objects that move or deform are not supported (their visibility is
+//! precomputed at rest, t = 0).
+
+use crate::shade_env::{ShadeEnvPass, HDR_FORMAT};
+use crate::util::{bytes_of, compute_pipeline, groups, layouts, Pipeline, Sampler};
+use anyhow::{bail, Context as _, Result};
+use glam::{DVec3, Vec3};
+use penumbra_engine::graph::ImageDesc;
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{vk, Access, Bind, Context, Engine, Graph, ImageHandle, PassKind};
+use penumbra_math::vv::{Correspondence, VectorizedVisibility, VvModel, VvParams};
+use penumbra_scene::Scene;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+/// Width of the 2D images holding flat arrays (`vv_tc` in `glsl/include/vv_data.glsl`).
+pub const TEX_W: usize = 4096;
+
+/// Triangles after tessellation of the last frame whose statistics were available (all `vv`
+/// techniques of the process; for the bench).
+pub static TESSELLATED_TRIANGLES: AtomicU64 = AtomicU64::new(0);
+
+/// Shading modes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VvMode {
+    Fragment3,
+    Fragment1,
+    Tessellation,
+    Tessellation3,
+}
+
+impl VvMode {
+    pub fn name(self) -> &'static str {
+        match self {
+            VvMode::Fragment3 => "fragment3",
+            VvMode::Fragment1 => "fragment1",
+            VvMode::Tessellation => "tessellation",
+            VvMode::Tessellation3 => "tessellation3",
+        }
+    }
+    fn code(self) -> i32 {
+        match self {
+            VvMode::Fragment3 => 0,
+            VvMode::Fragment1 => 1,
+            VvMode::Tessellation => 2,
+            VvMode::Tessellation3 => 3,
+        }
+    }
+    pub fn tessellated(self) -> bool {
+        matches!(self, VvMode::Tessellation | VvMode::Tessellation3)
+    }
+    /// Uses the correspondence (eq. 21).
+    pub fn interpolated(self) -> bool {
+        matches!(self, VvMode::Fragment1 | VvMode::Tessellation)
+    }
+}
+
+/// Parameters (`[technique_params]` / `--param`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct VvSettings {
+    pub mode: VvMode,
+    /// Tessellation quality zeta of eq. 18 (paper: 1 to 4).
+    pub zeta: f32,
+    /// `alpha'` of eq. 11 in 1/texel of the SAT map.
+    pub alpha: f32,
+    /// Width of the SAT map (the environment is box-downsampled to it; height = width / 2).
+    pub sat_width: u32,
+    /// Arcs of the hemisphere (horizon) loop.
+    pub hemisphere_arcs: u32,
+    /// Largest tessellation level.
+    pub max_level: u32,
+    /// Visibility-map resolution of the precompute (part A's `VvParams::resolution`).
+    pub resolution: u32,
+}
+
+impl Default for VvSettings {
+    fn default() -> Self {
+        VvSettings {
+            mode: VvMode::Fragment1,
+            zeta: 2.0,
+            alpha: penumbra_math::vv_sat::DEFAULT_ALPHA as f32,
+            sat_width: 256,
+            hemisphere_arcs: 32,
+            max_level: 64,
+            resolution: VvParams::default().resolution,
+        }
+    }
+}
+
+impl VvSettings {
+    pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> Result<Self> {
+        let mut s = VvSettings::default();
+        for (k, v) in params {
+            s.set(k, v)?;
+        }
+        Ok(s)
+    }
+
+    /// Keys: `mode` (fragment3, fragment1, tessellation, tessellation3; default fragment1),
+    /// `zeta` (0..=16, default 2), `alpha` (> 0, default 2), `sat_width` (16..=4096, even,
+    /// default 256), `arcs` (8..=256, default 32), `max_level` (1..=64), `resolution` (8..=1024).
+    pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
+        let v = value.trim();
+        let bad = || anyhow::anyhow!("vv parameter {key} = '{value}': not a valid value");
+        let num = |lo: f64, hi: f64| -> Result<f64> {
+            v.parse::<f64>().ok().filter(|x| x.is_finite() && *x >= lo && *x <= hi).ok_or_else(|| bad())
+        };
+        match key.trim() {
+            "mode" => {
+                self.mode = match v {
+                    "fragment3" => VvMode::Fragment3,
+                    "fragment1" => VvMode::Fragment1,
+                    "tessellation" => VvMode::Tessellation,
+                    "tessellation3" => VvMode::Tessellation3,
+                    _ => bail!("vv parameter mode = '{value}': expected fragment3, fragment1, tessellation or tessellation3"),
+                }
+            }
+            "zeta" => self.zeta = num(0.0, 16.0)? as f32,
+            "alpha" => self.alpha = num(1e-3, 1e3)? as f32,
+            "sat_width" => {
+                let w = num(16.0, 4096.0)? as u32;
+                if w % 2 != 0 {
+                    return Err(bad());
+                }
+                self.sat_width = w;
+            }
+            "arcs" => self.hemisphere_arcs = num(8.0, 256.0)? as u32,
+            "max_level" => self.max_level = num(1.0, 64.0)? as u32,
+            "resolution" => self.resolution = num(8.0, 1024.0)? as u32,
+            other => bail!("unknown vv parameter '{other}' (known: mode, zeta, alpha, sat_width, arcs, max_level, resolution)"),
+        }
+        Ok(())
+    }
+}
+
+/// The model of a scene's shadow-casting and receiving objects in world space (object order).
+pub fn scene_model(scene: &Scene) -> Result<VvModel> {
+    let mut objs = Vec::new();
+    for (i, o) in scene.objects.iter().enumerate() {
+        let info = scene.object_info(i);
+        if info.is_moving() {
+            bail!("vv: object '{}' moves or deforms; vectorized visibility is precomputed for static geometry", o.name);
+        }
+        let m = scene.meshes.get(o.mesh).with_context(|| format!("vv: object '{}' has no mesh", o.name))?;
+        objs.push(penumbra_math::vv::ObjectMesh {
+            positions: &m.positions,
+            normals: &m.normals,
+            indices: &m.indices,
+            world: o.transform,
+            casts_shadow: info.casts_shadow,
+        });
+    }
+    let model = VvModel::from_objects(objs);
+    model.validate().map_err(anyhow::Error::msg)?;
+    Ok(model)
+}
+
+/// Offline data of a scene and its cost.
+pub struct VvSceneData {
+    pub model: VvModel,
+    pub vis: VectorizedVisibility,
+    pub corr: Option<Correspondence>,
+    pub visibility_seconds: f64,
+    pub correspondence_seconds: f64,
+    pub visibility_bytes: usize,
+    pub triple_bytes: usize,
+    /// Per model vertex: albedo of its object's material.
+    pub albedo: Vec<Vec3>,
+}
+
+/// The last data built in this process (key: model hash, resolution), reused by techniques of
+/// the same scene (bench configurations, tests).
+static CACHE: std::sync::Mutex<Option<((u64, u32), Arc<VvSceneData>)>> = std::sync::Mutex::new(None);
+
+impl VvSceneData {
+    /// [`VvSceneData::build`] through a one-entry process cache.
+    pub fn cached(scene: &Scene, resolution: u32) -> Result<Arc<Self>> {
+        let key = (scene_model(scene)?.hash(), resolution);
+        let mut c = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((k, d)) = c.as_ref() {
+            if *k == key {
+                return Ok(d.clone());
+            }
+        }
+        let d = Arc::new(VvSceneData::build(scene, resolution)?);
+        *c = Some((key, d.clone()));
+        Ok(d)
+    }
+
+    /// Precomputes the scene's data (visibility, then the correspondence when available).
+    pub fn build(scene: &Scene, resolution: u32) -> Result<Self> {
+        let model = scene_model(scene)?;
+        let params = VvParams { resolution, ..Default::default() };
+        params.validate().map_err(anyhow::Error::msg)?;
+        let n = model.positions.len() as u64;
+        let bar = indicatif::ProgressBar::new(n);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("vv visibility {bar:40} {pos}/{len} vertices {elapsed}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        if std::env::var_os("PENUMBRA_NO_PROGRESS").is_some() {
+            bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+        }
+        let t = std::time::Instant::now();
+        let vis = penumbra_math::vv::precompute::precompute_visibility(&model, &params, &|k| bar.inc(k))
+            .map_err(anyhow::Error::msg)?;
+        bar.finish_and_clear();
+        let visibility_seconds = t.elapsed().as_secs_f64();
+        let visibility_bytes = vis.points.len() * 16 + (vis.seq_offsets.len() + 2 * vis.vertex_seqs.len()) * 4;
+        let mut albedo = Vec::with_capacity(model.positions.len());
+        for o in &scene.objects {
+            let a = scene.materials.get(o.material).map_or(Vec3::splat(0.5), |m| m.albedo);
+            let count = scene.meshes.get(o.mesh).map_or(0, |m| m.positions.len());
+            albedo.extend(std::iter::repeat(a).take(count));
+        }
+        Ok(VvSceneData { model, vis, corr: None, visibility_seconds, correspondence_seconds: 0.0, visibility_bytes, triple_bytes: 0, albedo })
+    }
+}
+
+/// GPU images' contents (built once).
+struct Uploads {
+    points: (Vec<u8>, u32),
+    ints: (Vec<u8>, u32),
+    verts: (Vec<u8>, u32),
+    off0: [i32; 4],
+    off1: [i32; 4],
+    triangles: u32,
+    sat_w: u32,
+    sat_h: u32,
+    env: Arc<Vec<u8>>,
+    blurred: Arc<Vec<u8>>,
+}
+
+fn pad_rows<T: Copy + Default>(mut v: Vec<T>, per_texel: usize) -> (Vec<T>, u32) {
+    let texels = (v.len() / per_texel).max(1);
+    let rows = texels.div_ceil(TEX_W);
+    v.resize(rows * TEX_W * per_texel, T::default());
+    (v, rows as u32)
+}
+
+/// Box-downsamples a lat-long map to `w x w/2` (or keeps it when smaller), times `intensity` 1.
+pub fn downsample(width: usize, height: usize, texels: &[[f32; 3]], w: usize) -> (usize, usize, Vec<[f32; 3]>) {
+    let w = w.min(width).max(2);
+    let h = (w / 2).max(1);
+    let mut out = vec![[0.0f32; 3]; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let (x0, x1) = (x * width / w, ((x + 1) * width / w).max(x * width / w + 1));
+            let (y0, y1) = (y * height / h, ((y + 1) * height / h).max(y * height / h + 1));
+            let mut s = [0.0f64; 3];
+            let mut wsum = 0.0;
+            for yy in y0..y1.min(height) {
+                // texel solid angle weight within the box
+                let th = std::f64::consts::PI * (yy as f64 + 0.5) / height as f64;
+                let wt = th.sin();
+                for xx in x0..x1.min(width) {
+                    let t = texels[yy * width + xx];
+                    for c in 0..3 {
+                        let v = t[c] as f64;
+                        s[c] += if v.is_finite() && v > 0.0 { v * wt } else { 0.0 };
+                    }
+                    wsum += wt;
+                }
+            }
+            out[y * w + x] = [(s[0] / wsum) as f32, (s[1] / wsum) as f32, (s[2] / wsum) as f32];
+        }
+    }
+    (w, h, out)
+}
+
+/// The lighting blurred with a normalised Phong lobe `cos^alpha` (eq. 17's `L'`), brute force.
+pub fn phong_blur(width: usize, height: usize, texels: &[[f32; 3]], alpha: f64) -> Vec<[f32; 3]> {
+    use rayon::prelude::*;
+    let dirs: Vec<DVec3> = (0..width * height)
+        .map(|i| penumbra_math::envmap::latlong_direction(((i % width) as f64 + 0.5) / width as f64, ((i / width) as f64 + 0.5) / height as f64))
+        .collect();
+    let sa: Vec<f64> = (0..height)
+        .map(|y| {
+            let t0 = std::f64::consts::PI * y as f64 / height as f64;
+            let t1 = std::f64::consts::PI * (y + 1) as f64 / height as f64;
+            (t0.cos() - t1.cos()) * 2.0 * std::f64::consts::PI / width as f64
+        })
+        .collect();
+    let cut = 1e-4f64.powf(1.0 / alpha);
+    (0..width * height)
+        .into_par_iter()
+        .map(|i| {
+            let d = dirs[i];
+            let (mut s, mut w) = (DVec3::ZERO, 0.0);
+            for (j, e) in dirs.iter().enumerate() {
+                let c = d.dot(*e);
+                if c > cut {
+                    let k = c.powf(alpha) * sa[j / width];
+                    let t = texels[j];
+                    s += DVec3::new(t[0] as f64, t[1] as f64, t[2] as f64).max(DVec3::ZERO) * k;
+                    w += k;
+                }
+            }
+            let r = if w > 0.0 { s / w } else { DVec3::ZERO };
+            [r.x as f32, r.y as f32, r.z as f32]
+        })
+        .collect()
+}
+
+impl Uploads {
+    fn new(scene: &Scene, data: &VvSceneData, settings: &VvSettings) -> Result<Self> {
+        let vis = &data.vis;
+        let model = &data.model;
+        let mut ints: Vec<u32> = Vec::new();
+        let off_seq = ints.len();
+        ints.extend(&vis.seq_offsets);
+        let off_vseq = ints.len();
+        for s in &vis.vertex_seqs {
+            ints.extend(s);
+        }
+        let (off_tri, off_loop, off_triples);
+        let empty = Correspondence { tri_offsets: vec![0; model.triangle_count() + 1], loop_offsets: vec![0], triples: Vec::new() };
+        let corr = data.corr.as_ref().unwrap_or(&empty);
+        off_tri = ints.len();
+        ints.extend(&corr.tri_offsets);
+        off_loop = ints.len();
+        ints.extend(&corr.loop_offsets);
+        off_triples = ints.len();
+        for t in &corr.triples {
+            ints.extend(t);
+        }
+        let off_tv = ints.len();
+        ints.extend(&model.indices);
+        if ints.len() >= (1 << 31) || vis.points.len() >= (1 << 31) {
+            bail!("vv: data too large for the GPU layout");
+        }
+        let (ints, ints_rows) = pad_rows(ints, 1);
+        let mut points: Vec<f32> = vis.points.iter().flatten().copied().collect();
+        if points.is_empty() {
+            points.extend([0.0; 4]);
+        }
+        let (points, points_rows) = pad_rows(points, 4);
+        let mut verts = Vec::with_capacity(model.positions.len() * 12);
+        for (i, p) in model.positions.iter().enumerate() {
+            let n = model.normals[i];
+            let a = data.albedo.get(i).copied().unwrap_or(Vec3::splat(0.5));
+            verts.extend([p.x, p.y, p.z, 0.0, n.x, n.y, n.z, 0.0, a.x, a.y, a.z, 0.0]);
+        }
+        let (verts, verts_rows) = pad_rows(verts, 4);
+        let env = scene.environment.as_ref().context("vv: the scene has no environment map (the technique integrates environment lighting)")?;
+        let (w, h, small) = downsample(env.width as usize, env.height as usize, &env.texels, settings.sat_width as usize);
+        let blurred = if settings.mode.tessellated() { phong_blur(w, h, &small, 256.0) } else { small.clone() };
+        let rgba = |t: &[[f32; 3]]| -> Vec<u8> { bytes_of(&t.iter().map(|c| [c[0], c[1], c[2], 0.0]).collect::<Vec<[f32; 4]>>()) };
+        Ok(Uploads {
+            points: (bytes_of(&points), points_rows),
+            ints: (bytes_of(&ints), ints_rows),
+            verts: (bytes_of(&verts), verts_rows),
+            off0: [off_seq as i32, off_vseq as i32, off_tri as i32, off_loop as i32],
+            off1: [off_triples as i32, off_tv as i32, settings.max_level as i32, 0],
+            triangles: model.triangle_count() as u32,
+            sat_w: w as u32,
+            sat_h: h as u32,
+            env: Arc::new(rgba(&small)),
+            blurred: Arc::new(rgba(&blurred)),
+        })
+    }
+}
+
+/// The `"vv"` technique.
+pub struct VvTechnique {
+    ctx: Arc<Context>,
+    rows: Pipeline,
+    cols: Pipeline,
+    raster: Pipeline,
+    composite: Pipeline,
+    env: ShadeEnvPass,
+    nearest: Sampler,
+    settings: VvSettings,
+    up: Uploads,
+    query: vk::QueryPool,
+    pub data: Arc<VvSceneData>,
+}
+
+impl Drop for VvTechnique {
+    fn drop(&mut self) {
+        unsafe { self.ctx.device.destroy_query_pool(self.query, None) };
+    }
+}
+
+fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, tess: bool) -> Result<Pipeline> {
+    use vk::DescriptorType as T;
+    let d = &ctx.device;
+    let (set_layout, layout) = layouts(
+        ctx,
+        if tess { "vv_tess" } else { "vv_shade" },
+        &[T::UNIFORM_BUFFER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER],
+        vk::ShaderStageFlags::ALL_GRAPHICS,
+        64,
+    )?;
+    let names: &[(&str, vk::ShaderStageFlags)] = if tess {
+        &[
+            ("vv_tess.vert", vk::ShaderStageFlags::VERTEX),
+            ("vv_tess.tesc", vk::ShaderStageFlags::TESSELLATION_CONTROL),
+            ("vv_tess.tese", vk::ShaderStageFlags::TESSELLATION_EVALUATION),
+            ("vv_tess.frag", vk::ShaderStageFlags::FRAGMENT),
+        ]
+    } else {
+        &[("vv_shade.vert", vk::ShaderStageFlags::VERTEX), ("vv_shade.frag", vk::ShaderStageFlags::FRAGMENT)]
+    };
+    let mut modules = Vec::new();
+    for (n, _) in names {
+        modules.push(ctx.create_shader_module(n, shaders.get(n)?)?);
+    }
+    let stages: Vec<_> = names
+        .iter()
+        .zip(&modules)
+        .map(|((_, s), m)| vk::PipelineShaderStageCreateInfo::default().stage(*s).module(*m).name(c"main"))
+        .collect();
+    let vi = vk::PipelineVertexInputStateCreateInfo::default();
+    let ia = vk::PipelineInputAssemblyStateCreateInfo::default().topology(if tess {
+        vk::PrimitiveTopology::PATCH_LIST
+    } else {
+        vk::PrimitiveTopology::TRIANGLE_LIST
+    });
+    let ts = vk::PipelineTessellationStateCreateInfo::default().patch_control_points(3);
+    let vp = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
+    let rs = vk::PipelineRasterizationStateCreateInfo::default()
+        .polygon_mode(vk::PolygonMode::FILL)
+        .cull_mode(vk::CullModeFlags::NONE)
+        .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
+        .line_width(1.0);
+    let ms = vk::PipelineMultisampleStateCreateInfo::default().rasterization_samples(vk::SampleCountFlags::TYPE_1);
+    let ds = vk::PipelineDepthStencilStateCreateInfo::default()
+        .depth_test_enable(true)
+        .depth_write_enable(true)
+        .depth_compare_op(vk::CompareOp::LESS);
+    let blend = [vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA)];
+    let cb = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend);
+    let dyn_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
+    let dy = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dyn_states);
+    let formats = [HDR_FORMAT];
+    let mut rendering = vk::PipelineRenderingCreateInfo::default()
+        .color_attachment_formats(&formats)
+        .depth_attachment_format(crate::gbuffer::DEPTH_FORMAT);
+    let mut ci = vk::GraphicsPipelineCreateInfo::default()
+        .stages(&stages)
+        .vertex_input_state(&vi)
+        .input_assembly_state(&ia)
+        .viewport_state(&vp)
+        .rasterization_state(&rs)
+        .multisample_state(&ms)
+        .depth_stencil_state(&ds)
+        .color_blend_state(&cb)
+        .dynamic_state(&dy)
+        .layout(layout)
+        .push_next(&mut rendering);
+    if tess {
+        ci = ci.tessellation_state(&ts);
+    }
+    let res = unsafe { d.create_graphics_pipelines(vk::PipelineCache::null(), &[ci], None) };
+    for m in modules {
+        unsafe { d.destroy_shader_module(m, None) };
+    }
+    let pipeline = res.map_err(|(_, e)| e).context("vv raster pipeline")?[0];
+    ctx.set_name(pipeline, if tess { "vv_tess" } else { "vv_shade" });
+    Ok(Pipeline::from_raw(ctx, pipeline, layout, set_layout))
+}
+
+impl VvTechnique {
+    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: VvSettings) -> Result<Self> {
+        let data = VvSceneData::cached(scene, settings.resolution)?;
+        Self::with_data(ctx, shaders, scene, settings, data)
+    }
+
+    /// With precomputed data (shared between techniques of a bench).
+    pub fn with_data(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: VvSettings, data: Arc<VvSceneData>) -> Result<Self> {
+        use vk::DescriptorType as T;
+        if settings.mode.interpolated() && data.corr.is_none() {
+            bail!("vv: mode {} needs the per-triangle correspondence (triple lists), which is not available yet", settings.mode.name());
+        }
+        let rows = compute_pipeline(ctx, shaders, "vv_sat_rows.comp", &[T::STORAGE_BUFFER, T::STORAGE_IMAGE], 8)?;
+        let cols = compute_pipeline(ctx, shaders, "vv_sat_cols.comp", &[T::STORAGE_IMAGE], 8)?;
+        let raster = raster_pipeline(ctx, shaders, settings.mode.tessellated())?;
+        let composite = compute_pipeline(ctx, shaders, "vv_composite.comp", &[T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE], 0)?;
+        let up = Uploads::new(scene, &data, &settings)?;
+        let qci = vk::QueryPoolCreateInfo::default()
+            .query_type(vk::QueryType::PIPELINE_STATISTICS)
+            .query_count(1)
+            .pipeline_statistics(vk::QueryPipelineStatisticFlags::CLIPPING_INVOCATIONS);
+        let query = unsafe { ctx.device.create_query_pool(&qci, None)? };
+        ctx.set_name(query, "vv_statistics");
+        Ok(VvTechnique { ctx: ctx.clone(), rows, cols, raster, composite, env: ShadeEnvPass::new(ctx, shaders)?, nearest: Sampler::nearest(ctx)?, settings, up, query, data })
+    }
+
+    pub fn settings(&self) -> &VvSettings {
+        &self.settings
+    }
+
+    /// Triangles rasterized by the last finished frame (pipeline statistics), if available.
+    pub fn read_triangle_count(&self) -> Option<u64> {
+        let mut r = [0u64; 1];
+        let ok = unsafe { self.ctx.device.get_query_pool_results(self.query, 0, &mut r, vk::QueryResultFlags::TYPE_64) };
+        ok.ok().map(|_| r[0])
+    }
+
+    /// `vv_sat_rows` + `vv_sat_cols`: the SAT of `texels` (RGBA32F bytes).
+    fn add_sat(&self, graph: &mut Graph, name: &str, texels: &Arc<Vec<u8>>) -> ImageHandle {
+        let (w, h) = (self.up.sat_w, self.up.sat_h);
+        let input = graph.create_buffer_init(&format!("{name}_texels"), texels.as_ref().clone());
+        let sat = graph.create_image(name, ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, w + 1, 3 * (h + 1)));
+        let mut push = Vec::new();
+        push.extend_from_slice(&(w as i32).to_le_bytes());
+        push.extend_from_slice(&(h as i32).to_le_bytes());
+        let mut p = graph.pass(&format!("{name}_rows"), PassKind::Compute);
+        let input = p.read(input, Access::ComputeShaderReadStorage);
+        let sat = p.write(sat, Access::ComputeShaderWriteStorage);
+        let (pl, lay) = (self.rows.pipeline, self.rows.layout);
+        let push1 = push.clone();
+        p.record(move |rc| {
+            crate::util::bind_compute(rc, pl, lay, &[Bind::StorageBuffer(input), Bind::StorageImage(sat)])?;
+            unsafe {
+                rc.device().cmd_push_constants(rc.cmd, lay, vk::ShaderStageFlags::COMPUTE, 0, &push1);
+                rc.device().cmd_dispatch(rc.cmd, groups(h + 1, 64), 1, 1);
+            }
+            Ok(())
+        });
+        let mut p = graph.pass(&format!("{name}_cols"), PassKind::Compute);
+        let sat = p.write(sat, Access::ComputeShaderReadWriteStorage);
+        let (pl, lay) = (self.cols.pipeline, self.cols.layout);
+        p.record(move |rc| {
+            crate::util::bind_compute(rc, pl, lay, &[Bind::StorageImage(sat)])?;
+            unsafe {
+                rc.device().cmd_push_constants(rc.cmd, lay, vk::ShaderStageFlags::COMPUTE, 0, &push);
+                rc.device().cmd_dispatch(rc.cmd, groups(w + 1, 64), 1, 1);
+            }
+            Ok(())
+        });
+        sat
+    }
+
+    /// Uploads a flat-array image (`R32G32B32A32_SFLOAT` or `R32_UINT`, width [`TEX_W`]).
+    fn add_array(graph: &mut Graph, name: &str, format: vk::Format, bytes: &[u8], rows: u32) -> ImageHandle {
+        let img = graph.create_image(name, ImageDesc::new_2d(format, TEX_W as u32, rows));
+        let region = vk::BufferImageCopy {
+            buffer_offset: 0,
+            buffer_row_length: 0,
+            buffer_image_height: 0,
+            image_subresource: vk::ImageSubresourceLayers { aspect_mask: vk::ImageAspectFlags::COLOR, mip_level: 0, base_array_layer: 0, layer_count: 1 },
+            image_offset: vk::Offset3D::default(),
+            image_extent: vk::Extent3D { width: TEX_W as u32, height: rows, depth: 1 },
+        };
+        crate::util::add_image_upload(graph, name, img, bytes.to_vec(), vec![region])
+    }
+}
+
+impl crate::technique::Technique for VvTechnique {
+    fn name(&self) -> &'static str {
+        "vv"
+    }
+
+    fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
+        // previous frame's statistics (non-blocking)
+        if self.settings.mode.tessellated() {
+            if let Some(n) = self.read_triangle_count() {
+                TESSELLATED_TRIANGLES.store(n, Ordering::Relaxed);
+            }
+        }
+        let base = self.env.add(graph, inputs.scene, inputs.gbuffer, inputs.env);
+        let sat = self.add_sat(graph, "vv_sat", &self.up.env);
+        let blur = if self.settings.mode.tessellated() { Some(self.add_sat(graph, "vv_sat_blur", &self.up.blurred)) } else { None };
+        let points = Self::add_array(graph, "vv_points", vk::Format::R32G32B32A32_SFLOAT, &self.up.points.0, self.up.points.1);
+        let ints = Self::add_array(graph, "vv_ints", vk::Format::R32_UINT, &self.up.ints.0, self.up.ints.1);
+        let verts = Self::add_array(graph, "vv_verts", vk::Format::R32G32B32A32_SFLOAT, &self.up.verts.0, self.up.verts.1);
+        let (w, h) = (inputs.gbuffer.width, inputs.gbuffer.height);
+        let depth = graph.create_image("vv_depth", ImageDesc::new_2d(crate::gbuffer::DEPTH_FORMAT, w, h));
+        let objects = graph.create_image("vv_objects", ImageDesc::new_2d(HDR_FORMAT, w, h));
+        let tess = self.settings.mode.tessellated();
+        let mut p = graph.pass(if tess { "vv_tess" } else { "vv_shade" }, PassKind::Raster);
+        let objects = p.write(objects, Access::ColorAttachmentWrite);
+        let depth = p.write(depth, Access::DepthAttachmentWrite);
+        let camera = p.read(inputs.scene.camera, Access::AnyShaderReadUniform);
+        let points = p.read(points, Access::AnyShaderReadSampled);
+        let ints = p.read(ints, Access::AnyShaderReadSampled);
+        let verts = p.read(verts, Access::AnyShaderReadSampled);
+        let sat = p.read(sat, Access::AnyShaderReadSampled);
+        let blur = blur.map(|b| p.read(b, Access::AnyShaderReadSampled)).unwrap_or(sat);
+        let mut push = Vec::with_capacity(64);
+        for v in [self.up.sat_w as i32, self.up.sat_h as i32, self.settings.hemisphere_arcs as i32, self.settings.mode.code()] {
+            push.extend_from_slice(&v.to_le_bytes());
+        }
+        for v in self.up.off0.iter().chain(&self.up.off1) {
+            push.extend_from_slice(&v.to_le_bytes());
+        }
+        for v in [self.settings.alpha, self.settings.zeta, 0.0, 0.0] {
+            push.extend_from_slice(&v.to_le_bytes());
+        }
+        let (pipeline, layout) = (self.raster.pipeline, self.raster.layout);
+        let nearest = self.nearest.sampler;
+        let vertex_count = 3 * self.up.triangles;
+        let query = self.query;
+        p.record(move |rc| {
+            let d = rc.device();
+            let color = [vk::RenderingAttachmentInfo::default()
+                .image_view(rc.image(objects)?.view)
+                .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+                .load_op(vk::AttachmentLoadOp::CLEAR)
+                .store_op(vk::AttachmentStoreOp::STORE)
+                .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: [0.0; 4] } })];
+            let depth_att = vk::RenderingAttachmentInfo::default()
+                .image_view(rc.image(depth)?.view)
+                .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
+                .load_op(vk::AttachmentLoadOp::CLEAR)
+                .store_op(vk::AttachmentStoreOp::STORE)
+                .clear_value(vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } });
+            let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
+            let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&color).depth_attachment(&depth_att);
+            unsafe {
+                d.cmd_reset_query_pool(rc.cmd, query, 0, 1);
+                d.cmd_begin_query(rc.cmd, query, 0, vk::QueryControlFlags::empty());
+                d.cmd_begin_rendering(rc.cmd, &info);
+                d.cmd_set_viewport(rc.cmd, 0, &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: h as f32, min_depth: 0.0, max_depth: 1.0 }]);
+                d.cmd_set_scissor(rc.cmd, 0, &[area]);
+                d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+            }
+            rc.push_descriptors(
+                vk::PipelineBindPoint::GRAPHICS,
+                layout,
+                0,
+                &[
+                    Bind::UniformBuffer(camera),
+                    Bind::SampledImage(points, nearest),
+                    Bind::SampledImage(ints, nearest),
+                    Bind::SampledImage(verts, nearest),
+                    Bind::SampledImage(sat, nearest),
+                    Bind::SampledImage(blur, nearest),
+                ],
+            )?;
+            unsafe {
+                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::ALL_GRAPHICS, 0, &push);
+                d.cmd_draw(rc.cmd, vertex_count, 1, 0, 0);
+                d.cmd_end_rendering(rc.cmd);
+                d.cmd_end_query(rc.cmd, query, 0);
+            }
+            Ok(())
+        });
+        let hdr = graph.create_image("vv_hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
+        let mut p = graph.pass("vv_composite", PassKind::Compute);
+        let base = p.read(base, Access::ComputeShaderReadSampled);
+        let objects = p.read(objects, Access::ComputeShaderReadSampled);
+        let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
+        let (pl, lay) = (self.composite.pipeline, self.composite.layout);
+        p.record(move |rc| {
+            crate::util::bind_compute(rc, pl, lay, &[Bind::SampledImage(base, nearest), Bind::SampledImage(objects, nearest), Bind::StorageImage(hdr)])?;
+            unsafe { rc.device().cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1) };
+            Ok(())
+        });
+        Ok(hdr)
+    }
+}
