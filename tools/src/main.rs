@@ -17,6 +17,7 @@ mod bench;
 mod hsdt_bench;
 mod spheres;
 mod view;
+mod vv;
 
 #[derive(Parser)]
 #[command(name = "penumbra", version, about = "Vulkan rendering of dynamic scenes under all-frequency lighting", long_about = None)]
@@ -80,6 +81,10 @@ enum PrecomputeCmd {
     /// Object occlusion fields of every mesh of a scene or model (fixed and adaptive shells,
     /// 8-bit SH coefficients), one file per object and variant: OUT/<mesh>.{fixed,adaptive}.psf.
     ShadowField(bench::ShadowFieldArgs),
+    /// Vectorized visibility per vertex and the spherical-Voronoi correspondence per triangle
+    /// of a static scene or model (issue 9), one file: OUT (default <model stem>.pvv); sizes and
+    /// times; `--check FILE` validates an existing file against the model.
+    Vv(vv::VvArgs),
 }
 
 #[derive(Args)]
@@ -355,6 +360,10 @@ fn run(cli: Cli) -> Result<()> {
             a.params.check().map_err(bad)?;
             let scene = load_scene(a.scene.as_deref())?;
             bench::run_shadow_fields(&a, &scene)
+        }
+        Cmd::Precompute(PrecomputeCmd::Vv(a)) => {
+            let scene = load_scene(Some(&a.model))?;
+            vv::run(&a, &scene)?.map_err(bad)
         }
         Cmd::Precompute(PrecomputeCmd::ShadowField(a)) => {
             a.params.check().map_err(bad)?;
