@@ -1,9 +1,10 @@
 //! The raster G-buffer pass: world position and eye distance, octahedral normal and tangent
 //! (local frame), uv + material index + instance id, motion vectors in pixels, and depth.
 
-use crate::scene_gpu::{DrawList, SceneHandles, Vertex};
-use crate::util::{layouts, Pipeline};
-use anyhow::{Context as _, Result};
+use crate::raster::{raster_pipeline, DepthState, RasterDesc, VertexInput};
+use crate::scene_gpu::{DrawList, SceneHandles};
+use crate::util::Pipeline;
+use anyhow::Result;
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, Context, Graph, ImageHandle, PassKind};
@@ -33,89 +34,20 @@ pub struct GBufferPass {
 
 impl GBufferPass {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        let d = &ctx.device;
-        let (set_layout, layout) = layouts(
+        let pipeline = raster_pipeline(
             ctx,
-            "gbuffer",
-            &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
-            vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT,
-            0,
+            shaders,
+            &RasterDesc {
+                name: "gbuffer",
+                shaders: &["gbuffer.vert", "gbuffer.frag"],
+                descriptors: &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
+                vertex_input: VertexInput::PositionNormalUv,
+                colors: &[POSITION_FORMAT, NORMAL_FORMAT, UV_MAT_FORMAT, MOTION_FORMAT],
+                depth: Some(DepthState { format: DEPTH_FORMAT, write: true, compare: vk::CompareOp::LESS }),
+                ..Default::default()
+            },
         )?;
-        let vs = ctx.create_shader_module("gbuffer.vert", shaders.get("gbuffer.vert")?)?;
-        let fs = ctx.create_shader_module("gbuffer.frag", shaders.get("gbuffer.frag")?)?;
-        let stages = [
-            vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::VERTEX).module(vs).name(c"main"),
-            vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::FRAGMENT).module(fs).name(c"main"),
-        ];
-        let bindings = [vk::VertexInputBindingDescription {
-            binding: 0,
-            stride: std::mem::size_of::<Vertex>() as u32,
-            input_rate: vk::VertexInputRate::VERTEX,
-        }];
-        let attrs = [
-            vk::VertexInputAttributeDescription {
-                location: 0,
-                binding: 0,
-                format: vk::Format::R32G32B32_SFLOAT,
-                offset: 0,
-            },
-            vk::VertexInputAttributeDescription {
-                location: 1,
-                binding: 0,
-                format: vk::Format::R32G32B32_SFLOAT,
-                offset: 12,
-            },
-            vk::VertexInputAttributeDescription {
-                location: 2,
-                binding: 0,
-                format: vk::Format::R32G32_SFLOAT,
-                offset: 24,
-            },
-        ];
-        let vi = vk::PipelineVertexInputStateCreateInfo::default()
-            .vertex_binding_descriptions(&bindings)
-            .vertex_attribute_descriptions(&attrs);
-        let ia = vk::PipelineInputAssemblyStateCreateInfo::default().topology(vk::PrimitiveTopology::TRIANGLE_LIST);
-        let vp = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
-        let rs = vk::PipelineRasterizationStateCreateInfo::default()
-            .polygon_mode(vk::PolygonMode::FILL)
-            .cull_mode(vk::CullModeFlags::NONE)
-            .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
-            .line_width(1.0);
-        let ms = vk::PipelineMultisampleStateCreateInfo::default().rasterization_samples(vk::SampleCountFlags::TYPE_1);
-        let ds = vk::PipelineDepthStencilStateCreateInfo::default()
-            .depth_test_enable(true)
-            .depth_write_enable(true)
-            .depth_compare_op(vk::CompareOp::LESS);
-        let blend =
-            [vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA); 4];
-        let cb = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend);
-        let dyn_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
-        let dy = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dyn_states);
-        let formats = [POSITION_FORMAT, NORMAL_FORMAT, UV_MAT_FORMAT, MOTION_FORMAT];
-        let mut rendering = vk::PipelineRenderingCreateInfo::default()
-            .color_attachment_formats(&formats)
-            .depth_attachment_format(DEPTH_FORMAT);
-        let ci = [vk::GraphicsPipelineCreateInfo::default()
-            .stages(&stages)
-            .vertex_input_state(&vi)
-            .input_assembly_state(&ia)
-            .viewport_state(&vp)
-            .rasterization_state(&rs)
-            .multisample_state(&ms)
-            .depth_stencil_state(&ds)
-            .color_blend_state(&cb)
-            .dynamic_state(&dy)
-            .layout(layout)
-            .push_next(&mut rendering)];
-        let res = unsafe { d.create_graphics_pipelines(vk::PipelineCache::null(), &ci, None) };
-        unsafe {
-            d.destroy_shader_module(vs, None);
-            d.destroy_shader_module(fs, None);
-        }
-        let pipeline = res.map_err(|(_, e)| e).context("gbuffer pipeline")?[0];
-        ctx.set_name(pipeline, "gbuffer");
-        Ok(GBufferPass { pipeline: Pipeline::from_raw(ctx, pipeline, layout, set_layout) })
+        Ok(GBufferPass { pipeline })
     }
 
     /// Declares the G-buffer images and the `gbuffer` pass that fills them.

@@ -10,6 +10,7 @@ pub mod hsdt;
 pub mod isg;
 pub mod kdtree;
 pub mod mc;
+pub mod raster;
 pub mod readback;
 pub mod scene_gpu;
 pub mod shade_env;

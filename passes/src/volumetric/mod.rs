@@ -44,8 +44,9 @@
 pub mod bench;
 
 use crate::effect::{Effect, EffectInputs};
-use crate::util::{bytes_of, compute_pipeline, groups, layouts, Pipeline, Sampler};
-use anyhow::{bail, Context as _, Result};
+use crate::raster::{raster_pipeline, Blend, DepthState, RasterDesc, VertexInput};
+use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
+use anyhow::{bail, Result};
 use glam::{Mat4, Vec3};
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
@@ -412,179 +413,54 @@ impl VolumetricEffect {
 }
 
 fn shadow_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
-    let (set_layout, layout) =
-        layouts(ctx, "vol_shadow", &[vk::DescriptorType::STORAGE_BUFFER], vk::ShaderStageFlags::VERTEX, 64)?;
-    let vs = ctx.create_shader_module("vol_shadow.vert", shaders.get("vol_shadow.vert")?)?;
-    let stages =
-        [vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::VERTEX).module(vs).name(c"main")];
-    let p = raster_pipeline(
+    raster_pipeline(
         ctx,
-        &stages,
-        layout,
-        vk::PrimitiveTopology::TRIANGLE_LIST,
-        &[],
-        Some(SHADOW_FORMAT),
-        "vol_shadow",
-    );
-    unsafe { ctx.device.destroy_shader_module(vs, None) };
-    Ok(Pipeline::from_raw(ctx, p?, layout, set_layout))
+        shaders,
+        &RasterDesc {
+            name: "vol_shadow",
+            shaders: &["vol_shadow.vert"],
+            descriptors: &[vk::DescriptorType::STORAGE_BUFFER],
+            push_constant_bytes: 64,
+            vertex_input: VertexInput::Position,
+            depth: Some(DepthState { format: SHADOW_FORMAT, write: true, compare: vk::CompareOp::LESS_OR_EQUAL }),
+            ..Default::default()
+        },
+    )
+}
+
+/// Shadow-volume boundaries of triangles with adjacency (`vol_mask.geom`) into `color`.
+fn volume_pipeline(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    name: &str,
+    frag: &str,
+    color: vk::Format,
+    blend: Blend,
+) -> Result<Pipeline> {
+    raster_pipeline(
+        ctx,
+        shaders,
+        &RasterDesc {
+            name,
+            shaders: &["vol_mask.vert", "vol_mask.geom", frag],
+            descriptors: &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
+            push_constant_bytes: 32,
+            vertex_input: VertexInput::Position,
+            topology: vk::PrimitiveTopology::TRIANGLE_LIST_WITH_ADJACENCY,
+            colors: &[color],
+            blend,
+            ..Default::default()
+        },
+    )
 }
 
 fn mask_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
-    let stages_f = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::GEOMETRY | vk::ShaderStageFlags::FRAGMENT;
-    let (set_layout, layout) = layouts(
-        ctx,
-        "vol_mask",
-        &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
-        stages_f,
-        32,
-    )?;
-    let vs = ctx.create_shader_module("vol_mask.vert", shaders.get("vol_mask.vert")?)?;
-    let gs = ctx.create_shader_module("vol_mask.geom", shaders.get("vol_mask.geom")?)?;
-    let fs = ctx.create_shader_module("vol_mask.frag", shaders.get("vol_mask.frag")?)?;
-    let stages = [
-        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::VERTEX).module(vs).name(c"main"),
-        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::GEOMETRY).module(gs).name(c"main"),
-        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::FRAGMENT).module(fs).name(c"main"),
-    ];
-    let p = raster_pipeline(
-        ctx,
-        &stages,
-        layout,
-        vk::PrimitiveTopology::TRIANGLE_LIST_WITH_ADJACENCY,
-        &[MASK_FORMAT],
-        None,
-        "vol_mask",
-    );
-    unsafe {
-        ctx.device.destroy_shader_module(vs, None);
-        ctx.device.destroy_shader_module(gs, None);
-        ctx.device.destroy_shader_module(fs, None);
-    }
-    Ok(Pipeline::from_raw(ctx, p?, layout, set_layout))
+    volume_pipeline(ctx, shaders, "vol_mask", "vol_mask.frag", MASK_FORMAT, Blend::Replace)
 }
 
+/// Front-most (min RGB) and back-most (max alpha) boundary distances per pixel.
 fn volumes_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
-    let stages_f = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::GEOMETRY | vk::ShaderStageFlags::FRAGMENT;
-    let (set_layout, layout) = layouts(
-        ctx,
-        "vol_volumes",
-        &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
-        stages_f,
-        32,
-    )?;
-    let vs = ctx.create_shader_module("vol_mask.vert", shaders.get("vol_mask.vert")?)?;
-    let gs = ctx.create_shader_module("vol_mask.geom", shaders.get("vol_mask.geom")?)?;
-    let fs = ctx.create_shader_module("vol_volumes.frag", shaders.get("vol_volumes.frag")?)?;
-    let stages = [
-        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::VERTEX).module(vs).name(c"main"),
-        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::GEOMETRY).module(gs).name(c"main"),
-        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::FRAGMENT).module(fs).name(c"main"),
-    ];
-    let p = raster_pipeline_blend(
-        ctx,
-        &stages,
-        layout,
-        vk::PrimitiveTopology::TRIANGLE_LIST_WITH_ADJACENCY,
-        &[INTERVAL_FORMAT],
-        None,
-        "vol_volumes",
-        true,
-    );
-    unsafe {
-        ctx.device.destroy_shader_module(vs, None);
-        ctx.device.destroy_shader_module(gs, None);
-        ctx.device.destroy_shader_module(fs, None);
-    }
-    Ok(Pipeline::from_raw(ctx, p?, layout, set_layout))
-}
-
-fn raster_pipeline(
-    ctx: &Arc<Context>,
-    stages: &[vk::PipelineShaderStageCreateInfo],
-    layout: vk::PipelineLayout,
-    topology: vk::PrimitiveTopology,
-    colors: &[vk::Format],
-    depth: Option<vk::Format>,
-    name: &str,
-) -> Result<vk::Pipeline> {
-    raster_pipeline_blend(ctx, stages, layout, topology, colors, depth, name, false)
-}
-
-#[allow(clippy::too_many_arguments)]
-fn raster_pipeline_blend(
-    ctx: &Arc<Context>,
-    stages: &[vk::PipelineShaderStageCreateInfo],
-    layout: vk::PipelineLayout,
-    topology: vk::PrimitiveTopology,
-    colors: &[vk::Format],
-    depth: Option<vk::Format>,
-    name: &str,
-    min_max: bool,
-) -> Result<vk::Pipeline> {
-    let bindings = [vk::VertexInputBindingDescription {
-        binding: 0,
-        stride: std::mem::size_of::<crate::scene_gpu::Vertex>() as u32,
-        input_rate: vk::VertexInputRate::VERTEX,
-    }];
-    let attrs = [vk::VertexInputAttributeDescription {
-        location: 0,
-        binding: 0,
-        format: vk::Format::R32G32B32_SFLOAT,
-        offset: 0,
-    }];
-    let vi = vk::PipelineVertexInputStateCreateInfo::default()
-        .vertex_binding_descriptions(&bindings)
-        .vertex_attribute_descriptions(&attrs);
-    let ia = vk::PipelineInputAssemblyStateCreateInfo::default().topology(topology);
-    let vp = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
-    let rs = vk::PipelineRasterizationStateCreateInfo::default()
-        .polygon_mode(vk::PolygonMode::FILL)
-        .cull_mode(vk::CullModeFlags::NONE)
-        .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
-        .line_width(1.0);
-    let ms = vk::PipelineMultisampleStateCreateInfo::default().rasterization_samples(vk::SampleCountFlags::TYPE_1);
-    let ds = vk::PipelineDepthStencilStateCreateInfo::default()
-        .depth_test_enable(depth.is_some())
-        .depth_write_enable(depth.is_some())
-        .depth_compare_op(vk::CompareOp::LESS_OR_EQUAL);
-    // min_max: rgb keeps the minimum, alpha the maximum.
-    let blend: Vec<_> = colors
-        .iter()
-        .map(|_| {
-            vk::PipelineColorBlendAttachmentState::default()
-                .color_write_mask(vk::ColorComponentFlags::RGBA)
-                .blend_enable(min_max)
-                .src_color_blend_factor(vk::BlendFactor::ONE)
-                .dst_color_blend_factor(vk::BlendFactor::ONE)
-                .color_blend_op(vk::BlendOp::MIN)
-                .src_alpha_blend_factor(vk::BlendFactor::ONE)
-                .dst_alpha_blend_factor(vk::BlendFactor::ONE)
-                .alpha_blend_op(vk::BlendOp::MAX)
-        })
-        .collect();
-    let cb = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend);
-    let dyn_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
-    let dy = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dyn_states);
-    let mut rendering = vk::PipelineRenderingCreateInfo::default()
-        .color_attachment_formats(colors)
-        .depth_attachment_format(depth.unwrap_or(vk::Format::UNDEFINED));
-    let ci = [vk::GraphicsPipelineCreateInfo::default()
-        .stages(stages)
-        .vertex_input_state(&vi)
-        .input_assembly_state(&ia)
-        .viewport_state(&vp)
-        .rasterization_state(&rs)
-        .multisample_state(&ms)
-        .depth_stencil_state(&ds)
-        .color_blend_state(&cb)
-        .dynamic_state(&dy)
-        .layout(layout)
-        .push_next(&mut rendering)];
-    let res = unsafe { ctx.device.create_graphics_pipelines(vk::PipelineCache::null(), &ci, None) };
-    let p = res.map_err(|(_, e)| e).with_context(|| format!("{name} pipeline"))?[0];
-    ctx.set_name(p, name);
-    Ok(p)
+    volume_pipeline(ctx, shaders, "vol_volumes", "vol_volumes.frag", INTERVAL_FORMAT, Blend::MinRgbMaxAlpha)
 }
 
 fn viewport(x: f32, y: f32, w: f32, h: f32) -> vk::Viewport {

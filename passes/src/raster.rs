@@ -1,0 +1,248 @@
+//! Graphics pipelines from one description (dynamic rendering, dynamic viewport/scissor,
+//! push descriptors): the raster passes state only what differs (shaders, vertex input,
+//! topology, attachments, depth, blending) instead of repeating the Vulkan create-info chain.
+
+use crate::scene_gpu::Vertex;
+use crate::util::{layouts, Pipeline};
+use anyhow::{bail, Context as _, Result};
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{vk, Context};
+use std::sync::Arc;
+
+/// Which attributes of the scene's vertex buffer ([`Vertex`], binding 0) the vertex shader reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VertexInput {
+    /// No vertex buffer (positions from a storage buffer or generated).
+    None,
+    /// location 0: position.
+    Position,
+    /// locations 0, 1, 2: position, normal, uv.
+    PositionNormalUv,
+}
+
+/// Colour blending, the same for every attachment.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Blend {
+    /// Writes replace.
+    Replace,
+    /// RGB keeps the minimum, alpha the maximum (nearest and farthest of several surfaces).
+    MinRgbMaxAlpha,
+    /// RGBA sums.
+    Additive,
+}
+
+/// Depth test/write.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DepthState {
+    pub format: vk::Format,
+    pub write: bool,
+    pub compare: vk::CompareOp,
+}
+
+/// Everything a raster pass's pipeline needs.
+#[derive(Clone, Debug)]
+pub struct RasterDesc<'a> {
+    /// Names the pipeline and its layouts (validation messages, captures).
+    pub name: &'a str,
+    /// Shader files under `glsl/`; the stage comes from the extension
+    /// (`.vert`, `.tesc`, `.tese`, `.geom`, `.frag`).
+    pub shaders: &'a [&'a str],
+    /// Push-descriptor bindings 0.. (visible to every stage of the pipeline).
+    pub descriptors: &'a [vk::DescriptorType],
+    pub push_constant_bytes: u32,
+    pub vertex_input: VertexInput,
+    pub topology: vk::PrimitiveTopology,
+    /// Control points per patch (with tessellation shaders; topology `PATCH_LIST`).
+    pub patch_control_points: u32,
+    pub cull: vk::CullModeFlags,
+    pub colors: &'a [vk::Format],
+    pub blend: Blend,
+    pub depth: Option<DepthState>,
+}
+
+impl Default for RasterDesc<'_> {
+    fn default() -> Self {
+        RasterDesc {
+            name: "raster",
+            shaders: &[],
+            descriptors: &[],
+            push_constant_bytes: 0,
+            vertex_input: VertexInput::None,
+            topology: vk::PrimitiveTopology::TRIANGLE_LIST,
+            patch_control_points: 0,
+            cull: vk::CullModeFlags::NONE,
+            colors: &[],
+            blend: Blend::Replace,
+            depth: None,
+        }
+    }
+}
+
+fn stage_of(file: &str) -> Option<vk::ShaderStageFlags> {
+    Some(match file.rsplit('.').next()? {
+        "vert" => vk::ShaderStageFlags::VERTEX,
+        "tesc" => vk::ShaderStageFlags::TESSELLATION_CONTROL,
+        "tese" => vk::ShaderStageFlags::TESSELLATION_EVALUATION,
+        "geom" => vk::ShaderStageFlags::GEOMETRY,
+        "frag" => vk::ShaderStageFlags::FRAGMENT,
+        _ => return None,
+    })
+}
+
+/// Creates the pipeline described by `desc` (with its push-descriptor set layout and pipeline
+/// layout). Errors name the pipeline: unknown shader stage, missing shader, Vulkan failures.
+pub fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, desc: &RasterDesc) -> Result<Pipeline> {
+    let mut stage_flags = vk::ShaderStageFlags::empty();
+    for s in desc.shaders {
+        let st = stage_of(s).with_context(|| format!("{} pipeline: '{s}' is not a raster shader stage", desc.name))?;
+        if stage_flags.contains(st) {
+            bail!("{} pipeline: two shaders for the stage of '{s}'", desc.name);
+        }
+        stage_flags |= st;
+    }
+    if !stage_flags.contains(vk::ShaderStageFlags::VERTEX) {
+        bail!("{} pipeline: no vertex shader", desc.name);
+    }
+    let tess = stage_flags
+        .intersects(vk::ShaderStageFlags::TESSELLATION_CONTROL | vk::ShaderStageFlags::TESSELLATION_EVALUATION);
+    if tess && (desc.patch_control_points == 0 || desc.topology != vk::PrimitiveTopology::PATCH_LIST) {
+        bail!("{} pipeline: tessellation needs the PATCH_LIST topology and patch_control_points", desc.name);
+    }
+    // Modules first (all destroyed below whatever happens).
+    let mut modules = Vec::new();
+    let mut err = None;
+    for s in desc.shaders {
+        match shaders.get(s).and_then(|code| ctx.create_shader_module(s, code)) {
+            Ok(m) => modules.push(m),
+            Err(e) => {
+                err = Some(e);
+                break;
+            }
+        }
+    }
+    let result = match err {
+        Some(e) => Err(e),
+        None => create(ctx, desc, &modules, stage_flags),
+    };
+    for m in modules {
+        unsafe { ctx.device.destroy_shader_module(m, None) };
+    }
+    result
+}
+
+fn create(
+    ctx: &Arc<Context>,
+    desc: &RasterDesc,
+    modules: &[vk::ShaderModule],
+    stage_flags: vk::ShaderStageFlags,
+) -> Result<Pipeline> {
+    let stages: Vec<_> = desc
+        .shaders
+        .iter()
+        .zip(modules)
+        .map(|(s, &m)| {
+            vk::PipelineShaderStageCreateInfo::default().stage(stage_of(s).expect("checked")).module(m).name(c"main")
+        })
+        .collect();
+    let bindings = [vk::VertexInputBindingDescription {
+        binding: 0,
+        stride: std::mem::size_of::<Vertex>() as u32,
+        input_rate: vk::VertexInputRate::VERTEX,
+    }];
+    let attr = |location, format, offset| vk::VertexInputAttributeDescription { location, binding: 0, format, offset };
+    let all_attrs = [
+        attr(0, vk::Format::R32G32B32_SFLOAT, 0),
+        attr(1, vk::Format::R32G32B32_SFLOAT, 12),
+        attr(2, vk::Format::R32G32_SFLOAT, 24),
+    ];
+    let (bindings, attrs): (&[_], &[_]) = match desc.vertex_input {
+        VertexInput::None => (&[], &[]),
+        VertexInput::Position => (&bindings, &all_attrs[..1]),
+        VertexInput::PositionNormalUv => (&bindings, &all_attrs),
+    };
+    let vi = vk::PipelineVertexInputStateCreateInfo::default()
+        .vertex_binding_descriptions(bindings)
+        .vertex_attribute_descriptions(attrs);
+    let ia = vk::PipelineInputAssemblyStateCreateInfo::default().topology(desc.topology);
+    let ts = vk::PipelineTessellationStateCreateInfo::default().patch_control_points(desc.patch_control_points);
+    let vp = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
+    let rs = vk::PipelineRasterizationStateCreateInfo::default()
+        .polygon_mode(vk::PolygonMode::FILL)
+        .cull_mode(desc.cull)
+        .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
+        .line_width(1.0);
+    let ms = vk::PipelineMultisampleStateCreateInfo::default().rasterization_samples(vk::SampleCountFlags::TYPE_1);
+    let ds = match desc.depth {
+        Some(d) => vk::PipelineDepthStencilStateCreateInfo::default()
+            .depth_test_enable(true)
+            .depth_write_enable(d.write)
+            .depth_compare_op(d.compare),
+        None => vk::PipelineDepthStencilStateCreateInfo::default(),
+    };
+    let attachment = {
+        let a = vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA);
+        let ones = |a: vk::PipelineColorBlendAttachmentState| {
+            a.blend_enable(true)
+                .src_color_blend_factor(vk::BlendFactor::ONE)
+                .dst_color_blend_factor(vk::BlendFactor::ONE)
+                .src_alpha_blend_factor(vk::BlendFactor::ONE)
+                .dst_alpha_blend_factor(vk::BlendFactor::ONE)
+        };
+        match desc.blend {
+            Blend::Replace => a,
+            Blend::MinRgbMaxAlpha => ones(a).color_blend_op(vk::BlendOp::MIN).alpha_blend_op(vk::BlendOp::MAX),
+            Blend::Additive => ones(a).color_blend_op(vk::BlendOp::ADD).alpha_blend_op(vk::BlendOp::ADD),
+        }
+    };
+    let blend = vec![attachment; desc.colors.len()];
+    let cb = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend);
+    let dyn_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
+    let dy = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dyn_states);
+    let mut rendering = vk::PipelineRenderingCreateInfo::default()
+        .color_attachment_formats(desc.colors)
+        .depth_attachment_format(desc.depth.map_or(vk::Format::UNDEFINED, |d| d.format));
+    let (set_layout, layout) = layouts(ctx, desc.name, desc.descriptors, stage_flags, desc.push_constant_bytes)?;
+    let mut ci = vk::GraphicsPipelineCreateInfo::default()
+        .stages(&stages)
+        .vertex_input_state(&vi)
+        .input_assembly_state(&ia)
+        .viewport_state(&vp)
+        .rasterization_state(&rs)
+        .multisample_state(&ms)
+        .depth_stencil_state(&ds)
+        .color_blend_state(&cb)
+        .dynamic_state(&dy)
+        .layout(layout)
+        .push_next(&mut rendering);
+    if desc.patch_control_points > 0 {
+        ci = ci.tessellation_state(&ts);
+    }
+    let res = unsafe { ctx.device.create_graphics_pipelines(vk::PipelineCache::null(), &[ci], None) };
+    let pipeline = match res {
+        Ok(p) => p[0],
+        Err((_, e)) => {
+            unsafe {
+                ctx.device.destroy_pipeline_layout(layout, None);
+                ctx.device.destroy_descriptor_set_layout(set_layout, None);
+            }
+            return Err(e).with_context(|| format!("{} pipeline", desc.name));
+        }
+    };
+    ctx.set_name(pipeline, desc.name);
+    Ok(Pipeline::from_raw(ctx, pipeline, layout, set_layout))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stages_come_from_file_extensions() {
+        assert_eq!(stage_of("a.vert"), Some(vk::ShaderStageFlags::VERTEX));
+        assert_eq!(stage_of("x/b.tesc"), Some(vk::ShaderStageFlags::TESSELLATION_CONTROL));
+        assert_eq!(stage_of("b.tese"), Some(vk::ShaderStageFlags::TESSELLATION_EVALUATION));
+        assert_eq!(stage_of("c.geom"), Some(vk::ShaderStageFlags::GEOMETRY));
+        assert_eq!(stage_of("d.frag"), Some(vk::ShaderStageFlags::FRAGMENT));
+        assert_eq!(stage_of("e.comp"), None);
+    }
+}
