@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 mod bench;
+mod isg_bench;
 mod hsdt_bench;
 mod spheres;
 mod view;
@@ -70,6 +71,10 @@ enum BenchCmd {
     /// Then the image errors of the variants (adaptive/fixed, pixel/vertex mode, windows, with and
     /// without source radiance fields) against the CPU reference at --size (skip: --no-images).
     ShadowFields(bench::ShadowFieldsArgs),
+    /// ISG shadows per pixel and per vertex against the full and the SG-lighting references:
+    /// GPU ms per pass and per frame, PSNR/relative RMSE, speedup over the reference renderer,
+    /// per-vertex interpolation error.
+    Isg(isg_bench::IsgArgs),
     /// Hemispherical distance transform (issue 8): t_S per point and per 1000 points on the GPU
     /// against the CPU, GPU fp16 and the HSDT against the exact brute-force transform, and the two
     /// SSDF lighting integrals against brute-force integration (errors per sharpness, us per lobe).
@@ -369,6 +374,12 @@ fn run(cli: Cli) -> Result<()> {
             a.params.check().map_err(bad)?;
             let scene = load_scene(Some(&a.model))?;
             bench::run_precompute_shadow_field(&a, &scene)
+        }
+        Cmd::Bench(BenchCmd::Isg(a)) => {
+            parse_size(&a.size).map_err(bad)?;
+            let scene = load_scene(a.scene.as_deref())?;
+            a.scene_with_params(&scene).map_err(bad)?;
+            isg_bench::run_isg(&a, &scene)
         }
         Cmd::Bench(BenchCmd::Techniques(a)) => {
             parse_size(&a.size).map_err(bad)?;

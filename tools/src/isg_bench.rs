@@ -1,0 +1,135 @@
+//! `penumbra bench isg`: the ISG technique per pixel (`isg`) and per vertex (`isg-vertex`)
+//! against the full reference and the SG-lighting reference (exact visibility), in one run.
+
+use crate::bench::{run, BenchArgs};
+use anyhow::Result;
+use clap::Args;
+use penumbra_reference::image::Image;
+use penumbra_reference::metrics::compare;
+use penumbra_scene::Scene;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct IsgArgs {
+    /// Scene file or glTF model; the built-in default scene when omitted.
+    pub scene: Option<PathBuf>,
+    /// Image size WxH.
+    #[arg(long, default_value = "160x120")]
+    pub size: String,
+    /// Scene frame K measured (time K / fps).
+    #[arg(long, default_value_t = 30)]
+    pub frame: u32,
+    #[arg(long, default_value_t = 30.0)]
+    pub fps: f32,
+    /// GPU frames per mode (timings are medians over them).
+    #[arg(long, default_value_t = 4)]
+    pub frames: u32,
+    /// Samples per pixel of the two CPU references.
+    #[arg(long, default_value_t = 64)]
+    pub spp: u32,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// An ISG parameter KEY=VALUE for both modes (repeatable; keys of `IsgSettings::set`).
+    #[arg(long = "param", value_name = "KEY=VALUE")]
+    pub params: Vec<String>,
+    /// Output directory: reference.exr, reference_sg.exr, isg.exr, isg-vertex.exr, diffs,
+    /// bench.json.
+    #[arg(long, default_value = "bench-isg-out")]
+    pub out: PathBuf,
+}
+
+impl IsgArgs {
+    /// The scene with the ISG parameters applied (a bad key or value is an error naming it).
+    pub fn scene_with_params(&self, scene: &Scene) -> Result<Scene> {
+        let mut scene = scene.clone();
+        if !matches!(scene.technique.as_str(), "isg" | "isg-vertex") {
+            scene.technique_params.clear();
+        }
+        for p in &self.params {
+            let (k, v) = p.split_once('=').ok_or_else(|| anyhow::anyhow!("--param {p}: expected KEY=VALUE"))?;
+            scene.technique_params.insert(k.trim().to_string(), v.trim().to_string());
+        }
+        let mut check = penumbra_passes::isg::IsgSettings::default();
+        for (k, v) in &scene.technique_params {
+            if k == "mode" {
+                anyhow::bail!("--param mode: bench isg measures both modes");
+            }
+            check.set(k, v)?;
+        }
+        Ok(scene)
+    }
+}
+
+/// Runs `bench techniques --techniques isg,isg-vertex --sg-reference` and prints its results as
+/// tables: per mode GPU ms per frame, speedup over the reference renderer, PSNR / relative RMSE
+/// against both references; GPU ms per pass; the per-vertex interpolation error.
+pub fn run_isg(args: &IsgArgs, scene: &Scene) -> Result<()> {
+    let scene = args.scene_with_params(scene)?;
+    let bench = BenchArgs {
+        scene: args.scene.clone(),
+        techniques: "isg,isg-vertex".into(),
+        size: args.size.clone(),
+        frame: args.frame,
+        fps: args.fps,
+        frames: args.frames,
+        spp: args.spp,
+        seed: args.seed,
+        out: args.out.clone(),
+        sg_reference: true,
+    };
+    run(&bench, &scene)?;
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(args.out.join("bench.json"))?)?;
+    let rows = report["techniques"].as_array().cloned().unwrap_or_default();
+    let f = |v: &serde_json::Value| v.as_f64().map_or("-".to_string(), |x| format!("{x:.2}"));
+    let f4 = |v: &serde_json::Value| v.as_f64().map_or("-".to_string(), |x| format!("{x:.4}"));
+    println!();
+    println!(
+        "ISG on '{}' at {}, t = {:.2} s; reference {} spp in {:.1} s",
+        scene.name,
+        args.size,
+        report["time_s"].as_f64().unwrap_or(0.0),
+        args.spp,
+        report["reference"]["seconds"].as_f64().unwrap_or(0.0)
+    );
+    println!("| mode | GPU ms/frame | speedup vs reference | PSNR / relRMSE vs full reference | PSNR / relRMSE vs SG-lighting reference |");
+    println!("|---|---|---|---|---|");
+    for r in &rows {
+        println!(
+            "| {} | {} | {}x | {} dB / {} | {} dB / {} |",
+            r["technique"].as_str().unwrap_or("?"),
+            f(&r["gpu_ms_per_frame"]),
+            f(&r["speedup_vs_reference"]),
+            f(&r["psnr_db"]),
+            f4(&r["rel_rmse"]),
+            f(&r["vs_sg_reference"]["psnr_db"]),
+            f4(&r["vs_sg_reference"]["rel_rmse"]),
+        );
+    }
+    let mut passes: Vec<String> = Vec::new();
+    for r in &rows {
+        for k in r["passes"].as_object().map(|o| o.keys().cloned().collect::<Vec<_>>()).unwrap_or_default() {
+            if !passes.contains(&k) {
+                passes.push(k);
+            }
+        }
+    }
+    println!();
+    let names: Vec<&str> = rows.iter().map(|r| r["technique"].as_str().unwrap_or("?")).collect();
+    println!("| GPU ms per pass (median) | {} |", names.join(" | "));
+    println!("|---|{}", "---|".repeat(rows.len()));
+    for p in &passes {
+        println!("| {p} | {} |", rows.iter().map(|r| f(&r["passes"][p]["median_ms"])).collect::<Vec<_>>().join(" | "));
+    }
+    let read = |name: &str| Image::read_exr(args.out.join(format!("{name}.exr")));
+    if let (Ok(px), Ok(vx)) = (read("isg"), read("isg-vertex")) {
+        let c = compare(&px, "per pixel", &vx, "per vertex")?;
+        println!();
+        println!(
+            "per vertex vs per pixel (interpolation error): PSNR {} dB, relRMSE {:.4}, FLIP {:.4}",
+            c.psnr_db.map_or("inf".into(), |p| format!("{p:.2}")),
+            c.rel_rmse,
+            c.flip_mean
+        );
+    }
+    Ok(())
+}
