@@ -19,20 +19,25 @@ layout(push_constant) uniform Push { uint r; uint n_maps; uint map_offset; uint 
 const uint NONE = 0xFFFFu;
 const uint MAXR = 256u;
 
-uint st[MAXR];      // candidate row (low 16) | first query row of its region (high 16)
+uint st[MAXR];      // candidate: row (bits 0-7) | nearest-feature column (8-15) | first query row of its region (16-23)
 float res[2][MAXR]; // signed distances of the two columns
 
-// haversine sin^2(d/2) between (theta1, phi1) and (theta2, phi2)
-float hav(float t1, float p1, float t2, float p2) {
-    float a = avs_sin(0.5 * (t1 - t2));
-    float b = avs_sin(0.5 * (p1 - p2));
-    return a * a + avs_sin(t1) * avs_sin(t2) * b * b;
+// sin(k h / 2) and sin((k + 0.5) h) for k < r, shared by the workgroup: the haversine of two
+// texel centres is then table lookups (the same values avs_sin gives, computed once).
+shared float s_half[MAXR];
+shared float s_row[MAXR];
+
+float sq(float x) { return x * x; }
+uint adiff(uint a, uint b) { return a > b ? a - b : b - a; }
+
+// haversine sin^2(d/2) between texel centres (i1, j1) and (i2, j2)
+float havi(uint i1, uint j1, uint i2, uint j2) {
+    return sq(s_half[adiff(i1, i2)]) + s_row[i1] * s_row[i2] * sq(s_half[adiff(j1, j2)]);
 }
 
 void column(uint p, uint j, uint c, uint vbase) {
     uint r = pc.r;
     float h = float(AVS_PI) / float(r);
-    float phi = (float(j) + 0.5) * h;
     for (uint feat = 0u; feat < 2u; feat++) {
         // feat 0: nearest occluded (for visible texels), 1: nearest visible (for occluded)
         uint shift = feat * 16u;
@@ -40,30 +45,25 @@ void column(uint p, uint j, uint c, uint vbase) {
         for (uint u = 0u; u < r; u++) {
             uint gu = (g[(p * r + u) * r + j] >> shift) & 0xFFFFu;
             if (gu == NONE) continue;
-            float tu = (float(u) + 0.5) * h;
-            float pu = (float(gu) + 0.5) * h;
             while (q >= 0) {
-                uint sq = st[q] & 0xFFFFu, tq = st[q] >> 16u;
-                float ps = (float((g[(p * r + sq) * r + j] >> shift) & 0xFFFFu) + 0.5) * h;
-                float tqa = (float(tq) + 0.5) * h;
-                if (hav(tqa, phi, (float(sq) + 0.5) * h, ps) >= hav(tqa, phi, tu, pu)) q--; else break;
+                uint e = st[q];
+                uint sq_ = e & 0xFFu, cs = (e >> 8u) & 0xFFu, tq = e >> 16u;
+                if (havi(tq, j, sq_, cs) >= havi(tq, j, u, gu)) q--; else break;
             }
             if (q < 0) {
                 q = 0;
-                st[0] = u;
+                st[0] = u | (gu << 8u);
             } else {
-                uint sq = st[q] & 0xFFFFu, tq = st[q] >> 16u;
-                float ts = (float(sq) + 0.5) * h;
-                float ps = (float((g[(p * r + sq) * r + j] >> shift) & 0xFFFFu) + 0.5) * h;
+                uint e = st[q];
+                uint sq_ = e & 0xFFu, cs = (e >> 8u) & 0xFFu, tq = e >> 16u;
                 uint lo = tq + 1u, hi = r;
                 while (lo < hi) {
                     uint mid = (lo + hi) / 2u;
-                    float tm = (float(mid) + 0.5) * h;
-                    if (hav(tm, phi, tu, pu) <= hav(tm, phi, ts, ps)) hi = mid; else lo = mid + 1u;
+                    if (havi(mid, j, u, gu) <= havi(mid, j, sq_, cs)) hi = mid; else lo = mid + 1u;
                 }
                 if (lo < r) {
                     q++;
-                    st[q] = u | (lo << 16u);
+                    st[q] = u | (gu << 8u) | (lo << 16u);
                 }
             }
         }
@@ -77,9 +77,9 @@ void column(uint p, uint j, uint c, uint vbase) {
                 d = float(AVS_NO_BOUNDARY);
             } else {
                 while (q > 0 && (st[q] >> 16u) > i) q--;
-                uint sq = st[q] & 0xFFFFu;
-                float ps = (float((g[(p * r + sq) * r + j] >> shift) & 0xFFFFu) + 0.5) * h;
-                d = avs_angular_distance(vec2((float(i) + 0.5) * h, phi), vec2((float(sq) + 0.5) * h, ps));
+                uint sq_ = st[q] & 0xFFu, cs = (st[q] >> 8u) & 0xFFu;
+                d = avs_angular_distance(vec2((float(i) + 0.5) * h, (float(j) + 0.5) * h),
+                                         vec2((float(sq_) + 0.5) * h, (float(cs) + 0.5) * h));
             }
             res[c][i] = v ? d : -d;
         }
@@ -90,6 +90,12 @@ void main() {
     uint jp = gl_GlobalInvocationID.x;
     uint p = gl_GlobalInvocationID.y;
     uint r = pc.r;
+    float h = float(AVS_PI) / float(r);
+    for (uint k = gl_LocalInvocationID.x; k < r; k += gl_WorkGroupSize.x) {
+        s_half[k] = avs_sin(0.5 * float(k) * h);
+        s_row[k] = avs_sin((float(k) + 0.5) * h);
+    }
+    barrier();
     if (jp >= r / 2u || p >= pc.n_maps) return;
     uint mp = p + pc.map_offset;
     uint vbase = mp * avs_words_per_map(r);
