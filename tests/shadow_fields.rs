@@ -148,6 +148,9 @@ fn shadow_fields_local_lights_vertex_and_pixel_modes_against_the_reference() {
     };
     let opts = ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::Exact, ..Default::default() };
     let reference = reference_render(&s, &opts).expect("reference");
+    // the same shading without occluders (lights and environment unshadowed)
+    let (_r, open) = render(&with("pixel", false), "shadow-fields", w, h, &[t], false);
+    let cu = compare(&reference.radiance, "reference", &image(&open[0]), "unshadowed").unwrap();
     let mut results = Vec::new();
     for mode in ["vertex", "pixel"] {
         let (r, frames) = render(&with(mode, true), "shadow-fields", w, h, &[t], true);
@@ -158,9 +161,7 @@ fn shadow_fields_local_lights_vertex_and_pixel_modes_against_the_reference() {
         assert_eq!(passes.contains(&"sf_vertex") && passes.contains(&"sf_points"), mode == "vertex", "{passes:?}");
         drop(r);
         assert_eq!(log.error_count(), 0, "{mode}: validation errors: {:#?}", log.errors());
-        let (_r, open) = render(&with(mode, false), "shadow-fields", w, h, &[t], false);
         let c = compare(&reference.radiance, "reference", &image(f), mode).unwrap();
-        let cu = compare(&reference.radiance, "reference", &image(&open[0]), "unshadowed").unwrap();
         println!("{mode}: {}  (without occluders: {})", c.summary(), cu.summary());
         assert!(c.rel_rmse < cu.rel_rmse, "{mode}: {} not below unshadowed {}", c.rel_rmse, cu.rel_rmse);
         results.push(image(f));

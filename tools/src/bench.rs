@@ -276,7 +276,7 @@ pub struct ShadowFieldsArgs {
     #[arg(long)]
     pub no_images: bool,
     /// Also the all-frequency (Haar, largest 5% kept) fields' sizes fixed vs adaptive and
-    /// per-shell resolutions, with cube faces of this resolution (initial R = min(R, 16)).
+    /// per-shell resolutions, with cube faces of this resolution (initial R = min(R, 32)).
     #[arg(long)]
     pub haar: Option<usize>,
 }
@@ -313,7 +313,7 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
     if let Some(n) = args.haar {
         use penumbra_math::shadow_field::haar::{raw_maps, CubeTable, HaarField};
         let table = CubeTable::new(n.clamp(2, 64));
-        let r0 = args.params.resolution.min(16);
+        let r0 = args.params.resolution.min(32);
         println!("all frequency (Haar, 5% kept, 6x{0}x{0} cube maps, R = {r0}, {1} shells):", table.n, args.params.shells);
         let (mut tf, mut ta) = (0usize, 0usize);
         for m in &scene.meshes {

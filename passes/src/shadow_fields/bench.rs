@@ -118,8 +118,8 @@ pub fn bench(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, opts: &
     let most_neg = cpu.iter().map(|(_, m)| *m).fold(0.0, f64::min);
     Ok(BenchReport {
         scene: scene.name.clone(),
-        fixed_bytes: fields.reports.iter().map(|r| r.fixed_bytes).sum(),
-        adaptive_bytes: fields.reports.iter().map(|r| r.adaptive_bytes).sum(),
+        fixed_bytes: fields.reports.iter().filter(|r| r.shared_with.is_none()).map(|r| r.fixed_bytes).sum(),
+        adaptive_bytes: fields.reports.iter().filter(|r| r.shared_with.is_none()).map(|r| r.adaptive_bytes).sum(),
         precompute_seconds: fields.reports.iter().map(|r| r.seconds).sum(),
         fields: fields.reports.clone(),
         lights: fields.light_reports.clone(),
@@ -139,6 +139,10 @@ impl fmt::Display for BenchReport {
         writeln!(f, "shadow fields: {}", self.scene)?;
         writeln!(f, "{:<20} {:>7} {:>7} {:>10} {:>10} {:>8}  per-shell R (innermost first)", "mesh", "verts", "tris", "fixed KB", "adapt KB", "precomp s")?;
         for r in self.fields.iter().chain(&self.lights) {
+            if let Some(first) = r.shared_with {
+                writeln!(f, "{:<20} {:>7} {:>7}  (shares the field of mesh {first})", r.mesh, r.vertices, r.triangles)?;
+                continue;
+            }
             let res: Vec<String> = r.resolutions.iter().map(|x| x.to_string()).collect();
             writeln!(
                 f,

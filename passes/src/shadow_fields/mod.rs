@@ -160,6 +160,9 @@ pub struct FieldReport {
     pub seconds: f64,
     pub rays: u64,
     pub cached: bool,
+    /// An identical earlier mesh whose field this one shares (stored and uploaded once; not
+    /// counted again in the totals).
+    pub shared_with: Option<usize>,
 }
 
 /// Fixed and adaptive fields of every mesh and every local light of a scene.
@@ -232,10 +235,19 @@ fn cache_key(m: &penumbra_scene::MeshData, p: &Params) -> String {
 impl SceneFields {
     /// Precomputes (or loads from the cache) the fields of every mesh of `scene`.
     pub fn build(scene: &Scene, options: &SfOptions) -> Result<Self> {
-        let mut fields = Vec::new();
-        let mut reports = Vec::new();
+        let mut fields: Vec<(Arc<ObjectField>, Arc<ObjectField>)> = Vec::new();
+        let mut reports: Vec<FieldReport> = Vec::new();
+        let mut by_key: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
         for (mi, m) in scene.meshes.iter().enumerate() {
             let key = cache_key(m, &options.params);
+            if let Some(&first) = by_key.get(&key) {
+                // identical geometry (e.g. the ten pins of a bowling scene): one field
+                let f: (Arc<ObjectField>, Arc<ObjectField>) = fields[first].clone();
+                reports.push(FieldReport { mesh: m.name.clone(), shared_with: Some(first), cached: true, seconds: 0.0, rays: 0, ..reports[first].clone() });
+                fields.push(f);
+                continue;
+            }
+            by_key.insert(key.clone(), mi);
             let paths = options.cache_dir.as_ref().map(|d| (d.join(format!("{key}-fixed.psf")), d.join(format!("{key}-adaptive.psf"))));
             let loaded = paths.as_ref().and_then(|(f, a)| {
                 let f = ObjectField::from_bytes(&std::fs::read(f).ok()?).ok()?;
@@ -282,6 +294,7 @@ impl SceneFields {
                 seconds,
                 rays,
                 cached,
+                shared_with: None,
             });
             fields.push((Arc::new(fixed), Arc::new(adaptive)));
         }
@@ -306,6 +319,7 @@ impl SceneFields {
                 seconds: raw.seconds,
                 rays: 0,
                 cached: false,
+                shared_with: None,
             });
             lights.push((Arc::new(f), Arc::new(a)));
             light_sources.push(src);
@@ -572,6 +586,12 @@ impl GpuTables {
         let mut mesh_geom = Vec::new();
         for mi in 0..fields.fields.len() {
             let f = fields.field(mi, adaptive).expect("mesh index in range");
+            if let Some(first) = fields.reports.get(mi).and_then(|r| r.shared_with) {
+                // shared field: same shells, uploaded once
+                mesh_shells.push(mesh_shells[first]);
+                mesh_geom.push(mesh_geom[first]);
+                continue;
+            }
             mesh_shells.push((shells.len() as u32, f.shells.len() as u32));
             mesh_geom.push((f.center, f.shell_step() as f32));
             for s in &f.shells {
