@@ -33,7 +33,7 @@
 //! rounding (tests: max error ~1e-15 rad in f64; the GPU pass in f32 ~1e-6 rad, below fp16
 //! rounding). Cost: `O(r^2)` per map (`O(r^2 log r)` worst case for the separator bisection).
 
-use crate::avs_maps::{angle_between, check_res, texel_dir, texel_phi, texel_theta, VisMap, NO_BOUNDARY};
+use crate::avs_maps::{angle_between, check_res, texel_dir, VisMap, NO_BOUNDARY};
 
 /// "No feature in this row" marker of the latitude scans.
 pub const NONE: u16 = u16::MAX;
@@ -62,13 +62,6 @@ pub fn latitude_scan(map: &VisMap, i: u32, feature: bool, out: &mut [u16]) {
     }
 }
 
-/// Haversine `sin^2(d/2)` between `(theta1, phi1)` and `(theta2, phi2)` (monotone in the distance).
-fn hav(t1: f64, p1: f64, t2: f64, p2: f64) -> f64 {
-    let a = (0.5 * (t1 - t2)).sin();
-    let b = (0.5 * (p1 - p2)).sin();
-    a * a + t1.sin() * t2.sin() * b * b
-}
-
 fn hav_to_angle(h: f64) -> f64 {
     2.0 * h.clamp(0.0, 1.0).sqrt().asin()
 }
@@ -77,11 +70,41 @@ fn hav_to_angle(h: f64) -> f64 {
 /// the row has none); writes the distance (radians) from each texel `(i, j)` to its nearest
 /// feature into `out[i]`, or `None` if no row has a feature.
 pub fn longitude_scan(r: u32, j: u32, g: impl Fn(u32) -> u16, out: &mut [f64]) -> Option<()> {
+    longitude_scan_with(&SinTables::new(r), j, g, out)
+}
+
+/// `sin(k h / 2)` and `sin((k + 0.5) h)` for `k < r`: the haversine of two texel centres from
+/// index differences (what the GPU pass keeps in shared memory).
+pub struct SinTables {
+    r: u32,
+    half: Vec<f64>,
+    row: Vec<f64>,
+}
+
+impl SinTables {
+    /// Tables for resolution `r`.
+    pub fn new(r: u32) -> SinTables {
+        let h = std::f64::consts::PI / r as f64;
+        SinTables {
+            r,
+            half: (0..r).map(|k| (0.5 * k as f64 * h).sin()).collect(),
+            row: (0..r).map(|k| ((k as f64 + 0.5) * h).sin()).collect(),
+        }
+    }
+
+    /// Haversine `sin^2(d/2)` between texel centres `(i1, j1)` and `(i2, j2)`.
+    pub fn hav(&self, i1: u32, j1: u32, i2: u32, j2: u32) -> f64 {
+        let a = self.half[i1.abs_diff(i2) as usize];
+        let b = self.half[j1.abs_diff(j2) as usize];
+        a * a + self.row[i1 as usize] * self.row[i2 as usize] * b * b
+    }
+}
+
+/// [`longitude_scan`] with precomputed tables.
+pub fn longitude_scan_with(tab: &SinTables, j: u32, g: impl Fn(u32) -> u16, out: &mut [f64]) -> Option<()> {
+    let r = tab.r;
     let ru = r as usize;
-    let phi = texel_phi(j, r);
-    let theta: Vec<f64> = (0..r).map(|i| texel_theta(i, r)).collect();
-    let cand_phi = |c: u32| texel_phi(g(c) as u32, r);
-    let f = |qi: usize, c: u32| hav(theta[qi], phi, theta[c as usize], cand_phi(c));
+    let f = |qi: usize, c: u32| tab.hav(qi as u32, j, c, g(c) as u32);
     let mut s: Vec<u32> = Vec::with_capacity(ru);
     let mut t: Vec<usize> = Vec::with_capacity(ru);
     for u in 0..r {
@@ -149,11 +172,12 @@ pub fn hsdt_f64(map: &VisMap) -> Vec<f64> {
     }
     let mut out = vec![0.0; ru * ru];
     let mut col = [vec![0.0; ru], vec![0.0; ru]];
+    let tab = SinTables::new(r);
     for j in 0..r {
         let mut has = [false; 2];
         for fi in 0..2 {
             let gg = &g[fi];
-            has[fi] = longitude_scan(r, j, |i| gg[i as usize * ru + j as usize], &mut col[fi]).is_some();
+            has[fi] = longitude_scan_with(&tab, j, |i| gg[i as usize * ru + j as usize], &mut col[fi]).is_some();
         }
         for i in 0..r {
             let k = i as usize * ru + j as usize;
@@ -298,7 +322,7 @@ pub fn test_maps(r: u32, seed: u64) -> Vec<(String, VisMap)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::avs_maps::texel_angle;
+    use crate::avs_maps::{texel_angle, texel_theta};
 
     #[test]
     fn latitude_scan_nearest_in_row() {
