@@ -316,9 +316,9 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
         let r0 = args.params.resolution.min(32);
         println!("all frequency (Haar, 5% kept, 6x{0}x{0} cube maps, R = {r0}, {1} shells):", table.n, args.params.shells);
         let (mut tf, mut ta) = (0usize, 0usize);
-        for m in &scene.meshes {
-            if m.indices.len() < 3 {
-                continue;
+        for (mi, m) in scene.meshes.iter().enumerate() {
+            if m.indices.len() < 3 || report.fields.get(mi).is_some_and(|r| r.shared_with.is_some()) {
+                continue; // empty, or identical to an earlier mesh (shares its field)
             }
             let t0 = std::time::Instant::now();
             let (c, vr, maps) = raw_maps(&m.positions, &m.indices, args.params.shells, r0, &table);
