@@ -113,7 +113,7 @@ fn shadow_fields_bench_builtin_scenes() {
     if let Some(m) = std::env::var("SF_BENCH_MAP").ok().and_then(|v| v.parse().ok()) {
         sf.params.map_res = m;
     }
-    for name in ["sf_spheres.toml", "balls_on_dish.toml", "falling.toml"] {
+    for name in ["sf_statues.toml", "sf_bowling.toml", "falling.toml", "sf_lamps.toml"] {
         let scene = Scene::load(root().join("scenes").join(name)).expect("scene");
         let report = bench(&ctx, &lib, &scene, &BenchOptions { sf: sf.clone(), time: 0.7, cull: Some(4.0 / 3.0), repeats: 3 }).unwrap();
         println!("{report}");
