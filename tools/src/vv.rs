@@ -38,6 +38,10 @@ pub struct VvArgs {
     /// contents' sizes.
     #[arg(long, value_name = "FILE")]
     pub check: Option<PathBuf>,
+    /// Also compare with ray-traced visibility at this many random triangle interior points
+    /// (eq. 19 blend of eq. 3 syntheses vs eq. 21 interpolation; 0 = skip).
+    #[arg(long, default_value_t = 0)]
+    pub evaluate: usize,
 }
 
 impl VvArgs {
@@ -115,6 +119,7 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<std::result::Result<(), Strin
             Err(e) => return Ok(Err(e)),
         };
         report(&name, &d);
+        print_evaluation(args, &model, &d);
         println!("{}: valid for {name} (format version {}, resolution {}, seed {})", file.display(), vv::FORMAT_VERSION, d.params.resolution, d.params.seed);
         return Ok(Ok(()));
     }
@@ -124,6 +129,18 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<std::result::Result<(), Strin
     bars.iter().for_each(|b| b.finish_and_clear());
     d.write(&out).map_err(|e| anyhow!(e))?;
     report(&name, &d);
+    print_evaluation(args, &model, &d);
     println!("wrote {} ({:.3} MB)", out.display(), std::fs::metadata(&out).map(|m| m.len()).unwrap_or(0) as f64 / 1e6);
     Ok(Ok(()))
+}
+
+fn print_evaluation(args: &VvArgs, model: &VvModel, d: &VvData) {
+    if args.evaluate == 0 {
+        return;
+    }
+    let e = vv::evaluate(model, d, args.evaluate, 48, d.params.seed);
+    println!(
+        "  vs ray tracing at {} occluded interior points (48x48 directions): eq. 19 blend {:.4}, eq. 21 {:.4} agreeing; eq. 21 at the vertices |dOmega| median {:.4} p95 {:.4} max {:.4} sr",
+        e.points, e.agreement_eq19, e.agreement_eq21, e.vertex_error[0], e.vertex_error[1], e.vertex_error[2]
+    );
 }

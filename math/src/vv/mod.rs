@@ -558,3 +558,99 @@ pub fn load_or_compute(model: &VvModel, params: &VvParams, dir: &std::path::Path
     d.write(&path)?;
     Ok((d, path))
 }
+
+// ---------------------------------------------------------------------------------------------
+// Accuracy against ray tracing
+
+/// Accuracy of a model's data against ray-traced visibility ([`evaluate`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Evaluation {
+    /// Interior points evaluated (points with some traced occlusion).
+    pub points: usize,
+    /// Mean fraction of hemisphere directions where the eq. 19 blend of the three eq. 3
+    /// syntheses (weighted by the barycentrics) agrees with the traced visibility.
+    pub agreement_eq19: f64,
+    /// Same for the interpolated vectorized visibility (eq. 21).
+    pub agreement_eq21: f64,
+    /// `|occluded solid angle of eq. 21 at a vertex - the vertex's own|` (sr) over every
+    /// (triangle, vertex): median, 95th percentile, max.
+    pub vertex_error: [f64; 3],
+}
+
+/// Compares `d` with ray tracing at `samples` interior points (deterministic barycentrics from
+/// `seed`, triangles spread over the model) on `map_res x map_res` Lambert directions, and the
+/// interpolation at every triangle's vertices with the vertices' own visibility.
+pub fn evaluate(model: &VvModel, d: &VvData, samples: usize, map_res: u32, seed: u64) -> Evaluation {
+    use rayon::prelude::*;
+    let topo = Topology::new(model);
+    let tracer = trace::Tracer::new(&model.positions, &model.indices, &model.occluder);
+    let ntri = model.triangle_count();
+    let solid = |l: &[Vec<Vec3>], n: Vec3| l.iter().map(|x| signed_solid_angle(x, n)).sum::<f64>();
+    let mut verr: Vec<f64> = (0..ntri)
+        .into_par_iter()
+        .flat_map_iter(|t| {
+            let idx = [0, 1, 2].map(|k| model.indices[3 * t + k] as usize);
+            (0..3).map(move |k| (t, idx, k))
+        })
+        .map(|(t, idx, k)| {
+            let mut l = [0.0f32; 3];
+            l[k] = 1.0;
+            let (p, n) = (model.positions[idx[k]], model.normals[idx[k]]);
+            (solid(&interpolate(&d.vis, &d.corr, t, l, p, n), n) - solid(&synthesize(&d.vis, idx[k], p, n), n)).abs()
+        })
+        .collect();
+    verr.sort_by(|a, b| a.total_cmp(b));
+    let q = |f: f64| verr.get(((verr.len() as f64 * f) as usize).min(verr.len().saturating_sub(1))).copied().unwrap_or(0.0);
+    let per: Vec<Option<(f64, f64)>> = (0..samples)
+        .into_par_iter()
+        .map(|i| {
+            let h = |s: u64| {
+                let mut z = seed.wrapping_add((i as u64 * 4 + s).wrapping_mul(0x9e3779b97f4a7c15));
+                z = (z ^ (z >> 30)).wrapping_mul(0xbf58476d1ce4e5b9);
+                z = (z ^ (z >> 27)).wrapping_mul(0x94d049bb133111eb);
+                z ^ (z >> 31)
+            };
+            let t = (h(0) % ntri as u64) as usize;
+            let (mut a, mut b) = ((h(1) >> 11) as f32 / (1u64 << 53) as f32, (h(2) >> 11) as f32 / (1u64 << 53) as f32);
+            if a + b > 1.0 {
+                (a, b) = (1.0 - a, 1.0 - b);
+            }
+            let lambda = [1.0 - a - b, a, b];
+            let idx = [0, 1, 2].map(|k| model.indices[3 * t + k] as usize);
+            let p: Vec3 = (0..3).map(|k| lambda[k] * model.positions[idx[k]]).sum();
+            let n = (0..3).map(|k| lambda[k] * model.normals[idx[k]]).sum::<Vec3>().try_normalize()?;
+            let local: Vec<u32> = idx.iter().map(|&v| topo.pos_group[v]).collect();
+            let f = frame(n);
+            let syn: Vec<Vec<Vec<Vec3>>> = (0..3).map(|k| synthesize(&d.vis, idx[k], p, n)).collect();
+            let interp = interpolate(&d.vis, &d.corr, t, lambda, p, n);
+            let (mut a19, mut a21, mut total, mut occ) = (0.0, 0.0, 0usize, 0usize);
+            for i in 0..map_res {
+                for j in 0..map_res {
+                    let u = -1.0 + (i as f64 + 0.5) * 2.0 / map_res as f64;
+                    let w = -1.0 + (j as f64 + 0.5) * 2.0 / map_res as f64;
+                    if u * u + w * w >= 1.0 {
+                        continue;
+                    }
+                    let dir = lambert_inv(u, w, &f);
+                    let truth = precompute::trace_occluder(&tracer, &topo, &local, p.as_dvec3(), n.as_dvec3(), dir).is_some();
+                    total += 1;
+                    occ += truth as usize;
+                    let dv = dir.as_vec3();
+                    a21 += (occluded_by(&interp, dv, n) == truth) as u32 as f64;
+                    for k in 0..3 {
+                        a19 += lambda[k] as f64 * (occluded_by(&syn[k], dv, n) == truth) as u32 as f64;
+                    }
+                }
+            }
+            (occ > 0 && total > 0).then(|| (a19 / total as f64, a21 / total as f64))
+        })
+        .collect();
+    let ok: Vec<(f64, f64)> = per.into_iter().flatten().collect();
+    let m = ok.len().max(1) as f64;
+    Evaluation {
+        points: ok.len(),
+        agreement_eq19: ok.iter().map(|x| x.0).sum::<f64>() / m,
+        agreement_eq21: ok.iter().map(|x| x.1).sum::<f64>() / m,
+        vertex_error: [q(0.5), q(0.95), verr.last().copied().unwrap_or(0.0)],
+    }
+}
