@@ -226,18 +226,30 @@ impl VvSceneData {
             bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
         }
         let t = std::time::Instant::now();
-        let vis = penumbra_math::vv::precompute::precompute_visibility(&model, &params, &|k| bar.inc(k))
+        let mut vis = penumbra_math::vv::precompute::precompute_visibility(&model, &params, &|k| bar.inc(k))
             .map_err(anyhow::Error::msg)?;
         bar.finish_and_clear();
         let visibility_seconds = t.elapsed().as_secs_f64();
         let visibility_bytes = vis.points.len() * 16 + (vis.seq_offsets.len() + 2 * vis.vertex_seqs.len()) * 4;
+        // the spherical-Voronoi correspondence (part A), per triangle
+        let bar = indicatif::ProgressBar::new(2 * model.triangle_count() as u64);
+        if std::env::var_os("PENUMBRA_NO_PROGRESS").is_some() {
+            bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+        }
+        let t = std::time::Instant::now();
+        let topo = penumbra_math::vv::Topology::new(&model);
+        let (corr, _stats) = penumbra_math::vv::corr::correspondence(&model, &topo, &mut vis, &params, &|k| bar.inc(k))
+            .map_err(anyhow::Error::msg)?;
+        bar.finish_and_clear();
+        let correspondence_seconds = t.elapsed().as_secs_f64();
+        let triple_bytes = corr.triple_bytes();
         let mut albedo = Vec::with_capacity(model.positions.len());
         for o in &scene.objects {
             let a = scene.materials.get(o.material).map_or(Vec3::splat(0.5), |m| m.albedo);
             let count = scene.meshes.get(o.mesh).map_or(0, |m| m.positions.len());
             albedo.extend(std::iter::repeat(a).take(count));
         }
-        Ok(VvSceneData { model, vis, corr: None, visibility_seconds, correspondence_seconds: 0.0, visibility_bytes, triple_bytes: 0, albedo })
+        Ok(VvSceneData { model, vis, corr: Some(corr), visibility_seconds, correspondence_seconds, visibility_bytes, triple_bytes, albedo })
     }
 }
 
@@ -522,8 +534,14 @@ impl VvTechnique {
         ok.ok().map(|_| r[0])
     }
 
-    /// `vv_sat_rows` + `vv_sat_cols`: the SAT of `texels` (RGBA32F bytes).
-    fn add_sat(&self, graph: &mut Graph, name: &str, texels: &Arc<Vec<u8>>) -> ImageHandle {
+    /// The SAT map (width, height, RGBA32F texels of the downsampled environment).
+    pub fn sat_input(&self) -> (u32, u32, Arc<Vec<u8>>) {
+        (self.up.sat_w, self.up.sat_h, self.up.env.clone())
+    }
+
+    /// `vv_sat_rows` + `vv_sat_cols`: the SAT of `texels` (RGBA32F bytes of a
+    /// [`VvTechnique::sat_input`]-sized map) as an image of `(W + 1) x 3 (H + 1)` corners.
+    pub fn add_sat(&self, graph: &mut Graph, name: &str, texels: &Arc<Vec<u8>>) -> ImageHandle {
         let (w, h) = (self.up.sat_w, self.up.sat_h);
         let input = graph.create_buffer_init(&format!("{name}_texels"), texels.as_ref().clone());
         let sat = graph.create_image(name, ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, w + 1, 3 * (h + 1)));
