@@ -677,12 +677,15 @@ impl Engine {
     /// Submits `graph` and waits for it alone; returns its output (readbacks, GPU times). Outputs
     /// of other frames that complete meanwhile stay queued for the next `submit`/`drain`, so a
     /// technique can run a round of GPU work whose results it needs on the CPU inside a frame
-    /// without taking the caller's results.
+    /// without taking the caller's results. It does not count as a frame: the next submit gets
+    /// the frame number this one had.
     pub fn submit_wait(&mut self, graph: Graph) -> Result<FrameOutput> {
         let slot = self.next_slot;
         let (_, done) = self.submit(graph)?;
         self.pending.extend(done);
-        self.retire(slot)?.ok_or_else(|| anyhow::anyhow!("submit_wait: the submitted frame is not in flight"))
+        let out = self.retire(slot)?.ok_or_else(|| anyhow::anyhow!("submit_wait: the submitted frame is not in flight"));
+        self.frame -= 1;
+        out
     }
 }
 

@@ -341,6 +341,14 @@ pub fn eq8_weights(alpha: f32, inv_scale: f32, x: Vec3, n: Vec3, neighbours: &[(
     inv.into_iter().map(|w| w / s).collect()
 }
 
+/// Whether `b` may stand in for `a` (interpolation neighbours): normals in the same hemisphere
+/// and `b` within a quarter of `radius` of `a`'s tangent plane (points off the plane lie on another
+/// surface, e.g. cloth under a hat brim; `e_g` alone barely separates them after the scale
+/// normalisation). The same test is used by the GPU shading (`glsl/avs_shade.comp`).
+pub fn same_surface(a: &SurfacePoint, b: &SurfacePoint, radius: f32) -> bool {
+    a.normal.dot(b.normal) > 0.0 && (b.pos - a.pos).dot(a.normal).abs() <= 0.25 * radius
+}
+
 /// Parameters of one spatial adaptation step.
 #[derive(Clone, Copy, Debug)]
 pub struct AdaptParams {
@@ -398,7 +406,7 @@ pub fn adapt_step(
         let nb: Vec<usize> = grid
             .range(points[i].pos, params.radius)
             .into_iter()
-            .filter(|&j| j != i && points[j].normal.dot(points[i].normal) > 0.0)
+            .filter(|&j| j != i && same_surface(&points[i], &points[j], params.radius))
             .collect();
         if nb.is_empty() {
             neighbours.push(nb);

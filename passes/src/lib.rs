@@ -2,6 +2,7 @@
 //! with documented defaults, and its tests. A pass is created once (pipelines) and added to each
 //! frame's graph with `add`, which declares every resource use and returns the new handles.
 
+pub mod avs;
 pub mod blit;
 pub mod effect;
 pub mod env;

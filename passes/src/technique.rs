@@ -36,7 +36,7 @@ pub trait Technique {
 }
 
 /// Techniques implemented so far.
-pub const IMPLEMENTED: &[&str] = &["env", "isg", "isg-vertex", "mc", "shadowmaps", "shadow-fields", "shadow-fields-fixed"];
+pub const IMPLEMENTED: &[&str] = &["avs", "env", "isg", "isg-vertex", "mc", "shadowmaps", "shadow-fields", "shadow-fields-fixed"];
 
 /// Creates the technique `name` for `scene`, or `None` if it is not implemented.
 pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &Scene) -> Result<Option<Box<dyn Technique>>> {
@@ -45,13 +45,14 @@ pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &
         return Ok(Some(Box::new(crate::vv::VvTechnique::new(ctx, shaders, _scene, settings)?)));
     }
     // Techniques without parameters refuse any, rather than ignore them.
-    if !matches!(name, "isg" | "isg-vertex" | "shadow-fields" | "shadow-fields-fixed") && !_scene.technique_params.is_empty() {
+    if !matches!(name, "avs" | "isg" | "isg-vertex" | "shadow-fields" | "shadow-fields-fixed") && !_scene.technique_params.is_empty() {
         anyhow::bail!(
             "technique '{name}' takes no parameters (got: {})",
             _scene.technique_params.keys().cloned().collect::<Vec<_>>().join(", ")
         );
     }
     Ok(match name {
+        "avs" => Some(Box::new(crate::avs::AvsTechnique::new(ctx, shaders, _scene, crate::avs::AvsSettings::from_params(&_scene.technique_params)?)?)),
         "env" => Some(Box::new(crate::shade_env::ShadeEnvPass::new(ctx, shaders)?)),
         "isg" | "isg-vertex" => {
             let mut settings = crate::isg::IsgSettings { per_vertex: name == "isg-vertex", ..Default::default() };

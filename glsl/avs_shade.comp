@@ -1,0 +1,348 @@
+#version 460
+#extension GL_GOOGLE_include_directive : require
+// AVS shading (Wang et al., section 6): per pixel, the sample points within the search radius
+// (uniform grid built on the CPU) with the best eq. 8 weights (inverse e_g); their fp16 SSDFs
+// (bilinear, corrected by half a texel so that zero lies on the boundary between texel centres)
+// are interpolated at any world direction; lighting = K SG lobes of the environment, BRDF = one
+// SG lobe (Blinn-Phong / Cook-Torrance warps as isg_shade.comp), cosine as an SG. The visibility
+// of each product lobe over the visible region:
+//   mode 0 (lobe axis, Wang et al. 2009): the signed distance d at the lobe axis, a straight
+//           boundary at distance d: visible fraction Phi(d sqrt(lambda)) (normal CDF);
+//   mode 1 (cells): the lobe's neighbourhood (+-3 / sqrt(lambda), clamped to the hemisphere) in
+//           C x C cells of its tangent plane; in each cell the boundary is the iso-line of the
+//           bilinear SSDF through the corners (visible fraction from 2 x 2 sub-cells), and the
+//           lobe is integrated over the visible part of every cell (eq. 5, numerically per cell).
+// Local lights: shadowed by the sign of the interpolated SSDF toward the light.
+#include "common.glsl"
+#include "sg.glsl"
+#include "avs_maps.glsl"
+
+layout(local_size_x = 8, local_size_y = 8) in;
+
+layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
+layout(set = 0, binding = 1) readonly buffer Materials { MaterialData mats[]; };
+layout(set = 0, binding = 2) uniform sampler2D gb_position;
+layout(set = 0, binding = 3) uniform sampler2D gb_normal;
+layout(set = 0, binding = 4) uniform sampler2D gb_uv_mat;
+layout(set = 0, binding = 5) uniform sampler2D env_map;
+layout(set = 0, binding = 6, rgba32f) uniform writeonly image2D hdr;
+layout(set = 0, binding = 7) readonly buffer Lights { LightData lights[]; };
+layout(set = 0, binding = 8) uniform sampler2DArray material_textures;
+layout(set = 0, binding = 9) readonly buffer Lobes { vec4 lobes[]; };
+layout(set = 0, binding = 10) readonly buffer Prefiltered { float pf[]; };
+// 3 vec4 per slot: (position, offset), (tangent, active), (normal, 0)
+layout(set = 0, binding = 11) readonly buffer Points { vec4 pts[]; };
+// uniform grid: [0..2] dims, [3] unused, [4..6] lower corner (float bits), [7] cell edge (float
+// bits), [8] first item word; cell_start at 16 (cells + 1 entries, relative to the first item
+// word), then slots
+layout(set = 0, binding = 12) readonly buffer Grid { uint grid[]; };
+layout(set = 0, binding = 13) readonly buffer Ssdf { uint ssdf[]; };
+layout(push_constant) uniform Push {
+    uint light_count;
+    uint lobe_count;
+    uint r;
+    uint max_neighbours;
+    float alpha;
+    float inv_scale;
+    float radius;
+    uint mode;       // 0 lobe axis, 1 cells
+    uint flags;      // bit 0: no shadows
+    uint cells;      // cells per side (mode 1)
+    uint specular_mode;
+} pc;
+
+#define MAXN 8
+uint nb_slot[MAXN];
+float nb_w[MAXN];
+mat3 nb_frame[MAXN];
+uint nb_count = 0u;
+
+bool shadows_on() { return (pc.flags & 1u) == 0u && nb_count > 0u; }
+
+// Corrected SSDF value of texel k of the map at slot.
+float ssdf_texel(uint base, uint k) {
+    float d = AVS_SSDF(ssdf, base, k);
+    float h = avs_texel_angle(pc.r);
+    return abs(d) >= 3.0 ? d : d - sign(d) * 0.5 * h;
+}
+
+// Bilinear SSDF of one sample point at a world direction. Directions below the point's horizon
+// (its normal differs from the pixel's) take the value at the horizon above them.
+float ssdf_point(uint q, vec3 w) {
+    vec3 l = transpose(nb_frame[q]) * w;
+    float below = 0.0;
+    if (l.z < 0.0) {
+        l.z = 0.0;
+        float len = length(l.xy);
+        l = len > 1e-6 ? vec3(l.xy / len, 0.0) : vec3(1.0, 0.0, 0.0);
+    }
+    vec2 tp = avs_local_to_angles(l) * (float(pc.r) / float(AVS_PI)) - 0.5;
+    tp = clamp(tp, vec2(0.0), vec2(float(pc.r) - 1.0));
+    uvec2 i0 = uvec2(tp);
+    uvec2 i1 = min(i0 + 1u, uvec2(pc.r - 1u));
+    vec2 f = tp - vec2(i0);
+    uint base = nb_slot[q] * avs_ssdf_words_per_map(pc.r);
+    float a = ssdf_texel(base, i0.x * pc.r + i0.y), b = ssdf_texel(base, i0.x * pc.r + i1.y);
+    float c = ssdf_texel(base, i1.x * pc.r + i0.y), d = ssdf_texel(base, i1.x * pc.r + i1.y);
+    return mix(mix(a, b, f.y), mix(c, d, f.y), f.x) - below;
+}
+
+// Eq. 8 interpolation of the neighbours' SSDFs at world direction w.
+float ssdf_at(vec3 w) {
+    float s = 0.0;
+    for (uint q = 0u; q < nb_count; ++q) s += nb_w[q] * ssdf_point(q, w);
+    return s;
+}
+
+float phi_cdf(float x) { return 0.5 * (1.0 + sg_erf(x * 0.70710678)); }
+
+// Visible fraction of SG lobe g (its mass) over the interpolated visible region.
+float visible(SG g) {
+    if (!shadows_on()) return 1.0;
+    float lam = max(g.lambda, 1e-3);
+    if (pc.mode == 0u) return phi_cdf(ssdf_at(g.axis) * sqrt(lam));
+    // mode 1: cells of the lobe's tangent plane, extent +-3 sigma (at most 1.5 rad)
+    uint c = clamp(pc.cells, 1u, 16u);
+    float ext = min(3.0 / sqrt(lam), 1.5);
+    vec3 a = normalize(g.axis);
+    vec3 up = abs(a.y) < 0.9 ? vec3(0.0, 1.0, 0.0) : vec3(1.0, 0.0, 0.0);
+    vec3 tx = normalize(cross(up, a)), ty = cross(a, tx);
+    float dcorner[17 * 17];
+    for (uint y = 0u; y <= c; ++y) {
+        for (uint x = 0u; x <= c; ++x) {
+            vec2 uv = (vec2(x, y) / float(c) * 2.0 - 1.0) * ext;
+            dcorner[y * 17u + x] = ssdf_at(normalize(a + tx * tan(uv.x) + ty * tan(uv.y)));
+        }
+    }
+    float vis = 0.0, tot = 0.0;
+    for (uint y = 0u; y < c; ++y) {
+        for (uint x = 0u; x < c; ++x) {
+            float d00 = dcorner[y * 17u + x], d10 = dcorner[y * 17u + x + 1u];
+            float d01 = dcorner[(y + 1u) * 17u + x], d11 = dcorner[(y + 1u) * 17u + x + 1u];
+            // SG mass of the cell (weight at the centre times the cell's extent)
+            vec2 uv = ((vec2(x, y) + 0.5) / float(c) * 2.0 - 1.0) * ext;
+            float wgt = exp(-lam * (uv.x * uv.x + uv.y * uv.y) * 0.5);
+            float frac;
+            if (min(min(d00, d10), min(d01, d11)) >= 0.0) frac = 1.0;
+            else if (max(max(d00, d10), max(d01, d11)) <= 0.0) frac = 0.0;
+            else {
+                // iso-line of the bilinear field: visible share of 4 x 4 sub-cells
+                frac = 0.0;
+                for (int sy = 0; sy < 4; ++sy)
+                    for (int sx = 0; sx < 4; ++sx) {
+                        vec2 f = (vec2(sx, sy) + 0.5) / 4.0;
+                        float d = mix(mix(d00, d10, f.x), mix(d01, d11, f.x), f.y);
+                        frac += d > 0.0 ? 1.0 / 16.0 : 0.0;
+                    }
+            }
+            vis += wgt * frac;
+            tot += wgt;
+        }
+    }
+    return tot > 0.0 ? vis / tot : 1.0;
+}
+
+vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
+    vec3 sum = vec3(0.0);
+    for (uint i = 0u; i < pc.light_count; ++i) {
+        LightData l = lights[i];
+        vec3 to_l = l.pos_kind.xyz - pos;
+        float d2 = max(dot(to_l, to_l), 1e-8);
+        vec3 wi = to_l * inversesqrt(d2);
+        float ndl = dot(n, wi);
+        if (ndl <= 0.0) continue;
+        vec3 intensity = l.power_cos_inner.rgb;
+        int lk = int(l.pos_kind.w + 0.5);
+        if (lk == 1) {
+            float c = dot(-wi, normalize(l.dir_cos_outer.xyz));
+            intensity *= smoothstep(l.dir_cos_outer.w, l.power_cos_inner.w, c);
+        } else if (lk == 2) {
+            intensity *= PI * l.extra.x * l.extra.x;
+        }
+        vec3 f = albedo / PI;
+        if (kind != 0) {
+            vec3 h = normalize(wi + v);
+            float ndh = max(dot(n, h), 0.0);
+            float ndv = max(dot(n, v), 1e-4);
+            vec3 F = m.spec_rough.rgb + (1.0 - m.spec_rough.rgb) * pow(1.0 - max(dot(wi, h), 0.0), 5.0);
+            if (kind == 1) {
+                float s = m.extra.x;
+                f += F * (s + 2.0) / (8.0 * PI) * pow(ndh, s);
+            } else {
+                float a = roughness * roughness;
+                float a2 = a * a;
+                float dd = ndh * ndh * (a2 - 1.0) + 1.0;
+                float D = a2 / (PI * dd * dd);
+                float k = a * 0.5;
+                float G = ndl / (ndl * (1.0 - k) + k) * ndv / (ndv * (1.0 - k) + k);
+                f += F * D * G / (4.0 * ndl * ndv);
+            }
+        }
+        // shadowed by the interpolated SSDF toward the light (soft over one texel, or over the
+        // sphere light's angular radius)
+        float ang = lk == 2 ? asin(clamp(l.extra.x * inversesqrt(d2), 0.0, 1.0)) : 0.0;
+        float vis = shadows_on() ? clamp(0.5 + ssdf_at(wi) / max(2.0 * ang, avs_texel_angle(pc.r)), 0.0, 1.0) : 1.0;
+        sum += f * intensity * ndl / d2 * vis;
+    }
+    return sum;
+}
+
+vec3 env_lookup(vec3 d) {
+    vec2 uv = dir_to_latlong(normalize(d), cam.env_rot.xy);
+    return textureLod(env_map, uv, 0.0).rgb * cam.params.w;
+}
+
+vec3 pf_texel(int off, int w, int x, int y) {
+    int i = off + 3 * (y * w + x);
+    return vec3(pf[i], pf[i + 1], pf[i + 2]);
+}
+
+vec3 pf_level(int l, vec2 uv) {
+    int w = int(pf[2 + 4 * l] + 0.5), h = int(pf[3 + 4 * l] + 0.5), off = int(pf[4 + 4 * l] + 0.5);
+    float fx = uv.x * float(w) - 0.5;
+    float fy = clamp(uv.y * float(h) - 0.5, 0.0, float(h - 1));
+    int x0 = int(floor(fx));
+    int y0 = int(floor(fy));
+    float ax = fx - float(x0), ay = fy - float(y0);
+    int y1 = min(y0 + 1, h - 1);
+    x0 -= w * int(floor(float(x0) / float(w)));  // wrap (GLSL % is undefined for negatives)
+    x0 = clamp(x0, 0, w - 1);
+    int x1 = x0 + 1 == w ? 0 : x0 + 1;
+    vec3 a = mix(pf_texel(off, w, x0, y0), pf_texel(off, w, x1, y0), ax);
+    vec3 b = mix(pf_texel(off, w, x0, y1), pf_texel(off, w, x1, y1), ax);
+    return mix(a, b, ay);
+}
+
+// Normalised Gamma_L(dir, lambda): the environment convolved with a unit-integral SG, linear
+// in log(lambda) between the prefiltered levels (clamped at the ends).
+vec3 pf_eval(vec3 dir, float lambda) {
+    int levels = int(pf[0] + 0.5);
+    if (levels <= 0) return vec3(0.0);
+    vec2 uv = dir_to_latlong(dir, cam.env_rot.xy);
+    float ll = log(max(lambda, 1e-6));
+    int l = 0;
+    while (l + 1 < levels && log(pf[1 + 4 * (l + 1)]) <= ll) ++l;
+    if (l + 1 >= levels) return pf_level(levels - 1, uv) * cam.params.w;
+    float l0 = log(pf[1 + 4 * l]), l1 = log(pf[1 + 4 * (l + 1)]);
+    float t = clamp((ll - l0) / max(l1 - l0, 1e-6), 0.0, 1.0);
+    return mix(pf_level(l, uv), pf_level(l + 1, uv), t) * cam.params.w;
+}
+
+
+void gather_neighbours(vec3 pos, vec3 n) {
+    uvec3 dims = uvec3(grid[0], grid[1], grid[2]);
+    vec3 lo = vec3(uintBitsToFloat(grid[4]), uintBitsToFloat(grid[5]), uintBitsToFloat(grid[6]));
+    float cell = uintBitsToFloat(grid[7]);
+    uint items = grid[8];
+    float best_e[MAXN];
+    uint m = min(pc.max_neighbours, uint(MAXN));
+    nb_count = 0u;
+    // Neighbours off the pixel's tangent plane by more than a quarter of the radius lie on other
+    // surfaces (cloth under a hat brim): skipped unless nothing else is found.
+    for (int pass = 0; pass < 3 && nb_count == 0u; ++pass) {
+        float rad = pass == 0 ? pc.radius : 2.5 * pc.radius;
+        float plane_tol = pass == 2 ? 1e30 : 0.25 * rad;
+        ivec3 a = clamp(ivec3(floor((pos - rad - lo) / cell)), ivec3(0), ivec3(dims) - 1);
+        ivec3 b = clamp(ivec3(floor((pos + rad - lo) / cell)), ivec3(0), ivec3(dims) - 1);
+        for (int z = a.z; z <= b.z; ++z)
+            for (int y = a.y; y <= b.y; ++y)
+                for (int x = a.x; x <= b.x; ++x) {
+                    uint ci = uint(x) + dims.x * (uint(y) + dims.y * uint(z));
+                    uint s0 = grid[16u + ci], s1 = grid[17u + ci];
+                    for (uint it = s0; it < s1; ++it) {
+                        uint slot = grid[items + it];
+                        vec3 p = pts[3u * slot].xyz, pn = pts[3u * slot + 2u].xyz;
+                        vec3 dp = p - pos;
+                        if (dot(dp, dp) > rad * rad || dot(pn, n) <= 0.0 || abs(dot(dp, n)) > plane_tol) continue;
+                        float e = pc.alpha * length(dp) * pc.inv_scale + sqrt(max(2.0 - 2.0 * dot(n, pn), 0.0));
+                        // keep the m smallest e_g (insertion)
+                        if (nb_count == m && e >= best_e[m - 1u]) continue;
+                        uint j = nb_count < m ? nb_count++ : m - 1u;
+                        while (j > 0u && best_e[j - 1u] > e) {
+                            best_e[j] = best_e[j - 1u];
+                            nb_slot[j] = nb_slot[j - 1u];
+                            --j;
+                        }
+                        best_e[j] = e;
+                        nb_slot[j] = slot;
+                    }
+                }
+    }
+    float sum = 0.0;
+    for (uint q = 0u; q < nb_count; ++q) {
+        nb_w[q] = 1.0 / max(best_e[q], 1e-6);
+        sum += nb_w[q];
+        vec3 t = pts[3u * nb_slot[q] + 1u].xyz, pn = pts[3u * nb_slot[q] + 2u].xyz;
+        nb_frame[q] = mat3(t, cross(pn, t), pn);
+    }
+    for (uint q = 0u; q < nb_count; ++q) nb_w[q] /= sum;
+}
+
+void main() {
+    ivec2 px = ivec2(gl_GlobalInvocationID.xy);
+    ivec2 size = imageSize(hdr);
+    if (px.x >= size.x || px.y >= size.y) return;
+    vec4 uvm = texelFetch(gb_uv_mat, px, 0);
+    if (uvm.w < 0.5) {
+        vec2 ndc = (vec2(px) + 0.5) / vec2(size) * 2.0 - 1.0;
+        vec4 far_p = cam.inv_view_proj * vec4(ndc, 1.0, 1.0);
+        imageStore(hdr, px, vec4(env_lookup(far_p.xyz / far_p.w - cam.eye.xyz), 1.0));
+        return;
+    }
+    vec3 pos = texelFetch(gb_position, px, 0).xyz;
+    vec3 n = oct_decode(texelFetch(gb_normal, px, 0).xy);
+    MaterialData m = mats[uint(uvm.z)];
+    vec3 v = normalize(cam.eye.xyz - pos);
+    float ndv = max(dot(n, v), 1e-4);
+    vec3 albedo = m.albedo_kind.rgb;
+    int kind = int(m.albedo_kind.w + 0.5);
+    if (m.extra.y >= 0.0) albedo *= textureLod(material_textures, vec3(uvm.xy, m.extra.y), 0.0).rgb;
+    if (m.extra.z >= 0.0) {
+        float r = clamp(m.spec_rough.w * textureLod(material_textures, vec3(uvm.xy, m.extra.z), 0.0).g, 0.0, 1.0);
+        m.spec_rough.w = r;
+        m.extra.x = 2.0 / max(r * r, 1e-4) - 2.0;
+    }
+    gather_neighbours(pos, n);
+    SG cosg = sg_clamped_cosine(n);
+    vec3 diffuse = vec3(0.0);
+    uint nl = min(pc.lobe_count, 64u);
+    for (uint k = 0u; k < nl; ++k) {
+        SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+        vec3 e = lobes[2u * k + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
+        if (max(e.r, max(e.g, e.b)) <= 0.0) continue;
+        diffuse += e * visible(sg_product(l, cosg));
+    }
+    vec3 color = albedo / PI * diffuse;
+    float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
+    color += local_lights(pos, n, v, albedo, kind, m, roughness);
+    if (kind != 0) {
+        vec3 r = reflect(-v, n);
+        SG gs;
+        vec3 amp;
+        if (kind == 1) {
+            float s = max(m.extra.x, 0.0);
+            gs = sg_make(r, s / (4.0 * ndv), (s + 2.0) / (8.0 * PI));
+            amp = m.spec_rough.rgb;
+        } else {
+            float mb = max(roughness * roughness, 1e-3);
+            float m2 = mb * mb;
+            float rz = max(dot(r, n), 1e-4);
+            float geo = min(1.0, 2.0 * rz / ndv);
+            vec3 F = m.spec_rough.rgb + (1.0 - m.spec_rough.rgb) * pow(1.0 - ndv, 5.0);
+            gs = sg_make(r, 2.0 / m2 / (4.0 * ndv), geo / (4.0 * rz * ndv) / (PI * m2));
+            amp = F;
+        }
+        SG gj = sg_product(gs, cosg);
+        vec3 gamma_l = vec3(0.0);
+        if (pc.specular_mode == 0u) {
+            gamma_l = pf_eval(gj.axis, gj.lambda) * sg_sphere_integral(gj);
+        } else {
+            for (uint k = 0u; k < pc.lobe_count; ++k) {
+                SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+                gamma_l += lobes[2u * k + 1u].rgb * sg_inner_product(l, gj);
+            }
+        }
+        if (max(gamma_l.r, max(gamma_l.g, gamma_l.b)) > 0.0) color += amp * gamma_l * visible(gj);
+    }
+    imageStore(hdr, px, vec4(max(color, vec3(0.0)), 1.0));
+}

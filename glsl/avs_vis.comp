@@ -1,0 +1,128 @@
+#version 460
+#extension GL_GOOGLE_include_directive : require
+// Adaptive angular visibility sampling (Wang et al., section 4.2), one level per dispatch: one
+// workgroup per sample point of the batch. Level 0 traces every texel of the initial grid
+// (res x res, e.g. 16 x 16); level L (res = 2 x the previous) traces a texel only when its parent
+// texel of the previous level is a boundary texel (its 8-neighbourhood holds both states) in this
+// point's previous map, or in a neighbouring sample point's previous map at the same direction;
+// other texels take the parent's value. Every level writes a full r x r packed map (texel blocks
+// replicated) in the layout of include/avs_maps.glsl; rays are any-hit queries through the
+// kd-tree (include/kdtree.glsl) from the point offset along its normal.
+#include "avs_maps.glsl"
+
+layout(local_size_x = 64) in;
+layout(std430, binding = 0) readonly buffer Tris { vec4 kd_tris[]; };
+layout(std430, binding = 1) readonly buffer Nodes { uvec4 kd_nodes[]; };
+layout(std430, binding = 2) readonly buffer Refs { uint kd_refs[]; };
+layout(std430, binding = 3) readonly buffer Header { uint kd_hdr[]; };
+// 3 vec4 per slot: (position, normal offset), (tangent, 0), (normal, 0)
+layout(std430, binding = 4) readonly buffer Points { vec4 pts[]; };
+// [0, count): slot of batch entry e; then count * K neighbour batch entries (0xffffffff: none)
+layout(std430, binding = 5) readonly buffer Batch { uint batch[]; };
+// previous level's maps, indexed by batch entry (unused at level 0)
+layout(std430, binding = 6) readonly buffer Prev { uint prev[]; };
+// this level's maps: indexed by batch entry (scratch) or by slot (final level)
+layout(std430, binding = 7) writeonly buffer Out { uint outw[]; };
+// rays traced per batch entry (statistics), accumulated over the levels
+layout(std430, binding = 8) buffer Stats { uint stats[]; };
+layout(push_constant) uniform Push {
+    uint r;        // final resolution
+    uint res;      // this level's resolution
+    uint count;    // batch entries
+    uint k;        // neighbours per entry
+    uint level;    // 0: initial grid
+    uint to_slot;  // 1: write map of entry e at its slot (final level)
+    uint use_neighbours;
+    uint pad;
+} pc;
+
+#define KD_TRI(i) kd_tris[i]
+#define KD_NODE(i) kd_nodes[i]
+#define KD_REF(i) kd_refs[i]
+#define KD_HDR(i) kd_hdr[i]
+#include "kdtree.glsl"
+
+shared uint smap[2048];
+shared uint straced;
+
+// Value of texel (a, b) of the previous level (resolution pres) of batch entry e.
+bool prev_bit(uint e, uint a, uint b, uint pres) {
+    uint s = pc.r / pres;
+    uint kk = (a * s) * pc.r + b * s;
+    return AVS_VIS_BIT(prev, e * avs_words_per_map(pc.r), kk);
+}
+
+// Texel (a, b) of the previous level has a neighbour (8-neighbourhood, no wrap in phi) of the
+// other state.
+bool boundary(uint e, uint a, uint b, uint pres) {
+    bool v = prev_bit(e, a, b, pres);
+    for (int da = -1; da <= 1; ++da) {
+        for (int db = -1; db <= 1; ++db) {
+            int na = int(a) + da, nb = int(b) + db;
+            if ((da == 0 && db == 0) || na < 0 || nb < 0 || na >= int(pres) || nb >= int(pres)) continue;
+            if (prev_bit(e, uint(na), uint(nb), pres) != v) return true;
+        }
+    }
+    return false;
+}
+
+mat3 frame_of(uint slot) {
+    vec3 t = pts[3u * slot + 1u].xyz, n = pts[3u * slot + 2u].xyz;
+    return mat3(t, cross(n, t), n);
+}
+
+void main() {
+    uint words = avs_words_per_map(pc.r);
+    uint tid = gl_LocalInvocationID.x;
+    for (uint e = gl_WorkGroupID.x; e < pc.count; e += gl_NumWorkGroups.x) {
+        uint slot = batch[e];
+        for (uint w = tid; w < words; w += 64u) smap[w] = 0u;
+        if (tid == 0u) straced = 0u;
+        barrier();
+        vec4 p0 = pts[3u * slot];
+        mat3 fr = frame_of(slot);
+        vec3 origin = p0.xyz + fr[2] * p0.w;
+        uint res = pc.res, pres = res / 2u, s = pc.r / res;
+        uint traced = 0u;
+        for (uint t = tid; t < res * res; t += 64u) {
+            uint a = t / res, b = t % res;
+            bool trace_it = pc.level == 0u;
+            bool value = false;
+            if (!trace_it) {
+                uint pa = a / 2u, pb = b / 2u;
+                value = prev_bit(e, pa, pb, pres);
+                trace_it = boundary(e, pa, pb, pres);
+                if (!trace_it && pc.use_neighbours != 0u) {
+                    vec3 wd = fr * avs_texel_dir(pa, pb, pres);
+                    for (uint q = 0u; q < pc.k && !trace_it; ++q) {
+                        uint ne = batch[pc.count + e * pc.k + q];
+                        if (ne == 0xffffffffu) break;
+                        mat3 fq = frame_of(batch[ne]);
+                        uvec2 ij;
+                        if (avs_dir_to_texel(transpose(fq) * wd, pres, ij)) trace_it = boundary(ne, ij.x, ij.y, pres);
+                    }
+                }
+            }
+            if (trace_it) {
+                vec3 d = fr * avs_texel_dir(a, b, res);
+                KdHit h = kd_trace(origin, d, 0.0, 1e30, true);
+                value = h.t < 0.0;
+                traced++;
+            }
+            if (value) {
+                // set the s x s block of the full-resolution map (s divides 32: one word per row)
+                uint mask = s >= 32u ? 0xffffffffu : ((1u << s) - 1u);
+                for (uint row = a * s; row < a * s + s; ++row) {
+                    uint kk = row * pc.r + b * s;
+                    atomicOr(smap[kk >> 5u], mask << (kk & 31u));
+                }
+            }
+        }
+        atomicAdd(straced, traced);
+        barrier();
+        uint base = (pc.to_slot != 0u ? slot : e) * words;
+        for (uint w = tid; w < words; w += 64u) outw[base + w] = smap[w];
+        if (tid == 0u) stats[e] = (pc.level == 0u ? 0u : stats[e]) + straced;
+        barrier();
+    }
+}

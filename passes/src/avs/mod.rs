@@ -1,0 +1,786 @@
+//! Adaptive visibility sampling with hemispherical distance transforms and SSDF shading (Wang,
+//! Pan, Han, Chen and Bao, "Parallel and adaptive visibility sampling for rendering dynamic
+//! scenes with spatially-varying reflectance"): technique `"avs"`.
+//!
+//! Per frame (all geometry dynamic, the kd-tree rebuilt when anything moved or deformed):
+//! * **Initial sample points** (section 4.1), CPU: k-means over all world vertices with the
+//!   geometric error `e_g` (eq. 6, [`penumbra_math::avs_sampling::kmeans_eg`]), the vertex
+//!   nearest each centre. The set is kept across frames as vertex ids, so sample points follow
+//!   deforming and moving geometry; it is rebuilt only when the vertex count changes.
+//! * **Adaptive spatial sampling** (4.3): `iterations` rounds, each submitted as its own small
+//!   graph before the frame's graph (the CPU needs the SH of the new maps): the new points'
+//!   visibility maps (below) and their SH16 projections (`avs_sh`, read back), then on the CPU the
+//!   relative error `e_v(x_i, x_avg) / sum|c_i|` of every point against the eq. 8 interpolation of
+//!   its neighbours within the search radius, insertions above `E_v,max` (nearest vertex to the
+//!   midpoint of a point and each neighbour it disagrees with) and erasures below `E_v,min` (no two
+//!   neighbours in one round) ([`penumbra_math::avs_sampling::adapt_step`]).
+//! * **Adaptive angular sampling** (4.2), `avs_vis_l<L>` passes (`glsl/avs_vis.comp`): one
+//!   workgroup per sample point; level 0 traces the initial grid (16 x 16 or 32 x 32) with the
+//!   kd-tree tracer, every further level doubles the resolution and traces only texels whose parent
+//!   is a boundary texel (8-neighbourhood) in the point's own previous level or in one of its
+//!   `ray_neighbours` nearest sample points' previous level at the same direction; the others copy
+//!   the parent. Maps are 1 bit per texel in `penumbra_math::avs_maps`'s layout.
+//! * **HSDT** (section 5): [`crate::hsdt::Hsdt`] turns all maps into fp16 SSDFs.
+//! * **Shading** (section 6), `avs_shade` (`glsl/avs_shade.comp`): per pixel, the sample points
+//!   within the search radius (CPU-built uniform grid) with the best eq. 8 weights, their SSDFs
+//!   interpolated at any direction; environment as SG lobes, BRDFs as SG lobes from the
+//!   (textured) materials; visibility of each product lobe by the SSDF at the lobe axis
+//!   (`integration = "axis"`) or by integration over cells with iso-line boundaries
+//!   (`integration = "cells"`); local lights shadowed by the SSDF toward them.
+//!
+//! Parameters (`[technique_params]` / `--param`), see [`AvsSettings::set`].
+
+use crate::kdtree::{KdTreeBuilder, KdTreeHandles};
+use crate::shade_env::HDR_FORMAT;
+use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
+use anyhow::{anyhow, bail, Result};
+use glam::{Mat3, Vec3};
+use penumbra_engine::graph::ImageDesc;
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, ImageHandle, PassKind};
+use penumbra_math::avs_maps::{check_res, words_per_map};
+use penumbra_math::avs_sampling::{self as samp, Grid, SurfacePoint, SH_COUNT};
+use penumbra_scene::{Frame, Scene};
+use std::sync::Arc;
+
+/// Visibility integration over the SSDF-bounded visible region.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Integration {
+    /// SSDF at the lobe axis, straight boundary (Wang et al. 2009).
+    Axis,
+    /// Cells with iso-line boundaries (eq. 5, per cell).
+    Cells,
+}
+
+/// Parameters with the paper's defaults.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AvsSettings {
+    /// Visibility map resolution r (paper: 128; 64 and 256 evaluated).
+    pub r: u32,
+    /// Initial ray grid per side (paper: 16, some scenes 32).
+    pub initial_grid: u32,
+    /// E_v,max, relative spatial error above which points are inserted (paper: 0.10).
+    pub e_max: f32,
+    /// E_v,min, relative spatial error below which points may be erased (paper: 0.05).
+    pub e_min: f32,
+    /// alpha of e_g after normalising the scene scale (paper: 0.1 - 0.5).
+    pub alpha: f32,
+    /// Spatial adaptation rounds per frame (0: the initial points only).
+    pub iterations: u32,
+    /// alpha of the eq. 8 weights of the per-pixel interpolation, with positions divided by the
+    /// search radius (not the scene scale): 0 uses `alpha` with the scene scale (the paper's
+    /// form, default; on coarse meshes it weighs a point across a hat brim almost like the one
+    /// next to the pixel).
+    pub interp_alpha: f32,
+    /// Initial sample points (k of k-means); 0: one per 16 vertices, between 16 and 2048.
+    pub points: usize,
+    /// Upper bound on sample points after insertions.
+    pub max_points: usize,
+    /// Search radius as a multiple of the initial points' mean nearest-neighbour distance.
+    pub radius: f32,
+    /// Sample points interpolated per pixel (the best eq. 8 weights within the radius, <= 8).
+    pub neighbours: u32,
+    /// Neighbouring sample points whose previous-level maps also mark boundary rays (0: off).
+    pub ray_neighbours: u32,
+    /// Integration mode.
+    pub integration: Integration,
+    /// Cells per side of the lobe neighbourhood (integration = cells).
+    pub cells: u32,
+    /// False: visibility 1 (separates shading from visibility error).
+    pub shadows: bool,
+    /// Specular Gamma_L from SG-prefiltered environment maps (true) or the lighting lobes.
+    pub prefiltered: bool,
+    /// Lighting SG lobes.
+    pub lobes: usize,
+}
+
+impl Default for AvsSettings {
+    fn default() -> Self {
+        AvsSettings {
+            r: 128,
+            initial_grid: 16,
+            e_max: 0.10,
+            e_min: 0.05,
+            alpha: 0.3,
+            iterations: 2,
+            interp_alpha: 0.0,
+            points: 0,
+            max_points: 8192,
+            radius: 2.0,
+            neighbours: 6,
+            ray_neighbours: 4,
+            integration: Integration::Axis,
+            cells: 6,
+            shadows: true,
+            prefiltered: true,
+            lobes: 16,
+        }
+    }
+}
+
+impl AvsSettings {
+    /// Defaults with `params` applied.
+    pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> Result<Self> {
+        let mut s = AvsSettings::default();
+        for (k, v) in params {
+            s.set(k, v)?;
+        }
+        s.validate()?;
+        Ok(s)
+    }
+
+    /// Sets one parameter. Keys: `r` (128; multiple of the initial grid times a power of two, at
+    /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
+    /// `iterations` (2), `points` (0 = auto), `max_points` (8192), `radius` (2.0), `neighbours`
+    /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells`), `cells` (6,
+    /// 1..16), `shadows`, `prefiltered` (true/false), `lobes` (16). Unknown keys and bad values
+    /// are errors naming the key.
+    pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
+        let v = value.trim();
+        let bad = || anyhow!("avs parameter {key} = '{value}': not a valid value");
+        let float = |lo: f32, hi: f32| -> Result<f32> {
+            v.parse::<f32>().ok().filter(|x| x.is_finite() && *x >= lo && *x <= hi).ok_or_else(|| {
+                anyhow!("avs parameter {key} = '{value}': expected a number in [{lo}, {hi}]")
+            })
+        };
+        let int = |lo: u64, hi: u64| -> Result<u64> {
+            v.parse::<u64>().ok().filter(|x| *x >= lo && *x <= hi).ok_or_else(|| {
+                anyhow!("avs parameter {key} = '{value}': expected an integer in [{lo}, {hi}]")
+            })
+        };
+        let flag = || match v {
+            "1" | "true" => Ok(true),
+            "0" | "false" => Ok(false),
+            _ => Err(bad()),
+        };
+        match key.trim() {
+            "r" => self.r = int(8, 256)? as u32,
+            "initial_grid" => self.initial_grid = int(16, 32)? as u32,
+            "e_max" => self.e_max = float(0.0, 100.0)?,
+            "e_min" => self.e_min = float(0.0, 100.0)?,
+            "alpha" => self.alpha = float(0.0, 100.0)?,
+            "interp_alpha" => self.interp_alpha = float(0.0, 100.0)?,
+            "iterations" => self.iterations = int(0, 16)? as u32,
+            "points" => self.points = int(0, 1 << 16)? as usize,
+            "max_points" => self.max_points = int(1, 1 << 16)? as usize,
+            "radius" => self.radius = float(0.01, 100.0)?,
+            "neighbours" => self.neighbours = int(1, 8)? as u32,
+            "ray_neighbours" => self.ray_neighbours = int(0, 8)? as u32,
+            "integration" => {
+                self.integration = match v {
+                    "axis" => Integration::Axis,
+                    "cells" => Integration::Cells,
+                    _ => bail!("avs parameter integration = '{value}': expected 'axis' or 'cells'"),
+                }
+            }
+            "cells" => self.cells = int(1, 16)? as u32,
+            "shadows" => self.shadows = flag()?,
+            "prefiltered" => self.prefiltered = flag()?,
+            "lobes" => self.lobes = int(1, 64)? as usize,
+            other => bail!(
+                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, radius, neighbours, ray_neighbours, integration, cells, shadows, prefiltered, lobes)"
+            ),
+        }
+        Ok(())
+    }
+
+    /// Checks the combination of parameters.
+    pub fn validate(&self) -> Result<()> {
+        check_res(self.r).map_err(|e| anyhow!("avs parameter r: {e}"))?;
+        if self.initial_grid != 16 && self.initial_grid != 32 {
+            bail!("avs parameter initial_grid = {}: expected 16 or 32", self.initial_grid);
+        }
+        if self.r < self.initial_grid || !(self.r / self.initial_grid).is_power_of_two() || self.r % self.initial_grid != 0 {
+            bail!(
+                "avs parameter r = {}: must be the initial grid ({}) times a power of two",
+                self.r,
+                self.initial_grid
+            );
+        }
+        if self.e_min > self.e_max {
+            bail!("avs parameters e_min = {} > e_max = {}", self.e_min, self.e_max);
+        }
+        Ok(())
+    }
+
+    /// Levels of the angular refinement (initial grid, then doublings up to r).
+    pub fn levels(&self) -> u32 {
+        (self.r / self.initial_grid).trailing_zeros() + 1
+    }
+}
+
+/// Statistics of the last frame (for tests and the bench).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct AvsStats {
+    /// World vertices (candidate pool).
+    pub vertices: usize,
+    /// Initial sample points (k-means).
+    pub initial_points: usize,
+    /// Sample points after the spatial adaptation.
+    pub points: usize,
+    /// Points inserted / erased per adaptation round.
+    pub inserted: Vec<usize>,
+    pub erased: Vec<usize>,
+    /// Mean relative spatial error of the last round (points with neighbours).
+    pub mean_rel_error: f32,
+    /// Search radius (world units).
+    pub radius: f32,
+    /// Rays traced for the final maps, summed over the points (when read back).
+    pub rays: u64,
+    /// Bytes of visibility maps and SSDFs.
+    pub map_bytes: u64,
+    pub ssdf_bytes: u64,
+    /// Pool vertex of every sample point (index into the frame's vertex pool).
+    pub point_vertices: Vec<usize>,
+    /// Visible fraction of the hemisphere of every sample point (from the SH16 DC term).
+    pub visible_fraction: Vec<f32>,
+    /// GPU milliseconds of the adaptation rounds' passes (name, ms), when timed.
+    pub round_ms: Vec<(String, f64)>,
+}
+
+static LAST_STATS: std::sync::Mutex<Option<AvsStats>> = std::sync::Mutex::new(None);
+
+/// Statistics of the last frame any `avs` technique in this process declared (the renderer owns
+/// the technique; tests and the bench read them here).
+pub fn last_stats() -> AvsStats {
+    LAST_STATS.lock().map(|s| s.clone().unwrap_or_default()).unwrap_or_default()
+}
+
+/// The frame's vertex pool: world positions and normals of every instance.
+pub fn vertex_pool(scene: &Scene, frame: &Frame) -> Result<Vec<SurfacePoint>> {
+    let mut out = Vec::new();
+    for inst in &frame.instances {
+        let name = scene.objects.get(inst.object).map(|o| o.name.as_str()).unwrap_or("?");
+        let mesh = match inst.deformed_mesh.as_deref() {
+            Some(m) => m,
+            None => scene.meshes.get(inst.mesh).ok_or_else(|| anyhow!("object '{name}' refers to a missing mesh"))?,
+        };
+        let m3 = Mat3::from_mat4(inst.world);
+        let nm = if m3.determinant().abs() > 1e-20 { m3.inverse().transpose() } else { m3 };
+        let has_n = mesh.normals.len() == mesh.positions.len();
+        for (i, p) in mesh.positions.iter().enumerate() {
+            let pos = inst.world.transform_point3(*p);
+            let n = if has_n { (nm * mesh.normals[i]).normalize_or_zero() } else { Vec3::ZERO };
+            let n = if n == Vec3::ZERO || !n.is_finite() { Vec3::Y } else { n };
+            if !pos.is_finite() {
+                bail!("object '{name}' has non-finite vertices");
+            }
+            out.push(SurfacePoint { pos, normal: n });
+        }
+    }
+    Ok(out)
+}
+
+/// GPU layout of the sample points: 3 vec4 per point (position, ray offset), (tangent, 1),
+/// (normal, 0).
+pub fn point_data(points: &[SurfacePoint], offset: f32) -> Vec<[f32; 4]> {
+    let mut out = Vec::with_capacity(points.len() * 3);
+    for p in points {
+        let f = samp::point_frame(p.normal);
+        let (t, n) = (f.t.as_vec3(), f.n.as_vec3());
+        out.push([p.pos.x, p.pos.y, p.pos.z, offset]);
+        out.push([t.x, t.y, t.z, 1.0]);
+        out.push([n.x, n.y, n.z, 0.0]);
+    }
+    if out.is_empty() {
+        out = vec![[0.0; 4]; 3];
+    }
+    out
+}
+
+/// The grid buffer `avs_shade.comp` reads (header, cell starts, slots).
+pub fn grid_words(grid: &Grid, slots: &[u32]) -> Vec<u32> {
+    let cells = grid.cell_start.len() - 1;
+    let items = 16 + cells as u32 + 1;
+    let mut out = vec![0u32; 16];
+    out[0] = grid.dims[0];
+    out[1] = grid.dims[1];
+    out[2] = grid.dims[2];
+    out[4] = grid.lo.x.to_bits();
+    out[5] = grid.lo.y.to_bits();
+    out[6] = grid.lo.z.to_bits();
+    out[7] = grid.cell.to_bits();
+    out[8] = items;
+    out.extend_from_slice(&grid.cell_start);
+    out.extend(grid.items.iter().map(|&i| slots[i as usize]));
+    out.push(0);
+    out
+}
+
+/// The `"avs"` technique.
+pub struct AvsTechnique {
+    vis: Pipeline,
+    sh: Pipeline,
+    shade: Pipeline,
+    hsdt: crate::hsdt::Hsdt,
+    nearest: Sampler,
+    linear: Sampler,
+    repeat: Sampler,
+    pub settings: AvsSettings,
+    scene: Scene,
+    pub builder: KdTreeBuilder,
+    lobes: Arc<Vec<u8>>,
+    prefiltered: Arc<Vec<u8>>,
+    lobe_count: u32,
+    /// Pool vertices of the current sample points (kept across frames).
+    sample_vertices: Vec<usize>,
+    pool_len: usize,
+    radius: f32,
+    /// Time the adaptation rounds with their own submissions (false: no adaptation rounds are
+    /// possible inside a caller's graph without an engine, see `add`).
+    pub stats: AvsStats,
+}
+
+
+impl AvsTechnique {
+    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: AvsSettings) -> Result<Self> {
+        use vk::DescriptorType as T;
+        settings.validate()?;
+        let sb = T::STORAGE_BUFFER;
+        let vis = compute_pipeline(ctx, shaders, "avs_vis.comp", &[sb; 9], 32)?;
+        let sh = compute_pipeline(ctx, shaders, "avs_sh.comp", &[sb; 4], 8)?;
+        let shade = compute_pipeline(
+            ctx,
+            shaders,
+            "avs_shade.comp",
+            &[
+                T::UNIFORM_BUFFER,
+                sb,
+                T::COMBINED_IMAGE_SAMPLER,
+                T::COMBINED_IMAGE_SAMPLER,
+                T::COMBINED_IMAGE_SAMPLER,
+                T::COMBINED_IMAGE_SAMPLER,
+                T::STORAGE_IMAGE,
+                sb,
+                T::COMBINED_IMAGE_SAMPLER,
+                sb,
+                sb,
+                sb,
+                sb,
+                sb,
+            ],
+            44,
+        )?;
+        let (lobes, _) = crate::isg::lighting_lobes(scene, settings.lobes);
+        let lobe_count = (lobes.len() / 2) as u32;
+        let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
+        Ok(AvsTechnique {
+            vis,
+            sh,
+            shade,
+            hsdt: crate::hsdt::Hsdt::new(ctx, shaders)?,
+            nearest: Sampler::nearest(ctx)?,
+            linear: Sampler::latlong(ctx)?,
+            repeat: Sampler::repeat(ctx)?,
+            lobes: Arc::new(bytes_of(&lobes)),
+            prefiltered: Arc::new(bytes_of(&crate::isg::prefiltered_env(scene))),
+            lobe_count,
+            builder: KdTreeBuilder::new(ctx, shaders)?,
+            scene: scene.clone(),
+            settings,
+            sample_vertices: Vec::new(),
+            pool_len: usize::MAX,
+            radius: 0.0,
+            stats: AvsStats::default(),
+        })
+    }
+
+    /// Initial sample points for `pool` (k-means with e_g) and the search radius.
+    fn initial_points(&mut self, pool: &[SurfacePoint]) {
+        let k = if self.settings.points > 0 { self.settings.points } else { (pool.len() / 16).clamp(16, 2048) };
+        let k = k.min(self.settings.max_points);
+        self.sample_vertices = samp::kmeans_eg(pool, k, self.settings.alpha, 8, &mut |_, _| {});
+        let pos: Vec<Vec3> = self.sample_vertices.iter().map(|&v| pool[v].pos).collect();
+        let g = Grid::new(&pos, 0.0);
+        // mean distance to the nearest other sample point
+        let mut sum = 0.0f64;
+        let mut cnt = 0usize;
+        for (i, p) in pos.iter().enumerate() {
+            let mut best = f32::MAX;
+            for ring in 0..4 {
+                g.visit_ring(*p, ring, |j, d2| {
+                    if j != i && d2 < best * best {
+                        best = d2.sqrt();
+                    }
+                });
+            }
+            if best < f32::MAX {
+                sum += best as f64;
+                cnt += 1;
+            }
+        }
+        let mean = if cnt > 0 { (sum / cnt as f64) as f32 } else { samp::scene_scale(&pos) * 0.1 };
+        self.radius = (self.settings.radius * mean).max(1e-6);
+        self.stats.initial_points = self.sample_vertices.len();
+    }
+
+    /// Ray origin offset along the normal.
+    fn offset(&self, pool: &[SurfacePoint]) -> f32 {
+        let extent = pool.iter().fold(1.0f32, |m, p| m.max(p.pos.abs().max_element()));
+        crate::kdtree::ray_epsilon(extent) * 10.0
+    }
+
+    /// The tree of the frame's triangles (shadow flags from the objects).
+    fn tree(&mut self, engine: &mut Engine, graph: &mut Graph, frame: &Frame) -> Result<KdTreeHandles> {
+        let (tris, _, no_shadow) = crate::mc::world_triangles_shading(&self.scene, frame)?;
+        let rebuild = frame.any_moved() || frame.any_deformed();
+        self.builder.add_triangles_flagged(engine, graph, &tris, Some(&no_shadow), rebuild)
+    }
+
+    /// Declares the visibility passes of `batch` (slots into the points buffer) writing each
+    /// final map at its slot of `vis`; returns the new `vis` version and the stats buffer.
+    #[allow(clippy::too_many_arguments)]
+    fn add_visibility(
+        &self,
+        graph: &mut Graph,
+        tree: &KdTreeHandles,
+        points_buf: BufferHandle,
+        points: &[SurfacePoint],
+        batch: &[u32],
+        mut vis: BufferHandle,
+        tag: &str,
+    ) -> (BufferHandle, BufferHandle) {
+        let r = self.settings.r;
+        let words = words_per_map(r) as u64;
+        let n = batch.len() as u32;
+        let k = self.settings.ray_neighbours;
+        // neighbour lists among the batch (nearest first)
+        let pos: Vec<Vec3> = batch.iter().map(|&s| points[s as usize].pos).collect();
+        let g = Grid::new(&pos, self.radius);
+        let mut data: Vec<u32> = batch.to_vec();
+        for (e, p) in pos.iter().enumerate() {
+            let mut nb: Vec<(f32, usize)> = g
+                .range(*p, self.radius)
+                .into_iter()
+                .filter(|&j| j != e && samp::same_surface(&points[batch[e] as usize], &points[batch[j] as usize], self.radius))
+                .map(|j| ((pos[j] - *p).length_squared(), j))
+                .collect();
+            nb.sort_by(|a, b| a.0.total_cmp(&b.0));
+            for q in 0..k as usize {
+                data.push(nb.get(q).map_or(u32::MAX, |x| x.1 as u32));
+            }
+        }
+        data.push(0);
+        let batch_buf = graph.create_buffer_init(&format!("avs_batch{tag}"), bytes_of(&data));
+        let scratch_bytes = (n.max(1) as u64) * words * 4;
+        let mut scratch = [
+            graph.create_buffer(&format!("avs_scratch{tag}_a"), scratch_bytes),
+            graph.create_buffer(&format!("avs_scratch{tag}_b"), scratch_bytes),
+        ];
+        let mut stats = graph.create_buffer(&format!("avs_rays{tag}"), (n.max(1) as u64) * 4);
+        let levels = self.settings.levels();
+        for level in 0..levels {
+            let res = self.settings.initial_grid << level;
+            let last = level + 1 == levels;
+            let mut p = graph.pass(&format!("avs_vis{tag}_l{level}"), PassKind::Compute);
+            let t0 = p.read(tree.tris, Access::ComputeShaderReadStorage);
+            let t1 = p.read(tree.nodes, Access::ComputeShaderReadStorage);
+            let t2 = p.read(tree.refs, Access::ComputeShaderReadStorage);
+            let t3 = p.read(tree.header, Access::ComputeShaderReadStorage);
+            let pb = p.read(points_buf, Access::ComputeShaderReadStorage);
+            let bb = p.read(batch_buf, Access::ComputeShaderReadStorage);
+            // level 0 reads nothing: bind the output's sibling scratch as a dummy "previous"
+            let prev_idx = (level as usize + 1) % 2;
+            let prev = if level == 0 {
+                // never read; declare it written first so the graph has a version to read
+                None
+            } else {
+                Some(p.read(scratch[prev_idx], Access::ComputeShaderReadStorage))
+            };
+            let out = if last {
+                p.write(vis, Access::ComputeShaderWriteStorage)
+            } else {
+                p.write(scratch[level as usize % 2], Access::ComputeShaderWriteStorage)
+            };
+            let st = p.write(stats, if level == 0 { Access::ComputeShaderWriteStorage } else { Access::ComputeShaderReadWriteStorage });
+            let push = [r, res, n, k, level, last as u32, (k > 0) as u32, 0];
+            let (pipe, layout) = (self.vis.pipeline, self.vis.layout);
+            p.record(move |rc| {
+                let prev_b = prev.unwrap_or(out);
+                crate::util::bind_compute(
+                    rc,
+                    pipe,
+                    layout,
+                    &[
+                        Bind::StorageBuffer(t0),
+                        Bind::StorageBuffer(t1),
+                        Bind::StorageBuffer(t2),
+                        Bind::StorageBuffer(t3),
+                        Bind::StorageBuffer(pb),
+                        Bind::StorageBuffer(bb),
+                        Bind::StorageBuffer(prev_b),
+                        Bind::StorageBuffer(out),
+                        Bind::StorageBuffer(st),
+                    ],
+                )?;
+                unsafe {
+                    let d = rc.device();
+                    d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
+                    d.cmd_dispatch(rc.cmd, n.clamp(1, 65535), 1, 1);
+                }
+                Ok(())
+            });
+            stats = st;
+            if last {
+                vis = out;
+            } else {
+                scratch[level as usize % 2] = out;
+            }
+        }
+        (vis, stats)
+    }
+
+    /// Declares the SH16 projection of the maps of `batch` (at their slots of `vis`); returns the
+    /// `16 * batch` float buffer.
+    fn add_sh(&self, graph: &mut Graph, points_buf: BufferHandle, vis: BufferHandle, batch: &[u32], tag: &str) -> BufferHandle {
+        let n = batch.len() as u32;
+        let mut data = batch.to_vec();
+        data.push(0);
+        let bb = graph.create_buffer_init(&format!("avs_sh_batch{tag}"), bytes_of(&data));
+        let out = graph.create_buffer(&format!("avs_sh{tag}"), (n.max(1) as u64) * SH_COUNT as u64 * 4);
+        let mut p = graph.pass(&format!("avs_sh{tag}"), PassKind::Compute);
+        let pb = p.read(points_buf, Access::ComputeShaderReadStorage);
+        let bb = p.read(bb, Access::ComputeShaderReadStorage);
+        let v = p.read(vis, Access::ComputeShaderReadStorage);
+        let o = p.write(out, Access::ComputeShaderWriteStorage);
+        let push = [self.settings.r, n];
+        let (pipe, layout) = (self.sh.pipeline, self.sh.layout);
+        p.record(move |rc| {
+            crate::util::bind_compute(
+                rc,
+                pipe,
+                layout,
+                &[Bind::StorageBuffer(pb), Bind::StorageBuffer(bb), Bind::StorageBuffer(v), Bind::StorageBuffer(o)],
+            )?;
+            unsafe {
+                let d = rc.device();
+                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
+                d.cmd_dispatch(rc.cmd, n.clamp(1, 65535), 1, 1);
+            }
+            Ok(())
+        });
+        o
+    }
+
+    /// The spatial adaptation rounds (each its own submission, waited for) and the final
+    /// visibility maps in the persistent `avs.vis` buffer. Every sample point owns a slot (its map
+    /// and SSDF); erased points free their slot for later insertions. Returns the points with
+    /// their slots and the slot count.
+    fn adapt(&mut self, engine: &mut Engine, pool: &[SurfacePoint], frame: &Frame) -> Result<(Vec<SurfacePoint>, Vec<u32>, u32)> {
+        let r = self.settings.r;
+        let words = words_per_map(r) as u64;
+        let cap = self.settings.max_points.max(self.sample_vertices.len()) as u64;
+        let offset = self.offset(pool);
+        let pool_grid = Grid::new(&pool.iter().map(|p| p.pos).collect::<Vec<_>>(), 0.0);
+        self.stats.inserted.clear();
+        self.stats.erased.clear();
+        self.stats.round_ms.clear();
+        self.stats.rays = 0;
+        // every point is traced again each frame (the geometry is dynamic): slots 0..n
+        let mut slots: Vec<u32> = (0..self.sample_vertices.len() as u32).collect();
+        let mut nslots = slots.len() as u32;
+        let mut free: Vec<u32> = Vec::new();
+        let mut sh: Vec<Option<[f32; SH_COUNT]>> = vec![None; slots.len()];
+        for round in 0..=self.settings.iterations {
+            let points: Vec<SurfacePoint> = self.sample_vertices.iter().map(|&v| pool[v]).collect();
+            let batch: Vec<u32> = (0..points.len()).filter(|&i| sh[i].is_none()).map(|i| slots[i]).collect();
+            if batch.is_empty() {
+                break;
+            }
+            let mut by_slot = vec![SurfacePoint { pos: Vec3::ZERO, normal: Vec3::Y }; nslots as usize];
+            for (i, p) in points.iter().enumerate() {
+                by_slot[slots[i] as usize] = *p;
+            }
+            let mut g = Graph::new();
+            // the tree is (re)built in the first round only
+            let kept = if round > 0 { self.builder.add_kept(engine, &mut g) } else { None };
+            let tree = match kept {
+                Some(t) => t,
+                None => self.tree(engine, &mut g, frame)?,
+            };
+            let points_buf = g.create_buffer_init("avs_points", bytes_of(&point_data(&by_slot, offset)));
+            let vis = engine.persistent_buffer(&mut g, "avs.vis", cap * words * 4);
+            let tag = format!("_i{round}");
+            let (vis, rays) = self.add_visibility(&mut g, &tree, points_buf, &by_slot, &batch, vis, &tag);
+            let shb = self.add_sh(&mut g, points_buf, vis, &batch, &tag);
+            let n = batch.len() as u64;
+            let rb = g.create_readback("avs_sh_readback", n * (SH_COUNT as u64 + 1) * 4);
+            {
+                let mut p = g.pass("avs_sh_readback", PassKind::Transfer);
+                let s = p.read(shb, Access::TransferSrc);
+                let ra = p.read(rays, Access::TransferSrc);
+                let d = p.write(rb, Access::TransferDst);
+                p.record(move |rc| {
+                    let (sb, rab, db) = (rc.buffer(s)?, rc.buffer(ra)?, rc.buffer(d)?);
+                    let sh_bytes = n * SH_COUNT as u64 * 4;
+                    unsafe {
+                        let dev = rc.device();
+                        dev.cmd_copy_buffer(rc.cmd, sb.buffer, db.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: sh_bytes }]);
+                        dev.cmd_copy_buffer(rc.cmd, rab.buffer, db.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: sh_bytes, size: n * 4 }]);
+                    }
+                    Ok(())
+                });
+            }
+            let out = engine.submit_wait(g)?;
+            self.stats.round_ms.extend(out.gpu_ms.iter().cloned());
+            let bytes = out.readbacks.get("avs_sh_readback").ok_or_else(|| anyhow!("avs: SH readback missing"))?;
+            let word = |i: usize| f32::from_le_bytes(bytes[4 * i..4 * i + 4].try_into().unwrap());
+            let slot_point: std::collections::HashMap<u32, usize> = slots.iter().enumerate().map(|(i, &s)| (s, i)).collect();
+            for (e, &slot) in batch.iter().enumerate() {
+                let mut v = [0f32; SH_COUNT];
+                for (k, x) in v.iter_mut().enumerate() {
+                    *x = word(e * SH_COUNT + k);
+                }
+                sh[slot_point[&slot]] = Some(v);
+                self.stats.rays += word(batch.len() * SH_COUNT + e).to_bits() as u64;
+            }
+            if round == self.settings.iterations {
+                break;
+            }
+            let params = samp::AdaptParams { alpha: self.settings.alpha, radius: self.radius, e_max: self.settings.e_max, e_min: self.settings.e_min };
+            let sh_now: Vec<[f32; SH_COUNT]> = sh.iter().map(|c| c.unwrap_or([0.0; SH_COUNT])).collect();
+            let step = samp::adapt_step(&points, &self.sample_vertices, &sh_now, pool, &pool_grid, &params);
+            let errs: Vec<f32> = step.rel_error.iter().flatten().copied().collect();
+            self.stats.mean_rel_error = if errs.is_empty() { 0.0 } else { errs.iter().sum::<f32>() / errs.len() as f32 };
+            let room = self.settings.max_points.saturating_sub(points.len() - step.erase.len());
+            let insert: Vec<usize> = step.insert.iter().copied().take(room).collect();
+            self.stats.inserted.push(insert.len());
+            self.stats.erased.push(step.erase.len());
+            if insert.is_empty() && step.erase.is_empty() {
+                break;
+            }
+            let erase: std::collections::HashSet<usize> = step.erase.iter().copied().collect();
+            let mut keep_v = Vec::new();
+            let mut keep_s = Vec::new();
+            let mut keep_sh = Vec::new();
+            for i in 0..points.len() {
+                if erase.contains(&i) {
+                    free.push(slots[i]);
+                } else {
+                    keep_v.push(self.sample_vertices[i]);
+                    keep_s.push(slots[i]);
+                    keep_sh.push(sh[i]);
+                }
+            }
+            for v in insert {
+                keep_v.push(v);
+                keep_s.push(free.pop().unwrap_or_else(|| {
+                    nslots += 1;
+                    nslots - 1
+                }));
+                keep_sh.push(None);
+            }
+            self.sample_vertices = keep_v;
+            slots = keep_s;
+            sh = keep_sh;
+        }
+        self.stats.points = self.sample_vertices.len();
+        let dc = 0.282_094_8 * 2.0 * std::f32::consts::PI;
+        self.stats.visible_fraction = sh.iter().map(|c| c.map_or(-1.0, |c| c[0] / dc)).collect();
+        Ok((self.sample_vertices.iter().map(|&v| pool[v]).collect(), slots, nslots))
+    }
+}
+
+impl crate::technique::Technique for AvsTechnique {
+    fn name(&self) -> &'static str {
+        "avs"
+    }
+
+    fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
+        let frame = inputs.frame;
+        let pool = vertex_pool(&self.scene, frame)?;
+        if pool.len() != self.pool_len {
+            self.pool_len = pool.len();
+            self.initial_points(&pool);
+        }
+        self.stats.vertices = pool.len();
+        let (points, slots, nslots) = self.adapt(engine, &pool, frame)?;
+        self.stats.point_vertices = self.sample_vertices.clone();
+        let r = self.settings.r;
+        let n = nslots;
+        let cap = self.settings.max_points.max(self.sample_vertices.len()) as u64;
+        self.stats.map_bytes = points.len() as u64 * words_per_map(r) as u64 * 4;
+        self.stats.ssdf_bytes = points.len() as u64 * penumbra_math::avs_maps::ssdf_words_per_map(r) as u64 * 4;
+
+        // The frame's graph: SSDFs of the final maps, shading.
+        let vis = engine.persistent_buffer(graph, "avs.vis", cap * words_per_map(r) as u64 * 4);
+        let ssdf = self.hsdt.add(graph, "avs_hsdt", vis, n.max(1), r)?;
+        let offset = self.offset(&pool);
+        let mut by_slot = vec![SurfacePoint { pos: Vec3::ZERO, normal: Vec3::Y }; nslots as usize];
+        for (i, p) in points.iter().enumerate() {
+            by_slot[slots[i] as usize] = *p;
+        }
+        let points_buf = graph.create_buffer_init("avs_points", bytes_of(&point_data(&by_slot, offset)));
+        let pos: Vec<Vec3> = points.iter().map(|p| p.pos).collect();
+        let grid = Grid::new(&pos, self.radius);
+        let grid_buf = graph.create_buffer_init("avs_grid", bytes_of(&grid_words(&grid, &slots)));
+        let lobes = graph.create_buffer_init("avs_lobes", self.lobes.as_ref().clone());
+        let prefiltered = graph.create_buffer_init("avs_prefiltered", self.prefiltered.as_ref().clone());
+
+        let (scene, gb) = (inputs.scene, inputs.gbuffer);
+        let (w, h) = (gb.width, gb.height);
+        let hdr = graph.create_image("hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
+        let mut p = graph.pass("avs_shade", PassKind::Compute);
+        let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
+        let materials = p.read(scene.materials, Access::ComputeShaderReadStorage);
+        let pos_i = p.read(gb.position, Access::ComputeShaderReadSampled);
+        let nrm = p.read(gb.normal, Access::ComputeShaderReadSampled);
+        let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
+        let env = p.read(inputs.env, Access::ComputeShaderReadSampled);
+        let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
+        let lights = p.read(scene.lights, Access::ComputeShaderReadStorage);
+        let textures = p.read(scene.textures, Access::ComputeShaderReadSampled);
+        let lobes = p.read(lobes, Access::ComputeShaderReadStorage);
+        let prefiltered = p.read(prefiltered, Access::ComputeShaderReadStorage);
+        let pts = p.read(points_buf, Access::ComputeShaderReadStorage);
+        let gr = p.read(grid_buf, Access::ComputeShaderReadStorage);
+        let sd = p.read(ssdf, Access::ComputeShaderReadStorage);
+        let pos_scale = samp::scene_scale(&pool.iter().map(|p| p.pos).collect::<Vec<_>>());
+        let s = &self.settings;
+        let mut push: Vec<u8> = Vec::with_capacity(44);
+        push.extend(bytes_of(&[scene.light_count, self.lobe_count, r, s.neighbours.clamp(1, 8)]));
+        let (wa, wscale) = if s.interp_alpha > 0.0 { (s.interp_alpha, 1.0 / self.radius) } else { (s.alpha, 1.0 / pos_scale) };
+        push.extend(bytes_of(&[wa, wscale, self.radius]));
+        push.extend(bytes_of(&[
+            (s.integration == Integration::Cells) as u32,
+            (!s.shadows || points.is_empty()) as u32,
+            s.cells.clamp(1, 16),
+            (!s.prefiltered) as u32,
+        ]));
+        let (pipeline, layout) = (self.shade.pipeline, self.shade.layout);
+        let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
+        p.record(move |rc| {
+            crate::util::bind_compute(
+                rc,
+                pipeline,
+                layout,
+                &[
+                    Bind::UniformBuffer(camera),
+                    Bind::StorageBuffer(materials),
+                    Bind::SampledImage(pos_i, nearest),
+                    Bind::SampledImage(nrm, nearest),
+                    Bind::SampledImage(uvm, nearest),
+                    Bind::SampledImage(env, linear),
+                    Bind::StorageImage(hdr),
+                    Bind::StorageBuffer(lights),
+                    Bind::SampledImage(textures, repeat),
+                    Bind::StorageBuffer(lobes),
+                    Bind::StorageBuffer(prefiltered),
+                    Bind::StorageBuffer(pts),
+                    Bind::StorageBuffer(gr),
+                    Bind::StorageBuffer(sd),
+                ],
+            )?;
+            unsafe {
+                let d = rc.device();
+                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
+                d.cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1);
+            }
+            Ok(())
+        });
+        if let Ok(mut l) = LAST_STATS.lock() {
+            *l = Some(self.stats.clone());
+        }
+        Ok(hdr)
+    }
+}
