@@ -14,7 +14,7 @@ layout(local_size_x = 64) in;
 layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
 layout(set = 0, binding = 1) readonly buffer Materials { MaterialData mats[]; };
 // 2 per vertex: world position + material index, world normal + flags (bit 0: two-sided,
-// the normal is turned toward the eye).
+// the normal is turned toward the eye; bit 1: skipped, no visible triangle uses it).
 layout(set = 0, binding = 2) readonly buffer Verts { vec4 verts[]; };
 layout(set = 0, binding = 3) writeonly buffer Out { vec4 vis_out[]; };
 layout(set = 0, binding = 4) readonly buffer Lobes { vec4 lobes[]; };
@@ -43,6 +43,10 @@ void main() {
     uint vi = gl_GlobalInvocationID.x;
     if (vi >= pc.vertex_count) return;
     vec4 a = verts[2u * vi], b = verts[2u * vi + 1u];
+    if ((uint(b.w + 0.5) & 2u) != 0u) {  // no visible triangle uses it
+        vis_out[vi] = vec4(1.0);
+        return;
+    }
     vec3 pos = a.xyz;
     vec3 n = b.xyz;
     float ln = length(n);

@@ -70,16 +70,19 @@ float isg_limit(float gamma) {
     return clamp(d, 1e-5, ISG_HALF_PI);
 }
 
-// Per-invocation patch mask of isg_visible (row i: bit j = patch (i, j) occluded).
+// Per-invocation patch mask of isg_visible (row i: bit j = patch (i, j) occluded), and the
+// sines/cosines of the patch-centre angles (theta_i = phi_i for the same index), set once per
+// isg_visible call.
 uint isg_mask[ISG_MAX_SIDE];
+float isg_sin_c[ISG_MAX_SIDE];
+float isg_cos_c[ISG_MAX_SIDE];
 
 // Bits of row i (patch centres at theta_i) whose centre lies in the cap of local centre
 // direction cl (rho = |cl.xz|, phc = atan(cl.z, cl.x)) and cosine radius cos_psi: per row,
 // cos(phi - phi_c) >= q, i.e. phi within phi_c +- acos(q): an index range, no per-patch
 // trigonometry.
 uint isg_cap_bits(int i, vec3 cl, float rho, float phc, float cos_psi, float phi0, float step_a, int side) {
-    float t = phi0 + step_a * (float(i) + 0.5);
-    float st = sin(t), ct = cos(t);
+    float st = isg_sin_c[i], ct = isg_cos_c[i];
     float rhs = cos_psi - ct * cl.y;
     float den = st * rho;
     uint bits = 0u;
@@ -163,14 +166,13 @@ bool isg_mark_triangle(int t, vec3 p, vec3 n, vec3 fx, vec3 fy, vec3 fz, float d
                                    : (side < 32 ? (1u << uint(side)) - 1u : 0xffffffffu);
         cand &= ~isg_mask[i];
         if (cand == 0u) continue;
-        float th = phi0 + step_a * (float(i) + 0.5);
-        float st = sin(th), ct = cos(th);
+        float st = isg_sin_c[i], ct = isg_cos_c[i];
+        vec3 dy = fy * ct;
         uint bits = 0u;
         while (cand != 0u) {
             int j = findLSB(cand);
             cand &= cand - 1u;
-            float ph = phi0 + step_a * (float(j) + 0.5);
-            vec3 d = fx * (st * cos(ph)) + fy * ct + fz * (st * sin(ph));
+            vec3 d = (fx * isg_cos_c[j] + fz * isg_sin_c[j]) * st + dy;
             if (s * dot(d, nab) >= 0.0 && s * dot(d, nbc) >= 0.0 && s * dot(d, nca) >= 0.0) bits |= 1u << uint(j);
         }
         isg_mask[i] |= bits;
@@ -199,7 +201,12 @@ float isg_visible(vec3 p, vec3 n, vec3 axis, float gamma, int node_count, int tr
     vec3 fy = cross(fz, fx);
     float cone = min(delta * 1.41421356, 3.14159265);
     float step_a = 2.0 * delta / float(side);
-    for (int i = 0; i < side; ++i) isg_mask[i] = 0u;
+    for (int i = 0; i < side; ++i) {
+        isg_mask[i] = 0u;
+        float t = ISG_HALF_PI - delta + step_a * (float(i) + 0.5);
+        isg_sin_c[i] = sin(t);
+        isg_cos_c[i] = cos(t);
+    }
     bool any_occ = false;
     int stack[32];
     int sp = 0;

@@ -121,6 +121,22 @@ pub fn run_isg(args: &IsgArgs, scene: &Scene) -> Result<()> {
         println!("| {p} | {} |", rows.iter().map(|r| f(&r["passes"][p]["median_ms"])).collect::<Vec<_>>().join(" | "));
     }
     let read = |name: &str| Image::read_exr(args.out.join(format!("{name}.exr")));
+    // The paper's "RMS error" (3.2% / 4.6% on its bunny scene): RMSE over the mean reference
+    // radiance (its exact normalization is not given).
+    println!();
+    println!("| mode | RMSE / mean radiance vs full reference | vs SG-lighting reference |");
+    println!("|---|---|---|");
+    for name in ["isg", "isg-vertex"] {
+        let Ok(img) = read(name) else { continue };
+        let mut cells = Vec::new();
+        for r in ["reference", "reference_sg"] {
+            let Ok(reference) = read(r) else { continue };
+            let c = compare(&reference, r, &img, name)?;
+            let mean = reference.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64 / 3.0).sum::<f64>() / reference.pixels.len().max(1) as f64;
+            cells.push(format!("{:.2}%", 100.0 * c.rmse / mean.max(1e-12)));
+        }
+        println!("| {name} | {} |", cells.join(" | "));
+    }
     if let (Ok(px), Ok(vx)) = (read("isg"), read("isg-vertex")) {
         let c = compare(&px, "per pixel", &vx, "per vertex")?;
         println!();

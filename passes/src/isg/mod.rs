@@ -390,8 +390,8 @@ pub struct IsgTechnique {
     lobes: Arc<Vec<u8>>,
     prefiltered: Arc<Vec<u8>>,
     lobe_count: u32,
-    /// Spheres, BVH nodes, thin-shell triangles and receiver vertices (per-vertex mode) of the
-    /// last frame (for tests and reports).
+    /// Spheres, BVH nodes, thin-shell triangles and evaluated receiver vertices (per-vertex
+    /// mode) of the last frame (for tests and reports).
     pub last_sphere_count: usize,
     pub last_node_count: usize,
     pub last_triangle_count: usize,
@@ -520,8 +520,10 @@ impl IsgTechnique {
         tri_node_count: i32,
     ) -> Result<ImageHandle> {
         let (w, h) = (inputs.gbuffer.width, inputs.gbuffer.height);
-        let recv = vertex::frame_receivers(&self.scene, inputs.frame, self.settings.max_edge, &mut self.refined);
-        self.last_vertex_count = recv.vertices.len();
+        let view_proj = crate::scene_gpu::FrameConstants::new(inputs.frame, None, w, h).view_proj();
+        let view = Some((view_proj, inputs.frame.camera.eye));
+        let recv = vertex::frame_receivers(&self.scene, inputs.frame, self.settings.max_edge, &mut self.refined, view);
+        self.last_vertex_count = recv.evaluated;
         let count = recv.vertices.len() as u32;
         let index_count = recv.indices.len() as u32;
         let verts = if recv.vertices.is_empty() { vec![vertex::IsgVertex::default()] } else { recv.vertices };

@@ -11,6 +11,10 @@
 //! edge midpoints, shared edges split once, so no cracks) until it does; a split vertex is the
 //! midpoint of its two parents, so the subdivided surface is the original one and it follows the
 //! deformation.
+//!
+//! Only vertices of triangles that can show are evaluated: triangles entirely outside the view
+//! frustum and back faces of closed, one-sided meshes (hidden behind their front faces) are left
+//! out of the raster, and vertices no remaining triangle uses are skipped by the compute pass.
 
 use crate::util::{layouts, Pipeline};
 use anyhow::{Context as _, Result};
@@ -27,7 +31,8 @@ use std::sync::Arc;
 pub struct IsgVertex {
     /// World position, material index.
     pub pos_mat: [f32; 4],
-    /// World normal, flags (bit 0: two-sided, the normal is turned toward the eye).
+    /// World normal, flags (bit 0: two-sided, the normal is turned toward the eye; bit 1: no
+    /// visible triangle uses the vertex, not evaluated).
     pub normal_flags: [f32; 4],
 }
 
@@ -117,11 +122,30 @@ impl Refined {
 pub struct Receivers {
     pub vertices: Vec<IsgVertex>,
     pub indices: Vec<u32>,
+    /// Vertices evaluated (used by a kept triangle).
+    pub evaluated: usize,
+    /// Triangles before culling.
+    pub triangles_total: usize,
+}
+
+/// Whether a world-space triangle is entirely outside the frustum of `view_proj`.
+fn outside_frustum(view_proj: &Mat4, t: [Vec3; 3]) -> bool {
+    let c = t.map(|p| *view_proj * p.extend(1.0));
+    let all = |f: &dyn Fn(glam::Vec4) -> bool| c.iter().all(|v| f(*v));
+    all(&|v| v.x < -v.w) || all(&|v| v.x > v.w) || all(&|v| v.y < -v.w) || all(&|v| v.y > v.w) || all(&|v| v.z > v.w) || all(&|v| v.w <= 0.0)
 }
 
 /// Builds the frame's receivers; `cache` keeps each object's subdivision (computed when the
 /// object is first seen, at its scale then).
-pub fn frame_receivers(scene: &Scene, frame: &Frame, max_edge: f32, cache: &mut HashMap<usize, Refined>) -> Receivers {
+///
+/// With `view` (view-projection, eye), triangles that cannot show are culled (module docs).
+pub fn frame_receivers(
+    scene: &Scene,
+    frame: &Frame,
+    max_edge: f32,
+    cache: &mut HashMap<usize, Refined>,
+    view: Option<(Mat4, Vec3)>,
+) -> Receivers {
     let mut out = Receivers::default();
     for inst in &frame.instances {
         let Some(rest) = scene.meshes.get(inst.mesh) else { continue };
@@ -147,15 +171,37 @@ pub fn frame_receivers(scene: &Scene, frame: &Frame, max_edge: f32, cache: &mut 
             || scene.material_extras.get(inst.material).is_some_and(|e| e.two_sided)
             || !rest.is_closed();
         let base = out.vertices.len() as u32;
-        for (pi, ni) in p.iter().zip(&n) {
-            let wp = w.transform_point3(*pi);
-            let wn = (nm * *ni).try_normalize().unwrap_or(Vec3::Y);
-            out.vertices.push(IsgVertex {
-                pos_mat: [wp.x, wp.y, wp.z, inst.material as f32],
-                normal_flags: [wn.x, wn.y, wn.z, if two_sided { 1.0 } else { 0.0 }],
-            });
+        let wps: Vec<Vec3> = p.iter().map(|pi| w.transform_point3(*pi)).collect();
+        let wns: Vec<Vec3> = n.iter().map(|ni| (nm * *ni).try_normalize().unwrap_or(Vec3::Y)).collect();
+        let mut used = vec![view.is_none(); wps.len()];
+        out.triangles_total += refined.indices.len() / 3;
+        for t in refined.indices.chunks_exact(3) {
+            let [a, b, c] = [t[0] as usize, t[1] as usize, t[2] as usize];
+            if let Some((vp, eye)) = &view {
+                let tri = [wps[a], wps[b], wps[c]];
+                if outside_frustum(vp, tri) {
+                    continue;
+                }
+                if !two_sided {
+                    // Geometric normal oriented like the vertex normals: a back face of a closed
+                    // mesh is hidden by its front faces.
+                    let g = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
+                    let g = if g.dot(wns[a] + wns[b] + wns[c]) < 0.0 { -g } else { g };
+                    if g.dot(*eye - tri[0]) < 0.0 {
+                        continue;
+                    }
+                }
+                used[a] = true;
+                used[b] = true;
+                used[c] = true;
+            }
+            out.indices.extend_from_slice(&[base + t[0], base + t[1], base + t[2]]);
         }
-        out.indices.extend(refined.indices.iter().map(|i| base + i));
+        for ((wp, wn), u) in wps.iter().zip(&wns).zip(&used) {
+            out.evaluated += *u as usize;
+            let flags = if two_sided { 1.0 } else { 0.0 } + if *u { 0.0 } else { 2.0 };
+            out.vertices.push(IsgVertex { pos_mat: [wp.x, wp.y, wp.z, inst.material as f32], normal_flags: [wn.x, wn.y, wn.z, flags] });
+        }
     }
     out
 }
