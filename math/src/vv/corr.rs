@@ -388,7 +388,7 @@ pub fn correspondence(model: &VvModel, topo: &Topology, vis: &mut VectorizedVisi
     while let Some((t, id)) = queue.pop_front() {
         let e = st[t].links[id].e;
         let Some(c) = (0..3).find(|&k| e[k] == NONE) else { continue };
-        let Some(x) = best_completion(&ctx, &points, &st[t], t, e, c, true) else { continue };
+        let Some(x) = best_completion(&ctx, &points, &st[t], t, e, c, true, None) else { continue };
         let mut full = e;
         full[c] = x;
         st[t].links[id] = Link { e: full, kind: Kind::Propagated };
@@ -418,7 +418,7 @@ pub fn correspondence(model: &VvModel, topo: &Topology, vis: &mut VectorizedVisi
         for id in 0..st[t].links.len() {
             let e = st[t].links[id].e;
             let Some(c) = (0..3).find(|&k| e[k] == NONE) else { continue };
-            let x = match best_completion(&ctx, &points, &st[t], t, e, c, false) {
+            let x = match best_completion(&ctx, &points, &st[t], t, e, c, false, None) {
                 Some(x) => x,
                 None => virtual_point(&ctx, &mut points, &mut virt, t, c, &e),
             };
@@ -433,28 +433,57 @@ pub fn correspondence(model: &VvModel, topo: &Topology, vis: &mut VectorizedVisi
             }
         }
         for k in 0..3 {
-            for &g in &ents[k] {
-                if st[t].used[k].contains(&g) {
-                    continue;
-                }
-                let mut e = [NONE; 3];
-                e[k] = g;
-                // real entities first (either order), then virtual points keyed by the
-                // lowest real slot, so one group gets one virtual point whatever slot started it
-                for c in [(k + 1) % 3, (k + 2) % 3, (k + 1) % 3] {
-                    if e[c] == NONE {
-                        if let Some(x) = best_completion(&ctx, &points, &st[t], t, e, c, false) {
-                            e[c] = x;
+            // walk each sequence of slot k cyclically from a covered entity: an uncovered entity
+            // joins the group of its predecessor along the sequence (contiguous runs, so a
+            // region split between groups is cut into arcs, not counted twice)
+            let mut seqs: Vec<u32> = ents[k].iter().map(|&g| ctx.info[g as usize].0).collect();
+            seqs.dedup();
+            for sq in seqs {
+                let run: Vec<u32> = ents[k].iter().copied().filter(|&g| ctx.info[g as usize].0 == sq).collect();
+                let start = run.iter().position(|g| st[t].used[k].contains(g)).map_or(0, |i| i + 1);
+                for step in 0..run.len() {
+                    let g = run[(start + step) % run.len()];
+                    if st[t].used[k].contains(&g) {
+                        continue;
+                    }
+                    let prev = run[(start + step + run.len() - 1) % run.len()];
+                    let pred = st[t].links.iter().rev().find(|l| l.e[k] == prev && !l.e.contains(&NONE)).map(|l| l.e);
+                    let mut e = [NONE; 3];
+                    e[k] = g;
+                    match pred {
+                        Some(p) => {
+                            for c in [(k + 1) % 3, (k + 2) % 3] {
+                                if !ctx.is_real(p[c]) {
+                                    e[c] = p[c];
+                                }
+                            }
+                            for c in [(k + 1) % 3, (k + 2) % 3] {
+                                if e[c] == NONE {
+                                    let only = ctx.info[p[c] as usize].0;
+                                    e[c] = best_completion(&ctx, &points, &st[t], t, e, c, false, Some(only)).unwrap_or(p[c]);
+                                }
+                            }
+                        }
+                        None => {
+                            // real entities first (either order), then virtual points keyed by
+                            // the lowest real slot (one virtual point per group)
+                            for c in [(k + 1) % 3, (k + 2) % 3, (k + 1) % 3] {
+                                if e[c] == NONE {
+                                    if let Some(x) = best_completion(&ctx, &points, &st[t], t, e, c, false, None) {
+                                        e[c] = x;
+                                    }
+                                }
+                            }
+                            for c in [(k + 1) % 3, (k + 2) % 3] {
+                                if e[c] == NONE {
+                                    e[c] = virtual_point(&ctx, &mut points, &mut virt, t, c, &e);
+                                }
+                            }
                         }
                     }
+                    add(&mut st[t], e, Kind::Relaxed);
+                    stats.relaxed_triples += 1;
                 }
-                for c in [(k + 1) % 3, (k + 2) % 3] {
-                    if e[c] == NONE {
-                        e[c] = virtual_point(&ctx, &mut points, &mut virt, t, c, &e);
-                    }
-                }
-                add(&mut st[t], e, Kind::Relaxed);
-                stats.relaxed_triples += 1;
             }
         }
         progress(1);
@@ -497,7 +526,7 @@ pub fn correspondence(model: &VvModel, topo: &Topology, vis: &mut VectorizedVisi
 
 /// Best entity for the empty slot `c` of the partial link `e` in triangle `t`: Rule 2 (and Rule
 /// 1 when `strict`) hold, every real pair within `max_link_deg`, smallest eq. 22.
-fn best_completion(ctx: &Ctx, points: &[[f32; 4]], st: &TriState, t: usize, e: [u32; 3], c: usize, strict: bool) -> Option<u32> {
+fn best_completion(ctx: &Ctx, points: &[[f32; 4]], st: &TriState, t: usize, e: [u32; 3], c: usize, strict: bool, only: Option<u32>) -> Option<u32> {
     let filled_k: Vec<usize> = (0..3).filter(|&k| k != c && ctx.is_real(e[k])).collect();
     let filled: Vec<Vec3> = filled_k.iter().map(|&k| ctx.dir(t, points, e[k])).collect();
     if filled.is_empty() {
@@ -533,9 +562,12 @@ fn best_completion(ctx: &Ctx, points: &[[f32; 4]], st: &TriState, t: usize, e: [
         {
             continue;
         }
+        if only.is_some_and(|s| ctx.info[x as usize].0 != s) {
+            continue;
+        }
         let d = ctx.dir(t, points, x);
         let near = filled.iter().all(|f| f.dot(d) >= ctx.cos_link);
-        if !near && !linked.contains(&ctx.info[x as usize].0) {
+        if !near && only.is_none() && !linked.contains(&ctx.info[x as usize].0) {
             continue;
         }
         let cost = filled.iter().map(|f| f.dot(d).clamp(-1.0, 1.0).acos()).sum::<f32>();
