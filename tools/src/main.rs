@@ -17,6 +17,7 @@ mod bench;
 mod isg_bench;
 mod hsdt_bench;
 mod spheres;
+mod vv_bench;
 mod view;
 mod vv;
 
@@ -71,6 +72,10 @@ enum BenchCmd {
     /// Then the image errors of the variants (adaptive/fixed, pixel/vertex mode, windows, with and
     /// without source radiance fields) against the CPU reference at --size (skip: --no-images).
     ShadowFields(bench::ShadowFieldsArgs),
+    /// Vectorized visibility: the previous method (eq. 19, three evaluations) against the
+    /// interpolated one (eq. 21) under dynamic tessellation for zeta = 1..4 and per fragment:
+    /// ms per frame, ratio, PSNR against the reference, triangles after tessellation, precompute.
+    Vv(vv_bench::VvArgs),
     /// ISG shadows per pixel and per vertex against the full and the SG-lighting references:
     /// GPU ms per pass and per frame, PSNR/relative RMSE, speedup over the reference renderer,
     /// per-vertex interpolation error.
@@ -360,6 +365,11 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Bench(BenchCmd::Hsdt(a)) => {
             a.resolutions().map_err(bad)?;
             hsdt_bench::run(&a)
+        }
+        Cmd::Bench(BenchCmd::Vv(a)) => {
+            parse_size(&a.size).map_err(bad)?;
+            let scene = load_scene(Some(&a.scene))?;
+            vv_bench::run(&a, &scene)
         }
         Cmd::Bench(BenchCmd::ShadowFields(a)) => {
             a.params.check().map_err(bad)?;

@@ -1,0 +1,172 @@
+//! `penumbra bench vv SCENE|MODEL.glb`: the previous vectorized-visibility method (eq. 19, three
+//! evaluations) against the interpolated one (eq. 21, one evaluation), under dynamic tessellation
+//! for zeta = 1..4 and per fragment: GPU ms per frame (sum of the pass medians), their ratio,
+//! PSNR against the CPU reference for both, triangles after tessellation (pipeline statistics),
+//! and the precompute time and memory, in one run. Writes `vv_bench.json` and the images.
+
+use anyhow::{Context as _, Result};
+use clap::Args;
+use penumbra::{RenderSettings, Renderer};
+use penumbra_passes::vv::{VvSceneData, TESSELLATED_TRIANGLES};
+use penumbra_reference::cli::parse_size;
+use penumbra_reference::image::Image;
+use penumbra_reference::metrics::compare;
+use penumbra_reference::render::{render as reference_render, Mode, ReferenceOptions};
+use penumbra_scene::Scene;
+use std::path::PathBuf;
+use std::sync::atomic::Ordering;
+
+#[derive(Args)]
+pub struct VvArgs {
+    /// A scene file or a bare glTF model (.glb/.gltf).
+    pub scene: PathBuf,
+    #[arg(long, default_value = "160x120")]
+    pub size: String,
+    /// Frames rendered per configuration (timings are medians over them).
+    #[arg(long, default_value_t = 4)]
+    pub frames: u32,
+    /// Reference samples per pixel.
+    #[arg(long, default_value_t = 64)]
+    pub spp: u32,
+    /// Largest zeta (tessellation quality) measured, from 1.
+    #[arg(long, default_value_t = 4)]
+    pub max_zeta: u32,
+    /// SAT map width.
+    #[arg(long, default_value_t = 256)]
+    pub sat_width: u32,
+    /// Visibility-map resolution of the precompute.
+    #[arg(long, default_value_t = 64)]
+    pub resolution: u32,
+    /// Largest tessellation level.
+    #[arg(long, default_value_t = 64)]
+    pub max_level: u32,
+    #[arg(long, default_value = "out/bench-vv")]
+    pub out: PathBuf,
+}
+
+struct Row {
+    config: String,
+    ms: f64,
+    psnr: f64,
+    triangles: Option<u64>,
+}
+
+pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
+    let (width, height) = parse_size(&args.size)?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let opts = ReferenceOptions { width, height, spp: args.spp, time: Some(0.0), mode: Mode::Exact, progress: true, ..Default::default() };
+    let reference = reference_render(scene, &opts).context("reference render")?;
+    reference.radiance.write_exr(args.out.join("reference.exr"))?;
+    println!("reference: {} spp in {:.2} s, mean relative standard error {:.2e}", args.spp, reference.render_seconds, reference.noise.mean_rel_std_error);
+    let data = VvSceneData::cached(scene, args.resolution)?;
+    println!(
+        "precompute: {} vertices, {} triangles; visibility {:.2} s, {:.2} MB; correspondence {}",
+        data.model.positions.len(),
+        data.model.triangle_count(),
+        data.visibility_seconds,
+        data.visibility_bytes as f64 / 1e6,
+        if data.corr.is_some() { format!("{:.2} s, {:.2} MB", data.correspondence_seconds, data.triple_bytes as f64 / 1e6) } else { "not available".into() }
+    );
+    let mut configs: Vec<(String, Vec<(&str, String)>)> = Vec::new();
+    for z in 1..=args.max_zeta.max(1) {
+        for mode in ["tessellation3", "tessellation"] {
+            configs.push((format!("{mode} zeta={z}"), vec![("mode", mode.to_string()), ("zeta", z.to_string())]));
+        }
+    }
+    for mode in ["fragment3", "fragment1"] {
+        configs.push((mode.to_string(), vec![("mode", mode.to_string())]));
+    }
+    let mut rows = Vec::new();
+    for (name, params) in &configs {
+        let mut s = scene.clone();
+        s.technique = "vv".into();
+        s.technique_params.clear();
+        for (k, v) in params {
+            s.technique_params.insert(k.to_string(), v.clone());
+        }
+        s.technique_params.insert("sat_width".into(), args.sat_width.to_string());
+        s.technique_params.insert("resolution".into(), args.resolution.to_string());
+        s.technique_params.insert("max_level".into(), args.max_level.to_string());
+        let settings = penumbra_passes::vv::VvSettings::from_params(&s.technique_params)?;
+        let ctx = penumbra::engine::Context::new(&Default::default())?;
+        let shaders = penumbra::shader_library();
+        let tech = match penumbra_passes::vv::VvTechnique::with_data(&ctx, &shaders, &s, settings, data.clone()) {
+            Ok(t) => t,
+            Err(e) => {
+                println!("{name:<22} skipped: {e:#}");
+                continue;
+            }
+        };
+        drop(tech);
+        let rs = RenderSettings { width, height, technique: Some("vv".into()), ..Default::default() };
+        let mut r = Renderer::new(ctx, &s, rs)?;
+        TESSELLATED_TRIANGLES.store(0, Ordering::Relaxed);
+        let frame = s.at(0.0, Some(0.0));
+        let mut images = Vec::new();
+        for _ in 0..args.frames.max(2) {
+            images.extend(r.render(&frame, None, true)?);
+        }
+        images.extend(r.finish()?);
+        let last = images.last().context("no frame finished")?;
+        let img = Image::from_fn(width, height, |x, y| {
+            let p = last.hdr[(y * width + x) as usize];
+            [p[0], p[1], p[2]]
+        });
+        img.write_exr(args.out.join(format!("{}.exr", name.replace([' ', '='], "_"))))?;
+        let c = compare(&reference.radiance, "reference", &img, name)?;
+        let stats = r.engine.profiler.gpu_stats();
+        let ms: f64 = stats.iter().filter(|(p, _)| p.starts_with("vv_")).map(|(_, s)| s.median_ms).sum();
+        let tris = if s.technique_params["mode"].starts_with("tess") { Some(TESSELLATED_TRIANGLES.load(Ordering::Relaxed)) } else { None };
+        let psnr = c.psnr_db.unwrap_or(f64::INFINITY);
+        println!("{name:<22} {ms:>9.2} ms/frame  PSNR {psnr:>6.2}  triangles {}", tris.map_or("-".into(), |t| t.to_string()));
+        rows.push(Row { config: name.clone(), ms, psnr, triangles: tris });
+    }
+    println!("\n| config | previous (eq. 19) ms | this (eq. 21) ms | ratio | PSNR prev | PSNR this | triangles prev | triangles this |");
+    println!("|---|---|---|---|---|---|---|---|");
+    let find = |n: &str| rows.iter().find(|r| r.config == n);
+    let mut pairs = Vec::new();
+    for z in 1..=args.max_zeta.max(1) {
+        pairs.push((format!("zeta={z}"), format!("tessellation3 zeta={z}"), format!("tessellation zeta={z}")));
+    }
+    pairs.push(("per fragment".into(), "fragment3".into(), "fragment1".into()));
+    let mut json = Vec::new();
+    for (label, a, b) in &pairs {
+        let (ra, rb) = (find(a), find(b));
+        let f = |r: Option<&Row>, g: &dyn Fn(&Row) -> String| r.map_or("-".into(), g);
+        let ratio = match (ra, rb) {
+            (Some(x), Some(y)) if y.ms > 0.0 => format!("{:.2}", x.ms / y.ms),
+            _ => "-".into(),
+        };
+        println!(
+            "| {label} | {} | {} | {ratio} | {} | {} | {} | {} |",
+            f(ra, &|r| format!("{:.2}", r.ms)),
+            f(rb, &|r| format!("{:.2}", r.ms)),
+            f(ra, &|r| format!("{:.2}", r.psnr)),
+            f(rb, &|r| format!("{:.2}", r.psnr)),
+            f(ra, &|r| r.triangles.map_or("-".into(), |t| t.to_string())),
+            f(rb, &|r| r.triangles.map_or("-".into(), |t| t.to_string())),
+        );
+        json.push(serde_json::json!({
+            "config": label,
+            "previous": ra.map(|r| serde_json::json!({"ms": r.ms, "psnr_db": r.psnr, "triangles": r.triangles})),
+            "interpolated": rb.map(|r| serde_json::json!({"ms": r.ms, "psnr_db": r.psnr, "triangles": r.triangles})),
+        }));
+    }
+    let report = serde_json::json!({
+        "scene": scene.name,
+        "size": [width, height],
+        "reference": {"spp": args.spp, "seconds": reference.render_seconds},
+        "precompute": {
+            "vertices": data.model.positions.len(),
+            "triangles": data.model.triangle_count(),
+            "visibility_seconds": data.visibility_seconds,
+            "visibility_bytes": data.visibility_bytes,
+            "correspondence_seconds": data.correspondence_seconds,
+            "triple_bytes": data.triple_bytes,
+        },
+        "rows": json,
+    });
+    std::fs::write(args.out.join("vv_bench.json"), serde_json::to_string_pretty(&report)? + "\n")?;
+    println!("wrote {}", args.out.join("vv_bench.json").display());
+    Ok(())
+}
