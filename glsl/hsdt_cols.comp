@@ -22,10 +22,11 @@ const uint MAXR = 256u;
 uint st[MAXR];      // candidate: row (bits 0-7) | nearest-feature column (8-15) | first query row of its region (16-23)
 float res[2][MAXR]; // signed distances of the two columns
 
-// sin(k h / 2) and sin((k + 0.5) h) for k < r, shared by the workgroup: the haversine of two
-// texel centres is then table lookups (the same values avs_sin gives, computed once).
-shared float s_half[MAXR];
-shared float s_row[MAXR];
+// sin(k h / 2) and sin((k + 0.5) h) for k < r, per invocation (no workgroup barrier: lavapipe
+// runs barrier shaders as coroutines, much slower): the haversine of two texel centres is then
+// table lookups.
+float s_half[MAXR];
+float s_row[MAXR];
 
 float sq(float x) { return x * x; }
 uint adiff(uint a, uint b) { return a > b ? a - b : b - a; }
@@ -91,12 +92,11 @@ void main() {
     uint p = gl_GlobalInvocationID.y;
     uint r = pc.r;
     float h = float(AVS_PI) / float(r);
-    for (uint k = gl_LocalInvocationID.x; k < r; k += gl_WorkGroupSize.x) {
+    if (jp >= r / 2u || p >= pc.n_maps) return;
+    for (uint k = 0u; k < r; k++) {
         s_half[k] = avs_sin(0.5 * float(k) * h);
         s_row[k] = avs_sin((float(k) + 0.5) * h);
     }
-    barrier();
-    if (jp >= r / 2u || p >= pc.n_maps) return;
     uint mp = p + pc.map_offset;
     uint vbase = mp * avs_words_per_map(r);
     column(p, 2u * jp, 0u, vbase);

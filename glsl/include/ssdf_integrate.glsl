@@ -91,6 +91,12 @@ float ssdf_integrand(SG g, bool cosine, float theta, float phi) {
     return sg_eval(g, w) * (cosine ? max(w.z, 0.0) : 1.0);
 }
 
+// f(w) sin(theta) from sin/cos of theta and phi (shared between quadrature nodes)
+float ssdf_integrand_sc(SG g, bool cosine, float st, float ct, float sp, float cp) {
+    vec3 w = vec3(ct, st * cp, st * sp);
+    return sg_eval(g, w) * (cosine ? max(w.z, 0.0) : 1.0) * st;
+}
+
 float ssdf_gl3_w(int k) { return k == 1 ? SSDF_GL3_W1 : SSDF_GL3_W0; }
 float ssdf_gl3_x(int k) { return float(k - 1) * SSDF_GL3_X; }
 
@@ -99,13 +105,20 @@ float ssdf_rect(SG g, bool cosine, float t0, float t1, float p0, float p1, uint 
     float dt = (t1 - t0) / float(m), dp = (p1 - p0) / float(m);
     float s = 0.0;
     for (uint a = 0u; a < m; a++) {
+        float tc = t0 + (float(a) + 0.5) * dt;
+        vec3 st3, ct3;
+        for (int x = 0; x < 3; x++) {
+            float t = tc + 0.5 * dt * ssdf_gl3_x(x);
+            st3[x] = sin(t);
+            ct3[x] = cos(t);
+        }
         for (uint b = 0u; b < m; b++) {
-            float tc = t0 + (float(a) + 0.5) * dt, pc = p0 + (float(b) + 0.5) * dp;
-            for (int x = 0; x < 3; x++) {
-                float t = tc + 0.5 * dt * ssdf_gl3_x(x);
-                float st = avs_sin(t);
-                for (int y = 0; y < 3; y++) {
-                    s += ssdf_gl3_w(x) * ssdf_gl3_w(y) * ssdf_integrand(g, cosine, t, pc + 0.5 * dp * ssdf_gl3_x(y)) * st;
+            float pc = p0 + (float(b) + 0.5) * dp;
+            for (int y = 0; y < 3; y++) {
+                float ph = pc + 0.5 * dp * ssdf_gl3_x(y);
+                float sp = sin(ph), cp = cos(ph);
+                for (int x = 0; x < 3; x++) {
+                    s += ssdf_gl3_w(x) * ssdf_gl3_w(y) * ssdf_integrand_sc(g, cosine, st3[x], ct3[x], sp, cp);
                 }
             }
         }
@@ -127,6 +140,7 @@ float ssdf_clipped(SG g, bool cosine, float t0, float t1, float p0, float p1, fl
         float ocell = o0 + (float(a) + 0.5) * dout;
         for (int x = 0; x < 3; x++) {
             float o = ocell + 0.5 * dout * ssdf_gl3_x(x);
+            float so = sin(o), co = cos(o);
             float cr = ic - (dc + go * (o - oc)) / gi;
             float lo = gi > 0.0 ? max(cr, i0) : i0;
             float hi = gi > 0.0 ? i1 : min(cr, i1);
@@ -137,8 +151,9 @@ float ssdf_clipped(SG g, bool cosine, float t0, float t1, float p0, float p1, fl
                 float icell = lo + (float(b) + 0.5) * din;
                 for (int y = 0; y < 3; y++) {
                     float inn = icell + 0.5 * din * ssdf_gl3_x(y);
-                    float t = theta_major ? inn : o, p = theta_major ? o : inn;
-                    inner += ssdf_gl3_w(y) * ssdf_integrand(g, cosine, t, p) * avs_sin(t);
+                    float si = sin(inn), ci = cos(inn);
+                    inner += ssdf_gl3_w(y) * (theta_major ? ssdf_integrand_sc(g, cosine, si, ci, so, co)
+                                                           : ssdf_integrand_sc(g, cosine, so, co, si, ci));
                 }
             }
             s += ssdf_gl3_w(x) * 0.5 * dout * inner * 0.5 * din;
