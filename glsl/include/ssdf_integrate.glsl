@@ -22,7 +22,7 @@
 //   float ssdf_sample(float theta, float phi, uint r)   // corrected SSDF, bilinear
 // For a sum of lobes (lighting SGs x BRDF SGs), call once per product lobe and add.
 // Cost and accuracy (`penumbra bench hsdt`, lavapipe, error / unoccluded integral vs brute force
-// over the binary map): (a) ~0.2-0.4 us per lobe, mean error 1-5% for lambda <= 10, < 0.03% for
+// over the binary map): (a) ~0.2-0.4 us per lobe, mean error 2-8% (max 15%) for lambda <= 10, < 0.03% for
 // lambda >= 1e3; (b) ~1-2 ms per lobe (grows with the boundary length inside the lobe's support),
 // mean error < 0.03%. (b) per pixel and lobe is too slow for full frames on a software device.
 #ifndef PENUMBRA_SSDF_INTEGRATE_GLSL
