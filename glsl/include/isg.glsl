@@ -120,7 +120,11 @@ bool isg_mark_cap(vec3 c, float psi, vec3 fx, vec3 fy, vec3 fz, float delta, flo
     float phc = atan(cl.z, cl.x);
     float phi0 = ISG_HALF_PI - delta;
     bool any_occ = false;
-    for (int i = 0; i < side; ++i) {
+    // Only rows whose centre angle theta_i is within psi of the cap centre's can meet it.
+    float thc = acos(clamp(cl.y, -1.0, 1.0));
+    int r0 = max(int(ceil((thc - psi - phi0) / step_a - 0.5)), 0);
+    int r1 = min(int(floor((thc + psi - phi0) / step_a - 0.5)), side - 1);
+    for (int i = r0; i <= r1; ++i) {
         uint bits = isg_cap_bits(i, cl, rho, phc, cos_psi, phi0, step_a, side);
         isg_mask[i] |= bits;
         any_occ = any_occ || bits != 0u;
@@ -160,7 +164,12 @@ bool isg_mark_triangle(int t, vec3 p, vec3 n, vec3 fx, vec3 fy, vec3 fz, float d
     float phc = atan(cl.z, cl.x);
     float phi0 = ISG_HALF_PI - delta;
     bool any_occ = false;
-    for (int i = 0; i < side; ++i) {
+    // Rows within psi of the bounding cap's centre (all rows for a non-convex cap).
+    bool wide = cos_psi <= 0.02;
+    float thc = acos(clamp(cl.y, -1.0, 1.0));
+    int r0 = wide ? 0 : max(int(ceil((thc - psi - phi0) / step_a - 0.5)), 0);
+    int r1 = wide ? side - 1 : min(int(floor((thc + psi - phi0) / step_a - 0.5)), side - 1);
+    for (int i = r0; i <= r1; ++i) {
         // A cap wider than a quarter sphere is not convex: every patch is a candidate.
         uint cand = cos_psi > 0.02 ? isg_cap_bits(i, cl, rho, phc, cos_psi, phi0, step_a, side)
                                    : (side < 32 ? (1u << uint(side)) - 1u : 0xffffffffu);
