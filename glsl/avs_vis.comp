@@ -32,7 +32,7 @@ layout(push_constant) uniform Push {
     uint k;        // neighbours per entry
     uint level;    // 0: initial grid
     uint to_slot;  // 1: write map of entry e at its slot (final level)
-    uint use_neighbours;
+    uint flags;    // bit 0: neighbours' maps mark boundary rays; bit 1: trace every texel (no adaptivity)
     uint pad;
 } pc;
 
@@ -86,13 +86,13 @@ void main() {
         uint traced = 0u;
         for (uint t = tid; t < res * res; t += 64u) {
             uint a = t / res, b = t % res;
-            bool trace_it = pc.level == 0u;
+            bool trace_it = pc.level == 0u || (pc.flags & 2u) != 0u;
             bool value = false;
             if (!trace_it) {
                 uint pa = a / 2u, pb = b / 2u;
                 value = prev_bit(e, pa, pb, pres);
                 trace_it = boundary(e, pa, pb, pres);
-                if (!trace_it && pc.use_neighbours != 0u) {
+                if (!trace_it && (pc.flags & 1u) != 0u) {
                     vec3 wd = fr * avs_texel_dir(pa, pb, pres);
                     for (uint q = 0u; q < pc.k && !trace_it; ++q) {
                         uint ne = batch[pc.count + e * pc.k + q];

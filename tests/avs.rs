@@ -163,3 +163,41 @@ fn parameters_are_checked() {
     let e = p(&[("r", "48")]).unwrap_err().to_string();
     assert!(e.contains("power of two"), "{e}");
 }
+
+#[test]
+fn extremes_free_hemispheres_and_points_following_deformation() {
+    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    // Nothing casts a shadow: every map is fully visible (SSDF +pi everywhere), so the image equals
+    // the unshadowed one.
+    let mut s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "48"), ("iterations", "0")]);
+    for info in s.object_info.iter_mut() {
+        info.casts_shadow = false;
+    }
+    let (_r, free) = render(&s, "avs", 40, 30, &[0.5], false);
+    let st = penumbra_passes::avs::last_stats();
+    assert!(st.visible_fraction.iter().all(|v| (v - 1.0).abs() < 2e-3), "not all maps free: {:?}", st.visible_fraction);
+    let (_r, open) = render(&with(&s, &[("shadows", "false")]), "avs", 40, 30, &[0.5], false);
+    for (a, b) in free[0].hdr.iter().zip(&open[0].hdr) {
+        for c in 0..3 {
+            assert!((a[c] - b[c]).abs() <= 1e-3 * b[c].abs() + 1e-5, "free {a:?} vs unshadowed {b:?}");
+        }
+    }
+    // Deforming geometry: without adaptation rounds the sample points are the same vertices in
+    // both frames, at their deformed positions (the hat squashes).
+    let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "48"), ("iterations", "0")]);
+    let settings = RenderSettings { width: 40, height: 30, technique: Some("avs".into()), ..Default::default() };
+    let mut r = Renderer::new_headless(&s, settings, false).expect("renderer");
+    let f0 = s.at(0.0, None);
+    r.render(&f0, None, true).expect("render");
+    let a = penumbra_passes::avs::last_stats();
+    let f1 = s.at(0.5, Some(0.0));
+    r.render(&f1, None, true).expect("render");
+    let b = penumbra_passes::avs::last_stats();
+    r.finish().expect("finish");
+    assert_eq!(a.point_vertices, b.point_vertices);
+    let (p0, p1) = (penumbra_passes::avs::vertex_pool(&s, &f0).unwrap(), penumbra_passes::avs::vertex_pool(&s, &f1).unwrap());
+    let moved = a.point_vertices.iter().filter(|&&v| (p0[v].pos - p1[v].pos).length() > 1e-3).count();
+    assert!(moved > 0, "no sample point moved with the deforming hat");
+    // Some maps are partly occluded (the hat over the cloth), some fully free.
+    assert!(b.visible_fraction.iter().any(|&v| v < 0.5) && b.visible_fraction.iter().any(|&v| v > 0.95), "{:?}", b.visible_fraction);
+}

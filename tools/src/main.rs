@@ -13,6 +13,7 @@ use penumbra_scene::{Scene, SceneError};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+mod avs_bench;
 mod bench;
 mod isg_bench;
 mod hsdt_bench;
@@ -58,6 +59,11 @@ enum Cmd {
 
 #[derive(Subcommand)]
 enum BenchCmd {
+    /// Adaptive visibility sampling (`avs`): the paper's Table 1 columns per scene (the three
+    /// paper scenes without SCENE), error against the reference, the MC baseline at the same time
+    /// and to the same error, adaptive vs brute-force visibility maps at r = 64/128/256, and an
+    /// E_v,max x r sweep.
+    Avs(avs_bench::AvsArgs),
     /// Techniques against the CPU reference (PSNR, relative RMSE, FLIP) and against each other
     /// (GPU ms per frame and ratios), on the same scene, camera and frame; writes bench.json.
     Techniques(bench::BenchArgs),
@@ -356,6 +362,16 @@ fn run(cli: Cli) -> Result<()> {
                 return Err(bad(format!("{}: the scene has no [medium]", a.scene.display())));
             }
             bench::run_volumetric(&a, &scene)
+        }
+        Cmd::Bench(BenchCmd::Avs(a)) => {
+            parse_size(&a.size).map_err(bad)?;
+            let mut params = std::collections::BTreeMap::new();
+            for p in &a.params {
+                let (k, v) = p.split_once('=').ok_or_else(|| bad(format!("--param '{p}': expected KEY=VALUE")))?;
+                params.insert(k.trim().to_string(), v.trim().to_string());
+            }
+            penumbra_passes::avs::AvsSettings::from_params(&params).map_err(bad)?;
+            avs_bench::run(&a, |p| load_scene(Some(p)))
         }
         Cmd::Bench(BenchCmd::Trace(a)) => {
             parse_size(&a.size).map_err(bad)?;

@@ -82,6 +82,9 @@ pub struct AvsSettings {
     pub neighbours: u32,
     /// Neighbouring sample points whose previous-level maps also mark boundary rays (0: off).
     pub ray_neighbours: u32,
+    /// Adaptive angular sampling (false: every texel of every level is traced, the brute-force
+    /// baseline of the bench).
+    pub adaptive: bool,
     /// Integration mode.
     pub integration: Integration,
     /// Cells per side of the lobe neighbourhood (integration = cells).
@@ -109,6 +112,7 @@ impl Default for AvsSettings {
             radius: 2.0,
             neighbours: 6,
             ray_neighbours: 4,
+            adaptive: true,
             integration: Integration::Axis,
             cells: 6,
             shadows: true,
@@ -133,7 +137,7 @@ impl AvsSettings {
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
     /// `iterations` (2), `points` (0 = auto), `max_points` (8192), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells`), `cells` (6,
-    /// 1..16), `shadows`, `prefiltered` (true/false), `lobes` (16). Unknown keys and bad values
+    /// 1..16), `shadows`, `adaptive`, `prefiltered` (true/false), `lobes` (16). Unknown keys and bad values
     /// are errors naming the key.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
@@ -175,10 +179,11 @@ impl AvsSettings {
             }
             "cells" => self.cells = int(1, 16)? as u32,
             "shadows" => self.shadows = flag()?,
+            "adaptive" => self.adaptive = flag()?,
             "prefiltered" => self.prefiltered = flag()?,
             "lobes" => self.lobes = int(1, 64)? as usize,
             other => bail!(
-                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, radius, neighbours, ray_neighbours, integration, cells, shadows, prefiltered, lobes)"
+                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, prefiltered, lobes)"
             ),
         }
         Ok(())
@@ -493,7 +498,8 @@ impl AvsTechnique {
                 p.write(scratch[level as usize % 2], Access::ComputeShaderWriteStorage)
             };
             let st = p.write(stats, if level == 0 { Access::ComputeShaderWriteStorage } else { Access::ComputeShaderReadWriteStorage });
-            let push = [r, res, n, k, level, last as u32, (k > 0) as u32, 0];
+            let flags = (k > 0) as u32 | (!self.settings.adaptive as u32) << 1;
+            let push = [r, res, n, k, level, last as u32, flags, 0];
             let (pipe, layout) = (self.vis.pipeline, self.vis.layout);
             p.record(move |rc| {
                 let prev_b = prev.unwrap_or(out);

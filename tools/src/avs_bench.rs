@@ -1,0 +1,223 @@
+//! `penumbra bench avs [SCENE]`: the adaptive-visibility-sampling technique (issue 8) per scene in
+//! the columns of the paper's Table 1 (pixels, vertices, sample points, memory, t_I, t_V, t_S,
+//! ms/frame), its error against the CPU reference, the GPU Monte Carlo baseline (`mc`) at the same
+//! GPU time and the time it needs to reach the same error, adaptive against brute-force
+//! visibility maps at r = 64, 128, 256, and an E_v,max x r sweep (error/time), in one run.
+
+use anyhow::{Context as _, Result};
+use clap::Args;
+use penumbra::{FrameImages, RenderSettings, Renderer};
+use penumbra_reference::cli::parse_size;
+use penumbra_reference::image::Image;
+use penumbra_reference::metrics::compare;
+use penumbra_reference::render::{render as reference_render, Mode, ReferenceOptions};
+use penumbra_scene::Scene;
+use std::path::{Path, PathBuf};
+
+#[derive(Args)]
+pub struct AvsArgs {
+    /// Scene file; without it the paper's three scenes (hat_on_cloth, balls_on_dish, falling).
+    pub scene: Option<PathBuf>,
+    /// Image size WxH.
+    #[arg(long, default_value = "96x72")]
+    pub size: String,
+    /// Scene time measured (seconds).
+    #[arg(long, default_value_t = 0.5)]
+    pub time: f32,
+    /// Samples per pixel of the CPU reference.
+    #[arg(long, default_value_t = 32)]
+    pub spp: u32,
+    /// Most frames the MC baseline accumulates (4 spp each).
+    #[arg(long, default_value_t = 24)]
+    pub mc_frames: u32,
+    /// Skip the r / E_v,max sweeps and the brute-force comparison.
+    #[arg(long)]
+    pub no_sweep: bool,
+    /// Extra avs parameters KEY=VALUE (as --param of render).
+    #[arg(long = "param")]
+    pub params: Vec<String>,
+}
+
+fn image(f: &FrameImages) -> Image {
+    Image::from_fn(f.width, f.height, |x, y| {
+        let p = f.hdr[(y * f.width + x) as usize];
+        [p[0], p[1], p[2]]
+    })
+}
+
+/// One measured avs render.
+struct AvsRun {
+    points: usize,
+    vertices: usize,
+    rays: u64,
+    map_bytes: u64,
+    t_i: f64,
+    t_v: f64,
+    t_s: f64,
+    total: f64,
+    psnr: f64,
+    rel_rmse: f64,
+}
+
+fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32, reference: &Image) -> Result<AvsRun> {
+    let mut s = scene.clone();
+    for (k, v) in params {
+        s.technique_params.insert(k.clone(), v.clone());
+    }
+    let settings = RenderSettings { width: w, height: h, technique: Some("avs".into()), ..Default::default() };
+    let mut r = Renderer::new_headless(&s, settings, false)?;
+    let mut frames = r.render(&s.at(t, None), None, true)?;
+    frames.extend(r.finish()?);
+    let st = penumbra_passes::avs::last_stats();
+    let f = frames.last().context("avs rendered no frame")?;
+    let sum = |v: &[(String, f64)], pre: &[&str]| -> f64 {
+        v.iter().filter(|(n, _)| pre.iter().any(|p| n.starts_with(p))).map(|(_, m)| m).sum()
+    };
+    let t_v = sum(&st.round_ms, &["avs_vis", "avs_sh", "kdtree"]);
+    let t_s = sum(&f.gpu_ms, &["avs_hsdt"]);
+    let t_i = sum(&f.gpu_ms, &["avs_shade"]);
+    let total = f.gpu_ms.iter().map(|(_, m)| m).sum::<f64>() + st.round_ms.iter().map(|(_, m)| m).sum::<f64>();
+    let c = compare(reference, "reference", &image(f), "avs")?;
+    Ok(AvsRun {
+        points: st.points,
+        vertices: st.vertices,
+        rays: st.rays,
+        map_bytes: st.map_bytes + st.ssdf_bytes,
+        t_i,
+        t_v,
+        t_s,
+        total,
+        psnr: c.psnr_db.unwrap_or(f64::INFINITY),
+        rel_rmse: c.rel_rmse,
+    })
+}
+
+/// The MC baseline: (error at the avs time, frames and ms to reach the avs error).
+struct McRun {
+    at_time: Option<(f64, f64, u32)>,
+    to_error: Option<(f64, u32)>,
+    last: (f64, f64, u32),
+}
+
+fn render_mc(scene: &Scene, w: u32, h: u32, t: f32, frames: u32, reference: &Image, avs_ms: f64, avs_rel: f64) -> Result<McRun> {
+    let settings = RenderSettings { width: w, height: h, technique: Some("mc".into()), ..Default::default() };
+    let mut r = Renderer::new_headless(scene, settings, false)?;
+    let mut out = Vec::new();
+    let mut prev = None;
+    for _ in 0..frames.max(1) {
+        out.extend(r.render(&scene.at(t, prev), None, true)?);
+        prev = Some(t);
+    }
+    out.extend(r.finish()?);
+    let mut cum = 0.0;
+    let mut run = McRun { at_time: None, to_error: None, last: (0.0, 0.0, 0) };
+    for (k, f) in out.iter().enumerate() {
+        cum += f.gpu_ms.iter().map(|(_, m)| m).sum::<f64>();
+        let c = compare(reference, "reference", &image(f), "mc")?;
+        let psnr = c.psnr_db.unwrap_or(f64::INFINITY);
+        let frames = k as u32 + 1;
+        if run.at_time.is_none() && cum >= avs_ms {
+            run.at_time = Some((psnr, c.rel_rmse, frames));
+        }
+        if run.to_error.is_none() && c.rel_rmse <= avs_rel {
+            run.to_error = Some((cum, frames));
+        }
+        run.last = (psnr, c.rel_rmse, frames);
+    }
+    Ok(run)
+}
+
+fn kv(params: &[String]) -> Result<Vec<(String, String)>> {
+    params
+        .iter()
+        .map(|p| {
+            p.split_once('=')
+                .map(|(k, v)| (k.trim().to_string(), v.trim().to_string()))
+                .ok_or_else(|| anyhow::anyhow!("--param '{p}': expected KEY=VALUE"))
+        })
+        .collect()
+}
+
+pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> {
+    let (w, h) = parse_size(&args.size)?;
+    let base = kv(&args.params)?;
+    // the parameters are checked before anything is rendered
+    let mut check = std::collections::BTreeMap::new();
+    for (k, v) in &base {
+        check.insert(k.clone(), v.clone());
+    }
+    penumbra_passes::avs::AvsSettings::from_params(&check)?;
+    let scenes: Vec<PathBuf> = match &args.scene {
+        Some(p) => vec![p.clone()],
+        None => ["hat_on_cloth.toml", "balls_on_dish.toml", "falling.toml"]
+            .iter()
+            .map(|n| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(n))
+            .collect(),
+    };
+    println!("## Table 1 (size {w}x{h}, t = {} s, reference {} spp, avs parameters: {:?})", args.time, args.spp, base);
+    println!("| scene | #pixels | #verts | #samples | maps+SSDF MB | t_I ms | t_V ms | t_S ms | ms/frame | rays | PSNR dB | relRMSE | MC same time: PSNR / relRMSE (frames) | MC to same relRMSE: ms (frames) |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let mut first: Option<(Scene, Image)> = None;
+    for path in &scenes {
+        let scene = load(path)?;
+        let opts = ReferenceOptions { width: w, height: h, spp: args.spp, time: Some(args.time), mode: Mode::Exact, progress: true, ..Default::default() };
+        let reference = reference_render(&scene, &opts)?.radiance;
+        let a = render_avs(&scene, &base, w, h, args.time, &reference)?;
+        let mc = render_mc(&scene, w, h, args.time, args.mc_frames, &reference, a.total, a.rel_rmse)?;
+        let same = mc.at_time.map_or(format!("not reached in {} frames", mc.last.2), |(p, r, f)| format!("{p:.2} / {r:.3} ({f})"));
+        let reach = mc.to_error.map_or(
+            format!("not reached in {} frames (last {:.2} dB / {:.3})", mc.last.2, mc.last.0, mc.last.1),
+            |(ms, f)| format!("{ms:.0} ({f}), {:.1}x the avs time", ms / a.total.max(1e-9)),
+        );
+        println!(
+            "| {} | {} | {} | {} | {:.2} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.2} | {:.3} | {} | {} |",
+            scene.name,
+            w * h,
+            a.vertices,
+            a.points,
+            a.map_bytes as f64 / 1048576.0,
+            a.t_i,
+            a.t_v,
+            a.t_s,
+            a.total,
+            a.rays,
+            a.psnr,
+            a.rel_rmse,
+            same,
+            reach
+        );
+        if first.is_none() {
+            first = Some((scene, reference));
+        }
+    }
+    if args.no_sweep {
+        return Ok(());
+    }
+    let (scene, reference) = first.context("no scene")?;
+    println!("\n## Visibility maps on {}: adaptive vs every texel traced (t_V = visibility passes of all rounds)", scene.name);
+    println!("| r | adaptive t_V ms | rays | brute force t_V ms | rays | ratio |");
+    println!("|---|---|---|---|---|---|");
+    for r in [64u32, 128, 256] {
+        let mut p = base.clone();
+        p.push(("r".into(), r.to_string()));
+        p.push(("iterations".into(), "0".into()));
+        let ad = render_avs(&scene, &p, w, h, args.time, &reference)?;
+        p.push(("adaptive".into(), "false".into()));
+        let bf = render_avs(&scene, &p, w, h, args.time, &reference)?;
+        println!("| {r} | {:.1} | {} | {:.1} | {} | {:.2} |", ad.t_v, ad.rays, bf.t_v, bf.rays, bf.t_v / ad.t_v.max(1e-9));
+    }
+    println!("\n## E_v,max x r on {} (error / time)", scene.name);
+    println!("| r | E_v,max | #samples | ms/frame | PSNR dB | relRMSE |");
+    println!("|---|---|---|---|---|---|");
+    for r in [64u32, 128] {
+        for e in ["0.20", "0.10", "0.05"] {
+            let mut p = base.clone();
+            p.push(("r".into(), r.to_string()));
+            p.push(("e_max".into(), e.into()));
+            p.push(("e_min".into(), format!("{}", e.parse::<f32>().unwrap_or(0.1) / 2.0)));
+            let a = render_avs(&scene, &p, w, h, args.time, &reference)?;
+            println!("| {r} | {e} | {} | {:.1} | {:.2} | {:.3} |", a.points, a.total, a.psnr, a.rel_rmse);
+        }
+    }
+    Ok(())
+}
