@@ -70,8 +70,11 @@ impl Moments {
 /// `(i, j)` holding the integral over texels `x < i`, `y < j`.
 #[derive(Clone, Debug)]
 pub struct Sat {
+    /// Map width in texels.
     pub width: usize,
+    /// Map height in texels.
     pub height: usize,
+    /// Corner values, row-major, `width + 1` per row.
     pub corners: Vec<Moments>,
 }
 
@@ -89,7 +92,14 @@ pub fn cell_moments(p0: f64, p1: f64, t0: f64, t1: f64) -> [f64; 4] {
 #[derive(Debug, Clone, PartialEq)]
 pub enum SatError {
     /// Width or height zero, or the texel count does not match.
-    BadSize { width: usize, height: usize, texels: usize },
+    BadSize {
+        /// Given width.
+        width: usize,
+        /// Given height.
+        height: usize,
+        /// Texels given.
+        texels: usize,
+    },
 }
 
 impl std::fmt::Display for SatError {
@@ -310,6 +320,7 @@ impl Acc<'_> {
 /// Result of [`integrate_loops`].
 #[derive(Clone, Copy, Debug, Default)]
 pub struct LoopIntegral {
+    /// The integrals.
     pub moments: Moments,
     /// Arc pieces evaluated (four SAT lookups each).
     pub pieces: usize,
