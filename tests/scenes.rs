@@ -125,6 +125,22 @@ fn every_implemented_technique_renders_through_the_renderer_validation_clean() {
     let scenes = [Scene::load(dir.join("chess.toml")).unwrap(), Scene::load(dir.join("falling.toml")).unwrap()];
     let mut failures = Vec::new();
     for technique in penumbra_passes::technique::IMPLEMENTED {
+        if penumbra_passes::technique::STATIC_ONLY.contains(technique) {
+            // Static geometry only (tests/vv.rs renders its static scene through the renderer,
+            // validation clean): the moving scene must be refused with a message naming why.
+            let settings = penumbra::RenderSettings {
+                width: 48,
+                height: 36,
+                technique: Some(technique.to_string()),
+                ..Default::default()
+            };
+            match penumbra::Renderer::new_headless(&scenes[1], settings, false) {
+                Ok(_) => failures.push(format!("{technique}/falling: a static-only technique accepted a moving scene")),
+                Err(e) if format!("{e:#}").contains("static") => {}
+                Err(e) => failures.push(format!("{technique}/falling: unclear refusal: {e:#}")),
+            }
+            continue;
+        }
         for scene in &scenes {
             let settings = penumbra::RenderSettings {
                 width: 48,
@@ -153,7 +169,12 @@ fn every_implemented_technique_renders_through_the_renderer_validation_clean() {
             let log = r.context().validation.clone();
             drop(r);
             if log.error_count() > 0 {
-                failures.push(format!("{technique}/{}: {} validation errors: {:?}", scene.name, log.error_count(), log.errors()));
+                failures.push(format!(
+                    "{technique}/{}: {} validation errors: {:?}",
+                    scene.name,
+                    log.error_count(),
+                    log.errors()
+                ));
             }
             if frames.len() != 2 || frames.iter().any(|f| f.hdr.iter().flatten().any(|c| !c.is_finite())) {
                 failures.push(format!("{technique}/{}: missing frames or non-finite radiance", scene.name));

@@ -36,7 +36,12 @@ pub trait Technique {
 }
 
 /// Techniques implemented so far.
-pub const IMPLEMENTED: &[&str] = &["avs", "env", "isg", "isg-vertex", "mc", "shadowmaps", "shadow-fields", "shadow-fields-fixed"];
+pub const IMPLEMENTED: &[&str] =
+    &["avs", "env", "isg", "isg-vertex", "mc", "shadowmaps", "shadow-fields", "shadow-fields-fixed", "vv"];
+
+/// Techniques that precompute visibility for static geometry only: creating one for a scene
+/// whose objects move or deform is an error naming the object.
+pub const STATIC_ONLY: &[&str] = &["vv"];
 
 /// Creates the technique `name` for `scene`, or `None` if it is not implemented.
 pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &Scene) -> Result<Option<Box<dyn Technique>>> {
