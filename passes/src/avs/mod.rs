@@ -72,7 +72,9 @@ pub struct AvsSettings {
     /// form, default; on coarse meshes it weighs a point across a hat brim almost like the one
     /// next to the pixel).
     pub interp_alpha: f32,
-    /// Initial sample points (k of k-means); 0: one per 16 vertices, between 16 and 2048.
+    /// Initial sample points (k of k-means); 0: one per 4 vertices, between 16 and 2048 (the
+    /// paper ends at 6-11% of 21k-32k vertices; the built-in scenes have 1k-3k vertices, and with
+    /// one per 16 the search radius spans the hat brim).
     pub points: usize,
     /// Upper bound on sample points after insertions.
     pub max_points: usize,
@@ -276,6 +278,33 @@ pub fn vertex_pool(scene: &Scene, frame: &Frame) -> Result<Vec<SurfacePoint>> {
     Ok(out)
 }
 
+/// Mean distance from each point to its nearest other point (a tenth of the bounding-box
+/// diagonal for fewer than two points).
+pub fn mean_spacing(pos: &[Vec3]) -> f32 {
+    let g = Grid::new(pos, 0.0);
+    let mut sum = 0.0f64;
+    let mut cnt = 0usize;
+    for (i, p) in pos.iter().enumerate() {
+        let mut best = f32::MAX;
+        for ring in 0..4 {
+            g.visit_ring(*p, ring, |j, d2| {
+                if j != i && d2 < best * best {
+                    best = d2.sqrt();
+                }
+            });
+        }
+        if best < f32::MAX {
+            sum += best as f64;
+            cnt += 1;
+        }
+    }
+    if cnt > 0 {
+        (sum / cnt as f64) as f32
+    } else {
+        samp::scene_scale(pos) * 0.1
+    }
+}
+
 /// GPU layout of the sample points: 3 vec4 per point (position, ray offset), (tangent, 1),
 /// (normal, 0).
 pub fn point_data(points: &[SurfacePoint], offset: f32) -> Vec<[f32; 4]> {
@@ -392,30 +421,11 @@ impl AvsTechnique {
 
     /// Initial sample points for `pool` (k-means with e_g) and the search radius.
     fn initial_points(&mut self, pool: &[SurfacePoint]) {
-        let k = if self.settings.points > 0 { self.settings.points } else { (pool.len() / 16).clamp(16, 2048) };
+        let k = if self.settings.points > 0 { self.settings.points } else { (pool.len() / 4).clamp(16, 2048) };
         let k = k.min(self.settings.max_points);
         self.sample_vertices = samp::kmeans_eg(pool, k, self.settings.alpha, 8, &mut |_, _| {});
         let pos: Vec<Vec3> = self.sample_vertices.iter().map(|&v| pool[v].pos).collect();
-        let g = Grid::new(&pos, 0.0);
-        // mean distance to the nearest other sample point
-        let mut sum = 0.0f64;
-        let mut cnt = 0usize;
-        for (i, p) in pos.iter().enumerate() {
-            let mut best = f32::MAX;
-            for ring in 0..4 {
-                g.visit_ring(*p, ring, |j, d2| {
-                    if j != i && d2 < best * best {
-                        best = d2.sqrt();
-                    }
-                });
-            }
-            if best < f32::MAX {
-                sum += best as f64;
-                cnt += 1;
-            }
-        }
-        let mean = if cnt > 0 { (sum / cnt as f64) as f32 } else { samp::scene_scale(&pos) * 0.1 };
-        self.radius = (self.settings.radius * mean).max(1e-6);
+        self.radius = (self.settings.radius * mean_spacing(&pos)).max(1e-6);
         self.stats.initial_points = self.sample_vertices.len();
     }
 
@@ -718,7 +728,9 @@ impl crate::technique::Technique for AvsTechnique {
         }
         let points_buf = graph.create_buffer_init("avs_points", bytes_of(&point_data(&by_slot, offset)));
         let pos: Vec<Vec3> = points.iter().map(|p| p.pos).collect();
-        let grid = Grid::new(&pos, self.radius);
+        // the per-pixel search radius follows the final density (the rounds use the initial one)
+        let shade_radius = if pos.len() >= 2 { (self.settings.radius * mean_spacing(&pos)).max(1e-6) } else { self.radius };
+        let grid = Grid::new(&pos, shade_radius);
         let grid_buf = graph.create_buffer_init("avs_grid", bytes_of(&grid_words(&grid, &slots)));
         let lobes = graph.create_buffer_init("avs_lobes", self.lobes.as_ref().clone());
         let prefiltered = graph.create_buffer_init("avs_prefiltered", self.prefiltered.as_ref().clone());
@@ -745,8 +757,8 @@ impl crate::technique::Technique for AvsTechnique {
         let s = &self.settings;
         let mut push: Vec<u8> = Vec::with_capacity(44);
         push.extend(bytes_of(&[scene.light_count, self.lobe_count, r, s.neighbours.clamp(1, 8)]));
-        let (wa, wscale) = if s.interp_alpha > 0.0 { (s.interp_alpha, 1.0 / self.radius) } else { (s.alpha, 1.0 / pos_scale) };
-        push.extend(bytes_of(&[wa, wscale, self.radius]));
+        let (wa, wscale) = if s.interp_alpha > 0.0 { (s.interp_alpha, 1.0 / shade_radius) } else { (s.alpha, 1.0 / pos_scale) };
+        push.extend(bytes_of(&[wa, wscale, shade_radius]));
         push.extend(bytes_of(&[
             (s.integration == Integration::Cells) as u32,
             (!s.shadows || points.is_empty()) as u32,
