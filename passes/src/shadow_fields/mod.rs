@@ -742,74 +742,21 @@ pub struct ShadowFieldsTechnique {
 pub const VERTEX_RADIANCE_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
 
 fn vertex_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
-    use anyhow::Context as _;
-    let d = &ctx.device;
+    use crate::raster::{raster_pipeline, DepthState, RasterDesc, VertexInput};
     let sb = vk::DescriptorType::STORAGE_BUFFER;
-    let (set_layout, layout) = crate::util::layouts(
+    raster_pipeline(
         ctx,
-        "sf_vertex",
-        &[vk::DescriptorType::UNIFORM_BUFFER, sb, sb, sb],
-        vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT,
-        0,
-    )?;
-    let vs = ctx.create_shader_module("sf_vertex.vert", shaders.get("sf_vertex.vert")?)?;
-    let fs = ctx.create_shader_module("sf_vertex.frag", shaders.get("sf_vertex.frag")?)?;
-    let stages = [
-        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::VERTEX).module(vs).name(c"main"),
-        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::FRAGMENT).module(fs).name(c"main"),
-    ];
-    let bindings = [vk::VertexInputBindingDescription {
-        binding: 0,
-        stride: std::mem::size_of::<crate::scene_gpu::Vertex>() as u32,
-        input_rate: vk::VertexInputRate::VERTEX,
-    }];
-    let attrs = [vk::VertexInputAttributeDescription { location: 0, binding: 0, format: vk::Format::R32G32B32_SFLOAT, offset: 0 }];
-    let vi = vk::PipelineVertexInputStateCreateInfo::default().vertex_binding_descriptions(&bindings).vertex_attribute_descriptions(&attrs);
-    let ia = vk::PipelineInputAssemblyStateCreateInfo::default().topology(vk::PrimitiveTopology::TRIANGLE_LIST);
-    let vp = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
-    let rs = vk::PipelineRasterizationStateCreateInfo::default()
-        .polygon_mode(vk::PolygonMode::FILL)
-        .cull_mode(vk::CullModeFlags::NONE)
-        .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
-        .line_width(1.0);
-    let ms = vk::PipelineMultisampleStateCreateInfo::default().rasterization_samples(vk::SampleCountFlags::TYPE_1);
-    let ds = vk::PipelineDepthStencilStateCreateInfo::default().depth_test_enable(true).depth_write_enable(true).depth_compare_op(vk::CompareOp::LESS);
-    let blend = [vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA)];
-    let cb = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend);
-    let dyn_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
-    let dy = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dyn_states);
-    let formats = [VERTEX_RADIANCE_FORMAT];
-    let mut rendering =
-        vk::PipelineRenderingCreateInfo::default().color_attachment_formats(&formats).depth_attachment_format(crate::gbuffer::DEPTH_FORMAT);
-    let ci = [vk::GraphicsPipelineCreateInfo::default()
-        .stages(&stages)
-        .vertex_input_state(&vi)
-        .input_assembly_state(&ia)
-        .viewport_state(&vp)
-        .rasterization_state(&rs)
-        .multisample_state(&ms)
-        .depth_stencil_state(&ds)
-        .color_blend_state(&cb)
-        .dynamic_state(&dy)
-        .layout(layout)
-        .push_next(&mut rendering)];
-    let res = unsafe { d.create_graphics_pipelines(vk::PipelineCache::null(), &ci, None) };
-    unsafe {
-        d.destroy_shader_module(vs, None);
-        d.destroy_shader_module(fs, None);
-    }
-    let pipeline = match res {
-        Ok(p) => p[0],
-        Err((_, e)) => {
-            unsafe {
-                d.destroy_pipeline_layout(layout, None);
-                d.destroy_descriptor_set_layout(set_layout, None);
-            }
-            return Err(e).context("sf_vertex pipeline");
-        }
-    };
-    ctx.set_name(pipeline, "sf_vertex");
-    Ok(Pipeline::from_raw(ctx, pipeline, layout, set_layout))
+        shaders,
+        &RasterDesc {
+            name: "sf_vertex",
+            shaders: &["sf_vertex.vert", "sf_vertex.frag"],
+            descriptors: &[vk::DescriptorType::UNIFORM_BUFFER, sb, sb, sb],
+            vertex_input: VertexInput::Position,
+            colors: &[VERTEX_RADIANCE_FORMAT],
+            depth: Some(DepthState { format: crate::gbuffer::DEPTH_FORMAT, write: true, compare: vk::CompareOp::LESS }),
+            ..Default::default()
+        },
+    )
 }
 
 impl ShadowFieldsTechnique {
