@@ -18,6 +18,8 @@ pub enum VertexInput {
     Position,
     /// locations 0, 1, 2: position, normal, uv.
     PositionNormalUv,
+    /// location 0: an RGB32F position at offset 0 of another vertex type of this stride.
+    PositionOfStride(u32),
 }
 
 /// Colour blending, the same for every attachment.
@@ -144,11 +146,11 @@ fn create(
             vk::PipelineShaderStageCreateInfo::default().stage(stage_of(s).expect("checked")).module(m).name(c"main")
         })
         .collect();
-    let bindings = [vk::VertexInputBindingDescription {
-        binding: 0,
-        stride: std::mem::size_of::<Vertex>() as u32,
-        input_rate: vk::VertexInputRate::VERTEX,
-    }];
+    let stride = match desc.vertex_input {
+        VertexInput::PositionOfStride(s) => s,
+        _ => std::mem::size_of::<Vertex>() as u32,
+    };
+    let bindings = [vk::VertexInputBindingDescription { binding: 0, stride, input_rate: vk::VertexInputRate::VERTEX }];
     let attr = |location, format, offset| vk::VertexInputAttributeDescription { location, binding: 0, format, offset };
     let all_attrs = [
         attr(0, vk::Format::R32G32B32_SFLOAT, 0),
@@ -157,7 +159,7 @@ fn create(
     ];
     let (bindings, attrs): (&[_], &[_]) = match desc.vertex_input {
         VertexInput::None => (&[], &[]),
-        VertexInput::Position => (&bindings, &all_attrs[..1]),
+        VertexInput::Position | VertexInput::PositionOfStride(_) => (&bindings, &all_attrs[..1]),
         VertexInput::PositionNormalUv => (&bindings, &all_attrs),
     };
     let vi = vk::PipelineVertexInputStateCreateInfo::default()

@@ -16,8 +16,8 @@
 //! frustum and back faces of closed, one-sided meshes (hidden behind their front faces) are left
 //! out of the raster, and vertices no remaining triangle uses are skipped by the compute pass.
 
-use crate::util::{layouts, Pipeline};
-use anyhow::{Context as _, Result};
+use crate::util::Pipeline;
+use anyhow::Result;
 use glam::{Mat3, Mat4, Vec3};
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Context};
@@ -213,68 +213,20 @@ pub const VIS_DEPTH_FORMAT: vk::Format = vk::Format::D32_SFLOAT;
 
 /// The raster pipeline of `isg_vertex_raster` (camera uniform + per-vertex visibility storage).
 pub fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
-    let d = &ctx.device;
-    let (set_layout, layout) = layouts(
+    use crate::raster::{DepthState, RasterDesc, VertexInput};
+    crate::raster::raster_pipeline(
         ctx,
-        "isg_vertex_raster",
-        &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
-        vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT,
-        0,
-    )?;
-    let vs = ctx.create_shader_module("isg_vertex.vert", shaders.get("isg_vertex.vert")?)?;
-    let fs = ctx.create_shader_module("isg_vertex.frag", shaders.get("isg_vertex.frag")?)?;
-    let stages = [
-        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::VERTEX).module(vs).name(c"main"),
-        vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::FRAGMENT).module(fs).name(c"main"),
-    ];
-    let bindings = [vk::VertexInputBindingDescription {
-        binding: 0,
-        stride: std::mem::size_of::<IsgVertex>() as u32,
-        input_rate: vk::VertexInputRate::VERTEX,
-    }];
-    let attrs =
-        [vk::VertexInputAttributeDescription { location: 0, binding: 0, format: vk::Format::R32G32B32_SFLOAT, offset: 0 }];
-    let vi =
-        vk::PipelineVertexInputStateCreateInfo::default().vertex_binding_descriptions(&bindings).vertex_attribute_descriptions(&attrs);
-    let ia = vk::PipelineInputAssemblyStateCreateInfo::default().topology(vk::PrimitiveTopology::TRIANGLE_LIST);
-    let vp = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
-    let rs = vk::PipelineRasterizationStateCreateInfo::default()
-        .polygon_mode(vk::PolygonMode::FILL)
-        .cull_mode(vk::CullModeFlags::NONE)
-        .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
-        .line_width(1.0);
-    let ms = vk::PipelineMultisampleStateCreateInfo::default().rasterization_samples(vk::SampleCountFlags::TYPE_1);
-    let ds = vk::PipelineDepthStencilStateCreateInfo::default()
-        .depth_test_enable(true)
-        .depth_write_enable(true)
-        .depth_compare_op(vk::CompareOp::LESS);
-    let blend = [vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA)];
-    let cb = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend);
-    let dyn_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
-    let dy = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dyn_states);
-    let formats = [VIS_FORMAT];
-    let mut rendering =
-        vk::PipelineRenderingCreateInfo::default().color_attachment_formats(&formats).depth_attachment_format(VIS_DEPTH_FORMAT);
-    let ci = [vk::GraphicsPipelineCreateInfo::default()
-        .stages(&stages)
-        .vertex_input_state(&vi)
-        .input_assembly_state(&ia)
-        .viewport_state(&vp)
-        .rasterization_state(&rs)
-        .multisample_state(&ms)
-        .depth_stencil_state(&ds)
-        .color_blend_state(&cb)
-        .dynamic_state(&dy)
-        .layout(layout)
-        .push_next(&mut rendering)];
-    let res = unsafe { d.create_graphics_pipelines(vk::PipelineCache::null(), &ci, None) };
-    unsafe {
-        d.destroy_shader_module(vs, None);
-        d.destroy_shader_module(fs, None);
-    }
-    let pipeline = res.map_err(|(_, e)| e).context("isg_vertex_raster pipeline")?[0];
-    ctx.set_name(pipeline, "isg_vertex_raster");
-    Ok(Pipeline::from_raw(ctx, pipeline, layout, set_layout))
+        shaders,
+        &RasterDesc {
+            name: "isg_vertex_raster",
+            shaders: &["isg_vertex.vert", "isg_vertex.frag"],
+            descriptors: &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
+            vertex_input: VertexInput::PositionOfStride(std::mem::size_of::<IsgVertex>() as u32),
+            colors: &[VIS_FORMAT],
+            depth: Some(DepthState { format: VIS_DEPTH_FORMAT, write: true, compare: vk::CompareOp::LESS }),
+            ..Default::default()
+        },
+    )
 }
 
 #[cfg(test)]
