@@ -316,22 +316,9 @@ void main() {
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
     color += local_lights(pos, n, v, albedo, kind, m, roughness);
     if (kind != 0) {
-        vec3 r = reflect(-v, n);
-        SG gs;
+        // Beckmann warp (Wang et al. 2009), m = roughness^2 as the reference's SG mode.
         vec3 amp;
-        if (kind == 1) {
-            float s = max(m.extra.x, 0.0);
-            gs = sg_make(r, s / (4.0 * ndv), (s + 2.0) / (8.0 * PI));
-            amp = m.spec_rough.rgb;
-        } else {
-            float mb = max(roughness * roughness, 1e-3);
-            float m2 = mb * mb;
-            float rz = max(dot(r, n), 1e-4);
-            float geo = min(1.0, 2.0 * rz / ndv);
-            vec3 F = m.spec_rough.rgb + (1.0 - m.spec_rough.rgb) * pow(1.0 - ndv, 5.0);
-            gs = sg_make(r, 2.0 / m2 / (4.0 * ndv), geo / (4.0 * rz * ndv) / (PI * m2));
-            amp = F;
-        }
+        SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
         SG gj = sg_product(gs, cosg);
         vec3 gamma_l = vec3(0.0);
         if (pc.specular_mode == 0u) {

@@ -131,4 +131,36 @@ float sg_cosine_integral(SG g, vec3 n) {
     return sg_hemisphere_integral(sg_product(g, sg_clamped_cosine(n)), n);
 }
 
+// Smith G1 of the GGX distribution with width alpha at cosine c (0 at and below the horizon).
+float sg_smith_g1(float alpha, float c) {
+    if (c <= 0.0) return 0.0;
+    float a2 = alpha * alpha;
+    return 2.0 * c / (c + sqrt(a2 + (1.0 - a2) * c * c));
+}
+
+// The specular BRDF as one SG lobe about the mirror direction r = reflect(-v, n) (the warp of
+// Wang et al. 2009), mirrored by penumbra_math::brdf::{BlinnPhong, CookTorrance}::sg_warp.
+// kind 1 = normalized Blinn-Phong with exponent `shininess` (amp = f0 = specular colour);
+// otherwise Cook-Torrance with Beckmann width m = roughness^2 (clamped to >= 1e-3), the
+// remaining factors F G / (4 cos_i cos_o) taken at the lobe axis, with Schlick F (f0) and the
+// separable Smith-GGX G = G1(n.v) G1(n.r) (alpha = m). Smith's G goes to 0 at grazing view, so
+// the amplitude stays bounded (about 1 / (m^2 pi m^2)) instead of growing as 1 / (n.v)^2: the
+// V-cavity G equals 1 at the axis and made single-pixel fireflies at silhouettes.
+// ndv is clamped to >= 1e-4 by the caller. Returns the lobe; `amp` multiplies it.
+SG sg_specular_lobe(int kind, vec3 n, vec3 v, float ndv, float shininess, float roughness, vec3 f0,
+                    out vec3 amp) {
+    vec3 r = reflect(-v, n);
+    if (kind == 1) {
+        float s = max(shininess, 0.0);
+        amp = f0;
+        return sg_make(r, s / (4.0 * ndv), (s + 2.0) / (8.0 * SG_PI));
+    }
+    float m = max(roughness * roughness, 1e-3);
+    float m2 = m * m;
+    float rz = max(dot(r, n), 1e-4);
+    float geo = sg_smith_g1(m, ndv) * sg_smith_g1(m, rz);
+    amp = f0 + (1.0 - f0) * pow(1.0 - ndv, 5.0);
+    return sg_make(r, 2.0 / m2 / (4.0 * ndv), geo / (4.0 * rz * ndv) / (SG_PI * m2));
+}
+
 #endif // PENUMBRA_SG_GLSL

@@ -59,7 +59,12 @@ impl BlinnPhong {
 }
 
 /// Cook-Torrance with a Beckmann distribution (roughness `m`), Schlick Fresnel and the
-/// Cook-Torrance V-cavity shadowing: `f = D F G / (4 (n.wi)(n.wo))`.
+/// separable Smith shadowing of the GGX form with width `m`, `G = G1(n.wi) G1(n.wo)` (as the
+/// reference renderer's exact Cook-Torrance): `f = D F G / (4 (n.wi)(n.wo))`.
+///
+/// The Cook-Torrance V-cavity G used before is 1 at the warp's axis, so the warped lobe's
+/// amplitude grew as `1 / (n.wo)^2` at grazing view (single-pixel fireflies at silhouettes);
+/// Smith's G1 goes to 0 there and keeps the amplitude below about `1 / (pi m^4)`.
 #[derive(Clone, Copy, Debug)]
 pub struct CookTorrance {
     /// Beckmann roughness `m` (RMS slope).
@@ -74,9 +79,16 @@ impl CookTorrance {
         let c2 = c * c;
         (-(1.0 - c2) / (c2 * m2)).exp() / (PI * m2 * c2 * c2)
     }
-    fn geometry(wi: DVec3, wo: DVec3, h: DVec3) -> f64 {
-        let voh = wo.dot(h).max(1e-12);
-        (2.0 * h.z * wo.z / voh).min(2.0 * h.z * wi.z / voh).min(1.0)
+    /// Smith G1 of the GGX form with width `alpha` at cosine `c` (0 at and below the horizon).
+    pub fn smith_g1(alpha: f64, c: f64) -> f64 {
+        if c <= 0.0 {
+            return 0.0;
+        }
+        let a2 = alpha * alpha;
+        2.0 * c / (c + (a2 + (1.0 - a2) * c * c).sqrt())
+    }
+    fn geometry(&self, wi: DVec3, wo: DVec3) -> f64 {
+        Self::smith_g1(self.roughness, wi.z) * Self::smith_g1(self.roughness, wo.z)
     }
     /// BRDF value (0 below the horizon).
     pub fn eval(&self, wi: DVec3, wo: DVec3) -> f64 {
@@ -84,7 +96,7 @@ impl CookTorrance {
             return 0.0;
         }
         let h = (wi + wo).normalize();
-        self.beckmann(h.z) * schlick(self.f0, wo.dot(h)) * Self::geometry(wi, wo, h) / (4.0 * wi.z * wo.z)
+        self.beckmann(h.z) * schlick(self.f0, wo.dot(h)) * self.geometry(wi, wo) / (4.0 * wi.z * wo.z)
     }
     /// One-lobe warp approximation for outgoing direction `wo` (Wang et al. 2009).
     pub fn sg_warp(&self, wo: DVec3) -> Sg {
@@ -92,7 +104,7 @@ impl CookTorrance {
         let c = wo.z.max(1e-4);
         let axis = reflect_about_n(wo);
         let h = DVec3::Z;
-        let extra = schlick(self.f0, wo.dot(h)) * Self::geometry(axis, wo, h) / (4.0 * axis.z.max(1e-4) * c);
+        let extra = schlick(self.f0, wo.dot(h)) * self.geometry(axis, wo) / (4.0 * axis.z.max(1e-4) * c);
         Sg::new(axis, 2.0 / m2 / (4.0 * c), extra / (PI * m2))
     }
 }
