@@ -42,6 +42,12 @@ pub struct BenchArgs {
     /// (tells a technique's visibility error from its SG lighting error); reference_sg.exr.
     #[arg(long)]
     pub sg_reference: bool,
+    /// Render the GPU techniques at N x N times the size and box-filter them down before comparing
+    /// (the reference integrates each pixel's area with its jittered samples; a GPU technique
+    /// point-samples pixel centres, so sub-pixel highlights and edges alias). GPU ms are those of
+    /// the larger image.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=8))]
+    pub supersample: u32,
 }
 
 pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
@@ -83,7 +89,9 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
     let mut rows = Vec::new();
     let mut baseline_ms = None;
     for name in args.techniques.split(',').map(str::trim).filter(|s| !s.is_empty()) {
-        let settings = RenderSettings { width, height, technique: Some(name.to_string()), ..Default::default() };
+        let ss = args.supersample.max(1);
+        let (gw, gh) = (width * ss, height * ss);
+        let settings = RenderSettings { width: gw, height: gh, technique: Some(name.to_string()), ..Default::default() };
         let mut r = Renderer::new_headless(scene, settings, false)?;
         let frame = scene.at(t, Some(t));
         let mut images = Vec::new();
@@ -93,8 +101,16 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
         images.extend(r.finish()?);
         let last = images.last().context("no frame finished")?;
         let img = Image::from_fn(width, height, |x, y| {
-            let p = last.hdr[(y * width + x) as usize];
-            [p[0], p[1], p[2]]
+            let mut sum = [0.0f32; 3];
+            for sy in 0..ss {
+                for sx in 0..ss {
+                    let p = last.hdr[((y * ss + sy) * gw + x * ss + sx) as usize];
+                    for c in 0..3 {
+                        sum[c] += p[c];
+                    }
+                }
+            }
+            sum.map(|v| v / (ss * ss) as f32)
         });
         img.write_exr(args.out.join(format!("{name}.exr")))?;
         let c = compare(&reference.radiance, "reference", &img, name)?;
@@ -142,6 +158,7 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
     let report = serde_json::json!({
         "scene": scene.name,
         "size": [width, height],
+        "supersample": args.supersample.max(1),
         "time_s": t,
         "reference": {"spp": args.spp, "seconds": reference.render_seconds, "noise": reference.noise},
         "techniques": rows,

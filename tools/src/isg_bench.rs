@@ -36,6 +36,11 @@ pub struct IsgArgs {
     /// bench.json.
     #[arg(long, default_value = "bench-isg-out")]
     pub out: PathBuf,
+    /// Render ISG at N x N times the size and box-filter down before comparing (see
+    /// `bench techniques --supersample`): separates the technique's error from the aliasing of
+    /// sub-pixel highlights (shininess 1000) against the pixel-integrating reference.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=8))]
+    pub supersample: u32,
 }
 
 impl IsgArgs {
@@ -76,6 +81,7 @@ pub fn run_isg(args: &IsgArgs, scene: &Scene) -> Result<()> {
         seed: args.seed,
         out: args.out.clone(),
         sg_reference: true,
+        supersample: args.supersample,
     };
     run(&bench, &scene)?;
     let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(args.out.join("bench.json"))?)?;
@@ -84,9 +90,10 @@ pub fn run_isg(args: &IsgArgs, scene: &Scene) -> Result<()> {
     let f4 = |v: &serde_json::Value| v.as_f64().map_or("-".to_string(), |x| format!("{x:.4}"));
     println!();
     println!(
-        "ISG on '{}' at {}, t = {:.2} s; reference {} spp in {:.1} s",
+        "ISG on '{}' at {}{}, t = {:.2} s; reference {} spp in {:.1} s",
         scene.name,
         args.size,
+        if args.supersample > 1 { format!(" (GPU at {0}x{0} supersampling, box-filtered)", args.supersample) } else { String::new() },
         report["time_s"].as_f64().unwrap_or(0.0),
         args.spp,
         report["reference"]["seconds"].as_f64().unwrap_or(0.0)

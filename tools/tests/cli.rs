@@ -159,6 +159,16 @@ fn bench_measures_techniques_against_the_reference() {
     let sg_psnr = env["vs_sg_reference"]["psnr_db"].as_f64().unwrap();
     assert!(sg_psnr.is_finite() && sg_psnr > 10.0, "PSNR vs the SG-lighting reference {sg_psnr} dB");
     expect_bad_input(&["bench", "techniques", "--techniques", "env,nope", "--out", out.to_str().unwrap()], &["nope"]);
+    // Supersampled GPU images are box-filtered to the reference's size: a wrong pixel mapping
+    // would show as a PSNR collapse against the same ground truth.
+    let out2 = tmp("bench-ss");
+    let o = penumbra(&["bench", "techniques", "--size", "32x24", "--spp", "16", "--frames", "1", "--supersample", "3", "--out", out2.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    let b: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out2.join("bench.json")).unwrap()).unwrap();
+    assert_eq!(b["supersample"], 3);
+    let ss_psnr = b["techniques"][0]["psnr_db"].as_f64().unwrap();
+    assert!(ss_psnr > 20.0, "supersampled env PSNR {ss_psnr} dB (1x at 64x48: {psnr} dB)");
+    expect_bad_input(&["bench", "techniques", "--supersample", "0", "--out", out2.to_str().unwrap()], &["supersample"]);
 }
 
 #[test]
