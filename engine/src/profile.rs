@@ -48,6 +48,11 @@ impl Profiler {
     pub fn end_frame(&mut self) {
         self.frames += 1;
     }
+    /// Forgets every sample (e.g. after warm-up frames: lavapipe compiles a pipeline's shader at
+    /// its first dispatch, which lands in that pass's first GPU timestamp interval).
+    pub fn reset(&mut self) {
+        *self = Profiler::default();
+    }
     pub fn frames(&self) -> usize {
         self.frames
     }

@@ -191,6 +191,80 @@ bool isg_mark_triangle(int t, vec3 p, vec3 n, vec3 fx, vec3 fy, vec3 fz, float d
 }
 #endif
 
+// True if the segment from p to p + dir * len (unit dir) meets an occluder: a leaf sphere of
+// the sphere BVH (spheres containing p are skipped, as in isg_visible) or, with
+// ISG_TRIS_BINDING, a thin-shell triangle. The shadow-ray test for local lights.
+bool isg_segment_blocked(vec3 p, vec3 dir, float len, int node_count, int tri_node_count) {
+#ifndef ISG_TRIS_BINDING
+    tri_node_count = 0;
+#endif
+    int stack[32];
+    int sp = 0;
+    if (node_count > 0) stack[sp++] = 0;
+    int guard = 0;
+    while (sp > 0 && guard < 4096) {
+        ++guard;
+        int ni = stack[--sp];
+        if (ni < 0 || ni >= node_count) continue;
+        IsgNode node = isg_nodes[ni];
+        vec3 d = node.sphere.xyz - p;
+        float r = node.sphere.w;
+        if (!(r > 0.0)) continue;
+        float t = clamp(dot(d, dir), 0.0, len);
+        vec3 off = d - dir * t;
+        if (dot(off, off) > r * r) continue;  // the segment misses the bounding sphere
+        if (node.info.x >= 0) {
+            if (sp < 31) {
+                stack[sp++] = node.info.x;
+                stack[sp++] = node.info.y;
+            }
+            continue;
+        }
+        if (dot(d, d) <= r * r * (1.0 + 2e-4)) continue;  // the receiver's own proxy
+        return true;
+    }
+#ifdef ISG_TRIS_BINDING
+    sp = 0;
+    if (tri_node_count > 0) stack[sp++] = 0;
+    guard = 0;
+    while (sp > 0 && guard < 16384) {
+        ++guard;
+        int ni = stack[--sp];
+        if (ni < 0 || ni >= tri_node_count) continue;
+        IsgNode node = isg_tri_nodes[ni];
+        vec3 d = node.sphere.xyz - p;
+        float r = node.sphere.w;
+        if (!(r >= 0.0)) continue;
+        float t = clamp(dot(d, dir), 0.0, len);
+        vec3 off = d - dir * t;
+        if (dot(off, off) > r * r) continue;
+        if (node.info.x >= 0) {
+            if (sp < 31) {
+                stack[sp++] = node.info.x;
+                stack[sp++] = node.info.y;
+            }
+            continue;
+        }
+        // Moller-Trumbore, hits strictly inside (0, len) beyond a relative epsilon.
+        int tri = node.info.z;
+        vec3 a = isg_tris[3 * tri].xyz, e1 = isg_tris[3 * tri + 1].xyz - a, e2 = isg_tris[3 * tri + 2].xyz - a;
+        vec3 pv = cross(dir, e2);
+        float det = dot(e1, pv);
+        if (abs(det) < 1e-12) continue;
+        float inv = 1.0 / det;
+        vec3 tv = p - a;
+        float u = dot(tv, pv) * inv;
+        if (u < 0.0 || u > 1.0) continue;
+        vec3 qv = cross(tv, e1);
+        float v = dot(dir, qv) * inv;
+        if (v < 0.0 || u + v > 1.0) continue;
+        float th = dot(e2, qv) * inv;
+        if (th > 1e-4 * len && th < len * (1.0 - 1e-4)) return true;
+    }
+#endif
+    return false;
+}
+
 // Fraction of the hemisphere integral of the SG exp(gamma (dot(axis, w) - 1)) visible from p
 // (normal n) through the sphere BVH (node_count nodes) and, with ISG_TRIS_BINDING, the
 // thin-shell triangle BVH (tri_node_count nodes). side: patches per side (<= ISG_MAX_SIDE);

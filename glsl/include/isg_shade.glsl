@@ -44,13 +44,40 @@ layout(push_constant) uniform Push {
     int node_count;
     int patch_side;
     float lod;
-    uint flags;  // bit 0: no shadows (debug)
+    uint flags;  // bit 0: no shadows (debug); bit 1: local lights unshadowed
     float min_fraction;
     uint specular_mode;  // 0: Gamma_L from the prefiltered maps (paper), 1: from the lighting SGs
     int tri_node_count;  // thin-shell triangle BVH nodes
 } pc;
 
-vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
+// Unoccluded fraction of a local light seen from p (offset shading point): shadow rays through
+// the sphere BVH and the thin-shell triangles. Point and spot lights: one ray (hard shadow).
+// Sphere lights of radius R: the centre and 8 points on the disk of radius R facing p (two rings
+// at 0.45 R and 0.9 R, rotated against each other), equally weighted: a soft shadow whose
+// penumbra follows the light's size.
+float light_visibility(vec3 p, vec3 to_light, float radius) {
+    if ((pc.flags & 3u) != 0u) return 1.0;
+    float d = length(to_light);
+    if (!(d > 0.0)) return 1.0;
+    vec3 w = to_light / d;
+    if (radius <= 0.0) return isg_segment_blocked(p, w, d, pc.node_count, pc.tri_node_count) ? 0.0 : 1.0;
+    vec3 bx = normalize(abs(w.x) < 0.9 ? cross(vec3(1.0, 0.0, 0.0), w) : cross(vec3(0.0, 1.0, 0.0), w));
+    vec3 by = cross(w, bx);
+    float vis = 0.0;
+    for (int k = 0; k < 9; ++k) {
+        vec3 q = to_light;
+        if (k > 0) {
+            float ring = k <= 4 ? 0.45 : 0.9;
+            float a = 1.5707963 * float(k - 1) + (k <= 4 ? 0.0 : 0.7853982);
+            q += (bx * cos(a) + by * sin(a)) * (ring * radius);
+        }
+        float len = length(q);
+        vis += isg_segment_blocked(p, q / len, len, pc.node_count, pc.tri_node_count) ? 0.0 : 1.0;
+    }
+    return vis / 9.0;
+}
+
+vec3 local_lights(vec3 pos, vec3 p, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
     vec3 sum = vec3(0.0);
     for (uint i = 0u; i < pc.light_count; ++i) {
         LightData l = lights[i];
@@ -86,7 +113,8 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData 
                 f += F * D * G / (4.0 * ndl * ndv);
             }
         }
-        sum += f * intensity * ndl / d2;
+        float vis = light_visibility(p, l.pos_kind.xyz - p, lk == 2 ? l.extra.x : 0.0);
+        sum += f * intensity * ndl / d2 * vis;
     }
     return sum;
 }
@@ -207,7 +235,7 @@ void main() {
     }
     vec3 color = albedo / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
-    color += local_lights(pos, n, v, albedo, kind, m, roughness);
+    color += local_lights(pos, p, n, v, albedo, kind, m, roughness);
     if (kind != 0) {
         // Beckmann warp (Wang et al. 2009), m = roughness^2 as the reference's SG mode.
         vec3 amp;

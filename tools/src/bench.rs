@@ -26,8 +26,8 @@ pub struct BenchArgs {
     pub frame: u32,
     #[arg(long, default_value_t = 30.0)]
     pub fps: f32,
-    /// GPU frames rendered per technique at that time (timings are medians over them; progressive
-    /// techniques accumulate over them).
+    /// GPU frames rendered per technique at that time after one warm-up frame (timings are
+    /// medians over them; progressive techniques accumulate over them and the warm-up frame).
     #[arg(long, default_value_t = 8)]
     pub frames: u32,
     /// Samples per pixel of the CPU reference.
@@ -94,7 +94,11 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
         let settings = RenderSettings { width: gw, height: gh, technique: Some(name.to_string()), ..Default::default() };
         let mut r = Renderer::new_headless(scene, settings, false)?;
         let frame = scene.at(t, Some(t));
-        let mut images = Vec::new();
+        // One warm-up frame outside the statistics: its passes' first dispatches include
+        // lavapipe's shader compilation (seconds for the larger technique shaders).
+        let mut images = r.render(&frame, None, true)?;
+        images.extend(r.finish()?);
+        r.engine.profiler.reset();
         for _ in 0..args.frames.max(1) {
             images.extend(r.render(&frame, None, true)?);
         }

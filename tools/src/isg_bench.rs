@@ -21,7 +21,7 @@ pub struct IsgArgs {
     pub frame: u32,
     #[arg(long, default_value_t = 30.0)]
     pub fps: f32,
-    /// GPU frames per mode (timings are medians over them).
+    /// GPU frames per mode after one warm-up frame (timings are medians over them).
     #[arg(long, default_value_t = 4)]
     pub frames: u32,
     /// Samples per pixel of the two CPU references.
