@@ -1,37 +1,14 @@
 //! The ISG technique on the Vulkan device (lavapipe): validation, accuracy against the CPU
 //! reference with SG lighting, extremes.
 
-use penumbra::{FrameImages, RenderSettings, Renderer};
+use penumbra::FrameImages;
 use penumbra_reference::image::Image;
+use std::path::PathBuf;
 use penumbra_reference::metrics::compare;
 use penumbra_reference::render::{render as reference_render, Mode, ReferenceOptions};
-use penumbra_scene::Scene;
-use std::path::PathBuf;
 
-fn scene(name: &str) -> Scene {
-    Scene::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name)).expect("scene")
-}
-
-fn render(scene: &Scene, technique: &str, w: u32, h: u32, times: &[f32], validation: bool) -> (Renderer, Vec<FrameImages>) {
-    let settings = RenderSettings { width: w, height: h, technique: Some(technique.into()), ..Default::default() };
-    let mut r = Renderer::new_headless(scene, settings, validation).expect("renderer");
-    let mut out = Vec::new();
-    let mut prev = None;
-    for &t in times {
-        let f = scene.at(t, prev);
-        prev = Some(t);
-        out.extend(r.render(&f, None, true).expect("render"));
-    }
-    out.extend(r.finish().expect("finish"));
-    (r, out)
-}
-
-fn image(f: &FrameImages) -> Image {
-    Image::from_fn(f.width, f.height, |x, y| {
-        let p = f.hdr[(y * f.width + x) as usize];
-        [p[0], p[1], p[2]]
-    })
-}
+mod common;
+use common::{hdr_image as image, render_times as render, scene};
 
 fn check_frames(frames: &[FrameImages], n: usize) {
     assert_eq!(frames.len(), n);

@@ -3,6 +3,28 @@
 
 use penumbra::{FrameImages, RenderSettings, Renderer};
 use penumbra_scene::Scene;
+use std::path::PathBuf;
+
+/// `scenes/<name>`.
+pub fn scene(name: &str) -> Scene {
+    Scene::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name)).expect("scene")
+}
+
+/// Renders `scene` with `technique` at the given times (seconds, in order) and returns every
+/// finished frame's images.
+pub fn render_times(scene: &Scene, technique: &str, w: u32, h: u32, times: &[f32], validation: bool) -> (Renderer, Vec<FrameImages>) {
+    let settings = RenderSettings { width: w, height: h, technique: Some(technique.into()), ..Default::default() };
+    let mut r = Renderer::new_headless(scene, settings, validation).expect("renderer");
+    let mut out = Vec::new();
+    let mut prev = None;
+    for &t in times {
+        let f = scene.at(t, prev);
+        prev = Some(t);
+        out.extend(r.render(&f, None, true).expect("render"));
+    }
+    out.extend(r.finish().expect("finish"));
+    (r, out)
+}
 
 /// Renders `frames` frames of `scene` and returns every frame's images.
 pub fn render_frames(scene: &Scene, w: u32, h: u32, frames: u32, validation: bool) -> (Renderer, Vec<FrameImages>) {
