@@ -31,9 +31,8 @@
 //! * Per-vertex mode ([`vertex`]): the same visibilities at the mesh vertices, interpolated.
 //! * Local lights (`light_shadows`, default on): per pixel, shadow rays from the shading point
 //!   through the sphere BVH (analytic ray-sphere) and the thin-shell triangles: one ray to a
-//!   point or spot light, 9 over a sphere light's disk (soft shadows). (The ISG of a sharp SG
-//!   toward the light was tried first: 30-60x slower per light than an environment lobe on
-//!   lavapipe with thin shells.)
+//!   point or spot light, 9 over a sphere light's disk (soft shadows). The ISG of an SG with the
+//!   light's solid angle would be the paper's alternative; it is not implemented.
 //!
 //! Not done: Ashikhmin-Shirley uses one Cook-Torrance lobe.
 
