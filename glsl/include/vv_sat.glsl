@@ -140,10 +140,11 @@ void vv_arc(sampler2D sat, ivec2 size, float alpha, vec3 a, vec3 b, inout VvAcc 
     vv_sub(sat, size, alpha, a, b, acc);
 }
 
-// Cap axis moved off a pole-through circle (penumbra_math::vv_sat::nudge_axis).
+// Cap axis moved off a pole-through circle (penumbra_math::vv_sat::nudge_axis; 2e-3 rad, above
+// fp32's angular resolution at a pole).
 vec3 vv_nudge(vec3 axis, float cos_r) {
-    if (abs(axis.y - cos_r) < 1e-6 || abs(-axis.y - cos_r) < 1e-6) {
-        return normalize(axis + vec3(0.0, axis.y >= 0.0 ? 2e-6 : -2e-6, 0.0));
+    if (abs(axis.y - cos_r) < 1e-3 || abs(-axis.y - cos_r) < 1e-3) {
+        return normalize(axis + vec3(0.0, axis.y >= 0.0 ? 2e-3 : -2e-3, 0.0));
     }
     return axis;
 }

@@ -560,13 +560,17 @@ pub fn region_moments(sat: &Sat, axis: DVec3, cos_r: f64, occluders: &[Vec<DVec3
     integrate_loops(sat, &loops, south, o.alpha)
 }
 
-/// A cap axis moved by ~1e-6 rad when a pole lies (numerically) on the cap's circle, so that
-/// each pole is clearly inside or outside (a horizon through both poles is otherwise
-/// ambiguous). Mirrored in GLSL.
+/// A cap axis moved by ~2e-3 rad when a pole lies within 1e-3 (in `y`) of the cap's circle, so
+/// that each pole is clearly inside or outside (a horizon through both poles is otherwise
+/// ambiguous). Mirrored in GLSL, where it must exceed fp32's angular resolution next to a pole
+/// (`acos` of a `y` within one ulp of 1 is ~3.5e-4 rad): with the former 2e-6 rad the shader
+/// put the circle's points exactly on the poles and lost the whole hemisphere of horizontal
+/// normals (tests/vv.rs, GLSL-vs-CPU parity). The tilt changes such a normal's integral by at
+/// most ~2e-3 of its value.
 pub fn nudge_axis(axis: DVec3, cos_r: f64) -> DVec3 {
-    if (axis.y - cos_r).abs() < 1e-6 || (-axis.y - cos_r).abs() < 1e-6 {
+    if (axis.y - cos_r).abs() < 1e-3 || (-axis.y - cos_r).abs() < 1e-3 {
         let s = if axis.y >= 0.0 { 1.0 } else { -1.0 };
-        (axis + DVec3::new(0.0, 2e-6 * s, 0.0)).normalize()
+        (axis + DVec3::new(0.0, 2e-3 * s, 0.0)).normalize()
     } else {
         axis
     }
