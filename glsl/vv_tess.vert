@@ -9,6 +9,13 @@ layout(location = 2) out vec3 v_albedo;
 layout(location = 3) out float v_delta;
 layout(location = 4) out int v_vid;
 
+// The displayed value of a radiance (tonemap.comp: exposure, ACES fit, sRGB transfer), [0, 1].
+vec3 vv_display(vec3 c) {
+    vec3 x = max(c * cam.env_rot.z, vec3(0.0));
+    x = clamp((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0);
+    return mix(12.92 * x, 1.055 * pow(x, vec3(1.0 / 2.4)) - 0.055, greaterThan(x, vec3(0.0031308)));
+}
+
 void main() {
     int t = gl_VertexIndex / 3, k = gl_VertexIndex % 3;
     int v = vv_tri_vertex(t, k);
@@ -18,7 +25,9 @@ void main() {
     v_vid = v;
     vec3 i0 = vv_eval_vertex(vv_sat_tex, v, v_world, v_normal, v_albedo);
     vec3 i1 = vv_eval_vertex(vv_sat_blur, v, v_world, v_normal, v_albedo);
-    // display-referred difference (times the exposure), eq. 17
-    v_delta = abs(dot(i0 - i1, vec3(0.2126, 0.7152, 0.0722))) * cam.env_rot.z;
+    // eq. 17 in the paper's unit, the displayed value in [0, 1] (its radiance values are the
+    // pixel values of the images whose PSNR it reports): both radiances through the display
+    // mapping, then the luminance of the difference
+    v_delta = abs(dot(vv_display(i0) - vv_display(i1), vec3(0.2126, 0.7152, 0.0722)));
     gl_Position = cam.view_proj * vec4(v_world, 1.0);
 }

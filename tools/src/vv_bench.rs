@@ -116,6 +116,8 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
         let c = compare(&reference.radiance, "reference", &img, name)?;
         let stats = r.engine.profiler.gpu_stats();
         let ms: f64 = stats.iter().filter(|(p, _)| p.starts_with("vv_")).map(|(_, s)| s.median_ms).sum();
+        // the technique stores its last frame's pipeline statistics when dropped
+        drop(r);
         let tris = if s.technique_params["mode"].starts_with("tess") { Some(TESSELLATED_TRIANGLES.load(Ordering::Relaxed)) } else { None };
         let psnr = c.psnr_db.unwrap_or(f64::INFINITY);
         println!("{name:<22} {ms:>9.2} ms/frame  PSNR {psnr:>6.2}  triangles {}", tris.map_or("-".into(), |t| t.to_string()));

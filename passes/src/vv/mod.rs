@@ -20,6 +20,10 @@
 //!   tessellated vertices: the previous method under dynamic tessellation). Triangles after
 //!   tessellation are counted with a pipeline-statistics query (clipping invocations).
 //!
+//! Eq. 17's Delta is measured in display units, as the paper's (its radiance values are the
+//! displayed pixel values in [0, 1]): each radiance goes through this renderer's display mapping
+//! (exposure, ACES fit, sRGB transfer) before the difference (`glsl/vv_tess.vert`).
+//!
 //! Shading is diffuse (eq. 9/12); non-diffuse materials get their diffuse part only (the
 //! specular cap ratio of eq. 14-16 exists on the CPU, `penumbra_math::vv_sat::cap_ratio`, not in
 //! the shaders yet). Objects that move or deform are not supported (their visibility is
@@ -41,7 +45,8 @@ use std::sync::Arc;
 pub const TEX_W: usize = 4096;
 
 /// Triangles after tessellation of the last frame whose statistics were available (all `vv`
-/// techniques of the process; for the bench).
+/// techniques of the process; for the bench and tests): read at the next frame when ready, and
+/// when the technique is dropped.
 pub static TESSELLATED_TRIANGLES: AtomicU64 = AtomicU64::new(0);
 
 /// Shading modes.
@@ -414,6 +419,12 @@ pub struct VvTechnique {
 
 impl Drop for VvTechnique {
     fn drop(&mut self) {
+        // the last finished frame's count (the renderer has waited for its frames)
+        if self.settings.mode.tessellated() {
+            if let Some(n) = self.read_triangle_count() {
+                TESSELLATED_TRIANGLES.store(n, Ordering::Relaxed);
+            }
+        }
         unsafe { self.ctx.device.destroy_query_pool(self.query, None) };
     }
 }
@@ -587,6 +598,61 @@ impl VvTechnique {
             image_extent: vk::Extent3D { width: TEX_W as u32, height: rows, depth: 1 },
         };
         crate::util::add_image_upload(graph, name, img, bytes.to_vec(), vec![region])
+    }
+}
+
+/// `vv_parity` (tests): per case, `n . ∫ l L_e` over the hemisphere of `n` minus occluder loops,
+/// with the technique's GLSL integration (`glsl/vv_parity.comp`), to compare with
+/// `penumbra_math::vv_sat`. Keep it alive until the frames using it have finished.
+pub struct VvParity {
+    pipe: Pipeline,
+}
+
+impl VvParity {
+    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
+        use vk::DescriptorType as T;
+        Ok(VvParity { pipe: compute_pipeline(ctx, shaders, "vv_parity.comp", &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER, T::STORAGE_IMAGE], 32)? })
+    }
+
+    /// The cases on `sat` (an image of [`VvTechnique::add_sat`] of `tech`'s map size, with its
+    /// alpha' and hemisphere arcs). `cases`: `(n, loops)` with loops of map-space unit
+    /// directions in part A's orientation (counter-clockwise from outside around the occluded
+    /// region). Returns an RGBA32F image of `cases.len() x 1` texels (rgb).
+    pub fn add(&self, tech: &VvTechnique, graph: &mut Graph, sat: ImageHandle, cases: &[(Vec3, Vec<Vec<Vec3>>)]) -> ImageHandle {
+        let mut data: Vec<[f32; 4]> = vec![[0.0; 4]; cases.len()];
+        for (c, (n, loops)) in cases.iter().enumerate() {
+            data[c][0] = data.len() as f32;
+            data.push([n.x, n.y, n.z, loops.len() as f32]);
+            for l in loops {
+                data.push([l.len() as f32, 0.0, 0.0, 0.0]);
+                data.extend(l.iter().map(|d| [d.x, d.y, d.z, 0.0]));
+            }
+        }
+        let input = graph.create_buffer_init("vv_parity_cases", bytes_of(&data));
+        let out = graph.create_image("vv_parity", ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, cases.len().max(1) as u32, 1));
+        let mut push = Vec::new();
+        for v in [tech.up.sat_w as i32, tech.up.sat_h as i32, tech.settings.hemisphere_arcs as i32, cases.len() as i32] {
+            push.extend_from_slice(&v.to_le_bytes());
+        }
+        for v in [tech.settings.alpha, 0.0, 0.0, 0.0] {
+            push.extend_from_slice(&v.to_le_bytes());
+        }
+        let mut p = graph.pass("vv_parity", PassKind::Compute);
+        let sat = p.read(sat, Access::ComputeShaderReadSampled);
+        let input = p.read(input, Access::ComputeShaderReadStorage);
+        let out = p.write(out, Access::ComputeShaderWriteStorage);
+        let nearest = tech.nearest.sampler;
+        let (pl, lay) = (self.pipe.pipeline, self.pipe.layout);
+        let n = cases.len() as u32;
+        p.record(move |rc| {
+            crate::util::bind_compute(rc, pl, lay, &[Bind::SampledImage(sat, nearest), Bind::StorageBuffer(input), Bind::StorageImage(out)])?;
+            unsafe {
+                rc.device().cmd_push_constants(rc.cmd, lay, vk::ShaderStageFlags::COMPUTE, 0, &push);
+                rc.device().cmd_dispatch(rc.cmd, n, 1, 1);
+            }
+            Ok(())
+        });
+        out
     }
 }
 
