@@ -155,13 +155,18 @@ fn gpu_sat_and_glsl_integral_match_cpu() {
     }
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
     let shaders = penumbra::shader_library();
+    let t0 = std::time::Instant::now();
     let parity = penumbra_passes::vv::VvParity::new(&ctx, &shaders).expect("parity pipeline");
+    println!("parity pipeline created in {:.2} s", t0.elapsed().as_secs_f64());
     let sun = dir(2.0 * std::f64::consts::PI * 300.5 / 1024.0, std::f64::consts::PI * 120.5 / 512.0);
     let cases = parity_cases(sun);
     let mut failures = Vec::new();
     for (name, s) in [("scene map 256x128", with(&base, &[("sat_width", "256")])), ("1024x512 with a 1e4 sun", big)] {
         let settings = penumbra_passes::vv::VvSettings::from_params(&s.technique_params).unwrap();
-        let tech = penumbra_passes::vv::VvTechnique::new(&ctx, &shaders, &s, settings).expect("technique");
+        let t0 = std::time::Instant::now();
+        let tech = penumbra_passes::vv::VvTechnique::sat_only(&ctx, &shaders, &s, settings).expect("technique");
+        println!("{name}: technique without its raster pipeline in {:.2} s", t0.elapsed().as_secs_f64());
+        let t0 = std::time::Instant::now();
         let (w, h, texels) = tech.sat_input();
         let mut engine = Engine::new(ctx.clone(), 1).unwrap();
         let mut g = Graph::new();
@@ -174,6 +179,7 @@ fn gpu_sat_and_glsl_integral_match_cpu() {
         penumbra_passes::readback::add(&mut g, "sat_readback", &[(sat, "sat"), (integrals, "integrals")]);
         engine.submit(g).unwrap();
         let outs = engine.drain().unwrap();
+        println!("{name}: GPU SAT + parity graph in {:.2} s", t0.elapsed().as_secs_f64());
         let bytes = outs.last().unwrap().readbacks.get("sat").expect("readback").clone();
         let gpu: Vec<f32> = bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
         let tex3: Vec<[f32; 3]> = texels.chunks_exact(16).map(|c| {

@@ -90,7 +90,8 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
         let settings = penumbra_passes::vv::VvSettings::from_params(&s.technique_params)?;
         let ctx = penumbra::engine::Context::new(&Default::default())?;
         let shaders = penumbra::shader_library();
-        let tech = match penumbra_passes::vv::VvTechnique::with_data(&ctx, &shaders, &s, settings, data.clone()) {
+        // a cheap check of the configuration (no raster pipeline: the renderer builds its own)
+        let tech = match penumbra_passes::vv::VvTechnique::sat_only(&ctx, &shaders, &s, settings) {
             Ok(t) => t,
             Err(e) => {
                 println!("{name:<22} skipped: {e:#}");

@@ -407,7 +407,8 @@ pub struct VvTechnique {
     ctx: Arc<Context>,
     rows: Pipeline,
     cols: Pipeline,
-    raster: Pipeline,
+    /// `None` for [`VvTechnique::sat_only`].
+    raster: Option<Pipeline>,
     composite: Pipeline,
     env: ShadeEnvPass,
     nearest: Sampler,
@@ -514,15 +515,29 @@ impl VvTechnique {
         Self::with_data(ctx, shaders, scene, settings, data)
     }
 
+    /// Without the raster pipeline (the large shading shaders, the slowest part of creation on
+    /// lavapipe): for [`VvTechnique::add_sat`] and [`VvParity`] in tests; [`Technique::add`]
+    /// then fails.
+    ///
+    /// [`Technique::add`]: crate::technique::Technique::add
+    pub fn sat_only(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: VvSettings) -> Result<Self> {
+        let data = VvSceneData::cached(scene, settings.resolution)?;
+        Self::build(ctx, shaders, scene, settings, data, false)
+    }
+
     /// With precomputed data (shared between techniques of a bench).
     pub fn with_data(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: VvSettings, data: Arc<VvSceneData>) -> Result<Self> {
+        Self::build(ctx, shaders, scene, settings, data, true)
+    }
+
+    fn build(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: VvSettings, data: Arc<VvSceneData>, raster: bool) -> Result<Self> {
         use vk::DescriptorType as T;
         if settings.mode.interpolated() && data.corr.is_none() {
             bail!("vv: mode {} needs the per-triangle correspondence (triple lists), which is not available yet", settings.mode.name());
         }
         let rows = compute_pipeline(ctx, shaders, "vv_sat_rows.comp", &[T::STORAGE_BUFFER, T::STORAGE_IMAGE], 8)?;
         let cols = compute_pipeline(ctx, shaders, "vv_sat_cols.comp", &[T::STORAGE_IMAGE], 8)?;
-        let raster = raster_pipeline(ctx, shaders, settings.mode.tessellated())?;
+        let raster = if raster { Some(raster_pipeline(ctx, shaders, settings.mode.tessellated())?) } else { None };
         let composite = compute_pipeline(ctx, shaders, "vv_composite.comp", &[T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE], 0)?;
         let up = Uploads::new(scene, &data, &settings)?;
         let qci = vk::QueryPoolCreateInfo::default()
@@ -697,7 +712,8 @@ impl crate::technique::Technique for VvTechnique {
         for v in [self.settings.alpha, self.settings.zeta, 0.0, 0.0] {
             push.extend_from_slice(&v.to_le_bytes());
         }
-        let (pipeline, layout) = (self.raster.pipeline, self.raster.layout);
+        let raster = self.raster.as_ref().context("vv: technique built without its raster pipeline (VvTechnique::sat_only)")?;
+        let (pipeline, layout) = (raster.pipeline, raster.layout);
         let nearest = self.nearest.sampler;
         let vertex_count = 3 * self.up.triangles;
         let query = self.query;
