@@ -201,3 +201,327 @@ fn extremes_free_hemispheres_and_points_following_deformation() {
     // Some maps are partly occluded (the hat over the cloth), some fully free.
     assert!(b.visible_fraction.iter().any(|&v| v < 0.5) && b.visible_fraction.iter().any(|&v| v > 0.95), "{:?}", b.visible_fraction);
 }
+
+// ---------------------------------------------------------------------------------------------
+// Extremes on small synthetic scenes (issue 8): whole hemisphere occluded / free, a slim occluder
+// thinner than one initial ray cell, light directions at the map's pole and phi seam, fp16 SSDFs
+// at r = 256 in shading.
+
+/// Writes `toml` to a temporary scene file and loads it.
+fn scene_text(name: &str, toml: &str) -> Scene {
+    let dir = std::env::temp_dir().join(format!("penumbra_avs_{}_{name}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(format!("{name}.toml"));
+    std::fs::write(&path, toml).unwrap();
+    let s = Scene::load(&path).expect("scene");
+    let _ = std::fs::remove_dir_all(&dir);
+    s
+}
+
+fn floor_points(scene: &Scene, t: f32) -> Vec<(usize, penumbra_math::avs_sampling::SurfacePoint)> {
+    let st = penumbra_passes::avs::last_stats();
+    let pool = penumbra_passes::avs::vertex_pool(scene, &scene.at(t, None)).unwrap();
+    st.point_vertices.iter().enumerate().map(|(i, &v)| (i, pool[v])).collect()
+}
+
+/// Ray-box slab test: does the ray o + s d (s > 0) pass through the box [lo, hi]?
+fn ray_hits_box(o: glam::Vec3, d: glam::Vec3, lo: glam::Vec3, hi: glam::Vec3) -> bool {
+    let (mut t0, mut t1) = (0.0f32, f32::MAX);
+    for a in 0..3 {
+        if d[a].abs() < 1e-12 {
+            if o[a] < lo[a] || o[a] > hi[a] {
+                return false;
+            }
+            continue;
+        }
+        let (mut u, mut v) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
+        if u > v {
+            std::mem::swap(&mut u, &mut v);
+        }
+        t0 = t0.max(u);
+        t1 = t1.min(v);
+    }
+    t0 <= t1
+}
+
+const SKY: &str = "[environment]\nprocedural = \"sky\"\nintensity = 1.0\n";
+
+#[test]
+fn extremes_whole_hemisphere_occluded_or_free() {
+    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    // A floor under a 400 x 400 ceiling 0.3 above it: from every floor point the gap at the horizon
+    // is below 0.0016 rad, under the lowest texel centres (at the poles next to the seam,
+    // sin^2(h/2) = 0.0024 rad at r = 32; a 40 x 40 ceiling leaves 0.016 rad and those corner
+    // texels see the sky), so every floor map is fully occluded. The ceiling (normal up) sees a free hemisphere. The camera sits
+    // between the two and looks down at the floor.
+    let base = format!(
+        "name = \"cave\"\n[camera]\neye = [0.0, 0.27, 0.5]\ntarget = [0.0, 0.0, -0.2]\nfov_deg = 40\n{SKY}\
+         [materials.floor]\ntype = \"diffuse\"\nalbedo = 0.7\n\
+         [[object]]\nname = \"floor\"\nmesh = {{ type = \"plane\", size = 2, divisions = 12 }}\nmaterial = \"floor\"\n"
+    );
+    let ceiling = "[[object]]\nname = \"ceiling\"\nmesh = { type = \"plane\", size = 400, divisions = 4 }\nmaterial = \"floor\"\nposition = [0.0, 0.3, 0.0]\n";
+    let fast = [("r", "32"), ("iterations", "0")];
+    let cave = with(&scene_text("cave", &format!("{base}{ceiling}")), &fast);
+    for mode in ["axis", "cells"] {
+        let (_r, dark) = render(&with(&cave, &[("integration", mode)]), "avs", 48, 36, &[0.0], false);
+        let pts = floor_points(&cave, 0.0);
+        let vf = penumbra_passes::avs::last_stats().visible_fraction;
+        let (floor, top): (Vec<_>, Vec<_>) = pts.iter().partition(|(_, p)| p.pos.y < 0.15);
+        assert!(!floor.is_empty() && !top.is_empty(), "{mode}: {} floor / {} ceiling points", floor.len(), top.len());
+        for (i, p) in &floor {
+            assert!(vf[*i].abs() < 1e-4, "{mode}: floor point {:?} sees {} of its hemisphere", p.pos, vf[*i]);
+        }
+        for (i, p) in &top {
+            assert!((vf[*i] - 1.0).abs() < 2e-3, "{mode}: ceiling point {:?} sees only {}", p.pos, vf[*i]);
+        }
+        let (_r, open) = render(&with(&cave, &[("integration", mode), ("shadows", "false")]), "avs", 48, 36, &[0.0], false);
+        // every pixel is either background (the same environment lookup in both) or floor, which
+        // must be black (at most 1e-3 of its unshadowed radiance)
+        let mut floor_px = 0;
+        for (a, b) in dark[0].hdr.iter().zip(&open[0].hdr) {
+            if a == b {
+                continue;
+            }
+            floor_px += 1;
+            for c in 0..3 {
+                assert!(a[c] <= 1e-3 * b[c] + 1e-6, "{mode}: occluded floor pixel {a:?} (unshadowed {b:?})");
+            }
+        }
+        assert!(floor_px > 48 * 36 / 3, "{mode}: only {floor_px} floor pixels in view");
+        println!("{mode}: {} floor maps fully occluded, {} ceiling maps free, {floor_px} floor pixels black", floor.len(), top.len());
+    }
+    // Without the ceiling every floor map is free and shading equals the unshadowed image.
+    let open_sky = with(&scene_text("open_sky", &base), &fast);
+    let (_r, free) = render(&open_sky, "avs", 48, 36, &[0.0], false);
+    let vf = penumbra_passes::avs::last_stats().visible_fraction;
+    assert!(vf.iter().all(|v| (v - 1.0).abs() < 2e-3), "free floor maps: {vf:?}");
+    let (_r, open) = render(&with(&open_sky, &[("shadows", "false")]), "avs", 48, 36, &[0.0], false);
+    for (a, b) in free[0].hdr.iter().zip(&open[0].hdr) {
+        for c in 0..3 {
+            assert!((a[c] - b[c]).abs() <= 1e-3 * b[c].abs() + 1e-5, "free {a:?} vs unshadowed {b:?}");
+        }
+    }
+}
+
+#[test]
+fn extremes_slim_occluder_thinner_than_an_initial_ray_cell() {
+    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    slim_bar(128);
+}
+
+/// A slim bar and a wide box over a floor at map resolution r: brute-force maps against the CPU
+/// ray test, adaptive maps against brute force and against the initial rays.
+fn slim_bar(r: u32) {
+    use penumbra_math::avs_maps::{texel_dir_f32, texel_solid_angle};
+    use penumbra_math::avs_sampling::point_frame;
+    // The bar: 0.01 thick, 0.2 above the floor, at most 0.05 rad wide seen from the floor, a
+    // quarter of one initial ray cell (pi/16 = 0.196 rad) and about 2 texels at r = 128.
+    // The box (control): 0.6 x 0.4 x 0.3 beside it, 0.25-0.6 rad (1.3-3 initial cells) wide.
+    let (y, half) = (0.2f32, 0.005f32);
+    let toml = format!(
+        "name = \"bar\"\n[camera]\neye = [0.0, 2.0, 1.5]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 40\n{SKY}\
+         [[object]]\nname = \"floor\"\nmesh = {{ type = \"plane\", size = 2, divisions = 12 }}\n\
+         [[object]]\nname = \"bar\"\nmesh = {{ type = \"cube\", size = 1 }}\nposition = [0.0, {y}, 0.0]\nscale = [3.0, {}, {}]\n\
+         [[object]]\nname = \"box\"\nmesh = {{ type = \"cube\", size = 1 }}\nposition = [0.0, 0.3, 0.6]\nscale = [0.6, 0.4, 0.3]\n",
+        2.0 * half,
+        2.0 * half
+    );
+    let s = scene_text("bar", &toml);
+    let rs = r.to_string();
+    let run = |adaptive: bool, k: u32| {
+        let ks = k.to_string();
+        let p = [("r", rs.as_str()), ("points", "169"), ("iterations", "0"), ("ray_neighbours", ks.as_str()), ("adaptive", if adaptive { "true" } else { "false" })];
+        let _ = render(&with(&s, &p), "avs", 16, 12, &[0.0], false);
+        let st = penumbra_passes::avs::last_stats();
+        (floor_points(&with(&s, &p), 0.0), st.visible_fraction, st.rays)
+    };
+    let (pts, vf_bf, rays_bf) = run(false, 0);
+    let (pts_a, vf_a0, rays_a0) = run(true, 0);
+    let (_, vf_a4, rays_a4) = run(true, 4);
+    assert_eq!(pts.iter().map(|p| p.1.pos).collect::<Vec<_>>(), pts_a.iter().map(|p| p.1.pos).collect::<Vec<_>>());
+    // CPU prediction per texel-centre ray (robust: the ray hits the object shrunk by 20 % of the
+    // bar's half thickness / misses it grown by as much; rays in between are ambiguous)
+    let m = 0.2 * half;
+    let bar = (glam::Vec3::new(-1.5, y - half, -half), glam::Vec3::new(1.5, y + half, half));
+    let boxx = (glam::Vec3::new(-0.3, 0.1, 0.45), glam::Vec3::new(0.3, 0.5, 0.75));
+    let classify = |o: glam::Vec3, d: glam::Vec3, b: (glam::Vec3, glam::Vec3)| -> Option<bool> {
+        if ray_hits_box(o, d, b.0 + m, b.1 - m) {
+            Some(true)
+        } else if !ray_hits_box(o, d, b.0 - m, b.1 + m) {
+            Some(false)
+        } else {
+            None
+        }
+    };
+    let two_pi = 2.0 * std::f64::consts::PI;
+    let tol = 2e-4; // SH16 DC in f32 and texels hit by both objects
+    let (mut checked, mut missed_seedless, mut seeded, mut found0, mut found4) = (0, 0, 0, 0, 0);
+    let (mut bar_bf, mut bar_a0, mut box_cpu, mut box_a0) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    for (i, p) in &pts {
+        if p.pos.y.abs() > 1e-4 || p.normal.y < 0.99 || p.pos.x.abs() > 0.9 || p.pos.z > 0.3 {
+            continue; // object vertices, floor points past the bar's ends or under the box
+        }
+        checked += 1;
+        let f = point_frame(p.normal);
+        let world = |l: glam::Vec3| (f.t.as_vec3() * l.x + f.b.as_vec3() * l.y + f.n.as_vec3() * l.z).normalize();
+        // occluded solid angle at full resolution: bar only (lower bound), box and either object
+        // (lower / upper bounds)
+        let (mut bar_lo, mut box_lo, mut box_hi, mut any_lo, mut any_hi) = (0.0f64, 0.0, 0.0, 0.0, 0.0);
+        for a in 0..r {
+            let sa = texel_solid_angle(a, r) / two_pi;
+            for b in 0..r {
+                let d = world(texel_dir_f32(a, b, r));
+                let (cb, cx) = (classify(p.pos, d, bar), classify(p.pos, d, boxx));
+                bar_lo += sa * (cb == Some(true) && cx == Some(false)) as u32 as f64;
+                box_lo += sa * (cx == Some(true)) as u32 as f64;
+                box_hi += sa * (cx != Some(false)) as u32 as f64;
+                any_lo += sa * (cb == Some(true) || cx == Some(true)) as u32 as f64;
+                any_hi += sa * (cb != Some(false) || cx != Some(false)) as u32 as f64;
+            }
+        }
+        let bf = 1.0 - vf_bf[*i] as f64;
+        assert!(bf >= any_lo - tol && bf <= any_hi + tol, "brute force at {:?}: occluded {bf:.5}, expected [{any_lo:.5}, {any_hi:.5}]", p.pos);
+        let (a0, a4) = (1.0 - vf_a0[*i] as f64, 1.0 - vf_a4[*i] as f64);
+        // the box (wider than an initial cell) is found: at least 95 % of its solid angle
+        assert!(a0 >= 0.95 * box_lo - tol && a4 >= 0.95 * box_lo - tol, "box lost at {:?}: adaptive {a0:.5} / {a4:.5}, box {box_lo:.5}", p.pos);
+        // copying parents never adds occlusion to objects without an interior at the coarse level
+        assert!(a0 <= bf + tol && a4 <= bf + tol, "adaptive {a0} / {a4} > brute force {bf} at {:?}", p.pos);
+        let seeds: Vec<Option<bool>> = (0..16).flat_map(|a| (0..16).map(move |b| (a, b))).map(|(a, b)| classify(p.pos, world(texel_dir_f32(a, b, 16)), bar)).collect();
+        let bar_found = |occ: f64| occ > box_hi + 0.25 * bar_lo + tol;
+        if seeds.iter().all(|s| *s == Some(false)) {
+            // no initial ray of its own on the bar: nothing can start a refinement there
+            assert!(!bar_found(a0), "point {:?} without a seed ray found the bar: {a0} vs box {box_hi}", p.pos);
+            missed_seedless += 1;
+        } else if seeds.iter().any(|s| *s == Some(true)) {
+            seeded += 1;
+        }
+        found0 += bar_found(a0) as usize;
+        found4 += bar_found(a4) as usize;
+        bar_bf += bar_lo;
+        bar_a0 += (a0 - box_lo).max(0.0);
+        box_cpu += box_lo;
+        box_a0 += a0.min(box_hi);
+    }
+    println!(
+        "slim bar (r = {r}): {checked} floor points; {missed_seedless} have no initial ray on the bar, {seeded} have one; \
+         bar found (adaptive occlusion > box + 1/4 of the bar) at {found0} points (own rays) / {found4} (with 4 neighbours' rays), \
+         brute force finds it everywhere; occluded share summed over points: bar {bar_bf:.4} (CPU) vs adaptive beyond the box {bar_a0:.4}, \
+         box {box_cpu:.4} (CPU) vs adaptive {box_a0:.4}; rays: every texel {rays_bf}, adaptive {rays_a0} / {rays_a4}"
+    );
+    assert!(checked >= 50, "{checked} floor points");
+    assert!(missed_seedless > 0 && seeded > 0, "{missed_seedless} points without / {seeded} with a seed ray: the bar is not slim");
+    assert!(found4 >= found0, "neighbours' rays lost the bar: {found4} < {found0}");
+}
+
+/// Floor pixels lit by one low point light whose direction from every floor point lies near the
+/// map's pole (along the tangent) or on its phi seam (along the bitangent), behind a wall:
+/// agreement of the shading's light visibility (avs / unshadowed avs, environment off) with the
+/// exact point-to-light test, on pixels at least one sample spacing from the shadow edge.
+fn light_visibility_agreement(dir_local: glam::Vec3, r: u32, tag: &str, extra: &[(&str, &str)]) -> (usize, usize, f64) {
+    use penumbra_math::avs_sampling::point_frame;
+    let f = point_frame(glam::Vec3::Y);
+    let u = (f.t.as_vec3() * dir_local.x + f.b.as_vec3() * dir_local.y).normalize();
+    assert!(u.x.abs() > 0.999 || u.z.abs() > 0.999, "frame of +Y is not axis-aligned: {u:?}");
+    let elev = 6f32.to_radians();
+    let light = (u * elev.cos() + glam::Vec3::Y * elev.sin()) * 3.0;
+    // wall across u through the origin, 0.12 high, 1.2 long, 0.04 thick
+    let wall_half = if u.x.abs() > 0.5 { glam::Vec3::new(0.02, 0.06, 0.6) } else { glam::Vec3::new(0.6, 0.06, 0.02) };
+    let wall_c = glam::Vec3::new(0.0, 0.06, 0.0);
+    let toml = format!(
+        "name = \"wall_{tag}\"\n[camera]\neye = [0.0, 2.4, 0.01]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 45\n\
+         [environment]\nprocedural = \"sky\"\nintensity = 0.0\n\
+         [[light]]\ntype = \"point\"\nposition = [{}, {}, {}]\nintensity = 60\n\
+         [materials.floor]\ntype = \"diffuse\"\nalbedo = 0.8\n\
+         [[object]]\nname = \"floor\"\nmesh = {{ type = \"plane\", size = 2, divisions = 20 }}\nmaterial = \"floor\"\n\
+         [[object]]\nname = \"wall\"\nmesh = {{ type = \"cube\", size = 1 }}\nposition = [0.0, 0.06, 0.0]\nscale = [{}, {}, {}]\n",
+        light.x,
+        light.y,
+        light.z,
+        2.0 * wall_half.x,
+        2.0 * wall_half.y,
+        2.0 * wall_half.z
+    );
+    let s = with(&with(&scene_text(&format!("wall_{tag}"), &toml), &[("r", &r.to_string()), ("iterations", "0")]), extra);
+    let (w, h) = (48u32, 48u32);
+    let (_r, shad) = render(&s, "avs", w, h, &[0.0], false);
+    // one mean sample spacing (the search radius is `radius` = 2 spacings)
+    let spacing = 0.5 * penumbra_passes::avs::last_stats().radius;
+    let (_r, open) = render(&with(&s, &[("shadows", "false")]), "avs", w, h, &[0.0], false);
+    let frame = s.at(0.0, None);
+    let cam = &frame.camera;
+    let inv = (cam.proj(w as f32 / h as f32) * cam.view()).inverse();
+    let shadowed = |p: glam::Vec3| ray_hits_box(p, light - p, wall_c - wall_half, wall_c + wall_half) && (light - p).length() > 0.0;
+    let (mut agree, mut total, mut err) = (0usize, 0usize, 0.0f64);
+    for py in 0..h {
+        for px in 0..w {
+            let k = (py * w + px) as usize;
+            let (a, b) = (shad[0].hdr[k][0], open[0].hdr[k][0]);
+            assert!(a.is_finite() && a >= 0.0, "{tag}: pixel {px},{py} = {a}");
+            let ndc = glam::Vec2::new((px as f32 + 0.5) / w as f32 * 2.0 - 1.0, (py as f32 + 0.5) / h as f32 * 2.0 - 1.0);
+            let far = inv.project_point3(glam::Vec3::new(ndc.x, ndc.y, 1.0));
+            let d = (far - cam.eye).normalize();
+            if d.y >= -1e-3 {
+                continue;
+            }
+            let p = cam.eye + d * (-cam.eye.y / d.y);
+            // floor pixels away from the wall and at least one sample spacing from the shadow edge
+            if p.x.abs() > 0.95 || p.z.abs() > 0.95 || b <= 1e-4 {
+                continue;
+            }
+            let on_wall = (p - wall_c).abs().cmple(wall_half + 0.02).all();
+            if on_wall {
+                continue;
+            }
+            let truth = shadowed(p);
+            let stable = [glam::Vec3::X, glam::Vec3::NEG_X, glam::Vec3::Z, glam::Vec3::NEG_Z].iter().all(|o| shadowed(p + *o * spacing) == truth);
+            if !stable {
+                continue;
+            }
+            let vis = (a / b) as f64;
+            total += 1;
+            err += (vis - if truth { 0.0 } else { 1.0 }).abs();
+            if (vis > 0.5) != truth {
+                agree += 1;
+            }
+        }
+    }
+    (agree, total, err / total.max(1) as f64)
+}
+
+#[test]
+fn extremes_light_at_the_map_pole_and_seam() {
+    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    // Local frame of the floor points: x = tangent (theta = 0 pole), y = bitangent (phi = 0 seam).
+    // A light at 6 degrees elevation along +x lies 6-20 degrees from the pole of every floor map;
+    // along +y / -y it lies 6 degrees from the phi = 0 / phi = pi seam columns. Measured (48 x 48,
+    // r = 64): 1622 / 1623, 1622 / 1623, 1636 / 1636, 1640 / 1640 pixels agree, mean |error|
+    // 0.0011 / 0.0011 / 0.0003 / 0.0003.
+    for (dir, tag) in [(glam::Vec3::X, "pole0"), (glam::Vec3::NEG_X, "pole_pi"), (glam::Vec3::Y, "seam0"), (glam::Vec3::NEG_Y, "seam_pi")] {
+        let (agree, total, mean_err) = light_visibility_agreement(dir, 64, tag, &[]);
+        println!("{tag} (r = 64): {agree} / {total} pixels agree with the exact light visibility, mean |error| {mean_err:.4}");
+        assert!(total >= 400, "{tag}: only {total} floor pixels classified");
+        assert!(agree as f64 >= 0.97 * total as f64, "{tag}: {agree} / {total} pixels agree with the exact light visibility");
+        assert!(mean_err < 0.08, "{tag}: mean visibility error {mean_err}");
+    }
+}
+
+/// KNOWN FAILURE (issue 8, found by this test): at r = 256 the visibility maps hold spurious
+/// occlusion, even with every texel traced (`adaptive = false`): a floor point of the slim-bar
+/// scene reports 15.0 % of its hemisphere occluded where the CPU ray test finds 1.4-1.6 % (the
+/// same with the floor not casting shadows, and with initial_grid = 32), and the seam-light scene
+/// agrees on 633 / 1636 pixels (brute force 1072 / 1636) against 1636 / 1636 at r = 64. The same
+/// scenes at r = 128 match the CPU exactly (first assertion of `slim_bar`), so fp16 SSDF
+/// precision at r = 256 in shading cannot be judged until the r = 256 maps are right. Run with
+/// `cargo test --test avs -- --ignored r256`.
+#[test]
+#[ignore = "r = 256 visibility maps are wrong (spurious occlusion, also with adaptive = false); see the issue 8 note"]
+fn extremes_r256_maps_and_fp16_shading() {
+    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    slim_bar(256);
+    let (agree, total, mean_err) = light_visibility_agreement(glam::Vec3::Y, 256, "seam0_r256", &[]);
+    println!("seam0 (r = 256): {agree} / {total} pixels agree, mean |error| {mean_err:.4}");
+    let (_, _, err64) = light_visibility_agreement(glam::Vec3::Y, 64, "seam0_r64", &[]);
+    assert!(agree as f64 >= 0.97 * total as f64, "r = 256: {agree} / {total} pixels agree");
+    // fp16 SSDFs at r = 256 (texel 0.7 degrees): at least as accurate as r = 64
+    assert!(mean_err <= err64 + 0.01, "r = 256 mean error {mean_err} vs r = 64 {err64}");
+}

@@ -230,7 +230,7 @@ pub struct AvsStats {
     pub erased: Vec<usize>,
     /// Mean relative spatial error of the last round (points with neighbours).
     pub mean_rel_error: f32,
-    /// Search radius (world units).
+    /// Per-pixel search radius of the last frame (world units).
     pub radius: f32,
     /// Rays traced for the final maps, summed over the points (when read back).
     pub rays: u64,
@@ -730,6 +730,7 @@ impl crate::technique::Technique for AvsTechnique {
         let pos: Vec<Vec3> = points.iter().map(|p| p.pos).collect();
         // the per-pixel search radius follows the final density (the rounds use the initial one)
         let shade_radius = if pos.len() >= 2 { (self.settings.radius * mean_spacing(&pos)).max(1e-6) } else { self.radius };
+        self.stats.radius = shade_radius;
         let grid = Grid::new(&pos, shade_radius);
         let grid_buf = graph.create_buffer_init("avs_grid", bytes_of(&grid_words(&grid, &slots)));
         let lobes = graph.create_buffer_init("avs_lobes", self.lobes.as_ref().clone());
