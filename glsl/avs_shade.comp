@@ -51,11 +51,7 @@ layout(push_constant) uniform Push {
     uint specular_mode;
 } pc;
 
-#define MAXN 8
-uint nb_slot[MAXN];
-float nb_w[MAXN];
-mat3 nb_frame[MAXN];
-uint nb_count = 0u;
+#include "avs_gather.glsl"
 
 bool shadows_on() { return (pc.flags & 1u) == 0u && nb_count > 0u; }
 
@@ -230,52 +226,7 @@ vec3 pf_eval(vec3 dir, float lambda) {
 
 
 void gather_neighbours(vec3 pos, vec3 n) {
-    uvec3 dims = uvec3(grid[0], grid[1], grid[2]);
-    vec3 lo = vec3(uintBitsToFloat(grid[4]), uintBitsToFloat(grid[5]), uintBitsToFloat(grid[6]));
-    float cell = uintBitsToFloat(grid[7]);
-    uint items = grid[8];
-    float best_e[MAXN];
-    uint m = min(pc.max_neighbours, uint(MAXN));
-    nb_count = 0u;
-    // Neighbours off the pixel's tangent plane by more than a quarter of the radius lie on other
-    // surfaces (cloth under a hat brim): skipped unless nothing else is found.
-    for (int pass = 0; pass < 3 && nb_count == 0u; ++pass) {
-        float rad = pass == 0 ? pc.radius : 2.5 * pc.radius;
-        float plane_tol = pass == 2 ? 1e30 : 0.25 * rad;
-        ivec3 a = clamp(ivec3(floor((pos - rad - lo) / cell)), ivec3(0), ivec3(dims) - 1);
-        ivec3 b = clamp(ivec3(floor((pos + rad - lo) / cell)), ivec3(0), ivec3(dims) - 1);
-        for (int z = a.z; z <= b.z; ++z)
-            for (int y = a.y; y <= b.y; ++y)
-                for (int x = a.x; x <= b.x; ++x) {
-                    uint ci = uint(x) + dims.x * (uint(y) + dims.y * uint(z));
-                    uint s0 = grid[16u + ci], s1 = grid[17u + ci];
-                    for (uint it = s0; it < s1; ++it) {
-                        uint slot = grid[items + it];
-                        vec3 p = pts[3u * slot].xyz, pn = pts[3u * slot + 2u].xyz;
-                        vec3 dp = p - pos;
-                        if (dot(dp, dp) > rad * rad || dot(pn, n) <= 0.0 || abs(dot(dp, n)) > plane_tol) continue;
-                        float e = pc.alpha * length(dp) * pc.inv_scale + sqrt(max(2.0 - 2.0 * dot(n, pn), 0.0));
-                        // keep the m smallest e_g (insertion)
-                        if (nb_count == m && e >= best_e[m - 1u]) continue;
-                        uint j = nb_count < m ? nb_count++ : m - 1u;
-                        while (j > 0u && best_e[j - 1u] > e) {
-                            best_e[j] = best_e[j - 1u];
-                            nb_slot[j] = nb_slot[j - 1u];
-                            --j;
-                        }
-                        best_e[j] = e;
-                        nb_slot[j] = slot;
-                    }
-                }
-    }
-    float sum = 0.0;
-    for (uint q = 0u; q < nb_count; ++q) {
-        nb_w[q] = 1.0 / max(best_e[q], 1e-6);
-        sum += nb_w[q];
-        vec3 t = pts[3u * nb_slot[q] + 1u].xyz, pn = pts[3u * nb_slot[q] + 2u].xyz;
-        nb_frame[q] = mat3(t, cross(pn, t), pn);
-    }
-    for (uint q = 0u; q < nb_count; ++q) nb_w[q] /= sum;
+    avs_gather(pos, n, pc.radius, pc.alpha, pc.inv_scale, pc.max_neighbours);
 }
 
 void main() {

@@ -184,7 +184,8 @@ fn extremes_free_hemispheres_and_points_following_deformation() {
     }
     // Deforming geometry: without adaptation rounds the sample points are the same vertices in
     // both frames, at their deformed positions (the hat squashes).
-    let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "48"), ("iterations", "0")]);
+    // (culling off: with it the second frame traces only the points the first frame's pixels used)
+    let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "48"), ("iterations", "0"), ("cull", "false")]);
     let settings = RenderSettings { width: 40, height: 30, technique: Some("avs".into()), ..Default::default() };
     let mut r = Renderer::new_headless(&s, settings, false).expect("renderer");
     let f0 = s.at(0.0, None);
@@ -527,4 +528,47 @@ fn extremes_r256_maps_and_fp16_shading() {
     assert!(agree as f64 >= 0.97 * total as f64, "r = 256: {agree} / {total} pixels agree");
     // fp16 SSDFs at r = 256 (texel 0.7 degrees): at least as accurate as r = 64
     assert!(mean_err <= err64 + 0.01, "r = 256 mean error {mean_err} vs r = 64 {err64}");
+}
+
+#[test]
+fn gbuffer_culling_traces_only_needed_points_and_keeps_the_image() {
+    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    // Two frames of a static moment. Without adaptation rounds the sample set is fixed, so the
+    // second frame's shading must pick exactly the same neighbours from the flagged points as from
+    // all points: the culled image equals the unculled one, with fewer maps traced.
+    let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "160"), ("iterations", "0")]);
+    let two = |cull: &str| {
+        let s = with(&s, &[("cull", cull)]);
+        let settings = RenderSettings { width: 64, height: 48, technique: Some("avs".into()), ..Default::default() };
+        let mut r = Renderer::new_headless(&s, settings, true).expect("renderer");
+        let mut out = Vec::new();
+        let mut stats = Vec::new();
+        for prev in [None, Some(0.5)] {
+            out.extend(r.render(&s.at(0.5, prev), None, true).expect("render"));
+            stats.push(penumbra_passes::avs::last_stats());
+        }
+        out.extend(r.finish().expect("finish"));
+        let log = r.context().validation.clone();
+        drop(r);
+        assert_eq!(log.error_count(), 0, "cull = {cull}: validation errors: {:#?}", log.errors());
+        (out, stats)
+    };
+    let (on, st_on) = two("true");
+    let (off, st_off) = two("false");
+    // the first frame traces every point
+    assert_eq!(st_on[0].dormant, 0);
+    assert_eq!(st_on[0].traced_points, st_off[0].traced_points);
+    assert_eq!(st_off[1].dormant, 0);
+    let (t_on, t_off) = (st_on[1].traced_points, st_off[1].traced_points);
+    println!("second frame: {t_on} of {t_off} maps traced ({} dormant), rays {} vs {}", st_on[1].dormant, st_on[1].rays, st_off[1].rays);
+    assert!(st_on[1].dormant > 0 && t_on + st_on[1].dormant == t_off, "traced {t_on} + dormant {} vs {t_off}", st_on[1].dormant);
+    assert!(st_on[1].rays < st_off[1].rays);
+    let (a, b) = (&on[1].hdr, &off[1].hdr);
+    let mut worst = 0.0f32;
+    for (p, q) in a.iter().zip(b.iter()) {
+        for c in 0..3 {
+            worst = worst.max((p[c] - q[c]).abs() / (q[c].abs() + 1e-3));
+        }
+    }
+    assert!(worst <= 1e-4, "culled image differs from the unculled one: max relative difference {worst}");
 }

@@ -3,6 +3,9 @@
 //! ms/frame), its error against the CPU reference, the GPU Monte Carlo baseline (`mc`) at the same
 //! GPU time and the time it needs to reach the same error, adaptive against brute-force
 //! visibility maps at r = 64, 128, 256, and an E_v,max x r sweep (error/time), in one run.
+//! Every avs measurement is the second of two frames (t - 1/30 s, t), so that G-buffer culling
+//! (parameter `cull`, on by default) works from the first frame's flags; a table compares it off
+//! and on.
 
 use anyhow::{Context as _, Result};
 use clap::Args;
@@ -48,6 +51,8 @@ fn image(f: &FrameImages) -> Image {
 /// One measured avs render.
 struct AvsRun {
     points: usize,
+    traced: usize,
+    dormant: usize,
     vertices: usize,
     rays: u64,
     map_bytes: u64,
@@ -66,7 +71,11 @@ fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32
     }
     let settings = RenderSettings { width: w, height: h, technique: Some("avs".into()), ..Default::default() };
     let mut r = Renderer::new_headless(&s, settings, false)?;
-    let mut frames = r.render(&s.at(t, None), None, true)?;
+    // two frames (t - 1/30, t): G-buffer culling uses the previous frame's flags; the second is
+    // measured
+    let t0 = (t - 1.0 / 30.0).max(0.0);
+    let mut frames = r.render(&s.at(t0, None), None, true)?;
+    frames.extend(r.render(&s.at(t, Some(t0)), None, true)?);
     frames.extend(r.finish()?);
     let st = penumbra_passes::avs::last_stats();
     let f = frames.last().context("avs rendered no frame")?;
@@ -80,6 +89,8 @@ fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32
     let c = compare(reference, "reference", &image(f), "avs")?;
     Ok(AvsRun {
         points: st.points,
+        traced: st.traced_points,
+        dormant: st.dormant,
         vertices: st.vertices,
         rays: st.rays,
         map_bytes: st.map_bytes + st.ssdf_bytes,
@@ -158,6 +169,7 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
     println!("| scene | #pixels | #verts | #samples | maps+SSDF MB | t_I ms | t_V ms | t_S ms | ms/frame | rays | PSNR dB | relRMSE | MC same time: PSNR / relRMSE (frames) | MC to same relRMSE: ms (frames) |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let mut first: Option<(Scene, Image)> = None;
+    let mut cull_rows = Vec::new();
     for path in &scenes {
         let scene = load(path)?;
         let opts = ReferenceOptions { width: w, height: h, spp: args.spp, time: Some(args.time), mode: Mode::Exact, progress: true, ..Default::default() };
@@ -186,9 +198,22 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
             same,
             reach
         );
+        let mut p = base.clone();
+        p.push(("cull".into(), "false".into()));
+        let off = render_avs(&scene, &p, w, h, args.time, &reference)?;
+        cull_rows.push(format!(
+            "| {} | {} | {} / {} | {:.1} / {:.1} | {:.1} / {:.1} | {} / {} | {:.2} / {:.2} | {:.3} / {:.3} |",
+            scene.name, a.dormant, off.traced, a.traced, off.t_v, a.t_v, off.t_s, a.t_s, off.rays, a.rays, off.psnr, a.psnr, off.rel_rmse, a.rel_rmse
+        ));
         if first.is_none() {
             first = Some((scene, reference));
         }
+    }
+    println!("\n## G-buffer culling (section 6 \"Optimization\"), second frame; each cell: off / on");
+    println!("| scene | dormant points (on) | maps traced | t_V ms | t_S ms | rays | PSNR dB | relRMSE |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for row in &cull_rows {
+        println!("{row}");
     }
     if args.no_sweep {
         return Ok(());

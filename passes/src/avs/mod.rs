@@ -20,6 +20,11 @@
 //!   is a boundary texel (8-neighbourhood) in the point's own previous level or in one of its
 //!   `ray_neighbours` nearest sample points' previous level at the same direction; the others copy
 //!   the parent. Maps are 1 bit per texel in `penumbra_math::avs_maps`'s layout.
+//! * **G-buffer culling** (section 6 "Optimization", `cull = true`): the `avs_cull` pass
+//!   (`glsl/avs_cull.comp`) runs the shading's neighbour search (`glsl/include/avs_gather.glsl`)
+//!   per covered pixel over all kept points and sets their bits in the persistent `avs.used`;
+//!   the next frame reads the bits back first and traces (and adapts, and transforms) only the
+//!   flagged points, keeping the others dormant. The first frame traces all.
 //! * **HSDT** (section 5): [`crate::hsdt::Hsdt`] turns all maps into fp16 SSDFs.
 //! * **Shading** (section 6), `avs_shade` (`glsl/avs_shade.comp`): per pixel, the sample points
 //!   within the search radius (CPU-built uniform grid) with the best eq. 8 weights, their SSDFs
@@ -97,6 +102,10 @@ pub struct AvsSettings {
     pub prefiltered: bool,
     /// Lighting SG lobes.
     pub lobes: usize,
+    /// G-buffer culling (section 6 "Optimization"): trace only the sample points that some
+    /// covered pixel of the previous frame needed (flags written by the `avs_cull` pass, read one
+    /// frame late); the first frame traces all.
+    pub cull: bool,
 }
 
 impl Default for AvsSettings {
@@ -120,6 +129,7 @@ impl Default for AvsSettings {
             shadows: true,
             prefiltered: true,
             lobes: 16,
+            cull: true,
         }
     }
 }
@@ -139,7 +149,7 @@ impl AvsSettings {
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
     /// `iterations` (2), `points` (0 = auto), `max_points` (8192), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells`), `cells` (6,
-    /// 1..16), `shadows`, `adaptive`, `prefiltered` (true/false), `lobes` (16). Unknown keys and bad values
+    /// 1..16), `shadows`, `adaptive`, `prefiltered`, `cull` (true/false), `lobes` (16). Unknown keys and bad values
     /// are errors naming the key.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
@@ -184,8 +194,9 @@ impl AvsSettings {
             "adaptive" => self.adaptive = flag()?,
             "prefiltered" => self.prefiltered = flag()?,
             "lobes" => self.lobes = int(1, 64)? as usize,
+            "cull" => self.cull = flag()?,
             other => bail!(
-                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, prefiltered, lobes)"
+                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, prefiltered, lobes, cull)"
             ),
         }
         Ok(())
@@ -243,6 +254,11 @@ pub struct AvsStats {
     pub visible_fraction: Vec<f32>,
     /// GPU milliseconds of the adaptation rounds' passes (name, ms), when timed.
     pub round_ms: Vec<(String, f64)>,
+    /// Sample points kept but not traced this frame (G-buffer culling: no covered pixel of the
+    /// previous frame needed them).
+    pub dormant: usize,
+    /// Visibility maps traced this frame, summed over the adaptation rounds.
+    pub traced_points: usize,
 }
 
 static LAST_STATS: std::sync::Mutex<Option<AvsStats>> = std::sync::Mutex::new(None);
@@ -356,8 +372,14 @@ pub struct AvsTechnique {
     lobes: Arc<Vec<u8>>,
     prefiltered: Arc<Vec<u8>>,
     lobe_count: u32,
-    /// Pool vertices of the current sample points (kept across frames).
+    /// Pool vertices of the current sample points (kept across frames): the traced ones.
     sample_vertices: Vec<usize>,
+    /// Sample points kept but not traced (G-buffer culling).
+    dormant: Vec<usize>,
+    /// Candidate order of the last frame's `avs_cull` pass (bit i of `avs.used` = vertex
+    /// `cull_order[i]`); empty: no flags yet.
+    cull_order: Vec<usize>,
+    cull: Pipeline,
     pool_len: usize,
     radius: f32,
     /// Time the adaptation rounds with their own submissions (false: no adaptation rounds are
@@ -395,6 +417,13 @@ impl AvsTechnique {
             ],
             44,
         )?;
+        let cull = compute_pipeline(
+            ctx,
+            shaders,
+            "avs_cull.comp",
+            &[T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, sb, sb, sb],
+            16,
+        )?;
         let (lobes, _) = crate::isg::lighting_lobes(scene, settings.lobes);
         let lobe_count = (lobes.len() / 2) as u32;
         let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
@@ -413,6 +442,9 @@ impl AvsTechnique {
             scene: scene.clone(),
             settings,
             sample_vertices: Vec::new(),
+            dormant: Vec::new(),
+            cull_order: Vec::new(),
+            cull,
             pool_len: usize::MAX,
             radius: 0.0,
             stats: AvsStats::default(),
@@ -424,9 +456,50 @@ impl AvsTechnique {
         let k = if self.settings.points > 0 { self.settings.points } else { (pool.len() / 4).clamp(16, 2048) };
         let k = k.min(self.settings.max_points);
         self.sample_vertices = samp::kmeans_eg(pool, k, self.settings.alpha, 8, &mut |_, _| {});
+        self.dormant.clear();
+        self.cull_order.clear();
         let pos: Vec<Vec3> = self.sample_vertices.iter().map(|&v| pool[v].pos).collect();
         self.radius = (self.settings.radius * mean_spacing(&pos)).max(1e-6);
         self.stats.initial_points = self.sample_vertices.len();
+    }
+
+    /// Bytes of the persistent `avs.used` bit set (one bit per kept sample point).
+    fn used_bytes(&self) -> u64 {
+        (self.settings.max_points.max(1) as u64).div_ceil(32) * 4
+    }
+
+    /// G-buffer culling: reads the last frame's `avs.used` bits (one small submission) and splits
+    /// the kept points into traced (flagged) and dormant ones.
+    fn apply_cull_flags(&mut self, engine: &mut Engine) -> Result<()> {
+        let bytes = self.used_bytes();
+        let mut g = Graph::new();
+        let used = engine.persistent_buffer(&mut g, "avs.used", bytes);
+        let rb = g.create_readback("avs_used_readback", bytes);
+        {
+            let mut p = g.pass("avs_used_readback", PassKind::Transfer);
+            let s = p.read(used, Access::TransferSrc);
+            let d = p.write(rb, Access::TransferDst);
+            p.record(move |rc| {
+                let (sb, db) = (rc.buffer(s)?, rc.buffer(d)?);
+                unsafe {
+                    rc.device().cmd_copy_buffer(rc.cmd, sb.buffer, db.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: bytes }]);
+                }
+                Ok(())
+            });
+        }
+        let out = engine.submit_wait(g)?;
+        let data = out.readbacks.get("avs_used_readback").ok_or_else(|| anyhow!("avs: culling flags readback missing"))?;
+        let (mut traced, mut dormant) = (Vec::new(), Vec::new());
+        for (i, &v) in self.cull_order.iter().enumerate() {
+            if (data[i / 8] >> (i % 8)) & 1 == 1 {
+                traced.push(v);
+            } else {
+                dormant.push(v);
+            }
+        }
+        self.sample_vertices = traced;
+        self.dormant = dormant;
+        Ok(())
     }
 
     /// Ray origin offset along the normal.
@@ -592,6 +665,7 @@ impl AvsTechnique {
         self.stats.erased.clear();
         self.stats.round_ms.clear();
         self.stats.rays = 0;
+        self.stats.traced_points = 0;
         // every point is traced again each frame (the geometry is dynamic): slots 0..n
         let mut slots: Vec<u32> = (0..self.sample_vertices.len() as u32).collect();
         let mut nslots = slots.len() as u32;
@@ -620,6 +694,7 @@ impl AvsTechnique {
             let (vis, rays) = self.add_visibility(&mut g, &tree, points_buf, &by_slot, &batch, vis, &tag);
             let shb = self.add_sh(&mut g, points_buf, vis, &batch, &tag);
             let n = batch.len() as u64;
+            self.stats.traced_points += batch.len();
             let rb = g.create_readback("avs_sh_readback", n * (SH_COUNT as u64 + 1) * 4);
             {
                 let mut p = g.pass("avs_sh_readback", PassKind::Transfer);
@@ -658,7 +733,7 @@ impl AvsTechnique {
             let step = samp::adapt_step(&points, &self.sample_vertices, &sh_now, pool, &pool_grid, &params);
             let errs: Vec<f32> = step.rel_error.iter().flatten().copied().collect();
             self.stats.mean_rel_error = if errs.is_empty() { 0.0 } else { errs.iter().sum::<f32>() / errs.len() as f32 };
-            let room = self.settings.max_points.saturating_sub(points.len() - step.erase.len());
+            let room = self.settings.max_points.saturating_sub(points.len() - step.erase.len() + self.dormant.len());
             let insert: Vec<usize> = step.insert.iter().copied().take(room).collect();
             self.stats.inserted.push(insert.len());
             self.stats.erased.push(step.erase.len());
@@ -710,6 +785,14 @@ impl crate::technique::Technique for AvsTechnique {
             self.initial_points(&pool);
         }
         self.stats.vertices = pool.len();
+        if self.settings.cull && !self.cull_order.is_empty() {
+            self.apply_cull_flags(engine)?;
+        } else if !self.dormant.is_empty() {
+            // culling off: every kept point is traced again
+            let d = std::mem::take(&mut self.dormant);
+            self.sample_vertices.extend(d);
+        }
+        self.stats.dormant = self.dormant.len();
         let (points, slots, nslots) = self.adapt(engine, &pool, frame)?;
         self.stats.point_vertices = self.sample_vertices.clone();
         let r = self.settings.r;
@@ -728,8 +811,12 @@ impl crate::technique::Technique for AvsTechnique {
         }
         let points_buf = graph.create_buffer_init("avs_points", bytes_of(&point_data(&by_slot, offset)));
         let pos: Vec<Vec3> = points.iter().map(|p| p.pos).collect();
-        // the per-pixel search radius follows the final density (the rounds use the initial one)
-        let shade_radius = if pos.len() >= 2 { (self.settings.radius * mean_spacing(&pos)).max(1e-6) } else { self.radius };
+        // every kept point, traced or dormant (the candidates of the G-buffer culling)
+        let all: Vec<usize> = self.sample_vertices.iter().chain(self.dormant.iter()).copied().collect();
+        let all_pos: Vec<Vec3> = all.iter().map(|&v| pool[v].pos).collect();
+        // the per-pixel search radius follows the final density of all kept points (the rounds
+        // use the initial one)
+        let shade_radius = if all_pos.len() >= 2 { (self.settings.radius * mean_spacing(&all_pos)).max(1e-6) } else { self.radius };
         self.stats.radius = shade_radius;
         let grid = Grid::new(&pos, shade_radius);
         let grid_buf = graph.create_buffer_init("avs_grid", bytes_of(&grid_words(&grid, &slots)));
@@ -797,6 +884,60 @@ impl crate::technique::Technique for AvsTechnique {
             }
             Ok(())
         });
+        // G-buffer culling: flag the kept points this frame's covered pixels need (read next frame)
+        self.cull_order.clear();
+        if self.settings.cull && !all.is_empty() && all.len() <= self.settings.max_points {
+            let all_pts: Vec<SurfacePoint> = all.iter().map(|&v| pool[v]).collect();
+            let ids: Vec<u32> = (0..all.len() as u32).collect();
+            let grid_all = Grid::new(&all_pos, shade_radius);
+            let pbuf = graph.create_buffer_init("avs_cull_points", bytes_of(&point_data(&all_pts, offset)));
+            let gbuf = graph.create_buffer_init("avs_cull_grid", bytes_of(&grid_words(&grid_all, &ids)));
+            let used = engine.persistent_buffer(graph, "avs.used", self.used_bytes());
+            let used = {
+                let mut p = graph.pass("avs_cull_clear", PassKind::Transfer);
+                let u = p.write(used, Access::TransferDst);
+                p.record(move |rc| {
+                    let b = rc.buffer(u)?;
+                    unsafe { rc.device().cmd_fill_buffer(rc.cmd, b.buffer, 0, vk::WHOLE_SIZE, 0) };
+                    Ok(())
+                });
+                u
+            };
+            let mut p = graph.pass("avs_cull", PassKind::Compute);
+            let pos_i = p.read(gb.position, Access::ComputeShaderReadSampled);
+            let nrm = p.read(gb.normal, Access::ComputeShaderReadSampled);
+            let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
+            let pb = p.read(pbuf, Access::ComputeShaderReadStorage);
+            let gr = p.read(gbuf, Access::ComputeShaderReadStorage);
+            let u = p.write(used, Access::ComputeShaderReadWriteStorage);
+            // the shader's push block: radius, alpha, inv_scale, max_neighbours (as avs_shade)
+            let mut push: Vec<u8> = Vec::with_capacity(16);
+            push.extend(bytes_of(&[shade_radius, wa, wscale]));
+            push.extend(bytes_of(&[s.neighbours.clamp(1, 8)]));
+            let (pipeline, layout) = (self.cull.pipeline, self.cull.layout);
+            p.record(move |rc| {
+                crate::util::bind_compute(
+                    rc,
+                    pipeline,
+                    layout,
+                    &[
+                        Bind::SampledImage(pos_i, nearest),
+                        Bind::SampledImage(nrm, nearest),
+                        Bind::SampledImage(uvm, nearest),
+                        Bind::StorageBuffer(pb),
+                        Bind::StorageBuffer(gr),
+                        Bind::StorageBuffer(u),
+                    ],
+                )?;
+                unsafe {
+                    let d = rc.device();
+                    d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
+                    d.cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1);
+                }
+                Ok(())
+            });
+            self.cull_order = all;
+        }
         if let Ok(mut l) = LAST_STATS.lock() {
             *l = Some(self.stats.clone());
         }
