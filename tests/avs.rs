@@ -124,6 +124,7 @@ fn accuracy_against_the_reference() {
         }
     }
     let (_r, cells) = render(&with(&fast, &[("integration", "cells")]), "avs", w, h, &[t], false);
+    let (_r, table) = render(&with(&fast, &[("integration", "table")]), "avs", w, h, &[t], false);
     let (_r, open) = render(&with(&fast, &[("shadows", "false")]), "avs", w, h, &[t], false);
     dump(&sg_ref.radiance, "reference");
     for (f, n) in [(&avs[0], "axis"), (&cells[0], "cells"), (&open[0], "open")] {
@@ -131,7 +132,8 @@ fn accuracy_against_the_reference() {
     }
     let cmp = |f: &FrameImages, name: &str| compare(&sg_ref.radiance, "reference", &image(f), name).unwrap();
     let (a, c, o) = (cmp(&avs[0], "avs axis"), cmp(&cells[0], "avs cells"), cmp(&open[0], "avs unshadowed"));
-    for (what, x) in [("axis", &a), ("cells", &c), ("no shadows", &o)] {
+    let tb = cmp(&table[0], "avs table");
+    for (what, x) in [("axis", &a), ("cells", &c), ("table", &tb), ("no shadows", &o)] {
         println!("exact ref / avs {what}: PSNR {:.2} dB, relRMSE {:.4}, FLIP {:.4}", psnr(x), x.rel_rmse, x.flip_mean);
     }
     // Shadows from the sampled visibility must bring the image much closer to the reference
@@ -144,6 +146,8 @@ fn accuracy_against_the_reference() {
     assert!(a.rel_rmse < 0.35 * o.rel_rmse, "axis {} vs unshadowed {}", a.rel_rmse, o.rel_rmse);
     assert!(c.rel_rmse < 0.35 * o.rel_rmse, "cells {} vs unshadowed {}", c.rel_rmse, o.rel_rmse);
     assert!(psnr(&a) > 19.0 && psnr(&c) > 19.0, "PSNR {} / {}", psnr(&a), psnr(&c));
+    // part A's tabulated T(lambda, d) at the lobe axis: the same bars
+    assert!(tb.rel_rmse < 0.7 && tb.rel_rmse < 0.35 * o.rel_rmse && psnr(&tb) > 19.0, "table: relRMSE {}, PSNR {}", tb.rel_rmse, psnr(&tb));
 }
 
 #[test]
@@ -263,7 +267,7 @@ fn extremes_whole_hemisphere_occluded_or_free() {
     let ceiling = "[[object]]\nname = \"ceiling\"\nmesh = { type = \"plane\", size = 400, divisions = 4 }\nmaterial = \"floor\"\nposition = [0.0, 0.3, 0.0]\n";
     let fast = [("r", "32"), ("iterations", "0")];
     let cave = with(&scene_text("cave", &format!("{base}{ceiling}")), &fast);
-    for mode in ["axis", "cells"] {
+    for mode in ["axis", "cells", "table", "adf"] {
         let (_r, dark) = render(&with(&cave, &[("integration", mode)]), "avs", 48, 36, &[0.0], false);
         let pts = floor_points(&cave, 0.0);
         let vf = penumbra_passes::avs::last_stats().visible_fraction;
@@ -571,4 +575,71 @@ fn gbuffer_culling_traces_only_needed_points_and_keeps_the_image() {
         }
     }
     assert!(worst <= 1e-4, "culled image differs from the unculled one: max relative difference {worst}");
+}
+
+#[test]
+fn hemicube_baseline_maps_match_the_cpu_ray_test() {
+    // The Fig. 7 baseline (rasterized hemicubes converted to maps) on a floor with a box beside
+    // the points: every texel whose centre ray robustly hits / misses the box (or the floor's own
+    // plane) must come out occluded / visible, up to the texels the rasterizer's coarser sampling
+    // cannot resolve (at most 3 % of the unambiguous texels per map at F = r / 2).
+    use penumbra_engine::{Context, ContextDesc, Engine};
+    use penumbra_math::avs_maps::{texel_dir_f32, words_per_map};
+    use penumbra_math::avs_sampling::{point_frame, SurfacePoint};
+    use penumbra_passes::avs::hemicube::HemicubeMaps;
+    let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
+    let lib = penumbra::shader_library();
+    let hc = HemicubeMaps::new(&ctx, &lib).expect("pipelines");
+    let (lo, hi) = (glam::Vec3::new(-0.3, 0.0, 0.45), glam::Vec3::new(0.3, 0.4, 0.75));
+    let c = [
+        glam::Vec3::new(lo.x, lo.y, lo.z),
+        glam::Vec3::new(hi.x, lo.y, lo.z),
+        glam::Vec3::new(hi.x, hi.y, lo.z),
+        glam::Vec3::new(lo.x, hi.y, lo.z),
+        glam::Vec3::new(lo.x, lo.y, hi.z),
+        glam::Vec3::new(hi.x, lo.y, hi.z),
+        glam::Vec3::new(hi.x, hi.y, hi.z),
+        glam::Vec3::new(lo.x, hi.y, hi.z),
+    ];
+    let quads = [[0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 5, 4], [3, 2, 6, 7], [0, 3, 7, 4], [1, 2, 6, 5]];
+    let mut tris: Vec<[glam::Vec3; 3]> = quads.iter().flat_map(|q| [[c[q[0]], c[q[1]], c[q[2]]], [c[q[0]], c[q[2]], c[q[3]]]]).collect();
+    // the floor (its own plane must not occlude the points on it)
+    let f = [glam::Vec3::new(-1.0, 0.0, -1.0), glam::Vec3::new(1.0, 0.0, -1.0), glam::Vec3::new(1.0, 0.0, 1.0), glam::Vec3::new(-1.0, 0.0, 1.0)];
+    tris.push([f[0], f[1], f[2]]);
+    tris.push([f[0], f[2], f[3]]);
+    let points: Vec<SurfacePoint> = (0..12)
+        .map(|i| SurfacePoint { pos: glam::Vec3::new(-0.6 + 0.11 * i as f32, 0.0, 0.3 - 0.07 * i as f32), normal: glam::Vec3::Y })
+        .collect();
+    let r = 64u32;
+    let offset = 1e-3;
+    let mut engine = Engine::new(ctx.clone(), 1).expect("engine");
+    engine.timestamps = true;
+    let out = hc.run(&mut engine, &tris, &points, offset, r, true).expect("hemicube maps");
+    assert!(out.gpu_ms.iter().any(|(n, _)| n.starts_with("avs_hc_raster")), "{:?}", out.gpu_ms);
+    let words = words_per_map(r) as usize;
+    let m = 0.02;
+    let mut worst = 0.0f64;
+    let mut occluded_total = 0;
+    for (e, p) in points.iter().enumerate() {
+        let fr = point_frame(p.normal);
+        let eye = p.pos + glam::Vec3::Y * offset;
+        let (mut wrong, mut sure) = (0usize, 0usize);
+        for k in 0..(r * r) as usize {
+            let l = texel_dir_f32((k as u32) / r, (k as u32) % r, r);
+            let d = (fr.t.as_vec3() * l.x + fr.b.as_vec3() * l.y + fr.n.as_vec3() * l.z).normalize();
+            let (inner, outer) = (ray_hits_box(eye, d, lo + m, hi - m), ray_hits_box(eye, d, lo - m, hi + m));
+            if inner == outer {
+                sure += 1;
+                let visible = (out.maps[e * words + k / 32] >> (k % 32)) & 1 == 1;
+                wrong += (visible == inner) as usize;
+                occluded_total += inner as usize;
+            }
+        }
+        worst = worst.max(wrong as f64 / sure as f64);
+    }
+    println!("hemicube maps at r = {r}: worst share of wrong unambiguous texels {worst:.4}; {occluded_total} occluded texels");
+    assert!(occluded_total > 100, "the box occludes only {occluded_total} texels");
+    assert!(worst <= 0.03, "hemicube maps disagree with the ray test on {:.2} % of a map's texels", 100.0 * worst);
+    drop(engine);
+    assert_eq!(ctx.validation.error_count(), 0, "validation errors: {:?}", ctx.validation.errors());
 }

@@ -50,6 +50,11 @@ fn image(f: &FrameImages) -> Image {
 
 /// One measured avs render.
 struct AvsRun {
+    /// Sample points of the measured frame at their positions then (the traced ones).
+    sample_points: Vec<penumbra_math::avs_sampling::SurfacePoint>,
+    /// GPU ms of the visibility-level passes and of the kd-tree build (measured frame).
+    t_vis: f64,
+    t_tree: f64,
     points: usize,
     traced: usize,
     dormant: usize,
@@ -87,7 +92,11 @@ fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32
     let t_i = sum(&f.gpu_ms, &["avs_shade"]);
     let total = f.gpu_ms.iter().map(|(_, m)| m).sum::<f64>() + st.round_ms.iter().map(|(_, m)| m).sum::<f64>();
     let c = compare(reference, "reference", &image(f), "avs")?;
+    let pool = penumbra_passes::avs::vertex_pool(&s, &s.at(t, Some(t0)))?;
     Ok(AvsRun {
+        sample_points: st.point_vertices.iter().map(|&v| pool[v]).collect(),
+        t_vis: sum(&st.round_ms, &["avs_vis"]),
+        t_tree: sum(&st.round_ms, &["kdtree"]),
         points: st.points,
         traced: st.traced_points,
         dormant: st.dormant,
@@ -222,15 +231,56 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
     println!("\n## Visibility maps on {}: adaptive vs every texel traced (t_V = visibility passes of all rounds)", scene.name);
     println!("| r | adaptive t_V ms | rays | brute force t_V ms | rays | ratio |");
     println!("|---|---|---|---|---|---|");
+    let mut fig7 = Vec::new();
+    let ctx = penumbra::engine::Context::new(&Default::default())?;
+    let lib = penumbra::shader_library();
+    let hc = penumbra_passes::avs::hemicube::HemicubeMaps::new(&ctx, &lib)?;
+    let mut engine = penumbra::engine::Engine::new(ctx.clone(), 1)?;
+    engine.timestamps = true;
     for r in [64u32, 128, 256] {
         let mut p = base.clone();
         p.push(("r".into(), r.to_string()));
         p.push(("iterations".into(), "0".into()));
         let ad = render_avs(&scene, &p, w, h, args.time, &reference)?;
+        // Fig. 7: the same points' maps by rasterized hemicubes (warm-up run, then the measured one)
+        let t0 = (args.time - 1.0 / 30.0).max(0.0);
+        let frame = scene.at(args.time, Some(t0));
+        let (tris, _, no_shadow) = penumbra_passes::mc::world_triangles_shading(&scene, &frame)?;
+        let tris: Vec<[glam::Vec3; 3]> = tris.iter().zip(&no_shadow).filter(|(_, ns)| !**ns).map(|(t, _)| *t).collect();
+        let pool = penumbra_passes::avs::vertex_pool(&scene, &frame)?;
+        let extent = pool.iter().fold(1.0f32, |m, p| m.max(p.pos.abs().max_element()));
+        let offset = penumbra_passes::kdtree::ray_epsilon(extent) * 10.0;
+        hc.run(&mut engine, &tris, &ad.sample_points, offset, r, false)?;
+        let hr = hc.run(&mut engine, &tris, &ad.sample_points, offset, r, false)?;
+        let ms = |pre: &str| hr.gpu_ms.iter().filter(|(n, _)| n.starts_with(pre)).map(|(_, m)| m).sum::<f64>();
+        let (raster, convert) = (ms("avs_hc_raster"), ms("avs_hc_convert"));
+        fig7.push(format!(
+            "| {r} | {} | {:.1} | {:.1} | {:.1} | {} | {:.1} | {:.1} | {:.1} | {:.2} |",
+            ad.sample_points.len(),
+            ad.t_vis,
+            ad.t_tree,
+            ad.t_vis + ad.t_tree,
+            HemicubeFace(r),
+            raster,
+            convert,
+            raster + convert,
+            (raster + convert) / (ad.t_vis + ad.t_tree).max(1e-9)
+        ));
         p.push(("adaptive".into(), "false".into()));
         let bf = render_avs(&scene, &p, w, h, args.time, &reference)?;
         println!("| {r} | {:.1} | {} | {:.1} | {} | {:.2} |", ad.t_v, ad.rays, bf.t_v, bf.rays, bf.t_v / ad.t_v.max(1e-9));
     }
+    println!(
+        "\n## Fig. 7 on {}: visibility-map generation, this method vs rasterized hemicubes (shadow maps), same sample points (second frame, culled), {} triangles",
+        scene.name,
+        penumbra_passes::mc::world_triangles_shading(&scene, &scene.at(args.time, None))?.0.len()
+    );
+    println!("| r | points | avs vis passes ms | kd-tree build ms | avs total ms | hemicube faces | raster ms | convert ms | shadow maps total ms | shadow maps / avs |");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    for row in &fig7 {
+        println!("{row}");
+    }
+    drop(engine);
     println!("\n## E_v,max x r on {} (error / time)", scene.name);
     println!("| r | E_v,max | #samples | ms/frame | PSNR dB | relRMSE |");
     println!("|---|---|---|---|---|---|");
@@ -245,4 +295,14 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
         }
     }
     Ok(())
+}
+
+/// Hemicube face description for the Fig. 7 table.
+struct HemicubeFace(u32);
+
+impl std::fmt::Display for HemicubeFace {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let fr = penumbra_passes::avs::hemicube::HemicubeMaps::face_res(self.0);
+        write!(f, "5 x {fr}^2 (sides half)")
+    }
 }
