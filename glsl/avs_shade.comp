@@ -11,7 +11,14 @@
 //   mode 1 (cells): the lobe's neighbourhood (+-3 / sqrt(lambda), clamped to the hemisphere) in
 //           C x C cells of its tangent plane; in each cell the boundary is the iso-line of the
 //           bilinear SSDF through the corners (visible fraction from 2 x 2 sub-cells), and the
-//           lobe is integrated over the visible part of every cell (eq. 5, numerically per cell).
+//           lobe is integrated over the visible part of every cell (eq. 5, numerically per cell);
+//   mode 2 (table, part A): T(lambda, d) of include/ssdf_integrate.glsl (tabulated integral of
+//           the lobe over the region beyond a cap boundary at signed distance d of the axis)
+//           instead of the straight-edge Phi;
+//   mode 3 (adaptive cells, part A): ssdf_visible_cells of include/ssdf_integrate.glsl (distance-
+//           field quadtree, iso-line clipped boundary texels, eq. 5) over a virtual map in the
+//           pixel's frame whose texels are the interpolated SSDF; exact but ~1 ms per lobe on
+//           lavapipe before interpolation: only for tiny images.
 // Local lights: shadowed by the sign of the interpolated SSDF toward the light.
 #include "common.glsl"
 #include "sg.glsl"
@@ -37,6 +44,8 @@ layout(set = 0, binding = 11) readonly buffer Points { vec4 pts[]; };
 // word), then slots
 layout(set = 0, binding = 12) readonly buffer Grid { uint grid[]; };
 layout(set = 0, binding = 13) readonly buffer Ssdf { uint ssdf[]; };
+// T(lambda, d), [SSDF_N_LAMBDA][SSDF_N_W] (penumbra_math::ssdf_integrate::AxisTable), mode 2
+layout(set = 0, binding = 14) readonly buffer AxisTable { float axis_table[]; };
 layout(push_constant) uniform Push {
     uint light_count;
     uint lobe_count;
@@ -45,7 +54,7 @@ layout(push_constant) uniform Push {
     float alpha;
     float inv_scale;
     float radius;
-    uint mode;       // 0 lobe axis, 1 cells
+    uint mode;       // 0 lobe axis, 1 cells, 2 table, 3 adaptive cells
     uint flags;      // bit 0: no shadows
     uint cells;      // cells per side (mode 1)
     uint specular_mode;
@@ -64,7 +73,7 @@ float ssdf_texel(uint base, uint k) {
 
 // Bilinear SSDF of one sample point at a world direction. Directions below the point's horizon
 // (its normal differs from the pixel's) take the value at the horizon above them.
-float ssdf_point(uint q, vec3 w) {
+float ssdf_point(uint q, vec3 w, bool corrected) {
     vec3 l = transpose(nb_frame[q]) * w;
     float below = 0.0;
     if (l.z < 0.0) {
@@ -78,17 +87,33 @@ float ssdf_point(uint q, vec3 w) {
     uvec2 i1 = min(i0 + 1u, uvec2(pc.r - 1u));
     vec2 f = tp - vec2(i0);
     uint base = nb_slot[q] * avs_ssdf_words_per_map(pc.r);
-    float a = ssdf_texel(base, i0.x * pc.r + i0.y), b = ssdf_texel(base, i0.x * pc.r + i1.y);
-    float c = ssdf_texel(base, i1.x * pc.r + i0.y), d = ssdf_texel(base, i1.x * pc.r + i1.y);
+    uvec4 k = uvec4(i0.x * pc.r + i0.y, i0.x * pc.r + i1.y, i1.x * pc.r + i0.y, i1.x * pc.r + i1.y);
+    float a = corrected ? ssdf_texel(base, k.x) : AVS_SSDF(ssdf, base, k.x);
+    float b = corrected ? ssdf_texel(base, k.y) : AVS_SSDF(ssdf, base, k.y);
+    float c = corrected ? ssdf_texel(base, k.z) : AVS_SSDF(ssdf, base, k.z);
+    float d = corrected ? ssdf_texel(base, k.w) : AVS_SSDF(ssdf, base, k.w);
     return mix(mix(a, b, f.y), mix(c, d, f.y), f.x) - below;
 }
 
 // Eq. 8 interpolation of the neighbours' SSDFs at world direction w.
 float ssdf_at(vec3 w) {
     float s = 0.0;
-    for (uint q = 0u; q < nb_count; ++q) s += nb_w[q] * ssdf_point(q, w);
+    for (uint q = 0u; q < nb_count; ++q) s += nb_w[q] * ssdf_point(q, w, true);
     return s;
 }
+
+// Mode 3: texel k of a virtual map in the pixel's frame = the interpolated SSDF (uncorrected:
+// ssdf_integrate.glsl applies its own half-texel correction).
+mat3 pix_frame = mat3(1.0);
+float ssdf_virtual(uint k) {
+    vec3 w = pix_frame * avs_texel_dir(k / pc.r, k % pc.r, pc.r);
+    float s = 0.0;
+    for (uint q = 0u; q < nb_count; ++q) s += nb_w[q] * ssdf_point(q, w, false);
+    return s;
+}
+#define SSDF_FETCH(k) ssdf_virtual(k)
+#define SSDF_TABLE(i) axis_table[(i)]
+#include "ssdf_integrate.glsl"
 
 float phi_cdf(float x) { return 0.5 * (1.0 + sg_erf(x * 0.70710678)); }
 
@@ -97,6 +122,12 @@ float visible(SG g) {
     if (!shadows_on()) return 1.0;
     float lam = max(g.lambda, 1e-3);
     if (pc.mode == 0u) return phi_cdf(ssdf_at(g.axis) * sqrt(lam));
+    if (pc.mode == 2u) return ssdf_table_lookup(lam, ssdf_at(g.axis));
+    if (pc.mode == 3u) {
+        vec3 la = transpose(pix_frame) * normalize(g.axis);
+        float hemi = sg_hemisphere_integral(sg_make(la, lam, 1.0), vec3(0.0, 0.0, 1.0));
+        return hemi > 1e-20 ? clamp(ssdf_visible_cells(la, lam, 1.0, false, pc.r) / hemi, 0.0, 1.0) : 1.0;
+    }
     // mode 1: cells of the lobe's tangent plane, extent +-3 sigma (at most 1.5 rad)
     uint c = clamp(pc.cells, 1u, 16u);
     float ext = min(3.0 / sqrt(lam), 1.5);
@@ -254,6 +285,7 @@ void main() {
         m.extra.x = 2.0 / max(r * r, 1e-4) - 2.0;
     }
     gather_neighbours(pos, n);
+    pix_frame = avs_frame(n);
     SG cosg = sg_clamped_cosine(n);
     vec3 diffuse = vec3(0.0);
     uint nl = min(pc.lobe_count, 64u);

@@ -35,6 +35,8 @@
 //!
 //! Parameters (`[technique_params]` / `--param`), see [`AvsSettings::set`].
 
+pub mod hemicube;
+
 use crate::kdtree::{KdTreeBuilder, KdTreeHandles};
 use crate::shade_env::HDR_FORMAT;
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
@@ -55,6 +57,11 @@ pub enum Integration {
     Axis,
     /// Cells with iso-line boundaries (eq. 5, per cell).
     Cells,
+    /// Part A's tabulated `T(lambda, d)` at the lobe axis (`glsl/include/ssdf_integrate.glsl`).
+    Table,
+    /// Part A's adaptive cells (`ssdf_visible_cells`) over the interpolated SSDF: exact, very
+    /// slow (about 1 ms per lobe and pixel on lavapipe), for tiny images.
+    Adf,
 }
 
 /// Parameters with the paper's defaults.
@@ -148,7 +155,7 @@ impl AvsSettings {
     /// Sets one parameter. Keys: `r` (128; multiple of the initial grid times a power of two, at
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
     /// `iterations` (2), `points` (0 = auto), `max_points` (8192), `radius` (2.0), `neighbours`
-    /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells`), `cells` (6,
+    /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells` | `table` | `adf`), `cells` (6,
     /// 1..16), `shadows`, `adaptive`, `prefiltered`, `cull` (true/false), `lobes` (16). Unknown keys and bad values
     /// are errors naming the key.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
@@ -186,7 +193,9 @@ impl AvsSettings {
                 self.integration = match v {
                     "axis" => Integration::Axis,
                     "cells" => Integration::Cells,
-                    _ => bail!("avs parameter integration = '{value}': expected 'axis' or 'cells'"),
+                    "table" => Integration::Table,
+                    "adf" => Integration::Adf,
+                    _ => bail!("avs parameter integration = '{value}': expected 'axis', 'cells', 'table' or 'adf'"),
                 }
             }
             "cells" => self.cells = int(1, 16)? as u32,
@@ -262,6 +271,12 @@ pub struct AvsStats {
 }
 
 static LAST_STATS: std::sync::Mutex<Option<AvsStats>> = std::sync::Mutex::new(None);
+
+/// Part A's `T(lambda, d)` table as f32 bytes (generated once per process).
+fn axis_table() -> Arc<Vec<u8>> {
+    static TABLE: std::sync::OnceLock<Arc<Vec<u8>>> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| Arc::new(bytes_of(&penumbra_math::ssdf_integrate::AxisTable::generate(|_| {}).data))).clone()
+}
 
 /// Statistics of the last frame any `avs` technique in this process declared (the renderer owns
 /// the technique; tests and the bench read them here).
@@ -371,6 +386,7 @@ pub struct AvsTechnique {
     pub builder: KdTreeBuilder,
     lobes: Arc<Vec<u8>>,
     prefiltered: Arc<Vec<u8>>,
+    axis_table: Arc<Vec<u8>>,
     lobe_count: u32,
     /// Pool vertices of the current sample points (kept across frames): the traced ones.
     sample_vertices: Vec<usize>,
@@ -414,6 +430,7 @@ impl AvsTechnique {
                 sb,
                 sb,
                 sb,
+                sb,
             ],
             44,
         )?;
@@ -437,6 +454,7 @@ impl AvsTechnique {
             repeat: Sampler::repeat(ctx)?,
             lobes: Arc::new(bytes_of(&lobes)),
             prefiltered: Arc::new(bytes_of(&crate::isg::prefiltered_env(scene))),
+            axis_table: if settings.integration == Integration::Table { axis_table() } else { Arc::new(vec![0u8; 16]) },
             lobe_count,
             builder: KdTreeBuilder::new(ctx, shaders)?,
             scene: scene.clone(),
@@ -822,6 +840,7 @@ impl crate::technique::Technique for AvsTechnique {
         let grid_buf = graph.create_buffer_init("avs_grid", bytes_of(&grid_words(&grid, &slots)));
         let lobes = graph.create_buffer_init("avs_lobes", self.lobes.as_ref().clone());
         let prefiltered = graph.create_buffer_init("avs_prefiltered", self.prefiltered.as_ref().clone());
+        let table = graph.create_buffer_init("avs_axis_table", self.axis_table.as_ref().clone());
 
         let (scene, gb) = (inputs.scene, inputs.gbuffer);
         let (w, h) = (gb.width, gb.height);
@@ -841,6 +860,7 @@ impl crate::technique::Technique for AvsTechnique {
         let pts = p.read(points_buf, Access::ComputeShaderReadStorage);
         let gr = p.read(grid_buf, Access::ComputeShaderReadStorage);
         let sd = p.read(ssdf, Access::ComputeShaderReadStorage);
+        let tb = p.read(table, Access::ComputeShaderReadStorage);
         let pos_scale = samp::scene_scale(&pool.iter().map(|p| p.pos).collect::<Vec<_>>());
         let s = &self.settings;
         let mut push: Vec<u8> = Vec::with_capacity(44);
@@ -848,7 +868,12 @@ impl crate::technique::Technique for AvsTechnique {
         let (wa, wscale) = if s.interp_alpha > 0.0 { (s.interp_alpha, 1.0 / shade_radius) } else { (s.alpha, 1.0 / pos_scale) };
         push.extend(bytes_of(&[wa, wscale, shade_radius]));
         push.extend(bytes_of(&[
-            (s.integration == Integration::Cells) as u32,
+            match s.integration {
+                Integration::Axis => 0u32,
+                Integration::Cells => 1,
+                Integration::Table => 2,
+                Integration::Adf => 3,
+            },
             (!s.shadows || points.is_empty()) as u32,
             s.cells.clamp(1, 16),
             (!s.prefiltered) as u32,
@@ -875,6 +900,7 @@ impl crate::technique::Technique for AvsTechnique {
                     Bind::StorageBuffer(pts),
                     Bind::StorageBuffer(gr),
                     Bind::StorageBuffer(sd),
+                    Bind::StorageBuffer(tb),
                 ],
             )?;
             unsafe {
