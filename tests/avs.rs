@@ -160,7 +160,7 @@ fn parameters_are_checked() {
     assert_eq!((d.r, d.initial_grid, d.e_max, d.e_min, d.iterations), (128, 16, 0.10, 0.05, 2));
     assert_eq!(d.levels(), 4);
     assert_eq!(p(&[("r", "256"), ("initial_grid", "32")]).unwrap().levels(), 4);
-    for (k, v) in [("r", "100"), ("r", "8"), ("r", "512"), ("initial_grid", "20"), ("e_max", "nan"), ("integration", "exact"), ("bogus", "1"), ("e_min", "0.5")] {
+    for (k, v) in [("r", "100"), ("r", "8"), ("r", "512"), ("initial_grid", "20"), ("e_max", "nan"), ("integration", "exact"), ("bogus", "1"), ("e_min", "0.5"), ("cull", "maybe")] {
         let e = p(&[(k, v)]).unwrap_err().to_string();
         assert!(e.contains(k), "{k} = {v}: {e}");
     }

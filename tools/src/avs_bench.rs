@@ -5,7 +5,7 @@
 //! visibility maps at r = 64, 128, 256, and an E_v,max x r sweep (error/time), in one run.
 //! Every avs measurement is the second of two frames (t - 1/30 s, t), so that G-buffer culling
 //! (parameter `cull`, on by default) works from the first frame's flags; a table compares it off
-//! and on.
+//! and on, and another the integration modes (axis, cells, table; adf at sizes up to 32x24).
 
 use anyhow::{Context as _, Result};
 use clap::Args;
@@ -188,7 +188,7 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
         let same = mc.at_time.map_or(format!("not reached in {} frames", mc.last.2), |(p, r, f)| format!("{p:.2} / {r:.3} ({f})"));
         let reach = mc.to_error.map_or(
             format!("not reached in {} frames (last {:.2} dB / {:.3})", mc.last.2, mc.last.0, mc.last.1),
-            |(ms, f)| format!("{ms:.0} ({f}), {:.1}x the avs time", ms / a.total.max(1e-9)),
+            |(ms, f)| format!("{ms:.0} ({f}), {:.3}x the avs time", ms / a.total.max(1e-9)),
         );
         println!(
             "| {} | {} | {} | {} | {:.2} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.2} | {:.3} | {} | {} |",
@@ -223,6 +223,20 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
     println!("|---|---|---|---|---|---|---|---|");
     for row in &cull_rows {
         println!("{row}");
+    }
+    if let Some((scene, reference)) = &first {
+        // adf (part A's adaptive cells per pixel and lobe) costs about a millisecond per lobe on
+        // lavapipe: only at tiny sizes
+        let modes: &[&str] = if w * h <= 32 * 24 { &["axis", "cells", "table", "adf"] } else { &["axis", "cells", "table"] };
+        println!("\n## Integration modes on {} (second frame; t_I = the avs_shade pass)", scene.name);
+        println!("| integration | t_I ms | PSNR dB | relRMSE |");
+        println!("|---|---|---|---|");
+        for mode in modes {
+            let mut p = base.clone();
+            p.push(("integration".into(), mode.to_string()));
+            let a = render_avs(scene, &p, w, h, args.time, reference)?;
+            println!("| {mode} | {:.1} | {:.2} | {:.3} |", a.t_i, a.psnr, a.rel_rmse);
+        }
     }
     if args.no_sweep {
         return Ok(());
