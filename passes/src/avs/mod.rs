@@ -597,10 +597,15 @@ impl AvsTechnique {
             } else {
                 Some(p.read(scratch[prev_idx], Access::ComputeShaderReadStorage))
             };
+            // read-write: the map is zeroed and assembled with atomicOr in place (a write only on a
+            // scratch buffer's first use, levels 0 and 1)
             let out = if last {
-                p.write(vis, Access::ComputeShaderWriteStorage)
+                p.write(vis, Access::ComputeShaderReadWriteStorage)
             } else {
-                p.write(scratch[level as usize % 2], Access::ComputeShaderWriteStorage)
+                p.write(
+                    scratch[level as usize % 2],
+                    if level < 2 { Access::ComputeShaderWriteStorage } else { Access::ComputeShaderReadWriteStorage },
+                )
             };
             let st = p.write(stats, if level == 0 { Access::ComputeShaderWriteStorage } else { Access::ComputeShaderReadWriteStorage });
             let flags = (k > 0) as u32 | (!self.settings.adaptive as u32) << 1;
