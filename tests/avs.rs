@@ -517,8 +517,9 @@ fn extremes_light_at_the_map_pole_and_seam() {
 /// in the output buffer: now 1620 / 1636 pixels agree (mean |error| 0.0098, r = 64: 1636 / 1636,
 /// 0.0003), but the brute-force map of that floor point still reports 2.9 % occluded where the
 /// CPU ray test finds 1.4-1.6 % (r = 128 matches the CPU to 2e-4), so r = 256 is still wrong
-/// somewhere (not found: grazing rays at 3.8e-5 rad elevation hitting the floor, or the SH16
-/// projection at r = 256, are candidates). Run with
+/// somewhere. Not the floor's own triangles under grazing rays (the same 2.9 % with the floor
+/// not casting shadows); the SH16 projection at r = 256 (`avs_sh.comp`, the source of the
+/// visible fractions) and the tracer at sub-milliradian texel spacing are unchecked. Run with
 /// `cargo test --test avs -- --ignored r256`.
 #[test]
 #[ignore = "r = 256 brute-force maps still report ~1.4 % spurious occlusion; see the doc comment and the issue 8 note"]
