@@ -5,7 +5,7 @@ use crate::raster::{raster_pipeline, DepthState, RasterDesc, VertexInput};
 use crate::scene_gpu::{DrawList, SceneHandles};
 use crate::util::Pipeline;
 use anyhow::Result;
-use penumbra_engine::graph::ImageDesc;
+use penumbra_engine::graph::{ImageDesc, PassBuilder};
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, Context, Graph, ImageHandle, PassKind};
 use std::sync::Arc;
@@ -26,6 +26,34 @@ pub struct GBuffer {
     pub depth: ImageHandle,
     pub width: u32,
     pub height: u32,
+}
+
+/// The G-buffer images a shading pass samples (nearest), declared by [`GBuffer::read_sampled`].
+/// Every compute shading pass binds them consecutively in this order: position, normal,
+/// uv + material ([`GBufferReads::binds`]).
+#[derive(Clone, Copy, Debug)]
+pub struct GBufferReads {
+    pub position: ImageHandle,
+    pub normal: ImageHandle,
+    pub uv_mat: ImageHandle,
+}
+
+impl GBuffer {
+    /// Declares position, normal and uv + material as sampled reads of compute pass `p`.
+    pub fn read_sampled(&self, p: &mut PassBuilder<'_>) -> GBufferReads {
+        GBufferReads {
+            position: p.read(self.position, Access::ComputeShaderReadSampled),
+            normal: p.read(self.normal, Access::ComputeShaderReadSampled),
+            uv_mat: p.read(self.uv_mat, Access::ComputeShaderReadSampled),
+        }
+    }
+}
+
+impl GBufferReads {
+    /// The three images as consecutive sampled-image bindings with `sampler`.
+    pub fn binds(&self, sampler: vk::Sampler) -> [Bind; 3] {
+        [Bind::SampledImage(self.position, sampler), Bind::SampledImage(self.normal, sampler), Bind::SampledImage(self.uv_mat, sampler)]
+    }
 }
 
 pub struct GBufferPass {

@@ -2,16 +2,51 @@
 //! irradiance, glossy from the mip-filtered environment map with an analytic environment BRDF,
 //! plus unshadowed point/spot/sphere lights with the material's BRDF.
 
-use crate::gbuffer::GBuffer;
+use crate::gbuffer::{GBuffer, GBufferReads};
 use crate::scene_gpu::SceneHandles;
 use crate::util::{compute_pipeline, groups, Pipeline, Sampler};
 use anyhow::Result;
-use penumbra_engine::graph::ImageDesc;
+use penumbra_engine::graph::{ImageDesc, PassBuilder};
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, Context, Graph, ImageHandle, PassKind};
 use std::sync::Arc;
 
 pub const HDR_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
+
+/// Bindings 0-6 of every compute shading pass (`shade_env`, `isg_shade`, `avs_shade`,
+/// `sf_shade`): camera (uniform), materials (storage), the G-buffer (position, normal,
+/// uv + material; nearest), the lat-long environment (linear) and the HDR output (storage
+/// write). Declared once by [`ShadingIo::declare`], bound by [`ShadingIo::binds`].
+#[derive(Clone, Copy, Debug)]
+pub struct ShadingIo {
+    pub camera: penumbra_engine::BufferHandle,
+    pub materials: penumbra_engine::BufferHandle,
+    pub gbuffer: GBufferReads,
+    pub env: ImageHandle,
+    pub hdr: ImageHandle,
+}
+
+impl ShadingIo {
+    /// Declares the reads of `scene`'s camera and materials, of `gb` and `env`, and the write of
+    /// `hdr` on compute pass `p`.
+    pub fn declare(p: &mut PassBuilder<'_>, scene: &SceneHandles, gb: &GBuffer, env: ImageHandle, hdr: ImageHandle) -> Self {
+        ShadingIo {
+            camera: p.read(scene.camera, Access::AnyShaderReadUniform),
+            materials: p.read(scene.materials, Access::ComputeShaderReadStorage),
+            gbuffer: gb.read_sampled(p),
+            env: p.read(env, Access::ComputeShaderReadSampled),
+            hdr: p.write(hdr, Access::ComputeShaderWriteStorage),
+        }
+    }
+
+    /// Bindings 0-6; passes append theirs.
+    pub fn binds(&self, nearest: vk::Sampler, latlong: vk::Sampler) -> Vec<Bind> {
+        let mut b = vec![Bind::UniformBuffer(self.camera), Bind::StorageBuffer(self.materials)];
+        b.extend(self.gbuffer.binds(nearest));
+        b.extend([Bind::SampledImage(self.env, latlong), Bind::StorageImage(self.hdr)]);
+        b
+    }
+}
 
 pub struct ShadeEnvPass {
     pipeline: Pipeline,
@@ -67,13 +102,8 @@ impl ShadeEnvPass {
         let (w, h) = (gb.width, gb.height);
         let hdr = graph.create_image("hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
         let mut p = graph.pass("shade_env", PassKind::Compute);
-        let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
-        let materials = p.read(scene.materials, Access::ComputeShaderReadStorage);
-        let pos = p.read(gb.position, Access::ComputeShaderReadSampled);
-        let nrm = p.read(gb.normal, Access::ComputeShaderReadSampled);
-        let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
-        let env = p.read(env, Access::ComputeShaderReadSampled);
-        let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
+        let io = ShadingIo::declare(&mut p, scene, gb, env, hdr);
+        let hdr = io.hdr;
         let lights = p.read(scene.lights, Access::ComputeShaderReadStorage);
         let light_count = scene.light_count;
         let textures = p.read(scene.textures, Access::ComputeShaderReadSampled);
@@ -84,17 +114,7 @@ impl ShadeEnvPass {
                 rc,
                 pipeline,
                 layout,
-                &[
-                    Bind::UniformBuffer(camera),
-                    Bind::StorageBuffer(materials),
-                    Bind::SampledImage(pos, nearest),
-                    Bind::SampledImage(nrm, nearest),
-                    Bind::SampledImage(uvm, nearest),
-                    Bind::SampledImage(env, linear),
-                    Bind::StorageImage(hdr),
-                    Bind::StorageBuffer(lights),
-                    Bind::SampledImage(textures, repeat),
-                ],
+                &[io.binds(nearest, linear), vec![Bind::StorageBuffer(lights), Bind::SampledImage(textures, repeat)]].concat(),
             )?;
             unsafe {
                 let d = rc.device();

@@ -239,9 +239,7 @@ impl ShadowMapsTechnique {
         push.extend(bytes_of(&[self.env.cos_rot, self.env.sin_rot, 0.0, 0.0]));
         push.extend(bytes_of(&self.sphere));
         let mut p = graph.pass("shadowmaps_shade", PassKind::Compute);
-        let pos = p.read(gb.position, Access::ComputeShaderReadSampled);
-        let nrm = p.read(gb.normal, Access::ComputeShaderReadSampled);
-        let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
+        let g = gb.read_sampled(&mut p);
         let mats = p.read(materials, Access::ComputeShaderReadStorage);
         let mp = p.read(maps, Access::ComputeShaderReadStorage);
         let dp = p.read(depth, Access::ComputeShaderReadStorage);
@@ -255,15 +253,10 @@ impl ShadowMapsTechnique {
                 pipe,
                 layout,
                 &[
-                    Bind::SampledImage(pos, nearest),
-                    Bind::SampledImage(nrm, nearest),
-                    Bind::SampledImage(uvm, nearest),
-                    Bind::StorageBuffer(mats),
-                    Bind::StorageBuffer(mp),
-                    Bind::StorageBuffer(dp),
-                    Bind::StorageBuffer(et),
-                    Bind::StorageImage(hdr),
-                ],
+                    &g.binds(nearest)[..],
+                    &[Bind::StorageBuffer(mats), Bind::StorageBuffer(mp), Bind::StorageBuffer(dp), Bind::StorageBuffer(et), Bind::StorageImage(hdr)],
+                ]
+                .concat(),
             )?;
             unsafe {
                 let d = rc.device();

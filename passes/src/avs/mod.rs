@@ -855,13 +855,8 @@ impl crate::technique::Technique for AvsTechnique {
         let (w, h) = (gb.width, gb.height);
         let hdr = graph.create_image("hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
         let mut p = graph.pass("avs_shade", PassKind::Compute);
-        let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
-        let materials = p.read(scene.materials, Access::ComputeShaderReadStorage);
-        let pos_i = p.read(gb.position, Access::ComputeShaderReadSampled);
-        let nrm = p.read(gb.normal, Access::ComputeShaderReadSampled);
-        let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
-        let env = p.read(inputs.env, Access::ComputeShaderReadSampled);
-        let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
+        let io = crate::shade_env::ShadingIo::declare(&mut p, scene, gb, inputs.env, hdr);
+        let hdr = io.hdr;
         let lights = p.read(scene.lights, Access::ComputeShaderReadStorage);
         let textures = p.read(scene.textures, Access::ComputeShaderReadSampled);
         let lobes = p.read(lobes, Access::ComputeShaderReadStorage);
@@ -894,14 +889,7 @@ impl crate::technique::Technique for AvsTechnique {
                 rc,
                 pipeline,
                 layout,
-                &[
-                    Bind::UniformBuffer(camera),
-                    Bind::StorageBuffer(materials),
-                    Bind::SampledImage(pos_i, nearest),
-                    Bind::SampledImage(nrm, nearest),
-                    Bind::SampledImage(uvm, nearest),
-                    Bind::SampledImage(env, linear),
-                    Bind::StorageImage(hdr),
+                &[io.binds(nearest, linear), vec![
                     Bind::StorageBuffer(lights),
                     Bind::SampledImage(textures, repeat),
                     Bind::StorageBuffer(lobes),
@@ -910,7 +898,8 @@ impl crate::technique::Technique for AvsTechnique {
                     Bind::StorageBuffer(gr),
                     Bind::StorageBuffer(sd),
                     Bind::StorageBuffer(tb),
-                ],
+                ]]
+                .concat(),
             )?;
             unsafe {
                 let d = rc.device();
@@ -939,9 +928,7 @@ impl crate::technique::Technique for AvsTechnique {
                 u
             };
             let mut p = graph.pass("avs_cull", PassKind::Compute);
-            let pos_i = p.read(gb.position, Access::ComputeShaderReadSampled);
-            let nrm = p.read(gb.normal, Access::ComputeShaderReadSampled);
-            let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
+            let g = gb.read_sampled(&mut p);
             let pb = p.read(pbuf, Access::ComputeShaderReadStorage);
             let gr = p.read(gbuf, Access::ComputeShaderReadStorage);
             let u = p.write(used, Access::ComputeShaderReadWriteStorage);
@@ -955,14 +942,7 @@ impl crate::technique::Technique for AvsTechnique {
                     rc,
                     pipeline,
                     layout,
-                    &[
-                        Bind::SampledImage(pos_i, nearest),
-                        Bind::SampledImage(nrm, nearest),
-                        Bind::SampledImage(uvm, nearest),
-                        Bind::StorageBuffer(pb),
-                        Bind::StorageBuffer(gr),
-                        Bind::StorageBuffer(u),
-                    ],
+                    &[&g.binds(nearest)[..], &[Bind::StorageBuffer(pb), Bind::StorageBuffer(gr), Bind::StorageBuffer(u)]].concat(),
                 )?;
                 unsafe {
                     let d = rc.device();

@@ -686,13 +686,8 @@ impl crate::technique::Technique for IsgTechnique {
         };
         let hdr = graph.create_image("hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
         let mut p = graph.pass("isg_shade", PassKind::Compute);
-        let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
-        let materials = p.read(scene.materials, Access::ComputeShaderReadStorage);
-        let pos = p.read(gb.position, Access::ComputeShaderReadSampled);
-        let nrm = p.read(gb.normal, Access::ComputeShaderReadSampled);
-        let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
-        let env = p.read(inputs.env, Access::ComputeShaderReadSampled);
-        let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
+        let io = crate::shade_env::ShadingIo::declare(&mut p, scene, gb, inputs.env, hdr);
+        let hdr = io.hdr;
         let lights = p.read(scene.lights, Access::ComputeShaderReadStorage);
         let textures = p.read(scene.textures, Access::ComputeShaderReadSampled);
         let table = p.read(table, Access::ComputeShaderReadStorage);
@@ -716,14 +711,8 @@ impl crate::technique::Technique for IsgTechnique {
         let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
-            let mut binds = vec![
-                Bind::UniformBuffer(camera),
-                Bind::StorageBuffer(materials),
-                Bind::SampledImage(pos, nearest),
-                Bind::SampledImage(nrm, nearest),
-                Bind::SampledImage(uvm, nearest),
-                Bind::SampledImage(env, linear),
-                Bind::StorageImage(hdr),
+            let mut binds = io.binds(nearest, linear);
+            binds.extend([
                 Bind::StorageBuffer(lights),
                 Bind::SampledImage(textures, repeat),
                 Bind::StorageBuffer(table),
@@ -732,7 +721,7 @@ impl crate::technique::Technique for IsgTechnique {
                 Bind::StorageBuffer(prefiltered),
                 Bind::StorageBuffer(tris_buf),
                 Bind::StorageBuffer(tri_bvh),
-            ];
+            ]);
             if let Some(v) = vertex_vis {
                 binds.push(Bind::SampledImage(v, nearest));
             }

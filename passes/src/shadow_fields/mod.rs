@@ -956,15 +956,10 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         let vtx = (self.mode == SfMode::Vertex).then(|| self.add_vertex_display(graph, &h, inputs, w, hh));
         let hdr = graph.create_image("hdr", ImageDesc::new_2d(crate::shade_env::HDR_FORMAT, w, hh));
         let mut p = graph.pass("sf_shade", PassKind::Compute);
-        let camera = p.read(inputs.scene.camera, Access::AnyShaderReadUniform);
-        let materials = p.read(inputs.scene.materials, Access::ComputeShaderReadStorage);
-        let pos = p.read(gb.position, Access::ComputeShaderReadSampled);
-        let nrm = p.read(gb.normal, Access::ComputeShaderReadSampled);
-        let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
-        let env = p.read(inputs.env, Access::ComputeShaderReadSampled);
+        let io = crate::shade_env::ShadingIo::declare(&mut p, inputs.scene, gb, inputs.env, hdr);
         // pixel mode binds the environment in the (unused) vertex-radiance slot
-        let vtx = vtx.map(|v| p.read(v, Access::ComputeShaderReadSampled)).unwrap_or(env);
-        let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
+        let vtx = vtx.map(|v| p.read(v, Access::ComputeShaderReadSampled)).unwrap_or(io.env);
+        let hdr = io.hdr;
         let r = [h.data, h.shells, h.insts, h.tensor, h.light, inputs.scene.lights].map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let (pipeline, layout) = (self.shade.pipeline, self.shade.layout);
         let (nearest, linear) = (self.nearest.sampler, self.linear.sampler);
@@ -974,15 +969,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
             .flat_map(|x| x.to_le_bytes())
             .collect();
         p.record(move |rc| {
-            let mut binds = vec![
-                Bind::UniformBuffer(camera),
-                Bind::StorageBuffer(materials),
-                Bind::SampledImage(pos, nearest),
-                Bind::SampledImage(nrm, nearest),
-                Bind::SampledImage(uvm, nearest),
-                Bind::SampledImage(env, linear),
-                Bind::StorageImage(hdr),
-            ];
+            let mut binds = io.binds(nearest, linear);
             binds.extend(r.iter().map(|&b| Bind::StorageBuffer(b)));
             binds.push(Bind::SampledImage(vtx, nearest));
             crate::util::bind_compute(rc, pipeline, layout, &binds)?;
