@@ -26,8 +26,13 @@ struct Xvfb {
 
 impl Xvfb {
     fn start() -> Xvfb {
+        // Tests of this file run in parallel in one process: each takes its own range of display
+        // numbers (two servers raced for one number, and one test talked to the other's server,
+        // which was killed under it).
+        static NEXT: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        let base = 140 + (std::process::id() % 300) + 50 * NEXT.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
         for n in 0..50 {
-            let num = 140 + (std::process::id() % 300) + n;
+            let num = base + n;
             if Path::new(&format!("/tmp/.X11-unix/X{num}")).exists()
                 || Path::new(&format!("/tmp/.X{num}-lock")).exists()
             {
@@ -39,12 +44,22 @@ impl Xvfb {
                 .stderr(Stdio::null())
                 .spawn()
                 .expect("Xvfb is needed for the window tests (scripts/install-deps.sh installs the package xvfb)");
+            let mut child = child;
             let t0 = Instant::now();
+            let mut exited = false;
             while t0.elapsed() < Duration::from_secs(10) {
+                // a server that exited lost the number to another one (another process's test)
+                if child.try_wait().ok().flatten().is_some() {
+                    exited = true;
+                    break;
+                }
                 if Path::new(&format!("/tmp/.X11-unix/X{num}")).exists() {
                     return Xvfb { child, display: format!(":{num}") };
                 }
                 std::thread::sleep(Duration::from_millis(50));
+            }
+            if exited {
+                continue;
             }
             panic!("Xvfb :{num} did not start");
         }
