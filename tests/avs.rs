@@ -13,38 +13,8 @@ use std::sync::Mutex;
 // The technique's last-frame statistics are process-global: tests reading them run one at a time.
 static SERIAL: Mutex<()> = Mutex::new(());
 
-fn scene(name: &str) -> Scene {
-    Scene::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name)).expect("scene")
-}
-
-fn with(s: &Scene, params: &[(&str, &str)]) -> Scene {
-    let mut s = s.clone();
-    for (k, v) in params {
-        s.technique_params.insert(k.to_string(), v.to_string());
-    }
-    s
-}
-
-fn render(scene: &Scene, technique: &str, w: u32, h: u32, times: &[f32], validation: bool) -> (Renderer, Vec<FrameImages>) {
-    let settings = RenderSettings { width: w, height: h, technique: Some(technique.into()), ..Default::default() };
-    let mut r = Renderer::new_headless(scene, settings, validation).expect("renderer");
-    let mut out = Vec::new();
-    let mut prev = None;
-    for &t in times {
-        let f = scene.at(t, prev);
-        prev = Some(t);
-        out.extend(r.render(&f, None, true).expect("render"));
-    }
-    out.extend(r.finish().expect("finish"));
-    (r, out)
-}
-
-fn image(f: &FrameImages) -> Image {
-    Image::from_fn(f.width, f.height, |x, y| {
-        let p = f.hdr[(y * f.width + x) as usize];
-        [p[0], p[1], p[2]]
-    })
-}
+mod common;
+use common::{hdr_image as image, render_times as render, scene, with};
 
 /// Writes `img` as an sRGB PNG (exposure 1, clamped) into `$AVS_DUMP/name.png` when set.
 fn dump(img: &Image, name: &str) {

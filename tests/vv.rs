@@ -4,23 +4,13 @@
 //! the CPU SAT.
 
 use penumbra::{FrameImages, RenderSettings, Renderer};
-use penumbra_reference::image::Image;
 use penumbra_reference::metrics::compare;
 use penumbra_reference::render::{render as reference_render, Mode, ReferenceOptions};
 use penumbra_scene::Scene;
 use std::path::PathBuf;
 
-fn scene(name: &str) -> Scene {
-    Scene::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name)).expect("scene")
-}
-
-fn with(s: &Scene, params: &[(&str, &str)]) -> Scene {
-    let mut s = s.clone();
-    for (k, v) in params {
-        s.technique_params.insert(k.to_string(), v.to_string());
-    }
-    s
-}
+mod common;
+use common::{hdr_image as image, scene, with};
 
 fn render(scene: &Scene, w: u32, h: u32, validation: bool) -> (Renderer, Vec<FrameImages>) {
     let settings = RenderSettings { width: w, height: h, technique: Some("vv".into()), ..Default::default() };
@@ -31,13 +21,6 @@ fn render(scene: &Scene, w: u32, h: u32, validation: bool) -> (Renderer, Vec<Fra
     }
     out.extend(r.finish().expect("finish"));
     (r, out)
-}
-
-fn image(f: &FrameImages) -> Image {
-    Image::from_fn(f.width, f.height, |x, y| {
-        let p = f.hdr[(y * f.width + x) as usize];
-        [p[0], p[1], p[2]]
-    })
 }
 
 #[test]

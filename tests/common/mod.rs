@@ -10,6 +10,15 @@ pub fn scene(name: &str) -> Scene {
     Scene::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name)).expect("scene")
 }
 
+/// `s` with `params` added to its `[technique_params]`.
+pub fn with(s: &Scene, params: &[(&str, &str)]) -> Scene {
+    let mut s = s.clone();
+    for (k, v) in params {
+        s.technique_params.insert(k.to_string(), v.to_string());
+    }
+    s
+}
+
 /// Renders `scene` with `technique` at the given times (seconds, in order) and returns every
 /// finished frame's images.
 pub fn render_times(scene: &Scene, technique: &str, w: u32, h: u32, times: &[f32], validation: bool) -> (Renderer, Vec<FrameImages>) {
