@@ -13,7 +13,7 @@
 //! exact transforms over texel centres). Maps are processed in batches so the intermediate buffer
 //! stays under [`G_BUDGET_BYTES`] (e.g. 512 maps at r = 128).
 
-use crate::util::{bind_compute, bytes_of, compute_pipeline, groups, Pipeline};
+use crate::util::{bytes_of, compute_pipeline, dispatch, groups, Pipeline};
 use anyhow::{anyhow, Result};
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Graph, PassKind};
@@ -91,15 +91,10 @@ impl Hsdt {
                 let v = p.read(vis, Access::ComputeShaderReadStorage);
                 // each invocation re-reads only its own writes: a plain write for the graph
                 let gw = p.write(g, Access::ComputeShaderWriteStorage);
-                let (pipe, layout) = (self.rows.pipeline, self.rows.layout);
+                let pipe = self.rows.handle();
                 p.record(move |rc| {
-                    bind_compute(rc, pipe, layout, &[Bind::StorageBuffer(v), Bind::StorageBuffer(gw)])?;
-                    unsafe {
-                        let d = rc.device();
-                        d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
-                        d.cmd_dispatch(rc.cmd, groups(r, 64), count, 1);
-                    }
-                    Ok(())
+                    let binds = [Bind::StorageBuffer(v), Bind::StorageBuffer(gw)];
+                    dispatch(rc, pipe, &binds, &bytes_of(&push), [groups(r, 64), count, 1])
                 });
                 vis = v;
                 // `g` for the next pass
@@ -113,15 +108,10 @@ impl Hsdt {
                 } else {
                     p.write(out, Access::ComputeShaderReadWriteStorage)
                 };
-                let (pipe, layout) = (self.cols.pipeline, self.cols.layout);
+                let pipe = self.cols.handle();
                 p.record(move |rc| {
-                    bind_compute(rc, pipe, layout, &[Bind::StorageBuffer(v), Bind::StorageBuffer(gr), Bind::StorageBuffer(o)])?;
-                    unsafe {
-                        let d = rc.device();
-                        d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
-                        d.cmd_dispatch(rc.cmd, groups(r / 2, 64), count, 1);
-                    }
-                    Ok(())
+                    let binds = [Bind::StorageBuffer(v), Bind::StorageBuffer(gr), Bind::StorageBuffer(o)];
+                    dispatch(rc, pipe, &binds, &bytes_of(&push), [groups(r / 2, 64), count, 1])
                 });
                 vis = v;
                 out = o;
@@ -165,17 +155,11 @@ impl IntegrateEval {
         let mut p = graph.pass(name, PassKind::Compute);
         let ins = [ssdf, table, lobes, params].map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let o = p.write(out, Access::ComputeShaderWriteStorage);
-        let (pipe, layout) = (self.pipe.pipeline, self.pipe.layout);
+        let pipe = self.pipe.handle();
         p.record(move |rc| {
             let mut binds: Vec<Bind> = ins.iter().map(|b| Bind::StorageBuffer(*b)).collect();
             binds.push(Bind::StorageBuffer(o));
-            bind_compute(rc, pipe, layout, &binds)?;
-            unsafe {
-                let d = rc.device();
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&[r, n]));
-                d.cmd_dispatch(rc.cmd, groups(n, 16).max(1), 1, 1);
-            }
-            Ok(())
+            dispatch(rc, pipe, &binds, &bytes_of(&[r, n]), [groups(n, 16).max(1), 1, 1])
         });
         o
     }

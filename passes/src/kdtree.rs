@@ -44,6 +44,7 @@ use crate::util::{bytes_of, compute_pipeline, groups, Pipeline};
 use anyhow::{bail, Result};
 use glam::Vec3;
 use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::graph::PassBuilder;
 use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, PassKind};
 use penumbra_scene::{Frame, Scene};
 use std::sync::Arc;
@@ -119,6 +120,40 @@ pub struct KdTreeHandles {
     pub extent: f32,
     /// The tree is (re)built in this frame's graph.
     pub built_this_frame: bool,
+}
+
+/// The tree's four buffers as read by one tracing pass (bindings `tris, nodes, refs, header`
+/// in that order, as the users of `glsl/include/kdtree.glsl` declare them).
+#[derive(Clone, Copy, Debug)]
+pub struct KdTreeReads {
+    pub tris: BufferHandle,
+    pub nodes: BufferHandle,
+    pub refs: BufferHandle,
+    pub header: BufferHandle,
+}
+
+impl KdTreeHandles {
+    /// Declares the pass's storage reads of the tree by compute shaders.
+    pub fn read(&self, p: &mut PassBuilder<'_>) -> KdTreeReads {
+        KdTreeReads {
+            tris: p.read(self.tris, Access::ComputeShaderReadStorage),
+            nodes: p.read(self.nodes, Access::ComputeShaderReadStorage),
+            refs: p.read(self.refs, Access::ComputeShaderReadStorage),
+            header: p.read(self.header, Access::ComputeShaderReadStorage),
+        }
+    }
+}
+
+impl KdTreeReads {
+    /// The four storage-buffer bindings, in declaration order.
+    pub fn binds(&self) -> [Bind; 4] {
+        [
+            Bind::StorageBuffer(self.tris),
+            Bind::StorageBuffer(self.nodes),
+            Bind::StorageBuffer(self.refs),
+            Bind::StorageBuffer(self.header),
+        ]
+    }
 }
 
 /// Self-intersection offset policy of the tracer's users: a ray leaving a surface starts at
@@ -395,25 +430,15 @@ impl KdTreeBuilder {
         let bx = p.write(boxes, Access::ComputeShaderWriteStorage);
         let refs = p.write(h.refs, Access::ComputeShaderWriteStorage);
         let header = p.write(h.header, Access::ComputeShaderWriteStorage);
-        let (pipe, layout) = (self.init.pipeline, self.init.layout);
+        let pipe = self.init.handle();
         p.record(move |rc| {
-            crate::util::bind_compute(
-                rc,
-                pipe,
-                layout,
-                &[
-                    Bind::StorageBuffer(nodes),
-                    Bind::StorageBuffer(bx),
-                    Bind::StorageBuffer(refs),
-                    Bind::StorageBuffer(header),
-                ],
-            )?;
-            unsafe {
-                let d = rc.device();
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
-                d.cmd_dispatch(rc.cmd, groups(n.max(STATS_WORDS as u32), 64), 1, 1);
-            }
-            Ok(())
+            let binds = [
+                Bind::StorageBuffer(nodes),
+                Bind::StorageBuffer(bx),
+                Bind::StorageBuffer(refs),
+                Bind::StorageBuffer(header),
+            ];
+            crate::util::dispatch(rc, pipe, &binds, &bytes_of(&push), [groups(n.max(STATS_WORDS as u32), 64), 1, 1])
         });
         let (mut nodes, mut bx, mut refs, mut header) = (nodes, bx, refs, header);
 
@@ -441,28 +466,15 @@ impl KdTreeBuilder {
                 bx = p.write(bx, Access::ComputeShaderReadWriteStorage);
                 refs = p.write(refs, Access::ComputeShaderReadWriteStorage);
                 header = p.write(header, Access::ComputeShaderReadWriteStorage);
-                let (pipe, layout) = (pipeline.pipeline, pipeline.layout);
-                let (nd, b, r, hd) = (nodes, bx, refs, header);
-                p.record(move |rc| {
-                    crate::util::bind_compute(
-                        rc,
-                        pipe,
-                        layout,
-                        &[
-                            Bind::StorageBuffer(tr),
-                            Bind::StorageBuffer(nd),
-                            Bind::StorageBuffer(b),
-                            Bind::StorageBuffer(r),
-                            Bind::StorageBuffer(hd),
-                        ],
-                    )?;
-                    unsafe {
-                        let d = rc.device();
-                        d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
-                        d.cmd_dispatch(rc.cmd, wgs, 1, 1);
-                    }
-                    Ok(())
-                });
+                let pipe = pipeline.handle();
+                let binds = [
+                    Bind::StorageBuffer(tr),
+                    Bind::StorageBuffer(nodes),
+                    Bind::StorageBuffer(bx),
+                    Bind::StorageBuffer(refs),
+                    Bind::StorageBuffer(header),
+                ];
+                p.record(move |rc| crate::util::dispatch(rc, pipe, &binds, &bytes_of(&push), [wgs, 1, 1]));
             }
         }
         h.nodes = nodes;

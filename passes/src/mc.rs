@@ -448,10 +448,7 @@ impl McTechnique {
         self.accumulated += self.spp;
 
         let mut p = graph.pass("mc", PassKind::Compute);
-        let tris = p.read(tree.tris, Access::ComputeShaderReadStorage);
-        let nodes = p.read(tree.nodes, Access::ComputeShaderReadStorage);
-        let refs = p.read(tree.refs, Access::ComputeShaderReadStorage);
-        let header = p.read(tree.header, Access::ComputeShaderReadStorage);
+        let kd = tree.read(&mut p);
         let td = p.read(tridata, Access::ComputeShaderReadStorage);
         let mats = p.read(materials, Access::ComputeShaderReadStorage);
         let et = p.read(env_texels, Access::ComputeShaderReadStorage);
@@ -461,33 +458,20 @@ impl McTechnique {
         let lt = p.read(lights, Access::ComputeShaderReadStorage);
         let tex = p.read(textures, Access::ComputeShaderReadSampled);
         let repeat = self.repeat.sampler;
-        let (pipe, layout) = (self.pipeline.pipeline, self.pipeline.layout);
+        let pipe = self.pipeline.handle();
         p.record(move |rc| {
-            crate::util::bind_compute(
-                rc,
-                pipe,
-                layout,
-                &[
-                    Bind::StorageBuffer(tris),
-                    Bind::StorageBuffer(nodes),
-                    Bind::StorageBuffer(refs),
-                    Bind::StorageBuffer(header),
-                    Bind::StorageBuffer(td),
-                    Bind::StorageBuffer(mats),
-                    Bind::StorageBuffer(et),
-                    Bind::StorageBuffer(ec),
-                    Bind::StorageImage(accum),
-                    Bind::StorageImage(hdr),
-                    Bind::StorageBuffer(lt),
-                    Bind::SampledImage(tex, repeat),
-                ],
-            )?;
-            unsafe {
-                let d = rc.device();
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
-                d.cmd_dispatch(rc.cmd, groups(width, 8), groups(height, 8), 1);
-            }
-            Ok(())
+            let rest = [
+                Bind::StorageBuffer(td),
+                Bind::StorageBuffer(mats),
+                Bind::StorageBuffer(et),
+                Bind::StorageBuffer(ec),
+                Bind::StorageImage(accum),
+                Bind::StorageImage(hdr),
+                Bind::StorageBuffer(lt),
+                Bind::SampledImage(tex, repeat),
+            ];
+            let binds = [kd.binds().as_slice(), &rest].concat();
+            crate::util::dispatch(rc, pipe, &binds, &push, [groups(width, 8), groups(height, 8), 1])
         });
         Ok(hdr)
     }

@@ -107,21 +107,12 @@ impl ShadeEnvPass {
         let lights = p.read(scene.lights, Access::ComputeShaderReadStorage);
         let light_count = scene.light_count;
         let textures = p.read(scene.textures, Access::ComputeShaderReadSampled);
-        let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
+        let pipe = self.pipeline.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
-            crate::util::bind_compute(
-                rc,
-                pipeline,
-                layout,
-                &[io.binds(nearest, linear), vec![Bind::StorageBuffer(lights), Bind::SampledImage(textures, repeat)]].concat(),
-            )?;
-            unsafe {
-                let d = rc.device();
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &light_count.to_le_bytes());
-                d.cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1);
-            }
-            Ok(())
+            let binds =
+                [io.binds(nearest, linear), vec![Bind::StorageBuffer(lights), Bind::SampledImage(textures, repeat)]].concat();
+            crate::util::dispatch(rc, pipe, &binds, &light_count.to_le_bytes(), [groups(w, 8), groups(h, 8), 1])
         });
         hdr
     }

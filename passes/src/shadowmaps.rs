@@ -188,36 +188,16 @@ impl ShadowMapsTechnique {
         let depth = engine.persistent_buffer(graph, "shadowmaps.depth", k as u64 * s as u64 * s as u64 * 4);
         let depth = if rebuilt || graph.persistent_is_new(depth) {
             let mut p = graph.pass("shadowmaps_depth", PassKind::Compute);
-            let tr = p.read(tree.tris, Access::ComputeShaderReadStorage);
-            let nd = p.read(tree.nodes, Access::ComputeShaderReadStorage);
-            let rf = p.read(tree.refs, Access::ComputeShaderReadStorage);
-            let hd = p.read(tree.header, Access::ComputeShaderReadStorage);
+            let kd = tree.read(&mut p);
             let mp = p.read(maps, Access::ComputeShaderReadStorage);
             let dp = p.write(depth, Access::ComputeShaderWriteStorage);
             let mut push = Vec::new();
             push.extend(bytes_of(&[s, k, 0, 0]));
             push.extend(bytes_of(&self.sphere));
-            let (pipe, layout) = (self.depth_pipe.pipeline, self.depth_pipe.layout);
+            let pipe = self.depth_pipe.handle();
             p.record(move |rc| {
-                crate::util::bind_compute(
-                    rc,
-                    pipe,
-                    layout,
-                    &[
-                        Bind::StorageBuffer(tr),
-                        Bind::StorageBuffer(nd),
-                        Bind::StorageBuffer(rf),
-                        Bind::StorageBuffer(hd),
-                        Bind::StorageBuffer(mp),
-                        Bind::StorageBuffer(dp),
-                    ],
-                )?;
-                unsafe {
-                    let d = rc.device();
-                    d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
-                    d.cmd_dispatch(rc.cmd, groups(s, 8), groups(s, 8), k);
-                }
-                Ok(())
+                let binds = [kd.binds().as_slice(), &[Bind::StorageBuffer(mp), Bind::StorageBuffer(dp)]].concat();
+                crate::util::dispatch(rc, pipe, &binds, &push, [groups(s, 8), groups(s, 8), k])
             });
             dp
         } else {
@@ -245,25 +225,13 @@ impl ShadowMapsTechnique {
         let dp = p.read(depth, Access::ComputeShaderReadStorage);
         let et = p.read(env_texels, Access::ComputeShaderReadStorage);
         let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
-        let (pipe, layout) = (self.shade_pipe.pipeline, self.shade_pipe.layout);
+        let pipe = self.shade_pipe.handle();
         let nearest = self.nearest.sampler;
         p.record(move |rc| {
-            crate::util::bind_compute(
-                rc,
-                pipe,
-                layout,
-                &[
-                    &g.binds(nearest)[..],
-                    &[Bind::StorageBuffer(mats), Bind::StorageBuffer(mp), Bind::StorageBuffer(dp), Bind::StorageBuffer(et), Bind::StorageImage(hdr)],
-                ]
-                .concat(),
-            )?;
-            unsafe {
-                let d = rc.device();
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
-                d.cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1);
-            }
-            Ok(())
+            let rest =
+                [Bind::StorageBuffer(mats), Bind::StorageBuffer(mp), Bind::StorageBuffer(dp), Bind::StorageBuffer(et), Bind::StorageImage(hdr)];
+            let binds = [&g.binds(nearest)[..], &rest].concat();
+            crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
         });
         Ok(hdr)
     }

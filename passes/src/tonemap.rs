@@ -52,20 +52,10 @@ impl TonemapPass {
         let mut p = graph.pass("tonemap", PassKind::Compute);
         let hdr = p.read(hdr, Access::ComputeShaderReadSampled);
         let ldr = p.write(ldr, Access::ComputeShaderWriteStorage);
-        let (pipeline, layout, nearest) = (self.pipeline.pipeline, self.pipeline.layout, self.nearest.sampler);
+        let (pipe, nearest) = (self.pipeline.handle(), self.nearest.sampler);
         p.record(move |rc| {
-            let d = rc.device();
-            crate::util::bind_compute(
-                rc,
-                pipeline,
-                layout,
-                &[Bind::SampledImage(hdr, nearest), Bind::StorageImage(ldr)],
-            )?;
-            unsafe {
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &params.exposure.to_le_bytes());
-                d.cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1);
-            }
-            Ok(())
+            let binds = [Bind::SampledImage(hdr, nearest), Bind::StorageImage(ldr)];
+            crate::util::dispatch(rc, pipe, &binds, &params.exposure.to_le_bytes(), [groups(w, 8), groups(h, 8), 1])
         });
         ldr
     }

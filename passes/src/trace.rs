@@ -98,37 +98,14 @@ impl Tracer {
         let hits = graph.create_buffer(&format!("{rays_name}.hits"), (count as u64 * HIT_BYTES).max(HIT_BYTES));
         let kind = if mode == TraceMode::AnyHit { "trace_any" } else { "trace_closest" };
         let mut p = graph.pass(&format!("{kind}:{rays_name}"), PassKind::Compute);
-        let tris = p.read(tree.tris, Access::ComputeShaderReadStorage);
-        let nodes = p.read(tree.nodes, Access::ComputeShaderReadStorage);
-        let refs = p.read(tree.refs, Access::ComputeShaderReadStorage);
-        let header = p.read(tree.header, Access::ComputeShaderReadStorage);
+        let kd = tree.read(&mut p);
         let rays = p.read(rays, Access::ComputeShaderReadStorage);
         let hits = p.write(hits, Access::ComputeShaderWriteStorage);
         let push = [count, (mode == TraceMode::AnyHit) as u32];
-        let (pipe, layout) = (self.pipeline.pipeline, self.pipeline.layout);
+        let pipe = self.pipeline.handle();
         p.record(move |rc| {
-            if count == 0 {
-                return Ok(());
-            }
-            crate::util::bind_compute(
-                rc,
-                pipe,
-                layout,
-                &[
-                    Bind::StorageBuffer(tris),
-                    Bind::StorageBuffer(nodes),
-                    Bind::StorageBuffer(refs),
-                    Bind::StorageBuffer(header),
-                    Bind::StorageBuffer(rays),
-                    Bind::StorageBuffer(hits),
-                ],
-            )?;
-            unsafe {
-                let d = rc.device();
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
-                d.cmd_dispatch(rc.cmd, groups(count, 64 * RAYS_PER_INVOCATION).max(1), 1, 1);
-            }
-            Ok(())
+            let binds = [kd.binds().as_slice(), &[Bind::StorageBuffer(rays), Bind::StorageBuffer(hits)]].concat();
+            crate::util::dispatch(rc, pipe, &binds, &bytes_of(&push), [groups(count, 64 * RAYS_PER_INVOCATION), 1, 1])
         });
         hits
     }

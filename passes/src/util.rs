@@ -15,6 +15,11 @@ pub struct Pipeline {
 }
 
 impl Pipeline {
+    /// The pipeline and its layout, to move into a pass's record closure (see [`dispatch`]).
+    pub fn handle(&self) -> ComputeHandle {
+        ComputeHandle { pipeline: self.pipeline, layout: self.layout }
+    }
+
     /// Takes ownership of objects created elsewhere (graphics pipelines).
     pub fn from_raw(
         ctx: &Arc<Context>,
@@ -197,6 +202,38 @@ pub fn add_image_upload(
         Ok(())
     });
     img
+}
+
+/// A compute pipeline and its layout (plain handles, `Copy`), owned by a [`Pipeline`].
+#[derive(Clone, Copy, Debug)]
+pub struct ComputeHandle {
+    pub pipeline: vk::Pipeline,
+    pub layout: vk::PipelineLayout,
+}
+
+/// The whole recording of a compute pass's dispatch: binds the pipeline, pushes its descriptors
+/// (checked against the pass's declarations), sets the push constants `push` (none when empty)
+/// and dispatches `groups` workgroups. A dispatch with a zero count is skipped (Vulkan allows it,
+/// but it would still bind and push for nothing).
+pub fn dispatch(
+    rc: &penumbra_engine::RecordContext,
+    h: ComputeHandle,
+    binds: &[penumbra_engine::Bind],
+    push: &[u8],
+    groups: [u32; 3],
+) -> Result<()> {
+    if groups.contains(&0) {
+        return Ok(());
+    }
+    bind_compute(rc, h.pipeline, h.layout, binds)?;
+    unsafe {
+        let d = rc.device();
+        if !push.is_empty() {
+            d.cmd_push_constants(rc.cmd, h.layout, vk::ShaderStageFlags::COMPUTE, 0, push);
+        }
+        d.cmd_dispatch(rc.cmd, groups[0], groups[1], groups[2]);
+    }
+    Ok(())
 }
 
 /// Binds a compute pipeline and pushes its descriptors (checked against the pass's declarations).

@@ -501,15 +501,9 @@ impl IsgTechnique {
             push.extend_from_slice(&f32::to_le_bytes(v));
         }
         push.extend_from_slice(&(n as i32).to_le_bytes());
-        let (pipeline, layout) = (self.bvh_pipeline.pipeline, self.bvh_pipeline.layout);
+        let pipe = self.bvh_pipeline.handle();
         p.record(move |rc| {
-            crate::util::bind_compute(rc, pipeline, layout, &[Bind::StorageBuffer(input), Bind::StorageBuffer(nodes)])?;
-            unsafe {
-                let d = rc.device();
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
-                d.cmd_dispatch(rc.cmd, 1, 1, 1);
-            }
-            Ok(())
+            crate::util::dispatch(rc, pipe, &[Bind::StorageBuffer(input), Bind::StorageBuffer(nodes)], &push, [1, 1, 1])
         });
         (nodes, (2 * n - 1) as i32)
     }
@@ -542,7 +536,7 @@ impl IsgTechnique {
         let index_buf = graph.create_buffer_init("isg_vertex_indices", bytes_of(&indices));
         let vis = graph.create_buffer("isg_vertex_vis", (count.max(1) as u64) * 16);
         let Some((compute, raster)) = &self.vertex_pipelines else { anyhow::bail!("isg: per-vertex pipelines missing") };
-        let (cp, cl) = (compute.pipeline, compute.layout);
+        let vertex_pipe = compute.handle();
         let (rp, rl) = (raster.pipeline, raster.layout);
         let scene = inputs.scene;
         let mut p = graph.pass("isg_vertex", PassKind::Compute);
@@ -564,30 +558,18 @@ impl IsgTechnique {
         push.extend_from_slice(&self.settings.lod.to_le_bytes());
         push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
         p.record(move |rc| {
-            crate::util::bind_compute(
-                rc,
-                cp,
-                cl,
-                &[
-                    Bind::UniformBuffer(camera),
-                    Bind::StorageBuffer(materials),
-                    Bind::StorageBuffer(verts_c),
-                    Bind::StorageBuffer(vis),
-                    Bind::StorageBuffer(lobes),
-                    Bind::StorageBuffer(table),
-                    Bind::StorageBuffer(bvh),
-                    Bind::StorageBuffer(tris),
-                    Bind::StorageBuffer(tri_nodes),
-                ],
-            )?;
-            unsafe {
-                let d = rc.device();
-                d.cmd_push_constants(rc.cmd, cl, vk::ShaderStageFlags::COMPUTE, 0, &push);
-                if count > 0 {
-                    d.cmd_dispatch(rc.cmd, groups(count, 64), 1, 1);
-                }
-            }
-            Ok(())
+            let binds = [
+                Bind::UniformBuffer(camera),
+                Bind::StorageBuffer(materials),
+                Bind::StorageBuffer(verts_c),
+                Bind::StorageBuffer(vis),
+                Bind::StorageBuffer(lobes),
+                Bind::StorageBuffer(table),
+                Bind::StorageBuffer(bvh),
+                Bind::StorageBuffer(tris),
+                Bind::StorageBuffer(tri_nodes),
+            ];
+            crate::util::dispatch(rc, vertex_pipe, &binds, &push, [groups(count, 64), 1, 1])
         });
         let image = graph.create_image("isg_vis", ImageDesc::new_2d(vertex::VIS_FORMAT, w, h));
         let depth = graph.create_image("isg_vis_depth", ImageDesc::new_2d(vertex::VIS_DEPTH_FORMAT, w, h));
@@ -708,7 +690,7 @@ impl crate::technique::Technique for IsgTechnique {
         push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
         push.extend_from_slice(&(!self.settings.prefiltered_specular as u32).to_le_bytes());
         push.extend_from_slice(&tri_node_count.to_le_bytes());
-        let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
+        let pipe = self.pipeline.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
             let mut binds = io.binds(nearest, linear);
@@ -725,13 +707,7 @@ impl crate::technique::Technique for IsgTechnique {
             if let Some(v) = vertex_vis {
                 binds.push(Bind::SampledImage(v, nearest));
             }
-            crate::util::bind_compute(rc, pipeline, layout, &binds)?;
-            unsafe {
-                let d = rc.device();
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
-                d.cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1);
-            }
-            Ok(())
+            crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
         });
         Ok(hdr)
     }
@@ -799,29 +775,17 @@ pub fn gpu_visibility(
     push.extend_from_slice(&tri_node_count.to_le_bytes());
     push.extend_from_slice(&(patch_side.clamp(1, 32) as i32).to_le_bytes());
     push.extend_from_slice(&lod.to_le_bytes());
-    let (pl, layout) = (pipeline.pipeline, pipeline.layout);
+    let pipe = pipeline.handle();
     p.record(move |rc| {
-        crate::util::bind_compute(
-            rc,
-            pl,
-            layout,
-            &[
-                Bind::StorageBuffer(qb),
-                Bind::StorageBuffer(out_w),
-                Bind::StorageBuffer(tb),
-                Bind::StorageBuffer(nb),
-                Bind::StorageBuffer(trb),
-                Bind::StorageBuffer(tnb),
-            ],
-        )?;
-        unsafe {
-            let d = rc.device();
-            d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
-            if count > 0 {
-                d.cmd_dispatch(rc.cmd, groups(count, 64), 1, 1);
-            }
-        }
-        Ok(())
+        let binds = [
+            Bind::StorageBuffer(qb),
+            Bind::StorageBuffer(out_w),
+            Bind::StorageBuffer(tb),
+            Bind::StorageBuffer(nb),
+            Bind::StorageBuffer(trb),
+            Bind::StorageBuffer(tnb),
+        ];
+        crate::util::dispatch(rc, pipe, &binds, &push, [groups(count, 64), 1, 1])
     });
     let rb = graph.create_readback("isg_parity", count.max(1) as u64 * 4);
     let mut p = graph.pass("isg_parity_readback", PassKind::Transfer);

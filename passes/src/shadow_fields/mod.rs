@@ -843,21 +843,13 @@ impl ShadowFieldsTechnique {
         let mut p = graph.pass("sf_points", PassKind::Compute);
         let r = [h.data, h.shells, h.insts, h.tensor, h.light, pts].map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let out = p.write(out, Access::ComputeShaderWriteStorage);
-        let (pipeline, layout) = (self.points.pipeline, self.points.layout);
+        let pipe = self.points.handle();
         let n_light = if self.srf { h.light_count } else { 0 };
         let push: Vec<u8> = [n, h.inst_count, h.tensor_count, n_light, self.window_code()].iter().flat_map(|x| x.to_le_bytes()).collect();
         p.record(move |rc| {
             let mut binds: Vec<Bind> = r.iter().map(|&b| Bind::StorageBuffer(b)).collect();
             binds.push(Bind::StorageBuffer(out));
-            crate::util::bind_compute(rc, pipeline, layout, &binds)?;
-            unsafe {
-                let d = rc.device();
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
-                if n > 0 {
-                    d.cmd_dispatch(rc.cmd, groups(n, 64), 1, 1);
-                }
-            }
-            Ok(())
+            crate::util::dispatch(rc, pipe, &binds, &push, [groups(n, 64), 1, 1])
         });
         out
     }
@@ -961,7 +953,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         let vtx = vtx.map(|v| p.read(v, Access::ComputeShaderReadSampled)).unwrap_or(io.env);
         let hdr = io.hdr;
         let r = [h.data, h.shells, h.insts, h.tensor, h.light, inputs.scene.lights].map(|b| p.read(b, Access::ComputeShaderReadStorage));
-        let (pipeline, layout) = (self.shade.pipeline, self.shade.layout);
+        let pipe = self.shade.handle();
         let (nearest, linear) = (self.nearest.sampler, self.linear.sampler);
         let mode = (self.mode == SfMode::Vertex) as u32;
         let push: Vec<u8> = [h.inst_count, h.tensor_count, inputs.scene.light_count, self.srf as u32, self.window_code(), mode]
@@ -972,13 +964,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
             let mut binds = io.binds(nearest, linear);
             binds.extend(r.iter().map(|&b| Bind::StorageBuffer(b)));
             binds.push(Bind::SampledImage(vtx, nearest));
-            crate::util::bind_compute(rc, pipeline, layout, &binds)?;
-            unsafe {
-                let d = rc.device();
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
-                d.cmd_dispatch(rc.cmd, groups(w, 8), groups(hh, 8), 1);
-            }
-            Ok(())
+            crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(hh, 8), 1])
         });
         Ok(hdr)
     }

@@ -830,24 +830,18 @@ impl Effect for VolumetricEffect {
                 Access::ComputeShaderWriteStorage
             };
             let out = p.write(scatter, access);
-            let (pipeline, layout, nearest) = (self.march.pipeline, self.march.layout, self.nearest.sampler);
+            let (pipe, nearest) = (self.march.handle(), self.nearest.sampler);
             p.record(move |rc| {
-                crate::util::bind_compute(
-                    rc,
-                    pipeline,
-                    layout,
-                    &[
-                        Bind::UniformBuffer(camera),
-                        Bind::StorageBuffer(lb),
-                        Bind::SampledImage(pos, nearest),
-                        Bind::SampledImage(sm, nearest),
-                        Bind::SampledImage(mk.unwrap_or(pos), nearest),
-                        Bind::StorageImage(out),
-                        Bind::SampledImage(iv.unwrap_or(pos), nearest),
-                    ],
-                )?;
-                unsafe { rc.device().cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1) };
-                Ok(())
+                let binds = [
+                    Bind::UniformBuffer(camera),
+                    Bind::StorageBuffer(lb),
+                    Bind::SampledImage(pos, nearest),
+                    Bind::SampledImage(sm, nearest),
+                    Bind::SampledImage(mk.unwrap_or(pos), nearest),
+                    Bind::StorageImage(out),
+                    Bind::SampledImage(iv.unwrap_or(pos), nearest),
+                ];
+                crate::util::dispatch(rc, pipe, &binds, &[], [groups(w, 8), groups(h, 8), 1])
             });
             out
         };
@@ -861,23 +855,17 @@ impl Effect for VolumetricEffect {
         let hin = p.read(hdr, Access::ComputeShaderReadSampled);
         let sc = p.read(scatter, Access::ComputeShaderReadSampled);
         let out = p.write(out, Access::ComputeShaderWriteStorage);
-        let (pipeline, layout, nearest) = (self.composite.pipeline, self.composite.layout, self.nearest.sampler);
+        let (pipe, nearest) = (self.composite.handle(), self.nearest.sampler);
         p.record(move |rc| {
-            crate::util::bind_compute(
-                rc,
-                pipeline,
-                layout,
-                &[
-                    Bind::UniformBuffer(camera),
-                    Bind::StorageBuffer(lb),
-                    Bind::SampledImage(pos, nearest),
-                    Bind::SampledImage(hin, nearest),
-                    Bind::SampledImage(sc, nearest),
-                    Bind::StorageImage(out),
-                ],
-            )?;
-            unsafe { rc.device().cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1) };
-            Ok(())
+            let binds = [
+                Bind::UniformBuffer(camera),
+                Bind::StorageBuffer(lb),
+                Bind::SampledImage(pos, nearest),
+                Bind::SampledImage(hin, nearest),
+                Bind::SampledImage(sc, nearest),
+                Bind::StorageImage(out),
+            ];
+            crate::util::dispatch(rc, pipe, &binds, &[], [groups(w, 8), groups(h, 8), 1])
         });
         self.last = Some(VolFrameInfo { mode, scatter, mask, frame_id: self.frame_id, refresh_reason: reason });
         Ok(out)
