@@ -463,6 +463,86 @@ fn volumes_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipel
     volume_pipeline(ctx, shaders, "vol_volumes", "vol_volumes.frag", INTERVAL_FORMAT, Blend::MinRgbMaxAlpha)
 }
 
+/// Shadow-volume draws (extruded by `vol_mask.geom` from the adjacency index buffer) into one
+/// colour target: the mask and the hybrid intervals passes.
+struct VolumeDraws<'a> {
+    pipeline: &'a Pipeline,
+    /// The imported adjacency index buffer.
+    adjacency: penumbra_engine::BufferHandle,
+    /// The light block's `pos_kind` (position and kind).
+    light: [f32; 4],
+    near: f32,
+    /// (instance, adjacency range, vertex offset) per drawn mesh.
+    draws: Vec<(u32, AdjRange, i32)>,
+}
+
+impl VolumeDraws<'_> {
+    /// Adds raster pass `name` that clears `img` to `clear` and draws every volume once per value
+    /// of the `use_prev` push constant in `use_prev` (0: this frame's positions, 1: the previous
+    /// frame's); returns the written image.
+    fn add(
+        self,
+        graph: &mut Graph,
+        name: &str,
+        sh: &crate::scene_gpu::SceneHandles,
+        img: ImageHandle,
+        (w, h): (u32, u32),
+        clear: [f32; 4],
+        use_prev: &'static [u32],
+    ) -> ImageHandle {
+        let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
+        let mut p = graph.pass(name, PassKind::Raster);
+        let img = p.write(img, Access::ColorAttachmentWrite);
+        let camera = p.read(sh.camera, Access::AnyShaderReadUniform);
+        let instances = p.read(sh.instances, Access::VertexShaderReadStorage);
+        let vertices = p.read(sh.vertices, Access::VertexBuffer);
+        let adj_h = p.read(self.adjacency, Access::IndexBuffer);
+        let (lp, near, draws) = (self.light, self.near, self.draws);
+        p.record(move |rc| {
+            let d = rc.device();
+            let att = vk::RenderingAttachmentInfo::default()
+                .image_view(rc.image(img)?.view)
+                .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+                .load_op(vk::AttachmentLoadOp::CLEAR)
+                .store_op(vk::AttachmentStoreOp::STORE)
+                .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: clear } });
+            let atts = [att];
+            let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
+            let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&atts);
+            let vb = rc.buffer(vertices)?.buffer;
+            let ib = rc.buffer(adj_h)?.buffer;
+            unsafe {
+                d.cmd_begin_rendering(rc.cmd, &info);
+                d.cmd_set_viewport(rc.cmd, 0, &[viewport(0.0, 0.0, w as f32, h as f32)]);
+                d.cmd_set_scissor(rc.cmd, 0, &[area]);
+                d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+            }
+            rc.push_descriptors(
+                vk::PipelineBindPoint::GRAPHICS,
+                layout,
+                0,
+                &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)],
+            )?;
+            let stages = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::GEOMETRY | vk::ShaderStageFlags::FRAGMENT;
+            unsafe {
+                d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb], &[0]);
+                d.cmd_bind_index_buffer(rc.cmd, ib, 0, vk::IndexType::UINT32);
+                for &prev in use_prev {
+                    let mut pc = bytes_of(&[lp[0], lp[1], lp[2], near]);
+                    pc.extend(bytes_of(&[prev, 0, 0, 0]));
+                    d.cmd_push_constants(rc.cmd, layout, stages, 0, &pc);
+                    for (inst, r, vo) in &draws {
+                        d.cmd_draw_indexed(rc.cmd, r.index_count, 1, r.first_index, *vo, *inst);
+                    }
+                }
+                d.cmd_end_rendering(rc.cmd);
+            }
+            Ok(())
+        });
+        img
+    }
+}
+
 fn viewport(x: f32, y: f32, w: f32, h: f32) -> vk::Viewport {
     vk::Viewport { x, y, width: w, height: h, min_depth: 0.0, max_depth: 1.0 }
 }
@@ -649,16 +729,9 @@ impl Effect for VolumetricEffect {
         let mut mask = None;
         if mode == MarchMode::Masked {
             let mp = self.mask.as_ref().expect("mask pipeline");
-            let (pipeline, layout) = (mp.pipeline, mp.layout);
             let adj = self.adjacency.as_ref().expect("adjacency");
             let adj_h = graph.import_buffer("vol.adjacency", adj.buffer, adj.size, adj.usage);
             let img = graph.create_image("vol_mask", ImageDesc::new_2d(MASK_FORMAT, w, h));
-            let mut p = graph.pass("vol_mask", PassKind::Raster);
-            let img = p.write(img, Access::ColorAttachmentWrite);
-            let camera = p.read(sh.camera, Access::AnyShaderReadUniform);
-            let instances = p.read(sh.instances, Access::VertexShaderReadStorage);
-            let vertices = p.read(sh.vertices, Access::VertexBuffer);
-            let adj_h = p.read(adj_h, Access::IndexBuffer);
             let draws: Vec<(u32, AdjRange, i32)> = movers
                 .iter()
                 .filter_map(|d| {
@@ -666,56 +739,9 @@ impl Effect for VolumetricEffect {
                     Some((d.instance, *r, d.mesh.vertex_offset))
                 })
                 .collect();
-            let lp = block.pos_kind;
-            let near = cam.near;
-            p.record(move |rc| {
-                let d = rc.device();
-                let att = vk::RenderingAttachmentInfo::default()
-                    .image_view(rc.image(img)?.view)
-                    .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
-                    .load_op(vk::AttachmentLoadOp::CLEAR)
-                    .store_op(vk::AttachmentStoreOp::STORE)
-                    .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: [0.0; 4] } });
-                let atts = [att];
-                let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
-                let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&atts);
-                let vb = rc.buffer(vertices)?.buffer;
-                let ib = rc.buffer(adj_h)?.buffer;
-                unsafe {
-                    d.cmd_begin_rendering(rc.cmd, &info);
-                    d.cmd_set_viewport(rc.cmd, 0, &[viewport(0.0, 0.0, w as f32, h as f32)]);
-                    d.cmd_set_scissor(rc.cmd, 0, &[area]);
-                    d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
-                }
-                rc.push_descriptors(
-                    vk::PipelineBindPoint::GRAPHICS,
-                    layout,
-                    0,
-                    &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)],
-                )?;
-                unsafe {
-                    d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb], &[0]);
-                    d.cmd_bind_index_buffer(rc.cmd, ib, 0, vk::IndexType::UINT32);
-                    for use_prev in [0u32, 1] {
-                        let mut pc = bytes_of(&[lp[0], lp[1], lp[2], near]);
-                        pc.extend(bytes_of(&[use_prev, 0, 0, 0]));
-                        d.cmd_push_constants(
-                            rc.cmd,
-                            layout,
-                            vk::ShaderStageFlags::VERTEX
-                                | vk::ShaderStageFlags::GEOMETRY
-                                | vk::ShaderStageFlags::FRAGMENT,
-                            0,
-                            &pc,
-                        );
-                        for (inst, r, vo) in &draws {
-                            d.cmd_draw_indexed(rc.cmd, r.index_count, 1, r.first_index, *vo, *inst);
-                        }
-                    }
-                    d.cmd_end_rendering(rc.cmd);
-                }
-                Ok(())
-            });
+            // The volumes of the previous frame's and this frame's positions (use_prev 0 and 1).
+            let vol = VolumeDraws { pipeline: mp, adjacency: adj_h, light: block.pos_kind, near: cam.near, draws };
+            let img = vol.add(graph, "vol_mask", sh, img, (w, h), [0.0; 4], &[0, 1]);
             mask = Some(img);
         }
 
@@ -745,66 +771,11 @@ impl Effect for VolumetricEffect {
                 == casters.len();
             if all_covered {
                 if let Some(adj) = self.adjacency.as_ref() {
-                    let (pipeline, layout) = (vp.pipeline, vp.layout);
                     let adj_h = graph.import_buffer("vol.adjacency_all", adj.buffer, adj.size, adj.usage);
                     let img = graph.create_image("vol_intervals", ImageDesc::new_2d(INTERVAL_FORMAT, w, h));
-                    let mut p = graph.pass("vol_volumes", PassKind::Raster);
-                    let img = p.write(img, Access::ColorAttachmentWrite);
-                    let camera = p.read(sh.camera, Access::AnyShaderReadUniform);
-                    let instances = p.read(sh.instances, Access::VertexShaderReadStorage);
-                    let vertices = p.read(sh.vertices, Access::VertexBuffer);
-                    let adj_h = p.read(adj_h, Access::IndexBuffer);
-                    let lp = block.pos_kind;
-                    let near = cam.near;
-                    p.record(move |rc| {
-                        let d = rc.device();
-                        let att = vk::RenderingAttachmentInfo::default()
-                            .image_view(rc.image(img)?.view)
-                            .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
-                            .load_op(vk::AttachmentLoadOp::CLEAR)
-                            .store_op(vk::AttachmentStoreOp::STORE)
-                            .clear_value(vk::ClearValue {
-                                color: vk::ClearColorValue {
-                                    float32: [f32::INFINITY, f32::INFINITY, f32::INFINITY, 0.0],
-                                },
-                            });
-                        let atts = [att];
-                        let area = vk::Rect2D {
-                            offset: vk::Offset2D::default(),
-                            extent: vk::Extent2D { width: w, height: h },
-                        };
-                        let info =
-                            vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&atts);
-                        let vb = rc.buffer(vertices)?.buffer;
-                        let ib = rc.buffer(adj_h)?.buffer;
-                        unsafe {
-                            d.cmd_begin_rendering(rc.cmd, &info);
-                            d.cmd_set_viewport(rc.cmd, 0, &[viewport(0.0, 0.0, w as f32, h as f32)]);
-                            d.cmd_set_scissor(rc.cmd, 0, &[area]);
-                            d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
-                        }
-                        rc.push_descriptors(
-                            vk::PipelineBindPoint::GRAPHICS,
-                            layout,
-                            0,
-                            &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)],
-                        )?;
-                        unsafe {
-                            d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb], &[0]);
-                            d.cmd_bind_index_buffer(rc.cmd, ib, 0, vk::IndexType::UINT32);
-                            let mut pc = bytes_of(&[lp[0], lp[1], lp[2], near]);
-                            pc.extend(bytes_of(&[0u32, 0, 0, 0]));
-                            let stages = vk::ShaderStageFlags::VERTEX
-                                | vk::ShaderStageFlags::GEOMETRY
-                                | vk::ShaderStageFlags::FRAGMENT;
-                            d.cmd_push_constants(rc.cmd, layout, stages, 0, &pc);
-                            for (inst, r, vo) in &casters {
-                                d.cmd_draw_indexed(rc.cmd, r.index_count, 1, r.first_index, *vo, *inst);
-                            }
-                            d.cmd_end_rendering(rc.cmd);
-                        }
-                        Ok(())
-                    });
+                    let vol =
+                        VolumeDraws { pipeline: vp, adjacency: adj_h, light: block.pos_kind, near: cam.near, draws: casters };
+                    let img = vol.add(graph, "vol_volumes", sh, img, (w, h), [f32::INFINITY, f32::INFINITY, f32::INFINITY, 0.0], &[0]);
                     intervals = Some(img);
                 }
             }
