@@ -35,7 +35,7 @@ pub struct BenchArgs {
     pub spp: u32,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Output directory: reference.exr, <technique>.exr, <technique>_diff.png, bench.json.
+    /// Output directory: reference.exr, <technique>.exr, <technique>_diff.png, bench.json, tradeoff.png.
     #[arg(long, default_value = "bench-out")]
     pub out: PathBuf,
     /// Also compare against the reference with SG-approximated lighting and exact visibility
@@ -169,6 +169,26 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
     });
     std::fs::write(args.out.join("bench.json"), serde_json::to_string_pretty(&report)? + "\n")?;
     println!("wrote {}", args.out.join("bench.json").display());
+    // The speed/accuracy trade as a picture: one point per technique.
+    let series: Vec<crate::plot::Series> = rows
+        .iter()
+        .map(|r| {
+            let name = r["technique"].as_str().unwrap_or("?").to_string();
+            let point = (r["gpu_ms_per_frame"].as_f64().unwrap_or(f64::NAN), r["psnr_db"].as_f64().unwrap_or(f64::NAN));
+            crate::plot::Series { name: name.clone(), points: vec![point], labels: vec![format!(" {name}")] }
+        })
+        .collect();
+    let chart = crate::plot::Chart {
+        title: format!("{}: error against time ({}x{}, {}-spp reference)", scene.name, width, height, args.spp),
+        x_label: "GPU ms per frame (median, lavapipe)".into(),
+        y_label: "PSNR vs reference (dB)".into(),
+        log_x: true,
+    };
+    match crate::plot::write_chart(&args.out.join("tradeoff.png"), &chart, &series) {
+        Ok(()) => println!("wrote {}", args.out.join("tradeoff.png").display()),
+        // e.g. every technique matched the reference exactly (infinite PSNR): nothing to plot
+        Err(e) => println!("no chart: {e:#}"),
+    }
     Ok(())
 }
 

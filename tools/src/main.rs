@@ -17,6 +17,7 @@ mod avs_bench;
 mod bench;
 mod isg_bench;
 mod hsdt_bench;
+mod plot;
 mod spheres;
 mod vv_bench;
 mod view;

@@ -144,7 +144,7 @@ fn bench_measures_techniques_against_the_reference() {
         out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", text(&o));
-    for f in ["reference.exr", "reference_sg.exr", "env.exr", "env_diff.png", "bench.json"] {
+    for f in ["reference.exr", "reference_sg.exr", "env.exr", "env_diff.png", "bench.json", "tradeoff.png"] {
         assert!(out.join(f).exists(), "missing {f}");
     }
     let b: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("bench.json")).unwrap()).unwrap();

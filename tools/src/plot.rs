@@ -1,0 +1,178 @@
+//! PNG charts of the benches' trade-offs (error against time, quality against a parameter),
+//! drawn with plotters' bitmap backend and a bundled font (DejaVu Sans Mono, licence in
+//! `tools/assets/DejaVuSansMono.LICENSE`), so no system font library is needed.
+
+use anyhow::{anyhow, bail, Context as _, Result};
+use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
+use plotters::coord::types::RangedCoordf64;
+use plotters::prelude::*;
+use std::path::Path;
+use std::sync::Once;
+
+const FONT: &[u8] = include_bytes!("../assets/DejaVuSansMono.ttf");
+const FAMILY: &str = "penumbra-mono";
+
+/// One line of points (drawn in the given order) with a legend entry; `labels`, when not empty,
+/// annotates each point (e.g. the parameter value it was measured at).
+#[derive(Clone, Debug, Default)]
+pub struct Series {
+    pub name: String,
+    pub points: Vec<(f64, f64)>,
+    pub labels: Vec<String>,
+}
+
+/// Axis titles and scales of a chart.
+#[derive(Clone, Debug)]
+pub struct Chart {
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    /// Logarithmic x axis (all x must be positive).
+    pub log_x: bool,
+}
+
+fn register_font() -> Result<()> {
+    static ONCE: Once = Once::new();
+    let mut res = Ok(());
+    ONCE.call_once(|| {
+        res = plotters::style::register_font(FAMILY, FontStyle::Normal, FONT)
+            .map_err(|_| anyhow!("the bundled chart font does not parse"));
+    });
+    res
+}
+
+/// The padded range of `v` (a single value gets a unit-wide range).
+fn range(v: impl Iterator<Item = f64>, log: bool) -> Option<(f64, f64)> {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for x in v {
+        lo = lo.min(x);
+        hi = hi.max(x);
+    }
+    if !(lo.is_finite() && hi.is_finite()) {
+        return None;
+    }
+    if log {
+        let (l0, l1) = (lo.log10(), hi.log10());
+        let pad = ((l1 - l0) * 0.08).max(0.1);
+        return Some((10f64.powf(l0 - pad), 10f64.powf(l1 + pad)));
+    }
+    let pad = ((hi - lo) * 0.08).max(hi.abs().max(1.0) * 0.02);
+    Some((lo - pad, hi + pad))
+}
+
+/// Writes `series` as a line-and-point chart to `path` (PNG, 800x560). Points with a non-finite
+/// coordinate (or x <= 0 on a log axis) are left out; a chart with no point left is an error
+/// naming the file.
+pub fn write_chart(path: &Path, chart: &Chart, series: &[Series]) -> Result<()> {
+    register_font()?;
+    let keep = |&(x, y): &(f64, f64)| x.is_finite() && y.is_finite() && (!chart.log_x || x > 0.0);
+    let series: Vec<Series> = series
+        .iter()
+        .map(|s| {
+            let (points, labels): (Vec<_>, Vec<_>) = s
+                .points
+                .iter()
+                .enumerate()
+                .filter(|(_, p)| keep(p))
+                .map(|(i, p)| (*p, s.labels.get(i).cloned().unwrap_or_default()))
+                .unzip();
+            Series { name: s.name.clone(), points, labels }
+        })
+        .filter(|s| !s.points.is_empty())
+        .collect();
+    let all = || series.iter().flat_map(|s| s.points.iter().copied());
+    let (Some(xr), Some(yr)) = (range(all().map(|p| p.0), chart.log_x), range(all().map(|p| p.1), false)) else {
+        bail!("{}: no finite point to plot", path.display());
+    };
+    let res = if chart.log_x {
+        draw(path, chart, &series, (xr.0..xr.1).log_scale(), yr)
+    } else {
+        draw(path, chart, &series, xr.0..xr.1, yr)
+    };
+    res.with_context(|| format!("writing chart {}", path.display()))
+}
+
+fn draw<X>(path: &Path, chart: &Chart, series: &[Series], x: X, yr: (f64, f64)) -> Result<()>
+where
+    X: AsRangedCoord<Value = f64>,
+    X::CoordDescType: ValueFormatter<f64>,
+{
+    let root = BitMapBackend::new(path, (800, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
+    let mut c = ChartBuilder::on(&root)
+        .caption(&chart.title, (FAMILY, 20))
+        .margin(14)
+        .x_label_area_size(44)
+        .y_label_area_size(64)
+        .build_cartesian_2d(x, RangedCoordf64::from(yr.0..yr.1))
+        .map_err(|e| anyhow!("{e}"))?;
+    c.configure_mesh()
+        .x_desc(&chart.x_label)
+        .y_desc(&chart.y_label)
+        .label_style((FAMILY, 13))
+        .axis_desc_style((FAMILY, 15))
+        .draw()
+        .map_err(|e| anyhow!("{e}"))?;
+    for (i, s) in series.iter().enumerate() {
+        let color = Palette99::pick(i).to_rgba();
+        c.draw_series(LineSeries::new(s.points.iter().copied(), color.stroke_width(2)))
+            .map_err(|e| anyhow!("{e}"))?
+            .label(&s.name)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
+        c.draw_series(s.points.iter().map(|&p| Circle::new(p, 4, color.filled()))).map_err(|e| anyhow!("{e}"))?;
+        let text = TextStyle::from((FAMILY, 12)).color(&BLACK);
+        c.draw_series(
+            s.points
+                .iter()
+                .zip(&s.labels)
+                .filter(|(_, l)| !l.is_empty())
+                .map(|(&p, l)| Text::new(l.clone(), p, text.clone())),
+        )
+        .map_err(|e| anyhow!("{e}"))?;
+    }
+    c.configure_series_labels()
+        .label_font((FAMILY, 13))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| anyhow!("{e}"))?;
+    root.present().map_err(|e| anyhow!("{e}"))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn png_size(path: &Path) -> (u32, u32) {
+        let bytes = std::fs::read(path).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG");
+        (u32::from_be_bytes(bytes[16..20].try_into().unwrap()), u32::from_be_bytes(bytes[20..24].try_into().unwrap()))
+    }
+
+    #[test]
+    fn writes_png_and_drops_bad_points() {
+        let dir = std::env::temp_dir().join(format!("penumbra-plot-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let s = vec![
+            Series {
+                name: "a".into(),
+                points: vec![(1.0, 20.0), (10.0, 25.0), (f64::NAN, 3.0), (-1.0, 4.0)],
+                labels: vec!["x".into(), "y".into()],
+            },
+            Series { name: "b".into(), points: vec![(100.0, 30.0)], labels: vec![] },
+        ];
+        for log_x in [false, true] {
+            let p = dir.join(format!("c{log_x}.png"));
+            let chart = Chart { title: "t".into(), x_label: "ms".into(), y_label: "dB".into(), log_x };
+            write_chart(&p, &chart, &s).unwrap();
+            assert_eq!(png_size(&p), (800, 560));
+        }
+        let p = dir.join("empty.png");
+        let chart = Chart { title: "t".into(), x_label: "ms".into(), y_label: "dB".into(), log_x: true };
+        let bad = [Series { name: "n".into(), points: vec![(0.0, 1.0), (f64::INFINITY, 2.0)], labels: vec![] }];
+        let err = write_chart(&p, &chart, &bad).unwrap_err().to_string();
+        assert!(err.contains("empty.png") && err.contains("no finite point"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
