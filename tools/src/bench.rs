@@ -183,6 +183,7 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
         x_label: "GPU ms per frame (median, lavapipe)".into(),
         y_label: "PSNR vs reference (dB)".into(),
         log_x: true,
+        legend: false,
     };
     match crate::plot::write_chart(&args.out.join("tradeoff.png"), &chart, &series) {
         Ok(()) => println!("wrote {}", args.out.join("tradeoff.png").display()),
@@ -320,6 +321,9 @@ pub struct ShadowFieldsArgs {
     /// per-shell resolutions, with cube faces of this resolution (initial R = min(R, 32)).
     #[arg(long)]
     pub haar: Option<usize>,
+    /// Also draw the image comparison as a chart (PNG): PSNR against GPU ms per variant.
+    #[arg(long)]
+    pub chart: Option<PathBuf>,
 }
 
 /// The variants of the image comparison: (label, technique, [technique_params]).
@@ -394,6 +398,7 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
     );
     println!("{:<22} {:>8} {:>9} {:>8} {:>11}", "variant", "PSNR dB", "relRMSE", "FLIP", "GPU ms");
     let mut images = Vec::new();
+    let mut points = Vec::new();
     for (label, technique, params) in sf_variants(!scene.lights.is_empty()) {
         let mut s = scene.clone();
         s.technique_params = params.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
@@ -424,6 +429,22 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
             c.flip_mean
         );
         images.push((label, img));
+        points.push((label, ms, c.psnr_db.unwrap_or(f64::NAN)));
+    }
+    if let Some(path) = &args.chart {
+        let series: Vec<crate::plot::Series> = points
+            .iter()
+            .map(|&(l, ms, db)| crate::plot::Series { name: l.into(), points: vec![(ms, db)], labels: vec![] })
+            .collect();
+        let chart = crate::plot::Chart {
+            title: format!("{}: shadow-field variants at {width}x{height}, t = {} s", scene.name, args.time),
+            x_label: "GPU ms per frame (median of 3, lavapipe)".into(),
+            y_label: format!("PSNR vs reference, {} spp (dB)", args.spp),
+            log_x: true,
+            legend: true, // variants cluster: colours and a legend, not point labels
+        };
+        crate::plot::write_chart(path, &chart, &series)?;
+        println!("wrote {}", path.display());
     }
     if let (Some(a), Some(f)) = (images.iter().find(|(l, _)| *l == "adaptive pixel"), images.iter().find(|(l, _)| *l == "fixed pixel")) {
         let c = compare(&f.1, "fixed", &a.1, "adaptive")?;

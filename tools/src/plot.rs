@@ -29,6 +29,8 @@ pub struct Chart {
     pub y_label: String,
     /// Logarithmic x axis (all x must be positive).
     pub log_x: bool,
+    /// Draw a legend box of the series' names (leave it off when every point is labelled).
+    pub legend: bool,
 }
 
 fn register_font() -> Result<()> {
@@ -109,6 +111,8 @@ where
     c.configure_mesh()
         .x_desc(&chart.x_label)
         .y_desc(&chart.y_label)
+        .x_labels(7)
+        .y_labels(8)
         .label_style((FAMILY, 13))
         .axis_desc_style((FAMILY, 15))
         .draw()
@@ -130,12 +134,15 @@ where
         )
         .map_err(|e| anyhow!("{e}"))?;
     }
-    c.configure_series_labels()
-        .label_font((FAMILY, 13))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| anyhow!("{e}"))?;
+    if chart.legend {
+        c.configure_series_labels()
+            .position(SeriesLabelPosition::LowerRight)
+            .label_font((FAMILY, 13))
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| anyhow!("{e}"))?;
+    }
     root.present().map_err(|e| anyhow!("{e}"))?;
     Ok(())
 }
@@ -164,12 +171,12 @@ mod tests {
         ];
         for log_x in [false, true] {
             let p = dir.join(format!("c{log_x}.png"));
-            let chart = Chart { title: "t".into(), x_label: "ms".into(), y_label: "dB".into(), log_x };
+            let chart = Chart { title: "t".into(), x_label: "ms".into(), y_label: "dB".into(), log_x, legend: !log_x };
             write_chart(&p, &chart, &s).unwrap();
             assert_eq!(png_size(&p), (800, 560));
         }
         let p = dir.join("empty.png");
-        let chart = Chart { title: "t".into(), x_label: "ms".into(), y_label: "dB".into(), log_x: true };
+        let chart = Chart { title: "t".into(), x_label: "ms".into(), y_label: "dB".into(), log_x: true, legend: true };
         let bad = [Series { name: "n".into(), points: vec![(0.0, 1.0), (f64::INFINITY, 2.0)], labels: vec![] }];
         let err = write_chart(&p, &chart, &bad).unwrap_err().to_string();
         assert!(err.contains("empty.png") && err.contains("no finite point"), "{err}");
