@@ -400,22 +400,7 @@ impl KdTreeBuilder {
         }
         let upload = graph.create_buffer_init("kdtree.upload", bytes_of(&data));
         let size = data.len() as u64 * 4;
-        let mut p = graph.pass("kdtree_upload", PassKind::Transfer);
-        let src = p.read(upload, Access::TransferSrc);
-        let dst = p.write(h.tris, Access::TransferDst);
-        p.record(move |rc| {
-            let (s, d) = (rc.buffer(src)?, rc.buffer(dst)?);
-            unsafe {
-                rc.device().cmd_copy_buffer(
-                    rc.cmd,
-                    s.buffer,
-                    d.buffer,
-                    &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }],
-                )
-            };
-            Ok(())
-        });
-        h.tris = dst;
+        h.tris = crate::util::copy_buffer(graph, "kdtree_upload", upload, h.tris, Some(size)).1;
 
         // ---- init: root, counters
         let boxes = graph.create_buffer("kdtree.boxes", max_nodes * 32);

@@ -353,23 +353,7 @@ impl McTechnique {
         if !(force || graph.persistent_is_new(h)) {
             return h;
         }
-        let src = graph.create_buffer_init(&format!("{name}.upload"), data);
-        let mut p = graph.pass(&format!("upload_{name}"), PassKind::Transfer);
-        let s = p.read(src, Access::TransferSrc);
-        let d = p.write(h, Access::TransferDst);
-        p.record(move |rc| {
-            let (sb, db) = (rc.buffer(s)?, rc.buffer(d)?);
-            unsafe {
-                rc.device().cmd_copy_buffer(
-                    rc.cmd,
-                    sb.buffer,
-                    db.buffer,
-                    &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: sb.size.min(db.size) }],
-                )
-            };
-            Ok(())
-        });
-        d
+        crate::util::upload_into(graph, &format!("upload_{name}"), &format!("{name}.upload"), data, h)
     }
 
     /// Declares the tree (rebuilt when geometry changed) and the `mc` pass; returns the HDR image.
@@ -477,23 +461,7 @@ impl McTechnique {
     }
 
     fn persistent_upload_into(graph: &mut Graph, h: BufferHandle, data: Vec<u8>) -> BufferHandle {
-        let src = graph.create_buffer_init("mc.tridata.upload", data);
-        let mut p = graph.pass("upload_mc.tridata", PassKind::Transfer);
-        let s = p.read(src, Access::TransferSrc);
-        let d = p.write(h, Access::TransferDst);
-        p.record(move |rc| {
-            let (sb, db) = (rc.buffer(s)?, rc.buffer(d)?);
-            unsafe {
-                rc.device().cmd_copy_buffer(
-                    rc.cmd,
-                    sb.buffer,
-                    db.buffer,
-                    &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: sb.size.min(db.size) }],
-                )
-            };
-            Ok(())
-        });
-        d
+        crate::util::upload_into(graph, "upload_mc.tridata", "mc.tridata.upload", data, h)
     }
 }
 

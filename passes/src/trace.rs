@@ -135,22 +135,6 @@ pub fn add_copy_to_readback(
     size: u64,
 ) -> (BufferHandle, BufferHandle) {
     let rb = graph.create_readback(name, size.max(4));
-    let mut p = graph.pass(&format!("readback_{name}"), PassKind::Transfer);
-    let s = p.read(src, Access::TransferSrc);
-    let d = p.write(rb, Access::TransferDst);
-    p.record(move |rc| {
-        let (sb, db) = (rc.buffer(s)?, rc.buffer(d)?);
-        if size > 0 {
-            unsafe {
-                rc.device().cmd_copy_buffer(
-                    rc.cmd,
-                    sb.buffer,
-                    db.buffer,
-                    &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }],
-                )
-            };
-        }
-        Ok(())
-    });
+    let (s, d) = crate::util::copy_buffer(graph, &format!("readback_{name}"), src, rb, Some(size));
     (d, s)
 }

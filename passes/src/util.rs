@@ -246,3 +246,42 @@ pub fn bind_compute(
     unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
     rc.push_descriptors(vk::PipelineBindPoint::COMPUTE, layout, 0, binds)
 }
+
+/// Adds transfer pass `name` copying the first `size` bytes of `src` into `dst` (`None`: as much
+/// as the smaller of the two holds; a zero size copies nothing); returns the new versions
+/// `(src, dst)`.
+pub fn copy_buffer(
+    graph: &mut penumbra_engine::Graph,
+    name: &str,
+    src: penumbra_engine::BufferHandle,
+    dst: penumbra_engine::BufferHandle,
+    size: Option<u64>,
+) -> (penumbra_engine::BufferHandle, penumbra_engine::BufferHandle) {
+    use penumbra_engine::{Access, PassKind};
+    let mut p = graph.pass(name, PassKind::Transfer);
+    let s = p.read(src, Access::TransferSrc);
+    let d = p.write(dst, Access::TransferDst);
+    p.record(move |rc| {
+        let (sb, db) = (rc.buffer(s)?, rc.buffer(d)?);
+        let size = size.unwrap_or(sb.size.min(db.size));
+        if size > 0 {
+            let region = vk::BufferCopy { src_offset: 0, dst_offset: 0, size };
+            unsafe { rc.device().cmd_copy_buffer(rc.cmd, sb.buffer, db.buffer, &[region]) };
+        }
+        Ok(())
+    });
+    (s, d)
+}
+
+/// Uploads `data` into `dst` through a new host-visible buffer `staging` and transfer pass
+/// `name`; returns `dst`'s new version.
+pub fn upload_into(
+    graph: &mut penumbra_engine::Graph,
+    name: &str,
+    staging: &str,
+    data: Vec<u8>,
+    dst: penumbra_engine::BufferHandle,
+) -> penumbra_engine::BufferHandle {
+    let src = graph.create_buffer_init(staging, data);
+    copy_buffer(graph, name, src, dst, None).1
+}

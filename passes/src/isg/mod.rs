@@ -788,15 +788,7 @@ pub fn gpu_visibility(
         crate::util::dispatch(rc, pipe, &binds, &push, [groups(count, 64), 1, 1])
     });
     let rb = graph.create_readback("isg_parity", count.max(1) as u64 * 4);
-    let mut p = graph.pass("isg_parity_readback", PassKind::Transfer);
-    let src = p.read(out_w, Access::TransferSrc);
-    let dst = p.write(rb, Access::TransferDst);
-    p.record(move |rc| {
-        let (s, d) = (rc.buffer(src)?, rc.buffer(dst)?);
-        let region = vk::BufferCopy { src_offset: 0, dst_offset: 0, size: s.size.min(d.size) };
-        unsafe { rc.device().cmd_copy_buffer(rc.cmd, s.buffer, d.buffer, &[region]) };
-        Ok(())
-    });
+    crate::util::copy_buffer(&mut graph, "isg_parity_readback", out_w, rb, None);
     let (_, mut done) = engine.submit(graph)?;
     done.extend(engine.drain()?);
     drop(pipeline);

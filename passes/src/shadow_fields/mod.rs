@@ -970,22 +970,6 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
     }
 }
 
-/// Copies `size` bytes of `src` into a new readback buffer `name`.
-pub fn add_readback(graph: &mut Graph, src: BufferHandle, name: &str, size: u64) -> BufferHandle {
-    let rb = graph.create_readback(name, size.max(4));
-    let mut p = graph.pass(&format!("readback_{name}"), PassKind::Transfer);
-    let s = p.read(src, Access::TransferSrc);
-    let d = p.write(rb, Access::TransferDst);
-    p.record(move |rc| {
-        let (sb, db) = (rc.buffer(s)?, rc.buffer(d)?);
-        if size > 0 {
-            unsafe { rc.device().cmd_copy_buffer(rc.cmd, sb.buffer, db.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }]) };
-        }
-        Ok(())
-    });
-    d
-}
-
 /// Runs the GPU rendering path on `points` for `frame`: per point `[r, g, b, unclamped min]`
 /// and the GPU milliseconds of the `sf_points` pass.
 pub fn gpu_shade_points(
@@ -997,7 +981,7 @@ pub fn gpu_shade_points(
     let mut g = Graph::new();
     let h = upload(&mut g, &tech.tables, &tech.casts, frame, &tech.light, tech.srf);
     let out = tech.add_points(&mut g, &h, points, None, points.len().max(1) as u32);
-    add_readback(&mut g, out, "sf_points_out", points.len().max(1) as u64 * 16);
+    crate::trace::add_copy_to_readback(&mut g, out, "sf_points_out", points.len().max(1) as u64 * 16);
     engine.submit(g)?;
     let mut outs = engine.drain()?;
     let o = outs.pop().ok_or_else(|| anyhow!("no frame output"))?;
