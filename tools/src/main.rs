@@ -133,22 +133,29 @@ struct RenderArgs {
     /// Also write every intermediate image (G-buffer, HDR) of every frame to DIR/passes/ as EXR.
     #[arg(long)]
     dump_passes: bool,
+    #[command(flatten)]
+    o: SceneOverrides,
+}
+
+/// What `render` and `view` override in a scene, and how they present it.
+#[derive(Args)]
+pub struct SceneOverrides {
     /// Exposure applied before tone mapping.
     #[arg(long, default_value_t = 1.0)]
-    exposure: f32,
+    pub exposure: f32,
     /// Use the Vulkan device whose name contains this.
     #[arg(long)]
-    device: Option<String>,
-    /// Override the scene's technique.
+    pub device: Option<String>,
+    /// Override the scene's technique (`env`, `isg`, `avs`, ...: the README's technique table).
     #[arg(long)]
-    technique: Option<String>,
+    pub technique: Option<String>,
     /// Volumetric method for scenes with a medium: temporal (default) or full.
     #[arg(long)]
-    volumetric: Option<String>,
+    pub volumetric: Option<String>,
     /// A technique parameter KEY=VALUE (repeatable; overrides the scene's [technique_params]).
-    /// isg: lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, gpu_bvh.
+    /// The keys depend on the technique; an unknown key is an error that lists the known ones.
     #[arg(long = "param", value_name = "KEY=VALUE")]
-    params: Vec<String>,
+    pub params: Vec<String>,
 }
 
 /// An error caused by the user's input: exit code 2.
@@ -267,16 +274,16 @@ fn render(args: &RenderArgs) -> Result<()> {
     let settings = RenderSettings {
         width,
         height,
-        tonemap: penumbra_passes::tonemap::TonemapParams { exposure: args.exposure },
-        technique: args.technique.clone(),
+        tonemap: penumbra_passes::tonemap::TonemapParams { exposure: args.o.exposure },
+        technique: args.o.technique.clone(),
         dump_passes: args.dump_passes,
-        effects: penumbra_passes::effect::EffectOverrides { volumetric: args.volumetric.clone() },
+        effects: penumbra_passes::effect::EffectOverrides { volumetric: args.o.volumetric.clone() },
         ..Default::default()
     };
-    let scene = apply_overrides(scene, &args.technique, &args.params, &args.volumetric)?;
+    let scene = apply_overrides(scene, &args.o.technique, &args.o.params, &args.o.volumetric)?;
     let ctx = penumbra::engine::Context::new(&penumbra::engine::ContextDesc {
         validation: args.validate,
-        device_name: args.device.clone(),
+        device_name: args.o.device.clone(),
         ..Default::default()
     })?;
     let mut r = new_renderer(ctx, &scene, settings)?;

@@ -57,21 +57,8 @@ pub struct ViewArgs {
     /// reported any error.
     #[arg(long)]
     validate: bool,
-    /// Exposure applied before tone mapping.
-    #[arg(long, default_value_t = 1.0)]
-    exposure: f32,
-    /// Use the Vulkan device whose name contains this.
-    #[arg(long)]
-    device: Option<String>,
-    /// Override the scene's technique (T cycles through the implemented ones).
-    #[arg(long)]
-    technique: Option<String>,
-    /// Volumetric method for scenes with a medium: temporal (default) or full.
-    #[arg(long)]
-    volumetric: Option<String>,
-    /// A technique parameter KEY=VALUE (repeatable; overrides the scene's [technique_params]).
-    #[arg(long = "param", value_name = "KEY=VALUE")]
-    params: Vec<String>,
+    #[command(flatten)]
+    o: crate::SceneOverrides,
     /// Scripted key presses before given frames, e.g. `2:t,4:r,5:p` (keys: q, space, left,
     /// right, t, r, p, g), for demos and tests.
     #[arg(long, default_value = "")]
@@ -109,12 +96,12 @@ pub fn view(args: &ViewArgs) -> Result<()> {
         return Err(bad("--screenshot needs --frames (interactively, press P)"));
     }
     let script = parse_keys(&args.keys).map_err(|e| bad(format!("--keys: {e}")))?;
-    let scene = apply_overrides(load_scene(args.scene.as_deref())?, &args.technique, &args.params, &args.volumetric)?;
+    let scene = apply_overrides(load_scene(args.scene.as_deref())?, &args.o.technique, &args.o.params, &args.o.volumetric)?;
     let settings = RenderSettings {
         width,
         height,
-        tonemap: penumbra_passes::tonemap::TonemapParams { exposure: args.exposure },
-        effects: penumbra_passes::effect::EffectOverrides { volumetric: args.volumetric.clone() },
+        tonemap: penumbra_passes::tonemap::TonemapParams { exposure: args.o.exposure },
+        effects: penumbra_passes::effect::EffectOverrides { volumetric: args.o.volumetric.clone() },
         ..Default::default()
     };
     let event_loop = EventLoop::new().map_err(|e| {
@@ -470,7 +457,7 @@ impl State {
             exts.iter().map(|&p| unsafe { CStr::from_ptr(p) }.to_owned()).collect::<Vec<CString>>();
         let ctx = Context::new(&ContextDesc {
             validation: args.validate,
-            device_name: args.device.clone(),
+            device_name: args.o.device.clone(),
             instance_extensions,
             swapchain: true,
         })?;
