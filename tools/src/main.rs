@@ -127,7 +127,7 @@ struct RenderArgs {
     /// Also print the compiled graph of the last frame as text.
     #[arg(long)]
     dump_graph: bool,
-    /// Also print the per-pass GPU timing table.
+    /// Also print the per-pass GPU timing table and draw it as DIR/profile.png (bars, recording order).
     #[arg(long)]
     profile: bool,
     /// Also write every intermediate image (G-buffer, HDR) of every frame to DIR/passes/ as EXR.
@@ -345,6 +345,21 @@ fn render(args: &RenderArgs) -> Result<()> {
     }
     if args.profile {
         print!("{}", r.engine.profiler.table());
+        // The same medians as a picture, passes in recording order.
+        let bars: Vec<(String, f64)> = profile["passes"]
+            .as_array()
+            .map(|a| {
+                a.iter()
+                    .map(|p| (p["pass"].as_str().unwrap_or("?").to_string(), p["gpu_ms"]["median_ms"].as_f64().unwrap_or(f64::NAN)))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let title = format!("{}: GPU ms per pass (median over the frames that ran it), {}", scene.name, r.context().device_name);
+        let path = args.out.join("profile.png");
+        match plot::write_bars(&path, &title, "ms", &bars) {
+            Ok(()) => println!("wrote {}", path.display()),
+            Err(e) => println!("no profile chart: {e:#}"),
+        }
     }
     if args.validate {
         let log = r.context().validation.clone();

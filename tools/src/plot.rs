@@ -6,6 +6,7 @@ use anyhow::{anyhow, bail, Context as _, Result};
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::path::Path;
 use std::sync::Once;
 
@@ -147,6 +148,55 @@ where
     Ok(())
 }
 
+/// Writes a horizontal bar chart of `bars` (label, value; drawn top to bottom in the given
+/// order, each annotated with its label and value in `unit`) to `path` (PNG, 800 wide). Bars
+/// with a non-finite or negative value are drawn empty and annotated "n/a".
+pub fn write_bars(path: &Path, title: &str, unit: &str, bars: &[(String, f64)]) -> Result<()> {
+    register_font()?;
+    if bars.is_empty() {
+        bail!("{}: no bar to draw", path.display());
+    }
+    let ok = |v: f64| v.is_finite() && v >= 0.0;
+    let max = bars.iter().map(|b| b.1).filter(|&v| ok(v)).fold(0.0f64, f64::max).max(1e-9);
+    let n = bars.len();
+    let height = (90 + 22 * n).min(4000) as u32;
+    let res = (|| -> Result<()> {
+        let root = BitMapBackend::new(path, (800, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
+        let mut c = ChartBuilder::on(&root)
+            .caption(title, (FAMILY, 18))
+            .margin(12)
+            .x_label_area_size(36)
+            .build_cartesian_2d(0.0..max * 1.9, 0.0..n as f64)
+            .map_err(|e| anyhow!("{e}"))?;
+        c.configure_mesh()
+            .disable_y_mesh()
+            .disable_y_axis()
+            .x_labels(8)
+            .x_desc(unit)
+            .label_style((FAMILY, 12))
+            .axis_desc_style((FAMILY, 14))
+            .draw()
+            .map_err(|e| anyhow!("{e}"))?;
+        let color = Palette99::pick(4).to_rgba();
+        let top = |i: usize| (n - i) as f64;
+        c.draw_series(bars.iter().enumerate().filter(|(_, b)| ok(b.1)).map(|(i, b)| {
+            Rectangle::new([(0.0, top(i) - 0.15), (b.1, top(i) - 0.85)], color.filled())
+        }))
+        .map_err(|e| anyhow!("{e}"))?;
+        let text = TextStyle::from((FAMILY, 12)).color(&BLACK).pos(Pos::new(HPos::Left, VPos::Center));
+        c.draw_series(bars.iter().enumerate().map(|(i, b)| {
+            let value = if ok(b.1) { format!("{:.3} {unit}", b.1) } else { "n/a".into() };
+            let x = if ok(b.1) { b.1 } else { 0.0 };
+            Text::new(format!(" {}  {value}", b.0), (x, top(i) - 0.5), text.clone())
+        }))
+        .map_err(|e| anyhow!("{e}"))?;
+        root.present().map_err(|e| anyhow!("{e}"))?;
+        Ok(())
+    })();
+    res.with_context(|| format!("writing chart {}", path.display()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -180,6 +230,20 @@ mod tests {
         let bad = [Series { name: "n".into(), points: vec![(0.0, 1.0), (f64::INFINITY, 2.0)], labels: vec![] }];
         let err = write_chart(&p, &chart, &bad).unwrap_err().to_string();
         assert!(err.contains("empty.png") && err.contains("no finite point"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn bars_grow_with_the_count_and_empty_is_an_error() {
+        let dir = std::env::temp_dir().join(format!("penumbra-bars-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let bars: Vec<(String, f64)> =
+            vec![("gbuffer".into(), 1.5), ("shade".into(), 12.0), ("bad".into(), f64::NAN), ("neg".into(), -1.0)];
+        let p = dir.join("b.png");
+        write_bars(&p, "t", "ms", &bars).unwrap();
+        assert_eq!(png_size(&p), (800, 90 + 22 * 4));
+        let err = write_bars(&dir.join("e.png"), "t", "ms", &[]).unwrap_err().to_string();
+        assert!(err.contains("e.png") && err.contains("no bar"), "{err}");
         std::fs::remove_dir_all(&dir).ok();
     }
 }

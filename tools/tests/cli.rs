@@ -44,6 +44,7 @@ fn render_default_scene_writes_frames_dumps_and_profile() {
         "graph.dot",
         "graph.txt",
         "profile.json",
+        "profile.png",
     ] {
         assert!(out.join(f).exists(), "missing {f}");
     }
