@@ -41,12 +41,12 @@
 //!   112/113 large-node list lengths (level parity), 114/115 list overflow flags; 128.. lists.
 
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline};
-use anyhow::{bail, Result};
+use anyhow::{anyhow, bail, Result};
 use glam::Vec3;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::graph::PassBuilder;
 use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, PassKind};
-use penumbra_scene::{Frame, Scene};
+use penumbra_scene::{Frame, Instance, MeshData, Scene};
 use std::sync::Arc;
 
 /// Header words: 128 counters, then two large-node lists of 4096 entries
@@ -164,35 +164,70 @@ pub fn ray_epsilon(extent: f32) -> f32 {
     1e-4 * extent.max(1.0)
 }
 
+/// One frame instance's mesh (the deformed mesh where the frame has one) with its vertices in
+/// world space.
+pub struct WorldMesh<'a> {
+    /// The object's name (for errors).
+    pub name: &'a str,
+    pub inst: &'a Instance,
+    pub mesh: &'a MeshData,
+    pub positions: Vec<Vec3>,
+}
+
+impl WorldMesh<'_> {
+    /// The non-degenerate triangles as (vertex indices, world corners), in index order; an
+    /// index out of range or a non-finite vertex is an error naming the mesh and the object.
+    pub fn triangles(&self) -> impl Iterator<Item = Result<([usize; 3], [Vec3; 3])>> + '_ {
+        self.mesh.indices.chunks_exact(3).filter_map(move |t| {
+            let i = [t[0] as usize, t[1] as usize, t[2] as usize];
+            let np = self.positions.len();
+            if i.iter().any(|&k| k >= np) {
+                return Some(Err(anyhow!(
+                    "mesh '{}' of object '{}' has an index out of range ({np} vertices)",
+                    self.mesh.name,
+                    self.name
+                )));
+            }
+            let p = i.map(|k| self.positions[k]);
+            if !p.iter().all(|v| v.is_finite()) {
+                return Some(Err(anyhow!("mesh '{}' of object '{}' has non-finite vertices", self.mesh.name, self.name)));
+            }
+            ((p[1] - p[0]).cross(p[2] - p[0]).length_squared() > 0.0).then_some(Ok((i, p)))
+        })
+    }
+}
+
+/// The frame's instances in world space, in instance order. A missing mesh or a non-finite
+/// transform is an error naming the object.
+pub fn world_meshes<'a>(scene: &'a Scene, frame: &'a Frame) -> Result<Vec<WorldMesh<'a>>> {
+    frame
+        .instances
+        .iter()
+        .map(|inst| {
+            let name = scene.objects.get(inst.object).map(|o| o.name.as_str()).unwrap_or("?");
+            let mesh = match inst.deformed_mesh.as_deref() {
+                Some(m) => m,
+                None => match scene.meshes.get(inst.mesh) {
+                    Some(m) => m,
+                    None => bail!("object '{name}' refers to mesh {} of {}", inst.mesh, scene.meshes.len()),
+                },
+            };
+            if !inst.world.is_finite() {
+                bail!("object '{name}' has a non-finite world transform");
+            }
+            let positions = mesh.positions.iter().map(|p| inst.world.transform_point3(*p)).collect();
+            Ok(WorldMesh { name, inst, mesh, positions })
+        })
+        .collect()
+}
+
 /// The frame's world-space triangles (deformed meshes where the frame has them), degenerate
 /// triangles dropped, in instance order. Errors name the object at fault.
 pub fn world_triangles(scene: &Scene, frame: &Frame) -> Result<Vec<[Vec3; 3]>> {
     let mut out = Vec::new();
-    for inst in &frame.instances {
-        let name = scene.objects.get(inst.object).map(|o| o.name.as_str()).unwrap_or("?");
-        let mesh = match inst.deformed_mesh.as_deref() {
-            Some(m) => m,
-            None => match scene.meshes.get(inst.mesh) {
-                Some(m) => m,
-                None => bail!("object '{name}' refers to mesh {} of {}", inst.mesh, scene.meshes.len()),
-            },
-        };
-        if !inst.world.is_finite() {
-            bail!("object '{name}' has a non-finite world transform");
-        }
-        let wp: Vec<Vec3> = mesh.positions.iter().map(|p| inst.world.transform_point3(*p)).collect();
-        for t in mesh.indices.chunks_exact(3) {
-            let (Some(&a), Some(&b), Some(&c)) = (wp.get(t[0] as usize), wp.get(t[1] as usize), wp.get(t[2] as usize))
-            else {
-                bail!("mesh '{}' of object '{name}' has an index out of range ({} vertices)", mesh.name, wp.len());
-            };
-            if !(a.is_finite() && b.is_finite() && c.is_finite()) {
-                bail!("mesh '{}' of object '{name}' has non-finite vertices", mesh.name);
-            }
-            if (b - a).cross(c - a).length_squared() <= 0.0 {
-                continue;
-            }
-            out.push([a, b, c]);
+    for wm in world_meshes(scene, frame)? {
+        for t in wm.triangles() {
+            out.push(t?.1);
         }
     }
     Ok(out)
@@ -478,5 +513,52 @@ impl KdTreeBuilder {
         let (rb, hd) = crate::trace::add_copy_to_readback(graph, tree.header, name, STATS_WORDS * 4);
         tree.header = hd;
         rb
+    }
+}
+
+#[cfg(test)]
+mod world_tests {
+    use super::*;
+    use std::sync::Arc;
+
+    #[test]
+    fn world_triangles_drop_degenerates_and_name_bad_input() {
+        let scene = Scene::default_scene();
+        let frame = scene.at(0.0, None);
+        let all = world_triangles(&scene, &frame).unwrap();
+        assert!(!all.is_empty());
+        let name = |f: &Frame| scene.objects[f.instances[0].object].name.clone();
+
+        // A degenerate (collinear) triangle appended to the first instance's mesh is dropped.
+        let mut f = frame.clone();
+        let mut m = scene.meshes[f.instances[0].mesh].clone();
+        let n = m.positions.len() as u32;
+        m.positions.extend([Vec3::ZERO, Vec3::X, Vec3::X * 2.0]);
+        m.indices.extend([n, n + 1, n + 2]);
+        f.instances[0].deformed_mesh = Some(Arc::new(m.clone()));
+        assert_eq!(world_triangles(&scene, &f).unwrap().len(), all.len());
+
+        // An index out of range names the mesh and the object.
+        m.indices.extend([0, 1, n + 7]);
+        f.instances[0].deformed_mesh = Some(Arc::new(m.clone()));
+        let e = world_triangles(&scene, &f).unwrap_err().to_string();
+        assert!(e.contains("index out of range") && e.contains(&name(&f)) && e.contains(&m.name), "{e}");
+
+        // Non-finite vertices and transforms are errors naming the object.
+        let mut m2 = scene.meshes[frame.instances[0].mesh].clone();
+        m2.positions[0] = Vec3::NAN;
+        let mut f = frame.clone();
+        f.instances[0].deformed_mesh = Some(Arc::new(m2));
+        let e = world_triangles(&scene, &f).unwrap_err().to_string();
+        assert!(e.contains("non-finite vertices") && e.contains(&name(&f)), "{e}");
+        let mut f = frame.clone();
+        f.instances[0].world.x_axis.x = f32::NAN;
+        let e = world_triangles(&scene, &f).unwrap_err().to_string();
+        assert!(e.contains("non-finite world transform") && e.contains(&name(&f)), "{e}");
+        let mut f = frame.clone();
+        f.instances[0].mesh = 999;
+        f.instances[0].deformed_mesh = None;
+        let e = world_triangles(&scene, &f).unwrap_err().to_string();
+        assert!(e.contains("refers to mesh 999"), "{e}");
     }
 }

@@ -208,20 +208,10 @@ pub fn world_triangles_shading(scene: &Scene, frame: &Frame) -> Result<ShadingTr
     let mut tris = Vec::new();
     let mut data = Vec::new();
     let mut no_shadow = Vec::new();
-    for inst in &frame.instances {
-        let name = scene.objects.get(inst.object).map(|o| o.name.as_str()).unwrap_or("?");
-        let mesh = match inst.deformed_mesh.as_deref() {
-            Some(m) => m,
-            None => match scene.meshes.get(inst.mesh) {
-                Some(m) => m,
-                None => bail!("object '{name}' refers to mesh {} of {}", inst.mesh, scene.meshes.len()),
-            },
-        };
+    for wm in crate::kdtree::world_meshes(scene, frame)? {
+        let (name, inst, mesh) = (wm.name, wm.inst, wm.mesh);
         if inst.material >= frame.materials.len() {
             bail!("object '{name}' refers to material {} of {}", inst.material, frame.materials.len());
-        }
-        if !inst.world.is_finite() {
-            bail!("object '{name}' has a non-finite world transform");
         }
         let casts = scene.object_info(inst.object).casts_shadow;
         let m3 = Mat3::from_mat4(inst.world);
@@ -229,22 +219,10 @@ pub fn world_triangles_shading(scene: &Scene, frame: &Frame) -> Result<ShadingTr
         let np = mesh.positions.len();
         let has_n = mesh.normals.len() == np;
         let has_uv = mesh.uvs.len() == np;
-        let wp: Vec<Vec3> = mesh.positions.iter().map(|p| inst.world.transform_point3(*p)).collect();
-        for t in mesh.indices.chunks_exact(3) {
-            let [i0, i1, i2] = [t[0] as usize, t[1] as usize, t[2] as usize];
-            if i0 >= np || i1 >= np || i2 >= np {
-                bail!("mesh '{}' of object '{name}' has an index out of range ({np} vertices)", mesh.name);
-            }
-            let (p0, p1, p2) = (wp[i0], wp[i1], wp[i2]);
-            if !(p0.is_finite() && p1.is_finite() && p2.is_finite()) {
-                bail!("mesh '{}' of object '{name}' has non-finite vertices", mesh.name);
-            }
+        for t in wm.triangles() {
+            let ([i0, i1, i2], [p0, p1, p2]) = t?;
             let (e1, e2) = (p1 - p0, p2 - p0);
-            let ng = e1.cross(e2);
-            if ng.length_squared() <= 0.0 {
-                continue;
-            }
-            let ng = ng.normalize();
+            let ng = e1.cross(e2).normalize();
             let n = [i0, i1, i2].map(|i| {
                 if !has_n {
                     return ng;
