@@ -20,6 +20,7 @@ pub mod hsdt;
 pub mod isg;
 pub mod nnls;
 pub mod quad;
+pub mod ray;
 pub mod sh;
 pub mod shadow_field;
 pub mod sphereset;

@@ -139,7 +139,7 @@ impl RayCaster {
             }
             if n.leaf {
                 for t in &self.tris[n.a as usize..(n.a + n.b) as usize] {
-                    if hit(o, d, t, tmax) {
+                    if crate::ray::ray_triangle(o, d, t, tmax, 1e-14).is_some() {
                         return true;
                     }
                 }
@@ -153,28 +153,6 @@ impl RayCaster {
     }
 }
 
-fn hit(o: DVec3, d: DVec3, t: &[DVec3; 3], tmax: f64) -> bool {
-    let e1 = t[1] - t[0];
-    let e2 = t[2] - t[0];
-    let p = d.cross(e2);
-    let det = e1.dot(p);
-    if det.abs() < 1e-14 {
-        return false;
-    }
-    let inv = 1.0 / det;
-    let s = o - t[0];
-    let u = s.dot(p) * inv;
-    if !(0.0..=1.0).contains(&u) {
-        return false;
-    }
-    let q = s.cross(e1);
-    let v = d.dot(q) * inv;
-    if v < 0.0 || u + v > 1.0 {
-        return false;
-    }
-    let tt = e2.dot(q) * inv;
-    tt > 0.0 && tt < tmax
-}
 
 // ---------------------------------------------------------------------------------------------
 // Sphere directions

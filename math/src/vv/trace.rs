@@ -60,7 +60,7 @@ impl Tracer {
             }
             if n.leaf {
                 for (tri, id) in &self.tris[n.a as usize..(n.a + n.b) as usize] {
-                    if let Some(t) = hit(o, d, tri, tbest) {
+                    if let Some(t) = crate::ray::ray_triangle(o, d, tri, tbest, 1e-18) {
                         if !skip(*id) {
                             tbest = t;
                             best = Some((t, *id));
@@ -104,25 +104,3 @@ fn build(tris: &mut [([DVec3; 3], u32)], start: usize, end: usize, nodes: &mut V
     id
 }
 
-fn hit(o: DVec3, d: DVec3, t: &[DVec3; 3], tmax: f64) -> Option<f64> {
-    let e1 = t[1] - t[0];
-    let e2 = t[2] - t[0];
-    let p = d.cross(e2);
-    let det = e1.dot(p);
-    if det.abs() < 1e-18 {
-        return None;
-    }
-    let inv = 1.0 / det;
-    let s = o - t[0];
-    let u = s.dot(p) * inv;
-    if !(0.0..=1.0).contains(&u) {
-        return None;
-    }
-    let q = s.cross(e1);
-    let v = d.dot(q) * inv;
-    if v < 0.0 || u + v > 1.0 {
-        return None;
-    }
-    let tt = e2.dot(q) * inv;
-    (tt > 0.0 && tt < tmax).then_some(tt)
-}
