@@ -216,6 +216,9 @@ pub struct VolumetricArgs {
     /// Both methods use Wyman and Ramsey's shadow-volume intervals.
     #[arg(long)]
     pub hybrid: bool,
+    /// Also draw the per-frame GPU ms of both methods as a chart (PNG).
+    #[arg(long)]
+    pub chart: Option<PathBuf>,
 }
 
 pub fn run_volumetric(args: &VolumetricArgs, scene: &Scene) -> Result<()> {
@@ -234,6 +237,23 @@ pub fn run_volumetric(args: &VolumetricArgs, scene: &Scene) -> Result<()> {
     };
     let report = penumbra_passes::volumetric::bench::bench_volumetric(&ctx, &penumbra::shader_library(), scene, &opts)?;
     print!("{}", report.table());
+    if let Some(path) = &args.chart {
+        let line = |name: &str, ms: &dyn Fn(&penumbra_passes::volumetric::bench::VolBenchFrame) -> f64| crate::plot::Series {
+            name: name.into(),
+            points: report.frames.iter().map(|f| (f.frame as f64, ms(f))).collect(),
+            labels: vec![],
+        };
+        let series = [line("temporal (masked re-march)", &|f| f.temporal_total_ms), line("full (every pixel)", &|f| f.full_total_ms)];
+        let chart = crate::plot::Chart {
+            title: format!("{}: volumetric GPU ms per frame, {width}x{height} (overall {:.2}x)", report.scene, report.speedup),
+            x_label: "frame".into(),
+            y_label: "GPU ms of the vol_* passes".into(),
+            log_x: false,
+            legend: true,
+        };
+        crate::plot::write_chart(path, &chart, &series)?;
+        println!("wrote {}", path.display());
+    }
     Ok(())
 }
 
