@@ -203,10 +203,12 @@ fn bench_trace_and_volumetric_run_and_report() {
     assert!(t.contains("kd-tree:") && t.contains("obvhs") && t.contains("incoherent"), "{t}");
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let vol = root.join("scenes/vol_dragon.toml");
-    let o = penumbra(&["bench", "volumetric", vol.to_str().unwrap(), "--frames", "3", "--size", "48x36"]);
+    let chart = tmp("volumetric_chart").join("vol.png");
+    let o = penumbra(&["bench", "volumetric", vol.to_str().unwrap(), "--frames", "3", "--size", "48x36", "--chart", chart.to_str().unwrap()]);
     let t = text(&o);
     assert!(o.status.success(), "{t}");
     assert!(t.contains("overall speedup") && t.contains("missed pixels 0"), "{t}");
+    assert!(chart.exists(), "no chart written:\n{t}");
     let no_medium = root.join("scenes/chess.toml");
     expect_bad_input(&["bench", "volumetric", no_medium.to_str().unwrap()], &["chess.toml", "no [medium]"]);
     let d = tmp("volumetric_flag");
