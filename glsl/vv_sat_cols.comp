@@ -8,7 +8,7 @@ void main() {
     int x = int(gl_GlobalInvocationID.x);
     int W = pc.size.x, H = pc.size.y;
     if (x > W) return;
-    for (int k = 0; k < 3; k++) {
+    for (int k = 0; k < 4; k++) {
         precise vec3 sum = vec3(0.0), comp = vec3(0.0);
         for (int y = 1; y <= H; y++) {
             ivec2 p = ivec2(x, k * (H + 1) + y);

@@ -7,6 +7,7 @@ layout(location = 1) out vec3 v_normal;
 layout(location = 2) out vec3 v_bary;
 layout(location = 3) flat out ivec3 v_vids;
 layout(location = 4) flat out vec3 v_albedo;
+layout(location = 5) flat out vec4 v_spec;
 
 void main() {
     int t = gl_VertexIndex / 3, k = gl_VertexIndex % 3;
@@ -14,6 +15,7 @@ void main() {
     v_world = vv_vert(v, 0);
     v_normal = vv_vert(v, 1);
     v_albedo = vv_vert(v, 2);
+    v_spec = vv_vert_spec(v);
     v_bary = vec3(k == 0, k == 1, k == 2);
     v_vids = ivec3(vv_tri_vertex(t, 0), vv_tri_vertex(t, 1), vv_tri_vertex(t, 2));
     gl_Position = cam.view_proj * vec4(v_world, 1.0);

@@ -9,6 +9,7 @@ layout(location = 0) in vec3 c_world[];
 layout(location = 1) in vec3 c_normal[];
 layout(location = 2) in vec3 c_albedo[];
 layout(location = 4) in int c_vid[];
+layout(location = 5) in vec4 c_spec[];
 layout(location = 0) out vec3 e_color;
 
 void main() {
@@ -16,10 +17,11 @@ void main() {
     vec3 s = l.x * c_world[0] + l.y * c_world[1] + l.z * c_world[2];
     vec3 n = normalize(l.x * c_normal[0] + l.y * c_normal[1] + l.z * c_normal[2]);
     vec3 albedo = c_albedo[0];
+    vec4 spec = c_spec[0];
     if (pc.sat.w == 2) {
-        e_color = vv_eval_interp(vv_sat_tex, gl_PrimitiveID, l, s, n, albedo);
+        e_color = vv_eval_interp(vv_sat_tex, gl_PrimitiveID, l, s, n, albedo, spec);
     } else {
-        e_color = vv_eval_three(vv_sat_tex, ivec3(c_vid[0], c_vid[1], c_vid[2]), l, s, n, albedo);
+        e_color = vv_eval_three(vv_sat_tex, ivec3(c_vid[0], c_vid[1], c_vid[2]), l, s, n, albedo, spec);
     }
     gl_Position = cam.view_proj * vec4(s, 1.0);
 }

@@ -1,6 +1,6 @@
 #version 450
 // vv dynamic tessellation shading, vertex stage: the vertex's radiance under the original and
-// the Phong-blurred (alpha 256) lighting (eq. 17 terms), for the control shader's level.
+// the Phong-blurred (alpha 256) lighting (eq. 17 terms; diffuse and specular, eq. 9 and 14), for the control shader's level.
 #include "vv_data.glsl"
 
 layout(location = 0) out vec3 v_world;
@@ -8,6 +8,7 @@ layout(location = 1) out vec3 v_normal;
 layout(location = 2) out vec3 v_albedo;
 layout(location = 3) out float v_delta;
 layout(location = 4) out int v_vid;
+layout(location = 5) out vec4 v_spec;
 
 // The displayed value of a radiance (tonemap.comp: exposure, ACES fit, sRGB transfer), [0, 1].
 vec3 vv_display(vec3 c) {
@@ -22,9 +23,10 @@ void main() {
     v_world = vv_vert(v, 0);
     v_normal = normalize(vv_vert(v, 1));
     v_albedo = vv_vert(v, 2);
+    v_spec = vv_vert_spec(v);
     v_vid = v;
-    vec3 i0 = vv_eval_vertex(vv_sat_tex, v, v_world, v_normal, v_albedo);
-    vec3 i1 = vv_eval_vertex(vv_sat_blur, v, v_world, v_normal, v_albedo);
+    vec3 i0 = vv_eval_vertex(vv_sat_tex, v, v_world, v_normal, v_albedo, v_spec);
+    vec3 i1 = vv_eval_vertex(vv_sat_blur, v, v_world, v_normal, v_albedo, v_spec);
     // eq. 17 in the paper's unit, the displayed value in [0, 1] (its radiance values are the
     // pixel values of the images whose PSNR it reports): both radiances through the display
     // mapping, then the luminance of the difference

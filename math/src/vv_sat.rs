@@ -448,27 +448,41 @@ pub fn clip_to_cap(pts: &[DVec3], axis: DVec3, cos_r: f64, step: f64) -> Vec<DVe
                 circle_walk(axis, cos_r, x, entry, step, &mut out);
             }
             out.push(entry);
+        } else if !ia && !ib {
+            // both ends outside: the arc may still dip into the cap (entry, then exit)
+            if let Some(p) = arc_point_in_cap(a, b, axis, cos_r) {
+                let entry = cross(a, p);
+                if let Some(x) = exit.take() {
+                    circle_walk(axis, cos_r, x, entry, step, &mut out);
+                }
+                out.push(entry);
+                let x = cross(p, b);
+                out.push(x);
+                exit = Some(x);
+            }
         }
     }
     out
 }
 
+/// The point of the great arc `a -> b` closest to `axis` when it lies strictly inside the cap.
+fn arc_point_in_cap(a: DVec3, b: DVec3, axis: DVec3, cos_r: f64) -> Option<DVec3> {
+    let m = a.cross(b);
+    if m.length() < 1e-15 {
+        return None;
+    }
+    let mh = m.normalize();
+    let p = axis - mh * mh.dot(axis);
+    if p.length() < 1e-15 {
+        return None;
+    }
+    let p = p.normalize();
+    (a.cross(p).dot(mh) > 0.0 && p.cross(b).dot(mh) > 0.0 && p.dot(axis) > cos_r).then_some(p)
+}
+
 /// True if some arc between two outside points dips into the cap.
 fn arcs_cut_cap(pts: &[DVec3], axis: DVec3, cos_r: f64) -> bool {
-    (0..pts.len()).any(|i| {
-        let (a, b) = (pts[i], pts[(i + 1) % pts.len()]);
-        let m = a.cross(b);
-        if m.length() < 1e-15 {
-            return false;
-        }
-        let mh = m.normalize();
-        let p = axis - mh * mh.dot(axis);
-        if p.length() < 1e-15 {
-            return false;
-        }
-        let p = p.normalize();
-        a.cross(p).dot(mh) > 0.0 && p.cross(b).dot(mh) > 0.0 && p.dot(axis) > cos_r
-    })
+    (0..pts.len()).any(|i| arc_point_in_cap(pts[i], pts[(i + 1) % pts.len()], axis, cos_r).is_some())
 }
 
 /// Clip after inserting each arc's point closest to the axis (so some vertex is inside).
@@ -855,5 +869,48 @@ mod tests {
         };
         println!("partial gamma {g:?} reference {reference:?}");
         assert!((g - reference).abs().max_element() < 0.03);
+    }
+
+    /// A loop with a vertex inside the cap and another arc that dips into the cap between two
+    /// outside vertices (clip_to_cap follows the circle between each exit and the next entry,
+    /// including the dip's), against brute force.
+    #[test]
+    fn cap_ratio_with_dipping_arc() {
+        let (w, h) = (128, 64);
+        let tex = sky(w, h, None);
+        let sat = Sat::new(w, h, &tex).unwrap();
+        let o = IntegrateOptions::default();
+        let r = DVec3::new(0.2, 0.9, -0.3).normalize();
+        let n = r;
+        let c = phong_cap_cos(16.0);
+        let xi = c.acos();
+        let (u, v) = basis(r);
+        let at = |a: f64, d: f64| (r * d.cos() + (u * a.cos() + v * a.sin()) * d.sin()).normalize();
+        // vertex 0 inside; the arc 2 -> 3 passes at 0.7 xi from r with both ends outside
+        let w0 = at(PI, 0.7 * xi);
+        let t = r.cross(w0).normalize();
+        let mut p2 = (w0 * (1.4 * xi).cos() + t * (1.4 * xi).sin()).normalize();
+        let mut p3 = (w0 * (1.4 * xi).cos() - t * (1.4 * xi).sin()).normalize();
+        // p2 on the side of positive angles about r (simple polygon in angular order)
+        if p2.dot(v) < 0.0 {
+            std::mem::swap(&mut p2, &mut p3);
+        }
+        let mut l = vec![at(0.0, 0.5 * xi), at(0.6, 1.6 * xi), p2, p3, at(-0.6, 1.6 * xi)];
+        // r is inside the loop (the notch at angle 0 is outside): make the loop positive
+        if winding_about(&l, r) < 0 {
+            l.reverse();
+        }
+        let inside = |p: DVec3| p.dot(r) >= c;
+        assert!(inside(l[0]) || inside(l[l.len() - 1]) || l.iter().any(|p| inside(*p)));
+        let g = cap_ratio(&sat, n, r, c, &[l.clone()], &o);
+        let reference = {
+            let num = brute_force(w, h, &tex, 4, |d| inside(d) && d.dot(n) >= 0.0 && !inside_loop(&l, d));
+            let den = brute_force(w, h, &tex, 4, |d| inside(d));
+            let f = |m: &Moments| m.dot(r) - m.radiance() * c;
+            f(&num) / f(&den)
+        };
+        println!("dipping arc: gamma {g:?} reference {reference:?}");
+        assert!(reference.max_element() < 0.95 && reference.min_element() > 0.05, "the loop should cover part of the cap: {reference:?}");
+        assert!((g - reference).abs().max_element() < 0.03, "gamma {g:?} vs brute force {reference:?}");
     }
 }

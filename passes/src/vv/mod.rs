@@ -3,8 +3,8 @@
 //!
 //! Offline (part A, `penumbra_math::vv`): per-vertex vectorized visibility of the scene's static
 //! objects (world space, object order) and per-triangle triple lists. Per frame:
-//! * `vv_sat_rows` + `vv_sat_cols` (compute): the summed-area tables of `l L_e(l)` (x, y, z
-//!   channels, RGB) of the lat-long lighting, fp32 with Kahan-compensated prefix sums (rows,
+//! * `vv_sat_rows` + `vv_sat_cols` (compute): the summed-area tables of `l L_e(l)` and `L_e(l)`
+//!   (x, y, z and 1 channels, RGB) of the lat-long lighting, fp32 with Kahan-compensated prefix sums (rows,
 //!   then columns), rebuilt every frame so the lighting may change; in `tessellation` modes a
 //!   second table of the Phong-blurred (alpha 256) lighting (eq. 17). Environment rotation and
 //!   intensity are applied at lookup (directions are rotated into map space).
@@ -24,10 +24,29 @@
 //! displayed pixel values in [0, 1]): each radiance goes through this renderer's display mapping
 //! (exposure, ACES fit, sRGB transfer) before the difference (`glsl/vv_tess.vert`).
 //!
-//! Shading is diffuse (eq. 9/12); non-diffuse materials get their diffuse part only (the
-//! specular cap ratio of eq. 14-16 exists on the CPU, `penumbra_math::vv_sat::cap_ratio`, not in
-//! the shaders yet). Objects that move or deform are not supported (their visibility is
-//! precomputed at rest, t = 0).
+//! Shading is diffuse (eq. 9/12) plus, for glossy materials, Phong specular by the cap ratio
+//! (eq. 14-16; `specular = off` keeps the diffuse part only). The SAT has a 4th channel (`∫ L_e
+//! dω`) for the Cap weight `l . r - cos xi` of eq. 16. Per evaluation (each of eq. 19's three
+//! or eq. 21's one) the shaders stream the same occluder loops twice: into the diffuse sum, and
+//! through a GLSL port of `penumbra_math::vv_sat::clip_to_cap` (`vv_clip_*` in
+//! `glsl/include/vv_sat.glsl`: the crossings of each great arc with the cap circle, exit -> entry
+//! walks along the circle, arcs that dip into the cap between two outside points, and a winding
+//! test that subtracts the whole cap when an occluder encloses it), then add the cap `W` around
+//! the reflected view direction `r` clipped to the hemisphere of the normal. `W`'s radius `xi`
+//! holds 95% of the Phong lobe's energy (`phong_cap_cos`). Per vertex the material gives the
+//! specular reflectance `k_s` and the Phong exponent `alpha` ([`phong_alpha`]: Blinn-Phong
+//! `shininess / 4`; Cook-Torrance via its equivalent shininess; no Fresnel).
+//!
+//! The paper does not say how the unshadowed glossy integral of eq. 14 (`∫ max(r . l, 0)^alpha
+//! L_e`) is computed. Here it is taken over the same Cap kernel from the SAT, normalised to the
+//! Phong lobe's integral `2 pi / (alpha + 1)`: `U = 2 pi / (alpha + 1) * ∫_W Cap L_e / ∫_W Cap
+//! dω` with `∫_W Cap dω = pi (1 - cos xi)^2`, and `k_s = specular (alpha + 1) / (2 pi)`
+//! (energy-normalised Phong). gamma's denominator then cancels, `L_s = specular * ∫_{V ∩ W} Cap
+//! L_e / (pi (1 - cos xi)^2)`: the lighting stays dynamic (no prefiltered map), at the price of a
+//! linear (Cap) instead of a `cos^alpha` lobe shape. gamma itself is checked against the CPU
+//! `cap_ratio` by [`VvCapParity`] (tests/vv.rs). Large exponents lose fp32 precision (the Cap
+//! weight is a difference of SAT sums over a small cap). Objects that move or deform are not
+//! supported (their visibility is precomputed at rest, t = 0).
 
 use crate::shade_env::{ShadeEnvPass, HDR_FORMAT};
 use crate::util::{bytes_of, compute_pipeline, groups, layouts, Pipeline, Sampler};
@@ -100,6 +119,8 @@ pub struct VvSettings {
     pub max_level: u32,
     /// Visibility-map resolution of the precompute (part A's `VvParams::resolution`).
     pub resolution: u32,
+    /// Specular term of glossy materials (eq. 14-16); off: their diffuse part only.
+    pub specular: bool,
 }
 
 impl Default for VvSettings {
@@ -112,6 +133,7 @@ impl Default for VvSettings {
             hemisphere_arcs: 32,
             max_level: 64,
             resolution: VvParams::default().resolution,
+            specular: true,
         }
     }
 }
@@ -127,7 +149,8 @@ impl VvSettings {
 
     /// Keys: `mode` (fragment3, fragment1, tessellation, tessellation3; default fragment1),
     /// `zeta` (0..=16, default 2), `alpha` (> 0, default 2), `sat_width` (16..=4096, even,
-    /// default 256), `arcs` (8..=256, default 32), `max_level` (1..=64), `resolution` (8..=1024).
+    /// default 256), `arcs` (8..=256, default 32), `max_level` (1..=64), `resolution` (8..=1024),
+    /// `specular` (on / off, default on).
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
         let bad = || anyhow::anyhow!("vv parameter {key} = '{value}': not a valid value");
@@ -156,7 +179,14 @@ impl VvSettings {
             "arcs" => self.hemisphere_arcs = num(8.0, 256.0)? as u32,
             "max_level" => self.max_level = num(1.0, 64.0)? as u32,
             "resolution" => self.resolution = num(8.0, 1024.0)? as u32,
-            other => bail!("unknown vv parameter '{other}' (known: mode, zeta, alpha, sat_width, arcs, max_level, resolution)"),
+            "specular" => {
+                self.specular = match v {
+                    "on" | "true" | "1" => true,
+                    "off" | "false" | "0" => false,
+                    _ => bail!("vv parameter specular = '{value}': expected on or off"),
+                }
+            }
+            other => bail!("unknown vv parameter '{other}' (known: mode, zeta, alpha, sat_width, arcs, max_level, resolution, specular)"),
         }
         Ok(())
     }
@@ -256,6 +286,40 @@ impl VvSceneData {
         }
         Ok(VvSceneData { model, vis, corr: Some(corr), visibility_seconds, correspondence_seconds, visibility_bytes, triple_bytes, albedo })
     }
+}
+
+/// The Phong exponent `alpha` of eq. 13 for a material: Blinn-Phong's `(n.h)^s` is close to
+/// `(r.l)^(s/4)` (the half vector turns half as far), and Cook-Torrance / Ashikhmin-Shirley
+/// carry the equivalent `shininess = 2 / roughness^2 - 2`. 0 for a diffuse material.
+pub fn phong_alpha(m: &penumbra_scene::Material) -> f32 {
+    use penumbra_scene::BrdfKind;
+    match m.kind {
+        BrdfKind::Diffuse => 0.0,
+        _ if m.specular.max_element() <= 0.0 => 0.0,
+        _ => (m.shininess / 4.0).clamp(1.0, 4096.0),
+    }
+}
+
+/// Per model vertex (object order, as [`scene_model`]): the albedo and the specular term
+/// (rgb reflectance, Phong `alpha` of [`phong_alpha`]) of its object's material.
+pub fn vertex_materials(scene: &Scene) -> (Vec<Vec3>, Vec<[f32; 4]>) {
+    let (mut albedo, mut spec) = (Vec::new(), Vec::new());
+    for o in &scene.objects {
+        let m = scene.materials.get(o.material);
+        let a = m.map_or(Vec3::splat(0.5), |m| m.albedo);
+        let sp = m.map_or([0.0; 4], |m| {
+            let al = phong_alpha(m);
+            if al > 0.0 {
+                [m.specular.x, m.specular.y, m.specular.z, al]
+            } else {
+                [0.0; 4]
+            }
+        });
+        let count = scene.meshes.get(o.mesh).map_or(0, |m| m.positions.len());
+        albedo.extend(std::iter::repeat(a).take(count));
+        spec.extend(std::iter::repeat(sp).take(count));
+    }
+    (albedo, spec)
 }
 
 /// GPU images' contents (built once).
@@ -376,11 +440,16 @@ impl Uploads {
             points.extend([0.0; 4]);
         }
         let (points, points_rows) = pad_rows(points, 4);
-        let mut verts = Vec::with_capacity(model.positions.len() * 12);
+        // materials from the scene itself (the cached data may come from a scene with the same
+        // geometry and other materials)
+        let (albedo, spec) = vertex_materials(scene);
+        let mut verts = Vec::with_capacity(model.positions.len() * 16);
         for (i, p) in model.positions.iter().enumerate() {
             let n = model.normals[i];
-            let a = data.albedo.get(i).copied().unwrap_or(Vec3::splat(0.5));
+            let a = albedo.get(i).copied().unwrap_or(Vec3::splat(0.5));
+            let sp = spec.get(i).copied().unwrap_or([0.0; 4]);
             verts.extend([p.x, p.y, p.z, 0.0, n.x, n.y, n.z, 0.0, a.x, a.y, a.z, 0.0]);
+            verts.extend(sp);
         }
         let (verts, verts_rows) = pad_rows(verts, 4);
         let env = scene.environment.as_ref().context("vv: the scene has no environment map (the technique integrates environment lighting)")?;
@@ -566,11 +635,12 @@ impl VvTechnique {
     }
 
     /// `vv_sat_rows` + `vv_sat_cols`: the SAT of `texels` (RGBA32F bytes of a
-    /// [`VvTechnique::sat_input`]-sized map) as an image of `(W + 1) x 3 (H + 1)` corners.
+    /// [`VvTechnique::sat_input`]-sized map) as an image of `(W + 1) x 4 (H + 1)` corners
+    /// (channels x, y, z of `l L_e` and `L_e`).
     pub fn add_sat(&self, graph: &mut Graph, name: &str, texels: &Arc<Vec<u8>>) -> ImageHandle {
         let (w, h) = (self.up.sat_w, self.up.sat_h);
         let input = graph.create_buffer_init(&format!("{name}_texels"), texels.as_ref().clone());
-        let sat = graph.create_image(name, ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, w + 1, 3 * (h + 1)));
+        let sat = graph.create_image(name, ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, w + 1, 4 * (h + 1)));
         let mut push = Vec::new();
         push.extend_from_slice(&(w as i32).to_le_bytes());
         push.extend_from_slice(&(h as i32).to_le_bytes());
@@ -671,6 +741,67 @@ impl VvParity {
     }
 }
 
+/// One case of [`VvCapParity`]: normal, reflection direction, cap cosine `cos xi` and occluder
+/// loops (map-space unit directions in the closed hemisphere of the normal, clockwise seen from
+/// the centre around the occluded region, as the shading shaders' synthesized loops).
+pub type CapCase = (Vec3, Vec3, f32, Vec<Vec<Vec3>>);
+
+/// `vv_cap_parity` (tests): per case, the specular visibility ratio gamma of eq. 15 with the
+/// technique's GLSL (`glsl/vv_cap_parity.comp`: loops clipped to the cap, cap clipped to the
+/// hemisphere, Cap weighting of eq. 16), to compare with `penumbra_math::vv_sat::cap_ratio`.
+/// Keep it alive until the frames using it have finished.
+pub struct VvCapParity {
+    pipe: Pipeline,
+}
+
+impl VvCapParity {
+    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
+        use vk::DescriptorType as T;
+        Ok(VvCapParity { pipe: compute_pipeline(ctx, shaders, "vv_cap_parity.comp", &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER, T::STORAGE_IMAGE], 32)? })
+    }
+
+    /// The cases on `sat` (an image of [`VvTechnique::add_sat`] of `tech`'s map size, with its
+    /// alpha' and arcs per circle). Returns an RGBA32F image of `cases.len() x 3` texels: row 0
+    /// gamma, row 1 the numerator, row 2 the denominator of eq. 15 (rgb).
+    pub fn add(&self, tech: &VvTechnique, graph: &mut Graph, sat: ImageHandle, cases: &[CapCase]) -> ImageHandle {
+        let mut data: Vec<[f32; 4]> = vec![[0.0; 4]; cases.len()];
+        for (c, (n, r, cos_xi, loops)) in cases.iter().enumerate() {
+            data[c][0] = data.len() as f32;
+            data.push([n.x, n.y, n.z, loops.len() as f32]);
+            data.push([r.x, r.y, r.z, *cos_xi]);
+            for l in loops {
+                data.push([l.len() as f32, 0.0, 0.0, 0.0]);
+                data.extend(l.iter().map(|d| [d.x, d.y, d.z, 0.0]));
+            }
+        }
+        let input = graph.create_buffer_init("vv_cap_parity_cases", bytes_of(&data));
+        let out = graph.create_image("vv_cap_parity", ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, cases.len().max(1) as u32, 3));
+        let mut push = Vec::new();
+        for v in [tech.up.sat_w as i32, tech.up.sat_h as i32, tech.settings.hemisphere_arcs as i32, cases.len() as i32] {
+            push.extend_from_slice(&v.to_le_bytes());
+        }
+        for v in [tech.settings.alpha, 0.0, 0.0, 0.0] {
+            push.extend_from_slice(&v.to_le_bytes());
+        }
+        let mut p = graph.pass("vv_cap_parity", PassKind::Compute);
+        let sat = p.read(sat, Access::ComputeShaderReadSampled);
+        let input = p.read(input, Access::ComputeShaderReadStorage);
+        let out = p.write(out, Access::ComputeShaderWriteStorage);
+        let nearest = tech.nearest.sampler;
+        let (pl, lay) = (self.pipe.pipeline, self.pipe.layout);
+        let n = cases.len() as u32;
+        p.record(move |rc| {
+            crate::util::bind_compute(rc, pl, lay, &[Bind::SampledImage(sat, nearest), Bind::StorageBuffer(input), Bind::StorageImage(out)])?;
+            unsafe {
+                rc.device().cmd_push_constants(rc.cmd, lay, vk::ShaderStageFlags::COMPUTE, 0, &push);
+                rc.device().cmd_dispatch(rc.cmd, n, 1, 1);
+            }
+            Ok(())
+        });
+        out
+    }
+}
+
 impl crate::technique::Technique for VvTechnique {
     fn name(&self) -> &'static str {
         "vv"
@@ -709,7 +840,7 @@ impl crate::technique::Technique for VvTechnique {
         for v in self.up.off0.iter().chain(&self.up.off1) {
             push.extend_from_slice(&v.to_le_bytes());
         }
-        for v in [self.settings.alpha, self.settings.zeta, 0.0, 0.0] {
+        for v in [self.settings.alpha, self.settings.zeta, if self.settings.specular { 1.0 } else { 0.0 }, 0.0] {
             push.extend_from_slice(&v.to_le_bytes());
         }
         let raster = self.raster.as_ref().context("vv: technique built without its raster pipeline (VvTechnique::sat_only)")?;
