@@ -406,8 +406,11 @@ fn glossy_scene() -> Scene {
 }
 
 /// Specular (eq. 14-16) on the GPU in every mode on a glossy scene: validation-clean, finite,
-/// and closer to the CPU reference (PSNR) with the specular term than with the diffuse part
-/// only (fragment3, eq. 19, and fragment1, eq. 21); the tessellation modes render it too.
+/// and closer to the CPU reference (PSNR, by more than 1 dB) with the specular term than with
+/// the diffuse part only: fragment3 (eq. 19) and fragment1 (eq. 21) against themselves,
+/// tessellation and tessellation3 against tessellation without specular. Measured (24 x 18,
+/// reference 256 spp): fragment3 26.22 -> 31.71 dB, fragment1 26.14 -> 31.42, tessellation
+/// 26.05 -> 27.68, tessellation3 27.64; env (no shadows) 26.25.
 #[test]
 fn glossy_specular_in_all_modes() {
     std::env::set_var("PENUMBRA_NO_PROGRESS", "1");
@@ -416,7 +419,18 @@ fn glossy_specular_in_all_modes() {
     let reference = reference_render(&s, &ReferenceOptions { width: w, height: h, spp: 256, time: Some(0.0), mode: Mode::Exact, ..Default::default() })
         .expect("reference");
     let mut psnr = std::collections::BTreeMap::new();
-    for (mode, spec) in [("fragment3", "on"), ("fragment3", "off"), ("fragment1", "on"), ("fragment1", "off"), ("tessellation", "on"), ("tessellation3", "on")] {
+    {
+        // context: the env technique (glossy from the prefiltered map, no shadows)
+        let mut env_s = s.clone();
+        env_s.technique_params.clear();
+        let settings = RenderSettings { width: w, height: h, technique: Some("env".into()), ..Default::default() };
+        let mut r = Renderer::new_headless(&env_s, settings, false).unwrap();
+        let mut env = r.render(&env_s.at(0.0, Some(0.0)), None, true).unwrap();
+        env.extend(r.finish().unwrap());
+        let c = compare(&reference.radiance, "reference", &image(&env[0]), "env").unwrap();
+        println!("glossy env (no shadows): PSNR {:.2} relRMSE {:.4} FLIP {:.4}", c.psnr_db.unwrap_or(99.0), c.rel_rmse, c.flip_mean);
+    }
+    for (mode, spec) in [("fragment3", "on"), ("fragment3", "off"), ("fragment1", "on"), ("fragment1", "off"), ("tessellation", "on"), ("tessellation", "off"), ("tessellation3", "on")] {
         let sm = with(&s, &[("mode", mode), ("specular", spec), ("zeta", "2"), ("max_level", "4")]);
         let t0 = std::time::Instant::now();
         let (r, frames) = render(&sm, w, h, true);
@@ -441,7 +455,7 @@ fn glossy_specular_in_all_modes() {
     }
     for mode in ["tessellation", "tessellation3"] {
         let on = psnr[&(mode, "on")];
-        let off = psnr[&("fragment1", "off")];
-        assert!(on > off + 1.0, "{mode}: PSNR with specular {on:.2} not better than fragment1 diffuse only {off:.2}");
+        let off = psnr[&("tessellation", "off")];
+        assert!(on > off + 1.0, "{mode}: PSNR with specular {on:.2} not better than tessellation diffuse only {off:.2}");
     }
 }

@@ -53,9 +53,13 @@ struct VvSpec {
 // False for a diffuse material or with specular off.
 bool vv_spec_begin(vec3 s, vec3 n, vec4 spec, out VvSpec sp) {
     vv_acc_init4(sp.acc);
-    sp.ks = spec.rgb;
     sp.cos_xi = vv_phong_cap_cos(spec.w);
     vec3 view = normalize(cam.eye.xyz - s);
+    // k_s (eq. 13-14, G = 1): the specular reflectance times (n . v)^2, the directional albedo
+    // of the scene's normalised Blinn-Phong lobe (s + 2) / (8 pi) (n.h)^s cos(theta_i) for a
+    // narrow lobe (the half-vector Jacobian 4 (v.h) and cos(theta_i) both ~ n . v)
+    float nv = max(dot(n, view), 0.0);
+    sp.ks = spec.rgb * (nv * nv);
     sp.r = vv_nudge(vv_to_map(reflect(-view, n), cam.env_rot.xy), sp.cos_xi);
     vv_clip_init(sp.r, sp.cos_xi, -1.0, pc.sat.z, sp.clip);
     return pc.par.z > 0.5 && spec.w > 0.0 && max(spec.r, max(spec.g, spec.b)) > 0.0;
@@ -63,9 +67,9 @@ bool vv_spec_begin(vec3 s, vec3 n, vec4 spec, out VvSpec sp) {
 
 // L_s = k_s gamma U (eq. 14) with gamma of eq. 15 and the unshadowed glossy term U taken over the
 // same cap kernel: U = (2 pi / (alpha + 1)) * (∫_W Cap L_e) / (∫_W Cap dω), the kernel's
-// average radiance times the normalised Phong lobe's integral; k_s = specular (alpha + 1) / (2 pi)
-// (energy-normalised Phong). The denominator of gamma cancels: L_s = specular * ∫_{V ∩ W} Cap L_e
-// / (pi (1 - cos xi)^2). Before the environment intensity.
+// average radiance times the normalised Phong lobe's integral; k_s = ks (alpha + 1) / (2 pi)
+// (energy-normalised Phong, ks of vv_spec_begin). The denominator of gamma cancels:
+// L_s = ks * ∫_{V ∩ W} Cap L_e / (pi (1 - cos xi)^2). Before the environment intensity.
 vec3 vv_spec_end(sampler2D sat, vec3 nn, inout VvSpec sp) {
     ivec2 size = pc.sat.xy;
     vv_add_cap_in_hemisphere(sat, size, pc.par.x, sp.r, sp.cos_xi, nn, pc.sat.z, sp.acc);
