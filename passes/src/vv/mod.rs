@@ -34,15 +34,19 @@
 //! test that subtracts the whole cap when an occluder encloses it), then add the cap `W` around
 //! the reflected view direction `r` clipped to the hemisphere of the normal. `W`'s radius `xi`
 //! holds 95% of the Phong lobe's energy (`phong_cap_cos`). Per vertex the material gives the
-//! specular reflectance `k_s` and the Phong exponent `alpha` ([`phong_alpha`]: Blinn-Phong
-//! `shininess / 4`; Cook-Torrance via its equivalent shininess; no Fresnel).
+//! specular reflectance and the Phong exponent `alpha` ([`phong_alpha`]: Blinn-Phong
+//! `shininess / 4`; Cook-Torrance via its equivalent shininess; no Fresnel). Eq. 13 has G = 1
+//! and a constant glossy reflectance; to match the scene's BRDF (the reference renderer's
+//! normalised Blinn-Phong, whose specular albedo falls as `(n . v)^2` for a narrow lobe: 0.94,
+//! 0.74, 0.30, 0.10 at 0, 29, 57, 74 degrees) the reflectance is scaled by `(n . v)^2` per
+//! evaluation (`vv_spec_begin` in `glsl/include/vv_data.glsl`).
 //!
 //! The paper does not say how the unshadowed glossy integral of eq. 14 (`∫ max(r . l, 0)^alpha
 //! L_e`) is computed. Here it is taken over the same Cap kernel from the SAT, normalised to the
 //! Phong lobe's integral `2 pi / (alpha + 1)`: `U = 2 pi / (alpha + 1) * ∫_W Cap L_e / ∫_W Cap
-//! dω` with `∫_W Cap dω = pi (1 - cos xi)^2`, and `k_s = specular (alpha + 1) / (2 pi)`
-//! (energy-normalised Phong). gamma's denominator then cancels, `L_s = specular * ∫_{V ∩ W} Cap
-//! L_e / (pi (1 - cos xi)^2)`: the lighting stays dynamic (no prefiltered map), at the price of a
+//! dω` with `∫_W Cap dω = pi (1 - cos xi)^2`, and `k_s = ks (alpha + 1) / (2 pi)`
+//! (energy-normalised Phong, `ks = specular (n . v)^2`). gamma's denominator then cancels,
+//! `L_s = ks * ∫_{V ∩ W} Cap L_e / (pi (1 - cos xi)^2)`: the lighting stays dynamic (no prefiltered map), at the price of a
 //! linear (Cap) instead of a `cos^alpha` lobe shape. gamma itself is checked against the CPU
 //! `cap_ratio` by [`VvCapParity`] (tests/vv.rs). Large exponents lose fp32 precision (the Cap
 //! weight is a difference of SAT sums over a small cap). Objects that move or deform are not
