@@ -911,3 +911,27 @@ impl crate::technique::Technique for VvTechnique {
         Ok(hdr)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn specular_parameter_and_phong_alpha() {
+        let mut s = VvSettings::default();
+        assert!(s.specular);
+        s.set("specular", "off").unwrap();
+        assert!(!s.specular);
+        s.set("specular", "on").unwrap();
+        assert!(s.specular);
+        assert!(s.set("specular", "maybe").is_err());
+        let bp = penumbra_scene::Material::blinn_phong("m", Vec3::splat(0.5), Vec3::splat(0.3), 64.0);
+        assert_eq!(phong_alpha(&bp), 16.0);
+        let dull = penumbra_scene::Material::blinn_phong("m", Vec3::splat(0.5), Vec3::ZERO, 64.0);
+        assert_eq!(phong_alpha(&dull), 0.0);
+        assert_eq!(phong_alpha(&penumbra_scene::Material::diffuse("d", Vec3::ONE)), 0.0);
+        // very rough lobes keep alpha >= 1 (the cap W stays within 90 degrees)
+        let rough = penumbra_scene::Material::glossy("g", Vec3::splat(0.5), Vec3::splat(0.04), 1.0);
+        assert_eq!(phong_alpha(&rough), 1.0);
+    }
+}
