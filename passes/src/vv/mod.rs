@@ -651,27 +651,16 @@ impl VvTechnique {
         let mut p = graph.pass(&format!("{name}_rows"), PassKind::Compute);
         let input = p.read(input, Access::ComputeShaderReadStorage);
         let sat = p.write(sat, Access::ComputeShaderWriteStorage);
-        let (pl, lay) = (self.rows.pipeline, self.rows.layout);
+        let pipe = self.rows.handle();
         let push1 = push.clone();
         p.record(move |rc| {
-            crate::util::bind_compute(rc, pl, lay, &[Bind::StorageBuffer(input), Bind::StorageImage(sat)])?;
-            unsafe {
-                rc.device().cmd_push_constants(rc.cmd, lay, vk::ShaderStageFlags::COMPUTE, 0, &push1);
-                rc.device().cmd_dispatch(rc.cmd, groups(h + 1, 64), 1, 1);
-            }
-            Ok(())
+            let binds = [Bind::StorageBuffer(input), Bind::StorageImage(sat)];
+            crate::util::dispatch(rc, pipe, &binds, &push1, [groups(h + 1, 64), 1, 1])
         });
         let mut p = graph.pass(&format!("{name}_cols"), PassKind::Compute);
         let sat = p.write(sat, Access::ComputeShaderReadWriteStorage);
-        let (pl, lay) = (self.cols.pipeline, self.cols.layout);
-        p.record(move |rc| {
-            crate::util::bind_compute(rc, pl, lay, &[Bind::StorageImage(sat)])?;
-            unsafe {
-                rc.device().cmd_push_constants(rc.cmd, lay, vk::ShaderStageFlags::COMPUTE, 0, &push);
-                rc.device().cmd_dispatch(rc.cmd, groups(w + 1, 64), 1, 1);
-            }
-            Ok(())
-        });
+        let pipe = self.cols.handle();
+        p.record(move |rc| crate::util::dispatch(rc, pipe, &[Bind::StorageImage(sat)], &push, [groups(w + 1, 64), 1, 1]));
         sat
     }
 
@@ -717,32 +706,43 @@ impl VvParity {
                 data.extend(l.iter().map(|d| [d.x, d.y, d.z, 0.0]));
             }
         }
-        let input = graph.create_buffer_init("vv_parity_cases", bytes_of(&data));
-        let out = graph.create_image("vv_parity", ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, cases.len().max(1) as u32, 1));
-        let mut push = Vec::new();
-        for v in [tech.up.sat_w as i32, tech.up.sat_h as i32, tech.settings.hemisphere_arcs as i32, cases.len() as i32] {
-            push.extend_from_slice(&v.to_le_bytes());
-        }
-        for v in [tech.settings.alpha, 0.0, 0.0, 0.0] {
-            push.extend_from_slice(&v.to_le_bytes());
-        }
-        let mut p = graph.pass("vv_parity", PassKind::Compute);
-        let sat = p.read(sat, Access::ComputeShaderReadSampled);
-        let input = p.read(input, Access::ComputeShaderReadStorage);
-        let out = p.write(out, Access::ComputeShaderWriteStorage);
-        let nearest = tech.nearest.sampler;
-        let (pl, lay) = (self.pipe.pipeline, self.pipe.layout);
-        let n = cases.len() as u32;
-        p.record(move |rc| {
-            crate::util::bind_compute(rc, pl, lay, &[Bind::SampledImage(sat, nearest), Bind::StorageBuffer(input), Bind::StorageImage(out)])?;
-            unsafe {
-                rc.device().cmd_push_constants(rc.cmd, lay, vk::ShaderStageFlags::COMPUTE, 0, &push);
-                rc.device().cmd_dispatch(rc.cmd, n, 1, 1);
-            }
-            Ok(())
-        });
-        out
+        parity_pass(&self.pipe, tech, graph, "vv_parity", sat, data, cases.len() as u32, 1)
     }
+}
+
+/// The pass of [`VvParity`] and [`VvCapParity`]: `count` cases (`data`: case offsets, then the
+/// cases) on `sat`, written to an RGBA32F image `name` of `count x rows` texels.
+#[allow(clippy::too_many_arguments)]
+fn parity_pass(
+    pipe: &Pipeline,
+    tech: &VvTechnique,
+    graph: &mut Graph,
+    name: &str,
+    sat: ImageHandle,
+    data: Vec<[f32; 4]>,
+    count: u32,
+    rows: u32,
+) -> ImageHandle {
+    let input = graph.create_buffer_init(&format!("{name}_cases"), bytes_of(&data));
+    let out = graph.create_image(name, ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, count.max(1), rows));
+    let mut push = Vec::new();
+    for v in [tech.up.sat_w as i32, tech.up.sat_h as i32, tech.settings.hemisphere_arcs as i32, count as i32] {
+        push.extend_from_slice(&v.to_le_bytes());
+    }
+    for v in [tech.settings.alpha, 0.0, 0.0, 0.0] {
+        push.extend_from_slice(&v.to_le_bytes());
+    }
+    let mut p = graph.pass(name, PassKind::Compute);
+    let sat = p.read(sat, Access::ComputeShaderReadSampled);
+    let input = p.read(input, Access::ComputeShaderReadStorage);
+    let out = p.write(out, Access::ComputeShaderWriteStorage);
+    let nearest = tech.nearest.sampler;
+    let pipe = pipe.handle();
+    p.record(move |rc| {
+        let binds = [Bind::SampledImage(sat, nearest), Bind::StorageBuffer(input), Bind::StorageImage(out)];
+        crate::util::dispatch(rc, pipe, &binds, &push, [count, 1, 1])
+    });
+    out
 }
 
 /// One case of [`VvCapParity`]: normal, reflection direction, cap cosine `cos xi` and occluder
@@ -778,31 +778,7 @@ impl VvCapParity {
                 data.extend(l.iter().map(|d| [d.x, d.y, d.z, 0.0]));
             }
         }
-        let input = graph.create_buffer_init("vv_cap_parity_cases", bytes_of(&data));
-        let out = graph.create_image("vv_cap_parity", ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, cases.len().max(1) as u32, 3));
-        let mut push = Vec::new();
-        for v in [tech.up.sat_w as i32, tech.up.sat_h as i32, tech.settings.hemisphere_arcs as i32, cases.len() as i32] {
-            push.extend_from_slice(&v.to_le_bytes());
-        }
-        for v in [tech.settings.alpha, 0.0, 0.0, 0.0] {
-            push.extend_from_slice(&v.to_le_bytes());
-        }
-        let mut p = graph.pass("vv_cap_parity", PassKind::Compute);
-        let sat = p.read(sat, Access::ComputeShaderReadSampled);
-        let input = p.read(input, Access::ComputeShaderReadStorage);
-        let out = p.write(out, Access::ComputeShaderWriteStorage);
-        let nearest = tech.nearest.sampler;
-        let (pl, lay) = (self.pipe.pipeline, self.pipe.layout);
-        let n = cases.len() as u32;
-        p.record(move |rc| {
-            crate::util::bind_compute(rc, pl, lay, &[Bind::SampledImage(sat, nearest), Bind::StorageBuffer(input), Bind::StorageImage(out)])?;
-            unsafe {
-                rc.device().cmd_push_constants(rc.cmd, lay, vk::ShaderStageFlags::COMPUTE, 0, &push);
-                rc.device().cmd_dispatch(rc.cmd, n, 1, 1);
-            }
-            Ok(())
-        });
-        out
+        parity_pass(&self.pipe, tech, graph, "vv_cap_parity", sat, data, cases.len() as u32, 3)
     }
 }
 
@@ -902,11 +878,10 @@ impl crate::technique::Technique for VvTechnique {
         let base = p.read(base, Access::ComputeShaderReadSampled);
         let objects = p.read(objects, Access::ComputeShaderReadSampled);
         let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
-        let (pl, lay) = (self.composite.pipeline, self.composite.layout);
+        let pipe = self.composite.handle();
         p.record(move |rc| {
-            crate::util::bind_compute(rc, pl, lay, &[Bind::SampledImage(base, nearest), Bind::SampledImage(objects, nearest), Bind::StorageImage(hdr)])?;
-            unsafe { rc.device().cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1) };
-            Ok(())
+            let binds = [Bind::SampledImage(base, nearest), Bind::SampledImage(objects, nearest), Bind::StorageImage(hdr)];
+            crate::util::dispatch(rc, pipe, &binds, &[], [groups(w, 8), groups(h, 8), 1])
         });
         Ok(hdr)
     }
