@@ -35,6 +35,21 @@ pub trait Technique {
     }
 }
 
+/// Applies every `key = value` of `params` (a scene's `[technique_params]` and `--param`s) to
+/// `settings` with `set`, reporting all the bad ones together (one per line), not only the first.
+pub fn apply_params<S>(
+    settings: &mut S,
+    params: &std::collections::BTreeMap<String, String>,
+    set: impl Fn(&mut S, &str, &str) -> Result<()>,
+) -> Result<()> {
+    let errors: Vec<String> = params.iter().filter_map(|(k, v)| set(settings, k, v).err().map(|e| format!("{e:#}"))).collect();
+    match errors.len() {
+        0 => Ok(()),
+        1 => Err(anyhow::anyhow!("{}", errors[0])),
+        n => Err(anyhow::anyhow!("{n} bad technique parameters:\n  {}", errors.join("\n  "))),
+    }
+}
+
 /// Techniques implemented so far.
 pub const IMPLEMENTED: &[&str] =
     &["avs", "env", "isg", "isg-vertex", "mc", "shadowmaps", "shadow-fields", "shadow-fields-fixed", "vv"];
@@ -71,4 +86,23 @@ pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &
         "shadow-fields" | "shadow-fields-fixed" => Some(Box::new(crate::shadow_fields::ShadowFieldsTechnique::new(ctx, shaders, _scene, crate::shadow_fields::SfOptions { adaptive: name == "shadow-fields", ..crate::shadow_fields::SfOptions::from_params(&_scene.technique_params)? })?)),
         _ => None,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    #[test]
+    fn bad_parameters_are_reported_together() {
+        let params: BTreeMap<String, String> =
+            [("zeta", "-3"), ("mode", "fragment1"), ("bogus", "1")].iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+        let e = crate::vv::VvSettings::from_params(&params).unwrap_err().to_string();
+        assert!(e.starts_with("2 bad technique parameters"), "{e}");
+        assert!(e.contains("zeta") && e.contains("bogus") && !e.contains("fragment1"), "{e}");
+        let one: BTreeMap<String, String> = [("lobes".to_string(), "zero".to_string())].into();
+        let e = crate::isg::IsgSettings::from_params(&one).unwrap_err().to_string();
+        assert!(e.contains("lobes") && !e.contains("bad technique parameters"), "{e}");
+        let good: BTreeMap<String, String> = [("mode".to_string(), "vertex".to_string())].into();
+        assert!(crate::shadow_fields::SfOptions::from_params(&good).is_ok());
+    }
 }

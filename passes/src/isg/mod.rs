@@ -115,9 +115,7 @@ impl IsgSettings {
     /// Defaults with the scene's `technique_params` applied (see [`IsgSettings::set`]).
     pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> anyhow::Result<Self> {
         let mut s = IsgSettings::default();
-        for (k, v) in params {
-            s.set(k, v)?;
-        }
+        crate::technique::apply_params(&mut s, params, IsgSettings::set)?;
         Ok(s)
     }
 

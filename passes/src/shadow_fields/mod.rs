@@ -90,9 +90,7 @@ impl SfOptions {
     /// Options from `[technique_params]` / `--param` (see [`SfOptions::set`]).
     pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> Result<Self> {
         let mut o = SfOptions::default();
-        for (k, v) in params {
-            o.set(k, v)?;
-        }
+        crate::technique::apply_params(&mut o, params, SfOptions::set)?;
         Ok(o)
     }
 

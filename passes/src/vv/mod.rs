@@ -145,9 +145,7 @@ impl Default for VvSettings {
 impl VvSettings {
     pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> Result<Self> {
         let mut s = VvSettings::default();
-        for (k, v) in params {
-            s.set(k, v)?;
-        }
+        crate::technique::apply_params(&mut s, params, VvSettings::set)?;
         Ok(s)
     }
 
