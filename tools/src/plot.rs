@@ -28,7 +28,8 @@ pub struct Chart {
     pub title: String,
     pub x_label: String,
     pub y_label: String,
-    /// Logarithmic x axis (all x must be positive).
+    /// Logarithmic x axis (points with x <= 0 are left out); linear when the points span less
+    /// than a decade (a log axis would have no tick label).
     pub log_x: bool,
     /// Draw a legend box of the series' names (leave it off when every point is labelled).
     pub legend: bool,
@@ -84,10 +85,15 @@ pub fn write_chart(path: &Path, chart: &Chart, series: &[Series]) -> Result<()> 
         .filter(|s| !s.points.is_empty())
         .collect();
     let all = || series.iter().flat_map(|s| s.points.iter().copied());
-    let (Some(xr), Some(yr)) = (range(all().map(|p| p.0), chart.log_x), range(all().map(|p| p.1), false)) else {
+    if all().next().is_none() {
+        bail!("{}: no finite point to plot", path.display());
+    }
+    // A log axis within one decade gets no tick labels: such data is drawn on a linear axis.
+    let log_x = chart.log_x && all().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max) > 10.0 * all().map(|p| p.0).fold(f64::INFINITY, f64::min);
+    let (Some(xr), Some(yr)) = (range(all().map(|p| p.0), log_x), range(all().map(|p| p.1), false)) else {
         bail!("{}: no finite point to plot", path.display());
     };
-    let res = if chart.log_x {
+    let res = if log_x {
         draw(path, chart, &series, (xr.0..xr.1).log_scale(), yr)
     } else {
         draw(path, chart, &series, xr.0..xr.1, yr)

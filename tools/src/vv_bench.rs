@@ -2,7 +2,8 @@
 //! evaluations) against the interpolated one (eq. 21, one evaluation), under dynamic tessellation
 //! for zeta = 1..4 and per fragment: GPU ms per frame (sum of the pass medians), their ratio,
 //! PSNR against the CPU reference for both, triangles after tessellation (pipeline statistics),
-//! and the precompute time and memory, in one run. Writes `vv_bench.json` and the images.
+//! and the precompute time and memory, in one run. Writes `vv_bench.json`, the images and
+//! `vv_tradeoff.png` (PSNR against ms per method, points labelled by zeta).
 
 use anyhow::{Context as _, Result};
 use clap::Args;
@@ -171,5 +172,26 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
     });
     std::fs::write(args.out.join("vv_bench.json"), serde_json::to_string_pretty(&report)? + "\n")?;
     println!("wrote {}", args.out.join("vv_bench.json").display());
+    // Fig. 11's comparison as a picture: per method, PSNR against ms over zeta and per fragment.
+    let method = |name: &str, pick: &dyn Fn(&(String, String, String)) -> &String| {
+        let (points, labels) = pairs
+            .iter()
+            .filter_map(|p| find(pick(p)).map(|r| ((r.ms, r.psnr), format!(" {}", p.0.replace("zeta=", "z")))))
+            .unzip();
+        crate::plot::Series { name: name.into(), points, labels }
+    };
+    let series = [method("previous (eq. 19)", &|p| &p.1), method("this paper (eq. 21)", &|p| &p.2)];
+    let chart = crate::plot::Chart {
+        title: format!("{}: vv error against time, {width}x{height}", scene.name),
+        x_label: "GPU ms per frame (median, lavapipe)".into(),
+        y_label: format!("PSNR vs reference, {} spp (dB)", args.spp),
+        log_x: true,
+        legend: true,
+    };
+    let path = args.out.join("vv_tradeoff.png");
+    match crate::plot::write_chart(&path, &chart, &series) {
+        Ok(()) => println!("wrote {}", path.display()),
+        Err(e) => println!("no chart: {e:#}"),
+    }
     Ok(())
 }
