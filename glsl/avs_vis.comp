@@ -8,9 +8,17 @@
 // other texels take the parent's value. Every level writes a full r x r packed map (texel blocks
 // replicated) in the layout of include/avs_maps.glsl; rays are any-hit queries through the
 // kd-tree (include/kdtree.glsl) from the point offset along its normal. The map is assembled with
-// atomicOr directly in the output buffer (zeroed first by the workgroup): an 8 KB shared-memory
-// bitmap (r = 256) lost bits on lavapipe (Mesa 22.3.6): 13.6 % of a map came out occluded with
-// every ray reported visible (tests/avs.rs, extremes_r256_maps_and_fp16_shading).
+// atomicOr directly in the output buffer (each workgroup first zeroes the words of its rows).
+//
+// Work split: one workgroup per (batch entry, chunk of AVS_VIS_CHUNK texels of this level), so an
+// invocation traces at most AVS_VIS_CHUNK / 64 = 16 rays. lavapipe (gallivm) ends EVERY loop of a
+// shader invocation once its loops have run 65535 iterations in total (LP_MAX_TGSI_LOOP_ITERATIONS,
+// one counter shared by all loops of the shader, per SIMD group of invocations), silently: with one
+// workgroup per map, an invocation traced 1024 rays at r = 256 (each ray a kd-tree loop of tens to
+// hundreds of iterations), its texel loop stopped early and the untraced texels stayed 0 =
+// occluded (the r = 256 "spurious occlusion" of issue 8: the last 8 invocations of the workgroup,
+// columns 56-63 mod 64 of the last ~50 rows). The probe loop at the end (pc.probe = 2 iterations)
+// detects an exhausted counter and sets bit 31 of the entry's ray count (the CPU reports it).
 #include "avs_maps.glsl"
 
 layout(local_size_x = 64) in;
@@ -27,7 +35,8 @@ layout(std430, binding = 6) readonly buffer Prev { uint prev[]; };
 // this level's maps: indexed by batch entry (scratch) or by slot (final level); read-write
 // (atomicOr)
 layout(std430, binding = 7) buffer Out { uint outw[]; };
-// rays traced per batch entry (statistics), accumulated over the levels
+// rays traced per batch entry (statistics), accumulated over the levels; bit 31: a workgroup of
+// this entry hit the driver's loop limit (see above)
 layout(std430, binding = 8) buffer Stats { uint stats[]; };
 layout(push_constant) uniform Push {
     uint r;        // final resolution
@@ -37,8 +46,11 @@ layout(push_constant) uniform Push {
     uint level;    // 0: initial grid
     uint to_slot;  // 1: write map of entry e at its slot (final level)
     uint flags;    // bit 0: neighbours' maps mark boundary rays; bit 1: trace every texel (no adaptivity)
-    uint pad;
+    uint probe;    // 2: trip count of the loop-limit probe
 } pc;
+
+// texels of one workgroup (a multiple of every level's res <= 256)
+#define AVS_VIS_CHUNK 1024u
 
 #define KD_TRI(i) kd_tris[i]
 #define KD_NODE(i) kd_nodes[i]
@@ -77,19 +89,23 @@ mat3 frame_of(uint slot) {
 void main() {
     uint words = avs_words_per_map(pc.r);
     uint tid = gl_LocalInvocationID.x;
+    uint res = pc.res, pres = res / 2u, s = pc.r / res;
+    uint chunk_len = min(AVS_VIS_CHUNK, res * res);
+    // texels [t0, t1) of this level = rows [t0 / res, t1 / res) = full-resolution words [w0, w1)
+    uint t0 = gl_WorkGroupID.y * chunk_len, t1 = t0 + chunk_len;
+    uint w0 = (t0 / res) * s * pc.r / 32u, w1 = (t1 / res) * s * pc.r / 32u;
     for (uint e = gl_WorkGroupID.x; e < pc.count; e += gl_NumWorkGroups.x) {
         uint slot = batch[e];
         uint base = (pc.to_slot != 0u ? slot : e) * words;
-        for (uint w = tid; w < words; w += 64u) outw[base + w] = 0u;
+        for (uint w = w0 + tid; w < w1; w += 64u) outw[base + w] = 0u;
         if (tid == 0u) straced = 0u;
         memoryBarrierBuffer();
         barrier();
         vec4 p0 = pts[3u * slot];
         mat3 fr = frame_of(slot);
         vec3 origin = p0.xyz + fr[2] * p0.w;
-        uint res = pc.res, pres = res / 2u, s = pc.r / res;
         uint traced = 0u;
-        for (uint t = tid; t < res * res; t += 64u) {
+        for (uint t = t0 + tid; t < t1; t += 64u) {
             uint a = t / res, b = t % res;
             bool trace_it = pc.level == 0u || (pc.flags & 2u) != 0u;
             bool value = false;
@@ -123,9 +139,19 @@ void main() {
                 }
             }
         }
+        // loop-limit probe: pc.probe iterations unless the driver's loop counter ran out
+        uint probe = 0u;
+        for (uint i = 0u; i < pc.probe; ++i) probe++;
         atomicAdd(straced, traced);
         barrier();
-        if (tid == 0u) stats[e] = (pc.level == 0u ? 0u : stats[e]) + straced;
+        uint cut = probe != pc.probe ? 0x80000000u : 0u;
+        if (cut != 0u) atomicOr(straced, cut);
+        barrier();
+        // (the counts are cleared before the first level)
+        if (tid == 0u) {
+            atomicOr(stats[e], straced & 0x80000000u);
+            atomicAdd(stats[e], straced & 0x7fffffffu);
+        }
         barrier();
     }
 }

@@ -262,8 +262,7 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
         let (tris, _, no_shadow) = penumbra_passes::mc::world_triangles_shading(&scene, &frame)?;
         let tris: Vec<[glam::Vec3; 3]> = tris.iter().zip(&no_shadow).filter(|(_, ns)| !**ns).map(|(t, _)| *t).collect();
         let pool = penumbra_passes::avs::vertex_pool(&scene, &frame)?;
-        let extent = pool.iter().fold(1.0f32, |m, p| m.max(p.pos.abs().max_element()));
-        let offset = penumbra_passes::kdtree::ray_epsilon(extent) * 10.0;
+        let offset = penumbra_passes::avs::ray_offset(&pool);
         hc.run(&mut engine, &tris, &ad.sample_points, offset, r, false)?;
         let hr = hc.run(&mut engine, &tris, &ad.sample_points, offset, r, false)?;
         let ms = |pre: &str| hr.gpu_ms.iter().filter(|(n, _)| n.starts_with(pre)).map(|(_, m)| m).sum::<f64>();

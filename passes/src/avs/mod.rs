@@ -100,8 +100,8 @@ pub struct AvsSettings {
     pub neighbours: u32,
     /// Neighbouring sample points whose previous-level maps also mark boundary rays (0: off).
     pub ray_neighbours: u32,
-    /// Adaptive angular sampling (false: every texel of every level is traced, the brute-force
-    /// baseline of the bench).
+    /// Adaptive angular sampling (false: only the final level runs, every texel traced: r^2 rays
+    /// a map, the brute-force baseline of the bench).
     pub adaptive: bool,
     /// Integration mode.
     pub integration: Integration,
@@ -272,6 +272,14 @@ pub struct AvsStats {
     pub dormant: usize,
     /// Visibility maps traced this frame, summed over the adaptation rounds.
     pub traced_points: usize,
+    /// Maps (summed over the rounds) whose visibility pass hit the driver's per-invocation loop
+    /// limit (lavapipe: 65535 loop iterations, then every loop ends early; see avs_vis.comp):
+    /// their untraced texels are wrong (occluded). 0 unless a chunk's rays need that many kd-tree
+    /// steps.
+    pub truncated: usize,
+    /// The final packed visibility map of every sample point (`words_per_map(r)` words each, in
+    /// the order of `point_vertices`), only while [`capture_maps`] is on (tests).
+    pub maps: Vec<Vec<u32>>,
 }
 
 static LAST_STATS: std::sync::Mutex<Option<AvsStats>> = std::sync::Mutex::new(None);
@@ -280,6 +288,14 @@ static LAST_STATS: std::sync::Mutex<Option<AvsStats>> = std::sync::Mutex::new(No
 fn axis_table() -> Arc<Vec<u8>> {
     static TABLE: std::sync::OnceLock<Arc<Vec<u8>>> = std::sync::OnceLock::new();
     TABLE.get_or_init(|| Arc::new(bytes_of(&penumbra_math::ssdf_integrate::AxisTable::generate(|_| {}).data))).clone()
+}
+
+static CAPTURE_MAPS: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Read the final visibility maps back into [`AvsStats::maps`] (one more copy per adaptation
+/// round; for tests comparing maps texel by texel).
+pub fn capture_maps(on: bool) {
+    CAPTURE_MAPS.store(on, std::sync::atomic::Ordering::Relaxed);
 }
 
 /// Statistics of the last frame any `avs` technique in this process declared (the renderer owns
@@ -311,6 +327,13 @@ pub fn vertex_pool(scene: &Scene, frame: &Frame) -> Result<Vec<SurfacePoint>> {
         }
     }
     Ok(out)
+}
+
+/// Offset of the visibility rays' origins along the sample point's normal for the frame's
+/// vertex pool (ten kd-tree ray epsilons of the scene extent).
+pub fn ray_offset(pool: &[SurfacePoint]) -> f32 {
+    let extent = pool.iter().fold(1.0f32, |m, p| m.max(p.pos.abs().max_element()));
+    crate::kdtree::ray_epsilon(extent) * 10.0
 }
 
 /// Mean distance from each point to its nearest other point (a tenth of the bounding-box
@@ -524,12 +547,6 @@ impl AvsTechnique {
         Ok(())
     }
 
-    /// Ray origin offset along the normal.
-    fn offset(&self, pool: &[SurfacePoint]) -> f32 {
-        let extent = pool.iter().fold(1.0f32, |m, p| m.max(p.pos.abs().max_element()));
-        crate::kdtree::ray_epsilon(extent) * 10.0
-    }
-
     /// The tree of the frame's triangles (shadow flags from the objects).
     fn tree(&mut self, engine: &mut Engine, graph: &mut Graph, frame: &Frame) -> Result<KdTreeHandles> {
         let (tris, _, no_shadow) = crate::mc::world_triangles_shading(&self.scene, frame)?;
@@ -577,11 +594,26 @@ impl AvsTechnique {
             graph.create_buffer(&format!("avs_scratch{tag}_a"), scratch_bytes),
             graph.create_buffer(&format!("avs_scratch{tag}_b"), scratch_bytes),
         ];
-        let mut stats = graph.create_buffer(&format!("avs_rays{tag}"), (n.max(1) as u64) * 4);
+        // rays per entry, accumulated by the levels' workgroups with atomics: cleared first
+        let mut stats = {
+            let b = graph.create_buffer(&format!("avs_rays{tag}"), (n.max(1) as u64) * 4);
+            let mut p = graph.pass(&format!("avs_rays_clear{tag}"), PassKind::Transfer);
+            let u = p.write(b, Access::TransferDst);
+            p.record(move |rc| {
+                let b = rc.buffer(u)?;
+                unsafe { rc.device().cmd_fill_buffer(rc.cmd, b.buffer, 0, vk::WHOLE_SIZE, 0) };
+                Ok(())
+            });
+            u
+        };
         let levels = self.settings.levels();
-        for level in 0..levels {
+        // without adaptivity only the final level runs (every texel traced at r: r^2 rays a map)
+        let first = if self.settings.adaptive { 0 } else { levels - 1 };
+        for level in first..levels {
             let res = self.settings.initial_grid << level;
             let last = level + 1 == levels;
+            // the shader's level: 0 traces every texel and reads no previous level
+            let level = level - first;
             let mut p = graph.pass(&format!("avs_vis{tag}_l{level}"), PassKind::Compute);
             let t0 = p.read(tree.tris, Access::ComputeShaderReadStorage);
             let t1 = p.read(tree.nodes, Access::ComputeShaderReadStorage);
@@ -607,9 +639,12 @@ impl AvsTechnique {
                     if level < 2 { Access::ComputeShaderWriteStorage } else { Access::ComputeShaderReadWriteStorage },
                 )
             };
-            let st = p.write(stats, if level == 0 { Access::ComputeShaderWriteStorage } else { Access::ComputeShaderReadWriteStorage });
+            let st = p.write(stats, Access::ComputeShaderReadWriteStorage);
             let flags = (k > 0) as u32 | (!self.settings.adaptive as u32) << 1;
-            let push = [r, res, n, k, level, last as u32, flags, 0];
+            // the shader's probe loop runs 2 iterations unless the driver's loop limit was hit
+            let push = [r, res, n, k, level, last as u32, flags, 2];
+            // workgroups: batch entries x chunks of 1024 texels (AVS_VIS_CHUNK in avs_vis.comp)
+            let chunks = (res * res).div_ceil(1024).max(1);
             let (pipe, layout) = (self.vis.pipeline, self.vis.layout);
             p.record(move |rc| {
                 let prev_b = prev.unwrap_or(out);
@@ -632,7 +667,7 @@ impl AvsTechnique {
                 unsafe {
                     let d = rc.device();
                     d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
-                    d.cmd_dispatch(rc.cmd, n.clamp(1, 65535), 1, 1);
+                    d.cmd_dispatch(rc.cmd, n.clamp(1, 65535), chunks, 1);
                 }
                 Ok(())
             });
@@ -686,18 +721,21 @@ impl AvsTechnique {
         let r = self.settings.r;
         let words = words_per_map(r) as u64;
         let cap = self.settings.max_points.max(self.sample_vertices.len()) as u64;
-        let offset = self.offset(pool);
+        let offset = ray_offset(pool);
         let pool_grid = Grid::new(&pool.iter().map(|p| p.pos).collect::<Vec<_>>(), 0.0);
         self.stats.inserted.clear();
         self.stats.erased.clear();
         self.stats.round_ms.clear();
         self.stats.rays = 0;
+        self.stats.truncated = 0;
         self.stats.traced_points = 0;
         // every point is traced again each frame (the geometry is dynamic): slots 0..n
         let mut slots: Vec<u32> = (0..self.sample_vertices.len() as u32).collect();
         let mut nslots = slots.len() as u32;
         let mut free: Vec<u32> = Vec::new();
         let mut sh: Vec<Option<[f32; SH_COUNT]>> = vec![None; slots.len()];
+        let capture = CAPTURE_MAPS.load(std::sync::atomic::Ordering::Relaxed);
+        let mut maps: Vec<Vec<u32>> = vec![Vec::new(); slots.len()];
         for round in 0..=self.settings.iterations {
             let points: Vec<SurfacePoint> = self.sample_vertices.iter().map(|&v| pool[v]).collect();
             let batch: Vec<u32> = (0..points.len()).filter(|&i| sh[i].is_none()).map(|i| slots[i]).collect();
@@ -739,6 +777,20 @@ impl AvsTechnique {
                     Ok(())
                 });
             }
+            if capture {
+                let bytes = (nslots.max(1) as u64).min(cap) * words * 4;
+                let rb = g.create_readback("avs_maps_readback", bytes);
+                let mut p = g.pass("avs_maps_readback", PassKind::Transfer);
+                let s = p.read(vis, Access::TransferSrc);
+                let d = p.write(rb, Access::TransferDst);
+                p.record(move |rc| {
+                    let (sb, db) = (rc.buffer(s)?, rc.buffer(d)?);
+                    unsafe {
+                        rc.device().cmd_copy_buffer(rc.cmd, sb.buffer, db.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: bytes }]);
+                    }
+                    Ok(())
+                });
+            }
             let out = engine.submit_wait(g)?;
             self.stats.round_ms.extend(out.gpu_ms.iter().cloned());
             let bytes = out.readbacks.get("avs_sh_readback").ok_or_else(|| anyhow!("avs: SH readback missing"))?;
@@ -750,7 +802,13 @@ impl AvsTechnique {
                     *x = word(e * SH_COUNT + k);
                 }
                 sh[slot_point[&slot]] = Some(v);
-                self.stats.rays += word(batch.len() * SH_COUNT + e).to_bits() as u64;
+                let map_bytes = words as usize * 4;
+                if let Some(m) = out.readbacks.get("avs_maps_readback").and_then(|m| m.get(slot as usize * map_bytes..(slot as usize + 1) * map_bytes)) {
+                    maps[slot_point[&slot]] = m.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+                }
+                let rays = word(batch.len() * SH_COUNT + e).to_bits();
+                self.stats.rays += (rays & 0x7fff_ffff) as u64;
+                self.stats.truncated += (rays >> 31) as usize;
             }
             if round == self.settings.iterations {
                 break;
@@ -771,6 +829,7 @@ impl AvsTechnique {
             let mut keep_v = Vec::new();
             let mut keep_s = Vec::new();
             let mut keep_sh = Vec::new();
+            let mut keep_maps = Vec::new();
             for i in 0..points.len() {
                 if erase.contains(&i) {
                     free.push(slots[i]);
@@ -778,6 +837,7 @@ impl AvsTechnique {
                     keep_v.push(self.sample_vertices[i]);
                     keep_s.push(slots[i]);
                     keep_sh.push(sh[i]);
+                    keep_maps.push(std::mem::take(&mut maps[i]));
                 }
             }
             for v in insert {
@@ -787,14 +847,23 @@ impl AvsTechnique {
                     nslots - 1
                 }));
                 keep_sh.push(None);
+                keep_maps.push(Vec::new());
             }
             self.sample_vertices = keep_v;
             slots = keep_s;
             sh = keep_sh;
+            maps = keep_maps;
         }
         self.stats.points = self.sample_vertices.len();
         let dc = 0.282_094_8 * 2.0 * std::f32::consts::PI;
         self.stats.visible_fraction = sh.iter().map(|c| c.map_or(-1.0, |c| c[0] / dc)).collect();
+        self.stats.maps = if capture { maps } else { Vec::new() };
+        if self.stats.truncated > 0 {
+            eprintln!(
+                "avs: {} visibility maps hit the device's per-invocation loop limit (lavapipe: 65535 iterations); their untraced texels read as occluded",
+                self.stats.truncated
+            );
+        }
         Ok((self.sample_vertices.iter().map(|&v| pool[v]).collect(), slots, nslots))
     }
 }
@@ -831,7 +900,7 @@ impl crate::technique::Technique for AvsTechnique {
         // The frame's graph: SSDFs of the final maps, shading.
         let vis = engine.persistent_buffer(graph, "avs.vis", cap * words_per_map(r) as u64 * 4);
         let ssdf = self.hsdt.add(graph, "avs_hsdt", vis, n.max(1), r)?;
-        let offset = self.offset(&pool);
+        let offset = ray_offset(&pool);
         let mut by_slot = vec![SurfacePoint { pos: Vec3::ZERO, normal: Vec3::Y }; nslots as usize];
         for (i, p) in points.iter().enumerate() {
             by_slot[slots[i] as usize] = *p;
