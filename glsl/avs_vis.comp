@@ -34,7 +34,7 @@ layout(std430, binding = 5) readonly buffer Batch { uint batch[]; };
 layout(std430, binding = 6) readonly buffer Prev { uint prev[]; };
 // this level's maps: indexed by batch entry (scratch) or by slot (final level); read-write
 // (atomicOr)
-layout(std430, binding = 7) buffer Out { uint outw[]; };
+layout(std430, binding = 7) coherent buffer Out { uint outw[]; };
 // rays traced per batch entry (statistics), accumulated over the levels; bit 31: a workgroup of
 // this entry hit the driver's loop limit (see above)
 layout(std430, binding = 8) buffer Stats { uint stats[]; };
@@ -45,7 +45,8 @@ layout(push_constant) uniform Push {
     uint k;        // neighbours per entry
     uint level;    // 0: initial grid
     uint to_slot;  // 1: write map of entry e at its slot (final level)
-    uint flags;    // bit 0: neighbours' maps mark boundary rays; bit 1: trace every texel (no adaptivity)
+    uint flags;    // bit 0: neighbours' maps mark boundary rays; bit 1: trace every texel (no adaptivity);
+                   // bit 2: keep hits whose children all miss (see main)
     uint probe;    // 2: trip count of the loop-limit probe
 } pc;
 
@@ -136,6 +137,49 @@ void main() {
                 for (uint row = a * s; row < a * s + s; ++row) {
                     uint kk = row * pc.r + b * s;
                     atomicOr(outw[base + (kk >> 5u)], mask << (kk & 31u));
+                }
+            }
+        }
+        // Keeping hits (bit 2; issue 8, slim occluders): the boundary refinement re-traces an
+        // occluded parent's four children, and an occluder thinner than a child cell that the
+        // parent's ray hit can pass between the children's centre rays: all four miss and the hit is
+        // lost (with it the boundary that would refine the occluder further). Such a group keeps
+        // one child occluded when a ray confirms the occluder: the parent's centre ray (its
+        // direction is the top-left corner of child (2pa+1, 2pb+1)) or, for a parent that was
+        // itself kept this way, its top-left corner ray (the corner of child (2pa, 2pb)). A kept
+        // texel thus always has a hit on its top-left corner, and the next level refines around
+        // it. (Not in the paper, which only refines boundary rays.)
+        if (pc.level > 0u && (pc.flags & 6u) == 4u) {
+            memoryBarrierBuffer();
+            barrier();
+            float hp = float(AVS_PI) / float(pres);
+            uint mask = s >= 32u ? 0xffffffffu : ((1u << s) - 1u);
+            for (uint g = (t0 / res / 2u) * pres + tid; g < (t1 / res / 2u) * pres; g += 64u) {
+                uint pa = g / pres, pb = g % pres;
+                if (prev_bit(e, pa, pb, pres)) continue;
+                bool all_missed = true;
+                for (uint c = 0u; c < 4u; ++c) {
+                    uint kk = ((2u * pa + c / 2u) * s) * pc.r + (2u * pb + c % 2u) * s;
+                    all_missed = all_missed && AVS_VIS_BIT(outw, base, kk);
+                }
+                if (!all_missed) continue;
+                uint ka = 0xffffffffu, kb = 0u;
+                traced++;
+                if (kd_trace(origin, fr * avs_texel_dir(pa, pb, pres), 0.0, 1e30, true).t >= 0.0) {
+                    ka = 2u * pa + 1u;
+                    kb = 2u * pb + 1u;
+                } else if (pa > 0u && pb > 0u) {
+                    traced++;
+                    vec3 corner = fr * avs_angles_to_local(float(pa) * hp, float(pb) * hp);
+                    if (kd_trace(origin, corner, 0.0, 1e30, true).t >= 0.0) {
+                        ka = 2u * pa;
+                        kb = 2u * pb;
+                    }
+                }
+                if (ka == 0xffffffffu) continue;
+                for (uint row = ka * s; row < ka * s + s; ++row) {
+                    uint kk = row * pc.r + kb * s;
+                    atomicAnd(outw[base + (kk >> 5u)], ~(mask << (kk & 31u)));
                 }
             }
         }

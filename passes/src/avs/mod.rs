@@ -103,6 +103,10 @@ pub struct AvsSettings {
     /// Adaptive angular sampling (false: only the final level runs, every texel traced: r^2 rays
     /// a map, the brute-force baseline of the bench).
     pub adaptive: bool,
+    /// Keep an occluded parent's hit when the refinement's four child rays all miss it (one child
+    /// stays occluded when the parent's centre ray, or for an already kept parent its corner ray,
+    /// confirms the occluder; not in the paper: slim occluders thinner than a child cell).
+    pub keep_hits: bool,
     /// Integration mode.
     pub integration: Integration,
     /// Cells per side of the lobe neighbourhood (integration = cells).
@@ -135,6 +139,7 @@ impl Default for AvsSettings {
             neighbours: 6,
             ray_neighbours: 4,
             adaptive: true,
+            keep_hits: true,
             integration: Integration::Axis,
             cells: 6,
             shadows: true,
@@ -160,7 +165,7 @@ impl AvsSettings {
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
     /// `iterations` (2), `points` (0 = auto), `max_points` (8192), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells` | `table` | `adf`), `cells` (6,
-    /// 1..16), `shadows`, `adaptive`, `prefiltered`, `cull` (true/false), `lobes` (16). Unknown keys and bad values
+    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull` (true/false), `lobes` (16). Unknown keys and bad values
     /// are errors naming the key.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
@@ -205,11 +210,12 @@ impl AvsSettings {
             "cells" => self.cells = int(1, 16)? as u32,
             "shadows" => self.shadows = flag()?,
             "adaptive" => self.adaptive = flag()?,
+            "keep_hits" => self.keep_hits = flag()?,
             "prefiltered" => self.prefiltered = flag()?,
             "lobes" => self.lobes = int(1, 64)? as usize,
             "cull" => self.cull = flag()?,
             other => bail!(
-                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, prefiltered, lobes, cull)"
+                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, lobes, cull)"
             ),
         }
         Ok(())
@@ -640,7 +646,7 @@ impl AvsTechnique {
                 )
             };
             let st = p.write(stats, Access::ComputeShaderReadWriteStorage);
-            let flags = (k > 0) as u32 | (!self.settings.adaptive as u32) << 1;
+            let flags = (k > 0) as u32 | (!self.settings.adaptive as u32) << 1 | (self.settings.keep_hits as u32) << 2;
             // the shader's probe loop runs 2 iterations unless the driver's loop limit was hit
             let push = [r, res, n, k, level, last as u32, flags, 2];
             // workgroups: batch entries x chunks of 1024 texels (AVS_VIS_CHUNK in avs_vis.comp)
