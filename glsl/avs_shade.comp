@@ -18,7 +18,9 @@
 //   mode 3 (adaptive cells, part A): ssdf_visible_cells of include/ssdf_integrate.glsl (distance-
 //           field quadtree, iso-line clipped boundary texels, eq. 5) over a virtual map in the
 //           pixel's frame whose texels are the interpolated SSDF; ~1 ms per pixel on lavapipe:
-//           only for tiny images. Measured wrong at boundaries (see Integration::Adf).
+//           only for tiny images. Wrong on lavapipe: a pixel needs more than the driver's 65535
+//           loop iterations per invocation, after which every loop stops early (see
+//           Integration::Adf).
 // Local lights: shadowed by the sign of the interpolated SSDF toward the light.
 #include "common.glsl"
 #include "sg.glsl"

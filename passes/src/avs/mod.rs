@@ -61,10 +61,15 @@ pub enum Integration {
     Table,
     /// Part A's adaptive cells (`ssdf_visible_cells`) over a virtual map of the interpolated
     /// SSDF in the pixel's frame: slow (1.1 ms per pixel at 24x18 on lavapipe, 17 lobes), for
-    /// tiny images. CAUTION, measured (bench avs, hat_on_cloth 24x18): 8.46 dB / relRMSE 0.791
-    /// against 17.70 dB / 0.422 for `axis`; fully free maps give 0.988 of the unshadowed value
-    /// (the analytic hemisphere normalisation) and fully occluded maps exactly 0, so the error is
-    /// at boundaries; the cause is not found yet.
+    /// tiny images. BROKEN ON LAVAPIPE, measured (bench avs, hat_on_cloth 24x18): 8.46 dB /
+    /// relRMSE 0.791 against 17.70 dB / 0.422 for `axis`. Cause (issue 8, session 4): lavapipe
+    /// ends every loop of a shader invocation once its loops have run 65535 iterations in total
+    /// (see `glsl/avs_vis.comp`), and one pixel's quadtree walks (with the neighbour loop of each
+    /// virtual-texel fetch) need more: a loop-count probe at the end of `avs_shade` found the limit
+    /// hit on all 272 shaded pixels of hat_on_cloth 24x18 (r = 64, 240 points), and on 192 of them
+    /// with only the first lighting lobe integrated, so every later loop (lobes, quadtree, lights)
+    /// stopped after one iteration. Fully free / occluded maps need few iterations (exact there).
+    /// A fix needs the integral split over invocations (per lobe and per block of the quadtree).
     Adf,
 }
 
