@@ -119,7 +119,7 @@ impl HemicubeMaps {
         let rows = batch.min(points.len()) as u32;
         let mut atlas = g.create_image("avs_hc_atlas", ImageDesc::new_2d(ATLAS_FORMAT, 5 * fr, rows * fr));
         let (rp, rl) = (self.raster.pipeline, self.raster.layout);
-        let (cp, cl) = (self.convert.pipeline, self.convert.layout);
+        let convert = self.convert.handle();
         let nearest = self.nearest.sampler;
         for (bi, start) in (0..points.len()).step_by(batch).enumerate() {
             let count = batch.min(points.len() - start);
@@ -167,13 +167,8 @@ impl HemicubeMaps {
             let out = p.write(maps, if bi == 0 { Access::ComputeShaderWriteStorage } else { Access::ComputeShaderReadWriteStorage });
             let push = [r, fr, start as u32, count as u32];
             p.record(move |rc| {
-                crate::util::bind_compute(rc, cp, cl, &[Bind::SampledImage(a, nearest), Bind::StorageBuffer(pb), Bind::StorageBuffer(fbb), Bind::StorageBuffer(out)])?;
-                unsafe {
-                    let d = rc.device();
-                    d.cmd_push_constants(rc.cmd, cl, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
-                    d.cmd_dispatch(rc.cmd, groups(words as u32, 64), count as u32, 1);
-                }
-                Ok(())
+                let binds = [Bind::SampledImage(a, nearest), Bind::StorageBuffer(pb), Bind::StorageBuffer(fbb), Bind::StorageBuffer(out)];
+                crate::util::dispatch(rc, convert, &binds, &bytes_of(&push), [groups(words as u32, 64), count as u32, 1])
             });
             maps = out;
         }

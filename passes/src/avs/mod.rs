@@ -159,9 +159,7 @@ impl AvsSettings {
     /// Defaults with `params` applied.
     pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> Result<Self> {
         let mut s = AvsSettings::default();
-        for (k, v) in params {
-            s.set(k, v)?;
-        }
+        crate::technique::apply_params(&mut s, params, AvsSettings::set)?;
         s.validate()?;
         Ok(s)
     }
@@ -656,31 +654,20 @@ impl AvsTechnique {
             let push = [r, res, n, k, level, last as u32, flags, 2];
             // workgroups: batch entries x chunks of 1024 texels (AVS_VIS_CHUNK in avs_vis.comp)
             let chunks = (res * res).div_ceil(1024).max(1);
-            let (pipe, layout) = (self.vis.pipeline, self.vis.layout);
+            let pipe = self.vis.handle();
             p.record(move |rc| {
-                let prev_b = prev.unwrap_or(out);
-                crate::util::bind_compute(
-                    rc,
-                    pipe,
-                    layout,
-                    &[
-                        Bind::StorageBuffer(t0),
-                        Bind::StorageBuffer(t1),
-                        Bind::StorageBuffer(t2),
-                        Bind::StorageBuffer(t3),
-                        Bind::StorageBuffer(pb),
-                        Bind::StorageBuffer(bb),
-                        Bind::StorageBuffer(prev_b),
-                        Bind::StorageBuffer(out),
-                        Bind::StorageBuffer(st),
-                    ],
-                )?;
-                unsafe {
-                    let d = rc.device();
-                    d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
-                    d.cmd_dispatch(rc.cmd, n.clamp(1, 65535), chunks, 1);
-                }
-                Ok(())
+                let binds = [
+                    Bind::StorageBuffer(t0),
+                    Bind::StorageBuffer(t1),
+                    Bind::StorageBuffer(t2),
+                    Bind::StorageBuffer(t3),
+                    Bind::StorageBuffer(pb),
+                    Bind::StorageBuffer(bb),
+                    Bind::StorageBuffer(prev.unwrap_or(out)),
+                    Bind::StorageBuffer(out),
+                    Bind::StorageBuffer(st),
+                ];
+                crate::util::dispatch(rc, pipe, &binds, &bytes_of(&push), [n.clamp(1, 65535), chunks, 1])
             });
             stats = st;
             if last {
@@ -706,20 +693,10 @@ impl AvsTechnique {
         let v = p.read(vis, Access::ComputeShaderReadStorage);
         let o = p.write(out, Access::ComputeShaderWriteStorage);
         let push = [self.settings.r, n];
-        let (pipe, layout) = (self.sh.pipeline, self.sh.layout);
+        let pipe = self.sh.handle();
         p.record(move |rc| {
-            crate::util::bind_compute(
-                rc,
-                pipe,
-                layout,
-                &[Bind::StorageBuffer(pb), Bind::StorageBuffer(bb), Bind::StorageBuffer(v), Bind::StorageBuffer(o)],
-            )?;
-            unsafe {
-                let d = rc.device();
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&push));
-                d.cmd_dispatch(rc.cmd, n.clamp(1, 65535), 1, 1);
-            }
-            Ok(())
+            let binds = [Bind::StorageBuffer(pb), Bind::StorageBuffer(bb), Bind::StorageBuffer(v), Bind::StorageBuffer(o)];
+            crate::util::dispatch(rc, pipe, &binds, &bytes_of(&push), [n.clamp(1, 65535), 1, 1])
         });
         o
     }
@@ -962,31 +939,21 @@ impl crate::technique::Technique for AvsTechnique {
             s.cells.clamp(1, 16),
             (!s.prefiltered) as u32,
         ]));
-        let (pipeline, layout) = (self.shade.pipeline, self.shade.layout);
+        let pipe = self.shade.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
-            crate::util::bind_compute(
-                rc,
-                pipeline,
-                layout,
-                &[io.binds(nearest, linear), vec![
-                    Bind::StorageBuffer(lights),
-                    Bind::SampledImage(textures, repeat),
-                    Bind::StorageBuffer(lobes),
-                    Bind::StorageBuffer(prefiltered),
-                    Bind::StorageBuffer(pts),
-                    Bind::StorageBuffer(gr),
-                    Bind::StorageBuffer(sd),
-                    Bind::StorageBuffer(tb),
-                ]]
-                .concat(),
-            )?;
-            unsafe {
-                let d = rc.device();
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
-                d.cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1);
-            }
-            Ok(())
+            let rest = [
+                Bind::StorageBuffer(lights),
+                Bind::SampledImage(textures, repeat),
+                Bind::StorageBuffer(lobes),
+                Bind::StorageBuffer(prefiltered),
+                Bind::StorageBuffer(pts),
+                Bind::StorageBuffer(gr),
+                Bind::StorageBuffer(sd),
+                Bind::StorageBuffer(tb),
+            ];
+            let binds = [io.binds(nearest, linear), rest.to_vec()].concat();
+            crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
         });
         // G-buffer culling: flag the kept points this frame's covered pixels need (read next frame)
         self.cull_order.clear();
@@ -1016,20 +983,10 @@ impl crate::technique::Technique for AvsTechnique {
             let mut push: Vec<u8> = Vec::with_capacity(16);
             push.extend(bytes_of(&[shade_radius, wa, wscale]));
             push.extend(bytes_of(&[s.neighbours.clamp(1, 8)]));
-            let (pipeline, layout) = (self.cull.pipeline, self.cull.layout);
+            let pipe = self.cull.handle();
             p.record(move |rc| {
-                crate::util::bind_compute(
-                    rc,
-                    pipeline,
-                    layout,
-                    &[&g.binds(nearest)[..], &[Bind::StorageBuffer(pb), Bind::StorageBuffer(gr), Bind::StorageBuffer(u)]].concat(),
-                )?;
-                unsafe {
-                    let d = rc.device();
-                    d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &push);
-                    d.cmd_dispatch(rc.cmd, groups(w, 8), groups(h, 8), 1);
-                }
-                Ok(())
+                let binds = [&g.binds(nearest)[..], &[Bind::StorageBuffer(pb), Bind::StorageBuffer(gr), Bind::StorageBuffer(u)]].concat();
+                crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
             });
             self.cull_order = all;
         }
