@@ -89,13 +89,14 @@ pub fn report(model_name: &str, d: &VvData) {
         s.visibility_seconds
     );
     println!(
-        "  correspondence: {} loops, {} triples ({:.1} per triangle; {} from RGB tripoints, {} propagated, {} relaxed), {} virtual points, {:.3} MB, {:.2} s",
+        "  correspondence: {} loops, {} triples ({:.1} per triangle; {} from RGB tripoints, {} propagated, {} relaxed, {} routing jumps through a pole), {} virtual points, {:.3} MB, {:.2} s",
         d.corr.loop_offsets.len().saturating_sub(1),
         d.corr.triples.len(),
         d.corr.triples.len() as f64 / d.triangle_count.max(1) as f64,
         s.voronoi_triples,
         s.propagated_triples,
         s.relaxed_triples,
+        s.pole_triples,
         d.vis.points.len() - d.vis.vertex_points as usize,
         mb(s.triple_bytes),
         s.correspondence_seconds
@@ -142,5 +143,9 @@ fn print_evaluation(args: &VvArgs, model: &VvModel, d: &VvData) {
     println!(
         "  vs ray tracing at {} occluded interior points (48x48 directions): eq. 19 blend {:.4}, eq. 21 {:.4} agreeing; eq. 21 at the vertices |dOmega| median {:.4} p95 {:.4} max {:.4} sr",
         e.points, e.agreement_eq19, e.agreement_eq21, e.vertex_error[0], e.vertex_error[1], e.vertex_error[2]
+    );
+    println!(
+        "  eq. 21 at the triangles' own vertices: {} of {} triangles have a corner off by > 0.1 sr, {} by > 1 sr, {} by > 3 sr",
+        e.triangles_over[0], e.triangles, e.triangles_over[1], e.triangles_over[2]
     );
 }

@@ -20,6 +20,15 @@
 //!    [`super`]).
 //! 5. The triples of a triangle are grouped by the sequences they link and ordered along them:
 //!    each group is one closed loop of the output.
+//! 6. Jumps through the pole (ours, issue 9): a vertex's sequence is often split between
+//!    groups (arcs, interleaved after the relaxed stage). Closing each arc by a chord is wrong
+//!    on the horizon, where a chord between two horizon points runs along the horizon the
+//!    shorter way: a group holding two arcs of a horizon ring wound once around the normal, so
+//!    eq. 21 at that vertex counted the hemisphere once per group (errors up to 13 sr on the
+//!    bunny). Every step of a slot that is not an edge of its vertex's sequence is routed
+//!    through that vertex's pole (a virtual direction point, its normal), and every edge is
+//!    owned by exactly one loop, so at each vertex the loops are the fan decomposition of its
+//!    own loops ([`route_jumps`]).
 
 use super::hull;
 use super::*;
@@ -489,11 +498,14 @@ pub fn correspondence(model: &VvModel, topo: &Topology, vis: &mut VectorizedVisi
         progress(1);
     }
 
-    vis.points = points;
+    // one pole point per canonical vertex (its unit normal, a direction): jumps are routed
+    // through it (step 6)
+    let mut poles: HashMap<u32, u32> = HashMap::new();
 
     // 5. loops
     let mut corr = Correspondence { tri_offsets: vec![0], loop_offsets: vec![0], triples: Vec::new() };
     for t in 0..ntri {
+        let mut loops: Vec<Vec<[u32; 3]>> = Vec::new();
         let mut groups: Vec<([u32; 3], Vec<[u32; 3]>)> = Vec::new();
         for l in &st[t].links {
             if l.e.contains(&NONE) {
@@ -516,12 +528,116 @@ pub fn correspondence(model: &VvModel, topo: &Topology, vis: &mut VectorizedVisi
             if v.len() < 3 {
                 continue;
             }
+            loops.push(v);
+        }
+        // 6. jumps through the pole
+        let pole: [u32; 3] = [0, 1, 2].map(|k| {
+            let c = ctx.canon[t][k];
+            *poles.entry(c).or_insert_with(|| {
+                let n = model.normals[c as usize];
+                points.push([n.x, n.y, n.z, 0.0]);
+                points.len() as u32 - 1
+            })
+        });
+        stats.pole_triples += route_jumps(&ctx.vis, &ctx.info, &mut loops, pole);
+        for v in loops {
             corr.triples.extend_from_slice(&v);
             corr.loop_offsets.push(corr.triples.len() as u32);
         }
         corr.tri_offsets.push(corr.loop_offsets.len() as u32 - 1);
     }
+    vis.points = points;
     Ok((corr, stats))
+}
+
+/// Step 6: at each vertex `k` of the triangle, the loops' slot-`k` entities must give back the
+/// vertex's own loops. A region split between groups (an arc of a sequence per group, often a
+/// horizon ring whose arcs interleave) would be closed by chords: along the horizon a chord
+/// between two horizon points is a horizon arc whose way round is the shorter one, so a group
+/// holding two arcs of a ring winds once around the normal (2 pi) — the winding flips of
+/// issue 9. Instead every step of slot `k` that is not an edge `i -> i + 1` of the vertex's
+/// sequence (a jump, a backward step, or an edge already taken by another loop) is routed
+/// through the vertex's pole `n_k` by a triple whose slot `k` is the pole and whose other slots
+/// repeat the previous triple's (zero-length steps there). At vertex `k` a loop is then a sum
+/// of fan triangles `(n_k, a_i, a_i+1)` over the edges it owns; every edge of a sequence that
+/// some loop of the triangle uses is owned by exactly one loop (missing edges are inserted
+/// after their first entity, or before their second), so the loops add up to the vertex's own visibility exactly (the
+/// fan decomposition of its loops).
+///
+/// `vis` gives the sequences (`seq_offsets`, `vertex_points`; its points are not read), `info`
+/// each vertex point's (sequence, position), `pole` the pole point of each slot's vertex.
+/// Returns the number of triples added.
+pub(crate) fn route_jumps(vis: &VectorizedVisibility, info: &[(u32, u32)], loops: &mut [Vec<[u32; 3]>], pole: [u32; 3]) -> usize {
+    let is_real = |g: u32| g < vis.vertex_points;
+    let succ = |g: u32| {
+        let (s, p) = info[g as usize];
+        let (lo, hi) = (vis.seq_offsets[s as usize], vis.seq_offsets[s as usize + 1]);
+        lo + (p + 1) % (hi - lo)
+    };
+    let mut added = 0;
+    for k in 0..3 {
+        let mut owned: std::collections::HashSet<u32> = std::collections::HashSet::new();
+        let mut seqs: Vec<u32> = Vec::new();
+        for v in loops.iter_mut() {
+            if !is_real(v[0][k]) {
+                continue;
+            }
+            let s = info[v[0][k] as usize].0;
+            if !seqs.contains(&s) {
+                seqs.push(s);
+            }
+            let m = v.len();
+            let mut out = Vec::with_capacity(m + 4);
+            for i in 0..m {
+                let (a, b) = (v[i][k], v[(i + 1) % m][k]);
+                out.push(v[i]);
+                if a == b || !is_real(a) || !is_real(b) {
+                    continue;
+                }
+                if b == succ(a) && owned.insert(a) {
+                    continue;
+                }
+                let mut x = v[i];
+                x[k] = pole[k];
+                out.push(x);
+                added += 1;
+            }
+            *v = out;
+        }
+        // edges no loop owns: after the first triple holding `g` (else before `succ(g)`'s)
+        // (repeated: an edge whose two entities are both missing is placed once a neighbouring
+        // edge has brought one of them in)
+        let mut todo: Vec<u32> = Vec::new();
+        for &s in &seqs {
+            todo.extend((vis.seq_offsets[s as usize]..vis.seq_offsets[s as usize + 1]).filter(|g| !owned.contains(g)));
+        }
+        let mut progress = true;
+        while progress && !todo.is_empty() {
+            progress = false;
+            for g in std::mem::take(&mut todo) {
+                let h = succ(g);
+                let find = |x: u32| loops.iter().enumerate().find_map(|(li, v)| v.iter().position(|e| e[k] == x).map(|i| (li, i)));
+                if let Some((li, i)) = find(g) {
+                    let (mut e, mut p) = (loops[li][i], loops[li][i]);
+                    e[k] = h;
+                    p[k] = pole[k];
+                    loops[li].splice(i + 1..i + 1, [e, p]);
+                } else if let Some((li, i)) = find(h) {
+                    let (mut e, mut p) = (loops[li][i], loops[li][i]);
+                    e[k] = g;
+                    p[k] = pole[k];
+                    loops[li].splice(i..i, [p, e]);
+                } else {
+                    todo.push(g);
+                    continue;
+                }
+                owned.insert(g);
+                progress = true;
+                added += 2;
+            }
+        }
+    }
+    added
 }
 
 /// Best entity for the empty slot `c` of the partial link `e` in triangle `t`: Rule 2 (and Rule

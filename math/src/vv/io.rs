@@ -3,7 +3,7 @@
 //! ```text
 //! magic "PNVV", version u32 (= FORMAT_VERSION), model_hash u64, vertex_count u32, triangle_count u32,
 //! params: resolution u32, refine_steps u32, tolerance_deg f32, max_segment_deg f32, max_link_deg f32, seed u64,
-//! stats: visibility_seconds f64, correspondence_seconds f64, voronoi u32, propagated u32, relaxed u32,
+//! stats: visibility_seconds f64, correspondence_seconds f64, voronoi u32, propagated u32, relaxed u32, pole u32,
 //! counts: points u32, vertex_points u32, sequences u32, loops u32, triples u32,
 //! points [f32; 4] x points, seq_offsets u32 x (sequences + 1), vertex_seqs [u32; 2] x vertex_count,
 //! tri_offsets u32 x (triangle_count + 1), loop_offsets u32 x (loops + 1), triples [u32; 3] x triples
@@ -16,7 +16,7 @@ use super::*;
 use std::path::Path;
 
 /// Version of the `.pvv` format this build reads and writes.
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
 
 /// Largest element count accepted in a file (guards allocations on corrupt input).
 const MAX_COUNT: u32 = 1 << 28;
@@ -43,6 +43,7 @@ impl VvData {
         u(&mut b, self.stats.voronoi_triples as u32);
         u(&mut b, self.stats.propagated_triples as u32);
         u(&mut b, self.stats.relaxed_triples as u32);
+        u(&mut b, self.stats.pole_triples as u32);
         let (v, c) = (&self.vis, &self.corr);
         u(&mut b, v.points.len() as u32);
         u(&mut b, v.vertex_points);
@@ -82,6 +83,7 @@ impl VvData {
         stats.voronoi_triples = r.u32().map_err(err)? as usize;
         stats.propagated_triples = r.u32().map_err(err)? as usize;
         stats.relaxed_triples = r.u32().map_err(err)? as usize;
+        stats.pole_triples = r.u32().map_err(err)? as usize;
         let npoints = r.count("point count").map_err(err)?;
         let vertex_points = r.count("vertex point count").map_err(err)?;
         let nseq = r.count("sequence count").map_err(err)?;

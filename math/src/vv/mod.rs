@@ -23,7 +23,9 @@
 //!   vertices' own points (index `>= VectorizedVisibility::vertex_points`) where a vertex has
 //!   no counterpart of another vertex's region (it sees fewer sequences): a virtual point is a
 //!   single point inside the other vertices' region, so the interpolated loop collapses to it
-//!   (zero area) at that vertex.
+//!   (zero area) at that vertex. A second kind of virtual point is a vertex's *pole* (its unit
+//!   normal as a direction, `w = 0`): a loop steps through it where its entities of that
+//!   vertex jump along the sequence (see [`corr`], step 6).
 //!
 //! # Orientation convention
 //! Loops go counter-clockwise around the **occluded** region seen from outside the unit sphere
@@ -313,6 +315,8 @@ pub struct VvStats {
     pub voronoi_triples: usize,
     /// Triples completed from propagated partial triples.
     pub propagated_triples: usize,
+    /// Triples added to route jumps through a vertex's pole (step 6 of [`corr`]).
+    pub pole_triples: usize,
 }
 
 /// Everything one model file holds.
@@ -575,6 +579,31 @@ pub struct Evaluation {
     /// `|occluded solid angle of eq. 21 at a vertex - the vertex's own|` (sr) over every
     /// (triangle, vertex): median, 95th percentile, max.
     pub vertex_error: [f64; 3],
+    /// Triangles with a corner error ([`corner_errors`]) above 0.1, 1 and 3 sr.
+    pub triangles_over: [usize; 3],
+    /// Triangle count.
+    pub triangles: usize,
+}
+
+/// Eq. 21 at each triangle's own vertices (barycentrics `(1,0,0)` etc., the vertex's position
+/// and normal) against that vertex's own visibility (eq. 3 there): per triangle, the three
+/// `|occluded solid angle of the interpolated loops - the vertex's own|` (sr). Exact
+/// reproduction gives zeros (up to relaxed-stage chords).
+pub fn corner_errors(model: &VvModel, d: &VvData) -> Vec<[f64; 3]> {
+    use rayon::prelude::*;
+    let solid = |l: &[Vec<Vec3>], n: Vec3| l.iter().map(|x| signed_solid_angle(x, n)).sum::<f64>();
+    (0..model.triangle_count())
+        .into_par_iter()
+        .map(|t| {
+            let idx = [0, 1, 2].map(|k| model.indices[3 * t + k] as usize);
+            [0, 1, 2].map(|k| {
+                let mut l = [0.0f32; 3];
+                l[k] = 1.0;
+                let (p, n) = (model.positions[idx[k]], model.normals[idx[k]]);
+                (solid(&interpolate(&d.vis, &d.corr, t, l, p, n), n) - solid(&synthesize(&d.vis, idx[k], p, n), n)).abs()
+            })
+        })
+        .collect()
 }
 
 /// Compares `d` with ray tracing at `samples` interior points (deterministic barycentrics from
@@ -585,20 +614,9 @@ pub fn evaluate(model: &VvModel, d: &VvData, samples: usize, map_res: u32, seed:
     let topo = Topology::new(model);
     let tracer = trace::Tracer::new(&model.positions, &model.indices, &model.occluder);
     let ntri = model.triangle_count();
-    let solid = |l: &[Vec<Vec3>], n: Vec3| l.iter().map(|x| signed_solid_angle(x, n)).sum::<f64>();
-    let mut verr: Vec<f64> = (0..ntri)
-        .into_par_iter()
-        .flat_map_iter(|t| {
-            let idx = [0, 1, 2].map(|k| model.indices[3 * t + k] as usize);
-            (0..3).map(move |k| (t, idx, k))
-        })
-        .map(|(t, idx, k)| {
-            let mut l = [0.0f32; 3];
-            l[k] = 1.0;
-            let (p, n) = (model.positions[idx[k]], model.normals[idx[k]]);
-            (solid(&interpolate(&d.vis, &d.corr, t, l, p, n), n) - solid(&synthesize(&d.vis, idx[k], p, n), n)).abs()
-        })
-        .collect();
+    let corners = corner_errors(model, d);
+    let triangles_over = [0.1, 1.0, 3.0].map(|x| corners.iter().filter(|c| c.iter().any(|&e| e > x)).count());
+    let mut verr: Vec<f64> = corners.iter().flatten().copied().collect();
     verr.sort_by(|a, b| a.total_cmp(b));
     let q = |f: f64| verr.get(((verr.len() as f64 * f) as usize).min(verr.len().saturating_sub(1))).copied().unwrap_or(0.0);
     let per: Vec<Option<(f64, f64)>> = (0..samples)
@@ -652,5 +670,7 @@ pub fn evaluate(model: &VvModel, d: &VvData, samples: usize, map_res: u32, seed:
         agreement_eq19: ok.iter().map(|x| x.0).sum::<f64>() / m,
         agreement_eq21: ok.iter().map(|x| x.1).sum::<f64>() / m,
         vertex_error: [q(0.5), q(0.95), verr.last().copied().unwrap_or(0.0)],
+        triangles_over,
+        triangles: ntri,
     }
 }

@@ -241,3 +241,84 @@ fn spherical_voronoi_of_duplicate_and_cocircular_sites() {
         assert!(c.iter().any(|(t, d)| *t == [i, 100 + i, 200 + i] && *d < 1e-3), "site {i}");
     }
 }
+
+/// The winding flip of issue 9: a vertex enclosed up to its horizon (one loop of horizon points
+/// around the whole hemisphere) next to vertices that see two separate regions. The triangle's
+/// two groups each hold two interleaved arcs of the ring; closed by chords, each group winds
+/// once around the normal at that vertex (2 pi each, 4 pi in all instead of 2 pi). With the
+/// jumps routed through the vertex's pole (corr step 6) eq. 21 at every corner gives back that
+/// vertex's own visibility.
+#[test]
+fn split_horizon_ring_is_reproduced_at_the_corners() {
+    let n = Vec3::Y;
+    let mut points: Vec<[f32; 4]> = Vec::new();
+    // vertex 0: 12 horizon directions, counter-clockwise about the occluded hemisphere
+    for i in 0..12 {
+        let a = (i as f32 * 30.0).to_radians();
+        points.push([a.cos(), 0.0, -a.sin(), 0.0]);
+    }
+    // vertices 1 and 2: two small regions each, points on occluders (w = 1)
+    let region = |c: Vec3| -> Vec<[f32; 4]> {
+        let (u, v) = (Vec3::Y, c.cross(Vec3::Y).normalize());
+        (0..4).map(|i| {
+            let a = (i as f32 * -90.0).to_radians();
+            let p = c + 0.2 * (u * a.cos() + v * a.sin()) + 0.25 * u;
+            [p.x, p.y, p.z, 1.0]
+        }).collect()
+    };
+    for c in [Vec3::X, -Vec3::X, Vec3::Z, -Vec3::Z] {
+        points.extend(region(c));
+    }
+    let vis0 = VectorizedVisibility { vertex_points: points.len() as u32, seq_offsets: vec![0, 12, 16, 20, 24, 28], vertex_seqs: vec![[0, 1], [1, 2], [3, 2]], points };
+    let m = VvModel { positions: vec![Vec3::ZERO, Vec3::new(0.05, 0.0, 0.0), Vec3::new(0.0, 0.0, 0.05)], normals: vec![n; 3], indices: vec![0, 1, 2], occluder: vec![true] };
+    let own: Vec<f64> = (0..3).map(|v| synthesize(&vis0, v, m.positions[v], n).iter().map(|l| signed_solid_angle(l, n)).sum()).collect();
+    assert!((own[0] - std::f64::consts::TAU).abs() < 1e-6, "ring: {}", own[0]);
+    // two groups: ring arcs {0,1,2} + {6,7} with the first regions, {3,4,5} + {8..11} with the
+    // second ones (interleaved, as the relaxed stage leaves them)
+    let g0: Vec<[u32; 3]> = [(0, 12, 20), (1, 13, 21), (2, 14, 22), (6, 15, 23), (7, 15, 23)].iter().map(|&(a, b, c)| [a, b, c]).collect();
+    let g1: Vec<[u32; 3]> = [(3, 16, 24), (4, 17, 25), (5, 18, 26), (8, 19, 27), (9, 19, 27), (10, 19, 27), (11, 19, 27)].iter().map(|&(a, b, c)| [a, b, c]).collect();
+    let build = |vis: &VectorizedVisibility, loops: &[Vec<[u32; 3]>]| {
+        let mut c = Correspondence { tri_offsets: vec![0, loops.len() as u32], loop_offsets: vec![0], triples: Vec::new() };
+        for l in loops {
+            c.triples.extend_from_slice(l);
+            c.loop_offsets.push(c.triples.len() as u32);
+        }
+        let _ = vis;
+        c
+    };
+    let corner = |vis: &VectorizedVisibility, c: &Correspondence, k: usize| -> f64 {
+        let mut l = [0.0f32; 3];
+        l[k] = 1.0;
+        interpolate(vis, c, 0, l, m.positions[k], n).iter().map(|x| signed_solid_angle(x, n)).sum()
+    };
+    // before: chords along the horizon take the short way, each group winds once
+    let before = build(&vis0, &[g0.clone(), g1.clone()]);
+    let e0 = (corner(&vis0, &before, 0) - own[0]).abs();
+    assert!(e0 > 3.0, "the unrouted groups should show the flip: error {e0}");
+    // after: jumps through the poles
+    let mut vis = vis0.clone();
+    let pole = [0, 1, 2].map(|_| {
+        vis.points.push([n.x, n.y, n.z, 0.0]);
+        vis.points.len() as u32 - 1
+    });
+    let mut info = vec![(0u32, 0u32); vis.vertex_points as usize];
+    for s in 0..vis.sequence_count() {
+        for g in vis.seq_offsets[s]..vis.seq_offsets[s + 1] {
+            info[g as usize] = (s as u32, g - vis.seq_offsets[s]);
+        }
+    }
+    let mut loops = vec![g0, g1];
+    let added = corr::route_jumps(&vis, &info, &mut loops, pole);
+    assert!(added > 0);
+    let after = build(&vis, &loops);
+    for k in 0..3 {
+        let e = (corner(&vis, &after, k) - own[k]).abs();
+        assert!(e < 1e-4, "corner {k}: interpolated {} own {}", corner(&vis, &after, k), own[k]);
+    }
+    // every original triple is still there, in order
+    for (l, orig) in loops.iter().zip([&before.triples[..5], &before.triples[5..]]) {
+        let kept: Vec<[u32; 3]> = l.iter().copied().filter(|t| t.iter().all(|&g| g < vis.vertex_points)).collect();
+        let mut it = kept.iter();
+        assert!(orig.iter().all(|o| it.any(|x| x == o)), "{l:?}");
+    }
+}
