@@ -9,6 +9,8 @@ layout(location = 2) out vec3 v_albedo;
 layout(location = 3) out float v_delta;
 layout(location = 4) out int v_vid;
 layout(location = 5) out vec4 v_spec;
+// the model triangle (the control and evaluation stages' gl_PrimitiveID is not relied on)
+layout(location = 6) out int v_tri;
 
 // The displayed value of a radiance (tonemap.comp: exposure, ACES fit, sRGB transfer), [0, 1].
 vec3 vv_display(vec3 c) {
@@ -25,6 +27,7 @@ void main() {
     v_albedo = vv_vert(v, 2);
     v_spec = vv_vert_spec(v);
     v_vid = v;
+    v_tri = t;
     vec3 i0 = vv_eval_vertex(vv_sat_tex, v, v_world, v_normal, v_albedo, v_spec);
     vec3 i1 = vv_eval_vertex(vv_sat_blur, v, v_world, v_normal, v_albedo, v_spec);
     // eq. 17 in the paper's unit, the displayed value in [0, 1] (its radiance values are the
