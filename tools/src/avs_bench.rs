@@ -39,6 +39,10 @@ pub struct AvsArgs {
     /// Extra avs parameters KEY=VALUE (as --param of render).
     #[arg(long = "param")]
     pub params: Vec<String>,
+    /// Also draw the E_v,max x r sweep as a chart (PNG): PSNR against ms per frame, one line per
+    /// r, points labelled by E_v,max (the paper's Fig. 6 trade). Needs the sweep (no --no-sweep).
+    #[arg(long)]
+    pub chart: Option<PathBuf>,
 }
 
 fn image(f: &FrameImages) -> Image {
@@ -160,6 +164,9 @@ fn kv(params: &[String]) -> Result<Vec<(String, String)>> {
 
 pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> {
     let (w, h) = parse_size(&args.size)?;
+    if args.chart.is_some() && args.no_sweep {
+        return Err(crate::bad("--chart draws the sweep: it cannot go with --no-sweep"));
+    }
     let base = kv(&args.params)?;
     // the parameters are checked before anything is rendered
     let mut check = std::collections::BTreeMap::new();
@@ -297,7 +304,9 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
     println!("\n## E_v,max x r on {} (error / time)", scene.name);
     println!("| r | E_v,max | #samples | ms/frame | PSNR dB | relRMSE |");
     println!("|---|---|---|---|---|---|");
+    let mut series = Vec::new();
     for r in [64u32, 128] {
+        let mut line = crate::plot::Series { name: format!("r = {r}"), ..Default::default() };
         for e in ["0.20", "0.10", "0.05"] {
             let mut p = base.clone();
             p.push(("r".into(), r.to_string()));
@@ -305,7 +314,21 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
             p.push(("e_min".into(), format!("{}", e.parse::<f32>().unwrap_or(0.1) / 2.0)));
             let a = render_avs(&scene, &p, w, h, args.time, &reference)?;
             println!("| {r} | {e} | {} | {:.1} | {:.2} | {:.3} |", a.points, a.total, a.psnr, a.rel_rmse);
+            line.points.push((a.total, a.psnr));
+            line.labels.push(format!(" E={e}"));
         }
+        series.push(line);
+    }
+    if let Some(path) = &args.chart {
+        let chart = crate::plot::Chart {
+            title: format!("{}: avs error against time (E_v,max x r), {w}x{h}", scene.name),
+            x_label: "ms per frame (second frame, lavapipe)".into(),
+            y_label: format!("PSNR vs reference, {} spp (dB)", args.spp),
+            log_x: true,
+            legend: true,
+        };
+        crate::plot::write_chart(path, &chart, &series)?;
+        println!("wrote {}", path.display());
     }
     Ok(())
 }
