@@ -529,18 +529,7 @@ impl AvsTechnique {
         let mut g = Graph::new();
         let used = engine.persistent_buffer(&mut g, "avs.used", bytes);
         let rb = g.create_readback("avs_used_readback", bytes);
-        {
-            let mut p = g.pass("avs_used_readback", PassKind::Transfer);
-            let s = p.read(used, Access::TransferSrc);
-            let d = p.write(rb, Access::TransferDst);
-            p.record(move |rc| {
-                let (sb, db) = (rc.buffer(s)?, rc.buffer(d)?);
-                unsafe {
-                    rc.device().cmd_copy_buffer(rc.cmd, sb.buffer, db.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: bytes }]);
-                }
-                Ok(())
-            });
-        }
+        crate::util::copy_buffer(&mut g, "avs_used_readback", used, rb, Some(bytes));
         let out = engine.submit_wait(g)?;
         let data = out.readbacks.get("avs_used_readback").ok_or_else(|| anyhow!("avs: culling flags readback missing"))?;
         let (mut traced, mut dormant) = (Vec::new(), Vec::new());
@@ -768,16 +757,7 @@ impl AvsTechnique {
             if capture {
                 let bytes = (nslots.max(1) as u64).min(cap) * words * 4;
                 let rb = g.create_readback("avs_maps_readback", bytes);
-                let mut p = g.pass("avs_maps_readback", PassKind::Transfer);
-                let s = p.read(vis, Access::TransferSrc);
-                let d = p.write(rb, Access::TransferDst);
-                p.record(move |rc| {
-                    let (sb, db) = (rc.buffer(s)?, rc.buffer(d)?);
-                    unsafe {
-                        rc.device().cmd_copy_buffer(rc.cmd, sb.buffer, db.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: bytes }]);
-                    }
-                    Ok(())
-                });
+                crate::util::copy_buffer(&mut g, "avs_maps_readback", vis, rb, Some(bytes));
             }
             let out = engine.submit_wait(g)?;
             self.stats.round_ms.extend(out.gpu_ms.iter().cloned());
