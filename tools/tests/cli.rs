@@ -104,6 +104,12 @@ fn bad_input_exits_2_with_the_file_and_problem() {
         &["render", "--technique", "isg", "--param", "lobes=many", "--size", "16x12", "--out", d.to_str().unwrap()],
         &["lobes", "many"],
     );
+    // every bad parameter is named, not only the first
+    expect_bad_input(
+        &["render", "--technique", "vv", "--param", "zeta=-1", "--param", "arcs=x", "--size", "16x12", "--out", d.to_str().unwrap()],
+        &["2 bad technique parameters", "zeta", "arcs"],
+    );
+    expect_bad_input(&["bench", "avs", "--no-sweep", "--chart", d.join("c.png").to_str().unwrap()], &["--chart", "--no-sweep"]);
     expect_bad_input(&["render", "--param", "novalue", "--out", d.to_str().unwrap()], &["KEY=VALUE"]);
     expect_bad_input(&["render", "--size", "0x10", "--out", d.to_str().unwrap()], &["size"]);
     expect_bad_input(&["render", "--size", "abc", "--out", d.to_str().unwrap()], &["size"]);
