@@ -459,3 +459,27 @@ fn glossy_specular_in_all_modes() {
         assert!(on > off + 1.0, "{mode}: PSNR with specular {on:.2} not better than tessellation diffuse only {off:.2}");
     }
 }
+
+/// At tessellation level 1 (zeta 0) both tessellation modes evaluate only at the triangles'
+/// corners, where eq. 21 must reproduce each vertex's own visibility (the correspondence's pole
+/// routing) for the triangle being drawn (the model triangle comes from the vertex stage:
+/// lavapipe's evaluation-stage gl_PrimitiveID is not the patch index): the two images agree.
+/// On the bunny (5776 triangles, coarse precompute): 135 dB between them; with the evaluation
+/// stage's gl_PrimitiveID 21 dB (vv_coarse does not show that bug).
+#[test]
+fn tessellation_eq21_equals_eq19_at_the_corners() {
+    std::env::set_var("PENUMBRA_NO_PROGRESS", "1");
+    let s = with(&scene("vv_bunny.toml"), &[("sat_width", "64"), ("resolution", "24"), ("arcs", "12"), ("zeta", "0")]);
+    let (w, h) = (48, 36);
+    let mut images = Vec::new();
+    for mode in ["tessellation", "tessellation3"] {
+        let (r, frames) = render(&with(&s, &[("mode", mode)]), w, h, true);
+        let log = r.context().validation.clone();
+        assert_eq!(log.error_count(), 0, "{mode}: validation errors: {:#?}", log.errors());
+        images.push(image(frames.last().expect("frames")));
+    }
+    let c = compare(&images[1], "tessellation3", &images[0], "tessellation").unwrap();
+    let psnr = c.psnr_db.unwrap_or(f64::INFINITY);
+    println!("tessellation (eq. 21) vs tessellation3 (eq. 19) at level 1: PSNR {psnr:.2} relRMSE {:.2e}", c.rel_rmse);
+    assert!(c.rel_rmse < 1e-3, "eq. 21 differs from eq. 19 at the corners: relRMSE {:.3e}, PSNR {psnr:.2}", c.rel_rmse);
+}
