@@ -510,12 +510,18 @@ fn extremes_light_at_the_map_pole_and_seam() {
     // r = 64): 1622 / 1623, 1622 / 1623, 1636 / 1636, 1640 / 1640 pixels agree, mean |error|
     // 0.0011 / 0.0011 / 0.0003 / 0.0003.
     for (dir, tag) in [(glam::Vec3::X, "pole0"), (glam::Vec3::NEG_X, "pole_pi"), (glam::Vec3::Y, "seam0"), (glam::Vec3::NEG_Y, "seam_pi")] {
-        let (agree, total, mean_err) = light_visibility_agreement(dir, 64, tag, &[]);
-        println!("{tag} (r = 64): {agree} / {total} pixels agree with the exact light visibility, mean |error| {mean_err:.4}");
-        assert!(total >= 400, "{tag}: only {total} floor pixels classified");
-        assert!(agree as f64 >= 0.97 * total as f64, "{tag}: {agree} / {total} pixels agree with the exact light visibility");
-        assert!(mean_err < 0.08, "{tag}: mean visibility error {mean_err}");
+        assert_light_agreement(dir, 64, tag, &[], 0.97, 0.08);
     }
+}
+
+/// [`light_visibility_agreement`] at resolution `r`, asserted: at least 400 classified floor
+/// pixels, at least `min_fraction` of them agreeing, mean |error| below `max_err`.
+fn assert_light_agreement(dir: glam::Vec3, r: u32, tag: &str, params: &[(&str, &str)], min_fraction: f64, max_err: f64) {
+    let (agree, total, mean_err) = light_visibility_agreement(dir, r, tag, params);
+    println!("{tag} (r = {r}): {agree} / {total} pixels agree with the exact light visibility, mean |error| {mean_err:.4}");
+    assert!(total >= 400, "{tag}: only {total} floor pixels classified");
+    assert!(agree as f64 >= min_fraction * total as f64, "{tag}: {agree} / {total} pixels agree with the exact light visibility");
+    assert!(mean_err < max_err, "{tag}: mean visibility error {mean_err}");
 }
 
 /// fp16 SSDFs and maps at r = 256 (issue 8). The brute-force maps (every texel traced) of the
@@ -594,11 +600,7 @@ fn extremes_r256_maps_and_fp16_shading() {
     assert!(floor >= 12 && occluded > 1000, "{floor} floor points, {occluded} occluded texels");
     assert_eq!(wrong, 0, "{wrong} of {sure} unambiguous texels disagree with the CPU ray test");
     assert!(worst_dc < 1e-4, "SH16 DC vs map: {worst_dc}");
-    let (agree, total, mean_err) = light_visibility_agreement(glam::Vec3::Y, 256, "seam0_r256", &[("points", "48")]);
-    println!("seam0 (r = 256): {agree} / {total} pixels agree, mean |error| {mean_err:.4}");
-    assert!(total >= 400, "only {total} floor pixels classified");
-    assert!(agree as f64 >= 0.995 * total as f64, "r = 256: {agree} / {total} pixels agree");
-    assert!(mean_err < 0.005, "r = 256 mean visibility error {mean_err}");
+    assert_light_agreement(glam::Vec3::Y, 256, "seam0_r256", &[("points", "48")], 0.995, 0.005);
 }
 
 #[test]

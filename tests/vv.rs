@@ -10,7 +10,7 @@ use penumbra_scene::Scene;
 use std::path::PathBuf;
 
 mod common;
-use common::{hdr_image as image, scene, with};
+use common::{hdr_image as image, scene, with, with_env};
 
 fn render(scene: &Scene, w: u32, h: u32, validation: bool) -> (Renderer, Vec<FrameImages>) {
     let settings = RenderSettings { width: w, height: h, technique: Some("vv".into()), ..Default::default() };
@@ -121,21 +121,11 @@ fn gpu_sat_and_glsl_integral_match_cpu() {
     use penumbra_engine::{Context, ContextDesc, Engine, Graph};
     std::env::set_var("PENUMBRA_NO_PROGRESS", "1");
     let base = with(&scene("vv_coarse.toml"), &[("resolution", "16"), ("mode", "fragment3")]);
-    let mut big = with(&base, &[("sat_width", "1024")]);
-    {
-        let e = big.environment.as_mut().unwrap();
-        let (w, h) = (1024usize, 512usize);
-        e.width = w as u32;
-        e.height = h as u32;
-        e.texels = (0..w * h)
-            .map(|i| {
-                let (x, y) = (i % w, i / w);
-                let sky = 0.2 + 0.8 * (1.0 - y as f32 / h as f32) + 0.1 * ((x as f32) * 0.05).sin();
-                let d2 = (x as f32 - 300.0).powi(2) + (y as f32 - 120.0).powi(2);
-                if d2 < 9.0 { [1.0e4, 0.9e4, 0.8e4] } else { [sky, sky * 0.9, sky * 1.1] }
-            })
-            .collect();
-    }
+    let big = with_env(&with(&base, &[("sat_width", "1024")]), 1024, 512, |x, y| {
+        let sky = 0.2 + 0.8 * (1.0 - y as f32 / 512.0) + 0.1 * ((x as f32) * 0.05).sin();
+        let d2 = (x as f32 - 300.0).powi(2) + (y as f32 - 120.0).powi(2);
+        if d2 < 9.0 { [1.0e4, 0.9e4, 0.8e4] } else { [sky, sky * 0.9, sky * 1.1] }
+    });
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
     let shaders = penumbra::shader_library();
     let t0 = std::time::Instant::now();
@@ -278,20 +268,10 @@ fn gpu_cap_ratio_matches_cpu() {
     std::env::set_var("PENUMBRA_NO_PROGRESS", "1");
     let base = with(&scene("vv_coarse.toml"), &[("resolution", "16"), ("mode", "fragment3"), ("sat_width", "256")]);
     // a smooth sky (no compact sources: gamma follows the covered part of the cap)
-    let mut smooth = base.clone();
-    {
-        let e = smooth.environment.as_mut().unwrap();
-        let (w, h) = (256usize, 128usize);
-        e.width = w as u32;
-        e.height = h as u32;
-        e.texels = (0..w * h)
-            .map(|i| {
-                let (x, y) = (i % w, i / w);
-                let v = 0.3 + 0.7 * (1.0 - y as f32 / h as f32) + 0.2 * ((x as f32) * 0.07).sin();
-                [v, v * 0.9, v * 1.1]
-            })
-            .collect();
-    }
+    let smooth = with_env(&base, 256, 128, |x, y| {
+        let v = 0.3 + 0.7 * (1.0 - y as f32 / 128.0) + 0.2 * ((x as f32) * 0.07).sin();
+        [v, v * 0.9, v * 1.1]
+    });
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
     let shaders = penumbra::shader_library();
     let parity = penumbra_passes::vv::VvCapParity::new(&ctx, &shaders).expect("cap parity pipeline");

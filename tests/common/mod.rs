@@ -19,6 +19,17 @@ pub fn with(s: &Scene, params: &[(&str, &str)]) -> Scene {
     s
 }
 
+/// `s` with its environment replaced by a `w x h` lat-long map of texel `f(x, y)` (the scene
+/// must have an environment).
+pub fn with_env(s: &Scene, w: usize, h: usize, f: impl Fn(usize, usize) -> [f32; 3]) -> Scene {
+    let mut s = s.clone();
+    let e = s.environment.as_mut().expect("the scene has an environment");
+    e.width = w as u32;
+    e.height = h as u32;
+    e.texels = (0..w * h).map(|i| f(i % w, i / w)).collect();
+    s
+}
+
 /// Renders `scene` with `technique` at the given times (seconds, in order) and returns every
 /// finished frame's images.
 pub fn render_times(scene: &Scene, technique: &str, w: u32, h: u32, times: &[f32], validation: bool) -> (Renderer, Vec<FrameImages>) {
