@@ -101,20 +101,10 @@ impl GBufferPass {
         p.record(move |rc| {
             let d = rc.device();
             let color = |h: ImageHandle| -> Result<vk::RenderingAttachmentInfo<'static>> {
-                Ok(vk::RenderingAttachmentInfo::default()
-                    .image_view(rc.image(h)?.view)
-                    .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
-                    .load_op(vk::AttachmentLoadOp::CLEAR)
-                    .store_op(vk::AttachmentStoreOp::STORE)
-                    .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: [0.0; 4] } }))
+                Ok(crate::util::color_attachment(rc.image(h)?.view, [0.0; 4]))
             };
             let colors = [color(position)?, color(normal)?, color(uv_mat)?, color(motion)?];
-            let depth_att = vk::RenderingAttachmentInfo::default()
-                .image_view(rc.image(depth)?.view)
-                .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
-                .load_op(vk::AttachmentLoadOp::CLEAR)
-                .store_op(vk::AttachmentStoreOp::STORE)
-                .clear_value(vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } });
+            let depth_att = crate::util::depth_attachment(rc.image(depth)?.view, true);
             let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width, height } };
             let info = vk::RenderingInfo::default()
                 .render_area(area)

@@ -285,3 +285,24 @@ pub fn upload_into(
     let src = graph.create_buffer_init(staging, data);
     copy_buffer(graph, name, src, dst, None).1
 }
+
+/// A colour attachment of `view` (in `COLOR_ATTACHMENT_OPTIMAL`) cleared to `clear` and stored.
+pub fn color_attachment(view: vk::ImageView, clear: [f32; 4]) -> vk::RenderingAttachmentInfo<'static> {
+    vk::RenderingAttachmentInfo::default()
+        .image_view(view)
+        .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+        .load_op(vk::AttachmentLoadOp::CLEAR)
+        .store_op(vk::AttachmentStoreOp::STORE)
+        .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: clear } })
+}
+
+/// A depth attachment of `view` (in `DEPTH_ATTACHMENT_OPTIMAL`) cleared to 1, stored when
+/// `store` (else its contents are not kept).
+pub fn depth_attachment(view: vk::ImageView, store: bool) -> vk::RenderingAttachmentInfo<'static> {
+    vk::RenderingAttachmentInfo::default()
+        .image_view(view)
+        .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
+        .load_op(vk::AttachmentLoadOp::CLEAR)
+        .store_op(if store { vk::AttachmentStoreOp::STORE } else { vk::AttachmentStoreOp::DONT_CARE })
+        .clear_value(vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } })
+}

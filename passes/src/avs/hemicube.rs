@@ -130,12 +130,7 @@ impl HemicubeMaps {
             let (aw, ah) = (5 * fr, rows * fr);
             p.record(move |rc| {
                 let d = rc.device();
-                let depth_att = vk::RenderingAttachmentInfo::default()
-                    .image_view(rc.image(at)?.view)
-                    .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
-                    .load_op(vk::AttachmentLoadOp::CLEAR)
-                    .store_op(vk::AttachmentStoreOp::STORE)
-                    .clear_value(vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } });
+                let depth_att = crate::util::depth_attachment(rc.image(at)?.view, true);
                 let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: aw, height: ah } };
                 let info = vk::RenderingInfo::default().render_area(area).layer_count(1).depth_attachment(&depth_att);
                 let vbb = rc.buffer(vbuf)?;

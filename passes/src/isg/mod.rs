@@ -580,19 +580,9 @@ impl IsgTechnique {
         let index_buf = p.read(index_buf, Access::IndexBuffer);
         p.record(move |rc| {
             let d = rc.device();
-            let colors = [vk::RenderingAttachmentInfo::default()
-                .image_view(rc.image(image)?.view)
-                .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
-                .load_op(vk::AttachmentLoadOp::CLEAR)
-                .store_op(vk::AttachmentStoreOp::STORE)
-                // r < 0: no receiver triangle here (per-pixel fallback).
-                .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: [-1.0; 4] } })];
-            let depth_att = vk::RenderingAttachmentInfo::default()
-                .image_view(rc.image(depth)?.view)
-                .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
-                .load_op(vk::AttachmentLoadOp::CLEAR)
-                .store_op(vk::AttachmentStoreOp::DONT_CARE)
-                .clear_value(vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } });
+            // cleared to r < 0: no receiver triangle here (per-pixel fallback)
+            let colors = [crate::util::color_attachment(rc.image(image)?.view, [-1.0; 4])];
+            let depth_att = crate::util::depth_attachment(rc.image(depth)?.view, false);
             let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
             let info =
                 vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&colors).depth_attachment(&depth_att);

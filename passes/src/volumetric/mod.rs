@@ -500,12 +500,7 @@ impl VolumeDraws<'_> {
         let (lp, near, draws) = (self.light, self.near, self.draws);
         p.record(move |rc| {
             let d = rc.device();
-            let att = vk::RenderingAttachmentInfo::default()
-                .image_view(rc.image(img)?.view)
-                .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
-                .load_op(vk::AttachmentLoadOp::CLEAR)
-                .store_op(vk::AttachmentStoreOp::STORE)
-                .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: clear } });
+            let att = crate::util::color_attachment(rc.image(img)?.view, clear);
             let atts = [att];
             let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
             let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&atts);
@@ -591,14 +586,7 @@ impl Effect for VolumetricEffect {
             let draws = if has_light { shadow_draws } else { Vec::new() };
             p.record(move |rc| {
                 let d = rc.device();
-                let att = vk::RenderingAttachmentInfo::default()
-                    .image_view(rc.image(smap)?.view)
-                    .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
-                    .load_op(vk::AttachmentLoadOp::CLEAR)
-                    .store_op(vk::AttachmentStoreOp::STORE)
-                    .clear_value(vk::ClearValue {
-                        depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 },
-                    });
+                let att = crate::util::depth_attachment(rc.image(smap)?.view, true);
                 let area =
                     vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: smw, height: smh } };
                 let info = vk::RenderingInfo::default().render_area(area).layer_count(1).depth_attachment(&att);

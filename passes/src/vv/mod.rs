@@ -828,18 +828,8 @@ impl crate::technique::Technique for VvTechnique {
         let query = self.query;
         p.record(move |rc| {
             let d = rc.device();
-            let color = [vk::RenderingAttachmentInfo::default()
-                .image_view(rc.image(objects)?.view)
-                .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
-                .load_op(vk::AttachmentLoadOp::CLEAR)
-                .store_op(vk::AttachmentStoreOp::STORE)
-                .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: [0.0; 4] } })];
-            let depth_att = vk::RenderingAttachmentInfo::default()
-                .image_view(rc.image(depth)?.view)
-                .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
-                .load_op(vk::AttachmentLoadOp::CLEAR)
-                .store_op(vk::AttachmentStoreOp::STORE)
-                .clear_value(vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } });
+            let color = [crate::util::color_attachment(rc.image(objects)?.view, [0.0; 4])];
+            let depth_att = crate::util::depth_attachment(rc.image(depth)?.view, true);
             let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
             let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&color).depth_attachment(&depth_att);
             unsafe {
