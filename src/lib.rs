@@ -158,6 +158,9 @@ pub struct Renderer {
     dump_formats: Vec<(String, vk::Format)>,
     /// Format of the blitted target of the last built frame (see [`FrameImages::target`]).
     target_format: Option<(vk::Format, u32, u32)>,
+    /// CPU milliseconds the technique spent declaring its passes in the last built frame
+    /// (`Technique::add`: its CPU work, uploads it prepares, and any readback it waits for).
+    pub technique_cpu_ms: f64,
 }
 
 impl Renderer {
@@ -211,6 +214,7 @@ impl Renderer {
             last_graph: None,
             dump_formats: Vec::new(),
             target_format: None,
+            technique_cpu_ms: 0.0,
         })
     }
 
@@ -245,6 +249,17 @@ impl Renderer {
         v
     }
 
+    /// The technique's limitations for this renderer's scene ([`Technique::limitations`]): what
+    /// it ignores or approximates, without the renderer-level notes of [`Renderer::notes`].
+    pub fn technique_limitations(&self) -> Vec<String> {
+        self.technique.limitations(&self.scene)
+    }
+
+    /// For a Monte Carlo technique, the samples per pixel of its last image.
+    pub fn technique_samples_per_pixel(&self) -> Option<u32> {
+        self.technique.samples_per_pixel()
+    }
+
     pub fn context(&self) -> &Arc<Context> {
         &self.engine.ctx
     }
@@ -277,7 +292,9 @@ impl Renderer {
         let (scene, draws) = self.scene_gpu.add(&mut g, frame, &constants);
         let gb = self.gbuffer.add(&mut g, &scene, draws.clone(), w, h);
         let inputs = TechniqueInputs { frame, scene: &scene, gbuffer: &gb, env, env_data: &self.env };
+        let t0 = std::time::Instant::now();
         let mut hdr = self.technique.add(&mut self.engine, &mut g, &inputs)?;
+        self.technique_cpu_ms = t0.elapsed().as_secs_f64() * 1e3;
         let inputs = EffectInputs {
             scene: &self.scene,
             frame,

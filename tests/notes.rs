@@ -22,3 +22,15 @@ fn shadowmaps_reports_the_local_lights_and_receivers_it_ignores() {
     let n = notes("scenes/god_rays.toml", "mc");
     assert!(n.is_empty(), "{n:?}");
 }
+
+#[test]
+fn shadow_fields_and_vv_report_the_textures_and_lights_they_ignore() {
+    // hat_on_cloth: checker and stripe albedo maps; coarse: static geometry and a sphere light.
+    for t in ["shadow-fields", "shadow-fields-fixed"] {
+        let n = notes("scenes/hat_on_cloth.toml", t);
+        assert!(n.iter().any(|l| l.contains("texture maps are ignored")), "{t}: {n:?}");
+    }
+    let n = notes("scenes/coarse.toml", "vv");
+    assert!(n.iter().any(|l| l.contains("local light(s) are not rendered")), "{n:?}");
+    assert!(!n.iter().any(|l| l.contains("texture")), "coarse has no texture maps: {n:?}");
+}

@@ -397,6 +397,17 @@ impl Context {
         })
     }
 
+    /// The driver's name and version (`VkPhysicalDeviceDriverProperties`, Vulkan 1.2), e.g.
+    /// "llvmpipe: Mesa 22.3.6 (LLVM 15.0.6)".
+    pub fn driver_info(&self) -> String {
+        let mut driver = vk::PhysicalDeviceDriverProperties::default();
+        let mut props = vk::PhysicalDeviceProperties2::default().push_next(&mut driver);
+        unsafe { self.instance.get_physical_device_properties2(self.physical, &mut props) };
+        let name = driver.driver_name_as_c_str().map(|c| c.to_string_lossy().into_owned()).unwrap_or_default();
+        let info = driver.driver_info_as_c_str().map(|c| c.to_string_lossy().into_owned()).unwrap_or_default();
+        format!("{name}: {info}")
+    }
+
     /// Names a Vulkan object for validation messages and capture tools.
     pub fn set_name<H: vk::Handle>(&self, handle: H, name: &str) {
         if let Some(du) = &self.debug_utils {

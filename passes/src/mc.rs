@@ -444,6 +444,9 @@ impl McTechnique {
 }
 
 impl crate::technique::Technique for McTechnique {
+    fn samples_per_pixel(&self) -> Option<u32> {
+        Some(self.accumulated)
+    }
     fn name(&self) -> &'static str {
         "mc"
     }

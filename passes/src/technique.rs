@@ -33,6 +33,11 @@ pub trait Technique {
     fn limitations(&self, _scene: &Scene) -> Vec<String> {
         Vec::new()
     }
+    /// For a Monte Carlo technique: the samples per pixel in its image after the last frame
+    /// (accumulated over frames where nothing changed); `None` for the others.
+    fn samples_per_pixel(&self) -> Option<u32> {
+        None
+    }
 }
 
 /// Applies every `key = value` of `params` (a scene's `[technique_params]` and `--param`s) to
@@ -50,9 +55,171 @@ pub fn apply_params<S>(
     }
 }
 
-/// Techniques implemented so far.
+/// The accuracy budget of a technique, judged by the scene x technique matrix
+/// (`penumbra bench matrix`, `tests/matrix.rs`) against a converged CPU reference.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Budget {
+    /// The technique's image must have `rmse_rel_mean` (RMSE over the reference's mean
+    /// radiance) at most `rmse_rel_mean`; `source` says where the figure comes from (the paper's
+    /// figure where it reports one, otherwise the technique's documented approximation).
+    RmseRelMean { rmse_rel_mean: f64, source: &'static str },
+    /// An unbiased Monte Carlo estimator with the reference's estimator: its `rmse_rel_mean`
+    /// must be at most `factor` times the noise the reference has at the technique's accumulated
+    /// samples per pixel (`reference noise x sqrt(reference spp / technique spp)`), i.e. pure
+    /// noise, no bias.
+    Unbiased { factor: f64, source: &'static str },
+    /// The unshadowed baseline (`env`): no budget; its `rel_rmse` is what `shadow_recovered`
+    /// measures the shadow techniques against.
+    Baseline { source: &'static str },
+}
+
+/// One registered technique: its name and what the engine and its tools need to know of it.
+#[derive(Clone, Copy, Debug)]
+pub struct TechniqueInfo {
+    /// The name in scene files (`technique = "..."`), on the CLI and in the matrix.
+    pub name: &'static str,
+    /// One line for listings.
+    pub summary: &'static str,
+    /// Accepts `[technique_params]` (the others refuse any).
+    pub takes_params: bool,
+    /// Precomputes visibility for static geometry only: refuses scenes whose objects move or
+    /// deform.
+    pub static_only: bool,
+    /// Renders shadows: the matrix requires `shadow_recovered >= 0.5` on every scene it accepts.
+    pub shadows: bool,
+    pub budget: Budget,
+}
+
+/// The shadow techniques' common floor: the fraction of the unshadowed image's error
+/// (`rel_rmse` of `env`) a shadow technique must remove on every scene it accepts.
+pub const MIN_SHADOW_RECOVERED: f64 = 0.5;
+
+/// Every technique, in listing order: the one place that names them.
+pub const REGISTRY: &[TechniqueInfo] = &[
+    TechniqueInfo {
+        name: "env",
+        summary: "environment (SH irradiance, prefiltered specular) and local lights, no visibility",
+        takes_params: false,
+        static_only: false,
+        shadows: false,
+        budget: Budget::Baseline { source: "unshadowed baseline: no visibility, so no accuracy budget" },
+    },
+    TechniqueInfo {
+        name: "mc",
+        summary: "GPU Monte Carlo with the reference's estimator, progressive while nothing moves",
+        takes_params: false,
+        static_only: false,
+        shadows: true,
+        budget: Budget::Unbiased {
+            factor: 1.5,
+            source: "the reference's estimator on the GPU: unbiased, so within 1.5x the reference estimator's noise at the same samples per pixel",
+        },
+    },
+    TechniqueInfo {
+        name: "shadowmaps",
+        summary: "the environment as K shadowed directional lights (the papers' shadow-map baseline)",
+        takes_params: false,
+        static_only: false,
+        shadows: true,
+        budget: Budget::RmseRelMean {
+            rmse_rel_mean: 0.10,
+            source: "documented approximation: the environment as K importance-sampled directional lights with PCF depth maps; the ISG paper uses such maps as its ground-truth-like baseline",
+        },
+    },
+    TechniqueInfo {
+        name: "isg",
+        summary: "integral spherical Gaussians, per-pixel visibility over sphere sets (Iwasaki et al. 2012)",
+        takes_params: true,
+        static_only: false,
+        shadows: true,
+        budget: Budget::RmseRelMean { rmse_rel_mean: 0.05, source: "ISG paper, Fig. 12: RMS errors 3.2 % and 4.6 % against ray tracing" },
+    },
+    TechniqueInfo {
+        name: "isg-vertex",
+        summary: "integral spherical Gaussians with per-vertex visibility",
+        takes_params: true,
+        static_only: false,
+        shadows: true,
+        budget: Budget::RmseRelMean { rmse_rel_mean: 0.05, source: "ISG paper, Fig. 12: RMS errors 3.2 % and 4.6 % against ray tracing" },
+    },
+    TechniqueInfo {
+        name: "avs",
+        summary: "adaptive visibility sampling with hemispherical distance transforms (Wang et al.)",
+        takes_params: true,
+        static_only: false,
+        shadows: true,
+        budget: Budget::RmseRelMean {
+            rmse_rel_mean: 0.10,
+            source: "avs paper reports no error figure; documented approximation: visibility sampled at adaptive points with E_v,max = 10 % relative visibility error",
+        },
+    },
+    TechniqueInfo {
+        name: "shadow-fields",
+        summary: "adaptive shadow fields (SH occlusion and source radiance fields, adaptive shells)",
+        takes_params: true,
+        static_only: false,
+        shadows: true,
+        budget: Budget::RmseRelMean {
+            rmse_rel_mean: 0.15,
+            source: "shadow-fields paper reports no image error; documented approximation: 4th-order SH (16 coefficients) visibility and lighting",
+        },
+    },
+    TechniqueInfo {
+        name: "shadow-fields-fixed",
+        summary: "shadow fields at fixed (non-adaptive) shell resolution",
+        takes_params: true,
+        static_only: false,
+        shadows: true,
+        budget: Budget::RmseRelMean {
+            rmse_rel_mean: 0.15,
+            source: "shadow-fields paper reports no image error; documented approximation: 4th-order SH (16 coefficients) visibility and lighting",
+        },
+    },
+    TechniqueInfo {
+        name: "vv",
+        summary: "vectorized visibility with spherical Voronoi interpolation (static geometry)",
+        takes_params: true,
+        static_only: true,
+        shadows: true,
+        budget: Budget::RmseRelMean {
+            rmse_rel_mean: 0.10,
+            source: "vv paper, Fig. 11: 29.58 dB at zeta = 4, an RMSE of 3.3 % of the peak, about 10 % of the mean for the paper's peak-to-mean ratio of 3",
+        },
+    },
+];
+
+/// The registered technique `name`.
+pub fn info(name: &str) -> Option<&'static TechniqueInfo> {
+    REGISTRY.iter().find(|t| t.name == name)
+}
+
+/// The names of every registered technique, in [`REGISTRY`] order.
+pub fn names() -> Vec<&'static str> {
+    REGISTRY.iter().map(|t| t.name).collect()
+}
+
+/// Techniques implemented so far (every [`REGISTRY`] entry; kept for existing callers).
 pub const IMPLEMENTED: &[&str] =
     &["avs", "env", "isg", "isg-vertex", "mc", "shadowmaps", "shadow-fields", "shadow-fields-fixed", "vv"];
+
+/// Why technique `name` refuses `scene` before anything is built, if it does: a static-only
+/// technique on moving or deforming geometry (naming the object).
+pub fn refusal(name: &str, scene: &Scene) -> Option<String> {
+    let info = info(name)?;
+    if info.static_only {
+        for (i, o) in scene.objects.iter().enumerate() {
+            let oi = scene.object_info(i);
+            if oi.is_moving() || oi.is_deforming() {
+                return Some(format!(
+                    "'{name}' precomputes visibility for static geometry; object '{}' {}",
+                    o.name,
+                    if oi.is_moving() { "moves" } else { "deforms" }
+                ));
+            }
+        }
+    }
+    None
+}
 
 /// Techniques that precompute visibility for static geometry only: creating one for a scene
 /// whose objects move or deform is an error naming the object.
@@ -61,11 +228,14 @@ pub const STATIC_ONLY: &[&str] = &["vv"];
 /// Creates the technique `name` for `scene`, or `None` if it is not implemented.
 pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &Scene) -> Result<Option<Box<dyn Technique>>> {
     if name == "vv" {
+        if let Some(why) = refusal(name, _scene) {
+            anyhow::bail!("{why}");
+        }
         let settings = crate::vv::VvSettings::from_params(&_scene.technique_params)?;
         return Ok(Some(Box::new(crate::vv::VvTechnique::new(ctx, shaders, _scene, settings)?)));
     }
     // Techniques without parameters refuse any, rather than ignore them.
-    if !matches!(name, "avs" | "isg" | "isg-vertex" | "shadow-fields" | "shadow-fields-fixed") && !_scene.technique_params.is_empty() {
+    if info(name).is_some_and(|i| !i.takes_params) && !_scene.technique_params.is_empty() {
         anyhow::bail!(
             "technique '{name}' takes no parameters (got: {})",
             _scene.technique_params.keys().cloned().collect::<Vec<_>>().join(", ")
@@ -91,6 +261,28 @@ pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, _scene: &
 #[cfg(test)]
 mod tests {
     use std::collections::BTreeMap;
+
+    #[test]
+    fn registry_names_every_technique_once_with_a_budget() {
+        let names = super::names();
+        let mut sorted = names.clone();
+        sorted.sort();
+        sorted.dedup();
+        assert_eq!(sorted.len(), names.len(), "duplicate names in {names:?}");
+        let mut implemented = super::IMPLEMENTED.to_vec();
+        implemented.sort();
+        assert_eq!(sorted, implemented);
+        for t in super::REGISTRY {
+            match t.budget {
+                super::Budget::RmseRelMean { rmse_rel_mean, source } => {
+                    assert!(rmse_rel_mean > 0.0 && rmse_rel_mean < 1.0 && !source.is_empty(), "{}", t.name)
+                }
+                super::Budget::Unbiased { factor, source } => assert!(factor >= 1.0 && !source.is_empty(), "{}", t.name),
+                super::Budget::Baseline { .. } => assert!(!t.shadows, "{}: a shadow technique needs a budget", t.name),
+            }
+            assert_eq!(super::STATIC_ONLY.contains(&t.name), t.static_only, "{}", t.name);
+        }
+    }
 
     #[test]
     fn bad_parameters_are_reported_together() {

@@ -17,6 +17,7 @@
 
 pub mod brdf;
 pub mod cli;
+pub mod converge;
 pub mod geometry;
 pub mod image;
 pub mod lights;

@@ -61,6 +61,14 @@ impl LocalLight {
         }
     }
 
+    /// The light's position (sphere: its centre), for equiangular distance sampling.
+    pub fn position(&self) -> Vec3 {
+        match self {
+            LocalLight::Point { pos, .. } | LocalLight::Spot { pos, .. } => *pos,
+            LocalLight::Sphere { center, .. } => *center,
+        }
+    }
+
     pub fn is_delta(&self) -> bool {
         !matches!(self, LocalLight::Sphere { .. })
     }

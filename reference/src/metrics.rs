@@ -52,6 +52,14 @@ pub struct Comparison {
     pub psnr_peak_rule: String,
     pub mse: f64,
     pub rmse: f64,
+    /// Mean over the compared pixels and channels of the reference A.
+    #[serde(default)]
+    pub reference_mean: f64,
+    /// RMSE divided by [`Comparison::reference_mean`]: the "RMS error in %" the ISG paper
+    /// reports; unlike PSNR (whose peak is the brightest highlight) it does not hide errors in
+    /// shadows behind a bright peak. Infinite when the reference is black and the images differ.
+    #[serde(default)]
+    pub rmse_rel_mean: f64,
     /// `sqrt(mean((b - a)^2 / (a^2 + 0.01)))` over channels.
     pub rel_rmse: f64,
     pub mean_abs_error: f64,
@@ -91,10 +99,12 @@ impl Comparison {
             );
         }
         s += &format!(
-            "PSNR:          {psnr} (peak {:.6} = {})\nRMSE:          {:.6e}\nrel. RMSE:     {:.6e}\nmean |err|:    {:.6e}\nmax |err|:     {:.6e} at ({}, {})\nFLIP (mean):   {:.6} ({})",
+            "PSNR:          {psnr} (peak {:.6} = {})\nRMSE:          {:.6e} ({:.4} of the reference's mean {:.6e})\nrel. RMSE:     {:.6e}\nmean |err|:    {:.6e}\nmax |err|:     {:.6e} at ({}, {})\nFLIP (mean):   {:.6} ({})",
             self.psnr_peak,
             self.psnr_peak_rule,
             self.rmse,
+            self.rmse_rel_mean,
+            self.reference_mean,
             self.rel_rmse,
             self.mean_abs_error,
             self.max_abs_error,
@@ -177,7 +187,7 @@ pub fn flip_mean(a: &Image, b: &Image, exposure: f32) -> f64 {
 pub fn compare(a: &Image, a_name: &str, b: &Image, b_name: &str) -> Result<Comparison, ImageError> {
     check_same_size(a, a_name, b, b_name)?;
     let mut n = 0u64;
-    let (mut se, mut rel, mut ae) = (0.0f64, 0.0f64, 0.0f64);
+    let (mut se, mut rel, mut ae, mut sum_a) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
     let mut max_ae = 0.0f64;
     let mut max_at = [0u32; 2];
     let mut identical = true;
@@ -204,6 +214,7 @@ pub fn compare(a: &Image, a_name: &str, b: &Image, b_name: &str) -> Result<Compa
                 identical = false;
             }
             let d = y - x;
+            sum_a += x;
             se += d * d;
             rel += d * d / (x * x + REL_EPSILON);
             ae += d.abs();
@@ -215,6 +226,14 @@ pub fn compare(a: &Image, a_name: &str, b: &Image, b_name: &str) -> Result<Compa
     }
     let m = (3 * n).max(1) as f64;
     let mse = se / m;
+    let reference_mean = sum_a / m;
+    let rmse_rel_mean = if mse == 0.0 {
+        0.0
+    } else if reference_mean > 0.0 {
+        mse.sqrt() / reference_mean
+    } else {
+        f64::INFINITY
+    };
     let peak_rule;
     if peak <= 0.0 {
         peak = 1.0;
@@ -238,6 +257,8 @@ pub fn compare(a: &Image, a_name: &str, b: &Image, b_name: &str) -> Result<Compa
         psnr_peak_rule: peak_rule,
         mse,
         rmse: mse.sqrt(),
+        reference_mean,
+        rmse_rel_mean,
         rel_rmse: (rel / m).sqrt(),
         mean_abs_error: ae / m,
         max_abs_error: max_ae,

@@ -23,7 +23,8 @@
 //! scattering `integral T(t) sigma_s integral p(wi . d) L_i(x(t), wi) dwi dt`, estimated with one
 //! distance sample per primary ray (pdf proportional to `exp(-mean(sigma_t) t)` on
 //! `[0, t_hit]`) and the same light/phase-function MIS as surfaces, Henyey-Greenstein phase with
-//! `cos` = dot of the propagation directions. Local lights are attenuated by `exp(-sigma_t d)`
+//! `cos` = dot of the propagation directions; the distance is also sampled equiangularly towards
+//! each local light and the samples combined by the balance heuristic. Local lights are attenuated by `exp(-sigma_t d)`
 //! on their way in; **environment light is not attenuated** on its way in (the usual fog
 //! convention: an infinite medium would otherwise extinguish it completely).
 //!
@@ -539,17 +540,38 @@ impl Context {
         let mut surface_tr = Vec3::ONE;
         if let Some(m) = &self.medium {
             surface_tr = m.transmittance(t_hit);
-            // In-scattering: distance sampled ~ exp(-sigma_bar t) truncated to [0, t_hit].
+            // In-scattering, one distance sample per strategy combined by the balance heuristic
+            // (multi-sample MIS: each sample weighs f / sum of all strategies' pdfs): the
+            // transmittance (pdf ~ exp(-sigma_bar t) on [0, t_hit]) and, per local light,
+            // equiangular sampling (Kulla and Fajardo 2012, pdf ~ 1 / (h^2 + (t - delta)^2)),
+            // without which a light inside the medium makes the estimator's variance unbounded
+            // (1 / d^2 near the light).
             let sb = m.sigma_bar;
             let mass = if t_hit.is_finite() { -(-sb * t_hit).exp_m1() } else { 1.0 };
+            let pdf_exp = |t: f32| if mass > 0.0 && t >= 0.0 && t < t_hit { sb * (-sb * t).exp() / mass } else { 0.0 };
+            let eq: Vec<Equiangular> = self.lights.iter().filter_map(|li| Equiangular::new(o, d, li.position(), t_hit)).collect();
+            let pdf_sum = |t: f32| pdf_exp(t) + eq.iter().map(|e| e.pdf(t)).sum::<f32>();
+            let mut ts = Vec::with_capacity(1 + eq.len());
             let u = rng.next_f32();
             let t = -(-u * mass).ln_1p() / sb;
             if mass > 0.0 && t.is_finite() && t < t_hit {
-                let pdf_t = sb * (-sb * t).exp() / mass;
+                ts.push(t);
+            }
+            for e in &eq {
+                let u = rng.next_f32();
+                if let Some(t) = e.sample(u) {
+                    ts.push(t);
+                }
+            }
+            for t in ts {
+                let p = pdf_sum(t);
+                if !(p > 0.0 && p.is_finite()) {
+                    continue;
+                }
                 let x = o + d * t;
                 let sc = Scatter::Medium { m, d };
                 let li = self.direct(x, x, &sc, rng);
-                l += m.transmittance(t) * m.sigma_s * li / pdf_t;
+                l += m.transmittance(t) * m.sigma_s * li / p;
             }
         }
         match hit {
@@ -572,6 +594,38 @@ impl Context {
         } else {
             Vec3::ZERO
         }
+    }
+}
+
+/// Equiangular distance sampling towards a point `c` along the ray `o + t d`, `t` in
+/// `[0, t_max]` (Kulla and Fajardo 2012).
+struct Equiangular {
+    delta: f32,
+    h: f32,
+    theta_a: f32,
+    theta_b: f32,
+    t_max: f32,
+}
+
+impl Equiangular {
+    fn new(o: Vec3, d: Vec3, c: Vec3, t_max: f32) -> Option<Self> {
+        let delta = (c - o).dot(d);
+        let h = (o + d * delta - c).length().max(1e-4);
+        let theta_a = (-delta / h).atan();
+        let theta_b = if t_max.is_finite() { ((t_max - delta) / h).atan() } else { std::f32::consts::FRAC_PI_2 };
+        (theta_b - theta_a > 1e-6 && h.is_finite() && delta.is_finite()).then_some(Equiangular { delta, h, theta_a, theta_b, t_max })
+    }
+    fn sample(&self, u: f32) -> Option<f32> {
+        let th = self.theta_a + u * (self.theta_b - self.theta_a);
+        let t = self.delta + self.h * th.tan();
+        (t.is_finite() && t >= 0.0 && t < self.t_max).then_some(t)
+    }
+    fn pdf(&self, t: f32) -> f32 {
+        if !(t >= 0.0 && t < self.t_max) {
+            return 0.0;
+        }
+        let x = t - self.delta;
+        self.h / ((self.theta_b - self.theta_a) * (self.h * self.h + x * x))
     }
 }
 

@@ -92,6 +92,12 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
         let ss = args.supersample.max(1);
         let (gw, gh) = (width * ss, height * ss);
         let settings = RenderSettings { width: gw, height: gh, technique: Some(name.to_string()), ..Default::default() };
+        // A scene's [technique_params] belong to its own technique, never to the others.
+        let mut own = scene.clone();
+        if own.technique != name {
+            own.technique_params.clear();
+        }
+        let scene = &own;
         let mut r = Renderer::new_headless(scene, settings, false)?;
         let frame = scene.at(t, Some(t));
         // One warm-up frame outside the statistics: its passes' first dispatches include

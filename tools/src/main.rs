@@ -16,6 +16,7 @@ use std::process::ExitCode;
 mod avs_bench;
 mod bench;
 mod isg_bench;
+mod matrix;
 mod hsdt_bench;
 mod plot;
 mod spheres;
@@ -65,6 +66,12 @@ enum BenchCmd {
     /// and to the same error, adaptive vs brute-force visibility maps at r = 64/128/256, and an
     /// E_v,max x r sweep.
     Avs(avs_bench::AvsArgs),
+    /// The scene x technique accuracy matrix: every scene (default: scenes/*.toml and the models
+    /// in scenes/assets) with every registered technique against a converged, cached CPU
+    /// reference; rmse_rel_mean, rel_rmse, shadow_recovered, PSNR, FLIP and frame cost per cell,
+    /// judged by each technique's registered budget; writes matrix.json, matrix.md and the
+    /// contact sheet matrix.png, and compares the failing cells with the known-failures list.
+    Matrix(matrix::MatrixArgs),
     /// Techniques against the CPU reference (PSNR, relative RMSE, FLIP) and against each other
     /// (GPU ms per frame and ratios), on the same scene, camera and frame; writes bench.json.
     Techniques(bench::BenchArgs),
@@ -430,6 +437,7 @@ fn run(cli: Cli) -> Result<()> {
             a.scene_with_params(&scene).map_err(bad)?;
             isg_bench::run_isg(&a, &scene)
         }
+        Cmd::Bench(BenchCmd::Matrix(a)) => matrix::run(&a),
         Cmd::Bench(BenchCmd::Techniques(a)) => {
             parse_size(&a.size).map_err(bad)?;
             for t in a.techniques.split(',').map(str::trim).filter(|s| !s.is_empty()) {

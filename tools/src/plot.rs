@@ -11,7 +11,7 @@ use std::path::Path;
 use std::sync::Once;
 
 const FONT: &[u8] = include_bytes!("../assets/DejaVuSansMono.ttf");
-const FAMILY: &str = "penumbra-mono";
+pub(crate) const FAMILY: &str = "penumbra-mono";
 
 /// One line of points (drawn in the given order) with a legend entry; `labels`, when not empty,
 /// annotates each point (e.g. the parameter value it was measured at).
@@ -35,7 +35,7 @@ pub struct Chart {
     pub legend: bool,
 }
 
-fn register_font() -> Result<()> {
+pub(crate) fn register_font() -> Result<()> {
     static ONCE: Once = Once::new();
     let mut res = Ok(());
     ONCE.call_once(|| {

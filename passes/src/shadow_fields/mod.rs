@@ -929,6 +929,14 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         }
     }
 
+    fn limitations(&self, scene: &Scene) -> Vec<String> {
+        let mut v = Vec::new();
+        if scene.requirements().spatially_varying_materials {
+            v.push(format!("{}: texture maps are ignored (materials use their constant parameters)", self.name()));
+        }
+        v
+    }
+
     fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
         let h = upload(graph, &self.tables, &self.casts, inputs.frame, &self.light, self.srf);
         let gb = inputs.gbuffer;

@@ -785,6 +785,21 @@ impl crate::technique::Technique for VvTechnique {
         "vv"
     }
 
+    fn limitations(&self, scene: &penumbra_scene::Scene) -> Vec<String> {
+        let req = scene.requirements();
+        let mut v = Vec::new();
+        if req.spatially_varying_materials {
+            v.push("vv: texture maps are ignored on vv-shaded objects (materials use their constant parameters)".into());
+        }
+        if req.local_lights {
+            v.push(format!(
+                "vv: the {} local light(s) are not rendered on vv-shaded objects (vv overdraws them with environment lighting only)",
+                scene.lights.len()
+            ));
+        }
+        v
+    }
+
     fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
         // previous frame's statistics (non-blocking)
         if self.settings.mode.tessellated() {

@@ -1,0 +1,399 @@
+//! A converged reference: the CPU reference rendered until its own error, estimated from two
+//! independent halves, is below a target, and cached on disk.
+//!
+//! **Noise estimate.** Samples are split into two halves A and B rendered with disjoint seeds.
+//! The final image is `(A + B) / 2`. With per-pixel variance `s^2` per half, `A - B` has variance
+//! `2 s^2` and the final image `s^2 / 2`, so the final image's RMSE against the converged truth
+//! is estimated as `RMS(A - B) / 2`. Divided by the final image's mean radiance, this is the
+//! noise in the same unit as the matrix's `rmse_rel_mean` metric
+//! ([`crate::metrics::Comparison::rmse_rel_mean`]): a technique whose `rmse_rel_mean` is close
+//! to it is as good as the reference can tell.
+//!
+//! **Rounds.** Each round renders one batch per half (equal sample counts, fresh seeds), then
+//! re-estimates the noise; since it falls as `1 / sqrt(spp)`, the next round is sized to reach
+//! the target (with 15 % margin), up to `max_spp` in total.
+//!
+//! **Cache.** [`cache_key`] hashes (FNV-1a 64, stable across builds) the scene file's bytes, the
+//! frame, fps, size, seed, target noise, mode and [`REFERENCE_VERSION`]; [`load_or_render`]
+//! reads `DIR/<stem>-<w>x<h>-f<frame>-<key>.exr` and its `.json` sidecar when both exist and
+//! match, else renders and writes them. Files referenced by the scene (meshes, environment
+//! maps) are not part of the key: bump [`REFERENCE_VERSION`] or clear the cache after changing
+//! them.
+
+use crate::image::Image;
+use crate::render::{render, Mode, ReferenceOptions, RenderError};
+use penumbra_scene::Scene;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Version of the reference estimator and its conventions; part of every cache key. Bump it
+/// whenever a change to `render.rs`, `brdf.rs`, `sampling.rs`, `lights.rs` or `geometry.rs`
+/// changes the images.
+/// - 1: converged references introduced; environment texels read as the GPU reads them.
+/// - 2: equiangular distance sampling towards local lights in media (same expectation, far
+///   less noise near lights inside a medium).
+pub const REFERENCE_VERSION: u32 = 2;
+
+/// Options of [`render_converged`].
+#[derive(Clone, Debug)]
+pub struct ConvergeOptions {
+    /// Size, frame/time, seed and mode; `spp` is ignored (chosen by the rounds).
+    pub base: ReferenceOptions,
+    /// Target of the estimated `rmse_rel_mean` of the final image (e.g. 0.01).
+    pub target_noise: f64,
+    /// Samples per pixel of each half in the first round.
+    pub start_spp: u32,
+    /// Most samples per pixel in total (both halves); the result may then miss the target.
+    pub max_spp: u32,
+    /// Print a line per round and show the renderer's progress bars (on a terminal).
+    pub progress: bool,
+    /// Prefix of the progress lines (e.g. the scene name).
+    pub label: String,
+}
+
+impl Default for ConvergeOptions {
+    fn default() -> Self {
+        ConvergeOptions {
+            base: ReferenceOptions::default(),
+            target_noise: 0.01,
+            start_spp: 16,
+            max_spp: 1 << 16,
+            progress: false,
+            label: String::new(),
+        }
+    }
+}
+
+/// What [`render_converged`] made; also the cache's sidecar.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ConvergedMeta {
+    pub scene: String,
+    pub width: u32,
+    pub height: u32,
+    pub frame: u32,
+    pub time_s: f32,
+    /// Samples per pixel in total (both halves).
+    pub spp: u32,
+    /// Estimated `rmse_rel_mean` of the image against the converged truth.
+    pub noise_rmse_rel_mean: f64,
+    pub target_noise: f64,
+    /// Wall-clock seconds spent rendering (all rounds).
+    pub seconds: f64,
+    pub reference_version: u32,
+    pub key: String,
+}
+
+/// A converged reference image.
+#[derive(Clone, Debug)]
+pub struct Converged {
+    pub radiance: Image,
+    pub meta: ConvergedMeta,
+    /// Read from the cache rather than rendered.
+    pub cached: bool,
+}
+
+impl Converged {
+    /// Whether the estimated noise reached the target.
+    pub fn converged(&self) -> bool {
+        self.meta.noise_rmse_rel_mean <= self.meta.target_noise
+    }
+}
+
+fn splitmix(mut x: u64) -> u64 {
+    x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    let mut z = x;
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// The estimated `rmse_rel_mean` of `(a + b) / 2` from two independent halves: `RMS(a - b) / 2`
+/// over pixels and channels, over the mean of `(a + b) / 2`. `None` for images of different
+/// sizes; 0 for identical images; infinite when the mean is not positive but the halves differ.
+pub fn halves_noise(a: &Image, b: &Image) -> Option<f64> {
+    if a.width != b.width || a.height != b.height || a.pixels.len() != b.pixels.len() {
+        return None;
+    }
+    let (mut d2, mut sum, mut n) = (0.0f64, 0.0f64, 0u64);
+    for (pa, pb) in a.pixels.iter().zip(&b.pixels) {
+        for c in 0..3 {
+            let (x, y) = (pa[c] as f64, pb[c] as f64);
+            if x.is_finite() && y.is_finite() {
+                d2 += (x - y) * (x - y);
+                sum += 0.5 * (x + y);
+                n += 1;
+            }
+        }
+    }
+    let n = n.max(1) as f64;
+    let rms = (d2 / n).sqrt() / 2.0;
+    let mean = sum / n;
+    Some(if rms == 0.0 {
+        0.0
+    } else if mean > 0.0 {
+        rms / mean
+    } else {
+        f64::INFINITY
+    })
+}
+
+/// Accumulates batches of one half: spp-weighted sums.
+struct Half {
+    sum: Vec<[f64; 3]>,
+    spp: u64,
+}
+
+impl Half {
+    fn new(pixels: usize) -> Self {
+        Half { sum: vec![[0.0; 3]; pixels], spp: 0 }
+    }
+    fn add(&mut self, img: &Image, spp: u32) {
+        for (s, p) in self.sum.iter_mut().zip(&img.pixels) {
+            for c in 0..3 {
+                s[c] += p[c] as f64 * spp as f64;
+            }
+        }
+        self.spp += spp as u64;
+    }
+    fn image(&self, w: u32, h: u32) -> Image {
+        let n = self.spp.max(1) as f64;
+        Image { width: w, height: h, pixels: self.sum.iter().map(|s| s.map(|v| (v / n) as f32)).collect() }
+    }
+}
+
+/// Renders `scene` until the estimated noise is at most `opts.target_noise` (or `max_spp` is
+/// spent).
+pub fn render_converged(scene: &Scene, opts: &ConvergeOptions) -> Result<Converged, RenderError> {
+    if !(opts.target_noise.is_finite() && opts.target_noise > 0.0) {
+        return Err(RenderError::Options(format!("target noise {} must be positive", opts.target_noise)));
+    }
+    let start = Instant::now();
+    let (w, h) = (opts.base.width, opts.base.height);
+    let npix = w as usize * h as usize;
+    let (mut a, mut b) = (Half::new(npix), Half::new(npix));
+    let max_half = (opts.max_spp / 2).max(2) as u64;
+    let mut batch = opts.start_spp.max(2).min(max_half as u32);
+    let mut round = 0u64;
+    let mut noise;
+    loop {
+        for (k, half) in [&mut a, &mut b].into_iter().enumerate() {
+            let o = ReferenceOptions {
+                spp: batch,
+                seed: splitmix(opts.base.seed ^ splitmix(2 * round + k as u64 + 1)),
+                progress: opts.progress,
+                ..opts.base.clone()
+            };
+            let img = render(scene, &o)?;
+            half.add(&img.radiance, batch);
+        }
+        round += 1;
+        let (ia, ib) = (a.image(w, h), b.image(w, h));
+        noise = halves_noise(&ia, &ib).unwrap_or(f64::INFINITY);
+        let spp_half = a.spp;
+        if opts.progress {
+            eprintln!(
+                "reference {}: {} spp, estimated noise {:.4} (target {}) after {:.1} s",
+                opts.label,
+                2 * spp_half,
+                noise,
+                opts.target_noise,
+                start.elapsed().as_secs_f64()
+            );
+        }
+        if noise <= opts.target_noise || spp_half >= max_half {
+            break;
+        }
+        // noise ~ 1/sqrt(spp): samples per half needed, with a margin; at least double.
+        let need = if noise.is_finite() {
+            (spp_half as f64 * (noise / opts.target_noise).powi(2) * 1.15).ceil() as u64
+        } else {
+            4 * spp_half
+        };
+        let more = need.saturating_sub(spp_half).max(spp_half).min(max_half - spp_half);
+        batch = more.clamp(2, u32::MAX as u64) as u32;
+    }
+    let mut sum = a;
+    for (s, t) in sum.sum.iter_mut().zip(&b.sum) {
+        for c in 0..3 {
+            s[c] += t[c];
+        }
+    }
+    sum.spp += b.spp;
+    let radiance = sum.image(w, h);
+    Ok(Converged {
+        radiance,
+        meta: ConvergedMeta {
+            scene: scene.name.clone(),
+            width: w,
+            height: h,
+            frame: opts.base.frame,
+            time_s: opts.base.time_s(),
+            spp: sum.spp as u32,
+            noise_rmse_rel_mean: noise,
+            target_noise: opts.target_noise,
+            seconds: start.elapsed().as_secs_f64(),
+            reference_version: REFERENCE_VERSION,
+            key: String::new(),
+        },
+        cached: false,
+    })
+}
+
+/// FNV-1a 64 (stable across Rust versions and platforms, unlike `std`'s hashers).
+pub fn fnv1a64(bytes: &[u8], mut h: u64) -> u64 {
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x100_0000_01b3);
+    }
+    h
+}
+
+/// The cache key of a converged reference of the scene whose file holds `scene_bytes`.
+pub fn cache_key(scene_bytes: &[u8], opts: &ConvergeOptions) -> String {
+    let mut h = fnv1a64(scene_bytes, 0xcbf2_9ce4_8422_2325);
+    let o = &opts.base;
+    let mode = match o.mode {
+        Mode::Exact => 0u8,
+        Mode::SgLighting => 1,
+        Mode::Sg => 2,
+    };
+    let fields = format!(
+        "v{REFERENCE_VERSION} {}x{} frame {} time {:?} fps {} seed {} mode {mode} lobes {} target {}",
+        o.width,
+        o.height,
+        o.frame,
+        o.time.map(f32::to_bits),
+        o.fps.to_bits(),
+        o.seed,
+        o.sg_lobes,
+        opts.target_noise.to_bits()
+    );
+    h = fnv1a64(fields.as_bytes(), h);
+    format!("{h:016x}")
+}
+
+/// The cache file of a reference: `DIR/<stem>-<w>x<h>-f<frame>-<key>.exr` (sidecar `.json`).
+pub fn cache_path(dir: &Path, stem: &str, opts: &ConvergeOptions, key: &str) -> PathBuf {
+    let stem: String = stem.chars().map(|c| if c.is_ascii_alphanumeric() || c == '_' || c == '-' { c } else { '_' }).collect();
+    dir.join(format!("{stem}-{}x{}-f{}-{key}.exr", opts.base.width, opts.base.height, opts.base.frame))
+}
+
+/// Reads the converged reference of `scene` (loaded from a file holding `scene_bytes`, named
+/// `stem` in the cache) from `cache` when it is there and matches, else renders it with
+/// [`render_converged`] and writes it there (a cache that cannot be written is reported on
+/// stderr, not an error).
+pub fn load_or_render(
+    scene: &Scene,
+    scene_bytes: &[u8],
+    stem: &str,
+    opts: &ConvergeOptions,
+    cache: Option<&Path>,
+) -> Result<Converged, RenderError> {
+    let key = cache_key(scene_bytes, opts);
+    let path = cache.map(|d| cache_path(d, stem, opts, &key));
+    if let Some(p) = &path {
+        let meta_path = p.with_extension("json");
+        if p.exists() && meta_path.exists() {
+            let meta: Option<ConvergedMeta> =
+                std::fs::read_to_string(&meta_path).ok().and_then(|t| serde_json::from_str(&t).ok());
+            match (meta, Image::read_exr(p)) {
+                (Some(meta), Ok(img))
+                    if meta.key == key
+                        && meta.reference_version == REFERENCE_VERSION
+                        && img.width == opts.base.width
+                        && img.height == opts.base.height =>
+                {
+                    return Ok(Converged { radiance: img, meta, cached: true });
+                }
+                _ => eprintln!("reference cache {}: stale or unreadable, rendering again", p.display()),
+            }
+        }
+    }
+    let mut c = render_converged(scene, opts)?;
+    c.meta.key = key;
+    if let Some(p) = &path {
+        let write = || -> Result<(), String> {
+            if let Some(d) = p.parent() {
+                std::fs::create_dir_all(d).map_err(|e| e.to_string())?;
+            }
+            c.radiance.write_exr(p).map_err(|e| e.to_string())?;
+            let text = serde_json::to_string_pretty(&c.meta).map_err(|e| e.to_string())? + "\n";
+            std::fs::write(p.with_extension("json"), text).map_err(|e| e.to_string())
+        };
+        if let Err(e) = write() {
+            eprintln!("reference cache {}: not written: {e}", p.display());
+        }
+    }
+    Ok(c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn halves_noise_is_half_the_rms_difference_over_the_mean() {
+        let a = Image { width: 2, height: 1, pixels: vec![[1.0; 3], [3.0; 3]] };
+        let b = Image { width: 2, height: 1, pixels: vec![[1.2; 3], [2.8; 3]] };
+        // RMS(a - b) = 0.2, / 2 = 0.1; mean of (a + b) / 2 = 2.0
+        let n = halves_noise(&a, &b).unwrap();
+        assert!((n - 0.05).abs() < 1e-6, "{n}");
+        assert_eq!(halves_noise(&a, &a), Some(0.0));
+        let black = Image::new(2, 1);
+        assert_eq!(halves_noise(&black, &a).map(|v| v.is_finite()), Some(true));
+        assert!(halves_noise(&a, &Image::new(1, 1)).is_none());
+    }
+
+    #[test]
+    fn cache_key_changes_with_every_input() {
+        let o = ConvergeOptions::default();
+        let k = cache_key(b"scene", &o);
+        assert_eq!(k, cache_key(b"scene", &o.clone()));
+        assert_ne!(k, cache_key(b"scene2", &o));
+        let mut o2 = o.clone();
+        o2.base.frame = 1;
+        assert_ne!(k, cache_key(b"scene", &o2));
+        let mut o3 = o.clone();
+        o3.base.width += 1;
+        assert_ne!(k, cache_key(b"scene", &o3));
+        let mut o4 = o.clone();
+        o4.target_noise = 0.02;
+        assert_ne!(k, cache_key(b"scene", &o4));
+    }
+
+    #[test]
+    fn converges_to_the_target_and_reuses_the_cache() {
+        let scene = Scene::default_scene();
+        let opts = ConvergeOptions {
+            base: ReferenceOptions { width: 16, height: 12, frame: 3, ..Default::default() },
+            target_noise: 0.02,
+            start_spp: 4,
+            max_spp: 1 << 14,
+            ..Default::default()
+        };
+        let dir = std::env::temp_dir().join(format!("penumbra-converge-test-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let c = load_or_render(&scene, b"default", "default", &opts, Some(&dir)).unwrap();
+        assert!(!c.cached);
+        assert!(c.converged(), "noise {} after {} spp", c.meta.noise_rmse_rel_mean, c.meta.spp);
+        assert!(c.meta.spp >= 8);
+        // The estimate is honest: an independent render at the same spp differs from it by about
+        // sqrt(2) times the estimated noise (RMS over mean), not by far more or far less.
+        let other = render(
+            &scene,
+            &ReferenceOptions { spp: c.meta.spp, seed: 12345, ..opts.base.clone() },
+        )
+        .unwrap();
+        let cmp = crate::metrics::compare(&c.radiance, "a", &other.radiance, "b").unwrap();
+        let ratio = cmp.rmse_rel_mean / (c.meta.noise_rmse_rel_mean * 2f64.sqrt());
+        assert!((0.5..2.0).contains(&ratio), "independent-render error / expected = {ratio}");
+        let again = load_or_render(&scene, b"default", "default", &opts, Some(&dir)).unwrap();
+        assert!(again.cached);
+        assert_eq!(again.radiance, c.radiance);
+        assert_eq!(again.meta.spp, c.meta.spp);
+        let changed = ConvergeOptions { base: ReferenceOptions { frame: 4, ..opts.base.clone() }, ..opts.clone() };
+        assert_ne!(cache_key(b"default", &changed), c.meta.key);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
