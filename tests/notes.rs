@@ -21,6 +21,9 @@ fn shadowmaps_reports_the_local_lights_and_receivers_it_ignores() {
     // mc renders local lights and honours casts_shadow: nothing to report.
     let n = notes("scenes/god_rays.toml", "mc");
     assert!(n.is_empty(), "{n:?}");
+    // ... but renders chess's anisotropic Ashikhmin-Shirley queen isotropic.
+    let n = notes("scenes/chess.toml", "mc");
+    assert!(n.iter().any(|l| l.contains("shininess_v")), "{n:?}");
 }
 
 #[test]

@@ -447,6 +447,28 @@ impl crate::technique::Technique for McTechnique {
     fn samples_per_pixel(&self) -> Option<u32> {
         Some(self.accumulated)
     }
+
+    fn limitations(&self, scene: &Scene) -> Vec<String> {
+        let mut anisotropic: Vec<&str> = scene
+            .objects
+            .iter()
+            .filter_map(|o| {
+                let m = scene.materials.get(o.material)?;
+                let v = scene.material_extra(o.material).shininess_v?;
+                (m.kind == BrdfKind::AshikhminShirley && v != m.shininess).then_some(m.name.as_str())
+            })
+            .collect();
+        anisotropic.sort();
+        anisotropic.dedup();
+        if anisotropic.is_empty() {
+            Vec::new()
+        } else {
+            vec![format!(
+                "mc: anisotropic Ashikhmin-Shirley exponents (shininess_v) are rendered isotropic (material {})",
+                anisotropic.join(", ")
+            )]
+        }
+    }
     fn name(&self) -> &'static str {
         "mc"
     }
