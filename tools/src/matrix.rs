@@ -457,6 +457,10 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
                                 }
                             }
                         }
+                        if c.non_finite_b > 0 {
+                            // excluded from the metrics above, so they must fail the cell here
+                            fails.push(format!("{} pixels are NaN or infinite", c.non_finite_b));
+                        }
                         if !run.ignored.is_empty() {
                             fails.push(format!("ignores part of the scene: {}", run.ignored.join("; ")));
                         }
