@@ -50,6 +50,35 @@ pub struct BenchArgs {
     pub supersample: u32,
 }
 
+/// Box-filters a `ss`-times larger RGBA readback down to `w` x `h` (`--supersample`).
+pub(crate) fn downsample(hdr: &[[f32; 4]], w: u32, h: u32, ss: u32) -> Image {
+    let gw = w * ss;
+    Image::from_fn(w, h, |x, y| {
+        let mut sum = [0.0f32; 3];
+        for sy in 0..ss {
+            for sx in 0..ss {
+                let p = hdr[((y * ss + sy) * gw + x * ss + sx) as usize];
+                for c in 0..3 {
+                    sum[c] += p[c];
+                }
+            }
+        }
+        sum.map(|v| v / (ss * ss) as f32)
+    })
+}
+
+/// GPU ms per frame of a renderer's technique: the sum of its passes' medians, uploads and
+/// the readback excluded.
+pub(crate) fn technique_gpu_ms(r: &Renderer) -> f64 {
+    r.engine
+        .profiler
+        .gpu_stats()
+        .iter()
+        .filter(|(p, _)| !(p.ends_with("_upload") || p.as_str() == "readback"))
+        .map(|(_, st)| st.median_ms)
+        .sum()
+}
+
 pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
     let (width, height) = parse_size(&args.size)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
@@ -110,27 +139,12 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
         }
         images.extend(r.finish()?);
         let last = images.last().context("no frame finished")?;
-        let img = Image::from_fn(width, height, |x, y| {
-            let mut sum = [0.0f32; 3];
-            for sy in 0..ss {
-                for sx in 0..ss {
-                    let p = last.hdr[((y * ss + sy) * gw + x * ss + sx) as usize];
-                    for c in 0..3 {
-                        sum[c] += p[c];
-                    }
-                }
-            }
-            sum.map(|v| v / (ss * ss) as f32)
-        });
+        let img = downsample(&last.hdr, width, height, ss);
         img.write_exr(args.out.join(format!("{name}.exr")))?;
         let c = compare(&reference.radiance, "reference", &img, name)?;
         write_diff_png(&reference.radiance, &img, &args.out.join(format!("{name}_diff.png")))?;
         let stats = r.engine.profiler.gpu_stats();
-        let technique_ms: f64 = stats
-            .iter()
-            .filter(|(p, _)| !(p.ends_with("_upload") || p.as_str() == "readback"))
-            .map(|(_, s)| s.median_ms)
-            .sum();
+        let technique_ms = technique_gpu_ms(&r);
         let base = *baseline_ms.get_or_insert(technique_ms);
         let vs_sg = match &sg_reference {
             Some(sg) => Some(compare(&sg.radiance, "reference_sg", &img, name)?),
@@ -446,7 +460,7 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
             let p = last.hdr[(y * width + x) as usize];
             [p[0], p[1], p[2]]
         });
-        let ms: f64 = r.engine.profiler.gpu_stats().iter().filter(|(p, _)| !(p.ends_with("_upload") || p.as_str() == "readback")).map(|(_, st)| st.median_ms).sum();
+        let ms = technique_gpu_ms(&r);
         let c = compare(&reference.radiance, "reference", &img, label)?;
         println!(
             "{label:<22} {:>8} {:>9.4} {:>8.4} {ms:>11.2}",

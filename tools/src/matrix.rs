@@ -106,6 +106,28 @@ pub struct Cell {
     pub pass: Option<bool>,
 }
 
+impl Cell {
+    /// A cell with no measurement yet: status "ok", every number null, not judged.
+    fn new(scene: &str, technique: &str) -> Self {
+        Cell {
+            scene: scene.into(),
+            technique: technique.into(),
+            status: "ok".into(),
+            reason: None,
+            rmse_rel_mean: None,
+            rel_rmse: None,
+            shadow_recovered: None,
+            psnr: None,
+            flip: None,
+            gpu_ms: None,
+            cpu_ms: None,
+            frame_ms: None,
+            budget: None,
+            pass: None,
+        }
+    }
+}
+
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct RefEntry {
     pub scene: String,
@@ -181,23 +203,6 @@ fn default_scenes() -> Result<Vec<PathBuf>> {
     Ok(v)
 }
 
-/// Box-filters a `ss`-times larger RGBA readback down to `w` x `h`.
-fn downsample(hdr: &[[f32; 4]], w: u32, h: u32, ss: u32) -> Image {
-    let gw = w * ss;
-    Image::from_fn(w, h, |x, y| {
-        let mut sum = [0.0f32; 3];
-        for sy in 0..ss {
-            for sx in 0..ss {
-                let p = hdr[((y * ss + sy) * gw + x * ss + sx) as usize];
-                for c in 0..3 {
-                    sum[c] += p[c];
-                }
-            }
-        }
-        sum.map(|v| v / (ss * ss) as f32)
-    })
-}
-
 /// What one technique's run on one scene produced.
 struct Run {
     /// Where the set-up time went (printed).
@@ -245,17 +250,10 @@ fn render_technique(ctx: &Arc<Context>, scene: &Scene, name: &str, args: &Matrix
     if last.hdr.len() != (w * ss * h * ss) as usize {
         bail!("frame read back {} pixels, expected {}", last.hdr.len(), w * ss * h * ss);
     }
-    let gpu_ms: f64 = r
-        .engine
-        .profiler
-        .gpu_stats()
-        .iter()
-        .filter(|(p, _)| !(p.ends_with("_upload") || p.as_str() == "readback"))
-        .map(|(_, st)| st.median_ms)
-        .sum();
+    let gpu_ms = crate::bench::technique_gpu_ms(&r);
     Ok(Run {
         setup: format!("created in {create_s:.1} s, warm-up {warmup_s:.1} s"),
-        image: downsample(&last.hdr, w, h, ss),
+        image: crate::bench::downsample(&last.hdr, w, h, ss),
         gpu_ms,
         cpu_ms: cpu / args.frames as f64,
         frame_ms,
@@ -320,20 +318,10 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
                 eprintln!("  scene does not load: {reason}");
                 for t in &techniques {
                     matrix.cells.push(Cell {
-                        scene: stem.clone(),
-                        technique: t.name.into(),
                         status: "error".into(),
                         reason: Some(reason.clone()),
-                        rmse_rel_mean: None,
-                        rel_rmse: None,
-                        shadow_recovered: None,
-                        psnr: None,
-                        flip: None,
-                        gpu_ms: None,
-                        cpu_ms: None,
-                        frame_ms: None,
-                        budget: None,
                         pass: Some(false),
+                        ..Cell::new(&stem, t.name)
                     });
                 }
                 sheet.push((stem.clone(), vec![("scene does not load".into(), None, reason, Some(false))]));
@@ -394,22 +382,7 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
         }
         for t in order {
             let listed = techniques.iter().any(|x| x.name == t.name);
-            let mut cell = Cell {
-                scene: scene.name.clone(),
-                technique: t.name.into(),
-                status: "ok".into(),
-                reason: None,
-                rmse_rel_mean: None,
-                rel_rmse: None,
-                shadow_recovered: None,
-                psnr: None,
-                flip: None,
-                gpu_ms: None,
-                cpu_ms: None,
-                frame_ms: None,
-                budget: None,
-                pass: None,
-            };
+            let mut cell = Cell::new(&scene.name, t.name);
             if let Some(why) = technique::refusal(t.name, &scene) {
                 cell.status = "refused".into();
                 cell.reason = Some(why);
