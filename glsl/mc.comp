@@ -14,9 +14,9 @@ layout(std430, binding = 2) readonly buffer Refs { uint kd_refs[]; };
 layout(std430, binding = 3) readonly buffer Header { uint kd_hdr[]; };
 // per triangle: (n0, material bits), (n1, 0), (n2, 0), (tangent, 0), (uv0, uv1), (uv2, 0, 0)
 layout(std430, binding = 4) readonly buffer TriData { vec4 tri_data[]; };
-// per material: (albedo, kind), (specular, alpha), (shininess nu, nv, p_spec, 0),
-// (albedo map layer, roughness map layer (-1 none), roughness, shininess)
-layout(std430, binding = 5) readonly buffer Materials { vec4 mats[]; };
+// the scene's materials (passes/src/scene_gpu.rs material_table, read through material.glsl)
+#include "common.glsl"
+layout(std430, binding = 5) readonly buffer Materials { MaterialData mats[]; };
 // env texels: rgb radiance (intensity applied), w = pmf of the texel
 layout(std430, binding = 6) readonly buffer EnvTexels { vec4 env_texels[]; };
 // env CDFs: marginal over rows (h + 1 floats), then per row the conditional (w + 1 floats)
@@ -108,6 +108,7 @@ bool env_sample(vec4 u, out vec3 d, out vec3 le, out float pdf) {
     return true;
 }
 
+#include "material.glsl"
 #include "brdf_ref.glsl"
 
 float power_heuristic(float a, float b) { float a2 = a * a, b2 = b * b; return a2 + b2 > 0.0 ? a2 / (a2 + b2) : 0.0; }
@@ -218,22 +219,10 @@ vec3 radiance_sample(vec2 ndc) {
     mat3 to_world = mat3(tt, bt, ns);
     vec3 wo = vec3(dot(wo_w, tt), dot(wo_w, bt), dot(wo_w, ns));
     uint mi = floatBitsToUint(t0.w);
-    Brdf b = brdf_from_table(mats[4u * mi], mats[4u * mi + 1u], mats[4u * mi + 2u]);
-    vec4 maps = mats[4u * mi + 3u];
-    if (maps.x >= 0.0 || maps.y >= 0.0) {
-        // render.rs brdf_at: maps at the interpolated uv, then Brdf::new's sanitising
-        vec4 t4 = tri_data[6u * ti + 4u];
-        vec2 uv = t4.xy * b0 + t4.zw * b1 + tri_data[6u * ti + 5u].xy * b2;
-        if (maps.x >= 0.0) b.albedo = max(b.albedo * textureLod(material_textures, vec3(uv, maps.x), 0.0).rgb, vec3(0.0));
-        if (maps.y >= 0.0) {
-            float r = clamp(maps.z * textureLod(material_textures, vec3(uv, maps.y), 0.0).g, 0.0, 1.0);
-            b.alpha = max(r * r, 1e-3);
-            b.nu = clamp(2.0 / max(r * r, 1e-4) - 2.0, 0.0, 1e6);
-            b.nv = b.nu;
-        }
-        float ld = dot(b.albedo, vec3(0.2126, 0.7152, 0.0722)), ls = dot(b.spec, vec3(0.2126, 0.7152, 0.0722));
-        b.p_spec = b.kind == 0u ? 0.0 : (ls <= 0.0 ? 0.0 : (ld <= 0.0 ? 1.0 : clamp(ls / (ld + ls), 0.05, 0.95)));
-    }
+    // render.rs brdf_at: the material with its maps at the interpolated uv, then Brdf::new
+    vec4 t4 = tri_data[6u * ti + 4u];
+    vec2 uv = t4.xy * b0 + t4.zw * b1 + tri_data[6u * ti + 5u].xy * b2;
+    Brdf b = brdf_from_material(material_at(mats[mi], uv, material_textures));
     vec3 x = p + ng * (3e-5 * (1.0 + max(max(abs(p.x), abs(p.y)), abs(p.z))));
     vec3 l = vec3(0.0);
     // environment sample

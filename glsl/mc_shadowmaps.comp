@@ -8,11 +8,14 @@ layout(local_size_x = 8, local_size_y = 8) in;
 layout(binding = 0) uniform sampler2D gb_position;
 layout(binding = 1) uniform sampler2D gb_normal;
 layout(binding = 2) uniform sampler2D gb_uv_mat;
-layout(std430, binding = 3) readonly buffer Materials { vec4 mats[]; };
+#include "common.glsl"
+// the scene's materials (passes/src/scene_gpu.rs material_table, read through material.glsl)
+layout(std430, binding = 3) readonly buffer Materials { MaterialData mats[]; };
 layout(std430, binding = 4) readonly buffer Maps { vec4 maps[]; };
 layout(std430, binding = 5) readonly buffer Depth { float depth[]; };
 layout(std430, binding = 6) readonly buffer EnvTexels { vec4 env_texels[]; };
 layout(binding = 7, rgba32f) uniform writeonly image2D hdr;
+layout(binding = 8) uniform sampler2DArray material_textures;
 layout(push_constant) uniform Push {
     mat4 inv_view_proj;
     uvec4 size_count;   // width, height, K, S
@@ -21,9 +24,9 @@ layout(push_constant) uniform Push {
     vec4 sphere;        // scene bounding sphere centre, radius
 } pc;
 
-#include "common.glsl"
 #define M_PI 3.14159265358979323846
 #define M_TAU 6.28318530717958647692
+#include "material.glsl"
 #include "brdf_ref.glsl"
 
 vec3 env_radiance(vec3 dw) {
@@ -91,7 +94,7 @@ void main() {
     vec3 bt = cross(ns, tt);
     vec3 wo = vec3(dot(wo_w, tt), dot(wo_w, bt), dot(wo_w, ns));
     uint mi = uint(uvm.z + 0.5);
-    Brdf b = brdf_from_table(mats[4u * mi], mats[4u * mi + 1u], mats[4u * mi + 2u]);
+    Brdf b = brdf_from_material(material_at(mats[mi], uvm.xy, material_textures));
     vec3 l = vec3(0.0);
     for (uint k = 0u; k < pc.size_count.z; k++) {
         vec3 wi = maps[4u * k].xyz;

@@ -25,6 +25,8 @@ layout(set = 0, binding = 5) uniform sampler2D env_map;
 layout(set = 0, binding = 6, rgba32f) uniform writeonly image2D hdr;
 layout(set = 0, binding = 12) readonly buffer Lights { LightData lights[]; };
 layout(set = 0, binding = 13) uniform sampler2D vtx_radiance;
+layout(set = 0, binding = 14) uniform sampler2DArray material_textures;
+#include "material.glsl"
 layout(push_constant) uniform Push { uint n_inst; uint tensor_count; uint light_count; uint srf; uint window; uint mode; } pc;
 
 // Local lights (as shade_env.comp's local_lights, same BRDFs), pointwise: the specular lobe
@@ -123,7 +125,7 @@ void main() {
     }
     vec3 pos = texelFetch(gb_position, p, 0).xyz;
     vec3 n = oct_decode(texelFetch(gb_normal, p, 0).xy);
-    MaterialData m = mats[uint(uvm.z)];
+    MaterialData m = material_at(mats[uint(uvm.z)], uvm.xy, material_textures);
     uint self_inst = uint(uvm.w + 0.5) - 1u;
     vec3 diffuse;
     if (pc.mode == 1u) {

@@ -15,6 +15,7 @@ layout(set = 0, binding = 5) uniform sampler2D env_map;
 layout(set = 0, binding = 6, rgba32f) uniform writeonly image2D hdr;
 layout(set = 0, binding = 7) readonly buffer Lights { LightData lights[]; };
 layout(set = 0, binding = 8) uniform sampler2DArray material_textures;
+#include "material.glsl"
 layout(push_constant) uniform Push { uint light_count; } pc;
 
 // Radiance reflected from local lights, unshadowed. Point and spot lights: radiant intensity
@@ -97,12 +98,8 @@ void main() {
     int kind = int(m.albedo_kind.w + 0.5);
     // Spatially varying materials: albedo map multiplies albedo, roughness map (G) multiplies
     // roughness and the Phong exponent follows 2 / r^2 - 2 (as in the reference renderer).
-    if (m.extra.y >= 0.0) albedo *= textureLod(material_textures, vec3(uvm.xy, m.extra.y), 0.0).rgb;
-    if (m.extra.z >= 0.0) {
-        float r = clamp(m.spec_rough.w * textureLod(material_textures, vec3(uvm.xy, m.extra.z), 0.0).g, 0.0, 1.0);
-        m.spec_rough.w = r;
-        m.extra.x = 2.0 / max(r * r, 1e-4) - 2.0;
-    }
+    m = material_at(m, uvm.xy, material_textures);
+    albedo = m.albedo_kind.rgb;
     vec3 color = albedo / PI * sh9_irradiance(cam.sh, n) * cam.params.w;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
     color += local_lights(pos, n, v, albedo, kind, m, roughness);

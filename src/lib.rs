@@ -13,16 +13,19 @@
 //! the application's (`Context::from_external`), then render into an imported image
 //! ([`Renderer::render`] with a `target`). See `examples/embed.rs`.
 
+mod error;
+pub use error::{Error, ErrorKind};
+
 pub use penumbra_engine as engine;
 pub use penumbra_passes as passes;
 pub use penumbra_scene as scene;
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use glam::Mat4;
 use penumbra_engine::graph::compile::CompiledGraph;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Context, ContextDesc, Engine, FrameOutput, Graph, ImportedImage, SubmitSync};
-use penumbra_passes::effect::{Effect, EffectInputs, EffectOverrides};
+use penumbra_passes::effect::{Effect, EffectOverrides};
 use penumbra_passes::env::EnvMapGpu;
 use penumbra_passes::scene_gpu::FrameConstants;
 use penumbra_passes::technique::{Technique, TechniqueInputs};
@@ -47,8 +50,12 @@ pub struct RenderSettings {
     pub tonemap: TonemapParams,
     /// Frames the GPU may work on at once (readbacks arrive that many frames later).
     pub frames_in_flight: usize,
-    /// Overrides the scene's `technique` (an unimplemented name is then an error).
+    /// Overrides the scene's `technique` (any name not in `passes::registry` is an error).
     pub technique: Option<String>,
+    /// The technique's parameters. `None`: the scene file's `[technique_params]` when the
+    /// technique is the scene's own, none otherwise (a scene's parameters belong to its
+    /// technique); `Some`: exactly these (`--param`s merged over the scene's by the CLI).
+    pub technique_params: Option<penumbra_passes::registry::Params>,
     /// Also read back every G-buffer and intermediate image ([`FrameImages::dumps`]).
     pub dump_passes: bool,
     /// Overrides of the scene's effect choices.
@@ -63,6 +70,7 @@ impl Default for RenderSettings {
             tonemap: TonemapParams::default(),
             frames_in_flight: 2,
             technique: None,
+            technique_params: None,
             dump_passes: false,
             effects: EffectOverrides::default(),
         }
@@ -139,6 +147,24 @@ pub fn decode_texels(format: vk::Format, bytes: &[u8]) -> Option<Vec<[f32; 4]>> 
     })
 }
 
+/// The technique `settings` choose for `scene` and its parameters: `settings.technique` or the
+/// scene's; `settings.technique_params`, or the scene file's when the technique is the scene's
+/// own. An unregistered name is an error naming the scene file it came from.
+pub fn resolve_technique(scene: &Scene, settings: &RenderSettings) -> Result<(String, penumbra_passes::registry::Params), Error> {
+    let name = settings.technique.clone().unwrap_or_else(|| scene.technique.clone());
+    if let Err(e) = penumbra_passes::registry::lookup(&name) {
+        // the name came from the scene file unless the settings override it
+        let file = if settings.technique.is_none() { scene.source.as_deref() } else { None };
+        return Err(Error::bad_input(file, e.to_string()));
+    }
+    let params = match &settings.technique_params {
+        Some(p) => p.clone(),
+        None if name == scene.technique => scene.technique_params.clone(),
+        None => Default::default(),
+    };
+    Ok((name, params))
+}
+
 /// Builds and runs penumbra's frame graph for one scene.
 pub struct Renderer {
     // Passes hold pipelines on the context: drop them before the engine.
@@ -165,13 +191,13 @@ pub struct Renderer {
 
 impl Renderer {
     /// A renderer on a device of its own (no window).
-    pub fn new_headless(scene: &Scene, settings: RenderSettings, validation: bool) -> Result<Self> {
-        let ctx = Context::new(&ContextDesc { validation, ..Default::default() })?;
+    pub fn new_headless(scene: &Scene, settings: RenderSettings, validation: bool) -> Result<Self, Error> {
+        let ctx = Context::new(&ContextDesc { validation, ..Default::default() }).map_err(|e| Error::classify(e, None))?;
         Self::new(ctx, scene, settings)
     }
 
     /// A renderer on an existing context (own or the application's).
-    pub fn new(ctx: Arc<Context>, scene: &Scene, settings: RenderSettings) -> Result<Self> {
+    pub fn new(ctx: Arc<Context>, scene: &Scene, settings: RenderSettings) -> Result<Self, Error> {
         Self::new_with_shaders(ctx, scene, settings, &shader_library())
     }
 
@@ -182,23 +208,27 @@ impl Renderer {
         scene: &Scene,
         settings: RenderSettings,
         shaders: &ShaderLibrary,
-    ) -> Result<Self> {
+    ) -> Result<Self, Error> {
         if settings.width == 0 || settings.height == 0 || settings.width > 16384 || settings.height > 16384 {
-            bail!("image size {}x{} is out of range (1..16384)", settings.width, settings.height);
+            return Err(Error::bad_input(
+                None,
+                format!("image size {}x{} is out of range (1..16384)", settings.width, settings.height),
+            ));
         }
+        let (name, params) = resolve_technique(scene, &settings)?;
+        Self::create(ctx, scene, settings, shaders, &name, &params).map_err(|e| Error::classify(e, scene.source.as_deref()))
+    }
+
+    fn create(
+        ctx: Arc<Context>,
+        scene: &Scene,
+        settings: RenderSettings,
+        shaders: &ShaderLibrary,
+        name: &str,
+        params: &penumbra_passes::registry::Params,
+    ) -> Result<Self> {
         let engine = Engine::new(ctx.clone(), settings.frames_in_flight)?;
-        let name = settings.technique.clone().unwrap_or_else(|| scene.technique.clone());
-        let technique = match penumbra_passes::technique::create(&name, &ctx, shaders, scene)? {
-            Some(t) => t,
-            None if settings.technique.is_some() => bail!(
-                "technique '{name}' is not implemented (implemented: {})",
-                penumbra_passes::technique::IMPLEMENTED.join(", ")
-            ),
-            // A scene naming a technique still to come renders with the default (reported by
-            // `Renderer::limitations`).
-            None => penumbra_passes::technique::create(penumbra_scene::DEFAULT_TECHNIQUE, &ctx, shaders, scene)?
-                .expect("the default technique exists"),
-        };
+        let technique = penumbra_passes::registry::create(name, &ctx, shaders, scene, params)?;
         let effects = penumbra_passes::effect::create_for(scene, &ctx, shaders, &settings.effects)?;
         Ok(Renderer {
             gbuffer: GBufferPass::new(&ctx, shaders)?,
@@ -218,18 +248,11 @@ impl Renderer {
         })
     }
 
-    /// What this renderer does not (yet) do for `scene`, to be shown to the user rather than
+    /// What this renderer does not do for `scene`, to be shown to the user rather than
     /// silently ignored.
     pub fn limitations(scene: &Scene) -> Vec<String> {
         let req = scene.requirements();
         let mut v = Vec::new();
-        if !penumbra_passes::technique::IMPLEMENTED.contains(&scene.technique.as_str()) {
-            v.push(format!(
-                "technique '{}' is not implemented yet; rendering with '{}' (environment and local lights, no shadows)",
-                scene.technique,
-                penumbra_scene::DEFAULT_TECHNIQUE
-            ));
-        }
         if scene.technique == "env" && (req.local_lights || req.environment_light) {
             v.push("technique 'env' renders no shadows (try --technique mc, shadowmaps, isg, ...)".into());
         }
@@ -255,6 +278,13 @@ impl Renderer {
         self.technique.limitations(&self.scene)
     }
 
+    /// The technique's statistics of its last frame as its own type `T` (e.g.
+    /// `passes::avs::AvsStats`, `passes::vv::VvStats`); `None` when the technique keeps none or
+    /// keeps another type.
+    pub fn technique_stats<T: 'static>(&self) -> Option<T> {
+        self.technique.stats()?.downcast::<T>().ok().map(|b| *b)
+    }
+
     /// For a Monte Carlo technique, the samples per pixel of its last image.
     pub fn technique_samples_per_pixel(&self) -> Option<u32> {
         self.technique.samples_per_pixel()
@@ -277,7 +307,11 @@ impl Renderer {
     /// (written as a storage image when it is `R8G8B8A8_UNORM` with STORAGE usage, else blitted
     /// into: it then needs TRANSFER_DST usage and a blittable colour format); with `readback`, the HDR and
     /// LDR images are copied to host memory and returned by [`Renderer::render`].
-    pub fn build_graph(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Result<Graph> {
+    pub fn build_graph(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Result<Graph, Error> {
+        self.build_graph_inner(frame, target, readback).map_err(|e| Error::classify(e, None))
+    }
+
+    fn build_graph_inner(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Result<Graph> {
         let (w, h) = (self.settings.width, self.settings.height);
         let mut g = Graph::new();
         let mut constants = FrameConstants::new(frame, self.prev_view_proj, w, h);
@@ -291,11 +325,8 @@ impl Renderer {
         let env = self.env.add(&mut self.engine, &mut g);
         let (scene, draws) = self.scene_gpu.add(&mut g, frame, &constants);
         let gb = self.gbuffer.add(&mut g, &scene, draws.clone(), w, h);
-        let inputs = TechniqueInputs { frame, scene: &scene, gbuffer: &gb, env, env_data: &self.env };
-        let t0 = std::time::Instant::now();
-        let mut hdr = self.technique.add(&mut self.engine, &mut g, &inputs)?;
-        self.technique_cpu_ms = t0.elapsed().as_secs_f64() * 1e3;
-        let inputs = EffectInputs {
+        // one set of frame inputs for the technique and the effects
+        let inputs = TechniqueInputs {
             scene: &self.scene,
             frame,
             handles: &scene,
@@ -304,6 +335,9 @@ impl Renderer {
             env,
             env_data: &self.env,
         };
+        let t0 = std::time::Instant::now();
+        let mut hdr = self.technique.add(&mut self.engine, &mut g, &inputs)?;
+        self.technique_cpu_ms = t0.elapsed().as_secs_f64() * 1e3;
         for e in &mut self.effects {
             hdr = e.add(&mut self.engine, &mut g, &inputs, hdr)?;
         }
@@ -351,7 +385,7 @@ impl Renderer {
     }
 
     /// Builds, compiles and submits one frame; returns the frames that finished meanwhile.
-    pub fn render(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Result<Vec<FrameImages>> {
+    pub fn render(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Result<Vec<FrameImages>, Error> {
         self.render_with(frame, target, readback, &SubmitSync::default())
     }
 
@@ -363,14 +397,14 @@ impl Renderer {
         target: Option<ImportedImage>,
         readback: bool,
         sync: &SubmitSync,
-    ) -> Result<Vec<FrameImages>> {
+    ) -> Result<Vec<FrameImages>, Error> {
         let g = self.build_graph(frame, target, readback)?;
         let (compiled, done) = match self.engine.submit_with(g, sync) {
             Ok(r) => r,
             Err(e) => {
                 // One-time uploads declared in the failed frame must be declared again.
                 self.scene_gpu.invalidate_uploads();
-                return Err(e);
+                return Err(Error::classify(e, None));
             }
         };
         self.last_graph = Some(compiled);
@@ -378,8 +412,8 @@ impl Renderer {
     }
 
     /// Waits for every frame in flight.
-    pub fn finish(&mut self) -> Result<Vec<FrameImages>> {
-        let done = self.engine.drain()?;
+    pub fn finish(&mut self) -> Result<Vec<FrameImages>, Error> {
+        let done = self.engine.drain().map_err(|e| Error::classify(e, None))?;
         Ok(done.into_iter().map(|o| self.decode(o)).collect())
     }
 

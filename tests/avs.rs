@@ -8,13 +8,15 @@ use penumbra_reference::metrics::compare;
 use penumbra_reference::render::{render as reference_render, Mode, ReferenceOptions};
 use penumbra_scene::Scene;
 use std::path::PathBuf;
-use std::sync::Mutex;
-
-// The technique's last-frame statistics are process-global: tests reading them run one at a time.
-static SERIAL: Mutex<()> = Mutex::new(());
+use penumbra_passes::avs::AvsStats;
 
 mod common;
 use common::{hdr_image as image, render_times as render, scene, with};
+
+/// The avs technique's statistics of `r`'s last frame.
+fn avs_stats(r: &Renderer) -> AvsStats {
+    r.technique_stats::<AvsStats>().expect("avs keeps statistics")
+}
 
 /// Writes `img` as an sRGB PNG (exposure 1, clamped) into `$AVS_DUMP/name.png` when set.
 fn dump(img: &Image, name: &str) {
@@ -40,10 +42,9 @@ const FAST: &[(&str, &str)] = &[("r", "32"), ("points", "96"), ("iterations", "1
 
 #[test]
 fn paper_scenes_are_validation_clean_and_points_follow_vertices() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     for name in ["hat_on_cloth.toml", "balls_on_dish.toml", "falling.toml"] {
         let s = with(&scene(name), FAST);
-        let settings = RenderSettings { width: 64, height: 48, technique: Some("avs".into()), ..Default::default() };
+        let settings = RenderSettings { width: 64, height: 48, technique: Some("avs".into()), technique_params: Some(s.technique_params.clone()), ..Default::default() };
         let mut r = Renderer::new_headless(&s, settings, true).expect("renderer");
         let mut frames = Vec::new();
         let mut stats = Vec::new();
@@ -52,7 +53,7 @@ fn paper_scenes_are_validation_clean_and_points_follow_vertices() {
             let f = s.at(t, prev);
             prev = Some(t);
             frames.extend(r.render(&f, None, true).expect("render"));
-            stats.push((penumbra_passes::avs::last_stats(), f));
+            stats.push((avs_stats(&r), f));
         }
         frames.extend(r.finish().expect("finish"));
         let log = r.context().validation.clone();
@@ -78,16 +79,15 @@ fn paper_scenes_are_validation_clean_and_points_follow_vertices() {
 
 #[test]
 fn accuracy_against_the_reference() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let s = scene("hat_on_cloth.toml");
     let (w, h) = (80, 60);
     let t = 0.5;
     let opts = ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::Exact, ..Default::default() };
     let sg_ref = reference_render(&s, &opts).expect("reference");
     let fast = with(&s, &[("r", "64"), ("points", "240"), ("iterations", "1")]);
-    let (_r, avs) = render(&fast, "avs", w, h, &[t], false);
+    let (r_avs, avs) = render(&fast, "avs", w, h, &[t], false);
     if std::env::var("AVS_DUMP").is_ok() {
-        let st = penumbra_passes::avs::last_stats();
+        let st = avs_stats(&r_avs);
         let pool = penumbra_passes::avs::vertex_pool(&fast, &fast.at(t, None)).unwrap();
         for (i, &v) in st.point_vertices.iter().enumerate() {
             println!("point {i}: {:?} n {:?} visible {:.3}", pool[v].pos, pool[v].normal, st.visible_fraction[i]);
@@ -140,15 +140,14 @@ fn parameters_are_checked() {
 
 #[test]
 fn extremes_free_hemispheres_and_points_following_deformation() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     // Nothing casts a shadow: every map is fully visible (SSDF +pi everywhere), so the image equals
     // the unshadowed one.
     let mut s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "48"), ("iterations", "0")]);
     for info in s.object_info.iter_mut() {
         info.casts_shadow = false;
     }
-    let (_r, free) = render(&s, "avs", 40, 30, &[0.5], false);
-    let st = penumbra_passes::avs::last_stats();
+    let (r, free) = render(&s, "avs", 40, 30, &[0.5], false);
+    let st = avs_stats(&r);
     assert!(st.visible_fraction.iter().all(|v| (v - 1.0).abs() < 2e-3), "not all maps free: {:?}", st.visible_fraction);
     let (_r, open) = render(&with(&s, &[("shadows", "false")]), "avs", 40, 30, &[0.5], false);
     for (a, b) in free[0].hdr.iter().zip(&open[0].hdr) {
@@ -160,14 +159,14 @@ fn extremes_free_hemispheres_and_points_following_deformation() {
     // both frames, at their deformed positions (the hat squashes).
     // (culling off: with it the second frame traces only the points the first frame's pixels used)
     let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "48"), ("iterations", "0"), ("cull", "false")]);
-    let settings = RenderSettings { width: 40, height: 30, technique: Some("avs".into()), ..Default::default() };
+    let settings = RenderSettings { width: 40, height: 30, technique: Some("avs".into()), technique_params: Some(s.technique_params.clone()), ..Default::default() };
     let mut r = Renderer::new_headless(&s, settings, false).expect("renderer");
     let f0 = s.at(0.0, None);
     r.render(&f0, None, true).expect("render");
-    let a = penumbra_passes::avs::last_stats();
+    let a = avs_stats(&r);
     let f1 = s.at(0.5, Some(0.0));
     r.render(&f1, None, true).expect("render");
-    let b = penumbra_passes::avs::last_stats();
+    let b = avs_stats(&r);
     r.finish().expect("finish");
     assert_eq!(a.point_vertices, b.point_vertices);
     let (p0, p1) = (penumbra_passes::avs::vertex_pool(&s, &f0).unwrap(), penumbra_passes::avs::vertex_pool(&s, &f1).unwrap());
@@ -193,8 +192,7 @@ fn scene_text(name: &str, toml: &str) -> Scene {
     s
 }
 
-fn floor_points(scene: &Scene, t: f32) -> Vec<(usize, penumbra_math::avs_sampling::SurfacePoint)> {
-    let st = penumbra_passes::avs::last_stats();
+fn floor_points(st: &AvsStats, scene: &Scene, t: f32) -> Vec<(usize, penumbra_math::avs_sampling::SurfacePoint)> {
     let pool = penumbra_passes::avs::vertex_pool(scene, &scene.at(t, None)).unwrap();
     st.point_vertices.iter().enumerate().map(|(i, &v)| (i, pool[v])).collect()
 }
@@ -223,7 +221,6 @@ const SKY: &str = "[environment]\nprocedural = \"sky\"\nintensity = 1.0\n";
 
 #[test]
 fn extremes_whole_hemisphere_occluded_or_free() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     // A floor under a 400 x 400 ceiling 0.3 above it: from every floor point the gap at the horizon
     // is below 0.0016 rad, under the lowest texel centres (at the poles next to the seam,
     // sin^2(h/2) = 0.0024 rad at r = 32; a 40 x 40 ceiling leaves 0.016 rad and those corner
@@ -238,9 +235,10 @@ fn extremes_whole_hemisphere_occluded_or_free() {
     let fast = [("r", "32"), ("iterations", "0")];
     let cave = with(&scene_text("cave", &format!("{base}{ceiling}")), &fast);
     for mode in ["axis", "cells", "table", "adf"] {
-        let (_r, dark) = render(&with(&cave, &[("integration", mode)]), "avs", 48, 36, &[0.0], false);
-        let pts = floor_points(&cave, 0.0);
-        let vf = penumbra_passes::avs::last_stats().visible_fraction;
+        let (r, dark) = render(&with(&cave, &[("integration", mode)]), "avs", 48, 36, &[0.0], false);
+        let st = avs_stats(&r);
+        let pts = floor_points(&st, &cave, 0.0);
+        let vf = st.visible_fraction;
         let (floor, top): (Vec<_>, Vec<_>) = pts.iter().partition(|(_, p)| p.pos.y < 0.15);
         assert!(!floor.is_empty() && !top.is_empty(), "{mode}: {} floor / {} ceiling points", floor.len(), top.len());
         for (i, p) in &floor {
@@ -267,8 +265,8 @@ fn extremes_whole_hemisphere_occluded_or_free() {
     }
     // Without the ceiling every floor map is free and shading equals the unshadowed image.
     let open_sky = with(&scene_text("open_sky", &base), &fast);
-    let (_r, free) = render(&open_sky, "avs", 48, 36, &[0.0], false);
-    let vf = penumbra_passes::avs::last_stats().visible_fraction;
+    let (r, free) = render(&open_sky, "avs", 48, 36, &[0.0], false);
+    let vf = avs_stats(&r).visible_fraction;
     assert!(vf.iter().all(|v| (v - 1.0).abs() < 2e-3), "free floor maps: {vf:?}");
     let (_r, open) = render(&with(&open_sky, &[("shadows", "false")]), "avs", 48, 36, &[0.0], false);
     for (a, b) in free[0].hdr.iter().zip(&open[0].hdr) {
@@ -280,7 +278,6 @@ fn extremes_whole_hemisphere_occluded_or_free() {
 
 #[test]
 fn extremes_slim_occluder_thinner_than_an_initial_ray_cell() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     slim_bar(128);
 }
 
@@ -320,9 +317,9 @@ fn slim_bar(r: u32) {
     let run = |adaptive: bool, k: u32| {
         let ks = k.to_string();
         let p = [("r", rs.as_str()), ("points", "169"), ("iterations", "0"), ("ray_neighbours", ks.as_str()), ("adaptive", if adaptive { "true" } else { "false" })];
-        let _ = render(&with(&s, &p), "avs", 16, 12, &[0.0], false);
-        let st = penumbra_passes::avs::last_stats();
-        (floor_points(&with(&s, &p), 0.0), st.visible_fraction, st.rays)
+        let (renderer, _) = render(&with(&s, &p), "avs", 16, 12, &[0.0], false);
+        let st = avs_stats(&renderer);
+        (floor_points(&st, &with(&s, &p), 0.0), st.visible_fraction.clone(), st.rays)
     };
     let (pts, vf_bf, rays_bf) = run(false, 0);
     let (pts_a, vf_a0, rays_a0) = run(true, 0);
@@ -456,9 +453,9 @@ fn light_visibility_agreement(dir_local: glam::Vec3, r: u32, tag: &str, extra: &
     );
     let s = with(&with(&scene_text(&format!("wall_{tag}"), &toml), &[("r", &r.to_string()), ("iterations", "0")]), extra);
     let (w, h) = (48u32, 48u32);
-    let (_r, shad) = render(&s, "avs", w, h, &[0.0], false);
+    let (renderer, shad) = render(&s, "avs", w, h, &[0.0], false);
     // one mean sample spacing (the search radius is `radius` = 2 spacings)
-    let spacing = 0.5 * penumbra_passes::avs::last_stats().radius;
+    let spacing = 0.5 * avs_stats(&renderer).radius;
     let (_r, open) = render(&with(&s, &[("shadows", "false")]), "avs", w, h, &[0.0], false);
     let frame = s.at(0.0, None);
     let cam = &frame.camera;
@@ -503,7 +500,6 @@ fn light_visibility_agreement(dir_local: glam::Vec3, r: u32, tag: &str, extra: &
 
 #[test]
 fn extremes_light_at_the_map_pole_and_seam() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     // Local frame of the floor points: x = tangent (theta = 0 pole), y = bitangent (phi = 0 seam).
     // A light at 6 degrees elevation along +x lies 6-20 degrees from the pole of every floor map;
     // along +y / -y it lies 6 degrees from the phi = 0 / phi = pi seam columns. Measured (48 x 48,
@@ -540,14 +536,11 @@ fn assert_light_agreement(dir: glam::Vec3, r: u32, tag: &str, params: &[(&str, &
 fn extremes_r256_maps_and_fp16_shading() {
     use penumbra_math::avs_maps::{texel_dir_f32, texel_solid_angle};
     use penumbra_math::avs_sampling::point_frame;
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let (s, bar, boxx, half) = bar_scene();
     let r = 256u32;
-    let s = with(&s, &[("r", "256"), ("points", "24"), ("iterations", "0"), ("adaptive", "false")]);
-    penumbra_passes::avs::capture_maps(true);
-    let _ = render(&s, "avs", 16, 12, &[0.0], false);
-    penumbra_passes::avs::capture_maps(false);
-    let st = penumbra_passes::avs::last_stats();
+    let s = with(&s, &[("r", "256"), ("points", "24"), ("iterations", "0"), ("adaptive", "false"), ("capture_maps", "true")]);
+    let (renderer, _) = render(&s, "avs", 16, 12, &[0.0], false);
+    let st = avs_stats(&renderer);
     assert_eq!(st.truncated, 0, "visibility passes hit the loop limit");
     // without adaptivity only the final level runs: every texel traced once
     let per_map = (r * r) as u64;
@@ -565,7 +558,7 @@ fn extremes_r256_maps_and_fp16_shading() {
     };
     let (mut floor, mut sure, mut wrong, mut occluded) = (0usize, 0usize, 0usize, 0usize);
     let mut worst_dc = 0.0f64;
-    for (i, p) in floor_points(&s, 0.0) {
+    for (i, p) in floor_points(&st, &s, 0.0) {
         let map = &st.maps[i];
         // the SH16 DC against the map's visible solid angle (every point, objects included)
         let mut vis_sa = 0.0f64;
@@ -605,20 +598,19 @@ fn extremes_r256_maps_and_fp16_shading() {
 
 #[test]
 fn gbuffer_culling_traces_only_needed_points_and_keeps_the_image() {
-    let _g = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     // Two frames of a static moment. Without adaptation rounds the sample set is fixed, so the
     // second frame's shading must pick exactly the same neighbours from the flagged points as from
     // all points: the culled image equals the unculled one, with fewer maps traced.
     let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "160"), ("iterations", "0")]);
     let two = |cull: &str| {
         let s = with(&s, &[("cull", cull)]);
-        let settings = RenderSettings { width: 64, height: 48, technique: Some("avs".into()), ..Default::default() };
+        let settings = RenderSettings { width: 64, height: 48, technique: Some("avs".into()), technique_params: Some(s.technique_params.clone()), ..Default::default() };
         let mut r = Renderer::new_headless(&s, settings, true).expect("renderer");
         let mut out = Vec::new();
         let mut stats = Vec::new();
         for prev in [None, Some(0.5)] {
             out.extend(r.render(&s.at(0.5, prev), None, true).expect("render"));
-            stats.push(penumbra_passes::avs::last_stats());
+            stats.push(avs_stats(&r));
         }
         out.extend(r.finish().expect("finish"));
         let log = r.context().validation.clone();

@@ -1,4 +1,6 @@
-//! Every built-in scene (and a bare glTF model) renders on the device with validation clean.
+//! Every built-in scene (and a bare glTF model) renders on the device with validation clean and
+//! the frame graph its requirements call for; every registered technique can be named by a scene
+//! file.
 
 mod common;
 
@@ -18,6 +20,9 @@ fn scene_files() -> Vec<PathBuf> {
     v
 }
 
+/// Every built-in scene through the renderer with the unshadowed `env` technique (the scenes'
+/// own techniques, with their parameters, render validation clean in the accuracy matrix,
+/// `tools/tests/matrix.rs`): validation clean, finite, lit, and the graph the scene needs.
 #[test]
 fn every_builtin_scene_renders_validation_clean() {
     std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
@@ -26,7 +31,16 @@ fn every_builtin_scene_renders_validation_clean() {
     let mut failures = Vec::new();
     for f in files {
         let scene = Scene::load(&f).unwrap_or_else(|e| panic!("{e}"));
-        let (r, frames) = render_frames(&scene, 96, 72, 3, true);
+        let settings = penumbra::RenderSettings { width: 64, height: 48, technique: Some("env".into()), ..Default::default() };
+        let mut r = penumbra::Renderer::new_headless(&scene, settings, true).unwrap_or_else(|e| panic!("{}: {e:#}", f.display()));
+        let mut frames = Vec::new();
+        let mut prev = None;
+        for k in 0..3 {
+            let t = k as f32 / 30.0;
+            frames.extend(r.render(&scene.at(t, prev), None, true).unwrap_or_else(|e| panic!("{}: {e:#}", f.display())));
+            prev = Some(t);
+        }
+        frames.extend(r.finish().unwrap());
         let log = r.context().validation.clone();
         let graph = r.last_graph.clone().unwrap();
         drop(r);
@@ -117,69 +131,77 @@ fn acceleration_structures_are_rebuilt_only_for_changing_geometry() {
     assert!(frames.iter().all(|f| builds(f) > 0), "moving scene must rebuild every frame: {frames:?}");
 }
 
+/// A static-only technique refuses a moving scene with a message naming why. (Every technique
+/// on every scene renders validation clean in the accuracy matrix, `tools/tests/matrix.rs`,
+/// which runs each cell under synchronization validation.)
 #[test]
-fn every_implemented_technique_renders_through_the_renderer_validation_clean() {
-    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes");
-    // A textured static scene and a moving one.
-    let scenes = [Scene::load(dir.join("chess.toml")).unwrap(), Scene::load(dir.join("falling.toml")).unwrap()];
-    let mut failures = Vec::new();
-    for technique in penumbra_passes::technique::IMPLEMENTED {
-        if penumbra_passes::technique::STATIC_ONLY.contains(technique) {
-            // Static geometry only (tests/vv.rs renders its static scene through the renderer,
-            // validation clean): the moving scene must be refused with a message naming why.
-            let settings = penumbra::RenderSettings {
-                width: 48,
-                height: 36,
-                technique: Some(technique.to_string()),
-                ..Default::default()
-            };
-            match penumbra::Renderer::new_headless(&scenes[1], settings, false) {
-                Ok(_) => failures.push(format!("{technique}/falling: a static-only technique accepted a moving scene")),
-                Err(e) if format!("{e:#}").contains("static") => {}
-                Err(e) => failures.push(format!("{technique}/falling: unclear refusal: {e:#}")),
-            }
-            continue;
-        }
-        for scene in &scenes {
-            let settings = penumbra::RenderSettings {
-                width: 48,
-                height: 36,
-                technique: Some(technique.to_string()),
-                ..Default::default()
-            };
-            let mut r = match penumbra::Renderer::new_headless(scene, settings, true) {
-                Ok(r) => r,
-                Err(e) => {
-                    failures.push(format!("{technique}/{}: {e:#}", scene.name));
-                    continue;
-                }
-            };
-            let mut frames = Vec::new();
-            let mut prev = None;
-            for k in 0..2 {
-                let t = k as f32 / 30.0;
-                match r.render(&scene.at(t, prev), None, true) {
-                    Ok(f) => frames.extend(f),
-                    Err(e) => failures.push(format!("{technique}/{} frame {k}: {e:#}", scene.name)),
-                }
-                prev = Some(t);
-            }
-            frames.extend(r.finish().unwrap_or_default());
-            let log = r.context().validation.clone();
-            drop(r);
-            if log.error_count() > 0 {
-                failures.push(format!(
-                    "{technique}/{}: {} validation errors: {:?}",
-                    scene.name,
-                    log.error_count(),
-                    log.errors()
-                ));
-            }
-            if frames.len() != 2 || frames.iter().any(|f| f.hdr.iter().flatten().any(|c| !c.is_finite())) {
-                failures.push(format!("{technique}/{}: missing frames or non-finite radiance", scene.name));
-            }
+fn static_only_techniques_refuse_moving_scenes() {
+    let falling = Scene::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/falling.toml")).unwrap();
+    let static_only: Vec<_> = penumbra_passes::registry::REGISTRY.iter().filter(|t| t.static_only).collect();
+    assert!(!static_only.is_empty());
+    for info in static_only {
+        let settings = penumbra::RenderSettings { width: 48, height: 36, technique: Some(info.name.to_string()), ..Default::default() };
+        match penumbra::Renderer::new_headless(&falling, settings, false) {
+            Ok(_) => panic!("{}: a static-only technique accepted a moving scene", info.name),
+            Err(e) => assert!(format!("{e:#}").contains("static"), "{}: unclear refusal: {e:#}", info.name),
         }
     }
+}
+
+/// Every registered technique can be named by a scene file: the scene loads with the name as
+/// written and the renderer builds and renders it (no `--technique` override); an unregistered
+/// name is an error naming the file and listing the registered techniques.
+#[test]
+fn every_registered_technique_can_be_named_by_a_scene_file() {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("technique_in_scene_file");
+    std::fs::create_dir_all(&dir).unwrap();
+    let body = "[camera]\neye = [0.0, 1.2, 2.5]\ntarget = [0.0, 0.3, 0.0]\n\n[environment]\nprocedural = \"sky\"\n\n\
+                [materials.clay]\ntype = \"diffuse\"\nalbedo = 0.6\n\n\
+                [[object]]\nname = \"ground\"\nmesh = { type = \"plane\", size = 3 }\nmaterial = \"clay\"\ncasts_shadow = false\n\n\
+                [[object]]\nname = \"ball\"\nmesh = { type = \"icosphere\", radius = 0.3, subdivisions = 1 }\nmaterial = \"clay\"\nposition = [0.0, 0.3, 0.0]\n";
+    // Small settings for the techniques with precomputes, from the file's [technique_params].
+    let params = |name: &str| match name {
+        "isg" | "isg-vertex" => "lobes = 4\nspheres = 8\nside = 6\n",
+        "avs" => "r = 32\npoints = 16\niterations = 0\n",
+        "shadow-fields" | "shadow-fields-fixed" => "shells = 4\nresolution = 8\nmap_res = 8\n",
+        "vv" => "resolution = 16\nsat_width = 64\narcs = 8\n",
+        _ => "",
+    };
+    let mut failures = Vec::new();
+    for info in penumbra_passes::registry::REGISTRY {
+        let path = dir.join(format!("{}.toml", info.name));
+        let p = params(info.name);
+        let table = if p.is_empty() { String::new() } else { format!("\n[technique_params]\n{p}") };
+        std::fs::write(&path, format!("technique = \"{}\"\n{body}{table}", info.name)).unwrap();
+        let scene = match Scene::load(&path) {
+            Ok(s) => s,
+            Err(e) => {
+                failures.push(format!("{}: {e}", info.name));
+                continue;
+            }
+        };
+        assert_eq!(scene.technique, info.name);
+        let settings = penumbra::RenderSettings { width: 16, height: 12, frames_in_flight: 1, ..Default::default() };
+        let t0 = std::time::Instant::now();
+        let rendered = penumbra::Renderer::new_headless(&scene, settings, false).and_then(|mut r| {
+            let mut frames = r.render(&scene.at(0.0, None), None, true)?;
+            frames.extend(r.finish()?);
+            Ok(frames)
+        });
+        match rendered {
+            Ok(frames) if frames.len() == 1 && frames[0].hdr.iter().flatten().all(|c| c.is_finite()) => {}
+            Ok(_) => failures.push(format!("{}: no frame or non-finite radiance", info.name)),
+            Err(e) => failures.push(format!("{}: {e:#}", info.name)),
+        }
+        println!("{}: created and rendered in {:.1} s", info.name, t0.elapsed().as_secs_f64());
+    }
     assert!(failures.is_empty(), "{failures:#?}");
+    let path = dir.join("unknown.toml");
+    std::fs::write(&path, format!("technique = \"hsdt\"\n{body}")).unwrap();
+    let scene = Scene::load(&path).expect("the scene keeps the name as written");
+    let e = penumbra::Renderer::new_headless(&scene, penumbra::RenderSettings { width: 16, height: 12, ..Default::default() }, false)
+        .err()
+        .expect("an unregistered technique is refused")
+        .to_string();
+    assert!(e.contains("unknown.toml") && e.contains("unknown technique 'hsdt'") && e.contains("avs"), "{e}");
 }

@@ -13,7 +13,7 @@ mod common;
 use common::{hdr_image as image, scene, with, with_env};
 
 fn render(scene: &Scene, w: u32, h: u32, validation: bool) -> (Renderer, Vec<FrameImages>) {
-    let settings = RenderSettings { width: w, height: h, technique: Some("vv".into()), ..Default::default() };
+    let settings = RenderSettings { width: w, height: h, technique: Some("vv".into()), technique_params: Some(scene.technique_params.clone()), ..Default::default() };
     let mut r = Renderer::new_headless(scene, settings, validation).expect("renderer");
     let mut out = Vec::new();
     for _ in 0..1 {
@@ -44,7 +44,6 @@ fn modes_render_validation_clean_and_match_the_reference() {
         // changes by >= 1/8 under the Phong-256 blur, so their triangles get level 2 or 4
         let sm = with(&s, &[("mode", mode), ("zeta", "4"), ("max_level", "4")]);
         let tess = mode.starts_with("tess");
-        penumbra_passes::vv::TESSELLATED_TRIANGLES.store(0, std::sync::atomic::Ordering::Relaxed);
         let (r, frames) = render(&sm, w, h, true);
         let log = r.context().validation.clone();
         let last = frames.last().expect("frames");
@@ -61,10 +60,11 @@ fn modes_render_validation_clean_and_match_the_reference() {
         }
         let psnr = c.psnr_db.unwrap_or(99.0);
         println!("{mode}: PSNR {psnr:.2} relRMSE {:.4} FLIP {:.4} gpu {:?}", c.rel_rmse, c.flip_mean, last.gpu_ms);
-        // the technique stores the last frame's pipeline statistics when dropped
+        // the last finished frame's pipeline statistics (the renderer has finished its frames)
+        let tessellated = r.technique_stats::<penumbra_passes::vv::VvStats>().expect("vv keeps statistics").tessellated_triangles;
         drop(r);
         if tess {
-            let n = penumbra_passes::vv::TESSELLATED_TRIANGLES.load(std::sync::atomic::Ordering::Relaxed);
+            let n = tessellated.expect("tessellated triangle count");
             println!("{mode}: {n} triangles after tessellation ({input_triangles} input)");
             assert!(n > input_triangles, "{mode}: {n} triangles after tessellation, not more than the {input_triangles} input triangles");
         }

@@ -1,5 +1,6 @@
 // BRDFs of penumbra_reference::brdf (evaluation, pdf and sampling), local frame: n = +Z,
-// tangent = +X. Shared by mc.comp and mc_shadowmaps.comp.
+// tangent = +X. Shared by mc.comp and mc_shadowmaps.comp; `brdf_from_material` builds one from a
+// material of material.glsl (include that first).
 #ifndef PENUMBRA_BRDF_REF_GLSL
 #define PENUMBRA_BRDF_REF_GLSL
 #ifndef M_PI
@@ -92,11 +93,23 @@ bool brdf_sample(Brdf b, vec3 wo, float ul, vec2 u, out vec3 wi) {
     return true;
 }
 
-// Material table of passes/src/mc.rs (first 3 of its 4 vec4 per material).
-Brdf brdf_from_table(vec4 m0, vec4 m1, vec4 m2) {
+#ifdef PENUMBRA_MATERIAL_GLSL
+// The BRDF of a material of the one material model (material.glsl's `material_at`, textures
+// applied), as penumbra_reference::brdf::Brdf::new builds it: GGX alpha = r^2 (>= 1e-3),
+// exponents nu = the shininess, nv = the second Ashikhmin-Shirley exponent, specular sampling probability from the lobes' luminance.
+Brdf brdf_from_material(MaterialData m) {
     Brdf b;
-    b.kind = uint(m0.w); b.albedo = m0.rgb; b.spec = m1.rgb; b.alpha = m1.w; b.nu = m2.x; b.nv = m2.y; b.p_spec = m2.z;
+    b.kind = uint(clamp(material_kind(m), 0, 3));
+    b.albedo = max(m.albedo_kind.rgb, vec3(0.0));
+    b.spec = clamp(m.spec_rough.rgb, vec3(0.0), vec3(1.0));
+    float r = clamp(m.spec_rough.w, 0.0, 1.0);
+    b.alpha = max(r * r, 1e-3);
+    b.nu = clamp(m.extra.x, 0.0, 1e6);
+    b.nv = clamp(m.extra.w, 0.0, 1e6);
+    float ld = dot(b.albedo, vec3(0.2126, 0.7152, 0.0722)), ls = dot(b.spec, vec3(0.2126, 0.7152, 0.0722));
+    b.p_spec = b.kind == 0u ? 0.0 : (ls <= 0.0 ? 0.0 : (ld <= 0.0 ? 1.0 : clamp(ls / (ld + ls), 0.05, 0.95)));
     return b;
 }
+#endif
 
 #endif

@@ -25,7 +25,9 @@ struct InstanceData {
 struct MaterialData {
     vec4 albedo_kind;  // rgb albedo, w kind (0 diffuse, 1 Blinn-Phong, 2 Cook-Torrance, 3 Ashikhmin-Shirley)
     vec4 spec_rough;   // rgb specular F0, w roughness
-    vec4 extra;        // x Blinn-Phong shininess, y albedo map layer (-1 none), z roughness map layer (-1 none)
+    vec4 extra;        // x shininess (Blinn-Phong, Ashikhmin-Shirley nu), y albedo map layer (-1 none),
+                       // z roughness map layer (-1 none), w Ashikhmin-Shirley nv (= x if isotropic)
+                       // (read through material.glsl's material_at)
 };
 
 struct LightData {

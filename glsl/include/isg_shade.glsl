@@ -23,6 +23,7 @@ layout(set = 0, binding = 5) uniform sampler2D env_map;
 layout(set = 0, binding = 6, rgba32f) uniform writeonly image2D hdr;
 layout(set = 0, binding = 7) readonly buffer Lights { LightData lights[]; };
 layout(set = 0, binding = 8) uniform sampler2DArray material_textures;
+#include "material.glsl"
 layout(set = 0, binding = 10) readonly buffer Lobes { vec4 lobes[]; };  // 2 per lobe: axis+lambda, rgb mu
 #define ISG_TABLE_BINDING 9
 #define ISG_NODES_BINDING 11
@@ -183,12 +184,8 @@ void main() {
     float ndv = max(dot(n, v), 1e-4);
     vec3 albedo = m.albedo_kind.rgb;
     int kind = int(m.albedo_kind.w + 0.5);
-    if (m.extra.y >= 0.0) albedo *= textureLod(material_textures, vec3(uvm.xy, m.extra.y), 0.0).rgb;
-    if (m.extra.z >= 0.0) {
-        float r = clamp(m.spec_rough.w * textureLod(material_textures, vec3(uvm.xy, m.extra.z), 0.0).g, 0.0, 1.0);
-        m.spec_rough.w = r;
-        m.extra.x = 2.0 / max(r * r, 1e-4) - 2.0;
-    }
+    m = material_at(m, uvm.xy, material_textures);
+    albedo = m.albedo_kind.rgb;
     SG cosg = sg_clamped_cosine(n);
     // Offset the shading point along the normal (G-buffer precision).
     vec3 p = pos + n * 1e-3 * max(1.0, length(pos));

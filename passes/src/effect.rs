@@ -3,29 +3,17 @@
 //! The graph gets only the effects the scene needs: a scene without a medium has no volumetric
 //! passes.
 //!
-//! Adding an effect touches `passes/` (a module implementing [`Effect`] and a line in
-//! [`create_for`]), `glsl/`, a test and a scene; not the engine.
+//! Adding an effect touches `passes/` (a module implementing [`Effect`], an entry in
+//! `registry::EFFECTS` and a line in [`create_for`]), `glsl/`, a test and a scene; not the engine.
 
-use crate::env::EnvMapGpu;
-use crate::gbuffer::GBuffer;
-use crate::scene_gpu::{DrawList, SceneHandles};
 use anyhow::Result;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{Context, Engine, Graph, ImageHandle};
-use penumbra_scene::{Frame, Scene};
+use penumbra_scene::Scene;
 use std::sync::Arc;
 
-/// What an effect gets each frame.
-pub struct EffectInputs<'a> {
-    pub scene: &'a Scene,
-    pub frame: &'a Frame,
-    pub handles: &'a SceneHandles,
-    /// The frame's draws (mesh ranges, instance indices) for effects that rasterize geometry.
-    pub draws: &'a DrawList,
-    pub gbuffer: &'a GBuffer,
-    pub env: ImageHandle,
-    pub env_data: &'a EnvMapGpu,
-}
+/// What an effect gets each frame (the same as a technique).
+pub type EffectInputs<'a> = crate::technique::FrameInputs<'a>;
 
 pub trait Effect {
     fn name(&self) -> &'static str;

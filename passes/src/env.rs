@@ -281,3 +281,137 @@ mod tests {
         assert!(e.sh.iter().flatten().all(|c| *c == 0.0));
     }
 }
+
+// ---- Importance tables of the environment (mc, shadowmaps): texel distribution proportional to
+// luminance x solid angle, as the CPU reference's alias table.
+
+/// Environment sampling tables (CPU side).
+pub struct EnvTables {
+    pub width: u32,
+    pub height: u32,
+    /// rgb radiance (intensity applied), w = probability of the texel.
+    pub texels: Vec<[f32; 4]>,
+    /// Marginal CDF over rows (height + 1), then each row's conditional CDF (width + 1).
+    pub cdf: Vec<f32>,
+    pub can_sample: bool,
+    pub cos_rot: f32,
+    pub sin_rot: f32,
+}
+
+fn luminance(c: Vec3) -> f64 {
+    (0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z) as f64
+}
+
+impl EnvTables {
+    pub fn new(env: Option<&Environment>) -> Self {
+        let black = Environment { width: 1, height: 1, texels: vec![[0.0; 3]], intensity: 0.0, rotation: 0.0 };
+        let env = match env {
+            Some(e) if e.width > 0 && e.height > 0 && e.texels.len() == (e.width * e.height) as usize => e,
+            _ => &black,
+        };
+        let (w, h) = (env.width as usize, env.height as usize);
+        let intensity = if env.intensity.is_finite() { env.intensity } else { 0.0 };
+        let rot = if env.rotation.is_finite() { env.rotation } else { 0.0 };
+        let rad: Vec<Vec3> = env
+            .texels
+            .iter()
+            .map(|t| {
+                let v = Vec3::from_array(*t) * intensity;
+                if v.is_finite() {
+                    v
+                } else {
+                    Vec3::ZERO
+                }
+            })
+            .collect();
+        let pi = std::f64::consts::PI;
+        let row_sa: Vec<f64> = (0..h)
+            .map(|j| ((j as f64 * pi / h as f64).cos() - ((j + 1) as f64 * pi / h as f64).cos()) * 2.0 * pi / w as f64)
+            .collect();
+        let weights: Vec<f64> =
+            rad.iter().enumerate().map(|(i, t)| luminance(t.max(Vec3::ZERO)) * row_sa[i / w]).collect();
+        let total: f64 = weights.iter().sum();
+        let can_sample = total.is_finite() && total > 0.0;
+        let mut cdf = Vec::with_capacity(h + 1 + h * (w + 1));
+        let row_tot: Vec<f64> = (0..h).map(|j| weights[j * w..(j + 1) * w].iter().sum()).collect();
+        let mut acc = 0.0;
+        cdf.push(0.0);
+        for (j, rt) in row_tot.iter().enumerate() {
+            acc += rt;
+            cdf.push(if j + 1 == h { 1.0 } else { (acc / total.max(1e-300)) as f32 });
+        }
+        for j in 0..h {
+            let mut a = 0.0;
+            cdf.push(0.0);
+            for i in 0..w {
+                a += weights[j * w + i];
+                cdf.push(if i + 1 == w {
+                    1.0
+                } else if row_tot[j] > 0.0 {
+                    (a / row_tot[j]) as f32
+                } else {
+                    (i + 1) as f32 / w as f32
+                });
+            }
+        }
+        let texels = rad
+            .iter()
+            .zip(&weights)
+            .map(|(r, wt)| [r.x, r.y, r.z, if can_sample { (wt / total) as f32 } else { 0.0 }])
+            .collect();
+        EnvTables { width: w as u32, height: h as u32, texels, cdf, can_sample, cos_rot: rot.cos(), sin_rot: rot.sin() }
+    }
+}
+
+impl EnvTables {
+    fn search(cdf: &[f32], u: f32) -> usize {
+        // first i with cdf[i + 1] > u, as the shader's binary search
+        let n = cdf.len() - 1;
+        let (mut lo, mut hi) = (0usize, n);
+        while lo + 1 < hi {
+            let mid = (lo + hi) / 2;
+            if cdf[mid] <= u {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        lo
+    }
+
+    fn texel_of(&self, dw: Vec3) -> usize {
+        let (c, s) = (self.cos_rot, self.sin_rot);
+        let d = Vec3::new(c * dw.x - s * dw.z, dw.y, s * dw.x + c * dw.z);
+        let (u, v) = penumbra_scene::Environment::uv(d);
+        let i = ((u * self.width as f32) as i64).clamp(0, self.width as i64 - 1) as usize;
+        let j = ((v * self.height as f32) as i64).clamp(0, self.height as i64 - 1) as usize;
+        j * self.width as usize + i
+    }
+
+    /// Samples a world direction from four uniforms: (direction, radiance, solid-angle pdf).
+    pub fn sample(&self, u: [f32; 4]) -> Option<(Vec3, Vec3, f32)> {
+        if !self.can_sample {
+            return None;
+        }
+        let (w, h) = (self.width as usize, self.height as usize);
+        let j = Self::search(&self.cdf[0..h + 1], u[0]);
+        let base = h + 1 + j * (w + 1);
+        let ix = Self::search(&self.cdf[base..base + w + 1], u[1]);
+        let pi = std::f32::consts::PI;
+        let phi = std::f32::consts::TAU * (ix as f32 + u[2]) / w as f32;
+        let (c0, c1) = ((pi * j as f32 / h as f32).cos(), (pi * (j + 1) as f32 / h as f32).cos());
+        let cos_t = (c0 + (c1 - c0) * u[3]).clamp(-1.0, 1.0);
+        let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+        let dm = Vec3::new(sin_t * phi.sin(), cos_t, -sin_t * phi.cos());
+        let (c, s) = (self.cos_rot, self.sin_rot);
+        let d = Vec3::new(c * dm.x + s * dm.z, dm.y, -s * dm.x + c * dm.z).normalize();
+        let k = self.texel_of(d);
+        let row = k / w;
+        let sa = ((pi * row as f32 / h as f32).cos() - (pi * (row + 1) as f32 / h as f32).cos())
+            * std::f32::consts::TAU
+            / w as f32;
+        let pdf = self.texels[k][3] / sa;
+        (pdf > 0.0 && pdf.is_finite())
+            .then(|| (d, Vec3::new(self.texels[k][0], self.texels[k][1], self.texels[k][2]), pdf))
+    }
+}

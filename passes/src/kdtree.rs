@@ -42,7 +42,7 @@
 
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline};
 use anyhow::{anyhow, bail, Result};
-use glam::Vec3;
+use glam::{Mat3, Vec3};
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::graph::PassBuilder;
 use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, PassKind};
@@ -147,12 +147,7 @@ impl KdTreeHandles {
 impl KdTreeReads {
     /// The four storage-buffer bindings, in declaration order.
     pub fn binds(&self) -> [Bind; 4] {
-        [
-            Bind::StorageBuffer(self.tris),
-            Bind::StorageBuffer(self.nodes),
-            Bind::StorageBuffer(self.refs),
-            Bind::StorageBuffer(self.header),
-        ]
+        crate::util::storage([self.tris, self.nodes, self.refs, self.header])
     }
 }
 
@@ -452,12 +447,7 @@ impl KdTreeBuilder {
         let header = p.write(h.header, Access::ComputeShaderWriteStorage);
         let pipe = self.init.handle();
         p.record(move |rc| {
-            let binds = [
-                Bind::StorageBuffer(nodes),
-                Bind::StorageBuffer(bx),
-                Bind::StorageBuffer(refs),
-                Bind::StorageBuffer(header),
-            ];
+            let binds = crate::util::storage([nodes, bx, refs, header]);
             crate::util::dispatch(rc, pipe, &binds, &bytes_of(&push), [groups(n.max(STATS_WORDS as u32), 64), 1, 1])
         });
         let (mut nodes, mut bx, mut refs, mut header) = (nodes, bx, refs, header);
@@ -487,13 +477,7 @@ impl KdTreeBuilder {
                 refs = p.write(refs, Access::ComputeShaderReadWriteStorage);
                 header = p.write(header, Access::ComputeShaderReadWriteStorage);
                 let pipe = pipeline.handle();
-                let binds = [
-                    Bind::StorageBuffer(tr),
-                    Bind::StorageBuffer(nodes),
-                    Bind::StorageBuffer(bx),
-                    Bind::StorageBuffer(refs),
-                    Bind::StorageBuffer(header),
-                ];
+                let binds = crate::util::storage([tr, nodes, bx, refs, header]);
                 p.record(move |rc| crate::util::dispatch(rc, pipe, &binds, &bytes_of(&push), [wgs, 1, 1]));
             }
         }
@@ -560,5 +544,84 @@ mod world_tests {
         f.instances[0].deformed_mesh = None;
         let e = world_triangles(&scene, &f).unwrap_err().to_string();
         assert!(e.contains("refers to mesh 999"), "{e}");
+    }
+}
+
+/// Triangles, their shading data and their "casts no shadow" flags.
+pub type ShadingTriangles = (Vec<[Vec3; 3]>, Vec<[f32; 4]>, Vec<bool>);
+
+/// World triangles with shading data (6 vec4 each: n0 + material bits, n1, n2, tangent,
+/// (uv0, uv1), (uv2, 0, 0)) and
+/// shadow flags, in the order of [`crate::kdtree::world_triangles`] (degenerate ones dropped).
+pub fn world_triangles_shading(scene: &Scene, frame: &Frame) -> Result<ShadingTriangles> {
+    let mut tris = Vec::new();
+    let mut data = Vec::new();
+    let mut no_shadow = Vec::new();
+    for wm in crate::kdtree::world_meshes(scene, frame)? {
+        let (name, inst, mesh) = (wm.name, wm.inst, wm.mesh);
+        if inst.material >= frame.materials.len() {
+            bail!("object '{name}' refers to material {} of {}", inst.material, frame.materials.len());
+        }
+        let casts = scene.object_info(inst.object).casts_shadow;
+        let m3 = Mat3::from_mat4(inst.world);
+        let normal_m = if m3.determinant().abs() > 1e-20 { m3.inverse().transpose() } else { m3 };
+        let np = mesh.positions.len();
+        let has_n = mesh.normals.len() == np;
+        let has_uv = mesh.uvs.len() == np;
+        for t in wm.triangles() {
+            let ([i0, i1, i2], [p0, p1, p2]) = t?;
+            let (e1, e2) = (p1 - p0, p2 - p0);
+            let ng = e1.cross(e2).normalize();
+            let n = [i0, i1, i2].map(|i| {
+                if !has_n {
+                    return ng;
+                }
+                let n = (normal_m * mesh.normals[i]).normalize_or_zero();
+                if n == Vec3::ZERO || !n.is_finite() {
+                    ng
+                } else {
+                    n
+                }
+            });
+            let mut tangent = Vec3::ZERO;
+            if has_uv {
+                let (d1, d2) = (mesh.uvs[i1] - mesh.uvs[i0], mesh.uvs[i2] - mesh.uvs[i0]);
+                let det = d1.x * d2.y - d1.y * d2.x;
+                if det.abs() > 1e-12 {
+                    let tt = (e1 * d2.y - e2 * d1.y) / det;
+                    if tt.is_finite() {
+                        tangent = tt;
+                    }
+                }
+            }
+            tris.push([p0, p1, p2]);
+            data.push([n[0].x, n[0].y, n[0].z, f32::from_bits(inst.material as u32)]);
+            data.push([n[1].x, n[1].y, n[1].z, 0.0]);
+            data.push([n[2].x, n[2].y, n[2].z, 0.0]);
+            data.push([tangent.x, tangent.y, tangent.z, 0.0]);
+            let uv = |i: usize| if has_uv { mesh.uvs[i] } else { glam::Vec2::ZERO };
+            let (u0, u1, u2) = (uv(i0), uv(i1), uv(i2));
+            data.push([u0.x, u0.y, u1.x, u1.y]);
+            data.push([u2.x, u2.y, 0.0, 0.0]);
+            no_shadow.push(!casts);
+        }
+    }
+    Ok((tris, data, no_shadow))
+}
+
+/// Bounds of the triangles.
+pub fn bounds(tris: &[[Vec3; 3]]) -> (Vec3, Vec3) {
+    let mut lo = Vec3::splat(f32::MAX);
+    let mut hi = Vec3::splat(-f32::MAX);
+    for t in tris {
+        for v in t {
+            lo = lo.min(*v);
+            hi = hi.max(*v);
+        }
+    }
+    if lo.x > hi.x {
+        (Vec3::ZERO, Vec3::ZERO)
+    } else {
+        (lo, hi)
     }
 }

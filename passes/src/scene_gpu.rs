@@ -153,31 +153,44 @@ impl SceneGpu {
     }
 }
 
-/// The material table in the layout of `MaterialData` (std430).
-/// `extras` gives texture layers (albedo map, roughness map) per material index.
-fn material_table(materials: &[Material], extras: &[MaterialExtra]) -> Vec<u8> {
+/// The material table in the layout of `MaterialData` (std430): the one packing of the scene's
+/// materials that every technique reads (`glsl/include/material.glsl`). `extras` gives texture
+/// layers (albedo map, roughness map) and the second Ashikhmin-Shirley exponent per material
+/// index (may be shorter). Values are sanitised as the reference's `Brdf::new` does: albedo
+/// finite and >= 0, specular in [0, 1], roughness in [0, 1], exponents in [0, 1e6].
+pub fn material_table(materials: &[Material], extras: &[MaterialExtra]) -> Vec<u8> {
+    let san = |v: glam::Vec3| if v.is_finite() { v.max(glam::Vec3::ZERO) } else { glam::Vec3::ZERO };
+    let num = |x: f32, default: f32, hi: f32| if x.is_finite() { x } else { default }.clamp(0.0, hi);
     let materials: Vec<MaterialData> = materials
         .iter()
         .enumerate()
-        .map(|(i, m)| MaterialData {
-            albedo_kind: [
-                m.albedo.x,
-                m.albedo.y,
-                m.albedo.z,
-                match m.kind {
-                    BrdfKind::Diffuse => 0.0,
-                    BrdfKind::BlinnPhong => 1.0,
-                    BrdfKind::CookTorrance => 2.0,
-                    BrdfKind::AshikhminShirley => 3.0,
-                },
-            ],
-            spec_rough: [m.specular.x, m.specular.y, m.specular.z, m.roughness],
-            extra: [
-                m.shininess,
-                extras.get(i).and_then(|x| x.albedo_map).map_or(-1.0, |l| l as f32),
-                extras.get(i).and_then(|x| x.roughness_map).map_or(-1.0, |l| l as f32),
-                0.0,
-            ],
+        .map(|(i, m)| {
+            let albedo = san(m.albedo);
+            let spec = san(m.specular).min(glam::Vec3::ONE);
+            let shininess = num(m.shininess, 1.0, 1e6);
+            let x = extras.get(i);
+            // nv: Ashikhmin-Shirley's exponent along the bitangent (isotropic: the shininess)
+            let shininess_v = x.and_then(|x| x.shininess_v).map_or(shininess, |v| num(v, shininess, 1e6));
+            MaterialData {
+                albedo_kind: [
+                    albedo.x,
+                    albedo.y,
+                    albedo.z,
+                    match m.kind {
+                        BrdfKind::Diffuse => 0.0,
+                        BrdfKind::BlinnPhong => 1.0,
+                        BrdfKind::CookTorrance => 2.0,
+                        BrdfKind::AshikhminShirley => 3.0,
+                    },
+                ],
+                spec_rough: [spec.x, spec.y, spec.z, num(m.roughness, 1.0, 1.0)],
+                extra: [
+                    shininess,
+                    x.and_then(|x| x.albedo_map).map_or(-1.0, |l| l as f32),
+                    x.and_then(|x| x.roughness_map).map_or(-1.0, |l| l as f32),
+                    shininess_v,
+                ],
+            }
         })
         .collect();
     if materials.is_empty() {

@@ -27,6 +27,18 @@ pub struct ShadingIo {
 }
 
 impl ShadingIo {
+    /// Descriptor types of the bindings [`ShadingIo::binds`] returns (0..=6): camera, materials,
+    /// G-buffer position, normal and uv/material, environment, HDR output.
+    pub const TYPES: [vk::DescriptorType; 7] = [
+        vk::DescriptorType::UNIFORM_BUFFER,
+        vk::DescriptorType::STORAGE_BUFFER,
+        vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+        vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+        vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+        vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+        vk::DescriptorType::STORAGE_IMAGE,
+    ];
+
     /// Declares the reads of `scene`'s camera and materials, of `gb` and `env`, and the write of
     /// `hdr` on compute pass `p`.
     pub fn declare(p: &mut PassBuilder<'_>, scene: &SceneHandles, gb: &GBuffer, env: ImageHandle, hdr: ImageHandle) -> Self {
@@ -65,7 +77,7 @@ impl crate::technique::Technique for ShadeEnvPass {
         graph: &mut Graph,
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {
-        Ok(ShadeEnvPass::add(self, graph, inputs.scene, inputs.gbuffer, inputs.env))
+        Ok(ShadeEnvPass::add(self, graph, inputs.handles, inputs.gbuffer, inputs.env))
     }
 }
 
@@ -76,17 +88,7 @@ impl ShadeEnvPass {
             ctx,
             shaders,
             "shade_env.comp",
-            &[
-                T::UNIFORM_BUFFER,
-                T::STORAGE_BUFFER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::STORAGE_IMAGE,
-                T::STORAGE_BUFFER,
-                T::COMBINED_IMAGE_SAMPLER,
-            ],
+            &[&ShadingIo::TYPES[..], &[T::STORAGE_BUFFER, T::COMBINED_IMAGE_SAMPLER]].concat(),
             4,
         )?;
         Ok(ShadeEnvPass {

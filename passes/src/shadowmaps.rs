@@ -2,7 +2,7 @@
 //! `glsl/mc_shadowmaps.comp`): the comparison of the ISG and adaptive-visibility papers.
 //!
 //! The environment is replaced by [`ShadowMapsTechnique::count`] directional lights at stratified
-//! importance samples of it (the distribution of [`crate::mc::EnvTables`]: luminance x solid
+//! importance samples of it (the distribution of [`crate::env::EnvTables`]: luminance x solid
 //! angle), each weighted `L / (K pdf)` so that without shadows the sum estimates the environment
 //! integral. Every light has an orthographic depth map of [`ShadowMapsTechnique::size`]^2
 //! texels over the scene's bounding sphere. Shading per G-buffer pixel: the sum over lights of
@@ -16,7 +16,7 @@
 //! lights, texture maps, the medium, `casts_shadow = false` (every triangle casts).
 
 use crate::kdtree::{world_triangles, KdTreeBuilder, KdTreeHandles};
-use crate::mc::{material_table, EnvTables, McTechnique};
+use crate::env::EnvTables;
 use crate::scene_gpu::FrameConstants;
 use crate::shade_env::HDR_FORMAT;
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
@@ -28,58 +28,6 @@ use penumbra_engine::{vk, Access, Bind, Context, Engine, Graph, ImageHandle, Pas
 use penumbra_scene::{Frame, Scene};
 use std::sync::Arc;
 
-impl EnvTables {
-    fn search(cdf: &[f32], u: f32) -> usize {
-        // first i with cdf[i + 1] > u, as the shader's binary search
-        let n = cdf.len() - 1;
-        let (mut lo, mut hi) = (0usize, n);
-        while lo + 1 < hi {
-            let mid = (lo + hi) / 2;
-            if cdf[mid] <= u {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        lo
-    }
-
-    fn texel_of(&self, dw: Vec3) -> usize {
-        let (c, s) = (self.cos_rot, self.sin_rot);
-        let d = Vec3::new(c * dw.x - s * dw.z, dw.y, s * dw.x + c * dw.z);
-        let (u, v) = penumbra_scene::Environment::uv(d);
-        let i = ((u * self.width as f32) as i64).clamp(0, self.width as i64 - 1) as usize;
-        let j = ((v * self.height as f32) as i64).clamp(0, self.height as i64 - 1) as usize;
-        j * self.width as usize + i
-    }
-
-    /// Samples a world direction from four uniforms: (direction, radiance, solid-angle pdf).
-    pub fn sample(&self, u: [f32; 4]) -> Option<(Vec3, Vec3, f32)> {
-        if !self.can_sample {
-            return None;
-        }
-        let (w, h) = (self.width as usize, self.height as usize);
-        let j = Self::search(&self.cdf[0..h + 1], u[0]);
-        let base = h + 1 + j * (w + 1);
-        let ix = Self::search(&self.cdf[base..base + w + 1], u[1]);
-        let pi = std::f32::consts::PI;
-        let phi = std::f32::consts::TAU * (ix as f32 + u[2]) / w as f32;
-        let (c0, c1) = ((pi * j as f32 / h as f32).cos(), (pi * (j + 1) as f32 / h as f32).cos());
-        let cos_t = (c0 + (c1 - c0) * u[3]).clamp(-1.0, 1.0);
-        let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
-        let dm = Vec3::new(sin_t * phi.sin(), cos_t, -sin_t * phi.cos());
-        let (c, s) = (self.cos_rot, self.sin_rot);
-        let d = Vec3::new(c * dm.x + s * dm.z, dm.y, -s * dm.x + c * dm.z).normalize();
-        let k = self.texel_of(d);
-        let row = k / w;
-        let sa = ((pi * row as f32 / h as f32).cos() - (pi * (row + 1) as f32 / h as f32).cos())
-            * std::f32::consts::TAU
-            / w as f32;
-        let pdf = self.texels[k][3] / sa;
-        (pdf > 0.0 && pdf.is_finite())
-            .then(|| (d, Vec3::new(self.texels[k][0], self.texels[k][1], self.texels[k][2]), pdf))
-    }
-}
 
 /// Technique `shadowmaps`.
 pub struct ShadowMapsTechnique {
@@ -99,6 +47,8 @@ pub struct ShadowMapsTechnique {
     maps: Vec<[f32; 4]>,
     sphere: [f32; 4],
     built: bool,
+    extras: Vec<penumbra_scene::MaterialExtra>,
+    repeat: Sampler,
 }
 
 impl ShadowMapsTechnique {
@@ -118,6 +68,7 @@ impl ShadowMapsTechnique {
                 T::STORAGE_BUFFER,
                 T::STORAGE_BUFFER,
                 T::STORAGE_IMAGE,
+                T::COMBINED_IMAGE_SAMPLER,
             ],
             128,
         )?;
@@ -133,6 +84,8 @@ impl ShadowMapsTechnique {
             visibility: true,
             maps: Vec::new(),
             sphere: [0.0, 0.0, 0.0, 1.0],
+            extras: (0..scene.materials.len()).map(|i| scene.material_extra(i)).collect(),
+            repeat: Sampler::repeat(ctx)?,
             built: false,
         };
         t.set_count(32);
@@ -168,6 +121,7 @@ impl ShadowMapsTechnique {
         graph: &mut Graph,
         frame: &Frame,
         gb: &crate::gbuffer::GBuffer,
+        textures: ImageHandle,
     ) -> Result<ImageHandle> {
         let (k, s) = (self.count, self.size.clamp(16, 4096));
         let geometry_changed = frame.any_moved() || frame.any_deformed();
@@ -176,7 +130,7 @@ impl ShadowMapsTechnique {
             Some(t) => (t, false),
             None => {
                 let tris = world_triangles(&self.scene, frame)?;
-                let (lo, hi) = crate::trace_bench::bounds(&tris);
+                let (lo, hi) = crate::kdtree::bounds(&tris);
                 let c = 0.5 * (lo + hi);
                 let r = (0.5 * (hi - lo).length()).max(1e-3);
                 self.sphere = [c.x, c.y, c.z, r];
@@ -204,9 +158,9 @@ impl ShadowMapsTechnique {
             depth
         };
         let env_texels =
-            McTechnique::persistent_upload(engine, graph, "shadowmaps.env_texels", bytes_of(&self.env.texels), false);
+            crate::util::persistent_upload(engine, graph, "shadowmaps.env_texels", bytes_of(&self.env.texels), false);
         let materials =
-            graph.create_buffer_init("shadowmaps.materials", bytes_of(&material_table(&frame.materials, &[])));
+            graph.create_buffer_init("shadowmaps.materials", crate::scene_gpu::material_table(&frame.materials, &self.extras));
         let (w, h) = (gb.width, gb.height);
         let hdr = graph.create_image("shadowmaps.hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
         let inv_vp = FrameConstants::new(frame, None, w, h).inv_view_proj;
@@ -225,12 +179,13 @@ impl ShadowMapsTechnique {
         let dp = p.read(depth, Access::ComputeShaderReadStorage);
         let et = p.read(env_texels, Access::ComputeShaderReadStorage);
         let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
+        let tex = p.read(textures, Access::ComputeShaderReadSampled);
         let pipe = self.shade_pipe.handle();
         let nearest = self.nearest.sampler;
+        let repeat = self.repeat.sampler;
         p.record(move |rc| {
-            let rest =
-                [Bind::StorageBuffer(mats), Bind::StorageBuffer(mp), Bind::StorageBuffer(dp), Bind::StorageBuffer(et), Bind::StorageImage(hdr)];
-            let binds = [&g.binds(nearest)[..], &rest].concat();
+            let storage = crate::util::storage([mats, mp, dp, et]);
+            let binds = [&g.binds(nearest)[..], &storage, &[Bind::StorageImage(hdr), Bind::SampledImage(tex, repeat)]].concat();
             crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
         });
         Ok(hdr)
@@ -251,9 +206,6 @@ impl crate::technique::Technique for ShadowMapsTechnique {
                 self.count
             ));
         }
-        if req.spatially_varying_materials {
-            v.push("shadowmaps: texture maps are ignored (materials use their constant parameters)".into());
-        }
         if (0..scene.objects.len()).any(|i| !scene.object_info(i).casts_shadow) {
             v.push("shadowmaps: objects with casts_shadow = false still cast shadows".into());
         }
@@ -265,6 +217,6 @@ impl crate::technique::Technique for ShadowMapsTechnique {
         graph: &mut Graph,
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {
-        self.add_frame(engine, graph, inputs.frame, inputs.gbuffer)
+        self.add_frame(engine, graph, inputs.frame, inputs.gbuffer, inputs.handles.textures)
     }
 }

@@ -84,27 +84,11 @@ impl Rng {
     }
 }
 
-/// Bounds of the triangles.
-pub fn bounds(tris: &[[Vec3; 3]]) -> (Vec3, Vec3) {
-    let mut lo = Vec3::splat(f32::MAX);
-    let mut hi = Vec3::splat(-f32::MAX);
-    for t in tris {
-        for v in t {
-            lo = lo.min(*v);
-            hi = hi.max(*v);
-        }
-    }
-    if lo.x > hi.x {
-        (Vec3::ZERO, Vec3::ZERO)
-    } else {
-        (lo, hi)
-    }
-}
 
 /// Incoherent rays: origins uniform in the (1.2x) scene box, uniform directions, `tmax` infinite
 /// (`finite`: uniform in (0, diagonal)).
 pub fn random_rays(tris: &[[Vec3; 3]], n: usize, seed: u64, finite: bool) -> Vec<Ray> {
-    let (lo, hi) = bounds(tris);
+    let (lo, hi) = crate::kdtree::bounds(tris);
     let c = 0.5 * (lo + hi);
     let e = 0.6 * (hi - lo);
     let diag = (hi - lo).length().max(1e-3);

@@ -306,3 +306,23 @@ pub fn depth_attachment(view: vk::ImageView, store: bool) -> vk::RenderingAttach
         .store_op(if store { vk::AttachmentStoreOp::STORE } else { vk::AttachmentStoreOp::DONT_CARE })
         .clear_value(vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } })
 }
+
+pub fn persistent_upload(
+    engine: &mut penumbra_engine::Engine,
+    graph: &mut penumbra_engine::Graph,
+    name: &str,
+    data: Vec<u8>,
+    force: bool,
+) -> penumbra_engine::BufferHandle {
+    let size = data.len().max(16) as u64;
+    let h = engine.persistent_buffer(graph, name, size);
+    if !(force || graph.persistent_is_new(h)) {
+        return h;
+    }
+    crate::util::upload_into(graph, &format!("upload_{name}"), &format!("{name}.upload"), data, h)
+}
+
+/// Storage-buffer binds of `bufs`, in binding order (most of a compute pass's bind list).
+pub fn storage<const N: usize>(bufs: [penumbra_engine::BufferHandle; N]) -> [penumbra_engine::Bind; N] {
+    bufs.map(penumbra_engine::Bind::StorageBuffer)
+}

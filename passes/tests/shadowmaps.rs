@@ -50,7 +50,7 @@ fn shadowmaps_approach_the_reference_and_shadows_help() {
         let consts = FrameConstants::new(&f, None, w, h);
         let (handles, draws) = scene_gpu.add(&mut g, &f, &consts);
         let gb = gbuffer.add(&mut g, &handles, draws, w, h);
-        let hdr = sm.add_frame(&mut engine, &mut g, &f, &gb).unwrap();
+        let hdr = sm.add_frame(&mut engine, &mut g, &f, &gb, handles.textures).unwrap();
         let depth_passes = g.passes().iter().filter(|p| p.name == "shadowmaps_depth").count();
         penumbra_passes::readback::add(&mut g, "readback", &[(hdr, "hdr")]);
         engine.submit(g).unwrap();

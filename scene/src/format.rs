@@ -30,7 +30,7 @@ use crate::motion::{Deformation, Interp, RigidMotion, Track};
 use crate::texture::{Pattern, Texture};
 use crate::{
     CameraPath, Environment, Light, LightKind, LoadOptions, Material, MaterialAnimation, MaterialExtra, Medium,
-    MeshData, Object, ObjectInfo, Scene, BrdfKind, KNOWN_TECHNIQUES,
+    MeshData, Object, ObjectInfo, Scene, BrdfKind,
 };
 use glam::{Mat4, Quat, Vec3, Vec4};
 use serde::de::{self, Deserializer, SeqAccess, Visitor};
@@ -367,15 +367,10 @@ pub fn parse_toml(path: &Path, text: &str, options: &LoadOptions) -> Result<Scen
 
     // Technique.
     if let Some(t) = &file.technique {
-        let known: Vec<String> = options
-            .techniques
-            .clone()
-            .unwrap_or_else(|| KNOWN_TECHNIQUES.iter().map(|s| s.to_string()).collect());
-        if !known.iter().any(|k| k == t) {
-            return Err(SceneError::invalid(
-                path,
-                format!("unknown technique '{t}' (known: {})", known.join(", ")),
-            ));
+        if let Some(known) = &options.techniques {
+            if !known.iter().any(|k| k == t) {
+                return Err(SceneError::invalid(path, format!("unknown technique '{t}' (known: {})", known.join(", "))));
+            }
         }
         scene.technique = t.clone();
     }

@@ -396,17 +396,11 @@ impl Requirements {
 /// The default visibility technique of a scene that names none.
 pub const DEFAULT_TECHNIQUE: &str = "env";
 
-/// Technique names accepted by [`Scene::load`] (use [`Scene::load_with`] for another list):
-/// `env` (environment lighting, the default), `mc` (GPU Monte Carlo baseline), `shadowmaps`
-/// (shadow-map baseline), `isg`, `isg-vertex`, `shadow-fields`, `hsdt`, `spherical-voronoi`,
-/// `reference`. Volumetric methods are chosen in `[medium]`, not here.
-pub const KNOWN_TECHNIQUES: &[&str] =
-    &["env", "mc", "shadowmaps", "isg", "isg-vertex", "shadow-fields", "hsdt", "spherical-voronoi", "vv", "reference"];
-
 /// Options of [`Scene::load_with`].
 #[derive(Clone, Debug, Default)]
 pub struct LoadOptions {
-    /// Accepted technique names; `None` means [`KNOWN_TECHNIQUES`].
+    /// Accepted technique names; `None` accepts any name as written (the renderer checks it
+    /// against its registry, `penumbra_passes::registry`).
     pub techniques: Option<Vec<String>>,
     /// Fail with [`SceneError::NotClosed`] unless every shadow-casting object that is not a
     /// thin shell has a closed mesh (for techniques that need closed occluders).
@@ -722,7 +716,7 @@ impl Scene {
     }
 
     /// Load a scene: `.toml` scene files ([`format`]) or bare `.glb` / `.gltf` models
-    /// ([`Scene::from_model`]). Techniques are checked against [`KNOWN_TECHNIQUES`].
+    /// ([`Scene::from_model`]). The technique name is kept as written (the renderer checks it).
     pub fn load(path: impl AsRef<Path>) -> Result<Scene, SceneError> {
         Self::load_with(path, &LoadOptions::default())
     }

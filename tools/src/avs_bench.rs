@@ -78,7 +78,7 @@ fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32
     for (k, v) in params {
         s.technique_params.insert(k.clone(), v.clone());
     }
-    let settings = RenderSettings { width: w, height: h, technique: Some("avs".into()), ..Default::default() };
+    let settings = RenderSettings { width: w, height: h, technique: Some("avs".into()), technique_params: Some(s.technique_params.clone()), ..Default::default() };
     let mut r = Renderer::new_headless(&s, settings, false)?;
     // two frames (t - 1/30, t): G-buffer culling uses the previous frame's flags; the second is
     // measured
@@ -86,7 +86,7 @@ fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32
     let mut frames = r.render(&s.at(t0, None), None, true)?;
     frames.extend(r.render(&s.at(t, Some(t0)), None, true)?);
     frames.extend(r.finish()?);
-    let st = penumbra_passes::avs::last_stats();
+    let st = r.technique_stats::<penumbra_passes::avs::AvsStats>().context("avs keeps statistics")?;
     let f = frames.last().context("avs rendered no frame")?;
     let sum = |v: &[(String, f64)], pre: &[&str]| -> f64 {
         v.iter().filter(|(n, _)| pre.iter().any(|p| n.starts_with(p))).map(|(_, m)| m).sum()
@@ -266,7 +266,7 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
         // Fig. 7: the same points' maps by rasterized hemicubes (warm-up run, then the measured one)
         let t0 = (args.time - 1.0 / 30.0).max(0.0);
         let frame = scene.at(args.time, Some(t0));
-        let (tris, _, no_shadow) = penumbra_passes::mc::world_triangles_shading(&scene, &frame)?;
+        let (tris, _, no_shadow) = penumbra_passes::kdtree::world_triangles_shading(&scene, &frame)?;
         let tris: Vec<[glam::Vec3; 3]> = tris.iter().zip(&no_shadow).filter(|(_, ns)| !**ns).map(|(t, _)| *t).collect();
         let pool = penumbra_passes::avs::vertex_pool(&scene, &frame)?;
         let offset = penumbra_passes::avs::ray_offset(&pool);
@@ -293,7 +293,7 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
     println!(
         "\n## Fig. 7 on {}: visibility-map generation, this method vs rasterized hemicubes (shadow maps), same sample points (second frame, culled), {} triangles",
         scene.name,
-        penumbra_passes::mc::world_triangles_shading(&scene, &scene.at(args.time, None))?.0.len()
+        penumbra_passes::kdtree::world_triangles_shading(&scene, &scene.at(args.time, None))?.0.len()
     );
     println!("| r | points | avs vis passes ms | kd-tree build ms | avs total ms | hemicube faces | raster ms | convert ms | shadow maps total ms | shadow maps / avs |");
     println!("|---|---|---|---|---|---|---|---|---|---|");

@@ -48,6 +48,11 @@ pub struct BenchArgs {
     /// the larger image.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=8))]
     pub supersample: u32,
+    /// Parameters for every listed technique that takes parameters (set by `bench isg` for both
+    /// isg modes); `None`: each technique gets the scene's `[technique_params]` only if it is the
+    /// scene's own technique.
+    #[arg(skip)]
+    pub technique_params: Option<penumbra_passes::registry::Params>,
 }
 
 /// Box-filters a `ss`-times larger RGBA readback down to `w` x `h` (`--supersample`).
@@ -120,13 +125,11 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
     for name in args.techniques.split(',').map(str::trim).filter(|s| !s.is_empty()) {
         let ss = args.supersample.max(1);
         let (gw, gh) = (width * ss, height * ss);
-        let settings = RenderSettings { width: gw, height: gh, technique: Some(name.to_string()), ..Default::default() };
-        // A scene's [technique_params] belong to its own technique, never to the others.
-        let mut own = scene.clone();
-        if own.technique != name {
-            own.technique_params.clear();
-        }
-        let scene = &own;
+        let technique_params = args
+            .technique_params
+            .clone()
+            .filter(|_| penumbra_passes::registry::info(name).is_some_and(|i| i.takes_params()));
+        let settings = RenderSettings { width: gw, height: gh, technique: Some(name.to_string()), technique_params, ..Default::default() };
         let mut r = Renderer::new_headless(scene, settings, false)?;
         let frame = scene.at(t, Some(t));
         // One warm-up frame outside the statistics: its passes' first dispatches include
@@ -447,7 +450,7 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
                 s.technique_params.insert(k.into(), v);
             }
         }
-        let settings = RenderSettings { width, height, technique: Some(technique.to_string()), ..Default::default() };
+        let settings = RenderSettings { width, height, technique: Some(technique.to_string()), technique_params: Some(s.technique_params.clone()), ..Default::default() };
         let mut r = Renderer::new_headless(&s, settings, false).with_context(|| format!("variant {label}"))?;
         let frame = s.at(args.time, Some(args.time));
         let mut out = Vec::new();

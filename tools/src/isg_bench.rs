@@ -82,6 +82,7 @@ pub fn run_isg(args: &IsgArgs, scene: &Scene) -> Result<()> {
         out: args.out.clone(),
         sg_reference: true,
         supersample: args.supersample,
+        technique_params: Some(scene.technique_params.clone()),
     };
     run(&bench, &scene)?;
     let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(args.out.join("bench.json"))?)?;

@@ -54,6 +54,9 @@ enum Cmd {
     /// T next technique, P screenshot, G frame-graph dump); `--frames N --screenshot FILE` for
     /// scripts (e.g. under xvfb-run).
     View(view::ViewArgs),
+    /// List every registered technique and effect: summary, requirements, accuracy budget and
+    /// parameters (key, default, accepted values), as scene files and --param take them.
+    Techniques,
     /// Approximate a closed mesh by N spheres (blockers of the ISG technique) and report the
     /// fraction of its volume they cover and the volume they put outside it.
     Spheres(spheres::SpheresArgs),
@@ -184,6 +187,10 @@ fn load_scene(path: Option<&Path>) -> Result<Scene> {
         None => Scene::default_scene(),
         Some(p) => Scene::load(p).map_err(|e: SceneError| bad(e))?,
     };
+    // The scene crate keeps the technique as written; the registry decides what exists.
+    if let (Err(e), Some(p)) = (penumbra_passes::registry::lookup(&scene.technique), path) {
+        return Err(bad(format!("{}: {e}", p.display())));
+    }
     for w in &scene.warnings {
         eprintln!("warning: {w}");
     }
@@ -198,12 +205,7 @@ fn apply_overrides(
     volumetric: &Option<String>,
 ) -> Result<Scene> {
     if let Some(t) = technique {
-        if !penumbra_passes::technique::IMPLEMENTED.contains(&t.as_str()) {
-            return Err(bad(format!(
-                "--technique {t}: not implemented (implemented: {})",
-                penumbra_passes::technique::IMPLEMENTED.join(", ")
-            )));
-        }
+        penumbra_passes::registry::lookup(t).map_err(|e| bad(format!("--technique {t}: {e}")))?;
     }
     if let Some(v) = volumetric {
         penumbra_passes::volumetric::VolumetricMethod::parse(v).map_err(|e| bad(format!("--volumetric: {e}")))?;
@@ -222,12 +224,24 @@ fn apply_overrides(
     Ok(scene)
 }
 
-/// A renderer for `scene`; a bad technique parameter is bad input (exit 2).
+/// A renderer for `scene` (its errors keep their kind: see [`exit_code`]).
 fn new_renderer(ctx: std::sync::Arc<penumbra::engine::Context>, scene: &Scene, settings: RenderSettings) -> Result<Renderer> {
-    Renderer::new(ctx, scene, settings).map_err(|e| {
-        let m = format!("{e:#}");
-        if m.contains("parameter") { bad(m) } else { e }
-    })
+    Ok(Renderer::new(ctx, scene, settings)?)
+}
+
+/// The exit code of a failed command: 2 bad input (the user's to fix: a scene file, a flag, a
+/// technique name or parameter), 3 out of memory, 4 the device was lost, 1 anything else
+/// (including validation errors and images that fail a check).
+fn exit_code(e: &anyhow::Error) -> u8 {
+    if e.downcast_ref::<BadInput>().is_some() {
+        return 2;
+    }
+    match e.downcast_ref::<penumbra::Error>().map(penumbra::Error::kind) {
+        Some(penumbra::ErrorKind::BadInput) => 2,
+        Some(penumbra::ErrorKind::OutOfMemory) => 3,
+        Some(penumbra::ErrorKind::DeviceLost) => 4,
+        _ => 1,
+    }
 }
 
 /// Prints the validation layer's counts; an error when it reported any (exit 1).
@@ -379,6 +393,10 @@ fn render(args: &RenderArgs) -> Result<()> {
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
         Cmd::Render(a) => render(&a),
+        Cmd::Techniques => {
+            print!("{}", penumbra_passes::registry::describe());
+            Ok(())
+        }
         Cmd::View(a) => view::view(&a),
         Cmd::Reference(a) => {
             let scene = load_scene(a.scene.as_deref())?;
@@ -441,9 +459,7 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Bench(BenchCmd::Techniques(a)) => {
             parse_size(&a.size).map_err(bad)?;
             for t in a.techniques.split(',').map(str::trim).filter(|s| !s.is_empty()) {
-                if !penumbra_passes::technique::IMPLEMENTED.contains(&t) {
-                    return Err(bad(format!("technique '{t}' is not implemented")));
-                }
+                penumbra_passes::registry::lookup(t).map_err(bad)?;
             }
             let scene = load_scene(a.scene.as_deref())?;
             bench::run(&a, &scene)
@@ -477,11 +493,7 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            if e.downcast_ref::<BadInput>().is_some() {
-                ExitCode::from(2)
-            } else {
-                ExitCode::from(1)
-            }
+            ExitCode::from(exit_code(&e))
         }
     }
 }

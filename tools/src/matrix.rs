@@ -3,7 +3,7 @@
 //! Per scene: a converged reference (`penumbra_reference::converge`, cached on disk), then each
 //! technique rendered at the same size and frame with only its own parameters (a scene's
 //! `[technique_params]` belong to the scene's own technique), compared with the reference, and
-//! judged against its registered budget (`penumbra_passes::technique::REGISTRY`). Writes
+//! judged against its registered budget (`penumbra_passes::registry::REGISTRY`). Writes
 //! `matrix.json` (shape documented in the README), `matrix.md` (the table) and `matrix.png` (the
 //! contact sheet), and compares the failing cells with the checked-in known-failures list.
 
@@ -11,7 +11,7 @@ use anyhow::{bail, Context as _, Result};
 use clap::Args;
 use penumbra::engine::{Context, ContextDesc};
 use penumbra::{RenderSettings, Renderer};
-use penumbra_passes::technique::{self, Budget, TechniqueInfo, MIN_SHADOW_RECOVERED};
+use penumbra_passes::registry::{self, Budget, TechniqueInfo, MIN_SHADOW_RECOVERED};
 use penumbra_reference::cli::parse_size;
 use penumbra_reference::converge::{load_or_render, ConvergeOptions};
 use penumbra_reference::image::Image;
@@ -81,6 +81,11 @@ pub struct MatrixArgs {
     /// Replace this size's entries of the known-failures list with the run's failing cells.
     #[arg(long)]
     pub write_known: bool,
+    /// Run every cell under the Vulkan validation layer with synchronization validation: a cell
+    /// with validation errors fails, and the run exits with status 1 whatever the known-failures
+    /// list says (a wrong barrier is a bug even when the image is right).
+    #[arg(long)]
+    pub validation: bool,
 }
 
 /// One cell of the matrix (the JSON shape other tools read).
@@ -104,6 +109,9 @@ pub struct Cell {
     pub budget: Option<f64>,
     /// Whether the cell passes (null: not judged: refused, or the baseline).
     pub pass: Option<bool>,
+    /// With `--validation`: the validation layer's errors while the cell rendered.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub validation_errors: Option<usize>,
 }
 
 impl Cell {
@@ -124,6 +132,7 @@ impl Cell {
             frame_ms: None,
             budget: None,
             pass: None,
+            validation_errors: None,
         }
     }
 }
@@ -217,11 +226,9 @@ struct Run {
 
 fn render_technique(ctx: &Arc<Context>, scene: &Scene, name: &str, args: &MatrixArgs, w: u32, h: u32) -> Result<Run> {
     let ss = args.supersample.max(1);
-    let mut s = scene.clone();
-    // A scene's parameters belong to its own technique, never to the others.
-    if s.technique != name {
-        s.technique_params.clear();
-    }
+    let s = scene.clone();
+    // A scene's parameters belong to its own technique, never to the others (the renderer's
+    // rule when `technique_params` is not set).
     let settings = RenderSettings { width: w * ss, height: h * ss, technique: Some(name.to_string()), ..Default::default() };
     let t_create = Instant::now();
     let mut r = Renderer::new(ctx.clone(), &s, settings)?;
@@ -272,12 +279,12 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
         return Err(crate::bad(format!("--noise {}: must be positive", args.noise)));
     }
     let techniques: Vec<&'static TechniqueInfo> = match &args.techniques {
-        None => technique::REGISTRY.iter().collect(),
+        None => registry::REGISTRY.iter().collect(),
         Some(list) => {
             let mut v = Vec::new();
             for t in list.split(',').map(str::trim).filter(|s| !s.is_empty()) {
-                v.push(technique::info(t).ok_or_else(|| {
-                    crate::bad(format!("--techniques: '{t}' is not a technique (known: {})", technique::names().join(", ")))
+                v.push(registry::info(t).ok_or_else(|| {
+                    crate::bad(format!("--techniques: '{t}' is not a technique (known: {})", registry::names().join(", ")))
                 })?);
             }
             v
@@ -300,7 +307,9 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
     };
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let cache = args.cache.clone().unwrap_or_else(|| std::env::temp_dir().join("penumbra-references"));
-    let ctx = Context::new(&ContextDesc::default())?;
+    let ctx = Context::new(&ContextDesc { validation: args.validation, ..Default::default() })?;
+    // (cell, first messages) of every cell with validation errors
+    let mut invalid: Vec<(String, Vec<String>)> = Vec::new();
     let device = ctx.device_name.clone();
     let driver = ctx.driver_info();
     let mut matrix = Matrix { device, driver, size: [w, h], references: Vec::new(), cells: Vec::new() };
@@ -376,18 +385,20 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
         let mut env_err: Option<(f64, f64)> = None; // (rel_rmse, rmse_rel_mean)
         let mut order: Vec<&TechniqueInfo> = techniques.clone();
         if !order.iter().any(|t| t.name == "env") {
-            order.insert(0, technique::info("env").expect("env is registered"));
+            order.insert(0, registry::info("env").expect("env is registered"));
         } else {
             order.sort_by_key(|t| t.name != "env");
         }
         for t in order {
             let listed = techniques.iter().any(|x| x.name == t.name);
             let mut cell = Cell::new(&scene.name, t.name);
-            if let Some(why) = technique::refusal(t.name, &scene) {
+            if let Some(why) = registry::refusal(t.name, &scene) {
                 cell.status = "refused".into();
                 cell.reason = Some(why);
             } else {
                 let t0 = Instant::now();
+                let errors_before = ctx.validation.error_count();
+                let messages_before = ctx.validation.errors().len();
                 let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| render_technique(&ctx, &scene, t.name, args, w, h)));
                 match run {
                     Ok(Ok(run)) => {
@@ -436,6 +447,15 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
                         }
                         if !run.ignored.is_empty() {
                             fails.push(format!("ignores part of the scene: {}", run.ignored.join("; ")));
+                        }
+                        if args.validation {
+                            let n = ctx.validation.error_count() - errors_before;
+                            cell.validation_errors = Some(n);
+                            if n > 0 {
+                                fails.push(format!("{n} validation error(s)"));
+                                let msgs: Vec<String> = ctx.validation.errors().into_iter().skip(messages_before).take(3).collect();
+                                invalid.push((format!("{} x {}", scene.name, t.name), msgs));
+                            }
                         }
                         if !matches!(t.budget, Budget::Baseline { .. }) {
                             cell.pass = Some(fails.is_empty());
@@ -510,6 +530,16 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
             println!("warning: reference of {} reached noise {:.4} only (target {}, {} spp)", r.scene, r.noise_rmse_rel_mean, args.noise, r.spp);
         }
     }
+    if !invalid.is_empty() {
+        println!("validation errors in {} cell(s):", invalid.len());
+        for (cell, msgs) in &invalid {
+            println!("  {cell}:");
+            for m in msgs {
+                println!("    {m}");
+            }
+        }
+        bail!("the validation layer reported errors in {} cell(s)", invalid.len());
+    }
     if args.write_known {
         let mut list = known.clone();
         // Replace the entries of the cells this run judged; keep the others (other sizes, or
@@ -526,6 +556,8 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
                 reason: c.reason.clone().unwrap_or_default(),
             });
         }
+        // one order whatever was run: diffs of the list show what changed
+        list.cell.sort_by(|a, b| (&a.size, &a.scene, &a.technique).cmp(&(&b.size, &b.scene, &b.technique)));
         let header = "# Known failing cells of the scene x technique accuracy matrix (`penumbra bench matrix`),\n\
 # per image size: each with its measured numbers and the issue that will fix it. Written by\n\
 # `penumbra bench matrix --write-known`; `tools/tests/matrix.rs` fails when a cell not listed\n\
@@ -749,6 +781,7 @@ mod tests {
             frame_ms: Some(2.0),
             budget: Some(0.1),
             pass,
+            validation_errors: None,
         }
     }
 
@@ -794,7 +827,7 @@ mod tests {
         let back: KnownList = toml::from_str(&text).unwrap();
         assert_eq!(back.cell.len(), 2);
         // The table names every cell's verdict.
-        let md = table_md(&m, &[technique::info("env").unwrap(), technique::info("avs").unwrap(), technique::info("isg").unwrap()]);
+        let md = table_md(&m, &[registry::info("env").unwrap(), registry::info("avs").unwrap(), registry::info("isg").unwrap()]);
         assert!(md.contains("**FAIL**") && md.contains("pass") && md.contains("| a |"), "{md}");
     }
 }

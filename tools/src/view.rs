@@ -287,7 +287,7 @@ impl Viewer<'_> {
 
     /// Recreates the renderer with the next implemented technique (same device and window).
     fn next_technique(&mut self) -> Result<()> {
-        let list = penumbra_passes::technique::IMPLEMENTED;
+        let list = penumbra_passes::registry::names();
         // From the last one tried, so that one failing to build does not stop the cycle.
         let cur = self.t_cursor.clone().unwrap_or_else(|| self.technique());
         let next = list[(list.iter().position(|t| *t == cur).map_or(0, |i| i + 1)) % list.len()];

@@ -8,14 +8,13 @@
 use anyhow::{Context as _, Result};
 use clap::Args;
 use penumbra::{RenderSettings, Renderer};
-use penumbra_passes::vv::{VvSceneData, TESSELLATED_TRIANGLES};
+use penumbra_passes::vv::{VvSceneData, VvStats};
 use penumbra_reference::cli::parse_size;
 use penumbra_reference::image::Image;
 use penumbra_reference::metrics::compare;
 use penumbra_reference::render::{render as reference_render, Mode, ReferenceOptions};
 use penumbra_scene::Scene;
 use std::path::PathBuf;
-use std::sync::atomic::Ordering;
 
 #[derive(Args)]
 pub struct VvArgs {
@@ -100,9 +99,8 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
             }
         };
         drop(tech);
-        let rs = RenderSettings { width, height, technique: Some("vv".into()), ..Default::default() };
+        let rs = RenderSettings { width, height, technique: Some("vv".into()), technique_params: Some(s.technique_params.clone()), ..Default::default() };
         let mut r = Renderer::new(ctx, &s, rs)?;
-        TESSELLATED_TRIANGLES.store(0, Ordering::Relaxed);
         let frame = s.at(0.0, Some(0.0));
         let mut images = Vec::new();
         for _ in 0..args.frames.max(2) {
@@ -118,9 +116,9 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
         let c = compare(&reference.radiance, "reference", &img, name)?;
         let stats = r.engine.profiler.gpu_stats();
         let ms: f64 = stats.iter().filter(|(p, _)| p.starts_with("vv_")).map(|(_, s)| s.median_ms).sum();
-        // the technique stores its last frame's pipeline statistics when dropped
+        // the last finished frame's pipeline statistics (the renderer has finished its frames)
+        let tris = r.technique_stats::<VvStats>().and_then(|st| st.tessellated_triangles);
         drop(r);
-        let tris = if s.technique_params["mode"].starts_with("tess") { Some(TESSELLATED_TRIANGLES.load(Ordering::Relaxed)) } else { None };
         let psnr = c.psnr_db.unwrap_or(f64::INFINITY);
         println!("{name:<22} {ms:>9.2} ms/frame  PSNR {psnr:>6.2}  triangles {}", tris.map_or("-".into(), |t| t.to_string()));
         rows.push(Row { config: name.clone(), ms, psnr, triangles: tris });

@@ -94,7 +94,11 @@ fn bad_input_exits_2_with_the_file_and_problem() {
         &["render", draco.to_str().unwrap(), "--out", d.to_str().unwrap()],
         &["bunny-draco.glb", "KHR_draco_mesh_compression"],
     );
-    expect_bad_input(&["render", "--technique", "nope", "--out", d.to_str().unwrap()], &["nope", "not implemented"]);
+    expect_bad_input(&["render", "--technique", "nope", "--out", d.to_str().unwrap()], &["unknown technique 'nope'", "registered", "avs"]);
+    // the scene file names a technique the registry does not have
+    let tech = d.join("tech.toml");
+    std::fs::write(&tech, "technique = \"hsdt\"\n[camera]\neye = [0, 1, 2]\ntarget = [0, 0, 0]\n[[object]]\nmesh = { type = \"cube\", size = 1 }\n").unwrap();
+    expect_bad_input(&["render", tech.to_str().unwrap(), "--out", d.to_str().unwrap()], &["tech.toml", "unknown technique 'hsdt'"]);
     expect_bad_input(&["render", "--technique", "env", "--param", "lobes=8", "--out", d.to_str().unwrap()], &["env", "takes no parameters"]);
     expect_bad_input(
         &["render", "--technique", "isg", "--param", "bogus=1", "--size", "16x12", "--out", d.to_str().unwrap()],
@@ -121,6 +125,14 @@ fn bad_input_exits_2_with_the_file_and_problem() {
 
 #[test]
 fn help_documents_every_command_and_flag() {
+    // the registry as text: every technique with its parameters, defaults and ranges
+    let o = penumbra(&["techniques"]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    for name in penumbra_passes::registry::names() {
+        assert!(t.contains(&format!("\n{name}\n")), "{name} missing: {t}");
+    }
+    assert!(t.contains("e_max") && t.contains("default 0.10") && t.contains("volumetric") && t.contains("temporal, full"), "{t}");
     let o = penumbra(&["--help"]);
     assert!(o.status.success());
     let t = text(&o);

@@ -145,7 +145,7 @@ fn scripted_keys_switch_technique_reload_shaders_and_dump() {
     let t = text(&o);
     assert!(o.status.success(), "{t}");
     // From mc (cheap to create, unlike isg's tables) to the next implemented technique.
-    let list = penumbra_passes::technique::IMPLEMENTED;
+    let list = penumbra_passes::registry::names();
     let next = list[(list.iter().position(|t| *t == "mc").unwrap() + 1) % list.len()];
     assert!(t.contains(&format!("technique: {next}")), "{t}");
     assert!(t.contains("reloaded shaders (0 changed"), "run-time compile differs from build.rs: {t}");

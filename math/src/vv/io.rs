@@ -175,9 +175,15 @@ impl VvData {
         Ok(())
     }
 
-    /// Writes the file (errors name it).
+    /// Writes the file (errors name it): beside it first, then renamed over it, so that a
+    /// reader (another process sharing a cache directory) never sees half a file.
     pub fn write(&self, path: &Path) -> Result<(), String> {
-        std::fs::write(path, self.to_bytes()).map_err(|e| format!("{}: {e}", path.display()))
+        let tmp = path.with_extension(format!("tmp{}", std::process::id()));
+        std::fs::write(&tmp, self.to_bytes()).map_err(|e| format!("{}: {e}", tmp.display()))?;
+        std::fs::rename(&tmp, path).map_err(|e| {
+            let _ = std::fs::remove_file(&tmp);
+            format!("{}: {e}", path.display())
+        })
     }
 }
 

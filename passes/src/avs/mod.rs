@@ -126,6 +126,9 @@ pub struct AvsSettings {
     /// covered pixel of the previous frame needed (flags written by the `avs_cull` pass, read one
     /// frame late); the first frame traces all.
     pub cull: bool,
+    /// Read the final visibility maps back into [`AvsStats::maps`] (one more copy per adaptation
+    /// round; for tests comparing maps texel by texel).
+    pub capture_maps: bool,
 }
 
 impl Default for AvsSettings {
@@ -151,6 +154,7 @@ impl Default for AvsSettings {
             prefiltered: true,
             lobes: 16,
             cull: true,
+            capture_maps: false,
         }
     }
 }
@@ -168,7 +172,7 @@ impl AvsSettings {
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
     /// `iterations` (2), `points` (0 = auto), `max_points` (8192), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells` | `table` | `adf`), `cells` (6,
-    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull` (true/false), `lobes` (16). Unknown keys and bad values
+    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `lobes` (16). Unknown keys and bad values
     /// are errors naming the key.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
@@ -217,8 +221,9 @@ impl AvsSettings {
             "prefiltered" => self.prefiltered = flag()?,
             "lobes" => self.lobes = int(1, 64)? as usize,
             "cull" => self.cull = flag()?,
+            "capture_maps" => self.capture_maps = flag()?,
             other => bail!(
-                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, lobes, cull)"
+                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, lobes, cull, capture_maps)"
             ),
         }
         Ok(())
@@ -287,30 +292,13 @@ pub struct AvsStats {
     /// steps.
     pub truncated: usize,
     /// The final packed visibility map of every sample point (`words_per_map(r)` words each, in
-    /// the order of `point_vertices`), only while [`capture_maps`] is on (tests).
+    /// the order of `point_vertices`), only with [`AvsSettings::capture_maps`] (tests).
     pub maps: Vec<Vec<u32>>,
 }
 
-static LAST_STATS: std::sync::Mutex<Option<AvsStats>> = std::sync::Mutex::new(None);
-
-/// Part A's `T(lambda, d)` table as f32 bytes (generated once per process).
+/// Part A's `T(lambda, d)` table as f32 bytes (generated per technique that integrates by table).
 fn axis_table() -> Arc<Vec<u8>> {
-    static TABLE: std::sync::OnceLock<Arc<Vec<u8>>> = std::sync::OnceLock::new();
-    TABLE.get_or_init(|| Arc::new(bytes_of(&penumbra_math::ssdf_integrate::AxisTable::generate(|_| {}).data))).clone()
-}
-
-static CAPTURE_MAPS: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
-
-/// Read the final visibility maps back into [`AvsStats::maps`] (one more copy per adaptation
-/// round; for tests comparing maps texel by texel).
-pub fn capture_maps(on: bool) {
-    CAPTURE_MAPS.store(on, std::sync::atomic::Ordering::Relaxed);
-}
-
-/// Statistics of the last frame any `avs` technique in this process declared (the renderer owns
-/// the technique; tests and the bench read them here).
-pub fn last_stats() -> AvsStats {
-    LAST_STATS.lock().map(|s| s.clone().unwrap_or_default()).unwrap_or_default()
+    Arc::new(bytes_of(&penumbra_math::ssdf_integrate::AxisTable::generate(|_| {}).data))
 }
 
 /// The frame's vertex pool: world positions and normals of every instance.
@@ -477,7 +465,7 @@ impl AvsTechnique {
             &[T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, sb, sb, sb],
             16,
         )?;
-        let (lobes, _) = crate::isg::lighting_lobes(scene, settings.lobes);
+        let (lobes, _) = crate::lighting::lighting_lobes(scene, settings.lobes);
         let lobe_count = (lobes.len() / 2) as u32;
         let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
         Ok(AvsTechnique {
@@ -489,7 +477,7 @@ impl AvsTechnique {
             linear: Sampler::latlong(ctx)?,
             repeat: Sampler::repeat(ctx)?,
             lobes: Arc::new(bytes_of(&lobes)),
-            prefiltered: Arc::new(bytes_of(&crate::isg::prefiltered_env(scene))),
+            prefiltered: Arc::new(bytes_of(&crate::lighting::prefiltered_env(scene))),
             axis_table: if settings.integration == Integration::Table { axis_table() } else { Arc::new(vec![0u8; 16]) },
             lobe_count,
             builder: KdTreeBuilder::new(ctx, shaders)?,
@@ -547,7 +535,7 @@ impl AvsTechnique {
 
     /// The tree of the frame's triangles (shadow flags from the objects).
     fn tree(&mut self, engine: &mut Engine, graph: &mut Graph, frame: &Frame) -> Result<KdTreeHandles> {
-        let (tris, _, no_shadow) = crate::mc::world_triangles_shading(&self.scene, frame)?;
+        let (tris, _, no_shadow) = crate::kdtree::world_triangles_shading(&self.scene, frame)?;
         let rebuild = frame.any_moved() || frame.any_deformed();
         self.builder.add_triangles_flagged(engine, graph, &tris, Some(&no_shadow), rebuild)
     }
@@ -645,17 +633,7 @@ impl AvsTechnique {
             let chunks = (res * res).div_ceil(1024).max(1);
             let pipe = self.vis.handle();
             p.record(move |rc| {
-                let binds = [
-                    Bind::StorageBuffer(t0),
-                    Bind::StorageBuffer(t1),
-                    Bind::StorageBuffer(t2),
-                    Bind::StorageBuffer(t3),
-                    Bind::StorageBuffer(pb),
-                    Bind::StorageBuffer(bb),
-                    Bind::StorageBuffer(prev.unwrap_or(out)),
-                    Bind::StorageBuffer(out),
-                    Bind::StorageBuffer(st),
-                ];
+                let binds = crate::util::storage([t0, t1, t2, t3, pb, bb, prev.unwrap_or(out), out, st]);
                 crate::util::dispatch(rc, pipe, &binds, &bytes_of(&push), [n.clamp(1, 65535), chunks, 1])
             });
             stats = st;
@@ -684,7 +662,7 @@ impl AvsTechnique {
         let push = [self.settings.r, n];
         let pipe = self.sh.handle();
         p.record(move |rc| {
-            let binds = [Bind::StorageBuffer(pb), Bind::StorageBuffer(bb), Bind::StorageBuffer(v), Bind::StorageBuffer(o)];
+            let binds = crate::util::storage([pb, bb, v, o]);
             crate::util::dispatch(rc, pipe, &binds, &bytes_of(&push), [n.clamp(1, 65535), 1, 1])
         });
         o
@@ -711,7 +689,7 @@ impl AvsTechnique {
         let mut nslots = slots.len() as u32;
         let mut free: Vec<u32> = Vec::new();
         let mut sh: Vec<Option<[f32; SH_COUNT]>> = vec![None; slots.len()];
-        let capture = CAPTURE_MAPS.load(std::sync::atomic::Ordering::Relaxed);
+        let capture = self.settings.capture_maps;
         let mut maps: Vec<Vec<u32>> = vec![Vec::new(); slots.len()];
         for round in 0..=self.settings.iterations {
             let points: Vec<SurfacePoint> = self.sample_vertices.iter().map(|&v| pool[v]).collect();
@@ -841,6 +819,10 @@ impl crate::technique::Technique for AvsTechnique {
         "avs"
     }
 
+    fn stats(&self) -> Option<Box<dyn std::any::Any>> {
+        Some(Box::new(self.stats.clone()))
+    }
+
     fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
         let frame = inputs.frame;
         let pool = vertex_pool(&self.scene, frame)?;
@@ -888,7 +870,7 @@ impl crate::technique::Technique for AvsTechnique {
         let prefiltered = graph.create_buffer_init("avs_prefiltered", self.prefiltered.as_ref().clone());
         let table = graph.create_buffer_init("avs_axis_table", self.axis_table.as_ref().clone());
 
-        let (scene, gb) = (inputs.scene, inputs.gbuffer);
+        let (scene, gb) = (inputs.handles, inputs.gbuffer);
         let (w, h) = (gb.width, gb.height);
         let hdr = graph.create_image("hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
         let mut p = graph.pass("avs_shade", PassKind::Compute);
@@ -922,17 +904,9 @@ impl crate::technique::Technique for AvsTechnique {
         let pipe = self.shade.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
-            let rest = [
-                Bind::StorageBuffer(lights),
-                Bind::SampledImage(textures, repeat),
-                Bind::StorageBuffer(lobes),
-                Bind::StorageBuffer(prefiltered),
-                Bind::StorageBuffer(pts),
-                Bind::StorageBuffer(gr),
-                Bind::StorageBuffer(sd),
-                Bind::StorageBuffer(tb),
-            ];
-            let binds = [io.binds(nearest, linear), rest.to_vec()].concat();
+            let rest = [Bind::StorageBuffer(lights), Bind::SampledImage(textures, repeat)];
+            let storage = crate::util::storage([lobes, prefiltered, pts, gr, sd, tb]);
+            let binds = [&io.binds(nearest, linear)[..], &rest, &storage].concat();
             crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
         });
         // G-buffer culling: flag the kept points this frame's covered pixels need (read next frame)
@@ -969,9 +943,6 @@ impl crate::technique::Technique for AvsTechnique {
                 crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
             });
             self.cull_order = all;
-        }
-        if let Ok(mut l) = LAST_STATS.lock() {
-            *l = Some(self.stats.clone());
         }
         Ok(hdr)
     }

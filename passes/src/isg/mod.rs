@@ -39,7 +39,7 @@
 use crate::shade_env::HDR_FORMAT;
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
 use anyhow::Result;
-use glam::{DVec3, Mat4, Vec3};
+use glam::{Mat4, Vec3};
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, Context, Engine, Graph, ImageHandle, PassKind};
@@ -333,54 +333,6 @@ pub fn build_triangle_bvh(tris: &[[Vec3; 3]]) -> Vec<GpuNode> {
     build_bvh(&spheres)
 }
 
-/// Lighting SG lobes of the scene's environment in world space (intensity and rotation
-/// applied), as `[axis, lambda], [rgb mu, 0]` pairs; the fit's relative L2 error.
-pub fn lighting_lobes(scene: &Scene, k: usize) -> (Vec<[f32; 4]>, Option<f64>) {
-    let Some(e) = scene.environment.as_ref() else { return (Vec::new(), None) };
-    let Ok(fit) = penumbra_math::envmap::fit_sg_lighting(e.width as usize, e.height as usize, &e.texels, k.max(1))
-    else {
-        return (Vec::new(), None);
-    };
-    let (s, c) = (e.rotation as f64).sin_cos();
-    let mut out = Vec::new();
-    for l in &fit.lobes {
-        let a = l.axis;
-        let axis = DVec3::new(c * a.x + s * a.z, a.y, -s * a.x + c * a.z);
-        let mu = l.mu * e.intensity as f64;
-        if !(axis.is_finite() && l.lambda.is_finite() && mu.is_finite()) {
-            continue;
-        }
-        out.push([axis.x as f32, axis.y as f32, axis.z as f32, l.lambda as f32]);
-        out.push([mu.x as f32, mu.y as f32, mu.z as f32, 0.0]);
-    }
-    (out, Some(fit.rel_l2_error))
-}
-
-/// SG sharpness levels of the prefiltered environment (0.25 and the math crate's default stack).
-pub const PREFILTER_LAMBDAS: [f64; 8] = [0.25, 1.0, 4.0, 16.0, 64.0, 256.0, 1024.0, 4096.0];
-
-/// The environment prefiltered with normalised SGs ([`PREFILTER_LAMBDAS`], at most 128 rows) in
-/// the layout of `Prefiltered` in `glsl/isg_shade.comp`; `[0.0]` (no levels) without an
-/// environment.
-pub fn prefiltered_env(scene: &Scene) -> Vec<f32> {
-    let Some(e) = scene.environment.as_ref() else { return vec![0.0] };
-    let Ok(levels) = penumbra_math::envmap::prefilter(e.width as usize, e.height as usize, &e.texels, &PREFILTER_LAMBDAS, 128)
-    else {
-        return vec![0.0];
-    };
-    let mut out = vec![levels.len() as f32];
-    let header = 1 + 4 * levels.len();
-    let mut offset = header;
-    for l in &levels {
-        out.extend([l.lambda as f32, l.width as f32, l.height as f32, offset as f32]);
-        offset += 3 * l.texels.len();
-    }
-    for l in &levels {
-        out.extend(l.texels.iter().flat_map(|t| t.map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 })));
-    }
-    out
-}
-
 /// The `"isg"` / `"isg-vertex"` technique.
 pub struct IsgTechnique {
     pipeline: Pipeline,
@@ -409,23 +361,9 @@ pub struct IsgTechnique {
 /// Descriptor types of `isg_shade.comp` (bindings 0..=14) and `isg_shade_vertex.comp` (plus 15).
 fn shade_types(per_vertex: bool) -> Vec<vk::DescriptorType> {
     use vk::DescriptorType as T;
-    let mut t = vec![
-        T::UNIFORM_BUFFER,
-        T::STORAGE_BUFFER,
-        T::COMBINED_IMAGE_SAMPLER,
-        T::COMBINED_IMAGE_SAMPLER,
-        T::COMBINED_IMAGE_SAMPLER,
-        T::COMBINED_IMAGE_SAMPLER,
-        T::STORAGE_IMAGE,
-        T::STORAGE_BUFFER,
-        T::COMBINED_IMAGE_SAMPLER,
-        T::STORAGE_BUFFER,
-        T::STORAGE_BUFFER,
-        T::STORAGE_BUFFER,
-        T::STORAGE_BUFFER,
-        T::STORAGE_BUFFER,
-        T::STORAGE_BUFFER,
-    ];
+    // 7 lights, 8 textures, 9 table, 10 lobes, 11 BVH, 12 prefiltered, 13 triangles, 14 their BVH
+    let io = &crate::shade_env::ShadingIo::TYPES[..];
+    let mut t = [io, &[T::STORAGE_BUFFER, T::COMBINED_IMAGE_SAMPLER], &[T::STORAGE_BUFFER; 6]].concat();
     if per_vertex {
         t.push(T::COMBINED_IMAGE_SAMPLER);
     }
@@ -447,8 +385,8 @@ impl IsgTechnique {
             None
         };
         let table = IsgTable::default_table().to_gpu(settings.epsilon);
-        let (lobes, _) = lighting_lobes(scene, settings.lobes);
-        let prefiltered = prefiltered_env(scene);
+        let (lobes, _) = crate::lighting::lighting_lobes(scene, settings.lobes);
+        let prefiltered = crate::lighting::prefiltered_env(scene);
         let lobe_count = (lobes.len() / 2) as u32;
         let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
         Ok(IsgTechnique {
@@ -536,7 +474,7 @@ impl IsgTechnique {
         let Some((compute, raster)) = &self.vertex_pipelines else { anyhow::bail!("isg: per-vertex pipelines missing") };
         let vertex_pipe = compute.handle();
         let (rp, rl) = (raster.pipeline, raster.layout);
-        let scene = inputs.scene;
+        let scene = inputs.handles;
         let mut p = graph.pass("isg_vertex", PassKind::Compute);
         let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
         let materials = p.read(scene.materials, Access::ComputeShaderReadStorage);
@@ -556,17 +494,8 @@ impl IsgTechnique {
         push.extend_from_slice(&self.settings.lod.to_le_bytes());
         push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
         p.record(move |rc| {
-            let binds = [
-                Bind::UniformBuffer(camera),
-                Bind::StorageBuffer(materials),
-                Bind::StorageBuffer(verts_c),
-                Bind::StorageBuffer(vis),
-                Bind::StorageBuffer(lobes),
-                Bind::StorageBuffer(table),
-                Bind::StorageBuffer(bvh),
-                Bind::StorageBuffer(tris),
-                Bind::StorageBuffer(tri_nodes),
-            ];
+            let storage = crate::util::storage([materials, verts_c, vis, lobes, table, bvh, tris, tri_nodes]);
+            let binds = [&[Bind::UniformBuffer(camera)][..], &storage].concat();
             crate::util::dispatch(rc, vertex_pipe, &binds, &push, [groups(count, 64), 1, 1])
         });
         let image = graph.create_image("isg_vis", ImageDesc::new_2d(vertex::VIS_FORMAT, w, h));
@@ -625,7 +554,7 @@ impl crate::technique::Technique for IsgTechnique {
     fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
         let spheres = frame_spheres(&self.scene, &self.sets, inputs.frame);
         self.last_sphere_count = spheres.len();
-        let (scene, gb) = (inputs.scene, inputs.gbuffer);
+        let (scene, gb) = (inputs.handles, inputs.gbuffer);
         let (w, h) = (gb.width, gb.height);
         let table = graph.create_buffer_init("isg_table", self.table.as_ref().clone());
         let lobes = graph.create_buffer_init("isg_lobes", self.lobes.as_ref().clone());
@@ -682,16 +611,8 @@ impl crate::technique::Technique for IsgTechnique {
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
             let mut binds = io.binds(nearest, linear);
-            binds.extend([
-                Bind::StorageBuffer(lights),
-                Bind::SampledImage(textures, repeat),
-                Bind::StorageBuffer(table),
-                Bind::StorageBuffer(lobes),
-                Bind::StorageBuffer(bvh),
-                Bind::StorageBuffer(prefiltered),
-                Bind::StorageBuffer(tris_buf),
-                Bind::StorageBuffer(tri_bvh),
-            ]);
+            binds.extend([Bind::StorageBuffer(lights), Bind::SampledImage(textures, repeat)]);
+            binds.extend(crate::util::storage([table, lobes, bvh, prefiltered, tris_buf, tri_bvh]));
             if let Some(v) = vertex_vis {
                 binds.push(Bind::SampledImage(v, nearest));
             }
@@ -765,14 +686,7 @@ pub fn gpu_visibility(
     push.extend_from_slice(&lod.to_le_bytes());
     let pipe = pipeline.handle();
     p.record(move |rc| {
-        let binds = [
-            Bind::StorageBuffer(qb),
-            Bind::StorageBuffer(out_w),
-            Bind::StorageBuffer(tb),
-            Bind::StorageBuffer(nb),
-            Bind::StorageBuffer(trb),
-            Bind::StorageBuffer(tnb),
-        ];
+        let binds = crate::util::storage([qb, out_w, tb, nb, trb, tnb]);
         crate::util::dispatch(rc, pipe, &binds, &push, [groups(count, 64), 1, 1])
     });
     let rb = graph.create_readback("isg_parity", count.max(1) as u64 * 4);

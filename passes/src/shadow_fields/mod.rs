@@ -274,8 +274,14 @@ impl SceneFields {
                         if let Some(dir) = pf.parent() {
                             let _ = std::fs::create_dir_all(dir);
                         }
-                        let _ = std::fs::write(pf, f.to_bytes());
-                        let _ = std::fs::write(pa, a.to_bytes());
+                        // written beside, then renamed: a reader (another process sharing the
+                        // cache) never sees half a file
+                        for (path, bytes) in [(pf, f.to_bytes()), (pa, a.to_bytes())] {
+                            let tmp = path.with_extension(format!("tmp{}", std::process::id()));
+                            if std::fs::write(&tmp, bytes).is_ok() && std::fs::rename(&tmp, path).is_err() {
+                                let _ = std::fs::remove_file(&tmp);
+                            }
+                        }
                     }
                     (f, a, raw.seconds, raw.rays, false)
                 }
@@ -721,6 +727,8 @@ pub struct ShadowFieldsTechnique {
     vertex: Pipeline,
     nearest: Sampler,
     linear: Sampler,
+    /// Material texture maps (repeat).
+    repeat: Sampler,
     pub fields: Arc<SceneFields>,
     pub tables: GpuTables,
     pub light: [[f64; 3]; NCOEF],
@@ -778,7 +786,7 @@ impl ShadowFieldsTechnique {
             ctx,
             shaders,
             "sf_shade.comp",
-            &[T::UNIFORM_BUFFER, sb, sampled, sampled, sampled, sampled, T::STORAGE_IMAGE, sb, sb, sb, sb, sb, sb, sampled],
+            &[T::UNIFORM_BUFFER, sb, sampled, sampled, sampled, sampled, T::STORAGE_IMAGE, sb, sb, sb, sb, sb, sb, sampled, sampled],
             24,
         )?;
         let points = compute_pipeline(ctx, shaders, "sf_points.comp", &[sb; 7], 20)?;
@@ -799,6 +807,7 @@ impl ShadowFieldsTechnique {
             vertex,
             nearest: Sampler::nearest(ctx)?,
             linear: Sampler::latlong(ctx)?,
+            repeat: Sampler::repeat(ctx)?,
             tables,
             light: env_light_sh(scene.environment.as_ref()),
             tensor,
@@ -878,12 +887,12 @@ impl ShadowFieldsTechnique {
         let mut p = graph.pass("sf_vertex", PassKind::Raster);
         let img = p.write(img, Access::ColorAttachmentWrite);
         let depth = p.write(depth, Access::DepthAttachmentWrite);
-        let camera = p.read(inputs.scene.camera, Access::AnyShaderReadUniform);
-        let instances = p.read(inputs.scene.instances, Access::VertexShaderReadStorage);
+        let camera = p.read(inputs.handles.camera, Access::AnyShaderReadUniform);
+        let instances = p.read(inputs.handles.instances, Access::VertexShaderReadStorage);
         let rad = p.read(rad, Access::VertexShaderReadStorage);
         let bases_buf = p.read(bases_buf, Access::VertexShaderReadStorage);
-        let vertices = p.read(inputs.scene.vertices, Access::VertexBuffer);
-        let indices = p.read(inputs.scene.indices, Access::IndexBuffer);
+        let vertices = p.read(inputs.handles.vertices, Access::VertexBuffer);
+        let indices = p.read(inputs.handles.indices, Access::IndexBuffer);
         let (pipeline, layout) = (self.vertex.pipeline, self.vertex.layout);
         p.record(move |rc| {
             let d = rc.device();
@@ -929,14 +938,6 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         }
     }
 
-    fn limitations(&self, scene: &Scene) -> Vec<String> {
-        let mut v = Vec::new();
-        if scene.requirements().spatially_varying_materials {
-            v.push(format!("{}: texture maps are ignored (materials use their constant parameters)", self.name()));
-        }
-        v
-    }
-
     fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
         let h = upload(graph, &self.tables, &self.casts, inputs.frame, &self.light, self.srf);
         let gb = inputs.gbuffer;
@@ -944,15 +945,16 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         let vtx = (self.mode == SfMode::Vertex).then(|| self.add_vertex_display(graph, &h, inputs, w, hh));
         let hdr = graph.create_image("hdr", ImageDesc::new_2d(crate::shade_env::HDR_FORMAT, w, hh));
         let mut p = graph.pass("sf_shade", PassKind::Compute);
-        let io = crate::shade_env::ShadingIo::declare(&mut p, inputs.scene, gb, inputs.env, hdr);
+        let io = crate::shade_env::ShadingIo::declare(&mut p, inputs.handles, gb, inputs.env, hdr);
         // pixel mode binds the environment in the (unused) vertex-radiance slot
         let vtx = vtx.map(|v| p.read(v, Access::ComputeShaderReadSampled)).unwrap_or(io.env);
         let hdr = io.hdr;
-        let r = [h.data, h.shells, h.insts, h.tensor, h.light, inputs.scene.lights].map(|b| p.read(b, Access::ComputeShaderReadStorage));
+        let r = [h.data, h.shells, h.insts, h.tensor, h.light, inputs.handles.lights].map(|b| p.read(b, Access::ComputeShaderReadStorage));
+        let tex = p.read(inputs.handles.textures, Access::ComputeShaderReadSampled);
         let pipe = self.shade.handle();
-        let (nearest, linear) = (self.nearest.sampler, self.linear.sampler);
+        let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         let mode = (self.mode == SfMode::Vertex) as u32;
-        let push: Vec<u8> = [h.inst_count, h.tensor_count, inputs.scene.light_count, self.srf as u32, self.window_code(), mode]
+        let push: Vec<u8> = [h.inst_count, h.tensor_count, inputs.handles.light_count, self.srf as u32, self.window_code(), mode]
             .iter()
             .flat_map(|x| x.to_le_bytes())
             .collect();
@@ -960,6 +962,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
             let mut binds = io.binds(nearest, linear);
             binds.extend(r.iter().map(|&b| Bind::StorageBuffer(b)));
             binds.push(Bind::SampledImage(vtx, nearest));
+            binds.push(Bind::SampledImage(tex, repeat));
             crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(hh, 8), 1])
         });
         Ok(hdr)

@@ -170,11 +170,7 @@ fn f32s(bytes: &[u8]) -> Vec<[f32; 4]> {
 
 impl Runner {
     fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: VolumetricParams) -> Result<Self> {
-        let technique = match crate::technique::create(&scene.technique, ctx, shaders, scene)? {
-            Some(t) => t,
-            None => crate::technique::create(penumbra_scene::DEFAULT_TECHNIQUE, ctx, shaders, scene)?
-                .ok_or_else(|| anyhow::anyhow!("no default technique"))?,
-        };
+        let technique = crate::registry::create(&scene.technique, ctx, shaders, scene, &scene.technique_params)?;
         Ok(Runner {
             gbuffer: GBufferPass::new(ctx, shaders)?,
             technique,
@@ -199,10 +195,9 @@ impl Runner {
         let env = self.env.add(&mut self.engine, &mut g);
         let (handles, draws) = self.scene_gpu.add(&mut g, frame, &constants);
         let gb = self.gbuffer.add(&mut g, &handles, draws.clone(), w, h);
-        let ti = crate::technique::TechniqueInputs { frame, scene: &handles, gbuffer: &gb, env, env_data: &self.env };
-        let hdr = self.technique.add(&mut self.engine, &mut g, &ti)?;
         let inputs =
             EffectInputs { scene, frame, handles: &handles, draws: &draws, gbuffer: &gb, env, env_data: &self.env };
+        let hdr = self.technique.add(&mut self.engine, &mut g, &inputs)?;
         let out = self.effect.add(&mut self.engine, &mut g, &inputs, hdr)?;
         let info = self.effect.last.expect("effect info");
         let mut rb = vec![(out, "vol_bench_hdr"), (info.scatter, "vol_bench_scatter")];

@@ -61,16 +61,18 @@ use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, Context, Engine, Graph, ImageHandle, PassKind};
 use penumbra_math::vv::{Correspondence, VectorizedVisibility, VvModel, VvParams};
 use penumbra_scene::Scene;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
 /// Width of the 2D images holding flat arrays (`vv_tc` in `glsl/include/vv_data.glsl`).
 pub const TEX_W: usize = 4096;
 
-/// Triangles after tessellation of the last frame whose statistics were available (all `vv`
-/// techniques of the process; for the bench and tests): read at the next frame when ready, and
-/// when the technique is dropped.
-pub static TESSELLATED_TRIANGLES: AtomicU64 = AtomicU64::new(0);
+/// Statistics of a `vv` technique (`Renderer::technique_stats::<VvStats>()`).
+#[derive(Clone, Debug, Default)]
+pub struct VvStats {
+    /// Triangles after tessellation in the last finished frame (tessellated modes, once a
+    /// frame's pipeline statistics are available).
+    pub tessellated_triangles: Option<u64>,
+}
 
 /// Shading modes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -229,56 +231,43 @@ pub struct VvSceneData {
     pub albedo: Vec<Vec3>,
 }
 
-/// The last data built in this process (key: model hash, resolution), reused by techniques of
-/// the same scene (bench configurations, tests).
-static CACHE: std::sync::Mutex<Option<((u64, u32), Arc<VvSceneData>)>> = std::sync::Mutex::new(None);
-
 impl VvSceneData {
-    /// [`VvSceneData::build`] through a one-entry process cache.
+    /// The scene's data through the on-disk cache (`<temp>/penumbra-vv/<scene>-<model hash>-
+    /// <parameters hash>.pvv`, `penumbra_math::vv::load_or_compute`): computed once per model
+    /// and resolution, then read back by every technique, test and bench process that needs it
+    /// (a stale or corrupt file is recomputed). No state is kept in the process.
     pub fn cached(scene: &Scene, resolution: u32) -> Result<Arc<Self>> {
-        let key = (scene_model(scene)?.hash(), resolution);
-        let mut c = CACHE.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some((k, d)) = c.as_ref() {
-            if *k == key {
-                return Ok(d.clone());
-            }
-        }
-        let d = Arc::new(VvSceneData::build(scene, resolution)?);
-        *c = Some((key, d.clone()));
-        Ok(d)
+        let model = scene_model(scene)?;
+        let params = VvParams { resolution, ..Default::default() };
+        params.validate().map_err(anyhow::Error::msg)?;
+        let dir = std::env::temp_dir().join("penumbra-vv");
+        let bar = progress_bar(model.positions.len() as u64 + 2 * model.triangle_count() as u64, "vv precompute");
+        let (d, _) = penumbra_math::vv::load_or_compute(&model, &params, &dir, &scene.name, &|_, k| bar.inc(k))
+            .map_err(anyhow::Error::msg)?;
+        bar.finish_and_clear();
+        Ok(Arc::new(Self::from_parts(scene, model, d.vis, d.corr, d.stats.visibility_seconds, d.stats.correspondence_seconds)))
     }
 
-    /// Precomputes the scene's data (visibility, then the correspondence when available).
+    /// Precomputes the scene's data (visibility, then the correspondence), without the cache.
     pub fn build(scene: &Scene, resolution: u32) -> Result<Self> {
         let model = scene_model(scene)?;
         let params = VvParams { resolution, ..Default::default() };
         params.validate().map_err(anyhow::Error::msg)?;
-        let n = model.positions.len() as u64;
-        let bar = indicatif::ProgressBar::new(n);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template("vv visibility {bar:40} {pos}/{len} vertices {elapsed}")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        if std::env::var_os("PENUMBRA_NO_PROGRESS").is_some() {
-            bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
-        }
-        let t = std::time::Instant::now();
-        let mut vis = penumbra_math::vv::precompute::precompute_visibility(&model, &params, &|k| bar.inc(k))
-            .map_err(anyhow::Error::msg)?;
+        let bar = progress_bar(model.positions.len() as u64 + 2 * model.triangle_count() as u64, "vv precompute");
+        let d = penumbra_math::vv::compute(&model, &params, &|_, k| bar.inc(k)).map_err(anyhow::Error::msg)?;
         bar.finish_and_clear();
-        let visibility_seconds = t.elapsed().as_secs_f64();
+        Ok(Self::from_parts(scene, model, d.vis, d.corr, d.stats.visibility_seconds, d.stats.correspondence_seconds))
+    }
+
+    fn from_parts(
+        scene: &Scene,
+        model: VvModel,
+        vis: VectorizedVisibility,
+        corr: Correspondence,
+        visibility_seconds: f64,
+        correspondence_seconds: f64,
+    ) -> Self {
         let visibility_bytes = vis.points.len() * 16 + (vis.seq_offsets.len() + 2 * vis.vertex_seqs.len()) * 4;
-        // the spherical-Voronoi correspondence (part A), per triangle
-        let bar = indicatif::ProgressBar::new(2 * model.triangle_count() as u64);
-        if std::env::var_os("PENUMBRA_NO_PROGRESS").is_some() {
-            bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
-        }
-        let t = std::time::Instant::now();
-        let topo = penumbra_math::vv::Topology::new(&model);
-        let (corr, _stats) = penumbra_math::vv::corr::correspondence(&model, &topo, &mut vis, &params, &|k| bar.inc(k))
-            .map_err(anyhow::Error::msg)?;
-        bar.finish_and_clear();
-        let correspondence_seconds = t.elapsed().as_secs_f64();
         let triple_bytes = corr.triple_bytes();
         let mut albedo = Vec::with_capacity(model.positions.len());
         for o in &scene.objects {
@@ -286,8 +275,21 @@ impl VvSceneData {
             let count = scene.meshes.get(o.mesh).map_or(0, |m| m.positions.len());
             albedo.extend(std::iter::repeat(a).take(count));
         }
-        Ok(VvSceneData { model, vis, corr: Some(corr), visibility_seconds, correspondence_seconds, visibility_bytes, triple_bytes, albedo })
+        VvSceneData { model, vis, corr: Some(corr), visibility_seconds, correspondence_seconds, visibility_bytes, triple_bytes, albedo }
     }
+}
+
+/// A progress bar on stderr (hidden with `PENUMBRA_NO_PROGRESS`).
+fn progress_bar(len: u64, what: &str) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(len);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(&format!("{what} {{bar:40}} {{pos}}/{{len}} {{elapsed}}"))
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    if std::env::var_os("PENUMBRA_NO_PROGRESS").is_some() {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    bar
 }
 
 /// The Phong exponent `alpha` of eq. 13 for a material: Blinn-Phong's `(n.h)^s` is close to
@@ -491,12 +493,6 @@ pub struct VvTechnique {
 
 impl Drop for VvTechnique {
     fn drop(&mut self) {
-        // the last finished frame's count (the renderer has waited for its frames)
-        if self.settings.mode.tessellated() {
-            if let Some(n) = self.read_triangle_count() {
-                TESSELLATED_TRIANGLES.store(n, Ordering::Relaxed);
-            }
-        }
         unsafe { self.ctx.device.destroy_query_pool(self.query, None) };
     }
 }
@@ -785,6 +781,12 @@ impl crate::technique::Technique for VvTechnique {
         "vv"
     }
 
+    fn stats(&self) -> Option<Box<dyn std::any::Any>> {
+        // non-blocking: the query holds the last finished frame's count
+        let tessellated_triangles = if self.settings.mode.tessellated() { self.read_triangle_count() } else { None };
+        Some(Box::new(VvStats { tessellated_triangles }))
+    }
+
     fn limitations(&self, scene: &penumbra_scene::Scene) -> Vec<String> {
         let req = scene.requirements();
         let mut v = Vec::new();
@@ -801,13 +803,7 @@ impl crate::technique::Technique for VvTechnique {
     }
 
     fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
-        // previous frame's statistics (non-blocking)
-        if self.settings.mode.tessellated() {
-            if let Some(n) = self.read_triangle_count() {
-                TESSELLATED_TRIANGLES.store(n, Ordering::Relaxed);
-            }
-        }
-        let base = self.env.add(graph, inputs.scene, inputs.gbuffer, inputs.env);
+        let base = self.env.add(graph, inputs.handles, inputs.gbuffer, inputs.env);
         let sat = self.add_sat(graph, "vv_sat", &self.up.env);
         let blur = if self.settings.mode.tessellated() { Some(self.add_sat(graph, "vv_sat_blur", &self.up.blurred)) } else { None };
         let points = Self::add_array(graph, "vv_points", vk::Format::R32G32B32A32_SFLOAT, &self.up.points.0, self.up.points.1);
@@ -820,7 +816,7 @@ impl crate::technique::Technique for VvTechnique {
         let mut p = graph.pass(if tess { "vv_tess" } else { "vv_shade" }, PassKind::Raster);
         let objects = p.write(objects, Access::ColorAttachmentWrite);
         let depth = p.write(depth, Access::DepthAttachmentWrite);
-        let camera = p.read(inputs.scene.camera, Access::AnyShaderReadUniform);
+        let camera = p.read(inputs.handles.camera, Access::AnyShaderReadUniform);
         let points = p.read(points, Access::AnyShaderReadSampled);
         let ints = p.read(ints, Access::AnyShaderReadSampled);
         let verts = p.read(verts, Access::AnyShaderReadSampled);

@@ -1,0 +1,35 @@
+// The one material model of penumbra on the GPU: a scene material (`MaterialData` of
+// common.glsl, packed by passes/src/scene_gpu.rs) at a surface point, with its texture maps
+// applied exactly as the CPU reference does (penumbra_reference::render::brdf_at): the albedo
+// map multiplies the albedo, the roughness map's G channel multiplies the roughness, and the
+// Blinn-Phong exponent then follows 2 / r^2 - 2. Every technique fetches its materials through
+// `material_at`; a technique that approximates the BRDF (SG lobes, SH transfer, prefiltered
+// lookups) builds its approximation from the returned material.
+#ifndef PENUMBRA_MATERIAL_GLSL
+#define PENUMBRA_MATERIAL_GLSL
+
+// `m` at texture coordinate `uv`; `tex` is the scene's material texture array (repeat, bilinear).
+MaterialData material_at(MaterialData m, vec2 uv, sampler2DArray tex) {
+    if (m.extra.y >= 0.0) m.albedo_kind.rgb = max(m.albedo_kind.rgb * textureLod(tex, vec3(uv, m.extra.y), 0.0).rgb, vec3(0.0));
+    if (m.extra.z >= 0.0) {
+        float r = clamp(m.spec_rough.w * textureLod(tex, vec3(uv, m.extra.z), 0.0).g, 0.0, 1.0);
+        m.spec_rough.w = r;
+        // as for animated roughness: the Phong-type exponents follow 2 / r^2 - 2 (the second
+        // Ashikhmin-Shirley exponent keeps its ratio to the first)
+        float e = clamp(2.0 / max(r * r, 1e-4) - 2.0, 0.0, 1e6);
+        m.extra.w = clamp(m.extra.w * e / max(m.extra.x, 1e-6), 0.0, 1e6);
+        m.extra.x = e;
+    }
+    return m;
+}
+
+// 0 diffuse, 1 Blinn-Phong, 2 Cook-Torrance (GGX), 3 Ashikhmin-Shirley (isotropic).
+int material_kind(MaterialData m) { return int(m.albedo_kind.w + 0.5); }
+
+// The perceptual roughness of the specular lobe, for prefiltered-environment lookups and split-sum
+// terms: Blinn-Phong's exponent s as sqrt(2 / (s + 2)), else the material's roughness.
+float material_roughness(MaterialData m) {
+    return clamp(material_kind(m) == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
+}
+
+#endif

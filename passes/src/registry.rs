@@ -1,0 +1,516 @@
+//! The registry: the one place that names every technique and effect, with what the engine and
+//! its tools need to know of each (parameters with defaults and ranges, requirements, accuracy
+//! budget, constructor). Scene files, `--technique`, `penumbra techniques`, the benches and the
+//! accuracy matrix all derive from [`REGISTRY`] and [`EFFECTS`].
+//!
+//! Adding a technique: a module implementing [`Technique`](crate::technique::Technique) under
+//! `passes/src/`, its shaders under `glsl/`, one [`TechniqueInfo`] here (with its parameter docs
+//! and constructor), a scene, a test; then `penumbra bench matrix --techniques NAME --write-known`
+//! records its accuracy cells.
+
+use crate::technique::Technique;
+use anyhow::Result;
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::Context;
+use penumbra_scene::Scene;
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+/// Technique parameters as written (`[technique_params]` of a scene file, `--param KEY=VALUE`).
+pub type Params = BTreeMap<String, String>;
+
+/// Bad input to the registry: an unknown technique, a refused scene, an unknown parameter key or
+/// a bad value. The caller's to fix, not the device's (`penumbra::Error::BadInput`).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct BadInput(pub String);
+
+fn bad(e: impl std::fmt::Display) -> anyhow::Error {
+    anyhow::Error::new(BadInput(e.to_string()))
+}
+
+/// A technique's parameters parsed by its own parser; a bad one is [`BadInput`].
+fn parsed<T>(r: Result<T>) -> Result<T> {
+    r.map_err(|e| bad(format!("{e:#}")))
+}
+
+/// The accuracy budget of a technique, judged by the scene x technique matrix
+/// (`penumbra bench matrix`, `tools/tests/matrix.rs`) against a converged CPU reference.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Budget {
+    /// The technique's image must have `rmse_rel_mean` (RMSE over the reference's mean
+    /// radiance) at most `rmse_rel_mean`; `source` says where the figure comes from (the paper's
+    /// figure where it reports one, otherwise the technique's documented approximation).
+    RmseRelMean { rmse_rel_mean: f64, source: &'static str },
+    /// An unbiased Monte Carlo estimator with the reference's estimator: its `rmse_rel_mean`
+    /// must be at most `factor` times the noise the reference has at the technique's accumulated
+    /// samples per pixel (`reference noise x sqrt(reference spp / technique spp)`), i.e. pure
+    /// noise, no bias.
+    Unbiased { factor: f64, source: &'static str },
+    /// The unshadowed baseline (`env`): no budget; its `rel_rmse` is what `shadow_recovered`
+    /// measures the shadow techniques against.
+    Baseline { source: &'static str },
+}
+
+/// One documented technique parameter.
+#[derive(Clone, Copy, Debug)]
+pub struct ParamDoc {
+    pub key: &'static str,
+    /// The default, written as a scene file would write it.
+    pub default: &'static str,
+    /// Accepted values (a range, a list of words, `true/false`).
+    pub range: &'static str,
+    pub doc: &'static str,
+}
+
+/// Builds a technique for a scene with its parameters (already checked against the registry).
+pub type CreateFn = fn(&Arc<Context>, &ShaderLibrary, &Scene, &Params) -> Result<Box<dyn Technique>>;
+
+/// One registered technique: its name and what the engine and its tools need to know of it.
+#[derive(Clone, Copy)]
+pub struct TechniqueInfo {
+    /// The name in scene files (`technique = "..."`), on the CLI and in the matrix.
+    pub name: &'static str,
+    /// One line for listings.
+    pub summary: &'static str,
+    /// The parameters it accepts (`[technique_params]`, `--param`); none: it refuses any.
+    pub params: &'static [ParamDoc],
+    /// Precomputes visibility for static geometry only: refuses scenes whose objects move or
+    /// deform.
+    pub static_only: bool,
+    /// Renders shadows: the matrix requires `shadow_recovered >= 0.5` on every scene it accepts.
+    pub shadows: bool,
+    pub budget: Budget,
+    pub create: CreateFn,
+}
+
+impl std::fmt::Debug for TechniqueInfo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TechniqueInfo")
+            .field("name", &self.name)
+            .field("static_only", &self.static_only)
+            .field("shadows", &self.shadows)
+            .field("budget", &self.budget)
+            .finish_non_exhaustive()
+    }
+}
+
+impl TechniqueInfo {
+    /// Accepts `[technique_params]` (the others refuse any).
+    pub fn takes_params(&self) -> bool {
+        !self.params.is_empty()
+    }
+}
+
+/// One registered effect: pass chains a scene's requirements add after its technique.
+#[derive(Clone, Copy, Debug)]
+pub struct EffectInfo {
+    pub name: &'static str,
+    pub summary: &'static str,
+    /// What in a scene adds it.
+    pub when: &'static str,
+    /// Its methods (the first is the default), chosen by the scene or an override.
+    pub variants: &'static [&'static str],
+}
+
+/// The shadow techniques' common floor: the fraction of the unshadowed image's error
+/// (`rel_rmse` of `env`) a shadow technique must remove on every scene it accepts.
+pub const MIN_SHADOW_RECOVERED: f64 = 0.5;
+
+/// Both isg modes (per pixel and per vertex) answer to the paper's figure.
+const ISG_BUDGET: Budget =
+    Budget::RmseRelMean { rmse_rel_mean: 0.05, source: "ISG paper, Fig. 12: RMS errors 3.2 % and 4.6 % against ray tracing" };
+
+/// Adaptive and fixed shells approximate visibility the same way.
+const SHADOW_FIELDS_BUDGET: Budget = Budget::RmseRelMean {
+    rmse_rel_mean: 0.15,
+    source: "shadow-fields paper reports no image error; documented approximation: 4th-order SH (16 coefficients) visibility and lighting",
+};
+
+const fn p(key: &'static str, default: &'static str, range: &'static str, doc: &'static str) -> ParamDoc {
+    ParamDoc { key, default, range, doc }
+}
+
+const ISG_PARAMS: &[ParamDoc] = &[
+    p("lobes", "16", "1..=64", "K spherical Gaussians fitted to the environment"),
+    p("spheres", "48", "0..=4096", "spheres per object of the sphere-set occluders"),
+    p("side", "12", "1..=32", "patches per side of the discretized visibility region"),
+    p("epsilon", "0.01", "1e-6..=0.5", "limiting-angle threshold (paper: 0.01)"),
+    p("lod", "1.0", ">= 0", "BVH nodes below lod x patch size are rasterized as one sphere"),
+    p("min_fraction", "0.02", "0..=1", "diffuse lobes below this fraction of the light take the mean visibility"),
+    p("shadows", "true", "true/false", "false: visibility 1 (shading error only)"),
+    p("prefiltered", "true", "true/false", "specular from SG-prefiltered environment maps (eq. 10)"),
+    p("gpu_bvh", "true", "true/false", "build the sphere BVH on the GPU (up to 1024 spheres)"),
+    p("thin_shells", "true", "true/false", "thin shells and open meshes cast shadows by their triangles"),
+    p("light_shadows", "true", "true/false", "shadow rays toward local lights"),
+    p("mode", "pixel", "pixel, vertex", "visibility per pixel or per vertex"),
+    p("max_edge", "0.1", ">= 0", "per-vertex mode: subdivide until edges are at most this (0: never)"),
+];
+
+const AVS_PARAMS: &[ParamDoc] = &[
+    p("r", "128", "8..=256", "final visibility-map resolution (initial grid x a power of two)"),
+    p("initial_grid", "16", "16, 32", "first level's resolution"),
+    p("e_max", "0.10", "0..=100", "E_v,max: insert sample points where visibility error exceeds it"),
+    p("e_min", "0.05", "0..=100", "E_v,min: stop refining below it"),
+    p("alpha", "0.3", "0..=100", "eq. 8 weight falloff"),
+    p("interp_alpha", "0", "0..=100", "interpolation falloff (0: the paper's form)"),
+    p("iterations", "2", "0..=16", "adaptation rounds per frame"),
+    p("points", "0", "0..=65536", "initial sample points (0: automatic)"),
+    p("max_points", "8192", "1..=65536", "upper bound on sample points"),
+    p("radius", "2.0", "0.01..=100", "search radius in mean nearest-neighbour distances"),
+    p("neighbours", "6", "1..=8", "sample points interpolated per pixel"),
+    p("ray_neighbours", "4", "0..=8", "neighbours whose maps also mark boundary rays"),
+    p("integration", "axis", "axis, cells, table, adf", "how the visibility maps are integrated against lighting"),
+    p("cells", "6", "1..=16", "cells per side of the lobe neighbourhood (integration = cells)"),
+    p("shadows", "true", "true/false", "false: visibility 1 (shading error only)"),
+    p("adaptive", "true", "true/false", "adaptive angular sampling (false: every texel traced)"),
+    p("keep_hits", "true", "true/false", "keep an occluded parent's hit when its child rays miss"),
+    p("prefiltered", "true", "true/false", "specular from SG-prefiltered environment maps"),
+    p("lobes", "16", "1..=64", "lighting spherical Gaussians"),
+    p("cull", "true", "true/false", "trace only sample points the previous frame's pixels needed"),
+    p("capture_maps", "false", "true/false", "read the final visibility maps back into the technique's stats (tests)"),
+];
+
+const SHADOW_FIELDS_PARAMS: &[ParamDoc] = &[
+    p("shells", "32", "1..=256", "C concentric shells per field (paper: 32)"),
+    p("resolution", "32", "power of two 1..=256", "initial shell resolution R (paper: 64)"),
+    p("map_res", "32", "2..=256", "occlusion-map rows (32 x 64 directions)"),
+    p("threshold", "0.010", ">= 0", "eq. 1 adaptive subdivision threshold (paper: 0.010)"),
+    p("mode", "pixel", "pixel, vertex", "diffuse shading per pixel or per vertex"),
+    p("window", "none", "none, hanning, lanczos", "window of the occluders' visibility before the triple products"),
+    p("srf", "true", "true/false", "local lights through source radiance fields"),
+];
+
+const VV_PARAMS: &[ParamDoc] = &[
+    p("mode", "fragment1", "fragment3, fragment1, tessellation, tessellation3", "where visibility is evaluated and interpolated"),
+    p("zeta", "2", "0..=16", "tessellation quality of eq. 18 (paper: 1 to 4)"),
+    p("alpha", "2", "0.001..=1000", "alpha' of eq. 11 in 1/texel of the SAT map"),
+    p("sat_width", "256", "even, 16..=4096", "width of the summed-area-table map"),
+    p("arcs", "32", "8..=256", "arcs of the hemisphere (horizon) loop"),
+    p("max_level", "64", "1..=64", "largest tessellation level"),
+    p("resolution", "64", "8..=1024", "visibility-map resolution of the precompute"),
+    p("specular", "on", "on/off", "specular term of glossy materials (eq. 14-16)"),
+];
+
+fn create_env(ctx: &Arc<Context>, shaders: &ShaderLibrary, _: &Scene, _: &Params) -> Result<Box<dyn Technique>> {
+    Ok(Box::new(crate::shade_env::ShadeEnvPass::new(ctx, shaders)?))
+}
+fn create_mc(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, _: &Params) -> Result<Box<dyn Technique>> {
+    Ok(Box::new(crate::mc::McTechnique::new(ctx, shaders, scene)?))
+}
+fn create_shadowmaps(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, _: &Params) -> Result<Box<dyn Technique>> {
+    Ok(Box::new(crate::shadowmaps::ShadowMapsTechnique::new(ctx, shaders, scene)?))
+}
+fn create_isg_with(per_vertex: bool, ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+    let mut settings = crate::isg::IsgSettings { per_vertex, ..Default::default() };
+    parsed(crate::technique::apply_params(&mut settings, params, crate::isg::IsgSettings::set))?;
+    Ok(Box::new(crate::isg::IsgTechnique::new(ctx, shaders, scene, settings)?))
+}
+fn create_isg(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+    create_isg_with(false, ctx, shaders, scene, params)
+}
+fn create_isg_vertex(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+    create_isg_with(true, ctx, shaders, scene, params)
+}
+fn create_avs(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+    let settings = parsed(crate::avs::AvsSettings::from_params(params))?;
+    Ok(Box::new(crate::avs::AvsTechnique::new(ctx, shaders, scene, settings)?))
+}
+fn create_sf_with(adaptive: bool, ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+    let options = crate::shadow_fields::SfOptions { adaptive, ..parsed(crate::shadow_fields::SfOptions::from_params(params))? };
+    Ok(Box::new(crate::shadow_fields::ShadowFieldsTechnique::new(ctx, shaders, scene, options)?))
+}
+fn create_sf(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+    create_sf_with(true, ctx, shaders, scene, params)
+}
+fn create_sf_fixed(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+    create_sf_with(false, ctx, shaders, scene, params)
+}
+fn create_vv(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+    let settings = parsed(crate::vv::VvSettings::from_params(params))?;
+    Ok(Box::new(crate::vv::VvTechnique::new(ctx, shaders, scene, settings)?))
+}
+
+/// Every technique, in listing order: the one place that names them.
+pub const REGISTRY: &[TechniqueInfo] = &[
+    TechniqueInfo {
+        name: "env",
+        summary: "environment (SH irradiance, prefiltered specular) and local lights, no visibility",
+        params: &[],
+        static_only: false,
+        shadows: false,
+        budget: Budget::Baseline { source: "unshadowed baseline: no visibility, so no accuracy budget" },
+        create: create_env,
+    },
+    TechniqueInfo {
+        name: "mc",
+        summary: "GPU Monte Carlo with the reference's estimator, progressive while nothing moves",
+        params: &[],
+        static_only: false,
+        shadows: true,
+        budget: Budget::Unbiased {
+            factor: 1.5,
+            source: "the reference's estimator on the GPU: unbiased, so within 1.5x the reference estimator's noise at the same samples per pixel",
+        },
+        create: create_mc,
+    },
+    TechniqueInfo {
+        name: "shadowmaps",
+        summary: "the environment as K shadowed directional lights (the papers' shadow-map baseline)",
+        params: &[],
+        static_only: false,
+        shadows: true,
+        budget: Budget::RmseRelMean {
+            rmse_rel_mean: 0.10,
+            source: "no paper reports its error; documented approximation: the environment as K importance-sampled directional lights with 3x3-PCF depth maps (the ISG paper compares against 30 and 1024 such maps)",
+        },
+        create: create_shadowmaps,
+    },
+    TechniqueInfo {
+        name: "isg",
+        summary: "integral spherical Gaussians, per-pixel visibility over sphere sets (Iwasaki et al. 2012)",
+        params: ISG_PARAMS,
+        static_only: false,
+        shadows: true,
+        budget: ISG_BUDGET,
+        create: create_isg,
+    },
+    TechniqueInfo {
+        name: "isg-vertex",
+        summary: "integral spherical Gaussians with per-vertex visibility",
+        params: ISG_PARAMS,
+        static_only: false,
+        shadows: true,
+        budget: ISG_BUDGET,
+        create: create_isg_vertex,
+    },
+    TechniqueInfo {
+        name: "avs",
+        summary: "adaptive visibility sampling with hemispherical distance transforms (Wang et al.)",
+        params: AVS_PARAMS,
+        static_only: false,
+        shadows: true,
+        budget: Budget::RmseRelMean {
+            rmse_rel_mean: 0.10,
+            source: "avs paper reports no error figure; documented approximation: visibility sampled at adaptive points with E_v,max = 10 % relative visibility error",
+        },
+        create: create_avs,
+    },
+    TechniqueInfo {
+        name: "shadow-fields",
+        summary: "adaptive shadow fields (SH occlusion and source radiance fields, adaptive shells)",
+        params: SHADOW_FIELDS_PARAMS,
+        static_only: false,
+        shadows: true,
+        budget: SHADOW_FIELDS_BUDGET,
+        create: create_sf,
+    },
+    TechniqueInfo {
+        name: "shadow-fields-fixed",
+        summary: "shadow fields at fixed (non-adaptive) shell resolution",
+        params: SHADOW_FIELDS_PARAMS,
+        static_only: false,
+        shadows: true,
+        budget: SHADOW_FIELDS_BUDGET,
+        create: create_sf_fixed,
+    },
+    TechniqueInfo {
+        name: "vv",
+        summary: "vectorized visibility with spherical Voronoi interpolation (static geometry)",
+        params: VV_PARAMS,
+        static_only: true,
+        shadows: true,
+        budget: Budget::RmseRelMean {
+            rmse_rel_mean: 0.10,
+            source: "vv paper, Fig. 11: 29.58 dB at zeta = 4, an RMSE of 3.3 % of the peak; the paper gives no mean radiance, so 10 % of the mean assumes a peak about 3x the mean (an assumption, not a measurement)",
+        },
+        create: create_vv,
+    },
+];
+
+/// Every effect.
+pub const EFFECTS: &[EffectInfo] = &[EffectInfo {
+    name: "volumetric",
+    summary: "single scattering in a homogeneous medium with volumetric shadows (light shafts)",
+    when: "the scene has a [medium]; its `volumetric` key or --volumetric picks the method",
+    variants: &["temporal", "full"],
+}];
+
+/// The registered technique `name`.
+pub fn info(name: &str) -> Option<&'static TechniqueInfo> {
+    REGISTRY.iter().find(|t| t.name == name)
+}
+
+/// The names of every registered technique, in [`REGISTRY`] order.
+pub fn names() -> Vec<&'static str> {
+    REGISTRY.iter().map(|t| t.name).collect()
+}
+
+/// `name` as a registered technique, or an error listing the registered ones.
+pub fn lookup(name: &str) -> Result<&'static TechniqueInfo> {
+    info(name).ok_or_else(|| bad(format!("unknown technique '{name}' (registered: {})", names().join(", "))))
+}
+
+/// Why technique `name` refuses `scene` before anything is built, if it does: a static-only
+/// technique on moving or deforming geometry (naming the object).
+pub fn refusal(name: &str, scene: &Scene) -> Option<String> {
+    let info = info(name)?;
+    if info.static_only {
+        for (i, o) in scene.objects.iter().enumerate() {
+            let oi = scene.object_info(i);
+            if oi.is_moving() || oi.is_deforming() {
+                return Some(format!(
+                    "'{name}' precomputes visibility for static geometry; object '{}' {}",
+                    o.name,
+                    if oi.is_moving() { "moves" } else { "deforms" }
+                ));
+            }
+        }
+    }
+    None
+}
+
+/// Checks `params` against technique `name`'s documented keys: a technique without parameters
+/// refuses any; an undocumented key is an error listing the documented ones. (Values are checked
+/// by the technique's own parser when it is created.)
+pub fn check_params(name: &str, params: &Params) -> Result<()> {
+    let info = lookup(name)?;
+    if params.is_empty() {
+        return Ok(());
+    }
+    if !info.takes_params() {
+        return Err(bad(format!("technique '{name}' takes no parameters (got: {})", params.keys().cloned().collect::<Vec<_>>().join(", "))));
+    }
+    let unknown: Vec<&str> =
+        params.keys().map(|k| k.trim()).filter(|k| !info.params.iter().any(|p| p.key == *k)).collect();
+    if !unknown.is_empty() {
+        return Err(bad(format!(
+            "unknown {name} parameter{} '{}' (known: {})",
+            if unknown.len() > 1 { "s" } else { "" },
+            unknown.join("', '"),
+            info.params.iter().map(|p| p.key).collect::<Vec<_>>().join(", ")
+        )));
+    }
+    Ok(())
+}
+
+/// Creates technique `name` for `scene` with `params`: an unknown name, a refused scene
+/// ([`refusal`]) or a bad parameter is an error.
+pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+    let info = lookup(name)?;
+    if let Some(why) = refusal(name, scene) {
+        return Err(bad(why));
+    }
+    check_params(name, params)?;
+    (info.create)(ctx, shaders, scene, params)
+}
+
+/// The registry as text (`penumbra techniques`): every technique with its summary,
+/// requirements, budget and parameters, then every effect.
+pub fn describe() -> String {
+    let mut s = String::from("Techniques (scene files: technique = \"NAME\"; CLI: --technique NAME, --param KEY=VALUE):\n");
+    for t in REGISTRY {
+        s += &format!("\n{}\n    {}\n", t.name, t.summary);
+        if t.static_only {
+            s += "    static geometry only (refuses scenes whose objects move or deform)\n";
+        }
+        match t.budget {
+            Budget::RmseRelMean { rmse_rel_mean, source } => {
+                s += &format!("    accuracy budget: RMSE / reference mean <= {rmse_rel_mean} ({source})\n")
+            }
+            Budget::Unbiased { factor, source } => s += &format!("    accuracy budget: unbiased, noise <= {factor}x the reference's ({source})\n"),
+            Budget::Baseline { source } => s += &format!("    accuracy budget: none ({source})\n"),
+        }
+        if t.params.is_empty() {
+            s += "    parameters: none\n";
+        } else {
+            s += "    parameters:\n";
+            for p in t.params {
+                s += &format!("      {:<14} default {:<10} {:<28} {}\n", p.key, p.default, format!("({})", p.range), p.doc);
+            }
+        }
+    }
+    s += "\nEffects (added by what the scene contains):\n";
+    for e in EFFECTS {
+        s += &format!("\n{}\n    {}\n    when: {}\n    methods: {}\n", e.name, e.summary, e.when, e.variants.join(", "));
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn registry_names_every_technique_once_with_a_budget() {
+        let names = names();
+        let mut sorted = names.clone();
+        sorted.sort();
+        sorted.dedup();
+        assert_eq!(sorted.len(), names.len(), "duplicate names in {names:?}");
+        for t in REGISTRY {
+            match t.budget {
+                Budget::RmseRelMean { rmse_rel_mean, source } => {
+                    assert!(rmse_rel_mean > 0.0 && rmse_rel_mean < 1.0 && !source.is_empty(), "{}", t.name)
+                }
+                Budget::Unbiased { factor, source } => assert!(factor >= 1.0 && !source.is_empty(), "{}", t.name),
+                Budget::Baseline { .. } => assert!(!t.shadows, "{}: a shadow technique needs a budget", t.name),
+            }
+        }
+    }
+
+    /// Each technique's own parser accepts every documented key at its documented default, and
+    /// the documented defaults are the parser's defaults.
+    #[test]
+    fn documented_parameters_are_the_parsers_parameters() {
+        let defaults = |params: &[ParamDoc]| -> Params { params.iter().map(|p| (p.key.to_string(), p.default.to_string())).collect() };
+        for t in REGISTRY {
+            let all = defaults(t.params);
+            check_params(t.name, &all).unwrap();
+        }
+        let isg = crate::isg::IsgSettings::from_params(&defaults(ISG_PARAMS)).unwrap();
+        let d = crate::isg::IsgSettings::default();
+        assert_eq!(
+            (isg.lobes, isg.spheres_per_object, isg.patch_side, isg.epsilon, isg.lod, isg.max_edge),
+            (d.lobes, d.spheres_per_object, d.patch_side, d.epsilon, d.lod, d.max_edge)
+        );
+        let avs = crate::avs::AvsSettings::from_params(&defaults(AVS_PARAMS)).unwrap();
+        let d = crate::avs::AvsSettings::default();
+        assert_eq!((avs.r, avs.e_max, avs.iterations, avs.max_points, avs.neighbours), (d.r, d.e_max, d.iterations, d.max_points, d.neighbours));
+        let sf = crate::shadow_fields::SfOptions::from_params(&defaults(SHADOW_FIELDS_PARAMS)).unwrap();
+        let d = crate::shadow_fields::SfOptions::default();
+        assert_eq!(
+            (sf.params.shells, sf.params.resolution, sf.params.map_res, sf.params.threshold),
+            (d.params.shells, d.params.resolution, d.params.map_res, d.params.threshold)
+        );
+        let vv = crate::vv::VvSettings::from_params(&defaults(VV_PARAMS)).unwrap();
+        assert_eq!(vv, crate::vv::VvSettings::default());
+        // An undocumented key is refused before any parser sees it.
+        for t in REGISTRY {
+            let bogus: Params = [("bogus".to_string(), "1".to_string())].into();
+            let e = check_params(t.name, &bogus).unwrap_err().to_string();
+            assert!(e.contains("bogus"), "{}: {e}", t.name);
+        }
+    }
+
+    #[test]
+    fn unknown_names_list_the_registered_ones() {
+        let e = lookup("hsdt").unwrap_err().to_string();
+        assert!(e.contains("unknown technique 'hsdt'") && e.contains("avs") && e.contains("vv"), "{e}");
+        assert!(describe().contains("shadow-fields-fixed") && describe().contains("volumetric"));
+    }
+
+    #[test]
+    fn bad_parameters_are_reported_together() {
+        let params: Params =
+            [("zeta", "-3"), ("mode", "fragment1"), ("bogus", "1")].iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+        let e = crate::vv::VvSettings::from_params(&params).unwrap_err().to_string();
+        assert!(e.starts_with("2 bad technique parameters"), "{e}");
+        assert!(e.contains("zeta") && e.contains("bogus") && !e.contains("fragment1"), "{e}");
+        let one: Params = [("lobes".to_string(), "zero".to_string())].into();
+        let e = crate::isg::IsgSettings::from_params(&one).unwrap_err().to_string();
+        assert!(e.contains("lobes") && !e.contains("bad technique parameters"), "{e}");
+        let good: Params = [("mode".to_string(), "vertex".to_string())].into();
+        assert!(crate::shadow_fields::SfOptions::from_params(&good).is_ok());
+    }
+}
