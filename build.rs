@@ -1,6 +1,6 @@
 //! Compiles every shader under `glsl/` (not `glsl/include/`) to SPIR-V with shaderc and embeds
 //! them: `$OUT_DIR/shaders.rs` defines `SHADERS: &[(&str, &[u8])]`, keyed by the path relative to
-//! `glsl/` (e.g. `"gbuffer.vert"`). Any compile error fails the build, listing every failing file
+//! `glsl/` (e.g. `"frame/gbuffer.vert"`). Any compile error fails the build, listing every failing file
 //! with its line and message.
 
 #[path = "engine/src/glsl_compile.rs"]

@@ -151,8 +151,8 @@ fn shader_errors_name_file_and_line() {
     assert!(err.contains("broken.comp:4"), "{err}");
     // Hot reload from the sources recompiles a real shader.
     let mut lib = penumbra::shader_library();
-    let before = lib.get("tonemap.comp").unwrap().len();
-    lib.reload("tonemap.comp").unwrap();
-    assert_eq!(lib.get("tonemap.comp").unwrap().len(), before);
+    let before = lib.get("frame/tonemap.comp").unwrap().len();
+    lib.reload("frame/tonemap.comp").unwrap();
+    assert_eq!(lib.get("frame/tonemap.comp").unwrap().len(), before);
     assert!(lib.reload("missing.comp").is_err());
 }

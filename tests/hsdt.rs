@@ -104,7 +104,7 @@ fn fp16_precision_at_256() {
     assert_eq!(ctx.validation.error_count(), 0, "validation errors: {:?}", ctx.validation.errors());
 }
 
-/// The GLSL mirror (`glsl/include/avs_maps.glsl`, run by `glsl/hsdt_layout_test.comp`) agrees with
+/// The GLSL mirror (`glsl/include/avs_maps.glsl`, run by `glsl/tests/hsdt_layout_test.comp`) agrees with
 /// the Rust layout: texel directions, solid angles, direction -> texel (poles, horizon, seam),
 /// angular distances and both frame builders.
 #[test]
@@ -134,7 +134,7 @@ fn glsl_layout_matches_cpu() {
         dirs.push(d.normalize());
     }
     let input: Vec<[f32; 4]> = dirs.iter().map(|d| [d.x as f32, d.y as f32, d.z as f32, 0.0]).collect();
-    let pipe = compute_pipeline(&ctx, &lib, "hsdt_layout_test.comp", &[vk::DescriptorType::STORAGE_BUFFER; 2], 4).unwrap();
+    let pipe = compute_pipeline(&ctx, &lib, "tests/hsdt_layout_test.comp", &[vk::DescriptorType::STORAGE_BUFFER; 2], 4).unwrap();
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     let mut g = Graph::new();
     let inb = g.create_buffer_init("dirs", bytes_of(&input));
@@ -196,7 +196,7 @@ fn glsl_layout_matches_cpu() {
 }
 
 /// The GLSL SSDF integrals (`glsl/include/ssdf_integrate.glsl`, run by
-/// `glsl/hsdt_integrate_test.comp` on GPU-made fp16 SSDFs) agree with the CPU versions
+/// `glsl/tests/hsdt_integrate_test.comp` on GPU-made fp16 SSDFs) agree with the CPU versions
 /// (`penumbra_math::ssdf_integrate`) evaluated on the same fp16 values: random cap occluders,
 /// all visible / all occluded, lambda 1e-2..1e4, grazing and below-horizon axes, with and
 /// without the cosine.
@@ -239,7 +239,7 @@ fn glsl_integrals_match_cpu() {
     }
     let n = lobes.len();
     let words: Vec<u32> = ssdf.iter().flat_map(|v| penumbra_math::avs_maps::pack_ssdf_f16(v)).collect();
-    let pipe = compute_pipeline(&ctx, &lib, "hsdt_integrate_test.comp", &[vk::DescriptorType::STORAGE_BUFFER; 5], 8).unwrap();
+    let pipe = compute_pipeline(&ctx, &lib, "tests/hsdt_integrate_test.comp", &[vk::DescriptorType::STORAGE_BUFFER; 5], 8).unwrap();
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     let mut g = Graph::new();
     let bufs = [

@@ -42,7 +42,7 @@ fn falling_and_hat_on_cloth_are_validation_clean() {
     }
 }
 
-/// The GLSL visibility (`isg_visible` in glsl/include/isg.glsl, run by glsl/isg_parity.comp)
+/// The GLSL visibility (`isg_visible` in glsl/include/isg.glsl, run by glsl/tests/isg_parity.comp)
 /// against the CPU one (`penumbra_math::isg::visible_fraction_with_triangles`) on the same
 /// spheres, thin-shell triangles and queries, over sharpness 1e-2..1e5, lobes at the horizon,
 /// spheres touching/containing the point, blockers behind the surface.
@@ -50,7 +50,8 @@ fn falling_and_hat_on_cloth_are_validation_clean() {
 fn shader_visibility_matches_cpu() {
     use glam::{DVec3, Vec3};
     use penumbra_math::isg::{visible_fraction_with_triangles, IsgParams, IsgTable, Sphere};
-    use penumbra_passes::isg::{gpu_visibility, VisibilityQuery, WorldSphere};
+    use penumbra_passes::isg::WorldSphere;
+    use penumbra_passes::kernels::isg::{gpu_visibility, VisibilityQuery};
     let mut seed = 99u64;
     let mut rnd = || {
         seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);

@@ -23,6 +23,16 @@ fn render(scene: &Scene, w: u32, h: u32, validation: bool) -> (Renderer, Vec<Fra
     (r, out)
 }
 
+/// One frame of `scene` with the unshadowed `env` technique (the scene's parameters belong to
+/// its own technique, `vv`, so `env` gets none).
+fn render_env(scene: &Scene, w: u32, h: u32) -> FrameImages {
+    let settings = RenderSettings { width: w, height: h, technique: Some("env".into()), ..Default::default() };
+    let mut r = Renderer::new_headless(scene, settings, false).unwrap();
+    let mut env = r.render(&scene.at(0.0, Some(0.0)), None, true).unwrap();
+    env.extend(r.finish().unwrap());
+    env.remove(0)
+}
+
 #[test]
 fn modes_render_validation_clean_and_match_the_reference() {
     std::env::set_var("PENUMBRA_NO_PROGRESS", "1");
@@ -30,13 +40,8 @@ fn modes_render_validation_clean_and_match_the_reference() {
     let (w, h) = (24, 18);
     let reference = reference_render(&s, &ReferenceOptions { width: w, height: h, spp: 64, time: Some(0.0), mode: Mode::Exact, ..Default::default() })
         .expect("reference");
-    let mut env_s = s.clone();
-    env_s.technique_params.clear();
-    let settings = RenderSettings { width: w, height: h, technique: Some("env".into()), ..Default::default() };
-    let mut r = Renderer::new_headless(&env_s, settings, false).unwrap();
-    let mut env = r.render(&env_s.at(0.0, Some(0.0)), None, true).unwrap();
-    env.extend(r.finish().unwrap());
-    let env_psnr = compare(&reference.radiance, "reference", &image(&env[0]), "env").unwrap().psnr_db.unwrap_or(99.0);
+    let env = render_env(&s, w, h);
+    let env_psnr = compare(&reference.radiance, "reference", &image(&env), "env").unwrap().psnr_db.unwrap_or(99.0);
     println!("env (no shadows): PSNR {env_psnr:.2}");
     let input_triangles = penumbra_passes::vv::scene_model(&s).unwrap().triangle_count() as u64;
     for mode in ["fragment3", "fragment1", "tessellation"] {
@@ -56,7 +61,7 @@ fn modes_render_validation_clean_and_match_the_reference() {
             let dir = PathBuf::from(dir);
             image(last).write_exr(dir.join(format!("{mode}.exr"))).unwrap();
             reference.radiance.write_exr(dir.join("reference.exr")).unwrap();
-            image(&env[0]).write_exr(dir.join("env.exr")).unwrap();
+            image(&env).write_exr(dir.join("env.exr")).unwrap();
         }
         let psnr = c.psnr_db.unwrap_or(99.0);
         println!("{mode}: PSNR {psnr:.2} relRMSE {:.4} FLIP {:.4} gpu {:?}", c.rel_rmse, c.flip_mean, last.gpu_ms);
@@ -113,7 +118,7 @@ fn parity_cases(sun: glam::DVec3) -> Vec<(&'static str, glam::DVec3, Vec<Vec<gla
 }
 
 /// The GPU SAT (fp32, Kahan-compensated prefix sums) against the CPU SAT (f64) of the same map,
-/// and the GLSL integral (`vv_sat.glsl` through `glsl/vv_parity.comp`: hemisphere minus occluder
+/// and the GLSL integral (`vv_sat.glsl` through `glsl/tests/vv_parity.comp`: hemisphere minus occluder
 /// loops, eq. 9-12) against `penumbra_math::vv_sat` on seam, pole, tangent-plane and sun cases:
 /// the scene's map and a 1024 x 512 map with a sun 1e4 times the sky.
 #[test]
@@ -129,7 +134,7 @@ fn gpu_sat_and_glsl_integral_match_cpu() {
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
     let shaders = penumbra::shader_library();
     let t0 = std::time::Instant::now();
-    let parity = penumbra_passes::vv::VvParity::new(&ctx, &shaders).expect("parity pipeline");
+    let parity = penumbra_passes::kernels::vv::VvParity::new(&ctx, &shaders).expect("parity pipeline");
     println!("parity pipeline created in {:.2} s", t0.elapsed().as_secs_f64());
     let sun = dir(2.0 * std::f64::consts::PI * 300.5 / 1024.0, std::f64::consts::PI * 120.5 / 512.0);
     let cases = parity_cases(sun);
@@ -274,11 +279,11 @@ fn gpu_cap_ratio_matches_cpu() {
     });
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
     let shaders = penumbra::shader_library();
-    let parity = penumbra_passes::vv::VvCapParity::new(&ctx, &shaders).expect("cap parity pipeline");
+    let parity = penumbra_passes::kernels::vv::VvCapParity::new(&ctx, &shaders).expect("cap parity pipeline");
     // Phong alpha 16 (Blinn-Phong shininess 64): W of radius 33 degrees
     let cos_xi = penumbra_math::vv_sat::phong_cap_cos(16.0);
     let cases = cap_cases(cos_xi);
-    let gpu_cases: Vec<penumbra_passes::vv::CapCase> = cases
+    let gpu_cases: Vec<penumbra_passes::kernels::vv::CapCase> = cases
         .iter()
         .map(|(_, n, r, loops)| (n.as_vec3(), r.as_vec3(), cos_xi as f32, loops.iter().map(|l| l.iter().rev().map(|d| d.as_vec3()).collect()).collect()))
         .collect();
@@ -401,13 +406,8 @@ fn glossy_specular_in_all_modes() {
     let mut psnr = std::collections::BTreeMap::new();
     {
         // context: the env technique (glossy from the prefiltered map, no shadows)
-        let mut env_s = s.clone();
-        env_s.technique_params.clear();
-        let settings = RenderSettings { width: w, height: h, technique: Some("env".into()), ..Default::default() };
-        let mut r = Renderer::new_headless(&env_s, settings, false).unwrap();
-        let mut env = r.render(&env_s.at(0.0, Some(0.0)), None, true).unwrap();
-        env.extend(r.finish().unwrap());
-        let c = compare(&reference.radiance, "reference", &image(&env[0]), "env").unwrap();
+        let env = render_env(&s, w, h);
+        let c = compare(&reference.radiance, "reference", &image(&env), "env").unwrap();
         println!("glossy env (no shadows): PSNR {:.2} relRMSE {:.4} FLIP {:.4}", c.psnr_db.unwrap_or(99.0), c.rel_rmse, c.flip_mean);
     }
     for (mode, spec) in [("fragment3", "on"), ("fragment3", "off"), ("fragment1", "on"), ("fragment1", "off"), ("tessellation", "on"), ("tessellation", "off"), ("tessellation3", "on")] {

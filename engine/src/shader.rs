@@ -18,7 +18,7 @@ impl ShaderLibrary {
         ShaderLibrary { shaders: table.iter().map(|(k, v)| (k.to_string(), v.to_vec())).collect(), source_dir }
     }
 
-    /// SPIR-V bytes of `name` (e.g. `"gbuffer.vert"`).
+    /// SPIR-V bytes of `name` (e.g. `"frame/gbuffer.vert"`).
     pub fn get(&self, name: &str) -> Result<&[u8]> {
         self.shaders.get(name).map(|v| v.as_slice()).ok_or_else(|| {
             anyhow!(

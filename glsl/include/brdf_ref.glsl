@@ -1,5 +1,5 @@
 // BRDFs of penumbra_reference::brdf (evaluation, pdf and sampling), local frame: n = +Z,
-// tangent = +X. Shared by mc.comp and mc_shadowmaps.comp; `brdf_from_material` builds one from a
+// tangent = +X. Shared by mc.comp and shadowmaps/shadowmaps_shade.comp; `brdf_from_material` builds one from a
 // material of material.glsl (include that first).
 #ifndef PENUMBRA_BRDF_REF_GLSL
 #define PENUMBRA_BRDF_REF_GLSL

@@ -4,8 +4,10 @@
 // Flat arrays live in 2D images of width 4096 (texelFetch): vv_points (RGBA32F homogeneous
 // points of penumbra_math::vv::VectorizedVisibility), vv_ints (R32UI: seq_offsets,
 // vertex_seqs, tri_offsets, loop_offsets, triples, triangle vertex ids at the offsets in
-// pc.off0/off1), vv_verts (RGBA32F, 4 texels per model vertex: world position, normal, albedo,
-// specular (rgb reflectance, w Phong exponent alpha of eq. 13; 0 = diffuse only)).
+// pc.off0/off1), vv_verts (RGBA32F, 4 texels per model vertex: (world position, u), (normal, v),
+// (albedo, albedo-map layer or -1), specular (rgb reflectance, w Phong exponent alpha of eq. 13;
+// 0 = diffuse only)). Albedo maps come from the scene's texture array (material_textures), as
+// material.glsl applies them.
 #ifndef PENUMBRA_VV_DATA_GLSL
 #define PENUMBRA_VV_DATA_GLSL
 #include "common.glsl"
@@ -17,6 +19,7 @@ layout(set = 0, binding = 2) uniform usampler2D vv_ints;
 layout(set = 0, binding = 3) uniform sampler2D vv_verts;
 layout(set = 0, binding = 4) uniform sampler2D vv_sat_tex;
 layout(set = 0, binding = 5) uniform sampler2D vv_sat_blur;
+layout(set = 0, binding = 6) uniform sampler2DArray material_textures;
 layout(push_constant) uniform Push {
     ivec4 sat;    // x W, y H, z hemisphere arcs, w mode (0 fragment3, 1 fragment1, 2 tessellation, 3 tessellation3)
     ivec4 off0;   // offsets in vv_ints: x seq_offsets, y vertex_seqs, z tri_offsets, w loop_offsets
@@ -38,6 +41,16 @@ vec3 vv_vert(int v, int k) {
 }
 vec4 vv_vert_spec(int v) {
     return texelFetch(vv_verts, vv_tc(4 * v + 3), 0);
+}
+// (u, v, albedo-map layer) of model vertex v.
+vec3 vv_vert_uv_layer(int v) {
+    return vec3(texelFetch(vv_verts, vv_tc(4 * v), 0).w, texelFetch(vv_verts, vv_tc(4 * v + 1), 0).w,
+                texelFetch(vv_verts, vv_tc(4 * v + 2), 0).w);
+}
+// The albedo at texture coordinate uv: the material's albedo times its albedo map (layer < 0:
+// none), as material.glsl's material_at.
+vec3 vv_albedo(vec3 albedo, float layer, vec2 uv) {
+    return layer >= 0.0 ? max(albedo * textureLod(material_textures, vec3(uv, layer), 0.0).rgb, vec3(0.0)) : albedo;
 }
 
 // Specular (eq. 14-16) state of one radiance evaluation: the occluder loops clipped to the cap W

@@ -11,7 +11,7 @@
 //! The SH16 projection of a visibility map is the order-4 real SH (`crate::sh` convention) of
 //! the visibility function over WORLD directions (`V = 1` on visible texels of the hemisphere,
 //! 0 elsewhere), so coefficients of points with different tangent frames are comparable;
-//! [`sh16_project`] is the CPU mirror of the GPU pass (`glsl/avs_sh.comp`).
+//! [`sh16_project`] is the CPU mirror of the GPU pass (`glsl/avs/avs_sh.comp`).
 
 use crate::avs_maps::{texel_dir, texel_solid_angle, Frame, VisMap};
 use glam::{DVec3, Vec3};
@@ -344,7 +344,7 @@ pub fn eq8_weights(alpha: f32, inv_scale: f32, x: Vec3, n: Vec3, neighbours: &[(
 /// Whether `b` may stand in for `a` (interpolation neighbours): normals in the same hemisphere
 /// and `b` within a quarter of `radius` of `a`'s tangent plane (points off the plane lie on another
 /// surface, e.g. cloth under a hat brim; `e_g` alone barely separates them after the scale
-/// normalisation). The same test is used by the GPU shading (`glsl/avs_shade.comp`).
+/// normalisation). The same test is used by the GPU shading (`glsl/avs/avs_shade.comp`).
 pub fn same_surface(a: &SurfacePoint, b: &SurfacePoint, radius: f32) -> bool {
     a.normal.dot(b.normal) > 0.0 && (b.pos - a.pos).dot(a.normal).abs() <= 0.25 * radius
 }

@@ -67,7 +67,7 @@ impl GBufferPass {
             shaders,
             &RasterDesc {
                 name: "gbuffer",
-                shaders: &["gbuffer.vert", "gbuffer.frag"],
+                shaders: &["frame/gbuffer.vert", "frame/gbuffer.frag"],
                 descriptors: &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
                 vertex_input: VertexInput::PositionNormalUv,
                 colors: &[POSITION_FORMAT, NORMAL_FORMAT, UV_MAT_FORMAT, MOTION_FORMAT],

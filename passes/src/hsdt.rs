@@ -1,10 +1,10 @@
 //! GPU hemispherical signed distance transform (paper section 5, Algorithm 1): packed visibility
 //! maps in, fp16 SSDFs out, in two compute passes per batch of maps, declared through the graph:
 //!
-//! * `{name}_rows_b{k}` (`glsl/hsdt_rows.comp`): latitude scans, one invocation per (map, row);
+//! * `{name}_rows_b{k}` (`glsl/hsdt/hsdt_rows.comp`): latitude scans, one invocation per (map, row);
 //!   writes the nearest occluded / visible column of every texel in its row into a transient
 //!   `{name}_g` buffer (4 bytes per texel of a batch, reused by the batches).
-//! * `{name}_cols_b{k}` (`glsl/hsdt_cols.comp`): longitude scans, one invocation per (map, pair
+//! * `{name}_cols_b{k}` (`glsl/hsdt/hsdt_cols.comp`): longitude scans, one invocation per (map, pair
 //!   of columns) (so each invocation owns whole fp16x2 words); Meijster lower envelope with
 //!   spherical distances, writes the signed distances (radians, fp16).
 //!
@@ -23,7 +23,7 @@ use std::sync::Arc;
 /// Upper bound on the bytes of one batch's intermediate (phase 1) buffer.
 pub const G_BUDGET_BYTES: u64 = 32 << 20;
 /// Shaders this module needs.
-pub const SHADERS: [&str; 2] = ["hsdt_rows.comp", "hsdt_cols.comp"];
+pub const SHADERS: [&str; 2] = ["hsdt/hsdt_rows.comp", "hsdt/hsdt_cols.comp"];
 
 /// The two HSDT pipelines.
 pub struct Hsdt {
@@ -42,8 +42,8 @@ impl Hsdt {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
         let sb = vk::DescriptorType::STORAGE_BUFFER;
         Ok(Hsdt {
-            rows: compute_pipeline(ctx, shaders, "hsdt_rows.comp", &[sb; 2], 16)?,
-            cols: compute_pipeline(ctx, shaders, "hsdt_cols.comp", &[sb; 3], 16)?,
+            rows: compute_pipeline(ctx, shaders, "hsdt/hsdt_rows.comp", &[sb; 2], 16)?,
+            cols: compute_pipeline(ctx, shaders, "hsdt/hsdt_cols.comp", &[sb; 3], 16)?,
             batch: None,
         })
     }
@@ -121,47 +121,6 @@ impl Hsdt {
             b += 1;
         }
         Ok(out)
-    }
-}
-
-/// Evaluator of the SSDF integrals of `glsl/include/ssdf_integrate.glsl` for (map, lobe) pairs
-/// (`glsl/hsdt_integrate_test.comp`; tests and `penumbra bench hsdt`).
-pub struct IntegrateEval {
-    pipe: Pipeline,
-}
-
-impl IntegrateEval {
-    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        let sb = vk::DescriptorType::STORAGE_BUFFER;
-        Ok(IntegrateEval { pipe: compute_pipeline(ctx, shaders, "hsdt_integrate_test.comp", &[sb; 5], 8)? })
-    }
-
-    /// Adds a pass `name` evaluating `n` (map, lobe) pairs: `lobes` = `n` x (axis.xyz, lambda) f32,
-    /// `params` = `n` x (mu, cosine 0/1, map index, methods 1 = (a) / 2 = (b) / 3 = both) f32,
-    /// `ssdf` the fp16 maps, `table` the `AxisTable` f32 data. Returns `n` x (a, b) f32.
-    #[allow(clippy::too_many_arguments)]
-    pub fn add(
-        &self,
-        graph: &mut Graph,
-        name: &str,
-        ssdf: BufferHandle,
-        table: BufferHandle,
-        lobes: BufferHandle,
-        params: BufferHandle,
-        n: u32,
-        r: u32,
-    ) -> BufferHandle {
-        let out = graph.create_buffer(&format!("{name}_out"), (n as u64 * 8).max(8));
-        let mut p = graph.pass(name, PassKind::Compute);
-        let ins = [ssdf, table, lobes, params].map(|b| p.read(b, Access::ComputeShaderReadStorage));
-        let o = p.write(out, Access::ComputeShaderWriteStorage);
-        let pipe = self.pipe.handle();
-        p.record(move |rc| {
-            let mut binds: Vec<Bind> = ins.iter().map(|b| Bind::StorageBuffer(*b)).collect();
-            binds.push(Bind::StorageBuffer(o));
-            dispatch(rc, pipe, &binds, &bytes_of(&[r, n]), [groups(n, 16).max(1), 1, 1])
-        });
-        o
     }
 }
 

@@ -1,11 +1,11 @@
 //! kd-tree over the frame's world-space triangles, built on the GPU in compute passes
-//! (`glsl/kdtree_init.comp`, `glsl/kdtree_build.comp`), kept in persistent buffers and rebuilt only
+//! (`glsl/trace/kdtree_init.comp`, `glsl/trace/kdtree_build.comp`), kept in persistent buffers and rebuilt only
 //! when geometry moved or deformed (static scenes build once).
 //!
 //! # Build (after Zhou, Hou, Wang and Guo 2008, with the differences listed)
 //! Breadth first, two compute dispatches per tree level, with no host read-back (every dispatch
 //! reads the level's node range from counters the previous one wrote):
-//! - `kdtree_level<L>` (`glsl/kdtree_build.comp`), nodes with more than
+//! - `kdtree_level<L>` (`glsl/trace/kdtree_build.comp`), nodes with more than
 //!   [`KdTreeParams::small_max`] references, one workgroup (64 invocations) per node, visiting only
 //!   the nodes their parents listed as large:
 //!   - *large-node stage* (more than [`KdTreeParams::large_threshold`] references): the
@@ -13,7 +13,7 @@
 //!     the cell is more than 25% empty the empty space is cut off, else the node is split at the
 //!     spatial median of the tight bounds' longest axis (Zhou et al.: same rules);
 //!   - medium nodes: the SAH below, binned cooperatively;
-//! - `kdtree_level<L>_small` (`glsl/kdtree_small.comp`), *small-node stage*: one invocation per
+//! - `kdtree_level<L>_small` (`glsl/trace/kdtree_small.comp`), *small-node stage*: one invocation per
 //!   node (as Zhou et al.), SAH (traversal cost 1, intersection cost 1.5) on 16 bins per axis over
 //!   the cell; a leaf when no split beats the leaf cost, at most [`KdTreeParams::leaf_size`]
 //!   references, or at [`KdTreeParams::max_depth`].
@@ -66,7 +66,7 @@ pub struct KdTreeParams {
     /// Nodes with more references are split by the large-node rules.
     pub large_threshold: u32,
     /// Nodes with at most this many references are processed one per invocation
-    /// (`glsl/kdtree_small.comp`), larger ones one per workgroup.
+    /// (`glsl/trace/kdtree_small.comp`), larger ones one per workgroup.
     pub small_max: u32,
     /// Node capacity per triangle (plus 8192).
     pub nodes_per_triangle: u32,
@@ -272,9 +272,9 @@ pub struct KdTreeBuilder {
 impl KdTreeBuilder {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
         use vk::DescriptorType as T;
-        let init = compute_pipeline(ctx, shaders, "kdtree_init.comp", &[T::STORAGE_BUFFER; 4], 32)?;
-        let build = compute_pipeline(ctx, shaders, "kdtree_build.comp", &[T::STORAGE_BUFFER; 5], 32)?;
-        let small = compute_pipeline(ctx, shaders, "kdtree_small.comp", &[T::STORAGE_BUFFER; 5], 32)?;
+        let init = compute_pipeline(ctx, shaders, "trace/kdtree_init.comp", &[T::STORAGE_BUFFER; 4], 32)?;
+        let build = compute_pipeline(ctx, shaders, "trace/kdtree_build.comp", &[T::STORAGE_BUFFER; 5], 32)?;
+        let small = compute_pipeline(ctx, shaders, "trace/kdtree_small.comp", &[T::STORAGE_BUFFER; 5], 32)?;
         Ok(KdTreeBuilder {
             init,
             build,

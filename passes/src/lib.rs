@@ -10,6 +10,7 @@ pub mod gbuffer;
 pub mod hsdt;
 pub mod isg;
 pub mod kdtree;
+pub mod kernels;
 pub mod lighting;
 pub mod mc;
 pub mod raster;

@@ -32,7 +32,7 @@ pub fn lighting_lobes(scene: &Scene, k: usize) -> (Vec<[f32; 4]>, Option<f64>) {
 pub const PREFILTER_LAMBDAS: [f64; 8] = [0.25, 1.0, 4.0, 16.0, 64.0, 256.0, 1024.0, 4096.0];
 
 /// The environment prefiltered with normalised SGs ([`PREFILTER_LAMBDAS`], at most 128 rows) in
-/// the layout of `Prefiltered` in `glsl/isg_shade.comp`; `[0.0]` (no levels) without an
+/// the layout of `Prefiltered` in `glsl/isg/isg_shade.comp`; `[0.0]` (no levels) without an
 /// environment.
 pub fn prefiltered_env(scene: &Scene) -> Vec<f32> {
     let Some(e) = scene.environment.as_ref() else { return vec![0.0] };

@@ -1,4 +1,4 @@
-//! The GPU Monte Carlo baseline, technique `mc` (`glsl/mc.comp`): the "GPU-based Monte Carlo ray
+//! The GPU Monte Carlo baseline, technique `mc` (`glsl/mc/mc.comp`): the "GPU-based Monte Carlo ray
 //! tracing" the papers compare against, on the compute tracer of [`crate::trace`].
 //!
 //! Per pixel and frame, [`McTechnique::spp`] samples of the CPU reference's estimator
@@ -42,7 +42,7 @@ use std::sync::Arc;
 
 
 /// Local lights as `penumbra_reference::lights::LocalLight::new` keeps them (lights that cannot
-/// emit are dropped): 4 vec4 each, the layout of `lights` in `glsl/mc.comp`.
+/// emit are dropped): 4 vec4 each, the layout of `lights` in `glsl/mc/mc.comp`.
 pub fn light_table(lights: &[penumbra_scene::LightInstance]) -> Vec<[f32; 4]> {
     use penumbra_scene::LightKind;
     let mut out = Vec::new();
@@ -114,7 +114,7 @@ impl McTechnique {
         let pipeline = compute_pipeline(
             ctx,
             shaders,
-            "mc.comp",
+            "mc/mc.comp",
             &[
                 T::STORAGE_BUFFER,
                 T::STORAGE_BUFFER,

@@ -1,4 +1,4 @@
-//! Environment- and local-light shading without shadows (`glsl/shade_env.comp`): diffuse from SH
+//! Environment- and local-light shading without shadows (`glsl/frame/shade_env.comp`): diffuse from SH
 //! irradiance, glossy from the mip-filtered environment map with an analytic environment BRDF,
 //! plus unshadowed point/spot/sphere lights with the material's BRDF.
 
@@ -87,7 +87,7 @@ impl ShadeEnvPass {
         let pipeline = compute_pipeline(
             ctx,
             shaders,
-            "shade_env.comp",
+            "frame/shade_env.comp",
             &[&ShadingIo::TYPES[..], &[T::STORAGE_BUFFER, T::COMBINED_IMAGE_SAMPLER]].concat(),
             4,
         )?;

@@ -1,5 +1,5 @@
-//! The shadow-map baseline, technique `shadowmaps` (`glsl/trace_shadowmap.comp`,
-//! `glsl/mc_shadowmaps.comp`): the comparison of the ISG and adaptive-visibility papers.
+//! The shadow-map baseline, technique `shadowmaps` (`glsl/shadowmaps/shadowmaps_depth.comp`,
+//! `glsl/shadowmaps/shadowmaps_shade.comp`): the comparison of the ISG and adaptive-visibility papers.
 //!
 //! The environment is replaced by [`ShadowMapsTechnique::count`] directional lights at stratified
 //! importance samples of it (the distribution of [`crate::env::EnvTables`]: luminance x solid
@@ -54,11 +54,11 @@ pub struct ShadowMapsTechnique {
 impl ShadowMapsTechnique {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene) -> Result<Self> {
         use vk::DescriptorType as T;
-        let depth_pipe = compute_pipeline(ctx, shaders, "trace_shadowmap.comp", &[T::STORAGE_BUFFER; 6], 32)?;
+        let depth_pipe = compute_pipeline(ctx, shaders, "shadowmaps/shadowmaps_depth.comp", &[T::STORAGE_BUFFER; 6], 32)?;
         let shade_pipe = compute_pipeline(
             ctx,
             shaders,
-            "mc_shadowmaps.comp",
+            "shadowmaps/shadowmaps_shade.comp",
             &[
                 T::COMBINED_IMAGE_SAMPLER,
                 T::COMBINED_IMAGE_SAMPLER,

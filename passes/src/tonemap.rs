@@ -1,4 +1,4 @@
-//! Tone mapping (`glsl/tonemap.comp`): exposure, ACES filmic fit, sRGB encoding into RGBA8.
+//! Tone mapping (`glsl/frame/tonemap.comp`): exposure, ACES filmic fit, sRGB encoding into RGBA8.
 //! NaN/Inf radiance shows as magenta instead of passing silently.
 
 use crate::util::{compute_pipeline, groups, Pipeline, Sampler};
@@ -33,7 +33,7 @@ impl TonemapPass {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
         use vk::DescriptorType as T;
         let pipeline =
-            compute_pipeline(ctx, shaders, "tonemap.comp", &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE], 4)?;
+            compute_pipeline(ctx, shaders, "frame/tonemap.comp", &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE], 4)?;
         Ok(TonemapPass { pipeline, nearest: Sampler::nearest(ctx)? })
     }
 

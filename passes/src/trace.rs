@@ -1,4 +1,4 @@
-//! The compute ray tracer (`glsl/trace.comp`, traversal in `glsl/include/kdtree.glsl`): a pass
+//! The compute ray tracer (`glsl/trace/trace.comp`, traversal in `glsl/include/kdtree.glsl`): a pass
 //! hands a ray buffer and gets a hit buffer, through the kd-tree of [`crate::kdtree`].
 //!
 //! Rays: 32 bytes each, `(origin.xyz, tmin), (direction.xyz, tmax)` as f32 (see [`Ray`]).
@@ -79,7 +79,7 @@ pub struct Tracer {
 
 impl Tracer {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        let pipeline = compute_pipeline(ctx, shaders, "trace.comp", &[vk::DescriptorType::STORAGE_BUFFER; 6], 8)?;
+        let pipeline = compute_pipeline(ctx, shaders, "trace/trace.comp", &[vk::DescriptorType::STORAGE_BUFFER; 6], 8)?;
         Ok(Tracer { pipeline })
     }
 

@@ -81,7 +81,7 @@ pub fn layouts(
     Ok((set_layout, layout))
 }
 
-/// A compute pipeline from `shader` (e.g. `"tonemap.comp"`).
+/// A compute pipeline from `shader` (e.g. `"frame/tonemap.comp"`).
 pub fn compute_pipeline(
     ctx: &Arc<Context>,
     shaders: &ShaderLibrary,

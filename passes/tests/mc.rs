@@ -2,26 +2,16 @@
 //! high-spp reference rises with the accumulated spp, the accumulation restarts when the camera
 //! moves, and static geometry builds the kd-tree once.
 
-use penumbra_engine::shader::ShaderLibrary;
+mod common;
+use common::{root, shaders};
 use penumbra_engine::{Context, ContextDesc, Engine, Graph};
 use penumbra_passes::mc::McTechnique;
 use penumbra_reference::image::Image;
 use penumbra_reference::metrics::compare;
 use penumbra_reference::render::{render, ReferenceOptions};
 use penumbra_scene::Scene;
-use std::path::{Path, PathBuf};
 
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
-}
 
-fn shaders(names: &[&str]) -> ShaderLibrary {
-    let mut lib = ShaderLibrary::from_embedded(&[], Some(root().join("glsl")));
-    for n in names {
-        lib.reload(n).unwrap_or_else(|e| panic!("{n}: {e}"));
-    }
-    lib
-}
 
 /// Renders one frame of `mc` and returns (image, kd-tree build passes in the graph).
 fn frame(engine: &mut Engine, mc: &mut McTechnique, f: &penumbra_scene::Frame, w: u32, h: u32) -> (Image, usize) {
@@ -57,7 +47,7 @@ fn mc_converges_to_the_cpu_reference() {
     println!("reference {w}x{h} at {} spp: {:.1} s", opts.spp, t0.elapsed().as_secs_f64());
 
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
-    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "mc.comp"]);
+    let lib = shaders();
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     let mut mc = McTechnique::new(&ctx, &lib, &scene).unwrap();
     let f = scene.at(0.0, None);
@@ -108,7 +98,7 @@ fn mc_converges_to_the_cpu_reference() {
 fn mc_with_local_lights_and_textures_converges_to_the_cpu_reference() {
     let (w, h) = (32u32, 24u32);
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
-    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "mc.comp"]);
+    let lib = shaders();
     for (file, t) in [("coarse.toml", 1.0f32), ("chess.toml", 0.0)] {
         let scene = Scene::load(root().join("scenes").join(file)).unwrap();
         let opts = ReferenceOptions { width: w, height: h, spp: 1024, time: Some(t), seed: 3, ..Default::default() };

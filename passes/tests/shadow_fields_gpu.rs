@@ -1,7 +1,8 @@
 //! Shadow fields on the Vulkan device (lavapipe): the GPU per-vertex path agrees with the CPU
 //! path, validation stays clean, and the benchmark runs.
 
-use penumbra_engine::shader::ShaderLibrary;
+mod common;
+use common::{root, shaders};
 use penumbra_engine::{Context, ContextDesc, Engine};
 use penumbra_math::shadow_field::{InstanceFrame, Params, Window};
 use penumbra_passes::shadow_fields::bench::{bench, BenchOptions};
@@ -9,20 +10,9 @@ use penumbra_passes::shadow_fields::{
     cpu_shade_points, gpu_shade_points, instance_frames, light_frames, vertex_points, SceneFields, SfOptions, ShadowFieldsTechnique,
 };
 use penumbra_scene::Scene;
-use std::path::PathBuf;
 use std::sync::Arc;
 
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
-}
 
-fn shaders() -> ShaderLibrary {
-    let mut lib = ShaderLibrary::from_embedded(&[], Some(root().join("glsl")));
-    for n in ["sf_points.comp", "sf_shade.comp", "sf_vertex.vert", "sf_vertex.frag"] {
-        lib.reload(n).unwrap_or_else(|e| panic!("{n}: {e}"));
-    }
-    lib
-}
 
 fn small_options() -> SfOptions {
     SfOptions {

@@ -2,7 +2,8 @@
 //! is closer to the reference than the same lights without shadows, and within a PSNR bound;
 //! static geometry renders the depth maps once; validation is clean.
 
-use penumbra_engine::shader::ShaderLibrary;
+mod common;
+use common::{root, shaders};
 use penumbra_engine::{Context, ContextDesc, Engine, Graph};
 use penumbra_passes::gbuffer::GBufferPass;
 use penumbra_passes::scene_gpu::{FrameConstants, SceneGpu};
@@ -11,11 +12,7 @@ use penumbra_reference::image::Image;
 use penumbra_reference::metrics::compare;
 use penumbra_reference::render::{render, ReferenceOptions};
 use penumbra_scene::Scene;
-use std::path::{Path, PathBuf};
 
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
-}
 
 #[test]
 fn shadowmaps_approach_the_reference_and_shadows_help() {
@@ -25,18 +22,7 @@ fn shadowmaps_approach_the_reference_and_shadows_help() {
     let reference = render(&scene, &opts).unwrap();
 
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
-    let mut lib = ShaderLibrary::from_embedded(&[], Some(root().join("glsl")));
-    for n in [
-        "kdtree_init.comp",
-        "kdtree_build.comp",
-        "kdtree_small.comp",
-        "trace_shadowmap.comp",
-        "mc_shadowmaps.comp",
-        "gbuffer.vert",
-        "gbuffer.frag",
-    ] {
-        lib.reload(n).unwrap_or_else(|e| panic!("{n}: {e}"));
-    }
+    let lib = shaders();
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     let scene_gpu = SceneGpu::new(&ctx, &scene).unwrap();
     let gbuffer = GBufferPass::new(&ctx, &lib).unwrap();

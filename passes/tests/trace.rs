@@ -2,26 +2,17 @@
 //! scene plus the bunny glTF, incoherent random rays, coherent camera rays and secondary rays off
 //! surfaces; any-hit agreement >= 99.99%, closest-hit distance within 1e-4 relative.
 
+mod common;
+use common::{root, shaders};
 use glam::Vec3;
-use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{Context, ContextDesc, Engine};
 use penumbra_passes::kdtree::{ray_epsilon, world_triangles, KdTreeBuilder};
 use penumbra_passes::trace::{Ray, Tracer};
 use penumbra_passes::trace_bench::{camera_rays, random_rays, run_gpu, surface_rays, CpuBvh};
 use penumbra_scene::Scene;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
-}
 
-fn shaders(names: &[&str]) -> ShaderLibrary {
-    let mut lib = ShaderLibrary::from_embedded(&[], Some(root().join("glsl")));
-    for n in names {
-        lib.reload(n).unwrap_or_else(|e| panic!("{n}: {e}"));
-    }
-    lib
-}
 
 fn scene_paths() -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(root().join("scenes"))
@@ -49,7 +40,7 @@ struct Tally {
 #[test]
 fn kdtree_tracer_agrees_with_obvhs_on_every_scene() {
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
-    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "trace.comp"]);
+    let lib = shaders();
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     let mut builder = KdTreeBuilder::new(&ctx, &lib).unwrap();
     let tracer = Tracer::new(&ctx, &lib).unwrap();
@@ -169,7 +160,7 @@ fn kdtree_tracer_agrees_with_obvhs_on_every_scene() {
 #[test]
 fn bench_trace_reports_build_and_ray_rates() {
     let ctx = Context::new(&ContextDesc::default()).expect("context");
-    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "trace.comp"]);
+    let lib = shaders();
     let scene = Scene::load(root().join("scenes/assets/bunny.glb")).unwrap();
     let r = penumbra_passes::trace_bench::bench_trace(&ctx, &lib, &scene, 64, 48, 4096).unwrap();
     println!("{r}");
@@ -185,7 +176,7 @@ fn bench_trace_reports_build_and_ray_rates() {
 #[ignore]
 fn bench_table() {
     let ctx = Context::new(&ContextDesc::default()).expect("context");
-    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "trace.comp"]);
+    let lib = shaders();
     let only = std::env::var("BENCH_SCENE").ok();
     for path in scene_paths() {
         if only.as_ref().is_some_and(|o| !path.to_string_lossy().contains(o.as_str())) {
@@ -204,7 +195,7 @@ fn tree_rebuilds_only_when_geometry_changes() {
     use penumbra_engine::Graph;
     use penumbra_passes::trace::{add_copy_to_readback, decode_hits, upload_rays, TraceMode, HIT_BYTES};
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
-    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "trace.comp"]);
+    let lib = shaders();
     let tracer = Tracer::new(&ctx, &lib).unwrap();
     for (file, dynamic) in [("falling.toml", true), ("hat_on_cloth.toml", true), ("chess.toml", false)] {
         let scene = Scene::load(root().join("scenes").join(file)).unwrap();
@@ -252,7 +243,7 @@ fn tree_rebuilds_only_when_geometry_changes() {
 #[test]
 fn degenerate_inputs_are_misses() {
     let ctx = Context::new(&ContextDesc::default()).expect("context");
-    let lib = shaders(&["kdtree_init.comp", "kdtree_build.comp", "kdtree_small.comp", "trace.comp"]);
+    let lib = shaders();
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     let mut builder = KdTreeBuilder::new(&ctx, &lib).unwrap();
     let tracer = Tracer::new(&ctx, &lib).unwrap();

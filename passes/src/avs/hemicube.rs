@@ -46,7 +46,7 @@ impl HemicubeMaps {
             shaders,
             &RasterDesc {
                 name: "avs_hemicube",
-                shaders: &["avs_hemicube.vert"],
+                shaders: &["avs/avs_hemicube.vert"],
                 push_constant_bytes: 64,
                 vertex_input: VertexInput::PositionOfStride(12),
                 cull: vk::CullModeFlags::NONE,
@@ -58,7 +58,7 @@ impl HemicubeMaps {
         let convert = compute_pipeline(
             ctx,
             shaders,
-            "avs_hemicube.comp",
+            "avs/avs_hemicube.comp",
             &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER],
             16,
         )?;

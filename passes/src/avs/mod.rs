@@ -14,19 +14,19 @@
 //!   its neighbours within the search radius, insertions above `E_v,max` (nearest vertex to the
 //!   midpoint of a point and each neighbour it disagrees with) and erasures below `E_v,min` (no two
 //!   neighbours in one round) ([`penumbra_math::avs_sampling::adapt_step`]).
-//! * **Adaptive angular sampling** (4.2), `avs_vis_l<L>` passes (`glsl/avs_vis.comp`): one
+//! * **Adaptive angular sampling** (4.2), `avs_vis_l<L>` passes (`glsl/avs/avs_vis.comp`): one
 //!   workgroup per sample point; level 0 traces the initial grid (16 x 16 or 32 x 32) with the
 //!   kd-tree tracer, every further level doubles the resolution and traces only texels whose parent
 //!   is a boundary texel (8-neighbourhood) in the point's own previous level or in one of its
 //!   `ray_neighbours` nearest sample points' previous level at the same direction; the others copy
 //!   the parent. Maps are 1 bit per texel in `penumbra_math::avs_maps`'s layout.
 //! * **G-buffer culling** (section 6 "Optimization", `cull = true`): the `avs_cull` pass
-//!   (`glsl/avs_cull.comp`) runs the shading's neighbour search (`glsl/include/avs_gather.glsl`)
+//!   (`glsl/avs/avs_cull.comp`) runs the shading's neighbour search (`glsl/include/avs_gather.glsl`)
 //!   per covered pixel over all kept points and sets their bits in the persistent `avs.used`;
 //!   the next frame reads the bits back first and traces (and adapts, and transforms) only the
 //!   flagged points, keeping the others dormant. The first frame traces all.
 //! * **HSDT** (section 5): [`crate::hsdt::Hsdt`] turns all maps into fp16 SSDFs.
-//! * **Shading** (section 6), `avs_shade` (`glsl/avs_shade.comp`): per pixel, the sample points
+//! * **Shading** (section 6), `avs_shade` (`glsl/avs/avs_shade.comp`): per pixel, the sample points
 //!   within the search radius (CPU-built uniform grid) with the best eq. 8 weights, their SSDFs
 //!   interpolated at any direction; environment as SG lobes, BRDFs as SG lobes from the
 //!   (textured) materials; visibility of each product lobe by the SSDF at the lobe axis
@@ -64,7 +64,7 @@ pub enum Integration {
     /// tiny images. BROKEN ON LAVAPIPE, measured (bench avs, hat_on_cloth 24x18): 8.46 dB /
     /// relRMSE 0.791 against 17.70 dB / 0.422 for `axis`. Cause (issue 8, session 4): lavapipe
     /// ends every loop of a shader invocation once its loops have run 65535 iterations in total
-    /// (see `glsl/avs_vis.comp`), and one pixel's quadtree walks (with the neighbour loop of each
+    /// (see `glsl/avs/avs_vis.comp`), and one pixel's quadtree walks (with the neighbour loop of each
     /// virtual-texel fetch) need more: a loop-count probe at the end of `avs_shade` found the limit
     /// hit on all 272 shaded pixels of hat_on_cloth 24x18 (r = 64, 240 points), and on 192 of them
     /// with only the first lighting lobe integrated, so every later loop (lobes, quadtree, lights)
@@ -433,12 +433,12 @@ impl AvsTechnique {
         use vk::DescriptorType as T;
         settings.validate()?;
         let sb = T::STORAGE_BUFFER;
-        let vis = compute_pipeline(ctx, shaders, "avs_vis.comp", &[sb; 9], 32)?;
-        let sh = compute_pipeline(ctx, shaders, "avs_sh.comp", &[sb; 4], 8)?;
+        let vis = compute_pipeline(ctx, shaders, "avs/avs_vis.comp", &[sb; 9], 32)?;
+        let sh = compute_pipeline(ctx, shaders, "avs/avs_sh.comp", &[sb; 4], 8)?;
         let shade = compute_pipeline(
             ctx,
             shaders,
-            "avs_shade.comp",
+            "avs/avs_shade.comp",
             &[
                 T::UNIFORM_BUFFER,
                 sb,
@@ -461,7 +461,7 @@ impl AvsTechnique {
         let cull = compute_pipeline(
             ctx,
             shaders,
-            "avs_cull.comp",
+            "avs/avs_cull.comp",
             &[T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, sb, sb, sb],
             16,
         )?;

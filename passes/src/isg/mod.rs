@@ -12,9 +12,9 @@
 //!   built top-down by median splits on the longest axis of the centres (O(N log N); a few
 //!   hundred spheres take microseconds), inner nodes bound both children's spheres exactly. This
 //!   is the CPU fallback; by default the BVH is built on the GPU (`isg_bvh`,
-//!   `glsl/isg_bvh.comp`): Morton codes, bitonic sort and Karras 2012 LBVH in one workgroup,
+//!   `glsl/isg/isg_bvh.comp`): Morton codes, bitonic sort and Karras 2012 LBVH in one workgroup,
 //!   bounding spheres bottom-up (up to 1024 spheres).
-//! * GPU (`isg_shade`, `glsl/isg_shade.comp` + `glsl/include/isg.glsl`): per pixel, K lighting
+//! * GPU (`isg_shade`, `glsl/isg/isg_shade.comp` + `glsl/include/isg.glsl`): per pixel, K lighting
 //!   SGs (fitted once to the environment, `penumbra_math::envmap::fit_sg_lighting`); the BVH is
 //!   traversed per lobe with cone-vs-sphere culling, leaf (or small inner) spheres mark the
 //!   patches within the limiting angle they cover, and the occluded patches' ISGs (tabulated,
@@ -373,12 +373,12 @@ fn shade_types(per_vertex: bool) -> Vec<vk::DescriptorType> {
 impl IsgTechnique {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: IsgSettings) -> Result<Self> {
         use vk::DescriptorType as T;
-        let shade = if settings.per_vertex { "isg_shade_vertex.comp" } else { "isg_shade.comp" };
+        let shade = if settings.per_vertex { "isg/isg_shade_vertex.comp" } else { "isg/isg_shade.comp" };
         let pipeline = compute_pipeline(ctx, shaders, shade, &shade_types(settings.per_vertex), 36)?;
-        let bvh_pipeline = compute_pipeline(ctx, shaders, "isg_bvh.comp", &[T::STORAGE_BUFFER, T::STORAGE_BUFFER], 36)?;
+        let bvh_pipeline = compute_pipeline(ctx, shaders, "isg/isg_bvh.comp", &[T::STORAGE_BUFFER, T::STORAGE_BUFFER], 36)?;
         let vertex_pipelines = if settings.per_vertex {
             Some((
-                compute_pipeline(ctx, shaders, "isg_vertex.comp", &[T::UNIFORM_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER], 28)?,
+                compute_pipeline(ctx, shaders, "isg/isg_vertex.comp", &[T::UNIFORM_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER], 28)?,
                 vertex::raster_pipeline(ctx, shaders)?,
             ))
         } else {
@@ -622,81 +622,3 @@ impl crate::technique::Technique for IsgTechnique {
     }
 }
 
-/// One visibility query of [`gpu_visibility`]: shading point, normal, SG lobe axis and
-/// sharpness.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct VisibilityQuery {
-    pub p: Vec3,
-    pub n: Vec3,
-    pub axis: Vec3,
-    pub gamma: f32,
-}
-
-/// Evaluates `isg_visible` (`glsl/include/isg.glsl`) on the GPU for `queries` against
-/// `spheres` (CPU BVH) and thin-shell `triangles` (one compute dispatch of
-/// `glsl/isg_parity.comp` in a graph of its own): the shader side of the shader-vs-CPU parity
-/// test against [`penumbra_math::isg::visible_fraction_with_triangles`].
-pub fn gpu_visibility(
-    engine: &mut Engine,
-    shaders: &ShaderLibrary,
-    queries: &[VisibilityQuery],
-    spheres: &[WorldSphere],
-    triangles: &[[Vec3; 3]],
-    patch_side: u32,
-    epsilon: f64,
-    lod: f32,
-) -> Result<Vec<f32>> {
-    use vk::DescriptorType as T;
-    let ctx = engine.ctx.clone();
-    let pipeline = compute_pipeline(&ctx, shaders, "isg_parity.comp", &[T::STORAGE_BUFFER; 6], 20)?;
-    let table = IsgTable::default_table().to_gpu(epsilon);
-    let nodes = build_bvh(spheres);
-    let node_count = nodes.len() as i32;
-    let nodes = if nodes.is_empty() { vec![GpuNode { sphere: [0.0; 4], info: [-1; 4] }] } else { nodes };
-    let tri_nodes = build_triangle_bvh(triangles);
-    let tri_node_count = tri_nodes.len() as i32;
-    let tri_nodes = if tri_nodes.is_empty() { vec![GpuNode { sphere: [0.0; 4], info: [-1; 4] }] } else { tri_nodes };
-    let tri_data: Vec<[f32; 4]> = triangles.iter().flat_map(|t| t.map(|p| [p.x, p.y, p.z, 0.0])).collect();
-    let tri_data = if tri_data.is_empty() { vec![[0.0f32; 4]; 3] } else { tri_data };
-    let q: Vec<[f32; 4]> = queries
-        .iter()
-        .flat_map(|q| [[q.p.x, q.p.y, q.p.z, 0.0], [q.n.x, q.n.y, q.n.z, 0.0], [q.axis.x, q.axis.y, q.axis.z, q.gamma]])
-        .collect();
-    let q = if q.is_empty() { vec![[0.0f32; 4]; 3] } else { q };
-    let count = queries.len() as u32;
-    let mut graph = Graph::new();
-    let qb = graph.create_buffer_init("isg_queries", bytes_of(&q));
-    let out = graph.create_buffer("isg_parity_out", count.max(1) as u64 * 4);
-    let tb = graph.create_buffer_init("isg_table", bytes_of(&table));
-    let nb = graph.create_buffer_init("isg_bvh", bytes_of(&nodes));
-    let trb = graph.create_buffer_init("isg_thin_triangles", bytes_of(&tri_data));
-    let tnb = graph.create_buffer_init("isg_thin_bvh", bytes_of(&tri_nodes));
-    let mut p = graph.pass("isg_parity", PassKind::Compute);
-    let qb = p.read(qb, Access::ComputeShaderReadStorage);
-    let out_w = p.write(out, Access::ComputeShaderWriteStorage);
-    let tb = p.read(tb, Access::ComputeShaderReadStorage);
-    let nb = p.read(nb, Access::ComputeShaderReadStorage);
-    let trb = p.read(trb, Access::ComputeShaderReadStorage);
-    let tnb = p.read(tnb, Access::ComputeShaderReadStorage);
-    let mut push = Vec::with_capacity(20);
-    push.extend_from_slice(&count.to_le_bytes());
-    push.extend_from_slice(&node_count.to_le_bytes());
-    push.extend_from_slice(&tri_node_count.to_le_bytes());
-    push.extend_from_slice(&(patch_side.clamp(1, 32) as i32).to_le_bytes());
-    push.extend_from_slice(&lod.to_le_bytes());
-    let pipe = pipeline.handle();
-    p.record(move |rc| {
-        let binds = crate::util::storage([qb, out_w, tb, nb, trb, tnb]);
-        crate::util::dispatch(rc, pipe, &binds, &push, [groups(count, 64), 1, 1])
-    });
-    let rb = graph.create_readback("isg_parity", count.max(1) as u64 * 4);
-    crate::util::copy_buffer(&mut graph, "isg_parity_readback", out_w, rb, None);
-    let (_, mut done) = engine.submit(graph)?;
-    done.extend(engine.drain()?);
-    drop(pipeline);
-    let bytes = done
-        .into_iter()
-        .find_map(|o| o.readbacks.get("isg_parity").cloned())
-        .ok_or_else(|| anyhow::anyhow!("isg_parity: no readback"))?;
-    Ok(bytes.chunks_exact(4).take(queries.len()).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
-}

@@ -1,6 +1,6 @@
 //! Per-vertex ISG shadowing (the paper's per-vertex mode, section 5): the visibility integrals
-//! are evaluated at the mesh vertices in compute (`isg_vertex`, `glsl/isg_vertex.comp`), the
-//! raster interpolates them over the triangles (`isg_vertex_raster`, `glsl/isg_vertex.vert/.frag`,
+//! are evaluated at the mesh vertices in compute (`isg_vertex`, `glsl/isg/isg_vertex.comp`), the
+//! raster interpolates them over the triangles (`isg_vertex_raster`, `glsl/isg/isg_vertex.vert/.frag`,
 //! an RGBA32F image with its own depth buffer) and `isg_shade_vertex.comp` shades every pixel
 //! with them (pixels no receiver triangle covers fall back to the per-pixel evaluation).
 //!
@@ -219,7 +219,7 @@ pub fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pi
         shaders,
         &RasterDesc {
             name: "isg_vertex_raster",
-            shaders: &["isg_vertex.vert", "isg_vertex.frag"],
+            shaders: &["isg/isg_vertex.vert", "isg/isg_vertex.frag"],
             descriptors: &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
             vertex_input: VertexInput::PositionOfStride(std::mem::size_of::<IsgVertex>() as u32),
             colors: &[VIS_FORMAT],

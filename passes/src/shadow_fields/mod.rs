@@ -10,7 +10,7 @@
 //!   transfer rotated to world, the other objects and the lights sorted by distance, triple
 //!   products with each occluder's interpolated, dequantized, rotated visibility, double
 //!   products with each light's radiance field and finally with the environment's order-4 SH.
-//! * GPU: the same per point in `glsl/sf_points.comp` ([`ShadowFieldsTechnique::add_points`]).
+//! * GPU: the same per point in `glsl/shadow_fields/sf_points.comp` ([`ShadowFieldsTechnique::add_points`]).
 //!   The technique's image ([`SfMode`]): `vertex` computes the visible vertices (culled on the
 //!   CPU: front-facing triangles inside the view, paper 5.3) in `sf_points.comp`, interpolates
 //!   them across the triangles in a raster pass (`sf_vertex.vert/.frag`), and `sf_shade.comp`
@@ -444,7 +444,7 @@ pub fn light_frames<'a>(frame: &Frame, fields: &'a SceneFields, adaptive: bool, 
         .collect()
 }
 
-/// A point for the GPU (std430 `SfPoint` of `glsl/sf_points.comp`, 112 bytes).
+/// A point for the GPU (std430 `SfPoint` of `glsl/shadow_fields/sf_points.comp`, 112 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct GpuPoint {
@@ -755,7 +755,7 @@ fn vertex_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeli
         shaders,
         &RasterDesc {
             name: "sf_vertex",
-            shaders: &["sf_vertex.vert", "sf_vertex.frag"],
+            shaders: &["shadow_fields/sf_vertex.vert", "shadow_fields/sf_vertex.frag"],
             descriptors: &[vk::DescriptorType::UNIFORM_BUFFER, sb, sb, sb],
             vertex_input: VertexInput::Position,
             colors: &[VERTEX_RADIANCE_FORMAT],
@@ -785,11 +785,11 @@ impl ShadowFieldsTechnique {
         let shade = compute_pipeline(
             ctx,
             shaders,
-            "sf_shade.comp",
+            "shadow_fields/sf_shade.comp",
             &[T::UNIFORM_BUFFER, sb, sampled, sampled, sampled, sampled, T::STORAGE_IMAGE, sb, sb, sb, sb, sb, sb, sampled, sampled],
             24,
         )?;
-        let points = compute_pipeline(ctx, shaders, "sf_points.comp", &[sb; 7], 20)?;
+        let points = compute_pipeline(ctx, shaders, "shadow_fields/sf_points.comp", &[sb; 7], 20)?;
         let vertex = vertex_pipeline(ctx, shaders)?;
         let tensor = TripleProductTensor::new(sf::ORDER);
         let tables = GpuTables::new(&fields, adaptive, &tensor);

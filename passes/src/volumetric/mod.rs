@@ -278,8 +278,8 @@ impl VolumetricEffect {
         ];
         let mut march_types = comp_types.to_vec();
         march_types.push(T::COMBINED_IMAGE_SAMPLER);
-        let march = compute_pipeline(ctx, shaders, "vol_march.comp", &march_types, 0)?;
-        let composite = compute_pipeline(ctx, shaders, "vol_composite.comp", &comp_types, 0)?;
+        let march = compute_pipeline(ctx, shaders, "volumetric/vol_march.comp", &march_types, 0)?;
+        let composite = compute_pipeline(ctx, shaders, "volumetric/vol_composite.comp", &comp_types, 0)?;
         // Adjacency for meshes of objects that can move.
         let mut adj = Vec::new();
         let mut adj_ranges = vec![None; scene.meshes.len()];
@@ -418,7 +418,7 @@ fn shadow_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeli
         shaders,
         &RasterDesc {
             name: "vol_shadow",
-            shaders: &["vol_shadow.vert"],
+            shaders: &["volumetric/vol_shadow.vert"],
             descriptors: &[vk::DescriptorType::STORAGE_BUFFER],
             push_constant_bytes: 64,
             vertex_input: VertexInput::Position,
@@ -442,7 +442,7 @@ fn volume_pipeline(
         shaders,
         &RasterDesc {
             name,
-            shaders: &["vol_mask.vert", "vol_mask.geom", frag],
+            shaders: &["volumetric/vol_mask.vert", "volumetric/vol_mask.geom", frag],
             descriptors: &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
             push_constant_bytes: 32,
             vertex_input: VertexInput::Position,
@@ -455,12 +455,12 @@ fn volume_pipeline(
 }
 
 fn mask_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
-    volume_pipeline(ctx, shaders, "vol_mask", "vol_mask.frag", MASK_FORMAT, Blend::Replace)
+    volume_pipeline(ctx, shaders, "vol_mask", "volumetric/vol_mask.frag", MASK_FORMAT, Blend::Replace)
 }
 
 /// Front-most (min RGB) and back-most (max alpha) boundary distances per pixel.
 fn volumes_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
-    volume_pipeline(ctx, shaders, "vol_volumes", "vol_volumes.frag", INTERVAL_FORMAT, Blend::MinRgbMaxAlpha)
+    volume_pipeline(ctx, shaders, "vol_volumes", "volumetric/vol_volumes.frag", INTERVAL_FORMAT, Blend::MinRgbMaxAlpha)
 }
 
 /// Shadow-volume draws (extruded by `vol_mask.geom` from the adjacency index buffer) into one

@@ -22,7 +22,7 @@
 //!
 //! Eq. 17's Delta is measured in display units, as the paper's (its radiance values are the
 //! displayed pixel values in [0, 1]): each radiance goes through this renderer's display mapping
-//! (exposure, ACES fit, sRGB transfer) before the difference (`glsl/vv_tess.vert`).
+//! (exposure, ACES fit, sRGB transfer) before the difference (`glsl/vv/vv_tess.vert`).
 //!
 //! Shading is diffuse (eq. 9/12) plus, for glossy materials, Phong specular by the cap ratio
 //! (eq. 14-16; `specular = off` keeps the diffuse part only). The SAT has a 4th channel (`∫ L_e
@@ -48,7 +48,7 @@
 //! (energy-normalised Phong, `ks = specular (n . v)^2`). gamma's denominator then cancels,
 //! `L_s = ks * ∫_{V ∩ W} Cap L_e / (pi (1 - cos xi)^2)`: the lighting stays dynamic (no prefiltered map), at the price of a
 //! linear (Cap) instead of a `cos^alpha` lobe shape. gamma itself is checked against the CPU
-//! `cap_ratio` by [`VvCapParity`] (tests/vv.rs). Large exponents lose fp32 precision (the Cap
+//! `cap_ratio` by [`crate::kernels::vv::VvCapParity`] (tests/vv.rs). Large exponents lose fp32 precision (the Cap
 //! weight is a difference of SAT sums over a small cap). Objects that move or deform are not
 //! supported (their visibility is precomputed at rest, t = 0).
 
@@ -305,10 +305,18 @@ pub fn phong_alpha(m: &penumbra_scene::Material) -> f32 {
 }
 
 /// Per model vertex (object order, as [`scene_model`]): the albedo and the specular term
-/// (rgb reflectance, Phong `alpha` of [`phong_alpha`]) of its object's material.
-pub fn vertex_materials(scene: &Scene) -> (Vec<Vec3>, Vec<[f32; 4]>) {
-    let (mut albedo, mut spec) = (Vec::new(), Vec::new());
+/// (rgb reflectance, Phong `alpha` of [`phong_alpha`]) of its object's material, its texture
+/// coordinate and the layer of the material's albedo map in the scene's texture array (-1: none).
+pub fn vertex_materials(scene: &Scene) -> (Vec<Vec3>, Vec<[f32; 4]>, Vec<[f32; 3]>) {
+    let (mut albedo, mut spec, mut uv_layer) = (Vec::new(), Vec::new(), Vec::new());
     for o in &scene.objects {
+        let layer = scene.material_extra(o.material).albedo_map.map_or(-1.0, |l| l as f32);
+        if let Some(mesh) = scene.meshes.get(o.mesh) {
+            uv_layer.extend((0..mesh.positions.len()).map(|i| {
+                let uv = mesh.uvs.get(i).copied().unwrap_or_default();
+                [uv.x, uv.y, layer]
+            }));
+        }
         let m = scene.materials.get(o.material);
         let a = m.map_or(Vec3::splat(0.5), |m| m.albedo);
         let sp = m.map_or([0.0; 4], |m| {
@@ -323,7 +331,7 @@ pub fn vertex_materials(scene: &Scene) -> (Vec<Vec3>, Vec<[f32; 4]>) {
         albedo.extend(std::iter::repeat(a).take(count));
         spec.extend(std::iter::repeat(sp).take(count));
     }
-    (albedo, spec)
+    (albedo, spec, uv_layer)
 }
 
 /// GPU images' contents (built once).
@@ -446,13 +454,15 @@ impl Uploads {
         let (points, points_rows) = pad_rows(points, 4);
         // materials from the scene itself (the cached data may come from a scene with the same
         // geometry and other materials)
-        let (albedo, spec) = vertex_materials(scene);
+        let (albedo, spec, uv_layer) = vertex_materials(scene);
         let mut verts = Vec::with_capacity(model.positions.len() * 16);
         for (i, p) in model.positions.iter().enumerate() {
             let n = model.normals[i];
             let a = albedo.get(i).copied().unwrap_or(Vec3::splat(0.5));
             let sp = spec.get(i).copied().unwrap_or([0.0; 4]);
-            verts.extend([p.x, p.y, p.z, 0.0, n.x, n.y, n.z, 0.0, a.x, a.y, a.z, 0.0]);
+            let [u, v, layer] = uv_layer.get(i).copied().unwrap_or([0.0, 0.0, -1.0]);
+            // the free w components: texture coordinate and albedo-map layer (vv_data.glsl)
+            verts.extend([p.x, p.y, p.z, u, n.x, n.y, n.z, v, a.x, a.y, a.z, layer]);
             verts.extend(sp);
         }
         let (verts, verts_rows) = pad_rows(verts, 4);
@@ -485,6 +495,8 @@ pub struct VvTechnique {
     composite: Pipeline,
     env: ShadeEnvPass,
     nearest: Sampler,
+    /// Material texture maps (repeat).
+    repeat: Sampler,
     settings: VvSettings,
     up: Uploads,
     query: vk::QueryPool,
@@ -503,19 +515,19 @@ fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, tess: bool) -> R
     let (set_layout, layout) = layouts(
         ctx,
         if tess { "vv_tess" } else { "vv_shade" },
-        &[T::UNIFORM_BUFFER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER],
+        &[T::UNIFORM_BUFFER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER],
         vk::ShaderStageFlags::ALL_GRAPHICS,
         64,
     )?;
     let names: &[(&str, vk::ShaderStageFlags)] = if tess {
         &[
-            ("vv_tess.vert", vk::ShaderStageFlags::VERTEX),
-            ("vv_tess.tesc", vk::ShaderStageFlags::TESSELLATION_CONTROL),
-            ("vv_tess.tese", vk::ShaderStageFlags::TESSELLATION_EVALUATION),
-            ("vv_tess.frag", vk::ShaderStageFlags::FRAGMENT),
+            ("vv/vv_tess.vert", vk::ShaderStageFlags::VERTEX),
+            ("vv/vv_tess.tesc", vk::ShaderStageFlags::TESSELLATION_CONTROL),
+            ("vv/vv_tess.tese", vk::ShaderStageFlags::TESSELLATION_EVALUATION),
+            ("vv/vv_tess.frag", vk::ShaderStageFlags::FRAGMENT),
         ]
     } else {
-        &[("vv_shade.vert", vk::ShaderStageFlags::VERTEX), ("vv_shade.frag", vk::ShaderStageFlags::FRAGMENT)]
+        &[("vv/vv_shade.vert", vk::ShaderStageFlags::VERTEX), ("vv/vv_shade.frag", vk::ShaderStageFlags::FRAGMENT)]
     };
     let mut modules = Vec::new();
     for (n, _) in names {
@@ -583,7 +595,7 @@ impl VvTechnique {
     }
 
     /// Without the raster pipeline (the large shading shaders, the slowest part of creation on
-    /// lavapipe): for [`VvTechnique::add_sat`] and [`VvParity`] in tests; [`Technique::add`]
+    /// lavapipe): for [`VvTechnique::add_sat`] and [`crate::kernels::vv::VvParity`] in tests; [`Technique::add`]
     /// then fails.
     ///
     /// [`Technique::add`]: crate::technique::Technique::add
@@ -602,10 +614,10 @@ impl VvTechnique {
         if settings.mode.interpolated() && data.corr.is_none() {
             bail!("vv: mode {} needs the per-triangle correspondence (triple lists), which is not available yet", settings.mode.name());
         }
-        let rows = compute_pipeline(ctx, shaders, "vv_sat_rows.comp", &[T::STORAGE_BUFFER, T::STORAGE_IMAGE], 8)?;
-        let cols = compute_pipeline(ctx, shaders, "vv_sat_cols.comp", &[T::STORAGE_IMAGE], 8)?;
+        let rows = compute_pipeline(ctx, shaders, "vv/vv_sat_rows.comp", &[T::STORAGE_BUFFER, T::STORAGE_IMAGE], 8)?;
+        let cols = compute_pipeline(ctx, shaders, "vv/vv_sat_cols.comp", &[T::STORAGE_IMAGE], 8)?;
         let raster = if raster { Some(raster_pipeline(ctx, shaders, settings.mode.tessellated())?) } else { None };
-        let composite = compute_pipeline(ctx, shaders, "vv_composite.comp", &[T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE], 0)?;
+        let composite = compute_pipeline(ctx, shaders, "vv/vv_composite.comp", &[T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE], 0)?;
         let up = Uploads::new(scene, &data, &settings)?;
         let qci = vk::QueryPoolCreateInfo::default()
             .query_type(vk::QueryType::PIPELINE_STATISTICS)
@@ -613,7 +625,7 @@ impl VvTechnique {
             .pipeline_statistics(vk::QueryPipelineStatisticFlags::CLIPPING_INVOCATIONS);
         let query = unsafe { ctx.device.create_query_pool(&qci, None)? };
         ctx.set_name(query, "vv_statistics");
-        Ok(VvTechnique { ctx: ctx.clone(), rows, cols, raster, composite, env: ShadeEnvPass::new(ctx, shaders)?, nearest: Sampler::nearest(ctx)?, settings, up, query, data })
+        Ok(VvTechnique { ctx: ctx.clone(), rows, cols, raster, composite, env: ShadeEnvPass::new(ctx, shaders)?, nearest: Sampler::nearest(ctx)?, repeat: Sampler::repeat(ctx)?, settings, up, query, data })
     }
 
     pub fn settings(&self) -> &VvSettings {
@@ -625,6 +637,12 @@ impl VvTechnique {
         let mut r = [0u64; 1];
         let ok = unsafe { self.ctx.device.get_query_pool_results(self.query, 0, &mut r, vk::QueryResultFlags::TYPE_64) };
         ok.ok().map(|_| r[0])
+    }
+
+    /// What the parity kernels (`crate::kernels::vv`) need of the technique: SAT map width and
+    /// height, hemisphere arcs, alpha' and the nearest sampler.
+    pub(crate) fn sat_params(&self) -> (u32, u32, u32, f32, vk::Sampler) {
+        (self.up.sat_w, self.up.sat_h, self.settings.hemisphere_arcs, self.settings.alpha, self.nearest.sampler)
     }
 
     /// The SAT map (width, height, RGBA32F texels of the downsampled environment).
@@ -673,109 +691,6 @@ impl VvTechnique {
     }
 }
 
-/// `vv_parity` (tests): per case, `n . ∫ l L_e` over the hemisphere of `n` minus occluder loops,
-/// with the technique's GLSL integration (`glsl/vv_parity.comp`), to compare with
-/// `penumbra_math::vv_sat`. Keep it alive until the frames using it have finished.
-pub struct VvParity {
-    pipe: Pipeline,
-}
-
-impl VvParity {
-    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        use vk::DescriptorType as T;
-        Ok(VvParity { pipe: compute_pipeline(ctx, shaders, "vv_parity.comp", &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER, T::STORAGE_IMAGE], 32)? })
-    }
-
-    /// The cases on `sat` (an image of [`VvTechnique::add_sat`] of `tech`'s map size, with its
-    /// alpha' and hemisphere arcs). `cases`: `(n, loops)` with loops of map-space unit
-    /// directions in part A's orientation (counter-clockwise from outside around the occluded
-    /// region). Returns an RGBA32F image of `cases.len() x 1` texels (rgb).
-    pub fn add(&self, tech: &VvTechnique, graph: &mut Graph, sat: ImageHandle, cases: &[(Vec3, Vec<Vec<Vec3>>)]) -> ImageHandle {
-        let mut data: Vec<[f32; 4]> = vec![[0.0; 4]; cases.len()];
-        for (c, (n, loops)) in cases.iter().enumerate() {
-            data[c][0] = data.len() as f32;
-            data.push([n.x, n.y, n.z, loops.len() as f32]);
-            for l in loops {
-                data.push([l.len() as f32, 0.0, 0.0, 0.0]);
-                data.extend(l.iter().map(|d| [d.x, d.y, d.z, 0.0]));
-            }
-        }
-        parity_pass(&self.pipe, tech, graph, "vv_parity", sat, data, cases.len() as u32, 1)
-    }
-}
-
-/// The pass of [`VvParity`] and [`VvCapParity`]: `count` cases (`data`: case offsets, then the
-/// cases) on `sat`, written to an RGBA32F image `name` of `count x rows` texels.
-#[allow(clippy::too_many_arguments)]
-fn parity_pass(
-    pipe: &Pipeline,
-    tech: &VvTechnique,
-    graph: &mut Graph,
-    name: &str,
-    sat: ImageHandle,
-    data: Vec<[f32; 4]>,
-    count: u32,
-    rows: u32,
-) -> ImageHandle {
-    let input = graph.create_buffer_init(&format!("{name}_cases"), bytes_of(&data));
-    let out = graph.create_image(name, ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, count.max(1), rows));
-    let mut push = Vec::new();
-    for v in [tech.up.sat_w as i32, tech.up.sat_h as i32, tech.settings.hemisphere_arcs as i32, count as i32] {
-        push.extend_from_slice(&v.to_le_bytes());
-    }
-    for v in [tech.settings.alpha, 0.0, 0.0, 0.0] {
-        push.extend_from_slice(&v.to_le_bytes());
-    }
-    let mut p = graph.pass(name, PassKind::Compute);
-    let sat = p.read(sat, Access::ComputeShaderReadSampled);
-    let input = p.read(input, Access::ComputeShaderReadStorage);
-    let out = p.write(out, Access::ComputeShaderWriteStorage);
-    let nearest = tech.nearest.sampler;
-    let pipe = pipe.handle();
-    p.record(move |rc| {
-        let binds = [Bind::SampledImage(sat, nearest), Bind::StorageBuffer(input), Bind::StorageImage(out)];
-        crate::util::dispatch(rc, pipe, &binds, &push, [count, 1, 1])
-    });
-    out
-}
-
-/// One case of [`VvCapParity`]: normal, reflection direction, cap cosine `cos xi` and occluder
-/// loops (map-space unit directions in the closed hemisphere of the normal, clockwise seen from
-/// the centre around the occluded region, as the shading shaders' synthesized loops).
-pub type CapCase = (Vec3, Vec3, f32, Vec<Vec<Vec3>>);
-
-/// `vv_cap_parity` (tests): per case, the specular visibility ratio gamma of eq. 15 with the
-/// technique's GLSL (`glsl/vv_cap_parity.comp`: loops clipped to the cap, cap clipped to the
-/// hemisphere, Cap weighting of eq. 16), to compare with `penumbra_math::vv_sat::cap_ratio`.
-/// Keep it alive until the frames using it have finished.
-pub struct VvCapParity {
-    pipe: Pipeline,
-}
-
-impl VvCapParity {
-    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        use vk::DescriptorType as T;
-        Ok(VvCapParity { pipe: compute_pipeline(ctx, shaders, "vv_cap_parity.comp", &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER, T::STORAGE_IMAGE], 32)? })
-    }
-
-    /// The cases on `sat` (an image of [`VvTechnique::add_sat`] of `tech`'s map size, with its
-    /// alpha' and arcs per circle). Returns an RGBA32F image of `cases.len() x 3` texels: row 0
-    /// gamma, row 1 the numerator, row 2 the denominator of eq. 15 (rgb).
-    pub fn add(&self, tech: &VvTechnique, graph: &mut Graph, sat: ImageHandle, cases: &[CapCase]) -> ImageHandle {
-        let mut data: Vec<[f32; 4]> = vec![[0.0; 4]; cases.len()];
-        for (c, (n, r, cos_xi, loops)) in cases.iter().enumerate() {
-            data[c][0] = data.len() as f32;
-            data.push([n.x, n.y, n.z, loops.len() as f32]);
-            data.push([r.x, r.y, r.z, *cos_xi]);
-            for l in loops {
-                data.push([l.len() as f32, 0.0, 0.0, 0.0]);
-                data.extend(l.iter().map(|d| [d.x, d.y, d.z, 0.0]));
-            }
-        }
-        parity_pass(&self.pipe, tech, graph, "vv_cap_parity", sat, data, cases.len() as u32, 3)
-    }
-}
-
 impl crate::technique::Technique for VvTechnique {
     fn name(&self) -> &'static str {
         "vv"
@@ -790,8 +705,9 @@ impl crate::technique::Technique for VvTechnique {
     fn limitations(&self, scene: &penumbra_scene::Scene) -> Vec<String> {
         let req = scene.requirements();
         let mut v = Vec::new();
-        if req.spatially_varying_materials {
-            v.push("vv: texture maps are ignored on vv-shaded objects (materials use their constant parameters)".into());
+        let roughness_maps = scene.objects.iter().any(|o| scene.material_extra(o.material).roughness_map.is_some());
+        if roughness_maps {
+            v.push("vv: roughness maps are ignored on vv-shaded objects (the specular lobe uses the material's constant roughness; albedo maps are applied)".into());
         }
         if req.local_lights {
             v.push(format!(
@@ -822,6 +738,7 @@ impl crate::technique::Technique for VvTechnique {
         let verts = p.read(verts, Access::AnyShaderReadSampled);
         let sat = p.read(sat, Access::AnyShaderReadSampled);
         let blur = blur.map(|b| p.read(b, Access::AnyShaderReadSampled)).unwrap_or(sat);
+        let textures = p.read(inputs.handles.textures, Access::AnyShaderReadSampled);
         let mut push = Vec::with_capacity(64);
         for v in [self.up.sat_w as i32, self.up.sat_h as i32, self.settings.hemisphere_arcs as i32, self.settings.mode.code()] {
             push.extend_from_slice(&v.to_le_bytes());
@@ -834,7 +751,7 @@ impl crate::technique::Technique for VvTechnique {
         }
         let raster = self.raster.as_ref().context("vv: technique built without its raster pipeline (VvTechnique::sat_only)")?;
         let (pipeline, layout) = (raster.pipeline, raster.layout);
-        let nearest = self.nearest.sampler;
+        let (nearest, repeat) = (self.nearest.sampler, self.repeat.sampler);
         let vertex_count = 3 * self.up.triangles;
         let query = self.query;
         p.record(move |rc| {
@@ -862,6 +779,7 @@ impl crate::technique::Technique for VvTechnique {
                     Bind::SampledImage(verts, nearest),
                     Bind::SampledImage(sat, nearest),
                     Bind::SampledImage(blur, nearest),
+                    Bind::SampledImage(textures, repeat),
                 ],
             )?;
             unsafe {

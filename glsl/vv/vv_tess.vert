@@ -11,6 +11,8 @@ layout(location = 4) out int v_vid;
 layout(location = 5) out vec4 v_spec;
 // the model triangle (the control and evaluation stages' gl_PrimitiveID is not relied on)
 layout(location = 6) out int v_tri;
+// (u, v, albedo-map layer) for the evaluation stage's textured albedo
+layout(location = 7) out vec3 v_uvl;
 
 // The displayed value of a radiance (tonemap.comp: exposure, ACES fit, sRGB transfer), [0, 1].
 vec3 vv_display(vec3 c) {
@@ -28,6 +30,7 @@ void main() {
     v_spec = vv_vert_spec(v);
     v_vid = v;
     v_tri = t;
+    v_uvl = vv_vert_uv_layer(v);
     vec3 i0 = vv_eval_vertex(vv_sat_tex, v, v_world, v_normal, v_albedo, v_spec);
     vec3 i1 = vv_eval_vertex(vv_sat_blur, v, v_world, v_normal, v_albedo, v_spec);
     // eq. 17 in the paper's unit, the displayed value in [0, 1] (its radiance values are the

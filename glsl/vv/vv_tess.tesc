@@ -12,12 +12,14 @@ layout(location = 3) in float v_delta[];
 layout(location = 4) in int v_vid[];
 layout(location = 5) in vec4 v_spec[];
 layout(location = 6) in int v_tri[];
+layout(location = 7) in vec3 v_uvl[];
 layout(location = 0) out vec3 c_world[];
 layout(location = 1) out vec3 c_normal[];
 layout(location = 2) out vec3 c_albedo[];
 layout(location = 4) out int c_vid[];
 layout(location = 5) out vec4 c_spec[];
 layout(location = 6) out int c_tri[];
+layout(location = 7) out vec3 c_uvl[];
 
 float vv_level(float delta) {
     return clamp(exp2(round(pc.par.y * delta)), 1.0, float(pc.off1.z));
@@ -30,6 +32,7 @@ void main() {
     c_vid[gl_InvocationID] = v_vid[gl_InvocationID];
     c_spec[gl_InvocationID] = v_spec[gl_InvocationID];
     c_tri[gl_InvocationID] = v_tri[gl_InvocationID];
+    c_uvl[gl_InvocationID] = v_uvl[gl_InvocationID];
     if (gl_InvocationID == 0) {
         float d0 = v_delta[0], d1 = v_delta[1], d2 = v_delta[2];
         gl_TessLevelOuter[0] = vv_level(max(d1, d2));

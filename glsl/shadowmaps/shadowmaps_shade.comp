@@ -2,7 +2,7 @@
 #extension GL_GOOGLE_include_directive : require
 // Shadow-map baseline ("shadowmaps"): the environment replaced by K directional lights at
 // stratified importance samples of it (weights L / (K pdf)), each with an orthographic depth map
-// (trace_shadowmap.comp); per G-buffer pixel: sum over k of BRDF x cos x lit fraction (3x3 PCF,
+// (shadowmaps/shadowmaps_depth.comp); per G-buffer pixel: sum over k of BRDF x cos x lit fraction (3x3 PCF,
 // slope-scaled bias) x weight. Sky pixels show the environment.
 layout(local_size_x = 8, local_size_y = 8) in;
 layout(binding = 0) uniform sampler2D gb_position;

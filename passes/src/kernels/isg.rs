@@ -1,0 +1,88 @@
+//! `isg_parity`: the ISG visibility of `glsl/include/isg.glsl` on the GPU.
+
+use crate::isg::{build_bvh, build_triangle_bvh, GpuNode, WorldSphere};
+use crate::util::{bytes_of, compute_pipeline, groups};
+use anyhow::Result;
+use glam::Vec3;
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{vk, Access, Engine, Graph, PassKind};
+use penumbra_math::isg::IsgTable;
+
+/// One visibility query of [`gpu_visibility`]: shading point, normal, SG lobe axis and
+/// sharpness.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VisibilityQuery {
+    pub p: Vec3,
+    pub n: Vec3,
+    pub axis: Vec3,
+    pub gamma: f32,
+}
+
+/// Evaluates `isg_visible` (`glsl/include/isg.glsl`) on the GPU for `queries` against
+/// `spheres` (CPU BVH) and thin-shell `triangles` (one compute dispatch of
+/// `glsl/tests/isg_parity.comp` in a graph of its own): the shader side of the shader-vs-CPU parity
+/// test against [`penumbra_math::isg::visible_fraction_with_triangles`].
+pub fn gpu_visibility(
+    engine: &mut Engine,
+    shaders: &ShaderLibrary,
+    queries: &[VisibilityQuery],
+    spheres: &[WorldSphere],
+    triangles: &[[Vec3; 3]],
+    patch_side: u32,
+    epsilon: f64,
+    lod: f32,
+) -> Result<Vec<f32>> {
+    use vk::DescriptorType as T;
+    let ctx = engine.ctx.clone();
+    let pipeline = compute_pipeline(&ctx, shaders, "tests/isg_parity.comp", &[T::STORAGE_BUFFER; 6], 20)?;
+    let table = IsgTable::default_table().to_gpu(epsilon);
+    let nodes = build_bvh(spheres);
+    let node_count = nodes.len() as i32;
+    let nodes = if nodes.is_empty() { vec![GpuNode { sphere: [0.0; 4], info: [-1; 4] }] } else { nodes };
+    let tri_nodes = build_triangle_bvh(triangles);
+    let tri_node_count = tri_nodes.len() as i32;
+    let tri_nodes = if tri_nodes.is_empty() { vec![GpuNode { sphere: [0.0; 4], info: [-1; 4] }] } else { tri_nodes };
+    let tri_data: Vec<[f32; 4]> = triangles.iter().flat_map(|t| t.map(|p| [p.x, p.y, p.z, 0.0])).collect();
+    let tri_data = if tri_data.is_empty() { vec![[0.0f32; 4]; 3] } else { tri_data };
+    let q: Vec<[f32; 4]> = queries
+        .iter()
+        .flat_map(|q| [[q.p.x, q.p.y, q.p.z, 0.0], [q.n.x, q.n.y, q.n.z, 0.0], [q.axis.x, q.axis.y, q.axis.z, q.gamma]])
+        .collect();
+    let q = if q.is_empty() { vec![[0.0f32; 4]; 3] } else { q };
+    let count = queries.len() as u32;
+    let mut graph = Graph::new();
+    let qb = graph.create_buffer_init("isg_queries", bytes_of(&q));
+    let out = graph.create_buffer("isg_parity_out", count.max(1) as u64 * 4);
+    let tb = graph.create_buffer_init("isg_table", bytes_of(&table));
+    let nb = graph.create_buffer_init("isg_bvh", bytes_of(&nodes));
+    let trb = graph.create_buffer_init("isg_thin_triangles", bytes_of(&tri_data));
+    let tnb = graph.create_buffer_init("isg_thin_bvh", bytes_of(&tri_nodes));
+    let mut p = graph.pass("isg_parity", PassKind::Compute);
+    let qb = p.read(qb, Access::ComputeShaderReadStorage);
+    let out_w = p.write(out, Access::ComputeShaderWriteStorage);
+    let tb = p.read(tb, Access::ComputeShaderReadStorage);
+    let nb = p.read(nb, Access::ComputeShaderReadStorage);
+    let trb = p.read(trb, Access::ComputeShaderReadStorage);
+    let tnb = p.read(tnb, Access::ComputeShaderReadStorage);
+    let mut push = Vec::with_capacity(20);
+    push.extend_from_slice(&count.to_le_bytes());
+    push.extend_from_slice(&node_count.to_le_bytes());
+    push.extend_from_slice(&tri_node_count.to_le_bytes());
+    push.extend_from_slice(&(patch_side.clamp(1, 32) as i32).to_le_bytes());
+    push.extend_from_slice(&lod.to_le_bytes());
+    let pipe = pipeline.handle();
+    p.record(move |rc| {
+        let binds = crate::util::storage([qb, out_w, tb, nb, trb, tnb]);
+        crate::util::dispatch(rc, pipe, &binds, &push, [groups(count, 64), 1, 1])
+    });
+    let rb = graph.create_readback("isg_parity", count.max(1) as u64 * 4);
+    crate::util::copy_buffer(&mut graph, "isg_parity_readback", out_w, rb, None);
+    let (_, mut done) = engine.submit(graph)?;
+    done.extend(engine.drain()?);
+    drop(pipeline);
+    let bytes = done
+        .into_iter()
+        .find_map(|o| o.readbacks.get("isg_parity").cloned())
+        .ok_or_else(|| anyhow::anyhow!("isg_parity: no readback"))?;
+    Ok(bytes.chunks_exact(4).take(queries.len()).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
+}
