@@ -1,12 +1,20 @@
 #!/bin/sh
 # Every test of the workspace (README command 2, after scripts/install-deps.sh; CI runs it via
-# .ci/run). With cargo-nextest (on the CI machines) every test runs in its own process and the
-# tests of all binaries share the cores, so the long GPU tests (the accuracy matrix, avs, isg)
-# overlap the rest; doctests then run with cargo test. Without nextest: plain `cargo test`, one
-# test binary after the other (the same tests, slower). PENUMBRA_PLAIN_CARGO_TEST=1 forces it.
+# .ci/run). With cargo-nextest 0.9.91 or newer (on the CI machines) every test runs in its own
+# process, the tests of all binaries share the cores and the slowest start first
+# (.config/nextest.toml), so the accuracy matrix overlaps the rest; doctests then run with cargo
+# test. Without it: plain `cargo test`, one test binary after the other (the same tests,
+# slower). PENUMBRA_PLAIN_CARGO_TEST=1 forces that.
 set -eu
 cd "$(dirname "$0")/.."
-if [ -z "${PENUMBRA_PLAIN_CARGO_TEST:-}" ] && cargo nextest --version >/dev/null 2>&1; then
+nextest_ok() {
+    v=$(cargo nextest --version 2>/dev/null | head -n 1 | sed -n 's/^cargo-nextest \([0-9]*\)\.\([0-9]*\)\.\([0-9]*\).*/\1 \2 \3/p')
+    [ -n "$v" ] || return 1
+    set -- $v
+    # test priorities need 0.9.91
+    [ "$1" -gt 0 ] || [ "$2" -gt 9 ] || { [ "$2" -eq 9 ] && [ "$3" -ge 91 ]; }
+}
+if [ -z "${PENUMBRA_PLAIN_CARGO_TEST:-}" ] && nextest_ok; then
     cargo nextest run --workspace --no-fail-fast "$@"
     cargo test --workspace --doc
 else

@@ -3,7 +3,7 @@
 mod common;
 
 use common::{hdr_image, render_frames};
-use penumbra::engine::graph::dump;
+use penumbra::engine::dump;
 use penumbra_reference::image::Image;
 use penumbra_reference::metrics::{compare, write_diff_png};
 use penumbra_scene::Scene;

@@ -14,7 +14,7 @@ use std::mem::ManuallyDrop;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
-use crate::graph::ImageDesc;
+use crate::resource::ImageDesc;
 
 /// Messages reported by the validation layer (or any debug-utils source).
 #[derive(Default, Debug)]

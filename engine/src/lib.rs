@@ -1,11 +1,15 @@
 //! penumbra's engine: Vulkan context and memory, resources, the explicit render graph, the
 //! executor with per-pass GPU timestamps, profiling and dumps.
 
+pub mod access;
 pub mod context;
+pub mod dump;
 pub mod exec;
 pub mod glsl_compile;
 pub mod graph;
 pub mod profile;
+pub mod record;
+pub mod resource;
 pub mod shader;
 
 pub use ash;

@@ -5,7 +5,7 @@
 
 use anyhow::{Context as _, Result};
 use clap::{Args, Parser, Subcommand};
-use penumbra::engine::graph::dump;
+use penumbra::engine::dump;
 use penumbra::{RenderSettings, Renderer};
 use penumbra_reference::cli::{parse_size, CompareArgs, ReferenceArgs};
 use penumbra_reference::image::{write_png_rgb8, Image};

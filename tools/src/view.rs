@@ -17,7 +17,7 @@
 use crate::{apply_overrides, bad, load_scene, new_renderer, report_validation};
 use anyhow::{anyhow, bail, Context as _, Result};
 use clap::Args;
-use penumbra::engine::graph::dump;
+use penumbra::engine::dump;
 use penumbra::engine::{ash, vk, Access, Context, ContextDesc, ImageDesc, ImportedImage, SubmitSync};
 use penumbra::{RenderSettings, Renderer, TargetTexels};
 use penumbra_reference::cli::parse_size;

@@ -10,122 +10,16 @@
 //! Resource handles are versioned: declaring a write returns a new handle; reading an older
 //! version after a newer one was written is an error (its contents are gone).
 
-pub mod access;
+pub use crate::access;
 pub mod compile;
-pub mod dump;
 
 pub use access::{Access, AccessInfo, Applies};
 pub use compile::{Barrier, CompiledGraph, CompiledPass, GraphError, Problem, ResourceInfo, ResourceState};
+pub use crate::resource::{BufferDesc, BufferHandle, GraphHandle, ImageDesc, ImageHandle};
 
 use ash::vk;
 use std::fmt;
 
-/// A versioned image handle. Copy it freely; it is only meaningful in the graph that made it.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
-pub struct ImageHandle {
-    pub(crate) id: u32,
-    pub(crate) version: u32,
-}
-
-/// A versioned buffer handle.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
-pub struct BufferHandle {
-    pub(crate) id: u32,
-    pub(crate) version: u32,
-}
-
-/// Anything a pass can declare a use of.
-pub trait GraphHandle: Copy {
-    fn raw(self) -> (u32, u32);
-    fn with_version(self, v: u32) -> Self;
-    const IS_IMAGE: bool;
-}
-
-impl GraphHandle for ImageHandle {
-    fn raw(self) -> (u32, u32) {
-        (self.id, self.version)
-    }
-    fn with_version(self, v: u32) -> Self {
-        ImageHandle { id: self.id, version: v }
-    }
-    const IS_IMAGE: bool = true;
-}
-
-impl GraphHandle for BufferHandle {
-    fn raw(self) -> (u32, u32) {
-        (self.id, self.version)
-    }
-    fn with_version(self, v: u32) -> Self {
-        BufferHandle { id: self.id, version: v }
-    }
-    const IS_IMAGE: bool = false;
-}
-
-impl ImageHandle {
-    pub fn version(self) -> u32 {
-        self.version
-    }
-}
-impl BufferHandle {
-    pub fn version(self) -> u32 {
-        self.version
-    }
-}
-
-/// Description of an image the graph allocates (or of an imported one).
-#[derive(Clone, Debug, PartialEq, Eq, Hash)]
-pub struct ImageDesc {
-    pub format: vk::Format,
-    pub width: u32,
-    pub height: u32,
-    pub mip_levels: u32,
-    pub array_layers: u32,
-    /// View the image as a 2D array (`sampler2DArray`) even with one layer.
-    pub array_view: bool,
-}
-
-impl ImageDesc {
-    pub fn new_2d(format: vk::Format, width: u32, height: u32) -> Self {
-        ImageDesc { format, width, height, mip_levels: 1, array_layers: 1, array_view: false }
-    }
-    /// A 2D array of `layers` layers, viewed as an array.
-    pub fn with_layers(mut self, layers: u32) -> Self {
-        self.array_layers = layers.max(1);
-        self.array_view = true;
-        self
-    }
-    pub fn with_mips(mut self, mips: u32) -> Self {
-        self.mip_levels = mips;
-        self
-    }
-    /// Bytes of all mips and layers.
-    pub fn bytes(&self) -> u64 {
-        let texel = access::format_texel_bytes(self.format);
-        (0..self.mip_levels)
-            .map(|m| ((self.width >> m).max(1) as u64) * ((self.height >> m).max(1) as u64) * texel)
-            .sum::<u64>()
-            * self.array_layers as u64
-    }
-    pub fn aspect(&self) -> vk::ImageAspectFlags {
-        if access::is_depth_format(self.format) {
-            let mut a = vk::ImageAspectFlags::DEPTH;
-            if access::has_stencil(self.format) {
-                a |= vk::ImageAspectFlags::STENCIL;
-            }
-            a
-        } else {
-            vk::ImageAspectFlags::COLOR
-        }
-    }
-}
-
-/// Description of a buffer.
-#[derive(Clone, Debug, PartialEq, Eq, Hash)]
-pub struct BufferDesc {
-    pub size: u64,
-    /// Host-visible memory (readback and host-initialised buffers).
-    pub host_visible: bool,
-}
 
 /// Where a resource comes from.
 #[derive(Clone, Debug, PartialEq)]
@@ -235,7 +129,7 @@ pub struct Use {
 
 /// Records a pass's commands. Returns an error instead of panicking (e.g. a handle the pass did
 /// not declare); the executor reports every pass's errors together and does not submit.
-pub type RecordFn = Box<dyn FnOnce(&mut crate::exec::RecordContext) -> anyhow::Result<()>>;
+pub type RecordFn = Box<dyn FnOnce(&mut crate::record::RecordContext) -> anyhow::Result<()>>;
 
 pub struct PassNode {
     pub name: String,
@@ -488,7 +382,7 @@ impl<'g> PassBuilder<'g> {
     }
 
     /// Finishes the pass with its recording closure.
-    pub fn record(self, f: impl FnOnce(&mut crate::exec::RecordContext) -> anyhow::Result<()> + 'static) {
+    pub fn record(self, f: impl FnOnce(&mut crate::record::RecordContext) -> anyhow::Result<()> + 'static) {
         self.graph.passes[self.index].record = Some(Box::new(f));
     }
 

@@ -1,6 +1,7 @@
 //! Graph tests that need no GPU: barriers, culling, validation, dumps.
 
 use super::compile::BarrierReason;
+use crate::dump;
 use super::*;
 use ash::vk::{AccessFlags2 as A, ImageLayout as L, PipelineStageFlags2 as S};
 

@@ -1,8 +1,8 @@
 //! Deterministic dumps of a compiled graph: JSON, Graphviz DOT and a readable text log.
 //! No handles or addresses appear, so dumps are stable across runs and snapshot-testable.
 
-use super::compile::{Barrier, CompiledGraph};
-use super::ResourceDesc;
+use crate::graph::compile::{Barrier, CompiledGraph};
+use crate::graph::ResourceDesc;
 use crate::profile::PassStats;
 use serde_json::{json, Value};
 use std::collections::BTreeMap;

@@ -391,55 +391,7 @@ impl Access {
     }
 }
 
-/// True for depth and depth/stencil formats.
-pub fn is_depth_format(f: vk::Format) -> bool {
-    matches!(
-        f,
-        vk::Format::D16_UNORM
-            | vk::Format::D32_SFLOAT
-            | vk::Format::D24_UNORM_S8_UINT
-            | vk::Format::D32_SFLOAT_S8_UINT
-            | vk::Format::D16_UNORM_S8_UINT
-            | vk::Format::X8_D24_UNORM_PACK32
-    )
-}
-
-/// True for formats with a stencil aspect.
-pub fn has_stencil(f: vk::Format) -> bool {
-    matches!(
-        f,
-        vk::Format::D24_UNORM_S8_UINT
-            | vk::Format::D32_SFLOAT_S8_UINT
-            | vk::Format::D16_UNORM_S8_UINT
-            | vk::Format::S8_UINT
-    )
-}
-
-/// Bytes per texel of the formats the engine allocates (for dumps and readback).
-pub fn format_texel_bytes(f: vk::Format) -> u64 {
-    use vk::Format as F;
-    match f {
-        F::R8_UNORM | F::R8_UINT | F::S8_UINT => 1,
-        F::R16_SFLOAT | F::R16_UINT | F::D16_UNORM | F::R8G8_UNORM => 2,
-        F::R8G8B8A8_UNORM
-        | F::R8G8B8A8_SRGB
-        | F::B8G8R8A8_UNORM
-        | F::B8G8R8A8_SRGB
-        | F::R32_SFLOAT
-        | F::R32_UINT
-        | F::D32_SFLOAT
-        | F::D24_UNORM_S8_UINT
-        | F::R16G16_SFLOAT
-        | F::A2B10G10R10_UNORM_PACK32
-        | F::B10G11R11_UFLOAT_PACK32
-        | F::X8_D24_UNORM_PACK32 => 4,
-        F::D32_SFLOAT_S8_UINT => 5,
-        F::R16G16B16A16_SFLOAT | F::R32G32_SFLOAT | F::R32G32_UINT => 8,
-        F::R32G32B32_SFLOAT => 12,
-        F::R32G32B32A32_SFLOAT | F::R32G32B32A32_UINT => 16,
-        _ => 4,
-    }
-}
+pub use crate::resource::{format_texel_bytes, has_stencil, is_depth_format};
 
 #[cfg(test)]
 mod tests {
