@@ -268,13 +268,8 @@ impl Viewer<'_> {
             }
         };
         let Some(s) = &mut self.state else { return Ok(()) };
-        let mut scene = self.scene.clone();
-        if let Some(t) = &self.settings.technique {
-            if *t != scene.technique {
-                scene.technique_params.clear();
-            }
-        }
-        match penumbra::Renderer::new_with_shaders(s.ctx.clone(), &scene, self.settings.clone(), &lib) {
+        // (the renderer gives the scene's parameters to the scene's own technique only)
+        match penumbra::Renderer::new_with_shaders(s.ctx.clone(), &self.scene, self.settings.clone(), &lib) {
             Ok(r) => {
                 s.renderer = Some(r);
                 self.shaders = Some(lib);
@@ -293,11 +288,8 @@ impl Viewer<'_> {
         let next = list[(list.iter().position(|t| *t == cur).map_or(0, |i| i + 1)) % list.len()];
         self.t_cursor = Some(next.to_string());
         let Some(s) = &mut self.state else { return Ok(()) };
-        let mut scene = self.scene.clone();
-        if next != scene.technique {
-            // The scene's parameters belong to its own technique.
-            scene.technique_params.clear();
-        }
+        // (the renderer gives the scene's parameters to the scene's own technique only)
+        let scene = self.scene.clone();
         let mut settings = self.settings.clone();
         settings.technique = Some(next.to_string());
         let lib = self.shaders.clone().unwrap_or_else(penumbra::shader_library);

@@ -248,17 +248,6 @@ impl VvSceneData {
         Ok(Arc::new(Self::from_parts(scene, model, d.vis, d.corr, d.stats.visibility_seconds, d.stats.correspondence_seconds)))
     }
 
-    /// Precomputes the scene's data (visibility, then the correspondence), without the cache.
-    pub fn build(scene: &Scene, resolution: u32) -> Result<Self> {
-        let model = scene_model(scene)?;
-        let params = VvParams { resolution, ..Default::default() };
-        params.validate().map_err(anyhow::Error::msg)?;
-        let bar = progress_bar(model.positions.len() as u64 + 2 * model.triangle_count() as u64, "vv precompute");
-        let d = penumbra_math::vv::compute(&model, &params, &|_, k| bar.inc(k)).map_err(anyhow::Error::msg)?;
-        bar.finish_and_clear();
-        Ok(Self::from_parts(scene, model, d.vis, d.corr, d.stats.visibility_seconds, d.stats.correspondence_seconds))
-    }
-
     fn from_parts(
         scene: &Scene,
         model: VvModel,
