@@ -139,6 +139,11 @@ pub struct Context {
     debug_instance: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     pub validation: Arc<ValidationLog>,
     pub validation_enabled: bool,
+    /// Vulkan 1.2 `shaderOutputLayer` (and `shaderOutputViewportIndex`) are enabled: a vertex
+    /// shader may write `gl_Layer` (layered rendering of many shadow maps in one pass).
+    /// [`Context::new`] enables them where the device has them; [`Context::from_external`]
+    /// assumes the host did not.
+    pub shader_output_layer: bool,
     allocator: ManuallyDrop<Mutex<Allocator>>,
     owned: bool,
 }
@@ -282,7 +287,17 @@ impl Context {
             .fill_mode_non_solid(avail.fill_mode_non_solid == vk::TRUE)
             .sampler_anisotropy(avail.sampler_anisotropy == vk::TRUE)
             .pipeline_statistics_query(avail.pipeline_statistics_query == vk::TRUE);
-        let mut f12 = vk::PhysicalDeviceVulkan12Features::default().host_query_reset(true).scalar_block_layout(true);
+        let mut avail12 = vk::PhysicalDeviceVulkan12Features::default();
+        {
+            let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut avail12);
+            unsafe { instance.get_physical_device_features2(physical, &mut f2) };
+        }
+        let shader_output_layer = avail12.shader_output_layer == vk::TRUE && avail12.shader_output_viewport_index == vk::TRUE;
+        let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
+            .host_query_reset(true)
+            .scalar_block_layout(true)
+            .shader_output_layer(shader_output_layer)
+            .shader_output_viewport_index(shader_output_layer);
         let mut f13 = vk::PhysicalDeviceVulkan13Features::default()
             .synchronization2(true)
             .dynamic_rendering(true)
@@ -311,13 +326,15 @@ impl Context {
             validation,
             desc.validation,
             true,
+            shader_output_layer,
         )?;
         Ok(Arc::new(ctx))
     }
 
     /// Wraps an application's instance/device/queue. The device must have been created with
     /// Vulkan 1.3 `synchronization2`, `dynamicRendering` and `maintenance4`, Vulkan 1.2 `hostQueryReset` and
-    /// `scalarBlockLayout`, and `VK_KHR_push_descriptor`. penumbra does not destroy them. Pass a
+    /// `scalarBlockLayout`, and `VK_KHR_push_descriptor`. penumbra does not destroy them. It
+    /// assumes `shaderOutputLayer` is off (technique `shadowmaps` then refuses to start). Pass a
     /// clone of your `Entry`: the loader library must outlive your own use of the handles.
     #[allow(clippy::too_many_arguments)]
     pub fn from_external(
@@ -346,6 +363,7 @@ impl Context {
             Arc::new(ValidationLog::default()),
             false,
             false,
+            false,
         )?;
         Ok(Arc::new(ctx))
     }
@@ -365,6 +383,7 @@ impl Context {
         validation: Arc<ValidationLog>,
         validation_enabled: bool,
         owned: bool,
+        shader_output_layer: bool,
     ) -> Result<Context> {
         let allocator = Allocator::new(&AllocatorCreateDesc {
             instance: instance.clone(),
@@ -392,6 +411,7 @@ impl Context {
             debug_instance,
             validation,
             validation_enabled,
+            shader_output_layer,
             allocator: ManuallyDrop::new(Mutex::new(allocator)),
             owned,
         })

@@ -1,7 +1,7 @@
 #version 450
-// Environment- and local-light shading without shadows: diffuse from 9-coefficient SH irradiance, specular
-// from the mip-filtered environment map along the reflection direction with an analytic
-// split-sum environment BRDF (Karis 2014, mobile approximation).
+// Environment- and local-light shading without shadows: the environment by env_shade.glsl
+// (diffuse from 9-coefficient SH irradiance, specular from the mip-filtered environment map along
+// the reflection direction with an analytic split-sum environment BRDF), local lights below.
 #include "common.glsl"
 
 layout(local_size_x = 8, local_size_y = 8) in;
@@ -16,6 +16,7 @@ layout(set = 0, binding = 6, rgba32f) uniform writeonly image2D hdr;
 layout(set = 0, binding = 7) readonly buffer Lights { LightData lights[]; };
 layout(set = 0, binding = 8) uniform sampler2DArray material_textures;
 #include "material.glsl"
+#include "env_shade.glsl"
 layout(push_constant) uniform Push { uint light_count; } pc;
 
 // Radiance reflected from local lights, unshadowed. Point and spot lights: radiant intensity
@@ -62,20 +63,6 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData 
     return sum;
 }
 
-vec3 env_lookup(vec3 d, float lod) {
-    vec2 uv = dir_to_latlong(normalize(d), cam.env_rot.xy);
-    return textureLod(env_map, uv, lod).rgb * cam.params.w;
-}
-
-vec3 env_brdf_approx(vec3 f0, float roughness, float ndv) {
-    const vec4 c0 = vec4(-1.0, -0.0275, -0.572, 0.022);
-    const vec4 c1 = vec4(1.0, 0.0425, 1.04, -0.04);
-    vec4 r = roughness * c0 + c1;
-    float a004 = min(r.x * r.x, exp2(-9.28 * ndv)) * r.x + r.y;
-    vec2 ab = vec2(-1.04, 1.04) * a004 + r.zw;
-    return f0 * ab.x + ab.y;
-}
-
 void main() {
     ivec2 p = ivec2(gl_GlobalInvocationID.xy);
     ivec2 size = imageSize(hdr);
@@ -93,20 +80,11 @@ void main() {
     vec3 n = oct_decode(texelFetch(gb_normal, p, 0).xy);
     MaterialData m = mats[uint(uvm.z)];
     vec3 v = normalize(cam.eye.xyz - pos);
-    float ndv = max(dot(n, v), 1e-4);
-    vec3 albedo = m.albedo_kind.rgb;
     int kind = int(m.albedo_kind.w + 0.5);
     // Spatially varying materials: albedo map multiplies albedo, roughness map (G) multiplies
     // roughness and the Phong exponent follows 2 / r^2 - 2 (as in the reference renderer).
     m = material_at(m, uvm.xy, material_textures);
-    albedo = m.albedo_kind.rgb;
-    vec3 color = albedo / PI * sh9_irradiance(cam.sh, n) * cam.params.w;
-    float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
-    color += local_lights(pos, n, v, albedo, kind, m, roughness);
-    if (kind != 0) {
-        vec3 r = reflect(-v, n);
-        float lod = roughness * (cam.params.z - 1.0);
-        color += env_lookup(r, lod) * env_brdf_approx(m.spec_rough.rgb, roughness, ndv);
-    }
+    vec3 color = env_unshadowed(n, v, m);
+    color += local_lights(pos, n, v, m.albedo_kind.rgb, kind, m, env_roughness(m));
     imageStore(hdr, p, vec4(color, 1.0));
 }

@@ -1,109 +1,255 @@
 #version 460
 #extension GL_GOOGLE_include_directive : require
-// Shadow-map baseline ("shadowmaps"): the environment replaced by K directional lights at
-// stratified importance samples of it (weights L / (K pdf)), each with an orthographic depth map
-// (shadowmaps/shadowmaps_depth.comp); per G-buffer pixel: sum over k of BRDF x cos x lit fraction (3x3 PCF,
-// slope-scaled bias) x weight. Sky pixels show the environment.
+// Shadow-map baseline ("shadowmaps"), shading per G-buffer pixel.
+// Environment: K directional lights at stratified importance samples of it (weights L / (K pdf)),
+// each with an orthographic depth map (layers 0..K of the depth array, rasterized by
+// shadowmaps_depth.vert). `shading = lights` (the papers' baseline): the sum over k of
+// BRDF x cos x lit fraction x weight. `shading = ratio` (default): the unshadowed environment
+// lighting of the `env` technique (env_shade.glsl) times the ratio of the shadowed to the
+// unshadowed sum over the K lights (a ratio estimator: the K lights say how much of the
+// BRDF-weighted lighting is blocked; the environment's full detail, glossy reflections included,
+// comes from the unshadowed term).
+// Local lights: point and spot lights with a cube shadow map each (6 layers after the K), 3x3 PCF;
+// sphere lights from the cube map of their centre with PCSS soft shadows (blocker search, then a
+// filter as wide as the penumbra a sphere of the light's radius casts); radiance with the material's
+// BRDF, sphere lights as points of intensity L pi r^2.
+// Lit fraction: 3x3 PCF (more for sphere lights), slope-scaled bias of 1.5 texels + 1.5 texels x
+// tan(theta), compared in linear depth.
 layout(local_size_x = 8, local_size_y = 8) in;
-layout(binding = 0) uniform sampler2D gb_position;
-layout(binding = 1) uniform sampler2D gb_normal;
-layout(binding = 2) uniform sampler2D gb_uv_mat;
 #include "common.glsl"
-// the scene's materials (passes/src/scene_gpu.rs material_table, read through material.glsl)
-layout(std430, binding = 3) readonly buffer Materials { MaterialData mats[]; };
-layout(std430, binding = 4) readonly buffer Maps { vec4 maps[]; };
-layout(std430, binding = 5) readonly buffer Depth { float depth[]; };
-layout(std430, binding = 6) readonly buffer EnvTexels { vec4 env_texels[]; };
-layout(binding = 7, rgba32f) uniform writeonly image2D hdr;
-layout(binding = 8) uniform sampler2DArray material_textures;
+layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
+layout(set = 0, binding = 1) readonly buffer Materials { MaterialData mats[]; };
+layout(set = 0, binding = 2) uniform sampler2D gb_position;
+layout(set = 0, binding = 3) uniform sampler2D gb_normal;
+layout(set = 0, binding = 4) uniform sampler2D gb_uv_mat;
+layout(set = 0, binding = 5) uniform sampler2D env_map;
+layout(set = 0, binding = 6, rgba32f) uniform writeonly image2D hdr;
+// per layer: view-projection (4 columns), (kind 0 ortho / 1 perspective, near, far, texel size)
+layout(std430, set = 0, binding = 7) readonly buffer Layers { vec4 layers[]; };
+// per environment light k: (direction towards the light, K pdf), (weight rgb, 0)
+layout(std430, set = 0, binding = 8) readonly buffer EnvLights { vec4 env_lights[]; };
+layout(set = 0, binding = 9) uniform sampler2DArray depth_maps;
+layout(set = 0, binding = 10) readonly buffer Lights { LightData lights[]; };
+layout(set = 0, binding = 11) uniform sampler2DArray material_textures;
 layout(push_constant) uniform Push {
-    mat4 inv_view_proj;
-    uvec4 size_count;   // width, height, K, S
-    uvec4 env_info;     // env width, env height, visibility on, 0
-    vec4 env_rot;       // cos, sin of the environment rotation
-    vec4 sphere;        // scene bounding sphere centre, radius
+    uvec4 counts;   // K environment layers, local light count, visibility on, shading (0 lights, 1 ratio)
+    uvec4 size;     // S (map resolution), 0, 0, 0
 } pc;
 
 #define M_PI 3.14159265358979323846
 #define M_TAU 6.28318530717958647692
 #include "material.glsl"
 #include "brdf_ref.glsl"
+#include "env_shade.glsl"
 
-vec3 env_radiance(vec3 dw) {
-    float c = pc.env_rot.x, s = pc.env_rot.y;
-    vec3 d = vec3(c * dw.x - s * dw.z, dw.y, s * dw.x + c * dw.z);
-    float theta = acos(clamp(d.y, -1.0, 1.0));
-    float phi = atan(d.x, -d.z);
-    if (phi < 0.0) phi += M_TAU;
-    int w = int(pc.env_info.x), h = int(pc.env_info.y);
-    int i = clamp(int(phi / M_TAU * float(w)), 0, w - 1);
-    int j = clamp(int(theta / M_PI * float(h)), 0, h - 1);
-    return env_texels[j * w + i].rgb;
+float lum(vec3 c) { return dot(c, vec3(0.2126, 0.7152, 0.0722)); }
+
+mat4 layer_vp(uint l) { return mat4(layers[5u * l], layers[5u * l + 1u], layers[5u * l + 2u], layers[5u * l + 3u]); }
+
+// Linear depth (along the map's axis) of texel c of layer l; where nothing was drawn (the cleared
+// 1.0) or, on an orthographic layer, outside the map (no shadow caster there: the maps cover the
+// casters' bounding sphere), infinitely far.
+float stored_depth(uint l, ivec2 c) {
+    vec4 li = layers[5u * l + 4u];
+    int s = int(pc.size.x);
+    if (any(lessThan(c, ivec2(0))) || any(greaterThanEqual(c, ivec2(s)))) {
+        if (li.x < 0.5) return 3.0e38;
+        c = clamp(c, ivec2(0), ivec2(s - 1));
+    }
+    float d = texelFetch(depth_maps, ivec3(c, int(l)), 0).r;
+    if (d >= 1.0) return 3.0e38;
+    return li.x < 0.5 ? li.y + d * (li.z - li.y) : li.y * li.z / (li.z - d * (li.z - li.y));
 }
 
-float lit(uint k, vec3 p, float cos_i) {
-    uint s = pc.size_count.w;
-    vec3 wi = maps[4u * k].xyz, right = maps[4u * k + 2u].xyz, up = maps[4u * k + 3u].xyz;
-    float r = pc.sphere.w;
-    vec3 q = p - pc.sphere.xyz;
-    float dp = 1.01 * r - dot(q, wi);
-    vec2 uv = vec2(dot(q, right), dot(q, up)) / r;
-    vec2 t = (uv * 0.5 + 0.5) * float(s) - 0.5;
-    float texel = 2.0 * r / float(s);
+// Where p falls in layer l: texel coordinates (texel centres at integers), its linear depth and
+// the world size of one texel there.
+void project(uint l, vec3 p, out vec2 t, out float z, out float texel) {
+    vec4 li = layers[5u * l + 4u];
+    vec4 c = layer_vp(l) * vec4(p, 1.0);
+    vec3 ndc = c.xyz / c.w;
+    float s = float(pc.size.x);
+    t = (ndc.xy * 0.5 + 0.5) * s - 0.5;
+    z = li.x < 0.5 ? li.y + ndc.z * (li.z - li.y) : c.w;
+    texel = li.x < 0.5 ? li.w : 2.0 * c.w / s;
+}
+
+float bias_for(float texel, float cos_i, float z) {
     float tan_i = sqrt(max(1.0 - cos_i * cos_i, 0.0)) / max(cos_i, 0.05);
-    float bias = texel * (1.5 + 1.5 * min(tan_i, 20.0)) + 1e-4 * r;
+    return texel * (1.5 + 1.5 * min(tan_i, 20.0)) + 1e-5 * z;
+}
+
+// 3x3 PCF lit fraction of p in layer l.
+float lit_pcf(uint l, vec3 p, float cos_i) {
+    vec2 t;
+    float z, texel;
+    project(l, p, t, z, texel);
+    float zb = z - bias_for(texel, cos_i, z);
+    ivec2 c0 = ivec2(round(t));
     float sum = 0.0;
     for (int dy = -1; dy <= 1; dy++) {
         for (int dx = -1; dx <= 1; dx++) {
-            ivec2 c = clamp(ivec2(round(t)) + ivec2(dx, dy), ivec2(0), ivec2(int(s) - 1));
-            float d = depth[(k * s + uint(c.y)) * s + uint(c.x)];
-            sum += dp - bias <= d ? 1.0 : 0.0;
+            sum += zb <= stored_depth(l, c0 + ivec2(dx, dy)) ? 1.0 : 0.0;
         }
     }
     return sum / 9.0;
 }
 
+// PCSS lit fraction of p in layer l for a spherical light of radius `radius` at the map's
+// centre of projection (perspective layers).
+float lit_pcss(uint l, vec3 p, float cos_i, float radius) {
+    vec2 t;
+    float z, texel;
+    project(l, p, t, z, texel);
+    vec4 li = layers[5u * l + 4u];
+    float zb = z - bias_for(texel, cos_i, z);
+    float s = float(pc.size.x);
+    // blockers between the light and p within the light's angular size as seen from p, mapped
+    // into the map (texels at p's depth), searched over a 5x5 grid
+    float search = clamp(radius / max(texel, 1e-9), 1.0, 16.0);
+    float blockers = 0.0, zsum = 0.0;
+    for (int dy = -2; dy <= 2; dy++) {
+        for (int dx = -2; dx <= 2; dx++) {
+            vec2 q = t + vec2(dx, dy) * (search / 2.0);
+            float d = stored_depth(l, ivec2(round(q)));
+            if (d < zb) {
+                blockers += 1.0;
+                zsum += d;
+            }
+        }
+    }
+    if (blockers == 0.0) return 1.0;
+    float zblock = max(zsum / blockers, li.y);
+    // penumbra width at p (world), in texels at p's depth
+    float penumbra = radius * (z - zblock) / zblock;
+    float filt = clamp(penumbra / max(texel, 1e-9), 1.0, 16.0);
+    float sum = 0.0;
+    for (int dy = -3; dy <= 3; dy++) {
+        for (int dx = -3; dx <= 3; dx++) {
+            vec2 q = t + vec2(dx, dy) * (filt / 3.0);
+            sum += zb <= stored_depth(l, ivec2(round(q))) ? 1.0 : 0.0;
+        }
+    }
+    return sum / 49.0;
+}
+
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
-    uint w = pc.size_count.x, h = pc.size_count.y;
-    if (px.x >= int(w) || px.y >= int(h)) return;
+    ivec2 size = imageSize(hdr);
+    if (px.x >= size.x || px.y >= size.y) return;
     vec4 uvm = texelFetch(gb_uv_mat, px, 0);
-    vec2 ndc = (vec2(px) + 0.5) / vec2(w, h) * 2.0 - 1.0;
-    vec4 nr = pc.inv_view_proj * vec4(ndc, 0.0, 1.0);
-    vec4 fr = pc.inv_view_proj * vec4(ndc, 1.0, 1.0);
-    vec3 o = nr.xyz / nr.w;
-    vec3 d = normalize(fr.xyz / fr.w - o);
+    vec2 ndc = (vec2(px) + 0.5) / vec2(size) * 2.0 - 1.0;
+    vec4 far_p = cam.inv_view_proj * vec4(ndc, 1.0, 1.0);
+    vec3 d = normalize(far_p.xyz / far_p.w - cam.eye.xyz);
     if (uvm.w < 0.5) {
-        imageStore(hdr, px, vec4(env_radiance(d), 1.0));
+        imageStore(hdr, px, vec4(env_lookup(d, 0.0), 1.0));
         return;
     }
     vec3 p = texelFetch(gb_position, px, 0).xyz;
     vec4 en = texelFetch(gb_normal, px, 0);
     vec3 ns = oct_decode(en.xy);
     vec3 tg = oct_decode(en.zw);
-    vec3 wo_w = -d;
+    vec3 wo_w = normalize(cam.eye.xyz - p);
     if (dot(ns, wo_w) < 0.0) ns = -ns;   // two-sided
     vec3 tt = tg - ns * dot(ns, tg);
     if (dot(tt, tt) > 1e-12) tt = normalize(tt);
     else {
-        float s = ns.z >= 0.0 ? 1.0 : -1.0;
-        float a = -1.0 / (s + ns.z);
+        float sg = ns.z >= 0.0 ? 1.0 : -1.0;
+        float a = -1.0 / (sg + ns.z);
         float bb = ns.x * ns.y * a;
-        tt = vec3(1.0 + s * ns.x * ns.x * a, s * bb, -s * ns.x);
+        tt = vec3(1.0 + sg * ns.x * ns.x * a, sg * bb, -sg * ns.x);
     }
     vec3 bt = cross(ns, tt);
     vec3 wo = vec3(dot(wo_w, tt), dot(wo_w, bt), dot(wo_w, ns));
     uint mi = uint(uvm.z + 0.5);
-    Brdf b = brdf_from_material(material_at(mats[mi], uvm.xy, material_textures));
-    vec3 l = vec3(0.0);
-    for (uint k = 0u; k < pc.size_count.z; k++) {
-        vec3 wi = maps[4u * k].xyz;
+    MaterialData m = material_at(mats[mi], uvm.xy, material_textures);
+    Brdf b = brdf_from_material(m);
+    bool vis_on = pc.counts.z != 0u;
+    // environment
+    vec3 s_vis = vec3(0.0), s_all = vec3(0.0);   // shading = lights: BRDF x cos x weight
+    vec3 d_vis = vec3(0.0), d_all = vec3(0.0);   // ratio, diffuse: cos x weight
+    float g_vis = 0.0, g_all = 0.0;              // ratio, glossy: the BRDF's glossy lobe x cos
+    float g_albedo = 0.0;                        // the lobe's directional albedo, estimated from them
+    Brdf glossy_b = b;
+    glossy_b.albedo = vec3(0.0);
+    for (uint k = 0u; k < pc.counts.x; k++) {
+        vec3 wi = env_lights[2u * k].xyz;
         vec3 lw = vec3(dot(wi, tt), dot(wi, bt), dot(wi, ns));
         if (lw.z <= 0.0 || wo.z <= 0.0) continue;
+        vec3 w = env_lights[2u * k + 1u].rgb;
+        float v = vis_on ? lit_pcf(k, p, lw.z) : 1.0;
+        if (pc.counts.w == 0u) {
+            vec3 f = brdf_eval(b, wo, lw) * lw.z * w;
+            s_all += f;
+            s_vis += f * v;
+        } else {
+            d_all += lw.z * w;
+            d_vis += lw.z * w * v;
+            if (b.kind != 0u) {
+                float g = lum(brdf_eval(glossy_b, wo, lw)) * lw.z;
+                g_all += g;
+                g_vis += g * v;
+                float kpdf = env_lights[2u * k].w;
+                if (kpdf > 0.0) g_albedo += g / kpdf;
+            }
+        }
+    }
+    vec3 l;
+    if (pc.counts.w == 0u) {
+        l = s_vis;
+    } else {
+        // Ratio estimators. The diffuse share is the cosine- and weight-weighted mean visibility
+        // over the K directions. The K directions are importance samples of the environment (each
+        // weight L / (K pdf) about equal), so the glossy share is the lobe-weighted mean
+        // visibility over them, sum f V / sum f, trusted as far as they cover the lobe: their
+        // estimate of the lobe's directional albedo, sum f cos / (K pdf), against the split-sum
+        // albedo (a narrow lobe between the directions falls back to the diffuse share). No
+        // direction above the horizon: unshadowed.
+        vec3 ud, ug;
+        env_unshadowed_parts(ns, wo_w, m, ud, ug);
+        vec3 rd = vec3(
+            d_all.r > 0.0 ? d_vis.r / d_all.r : 1.0,
+            d_all.g > 0.0 ? d_vis.g / d_all.g : 1.0,
+            d_all.b > 0.0 ? d_vis.b / d_all.b : 1.0);
+        float rd_lum = lum(d_all) > 0.0 ? lum(d_vis) / lum(d_all) : 1.0;
+        float rg = rd_lum;
+        if (b.kind != 0u && g_all > 1e-30) {
+            float albedo = lum(env_brdf_approx(m.spec_rough.rgb, env_roughness(m), max(wo.z, 1e-4)));
+            float cover = albedo > 0.0 ? clamp(g_albedo / albedo, 0.0, 1.0) : 0.0;
+            rg = mix(rd_lum, g_vis / g_all, cover);
+        }
+        l = ud * rd + ug * rg;
+    }
+    // local lights
+    for (uint i = 0u; i < pc.counts.y; i++) {
+        LightData ld = lights[i];
+        vec3 to_l = ld.pos_kind.xyz - p;
+        float d2 = dot(to_l, to_l);
+        if (d2 <= 1e-12) continue;
+        vec3 wi = to_l * inversesqrt(d2);
+        vec3 lw = vec3(dot(wi, tt), dot(wi, bt), dot(wi, ns));
+        if (lw.z <= 0.0 || wo.z <= 0.0) continue;
+        int lk = int(ld.pos_kind.w + 0.5);
+        vec3 intensity = ld.power_cos_inner.rgb;
+        float radius = ld.extra.x;
+        if (lk == 1) {
+            intensity *= smoothstep(ld.dir_cos_outer.w, ld.power_cos_inner.w, dot(-wi, normalize(ld.dir_cos_outer.xyz)));
+        } else if (lk == 2) {
+            if (d2 <= radius * radius) continue;
+            intensity *= M_PI * radius * radius;
+        }
+        if (intensity == vec3(0.0)) continue;
         vec3 f = brdf_eval(b, wo, lw) * lw.z;
         if (f == vec3(0.0)) continue;
-        float v = pc.env_info.z != 0u ? lit(k, p, lw.z) : 1.0;
-        l += f * maps[4u * k + 1u].rgb * v;
+        float v = 1.0;
+        if (vis_on) {
+            // the cube face of -wi (the direction from the light to p)
+            vec3 a = abs(wi);
+            uint face = a.x >= a.y && a.x >= a.z ? (-wi.x >= 0.0 ? 0u : 1u)
+                      : (a.y >= a.z ? (-wi.y >= 0.0 ? 2u : 3u) : (-wi.z >= 0.0 ? 4u : 5u));
+            uint layer = pc.counts.x + 6u * i + face;
+            v = lk == 2 ? lit_pcss(layer, p, lw.z, radius) : lit_pcf(layer, p, lw.z);
+        }
+        l += f * intensity / d2 * v;
     }
     imageStore(hdr, px, vec4(l, 1.0));
 }

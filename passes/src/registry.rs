@@ -131,6 +131,12 @@ const fn p(key: &'static str, default: &'static str, range: &'static str, doc: &
     ParamDoc { key, default, range, doc }
 }
 
+const SHADOWMAPS_PARAMS: &[ParamDoc] = &[
+    p("count", "32", "1..=1024", "K directional lights (orthographic depth maps) importance-sampled from the environment (the ISG paper's Figure 11: 30 and 1024)"),
+    p("size", "256", "16..=4096", "depth-map resolution, texels per side (the ISG paper: 256)"),
+    p("shading", "ratio", "ratio|lights", "lights: the sum over the K lights (the papers' baseline); ratio: the unshadowed environment lighting times the K lights' shadowed/unshadowed ratio"),
+];
+
 const ISG_PARAMS: &[ParamDoc] = &[
     p("lobes", "16", "1..=64", "K spherical Gaussians fitted to the environment"),
     p("spheres", "48", "0..=4096", "spheres per object of the sphere-set occluders"),
@@ -198,8 +204,9 @@ fn create_env(ctx: &Arc<Context>, shaders: &ShaderLibrary, _: &Scene, _: &Params
 fn create_mc(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, _: &Params) -> Result<Box<dyn Technique>> {
     Ok(Box::new(crate::mc::McTechnique::new(ctx, shaders, scene)?))
 }
-fn create_shadowmaps(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, _: &Params) -> Result<Box<dyn Technique>> {
-    Ok(Box::new(crate::shadowmaps::ShadowMapsTechnique::new(ctx, shaders, scene)?))
+fn create_shadowmaps(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+    let settings = parsed(crate::shadowmaps::ShadowMapsSettings::from_params(params))?;
+    Ok(Box::new(crate::shadowmaps::ShadowMapsTechnique::new(ctx, shaders, scene, settings)?))
 }
 fn create_isg_with(per_vertex: bool, ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
     let mut settings = crate::isg::IsgSettings { per_vertex, ..Default::default() };
@@ -256,13 +263,13 @@ pub const REGISTRY: &[TechniqueInfo] = &[
     },
     TechniqueInfo {
         name: "shadowmaps",
-        summary: "the environment as K shadowed directional lights (the papers' shadow-map baseline)",
-        params: &[],
+        summary: "rasterized shadow maps: the environment as K shadowed directional lights, a cube map per local light (the papers' baseline)",
+        params: SHADOWMAPS_PARAMS,
         static_only: false,
         shadows: true,
         budget: Budget::RmseRelMean {
             rmse_rel_mean: 0.10,
-            source: "no paper reports its error; documented approximation: the environment as K importance-sampled directional lights with 3x3-PCF depth maps (the ISG paper compares against 30 and 1024 such maps)",
+            source: "no paper reports its error; documented approximation: the environment as K importance-sampled directional lights with 3x3-PCF depth maps, used as a ratio on the unshadowed environment lighting (the ISG paper compares against 30 and 1024 such maps)",
         },
         create: create_shadowmaps,
     },
@@ -483,6 +490,8 @@ mod tests {
             (sf.params.shells, sf.params.resolution, sf.params.map_res, sf.params.threshold),
             (d.params.shells, d.params.resolution, d.params.map_res, d.params.threshold)
         );
+        let sm = crate::shadowmaps::ShadowMapsSettings::from_params(&defaults(SHADOWMAPS_PARAMS)).unwrap();
+        assert_eq!(sm, crate::shadowmaps::ShadowMapsSettings::default());
         let vv = crate::vv::VvSettings::from_params(&defaults(VV_PARAMS)).unwrap();
         assert_eq!(vv, crate::vv::VvSettings::default());
         // An undocumented key is refused before any parser sees it.

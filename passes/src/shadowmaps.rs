@@ -1,191 +1,392 @@
-//! The shadow-map baseline, technique `shadowmaps` (`glsl/shadowmaps/shadowmaps_depth.comp`,
+//! The shadow-map baseline, technique `shadowmaps` (`glsl/shadowmaps/shadowmaps_depth.vert`,
 //! `glsl/shadowmaps/shadowmaps_shade.comp`): the comparison of the ISG and adaptive-visibility papers.
 //!
-//! The environment is replaced by [`ShadowMapsTechnique::count`] directional lights at stratified
+//! The environment is replaced by [`ShadowMapsSettings::count`] directional lights at stratified
 //! importance samples of it (the distribution of [`crate::env::EnvTables`]: luminance x solid
 //! angle), each weighted `L / (K pdf)` so that without shadows the sum estimates the environment
-//! integral. Every light has an orthographic depth map of [`ShadowMapsTechnique::size`]^2
-//! texels over the scene's bounding sphere. Shading per G-buffer pixel: the sum over lights of
-//! BRDF (the reference's, `glsl/include/brdf_ref.glsl`) x cosine x lit fraction (3x3 PCF,
-//! slope-scaled bias of 1.5 texels + 1.5 texels x tan(theta)) x weight; sky pixels show the
-//! environment.
+//! integral. Every light has an orthographic depth map of [`ShadowMapsSettings::size`]^2 texels
+//! over the scene's bounding sphere; every local light a cube of six perspective maps at its
+//! position. All maps are layers of one D32 array image, rasterized in one pass (each draw
+//! instanced once per layer, `gl_Layer` from the vertex shader: Vulkan 1.2 `shaderOutputLayer`),
+//! kept across frames and re-rendered only when geometry moved or deformed or a light moved.
+//! Objects with `casts_shadow = false` are not drawn into the maps.
 //!
-//! Depth maps are rendered by casting one closest-hit ray per texel centre through the kd-tree
-//! (the same samples a rasterizer takes), in compute; they are kept in a persistent buffer and
-//! re-rendered only when the tree is rebuilt (geometry moved or deformed). Not handled: local
-//! lights, texture maps, the medium, `casts_shadow = false` (every triangle casts).
+//! Shading per G-buffer pixel, with the material model's BRDF (`glsl/include/brdf_ref.glsl`,
+//! texture maps applied): `shading = "lights"` is the papers' baseline, the sum over the K lights
+//! of BRDF x cosine x lit fraction x weight (3x3 PCF, slope-scaled bias of 1.5 texels + 1.5 texels
+//! x tan(theta)); `shading = "ratio"` (default) is a ratio estimator: the `env` technique's
+//! unshadowed environment lighting (SH irradiance + prefiltered glossy reflection) times the
+//! ratio of the shadowed to the unshadowed sum over the K lights, so that glossy surfaces keep
+//! the environment's reflection (K delta lights alone render a glossy dish near black). Local
+//! lights: BRDF x cosine x intensity / d^2 x lit fraction (3x3 PCF; sphere lights as points of
+//! intensity L pi r^2 with PCSS soft shadows from the cube of their centre). Sky pixels show the
+//! environment.
 
-use crate::kdtree::{world_triangles, KdTreeBuilder, KdTreeHandles};
 use crate::env::EnvTables;
-use crate::scene_gpu::FrameConstants;
-use crate::shade_env::HDR_FORMAT;
+use crate::gbuffer::DEPTH_FORMAT;
+use crate::raster::{raster_pipeline, DepthState, RasterDesc, VertexInput};
+use crate::shade_env::{ShadingIo, HDR_FORMAT};
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
-use anyhow::Result;
-use glam::Vec3;
+use anyhow::{bail, Result};
+use glam::{Mat4, Vec3};
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, Context, Engine, Graph, ImageHandle, PassKind};
-use penumbra_scene::{Frame, Scene};
+use penumbra_scene::{Frame, LightKind, Scene};
 use std::sync::Arc;
 
+/// How the environment's K shadowed lights make the image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SmShading {
+    /// The sum over the K lights (the papers' baseline).
+    Lights,
+    /// The unshadowed environment lighting times the lights' shadowed / unshadowed ratio.
+    Ratio,
+}
+
+/// Parameters of `shadowmaps` (`[technique_params]`, see the registry).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ShadowMapsSettings {
+    /// Directional lights (and orthographic maps) for the environment, 1..=1024.
+    pub count: u32,
+    /// Map resolution (texels per side), 16..=4096.
+    pub size: u32,
+    pub shading: SmShading,
+}
+
+impl Default for ShadowMapsSettings {
+    fn default() -> Self {
+        ShadowMapsSettings { count: 32, size: 256, shading: SmShading::Ratio }
+    }
+}
+
+impl ShadowMapsSettings {
+    /// Sets one parameter from its scene-file text.
+    pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
+        let v = value.trim();
+        match key.trim() {
+            "count" => match v.parse::<u32>() {
+                Ok(k) if (1..=1024).contains(&k) => self.count = k,
+                _ => bail!("shadowmaps: count = '{v}': expected an integer in 1..=1024"),
+            },
+            "size" => match v.parse::<u32>() {
+                Ok(s) if (16..=4096).contains(&s) => self.size = s,
+                _ => bail!("shadowmaps: size = '{v}': expected an integer in 16..=4096"),
+            },
+            "shading" => {
+                self.shading = match v {
+                    "lights" => SmShading::Lights,
+                    "ratio" => SmShading::Ratio,
+                    _ => bail!("shadowmaps: shading = '{v}': expected lights or ratio"),
+                }
+            }
+            k => bail!("shadowmaps: unknown parameter '{k}' (known: count, size, shading)"),
+        }
+        Ok(())
+    }
+
+    pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> Result<Self> {
+        let mut s = ShadowMapsSettings::default();
+        crate::technique::apply_params(&mut s, params, ShadowMapsSettings::set)?;
+        Ok(s)
+    }
+}
 
 /// Technique `shadowmaps`.
 pub struct ShadowMapsTechnique {
     depth_pipe: Pipeline,
     shade_pipe: Pipeline,
     nearest: Sampler,
-    pub builder: KdTreeBuilder,
-    scene: Scene,
+    latlong: Sampler,
+    repeat: Sampler,
     env: EnvTables,
-    /// Number of directional lights / shadow maps (default 32).
-    pub count: u32,
-    /// Shadow-map resolution (default 256).
-    pub size: u32,
+    settings: ShadowMapsSettings,
     /// Shadow tests on (false: unshadowed, for comparisons).
     pub visibility: bool,
-    /// Per map: (direction to the light, 0), (weight, 0), (right, 0), (up, 0).
-    maps: Vec<[f32; 4]>,
-    sphere: [f32; 4],
-    built: bool,
-    extras: Vec<penumbra_scene::MaterialExtra>,
-    repeat: Sampler,
+    /// Per environment light: (direction to the light, K pdf), (weight, 0).
+    env_lights: Vec<[f32; 4]>,
+    /// Per object: drawn into the maps (`casts_shadow`).
+    casts: Vec<bool>,
+    /// Per mesh: object-space bounds (min, max).
+    mesh_bounds: Vec<(Vec3, Vec3)>,
+    /// Layers (5 vec4 each) the maps were last rendered with.
+    rendered_layers: Option<Vec<[f32; 4]>>,
+}
+
+/// Object-space bounds of `positions` (a point at the origin when empty).
+fn bounds_of(positions: &[Vec3]) -> (Vec3, Vec3) {
+    positions.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)))
 }
 
 impl ShadowMapsTechnique {
-    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene) -> Result<Self> {
+    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: ShadowMapsSettings) -> Result<Self> {
         use vk::DescriptorType as T;
-        let depth_pipe = compute_pipeline(ctx, shaders, "shadowmaps/shadowmaps_depth.comp", &[T::STORAGE_BUFFER; 6], 32)?;
+        if !ctx.shader_output_layer {
+            bail!(
+                "shadowmaps: the device ({}) lacks Vulkan 1.2 shaderOutputLayer (or it was not enabled), which the layered shadow-map pass needs",
+                ctx.device_name
+            );
+        }
+        let depth_pipe = raster_pipeline(
+            ctx,
+            shaders,
+            &RasterDesc {
+                name: "shadowmaps_depth",
+                shaders: &["shadowmaps/shadowmaps_depth.vert"],
+                descriptors: &[T::STORAGE_BUFFER, T::STORAGE_BUFFER],
+                push_constant_bytes: 8,
+                vertex_input: VertexInput::Position,
+                depth: Some(DepthState { format: DEPTH_FORMAT, write: true, compare: vk::CompareOp::LESS }),
+                ..Default::default()
+            },
+        )?;
         let shade_pipe = compute_pipeline(
             ctx,
             shaders,
             "shadowmaps/shadowmaps_shade.comp",
             &[
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::STORAGE_BUFFER,
-                T::STORAGE_BUFFER,
-                T::STORAGE_BUFFER,
-                T::STORAGE_BUFFER,
-                T::STORAGE_IMAGE,
-                T::COMBINED_IMAGE_SAMPLER,
-            ],
-            128,
+                &ShadingIo::TYPES[..],
+                &[T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER, T::COMBINED_IMAGE_SAMPLER],
+            ]
+            .concat(),
+            32,
         )?;
         let mut t = ShadowMapsTechnique {
             depth_pipe,
             shade_pipe,
             nearest: Sampler::nearest(ctx)?,
-            builder: KdTreeBuilder::new(ctx, shaders)?,
-            scene: scene.clone(),
-            env: EnvTables::new(scene.environment.as_ref()),
-            count: 32,
-            size: 256,
-            visibility: true,
-            maps: Vec::new(),
-            sphere: [0.0, 0.0, 0.0, 1.0],
-            extras: (0..scene.materials.len()).map(|i| scene.material_extra(i)).collect(),
+            latlong: Sampler::latlong(ctx)?,
             repeat: Sampler::repeat(ctx)?,
-            built: false,
+            env: EnvTables::new(scene.environment.as_ref()),
+            settings,
+            visibility: true,
+            env_lights: Vec::new(),
+            casts: (0..scene.objects.len()).map(|i| scene.object_info(i).casts_shadow).collect(),
+            mesh_bounds: scene.meshes.iter().map(|m| bounds_of(&m.positions)).collect(),
+            rendered_layers: None,
         };
-        t.set_count(32);
+        t.set_count(settings.count);
         Ok(t)
+    }
+
+    pub fn settings(&self) -> ShadowMapsSettings {
+        self.settings
     }
 
     /// Chooses `k` light directions (stratified over the environment's sampling distribution).
     pub fn set_count(&mut self, k: u32) {
         let k = k.clamp(1, 1024);
-        self.count = k;
-        self.maps.clear();
+        self.settings.count = k;
+        self.env_lights.clear();
         let nx = (k as f32).sqrt().ceil() as u32;
         let ny = k.div_ceil(nx);
         for i in 0..k {
             let u = [((i % nx) as f32 + 0.5) / nx as f32, ((i / nx) as f32 + 0.5) / ny as f32, 0.5, 0.5];
-            let (d, w) = match self.env.sample(u) {
-                Some((d, l, pdf)) => (d, l / (k as f32 * pdf)),
-                None => (Vec3::Y, Vec3::ZERO),
+            let (d, w, kpdf) = match self.env.sample(u) {
+                Some((d, l, pdf)) => (d, l / (k as f32 * pdf), k as f32 * pdf),
+                None => (Vec3::Y, Vec3::ZERO, 0.0),
             };
-            let right = if d.y.abs() < 0.99 { Vec3::Y.cross(d).normalize() } else { Vec3::X.cross(d).normalize() };
-            let up = d.cross(right);
-            self.maps.push([d.x, d.y, d.z, 0.0]);
-            self.maps.push([w.x, w.y, w.z, 0.0]);
-            self.maps.push([right.x, right.y, right.z, 0.0]);
-            self.maps.push([up.x, up.y, up.z, 0.0]);
+            self.env_lights.push([d.x, d.y, d.z, kpdf]);
+            self.env_lights.push([w.x, w.y, w.z, 0.0]);
         }
-        self.built = false;
+        self.rendered_layers = None;
     }
 
-    pub fn add_frame(
-        &mut self,
-        engine: &mut Engine,
-        graph: &mut Graph,
-        frame: &Frame,
-        gb: &crate::gbuffer::GBuffer,
-        textures: ImageHandle,
-    ) -> Result<ImageHandle> {
-        let (k, s) = (self.count, self.size.clamp(16, 4096));
-        let geometry_changed = frame.any_moved() || frame.any_deformed();
-        let kept = if geometry_changed || !self.built { None } else { self.builder.add_kept(engine, graph) };
-        let (tree, rebuilt): (KdTreeHandles, bool) = match kept {
-            Some(t) => (t, false),
-            None => {
-                let tris = world_triangles(&self.scene, frame)?;
-                let (lo, hi) = crate::kdtree::bounds(&tris);
-                let c = 0.5 * (lo + hi);
-                let r = (0.5 * (hi - lo).length()).max(1e-3);
-                self.sphere = [c.x, c.y, c.z, r];
-                self.built = true;
-                (self.builder.add_triangles(engine, graph, &tris, true)?, true)
+    /// The scene's bounding sphere at `frame` (instance bounds of the shadow casters).
+    fn bounding_sphere(&self, frame: &Frame) -> (Vec3, f32) {
+        let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+        for inst in &frame.instances {
+            if !self.casts.get(inst.object).copied().unwrap_or(true) {
+                continue;
             }
+            let (blo, bhi) = match &inst.deformed_mesh {
+                Some(m) => bounds_of(&m.positions),
+                None => match self.mesh_bounds.get(inst.mesh) {
+                    Some(b) => *b,
+                    None => continue,
+                },
+            };
+            if blo.x > bhi.x {
+                continue;
+            }
+            for i in 0..8 {
+                let c = Vec3::new(
+                    if i & 1 == 0 { blo.x } else { bhi.x },
+                    if i & 2 == 0 { blo.y } else { bhi.y },
+                    if i & 4 == 0 { blo.z } else { bhi.z },
+                );
+                let w = inst.world.transform_point3(c);
+                lo = lo.min(w);
+                hi = hi.max(w);
+            }
+        }
+        if lo.x > hi.x {
+            return (Vec3::ZERO, 1.0);
+        }
+        (0.5 * (lo + hi), (0.5 * (hi - lo).length()).max(1e-3))
+    }
+
+    /// Per layer: view-projection columns and (kind, near, far, texel size): the K environment
+    /// maps (orthographic over the bounding sphere), then 6 cube faces per local light.
+    fn layers(&self, frame: &Frame, size: u32) -> Vec<[f32; 4]> {
+        let (c, r) = self.bounding_sphere(frame);
+        let mut out = Vec::new();
+        let mut push = |vp: Mat4, info: [f32; 4]| {
+            for col in vp.to_cols_array_2d() {
+                out.push(col);
+            }
+            out.push(info);
         };
-        let maps = graph.create_buffer_init("shadowmaps.maps", bytes_of(&self.maps));
-        let depth = engine.persistent_buffer(graph, "shadowmaps.depth", k as u64 * s as u64 * s as u64 * 4);
-        let depth = if rebuilt || graph.persistent_is_new(depth) {
-            let mut p = graph.pass("shadowmaps_depth", PassKind::Compute);
-            let kd = tree.read(&mut p);
-            let mp = p.read(maps, Access::ComputeShaderReadStorage);
-            let dp = p.write(depth, Access::ComputeShaderWriteStorage);
-            let mut push = Vec::new();
-            push.extend(bytes_of(&[s, k, 0, 0]));
-            push.extend(bytes_of(&self.sphere));
-            let pipe = self.depth_pipe.handle();
+        for k in 0..self.settings.count as usize {
+            let d = Vec3::from_slice(&self.env_lights[2 * k][..3]);
+            let up = if d.y.abs() < 0.99 { Vec3::Y } else { Vec3::X };
+            let eye = c + d * (1.01 * r);
+            let view = Mat4::look_to_rh(eye, -d, up);
+            let (near, far) = (0.0, 2.02 * r);
+            let proj = Mat4::orthographic_rh(-r, r, -r, r, near, far);
+            push(proj * view, [0.0, near, far, 2.0 * r / size as f32]);
+        }
+        // +X, -X, +Y, -Y, +Z, -Z (the face the shader picks for the direction from the light)
+        let faces = [
+            (Vec3::X, Vec3::Y),
+            (-Vec3::X, Vec3::Y),
+            (Vec3::Y, Vec3::Z),
+            (-Vec3::Y, Vec3::Z),
+            (Vec3::Z, Vec3::Y),
+            (-Vec3::Z, Vec3::Y),
+        ];
+        for l in &frame.lights {
+            let radius = match l.kind {
+                LightKind::Sphere { radius } => radius,
+                _ => 0.0,
+            };
+            let near = radius.max(1e-3 * r).max(1e-5);
+            let far = ((l.position - c).length() + r).max(near * 2.0) * 1.01;
+            for (dir, up) in faces {
+                let view = Mat4::look_to_rh(l.position, dir, up);
+                let proj = Mat4::perspective_rh(std::f32::consts::FRAC_PI_2, 1.0, near, far);
+                push(proj * view, [1.0, near, far, 0.0]);
+            }
+        }
+        out
+    }
+
+    /// Declares the depth maps (when something changed) and the shading pass; returns the HDR
+    /// image.
+    pub fn add_frame(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::FrameInputs) -> Result<ImageHandle> {
+        let frame = inputs.frame;
+        let scene = inputs.handles;
+        let gb = inputs.gbuffer;
+        let (k, s) = (self.settings.count, self.settings.size);
+        let layers = self.layers(frame, s);
+        let layer_count = (layers.len() / 5) as u32;
+        let geometry_changed = frame.any_moved() || frame.any_deformed();
+        let rerender = geometry_changed || self.rendered_layers.as_ref() != Some(&layers);
+        let layer_buf = graph.create_buffer_init("shadowmaps.layers", bytes_of(&layers));
+        let env_lights = graph.create_buffer_init("shadowmaps.env_lights", bytes_of(&self.env_lights));
+        let depth = engine.persistent_image(
+            graph,
+            &format!("shadowmaps.depth.{s}x{layer_count}"),
+            ImageDesc::new_2d(DEPTH_FORMAT, s, s).with_layers(layer_count),
+        );
+        let depth = if rerender || graph.persistent_is_new(depth) {
+            let mut p = graph.pass("shadowmaps_depth", PassKind::Raster);
+            let dw = p.write(depth, Access::DepthAttachmentWrite);
+            let instances = p.read(scene.instances, Access::VertexShaderReadStorage);
+            let lb = p.read(layer_buf, Access::VertexShaderReadStorage);
+            let vertices = p.read(scene.vertices, Access::VertexBuffer);
+            let indices = p.read(scene.indices, Access::IndexBuffer);
+            let deformed = scene.deformed_vertices.map(|h| p.read(h, Access::VertexBuffer));
+            let draws: Vec<_> = inputs
+                .draws
+                .iter()
+                .filter(|d| {
+                    let object = frame.instances.get(d.instance as usize).map(|i| i.object);
+                    object.and_then(|o| self.casts.get(o).copied()).unwrap_or(true)
+                })
+                .copied()
+                .collect();
+            let (pipeline, layout) = (self.depth_pipe.pipeline, self.depth_pipe.layout);
             p.record(move |rc| {
-                let binds = [kd.binds().as_slice(), &[Bind::StorageBuffer(mp), Bind::StorageBuffer(dp)]].concat();
-                crate::util::dispatch(rc, pipe, &binds, &push, [groups(s, 8), groups(s, 8), k])
+                let d = rc.device();
+                let depth_att = crate::util::depth_attachment(rc.image(dw)?.view, true);
+                let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: s, height: s } };
+                let info = vk::RenderingInfo::default().render_area(area).layer_count(layer_count).depth_attachment(&depth_att);
+                let vb = rc.buffer(vertices)?;
+                let ib = rc.buffer(indices)?;
+                let db = match deformed {
+                    Some(h) => Some(rc.buffer(h)?),
+                    None => None,
+                };
+                unsafe {
+                    d.cmd_begin_rendering(rc.cmd, &info);
+                    d.cmd_set_viewport(
+                        rc.cmd,
+                        0,
+                        &[vk::Viewport { x: 0.0, y: 0.0, width: s as f32, height: s as f32, min_depth: 0.0, max_depth: 1.0 }],
+                    );
+                    d.cmd_set_scissor(rc.cmd, 0, &[area]);
+                    d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+                }
+                rc.push_descriptors(vk::PipelineBindPoint::GRAPHICS, layout, 0, &[Bind::StorageBuffer(instances), Bind::StorageBuffer(lb)])?;
+                unsafe {
+                    if !draws.is_empty() {
+                        d.cmd_bind_index_buffer(rc.cmd, ib.buffer, 0, vk::IndexType::UINT32);
+                    }
+                    for pass_deformed in [false, true] {
+                        let buffer = if pass_deformed { db.map(|b| b.buffer) } else { Some(vb.buffer) };
+                        let Some(buffer) = buffer else { continue };
+                        let mut bound = false;
+                        for dr in draws.iter().filter(|dr| dr.deformed == pass_deformed) {
+                            if !bound {
+                                d.cmd_bind_vertex_buffers(rc.cmd, 0, &[buffer], &[0]);
+                                bound = true;
+                            }
+                            d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::VERTEX, 0, &bytes_of(&[dr.instance, 0u32]));
+                            let m = dr.mesh;
+                            d.cmd_draw_indexed(rc.cmd, m.index_count, layer_count, m.first_index, m.vertex_offset, 0);
+                        }
+                    }
+                    d.cmd_end_rendering(rc.cmd);
+                }
+                Ok(())
             });
-            dp
+            self.rendered_layers = Some(layers);
+            dw
         } else {
             depth
         };
-        let env_texels =
-            crate::util::persistent_upload(engine, graph, "shadowmaps.env_texels", bytes_of(&self.env.texels), false);
-        let materials =
-            graph.create_buffer_init("shadowmaps.materials", crate::scene_gpu::material_table(&frame.materials, &self.extras));
         let (w, h) = (gb.width, gb.height);
         let hdr = graph.create_image("shadowmaps.hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
-        let inv_vp = FrameConstants::new(frame, None, w, h).inv_view_proj;
-        let mut push: Vec<u8> = Vec::with_capacity(128);
-        for c in inv_vp {
-            push.extend(bytes_of(&c));
-        }
-        push.extend(bytes_of(&[w, h, k, s]));
-        push.extend(bytes_of(&[self.env.width, self.env.height, self.visibility as u32, 0]));
-        push.extend(bytes_of(&[self.env.cos_rot, self.env.sin_rot, 0.0, 0.0]));
-        push.extend(bytes_of(&self.sphere));
+        let mut push: Vec<u8> = Vec::with_capacity(32);
+        let shading = match self.settings.shading {
+            SmShading::Lights => 0u32,
+            SmShading::Ratio => 1,
+        };
+        push.extend(bytes_of(&[k, scene.light_count, self.visibility as u32, shading]));
+        push.extend(bytes_of(&[s, 0, 0, 0]));
         let mut p = graph.pass("shadowmaps_shade", PassKind::Compute);
-        let g = gb.read_sampled(&mut p);
-        let mats = p.read(materials, Access::ComputeShaderReadStorage);
-        let mp = p.read(maps, Access::ComputeShaderReadStorage);
-        let dp = p.read(depth, Access::ComputeShaderReadStorage);
-        let et = p.read(env_texels, Access::ComputeShaderReadStorage);
-        let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
-        let tex = p.read(textures, Access::ComputeShaderReadSampled);
+        let io = ShadingIo::declare(&mut p, scene, gb, inputs.env, hdr);
+        let lb = p.read(layer_buf, Access::ComputeShaderReadStorage);
+        let el = p.read(env_lights, Access::ComputeShaderReadStorage);
+        let dp = p.read(depth, Access::ComputeShaderReadSampled);
+        let lights = p.read(scene.lights, Access::ComputeShaderReadStorage);
+        let tex = p.read(scene.textures, Access::ComputeShaderReadSampled);
         let pipe = self.shade_pipe.handle();
-        let nearest = self.nearest.sampler;
-        let repeat = self.repeat.sampler;
+        let (nearest, latlong, repeat) = (self.nearest.sampler, self.latlong.sampler, self.repeat.sampler);
+        let hdr = io.hdr;
         p.record(move |rc| {
-            let storage = crate::util::storage([mats, mp, dp, et]);
-            let binds = [&g.binds(nearest)[..], &storage, &[Bind::StorageImage(hdr), Bind::SampledImage(tex, repeat)]].concat();
+            let binds = [
+                io.binds(nearest, latlong),
+                vec![
+                    Bind::StorageBuffer(lb),
+                    Bind::StorageBuffer(el),
+                    Bind::SampledImage(dp, nearest),
+                    Bind::StorageBuffer(lights),
+                    Bind::SampledImage(tex, repeat),
+                ],
+            ]
+            .concat();
             crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
         });
         Ok(hdr)
@@ -196,27 +397,7 @@ impl crate::technique::Technique for ShadowMapsTechnique {
     fn name(&self) -> &'static str {
         "shadowmaps"
     }
-    fn limitations(&self, scene: &Scene) -> Vec<String> {
-        let req = scene.requirements();
-        let mut v = Vec::new();
-        if req.local_lights {
-            v.push(format!(
-                "shadowmaps: the {} local light(s) are not rendered (only the environment, as {} shadowed directional lights)",
-                scene.lights.len(),
-                self.count
-            ));
-        }
-        if (0..scene.objects.len()).any(|i| !scene.object_info(i).casts_shadow) {
-            v.push("shadowmaps: objects with casts_shadow = false still cast shadows".into());
-        }
-        v
-    }
-    fn add(
-        &mut self,
-        engine: &mut Engine,
-        graph: &mut Graph,
-        inputs: &crate::technique::TechniqueInputs,
-    ) -> Result<ImageHandle> {
-        self.add_frame(engine, graph, inputs.frame, inputs.gbuffer, inputs.handles.textures)
+    fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
+        self.add_frame(engine, graph, inputs)
     }
 }

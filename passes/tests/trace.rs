@@ -270,3 +270,30 @@ fn degenerate_inputs_are_misses() {
         assert!(hits[1..].iter().all(|h| h.is_none()), "{mode}: {hits:?}");
     }
 }
+
+/// The device's per-invocation loop limit (README, "lavapipe's loop limit"): one invocation runs
+/// a loop of 100 000 iterations, then a second of 16. Mesa 22.3's llvmpipe stops after 65535
+/// iterations in total (the first loop comes up short and the second runs at most once); a driver
+/// without the limit runs both in full. Either way the answer is one of those two, and short
+/// loops always run in full.
+#[test]
+fn the_devices_loop_limit_is_known() {
+    use penumbra_passes::kernels::loop_probe::{loop_limit, run_loops, LoopCounts};
+    let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
+    let lib = shaders();
+    let mut engine = Engine::new(ctx.clone(), 1).unwrap();
+    let short = run_loops(&mut engine, &lib, 1000, 1000).unwrap();
+    assert_eq!(short, LoopCounts { first: 1000, second: 1000 });
+    let limit = loop_limit(&mut engine, &lib, 100_000).unwrap();
+    let driver = ctx.driver_info();
+    println!("{} ({driver}): loop limit {limit:?}", ctx.device_name);
+    if let Some(n) = limit {
+        assert!((65_000..=65_536).contains(&n), "{driver}: loop limit {n}: neither none nor gallivm's 65535");
+        let c = run_loops(&mut engine, &lib, 100_000, 16).unwrap();
+        assert!(c.second <= 1, "{driver}: the limit is shared by the invocation's loops: {c:?}");
+    }
+    if driver.contains("Mesa 22.") {
+        assert!(limit.is_some(), "{driver}: Mesa 22's llvmpipe has the limit");
+    }
+    assert_eq!(ctx.validation.error_count(), 0, "{:?}", ctx.validation.errors());
+}

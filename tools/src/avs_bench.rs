@@ -254,6 +254,7 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
     println!("|---|---|---|---|---|---|");
     let mut fig7 = Vec::new();
     let ctx = penumbra::engine::Context::new(&Default::default())?;
+    println!("device: {} ({})", ctx.device_name, ctx.driver_info());
     let lib = penumbra::shader_library();
     let hc = penumbra_passes::avs::hemicube::HemicubeMaps::new(&ctx, &lib)?;
     let mut engine = penumbra::engine::Engine::new(ctx.clone(), 1)?;

@@ -122,6 +122,7 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
     };
     let mut rows = Vec::new();
     let mut baseline_ms = None;
+    let mut device: Option<(String, String)> = None;
     for name in args.techniques.split(',').map(str::trim).filter(|s| !s.is_empty()) {
         let ss = args.supersample.max(1);
         let (gw, gh) = (width * ss, height * ss);
@@ -131,6 +132,7 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
             .filter(|_| penumbra_passes::registry::info(name).is_some_and(|i| i.takes_params()));
         let settings = RenderSettings { width: gw, height: gh, technique: Some(name.to_string()), technique_params, ..Default::default() };
         let mut r = Renderer::new_headless(scene, settings, false)?;
+        device.get_or_insert_with(|| (r.context().device_name.clone(), r.context().driver_info()));
         let frame = scene.at(t, Some(t));
         // One warm-up frame outside the statistics: its passes' first dispatches include
         // lavapipe's shader compilation (seconds for the larger technique shaders).
@@ -182,7 +184,10 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
             );
         }
     }
+    let (device, driver) = device.unwrap_or_default();
     let report = serde_json::json!({
+        "device": device,
+        "driver": driver,
         "scene": scene.name,
         "size": [width, height],
         "supersample": args.supersample.max(1),
@@ -247,6 +252,7 @@ pub struct VolumetricArgs {
 pub fn run_volumetric(args: &VolumetricArgs, scene: &Scene) -> Result<()> {
     let (width, height) = parse_size(&args.size)?;
     let ctx = penumbra::engine::Context::new(&Default::default())?;
+    println!("device: {} ({})", ctx.device_name, ctx.driver_info());
     let opts = penumbra_passes::volumetric::bench::VolBenchOptions {
         width,
         height,
@@ -295,6 +301,7 @@ pub struct TraceArgs {
 pub fn run_trace(args: &TraceArgs, scene: &Scene) -> Result<()> {
     let (width, height) = parse_size(&args.size)?;
     let ctx = penumbra::engine::Context::new(&Default::default())?;
+    println!("device: {} ({})", ctx.device_name, ctx.driver_info());
     let report = penumbra_passes::trace_bench::bench_trace(&ctx, &penumbra::shader_library(), scene, width, height, args.incoherent)?;
     println!("{report}");
     Ok(())
@@ -390,6 +397,7 @@ fn sf_variants(has_lights: bool) -> Vec<(&'static str, &'static str, Vec<(&'stat
 
 pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
     let ctx = penumbra::engine::Context::new(&Default::default())?;
+    println!("device: {} ({})", ctx.device_name, ctx.driver_info());
     let opts = penumbra_passes::shadow_fields::bench::BenchOptions {
         sf: args.params.options(),
         time: args.time,

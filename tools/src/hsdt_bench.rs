@@ -108,6 +108,7 @@ fn gpu_ms(out: &penumbra::engine::FrameOutput, prefix: &[&str]) -> f64 {
 pub fn run(args: &HsdtArgs) -> Result<()> {
     let rs = args.resolutions().map_err(|e| anyhow!(e))?;
     let ctx = Context::new(&Default::default())?;
+    println!("device: {} ({})", ctx.device_name, ctx.driver_info());
     let lib = penumbra::shader_library();
     let hsdt_gpu = Hsdt::new(&ctx, &lib)?;
     let integ = IntegrateEval::new(&ctx, &lib)?;

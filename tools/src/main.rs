@@ -357,6 +357,7 @@ fn render(args: &RenderArgs) -> Result<()> {
     std::fs::write(args.out.join("graph.txt"), &text)?;
     let mut profile = r.engine.profiler.to_json();
     profile["device"] = serde_json::json!(r.context().device_name);
+    profile["driver"] = serde_json::json!(r.context().driver_info());
     profile["size"] = serde_json::json!([width, height]);
     profile["scene"] = serde_json::json!(scene.name);
     std::fs::write(args.out.join("profile.json"), serde_json::to_string_pretty(&profile)? + "\n")?;

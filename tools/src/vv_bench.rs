@@ -77,6 +77,7 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
         configs.push((mode.to_string(), vec![("mode", mode.to_string())]));
     }
     let mut rows = Vec::new();
+    let mut device: Option<(String, String)> = None;
     for (name, params) in &configs {
         let mut s = scene.clone();
         s.technique = "vv".into();
@@ -101,6 +102,7 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
         drop(tech);
         let rs = RenderSettings { width, height, technique: Some("vv".into()), technique_params: Some(s.technique_params.clone()), ..Default::default() };
         let mut r = Renderer::new(ctx, &s, rs)?;
+        device.get_or_insert_with(|| (r.context().device_name.clone(), r.context().driver_info()));
         let frame = s.at(0.0, Some(0.0));
         let mut images = Vec::new();
         for _ in 0..args.frames.max(2) {
@@ -154,7 +156,10 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
             "interpolated": rb.map(|r| serde_json::json!({"ms": r.ms, "psnr_db": r.psnr, "triangles": r.triangles})),
         }));
     }
+    let (device, driver) = device.unwrap_or_default();
     let report = serde_json::json!({
+        "device": device,
+        "driver": driver,
         "scene": scene.name,
         "size": [width, height],
         "reference": {"spp": args.spp, "seconds": reference.render_seconds},

@@ -4,4 +4,5 @@
 
 pub mod hsdt;
 pub mod isg;
+pub mod loop_probe;
 pub mod vv;
