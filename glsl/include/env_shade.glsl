@@ -20,13 +20,14 @@ vec3 env_brdf_approx(vec3 f0, float roughness, float ndv) {
     return f0 * ab.x + ab.y;
 }
 
-// The material's specular lobe as a GGX alpha (the reference's: Cook-Torrance and
-// Ashikhmin-Shirley alpha = roughness^2; Blinn-Phong exponent s as alpha = sqrt(2 / (s + 2))),
-// clamped to [4e-4, 1].
+// The material's specular lobe as a GGX alpha: Cook-Torrance alpha = roughness^2 (the
+// reference's); a Blinn-Phong exponent s as alpha = sqrt(2 / (s + 2)); Ashikhmin-Shirley's
+// exponents nu, nv as that of their geometric mean; clamped to [4e-4, 1].
 float env_alpha(MaterialData m) {
     int kind = int(m.albedo_kind.w + 0.5);
     float r = clamp(m.spec_rough.w, 0.0, 1.0);
-    return clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : r * r, 4e-4, 1.0);
+    float s = kind == 3 ? sqrt(max(m.extra.x, 0.0) * max(m.extra.w, 0.0)) : m.extra.x;
+    return clamp(kind == 1 || kind == 3 ? sqrt(2.0 / (max(s, 0.0) + 2.0)) : r * r, 4e-4, 1.0);
 }
 
 // The perceptual roughness (sqrt alpha) the split-sum environment BRDF takes, clamped to [0.02, 1].

@@ -5,7 +5,8 @@
 // through their source radiance fields and the environment SH (double products); mode 1
 // (vertex) reads the per-vertex radiance (self-occlusion transfer included, computed by
 // sf_points.comp for the visible vertices and interpolated by the sf_vertex raster pass).
-// Glossy materials add the prefiltered environment along the reflection, times the occluders'
+// Glossy materials add the prefiltered environment along the reflection (env_shade.glsl, as the
+// `env` technique), times the occluders'
 // visibility there, and the local lights' specular lobe, times the visibility toward the light
 // of the occluders nearer than it. With srf = 0 local lights are evaluated pointwise (BRDF
 // times the occluders' visibility toward the light) instead of through their fields.
@@ -27,6 +28,7 @@ layout(set = 0, binding = 12) readonly buffer Lights { LightData lights[]; };
 layout(set = 0, binding = 13) uniform sampler2D vtx_radiance;
 layout(set = 0, binding = 14) uniform sampler2DArray material_textures;
 #include "material.glsl"
+#include "env_shade.glsl"
 layout(push_constant) uniform Push { uint n_inst; uint tensor_count; uint light_count; uint srf; uint window; uint mode; } pc;
 
 // Local lights (as shade_env.comp's local_lights, same BRDFs), pointwise: the specular lobe
@@ -73,20 +75,6 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData 
         sum += vis * f * intensity * ndl / d2;
     }
     return sum;
-}
-
-vec3 env_lookup(vec3 d, float lod) {
-    vec2 uv = dir_to_latlong(normalize(d), cam.env_rot.xy);
-    return textureLod(env_map, uv, lod).rgb * cam.params.w;
-}
-
-vec3 env_brdf_approx(vec3 f0, float roughness, float ndv) {
-    const vec4 c0 = vec4(-1.0, -0.0275, -0.572, 0.022);
-    const vec4 c1 = vec4(1.0, 0.0425, 1.04, -0.04);
-    vec4 r = roughness * c0 + c1;
-    float a004 = min(r.x * r.x, exp2(-9.28 * ndv)) * r.x + r.y;
-    vec2 ab = vec2(-1.04, 1.04) * a004 + r.zw;
-    return f0 * ab.x + ab.y;
 }
 
 // Order-4 SH of max(n.w, 0) / pi: A_l / pi * Y_lm(n), A = (pi, 2pi/3, pi/4, 0), Condon-Shortley real SH.
@@ -142,11 +130,11 @@ void main() {
     int kind = int(m.albedo_kind.w + 0.5);
     vec3 v = normalize(cam.eye.xyz - pos);
     float ndv = max(dot(n, v), 1e-4);
-    float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
+    float roughness = env_roughness(m);
     if (kind != 0) {
         vec3 r = reflect(-v, n);
         float vis = sf_visibility_along(pos, r, self_inst, pc.n_inst, 1e30);
-        color += vis * env_lookup(r, roughness * (cam.params.z - 1.0)) * env_brdf_approx(m.spec_rough.rgb, roughness, ndv);
+        color += vis * env_lookup(r, env_lod(env_alpha(m))) * env_brdf_approx(m.spec_rough.rgb, roughness, ndv);
     }
     color += local_lights(pos, n, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);
     imageStore(hdr, p, vec4(color, 1.0));
