@@ -108,7 +108,27 @@ pub struct McTechnique {
     tri_count: Option<usize>,
 }
 
+/// Samples per pixel per frame unless `spp` says otherwise.
+pub const DEFAULT_SPP: u32 = 4;
+
+/// Parses `spp` (1..=1024); any other key is an error.
+pub fn parse_spp(key: &str, value: &str) -> Result<u32> {
+    match key.trim() {
+        "spp" => match value.trim().parse::<u32>() {
+            Ok(n) if (1..=1024).contains(&n) => Ok(n),
+            _ => anyhow::bail!("mc: spp = '{}': expected an integer in 1..=1024", value.trim()),
+        },
+        k => anyhow::bail!("mc: unknown parameter '{k}' (known: spp)"),
+    }
+}
+
 impl McTechnique {
+    /// Sets one `[technique_params]` entry (`spp`).
+    pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
+        self.spp = parse_spp(key, value)?;
+        Ok(())
+    }
+
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene) -> Result<Self> {
         use vk::DescriptorType as T;
         let pipeline = compute_pipeline(
@@ -140,7 +160,7 @@ impl McTechnique {
             builder: KdTreeBuilder::new(ctx, shaders)?,
             scene: scene.clone(),
             env: EnvTables::new(scene.environment.as_ref()),
-            spp: 4,
+            spp: DEFAULT_SPP,
             frame_index: 0,
             accumulated: 0,
             tri_count: None,

@@ -81,7 +81,21 @@ pub struct TechniqueInfo {
     /// Renders shadows: the matrix requires `shadow_recovered >= 0.5` on every scene it accepts.
     pub shadows: bool,
     pub budget: Budget,
+    /// Its speed/accuracy knobs: parameters and the values `bench pareto` tries, one knob at a
+    /// time away from the defaults.
+    pub knobs: &'static [Knob],
     pub create: CreateFn,
+}
+
+/// A speed/accuracy knob of a technique: a documented parameter and the values to try.
+#[derive(Clone, Copy, Debug)]
+pub struct Knob {
+    pub key: &'static str,
+    pub values: &'static [&'static str],
+}
+
+const fn k(key: &'static str, values: &'static [&'static str]) -> Knob {
+    Knob { key, values }
 }
 
 impl std::fmt::Debug for TechniqueInfo {
@@ -130,6 +144,8 @@ const SHADOW_FIELDS_BUDGET: Budget = Budget::RmseRelMean {
 const fn p(key: &'static str, default: &'static str, range: &'static str, doc: &'static str) -> ParamDoc {
     ParamDoc { key, default, range, doc }
 }
+
+const MC_PARAMS: &[ParamDoc] = &[p("spp", "4", "1..=1024", "samples per pixel per frame (accumulated over frames while nothing moves)")];
 
 const SHADOWMAPS_PARAMS: &[ParamDoc] = &[
     p("count", "32", "1..=1024", "K directional lights (orthographic depth maps) importance-sampled from the environment (the ISG paper's Figure 11: 30 and 1024)"),
@@ -201,8 +217,10 @@ const VV_PARAMS: &[ParamDoc] = &[
 fn create_env(ctx: &Arc<Context>, shaders: &ShaderLibrary, _: &Scene, _: &Params) -> Result<Box<dyn Technique>> {
     Ok(Box::new(crate::shade_env::ShadeEnvPass::new(ctx, shaders)?))
 }
-fn create_mc(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, _: &Params) -> Result<Box<dyn Technique>> {
-    Ok(Box::new(crate::mc::McTechnique::new(ctx, shaders, scene)?))
+fn create_mc(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+    let mut t = crate::mc::McTechnique::new(ctx, shaders, scene)?;
+    parsed(crate::technique::apply_params(&mut t, params, crate::mc::McTechnique::set))?;
+    Ok(Box::new(t))
 }
 fn create_shadowmaps(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
     let settings = parsed(crate::shadowmaps::ShadowMapsSettings::from_params(params))?;
@@ -247,18 +265,20 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         static_only: false,
         shadows: false,
         budget: Budget::Baseline { source: "unshadowed baseline: no visibility, so no accuracy budget" },
+        knobs: &[],
         create: create_env,
     },
     TechniqueInfo {
         name: "mc",
         summary: "GPU Monte Carlo with the reference's estimator, progressive while nothing moves",
-        params: &[],
+        params: MC_PARAMS,
         static_only: false,
         shadows: true,
         budget: Budget::Unbiased {
             factor: 1.5,
             source: "the reference's estimator on the GPU: unbiased, so within 1.5x the reference estimator's noise at the same samples per pixel",
         },
+        knobs: &[k("spp", &["1", "16", "64"])],
         create: create_mc,
     },
     TechniqueInfo {
@@ -271,6 +291,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
             rmse_rel_mean: 0.10,
             source: "no paper reports its error; documented approximation: the environment as K importance-sampled directional lights with 3x3-PCF depth maps, used as a ratio on the unshadowed environment lighting (the ISG paper compares against 30 and 1024 such maps)",
         },
+        knobs: &[k("count", &["8", "128"]), k("size", &["64", "1024"])],
         create: create_shadowmaps,
     },
     TechniqueInfo {
@@ -280,6 +301,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         static_only: false,
         shadows: true,
         budget: ISG_BUDGET,
+        knobs: &[k("lobes", &["4", "32"]), k("side", &["4", "24"])],
         create: create_isg,
     },
     TechniqueInfo {
@@ -289,6 +311,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         static_only: false,
         shadows: true,
         budget: ISG_BUDGET,
+        knobs: &[k("lobes", &["4", "32"]), k("max_edge", &["0", "0.05"])],
         create: create_isg_vertex,
     },
     TechniqueInfo {
@@ -301,6 +324,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
             rmse_rel_mean: 0.10,
             source: "avs paper reports no error figure; documented approximation: visibility sampled at adaptive points with E_v,max = 10 % relative visibility error",
         },
+        knobs: &[k("r", &["32", "64"]), k("e_max", &["0.3"])],
         create: create_avs,
     },
     TechniqueInfo {
@@ -310,6 +334,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         static_only: false,
         shadows: true,
         budget: SHADOW_FIELDS_BUDGET,
+        knobs: &[k("resolution", &["8", "16"]), k("shells", &["8", "16"])],
         create: create_sf,
     },
     TechniqueInfo {
@@ -319,6 +344,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         static_only: false,
         shadows: true,
         budget: SHADOW_FIELDS_BUDGET,
+        knobs: &[k("resolution", &["8", "16"]), k("shells", &["8", "16"])],
         create: create_sf_fixed,
     },
     TechniqueInfo {
@@ -331,6 +357,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
             rmse_rel_mean: 0.10,
             source: "vv paper, Fig. 11: 29.58 dB at zeta = 4, an RMSE of 3.3 % of the peak; the paper gives no mean radiance, so 10 % of the mean assumes a peak about 3x the mean (an assumption, not a measurement)",
         },
+        knobs: &[k("mode", &["fragment3", "tessellation"]), k("zeta", &["1", "4"])],
         create: create_vv,
     },
 ];
@@ -490,6 +517,16 @@ mod tests {
             (sf.params.shells, sf.params.resolution, sf.params.map_res, sf.params.threshold),
             (d.params.shells, d.params.resolution, d.params.map_res, d.params.threshold)
         );
+        assert_eq!(crate::mc::parse_spp("spp", MC_PARAMS[0].default).unwrap(), crate::mc::DEFAULT_SPP);
+        // Every knob is a documented parameter and its values parse.
+        for t in REGISTRY {
+            for kn in t.knobs {
+                for v in kn.values {
+                    let one: Params = [(kn.key.to_string(), v.to_string())].into_iter().collect();
+                    check_params(t.name, &one).unwrap_or_else(|e| panic!("{} knob {}: {e}", t.name, kn.key));
+                }
+            }
+        }
         let sm = crate::shadowmaps::ShadowMapsSettings::from_params(&defaults(SHADOWMAPS_PARAMS)).unwrap();
         assert_eq!(sm, crate::shadowmaps::ShadowMapsSettings::default());
         let vv = crate::vv::VvSettings::from_params(&defaults(VV_PARAMS)).unwrap();

@@ -17,6 +17,7 @@ mod avs_bench;
 mod bench;
 mod isg_bench;
 mod matrix;
+mod pareto;
 mod hsdt_bench;
 mod plot;
 mod spheres;
@@ -78,6 +79,12 @@ enum BenchCmd {
     /// Techniques against the CPU reference (PSNR, relative RMSE, FLIP) and against each other
     /// (GPU ms per frame and ratios), on the same scene, camera and frame; writes bench.json.
     Techniques(bench::BenchArgs),
+    /// The speed/accuracy trade on one scene: every technique that accepts it at its defaults
+    /// and at each value of each registered knob (one at a time), each point timed over moving
+    /// frames after warm-up (wall clock, GPU and CPU ms) and compared with the converged
+    /// reference; marks the front (ms against RMSE over the mean) and writes pareto.json,
+    /// pareto.md and log-log charts (pareto.png, pareto_WxH.png); --sizes repeats it per size.
+    Pareto(pareto::ParetoArgs),
     /// Volumetric shadows: the temporal method against the full baseline on the same frames
     /// (GPU ms per pass, speedup, marched fraction, image difference, missed pixels).
     Volumetric(bench::VolumetricArgs),
@@ -457,6 +464,7 @@ fn run(cli: Cli) -> Result<()> {
             isg_bench::run_isg(&a, &scene)
         }
         Cmd::Bench(BenchCmd::Matrix(a)) => matrix::run(&a),
+        Cmd::Bench(BenchCmd::Pareto(a)) => pareto::run(&a),
         Cmd::Bench(BenchCmd::Techniques(a)) => {
             parse_size(&a.size).map_err(bad)?;
             for t in a.techniques.split(',').map(str::trim).filter(|s| !s.is_empty()) {

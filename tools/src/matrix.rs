@@ -213,23 +213,33 @@ fn default_scenes() -> Result<Vec<PathBuf>> {
 }
 
 /// What one technique's run on one scene produced.
-struct Run {
+pub(crate) struct Run {
     /// Where the set-up time went (printed).
-    setup: String,
-    image: Image,
-    gpu_ms: f64,
-    cpu_ms: f64,
-    frame_ms: f64,
-    spp: Option<u32>,
-    ignored: Vec<String>,
+    pub(crate) setup: String,
+    pub(crate) image: Image,
+    pub(crate) gpu_ms: f64,
+    pub(crate) cpu_ms: f64,
+    pub(crate) frame_ms: f64,
+    pub(crate) spp: Option<u32>,
+    pub(crate) ignored: Vec<String>,
 }
 
-fn render_technique(ctx: &Arc<Context>, scene: &Scene, name: &str, args: &MatrixArgs, w: u32, h: u32) -> Result<Run> {
+/// Renders `name` on `scene` as a matrix cell does (warm-up frames, then timed consecutive
+/// frames ending at frame K) with `params` (`None`: the renderer's rule, the scene's
+/// `[technique_params]` for its own technique only).
+pub(crate) fn render_technique(
+    ctx: &Arc<Context>,
+    scene: &Scene,
+    name: &str,
+    params: Option<registry::Params>,
+    args: &MatrixArgs,
+    w: u32,
+    h: u32,
+) -> Result<Run> {
     let ss = args.supersample.max(1);
     let s = scene.clone();
-    // A scene's parameters belong to its own technique, never to the others (the renderer's
-    // rule when `technique_params` is not set).
-    let settings = RenderSettings { width: w * ss, height: h * ss, technique: Some(name.to_string()), ..Default::default() };
+    let settings =
+        RenderSettings { width: w * ss, height: h * ss, technique: Some(name.to_string()), technique_params: params, ..Default::default() };
     let t_create = Instant::now();
     let mut r = Renderer::new(ctx.clone(), &s, settings)?;
     let create_s = t_create.elapsed().as_secs_f64();
@@ -399,7 +409,7 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
                 let t0 = Instant::now();
                 let errors_before = ctx.validation.error_count();
                 let messages_before = ctx.validation.errors().len();
-                let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| render_technique(&ctx, &scene, t.name, args, w, h)));
+                let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| render_technique(&ctx, &scene, t.name, None, args, w, h)));
                 match run {
                     Ok(Ok(run)) => {
                         let c = compare(&reference.radiance, "reference", &run.image, t.name)?;

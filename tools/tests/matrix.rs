@@ -115,3 +115,56 @@ fn accuracy_matrix_agrees_with_the_known_failures() {
         assert!(!c["reason"].as_str().unwrap_or("").contains("texture"), "{c}");
     }
 }
+
+/// `bench pareto` on a moving scene at the CI size (the matrix's cached reference): every listed
+/// technique's points (the defaults and each knob value), the front marked, the three outputs.
+#[test]
+fn pareto_front_of_a_moving_scene() {
+    let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("pareto_falling");
+    let _ = std::fs::remove_dir_all(&out);
+    let o = Command::new(env!("CARGO_BIN_EXE_penumbra"))
+        .args(["bench", "pareto"])
+        .arg(repo().join("scenes/falling.toml"))
+        .args(["--techniques", "env,mc,shadowmaps", "--sizes", SIZE, "--warmup", "1", "--frames", "2"])
+        .arg("--cache")
+        .arg(repo().join("tests/matrix/references"))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .expect("run penumbra bench pareto");
+    let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "{text}");
+    for f in ["pareto.json", "pareto.md", "pareto.png", &format!("pareto_{SIZE}.png")] {
+        assert!(out.join(f).exists(), "missing {f}: {text}");
+    }
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("pareto.json")).unwrap()).unwrap();
+    let fronts = v.as_array().unwrap();
+    assert_eq!(fronts.len(), 1);
+    let f = &fronts[0];
+    for k in ["scene", "device", "driver", "size", "points"] {
+        assert!(f.get(k).is_some(), "pareto.json without {k}");
+    }
+    let points = f["points"].as_array().unwrap();
+    let count = |t: &str| points.iter().filter(|p| p["technique"] == t).count();
+    assert_eq!(count("env"), 1);
+    assert!(count("mc") >= 3 && count("shadowmaps") >= 3, "{points:?}");
+    for p in points {
+        assert!(p["frame_ms"].as_f64().is_some_and(|x| x > 0.0), "{p}");
+        assert!(p["rmse_rel_mean"].as_f64().is_some_and(f64::is_finite), "{p}");
+    }
+    // the front: not empty, and no point on it is beaten on both axes by another
+    let on: Vec<&serde_json::Value> = points.iter().filter(|p| p["on_front"] == true).collect();
+    assert!(!on.is_empty());
+    for p in &on {
+        let (ms, e) = (p["frame_ms"].as_f64().unwrap(), p["rmse_rel_mean"].as_f64().unwrap());
+        assert!(!points.iter().any(|q| {
+            let (qm, qe) = (q["frame_ms"].as_f64().unwrap(), q["rmse_rel_mean"].as_f64().unwrap());
+            qm <= ms && qe <= e && (qm < ms || qe < e)
+        }));
+    }
+    // more samples per pixel: mc's error falls
+    let mc_err = |spp: &str| {
+        points.iter().find(|p| p["technique"] == "mc" && p["params"]["spp"] == spp).unwrap()["rmse_rel_mean"].as_f64().unwrap()
+    };
+    assert!(mc_err("64") < mc_err("1"), "{points:?}");
+}
