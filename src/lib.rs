@@ -151,18 +151,33 @@ pub fn decode_texels(format: vk::Format, bytes: &[u8]) -> Option<Vec<[f32; 4]>> 
 /// scene's; `settings.technique_params`, or the scene file's when the technique is the scene's
 /// own. An unregistered name is an error naming the scene file it came from.
 pub fn resolve_technique(scene: &Scene, settings: &RenderSettings) -> Result<(String, penumbra_passes::registry::Params), Error> {
+    resolve_technique_why(scene, settings).map(|(n, p, _)| (n, p))
+}
+
+/// [`resolve_technique`], and for `auto` the line saying what it chose and why.
+pub fn resolve_technique_why(
+    scene: &Scene,
+    settings: &RenderSettings,
+) -> Result<(String, penumbra_passes::registry::Params, Option<String>), Error> {
     let name = settings.technique.clone().unwrap_or_else(|| scene.technique.clone());
-    if let Err(e) = penumbra_passes::registry::lookup(&name) {
+    if let Err(e) = penumbra_passes::registry::check_name(&name) {
         // the name came from the scene file unless the settings override it
         let file = if settings.technique.is_none() { scene.source.as_deref() } else { None };
         return Err(Error::bad_input(file, e.to_string()));
+    }
+    if name == penumbra_passes::registry::AUTO {
+        let (chosen, mut params, why) = penumbra_passes::registry::choose_auto(scene);
+        if let Some(p) = &settings.technique_params {
+            params = p.clone();
+        }
+        return Ok((chosen.to_string(), params, Some(why)));
     }
     let params = match &settings.technique_params {
         Some(p) => p.clone(),
         None if name == scene.technique => scene.technique_params.clone(),
         None => Default::default(),
     };
-    Ok((name, params))
+    Ok((name, params, None))
 }
 
 /// Builds and runs penumbra's frame graph for one scene.
@@ -187,6 +202,8 @@ pub struct Renderer {
     /// CPU milliseconds the technique spent declaring its passes in the last built frame
     /// (`Technique::add`: its CPU work, uploads it prepares, and any readback it waits for).
     pub technique_cpu_ms: f64,
+    /// `technique = "auto"`: what it chose and why (the first of [`Renderer::notes`]).
+    auto_choice: Option<String>,
 }
 
 impl Renderer {
@@ -215,8 +232,10 @@ impl Renderer {
                 format!("image size {}x{} is out of range (1..16384)", settings.width, settings.height),
             ));
         }
-        let (name, params) = resolve_technique(scene, &settings)?;
-        Self::create(ctx, scene, settings, shaders, &name, &params).map_err(|e| Error::classify(e, scene.source.as_deref()))
+        let (name, params, chosen) = resolve_technique_why(scene, &settings)?;
+        let mut r = Self::create(ctx, scene, settings, shaders, &name, &params).map_err(|e| Error::classify(e, scene.source.as_deref()))?;
+        r.auto_choice = chosen;
+        Ok(r)
     }
 
     fn create(
@@ -245,6 +264,7 @@ impl Renderer {
             dump_formats: Vec::new(),
             target_format: None,
             technique_cpu_ms: 0.0,
+            auto_choice: None,
         })
     }
 
@@ -267,9 +287,15 @@ impl Renderer {
         if let Some(t) = &self.settings.technique {
             scene.technique = t.clone();
         }
-        let mut v = Self::limitations(&scene);
+        let mut v: Vec<String> = self.auto_choice.iter().cloned().collect();
+        v.extend(Self::limitations(&scene));
         v.extend(self.technique.limitations(&self.scene));
         v
+    }
+
+    /// The registered name of the technique this renderer runs (what `auto` chose, if asked).
+    pub fn technique_name(&self) -> &'static str {
+        self.technique.name()
     }
 
     /// The technique's limitations for this renderer's scene ([`Technique::limitations`]): what

@@ -40,3 +40,29 @@ fn shadow_fields_and_vv_report_the_textures_and_lights_they_ignore() {
     assert!(n.iter().any(|l| l.contains("local light(s) are not rendered")), "{n:?}");
     assert!(!n.iter().any(|l| l.contains("texture")), "coarse has no texture maps: {n:?}");
 }
+
+/// `technique = "auto"` (the default: the built-in scene, scene files without a technique, bare
+/// models) renders shadows and says what it chose; a scene without light takes `env`.
+#[test]
+fn auto_chooses_a_shadowing_technique_and_says_so() {
+    let scene = Scene::default_scene();
+    assert_eq!(scene.technique, "auto");
+    let settings = RenderSettings { width: 16, height: 16, ..Default::default() };
+    let r = Renderer::new_headless(&scene, settings, false).expect("renderer");
+    assert_eq!(r.technique_name(), "shadowmaps");
+    let n = r.notes();
+    assert!(n[0].starts_with("auto: shadowmaps"), "{n:?}");
+    assert!(!n.iter().any(|l| l.contains("renders no shadows")), "{n:?}");
+    // a bare model (no technique line) lit by the default environment
+    let model = Scene::load(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/assets/bunny.glb")).expect("model");
+    assert_eq!(model.technique, "auto");
+    let settings = RenderSettings { width: 16, height: 16, ..Default::default() };
+    assert_eq!(Renderer::new_headless(&model, settings, false).expect("renderer").technique_name(), "shadowmaps");
+    // nothing to cast shadows from
+    let mut dark = Scene::empty("dark");
+    dark.environment = None;
+    let settings = RenderSettings { width: 16, height: 16, ..Default::default() };
+    let r = Renderer::new_headless(&dark, settings, false).expect("renderer");
+    assert_eq!(r.technique_name(), "env");
+    assert!(r.notes()[0].contains("no light"), "{:?}", r.notes());
+}

@@ -60,12 +60,20 @@ fn graph_of_default_scene_and_resource_reuse() {
     r.render(&f, None, true).unwrap();
     let g0 = r.last_graph.clone().unwrap();
     let names: Vec<_> = g0.live_passes().map(|(_, p)| p.name.as_str()).collect();
-    assert_eq!(names, ["env_upload", "textures_upload", "gbuffer", "shade_env", "tonemap", "readback"]);
+    // the default scene's technique is `auto`: shadowmaps
+    assert_eq!(
+        names,
+        ["env_upload", "textures_upload", "gbuffer", "shadowmaps_depth", "shadowmaps_shade", "tonemap", "readback"]
+    );
     let created = r.engine.pool_stats.created;
     r.render(&f, None, true).unwrap();
     let g1 = r.last_graph.clone().unwrap();
     let names: Vec<_> = g1.live_passes().map(|(_, p)| p.name.as_str()).collect();
-    assert_eq!(names, ["gbuffer", "shade_env", "tonemap", "readback"], "env map and textures must persist across frames");
+    assert_eq!(
+        names,
+        ["gbuffer", "shadowmaps_shade", "tonemap", "readback"],
+        "env map, textures and the shadow maps of static geometry must persist across frames"
+    );
     // The second frame (one frame in flight) reuses every transient of the first.
     assert_eq!(r.engine.pool_stats.created, created + 0, "transients were not reused");
     assert!(r.engine.pool_stats.reused >= 8);

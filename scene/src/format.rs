@@ -5,7 +5,7 @@
 //!
 //! ```toml
 //! name = "my_scene"          # default: the file name
-//! technique = "env"          # visibility technique, default "env"
+//! technique = "auto"         # visibility technique, default "auto" (the engine chooses)
 //! [technique_params]         # key = value parameters of the technique (e.g. isg: lobes = 16)
 //! [camera]                   # eye, target, up, fov_deg, near, far; [[camera.keys]] t, eye, target, fov_deg
 //! [environment]              # file = "x.exr" | "x.hdr", or procedural = "sky"; intensity; rotation_deg

@@ -394,7 +394,7 @@ impl Requirements {
 }
 
 /// The default visibility technique of a scene that names none.
-pub const DEFAULT_TECHNIQUE: &str = "env";
+pub const DEFAULT_TECHNIQUE: &str = "auto";
 
 /// Options of [`Scene::load_with`].
 #[derive(Clone, Debug, Default)]

@@ -163,7 +163,7 @@ pub struct SceneOverrides {
     /// Use the Vulkan device whose name contains this.
     #[arg(long)]
     pub device: Option<String>,
-    /// Override the scene's technique (`env`, `isg`, `avs`, ...: the README's technique table).
+    /// Override the scene's technique (`auto`, `env`, `isg`, `avs`, ...: the README's technique table).
     #[arg(long)]
     pub technique: Option<String>,
     /// Volumetric method for scenes with a medium: temporal (default) or full.
@@ -195,7 +195,7 @@ fn load_scene(path: Option<&Path>) -> Result<Scene> {
         Some(p) => Scene::load(p).map_err(|e: SceneError| bad(e))?,
     };
     // The scene crate keeps the technique as written; the registry decides what exists.
-    if let (Err(e), Some(p)) = (penumbra_passes::registry::lookup(&scene.technique), path) {
+    if let (Err(e), Some(p)) = (penumbra_passes::registry::check_name(&scene.technique), path) {
         return Err(bad(format!("{}: {e}", p.display())));
     }
     for w in &scene.warnings {
@@ -212,7 +212,7 @@ fn apply_overrides(
     volumetric: &Option<String>,
 ) -> Result<Scene> {
     if let Some(t) = technique {
-        penumbra_passes::registry::lookup(t).map_err(|e| bad(format!("--technique {t}: {e}")))?;
+        penumbra_passes::registry::check_name(t).map_err(|e| bad(format!("--technique {t}: {e}")))?;
     }
     if let Some(v) = volumetric {
         penumbra_passes::volumetric::VolumetricMethod::parse(v).map_err(|e| bad(format!("--volumetric: {e}")))?;
