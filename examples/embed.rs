@@ -22,7 +22,16 @@ pub fn run() -> Result<f64> {
         .context("no graphics+compute queue")? as u32;
     // What penumbra needs from an external device (see Context::from_external).
     let exts = [ash::khr::push_descriptor::NAME.as_ptr()];
-    let mut f12 = vk::PhysicalDeviceVulkan12Features::default().host_query_reset(true).scalar_block_layout(true);
+    // Optional: layered rendering (shaderOutputLayer), which technique `shadowmaps` (what `auto`
+    // chooses for a lit scene) needs; declared to penumbra below.
+    let mut avail12 = vk::PhysicalDeviceVulkan12Features::default();
+    unsafe { instance.get_physical_device_features2(physical, &mut vk::PhysicalDeviceFeatures2::default().push_next(&mut avail12)) };
+    let layered = avail12.shader_output_layer == vk::TRUE && avail12.shader_output_viewport_index == vk::TRUE;
+    let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
+        .host_query_reset(true)
+        .scalar_block_layout(true)
+        .shader_output_layer(layered)
+        .shader_output_viewport_index(layered);
     let mut f13 =
         vk::PhysicalDeviceVulkan13Features::default().synchronization2(true).dynamic_rendering(true).maintenance4(true);
     let prio = [1.0];
@@ -85,7 +94,8 @@ pub fn run() -> Result<f64> {
     };
 
     // ---- penumbra on the application's device
-    let ctx = Context::from_external(entry.clone(), instance.clone(), physical, device.clone(), queue, family)?;
+    let features = penumbra::engine::ExternalFeatures { shader_output_layer: layered };
+    let ctx = Context::from_external_with(entry.clone(), instance.clone(), physical, device.clone(), queue, family, features)?;
     let scene = Scene::default_scene();
     let mut renderer = Renderer::new(ctx, &scene, RenderSettings { width: w, height: h, ..Default::default() })?;
     let frame = scene.at(0.0, None);

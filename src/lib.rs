@@ -151,13 +151,15 @@ pub fn decode_texels(format: vk::Format, bytes: &[u8]) -> Option<Vec<[f32; 4]>> 
 /// scene's; `settings.technique_params`, or the scene file's when the technique is the scene's
 /// own. An unregistered name is an error naming the scene file it came from.
 pub fn resolve_technique(scene: &Scene, settings: &RenderSettings) -> Result<(String, penumbra_passes::registry::Params), Error> {
-    resolve_technique_why(scene, settings).map(|(n, p, _)| (n, p))
+    resolve_technique_why(scene, settings, true).map(|(n, p, _)| (n, p))
 }
 
-/// [`resolve_technique`], and for `auto` the line saying what it chose and why.
+/// [`resolve_technique`] on a device that can (`layered_rendering`, `Context::shader_output_layer`)
+/// or cannot run shadowmaps, and for `auto` the line saying what it chose and why.
 pub fn resolve_technique_why(
     scene: &Scene,
     settings: &RenderSettings,
+    layered_rendering: bool,
 ) -> Result<(String, penumbra_passes::registry::Params, Option<String>), Error> {
     let name = settings.technique.clone().unwrap_or_else(|| scene.technique.clone());
     if let Err(e) = penumbra_passes::registry::check_name(&name) {
@@ -166,7 +168,7 @@ pub fn resolve_technique_why(
         return Err(Error::bad_input(file, e.to_string()));
     }
     if name == penumbra_passes::registry::AUTO {
-        let (chosen, mut params, why) = penumbra_passes::registry::choose_auto(scene);
+        let (chosen, mut params, why) = penumbra_passes::registry::choose_auto(scene, layered_rendering);
         if let Some(p) = &settings.technique_params {
             params = p.clone();
         }
@@ -232,7 +234,7 @@ impl Renderer {
                 format!("image size {}x{} is out of range (1..16384)", settings.width, settings.height),
             ));
         }
-        let (name, params, chosen) = resolve_technique_why(scene, &settings)?;
+        let (name, params, chosen) = resolve_technique_why(scene, &settings, ctx.shader_output_layer)?;
         let mut r = Self::create(ctx, scene, settings, shaders, &name, &params).map_err(|e| Error::classify(e, scene.source.as_deref()))?;
         r.auto_choice = chosen;
         Ok(r)

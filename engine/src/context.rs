@@ -84,6 +84,14 @@ pub struct ContextDesc {
     pub swapchain: bool,
 }
 
+/// Optional device features an application enabled on the device it hands to
+/// [`Context::from_external_with`].
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ExternalFeatures {
+    /// Vulkan 1.2 `shaderOutputLayer` and `shaderOutputViewportIndex` (layered shadow maps).
+    pub shader_output_layer: bool,
+}
+
 /// An image with its memory and a view of all mips.
 pub struct GpuImage {
     pub name: String,
@@ -334,7 +342,8 @@ impl Context {
     /// Wraps an application's instance/device/queue. The device must have been created with
     /// Vulkan 1.3 `synchronization2`, `dynamicRendering` and `maintenance4`, Vulkan 1.2 `hostQueryReset` and
     /// `scalarBlockLayout`, and `VK_KHR_push_descriptor`. penumbra does not destroy them. It
-    /// assumes `shaderOutputLayer` is off (technique `shadowmaps` then refuses to start). Pass a
+    /// assumes `shaderOutputLayer` is off (technique `shadowmaps` then refuses to start and `auto`
+    /// chooses another); declare optional features with [`Context::from_external_with`]. Pass a
     /// clone of your `Entry`: the loader library must outlive your own use of the handles.
     #[allow(clippy::too_many_arguments)]
     pub fn from_external(
@@ -344,6 +353,21 @@ impl Context {
         device: ash::Device,
         queue: vk::Queue,
         queue_family: u32,
+    ) -> Result<Arc<Context>> {
+        Self::from_external_with(entry, instance, physical, device, queue, queue_family, ExternalFeatures::default())
+    }
+
+    /// [`Context::from_external`] for a device created with the optional features in `features`
+    /// enabled (penumbra cannot query what a device was created with).
+    #[allow(clippy::too_many_arguments)]
+    pub fn from_external_with(
+        entry: ash::Entry,
+        instance: ash::Instance,
+        physical: vk::PhysicalDevice,
+        device: ash::Device,
+        queue: vk::Queue,
+        queue_family: u32,
+        features: ExternalFeatures,
     ) -> Result<Arc<Context>> {
         let props = unsafe { instance.get_physical_device_properties(physical) };
         let name = props.device_name_as_c_str().map(|c| c.to_string_lossy().into_owned()).unwrap_or_default();
@@ -363,7 +387,7 @@ impl Context {
             Arc::new(ValidationLog::default()),
             false,
             false,
-            false,
+            features.shader_output_layer,
         )?;
         Ok(Arc::new(ctx))
     }

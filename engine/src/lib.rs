@@ -14,6 +14,6 @@ pub mod shader;
 
 pub use ash;
 pub use ash::vk;
-pub use context::{Context, ContextDesc, GpuBuffer, GpuImage, ValidationLog};
+pub use context::{Context, ContextDesc, ExternalFeatures, GpuBuffer, GpuImage, ValidationLog};
 pub use exec::{Bind, Engine, FrameOutput, PhysBuffer, PhysImage, RecordContext, SubmitSync};
 pub use graph::{Access, BufferHandle, Graph, ImageDesc, ImageHandle, ImportedImage, PassKind};

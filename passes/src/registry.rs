@@ -394,18 +394,27 @@ pub fn check_name(name: &str) -> Result<()> {
     lookup(name).map(|_| ())
 }
 
-/// The technique and parameters `technique = "auto"` renders `scene` with, and why (one line).
+/// The technique and parameters `technique = "auto"` renders `scene` with, and why (one line);
+/// `layered_rendering`: the device can run shadowmaps (`Context::shader_output_layer`).
 ///
 /// From the measured fronts (`penumbra bench pareto`, README "The speed/accuracy trade") on
 /// lavapipe at 160x120: `shadowmaps` is on the front of every surface scene measured and the only
 /// shadowing technique that accepts every kind of scene (moving and deforming objects, local
 /// lights, thin shells, texture maps): falling 0.13 RMSE over the mean at about 100 ms per
-/// frame, where `mc` needs 64 samples per pixel and four times the time for 0.12, and the
-/// precomputed techniques refuse or fall behind. A scene without any light renders with `env`.
-pub fn choose_auto(scene: &Scene) -> (&'static str, Params, String) {
+/// frame, where `mc` needs 64 samples per pixel and ten times the time for 0.12, and the
+/// precomputed techniques refuse or fall behind. A scene without any light renders with `env`;
+/// a device without layered rendering with `mc`.
+pub fn choose_auto(scene: &Scene, layered_rendering: bool) -> (&'static str, Params, String) {
     let req = scene.requirements();
     if !req.environment_light && !req.local_lights {
         return ("env", Params::new(), "auto: env (the scene has no light to cast shadows)".into());
+    }
+    if !layered_rendering {
+        return (
+            "mc",
+            Params::new(),
+            "auto: mc (4 samples per pixel per frame): the device lacks shaderOutputLayer, which shadowmaps' layered pass needs (choose with --technique)".into(),
+        );
     }
     let mut kinds = Vec::new();
     if req.moving_objects || req.deforming_objects {
@@ -482,7 +491,7 @@ pub fn check_params(name: &str, params: &Params) -> Result<()> {
 pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
     if name == AUTO {
         // the chosen technique with the given parameters, or its own when none are given
-        let (chosen, own, _) = choose_auto(scene);
+        let (chosen, own, _) = choose_auto(scene, ctx.shader_output_layer);
         return create(chosen, ctx, shaders, scene, if params.is_empty() { &own } else { params });
     }
     let info = lookup(name)?;
@@ -546,6 +555,23 @@ mod tests {
                 Budget::Baseline { .. } => assert!(!t.shadows, "{}: a shadow technique needs a budget", t.name),
             }
         }
+    }
+
+    /// `auto`: shadowmaps for a lit scene, mc where the device cannot render layered shadow
+    /// maps, env without light; every choice is a registered technique.
+    #[test]
+    fn auto_chooses_by_scene_and_device() {
+        let lit = Scene::default_scene();
+        assert_eq!(choose_auto(&lit, true).0, "shadowmaps");
+        assert_eq!(choose_auto(&lit, false).0, "mc");
+        let mut dark = Scene::empty("dark");
+        dark.environment = None;
+        assert_eq!(choose_auto(&dark, true).0, "env");
+        for (s, l) in [(&lit, true), (&lit, false), (&dark, true)] {
+            let (name, params, why) = choose_auto(s, l);
+            assert!(info(name).is_some() && params.is_empty() && why.starts_with(&format!("auto: {name}")));
+        }
+        assert!(check_name(AUTO).is_ok() && check_name("nope").is_err());
     }
 
     /// Each technique's own parser accepts every documented key at its documented default, and
