@@ -4,11 +4,11 @@
 // Environment: K directional lights at stratified importance samples of it (weights L / (K pdf)),
 // each with an orthographic depth map (layers 0..K of the depth array, rasterized by
 // shadowmaps_depth.vert). `shading = lights` (the papers' baseline): the sum over k of
-// BRDF x cos x lit fraction x weight. `shading = ratio` (default): the unshadowed environment
-// lighting of the `env` technique (env_shade.glsl) times the ratio of the shadowed to the
-// unshadowed sum over the K lights (a ratio estimator: the K lights say how much of the
-// BRDF-weighted lighting is blocked; the environment's full detail, glossy reflections included,
-// comes from the unshadowed term).
+// BRDF x cos x lit fraction x weight. `shading = ratio` (default): a ratio estimator on the `env`
+// technique's unshadowed lighting (env_shade.glsl), so glossy surfaces keep the environment's
+// reflection (K delta lights alone render a glossy dish black): its diffuse part times the
+// cosine- and weight-weighted lit fraction over the K directions, its glossy part times the
+// lobe-weighted lit fraction, trusted as far as the directions cover the lobe.
 // Local lights: point and spot lights with a cube shadow map each (6 layers after the K), 3x3 PCF;
 // sphere lights from the cube map of their centre with PCSS soft shadows (blocker search, then a
 // filter as wide as the penumbra a sphere of the light's radius casts); radiance with the material's

@@ -14,10 +14,13 @@
 //! Shading per G-buffer pixel, with the material model's BRDF (`glsl/include/brdf_ref.glsl`,
 //! texture maps applied): `shading = "lights"` is the papers' baseline, the sum over the K lights
 //! of BRDF x cosine x lit fraction x weight (3x3 PCF, slope-scaled bias of 1.5 texels + 1.5 texels
-//! x tan(theta)); `shading = "ratio"` (default) is a ratio estimator: the `env` technique's
-//! unshadowed environment lighting (SH irradiance + prefiltered glossy reflection) times the
-//! ratio of the shadowed to the unshadowed sum over the K lights, so that glossy surfaces keep
-//! the environment's reflection (K delta lights alone render a glossy dish near black). Local
+//! x tan(theta)); `shading = "ratio"` (default) is a ratio estimator on the `env` technique's
+//! unshadowed environment lighting (`glsl/include/env_shade.glsl`), so that glossy surfaces keep
+//! the environment's reflection (K delta lights alone render a glossy dish near black): its
+//! diffuse part (SH irradiance) times the cosine- and weight-weighted lit fraction over the K
+//! directions, its glossy part (prefiltered reflection) times the lobe-weighted lit fraction,
+//! trusted as far as the directions cover the lobe (their estimate of the lobe's albedo against
+//! the split sum's; a narrow lobe between the directions takes the diffuse fraction). Local
 //! lights: BRDF x cosine x intensity / d^2 x lit fraction (3x3 PCF; sphere lights as points of
 //! intensity L pi r^2 with PCSS soft shadows from the cube of their centre). Sky pixels show the
 //! environment.
