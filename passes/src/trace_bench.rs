@@ -1,6 +1,7 @@
 //! The CPU side of the tracer's tests and benchmark: the same triangles in an `obvhs` CWBVH, ray
 //! sets (coherent camera rays, incoherent random rays, secondary rays off surfaces), and
-//! [`bench_trace`] (kd-tree build time, memory, GPU rays/s vs `obvhs` on all CPU cores).
+//! [`bench_trace`] (kd-tree build time, memory, GPU rays/s vs `obvhs` on all CPU cores for
+//! coherent, incoherent and shadow rays).
 
 use crate::kdtree::{parse_stats, KdStats, KdTreeBuilder};
 use crate::trace::{add_copy_to_readback, decode_hits, upload_rays, Hit, Ray, TraceMode, Tracer, HIT_BYTES};
@@ -146,6 +147,25 @@ pub fn surface_rays(bvh: &CpuBvh, tris: &[[Vec3; 3]], primary: &[Ray], eps: f32,
     out
 }
 
+/// Shadow rays: from the CPU closest hits of `primary` (offset by `eps` along the geometric
+/// normal turned to the incoming side) towards the distant light direction `to_light`, as a
+/// shadow-map or ray-traced-shadow pass casts them (any hit, unbounded).
+pub fn shadow_rays(bvh: &CpuBvh, tris: &[[Vec3; 3]], primary: &[Ray], to_light: Vec3, eps: f32) -> Vec<Ray> {
+    let l = to_light.normalize_or(Vec3::Y);
+    let mut out = Vec::new();
+    for r in primary {
+        let Some((t, tri)) = bvh.closest(r) else { continue };
+        let [p0, p1, p2] = tris[tri as usize];
+        let d = Vec3::from(r.dir);
+        let mut ng = (p1 - p0).cross(p2 - p0).normalize_or(Vec3::Y);
+        if ng.dot(d) > 0.0 {
+            ng = -ng;
+        }
+        out.push(Ray::new(Vec3::from(r.origin) + d * t + ng * eps, l, 0.0, f32::MAX));
+    }
+    out
+}
+
 /// Hits of one ray set: (any-hit, closest-hit).
 pub type SetHits = (Vec<Option<Hit>>, Vec<Option<Hit>>);
 
@@ -239,13 +259,13 @@ impl std::fmt::Display for BenchReport {
         writeln!(f, "obvhs CWBVH build (CPU): {:.2} ms", self.cpu_build_ms)?;
         writeln!(
             f,
-            "{:<26} {:>9} {:>12} {:>14} {:>8}",
+            "{:<32} {:>9} {:>12} {:>14} {:>8}",
             "rays (visibility)", "count", "GPU Mrays/s", "obvhs Mrays/s", "ratio"
         )?;
         for r in &self.rows {
             writeln!(
                 f,
-                "{:<26} {:>9} {:>12.3} {:>14.3} {:>8.2}",
+                "{:<32} {:>9} {:>12.3} {:>14.3} {:>8.2}",
                 r.name,
                 r.rays,
                 r.gpu_mrays,
@@ -258,7 +278,8 @@ impl std::fmt::Display for BenchReport {
 }
 
 /// `penumbra bench trace SCENE`: builds the kd-tree of the scene's first frame on the device,
-/// traces coherent (camera, `w` x `h`) and incoherent (random) visibility rays on the GPU and
+/// traces coherent (camera, `w` x `h`), incoherent (random) and shadow (from the camera rays'
+/// hit points towards one distant light) visibility rays on the GPU and
 /// the same rays through `obvhs` on all CPU cores, in one run. GPU times come from the
 /// engine's timestamps (`engine.timestamps` must be on).
 pub fn bench_trace(
@@ -280,6 +301,9 @@ pub fn bench_trace(
     let t0 = Instant::now();
     let cpu = CpuBvh::new(&tris);
     let cpu_build_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let (lo, hi) = crate::kdtree::bounds(&tris);
+    let eps = crate::kdtree::ray_epsilon((hi - lo).max_element());
+    let shadow = shadow_rays(&cpu, &tris, &coherent, Vec3::new(0.4, 1.0, 0.3), eps);
     // Warm-up run (pipelines, allocations), then the measured one.
     run_gpu(&mut engine, &mut builder, &tracer, &tris, &[(coherent.clone(), Vec::new())])?;
     let run = run_gpu(
@@ -287,17 +311,19 @@ pub fn bench_trace(
         &mut builder,
         &tracer,
         &tris,
-        &[(coherent.clone(), Vec::new()), (random.clone(), Vec::new())],
+        &[(coherent.clone(), Vec::new()), (random.clone(), Vec::new()), (shadow.clone(), Vec::new())],
     )?;
     let build_ms: f64 = run.gpu_ms.iter().filter(|(n, _)| n.starts_with("kdtree_")).map(|(_, ms)| ms).sum();
     let trace_ms: Vec<f64> =
         run.gpu_ms.iter().filter(|(n, _)| n.starts_with("trace_any:")).map(|(_, ms)| *ms).collect();
-    if trace_ms.len() != 2 {
+    if trace_ms.len() != 3 {
         return Err(anyhow!("missing trace timestamps ({:?})", run.gpu_ms));
     }
     let mut rows = Vec::new();
     for ((name, rays), ms) in
-        [("coherent (camera)", &coherent), ("incoherent (random)", &random)].into_iter().zip(trace_ms)
+        [("coherent (camera)", &coherent), ("incoherent (random)", &random), ("shadow (hit points to a light)", &shadow)]
+            .into_iter()
+            .zip(trace_ms)
     {
         // Warm-up (thread pool, caches), then the best of three.
         let mut hits: usize = rays.par_iter().map(|r| cpu.occluded(r) as usize).sum();

@@ -219,7 +219,7 @@ fn bench_trace_and_volumetric_run_and_report() {
     let o = penumbra(&["bench", "trace", "--size", "32x24", "--incoherent", "500"]);
     let t = text(&o);
     assert!(o.status.success(), "{t}");
-    assert!(t.contains("kd-tree:") && t.contains("obvhs") && t.contains("incoherent"), "{t}");
+    assert!(t.contains("kd-tree:") && t.contains("obvhs") && t.contains("incoherent") && t.contains("shadow (hit points"), "{t}");
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let vol = root.join("scenes/vol_dragon.toml");
     let chart = tmp("volumetric_chart").join("vol.png");
