@@ -400,8 +400,8 @@ pub fn check_name(name: &str) -> Result<()> {
 /// From the measured fronts (`penumbra bench pareto`, README "The speed/accuracy trade") on
 /// lavapipe at 160x120: `shadowmaps` is on the front of every surface scene measured and the only
 /// shadowing technique that accepts every kind of scene (moving and deforming objects, local
-/// lights, thin shells, texture maps): falling 0.13 RMSE over the mean at about 100 ms per
-/// frame, where `mc` needs 64 samples per pixel and ten times the time for 0.12, and the
+/// lights, thin shells, texture maps): falling 0.13-0.15 RMSE over the mean at about 120 ms per
+/// frame, where `mc` needs 64 samples per pixel and more than ten times the time for 0.12, and the
 /// precomputed techniques refuse or fall behind. A scene without any light renders with `env`;
 /// a device without layered rendering with `mc`.
 pub fn choose_auto(scene: &Scene, layered_rendering: bool) -> (&'static str, Params, String) {

@@ -165,7 +165,9 @@ fn bench_trace_reports_build_and_ray_rates() {
     let r = penumbra_passes::trace_bench::bench_trace(&ctx, &lib, &scene, 64, 48, 4096).unwrap();
     println!("{r}");
     assert!(r.triangles > 1000 && r.stats.leaves > 0 && r.build_ms > 0.0);
-    assert_eq!(r.rows.len(), 2);
+    // coherent, incoherent and shadow rays
+    assert_eq!(r.rows.len(), 3);
+    assert!(r.rows[2].name.starts_with("shadow") && r.rows[2].rays > 0, "{:?}", r.rows[2]);
     for row in &r.rows {
         assert!(row.gpu_mrays > 0.0 && row.cpu_mrays > 0.0 && row.gpu_mrays.is_finite(), "{row:?}");
     }
