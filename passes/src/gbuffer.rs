@@ -117,48 +117,18 @@ impl GBufferPass {
                 Some(h) => Some(rc.buffer(h)?),
                 None => None,
             };
-            unsafe {
-                d.cmd_begin_rendering(rc.cmd, &info);
-                d.cmd_set_viewport(
-                    rc.cmd,
-                    0,
-                    &[vk::Viewport {
-                        x: 0.0,
-                        y: 0.0,
-                        width: width as f32,
-                        height: height as f32,
-                        min_depth: 0.0,
-                        max_depth: 1.0,
-                    }],
-                );
-                d.cmd_set_scissor(rc.cmd, 0, &[area]);
-                d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
-            }
+            crate::raster::begin(d, rc.cmd, &info, width, height, pipeline);
             rc.push_descriptors(
                 vk::PipelineBindPoint::GRAPHICS,
                 layout,
                 0,
                 &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)],
             )?;
-            unsafe {
-                if !draws.is_empty() {
-                    d.cmd_bind_index_buffer(rc.cmd, ib.buffer, 0, vk::IndexType::UINT32);
-                }
-                for pass_deformed in [false, true] {
-                    let buffer = if pass_deformed { db.map(|b| b.buffer) } else { Some(vb.buffer) };
-                    let Some(buffer) = buffer else { continue };
-                    let mut bound = false;
-                    for dr in draws.iter().filter(|dr| dr.deformed == pass_deformed) {
-                        if !bound {
-                            d.cmd_bind_vertex_buffers(rc.cmd, 0, &[buffer], &[0]);
-                            bound = true;
-                        }
-                        let m = dr.mesh;
-                        d.cmd_draw_indexed(rc.cmd, m.index_count, 1, m.first_index, m.vertex_offset, dr.instance);
-                    }
-                }
-                d.cmd_end_rendering(rc.cmd);
-            }
+            crate::raster::draw_meshes(d, rc.cmd, &draws, ib.buffer, vb.buffer, db.map(|b| b.buffer), |dr| unsafe {
+                let m = dr.mesh;
+                d.cmd_draw_indexed(rc.cmd, m.index_count, 1, m.first_index, m.vertex_offset, dr.instance);
+            });
+            unsafe { d.cmd_end_rendering(rc.cmd) };
             Ok(())
         });
         GBuffer { position, normal, uv_mat, motion, depth, width, height }

@@ -248,3 +248,47 @@ mod tests {
         assert_eq!(stage_of("e.comp"), None);
     }
 }
+
+/// Records the draws of a frame's meshes: binds the index buffer, then the scene's vertex buffer
+/// `vertices` for the rest meshes and the frame's deformed-vertex buffer `deformed` for the
+/// deformed ones (skipped when absent), calling `draw` for each (it records the draw call, and
+/// any per-draw state such as push constants). Call inside a rendering pass with the pipeline
+/// bound.
+pub fn draw_meshes(
+    d: &ash::Device,
+    cmd: vk::CommandBuffer,
+    draws: &[crate::scene_gpu::Draw],
+    indices: vk::Buffer,
+    vertices: vk::Buffer,
+    deformed: Option<vk::Buffer>,
+    mut draw: impl FnMut(&crate::scene_gpu::Draw),
+) {
+    if draws.is_empty() {
+        return;
+    }
+    unsafe { d.cmd_bind_index_buffer(cmd, indices, 0, vk::IndexType::UINT32) };
+    for pass_deformed in [false, true] {
+        let buffer = if pass_deformed { deformed } else { Some(vertices) };
+        let Some(buffer) = buffer else { continue };
+        let mut bound = false;
+        for dr in draws.iter().filter(|dr| dr.deformed == pass_deformed) {
+            if !bound {
+                unsafe { d.cmd_bind_vertex_buffers(cmd, 0, &[buffer], &[0]) };
+                bound = true;
+            }
+            draw(dr);
+        }
+    }
+}
+
+/// Begins dynamic rendering with `info` over a `w` x `h` viewport and scissor (depth 0..1) and
+/// binds the graphics `pipeline`.
+pub fn begin(d: &ash::Device, cmd: vk::CommandBuffer, info: &vk::RenderingInfo, w: u32, h: u32, pipeline: vk::Pipeline) {
+    let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
+    unsafe {
+        d.cmd_begin_rendering(cmd, info);
+        d.cmd_set_viewport(cmd, 0, &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: h as f32, min_depth: 0.0, max_depth: 1.0 }]);
+        d.cmd_set_scissor(cmd, 0, &[area]);
+        d.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+    }
+}

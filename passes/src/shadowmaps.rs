@@ -321,37 +321,14 @@ impl ShadowMapsTechnique {
                     Some(h) => Some(rc.buffer(h)?),
                     None => None,
                 };
-                unsafe {
-                    d.cmd_begin_rendering(rc.cmd, &info);
-                    d.cmd_set_viewport(
-                        rc.cmd,
-                        0,
-                        &[vk::Viewport { x: 0.0, y: 0.0, width: s as f32, height: s as f32, min_depth: 0.0, max_depth: 1.0 }],
-                    );
-                    d.cmd_set_scissor(rc.cmd, 0, &[area]);
-                    d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
-                }
+                crate::raster::begin(d, rc.cmd, &info, s, s, pipeline);
                 rc.push_descriptors(vk::PipelineBindPoint::GRAPHICS, layout, 0, &[Bind::StorageBuffer(instances), Bind::StorageBuffer(lb)])?;
-                unsafe {
-                    if !draws.is_empty() {
-                        d.cmd_bind_index_buffer(rc.cmd, ib.buffer, 0, vk::IndexType::UINT32);
-                    }
-                    for pass_deformed in [false, true] {
-                        let buffer = if pass_deformed { db.map(|b| b.buffer) } else { Some(vb.buffer) };
-                        let Some(buffer) = buffer else { continue };
-                        let mut bound = false;
-                        for dr in draws.iter().filter(|dr| dr.deformed == pass_deformed) {
-                            if !bound {
-                                d.cmd_bind_vertex_buffers(rc.cmd, 0, &[buffer], &[0]);
-                                bound = true;
-                            }
-                            d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::VERTEX, 0, &bytes_of(&[dr.instance, 0u32]));
-                            let m = dr.mesh;
-                            d.cmd_draw_indexed(rc.cmd, m.index_count, layer_count, m.first_index, m.vertex_offset, 0);
-                        }
-                    }
-                    d.cmd_end_rendering(rc.cmd);
-                }
+                crate::raster::draw_meshes(d, rc.cmd, &draws, ib.buffer, vb.buffer, db.map(|b| b.buffer), |dr| unsafe {
+                    d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::VERTEX, 0, &bytes_of(&[dr.instance, 0u32]));
+                    let m = dr.mesh;
+                    d.cmd_draw_indexed(rc.cmd, m.index_count, layer_count, m.first_index, m.vertex_offset, 0);
+                });
+                unsafe { d.cmd_end_rendering(rc.cmd) };
                 Ok(())
             });
             self.rendered_layers = Some(layers);

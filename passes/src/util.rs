@@ -326,3 +326,19 @@ pub fn persistent_upload(
 pub fn storage<const N: usize>(bufs: [penumbra_engine::BufferHandle; N]) -> [penumbra_engine::Bind; N] {
     bufs.map(penumbra_engine::Bind::StorageBuffer)
 }
+
+/// Submits `graph` (which reads buffer `from` back as `name`), waits for every frame in flight
+/// and returns the read-back bytes: the end of the GPU test kernels (`crate::kernels`).
+pub fn submit_and_read(
+    engine: &mut penumbra_engine::Engine,
+    mut graph: penumbra_engine::Graph,
+    from: penumbra_engine::BufferHandle,
+    name: &str,
+    bytes: u64,
+) -> anyhow::Result<Vec<u8>> {
+    let rb = graph.create_readback(name, bytes);
+    copy_buffer(&mut graph, &format!("{name}_readback"), from, rb, None);
+    let (_, mut done) = engine.submit(graph)?;
+    done.extend(engine.drain()?);
+    done.into_iter().find_map(|o| o.readbacks.get(name).cloned()).ok_or_else(|| anyhow::anyhow!("{name}: no readback"))
+}

@@ -283,6 +283,19 @@ fn fmt_opt(v: Option<f64>, digits: usize) -> String {
     v.map_or("-".into(), |x| format!("{x:.digits$}"))
 }
 
+/// The converged reference of `scene`'s frame `frame` at `w` x `h` that the matrix and `bench
+/// pareto` compare with (exact mode, to `noise` RMSE over the mean or `max_spp`).
+pub(crate) fn converge_options(scene: &Scene, w: u32, h: u32, frame: u32, fps: f32, noise: f64, max_spp: u32) -> ConvergeOptions {
+    ConvergeOptions {
+        base: ReferenceOptions { width: w, height: h, frame, time: None, fps, mode: Mode::Exact, progress: true, ..Default::default() },
+        target_noise: noise,
+        max_spp,
+        progress: true,
+        label: scene.name.clone(),
+        ..Default::default()
+    }
+}
+
 pub fn run(args: &MatrixArgs) -> Result<()> {
     let (w, h) = parse_size(&args.size).map_err(crate::bad)?;
     if !(args.noise.is_finite() && args.noise > 0.0) {
@@ -351,23 +364,7 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
             medium_scenes.push(scene.name.clone());
         }
         let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-        let copts = ConvergeOptions {
-            base: ReferenceOptions {
-                width: w,
-                height: h,
-                frame: args.frame,
-                time: None,
-                fps: args.fps,
-                mode: Mode::Exact,
-                progress: true,
-                ..Default::default()
-            },
-            target_noise: args.noise,
-            max_spp: args.max_spp,
-            progress: true,
-            label: scene.name.clone(),
-            ..Default::default()
-        };
+        let copts = converge_options(&scene, w, h, args.frame, args.fps, args.noise, args.max_spp);
         let reference = load_or_render(&scene, &bytes, &stem, &copts, Some(&cache))
             .with_context(|| format!("reference of {}", path.display()))?;
         eprintln!(

@@ -14,9 +14,8 @@ use clap::Args;
 use penumbra::engine::{Context, ContextDesc};
 use penumbra_passes::registry::{self, Params};
 use penumbra_reference::cli::parse_size;
-use penumbra_reference::converge::{load_or_render, ConvergeOptions};
+use penumbra_reference::converge::load_or_render;
 use penumbra_reference::metrics::compare;
-use penumbra_reference::render::{Mode, ReferenceOptions};
 use penumbra_scene::Scene;
 use serde::Serialize;
 use std::path::PathBuf;
@@ -159,23 +158,7 @@ pub fn run(args: &ParetoArgs) -> Result<()> {
     let started = Instant::now();
     let mut fronts = Vec::new();
     for &(w, h) in &sizes {
-        let copts = ConvergeOptions {
-            base: ReferenceOptions {
-                width: w,
-                height: h,
-                frame: args.frame,
-                time: None,
-                fps: args.fps,
-                mode: Mode::Exact,
-                progress: true,
-                ..Default::default()
-            },
-            target_noise: args.noise,
-            max_spp: args.max_spp,
-            progress: true,
-            label: scene.name.clone(),
-            ..Default::default()
-        };
+        let copts = crate::matrix::converge_options(&scene, w, h, args.frame, args.fps, args.noise, args.max_spp);
         let reference = load_or_render(&scene, &bytes, &stem, &copts, Some(&cache))
             .with_context(|| format!("reference of {} at {w}x{h}", args.scene.display()))?;
         eprintln!("{w}x{h}: reference {} spp, noise {:.4}", reference.meta.spp, reference.meta.noise_rmse_rel_mean);

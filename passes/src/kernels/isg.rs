@@ -75,14 +75,8 @@ pub fn gpu_visibility(
         let binds = crate::util::storage([qb, out_w, tb, nb, trb, tnb]);
         crate::util::dispatch(rc, pipe, &binds, &push, [groups(count, 64), 1, 1])
     });
-    let rb = graph.create_readback("isg_parity", count.max(1) as u64 * 4);
-    crate::util::copy_buffer(&mut graph, "isg_parity_readback", out_w, rb, None);
-    let (_, mut done) = engine.submit(graph)?;
-    done.extend(engine.drain()?);
+    let bytes = crate::util::submit_and_read(engine, graph, out_w, "isg_parity", count.max(1) as u64 * 4);
     drop(pipeline);
-    let bytes = done
-        .into_iter()
-        .find_map(|o| o.readbacks.get("isg_parity").cloned())
-        .ok_or_else(|| anyhow::anyhow!("isg_parity: no readback"))?;
+    let bytes = bytes?;
     Ok(bytes.chunks_exact(4).take(queries.len()).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
 }

@@ -6,7 +6,7 @@
 //! this kernel says whether the device has the limit at all.
 
 use crate::util::{compute_pipeline, storage};
-use anyhow::{anyhow, Result};
+use anyhow::Result;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Engine, Graph, PassKind};
 
@@ -31,15 +31,9 @@ pub fn run_loops(engine: &mut Engine, shaders: &ShaderLibrary, first: u32, secon
     push.extend_from_slice(&second.to_le_bytes());
     let pipe = pipeline.handle();
     p.record(move |rc| crate::util::dispatch(rc, pipe, &storage([out_w]), &push, [1, 1, 1]));
-    let rb = graph.create_readback("loop_probe", 8);
-    crate::util::copy_buffer(&mut graph, "loop_probe_readback", out_w, rb, None);
-    let (_, mut done) = engine.submit(graph)?;
-    done.extend(engine.drain()?);
+    let bytes = crate::util::submit_and_read(engine, graph, out_w, "loop_probe", 8);
     drop(pipeline);
-    let bytes = done
-        .into_iter()
-        .find_map(|o| o.readbacks.get("loop_probe").cloned())
-        .ok_or_else(|| anyhow!("loop_probe: no readback"))?;
+    let bytes = bytes?;
     let word = |i: usize| u32::from_le_bytes([bytes[4 * i], bytes[4 * i + 1], bytes[4 * i + 2], bytes[4 * i + 3]]);
     Ok(LoopCounts { first: word(0), second: word(1) })
 }
