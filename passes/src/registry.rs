@@ -92,10 +92,13 @@ pub struct TechniqueInfo {
 pub struct Knob {
     pub key: &'static str,
     pub values: &'static [&'static str],
+    /// Costlier values, in order, that `penumbra tune` tries only when no configuration of the
+    /// sweep reaches the asked error (mc's samples per pixel: it converges to the reference).
+    pub finer: &'static [&'static str],
 }
 
 const fn k(key: &'static str, values: &'static [&'static str]) -> Knob {
-    Knob { key, values }
+    Knob { key, values, finer: &[] }
 }
 
 impl std::fmt::Debug for TechniqueInfo {
@@ -278,7 +281,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
             factor: 1.5,
             source: "the reference's estimator on the GPU: unbiased, so within 1.5x the reference estimator's noise at the same samples per pixel",
         },
-        knobs: &[k("spp", &["1", "16", "64"])],
+        knobs: &[Knob { key: "spp", values: &["1", "16", "64"], finer: &["256", "1024"] }],
         create: create_mc,
     },
     TechniqueInfo {
@@ -602,7 +605,7 @@ mod tests {
         // Every knob is a documented parameter and its values parse.
         for t in REGISTRY {
             for kn in t.knobs {
-                for v in kn.values {
+                for v in kn.values.iter().chain(kn.finer) {
                     let one: Params = [(kn.key.to_string(), v.to_string())].into_iter().collect();
                     check_params(t.name, &one).unwrap_or_else(|e| panic!("{} knob {}: {e}", t.name, kn.key));
                 }

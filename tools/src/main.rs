@@ -21,6 +21,7 @@ mod pareto;
 mod hsdt_bench;
 mod plot;
 mod spheres;
+mod tune;
 mod vv_bench;
 mod view;
 mod vv;
@@ -58,6 +59,11 @@ enum Cmd {
     /// List every registered technique and effect: summary, requirements, accuracy budget and
     /// parameters (key, default, accepted values), as scene files and --param take them.
     Techniques,
+    /// The cheapest technique and parameters whose error (RMSE over the converged reference's
+    /// mean) is at most --max-error on a scene: measured at --size as `bench pareto` measures
+    /// (or read from its pareto.json with --pareto); prints the choice, its error and cost, and
+    /// with --write stores it in the scene file. `render` and `view` take --max-error too.
+    Tune(tune::TuneArgs),
     /// Approximate a closed mesh by N spheres (blockers of the ISG technique) and report the
     /// fraction of its volume they cover and the volume they put outside it.
     Spheres(spheres::SpheresArgs),
@@ -173,6 +179,28 @@ pub struct SceneOverrides {
     /// The keys depend on the technique; an unknown key is an error that lists the known ones.
     #[arg(long = "param", value_name = "KEY=VALUE")]
     pub params: Vec<String>,
+    /// Choose the technique: the cheapest whose error (RMSE over the converged reference's mean)
+    /// is at most E on this scene, measured at the render size (at most 160x120, same aspect) as
+    /// `penumbra tune` measures, cached; an error when nothing reaches E.
+    #[arg(long, value_name = "E", conflicts_with_all = ["technique", "params"])]
+    pub max_error: Option<f64>,
+    /// With --max-error: choose from this `bench pareto` output instead of measuring.
+    #[arg(long, value_name = "PARETO_JSON", requires = "max_error")]
+    pub pareto: Option<PathBuf>,
+}
+
+/// `--max-error`: replaces the scene's technique and parameters with the tuned choice.
+fn apply_max_error(mut scene: Scene, path: Option<&Path>, o: &SceneOverrides, width: u32, height: u32) -> Result<Scene> {
+    let Some(e) = o.max_error else { return Ok(scene) };
+    let opts = tune::TuneOptions::for_render(e, o.pareto.clone(), width, height);
+    if opts.size != (width, height) {
+        eprintln!("note: --max-error measures errors at {}x{} (renders above 160x120 are measured smaller)", opts.size.0, opts.size.1);
+    }
+    let choice = tune::tune(path, &scene, &opts)?;
+    eprintln!("note: --max-error {e}: {}", choice.describe(e));
+    scene.technique = choice.point.technique.clone();
+    scene.technique_params = choice.point.params.clone();
+    Ok(scene)
 }
 
 /// An error caused by the user's input: exit code 2.
@@ -309,6 +337,7 @@ fn render(args: &RenderArgs) -> Result<()> {
         ..Default::default()
     };
     let scene = apply_overrides(scene, &args.o.technique, &args.o.params, &args.o.volumetric)?;
+    let scene = apply_max_error(scene, args.scene.as_deref(), &args.o, width, height)?;
     let ctx = penumbra::engine::Context::new(&penumbra::engine::ContextDesc {
         validation: args.validate,
         device_name: args.o.device.clone(),
@@ -406,6 +435,7 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Cmd::View(a) => view::view(&a),
+        Cmd::Tune(a) => tune::run(&a),
         Cmd::Reference(a) => {
             let scene = load_scene(a.scene.as_deref())?;
             a.options().map_err(bad)?;

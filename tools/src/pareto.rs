@@ -15,10 +15,12 @@ use penumbra::engine::{Context, ContextDesc};
 use penumbra_passes::registry::{self, Params};
 use penumbra_reference::cli::parse_size;
 use penumbra_reference::converge::load_or_render;
+use penumbra_reference::image::Image;
 use penumbra_reference::metrics::compare;
 use penumbra_scene::Scene;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Instant;
 
 #[derive(Args, Clone)]
@@ -63,7 +65,7 @@ pub struct ParetoArgs {
 }
 
 /// One measured configuration.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Point {
     pub technique: String,
     /// The parameters away from the technique's defaults (empty: the defaults).
@@ -79,7 +81,7 @@ pub struct Point {
 }
 
 /// The points of one size.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Front {
     pub scene: String,
     pub device: String,
@@ -119,7 +121,7 @@ pub fn configurations(info: &registry::TechniqueInfo) -> Vec<Params> {
     v
 }
 
-fn label(p: &Params) -> String {
+pub fn label(p: &Params) -> String {
     if p.is_empty() {
         "defaults".into()
     } else {
@@ -127,11 +129,108 @@ fn label(p: &Params) -> String {
     }
 }
 
-pub fn run(args: &ParetoArgs) -> Result<()> {
-    let sizes: Vec<(u32, u32)> = args
-        .sizes
-        .as_deref()
-        .unwrap_or(&args.size)
+/// How the points of a front are measured (shared by `bench pareto` and `penumbra tune`).
+#[derive(Clone, Debug)]
+pub struct Measure {
+    pub frames: u32,
+    pub warmup: u32,
+    pub frame: u32,
+    pub fps: f32,
+    pub supersample: u32,
+    pub noise: f64,
+    pub max_spp: u32,
+    /// The reference cache directory.
+    pub cache: PathBuf,
+}
+
+impl Measure {
+    fn matrix_args(&self, w: u32, h: u32) -> MatrixArgs {
+        MatrixArgs {
+            scenes: None,
+            techniques: None,
+            size: format!("{w}x{h}"),
+            supersample: self.supersample,
+            noise: self.noise,
+            max_spp: self.max_spp,
+            frame: self.frame,
+            fps: self.fps,
+            warmup: self.warmup,
+            frames: self.frames,
+            out: PathBuf::from("."),
+            cache: None,
+            known: None,
+            check: false,
+            write_known: false,
+            validation: false,
+        }
+    }
+}
+
+/// A scene file and its converged reference at one size: what points are compared with.
+pub struct Target<'a> {
+    pub scene: &'a Scene,
+    pub ctx: &'a Arc<Context>,
+    pub reference: Image,
+    pub size: (u32, u32),
+    pub measure: Measure,
+}
+
+impl<'a> Target<'a> {
+    /// Loads (or renders and caches) the converged reference of `scene` (read from a file holding
+    /// `bytes`, named `stem`) at `size`.
+    pub fn new(ctx: &'a Arc<Context>, scene: &'a Scene, bytes: &[u8], stem: &str, size: (u32, u32), measure: Measure) -> Result<Self> {
+        let (w, h) = size;
+        let copts = crate::matrix::converge_options(scene, w, h, measure.frame, measure.fps, measure.noise, measure.max_spp);
+        let reference = load_or_render(scene, bytes, stem, &copts, Some(&measure.cache))
+            .with_context(|| format!("reference of {} at {w}x{h}", scene.name))?;
+        eprintln!("{w}x{h}: reference {} spp, noise {:.4}", reference.meta.spp, reference.meta.noise_rmse_rel_mean);
+        Ok(Target { scene, ctx, reference: reference.radiance, size, measure })
+    }
+
+    /// Renders one configuration as a matrix cell is rendered and compares it with the
+    /// reference. Errors and panics of the technique come back as `Err(message)`.
+    pub fn point(&self, technique: &str, params: &Params) -> Result<std::result::Result<Point, String>> {
+        let (w, h) = self.size;
+        let margs = self.measure.matrix_args(w, h);
+        let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            render_technique(self.ctx, self.scene, technique, Some(params.clone()), &margs, w, h)
+        }));
+        let run = match run {
+            Ok(Ok(r)) => r,
+            Ok(Err(e)) => return Ok(Err(format!("{e:#}"))),
+            Err(_) => return Ok(Err("panicked".into())),
+        };
+        let c = compare(&self.reference, "reference", &run.image, technique)?;
+        Ok(Ok(Point {
+            technique: technique.to_string(),
+            params: params.clone(),
+            frame_ms: run.frame_ms,
+            gpu_ms: run.gpu_ms,
+            cpu_ms: run.cpu_ms,
+            rmse_rel_mean: c.rmse_rel_mean,
+            rel_rmse: c.rel_rmse,
+            psnr: c.psnr_db,
+            flip: c.flip_mean,
+            on_front: false,
+        }))
+    }
+
+    /// An empty front of this target.
+    pub fn front(&self) -> Front {
+        Front {
+            scene: self.scene.name.clone(),
+            device: self.ctx.device_name.clone(),
+            driver: self.ctx.driver_info(),
+            size: [self.size.0, self.size.1],
+            errors: Vec::new(),
+            points: Vec::new(),
+        }
+    }
+}
+
+/// The sizes of `--size` or `--sizes`.
+pub fn parse_sizes(list: &str) -> Result<Vec<(u32, u32)>> {
+    let sizes: Vec<(u32, u32)> = list
         .split(',')
         .map(str::trim)
         .filter(|s| !s.is_empty())
@@ -140,90 +239,61 @@ pub fn run(args: &ParetoArgs) -> Result<()> {
     if sizes.is_empty() {
         return Err(crate::bad("--sizes: no size given"));
     }
-    let scene = Scene::load(&args.scene).map_err(crate::bad)?;
-    let techniques: Vec<&'static registry::TechniqueInfo> = match &args.techniques {
-        None => registry::REGISTRY.iter().filter(|t| registry::refusal(t.name, &scene).is_none()).collect(),
+    Ok(sizes)
+}
+
+/// The techniques of `--techniques` (default: every registered one that accepts the scene).
+pub fn techniques_for(list: Option<&str>, scene: &Scene) -> Result<Vec<&'static registry::TechniqueInfo>> {
+    match list {
+        None => Ok(registry::REGISTRY.iter().filter(|t| registry::refusal(t.name, scene).is_none()).collect()),
         Some(list) => list
             .split(',')
             .map(str::trim)
             .filter(|s| !s.is_empty())
             .map(|t| registry::lookup(t).map_err(crate::bad))
-            .collect::<Result<_>>()?,
-    };
+            .collect(),
+    }
+}
+
+pub fn run(args: &ParetoArgs) -> Result<()> {
+    let sizes = parse_sizes(args.sizes.as_deref().unwrap_or(&args.size))?;
+    let scene = Scene::load(&args.scene).map_err(crate::bad)?;
+    let techniques = techniques_for(args.techniques.as_deref(), &scene)?;
     let bytes = std::fs::read(&args.scene).with_context(|| format!("reading {}", args.scene.display()))?;
     let stem = args.scene.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let cache = args.cache.clone().unwrap_or_else(|| std::env::temp_dir().join("penumbra-references"));
+    let measure = Measure {
+        frames: args.frames,
+        warmup: args.warmup,
+        frame: args.frame,
+        fps: args.fps,
+        supersample: args.supersample,
+        noise: args.noise,
+        max_spp: args.max_spp,
+        cache: args.cache.clone().unwrap_or_else(|| std::env::temp_dir().join("penumbra-references")),
+    };
     let ctx = Context::new(&ContextDesc::default())?;
     let started = Instant::now();
     let mut fronts = Vec::new();
-    for &(w, h) in &sizes {
-        let copts = crate::matrix::converge_options(&scene, w, h, args.frame, args.fps, args.noise, args.max_spp);
-        let reference = load_or_render(&scene, &bytes, &stem, &copts, Some(&cache))
-            .with_context(|| format!("reference of {} at {w}x{h}", args.scene.display()))?;
-        eprintln!("{w}x{h}: reference {} spp, noise {:.4}", reference.meta.spp, reference.meta.noise_rmse_rel_mean);
-        let margs = MatrixArgs {
-            scenes: None,
-            techniques: None,
-            size: format!("{w}x{h}"),
-            supersample: args.supersample,
-            noise: args.noise,
-            max_spp: args.max_spp,
-            frame: args.frame,
-            fps: args.fps,
-            warmup: args.warmup,
-            frames: args.frames,
-            out: args.out.clone(),
-            cache: None,
-            known: None,
-            check: false,
-            write_known: false,
-            validation: false,
-        };
-        let mut front = Front {
-            scene: scene.name.clone(),
-            device: ctx.device_name.clone(),
-            driver: ctx.driver_info(),
-            size: [w, h],
-            errors: Vec::new(),
-            points: Vec::new(),
-        };
+    for &size in &sizes {
+        let target = Target::new(&ctx, &scene, &bytes, &stem, size, measure.clone())?;
+        let mut front = target.front();
         let total: usize = techniques.iter().map(|t| configurations(t).len()).sum();
         let mut done = 0;
         for t in &techniques {
             for params in configurations(t) {
                 done += 1;
                 eprint!("  [{done}/{total}] {} {} ({:.0} s so far) ... ", t.name, label(&params), started.elapsed().as_secs_f64());
-                let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    render_technique(&ctx, &scene, t.name, Some(params.clone()), &margs, w, h)
-                }));
-                let run = match run {
-                    Ok(Ok(r)) => r,
-                    Ok(Err(e)) => {
-                        eprintln!("error: {e:#}");
-                        front.errors.push((t.name.to_string(), params, format!("{e:#}")));
-                        continue;
+                match target.point(t.name, &params)? {
+                    Ok(p) => {
+                        eprintln!("{:.1} ms/frame, rmse/mean {:.4}", p.frame_ms, p.rmse_rel_mean);
+                        front.points.push(p);
                     }
-                    Err(_) => {
-                        eprintln!("panicked");
-                        front.errors.push((t.name.to_string(), params, "panicked".into()));
-                        continue;
+                    Err(e) => {
+                        eprintln!("error: {e}");
+                        front.errors.push((t.name.to_string(), params, e));
                     }
-                };
-                let c = compare(&reference.radiance, "reference", &run.image, t.name)?;
-                eprintln!("{:.1} ms/frame, rmse/mean {:.4}", run.frame_ms, c.rmse_rel_mean);
-                front.points.push(Point {
-                    technique: t.name.to_string(),
-                    params,
-                    frame_ms: run.frame_ms,
-                    gpu_ms: run.gpu_ms,
-                    cpu_ms: run.cpu_ms,
-                    rmse_rel_mean: c.rmse_rel_mean,
-                    rel_rmse: c.rel_rmse,
-                    psnr: c.psnr_db,
-                    flip: c.flip_mean,
-                    on_front: false,
-                });
+                }
             }
         }
         mark_front(&mut front.points);

@@ -14,7 +14,7 @@
 //! printed and the running pipelines stay), P screenshot (PNG of the presented image), G write
 //! the frame graph dumps.
 
-use crate::{apply_overrides, bad, load_scene, new_renderer, report_validation};
+use crate::{apply_max_error, apply_overrides, bad, load_scene, new_renderer, report_validation};
 use anyhow::{anyhow, bail, Context as _, Result};
 use clap::Args;
 use penumbra::engine::dump;
@@ -97,6 +97,7 @@ pub fn view(args: &ViewArgs) -> Result<()> {
     }
     let script = parse_keys(&args.keys).map_err(|e| bad(format!("--keys: {e}")))?;
     let scene = apply_overrides(load_scene(args.scene.as_deref())?, &args.o.technique, &args.o.params, &args.o.volumetric)?;
+    let scene = apply_max_error(scene, args.scene.as_deref(), &args.o, width, height)?;
     let settings = RenderSettings {
         width,
         height,

@@ -168,3 +168,123 @@ fn pareto_front_of_a_moving_scene() {
     };
     assert!(mc_err("64") < mc_err("1"), "{points:?}");
 }
+
+/// `render --max-error` from a measured front (`--pareto`), checked afresh: frame 30 of the
+/// render against the converged reference has an error within the asked one; and an error no
+/// configuration reaches is bad input (exit 2) naming the most accurate configuration.
+#[test]
+fn max_error_picks_a_configuration_within_it() {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("max_error_falling");
+    let _ = std::fs::remove_dir_all(&dir);
+    let pareto = dir.join("pareto");
+    let o = Command::new(env!("CARGO_BIN_EXE_penumbra"))
+        .args(["bench", "pareto"])
+        .arg(repo().join("scenes/falling.toml"))
+        .args(["--techniques", "env,mc", "--size", SIZE, "--warmup", "1", "--frames", "1"])
+        .arg("--cache")
+        .arg(repo().join("tests/matrix/references"))
+        .arg("--out")
+        .arg(&pareto)
+        .output()
+        .expect("run penumbra bench pareto");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let front = pareto.join("pareto.json");
+    let e = 0.3;
+    let out = dir.join("render");
+    let o = Command::new(env!("CARGO_BIN_EXE_penumbra"))
+        .arg("render")
+        .arg(repo().join("scenes/falling.toml"))
+        .args(["--max-error", &e.to_string(), "--size", SIZE, "--frames", "31"])
+        .arg("--pareto")
+        .arg(&front)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .expect("run penumbra render --max-error");
+    let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "{text}");
+    // env (0.46 here) is out of reach; mc with enough samples per pixel is chosen
+    assert!(text.contains("chose mc spp="), "{text}");
+    let reference = std::fs::read_dir(repo().join("tests/matrix/references"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| {
+            let n = p.file_name().unwrap().to_string_lossy().to_string();
+            n.starts_with(&format!("falling-{SIZE}-f30-")) && n.ends_with(".exr")
+        })
+        .expect("the cached falling reference");
+    let o = Command::new(env!("CARGO_BIN_EXE_penumbra"))
+        .arg("compare")
+        .arg(&reference)
+        .arg(out.join("frame_0030.exr"))
+        .arg("--json")
+        .output()
+        .expect("run penumbra compare");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let c: serde_json::Value = serde_json::from_slice(&o.stdout).expect("compare --json");
+    let err = c["rmse_rel_mean"].as_f64().expect("rmse_rel_mean");
+    assert!(err <= e, "render --max-error {e}: frame 30 has RMSE/mean {err}: {text}");
+    // Nothing reaches 0.001: exit 2, the most accurate configuration named.
+    let o = Command::new(env!("CARGO_BIN_EXE_penumbra"))
+        .arg("tune")
+        .arg(repo().join("scenes/falling.toml"))
+        .args(["--max-error", "0.001", "--size", SIZE])
+        .arg("--pareto")
+        .arg(&front)
+        .output()
+        .expect("run penumbra tune");
+    let text = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{text}");
+    assert!(text.contains("no technique reaches") && text.contains("mc spp=64"), "{text}");
+}
+
+/// `penumbra tune` measuring (no front given): the defaults of each listed technique, then its
+/// knobs; the cheapest configuration within the error; `--write` stores it in the scene file.
+#[test]
+fn tune_measures_and_writes_the_choice() {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("tune_falling");
+    let _ = std::fs::remove_dir_all(&dir);
+    // The scene beside its assets; the reference of its bytes cached there.
+    let scenes = dir.join("scenes");
+    std::fs::create_dir_all(&scenes).unwrap();
+    let scene = scenes.join("falling.toml");
+    std::fs::copy(repo().join("scenes/falling.toml"), &scene).unwrap();
+    #[cfg(unix)]
+    std::os::unix::fs::symlink(repo().join("scenes/assets"), scenes.join("assets")).unwrap();
+    let cache = dir.join("cache");
+    std::fs::create_dir_all(&cache).unwrap();
+    for e in std::fs::read_dir(repo().join("tests/matrix/references")).unwrap() {
+        let p = e.unwrap().path();
+        if p.file_name().unwrap().to_string_lossy().starts_with(&format!("falling-{SIZE}-")) {
+            std::fs::copy(&p, cache.join(p.file_name().unwrap())).unwrap();
+        }
+    }
+    let tune = |extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_penumbra"))
+            .arg("tune")
+            .arg(&scene)
+            .args(["--max-error", "0.35", "--size", SIZE, "--techniques", "env,shadowmaps"])
+            .arg("--cache")
+            .arg(&cache)
+            .args(extra)
+            .output()
+            .expect("run penumbra tune")
+    };
+    let o = tune(&[]);
+    let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "{text}");
+    // env's defaults and every shadowmaps configuration were measured
+    assert!(text.contains("env defaults") && text.contains("shadowmaps count=8") && text.contains("shadowmaps size=1024"), "{text}");
+    assert!(text.contains("chose shadowmaps"), "{text}");
+    let chose = text.lines().find(|l| l.starts_with("chose")).unwrap();
+    let err: f64 = chose.split("RMSE/mean ").nth(1).unwrap().split_whitespace().next().unwrap().parse().unwrap();
+    assert!(err <= 0.35, "{chose}");
+    // the second run reads every point from the cache (the scene's bytes are the key) and
+    // writes the choice into the scene file
+    let o = tune(&["--write"]);
+    let again = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && again.matches("(cached)").count() >= 5, "{again}");
+    let written: toml::Table = std::fs::read_to_string(&scene).unwrap().parse().unwrap();
+    assert_eq!(written["technique"].as_str(), Some("shadowmaps"));
+    assert!(written.contains_key("camera"));
+}
