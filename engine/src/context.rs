@@ -169,13 +169,6 @@ fn device_rank(t: vk::PhysicalDeviceType) -> u32 {
 impl Context {
     /// Creates an instance and a device of its own.
     pub fn new(desc: &ContextDesc) -> Result<Arc<Context>> {
-        // The Vulkan loader warns on every start when XDG_RUNTIME_DIR is unset (containers, CI).
-        if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
-            let dir = std::env::temp_dir().join("penumbra-xdg");
-            if std::fs::create_dir_all(&dir).is_ok() {
-                std::env::set_var("XDG_RUNTIME_DIR", &dir);
-            }
-        }
         let entry = unsafe { ash::Entry::load() }.map_err(|e| {
             anyhow!("cannot load the Vulkan loader ({e}); install libvulkan1 and a driver (mesa-vulkan-drivers)")
         })?;

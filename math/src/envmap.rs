@@ -637,7 +637,7 @@ impl SgEnvFitter {
             None => f64::INFINITY,
             Some(f) if f > 0.0 => {
                 let mut sorted: Vec<f64> = map.rgb.iter().map(|c| luminance(*c)).collect();
-                sorted.sort_by(|a, b| a.partial_cmp(b).unwrap());
+                sorted.sort_by(|a, b| a.total_cmp(b));
                 let m = sorted[sorted.len() / 2];
                 if m > 0.0 {
                     f * m

@@ -69,7 +69,7 @@ pub fn integrate_adaptive<F: FnMut(f64) -> f64>(
     }
     let mut pts = vec![a];
     let mut br: Vec<f64> = breaks.iter().copied().filter(|&x| x > a && x < b).collect();
-    br.sort_by(|x, y| x.partial_cmp(y).unwrap());
+    br.sort_by(|x, y| x.total_cmp(y));
     br.dedup();
     pts.extend(br);
     pts.push(b);
@@ -90,7 +90,7 @@ pub fn integrate_adaptive<F: FnMut(f64) -> f64>(
         let (imax, _) = ivs
             .iter()
             .enumerate()
-            .max_by(|x, y| x.1 .3.partial_cmp(&y.1 .3).unwrap())
+            .max_by(|x, y| x.1 .3.total_cmp(&y.1 .3))
             .unwrap();
         let (lo, hi, _, _) = ivs[imax];
         let mid = 0.5 * (lo + hi);

@@ -122,3 +122,26 @@ fn write_scene_sphere_files() {
         }
     }
 }
+
+/// A corrupt or mismatched `.spheres` file is not ignored silently: the object gets fitted
+/// spheres and the user a note naming the file.
+#[test]
+fn corrupt_sphere_files_are_reported() {
+    let dir = std::env::temp_dir().join(format!("penumbra-spheres-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("s.toml");
+    std::fs::write(
+        &path,
+        "name = \"s\"\n[camera]\neye = [0, 1, 4]\ntarget = [0, 0, 0]\n[environment]\nprocedural = \"sky\"\n\
+         [[object]]\nname = \"ball\"\nmesh = { type = \"icosphere\", radius = 0.5 }\n\
+         [[object]]\nname = \"box\"\nmesh = { type = \"cube\", size = 1.0 }\nposition = [2, 0, 0]\n",
+    )
+    .unwrap();
+    std::fs::write(dir.join("s.ball.spheres"), "this is not a sphere file\n").unwrap();
+    let s = penumbra_scene::Scene::load(&path).unwrap();
+    let (sets, notes) = penumbra_passes::isg::scene_sphere_sets_noting(&s, 8);
+    assert!(sets.iter().all(|x| x.is_some()), "both objects still get spheres");
+    assert_eq!(notes.len(), 1, "{notes:?}");
+    assert!(notes[0].contains("s.ball.spheres") && notes[0].contains("ball"), "{notes:?}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -77,7 +77,7 @@ pub fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
 impl ReferenceArgs {
     pub fn options(&self) -> anyhow::Result<ReferenceOptions> {
         let (width, height) = parse_size(&self.size)?;
-        Ok(ReferenceOptions {
+        let o = ReferenceOptions {
             width,
             height,
             spp: self.spp,
@@ -88,7 +88,9 @@ impl ReferenceArgs {
             mode: self.mode,
             sg_lobes: self.sg_lobes,
             progress: !self.no_progress,
-        })
+        };
+        crate::render::validate(&o)?;
+        Ok(o)
     }
 }
 

@@ -637,7 +637,8 @@ struct PixelAcc {
     lsum2: f64,
 }
 
-fn validate(opts: &ReferenceOptions) -> Result<(), RenderError> {
+/// Checks options before rendering (sizes, samples, time): the errors are the caller's input.
+pub fn validate(opts: &ReferenceOptions) -> Result<(), RenderError> {
     let bad = |m: &str| Err(RenderError::Options(m.into()));
     if opts.width == 0 || opts.height == 0 {
         return bad(&format!("size {}x{} is empty", opts.width, opts.height));

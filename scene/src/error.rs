@@ -33,6 +33,10 @@ pub enum SceneError {
     /// An error in a file referenced from a scene file (`path`, at `line`).
     #[error("{}: line {line}: {source}", path.display())]
     Referenced { path: PathBuf, line: usize, source: Box<SceneError> },
+    /// A file, image or accessor over the load limits (`limits::Limits`), found before
+    /// allocating.
+    #[error("{}: too large: {message}", path.display())]
+    TooLarge { path: PathBuf, message: String },
     /// The file extension is not one `Scene::load` understands.
     #[error("{}: unknown scene file type (expected .toml, .glb or .gltf)", path.display())]
     UnknownFormat { path: PathBuf },
@@ -50,6 +54,7 @@ impl SceneError {
             | SceneError::Invalid { path, .. }
             | SceneError::NotClosed { path, .. }
             | SceneError::Referenced { path, .. }
+            | SceneError::TooLarge { path, .. }
             | SceneError::UnknownFormat { path } => path,
         }
     }

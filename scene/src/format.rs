@@ -327,6 +327,7 @@ struct Ctx<'a> {
     path: &'a Path,
     text: &'a str,
     dir: PathBuf,
+    budget: &'a crate::Budget,
 }
 
 impl Ctx<'_> {
@@ -345,21 +346,31 @@ impl Ctx<'_> {
 
 /// Load a TOML scene file.
 pub fn load_toml(path: &Path, options: &LoadOptions) -> Result<Scene, SceneError> {
-    let bytes = crate::error::read_file(path)?;
+    load_toml_with(path, options, &crate::Budget::new(options.limits))
+}
+
+/// [`load_toml`] taking what it loads from `budget`.
+pub fn load_toml_with(path: &Path, options: &LoadOptions, budget: &crate::Budget) -> Result<Scene, SceneError> {
+    let bytes = budget.read_file(path, "scene file", options.limits.max_scene_file_bytes)?;
     let text = String::from_utf8(bytes).map_err(|e| SceneError::Syntax {
         path: path.to_path_buf(),
         message: format!("not UTF-8 text (byte {})", e.utf8_error().valid_up_to()),
     })?;
-    parse_toml(path, &text, options)
+    parse_toml_with(path, &text, options, budget)
 }
 
 /// Parse scene-file text; `path` names the file in messages and anchors relative paths.
 pub fn parse_toml(path: &Path, text: &str, options: &LoadOptions) -> Result<Scene, SceneError> {
+    parse_toml_with(path, text, options, &crate::Budget::new(options.limits))
+}
+
+/// [`parse_toml`] taking what the referenced files need from `budget`.
+pub fn parse_toml_with(path: &Path, text: &str, options: &LoadOptions, budget: &crate::Budget) -> Result<Scene, SceneError> {
     let file: SceneFile = toml::from_str(text).map_err(|e| SceneError::Syntax {
         path: path.to_path_buf(),
         message: e.to_string().trim_end().to_string(),
     })?;
-    let ctx = Ctx { path, text, dir: path.parent().map(Path::to_path_buf).unwrap_or_default() };
+    let ctx = Ctx { path, text, dir: path.parent().map(Path::to_path_buf).unwrap_or_default(), budget };
     let mut scene = Scene::empty(
         &file.name.clone().unwrap_or_else(|| path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string()),
     );
@@ -439,7 +450,7 @@ pub fn parse_toml(path: &Path, text: &str, options: &LoadOptions) -> Result<Scen
         let span = e.span();
         let e = e.get_ref();
         let mut env = match (&e.file, &e.procedural) {
-            (Some(f), None) => Environment::load(&ctx.resolve(f)).map_err(ctx.referenced(span))?,
+            (Some(f), None) => Environment::load_with(&ctx.resolve(f), ctx.budget).map_err(ctx.referenced(span))?,
             (None, Some(p)) if p == "sky" => Environment::procedural_sky(256, 128),
             (None, Some(p)) => {
                 return Err(SceneError::invalid(path, format!("environment.procedural: unknown '{p}' (known: sky)")))
@@ -599,7 +610,7 @@ pub fn parse_toml(path: &Path, text: &str, options: &LoadOptions) -> Result<Scen
             (None, Some(f)) => {
                 let fp = ctx.resolve(f);
                 if !assets.contains_key(&fp) {
-                    let a = gltf_load::load(&fp).map_err(ctx.referenced(span.clone()))?;
+                    let a = gltf_load::load_with(&fp, ctx.budget).map_err(ctx.referenced(span.clone()))?;
                     assets.insert(fp.clone(), a);
                 }
                 let asset = &assets[&fp];
@@ -875,7 +886,7 @@ fn material(
     for (spec, srgb, slot) in [(&m.albedo_map, true, 0), (&m.roughness_map, false, 1)] {
         let Some(t) = spec else { continue };
         let tex = match (&t.file, &t.pattern) {
-            (Some(f), None) => Texture::load(&ctx.resolve(f), srgb).map_err(ctx.referenced(span.clone()))?,
+            (Some(f), None) => Texture::load_with(&ctx.resolve(f), srgb, ctx.budget).map_err(ctx.referenced(span.clone()))?,
             (None, Some(p)) => {
                 let pat = match p.as_str() {
                     "checker" => Pattern::Checker,

@@ -9,7 +9,8 @@
 //! Required extensions are not supported (e.g. `KHR_draco_mesh_compression`) and are
 //! reported by name.
 
-use crate::error::{read_file, SceneError};
+use crate::error::SceneError;
+use crate::limits::{Budget, Limits};
 use crate::motion::{AnimChannel, Animation, Channel, Deformation, Interp, MorphTarget, Rig, Skin, Track};
 use crate::texture::{srgb_to_linear, Texture};
 use crate::{Material, MaterialExtra, MeshData, NodeMotion, Object, ObjectInfo, Scene};
@@ -64,12 +65,18 @@ fn gerr(path: &Path, m: impl Into<String>) -> SceneError {
 
 /// Load a `.glb` or `.gltf` file.
 pub fn load(path: &Path) -> Result<GltfAsset, SceneError> {
-    let bytes = read_file(path)?;
+    load_with(path, &Budget::new(Limits::default()))
+}
+
+/// [`load`] taking the file, its buffers, images and accessors from `budget` before allocating
+/// them.
+pub fn load_with(path: &Path, budget: &Budget) -> Result<GltfAsset, SceneError> {
+    let bytes = budget.read_data_file(path, "glTF file")?;
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
     // The gltf crate has debug assertions on accessor layouts; everything is checked first,
     // but a panic inside it must still never escape as a crash.
     let p = path.to_path_buf();
-    match std::panic::catch_unwind(move || load_bytes(&p, &bytes, &base)) {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || load_bytes_with(&p, &bytes, &base, budget))) {
         Ok(r) => r,
         Err(_) => Err(gerr(path, "malformed file (the glTF reader failed on inconsistent data)")),
     }
@@ -77,6 +84,11 @@ pub fn load(path: &Path) -> Result<GltfAsset, SceneError> {
 
 /// Load from memory; `base` resolves external URIs, `path` is used in messages.
 pub fn load_bytes(path: &Path, bytes: &[u8], base: &Path) -> Result<GltfAsset, SceneError> {
+    load_bytes_with(path, bytes, base, &Budget::new(Limits::default()))
+}
+
+/// [`load_bytes`] within `budget`.
+pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) -> Result<GltfAsset, SceneError> {
     if bytes.is_empty() {
         return Err(gerr(path, "file is empty"));
     }
@@ -144,6 +156,12 @@ pub fn load_bytes(path: &Path, bytes: &[u8], base: &Path) -> Result<GltfAsset, S
             return Err(gerr(path, format!("buffer {} refers to the GLB binary chunk, which is missing", b.index())));
         }
     }
+    // Every declared buffer and every accessor's data against the budget and its buffer view,
+    // before any of it is read.
+    for b in doc.buffers() {
+        budget.take(path, &format!("buffer {}", b.index()), b.length() as u64)?;
+    }
+    check_accessor_bounds(path, &doc, budget)?;
     let buffers = gltf::import_buffers(&doc, Some(base), blob).map_err(|e| match e {
         gltf::Error::BufferLength { buffer, expected, actual } => gerr(
             path,
@@ -166,8 +184,13 @@ pub fn load_bytes(path: &Path, bytes: &[u8], base: &Path) -> Result<GltfAsset, S
         if let gltf::image::Source::Uri { uri, .. } = img.source() {
             check_uri(path, base, uri, &format!("image {}", img.index()))?;
         }
-        let data = gltf::image::Data::from_source(img.source(), Some(base), &buffers)
-            .map_err(|e| gerr(path, format!("image {} cannot be decoded: {}", img.index(), describe(&e))))?;
+        let encoded = image_bytes(path, base, &img, &buffers, budget)?;
+        let decoded = crate::texture::decode_checked(path, &format!("image {}", img.index()), &encoded, None, budget, 20)
+            .map_err(|e| match e {
+                SceneError::Image { message, .. } => gerr(path, format!("image {} cannot be decoded: {message}", img.index())),
+                e => e,
+            })?;
+        let data = gltf_data(decoded);
         let name = img.name().map(str::to_string).unwrap_or_else(|| format!("image{}", img.index()));
         let tex = convert_image(&name, &data, srgb).ok_or_else(|| SceneError::Unsupported {
             path: path.to_path_buf(),
@@ -475,6 +498,100 @@ fn percent_decode(s: &str) -> String {
         i += 1;
     }
     String::from_utf8_lossy(&out).into_owned()
+}
+
+/// Every accessor's elements fit its buffer view (and the view its buffer), a sparse accessor's
+/// entries fit theirs, and what reading them allocates fits the budget: counts are checked
+/// before the gltf crate allocates by them.
+fn check_accessor_bounds(path: &Path, doc: &gltf::Document, budget: &Budget) -> Result<(), SceneError> {
+    let fits = |what: &str, view: &gltf::buffer::View, offset: usize, count: usize, size: usize| -> Result<(), SceneError> {
+        let stride = view.stride().unwrap_or(size).max(size) as u128;
+        let need = if count == 0 { 0 } else { offset as u128 + stride * (count as u128 - 1) + size as u128 };
+        if need > view.length() as u128 {
+            return Err(gerr(
+                path,
+                format!("{what}: {count} elements of {size} bytes need {need} bytes of buffer view {}, which holds {}", view.index(), view.length()),
+            ));
+        }
+        if view.offset() as u128 + view.length() as u128 > view.buffer().length() as u128 {
+            return Err(gerr(
+                path,
+                format!("buffer view {} ends at byte {} of buffer {}, which holds {}", view.index(), view.offset() + view.length(), view.buffer().index(), view.buffer().length()),
+            ));
+        }
+        Ok(())
+    };
+    for acc in doc.accessors() {
+        let what = format!("accessor {}", acc.index());
+        if let Some(view) = acc.view() {
+            fits(&what, &view, acc.offset(), acc.count(), acc.size())?;
+        }
+        if let Some(sp) = acc.sparse() {
+            if sp.count() > acc.count() {
+                return Err(gerr(path, format!("{what}: {} sparse entries for {} elements", sp.count(), acc.count())));
+            }
+            let isize = match sp.indices().index_type() {
+                gltf::accessor::sparse::IndexType::U8 => 1,
+                gltf::accessor::sparse::IndexType::U16 => 2,
+                gltf::accessor::sparse::IndexType::U32 => 4,
+            };
+            fits(&format!("{what} sparse indices"), &sp.indices().view(), sp.indices().offset() as usize, sp.count(), isize)?;
+            fits(&format!("{what} sparse values"), &sp.values().view(), sp.values().offset() as usize, sp.count(), acc.size())?;
+        }
+        // Read as f32 (or u32) elements, then converted once: twice the f32 size.
+        let dims = acc.dimensions().multiplicity() as u64;
+        budget.take(path, &format!("{what} ({} elements)", acc.count()), (acc.count() as u64).saturating_mul(dims * 4 * 2))?;
+    }
+    Ok(())
+}
+
+/// The encoded bytes of an image: its buffer view, its data URI or its file.
+fn image_bytes(path: &Path, base: &Path, img: &gltf::Image, buffers: &[gltf::buffer::Data], budget: &Budget) -> Result<Vec<u8>, SceneError> {
+    let what = format!("image {}", img.index());
+    match img.source() {
+        gltf::image::Source::View { view, .. } => {
+            let buf = buffers.get(view.buffer().index()).ok_or_else(|| gerr(path, format!("{what}: buffer {} is missing", view.buffer().index())))?;
+            buf.0
+                .get(view.offset()..view.offset().saturating_add(view.length()))
+                .map(<[u8]>::to_vec)
+                .ok_or_else(|| gerr(path, format!("{what}: buffer view {} lies outside its buffer", view.index())))
+        }
+        gltf::image::Source::Uri { uri, .. } => {
+            if let Some(rest) = uri.strip_prefix("data:") {
+                let (_, payload) = rest.split_once(";base64,").ok_or_else(|| gerr(path, format!("{what}: data URI is not base64")))?;
+                budget.take(path, &format!("{what} (data URI)"), payload.len() as u64)?;
+                use base64::Engine as _;
+                base64::engine::general_purpose::STANDARD
+                    .decode(payload)
+                    .map_err(|e| gerr(path, format!("{what}: data URI is not valid base64: {e}")))
+            } else {
+                budget.read_data_file(&base.join(percent_decode(uri)), &format!("{what} file"))
+            }
+        }
+    }
+}
+
+/// A decoded image in the gltf crate's layout (what [`convert_image`] reads).
+fn gltf_data(img: image::DynamicImage) -> gltf::image::Data {
+    use gltf::image::Format as F;
+    use image::DynamicImage as D;
+    let (width, height) = (img.width(), img.height());
+    let le16 = |v: Vec<u16>| v.into_iter().flat_map(u16::to_le_bytes).collect::<Vec<u8>>();
+    let le32 = |v: Vec<f32>| v.into_iter().flat_map(f32::to_le_bytes).collect::<Vec<u8>>();
+    let (format, pixels) = match img {
+        D::ImageLuma8(i) => (F::R8, i.into_raw()),
+        D::ImageLumaA8(i) => (F::R8G8, i.into_raw()),
+        D::ImageRgb8(i) => (F::R8G8B8, i.into_raw()),
+        D::ImageRgba8(i) => (F::R8G8B8A8, i.into_raw()),
+        D::ImageLuma16(i) => (F::R16, le16(i.into_raw())),
+        D::ImageLumaA16(i) => (F::R16G16, le16(i.into_raw())),
+        D::ImageRgb16(i) => (F::R16G16B16, le16(i.into_raw())),
+        D::ImageRgba16(i) => (F::R16G16B16A16, le16(i.into_raw())),
+        D::ImageRgb32F(i) => (F::R32G32B32FLOAT, le32(i.into_raw())),
+        D::ImageRgba32F(i) => (F::R32G32B32A32FLOAT, le32(i.into_raw())),
+        other => (F::R8G8B8A8, other.to_rgba8().into_raw()),
+    };
+    gltf::image::Data { pixels, format, width, height }
 }
 
 fn out_of_bounds(path: &Path, acc: &gltf::Accessor, what: &str) -> SceneError {

@@ -21,11 +21,13 @@
 pub mod error;
 pub mod format;
 pub mod gltf_load;
+pub mod limits;
 pub mod mesh;
 pub mod motion;
 pub mod texture;
 
 pub use error::SceneError;
+pub use limits::{Budget, Limits};
 pub use mesh::{EdgeStats, MeshData};
 pub use motion::{Deformation, Interp, RigidMotion, Rig, Track};
 pub use texture::{Pattern, Texture};
@@ -405,6 +407,8 @@ pub struct LoadOptions {
     /// Fail with [`SceneError::NotClosed`] unless every shadow-casting object that is not a
     /// thin shell has a closed mesh (for techniques that need closed occluders).
     pub require_closed_meshes: bool,
+    /// What loading may allocate (checked before allocating).
+    pub limits: Limits,
 }
 
 /// A complete scene at rest.
@@ -725,9 +729,10 @@ impl Scene {
     pub fn load_with(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Scene, SceneError> {
         let path = path.as_ref();
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        let budget = Budget::new(options.limits);
         let scene = match ext.as_str() {
-            "toml" => format::load_toml(path, options)?,
-            "glb" | "gltf" => Self::from_model(path)?,
+            "toml" => format::load_toml_with(path, options, &budget)?,
+            "glb" | "gltf" => Self::from_model_with(path, &budget)?,
             _ => return Err(SceneError::UnknownFormat { path: path.to_path_buf() }),
         };
         if options.require_closed_meshes {
@@ -739,7 +744,12 @@ impl Scene {
     /// A bare glTF model as a scene: its meshes, materials and (first) animation, standing on
     /// a ground plane, under the default procedural sky, with a camera framing its bounds.
     pub fn from_model(path: &Path) -> Result<Scene, SceneError> {
-        let asset = gltf_load::load(path)?;
+        Self::from_model_with(path, &Budget::new(Limits::default()))
+    }
+
+    /// [`Scene::from_model`] taking what the model needs from `budget`.
+    pub fn from_model_with(path: &Path, budget: &Budget) -> Result<Scene, SceneError> {
+        let asset = gltf_load::load_with(path, budget)?;
         let mut scene = Scene::empty(&path.file_stem().and_then(|s| s.to_str()).unwrap_or("model").to_string());
         scene.source = Some(path.to_path_buf());
         scene.environment = Some(Environment::procedural_sky(256, 128));

@@ -1,6 +1,7 @@
 //! CPU images: material textures and environment-map loading (EXR, Radiance HDR).
 
-use crate::error::{read_file, SceneError};
+use crate::error::SceneError;
+use crate::limits::{Budget, Limits};
 use crate::Environment;
 use glam::{Vec2, Vec3, Vec4};
 use std::path::Path;
@@ -71,9 +72,13 @@ impl Texture {
     /// Load a PNG or JPEG (or any format the `image` features enable). `srgb` converts the
     /// colour channels from sRGB to linear (albedo maps); data maps (roughness) keep values.
     pub fn load(path: &Path, srgb: bool) -> Result<Self, SceneError> {
-        let bytes = read_file(path)?;
-        let img = image::load_from_memory(&bytes)
-            .map_err(|e| SceneError::Image { path: path.to_path_buf(), message: e.to_string() })?;
+        Self::load_with(path, srgb, &Budget::new(Limits::default()))
+    }
+
+    /// [`Texture::load`] checking the image's header against `budget` before decoding.
+    pub fn load_with(path: &Path, srgb: bool, budget: &Budget) -> Result<Self, SceneError> {
+        let bytes = budget.read_data_file(path, "texture file")?;
+        let img = decode_checked(path, "the texture", &bytes, None, budget, 16)?;
         Ok(Self::from_dynamic(&path.display().to_string(), &img, srgb))
     }
 
@@ -93,6 +98,35 @@ impl Texture {
             .collect();
         Texture { name: name.into(), width, height, texels }
     }
+}
+
+/// Decodes an image after checking the dimensions in its header against `budget` (taking
+/// `bytes_per_texel` per texel); the decoder's own allocation limit is set to match.
+pub(crate) fn decode_checked(
+    path: &Path,
+    what: &str,
+    bytes: &[u8],
+    format: Option<image::ImageFormat>,
+    budget: &Budget,
+    bytes_per_texel: u64,
+) -> Result<image::DynamicImage, SceneError> {
+    let bad = |e: image::ImageError| SceneError::Image { path: path.to_path_buf(), message: e.to_string() };
+    let reader = |bytes| -> Result<image::ImageReader<std::io::Cursor<&[u8]>>, SceneError> {
+        let r = image::ImageReader::new(std::io::Cursor::new(bytes));
+        Ok(match format {
+            Some(f) => image::ImageReader::with_format(r.into_inner(), f),
+            None => r.with_guessed_format().map_err(|e| SceneError::io(path, e))?,
+        })
+    };
+    let (w, h) = reader(bytes)?.into_dimensions().map_err(bad)?;
+    budget.image(path, what, w as u64, h as u64, bytes_per_texel)?;
+    let mut r = reader(bytes)?;
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(budget.limits.max_image_dim);
+    limits.max_image_height = Some(budget.limits.max_image_dim);
+    limits.max_alloc = Some((w as u64 * h as u64 * bytes_per_texel).max(1 << 20));
+    r.limits(limits);
+    r.decode().map_err(bad)
 }
 
 /// sRGB transfer function inverse.
@@ -133,11 +167,16 @@ impl Environment {
     /// DWAA, DWAB); the largest resolution level of the first layer with R, G and B. Anything
     /// else is an error naming the missing feature. Non-finite texels are an error.
     pub fn load(path: &Path) -> Result<Self, SceneError> {
+        Self::load_with(path, &Budget::new(Limits::default()))
+    }
+
+    /// [`Environment::load`] checking the file's header against `budget` before decoding.
+    pub fn load_with(path: &Path, budget: &Budget) -> Result<Self, SceneError> {
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-        let bytes = read_file(path)?;
+        let bytes = budget.read_data_file(path, "environment map file")?;
         let env = match ext.as_str() {
-            "exr" => Self::from_exr_bytes(path, &bytes)?,
-            "hdr" | "pic" | "rgbe" => Self::from_hdr_bytes(path, &bytes)?,
+            "exr" => Self::from_exr_bytes_with(path, &bytes, budget)?,
+            "hdr" | "pic" | "rgbe" => Self::from_hdr_bytes_with(path, &bytes, budget)?,
             _ => {
                 return Err(SceneError::Unsupported {
                     path: path.to_path_buf(),
@@ -159,7 +198,19 @@ impl Environment {
 
     /// Decode an EXR from memory; `path` is only used in error messages.
     pub fn from_exr_bytes(path: &Path, bytes: &[u8]) -> Result<Self, SceneError> {
+        Self::from_exr_bytes_with(path, bytes, &Budget::new(Limits::default()))
+    }
+
+    /// [`Environment::from_exr_bytes`], the header's sizes checked against `budget` first.
+    pub fn from_exr_bytes_with(path: &Path, bytes: &[u8], budget: &Budget) -> Result<Self, SceneError> {
         use exr::prelude::*;
+        // Every layer's size from the header, before any pixel is allocated.
+        let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
+            .map_err(|e| SceneError::Image { path: path.to_path_buf(), message: format!("EXR header: {e}") })?;
+        for h in meta.headers.iter() {
+            let size = h.layer_size;
+            budget.image(path, "the environment map", size.width() as u64, size.height() as u64, 12)?;
+        }
         struct Buf {
             w: usize,
             texels: Vec<[f32; 3]>,
@@ -210,8 +261,13 @@ impl Environment {
 
     /// Decode a Radiance RGBE (`.hdr`) image from memory.
     pub fn from_hdr_bytes(path: &Path, bytes: &[u8]) -> Result<Self, SceneError> {
-        let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Hdr)
-            .map_err(|e| SceneError::Image { path: path.to_path_buf(), message: format!("Radiance HDR: {e}") })?;
+        Self::from_hdr_bytes_with(path, bytes, &Budget::new(Limits::default()))
+    }
+
+    /// [`Environment::from_hdr_bytes`], the header's size checked against `budget` first.
+    pub fn from_hdr_bytes_with(path: &Path, bytes: &[u8], budget: &Budget) -> Result<Self, SceneError> {
+        // 12 bytes per texel kept, 16 while converting
+        let img = decode_checked(path, "the environment map", bytes, Some(image::ImageFormat::Hdr), budget, 28)?;
         let rgb = img.to_rgb32f();
         let (width, height) = rgb.dimensions();
         Ok(Environment {

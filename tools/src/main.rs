@@ -9,7 +9,7 @@ use penumbra::engine::dump;
 use penumbra::{RenderSettings, Renderer};
 use penumbra_reference::cli::{parse_size, CompareArgs, ReferenceArgs};
 use penumbra_reference::image::{write_png_rgb8, Image};
-use penumbra_scene::{Scene, SceneError};
+use penumbra_scene::{Limits, LoadOptions, Scene, SceneError};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -31,6 +31,10 @@ mod vv;
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
+    /// Host memory a scene may take to load (meshes, textures, environment map), in MiB,
+    /// checked from file headers and glTF accessor counts before anything is allocated.
+    #[arg(long, global = true, value_name = "MIB", default_value_t = 1024, value_parser = clap::value_parser!(u64).range(1..))]
+    memory_budget: u64,
 }
 
 #[derive(Subcommand)]
@@ -217,10 +221,13 @@ pub(crate) fn bad(e: impl std::fmt::Display) -> anyhow::Error {
     anyhow::Error::new(BadInput(e.to_string()))
 }
 
-fn load_scene(path: Option<&Path>) -> Result<Scene> {
+fn load_scene(path: Option<&Path>, limits: &Limits) -> Result<Scene> {
     let scene = match path {
         None => Scene::default_scene(),
-        Some(p) => Scene::load(p).map_err(|e: SceneError| bad(e))?,
+        Some(p) => {
+            let opts = LoadOptions { limits: *limits, ..Default::default() };
+            Scene::load_with(p, &opts).map_err(|e: SceneError| bad(e))?
+        }
     };
     // The scene crate keeps the technique as written; the registry decides what exists.
     if let (Err(e), Some(p)) = (penumbra_passes::registry::check_name(&scene.technique), path) {
@@ -317,7 +324,7 @@ fn write_frame(out: &Path, index: u32, img: &penumbra::FrameImages) -> Result<()
     Ok(())
 }
 
-fn render(args: &RenderArgs) -> Result<()> {
+fn render(args: &RenderArgs, limits: &Limits) -> Result<()> {
     let (width, height) = parse_size(&args.size).map_err(bad)?;
     if args.frames == 0 {
         return Err(bad("--frames must be at least 1"));
@@ -325,7 +332,7 @@ fn render(args: &RenderArgs) -> Result<()> {
     if !(args.fps.is_finite() && args.fps > 0.0) {
         return Err(bad("--fps must be a positive number"));
     }
-    let scene = load_scene(args.scene.as_deref())?;
+    let scene = load_scene(args.scene.as_deref(), limits)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let settings = RenderSettings {
         width,
@@ -428,22 +435,23 @@ fn render(args: &RenderArgs) -> Result<()> {
 }
 
 fn run(cli: Cli) -> Result<()> {
+    let limits = Limits::with_memory_mib(cli.memory_budget);
     match cli.cmd {
-        Cmd::Render(a) => render(&a),
+        Cmd::Render(a) => render(&a, &limits),
         Cmd::Techniques => {
             print!("{}", penumbra_passes::registry::describe());
             Ok(())
         }
-        Cmd::View(a) => view::view(&a),
-        Cmd::Tune(a) => tune::run(&a),
+        Cmd::View(a) => view::view(&a, &limits),
+        Cmd::Tune(a) => tune::run(&a, &limits),
         Cmd::Reference(a) => {
-            let scene = load_scene(a.scene.as_deref())?;
+            let scene = load_scene(a.scene.as_deref(), &limits)?;
             a.options().map_err(bad)?;
             penumbra_reference::cli::run_reference(&a, &scene)
         }
         Cmd::Bench(BenchCmd::Volumetric(a)) => {
             parse_size(&a.size).map_err(bad)?;
-            let scene = load_scene(Some(&a.scene))?;
+            let scene = load_scene(Some(&a.scene), &limits)?;
             if scene.medium.is_none() {
                 return Err(bad(format!("{}: the scene has no [medium]", a.scene.display())));
             }
@@ -457,11 +465,11 @@ fn run(cli: Cli) -> Result<()> {
                 params.insert(k.trim().to_string(), v.trim().to_string());
             }
             penumbra_passes::avs::AvsSettings::from_params(&params).map_err(bad)?;
-            avs_bench::run(&a, |p| load_scene(Some(p)))
+            avs_bench::run(&a, |p| load_scene(Some(p), &limits))
         }
         Cmd::Bench(BenchCmd::Trace(a)) => {
             parse_size(&a.size).map_err(bad)?;
-            let scene = load_scene(a.scene.as_deref())?;
+            let scene = load_scene(a.scene.as_deref(), &limits)?;
             bench::run_trace(&a, &scene)
         }
         Cmd::Bench(BenchCmd::Hsdt(a)) => {
@@ -470,26 +478,26 @@ fn run(cli: Cli) -> Result<()> {
         }
         Cmd::Bench(BenchCmd::Vv(a)) => {
             parse_size(&a.size).map_err(bad)?;
-            let scene = load_scene(Some(&a.scene))?;
+            let scene = load_scene(Some(&a.scene), &limits)?;
             vv_bench::run(&a, &scene)
         }
         Cmd::Bench(BenchCmd::ShadowFields(a)) => {
             a.params.check().map_err(bad)?;
-            let scene = load_scene(a.scene.as_deref())?;
+            let scene = load_scene(a.scene.as_deref(), &limits)?;
             bench::run_shadow_fields(&a, &scene)
         }
         Cmd::Precompute(PrecomputeCmd::Vv(a)) => {
-            let scene = load_scene(Some(&a.model))?;
+            let scene = load_scene(Some(&a.model), &limits)?;
             vv::run(&a, &scene)?.map_err(bad)
         }
         Cmd::Precompute(PrecomputeCmd::ShadowField(a)) => {
             a.params.check().map_err(bad)?;
-            let scene = load_scene(Some(&a.model))?;
+            let scene = load_scene(Some(&a.model), &limits)?;
             bench::run_precompute_shadow_field(&a, &scene)
         }
         Cmd::Bench(BenchCmd::Isg(a)) => {
             parse_size(&a.size).map_err(bad)?;
-            let scene = load_scene(a.scene.as_deref())?;
+            let scene = load_scene(a.scene.as_deref(), &limits)?;
             a.scene_with_params(&scene).map_err(bad)?;
             isg_bench::run_isg(&a, &scene)
         }
@@ -500,11 +508,11 @@ fn run(cli: Cli) -> Result<()> {
             for t in a.techniques.split(',').map(str::trim).filter(|s| !s.is_empty()) {
                 penumbra_passes::registry::lookup(t).map_err(bad)?;
             }
-            let scene = load_scene(a.scene.as_deref())?;
+            let scene = load_scene(a.scene.as_deref(), &limits)?;
             bench::run(&a, &scene)
         }
         Cmd::Spheres(a) => {
-            let scene = load_scene(Some(&a.mesh))?;
+            let scene = load_scene(Some(&a.mesh), &limits)?;
             // Every failure here is about the input mesh or arguments.
             spheres::run(&a, &scene).map_err(|e| bad(format!("{e:#}")))
         }
@@ -527,6 +535,14 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 fn main() -> ExitCode {
+    // The Vulkan loader warns on every start when XDG_RUNTIME_DIR is unset (containers, CI).
+    // The binary owns its environment; the library never changes the host's.
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+        let dir = std::env::temp_dir().join("penumbra-xdg");
+        if std::fs::create_dir_all(&dir).is_ok() {
+            std::env::set_var("XDG_RUNTIME_DIR", &dir);
+        }
+    }
     let cli = Cli::parse();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,

@@ -406,9 +406,9 @@ pub fn write_choice(path: &Path, choice: &Choice, max_error: f64) -> Result<()> 
 }
 
 /// `penumbra tune`.
-pub fn run(args: &TuneArgs) -> Result<()> {
+pub fn run(args: &TuneArgs, limits: &penumbra_scene::Limits) -> Result<()> {
     let size = parse_size(&args.size).map_err(crate::bad)?;
-    let scene = crate::load_scene(Some(&args.scene))?;
+    let scene = crate::load_scene(Some(&args.scene), limits)?;
     let o = TuneOptions {
         max_error: args.max_error,
         size,

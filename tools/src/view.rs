@@ -84,7 +84,7 @@ fn parse_keys(s: &str) -> Result<Vec<(u32, String)>, String> {
         .collect()
 }
 
-pub fn view(args: &ViewArgs) -> Result<()> {
+pub fn view(args: &ViewArgs, limits: &penumbra_scene::Limits) -> Result<()> {
     let (width, height) = parse_size(&args.size).map_err(bad)?;
     if !(args.fps.is_finite() && args.fps > 0.0) {
         return Err(bad("--fps must be a positive number"));
@@ -96,7 +96,7 @@ pub fn view(args: &ViewArgs) -> Result<()> {
         return Err(bad("--screenshot needs --frames (interactively, press P)"));
     }
     let script = parse_keys(&args.keys).map_err(|e| bad(format!("--keys: {e}")))?;
-    let scene = apply_overrides(load_scene(args.scene.as_deref())?, &args.o.technique, &args.o.params, &args.o.volumetric)?;
+    let scene = apply_overrides(load_scene(args.scene.as_deref(), limits)?, &args.o.technique, &args.o.params, &args.o.volumetric)?;
     let scene = apply_max_error(scene, args.scene.as_deref(), &args.o, width, height)?;
     let settings = RenderSettings {
         width,

@@ -124,6 +124,39 @@ fn bad_input_exits_2_with_the_file_and_problem() {
     expect_bad_input(&["compare", not_exr.to_str().unwrap(), not_exr.to_str().unwrap()], &["x.exr"]);
 }
 
+/// Hostile sizes (issue 25): refused before allocating, exit 2, the file named. The loaders'
+/// own tests (`scene/tests/limits.rs`) cover each class; here the CLI's codes and flags.
+#[test]
+fn hostile_sizes_exit_2_before_allocating() {
+    let d = tmp("hostile");
+    let out = d.join("out");
+    // a 500-byte glTF whose sparse POSITION claims 2e9 vertices (24 GB)
+    let sparse = d.join("sparse.gltf");
+    std::fs::write(
+        &sparse,
+        r#"{"asset":{"version":"2.0"},"buffers":[{"byteLength":12,"uri":"data:application/octet-stream;base64,AAAAAAAAAAAAAAAA"}],
+"bufferViews":[{"buffer":0,"byteLength":12}],
+"accessors":[{"componentType":5126,"count":2000000000,"type":"VEC3","max":[1,1,1],"min":[0,0,0],
+"sparse":{"count":1,"indices":{"bufferView":0,"componentType":5125},"values":{"bufferView":0}}}],
+"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],"nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}],"scene":0}"#,
+    )
+    .unwrap();
+    expect_bad_input(&["render", sparse.to_str().unwrap(), "--out", out.to_str().unwrap()], &["sparse.gltf", "too large", "--memory-budget"]);
+    // a Radiance header claiming 100000 x 100000
+    std::fs::write(d.join("huge.hdr"), b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 100000 +X 100000\n\0\0\0\0").unwrap();
+    let env = d.join("env.toml");
+    std::fs::write(&env, "[camera]\neye = [0, 1, 4]\ntarget = [0, 0, 0]\n[environment]\nfile = \"huge.hdr\"\n").unwrap();
+    expect_bad_input(&["render", env.to_str().unwrap(), "--out", out.to_str().unwrap()], &["huge.hdr", "100000x100000"]);
+    // a real scene over a 1 MiB budget: the flag is honoured and named
+    let falling = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/falling.toml");
+    expect_bad_input(
+        &["render", falling.to_str().unwrap(), "--memory-budget", "1", "--out", out.to_str().unwrap()],
+        &["too large", "budget of 1.0 MiB"],
+    );
+    expect_bad_input(&["render", "--size", "20000x10", "--out", out.to_str().unwrap()], &["20000x10"]);
+    expect_bad_input(&["reference", "--spp", "1", "--size", "8x6", "--out", d.join("r.exr").to_str().unwrap()], &["spp"]);
+}
+
 #[test]
 fn help_documents_every_command_and_flag() {
     // the registry as text: every technique with its parameters, defaults and ranges

@@ -232,9 +232,17 @@ pub fn build_bvh(spheres: &[WorldSphere]) -> Vec<GpuNode> {
 /// Sphere sets of a scene's objects (index = object), `None` for objects without one (thin
 /// shells, non-casters, open meshes).
 pub fn scene_sphere_sets(scene: &Scene, per_object: usize) -> Vec<Option<SphereSet>> {
+    scene_sphere_sets_noting(scene, per_object).0
+}
+
+/// [`scene_sphere_sets`] and what went wrong with the `.spheres` files it found (unreadable,
+/// malformed, or anchored to vertices the mesh does not have): those objects get fitted
+/// spheres instead, and the user is told.
+pub fn scene_sphere_sets_noting(scene: &Scene, per_object: usize) -> (Vec<Option<SphereSet>>, Vec<String>) {
+    let mut notes = Vec::new();
     // Objects sharing a mesh share its set (built once).
     let mut built: std::collections::HashMap<usize, Option<SphereSet>> = std::collections::HashMap::new();
-    scene
+    let sets = scene
         .objects
         .iter()
         .enumerate()
@@ -246,13 +254,21 @@ pub fn scene_sphere_sets(scene: &Scene, per_object: usize) -> Vec<Option<SphereS
             }
             if let Some(dir) = scene.source.as_ref().and_then(|s| s.parent()) {
                 let path = dir.join(format!("{}.{}.spheres", scene.name, o.name));
-                if let Ok(text) = std::fs::read_to_string(&path) {
-                    if let Ok(set) = SphereSet::parse(&text) {
-                        let n = mesh.positions.len() as u32;
-                        if set.spheres.iter().all(|s| s.anchors.iter().all(|&a| a < n)) {
-                            return Some(set);
-                        }
-                    }
+                if path.exists() {
+                    let problem = match std::fs::read_to_string(&path) {
+                        Err(e) => format!("cannot be read ({e})"),
+                        Ok(text) => match SphereSet::parse(&text) {
+                            Err(e) => format!("is not a sphere file ({e})"),
+                            Ok(set) => {
+                                let n = mesh.positions.len() as u32;
+                                if set.spheres.iter().all(|s| s.anchors.iter().all(|&a| a < n)) {
+                                    return Some(set);
+                                }
+                                format!("anchors its spheres to vertices the mesh does not have ({n} vertices)")
+                            }
+                        },
+                    };
+                    notes.push(format!("{}: {problem}; isg fits {per_object} spheres to '{}' instead", path.display(), o.name));
                 }
             }
             built
@@ -260,7 +276,8 @@ pub fn scene_sphere_sets(scene: &Scene, per_object: usize) -> Vec<Option<SphereS
                 .or_insert_with(|| approximate_spheres(&mesh.positions, &mesh.indices, per_object).ok())
                 .clone()
         })
-        .collect()
+        .collect();
+    (sets, notes)
 }
 
 /// World-space spheres of a frame.
@@ -335,6 +352,8 @@ pub fn build_triangle_bvh(tris: &[[Vec3; 3]]) -> Vec<GpuNode> {
 
 /// The `"isg"` / `"isg-vertex"` technique.
 pub struct IsgTechnique {
+    /// Problems with the scene's `.spheres` files (shown as limitations).
+    sphere_notes: Vec<String>,
     pipeline: Pipeline,
     bvh_pipeline: Pipeline,
     /// Per-vertex mode: the vertex compute and raster pipelines.
@@ -389,6 +408,7 @@ impl IsgTechnique {
         let prefiltered = crate::lighting::prefiltered_env(scene);
         let lobe_count = (lobes.len() / 2) as u32;
         let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
+        let (sets, sphere_notes) = scene_sphere_sets_noting(scene, settings.spheres_per_object);
         Ok(IsgTechnique {
             pipeline,
             bvh_pipeline,
@@ -396,7 +416,8 @@ impl IsgTechnique {
             nearest: Sampler::nearest(ctx)?,
             linear: Sampler::latlong(ctx)?,
             repeat: Sampler::repeat(ctx)?,
-            sets: scene_sphere_sets(scene, settings.spheres_per_object),
+            sets,
+            sphere_notes,
             refined: Default::default(),
             scene: scene.clone(),
             settings,
@@ -549,6 +570,10 @@ impl crate::technique::Technique for IsgTechnique {
         } else {
             "isg"
         }
+    }
+
+    fn limitations(&self, _scene: &Scene) -> Vec<String> {
+        self.sphere_notes.clone()
     }
 
     fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {

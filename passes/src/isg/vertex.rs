@@ -78,7 +78,8 @@ pub fn refine(positions: &[Vec3], indices: &[u32], scale: f32, max_edge: f32) ->
     if !(longest > max_edge) {
         return out;
     }
-    let mut levels = (longest / max_edge).log2().ceil().max(0.0) as u32;
+    // at most 15 levels (4^15 triangles per triangle) before the budget below: no shift overflows
+    let mut levels = ((longest / max_edge).log2().ceil().max(0.0) as u32).min(15);
     while levels > 0 && (out.indices.len() / 3) << (2 * levels) > MAX_REFINED_TRIANGLES {
         levels -= 1;
     }
@@ -232,6 +233,16 @@ pub fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pi
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_tiny_max_edge_stays_within_the_triangle_budget() {
+        // 1e-10 asks for 34 levels: the level count is capped before any shift could overflow
+        let p = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        for max_edge in [1e-10, 1e-30, f32::MIN_POSITIVE] {
+            let r = refine(&p, &[0, 1, 2], 1.0, max_edge);
+            assert!(r.indices.len() / 3 <= MAX_REFINED_TRIANGLES && r.indices.len() / 3 > 1, "{max_edge}");
+        }
+    }
 
     #[test]
     fn refine_splits_shared_edges_once_and_keeps_the_surface() {
