@@ -94,7 +94,7 @@ pub fn run() -> Result<f64> {
     };
 
     // ---- penumbra on the application's device
-    let features = penumbra::engine::ExternalFeatures { shader_output_layer: layered };
+    let features = penumbra::engine::ExternalFeatures { shader_output_layer: layered, ..Default::default() };
     let ctx = Context::from_external_with(entry.clone(), instance.clone(), physical, device.clone(), queue, family, features)?;
     let scene = Scene::default_scene();
     let mut renderer = Renderer::new(ctx, &scene, RenderSettings { width: w, height: h, ..Default::default() })?;

@@ -84,12 +84,80 @@ pub struct ContextDesc {
     pub swapchain: bool,
 }
 
-/// Optional device features an application enabled on the device it hands to
-/// [`Context::from_external_with`].
-#[derive(Clone, Copy, Debug, Default)]
+/// What an application enabled on the device it hands to [`Context::from_external_with`]
+/// (Vulkan cannot be asked what a device was created with). The default is the required set
+/// that [`Context::from_external`] documents, and no optional feature; penumbra checks the
+/// claims against the physical device and refuses, listing every problem at once, when a
+/// required one is missing or a claimed one is not supported.
+#[derive(Clone, Copy, Debug)]
 pub struct ExternalFeatures {
-    /// Vulkan 1.2 `shaderOutputLayer` and `shaderOutputViewportIndex` (layered shadow maps).
+    /// `VK_KHR_push_descriptor` (required).
+    pub push_descriptor: bool,
+    /// Vulkan 1.3 `synchronization2`, `dynamicRendering` and `maintenance4` (required).
+    pub vulkan13: bool,
+    /// Vulkan 1.2 `scalarBlockLayout` and `hostQueryReset` (required).
+    pub vulkan12: bool,
+    /// Vulkan 1.2 `shaderOutputLayer` and `shaderOutputViewportIndex` (layered shadow maps;
+    /// without them `shadowmaps` refuses to start and `auto` chooses another technique).
     pub shader_output_layer: bool,
+    /// `tessellationShader` (vv's tessellation modes refuse without it).
+    pub tessellation_shader: bool,
+    /// `pipelineStatisticsQuery` (vv counts its tessellated triangles with it; without it the
+    /// count is not kept).
+    pub pipeline_statistics_query: bool,
+}
+
+impl Default for ExternalFeatures {
+    fn default() -> Self {
+        ExternalFeatures {
+            push_descriptor: true,
+            vulkan13: true,
+            vulkan12: true,
+            shader_output_layer: false,
+            tessellation_shader: false,
+            pipeline_statistics_query: false,
+        }
+    }
+}
+
+impl ExternalFeatures {
+    /// Every problem with these claims on `physical`: required features not claimed, claimed
+    /// features the device does not support (empty: usable).
+    pub fn problems(&self, instance: &ash::Instance, physical: vk::PhysicalDevice) -> Vec<String> {
+        let mut v = Vec::new();
+        let props = unsafe { instance.get_physical_device_properties(physical) };
+        if vk::api_version_major(props.api_version) == 1 && vk::api_version_minor(props.api_version) < 3 {
+            v.push(format!(
+                "the device supports Vulkan {}.{}, penumbra needs 1.3",
+                vk::api_version_major(props.api_version),
+                vk::api_version_minor(props.api_version)
+            ));
+        }
+        let exts = unsafe { instance.enumerate_device_extension_properties(physical) }.unwrap_or_default();
+        let has_push = exts.iter().any(|e| e.extension_name_as_c_str().is_ok_and(|x| x == ash::khr::push_descriptor::NAME));
+        let f10 = unsafe { instance.get_physical_device_features(physical) };
+        let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
+        let mut f13 = vk::PhysicalDeviceVulkan13Features::default();
+        {
+            let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12).push_next(&mut f13);
+            unsafe { instance.get_physical_device_features2(physical, &mut f2) };
+        }
+        let t = |b: vk::Bool32| b == vk::TRUE;
+        let mut need = |claimed: bool, required: bool, supported: bool, name: &str| {
+            if required && !claimed {
+                v.push(format!("{name} is required but not declared as enabled"));
+            } else if claimed && !supported {
+                v.push(format!("{name} is declared as enabled but the device does not support it"));
+            }
+        };
+        need(self.push_descriptor, true, has_push, "VK_KHR_push_descriptor");
+        need(self.vulkan13, true, t(f13.synchronization2) && t(f13.dynamic_rendering) && t(f13.maintenance4), "Vulkan 1.3 synchronization2 + dynamicRendering + maintenance4");
+        need(self.vulkan12, true, t(f12.scalar_block_layout) && t(f12.host_query_reset), "Vulkan 1.2 scalarBlockLayout + hostQueryReset");
+        need(self.shader_output_layer, false, t(f12.shader_output_layer) && t(f12.shader_output_viewport_index), "shaderOutputLayer + shaderOutputViewportIndex");
+        need(self.tessellation_shader, false, t(f10.tessellation_shader), "tessellationShader");
+        need(self.pipeline_statistics_query, false, t(f10.pipeline_statistics_query), "pipelineStatisticsQuery");
+        v
+    }
 }
 
 /// An image with its memory and a view of all mips.
@@ -152,6 +220,10 @@ pub struct Context {
     /// [`Context::new`] enables them where the device has them; [`Context::from_external`]
     /// assumes the host did not.
     pub shader_output_layer: bool,
+    /// `tessellationShader` is enabled (vv's tessellation modes).
+    pub tessellation_shader: bool,
+    /// `pipelineStatisticsQuery` is enabled (vv's triangle count).
+    pub pipeline_statistics_query: bool,
     allocator: ManuallyDrop<Mutex<Allocator>>,
     owned: bool,
 }
@@ -327,7 +399,12 @@ impl Context {
             validation,
             desc.validation,
             true,
-            shader_output_layer,
+            ExternalFeatures {
+                shader_output_layer,
+                tessellation_shader: avail.tessellation_shader == vk::TRUE,
+                pipeline_statistics_query: avail.pipeline_statistics_query == vk::TRUE,
+                ..Default::default()
+            },
         )?;
         Ok(Arc::new(ctx))
     }
@@ -362,6 +439,10 @@ impl Context {
         queue_family: u32,
         features: ExternalFeatures,
     ) -> Result<Arc<Context>> {
+        let problems = features.problems(&instance, physical);
+        if !problems.is_empty() {
+            bail!("the application's device cannot run penumbra ({} problem(s)): {}", problems.len(), problems.join("; "));
+        }
         let props = unsafe { instance.get_physical_device_properties(physical) };
         let name = props.device_name_as_c_str().map(|c| c.to_string_lossy().into_owned()).unwrap_or_default();
         let qf = unsafe { instance.get_physical_device_queue_family_properties(physical) };
@@ -380,7 +461,7 @@ impl Context {
             Arc::new(ValidationLog::default()),
             false,
             false,
-            features.shader_output_layer,
+            features,
         )?;
         Ok(Arc::new(ctx))
     }
@@ -400,7 +481,7 @@ impl Context {
         validation: Arc<ValidationLog>,
         validation_enabled: bool,
         owned: bool,
-        shader_output_layer: bool,
+        features: ExternalFeatures,
     ) -> Result<Context> {
         let allocator = Allocator::new(&AllocatorCreateDesc {
             instance: instance.clone(),
@@ -428,7 +509,9 @@ impl Context {
             debug_instance,
             validation,
             validation_enabled,
-            shader_output_layer,
+            shader_output_layer: features.shader_output_layer,
+            tessellation_shader: features.tessellation_shader,
+            pipeline_statistics_query: features.pipeline_statistics_query,
             allocator: ManuallyDrop::new(Mutex::new(allocator)),
             owned,
         })
@@ -591,6 +674,20 @@ impl Context {
     pub fn wait_idle(&self) -> Result<()> {
         unsafe { self.device.device_wait_idle()? };
         Ok(())
+    }
+
+    /// Device memory held through the allocator now: (bytes allocated, live allocations, bytes
+    /// of memory blocks reserved). A renderer dropped returns the counts to what they were
+    /// before it was created (tests check it: no leak); a renderer running for hours keeps them
+    /// flat (the soak bench).
+    pub fn memory_report(&self) -> (u64, usize, u64) {
+        match self.allocator.lock() {
+            Ok(a) => {
+                let r = a.generate_report();
+                (r.total_allocated_bytes, r.allocations.len(), r.total_capacity_bytes)
+            }
+            Err(_) => (0, 0, 0),
+        }
     }
 
     /// Creates a shader module from SPIR-V bytes (as embedded by build.rs).

@@ -73,7 +73,12 @@ struct Persistent {
 pub struct PoolStats {
     pub created: usize,
     pub reused: usize,
+    /// Freed after [`POOL_KEEP_FRAMES`] frames unused.
+    pub evicted: usize,
 }
+
+/// Frames a pooled transient is kept without being used before it is freed.
+pub const POOL_KEEP_FRAMES: u64 = 3;
 
 /// Runs graphs on a [`Context`]. Keeps `frames_in_flight` frames on the GPU at once.
 pub struct Engine {
@@ -81,7 +86,8 @@ pub struct Engine {
     slots: Vec<FrameSlot>,
     next_slot: usize,
     frame: u64,
-    free: Vec<(PoolKey, PoolItem)>,
+    /// Transients the GPU is done with, each with the frame it came back at.
+    free: Vec<(PoolKey, PoolItem, u64)>,
     persistent: HashMap<String, Persistent>,
     pub profiler: Profiler,
     pub pool_stats: PoolStats,
@@ -89,7 +95,13 @@ pub struct Engine {
     pub timestamps: bool,
     /// Outputs of frames that finished during a submit that then failed (returned next time).
     pending: Vec<FrameOutput>,
+    /// How long waiting for a frame may take before the GPU counts as hung (device lost).
+    /// Default [`DEFAULT_FENCE_TIMEOUT`]: lavapipe takes over a minute for some frames.
+    pub fence_timeout: std::time::Duration,
 }
+
+/// The default [`Engine::fence_timeout`].
+pub const DEFAULT_FENCE_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(600);
 
 const MAX_QUERIES: u32 = 256;
 
@@ -136,6 +148,7 @@ impl Engine {
             persistent: HashMap::new(),
             profiler: Profiler::default(),
             pool_stats: PoolStats::default(),
+            fence_timeout: DEFAULT_FENCE_TIMEOUT,
             timestamps: true,
             pending: Vec::new(),
         })
@@ -175,6 +188,31 @@ impl Engine {
         }
     }
 
+    /// Returns transients to the pool (the GPU no longer uses them).
+    fn give_back(&mut self, items: Vec<(PoolKey, PoolItem)>) {
+        let now = self.frame;
+        self.free.extend(items.into_iter().map(|(k, i)| (k, i, now)));
+    }
+
+    /// Frees pooled transients no frame took for [`POOL_KEEP_FRAMES`] frames: a pool that
+    /// only grows would hold every size a technique ever asked for (sizes that follow the
+    /// scene, such as avs's sample points, differ every frame).
+    fn evict_unused(&mut self) {
+        let now = self.frame;
+        let (keep, old): (Vec<_>, Vec<_>) =
+            std::mem::take(&mut self.free).into_iter().partition(|(_, _, at)| now.saturating_sub(*at) <= POOL_KEEP_FRAMES);
+        self.free = keep;
+        self.pool_stats.evicted += old.len();
+        for (_, item, _) in old {
+            self.destroy_item(item);
+        }
+    }
+
+    /// Transients pooled now (free for the next frames).
+    pub fn pooled(&self) -> usize {
+        self.free.len()
+    }
+
     fn destroy_item(&self, item: PoolItem) {
         match item {
             PoolItem::Image(i) => self.ctx.destroy_image(i),
@@ -183,9 +221,9 @@ impl Engine {
     }
 
     fn take(&mut self, key: PoolKey, name: &str) -> Result<PoolItem> {
-        if let Some(pos) = self.free.iter().position(|(k, _)| *k == key) {
+        if let Some(pos) = self.free.iter().position(|(k, _, _)| *k == key) {
             self.pool_stats.reused += 1;
-            let (_, item) = self.free.swap_remove(pos);
+            let (_, item, _) = self.free.swap_remove(pos);
             // Re-label the pooled object with its current use.
             match &item {
                 PoolItem::Image(i) => {
@@ -208,7 +246,21 @@ impl Engine {
         let Some(f) = self.slots[slot].in_flight.take() else { return Ok(None) };
         let d = &self.ctx.device;
         let s = &self.slots[slot];
-        unsafe { d.wait_for_fences(&[s.fence], true, u64::MAX).context("waiting for a frame")? };
+        let timeout_ns = u64::try_from(self.fence_timeout.as_nanos()).unwrap_or(u64::MAX);
+        match unsafe { d.wait_for_fences(&[s.fence], true, timeout_ns) } {
+            Ok(()) => {}
+            Err(vk::Result::TIMEOUT) => {
+                let frame = f.frame;
+                self.slots[slot].in_flight = Some(f);
+                // A GPU that does not finish is as good as lost: the caller gets the device-lost
+                // kind (exit code 4 on the command line), not a wait that never returns.
+                return Err(anyhow::Error::new(vk::Result::ERROR_DEVICE_LOST).context(format!(
+                    "frame {frame} did not finish within {:.0} s (Engine::fence_timeout): the GPU hung",
+                    self.fence_timeout.as_secs_f64()
+                )));
+            }
+            Err(e) => return Err(anyhow::Error::new(e).context(format!("waiting for frame {}", f.frame))),
+        }
         unsafe { d.reset_fences(&[s.fence])? };
         let mut out = FrameOutput { frame: f.frame, ..Default::default() };
         if self.timestamps && !f.passes.is_empty() {
@@ -241,7 +293,7 @@ impl Engine {
                 out.readbacks.insert(name.clone(), b.mapped().map(|m| m.to_vec()).unwrap_or_default());
             }
         }
-        self.free.extend(f.transients);
+        self.give_back(f.transients);
         Ok(Some(out))
     }
 
@@ -371,6 +423,7 @@ impl Engine {
     /// render-finished semaphores).
     pub fn submit_with(&mut self, mut graph: Graph, sync: &SubmitSync) -> Result<(CompiledGraph, Vec<FrameOutput>)> {
         let t0 = Instant::now();
+        self.evict_unused();
         let compiled = graph.compile()?;
         self.profiler.add_cpu("graph compile", t0.elapsed().as_secs_f64() * 1e3);
 
@@ -389,7 +442,7 @@ impl Engine {
         let names: Vec<String> = graph.resources.iter().map(|r| r.name.clone()).collect();
         if let Err(e) = self.resolve(&graph, &compiled, &mut images, &mut buffers, &mut transients, &mut readbacks) {
             // Nothing was recorded: the transients taken so far go back to the pool.
-            self.free.extend(transients);
+            self.give_back(transients);
             return Err(e);
         }
 
@@ -447,7 +500,7 @@ impl Engine {
         unsafe { d.end_command_buffer(cmd)? };
         self.profiler.add_cpu("record", t1.elapsed().as_secs_f64() * 1e3);
         if !errors.is_empty() {
-            self.free.extend(transients);
+            self.give_back(transients);
             bail!("recording failed, frame not submitted; {} error(s):\n  - {}", errors.len(), errors.join("\n  - "));
         }
 
@@ -571,10 +624,10 @@ impl Drop for Engine {
         let _ = self.ctx.wait_idle();
         for i in 0..self.slots.len() {
             if let Some(f) = self.slots[i].in_flight.take() {
-                self.free.extend(f.transients);
+                self.give_back(f.transients);
             }
         }
-        for (_, item) in std::mem::take(&mut self.free) {
+        for (_, item, _) in std::mem::take(&mut self.free) {
             self.destroy_item(item);
         }
         for (_, p) in std::mem::take(&mut self.persistent) {

@@ -35,15 +35,26 @@ pub struct Profiler {
     frames: usize,
 }
 
+/// Samples kept per pass or phase: statistics are over the last this many frames, so a
+/// renderer that runs for hours holds a bounded profile.
+pub const PROFILE_WINDOW: usize = 1024;
+
+fn push_bounded(v: &mut Vec<f64>, ms: f64) {
+    if v.len() >= PROFILE_WINDOW {
+        v.drain(..v.len() + 1 - PROFILE_WINDOW);
+    }
+    v.push(ms);
+}
+
 impl Profiler {
     pub fn add_gpu(&mut self, pass: &str, ms: f64) {
         if !self.gpu.contains_key(pass) {
             self.order.push(pass.to_string());
         }
-        self.gpu.entry(pass.to_string()).or_default().push(ms);
+        push_bounded(self.gpu.entry(pass.to_string()).or_default(), ms);
     }
     pub fn add_cpu(&mut self, phase: &str, ms: f64) {
-        self.cpu.entry(phase.to_string()).or_default().push(ms);
+        push_bounded(self.cpu.entry(phase.to_string()).or_default(), ms);
     }
     pub fn end_frame(&mut self) {
         self.frames += 1;
@@ -107,6 +118,19 @@ impl Profiler {
 #[cfg(test)]
 mod tests {
     use super::*;
+    #[test]
+    fn the_profile_keeps_a_bounded_window() {
+        let mut p = Profiler::default();
+        for i in 0..PROFILE_WINDOW + 500 {
+            p.add_gpu("pass", i as f64);
+            p.add_cpu("record", 1.0);
+        }
+        let s = p.gpu_stats()["pass"].clone();
+        assert_eq!(s.samples, PROFILE_WINDOW);
+        assert_eq!(s.min_ms, 500.0, "the oldest samples go first");
+        assert_eq!(p.cpu_stats()["record"].samples, PROFILE_WINDOW);
+    }
+
     #[test]
     fn median_min_max() {
         let s = PassStats::from_samples(&[3.0, 1.0, 2.0, 10.0]).unwrap();

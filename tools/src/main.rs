@@ -20,6 +20,7 @@ mod matrix;
 mod pareto;
 mod hsdt_bench;
 mod plot;
+mod soak;
 mod spheres;
 mod tune;
 mod vv_bench;
@@ -95,6 +96,10 @@ enum BenchCmd {
     /// reference; marks the front (ms against RMSE over the mean) and writes pareto.json,
     /// pareto.md and log-log charts (pareto.png, pareto_WxH.png); --sizes repeats it per size.
     Pareto(pareto::ParetoArgs),
+    /// Memory over time: each technique renders --frames frames of an animated scene (the
+    /// built-in default scene without SCENE) at a small size; host RSS and device memory are
+    /// sampled and must stay flat after --warmup frames (exit 1 when they grow); writes soak.json.
+    Soak(soak::SoakArgs),
     /// Volumetric shadows: the temporal method against the full baseline on the same frames
     /// (GPU ms per pass, speedup, marched fraction, image difference, missed pixels).
     Volumetric(bench::VolumetricArgs),
@@ -503,6 +508,10 @@ fn run(cli: Cli) -> Result<()> {
         }
         Cmd::Bench(BenchCmd::Matrix(a)) => matrix::run(&a),
         Cmd::Bench(BenchCmd::Pareto(a)) => pareto::run(&a),
+        Cmd::Bench(BenchCmd::Soak(a)) => {
+            let scene = load_scene(a.scene.as_deref(), &limits)?;
+            soak::run(&a, &scene)
+        }
         Cmd::Bench(BenchCmd::Techniques(a)) => {
             parse_size(&a.size).map_err(bad)?;
             for t in a.techniques.split(',').map(str::trim).filter(|s| !s.is_empty()) {

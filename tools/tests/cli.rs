@@ -304,3 +304,36 @@ fn shadow_field_precompute_and_bench() {
     expect_bad_input(&["render", scene.to_str().unwrap(), "--size", "16x12", "--out", r.to_str().unwrap(), "--param", "mode=sideways"], &["mode", "sideways"]);
     expect_bad_input(&["render", scene.to_str().unwrap(), "--size", "16x12", "--out", r.to_str().unwrap(), "--param", "windw=hanning"], &["windw"]);
 }
+
+/// `bench soak` (short: CI; the full 1000-frame run is a README command): host RSS and device
+/// memory stay flat after the warm-up for each technique on a moving scene.
+#[test]
+fn soak_memory_stays_flat() {
+    let d = tmp("soak");
+    let falling = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/falling.toml");
+    let o = penumbra(&[
+        "bench",
+        "soak",
+        falling.to_str().unwrap(),
+        "--frames",
+        "40",
+        "--warmup",
+        "12",
+        "--size",
+        "16x12",
+        "--techniques",
+        "env,mc,shadowmaps,isg,shadow-fields",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(d.join("soak.json")).unwrap()).unwrap();
+    let runs = v["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 5, "{t}");
+    for r in runs {
+        assert_eq!(r["flat"], true, "{r}");
+        let samples = r["samples"].as_array().unwrap();
+        assert!(samples.len() >= 10 && samples.iter().all(|s| s["gpu_allocated_bytes"].as_u64().unwrap() > 0), "{r}");
+    }
+}

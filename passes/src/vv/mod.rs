@@ -488,13 +488,16 @@ pub struct VvTechnique {
     repeat: Sampler,
     settings: VvSettings,
     up: Uploads,
+    /// The pipeline-statistics query (null without `pipelineStatisticsQuery`).
     query: vk::QueryPool,
     pub data: Arc<VvSceneData>,
 }
 
 impl Drop for VvTechnique {
     fn drop(&mut self) {
-        unsafe { self.ctx.device.destroy_query_pool(self.query, None) };
+        if self.query != vk::QueryPool::null() {
+            unsafe { self.ctx.device.destroy_query_pool(self.query, None) };
+        }
     }
 }
 
@@ -605,6 +608,13 @@ impl VvTechnique {
         }
         let rows = compute_pipeline(ctx, shaders, "vv/vv_sat_rows.comp", &[T::STORAGE_BUFFER, T::STORAGE_IMAGE], 8)?;
         let cols = compute_pipeline(ctx, shaders, "vv/vv_sat_cols.comp", &[T::STORAGE_IMAGE], 8)?;
+        if raster && settings.mode.tessellated() && !ctx.tessellation_shader {
+            return Err(crate::registry::BadInput(format!(
+                "vv: mode {} needs tessellation shaders, which this device (or the application that created it) has not enabled; use mode = fragment1 or fragment3",
+                settings.mode.name()
+            ))
+            .into());
+        }
         let raster = if raster { Some(raster_pipeline(ctx, shaders, settings.mode.tessellated())?) } else { None };
         let composite = compute_pipeline(ctx, shaders, "vv/vv_composite.comp", &[T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE], 0)?;
         let up = Uploads::new(scene, &data, &settings)?;
@@ -612,8 +622,13 @@ impl VvTechnique {
             .query_type(vk::QueryType::PIPELINE_STATISTICS)
             .query_count(1)
             .pipeline_statistics(vk::QueryPipelineStatisticFlags::CLIPPING_INVOCATIONS);
-        let query = unsafe { ctx.device.create_query_pool(&qci, None)? };
-        ctx.set_name(query, "vv_statistics");
+        let query = if ctx.pipeline_statistics_query {
+            let q = unsafe { ctx.device.create_query_pool(&qci, None)? };
+            ctx.set_name(q, "vv_statistics");
+            q
+        } else {
+            vk::QueryPool::null()
+        };
         Ok(VvTechnique { ctx: ctx.clone(), rows, cols, raster, composite, env: ShadeEnvPass::new(ctx, shaders)?, nearest: Sampler::nearest(ctx)?, repeat: Sampler::repeat(ctx)?, settings, up, query, data })
     }
 
@@ -623,6 +638,9 @@ impl VvTechnique {
 
     /// Triangles rasterized by the last finished frame (pipeline statistics), if available.
     pub fn read_triangle_count(&self) -> Option<u64> {
+        if self.query == vk::QueryPool::null() {
+            return None;
+        }
         let mut r = [0u64; 1];
         let ok = unsafe { self.ctx.device.get_query_pool_results(self.query, 0, &mut r, vk::QueryResultFlags::TYPE_64) };
         ok.ok().map(|_| r[0])
@@ -750,8 +768,10 @@ impl crate::technique::Technique for VvTechnique {
             let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
             let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&color).depth_attachment(&depth_att);
             unsafe {
-                d.cmd_reset_query_pool(rc.cmd, query, 0, 1);
-                d.cmd_begin_query(rc.cmd, query, 0, vk::QueryControlFlags::empty());
+                if query != vk::QueryPool::null() {
+                    d.cmd_reset_query_pool(rc.cmd, query, 0, 1);
+                    d.cmd_begin_query(rc.cmd, query, 0, vk::QueryControlFlags::empty());
+                }
                 d.cmd_begin_rendering(rc.cmd, &info);
                 d.cmd_set_viewport(rc.cmd, 0, &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: h as f32, min_depth: 0.0, max_depth: 1.0 }]);
                 d.cmd_set_scissor(rc.cmd, 0, &[area]);
@@ -775,7 +795,9 @@ impl crate::technique::Technique for VvTechnique {
                 d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::ALL_GRAPHICS, 0, &push);
                 d.cmd_draw(rc.cmd, vertex_count, 1, 0, 0);
                 d.cmd_end_rendering(rc.cmd);
-                d.cmd_end_query(rc.cmd, query, 0);
+                if query != vk::QueryPool::null() {
+                    d.cmd_end_query(rc.cmd, query, 0);
+                }
             }
             Ok(())
         });
