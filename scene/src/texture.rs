@@ -75,6 +75,13 @@ impl Texture {
         Self::load_with(path, srgb, &Budget::new(Limits::default()))
     }
 
+    /// Decodes an encoded image (PNG, JPEG) from memory within `budget`; `path` names it in
+    /// messages.
+    pub fn from_bytes_with(path: &Path, bytes: &[u8], srgb: bool, budget: &Budget) -> Result<Self, SceneError> {
+        let img = decode_checked(path, "the texture", bytes, None, budget, 16)?;
+        Ok(Self::from_dynamic(&path.display().to_string(), &img, srgb))
+    }
+
     /// [`Texture::load`] checking the image's header against `budget` before decoding.
     pub fn load_with(path: &Path, srgb: bool, budget: &Budget) -> Result<Self, SceneError> {
         let bytes = budget.read_data_file(path, "texture file")?;
