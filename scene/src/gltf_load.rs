@@ -120,6 +120,23 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
                 }
             }
         }
+        // Images: the gltf crate unwraps a source that is neither a URI nor a buffer view with
+        // a MIME type (found by fuzzing).
+        for (ii, img) in root.images.iter().enumerate() {
+            match (&img.uri, &img.buffer_view) {
+                (Some(_), None) => {}
+                (None, Some(v)) => {
+                    if v.value() >= root.buffer_views.len() {
+                        return Err(gerr(path, format!("image {ii} refers to buffer view {} which does not exist", v.value())));
+                    }
+                    if img.mime_type.is_none() {
+                        return Err(gerr(path, format!("image {ii} is stored in a buffer view but has no mimeType")));
+                    }
+                }
+                (None, None) => return Err(gerr(path, format!("image {ii} has neither a uri nor a bufferView"))),
+                (Some(_), Some(_)) => return Err(gerr(path, format!("image {ii} has both a uri and a bufferView"))),
+            }
+        }
         // Animation channels index nodes and samplers without checks in the gltf crate.
         for (ai, a) in root.animations.iter().enumerate() {
             for (ci, c) in a.channels.iter().enumerate() {
