@@ -111,12 +111,18 @@ pub struct McTechnique {
 /// Samples per pixel per frame unless `spp` says otherwise.
 pub const DEFAULT_SPP: u32 = 4;
 
-/// Parses `spp` (1..=1024); any other key is an error.
+/// Most samples per pixel in one dispatch: a frame with more is split into several.
+pub const MAX_SPP_PER_DISPATCH: u32 = 256;
+
+/// Most samples per pixel per frame.
+pub const MAX_SPP: u32 = 16384;
+
+/// Parses `spp` (1..=16384); any other key is an error.
 pub fn parse_spp(key: &str, value: &str) -> Result<u32> {
     match key.trim() {
         "spp" => match value.trim().parse::<u32>() {
-            Ok(n) if (1..=1024).contains(&n) => Ok(n),
-            _ => anyhow::bail!("mc: spp = '{}': expected an integer in 1..=1024", value.trim()),
+            Ok(n) if (1..=MAX_SPP).contains(&n) => Ok(n),
+            _ => anyhow::bail!("mc: spp = '{}': expected an integer in 1..={MAX_SPP}", value.trim()),
         },
         k => anyhow::bail!("mc: unknown parameter '{k}' (known: spp)"),
     }
@@ -229,38 +235,49 @@ impl McTechnique {
         }
         let hdr = graph.create_image("mc.hdr", ImageDesc::new_2d(HDR_FORMAT, width, height));
         let inv_vp = FrameConstants::new(frame, None, width, height).inv_view_proj;
-        let mut push: Vec<u8> = Vec::with_capacity(112);
-        for c in inv_vp {
-            push.extend(bytes_of(&c));
+        // Long frames are split into dispatches of at most MAX_SPP_PER_DISPATCH samples (one
+        // pass each, the accumulator carried between them): no single dispatch runs long
+        // enough for a desktop driver's watchdog.
+        let chunks = self.spp.div_ceil(MAX_SPP_PER_DISPATCH).max(1);
+        let mut accum = accum;
+        let mut hdr = hdr;
+        for chunk in 0..chunks {
+            let spp = (self.spp - chunk * MAX_SPP_PER_DISPATCH).min(MAX_SPP_PER_DISPATCH);
+            let mut push: Vec<u8> = Vec::with_capacity(112);
+            for c in inv_vp {
+                push.extend(bytes_of(&c));
+            }
+            push.extend(bytes_of(&[width, height, spp, self.frame_index]));
+            push.extend(bytes_of(&[
+                self.env.width,
+                self.env.height,
+                (reset && chunk == 0) as u32 | (self.env.can_sample as u32) << 1,
+                light_count,
+            ]));
+            push.extend(bytes_of(&[self.env.cos_rot, self.env.sin_rot, 0.0, 0.0]));
+            self.frame_index = self.frame_index.wrapping_add(1);
+            let name = if chunk == 0 { "mc".to_string() } else { format!("mc.{chunk}") };
+            let mut p = graph.pass(&name, PassKind::Compute);
+            let kd = tree.read(&mut p);
+            let td = p.read(tridata, Access::ComputeShaderReadStorage);
+            let mats = p.read(materials, Access::ComputeShaderReadStorage);
+            let et = p.read(env_texels, Access::ComputeShaderReadStorage);
+            let ec = p.read(env_cdf, Access::ComputeShaderReadStorage);
+            let acc = p.write(accum, Access::ComputeShaderReadWriteStorage);
+            let out = p.write(hdr, Access::ComputeShaderWriteStorage);
+            let lt = p.read(lights, Access::ComputeShaderReadStorage);
+            let tex = p.read(textures, Access::ComputeShaderReadSampled);
+            let repeat = self.repeat.sampler;
+            let pipe = self.pipeline.handle();
+            p.record(move |rc| {
+                let images = [Bind::StorageImage(acc), Bind::StorageImage(out), Bind::StorageBuffer(lt), Bind::SampledImage(tex, repeat)];
+                let binds = [kd.binds().as_slice(), &crate::util::storage([td, mats, et, ec]), &images].concat();
+                crate::util::dispatch(rc, pipe, &binds, &push, [groups(width, 8), groups(height, 8), 1])
+            });
+            accum = acc;
+            hdr = out;
         }
-        push.extend(bytes_of(&[width, height, self.spp, self.frame_index]));
-        push.extend(bytes_of(&[
-            self.env.width,
-            self.env.height,
-            reset as u32 | (self.env.can_sample as u32) << 1,
-            light_count,
-        ]));
-        push.extend(bytes_of(&[self.env.cos_rot, self.env.sin_rot, 0.0, 0.0]));
-        self.frame_index = self.frame_index.wrapping_add(1);
         self.accumulated += self.spp;
-
-        let mut p = graph.pass("mc", PassKind::Compute);
-        let kd = tree.read(&mut p);
-        let td = p.read(tridata, Access::ComputeShaderReadStorage);
-        let mats = p.read(materials, Access::ComputeShaderReadStorage);
-        let et = p.read(env_texels, Access::ComputeShaderReadStorage);
-        let ec = p.read(env_cdf, Access::ComputeShaderReadStorage);
-        let accum = p.write(accum, Access::ComputeShaderReadWriteStorage);
-        let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
-        let lt = p.read(lights, Access::ComputeShaderReadStorage);
-        let tex = p.read(textures, Access::ComputeShaderReadSampled);
-        let repeat = self.repeat.sampler;
-        let pipe = self.pipeline.handle();
-        p.record(move |rc| {
-            let images = [Bind::StorageImage(accum), Bind::StorageImage(hdr), Bind::StorageBuffer(lt), Bind::SampledImage(tex, repeat)];
-            let binds = [kd.binds().as_slice(), &crate::util::storage([td, mats, et, ec]), &images].concat();
-            crate::util::dispatch(rc, pipe, &binds, &push, [groups(width, 8), groups(height, 8), 1])
-        });
         Ok(hdr)
     }
 

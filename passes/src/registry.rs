@@ -148,7 +148,7 @@ const fn p(key: &'static str, default: &'static str, range: &'static str, doc: &
     ParamDoc { key, default, range, doc }
 }
 
-const MC_PARAMS: &[ParamDoc] = &[p("spp", "4", "1..=1024", "samples per pixel per frame (accumulated over frames while nothing moves)")];
+const MC_PARAMS: &[ParamDoc] = &[p("spp", "4", "1..=16384", "samples per pixel per frame (accumulated over frames while nothing moves; split into dispatches of 256)")];
 
 const SHADOWMAPS_PARAMS: &[ParamDoc] = &[
     p("count", "32", "1..=1024", "K directional lights (orthographic depth maps) importance-sampled from the environment (the ISG paper's Figure 11: 30 and 1024)"),
@@ -281,7 +281,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
             factor: 1.5,
             source: "the reference's estimator on the GPU: unbiased, so within 1.5x the reference estimator's noise at the same samples per pixel",
         },
-        knobs: &[Knob { key: "spp", values: &["1", "16", "64"], finer: &["256", "1024"] }],
+        knobs: &[Knob { key: "spp", values: &["1", "16", "64"], finer: &["256", "1024", "4096"] }],
         create: create_mc,
     },
     TechniqueInfo {
