@@ -1,10 +1,10 @@
-//! The fuzz corpus replayed on stable Rust (issue 25): every input under `fuzz/corpus/<target>/`
+//! The fuzz corpus replayed on stable Rust (issue 25): every input under `tests/fuzz/corpus/<target>/`
 //! (seeds, hostile sizes, and whatever `cargo +nightly fuzz run <target>` found and was fixed)
 //! goes through the loader its target names and must end in `Ok` or an error: no panic, no
 //! abort, no hang (a watchdog fails an input that runs a minute). Inputs whose name starts with
 //! `huge`, `big`, `sparse` or `overcount` claim gigabytes and must be refused.
 
-#[path = "../../fuzz/targets.rs"]
+#[path = "../../tests/fuzz/targets.rs"]
 mod targets;
 
 use std::path::Path;
@@ -12,7 +12,7 @@ use std::time::Duration;
 
 #[test]
 fn the_fuzz_corpus_loads_or_fails_cleanly() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/corpus");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fuzz/corpus");
     let mut count = 0;
     for target in targets::TARGETS {
         let dir = root.join(target);

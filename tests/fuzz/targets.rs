@@ -1,4 +1,4 @@
-//! The loaders the fuzz targets drive, by name: shared by `fuzz/fuzz_targets/*.rs` (cargo-fuzz,
+//! The loaders the fuzz targets drive, by name: shared by `tests/fuzz/fuzz_targets/*.rs` (cargo-fuzz,
 //! nightly) and the corpus replay test `tools/tests/corpus.rs` (stable, every `cargo test`).
 //! Each takes untrusted bytes and must end in `Ok` or an error, never a panic, an abort or an
 //! unbounded allocation.
