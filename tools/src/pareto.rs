@@ -62,6 +62,9 @@ pub struct ParetoArgs {
     /// Output directory: pareto.json, pareto.md, pareto.png, pareto_WxH.png.
     #[arg(long, default_value = "pareto-out")]
     pub out: PathBuf,
+    /// Measure nothing: re-draw the table and charts of this earlier pareto.json into --out.
+    #[arg(long)]
+    pub from: Option<PathBuf>,
 }
 
 /// One measured configuration.
@@ -256,6 +259,13 @@ pub fn techniques_for(list: Option<&str>, scene: &Scene) -> Result<Vec<&'static 
 }
 
 pub fn run(args: &ParetoArgs) -> Result<()> {
+    if let Some(from) = &args.from {
+        // Re-draw from an earlier run: nothing is measured.
+        let text = std::fs::read_to_string(from).with_context(|| format!("reading {}", from.display())).map_err(|e| crate::bad(format!("{e:#}")))?;
+        let fronts: Vec<Front> = serde_json::from_str(&text).map_err(|e| crate::bad(format!("{}: not a pareto.json: {e}", from.display())))?;
+        std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+        return write_outputs(&fronts, &args.out);
+    }
     let sizes = parse_sizes(args.sizes.as_deref().unwrap_or(&args.size))?;
     let scene = Scene::load(&args.scene).map_err(crate::bad)?;
     let techniques = techniques_for(args.techniques.as_deref(), &scene)?;
@@ -299,10 +309,18 @@ pub fn run(args: &ParetoArgs) -> Result<()> {
         mark_front(&mut front.points);
         fronts.push(front);
     }
-    let json = args.out.join("pareto.json");
-    std::fs::write(&json, serde_json::to_string_pretty(&fronts)? + "\n").with_context(|| format!("writing {}", json.display()))?;
-    let md = args.out.join("pareto.md");
-    std::fs::write(&md, table_md(&fronts)).with_context(|| format!("writing {}", md.display()))?;
+    write_outputs(&fronts, &args.out)
+}
+
+/// Writes `pareto.json`, `pareto.md` and the charts of `fronts` into `out` (series in registry
+/// order).
+pub fn write_outputs(fronts: &[Front], out: &std::path::Path) -> Result<()> {
+    let techniques: Vec<&registry::TechniqueInfo> =
+        registry::REGISTRY.iter().filter(|t| fronts.iter().any(|f| f.points.iter().any(|p| p.technique == t.name))).collect();
+    let json = out.join("pareto.json");
+    std::fs::write(&json, serde_json::to_string_pretty(fronts)? + "\n").with_context(|| format!("writing {}", json.display()))?;
+    let md = out.join("pareto.md");
+    std::fs::write(&md, table_md(fronts)).with_context(|| format!("writing {}", md.display()))?;
     for (i, f) in fronts.iter().enumerate() {
         let chart = crate::plot::Chart {
             title: format!("{} {}x{}: error against cost (front: *)", f.scene, f.size[0], f.size[1]),
@@ -323,9 +341,9 @@ pub fn run(args: &ParetoArgs) -> Result<()> {
                 })
             })
             .collect();
-        let mut paths = vec![args.out.join(format!("pareto_{}x{}.png", f.size[0], f.size[1]))];
+        let mut paths = vec![out.join(format!("pareto_{}x{}.png", f.size[0], f.size[1]))];
         if i == 0 {
-            paths.push(args.out.join("pareto.png"));
+            paths.push(out.join("pareto.png"));
         }
         for p in paths {
             match crate::plot::write_chart(&p, &chart, &series) {
@@ -334,7 +352,7 @@ pub fn run(args: &ParetoArgs) -> Result<()> {
             }
         }
     }
-    print!("{}", table_md(&fronts));
+    print!("{}", table_md(fronts));
     println!("wrote {}, {} and the charts", json.display(), md.display());
     Ok(())
 }

@@ -93,15 +93,42 @@ pub fn write_chart(path: &Path, chart: &Chart, series: &[Series]) -> Result<()> 
     let (Some(xr), Some(yr)) = (range(all().map(|p| p.0), log_x), range(all().map(|p| p.1), false)) else {
         bail!("{}: no finite point to plot", path.display());
     };
+    let corner = legend_corner(&series, xr, yr, log_x);
     let res = if log_x {
-        draw(path, chart, &series, (xr.0..xr.1).log_scale(), yr)
+        draw(path, chart, &series, (xr.0..xr.1).log_scale(), yr, corner)
     } else {
-        draw(path, chart, &series, xr.0..xr.1, yr)
+        draw(path, chart, &series, xr.0..xr.1, yr, corner)
     };
     res.with_context(|| format!("writing chart {}", path.display()))
 }
 
-fn draw<X>(path: &Path, chart: &Chart, series: &[Series], x: X, yr: (f64, f64)) -> Result<()>
+/// The corner of the plot with the fewest points (the legend box goes there and hides least).
+fn legend_corner(series: &[Series], xr: (f64, f64), yr: (f64, f64), log_x: bool) -> SeriesLabelPosition {
+    let fx = |x: f64| if log_x { (x.ln() - xr.0.ln()) / (xr.1.ln() - xr.0.ln()) } else { (x - xr.0) / (xr.1 - xr.0) };
+    let fy = |y: f64| (y - yr.0) / (yr.1 - yr.0);
+    let count = |right: bool, upper: bool| {
+        series
+            .iter()
+            .flat_map(|s| s.points.iter())
+            .filter(|&&(x, y)| {
+                let (u, v) = (fx(x), fy(y));
+                (if right { u > 0.55 } else { u < 0.45 }) && (if upper { v > 0.55 } else { v < 0.45 })
+            })
+            .count()
+    };
+    [
+        (SeriesLabelPosition::LowerRight, count(true, false)),
+        (SeriesLabelPosition::UpperRight, count(true, true)),
+        (SeriesLabelPosition::UpperLeft, count(false, true)),
+        (SeriesLabelPosition::LowerLeft, count(false, false)),
+    ]
+    .into_iter()
+    .min_by_key(|c| c.1)
+    .map(|c| c.0)
+    .unwrap_or(SeriesLabelPosition::LowerRight)
+}
+
+fn draw<X>(path: &Path, chart: &Chart, series: &[Series], x: X, yr: (f64, f64), corner: SeriesLabelPosition) -> Result<()>
 where
     X: AsRangedCoord<Value = f64>,
     X::CoordDescType: ValueFormatter<f64>,
@@ -143,7 +170,7 @@ where
     }
     if chart.legend {
         c.configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
+            .position(corner)
             .label_font((FAMILY, 13))
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)

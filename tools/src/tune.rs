@@ -121,6 +121,8 @@ pub struct Choice {
     /// Where the numbers come from: "measured" or the pareto.json read.
     pub source: String,
     pub device: String,
+    /// The frame the error was measured at.
+    pub frame: u32,
 }
 
 impl Choice {
@@ -250,7 +252,7 @@ fn from_pareto(file: &Path, scene: &Scene, o: &TuneOptions) -> Result<Choice> {
     let points: Vec<Point> =
         f.points.iter().filter(|p| allowed.as_ref().map_or(true, |a| a.contains(&p.technique.as_str()))).cloned().collect();
     let p = cheapest_within(&points, o.max_error).ok_or_else(|| nothing_within(scene, o.max_error, o.size, &points))?;
-    Ok(Choice { point: p.clone(), size: o.size, source: format!("from {}", file.display()), device: f.device.clone() })
+    Ok(Choice { point: p.clone(), size: o.size, source: format!("from {}", file.display()), device: f.device.clone(), frame: o.frame })
 }
 
 /// The cheapest configuration within `o.max_error` on `scene` (read from `path`, or the
@@ -367,7 +369,7 @@ pub fn tune(path: Option<&Path>, scene: &Scene, o: &TuneOptions) -> Result<Choic
     }
     mark_front(&mut points);
     let p = cheapest_within(&points, o.max_error).ok_or_else(|| nothing_within(scene, o.max_error, o.size, &points))?;
-    Ok(Choice { point: p.clone(), size: o.size, source: "measured".into(), device: ctx.device_name.clone() })
+    Ok(Choice { point: p.clone(), size: o.size, source: "measured".into(), device: ctx.device_name.clone(), frame: o.frame })
 }
 
 /// Stores `choice` in the scene file at `path`: `technique`, `[technique_params]` (replaced)
@@ -387,8 +389,8 @@ pub fn write_choice(path: &Path, choice: &Choice, max_error: f64) -> Result<()> 
     doc.insert("technique", toml_edit::value(choice.point.technique.as_str()));
     if let Some(mut key) = doc.key_mut("technique") {
         key.leaf_decor_mut().set_prefix(format!(
-            "\n# Chosen by `penumbra tune --max-error {max_error}`: RMSE/mean {:.4} at {}x{} (frame 30),\n# {:.1} ms per frame on {}.\n",
-            choice.point.rmse_rel_mean, choice.size.0, choice.size.1, choice.point.frame_ms, choice.device
+            "\n# Chosen by `penumbra tune --max-error {max_error}`: RMSE/mean {:.4} at {}x{} (frame {}),\n# {:.1} ms per frame on {}.\n",
+            choice.point.rmse_rel_mean, choice.size.0, choice.size.1, choice.frame, choice.point.frame_ms, choice.device
         ));
     }
     if !choice.point.params.is_empty() {
@@ -483,7 +485,7 @@ mod tests {
         std::fs::write(&path, "# my scene\nname = \"s\"\ntechnique = \"isg\"\n\n[technique_params]\nlobes = 8\n\n[camera]\neye = [0.0, 1.0, 2.0]\n").unwrap();
         let mut p = pt("mc", 12.0, 0.04);
         p.params.insert("spp".into(), "256".into());
-        let c = Choice { point: p, size: (40, 30), source: "measured".into(), device: "dev".into() };
+        let c = Choice { point: p, size: (40, 30), source: "measured".into(), device: "dev".into(), frame: 30 };
         write_choice(&path, &c, 0.05).unwrap();
         let text = std::fs::read_to_string(&path).unwrap();
         let v: toml::Table = text.parse().unwrap();

@@ -1,5 +1,5 @@
 //! The fuzz corpus replayed on stable Rust (issue 25): every input under `tests/fuzz/corpus/<target>/`
-//! (seeds, hostile sizes, and whatever `cargo +nightly fuzz run <target>` found and was fixed)
+//! (seeds, hostile sizes, and whatever `cargo +nightly fuzz run --fuzz-dir tests/fuzz <target>` found and was fixed)
 //! goes through the loader its target names and must end in `Ok` or an error: no panic, no
 //! abort, no hang (a watchdog fails an input that runs a minute). Inputs whose name starts with
 //! `huge`, `big`, `sparse` or `overcount` claim gigabytes and must be refused.
