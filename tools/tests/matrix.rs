@@ -167,6 +167,20 @@ fn pareto_front_of_a_moving_scene() {
         points.iter().find(|p| p["technique"] == "mc" && p["params"]["spp"] == spp).unwrap()["rmse_rel_mean"].as_f64().unwrap()
     };
     assert!(mc_err("64") < mc_err("1"), "{points:?}");
+    // --from re-draws the table and charts from the JSON without measuring
+    let again = out.join("again");
+    let o = Command::new(env!("CARGO_BIN_EXE_penumbra"))
+        .args(["bench", "pareto"])
+        .arg(repo().join("scenes/falling.toml"))
+        .arg("--from")
+        .arg(out.join("pareto.json"))
+        .arg("--out")
+        .arg(&again)
+        .output()
+        .expect("run penumbra bench pareto --from");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(std::fs::read_to_string(again.join("pareto.md")).unwrap(), std::fs::read_to_string(out.join("pareto.md")).unwrap());
+    assert!(again.join("pareto.png").exists());
 }
 
 /// `render --max-error` from a measured front (`--pareto`), checked afresh: frame 30 of the
