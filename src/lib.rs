@@ -206,6 +206,8 @@ pub struct Renderer {
     pub technique_cpu_ms: f64,
     /// `technique = "auto"`: what it chose and why (the first of [`Renderer::notes`]).
     auto_choice: Option<String>,
+    /// Said when the environment map had to be downsampled for the device.
+    env_note: Option<String>,
 }
 
 impl Renderer {
@@ -251,6 +253,15 @@ impl Renderer {
         let engine = Engine::new(ctx.clone(), settings.frames_in_flight)?;
         let technique = penumbra_passes::registry::create(name, &ctx, shaders, scene, params)?;
         let effects = penumbra_passes::effect::create_for(scene, &ctx, shaders, &settings.effects)?;
+        // An environment map over the device's largest image side is halved until it fits, and
+        // the user is told (the loader's own limit, 16384, is what lavapipe allows).
+        let fitted = scene.environment.as_ref().and_then(|e| penumbra_passes::env::fit_to_device(e, ctx.max_image_dimension_2d));
+        let env_note = fitted.as_ref().zip(scene.environment.as_ref()).map(|(f, e)| {
+            format!(
+                "the environment map ({}x{}) is larger than this device's largest image side ({}): shown downsampled to {}x{}",
+                e.width, e.height, ctx.max_image_dimension_2d, f.width, f.height
+            )
+        });
         Ok(Renderer {
             gbuffer: GBufferPass::new(&ctx, shaders)?,
             technique,
@@ -258,7 +269,8 @@ impl Renderer {
             scene: scene.clone(),
             tonemap: TonemapPass::new(&ctx, shaders)?,
             scene_gpu: SceneGpu::new(&ctx, scene)?,
-            env: EnvMapGpu::new(scene.environment.as_ref()),
+            env: EnvMapGpu::new(fitted.as_ref().or(scene.environment.as_ref())),
+            env_note,
             engine,
             settings,
             prev_view_proj: None,
@@ -290,6 +302,7 @@ impl Renderer {
             scene.technique = t.clone();
         }
         let mut v: Vec<String> = self.auto_choice.iter().cloned().collect();
+        v.extend(self.env_note.iter().cloned());
         v.extend(Self::limitations(&scene));
         v.extend(self.technique.limitations(&self.scene));
         v

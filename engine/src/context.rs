@@ -250,6 +250,8 @@ pub struct Context {
     pub tessellation_shader: bool,
     /// `pipelineStatisticsQuery` is enabled (vv's triangle count).
     pub pipeline_statistics_query: bool,
+    /// `maxImageDimension2D`: the largest side of a 2D image on this device.
+    pub max_image_dimension_2d: u32,
     allocator: ManuallyDrop<Mutex<Allocator>>,
     owned: bool,
 }
@@ -519,6 +521,7 @@ impl Context {
         })
         .context("gpu-allocator")?;
         let push_descriptor = ash::khr::push_descriptor::Device::new(&instance, &device);
+        let max_image_dimension_2d = unsafe { instance.get_physical_device_properties(physical) }.limits.max_image_dimension2_d;
         let debug_utils = debug_instance.as_ref().map(|_| ash::ext::debug_utils::Device::new(&instance, &device));
         Ok(Context {
             entry,
@@ -538,6 +541,7 @@ impl Context {
             shader_output_layer: features.shader_output_layer,
             tessellation_shader: features.tessellation_shader,
             pipeline_statistics_query: features.pipeline_statistics_query,
+            max_image_dimension_2d,
             allocator: ManuallyDrop::new(Mutex::new(allocator)),
             owned,
         })

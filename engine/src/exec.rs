@@ -235,9 +235,18 @@ impl Engine {
             return Ok(item);
         }
         self.pool_stats.created += 1;
+        let pooled = || {
+            let (bytes, allocations, reserved) = self.ctx.memory_report();
+            format!(
+                "creating transient '{name}' ({} pooled for reuse; the device holds {:.1} MiB in {allocations} allocations, {:.1} MiB reserved)",
+                self.free.len(),
+                bytes as f64 / (1u64 << 20) as f64,
+                reserved as f64 / (1u64 << 20) as f64
+            )
+        };
         Ok(match &key {
-            PoolKey::Image(desc, usage) => PoolItem::Image(self.ctx.create_image(name, desc, *usage)?),
-            PoolKey::Buffer(size, usage, host) => PoolItem::Buffer(self.ctx.create_buffer(name, *size, *usage, *host)?),
+            PoolKey::Image(desc, usage) => PoolItem::Image(self.ctx.create_image(name, desc, *usage).with_context(pooled)?),
+            PoolKey::Buffer(size, usage, host) => PoolItem::Buffer(self.ctx.create_buffer(name, *size, *usage, *host).with_context(pooled)?),
         })
     }
 

@@ -58,6 +58,29 @@ pub fn world_direction(u: f32, v: f32, rotation: f32) -> Vec3 {
     Vec3::new(c * r.x + s * r.z, r.y, -s * r.x + c * r.z)
 }
 
+/// `env` halved (2x2 box filter) until both sides are at most `max_side` texels (a device's
+/// `maxImageDimension2D`); `None` when it fits already.
+pub fn fit_to_device(env: &Environment, max_side: u32) -> Option<Environment> {
+    let max_side = max_side.max(1);
+    if env.width <= max_side && env.height <= max_side {
+        return None;
+    }
+    let mut e = env.clone();
+    while e.width > max_side || e.height > max_side {
+        let (w, h) = ((e.width / 2).max(1), (e.height / 2).max(1));
+        let at = |x: u32, y: u32| e.texels[(y.min(e.height - 1) * e.width + x.min(e.width - 1)) as usize];
+        let texels = (0..w * h)
+            .map(|i| {
+                let (x, y) = (2 * (i % w), 2 * (i / w));
+                let q = [at(x, y), at(x + 1, y), at(x, y + 1), at(x + 1, y + 1)];
+                [0, 1, 2].map(|c| q.iter().map(|t| t[c]).sum::<f32>() * 0.25)
+            })
+            .collect();
+        e = Environment { width: w, height: h, texels, ..e };
+    }
+    Some(e)
+}
+
 impl EnvMapGpu {
     pub fn new(env: Option<&Environment>) -> Self {
         let black;
@@ -189,6 +212,17 @@ impl EnvMapGpu {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_environment_over_the_device_limit_is_halved_until_it_fits_keeping_its_mean() {
+        let texels: Vec<[f32; 3]> = (0..64 * 32).map(|i| [(i % 7) as f32, 1.0, (i / 64) as f32]).collect();
+        let env = Environment { width: 64, height: 32, texels, intensity: 2.0, rotation: 0.5 };
+        assert!(fit_to_device(&env, 64).is_none());
+        let f = fit_to_device(&env, 20).unwrap();
+        assert_eq!((f.width, f.height, f.intensity, f.rotation), (16, 8, 2.0, 0.5));
+        let mean = |e: &Environment| e.texels.iter().map(|t| t[0] + t[1] + t[2]).sum::<f32>() / e.texels.len() as f32;
+        assert!((mean(&f) - mean(&env)).abs() < 1e-3 * mean(&env), "{} {}", mean(&f), mean(&env));
+    }
 
     fn uniform(w: u32, h: u32, l: f32) -> Environment {
         Environment { width: w, height: h, texels: vec![[l; 3]; (w * h) as usize], intensity: 1.0, rotation: 0.3 }
