@@ -5,7 +5,8 @@
 
 use std::path::Path;
 
-/// Every target: (name, corpus directory under `fuzz/corpus/`).
+/// Every target (its corpus: `tests/fuzz/corpus/<name>/`).
+#[allow(dead_code)] // used by the replay test, not by the fuzz binaries
 pub const TARGETS: &[&str] = &["scene_toml", "gltf", "exr", "hdr", "png", "spheres", "pvv", "psf"];
 
 /// Loads `bytes` as target `name` (an unknown name is an error).
