@@ -273,9 +273,15 @@ pub fn cache_key(scene_bytes: &[u8], opts: &ConvergeOptions) -> String {
     format!("{h:016x}")
 }
 
+/// A scene file's stem as a cache file name part (anything but ASCII letters, digits, `_` and
+/// `-` becomes `_`).
+pub fn cache_stem(stem: &str) -> String {
+    stem.chars().map(|c| if c.is_ascii_alphanumeric() || c == '_' || c == '-' { c } else { '_' }).collect()
+}
+
 /// The cache file of a reference: `DIR/<stem>-<w>x<h>-f<frame>-<key>.exr` (sidecar `.json`).
 pub fn cache_path(dir: &Path, stem: &str, opts: &ConvergeOptions, key: &str) -> PathBuf {
-    let stem: String = stem.chars().map(|c| if c.is_ascii_alphanumeric() || c == '_' || c == '-' { c } else { '_' }).collect();
+    let stem = cache_stem(stem);
     dir.join(format!("{stem}-{}x{}-f{}-{key}.exr", opts.base.width, opts.base.height, opts.base.frame))
 }
 

@@ -258,11 +258,16 @@ pub fn techniques_for(list: Option<&str>, scene: &Scene) -> Result<Vec<&'static 
     }
 }
 
+/// Reads a `pareto.json` this command wrote (a missing or malformed file is bad input).
+pub fn read_fronts(path: &std::path::Path) -> Result<Vec<Front>> {
+    let text = std::fs::read_to_string(path).map_err(|e| crate::bad(format!("reading {}: {e}", path.display())))?;
+    serde_json::from_str(&text).map_err(|e| crate::bad(format!("{}: not a pareto.json: {e}", path.display())))
+}
+
 pub fn run(args: &ParetoArgs) -> Result<()> {
     if let Some(from) = &args.from {
         // Re-draw from an earlier run: nothing is measured.
-        let text = std::fs::read_to_string(from).with_context(|| format!("reading {}", from.display())).map_err(|e| crate::bad(format!("{e:#}")))?;
-        let fronts: Vec<Front> = serde_json::from_str(&text).map_err(|e| crate::bad(format!("{}: not a pareto.json: {e}", from.display())))?;
+        let fronts = read_fronts(from)?;
         std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
         return write_outputs(&fronts, &args.out);
     }
@@ -388,10 +393,12 @@ pub fn table_md(fronts: &[Front]) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn pt(t: &str, ms: f64, err: f64) -> Point {
+    /// A point of technique `t` at its defaults costing `ms` with error `err` (tests of the
+    /// front and of `tune`).
+    pub(crate) fn pt(t: &str, ms: f64, err: f64) -> Point {
         Point {
             technique: t.into(),
             params: Params::new(),

@@ -16,7 +16,7 @@
 //! (`<cache>/points/<stem>-WxH-f<K>-<key>.json`), so `render --max-error` after `tune` does not
 //! measure again. Nothing within E is an error that names the most accurate configuration seen.
 
-use crate::pareto::{configurations, label, mark_front, Front, Measure, Point, Target};
+use crate::pareto::{configurations, label, mark_front, Measure, Point, Target};
 use anyhow::{Context as _, Result};
 use clap::Args;
 use penumbra::engine::{Context, ContextDesc};
@@ -205,7 +205,7 @@ impl PointCache {
             penumbra_reference::converge::REFERENCE_VERSION
         );
         let h = fnv1a64(key.as_bytes(), fnv1a64(bytes, 0xcbf2_9ce4_8422_2325));
-        let stem: String = stem.chars().map(|c| if c.is_ascii_alphanumeric() || c == '_' || c == '-' { c } else { '_' }).collect();
+        let stem = penumbra_reference::converge::cache_stem(stem);
         let path = dir.join("points").join(format!("{stem}-{}x{}-f{}-{h:016x}.json", o.size.0, o.size.1, o.frame));
         let points = std::fs::read_to_string(&path).ok().and_then(|t| serde_json::from_str(&t).ok()).unwrap_or_default();
         PointCache { path, points }
@@ -232,9 +232,7 @@ impl PointCache {
 
 /// Chooses from a `bench pareto` output: the front at `o.size`.
 fn from_pareto(file: &Path, scene: &Scene, o: &TuneOptions) -> Result<Choice> {
-    let text = std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display())).map_err(|e| crate::bad(format!("{e:#}")))?;
-    let fronts: Vec<Front> =
-        serde_json::from_str(&text).map_err(|e| crate::bad(format!("{}: not a pareto.json: {e}", file.display())))?;
+    let fronts = crate::pareto::read_fronts(file)?;
     let Some(f) = fronts.iter().find(|f| f.size == [o.size.0, o.size.1]) else {
         let sizes: Vec<String> = fronts.iter().map(|f| format!("{}x{}", f.size[0], f.size[1])).collect();
         return Err(crate::bad(format!(
@@ -441,21 +439,8 @@ pub fn run(args: &TuneArgs, limits: &penumbra_scene::Limits) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::pareto::tests::pt;
 
-    fn pt(t: &str, ms: f64, err: f64) -> Point {
-        Point {
-            technique: t.into(),
-            params: Params::new(),
-            frame_ms: ms,
-            gpu_ms: 0.0,
-            cpu_ms: 0.0,
-            rmse_rel_mean: err,
-            rel_rmse: err,
-            psnr: None,
-            flip: 0.0,
-            on_front: false,
-        }
-    }
 
     #[test]
     fn the_cheapest_point_within_the_error_is_chosen() {

@@ -116,22 +116,27 @@ fn accuracy_matrix_agrees_with_the_known_failures() {
     }
 }
 
+/// `penumbra bench pareto scenes/falling.toml ARGS --cache <the matrix's references> --out OUT`.
+fn pareto_falling(args: &[&str], out: &Path) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_penumbra"))
+        .args(["bench", "pareto"])
+        .arg(repo().join("scenes/falling.toml"))
+        .args(args)
+        .arg("--cache")
+        .arg(repo().join("tests/matrix/references"))
+        .arg("--out")
+        .arg(out)
+        .output()
+        .expect("run penumbra bench pareto")
+}
+
 /// `bench pareto` on a moving scene at the CI size (the matrix's cached reference): every listed
 /// technique's points (the defaults and each knob value), the front marked, the three outputs.
 #[test]
 fn pareto_front_of_a_moving_scene() {
     let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("pareto_falling");
     let _ = std::fs::remove_dir_all(&out);
-    let o = Command::new(env!("CARGO_BIN_EXE_penumbra"))
-        .args(["bench", "pareto"])
-        .arg(repo().join("scenes/falling.toml"))
-        .args(["--techniques", "env,mc,shadowmaps", "--sizes", SIZE, "--warmup", "1", "--frames", "2"])
-        .arg("--cache")
-        .arg(repo().join("tests/matrix/references"))
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .expect("run penumbra bench pareto");
+    let o = pareto_falling(&["--techniques", "env,mc,shadowmaps", "--sizes", SIZE, "--warmup", "1", "--frames", "2"], &out);
     let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
     assert!(o.status.success(), "{text}");
     for f in ["pareto.json", "pareto.md", "pareto.png", &format!("pareto_{SIZE}.png")] {
@@ -191,16 +196,7 @@ fn max_error_picks_a_configuration_within_it() {
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("max_error_falling");
     let _ = std::fs::remove_dir_all(&dir);
     let pareto = dir.join("pareto");
-    let o = Command::new(env!("CARGO_BIN_EXE_penumbra"))
-        .args(["bench", "pareto"])
-        .arg(repo().join("scenes/falling.toml"))
-        .args(["--techniques", "env,mc", "--size", SIZE, "--warmup", "1", "--frames", "1"])
-        .arg("--cache")
-        .arg(repo().join("tests/matrix/references"))
-        .arg("--out")
-        .arg(&pareto)
-        .output()
-        .expect("run penumbra bench pareto");
+    let o = pareto_falling(&["--techniques", "env,mc", "--size", SIZE, "--warmup", "1", "--frames", "1"], &pareto);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let front = pareto.join("pareto.json");
     let e = 0.3;
