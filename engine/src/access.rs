@@ -10,8 +10,12 @@ use serde::Serialize;
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
 pub enum Access {
     // ---- images
-    /// Written as a colour attachment (load op clear/dont-care or load).
+    /// Written as a colour attachment (load op clear or dont-care: the previous contents are
+    /// not kept).
     ColorAttachmentWrite,
+    /// Written as a colour attachment over its previous contents (load op load: pixels the
+    /// pass does not cover keep their values, e.g. a history updated where a stencil test passes).
+    ColorAttachmentReadWrite,
     /// Depth test and depth write.
     DepthAttachmentWrite,
     /// Depth test only, read-only depth layout.
@@ -92,8 +96,9 @@ pub struct AccessInfo {
 
 impl Access {
     /// Every access kind, in declaration order (for tests and documentation).
-    pub const ALL: [Access; 22] = [
+    pub const ALL: [Access; 23] = [
         Access::ColorAttachmentWrite,
+        Access::ColorAttachmentReadWrite,
         Access::DepthAttachmentWrite,
         Access::DepthAttachmentRead,
         Access::DepthStencilAttachmentWrite,
@@ -131,6 +136,17 @@ impl Access {
                 L::COLOR_ATTACHMENT_OPTIMAL,
                 true,
                 false,
+                Applies::Image,
+                IU::COLOR_ATTACHMENT,
+                BU::empty(),
+                Some(false),
+            ),
+            Access::ColorAttachmentReadWrite => (
+                S::COLOR_ATTACHMENT_OUTPUT,
+                A::COLOR_ATTACHMENT_WRITE | A::COLOR_ATTACHMENT_READ,
+                L::COLOR_ATTACHMENT_OPTIMAL,
+                true,
+                true,
                 Applies::Image,
                 IU::COLOR_ATTACHMENT,
                 BU::empty(),

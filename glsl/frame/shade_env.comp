@@ -39,6 +39,7 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData 
         } else if (lk == 2) {
             intensity *= PI * l.extra.x * l.extra.x;
         }
+        intensity *= light_transmittance(l, sqrt(d2));
         vec3 f = albedo / PI;
         if (kind != 0) {
             vec3 h = normalize(wi + v);

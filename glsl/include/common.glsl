@@ -34,8 +34,17 @@ struct LightData {
     vec4 pos_kind;         // xyz position, w kind (0 point, 1 spot, 2 sphere)
     vec4 dir_cos_outer;    // xyz direction (spot), w cos(outer half-angle)
     vec4 power_cos_inner;  // rgb colour * intensity, w cos(inner half-angle)
-    vec4 extra;            // x sphere radius
+    vec4 extra;            // x sphere radius, yzw the medium's extinction sigma_t (0 without a medium)
 };
+
+// Local light reaching a point at distance d from the light through the scene's homogeneous
+// medium: exp(-sigma_t d) (1 without a medium), as the reference attenuates it on its way in.
+vec3 medium_transmittance(vec3 sigma_t, float d) {
+    return exp(-sigma_t * d);
+}
+vec3 light_transmittance(LightData l, float d) {
+    return medium_transmittance(l.extra.yzw, d);
+}
 
 vec2 oct_wrap(vec2 v) {
     return (1.0 - abs(v.yx)) * vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);

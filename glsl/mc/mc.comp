@@ -167,7 +167,7 @@ bool light_sample(uint k, vec3 p, vec2 u, out vec3 wi, out float dist, out vec3 
         wi = v / d;
         dist = d;
         float f = kind == 1u ? smoothstep_ref(l1.w, l2.w, dot(-wi, l1.xyz)) : 1.0;
-        li = l2.rgb * (f / d2);
+        li = l2.rgb * (f / d2) * medium_transmittance(lights[4u * k + 3u].yzw, d);
         pdf = 0.0;
         return f > 0.0;
     }
@@ -181,7 +181,7 @@ bool light_sample(uint k, vec3 p, vec2 u, out vec3 wi, out float dist, out vec3 
     wi = normalize(onb(v / d) * vec3(sin_t * cos(phi), sin_t * sin(phi), cos_t));
     float t = sphere_hit(k, p, wi);
     dist = t > 0.0 ? t : d - r;
-    li = l2.rgb;
+    li = l2.rgb * medium_transmittance(lights[4u * k + 3u].yzw, dist);
     pdf = 1.0 / (M_TAU * one_minus);
     return true;
 }
@@ -276,7 +276,8 @@ vec3 radiance_sample(vec2 ndc) {
                     float t = sphere_hit(k, p, wi2);
                     if (t < 0.0 || !unoccluded_to(x, wi2, t * (1.0 - 1e-4))) continue;
                     float pdf_l = 1.0 / (M_TAU * sphere_one_minus(k, p));
-                    l += f * lights[4u * k + 2u].rgb * (power_heuristic(pdf_s, pdf_l) / pdf_s);
+                    vec3 le = lights[4u * k + 2u].rgb * medium_transmittance(lights[4u * k + 3u].yzw, t);
+                    l += f * le * (power_heuristic(pdf_s, pdf_l) / pdf_s);
                 }
             }
         }

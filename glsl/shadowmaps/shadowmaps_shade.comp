@@ -237,6 +237,7 @@ void main() {
             if (d2 <= radius * radius) continue;
             intensity *= M_PI * radius * radius;
         }
+        intensity *= light_transmittance(ld, sqrt(d2));
         if (intensity == vec3(0.0)) continue;
         vec3 f = brdf_eval(b, wo, lw) * lw.z;
         if (f == vec3(0.0)) continue;

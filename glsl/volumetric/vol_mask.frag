@@ -1,4 +1,4 @@
 #version 450
-// Mover mask: marks covered pixels.
-layout(location = 0) out vec4 o_mask;
-void main() { o_mask = vec4(1.0); }
+// Mover mask: no colour; the pipeline's stencil state marks every covered pixel (REPLACE 1,
+// no depth test, as the thesis builds its mask).
+void main() {}

@@ -4,11 +4,16 @@
 // its neighbour across the edge does not; open edges carry the triangle's own opposite vertex,
 // i.e. count as silhouettes) and the back cap at infinity for triangles facing away. Clip z
 // is an infinite-far projection (near plane kept) so nothing is lost to the far plane.
+// Each side is pushed away from the volume by `widen` radians as seen from the light (1.5
+// shadow-map texels: the march's nearest-texel visibility moves the shadow boundary by up to
+// 0.71 texel); the exact side and the sliver between the silhouette edge and the pushed side
+// are drawn too, so both volumes stay closed: every pixel whose samples' shadow-map lookups can
+// change is covered, also from an eye inside a volume.
 #include "common.glsl"
 layout(triangles_adjacency) in;
-layout(triangle_strip, max_vertices = 18) out;
+layout(triangle_strip, max_vertices = 27) out;
 layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
-layout(push_constant) uniform Push { vec4 light_pos; uint use_prev; } pc;
+layout(push_constant) uniform Push { vec4 light_pos; uint use_prev; float widen; } pc;
 layout(location = 0) in vec3 v_world[];
 
 vec4 clip_of(vec4 hp) {
@@ -41,7 +46,20 @@ void main() {
     for (int e = 0; e < 3; ++e) {
         vec3 a = v_world[2 * e], adj = v_world[2 * e + 1], b = v_world[(2 * e + 2) % 6];
         if (faces(a, adj, b)) continue;
-        emit(vec4(a, 1.0)); emit(vec4(b, 1.0)); emit(vec4(a - lp, 0.0)); emit(vec4(b - lp, 0.0));
+        // Outward normal of the plane through the light and the edge (away from the triangle's
+        // third vertex).
+        vec3 c = v_world[(2 * e + 4) % 6];
+        vec3 n = cross(a - lp, b - lp);
+        float nl = length(n);
+        vec3 o = nl > 0.0 ? n / nl : vec3(0.0);
+        if (dot(o, c - a) > 0.0) o = -o;
+        vec3 a2 = a + o * (pc.widen * length(a - lp));
+        vec3 b2 = b + o * (pc.widen * length(b - lp));
+        // One strip: the exact side (closes the volume with the caps, for an eye inside it),
+        // the sliver at the silhouette, the pushed side.
+        emit(vec4(a - lp, 0.0)); emit(vec4(b - lp, 0.0));
+        emit(vec4(a, 1.0)); emit(vec4(b, 1.0)); emit(vec4(a2, 1.0)); emit(vec4(b2, 1.0));
+        emit(vec4(a2 - lp, 0.0)); emit(vec4(b2 - lp, 0.0));
         EndPrimitive();
     }
 }

@@ -3,7 +3,7 @@
 #include "common.glsl"
 layout(location = 0) in vec3 in_pos;
 layout(set = 0, binding = 1) readonly buffer Instances { InstanceData inst[]; };
-layout(push_constant) uniform Push { vec4 light_pos; uint use_prev; } pc;
+layout(push_constant) uniform Push { vec4 light_pos; uint use_prev; float widen; } pc;
 layout(location = 0) out vec3 v_world;
 void main() {
     InstanceData d = inst[gl_InstanceIndex];

@@ -5,7 +5,7 @@
 // view depth is near / (1 - 2 z).
 #include "common.glsl"
 layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
-layout(push_constant) uniform Push { vec4 light_pos; uint use_prev; } pc;
+layout(push_constant) uniform Push { vec4 light_pos; uint use_prev; float widen; } pc;
 layout(location = 0) out vec4 o_dist;
 void main() {
     float n = pc.light_pos.w;

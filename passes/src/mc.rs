@@ -42,8 +42,10 @@ use std::sync::Arc;
 
 
 /// Local lights as `penumbra_reference::lights::LocalLight::new` keeps them (lights that cannot
-/// emit are dropped): 4 vec4 each, the layout of `lights` in `glsl/mc/mc.comp`.
-pub fn light_table(lights: &[penumbra_scene::LightInstance]) -> Vec<[f32; 4]> {
+/// emit are dropped): 4 vec4 each, the layout of `lights` in `glsl/mc/mc.comp`; the fourth
+/// holds the medium's extinction `sigma_t` in yzw (zero without a medium), by which local light
+/// is attenuated on its way in.
+pub fn light_table(lights: &[penumbra_scene::LightInstance], sigma_t: Vec3) -> Vec<[f32; 4]> {
     use penumbra_scene::LightKind;
     let mut out = Vec::new();
     for l in lights {
@@ -55,7 +57,7 @@ pub fn light_table(lights: &[penumbra_scene::LightInstance]) -> Vec<[f32; 4]> {
         let pos = l.position;
         match l.kind {
             LightKind::Point => {
-                out.extend([[pos.x, pos.y, pos.z, 0.0], [0.0; 4], [power.x, power.y, power.z, 0.0], [0.0; 4]]);
+                out.extend([[pos.x, pos.y, pos.z, 0.0], [0.0; 4], [power.x, power.y, power.z, 0.0], [0.0, sigma_t.x, sigma_t.y, sigma_t.z]]);
             }
             LightKind::Spot { inner_deg, outer_deg } => {
                 let axis = l.direction.normalize_or_zero();
@@ -68,7 +70,7 @@ pub fn light_table(lights: &[penumbra_scene::LightInstance]) -> Vec<[f32; 4]> {
                     [pos.x, pos.y, pos.z, 1.0],
                     [axis.x, axis.y, axis.z, co],
                     [power.x, power.y, power.z, ci],
-                    [0.0; 4],
+                    [0.0, sigma_t.x, sigma_t.y, sigma_t.z],
                 ]);
             }
             LightKind::Sphere { radius } => {
@@ -79,7 +81,7 @@ pub fn light_table(lights: &[penumbra_scene::LightInstance]) -> Vec<[f32; 4]> {
                     [pos.x, pos.y, pos.z, 2.0],
                     [0.0; 4],
                     [power.x, power.y, power.z, 0.0],
-                    [radius, 0.0, 0.0, 0.0],
+                    [radius, sigma_t.x, sigma_t.y, sigma_t.z],
                 ]);
             }
         }
@@ -97,6 +99,8 @@ pub struct McTechnique {
     scene_textures: Option<ImageHandle>,
     repeat: crate::util::Sampler,
     extras: Vec<penumbra_scene::MaterialExtra>,
+    /// The medium's extinction (zero without a medium), for [`light_table`].
+    sigma_t: Vec3,
     pub builder: KdTreeBuilder,
     scene: Scene,
     env: EnvTables,
@@ -163,6 +167,7 @@ impl McTechnique {
             scene_textures: None,
             repeat: crate::util::Sampler::repeat(ctx)?,
             extras: (0..scene.materials.len()).map(|i| scene.material_extra(i)).collect(),
+            sigma_t: scene.medium.map_or(Vec3::ZERO, |m| m.sigma_t().max(Vec3::ZERO)),
             builder: KdTreeBuilder::new(ctx, shaders)?,
             scene: scene.clone(),
             env: EnvTables::new(scene.environment.as_ref()),
@@ -218,7 +223,7 @@ impl McTechnique {
             Some(t) => t,
             None => self.textures.add(graph),
         };
-        let light_data = light_table(&frame.lights);
+        let light_data = light_table(&frame.lights, self.sigma_t);
         let light_count = (light_data.len() / 4) as u32;
         let lights = graph
             .create_buffer_init("mc.lights", if light_data.is_empty() { vec![0u8; 64] } else { bytes_of(&light_data) });

@@ -41,6 +41,26 @@ pub struct DepthState {
     pub compare: vk::CompareOp,
 }
 
+/// What a pipeline does with a stencil attachment (a combined depth-stencil format used for its
+/// stencil aspect only: no depth test).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StencilState {
+    /// Every rasterized fragment sets the stencil value to 1 (compare ALWAYS, op REPLACE): a
+    /// coverage mask.
+    Mark { format: vk::Format },
+    /// Only fragments whose stencil value is not 0 run the fragment shader (compare NOT_EQUAL
+    /// 0, nothing written; the attachment is read-only).
+    TestNonZero { format: vk::Format },
+}
+
+impl StencilState {
+    pub fn format(self) -> vk::Format {
+        match self {
+            StencilState::Mark { format } | StencilState::TestNonZero { format } => format,
+        }
+    }
+}
+
 /// Everything a raster pass's pipeline needs.
 #[derive(Clone, Debug)]
 pub struct RasterDesc<'a> {
@@ -60,6 +80,7 @@ pub struct RasterDesc<'a> {
     pub colors: &'a [vk::Format],
     pub blend: Blend,
     pub depth: Option<DepthState>,
+    pub stencil: Option<StencilState>,
 }
 
 impl Default for RasterDesc<'_> {
@@ -76,6 +97,7 @@ impl Default for RasterDesc<'_> {
             colors: &[],
             blend: Blend::Replace,
             depth: None,
+            stencil: None,
         }
     }
 }
@@ -174,13 +196,34 @@ fn create(
         .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
         .line_width(1.0);
     let ms = vk::PipelineMultisampleStateCreateInfo::default().rasterization_samples(vk::SampleCountFlags::TYPE_1);
-    let ds = match desc.depth {
+    let mut ds = match desc.depth {
         Some(d) => vk::PipelineDepthStencilStateCreateInfo::default()
             .depth_test_enable(true)
             .depth_write_enable(d.write)
             .depth_compare_op(d.compare),
         None => vk::PipelineDepthStencilStateCreateInfo::default(),
     };
+    if let Some(st) = desc.stencil {
+        let op = match st {
+            StencilState::Mark { .. } => vk::StencilOpState::default()
+                .fail_op(vk::StencilOp::KEEP)
+                .pass_op(vk::StencilOp::REPLACE)
+                .depth_fail_op(vk::StencilOp::KEEP)
+                .compare_op(vk::CompareOp::ALWAYS)
+                .compare_mask(0xff)
+                .write_mask(0xff)
+                .reference(1),
+            StencilState::TestNonZero { .. } => vk::StencilOpState::default()
+                .fail_op(vk::StencilOp::KEEP)
+                .pass_op(vk::StencilOp::KEEP)
+                .depth_fail_op(vk::StencilOp::KEEP)
+                .compare_op(vk::CompareOp::NOT_EQUAL)
+                .compare_mask(0xff)
+                .write_mask(0)
+                .reference(0),
+        };
+        ds = ds.stencil_test_enable(true).front(op).back(op);
+    }
     let attachment = {
         let a = vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA);
         let ones = |a: vk::PipelineColorBlendAttachmentState| {
@@ -202,7 +245,8 @@ fn create(
     let dy = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dyn_states);
     let mut rendering = vk::PipelineRenderingCreateInfo::default()
         .color_attachment_formats(desc.colors)
-        .depth_attachment_format(desc.depth.map_or(vk::Format::UNDEFINED, |d| d.format));
+        .depth_attachment_format(desc.depth.map_or(vk::Format::UNDEFINED, |d| d.format))
+        .stencil_attachment_format(desc.stencil.map_or(vk::Format::UNDEFINED, |s| s.format()));
     let (set_layout, layout) = layouts(ctx, desc.name, desc.descriptors, stage_flags, desc.push_constant_bytes)?;
     let mut ci = vk::GraphicsPipelineCreateInfo::default()
         .stages(&stages)

@@ -71,6 +71,10 @@ pub struct SceneGpu {
     extras: Vec<MaterialExtra>,
     /// The scene's texture maps as one 2D array.
     pub textures: MaterialTextures,
+    /// The medium's extinction coefficient (zero without a medium): `LightData.extra.yzw`, so
+    /// every technique attenuates local light on its way in by `exp(-sigma_t d)`
+    /// (`light_transmittance` of `glsl/include/common.glsl`), as the reference does.
+    sigma_t: Vec3,
 }
 
 /// Handles of the scene's buffers in one frame's graph.
@@ -149,7 +153,8 @@ impl SceneGpu {
         };
         let extras = (0..scene.materials.len()).map(|i| scene.material_extra(i)).collect();
         let textures = MaterialTextures::new(ctx, &scene.textures)?;
-        Ok(SceneGpu { ctx: ctx.clone(), vertices, indices, meshes, vertex_count, triangle_count, extras, textures })
+        let sigma_t = scene.medium.map_or(Vec3::ZERO, |m| m.sigma_t().max(Vec3::ZERO));
+        Ok(SceneGpu { ctx: ctx.clone(), vertices, indices, meshes, vertex_count, triangle_count, extras, textures, sigma_t })
     }
 }
 
@@ -214,7 +219,8 @@ struct LightData {
     extra: [f32; 4],
 }
 
-fn light_table(lights: &[LightInstance]) -> (Vec<u8>, u32) {
+/// `sigma_t`: the medium's extinction, zero without one (see [`SceneGpu`]).
+fn light_table(lights: &[LightInstance], sigma_t: Vec3) -> (Vec<u8>, u32) {
     let data: Vec<LightData> = lights
         .iter()
         .map(|l| {
@@ -229,7 +235,7 @@ fn light_table(lights: &[LightInstance]) -> (Vec<u8>, u32) {
                 pos_kind: [l.position.x, l.position.y, l.position.z, kind],
                 dir_cos_outer: [l.direction.x, l.direction.y, l.direction.z, cos_outer],
                 power_cos_inner: [l.power.x, l.power.y, l.power.z, cos_inner],
-                extra: [radius, 0.0, 0.0, 0.0],
+                extra: [radius, sigma_t.x, sigma_t.y, sigma_t.z],
             }
         })
         .collect();
@@ -249,7 +255,7 @@ impl SceneGpu {
         let vertices = import(graph, "scene.vertices", &self.vertices);
         let indices = import(graph, "scene.indices", &self.indices);
         let materials = graph.create_buffer_init("frame.materials", material_table(&frame.materials, &self.extras));
-        let (light_bytes, light_count) = light_table(&frame.lights);
+        let (light_bytes, light_count) = light_table(&frame.lights, self.sigma_t);
         let lights = graph.create_buffer_init("frame.lights", light_bytes);
         let mut inst = Vec::new();
         let mut draws = Vec::new();

@@ -296,6 +296,39 @@ pub fn color_attachment(view: vk::ImageView, clear: [f32; 4]) -> vk::RenderingAt
         .clear_value(vk::ClearValue { color: vk::ClearColorValue { float32: clear } })
 }
 
+/// A colour attachment of `view` over its previous contents (load op load; declare
+/// `Access::ColorAttachmentReadWrite`).
+pub fn color_attachment_load(view: vk::ImageView) -> vk::RenderingAttachmentInfo<'static> {
+    vk::RenderingAttachmentInfo::default()
+        .image_view(view)
+        .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+        .load_op(vk::AttachmentLoadOp::LOAD)
+        .store_op(vk::AttachmentStoreOp::STORE)
+}
+
+/// The stencil aspect of a depth-stencil `view` as a mask being drawn (in
+/// `DEPTH_STENCIL_ATTACHMENT_OPTIMAL`, `Access::DepthStencilAttachmentWrite`): cleared to 0 and
+/// stored.
+pub fn stencil_mark_attachment(view: vk::ImageView) -> vk::RenderingAttachmentInfo<'static> {
+    vk::RenderingAttachmentInfo::default()
+        .image_view(view)
+        .image_layout(vk::ImageLayout::DEPTH_STENCIL_ATTACHMENT_OPTIMAL)
+        .load_op(vk::AttachmentLoadOp::CLEAR)
+        .store_op(vk::AttachmentStoreOp::STORE)
+        .clear_value(vk::ClearValue { depth_stencil: vk::ClearDepthStencilValue { depth: 1.0, stencil: 0 } })
+}
+
+/// The stencil aspect of a depth-stencil `view` tested read-only (in
+/// `DEPTH_STENCIL_READ_ONLY_OPTIMAL`, `Access::DepthStencilAttachmentRead`): loaded, and store op
+/// NONE so that the pass does not write it.
+pub fn stencil_test_attachment(view: vk::ImageView) -> vk::RenderingAttachmentInfo<'static> {
+    vk::RenderingAttachmentInfo::default()
+        .image_view(view)
+        .image_layout(vk::ImageLayout::DEPTH_STENCIL_READ_ONLY_OPTIMAL)
+        .load_op(vk::AttachmentLoadOp::LOAD)
+        .store_op(vk::AttachmentStoreOp::NONE)
+}
+
 /// A depth attachment of `view` (in `DEPTH_ATTACHMENT_OPTIMAL`) cleared to 1, stored when
 /// `store` (else its contents are not kept).
 pub fn depth_attachment(view: vk::ImageView, store: bool) -> vk::RenderingAttachmentInfo<'static> {

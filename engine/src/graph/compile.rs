@@ -453,6 +453,7 @@ pub(crate) fn compile(g: &Graph) -> Result<CompiledGraph, GraphError> {
                 PassKind::Compute => !matches!(
                     u.access,
                     Access::ColorAttachmentWrite
+                        | Access::ColorAttachmentReadWrite
                         | Access::DepthAttachmentRead
                         | Access::DepthAttachmentWrite
                         | Access::DepthStencilAttachmentRead

@@ -2,7 +2,7 @@
 //! frames, each on its own engine (same device), with per-pass GPU times, the per-frame speedup
 //! of the volumetric passes, the masked-pixel fraction, the difference between the two final
 //! images, and missed pixels (scattering changed in the full result since the previous frame,
-//! but the temporal frame reused the pixel: neither marched nor in the dilated mask).
+//! but the temporal frame reused the pixel: not marched, outside the stencil mask).
 
 use super::{MarchMode, VolumetricEffect, VolumetricMethod, VolumetricParams};
 use crate::effect::{Effect, EffectInputs};
@@ -152,7 +152,6 @@ struct Runner {
 struct RunOut {
     hdr: Vec<[f32; 4]>,
     scatter: Vec<[f32; 4]>,
-    mask: Option<Vec<u8>>,
     mode: MarchMode,
     frame_id: u32,
     gpu_ms: Vec<(String, f64)>,
@@ -200,10 +199,7 @@ impl Runner {
         let hdr = self.technique.add(&mut self.engine, &mut g, &inputs)?;
         let out = self.effect.add(&mut self.engine, &mut g, &inputs, hdr)?;
         let info = self.effect.last.expect("effect info");
-        let mut rb = vec![(out, "vol_bench_hdr"), (info.scatter, "vol_bench_scatter")];
-        if let Some(m) = info.mask {
-            rb.push((m, "vol_bench_mask"));
-        }
+        let rb = vec![(out, "vol_bench_hdr"), (info.scatter, "vol_bench_scatter")];
         crate::readback::add(&mut g, "bench_readback", &rb);
         let (_, mut done) = self.engine.submit(g)?;
         done.extend(self.engine.drain()?);
@@ -212,7 +208,6 @@ impl Runner {
         Ok(RunOut {
             hdr: f32s(&get("vol_bench_hdr")),
             scatter: f32s(&get("vol_bench_scatter")),
-            mask: info.mask.map(|_| get("vol_bench_mask")),
             mode: info.mode,
             frame_id: info.frame_id,
             gpu_ms: o.gpu_ms.into_iter().filter(|(n, _)| n.starts_with("vol_")).collect(),
@@ -302,7 +297,6 @@ pub fn bench_volumetric(
         let psnr = if mse == 0.0 { f64::INFINITY } else { 10.0 * (peak.max(1e-12).powi(2) / mse).log10() };
         let tt: f64 = a.gpu_ms.iter().map(|x| x.1).sum();
         let ft: f64 = b.gpu_ms.iter().map(|x| x.1).sum();
-        let _ = &a.mask;
         frames.push(VolBenchFrame {
             frame: k,
             time: t,

@@ -44,8 +44,20 @@
 pub mod bench;
 
 use crate::effect::{Effect, EffectInputs};
-use crate::raster::{raster_pipeline, Blend, DepthState, RasterDesc, VertexInput};
+use crate::raster::{raster_pipeline, Blend, DepthState, RasterDesc, StencilState, VertexInput};
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
+
+/// The mover mask's format: the stencil aspect of the first combined depth-stencil format the
+/// device can attach (Vulkan requires one of the two).
+pub fn mask_format(ctx: &Context) -> Result<vk::Format> {
+    for f in [vk::Format::D24_UNORM_S8_UINT, vk::Format::D32_SFLOAT_S8_UINT] {
+        let props = unsafe { ctx.instance.get_physical_device_format_properties(ctx.physical, f) };
+        if props.optimal_tiling_features.contains(vk::FormatFeatureFlags::DEPTH_STENCIL_ATTACHMENT) {
+            return Ok(f);
+        }
+    }
+    bail!("the device attaches neither D24_UNORM_S8_UINT nor D32_SFLOAT_S8_UINT (the volumetric mover mask's stencil)")
+}
 use anyhow::{bail, Result};
 use glam::{Mat4, Vec3};
 use penumbra_engine::graph::ImageDesc;
@@ -55,7 +67,6 @@ use penumbra_scene::{LightKind, Medium, Scene};
 use std::sync::Arc;
 
 pub const SCATTER_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
-pub const MASK_FORMAT: vk::Format = vk::Format::R8_UNORM;
 pub const SHADOW_FORMAT: vk::Format = vk::Format::D32_SFLOAT;
 pub const INTERVAL_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
 
@@ -173,7 +184,11 @@ pub struct VolumetricEffect {
     shadow: Pipeline,
     mask: Option<Pipeline>,
     volumes: Option<Pipeline>,
+    /// The march over every pixel (full and refresh frames).
     march: Pipeline,
+    /// The march behind the mask's stencil test (masked frames; with `mask`).
+    march_masked: Option<Pipeline>,
+    stencil_format: vk::Format,
     composite: Pipeline,
     nearest: Sampler,
     adjacency: Option<GpuBuffer>,
@@ -248,9 +263,10 @@ impl VolumetricEffect {
         let shadow = shadow_pipeline(ctx, shaders)?;
         let feats = unsafe { ctx.instance.get_physical_device_features(ctx.physical) };
         let mut notes = Vec::new();
+        let stencil_format = mask_format(ctx)?;
         let mask = if params.method == VolumetricMethod::Temporal {
             if feats.geometry_shader == vk::TRUE {
-                Some(mask_pipeline(ctx, shaders)?)
+                Some(mask_pipeline(ctx, shaders, stencil_format)?)
             } else {
                 notes.push("no geometry shaders on this device: temporal volumetrics recompute every frame".into());
                 None
@@ -276,9 +292,11 @@ impl VolumetricEffect {
             T::COMBINED_IMAGE_SAMPLER,
             T::STORAGE_IMAGE,
         ];
-        let mut march_types = comp_types.to_vec();
-        march_types.push(T::COMBINED_IMAGE_SAMPLER);
-        let march = compute_pipeline(ctx, shaders, "volumetric/vol_march.comp", &march_types, 0)?;
+        let march = march_pipeline(ctx, shaders, None)?;
+        let march_masked = match mask {
+            Some(_) => Some(march_pipeline(ctx, shaders, Some(StencilState::TestNonZero { format: stencil_format }))?),
+            None => None,
+        };
         let composite = compute_pipeline(ctx, shaders, "volumetric/vol_composite.comp", &comp_types, 0)?;
         // Adjacency for meshes of objects that can move.
         let mut adj = Vec::new();
@@ -318,6 +336,8 @@ impl VolumetricEffect {
             mask,
             volumes,
             march,
+            march_masked,
+            stencil_format,
             composite,
             nearest: Sampler::nearest(ctx)?,
             adjacency,
@@ -397,6 +417,14 @@ impl VolumetricEffect {
         block.power_cos_inner = [power.x, power.y, power.z, cos_i];
         block.sm = [n as f32, near, far, ts as f32];
         block.misc[2] = 1;
+        // Shadow-volume sides are pushed out by 1.5 shadow-map texels (their angle at a face's
+        // centre, the widest): the march's nearest-texel lookups move the shadow boundary by up
+        // to 0.71 texel.
+        let half_fov = match l.kind {
+            LightKind::Spot { outer_deg, .. } => (outer_deg.clamp(1.0, 85.0) + 2.0).to_radians(),
+            _ => 46f32.to_radians(),
+        };
+        block.extra[1] = 1.5 * 2.0 * half_fov.tan() / ts as f32;
         block
     }
 
@@ -428,14 +456,40 @@ fn shadow_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeli
     )
 }
 
-/// Shadow-volume boundaries of triangles with adjacency (`vol_mask.geom`) into `color`.
+/// The march (`vol_march.frag` over one full-viewport triangle) into an RGBA32F colour target;
+/// with `stencil`, only where the mask's stencil is not 0.
+fn march_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, stencil: Option<StencilState>) -> Result<Pipeline> {
+    use vk::DescriptorType as T;
+    raster_pipeline(
+        ctx,
+        shaders,
+        &RasterDesc {
+            name: if stencil.is_some() { "vol_march_masked" } else { "vol_march" },
+            shaders: &["volumetric/vol_fullscreen.vert", "volumetric/vol_march.frag"],
+            descriptors: &[
+                T::UNIFORM_BUFFER,
+                T::STORAGE_BUFFER,
+                T::COMBINED_IMAGE_SAMPLER,
+                T::COMBINED_IMAGE_SAMPLER,
+                T::COMBINED_IMAGE_SAMPLER,
+            ],
+            colors: &[SCATTER_FORMAT],
+            stencil,
+            ..Default::default()
+        },
+    )
+}
+
+/// Shadow-volume boundaries of triangles with adjacency (`vol_mask.geom`) into `color` (the
+/// hybrid's intervals) or, without a colour, into the stencil mask.
 fn volume_pipeline(
     ctx: &Arc<Context>,
     shaders: &ShaderLibrary,
     name: &str,
     frag: &str,
-    color: vk::Format,
+    color: Option<vk::Format>,
     blend: Blend,
+    stencil: Option<StencilState>,
 ) -> Result<Pipeline> {
     raster_pipeline(
         ctx,
@@ -447,24 +501,29 @@ fn volume_pipeline(
             push_constant_bytes: 32,
             vertex_input: VertexInput::Position,
             topology: vk::PrimitiveTopology::TRIANGLE_LIST_WITH_ADJACENCY,
-            colors: &[color],
+            colors: match &color {
+                Some(c) => std::slice::from_ref(c),
+                None => &[],
+            },
             blend,
+            stencil,
             ..Default::default()
         },
     )
 }
 
-fn mask_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
-    volume_pipeline(ctx, shaders, "vol_mask", "volumetric/vol_mask.frag", MASK_FORMAT, Blend::Replace)
+fn mask_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, stencil_format: vk::Format) -> Result<Pipeline> {
+    let stencil = Some(StencilState::Mark { format: stencil_format });
+    volume_pipeline(ctx, shaders, "vol_mask", "volumetric/vol_mask.frag", None, Blend::Replace, stencil)
 }
 
 /// Front-most (min RGB) and back-most (max alpha) boundary distances per pixel.
 fn volumes_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
-    volume_pipeline(ctx, shaders, "vol_volumes", "volumetric/vol_volumes.frag", INTERVAL_FORMAT, Blend::MinRgbMaxAlpha)
+    volume_pipeline(ctx, shaders, "vol_volumes", "volumetric/vol_volumes.frag", Some(INTERVAL_FORMAT), Blend::MinRgbMaxAlpha, None)
 }
 
 /// Shadow-volume draws (extruded by `vol_mask.geom` from the adjacency index buffer) into one
-/// colour target: the mask and the hybrid intervals passes.
+/// target: the stencil mask or the hybrid's interval colour target.
 struct VolumeDraws<'a> {
     pipeline: &'a Pipeline,
     /// The imported adjacency index buffer.
@@ -472,12 +531,16 @@ struct VolumeDraws<'a> {
     /// The light block's `pos_kind` (position and kind).
     light: [f32; 4],
     near: f32,
+    /// How far each side is pushed outwards, in radians seen from the light.
+    widen: f32,
+    /// The target is the stencil mask (a depth-stencil image), not a colour image.
+    stencil: bool,
     /// (instance, adjacency range, vertex offset) per drawn mesh.
     draws: Vec<(u32, AdjRange, i32)>,
 }
 
 impl VolumeDraws<'_> {
-    /// Adds raster pass `name` that clears `img` to `clear` and draws every volume once per value
+    /// Adds raster pass `name` that clears `img` (the stencil to 0, a colour to `clear`) and draws every volume once per value
     /// of the `use_prev` push constant in `use_prev` (0: this frame's positions, 1: the previous
     /// frame's); returns the written image.
     fn add(
@@ -492,18 +555,21 @@ impl VolumeDraws<'_> {
     ) -> ImageHandle {
         let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
         let mut p = graph.pass(name, PassKind::Raster);
-        let img = p.write(img, Access::ColorAttachmentWrite);
+        let stencil = self.stencil;
+        let img = p.write(img, if stencil { Access::DepthStencilAttachmentWrite } else { Access::ColorAttachmentWrite });
         let camera = p.read(sh.camera, Access::AnyShaderReadUniform);
         let instances = p.read(sh.instances, Access::VertexShaderReadStorage);
         let vertices = p.read(sh.vertices, Access::VertexBuffer);
         let adj_h = p.read(self.adjacency, Access::IndexBuffer);
-        let (lp, near, draws) = (self.light, self.near, self.draws);
+        let (lp, near, widen, draws) = (self.light, self.near, self.widen, self.draws);
         p.record(move |rc| {
             let d = rc.device();
-            let att = crate::util::color_attachment(rc.image(img)?.view, clear);
-            let atts = [att];
+            let view = rc.image(img)?.view;
+            let atts = [crate::util::color_attachment(view, clear)];
+            let st = crate::util::stencil_mark_attachment(view);
             let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
-            let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&atts);
+            let info = vk::RenderingInfo::default().render_area(area).layer_count(1);
+            let info = if stencil { info.stencil_attachment(&st) } else { info.color_attachments(&atts) };
             let vb = rc.buffer(vertices)?.buffer;
             let ib = rc.buffer(adj_h)?.buffer;
             unsafe {
@@ -524,7 +590,7 @@ impl VolumeDraws<'_> {
                 d.cmd_bind_index_buffer(rc.cmd, ib, 0, vk::IndexType::UINT32);
                 for &prev in use_prev {
                     let mut pc = bytes_of(&[lp[0], lp[1], lp[2], near]);
-                    pc.extend(bytes_of(&[prev, 0, 0, 0]));
+                    pc.extend(bytes_of(&[prev, widen.to_bits(), 0, 0]));
                     d.cmd_push_constants(rc.cmd, layout, stages, 0, &pc);
                     for (inst, r, vo) in &draws {
                         d.cmd_draw_indexed(rc.cmd, r.index_count, 1, r.first_index, *vo, *inst);
@@ -719,7 +785,7 @@ impl Effect for VolumetricEffect {
             let mp = self.mask.as_ref().expect("mask pipeline");
             let adj = self.adjacency.as_ref().expect("adjacency");
             let adj_h = graph.import_buffer("vol.adjacency", adj.buffer, adj.size, adj.usage);
-            let img = graph.create_image("vol_mask", ImageDesc::new_2d(MASK_FORMAT, w, h));
+            let img = graph.create_image("vol_mask", ImageDesc::new_2d(self.stencil_format, w, h));
             let draws: Vec<(u32, AdjRange, i32)> = movers
                 .iter()
                 .filter_map(|d| {
@@ -728,7 +794,15 @@ impl Effect for VolumetricEffect {
                 })
                 .collect();
             // The volumes of the previous frame's and this frame's positions (use_prev 0 and 1).
-            let vol = VolumeDraws { pipeline: mp, adjacency: adj_h, light: block.pos_kind, near: cam.near, draws };
+            let vol = VolumeDraws {
+                pipeline: mp,
+                adjacency: adj_h,
+                light: block.pos_kind,
+                near: cam.near,
+                widen: block.extra[1],
+                stencil: true,
+                draws,
+            };
             let img = vol.add(graph, "vol_mask", sh, img, (w, h), [0.0; 4], &[0, 1]);
             mask = Some(img);
         }
@@ -762,7 +836,15 @@ impl Effect for VolumetricEffect {
                     let adj_h = graph.import_buffer("vol.adjacency_all", adj.buffer, adj.size, adj.usage);
                     let img = graph.create_image("vol_intervals", ImageDesc::new_2d(INTERVAL_FORMAT, w, h));
                     let vol =
-                        VolumeDraws { pipeline: vp, adjacency: adj_h, light: block.pos_kind, near: cam.near, draws: casters };
+                        VolumeDraws {
+                            pipeline: vp,
+                            adjacency: adj_h,
+                            light: block.pos_kind,
+                            near: cam.near,
+                            widen: block.extra[1],
+                            stencil: false,
+                            draws: casters,
+                        };
                     let img = vol.add(graph, "vol_volumes", sh, img, (w, h), [f32::INFINITY, f32::INFINITY, f32::INFINITY, 0.0], &[0]);
                     intervals = Some(img);
                 }
@@ -776,31 +858,61 @@ impl Effect for VolumetricEffect {
         let scatter = if mode == MarchMode::Skipped {
             scatter
         } else {
-            let mut p = graph.pass("vol_march", PassKind::Compute);
+            let mut p = graph.pass("vol_march", PassKind::Raster);
             let camera = p.read(sh.camera, Access::AnyShaderReadUniform);
-            let lb = p.read(light_buf, Access::ComputeShaderReadStorage);
-            let pos = p.read(gb.position, Access::ComputeShaderReadSampled);
-            let sm = p.read(smap, Access::ComputeShaderReadSampled);
-            let mk = mask.map(|m| p.read(m, Access::ComputeShaderReadSampled));
-            let iv = intervals.map(|m| p.read(m, Access::ComputeShaderReadSampled));
-            let access = if mode == MarchMode::Masked {
-                Access::ComputeShaderReadWriteStorage
-            } else {
-                Access::ComputeShaderWriteStorage
-            };
+            let lb = p.read(light_buf, Access::FragmentShaderReadStorage);
+            let pos = p.read(gb.position, Access::FragmentShaderReadSampled);
+            let sm = p.read(smap, Access::FragmentShaderReadSampled);
+            let mk = mask.map(|m| p.read(m, Access::DepthStencilAttachmentRead));
+            let iv = intervals.map(|m| p.read(m, Access::FragmentShaderReadSampled));
+            // Masked frames draw over the history (load op load); the others cover every pixel.
+            let access =
+                if mode == MarchMode::Masked { Access::ColorAttachmentReadWrite } else { Access::ColorAttachmentWrite };
             let out = p.write(scatter, access);
-            let (pipe, nearest) = (self.march.handle(), self.nearest.sampler);
+            let pipe = match (mode, self.march_masked.as_ref()) {
+                (MarchMode::Masked, Some(m)) => m,
+                _ => &self.march,
+            };
+            let (pipeline, layout, nearest) = (pipe.pipeline, pipe.layout, self.nearest.sampler);
             p.record(move |rc| {
-                let binds = [
-                    Bind::UniformBuffer(camera),
-                    Bind::StorageBuffer(lb),
-                    Bind::SampledImage(pos, nearest),
-                    Bind::SampledImage(sm, nearest),
-                    Bind::SampledImage(mk.unwrap_or(pos), nearest),
-                    Bind::StorageImage(out),
-                    Bind::SampledImage(iv.unwrap_or(pos), nearest),
-                ];
-                crate::util::dispatch(rc, pipe, &binds, &[], [groups(w, 8), groups(h, 8), 1])
+                let d = rc.device();
+                let view = rc.image(out)?.view;
+                let atts = [match mk {
+                    Some(_) => crate::util::color_attachment_load(view),
+                    None => crate::util::color_attachment(view, [0.0; 4]),
+                }];
+                let st = match mk {
+                    Some(m) => Some(crate::util::stencil_test_attachment(rc.image(m)?.view)),
+                    None => None,
+                };
+                let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
+                let mut info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&atts);
+                if let Some(st) = st.as_ref() {
+                    info = info.stencil_attachment(st);
+                }
+                unsafe {
+                    d.cmd_begin_rendering(rc.cmd, &info);
+                    d.cmd_set_viewport(rc.cmd, 0, &[viewport(0.0, 0.0, w as f32, h as f32)]);
+                    d.cmd_set_scissor(rc.cmd, 0, &[area]);
+                    d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+                }
+                rc.push_descriptors(
+                    vk::PipelineBindPoint::GRAPHICS,
+                    layout,
+                    0,
+                    &[
+                        Bind::UniformBuffer(camera),
+                        Bind::StorageBuffer(lb),
+                        Bind::SampledImage(pos, nearest),
+                        Bind::SampledImage(sm, nearest),
+                        Bind::SampledImage(iv.unwrap_or(pos), nearest),
+                    ],
+                )?;
+                unsafe {
+                    d.cmd_draw(rc.cmd, 3, 1, 0, 0);
+                    d.cmd_end_rendering(rc.cmd);
+                }
+                Ok(())
             });
             out
         };
