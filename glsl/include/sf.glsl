@@ -22,6 +22,7 @@ struct SfInst {
     vec4 center_world;    // xyz world position of the shell centre (entity sort key)
     vec4 light_a;         // lights: rgb power, w kind (0 point, 1 spot, 2 sphere)
     vec4 light_b;         // lights: x cos(inner), y cos(outer), z sphere radius
+    vec4 medium;          // lights: xyz the medium's extinction sigma_t (0 without a medium)
     float rot[84];        // block-diagonal SH rotation local -> world (bands 0..3)
 };
 
@@ -295,7 +296,9 @@ vec3 sf_shade_point(vec3 p, uint self_inst, uint inst_count, uint light_count, u
             sf_rcv(sf_inst[j], p, s);
             float dp = 0.0;
             for (int e = 0; e < 16; e++) dp += s[e] * u[e];
-            c += sf_inst[j].light_a.rgb * dp;
+            // Attenuated by the medium on the light's way to p (as the reference).
+            vec3 tr = exp(-sf_inst[j].medium.xyz * distance(p, sf_inst[j].center_world.xyz));
+            c += sf_inst[j].light_a.rgb * tr * dp;
         }
     }
     return c + sf_double(u);

@@ -561,6 +561,8 @@ struct GpuInst {
     center_world: [f32; 4],
     light_a: [f32; 4],
     light_b: [f32; 4],
+    /// Lights: the medium's extinction sigma_t in xyz (zero without a medium).
+    medium: [f32; 4],
     rot: [f32; ROT_FLOATS],
 }
 
@@ -576,6 +578,9 @@ pub struct GpuTables {
     light_shells: Vec<(u32, u32)>,
     light_geom: Vec<(Vec3, f32)>,
     light_sources: Vec<LightSource>,
+    /// The scene medium's extinction (zero without one): local light is attenuated by
+    /// `exp(-sigma_t d)` on its way in, as the reference does.
+    pub sigma_t: Vec3,
     pub tensor: Vec<u8>,
     pub tensor_count: u32,
 }
@@ -627,6 +632,7 @@ impl GpuTables {
             light_shells,
             light_geom,
             light_sources: fields.light_sources.clone(),
+            sigma_t: Vec3::ZERO,
             tensor: bytes_of(&entries),
             tensor_count: entries.len() as u32,
         }
@@ -651,6 +657,7 @@ impl GpuTables {
                     center_world: [cw.x, cw.y, cw.z, 0.0],
                     light_a: [0.0; 4],
                     light_b: [0.0; 4],
+                    medium: [0.0; 4],
                     rot: f.rot.map(|x| x as f32),
                 }
             })
@@ -677,6 +684,7 @@ impl GpuTables {
                 center_world: [pos.x, pos.y, pos.z, 0.0],
                 light_a: [power.x, power.y, power.z, kind],
                 light_b: [ci, co, rad, 0.0],
+                medium: [self.sigma_t.x, self.sigma_t.y, self.sigma_t.z, 0.0],
                 rot: lf.rot.map(|x| x as f32),
             });
         }
@@ -792,7 +800,8 @@ impl ShadowFieldsTechnique {
         let points = compute_pipeline(ctx, shaders, "shadow_fields/sf_points.comp", &[sb; 7], 20)?;
         let vertex = vertex_pipeline(ctx, shaders)?;
         let tensor = TripleProductTensor::new(sf::ORDER);
-        let tables = GpuTables::new(&fields, adaptive, &tensor);
+        let mut tables = GpuTables::new(&fields, adaptive, &tensor);
+        tables.sigma_t = scene.medium.map_or(Vec3::ZERO, |m| m.sigma_t().max(Vec3::ZERO));
         let mut mesh_ranges = Vec::new();
         let (mut first, mut offset) = (0u32, 0i32);
         for m in &scene.meshes {

@@ -26,7 +26,7 @@ pub struct VolBenchOptions {
     pub fps: f32,
     /// Time of the first frame in seconds.
     pub start_time: f32,
-    /// The temporal method's reused-frame period (default 3).
+    /// The temporal method's refresh period: the thesis's reused frame number + 1 (default 4).
     pub reuse_frames: u32,
     /// Samples per view ray (both methods).
     pub samples: u32,
@@ -45,7 +45,7 @@ impl Default for VolBenchOptions {
             frames: 12,
             fps: 30.0,
             start_time: 0.0,
-            reuse_frames: 3,
+            reuse_frames: 4,
             samples: 48,
             hybrid: false,
             debug_skip_mask: false,

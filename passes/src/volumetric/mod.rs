@@ -16,7 +16,8 @@
 //!   temporal mode it runs only on masked pixels and writes the persistent history in place.
 //! - `vol_composite` (compute): `L_s exp(-sigma_t d_s) + L_scatter`.
 //!
-//! Temporal rules: the whole frame is recomputed every `reuse_frames` frames (default 3), on
+//! Temporal rules: the whole frame is recomputed every `reuse_frames` frames (default 4: the
+//! thesis's reused frame number 3, Fig. 5.1 "reused frame number = n - 1"), on
 //! the first frame, and whenever the camera, the light, the medium or the image size changes
 //! (no reprojection); a deforming mover also forces a full frame (its previous shape is not on
 //! the GPU). A frame without movers between refreshes runs no march at all.
@@ -100,7 +101,7 @@ impl VolumetricMethod {
 pub struct VolumetricParams {
     pub method: VolumetricMethod,
     /// The whole frame is recomputed every `reuse_frames` frames (the thesis's "reused frame
-    /// number" + 1; default 3). 1 means every frame.
+    /// number" + 1; default 4, the thesis's 3). 1 means every frame.
     pub reuse_frames: u32,
     /// Samples per view ray (default 48).
     pub samples: u32,
@@ -120,7 +121,7 @@ impl Default for VolumetricParams {
     fn default() -> Self {
         VolumetricParams {
             method: VolumetricMethod::Temporal,
-            reuse_frames: 3,
+            reuse_frames: 4,
             samples: 48,
             shadow_size: 512,
             hybrid: false,
