@@ -245,9 +245,45 @@ pub struct VolumetricArgs {
     /// Both methods use Wyman and Ramsey's shadow-volume intervals.
     #[arg(long)]
     pub hybrid: bool,
-    /// Also draw the per-frame GPU ms of both methods as a chart (PNG).
+    /// Also draw the per-frame GPU ms of both methods as a chart (PNG); with --sweep, the
+    /// frame rate against the reused frame number (the thesis's Fig. 5.2).
     #[arg(long)]
     pub chart: Option<PathBuf>,
+    /// Also run the temporal method with each of these refresh periods (comma-separated, e.g.
+    /// 1,2,3,4,6,8; the reused frame number is the period - 1) and tabulate its whole-frame
+    /// cost against the full method's (the thesis's Fig. 5.2).
+    #[arg(long, value_delimiter = ',')]
+    pub sweep: Vec<u32>,
+    /// Write the report (per frame, totals, sweep) as JSON.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+fn vol_report_json(r: &penumbra_passes::volumetric::bench::VolBenchReport) -> serde_json::Value {
+    let frames: Vec<serde_json::Value> = r
+        .frames
+        .iter()
+        .map(|f| {
+            serde_json::json!({
+                "frame": f.frame, "time": f.time, "temporal_mode": f.temporal_mode,
+                "vol_temporal_ms": f.temporal_total_ms, "vol_full_ms": f.full_total_ms,
+                "frame_temporal_ms": f.temporal_frame_ms, "frame_full_ms": f.full_frame_ms,
+                "temporal_pass_ms": f.temporal_ms, "full_pass_ms": f.full_ms,
+                "marched_fraction": f.marched_fraction, "mean_abs": f.mean_abs, "max_abs": f.max_abs,
+                "psnr_db": if f.psnr.is_finite() { serde_json::json!(f.psnr) } else { serde_json::Value::Null },
+                "changed_pixels": f.changed_pixels, "missed_pixels": f.missed_pixels,
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "scene": r.scene, "width": r.width, "height": r.height,
+        "vol_speedup": r.speedup, "frame_speedup": r.frame_speedup,
+        "frame_temporal_ms": r.temporal_frame_ms, "frame_full_ms": r.full_frame_ms,
+        "mean_marched_fraction": r.mean_marched_fraction, "missed_pixels": r.missed_pixels,
+        "masked_march_ratio": r.masked_march_ratio, "masked_fraction": r.masked_fraction,
+        "temporal_pass_ms": r.temporal_pass_ms, "full_pass_ms": r.full_pass_ms,
+        "notes": r.notes, "frames": frames,
+    })
 }
 
 pub fn run_volumetric(args: &VolumetricArgs, scene: &Scene) -> Result<()> {
@@ -267,7 +303,73 @@ pub fn run_volumetric(args: &VolumetricArgs, scene: &Scene) -> Result<()> {
     };
     let report = penumbra_passes::volumetric::bench::bench_volumetric(&ctx, &penumbra::shader_library(), scene, &opts)?;
     print!("{}", report.table());
-    if let Some(path) = &args.chart {
+    // The reuse sweep (Fig. 5.2): whole-frame ms of the temporal method per refresh period.
+    let mut sweep = Vec::new();
+    for &n in &args.sweep {
+        let o = penumbra_passes::volumetric::bench::VolBenchOptions { reuse_frames: n.max(1), ..opts.clone() };
+        let r = penumbra_passes::volumetric::bench::bench_volumetric(&ctx, &penumbra::shader_library(), scene, &o)?;
+        sweep.push((n.max(1), r));
+    }
+    if !sweep.is_empty() {
+        println!("reuse sweep ({} frames each, whole-frame GPU ms):", opts.frames);
+        println!("period  reused_number  temporal_ms  full_ms  speedup  fps_temporal  marched  missed");
+        for (n, r) in &sweep {
+            println!(
+                "{n:6}  {:13}  {:11.3}  {:7.3}  {:7.2}  {:12.2}  {:7.3}  {:6}",
+                n - 1,
+                r.temporal_frame_ms,
+                r.full_frame_ms,
+                r.frame_speedup,
+                1000.0 / r.temporal_frame_ms.max(1e-9),
+                r.mean_marched_fraction,
+                r.missed_pixels
+            );
+        }
+    }
+    if let Some(path) = &args.json {
+        let mut v = vol_report_json(&report);
+        v["reuse_frames"] = serde_json::json!(opts.reuse_frames);
+        v["device"] = serde_json::json!(ctx.device_name);
+        v["sweep"] = serde_json::Value::Array(
+            sweep
+                .iter()
+                .map(|(n, r)| {
+                    serde_json::json!({
+                        "reuse_frames": n, "reused_frame_number": n - 1,
+                        "frame_temporal_ms": r.temporal_frame_ms, "frame_full_ms": r.full_frame_ms,
+                        "frame_speedup": r.frame_speedup, "mean_marched_fraction": r.mean_marched_fraction,
+                        "missed_pixels": r.missed_pixels,
+                    })
+                })
+                .collect(),
+        );
+        std::fs::write(path, serde_json::to_string_pretty(&v)?)
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
+    if let (Some(path), false) = (&args.chart, sweep.is_empty()) {
+        let series = [
+            crate::plot::Series {
+                name: "temporal reuse".into(),
+                points: sweep.iter().map(|(n, r)| ((n - 1) as f64, 1000.0 / r.temporal_frame_ms.max(1e-9))).collect(),
+                labels: vec![],
+            },
+            crate::plot::Series {
+                name: "full (every pixel)".into(),
+                points: sweep.iter().map(|(n, r)| ((n - 1) as f64, 1000.0 / r.full_frame_ms.max(1e-9))).collect(),
+                labels: vec![],
+            },
+        ];
+        let chart = crate::plot::Chart {
+            title: format!("{}: frame rate against the reused frame number, {width}x{height}", report.scene),
+            x_label: "reused frame number (refresh period - 1)".into(),
+            y_label: "frames per second (whole-frame GPU time)".into(),
+            log_x: false,
+            legend: true,
+        };
+        crate::plot::write_chart(path, &chart, &series)?;
+        println!("wrote {}", path.display());
+    } else if let Some(path) = &args.chart {
         let line = |name: &str, ms: &dyn Fn(&penumbra_passes::volumetric::bench::VolBenchFrame) -> f64| crate::plot::Series {
             name: name.into(),
             points: report.frames.iter().map(|f| (f.frame as f64, ms(f))).collect(),

@@ -259,8 +259,31 @@ fn bench_trace_and_volumetric_run_and_report() {
     let o = penumbra(&["bench", "volumetric", vol.to_str().unwrap(), "--frames", "3", "--size", "48x36", "--chart", chart.to_str().unwrap()]);
     let t = text(&o);
     assert!(o.status.success(), "{t}");
-    assert!(t.contains("overall speedup") && t.contains("missed pixels 0"), "{t}");
+    assert!(t.contains("overall speedup") && t.contains("missed pixels 0") && t.contains("whole frames"), "{t}");
     assert!(chart.exists(), "no chart written:\n{t}");
+    // The reuse sweep (Fig. 5.2) and the JSON report: whole-frame cost per refresh period.
+    let json = tmp("volumetric_chart").join("vol.json");
+    let sweep_chart = tmp("volumetric_chart").join("sweep.png");
+    let o = penumbra(&[
+        "bench", "volumetric", vol.to_str().unwrap(), "--frames", "4", "--size", "32x24", "--sweep", "1,4",
+        "--json", json.to_str().unwrap(), "--chart", sweep_chart.to_str().unwrap(),
+    ]);
+    let t = text(&o);
+    assert!(o.status.success() && t.contains("reuse sweep") && sweep_chart.exists(), "{t}");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["reuse_frames"], 4, "the thesis's reused frame number 3 is the default");
+    let sw = v["sweep"].as_array().unwrap();
+    assert_eq!(sw.len(), 2);
+    assert_eq!(sw[0]["reused_frame_number"], 0);
+    for e in sw {
+        assert!(e["frame_temporal_ms"].as_f64().unwrap() > 0.0 && e["frame_full_ms"].as_f64().unwrap() > 0.0, "{e}");
+        assert_eq!(e["missed_pixels"], 0, "{e}");
+    }
+    // Period 1 recomputes every pixel every frame: nothing is masked.
+    assert!((sw[0]["mean_marched_fraction"].as_f64().unwrap() - 1.0).abs() < 1e-9, "{}", sw[0]);
+    let frames = v["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), 4);
+    assert!(frames.iter().all(|f| f["frame_temporal_ms"].as_f64().unwrap() >= f["vol_temporal_ms"].as_f64().unwrap()));
     let no_medium = root.join("scenes/chess.toml");
     expect_bad_input(&["bench", "volumetric", no_medium.to_str().unwrap()], &["chess.toml", "no [medium]"]);
     let d = tmp("volumetric_flag");

@@ -68,6 +68,10 @@ pub struct VolBenchFrame {
     pub full_total_ms: f64,
     /// `full_total_ms / temporal_total_ms`.
     pub speedup: f64,
+    /// GPU ms of the whole frame (G-buffer, surface technique and volumetric passes), as the
+    /// thesis's Table 6.1 times frames.
+    pub temporal_frame_ms: f64,
+    pub full_frame_ms: f64,
     /// Fraction of pixels the temporal method marched this frame.
     pub marched_fraction: f64,
     /// Final HDR images, temporal vs full.
@@ -87,8 +91,17 @@ pub struct VolBenchReport {
     pub width: u32,
     pub height: u32,
     pub frames: Vec<VolBenchFrame>,
-    /// Sum of full ms over sum of temporal ms (all frames).
+    /// Sum of full ms over sum of temporal ms (all frames, `vol_*` passes).
     pub speedup: f64,
+    /// The same over whole frames (surfaces included): Table 6.1's ratio.
+    pub frame_speedup: f64,
+    /// Mean whole-frame GPU ms per method.
+    pub temporal_frame_ms: f64,
+    pub full_frame_ms: f64,
+    /// Masked frames: median of (temporal `vol_march` ms / full `vol_march` ms) and the mean
+    /// marched fraction of those frames (the stencil's work saving: ideally equal).
+    pub masked_march_ratio: Option<f64>,
+    pub masked_fraction: Option<f64>,
     /// Median GPU ms per `vol_*` pass over the frames that ran it, per method.
     pub temporal_pass_ms: Vec<(String, f64)>,
     pub full_pass_ms: Vec<(String, f64)>,
@@ -104,17 +117,19 @@ impl VolBenchReport {
     /// A plain-text table (one line per frame, then the totals).
     pub fn table(&self) -> String {
         let mut s = format!(
-            "volumetric bench '{}' {}x{}\nframe  mode     temporal_ms  full_ms  speedup  marched  mean_abs  max_abs  psnr_dB  changed  missed\n",
+            "volumetric bench '{}' {}x{} (GPU ms; vol: the vol_* passes, frame: every pass)\nframe  mode     vol_temporal  vol_full  speedup  frame_temporal  frame_full  marched  mean_abs  max_abs  psnr_dB  changed  missed\n",
             self.scene, self.width, self.height
         );
         for f in &self.frames {
             s += &format!(
-                "{:5}  {:8} {:11.3} {:8.3} {:8.2} {:8.3} {:9.2e} {:8.2e} {:8.1} {:8} {:7}\n",
+                "{:5}  {:8} {:12.3} {:9.3} {:8.2} {:15.3} {:11.3} {:8.3} {:9.2e} {:8.2e} {:8.1} {:8} {:7}\n",
                 f.frame,
                 f.temporal_mode,
                 f.temporal_total_ms,
                 f.full_total_ms,
                 f.speedup,
+                f.temporal_frame_ms,
+                f.full_frame_ms,
                 f.marched_fraction,
                 f.mean_abs,
                 f.max_abs,
@@ -124,9 +139,15 @@ impl VolBenchReport {
             );
         }
         s += &format!(
-            "overall speedup {:.2}x, mean marched fraction {:.3}, missed pixels {}\n",
-            self.speedup, self.mean_marched_fraction, self.missed_pixels
+            "overall speedup {:.2}x (vol_* passes), {:.2}x whole frames ({:.3} ms temporal, {:.3} ms full), mean marched fraction {:.3}, missed pixels {}\n",
+            self.speedup, self.frame_speedup, self.temporal_frame_ms, self.full_frame_ms, self.mean_marched_fraction, self.missed_pixels
         );
+        if let (Some(r), Some(f)) = (self.masked_march_ratio, self.masked_fraction) {
+            s += &format!(
+                "masked frames: vol_march costs {r:.3} of the full march for a marched fraction of {f:.3} ({:.2}x the fraction)\n",
+                r / f.max(1e-9)
+            );
+        }
         for (label, v) in [("temporal", &self.temporal_pass_ms), ("full", &self.full_pass_ms)] {
             let parts: Vec<String> = v.iter().map(|(n, ms)| format!("{n} {ms:.3}")).collect();
             s += &format!("median ms per pass, {label}: {}\n", parts.join(", "));
@@ -155,6 +176,8 @@ struct RunOut {
     mode: MarchMode,
     frame_id: u32,
     gpu_ms: Vec<(String, f64)>,
+    /// Every pass of the frame.
+    frame_ms: f64,
 }
 
 fn f32s(bytes: &[u8]) -> Vec<[f32; 4]> {
@@ -210,6 +233,7 @@ impl Runner {
             scatter: f32s(&get("vol_bench_scatter")),
             mode: info.mode,
             frame_id: info.frame_id,
+            frame_ms: o.gpu_ms.iter().filter(|(n, _)| n != "bench_readback").map(|x| x.1).sum(),
             gpu_ms: o.gpu_ms.into_iter().filter(|(n, _)| n.starts_with("vol_")).collect(),
         })
     }
@@ -306,6 +330,8 @@ pub fn bench_volumetric(
             temporal_total_ms: tt,
             full_total_ms: ft,
             speedup: if tt > 0.0 { ft / tt } else { f64::INFINITY },
+            temporal_frame_ms: a.frame_ms,
+            full_frame_ms: b.frame_ms,
             marched_fraction: marched as f64 / n as f64,
             mean_abs: sum / (3 * n) as f64,
             max_abs: max,
@@ -341,7 +367,25 @@ pub fn bench_volumetric(
     let temporal_pass_ms = medians(&|f| &f.temporal_ms);
     let full_pass_ms = medians(&|f| &f.full_ms);
     let mean_marched_fraction = frames.iter().map(|f| f.marched_fraction).sum::<f64>() / frames.len() as f64;
+    let n = frames.len() as f64;
+    let temporal_frame_ms = frames.iter().map(|f| f.temporal_frame_ms).sum::<f64>() / n;
+    let full_frame_ms = frames.iter().map(|f| f.full_frame_ms).sum::<f64>() / n;
+    let march = |v: &Vec<(String, f64)>| v.iter().find(|x| x.0 == "vol_march").map(|x| x.1);
+    let masked: Vec<&VolBenchFrame> = frames.iter().filter(|f| f.temporal_mode == "masked").collect();
+    let mut ratios: Vec<f64> = masked
+        .iter()
+        .filter_map(|f| Some(march(&f.temporal_ms)? / march(&f.full_ms)?.max(1e-9)))
+        .collect();
+    ratios.sort_by(|a, b| a.total_cmp(b));
+    let masked_march_ratio = (!ratios.is_empty()).then(|| ratios[ratios.len() / 2]);
+    let masked_fraction =
+        (!masked.is_empty()).then(|| masked.iter().map(|f| f.marched_fraction).sum::<f64>() / masked.len() as f64);
     Ok(VolBenchReport {
+        frame_speedup: if temporal_frame_ms > 0.0 { full_frame_ms / temporal_frame_ms } else { f64::INFINITY },
+        temporal_frame_ms,
+        full_frame_ms,
+        masked_march_ratio,
+        masked_fraction,
         temporal_pass_ms,
         full_pass_ms,
         mean_marched_fraction,
