@@ -7,13 +7,18 @@
 //! - `vol_mask` (raster, temporal mode only, on frames that reuse): the moving objects and the
 //!   boundaries of their shadow volumes, for the current and the previous transforms, built on
 //!   the GPU by a geometry shader over triangles with adjacency (silhouette edges extruded to
-//!   infinity, back cap at infinity) and rasterized without depth test into a coverage mask.
-//! - `vol_march` (compute): eq. 1's in-scattering integral along each view ray up to the
+//!   infinity, back cap at infinity; sides pushed out by 1.5 shadow-map texels, see
+//!   `vol_mask.geom`) and rasterized without depth test into a stencil mask, as the thesis's
+//!   section 5.1 builds it (stencil op REPLACE 1 on every covered pixel; a combined
+//!   depth-stencil image, [`mask_format`], used for its stencil only).
+//! - `vol_march` (raster, one full-viewport triangle): eq. 1's in-scattering integral along each view ray up to the
 //!   G-buffer surface, with the Henyey-Greenstein phase function, attenuation on both legs and
 //!   shadow-map visibility. Quadrature: stratified equiangular samples about the light
 //!   (exact for the 1/d^2 falloff, handles rays through or near the light and rays to infinity)
-//!   combined by the balance heuristic with exponential-distance samples (dense media). In
-//!   temporal mode it runs only on masked pixels and writes the persistent history in place.
+//!   combined by the balance heuristic with exponential-distance samples (dense media). On
+//!   masked frames the pipeline's stencil test (NOT_EQUAL 0) runs the fragment shader only on
+//!   masked pixels, which write the persistent history (load op load) in place; the rest keeps
+//!   the previous frame's values. Other frames draw every pixel.
 //! - `vol_composite` (compute): `L_s exp(-sigma_t d_s) + L_scatter`.
 //!
 //! Temporal rules: the whole frame is recomputed every `reuse_frames` frames (default 4: the
@@ -34,13 +39,15 @@
 //! (the spot cone's smooth falloff has none); on lavapipe the extra pass costs about what the
 //! skipped lookups save, so it is off by default.
 //!
-//! Differences from the thesis: the mask is an R8 colour attachment (coverage, no depth test)
-//! tested in the compute march, dilated by one pixel, instead of a stencil buffer tested by a
-//! raster march (a compute shader cannot stencil-test; the result is the same set of pixels);
-//! no reprojection (any camera, light or medium change recomputes the frame); one light
-//! scatters (the brightest spot/point/sphere light; a sphere light as a point of equal power).
-//! The technique's surface shading is not attenuated on the light's way in (only on the way to
-//! the eye), unlike the CPU reference.
+//! Surface light: every technique attenuates local light by `exp(-sigma_t d)` on its way in
+//! (the light table's `extra.yzw`, `light_transmittance` in `common.glsl`) and `vol_composite`
+//! attenuates the surface radiance on its way to the eye, as the CPU reference does.
+//!
+//! Differences from the thesis: the volumes are widened by 1.5 shadow-map texels (the thesis
+//! rasterizes exact volumes; its march's visibility is as discrete as ours, so exact volumes
+//! miss pixels at the boundaries); no reprojection (any camera, light or medium change
+//! recomputes the frame); one light scatters (the brightest spot/point/sphere light; a sphere
+//! light as a point of equal power).
 
 pub mod bench;
 
