@@ -64,24 +64,25 @@ float vol_visibility(VolLight L, sampler2D sm, vec3 x) {
     return zx <= zm * 1.01 + 1e-3 ? 1.0 : 0.0;
 }
 
-// Single scattering along o + t d, t in [0, tmax] (tmax may be +inf): equiangular samples about
-// the light combined (balance heuristic) with exponential-distance samples; deterministic
-// stratification with the per-pixel offset j.
+// Single scattering along o + t d, t in [t_lo, t_hi] (t_lo >= 0, t_hi may be +inf): equiangular
+// samples about the light combined (balance heuristic) with exponential-distance samples;
+// deterministic stratification with the per-pixel offset j.
 // Visibility is looked up only for t in [t_front, t_back] (the hybrid's shadowed interval;
 // [0, inf] without it): outside, the ray is lit.
-vec3 vol_inscatter(VolLight L, sampler2D sm, vec3 o, vec3 d, float tmax, float j, float t_front, float t_back) {
+vec3 vol_inscatter_range(VolLight L, sampler2D sm, vec3 o, vec3 d, float t_lo, float t_hi, float j, float t_front, float t_back) {
     vec3 lp = L.pos_kind.xyz;
     float delta = dot(lp - o, d);
     float D = max(length(lp - o - delta * d), 1e-4);
-    float ta = atan((0.0 - delta) / D);
-    float tb = isinf(tmax) ? 0.5 * PI : atan((tmax - delta) / D);
+    float ta = atan((t_lo - delta) / D);
+    float tb = isinf(t_hi) ? 0.5 * PI : atan((t_hi - delta) / D);
     float span = tb - ta;
     if (!(span > 0.0)) return vec3(0.0);
     int n = int(max(L.misc.y, 2u));
     float sb = L.sigma_s_bar.w;
+    float len = t_hi - t_lo;
     // Exponential strategy only where the medium is optically thick over the interval.
-    float mass = isinf(tmax) ? 1.0 : 1.0 - exp(-sb * tmax);
-    bool use_exp = sb > 0.0 && mass > 1e-6 && sb * (isinf(tmax) ? 1e30 : tmax) > 0.5;
+    float mass = isinf(len) ? 1.0 : 1.0 - exp(-sb * len);
+    bool use_exp = sb > 0.0 && mass > 1e-6 && sb * (isinf(len) ? 1e30 : len) > 0.5;
     int ne = use_exp ? n / 2 : 0;
     int na = n - ne;
     vec3 sum = vec3(0.0);
@@ -94,12 +95,12 @@ vec3 vol_inscatter(VolLight L, sampler2D sm, vec3 o, vec3 d, float tmax, float j
             th = clamp(th, -0.5 * PI + 1e-6, 0.5 * PI - 1e-6);
             t = delta + D * tan(th);
         } else {
-            t = -log(max(1.0 - u * mass, 1e-30)) / sb;
+            t = t_lo - log(max(1.0 - u * mass, 1e-30)) / sb;
         }
-        if (!(t >= 0.0) || t > tmax || isinf(t)) continue;
+        if (!(t >= t_lo) || t > t_hi || isinf(t)) continue;
         float r2 = D * D + (t - delta) * (t - delta);
         float pa = D / (span * r2);
-        float pe = use_exp ? sb * exp(-sb * t) / mass : 0.0;
+        float pe = use_exp ? sb * exp(-sb * (t - t_lo)) / mass : 0.0;
         float pdf = float(na) * pa + float(ne) * pe;
         if (!(pdf > 0.0)) continue;
         vec3 x = o + t * d;
@@ -114,6 +115,10 @@ vec3 vol_inscatter(VolLight L, sampler2D sm, vec3 o, vec3 d, float tmax, float j
         sum += f / pdf;
     }
     return sum;
+}
+
+vec3 vol_inscatter(VolLight L, sampler2D sm, vec3 o, vec3 d, float tmax, float j, float t_front, float t_back) {
+    return vol_inscatter_range(L, sm, o, d, 0.0, tmax, j, t_front, t_back);
 }
 
 #endif

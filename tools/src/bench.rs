@@ -242,9 +242,10 @@ pub struct VolumetricArgs {
     /// Samples per view ray.
     #[arg(long, default_value_t = 48)]
     pub samples: u32,
-    /// Both methods use Wyman and Ramsey's shadow-volume intervals.
+    /// Both methods march whole view rays (no shadow-volume intervals, no airlight); by default
+    /// both run Wyman and Ramsey's hybrid, the thesis's baseline.
     #[arg(long)]
-    pub hybrid: bool,
+    pub plain: bool,
     /// Also draw the per-frame GPU ms of both methods as a chart (PNG); with --sweep, the
     /// frame rate against the reused frame number (the thesis's Fig. 5.2).
     #[arg(long)]
@@ -298,7 +299,7 @@ pub fn run_volumetric(args: &VolumetricArgs, scene: &Scene) -> Result<()> {
         start_time: args.start,
         reuse_frames: args.reuse_frames.max(1),
         samples: args.samples.max(1),
-        hybrid: args.hybrid,
+        hybrid: !args.plain,
         ..Default::default()
     };
     let report = penumbra_passes::volumetric::bench::bench_volumetric(&ctx, &penumbra::shader_library(), scene, &opts)?;

@@ -30,7 +30,7 @@ pub struct VolBenchOptions {
     pub reuse_frames: u32,
     /// Samples per view ray (both methods).
     pub samples: u32,
-    /// Both methods use Wyman and Ramsey's shadow-volume intervals.
+    /// Both methods use Wyman and Ramsey's hybrid (shadow-volume intervals, airlight lit segments; default true).
     pub hybrid: bool,
     /// Testing only: the temporal method skips its masked march (negative control).
     #[doc(hidden)]
@@ -47,7 +47,7 @@ impl Default for VolBenchOptions {
             start_time: 0.0,
             reuse_frames: 4,
             samples: 48,
-            hybrid: false,
+            hybrid: true,
             debug_skip_mask: false,
         }
     }

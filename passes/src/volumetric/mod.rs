@@ -31,13 +31,17 @@
 //! so they count as silhouette edges whenever the triangle faces the light (conservative, the
 //! mask only grows); they are listed in [`VolumetricEffect::notes`].
 //!
-//! Hybrid (optional, [`VolumetricParams::hybrid`], Wyman and Ramsey): `vol_volumes` rasterizes
-//! the shadow volumes of every shadow caster (same geometry shader) into the front-most and
-//! back-most boundary distance per pixel (MIN/MAX blending); the march looks the shadow map up
-//! only between them (from the eye when the eye is in shadow) and treats the rest as lit.
-//! The lit segments are integrated by the same quadrature, not by an airlight closed form
-//! (the spot cone's smooth falloff has none); on lavapipe the extra pass costs about what the
-//! skipped lookups save, so it is off by default.
+//! Hybrid (the default, [`VolumetricParams::hybrid`]; Wyman and Ramsey, the thesis's section
+//! 3.3 and its baseline): `vol_volumes` rasterizes the shadow volumes of every shadow caster
+//! (same geometry shader) into the front-most and back-most boundary distance per pixel
+//! (MIN/MAX blending); the march integrates the lit segments before and after them in closed
+//! form with the airlight model (`vol_airlight.glsl`, Sun et al. 2005, its `F` tabulated for the
+//! medium's Henyey-Greenstein g by [`airlight::table`]; a spot's cone splits the segment, its
+//! smooth falloff integrated by Gauss-Legendre) and marches only the shadowed interval, with
+//! shadow-map lookups (from the eye when the eye is in shadow). At 640x480 on lavapipe it
+//! halves the volumetric passes of the full method (god_rays: march 36 ms + volumes 18 ms
+//! against a 106 ms plain march) and it is closer to the CPU reference than the plain march.
+//! Casters without adjacency (deformed meshes) fall back to the plain march.
 //!
 //! Surface light: every technique attenuates local light by `exp(-sigma_t d)` on its way in
 //! (the light table's `extra.yzw`, `light_transmittance` in `common.glsl`) and `vol_composite`
@@ -49,6 +53,7 @@
 //! recomputes the frame); one light scatters (the brightest spot/point/sphere light; a sphere
 //! light as a point of equal power).
 
+pub mod airlight;
 pub mod bench;
 
 use crate::effect::{Effect, EffectInputs};
@@ -115,8 +120,9 @@ pub struct VolumetricParams {
     /// Shadow-map face size in texels (default 512; point lights use 6 faces of half that).
     pub shadow_size: u32,
     /// Wyman and Ramsey's hybrid: rasterize the shadow volumes of every shadow caster into
-    /// front-most/back-most distances per pixel and look the shadow map up only in between
-    /// (default false: on lavapipe the extra volume pass costs more than the lookups it saves).
+    /// front-most/back-most distances per pixel, integrate the lit segments outside them in
+    /// closed form (airlight) and march only in between (default true; false marches every
+    /// view ray's whole length).
     pub hybrid: bool,
     /// Testing only: reuse the history on masked frames without marching (a negative control
     /// for the missed-pixel metric).
@@ -131,7 +137,7 @@ impl Default for VolumetricParams {
             reuse_frames: 4,
             samples: 48,
             shadow_size: 512,
-            hybrid: false,
+            hybrid: true,
             debug_skip_mask: false,
         }
     }
@@ -200,6 +206,8 @@ pub struct VolumetricEffect {
     composite: Pipeline,
     nearest: Sampler,
     adjacency: Option<GpuBuffer>,
+    /// The hybrid's airlight table for the medium's g ([`airlight::table`]).
+    airlight: Option<GpuBuffer>,
     adj_ranges: Vec<Option<AdjRange>>,
     casts_shadow: Vec<bool>,
     mesh_bounds: Vec<Option<(Vec3, Vec3)>>,
@@ -334,6 +342,11 @@ impl VolumetricEffect {
         } else {
             Some(ctx.create_buffer_with_data("vol.adjacency", &bytes_of(&adj), vk::BufferUsageFlags::INDEX_BUFFER)?)
         };
+        let airlight = Some(ctx.create_buffer_with_data(
+            "vol.airlight",
+            &bytes_of(&airlight::table(medium.g)),
+            vk::BufferUsageFlags::STORAGE_BUFFER,
+        )?);
         let casts_shadow = (0..scene.objects.len()).map(|i| scene.object_info(i).casts_shadow).collect();
         let mesh_bounds = scene.meshes.iter().map(|m| m.bounds()).collect();
         Ok(VolumetricEffect {
@@ -349,6 +362,7 @@ impl VolumetricEffect {
             composite,
             nearest: Sampler::nearest(ctx)?,
             adjacency,
+            airlight,
             adj_ranges,
             casts_shadow,
             mesh_bounds,
@@ -480,6 +494,7 @@ fn march_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, stencil: Option<S
                 T::COMBINED_IMAGE_SAMPLER,
                 T::COMBINED_IMAGE_SAMPLER,
                 T::COMBINED_IMAGE_SAMPLER,
+                T::STORAGE_BUFFER,
             ],
             colors: &[SCATTER_FORMAT],
             stencil,
@@ -866,6 +881,8 @@ impl Effect for VolumetricEffect {
         let scatter = if mode == MarchMode::Skipped {
             scatter
         } else {
+            let air = self.airlight.as_ref().expect("airlight table");
+            let air_h = graph.import_buffer("vol.airlight", air.buffer, air.size, air.usage);
             let mut p = graph.pass("vol_march", PassKind::Raster);
             let camera = p.read(sh.camera, Access::AnyShaderReadUniform);
             let lb = p.read(light_buf, Access::FragmentShaderReadStorage);
@@ -873,6 +890,7 @@ impl Effect for VolumetricEffect {
             let sm = p.read(smap, Access::FragmentShaderReadSampled);
             let mk = mask.map(|m| p.read(m, Access::DepthStencilAttachmentRead));
             let iv = intervals.map(|m| p.read(m, Access::FragmentShaderReadSampled));
+            let air = p.read(air_h, Access::FragmentShaderReadStorage);
             // Masked frames draw over the history (load op load); the others cover every pixel.
             let access =
                 if mode == MarchMode::Masked { Access::ColorAttachmentReadWrite } else { Access::ColorAttachmentWrite };
@@ -914,6 +932,7 @@ impl Effect for VolumetricEffect {
                         Bind::SampledImage(pos, nearest),
                         Bind::SampledImage(sm, nearest),
                         Bind::SampledImage(iv.unwrap_or(pos), nearest),
+                        Bind::StorageBuffer(air),
                     ],
                 )?;
                 unsafe {
@@ -964,6 +983,9 @@ impl DrawMesh for crate::scene_gpu::Draw {
 impl Drop for VolumetricEffect {
     fn drop(&mut self) {
         if let Some(b) = self.adjacency.take() {
+            self.ctx.destroy_buffer(b);
+        }
+        if let Some(b) = self.airlight.take() {
             self.ctx.destroy_buffer(b);
         }
     }
