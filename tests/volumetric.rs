@@ -261,6 +261,24 @@ fn hybrid_with_airlight_matches_the_reference_as_plain_marching_does() {
 }
 
 #[test]
+fn deforming_mover_masks_like_a_rigid_one() {
+    // A squashing ball (a deformation, no rigid motion): its previous shape is on the GPU, so
+    // the temporal method masks instead of recomputing every frame, and misses nothing.
+    let ctx = ctx();
+    let deform = "deform = [{ type = \"squash\", amount = 0.4, period = 0.8 }]";
+    let scene = occluder_scene("vol_squash", MEDIUM, CAM, SPOT, deform);
+    let rep = bench(&ctx, &scene, 4, 64, 48);
+    let modes: Vec<_> = rep.frames.iter().map(|f| f.temporal_mode.as_str()).collect();
+    assert_eq!(modes, ["refresh", "masked", "masked", "masked"], "{}", rep.table());
+    assert_eq!(rep.missed_pixels, 0, "{}", rep.table());
+    assert!(rep.frames[1..].iter().all(|f| f.changed_pixels > 0), "the squash changes the shafts: {}", rep.table());
+    for f in &rep.frames[1..] {
+        assert!(f.marched_fraction < 0.9, "frame {}: the mask covers only the ball's volumes: {}", f.frame, rep.table());
+        assert_eq!(f.mean_abs, 0.0, "frame {}: temporal differs from full: {}", f.frame, rep.table());
+    }
+}
+
+#[test]
 fn static_scene_marches_nothing_between_refreshes() {
     let ctx = ctx();
     let scene = occluder_scene("vol_static", MEDIUM, CAM, SPOT, "");

@@ -24,8 +24,9 @@
 //! Temporal rules: the whole frame is recomputed every `reuse_frames` frames (default 4: the
 //! thesis's reused frame number 3, Fig. 5.1 "reused frame number = n - 1"), on
 //! the first frame, and whenever the camera, the light, the medium or the image size changes
-//! (no reprojection); a deforming mover also forces a full frame (its previous shape is not on
-//! the GPU). A frame without movers between refreshes runs no march at all.
+//! (no reprojection). A deforming mover masks like a rigid one: its previous frame's shape is
+//! uploaded beside this frame's (`vol.prev_deformed_vertices`, at the same offsets) and its
+//! previous volume drawn from it. A frame without movers between refreshes runs no march at all.
 //!
 //! Open meshes: edges without a neighbour get the triangle's own opposite vertex as adjacency,
 //! so they count as silhouette edges whenever the triangle faces the light (conservative, the
@@ -320,7 +321,9 @@ impl VolumetricEffect {
         if mask.is_some() || volumes.is_some() {
             for (oi, o) in scene.objects.iter().enumerate() {
                 let info = scene.object_info(oi);
-                let can_move = !matches!(info.motion, penumbra_scene::RigidMotion::Static) || info.node.is_some();
+                let can_move = !matches!(info.motion, penumbra_scene::RigidMotion::Static)
+                    || info.node.is_some()
+                    || !info.deformations.is_empty();
                 let needed = (mask.is_some() && can_move) || (volumes.is_some() && info.casts_shadow);
                 if !needed || adj_ranges.get(o.mesh).is_none_or(|r: &Option<AdjRange>| r.is_some()) {
                     continue;
@@ -558,8 +561,12 @@ struct VolumeDraws<'a> {
     widen: f32,
     /// The target is the stencil mask (a depth-stencil image), not a colour image.
     stencil: bool,
-    /// (instance, adjacency range, vertex offset) per drawn mesh.
-    draws: Vec<(u32, AdjRange, i32)>,
+    /// (instance, adjacency range, vertex offset, deformed) per drawn mesh: deformed meshes
+    /// read `deformed` (this frame's shapes, the scene's `deformed_vertices`) and `prev_deformed`
+    /// (the previous frame's, same offsets), the others the scene's vertices.
+    draws: Vec<(u32, AdjRange, i32, bool)>,
+    deformed: Option<penumbra_engine::BufferHandle>,
+    prev_deformed: Option<penumbra_engine::BufferHandle>,
 }
 
 impl VolumeDraws<'_> {
@@ -583,6 +590,8 @@ impl VolumeDraws<'_> {
         let camera = p.read(sh.camera, Access::AnyShaderReadUniform);
         let instances = p.read(sh.instances, Access::VertexShaderReadStorage);
         let vertices = p.read(sh.vertices, Access::VertexBuffer);
+        let deformed = self.deformed.map(|b| p.read(b, Access::VertexBuffer));
+        let prev_deformed = self.prev_deformed.map(|b| p.read(b, Access::VertexBuffer));
         let adj_h = p.read(self.adjacency, Access::IndexBuffer);
         let (lp, near, widen, draws) = (self.light, self.near, self.widen, self.draws);
         p.record(move |rc| {
@@ -594,6 +603,14 @@ impl VolumeDraws<'_> {
             let info = vk::RenderingInfo::default().render_area(area).layer_count(1);
             let info = if stencil { info.stencil_attachment(&st) } else { info.color_attachments(&atts) };
             let vb = rc.buffer(vertices)?.buffer;
+            let db = match deformed {
+                Some(b) => Some(rc.buffer(b)?.buffer),
+                None => None,
+            };
+            let pdb = match prev_deformed {
+                Some(b) => Some(rc.buffer(b)?.buffer),
+                None => None,
+            };
             let ib = rc.buffer(adj_h)?.buffer;
             unsafe {
                 d.cmd_begin_rendering(rc.cmd, &info);
@@ -609,14 +626,24 @@ impl VolumeDraws<'_> {
             )?;
             let stages = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::GEOMETRY | vk::ShaderStageFlags::FRAGMENT;
             unsafe {
-                d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb], &[0]);
                 d.cmd_bind_index_buffer(rc.cmd, ib, 0, vk::IndexType::UINT32);
                 for &prev in use_prev {
                     let mut pc = bytes_of(&[lp[0], lp[1], lp[2], near]);
                     pc.extend(bytes_of(&[prev, widen.to_bits(), 0, 0]));
                     d.cmd_push_constants(rc.cmd, layout, stages, 0, &pc);
-                    for (inst, r, vo) in &draws {
-                        d.cmd_draw_indexed(rc.cmd, r.index_count, 1, r.first_index, *vo, *inst);
+                    let mut bound = None;
+                    for &(inst, r, vo, def) in &draws {
+                        let buffer = match (def, prev != 0) {
+                            (false, _) => Some(vb),
+                            (true, false) => db,
+                            (true, true) => pdb.or(db),
+                        };
+                        let Some(buffer) = buffer else { continue };
+                        if bound != Some(buffer) {
+                            d.cmd_bind_vertex_buffers(rc.cmd, 0, &[buffer], &[0]);
+                            bound = Some(buffer);
+                        }
+                        d.cmd_draw_indexed(rc.cmd, r.index_count, 1, r.first_index, vo, inst);
                     }
                 }
                 d.cmd_end_rendering(rc.cmd);
@@ -766,7 +793,35 @@ impl Effect for VolumetricEffect {
             .filter(|d| inputs.frame.instances.get(d.instance as usize).is_some_and(|i| i.moved || i.deformed))
             .copied()
             .collect();
-        let deforming = movers.iter().any(|d| inputs.frame.instances[d.instance as usize].deformed);
+        // The previous frame's shapes of the deformed meshes, at this frame's offsets into the
+        // scene's deformed vertices (the mask draws a deforming mover's previous volume from it).
+        let prev_deformed = if inputs.draws.iter().any(|d| d.deformed) && sh.deformed_vertices.is_some() {
+            let end = inputs
+                .draws
+                .iter()
+                .filter(|d| d.deformed)
+                .filter_map(|d| {
+                    let m = inputs.frame.instances.get(d.instance as usize)?.deformed_mesh.as_ref()?;
+                    Some(d.mesh.vertex_offset.max(0) as usize + m.positions.len())
+                })
+                .max()
+                .unwrap_or(0);
+            let mut verts = vec![crate::scene_gpu::Vertex { pos: [0.0; 3], normal: [0.0; 3], uv: [0.0; 2] }; end];
+            for d in inputs.draws.iter().filter(|d| d.deformed) {
+                let Some(it) = inputs.frame.instances.get(d.instance as usize) else { continue };
+                let Some(cur) = it.deformed_mesh.as_ref() else { continue };
+                let prev = it.prev_deformed_mesh.as_ref().filter(|p| p.positions.len() == cur.positions.len()).unwrap_or(cur);
+                let o = d.mesh.vertex_offset.max(0) as usize;
+                for (k, p) in prev.positions.iter().enumerate() {
+                    if let Some(v) = verts.get_mut(o + k) {
+                        v.pos = p.to_array();
+                    }
+                }
+            }
+            (!verts.is_empty()).then(|| graph.create_buffer_init("vol.prev_deformed_vertices", bytes_of(&verts)))
+        } else {
+            None
+        };
         let mut reason = None;
         let mode = if !temporal {
             MarchMode::Full
@@ -779,8 +834,6 @@ impl Effect for VolumetricEffect {
                 reason = Some("camera, light or medium changed");
             } else if self.since_refresh + 1 >= self.params.reuse_frames {
                 reason = Some("every n frames");
-            } else if deforming {
-                reason = Some("deforming mover");
             } else if self.mask.is_none() {
                 reason = Some("no mask pipeline");
             } else if movers.iter().any(|d| self.adj_ranges.get(d.mesh_index(inputs)).is_none_or(|r| r.is_none())) {
@@ -809,11 +862,11 @@ impl Effect for VolumetricEffect {
             let adj = self.adjacency.as_ref().expect("adjacency");
             let adj_h = graph.import_buffer("vol.adjacency", adj.buffer, adj.size, adj.usage);
             let img = graph.create_image("vol_mask", ImageDesc::new_2d(self.stencil_format, w, h));
-            let draws: Vec<(u32, AdjRange, i32)> = movers
+            let draws: Vec<(u32, AdjRange, i32, bool)> = movers
                 .iter()
                 .filter_map(|d| {
                     let r = self.adj_ranges.get(d.mesh_index(inputs))?.as_ref()?;
-                    Some((d.instance, *r, d.mesh.vertex_offset))
+                    Some((d.instance, *r, d.mesh.vertex_offset, d.deformed))
                 })
                 .collect();
             // The volumes of the previous frame's and this frame's positions (use_prev 0 and 1).
@@ -825,6 +878,8 @@ impl Effect for VolumetricEffect {
                 widen: block.extra[1],
                 stencil: true,
                 draws,
+                deformed: sh.deformed_vertices,
+                prev_deformed,
             };
             let img = vol.add(graph, "vol_mask", sh, img, (w, h), [0.0; 4], &[0, 1]);
             mask = Some(img);
@@ -833,16 +888,20 @@ impl Effect for VolumetricEffect {
         // Hybrid: front-most/back-most shadow-volume distances of every caster (current frame).
         let mut intervals = None;
         if let (Some(vp), true, false) = (self.volumes.as_ref(), has_light, mode == MarchMode::Skipped) {
-            let casters: Vec<(u32, AdjRange, i32)> = inputs
+            let casters: Vec<(u32, AdjRange, i32, bool)> = inputs
                 .draws
                 .iter()
-                .filter(|d| !d.deformed)
                 .filter(|d| {
                     let obj = inputs.frame.instances.get(d.instance as usize).map(|i| i.object);
                     obj.and_then(|o| self.casts_shadow.get(o).copied()).unwrap_or(true)
                 })
                 .filter_map(|d| {
-                    Some((d.instance, *self.adj_ranges.get(d.mesh_index(inputs))?.as_ref()?, d.mesh.vertex_offset))
+                    Some((
+                        d.instance,
+                        *self.adj_ranges.get(d.mesh_index(inputs))?.as_ref()?,
+                        d.mesh.vertex_offset,
+                        d.deformed,
+                    ))
                 })
                 .collect();
             let all_covered = inputs
@@ -867,6 +926,8 @@ impl Effect for VolumetricEffect {
                             widen: block.extra[1],
                             stencil: false,
                             draws: casters,
+                            deformed: sh.deformed_vertices,
+                            prev_deformed: None,
                         };
                     let img = vol.add(graph, "vol_volumes", sh, img, (w, h), [f32::INFINITY, f32::INFINITY, f32::INFINITY, 0.0], &[0]);
                     intervals = Some(img);
