@@ -28,9 +28,11 @@ fn builtin(name: &str) -> Scene {
 /// single scattering only (the technique's surface shading is zero), so the GPU and the CPU
 /// reference compute the same thing. `extra` goes into the `[medium]` table's neighbourhood.
 fn occluder_scene(name: &str, medium: &str, camera: &str, light: &str, motion: &str) -> Scene {
-    scene_from(
-        name,
-        &format!(
+    scene_from(name, &occluder_text(name, medium, camera, light, motion))
+}
+
+fn occluder_text(name: &str, medium: &str, camera: &str, light: &str, motion: &str) -> String {
+    format!(
             r#"
 name = "{name}"
 [camera]
@@ -54,7 +56,6 @@ material = "black"
 position = [0.0, 1.2, 0.0]
 {motion}
 "#
-        ),
     )
 }
 
@@ -127,6 +128,45 @@ fn full_vs_reference(name: &str, light: &str) {
     assert!((sg / sr - 1.0).abs() < 0.03, "energy ratio {}", sg / sr);
     assert!(c.psnr_db.unwrap_or(f64::INFINITY) > 30.0, "PSNR {:?}", c.psnr_db);
     let _ = lum;
+}
+
+#[test]
+fn lit_surfaces_in_a_medium_match_the_reference() {
+    // Grey floor, pale ball: the surfaces' light is attenuated through the medium on its way in
+    // (every technique's local lights) and on its way to the eye (vol_composite), as the CPU
+    // reference does; before, the floor under the spot was 1.7x too bright.
+    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
+    let text = occluder_text("vol_lit", "sigma_a = 0.1\nsigma_s = 0.3\ng = 0.3", CAM, SPOT, "")
+        .replace("[materials.black]\ntype = \"diffuse\"\nalbedo = 0.0", "[materials.black]\ntype = \"diffuse\"\nalbedo = 0.6");
+    assert!(text.contains("albedo = 0.6"));
+    let (w, h) = (96, 72);
+    for technique in ["shadowmaps", "mc"] {
+        let scene = scene_from(&format!("vol_lit_{}", technique), &text.replace("name = \"vol_lit\"", &format!("name = \"vol_lit\"\ntechnique = \"{technique}\"")));
+        let (r, img) = render_one(&scene, "full", w, h);
+        assert_eq!(r.context().validation.error_count(), 0, "{:?}", r.context().validation.errors());
+        drop(r);
+        let opts = penumbra_reference::render::ReferenceOptions { width: w, height: h, spp: 256, ..Default::default() };
+        let reference = penumbra_reference::render::render(&scene, &opts).expect("reference");
+        let gpu = common::hdr_image(&img);
+        let c = penumbra_reference::metrics::compare(&reference.radiance, "reference", &gpu, technique).unwrap();
+        let sum = |im: &penumbra_reference::image::Image| im.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>();
+        let ratio = sum(&gpu) / sum(&reference.radiance);
+        // The floor straight under the light (the image's lower middle): lit, in the medium.
+        let floor = |im: &penumbra_reference::image::Image| {
+            let mut s = 0.0f64;
+            for y in 60..68 {
+                for x in 40..56 {
+                    let p = im.pixels[(y * w + x) as usize];
+                    s += (p[0] + p[1] + p[2]) as f64;
+                }
+            }
+            s
+        };
+        let floor_ratio = floor(&gpu) / floor(&reference.radiance);
+        println!("{technique}: relRMSE {}, PSNR {:?} dB, energy ratio {ratio:.4}, floor ratio {floor_ratio:.4}", c.rel_rmse, c.psnr_db);
+        assert!((ratio - 1.0).abs() < 0.05, "{technique}: energy ratio {ratio}");
+        assert!((floor_ratio - 1.0).abs() < 0.08, "{technique}: floor ratio {floor_ratio}");
+    }
 }
 
 #[test]
