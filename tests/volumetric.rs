@@ -170,6 +170,20 @@ fn lit_surfaces_in_a_medium_match_the_reference() {
 }
 
 #[test]
+fn lights_beyond_the_scattering_budget_are_named() {
+    // One light scatters (the brightest); the user is told which others light surfaces only.
+    let two = format!("{SPOT}\n[[light]]\nname = \"dim\"\ntype = \"point\"\nposition = [1.0, 2.0, 1.0]\nintensity = 2");
+    let scene = occluder_scene("vol_two_lights", MEDIUM, CAM, &two, "");
+    let settings = RenderSettings { width: 32, height: 24, ..Default::default() };
+    let r = Renderer::new_headless(&scene, settings, false).expect("renderer");
+    let notes = r.notes().join("\n");
+    assert!(notes.contains("volumetric: ") && notes.contains("'spot'") && notes.contains("'dim' light surfaces only"), "{notes}");
+    let one = occluder_scene("vol_one_light", MEDIUM, CAM, SPOT, "");
+    let r = Renderer::new_headless(&one, RenderSettings { width: 32, height: 24, ..Default::default() }, false).unwrap();
+    assert!(!r.notes().iter().any(|n| n.contains("scatters one light")), "{:?}", r.notes());
+}
+
+#[test]
 fn a_scene_without_medium_has_no_volumetric_passes_and_god_rays_has_them() {
     let plain = builtin("balls_on_dish.toml");
     assert!(plain.medium.is_none());

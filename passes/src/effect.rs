@@ -20,6 +20,11 @@ pub trait Effect {
     /// Declares the effect's passes reading `hdr`; returns the new HDR image (or `hdr` itself
     /// after a read-modify-write).
     fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &EffectInputs, hdr: ImageHandle) -> Result<ImageHandle>;
+    /// What the effect leaves out or approximates for this scene and device, for the user
+    /// (`Renderer::notes`).
+    fn notes(&self) -> Vec<String> {
+        Vec::new()
+    }
 }
 
 /// Per-run overrides of the scene's effect choices (e.g. the CLI's `--volumetric`).

@@ -253,6 +253,15 @@ pub fn adjacency_indices(mesh: &penumbra_scene::MeshData) -> (Vec<u32>, usize) {
     (out, open)
 }
 
+/// The intensity a light scatters with (a sphere light as a point of its power), by which the
+/// one scattering light is chosen.
+fn scatter_power(l: &penumbra_scene::LightInstance) -> f32 {
+    match l.kind {
+        LightKind::Sphere { radius } => l.power.element_sum() * std::f32::consts::PI * radius * radius,
+        _ => l.power.element_sum(),
+    }
+}
+
 fn face_matrices(kind: LightKind, pos: Vec3, dir: Vec3, near: f32, far: f32) -> (Vec<Mat4>, u32) {
     let up_for = |d: Vec3| if d.y.abs() > 0.99 { Vec3::Z } else { Vec3::Y };
     match kind {
@@ -345,6 +354,23 @@ impl VolumetricEffect {
         } else {
             Some(ctx.create_buffer_with_data("vol.adjacency", &bytes_of(&adj), vk::BufferUsageFlags::INDEX_BUFFER)?)
         };
+        // A budget of one scattering light: say which lights do not scatter.
+        let f0 = scene.at(0.0, None);
+        let emitting: Vec<&penumbra_scene::LightInstance> =
+            f0.lights.iter().filter(|l| l.power.is_finite() && l.power.max_element() > 0.0).collect();
+        if emitting.len() > 1 {
+            let brightest = emitting.iter().max_by(|a, b| scatter_power(a).total_cmp(&scatter_power(b)));
+            let name = |l: &penumbra_scene::LightInstance| {
+                scene.lights.get(l.light).map_or_else(|| format!("light {}", l.light), |x| format!("'{}'", x.name))
+            };
+            let others: Vec<String> =
+                emitting.iter().filter(|l| Some(l) != brightest.as_ref()).map(|l| name(l)).collect();
+            notes.push(format!(
+                "the volumetric effect scatters one light per frame, the brightest ({} at t = 0); {} light surfaces only",
+                brightest.map_or_else(String::new, |l| name(l)),
+                others.join(", ")
+            ));
+        }
         let airlight = Some(ctx.create_buffer_with_data(
             "vol.airlight",
             &bytes_of(&airlight::table(medium.g)),
@@ -398,7 +424,7 @@ impl VolumetricEffect {
             .lights
             .iter()
             .filter(|l| l.power.is_finite() && l.power.max_element() > 0.0 && l.position.is_finite())
-            .max_by(|a, b| a.power.element_sum().total_cmp(&b.power.element_sum()));
+            .max_by(|a, b| scatter_power(a).total_cmp(&scatter_power(b)));
         let Some(l) = light else { return block };
         let (kind_id, cos_o, cos_i, power) = match l.kind {
             LightKind::Point => (0.0, -1.0, -1.0, l.power),
@@ -661,6 +687,10 @@ fn viewport(x: f32, y: f32, w: f32, h: f32) -> vk::Viewport {
 impl Effect for VolumetricEffect {
     fn name(&self) -> &'static str {
         "volumetric"
+    }
+
+    fn notes(&self) -> Vec<String> {
+        self.notes.iter().map(|n| format!("volumetric: {n}")).collect()
     }
 
     fn add(
