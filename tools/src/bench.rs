@@ -313,14 +313,17 @@ pub fn run_volumetric(args: &VolumetricArgs, scene: &Scene) -> Result<()> {
     }
     if !sweep.is_empty() {
         println!("reuse sweep ({} frames each, whole-frame GPU ms):", opts.frames);
-        println!("period  reused_number  temporal_ms  full_ms  speedup  fps_temporal  marched  missed");
+        println!("period  reused_number  temporal_ms  full_ms  speedup  vol_temporal_ms  vol_full_ms  vol_speedup  fps_temporal  marched  missed");
         for (n, r) in &sweep {
             println!(
-                "{n:6}  {:13}  {:11.3}  {:7.3}  {:7.2}  {:12.2}  {:7.3}  {:6}",
+                "{n:6}  {:13}  {:11.3}  {:7.3}  {:7.2}  {:15.3}  {:11.3}  {:11.2}  {:12.2}  {:7.3}  {:6}",
                 n - 1,
                 r.temporal_frame_ms,
                 r.full_frame_ms,
                 r.frame_speedup,
+                r.temporal_vol_ms,
+                r.full_vol_ms,
+                r.speedup,
                 1000.0 / r.temporal_frame_ms.max(1e-9),
                 r.mean_marched_fraction,
                 r.missed_pixels
@@ -339,6 +342,7 @@ pub fn run_volumetric(args: &VolumetricArgs, scene: &Scene) -> Result<()> {
                         "reuse_frames": n, "reused_frame_number": n - 1,
                         "frame_temporal_ms": r.temporal_frame_ms, "frame_full_ms": r.full_frame_ms,
                         "frame_speedup": r.frame_speedup, "mean_marched_fraction": r.mean_marched_fraction,
+                        "vol_temporal_ms": r.temporal_vol_ms, "vol_full_ms": r.full_vol_ms, "vol_speedup": r.speedup,
                         "missed_pixels": r.missed_pixels,
                     })
                 })

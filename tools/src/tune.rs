@@ -176,8 +176,11 @@ fn nothing_within(scene: &Scene, max_error: f64, size: (u32, u32), points: &[Poi
         ),
         None => "; no configuration rendered".into(),
     };
-    let why = if scene.medium.is_some() {
-        " (the scene has a participating medium: no technique's light shafts match the reference yet, issue 21)"
+    // At small sizes the floor is not noise: one sample per pixel against the reference's
+    // pixel-area integral aliases at silhouettes (god_rays at 40x30: mc at 1024 spp stays at
+    // 0.15, nearly all of it on the bunny's ears).
+    let why = if size.0 * size.1 <= 80 * 60 {
+        " (at this size one sample per pixel, against the reference's integral over each pixel, aliases at silhouettes: measure at a larger --size such as 160x120)"
     } else {
         ""
     };

@@ -98,6 +98,9 @@ pub struct VolBenchReport {
     /// Mean whole-frame GPU ms per method.
     pub temporal_frame_ms: f64,
     pub full_frame_ms: f64,
+    /// Mean GPU ms of the `vol_*` passes per method.
+    pub temporal_vol_ms: f64,
+    pub full_vol_ms: f64,
     /// Masked frames: median of (temporal `vol_march` ms / full `vol_march` ms) and the mean
     /// marched fraction of those frames (the stencil's work saving: ideally equal).
     pub masked_march_ratio: Option<f64>,
@@ -384,6 +387,8 @@ pub fn bench_volumetric(
         frame_speedup: if temporal_frame_ms > 0.0 { full_frame_ms / temporal_frame_ms } else { f64::INFINITY },
         temporal_frame_ms,
         full_frame_ms,
+        temporal_vol_ms: tt / n,
+        full_vol_ms: ft / n,
         masked_march_ratio,
         masked_fraction,
         temporal_pass_ms,
