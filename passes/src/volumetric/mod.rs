@@ -199,6 +199,9 @@ pub struct VolumetricEffect {
     shadow: Pipeline,
     mask: Option<Pipeline>,
     volumes: Option<Pipeline>,
+    /// The same behind the mask's stencil test (masked frames: only re-marched pixels need
+    /// intervals).
+    volumes_masked: Option<Pipeline>,
     /// The march over every pixel (full and refresh frames).
     march: Pipeline,
     /// The march behind the mask's stencil test (masked frames; with `mask`).
@@ -302,13 +305,19 @@ impl VolumetricEffect {
         };
         let volumes = if params.hybrid {
             if feats.geometry_shader == vk::TRUE {
-                Some(volumes_pipeline(ctx, shaders)?)
+                Some(volumes_pipeline(ctx, shaders, None)?)
             } else {
                 notes.push("no geometry shaders on this device: no hybrid shadow-volume intervals".into());
                 None
             }
         } else {
             None
+        };
+        let volumes_masked = match (&volumes, &mask) {
+            (Some(_), Some(_)) => {
+                Some(volumes_pipeline(ctx, shaders, Some(StencilState::TestNonZero { format: stencil_format }))?)
+            }
+            _ => None,
         };
         let comp_types = [
             T::UNIFORM_BUFFER,
@@ -385,6 +394,7 @@ impl VolumetricEffect {
             shadow,
             mask,
             volumes,
+            volumes_masked,
             march,
             march_masked,
             stencil_format,
@@ -570,8 +580,9 @@ fn mask_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, stencil_format: vk
 }
 
 /// Front-most (min RGB) and back-most (max alpha) boundary distances per pixel.
-fn volumes_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
-    volume_pipeline(ctx, shaders, "vol_volumes", "volumetric/vol_volumes.frag", Some(INTERVAL_FORMAT), Blend::MinRgbMaxAlpha, None)
+fn volumes_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, stencil: Option<StencilState>) -> Result<Pipeline> {
+    let name = if stencil.is_some() { "vol_volumes_masked" } else { "vol_volumes" };
+    volume_pipeline(ctx, shaders, name, "volumetric/vol_volumes.frag", Some(INTERVAL_FORMAT), Blend::MinRgbMaxAlpha, stencil)
 }
 
 /// Shadow-volume draws (extruded by `vol_mask.geom` from the adjacency index buffer) into one
@@ -593,6 +604,9 @@ struct VolumeDraws<'a> {
     draws: Vec<(u32, AdjRange, i32, bool)>,
     deformed: Option<penumbra_engine::BufferHandle>,
     prev_deformed: Option<penumbra_engine::BufferHandle>,
+    /// A colour target drawn only where this stencil mask is not 0 (read-only; the pipeline
+    /// tests it).
+    test_mask: Option<ImageHandle>,
 }
 
 impl VolumeDraws<'_> {
@@ -617,6 +631,7 @@ impl VolumeDraws<'_> {
         let instances = p.read(sh.instances, Access::VertexShaderReadStorage);
         let vertices = p.read(sh.vertices, Access::VertexBuffer);
         let deformed = self.deformed.map(|b| p.read(b, Access::VertexBuffer));
+        let test_mask = self.test_mask.map(|m| p.read(m, Access::DepthStencilAttachmentRead));
         let prev_deformed = self.prev_deformed.map(|b| p.read(b, Access::VertexBuffer));
         let adj_h = p.read(self.adjacency, Access::IndexBuffer);
         let (lp, near, widen, draws) = (self.light, self.near, self.widen, self.draws);
@@ -624,10 +639,17 @@ impl VolumeDraws<'_> {
             let d = rc.device();
             let view = rc.image(img)?.view;
             let atts = [crate::util::color_attachment(view, clear)];
-            let st = crate::util::stencil_mark_attachment(view);
+            let st = match test_mask {
+                Some(m) => crate::util::stencil_test_attachment(rc.image(m)?.view),
+                None => crate::util::stencil_mark_attachment(view),
+            };
             let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
             let info = vk::RenderingInfo::default().render_area(area).layer_count(1);
-            let info = if stencil { info.stencil_attachment(&st) } else { info.color_attachments(&atts) };
+            let info = match (stencil, test_mask) {
+                (true, _) => info.stencil_attachment(&st),
+                (false, Some(_)) => info.color_attachments(&atts).stencil_attachment(&st),
+                (false, None) => info.color_attachments(&atts),
+            };
             let vb = rc.buffer(vertices)?.buffer;
             let db = match deformed {
                 Some(b) => Some(rc.buffer(b)?.buffer),
@@ -910,6 +932,7 @@ impl Effect for VolumetricEffect {
                 draws,
                 deformed: sh.deformed_vertices,
                 prev_deformed,
+                test_mask: None,
             };
             let img = vol.add(graph, "vol_mask", sh, img, (w, h), [0.0; 4], &[0, 1]);
             mask = Some(img);
@@ -947,6 +970,11 @@ impl Effect for VolumetricEffect {
                 if let Some(adj) = self.adjacency.as_ref() {
                     let adj_h = graph.import_buffer("vol.adjacency_all", adj.buffer, adj.size, adj.usage);
                     let img = graph.create_image("vol_intervals", ImageDesc::new_2d(INTERVAL_FORMAT, w, h));
+                    // Masked frames: intervals only where the march will run.
+                    let (vp, test_mask) = match (mode, mask, self.volumes_masked.as_ref()) {
+                        (MarchMode::Masked, Some(m), Some(vm)) => (vm, Some(m)),
+                        _ => (vp, None),
+                    };
                     let vol =
                         VolumeDraws {
                             pipeline: vp,
@@ -958,6 +986,7 @@ impl Effect for VolumetricEffect {
                             draws: casters,
                             deformed: sh.deformed_vertices,
                             prev_deformed: None,
+                            test_mask,
                         };
                     let img = vol.add(graph, "vol_volumes", sh, img, (w, h), [f32::INFINITY, f32::INFINITY, f32::INFINITY, 0.0], &[0]);
                     intervals = Some(img);
