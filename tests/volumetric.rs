@@ -178,6 +178,13 @@ fn lights_beyond_the_scattering_budget_are_named() {
     let r = Renderer::new_headless(&scene, settings, false).expect("renderer");
     let notes = r.notes().join("\n");
     assert!(notes.contains("volumetric: ") && notes.contains("'spot'") && notes.contains("'dim' light surfaces only"), "{notes}");
+    // By contribution, not by intensity: a dimmer light beside the camera fills the medium the
+    // camera looks through (I exp(-sigma_t d) / d).
+    let near = format!("{SPOT}\n[[light]]\nname = \"near\"\ntype = \"point\"\nposition = [0.3, 1.3, 3.6]\nintensity = 30");
+    let scene = occluder_scene("vol_near_light", MEDIUM, CAM, &near, "");
+    let r = Renderer::new_headless(&scene, RenderSettings { width: 32, height: 24, ..Default::default() }, false).unwrap();
+    let notes = r.notes().join("\n");
+    assert!(notes.contains("('near' at t = 0)") && notes.contains("'spot' light surfaces only"), "{notes}");
     let one = occluder_scene("vol_one_light", MEDIUM, CAM, SPOT, "");
     let r = Renderer::new_headless(&one, RenderSettings { width: 32, height: 24, ..Default::default() }, false).unwrap();
     assert!(!r.notes().iter().any(|n| n.contains("scatters one light")), "{:?}", r.notes());

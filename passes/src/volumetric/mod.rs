@@ -51,8 +51,9 @@
 //! Differences from the thesis: the volumes are widened by 1.5 shadow-map texels (the thesis
 //! rasterizes exact volumes; its march's visibility is as discrete as ours, so exact volumes
 //! miss pixels at the boundaries); no reprojection (any camera, light or medium change
-//! recomputes the frame); one light scatters (the brightest spot/point/sphere light; a sphere
-//! light as a point of equal power).
+//! recomputes the frame); a budget of one scattering light per frame, the one contributing
+//! most to what the eye sees (`scatter_score`; a sphere light as a point of equal power), the
+//! others named in the notes.
 
 pub mod airlight;
 pub mod bench;
@@ -256,13 +257,22 @@ pub fn adjacency_indices(mesh: &penumbra_scene::MeshData) -> (Vec<u32>, usize) {
     (out, open)
 }
 
-/// The intensity a light scatters with (a sphere light as a point of its power), by which the
-/// one scattering light is chosen.
+/// The intensity a light scatters with (a sphere light as a point of its power).
 fn scatter_power(l: &penumbra_scene::LightInstance) -> f32 {
     match l.kind {
         LightKind::Sphere { radius } => l.power.element_sum() * std::f32::consts::PI * radius * radius,
         _ => l.power.element_sum(),
     }
+}
+
+/// A light's contribution to the in-scattering the eye sees, by which the one scattering light
+/// is chosen: the single scattering along a ray that passes at distance `d` from a point light
+/// scales as `I exp(-sigma_t d) / d` (the airlight prefactor), with `d` here the distance from
+/// the eye to the light (at least 0.1).
+fn scatter_score(l: &penumbra_scene::LightInstance, eye: Vec3, sigma_t: f32) -> f32 {
+    let d = l.position.distance(eye).max(0.1);
+    let s = scatter_power(l) * (-sigma_t * d).exp() / d;
+    if s.is_finite() { s } else { 0.0 }
 }
 
 fn face_matrices(kind: LightKind, pos: Vec3, dir: Vec3, near: f32, far: f32) -> (Vec<Mat4>, u32) {
@@ -368,14 +378,16 @@ impl VolumetricEffect {
         let emitting: Vec<&penumbra_scene::LightInstance> =
             f0.lights.iter().filter(|l| l.power.is_finite() && l.power.max_element() > 0.0).collect();
         if emitting.len() > 1 {
-            let brightest = emitting.iter().max_by(|a, b| scatter_power(a).total_cmp(&scatter_power(b)));
+            let (eye, st) = (f0.camera.eye, medium.sigma_t().max(Vec3::ZERO).element_sum() / 3.0);
+            let score = |l: &penumbra_scene::LightInstance| scatter_score(l, eye, st);
+            let brightest = emitting.iter().max_by(|a, b| score(a).total_cmp(&score(b)));
             let name = |l: &penumbra_scene::LightInstance| {
                 scene.lights.get(l.light).map_or_else(|| format!("light {}", l.light), |x| format!("'{}'", x.name))
             };
             let others: Vec<String> =
                 emitting.iter().filter(|l| Some(l) != brightest.as_ref()).map(|l| name(l)).collect();
             notes.push(format!(
-                "the volumetric effect scatters one light per frame, the brightest ({} at t = 0); {} light surfaces only",
+                "the volumetric effect scatters one light per frame, the one contributing most to what the camera sees ({} at t = 0); {} light surfaces only",
                 brightest.map_or_else(String::new, |l| name(l)),
                 others.join(", ")
             ));
@@ -429,12 +441,15 @@ impl VolumetricEffect {
             misc: [0, self.params.samples, 0, 0],
             extra: [0.0; 4],
         };
-        // The brightest light that is a point, spot or sphere (as a point of equal intensity).
+        // The light contributing most to the in-scattering the eye sees (a sphere light as a
+        // point of equal intensity).
+        let sbar = (st.x + st.y + st.z) / 3.0;
+        let eye = f.camera.eye;
         let light = f
             .lights
             .iter()
             .filter(|l| l.power.is_finite() && l.power.max_element() > 0.0 && l.position.is_finite())
-            .max_by(|a, b| scatter_power(a).total_cmp(&scatter_power(b)));
+            .max_by(|a, b| scatter_score(a, eye, sbar).total_cmp(&scatter_score(b, eye, sbar)));
         let Some(l) = light else { return block };
         let (kind_id, cos_o, cos_i, power) = match l.kind {
             LightKind::Point => (0.0, -1.0, -1.0, l.power),
