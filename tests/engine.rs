@@ -161,3 +161,41 @@ fn the_pool_evicts_unused_transients_and_nothing_leaks() {
     let (_, after, _) = ctx.memory_report();
     assert_eq!(after, before, "allocations leaked by the engine");
 }
+
+#[test]
+fn pipeline_cache_is_saved_read_back_and_foreign_files_are_ignored() {
+    // The context's VkPipelineCache is seeded from this driver's file and written back
+    // (atomically) when the context is dropped; a file with another header is not handed to
+    // the driver. (lavapipe keeps only the 32-byte header in it: Mesa's own shader cache does
+    // its caching; other drivers put their pipelines there.)
+    let dir = std::env::temp_dir().join(format!("penumbra_pcache_{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let desc = ContextDesc { pipeline_cache_dir: Some(dir.clone()), ..Default::default() };
+    {
+        let ctx = Context::new(&desc).unwrap();
+        assert_eq!(ctx.pipeline_cache_loaded, 0, "nothing on disk yet");
+        let shaders = penumbra::shader_library();
+        let _pass = penumbra::passes::tonemap::TonemapPass::new(&ctx, &shaders).unwrap();
+    }
+    let files: Vec<std::path::PathBuf> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().path()).collect();
+    assert_eq!(files.len(), 1, "one file per driver, no temporary left: {files:?}");
+    let name = files[0].file_name().unwrap().to_string_lossy().to_string();
+    assert!(name.starts_with("pipelines-") && name.ends_with(".bin"), "{name}");
+    let bytes = std::fs::read(&files[0]).unwrap();
+    assert!(bytes.len() >= 32 && u32::from_le_bytes(bytes[4..8].try_into().unwrap()) == 1, "a VkPipelineCache header");
+    {
+        let ctx = Context::new(&desc).unwrap();
+        assert_eq!(ctx.pipeline_cache_loaded, bytes.len(), "read back");
+    }
+    // Another driver's (or a corrupt) file: ignored, the context still starts.
+    let mut foreign = bytes.clone();
+    foreign[16] ^= 0xff;
+    std::fs::write(&files[0], &foreign).unwrap();
+    {
+        let ctx = Context::new(&desc).unwrap();
+        assert_eq!(ctx.pipeline_cache_loaded, 0, "a foreign UUID is not handed to the driver");
+    }
+    std::fs::write(&files[0], b"garbage").unwrap();
+    assert_eq!(Context::new(&desc).unwrap().pipeline_cache_loaded, 0);
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -72,8 +72,14 @@ unsafe extern "system" fn debug_callback(
 }
 
 /// How to create a [`Context`].
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct ContextDesc {
+    /// Directory of the on-disk Vulkan pipeline cache ([`default_pipeline_cache_dir`] by
+    /// default: `$XDG_CACHE_HOME/penumbra` or `~/.cache/penumbra`; `None`: in memory only). One
+    /// file per driver (vendor, device and the driver's pipeline-cache UUID in its name), read
+    /// when the context is created and replaced atomically when it is dropped, so a second run
+    /// skips pipeline compilation.
+    pub pipeline_cache_dir: Option<std::path::PathBuf>,
     /// Enable the Khronos validation layer with synchronization validation.
     pub validation: bool,
     /// Extra instance extensions (e.g. for a window surface).
@@ -82,6 +88,46 @@ pub struct ContextDesc {
     pub device_name: Option<String>,
     /// Enable VK_KHR_swapchain (for a window).
     pub swapchain: bool,
+}
+
+impl Default for ContextDesc {
+    fn default() -> Self {
+        ContextDesc {
+            pipeline_cache_dir: default_pipeline_cache_dir(),
+            validation: false,
+            instance_extensions: Vec::new(),
+            device_name: None,
+            swapchain: false,
+        }
+    }
+}
+
+/// `$XDG_CACHE_HOME/penumbra`, else `$HOME/.cache/penumbra`, else none.
+pub fn default_pipeline_cache_dir() -> Option<std::path::PathBuf> {
+    let base = std::env::var_os("XDG_CACHE_HOME")
+        .filter(|v| !v.is_empty())
+        .map(std::path::PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").filter(|v| !v.is_empty()).map(|h| std::path::PathBuf::from(h).join(".cache")))?;
+    Some(base.join("penumbra"))
+}
+
+/// The largest pipeline-cache file read (a bigger one is ignored).
+const PIPELINE_CACHE_MAX_BYTES: u64 = 256 << 20;
+
+/// The pipeline-cache file of this device in `dir`, and whether `data` (a file's bytes) has
+/// this device's header (`VkPipelineCacheHeaderVersionOne`: length, version 1, vendor, device,
+/// pipelineCacheUUID); data of another driver is not handed to this one.
+fn pipeline_cache_file(dir: &std::path::Path, props: &vk::PhysicalDeviceProperties) -> std::path::PathBuf {
+    let uuid: String = props.pipeline_cache_uuid.iter().map(|b| format!("{b:02x}")).collect();
+    dir.join(format!("pipelines-{:04x}-{:04x}-{uuid}.bin", props.vendor_id, props.device_id))
+}
+
+fn pipeline_cache_header_matches(data: &[u8], props: &vk::PhysicalDeviceProperties) -> bool {
+    if data.len() < 32 {
+        return false;
+    }
+    let u = |i: usize| u32::from_le_bytes([data[i], data[i + 1], data[i + 2], data[i + 3]]);
+    u(0) >= 32 && u(4) == 1 && u(8) == props.vendor_id && u(12) == props.device_id && data[16..32] == props.pipeline_cache_uuid
 }
 
 /// What an application enabled on the device it hands to [`Context::from_external_with`]
@@ -252,6 +298,12 @@ pub struct Context {
     pub pipeline_statistics_query: bool,
     /// `maxImageDimension2D`: the largest side of a 2D image on this device.
     pub max_image_dimension_2d: u32,
+    /// The Vulkan pipeline cache every pipeline of penumbra is created with.
+    pub pipeline_cache: vk::PipelineCache,
+    /// Where the cache is saved when the context is dropped (none: in memory only).
+    pipeline_cache_file: Option<std::path::PathBuf>,
+    /// Bytes of pipeline-cache data read from disk when the context was created (0: none).
+    pub pipeline_cache_loaded: usize,
     allocator: ManuallyDrop<Mutex<Allocator>>,
     owned: bool,
 }
@@ -433,6 +485,7 @@ impl Context {
                 pipeline_statistics_query: avail.pipeline_statistics_query == vk::TRUE,
                 ..Default::default()
             },
+            desc.pipeline_cache_dir.clone(),
         )?;
         Ok(Arc::new(ctx))
     }
@@ -490,6 +543,8 @@ impl Context {
             false,
             false,
             features,
+            // An embedding host's context keeps its pipeline cache in memory.
+            None,
         )?;
         Ok(Arc::new(ctx))
     }
@@ -510,6 +565,7 @@ impl Context {
         validation_enabled: bool,
         owned: bool,
         features: ExternalFeatures,
+        pipeline_cache_dir: Option<std::path::PathBuf>,
     ) -> Result<Context> {
         let allocator = Allocator::new(&AllocatorCreateDesc {
             instance: instance.clone(),
@@ -523,6 +579,26 @@ impl Context {
         let push_descriptor = ash::khr::push_descriptor::Device::new(&instance, &device);
         let max_image_dimension_2d = unsafe { instance.get_physical_device_properties(physical) }.limits.max_image_dimension2_d;
         let debug_utils = debug_instance.as_ref().map(|_| ash::ext::debug_utils::Device::new(&instance, &device));
+        // The pipeline cache, seeded from disk when this driver's file is there and sound.
+        let props = unsafe { instance.get_physical_device_properties(physical) };
+        let pipeline_cache_file = pipeline_cache_dir.map(|d| pipeline_cache_file(&d, &props));
+        let initial: Vec<u8> = pipeline_cache_file
+            .as_ref()
+            .and_then(|f| {
+                let len = std::fs::metadata(f).ok()?.len();
+                if len > PIPELINE_CACHE_MAX_BYTES {
+                    return None;
+                }
+                std::fs::read(f).ok()
+            })
+            .filter(|d| pipeline_cache_header_matches(d, &props))
+            .unwrap_or_default();
+        let pipeline_cache = unsafe {
+            device
+                .create_pipeline_cache(&vk::PipelineCacheCreateInfo::default().initial_data(&initial), None)
+                .or_else(|_| device.create_pipeline_cache(&vk::PipelineCacheCreateInfo::default(), None))
+        }
+        .context("vkCreatePipelineCache")?;
         Ok(Context {
             entry,
             instance,
@@ -542,6 +618,9 @@ impl Context {
             tessellation_shader: features.tessellation_shader,
             pipeline_statistics_query: features.pipeline_statistics_query,
             max_image_dimension_2d,
+            pipeline_cache,
+            pipeline_cache_file,
+            pipeline_cache_loaded: initial.len(),
             allocator: ManuallyDrop::new(Mutex::new(allocator)),
             owned,
         })
@@ -732,10 +811,32 @@ impl Context {
     }
 }
 
+impl Context {
+    /// Writes the pipeline cache to its file (atomically: a temporary file renamed over it),
+    /// unless nothing was added since it was read. Called when the context is dropped.
+    pub fn save_pipeline_cache(&self) -> Result<()> {
+        let Some(file) = &self.pipeline_cache_file else { return Ok(()) };
+        let data = unsafe { self.device.get_pipeline_cache_data(self.pipeline_cache) }.context("vkGetPipelineCacheData")?;
+        if data.is_empty() || data.len() == self.pipeline_cache_loaded {
+            return Ok(());
+        }
+        let dir = file.parent().unwrap_or(std::path::Path::new("."));
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        let tmp = file.with_extension(format!("tmp.{}", std::process::id()));
+        std::fs::write(&tmp, &data).with_context(|| format!("cannot write {}", tmp.display()))?;
+        std::fs::rename(&tmp, file).with_context(|| format!("cannot replace {}", file.display()))?;
+        Ok(())
+    }
+}
+
 impl Drop for Context {
     fn drop(&mut self) {
+        if let Err(e) = self.save_pipeline_cache() {
+            eprintln!("warning: the pipeline cache was not saved: {e:#}");
+        }
         unsafe {
             let _ = self.device.device_wait_idle();
+            self.device.destroy_pipeline_cache(self.pipeline_cache, None);
             ManuallyDrop::drop(&mut self.allocator);
             if self.owned {
                 self.device.destroy_device(None);

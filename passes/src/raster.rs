@@ -263,7 +263,7 @@ fn create(
     if desc.patch_control_points > 0 {
         ci = ci.tessellation_state(&ts);
     }
-    let res = unsafe { ctx.device.create_graphics_pipelines(vk::PipelineCache::null(), &[ci], None) };
+    let res = unsafe { ctx.device.create_graphics_pipelines(ctx.pipeline_cache, &[ci], None) };
     let pipeline = match res {
         Ok(p) => p[0],
         Err((_, e)) => {

@@ -94,7 +94,7 @@ pub fn compute_pipeline(
     let stage =
         vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::COMPUTE).module(module).name(c"main");
     let ci = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
-    let res = unsafe { ctx.device.create_compute_pipelines(vk::PipelineCache::null(), &ci, None) };
+    let res = unsafe { ctx.device.create_compute_pipelines(ctx.pipeline_cache, &ci, None) };
     unsafe { ctx.device.destroy_shader_module(module, None) };
     let pipeline = res.map_err(|(_, e)| e).with_context(|| format!("compute pipeline '{shader}'"))?[0];
     ctx.set_name(pipeline, shader);

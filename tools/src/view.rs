@@ -453,6 +453,7 @@ impl State {
             device_name: args.o.device.clone(),
             instance_extensions,
             swapchain: true,
+            ..Default::default()
         })?;
         let surface = unsafe {
             ash_window::create_surface(

@@ -571,7 +571,7 @@ fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, tess: bool) -> R
     if tess {
         ci = ci.tessellation_state(&ts);
     }
-    let res = unsafe { d.create_graphics_pipelines(vk::PipelineCache::null(), &[ci], None) };
+    let res = unsafe { d.create_graphics_pipelines(ctx.pipeline_cache, &[ci], None) };
     for m in modules {
         unsafe { d.destroy_shader_module(m, None) };
     }
