@@ -33,9 +33,9 @@ float vol_air_F(float u, float v) {
     int i = r0 * AIR_COLS + c0;
     float top = mix(air[i], air[i + 1], ac);
     float bottom = mix(air[i + AIR_COLS], air[i + AIR_COLS + 1], ac);
-    float uw = fr / float(AIR_ROWS - 1) * AIR_WMAX;  // the interpolated w, back to u
-    float ui = uw / max(1.0 - uw, 1e-6);
-    return mix(top, bottom, ar) / (1.0 + ui);
+    // F (1 + u) tends to a constant as u grows: beyond the last row, dividing by the true u
+    // extrapolates.
+    return mix(top, bottom, ar) / (1.0 + u);
 }
 
 // Closed form over [t0, t1] (t1 may be +inf) for an unshadowed, unoccluded light of intensity I.
