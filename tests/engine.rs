@@ -199,3 +199,55 @@ fn pipeline_cache_is_saved_read_back_and_foreign_files_are_ignored() {
     assert_eq!(Context::new(&desc).unwrap().pipeline_cache_loaded, 0);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn frames_with_more_passes_than_the_timestamp_pool_are_still_timed() {
+    // 200 passes (400 timestamps, more than a slot's initial 256): the slot's pool grows and
+    // every pass gets its GPU time (before, timestamps were silently off for such frames).
+    let ctx = Context::new(&ContextDesc::default()).unwrap();
+    let mut e = Engine::new(ctx, 2).unwrap();
+    let mut outs = Vec::new();
+    for _ in 0..3 {
+        let mut g = Graph::new();
+        // A chain: each pass copies the previous buffer into the next and adds nothing, so none
+        // is culled.
+        let mut buf = g.create_buffer("chain0", 256);
+        let mut p = g.pass("fill", PassKind::Transfer);
+        let b = p.write(buf, Access::TransferDst);
+        p.record(move |rc| {
+            let x = rc.buffer(b)?;
+            unsafe { rc.device().cmd_fill_buffer(rc.cmd, x.buffer, 0, 256, 199) };
+            Ok(())
+        });
+        buf = b;
+        for k in 1..200u32 {
+            let next = g.create_buffer(&format!("chain{k}"), 256);
+            let mut p = g.pass(&format!("copy{k}"), PassKind::Transfer);
+            let src = p.read(buf, Access::TransferSrc);
+            let dst = p.write(next, Access::TransferDst);
+            p.record(move |rc| {
+                let (s, d) = (rc.buffer(src)?, rc.buffer(dst)?);
+                unsafe { rc.device().cmd_copy_buffer(rc.cmd, s.buffer, d.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: 256 }]) };
+                Ok(())
+            });
+            buf = dst;
+        }
+        let rb = g.create_readback("chain_rb", 4);
+        let mut p = g.pass("read", PassKind::Transfer);
+        let src = p.read(buf, Access::TransferSrc);
+        let rb = p.write(rb, Access::TransferDst);
+        p.record(move |rc| {
+            let (s, d) = (rc.buffer(src)?, rc.buffer(rb)?);
+            unsafe { rc.device().cmd_copy_buffer(rc.cmd, s.buffer, d.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: 4 }]) };
+            Ok(())
+        });
+        let (_, done) = e.submit(g).unwrap();
+        outs.extend(done);
+    }
+    outs.extend(e.drain().unwrap());
+    assert_eq!(outs.len(), 3);
+    for o in &outs {
+        assert_eq!(o.gpu_ms.len(), 201, "every live pass timed");
+        assert_eq!(o.readbacks["chain_rb"], 199u32.to_le_bytes().to_vec(), "the last fill wins");
+    }
+}

@@ -457,6 +457,19 @@ impl Engine {
 
         // ---- record
         let mut records = graph.take_records();
+        let live: Vec<usize> = compiled.live_passes().map(|(i, _)| i).collect();
+        // A frame with more passes than the slot's timestamp pool holds gets a bigger pool (the
+        // slot's previous frame is complete: its queries were read when it was retired).
+        let needed = (live.len() as u32) * 2;
+        if self.timestamps && needed > self.slots[slot].query_capacity {
+            let cap = needed.next_power_of_two();
+            let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(cap);
+            let q = unsafe { self.ctx.device.create_query_pool(&info, None)? };
+            unsafe { self.ctx.device.destroy_query_pool(self.slots[slot].queries, None) };
+            self.ctx.set_name(q, &format!("frame_slot{slot}.timestamps"));
+            self.slots[slot].queries = q;
+            self.slots[slot].query_capacity = cap;
+        }
         let d = &self.ctx.device;
         let s = &self.slots[slot];
         let cmd = s.cmd;
@@ -467,8 +480,7 @@ impl Engine {
                 &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
             )?;
         }
-        let live: Vec<usize> = compiled.live_passes().map(|(i, _)| i).collect();
-        let timestamps = self.timestamps && (live.len() as u32) * 2 <= s.query_capacity;
+        let timestamps = self.timestamps && needed <= s.query_capacity;
         if timestamps {
             unsafe { d.cmd_reset_query_pool(cmd, s.queries, 0, (live.len() * 2) as u32) };
         }
