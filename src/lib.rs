@@ -94,6 +94,9 @@ pub struct FrameImages {
     /// With readback and a target that is blitted into (not written as RGBA8 storage): the
     /// target's texels as left by the blit, tightly packed in its format (e.g. BGRA8).
     pub target: Option<TargetTexels>,
+    /// Where the frame's time went: the renderer's and the engine's CPU spans, the passes' GPU
+    /// intervals (`render --trace` writes them as a Chrome trace).
+    pub timeline: penumbra_engine::FrameTimeline,
 }
 
 /// A read-back application target (see [`FrameImages::target`]).
@@ -204,6 +207,11 @@ pub struct Renderer {
     /// CPU milliseconds the technique spent declaring its passes in the last built frame
     /// (`Technique::add`: its CPU work, uploads it prepares, and any readback it waits for).
     pub technique_cpu_ms: f64,
+    /// When the technique started declaring its passes in the last built frame.
+    technique_started: Option<std::time::Instant>,
+    /// The renderer's CPU spans of frames in flight, by frame number (joined to the engine's
+    /// timeline when the frame's output arrives).
+    pending_spans: std::collections::BTreeMap<u64, Vec<penumbra_engine::CpuSpan>>,
     /// `technique = "auto"`: what it chose and why (the first of [`Renderer::notes`]).
     auto_choice: Option<String>,
     /// Said when the environment map had to be downsampled for the device.
@@ -278,6 +286,8 @@ impl Renderer {
             dump_formats: Vec::new(),
             target_format: None,
             technique_cpu_ms: 0.0,
+            technique_started: None,
+            pending_spans: Default::default(),
             auto_choice: None,
         })
     }
@@ -380,6 +390,7 @@ impl Renderer {
         let t0 = std::time::Instant::now();
         let mut hdr = self.technique.add(&mut self.engine, &mut g, &inputs)?;
         self.technique_cpu_ms = t0.elapsed().as_secs_f64() * 1e3;
+        self.technique_started = Some(t0);
         for e in &mut self.effects {
             hdr = e.add(&mut self.engine, &mut g, &inputs, hdr)?;
         }
@@ -440,7 +451,14 @@ impl Renderer {
         readback: bool,
         sync: &SubmitSync,
     ) -> Result<Vec<FrameImages>, Error> {
+        let tb = std::time::Instant::now();
         let g = self.build_graph(frame, target, readback)?;
+        let mut spans =
+            vec![penumbra_engine::CpuSpan { name: "build graph", start: tb, ms: tb.elapsed().as_secs_f64() * 1e3 }];
+        if let Some(t) = self.technique_started.take() {
+            spans.push(penumbra_engine::CpuSpan { name: "technique", start: t, ms: self.technique_cpu_ms });
+        }
+        let frame_no = self.engine.next_frame();
         let (compiled, done) = match self.engine.submit_with(g, sync) {
             Ok(r) => r,
             Err(e) => {
@@ -450,13 +468,26 @@ impl Renderer {
             }
         };
         self.last_graph = Some(compiled);
-        Ok(done.into_iter().map(|o| self.decode(o)).collect())
+        self.pending_spans.insert(frame_no, spans);
+        Ok(self.decode_all(done))
+    }
+
+    fn decode_all(&mut self, done: Vec<FrameOutput>) -> Vec<FrameImages> {
+        let mut out = Vec::with_capacity(done.len());
+        for mut o in done {
+            if let Some(mut spans) = self.pending_spans.remove(&o.frame) {
+                spans.append(&mut o.timeline.cpu_spans);
+                o.timeline.cpu_spans = spans;
+            }
+            out.push(self.decode(o));
+        }
+        out
     }
 
     /// Waits for every frame in flight.
     pub fn finish(&mut self) -> Result<Vec<FrameImages>, Error> {
         let done = self.engine.drain().map_err(|e| Error::classify(e, None))?;
-        Ok(done.into_iter().map(|o| self.decode(o)).collect())
+        Ok(self.decode_all(done))
     }
 
     fn decode(&self, o: FrameOutput) -> FrameImages {
@@ -478,7 +509,7 @@ impl Renderer {
         let target = self.target_format.zip(o.readbacks.get("target_readback").cloned()).map(
             |((format, width, height), bytes)| TargetTexels { format, width, height, bytes },
         );
-        FrameImages { frame: o.frame, width: w, height: h, hdr, ldr, gpu_ms: o.gpu_ms, dumps, target }
+        FrameImages { frame: o.frame, width: w, height: h, hdr, ldr, gpu_ms: o.gpu_ms, dumps, target, timeline: o.timeline }
     }
 }
 

@@ -33,6 +33,34 @@ pub struct FrameOutput {
     pub readbacks: BTreeMap<String, Vec<u8>>,
     /// GPU milliseconds per live pass, in recording order.
     pub gpu_ms: Vec<(String, f64)>,
+    /// Where the frame's time went, for traces (`render --trace`).
+    pub timeline: FrameTimeline,
+}
+
+/// One frame's CPU spans in the engine and its passes' GPU intervals.
+#[derive(Clone, Debug, Default)]
+pub struct FrameTimeline {
+    /// Engine work on the CPU for this frame: `graph compile`, `wait for slot` (the slot's
+    /// previous frame), `record`, `queue submit`, `fence wait` (when its output was collected).
+    pub cpu_spans: Vec<CpuSpan>,
+    /// When the command buffer was handed to the queue (the GPU intervals start after it).
+    pub submitted: Option<Instant>,
+    /// Every timed pass: its start after the frame's first timestamp and its duration, in ms.
+    pub gpu_intervals: Vec<GpuInterval>,
+}
+
+#[derive(Clone, Debug)]
+pub struct CpuSpan {
+    pub name: &'static str,
+    pub start: Instant,
+    pub ms: f64,
+}
+
+#[derive(Clone, Debug)]
+pub struct GpuInterval {
+    pub name: String,
+    pub start_ms: f64,
+    pub ms: f64,
 }
 
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
@@ -48,6 +76,7 @@ enum PoolItem {
 
 struct InFlight {
     frame: u64,
+    timeline: FrameTimeline,
     passes: Vec<String>,
     transients: Vec<(PoolKey, PoolItem)>,
     readbacks: Vec<(String, usize)>,
@@ -256,6 +285,7 @@ impl Engine {
         let d = &self.ctx.device;
         let s = &self.slots[slot];
         let timeout_ns = u64::try_from(self.fence_timeout.as_nanos()).unwrap_or(u64::MAX);
+        let wait_start = Instant::now();
         match unsafe { d.wait_for_fences(&[s.fence], true, timeout_ns) } {
             Ok(()) => {}
             Err(vk::Result::TIMEOUT) => {
@@ -271,7 +301,8 @@ impl Engine {
             Err(e) => return Err(anyhow::Error::new(e).context(format!("waiting for frame {}", f.frame))),
         }
         unsafe { d.reset_fences(&[s.fence])? };
-        let mut out = FrameOutput { frame: f.frame, ..Default::default() };
+        let mut out = FrameOutput { frame: f.frame, timeline: f.timeline, ..Default::default() };
+        out.timeline.cpu_spans.push(CpuSpan { name: "fence wait", start: wait_start, ms: wait_start.elapsed().as_secs_f64() * 1e3 });
         if self.timestamps && !f.passes.is_empty() {
             let n = (f.passes.len() * 2) as u32;
             let mut ts = vec![0u64; n as usize];
@@ -294,6 +325,12 @@ impl Engine {
                 let ms = ticks as f64 * self.ctx.timestamp_period * 1e-6;
                 self.profiler.add_gpu(name, ms);
                 out.gpu_ms.push((name.clone(), ms));
+                let start = (ts[2 * i] & mask).wrapping_sub(ts[0] & mask) & mask;
+                out.timeline.gpu_intervals.push(GpuInterval {
+                    name: name.clone(),
+                    start_ms: start as f64 * self.ctx.timestamp_period * 1e-6,
+                    ms,
+                });
             }
             self.profiler.end_frame();
         }
@@ -422,6 +459,11 @@ impl Engine {
         Ok(())
     }
 
+    /// The number the next submitted frame gets ([`FrameOutput::frame`]).
+    pub fn next_frame(&self) -> u64 {
+        self.frame
+    }
+
     /// The frame slot the next submit uses (0..frames in flight): index per-slot objects such as
     /// acquire semaphores with it.
     pub fn next_slot(&self) -> usize {
@@ -435,11 +477,15 @@ impl Engine {
         self.evict_unused();
         let compiled = graph.compile()?;
         self.profiler.add_cpu("graph compile", t0.elapsed().as_secs_f64() * 1e3);
+        let mut timeline = FrameTimeline::default();
+        timeline.cpu_spans.push(CpuSpan { name: "graph compile", start: t0, ms: t0.elapsed().as_secs_f64() * 1e3 });
 
         let slot = self.next_slot;
+        let tw = Instant::now();
         if let Some(o) = self.retire(slot)? {
             self.pending.push(o);
         }
+        timeline.cpu_spans.push(CpuSpan { name: "wait for slot", start: tw, ms: tw.elapsed().as_secs_f64() * 1e3 });
         let t1 = Instant::now();
 
         // ---- resolve resources
@@ -520,6 +566,7 @@ impl Engine {
         emit_barriers(d, cmd, &compiled.final_barriers, &images, &buffers);
         unsafe { d.end_command_buffer(cmd)? };
         self.profiler.add_cpu("record", t1.elapsed().as_secs_f64() * 1e3);
+        timeline.cpu_spans.push(CpuSpan { name: "record", start: t1, ms: t1.elapsed().as_secs_f64() * 1e3 });
         if !errors.is_empty() {
             self.give_back(transients);
             bail!("recording failed, frame not submitted; {} error(s):\n  - {}", errors.len(), errors.join("\n  - "));
@@ -537,7 +584,10 @@ impl Engine {
             .command_buffer_infos(&cmd_infos)
             .wait_semaphore_infos(&waits)
             .signal_semaphore_infos(&signals)];
+        let ts_submit = Instant::now();
         unsafe { d.queue_submit2(self.ctx.queue, &submit, s.fence).context("vkQueueSubmit2")? };
+        timeline.cpu_spans.push(CpuSpan { name: "queue submit", start: ts_submit, ms: ts_submit.elapsed().as_secs_f64() * 1e3 });
+        timeline.submitted = Some(ts_submit);
         for (res, info) in graph.resources.iter().zip(compiled.resources.iter()) {
             if matches!(res.origin, Origin::Persistent { .. }) && info.first_pass.is_some() {
                 if let Some(p) = self.persistent.get_mut(&res.name) {
@@ -547,6 +597,7 @@ impl Engine {
         }
         self.slots[slot].in_flight = Some(InFlight {
             frame: self.frame,
+            timeline,
             passes: if timestamps { pass_names } else { Vec::new() },
             transients,
             readbacks,

@@ -15,6 +15,7 @@ use std::process::ExitCode;
 
 mod avs_bench;
 mod bench;
+mod chrome_trace;
 mod isg_bench;
 mod matrix;
 mod pareto;
@@ -165,6 +166,11 @@ struct RenderArgs {
     /// Also write every intermediate image (G-buffer, HDR) of every frame to DIR/passes/ as EXR.
     #[arg(long)]
     dump_passes: bool,
+    /// Also write a Chrome trace event file (opens in Perfetto and chrome://tracing): every
+    /// frame's CPU spans (graph build, technique, compile, record, submit, waits) and its
+    /// passes' GPU intervals, on their own tracks.
+    #[arg(long, value_name = "FILE.json")]
+    trace: Option<PathBuf>,
     #[command(flatten)]
     o: SceneOverrides,
 }
@@ -371,6 +377,7 @@ fn render(args: &RenderArgs, limits: &Limits) -> Result<()> {
         r.context().device_name
     );
     let mut written = 0;
+    let mut timelines = Vec::new();
     let mut prev_t = None;
     // A progress bar on terminals only (hidden in CI and pipes).
     let bar = indicatif::ProgressBar::with_draw_target(Some(args.frames as u64), indicatif::ProgressDrawTarget::stderr());
@@ -388,12 +395,18 @@ fn render(args: &RenderArgs, limits: &Limits) -> Result<()> {
         prev_t = Some(t);
         for img in r.render(&frame, None, true)? {
             write_frame(&args.out, img.frame as u32, &img)?;
+            timelines.push((img.frame, img.timeline));
             written += 1;
         }
     }
     for img in r.finish()? {
         write_frame(&args.out, img.frame as u32, &img)?;
+        timelines.push((img.frame, img.timeline));
         written += 1;
+    }
+    if let Some(path) = &args.trace {
+        chrome_trace::write(path, &timelines)?;
+        println!("wrote the trace {} (open it in ui.perfetto.dev or chrome://tracing)", path.display());
     }
     bar.finish_and_clear();
     let graph = r.last_graph.as_ref().context("no frame was compiled")?;

@@ -33,6 +33,8 @@ fn render_default_scene_writes_frames_dumps_and_profile() {
         "--profile",
         "--dump-graph",
         "--dump-passes",
+        "--trace",
+        out.join("trace.json").to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", text(&o));
     for f in [
@@ -64,6 +66,25 @@ fn render_default_scene_writes_frames_dumps_and_profile() {
     let profile: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("profile.json")).unwrap()).unwrap();
     assert_eq!(profile["frames"], 2);
+    // The Chrome trace: both frames' CPU spans on the CPU tracks, every live pass of each frame
+    // on the GPU track, GPU frames in order and not overlapping.
+    let trace: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("trace.json")).unwrap()).unwrap();
+    let ev = trace["traceEvents"].as_array().unwrap();
+    let spans = |cat: &str| -> Vec<&serde_json::Value> { ev.iter().filter(|e| e["ph"] == "X" && e["cat"] == cat).collect() };
+    for name in ["build graph", "technique", "graph compile", "record", "queue submit", "fence wait"] {
+        let n = spans("cpu").iter().filter(|e| e["name"] == name).count();
+        assert_eq!(n, 2, "{name}: {n} spans");
+    }
+    let gpu = spans("gpu");
+    for frame in [0, 1] {
+        let names: Vec<&str> = gpu.iter().filter(|e| e["args"]["frame"] == frame).map(|e| e["name"].as_str().unwrap()).collect();
+        assert!(names.contains(&"gbuffer") && names.contains(&"tonemap"), "frame {frame}: {names:?}");
+    }
+    let end0 = gpu.iter().filter(|e| e["args"]["frame"] == 0).map(|e| e["ts"].as_f64().unwrap() + e["dur"].as_f64().unwrap()).fold(0.0, f64::max);
+    let start1 = gpu.iter().filter(|e| e["args"]["frame"] == 1).map(|e| e["ts"].as_f64().unwrap()).fold(f64::INFINITY, f64::min);
+    assert!(start1 >= end0 - 1e-6, "frame 1's GPU work starts after frame 0's: {start1} < {end0}");
+    assert!(ev.iter().all(|e| e["ph"] != "X" || e["dur"].as_f64().unwrap() >= 0.0));
 }
 
 fn expect_bad_input(args: &[&str], needles: &[&str]) {
