@@ -204,24 +204,19 @@ fn create(
         None => vk::PipelineDepthStencilStateCreateInfo::default(),
     };
     if let Some(st) = desc.stencil {
-        let op = match st {
-            StencilState::Mark { .. } => vk::StencilOpState::default()
-                .fail_op(vk::StencilOp::KEEP)
-                .pass_op(vk::StencilOp::REPLACE)
-                .depth_fail_op(vk::StencilOp::KEEP)
-                .compare_op(vk::CompareOp::ALWAYS)
-                .compare_mask(0xff)
-                .write_mask(0xff)
-                .reference(1),
-            StencilState::TestNonZero { .. } => vk::StencilOpState::default()
-                .fail_op(vk::StencilOp::KEEP)
-                .pass_op(vk::StencilOp::KEEP)
-                .depth_fail_op(vk::StencilOp::KEEP)
-                .compare_op(vk::CompareOp::NOT_EQUAL)
-                .compare_mask(0xff)
-                .write_mask(0)
-                .reference(0),
+        // (on pass, compare, write mask, reference)
+        let (pass, compare, write, reference) = match st {
+            StencilState::Mark { .. } => (vk::StencilOp::REPLACE, vk::CompareOp::ALWAYS, 0xff, 1),
+            StencilState::TestNonZero { .. } => (vk::StencilOp::KEEP, vk::CompareOp::NOT_EQUAL, 0, 0),
         };
+        let op = vk::StencilOpState::default()
+            .fail_op(vk::StencilOp::KEEP)
+            .pass_op(pass)
+            .depth_fail_op(vk::StencilOp::KEEP)
+            .compare_op(compare)
+            .compare_mask(0xff)
+            .write_mask(write)
+            .reference(reference);
         ds = ds.stencil_test_enable(true).front(op).back(op);
     }
     let attachment = {

@@ -509,11 +509,6 @@ impl VolumetricEffect {
         self.last_key = None;
         self.since_refresh = 0;
     }
-
-    /// Notes about fallbacks, for the user.
-    pub fn notes(&self) -> &[String] {
-        &self.notes
-    }
 }
 
 fn shadow_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
@@ -675,12 +670,7 @@ impl VolumeDraws<'_> {
                 None => None,
             };
             let ib = rc.buffer(adj_h)?.buffer;
-            unsafe {
-                d.cmd_begin_rendering(rc.cmd, &info);
-                d.cmd_set_viewport(rc.cmd, 0, &[viewport(0.0, 0.0, w as f32, h as f32)]);
-                d.cmd_set_scissor(rc.cmd, 0, &[area]);
-                d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
-            }
+            crate::raster::begin(d, rc.cmd, &info, w, h, pipeline);
             rc.push_descriptors(
                 vk::PipelineBindPoint::GRAPHICS,
                 layout,
@@ -1051,12 +1041,7 @@ impl Effect for VolumetricEffect {
                 if let Some(st) = st.as_ref() {
                     info = info.stencil_attachment(st);
                 }
-                unsafe {
-                    d.cmd_begin_rendering(rc.cmd, &info);
-                    d.cmd_set_viewport(rc.cmd, 0, &[viewport(0.0, 0.0, w as f32, h as f32)]);
-                    d.cmd_set_scissor(rc.cmd, 0, &[area]);
-                    d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
-                }
+                crate::raster::begin(d, rc.cmd, &info, w, h, pipeline);
                 rc.push_descriptors(
                     vk::PipelineBindPoint::GRAPHICS,
                     layout,
