@@ -124,11 +124,30 @@ SG sg_clamped_cosine(vec3 n) {
     return sg_make(n, SG_COS_LAMBDA, SG_COS_MU);
 }
 
-// Irradiance-like integral int G(w) max(0, dot(n, w)) dw with the cosine as an SG and the
-// product integrated over the upper hemisphere only (removes the cosine SG's tail below the
-// horizon; see penumbra_math::sg::irradiance_sg_cosine_hemisphere).
+// Mean of max(0, u + v cos(phi)) over phi uniform, v >= 0.
+float sg_clamped_mean(float u, float v) {
+    if (v <= abs(u)) return max(u, 0.0);
+    float q = clamp(-u / v, -1.0, 1.0);
+    return (u * acos(q) + v * sqrt(max(1.0 - q * q, 0.0))) / SG_PI;
+}
+
+// Irradiance int G(w) max(0, dot(n, w)) dw of one lobe: its sphere integral times the expected
+// clamped cosine under the lobe as a von Mises-Fisher distribution (8-point midpoint rule in the
+// CDF of t = dot(w, axis), closed form over the azimuth). Mirrors
+// penumbra_math::sg::cosine_irradiance (within 2% of the lobe's normal-incidence irradiance at
+// every sharpness; the clamped-cosine SG product was 14% low 48 degrees off a sharp light).
 float sg_cosine_integral(SG g, vec3 n) {
-    return sg_hemisphere_integral(sg_product(g, sg_clamped_cosine(n)), n);
+    float l = max(g.lambda, 1e-3);
+    float c = clamp(dot(g.axis, n), -1.0, 1.0);
+    float sc = sqrt(max(1.0 - c * c, 0.0));
+    float e2 = exp(-2.0 * l);
+    float mean = 0.0;
+    for (int i = 0; i < 8; ++i) {
+        float s = (float(i) + 0.5) / 8.0;
+        float t = clamp(1.0 + log(s * (1.0 - e2) + e2) / l, -1.0, 1.0);
+        mean += sg_clamped_mean(c * t, sc * sqrt(max(1.0 - t * t, 0.0)));
+    }
+    return sg_sphere_integral(g) * mean / 8.0;
 }
 
 // Smith G1 of the GGX distribution with width alpha at cosine c (0 at and below the horizon).

@@ -306,3 +306,35 @@ fn f32_matches_f64_and_never_nan() {
     }
     println!("f32 inner product: worst relative error / (1 + exponent) {worst:.2e}");
 }
+
+/// `cosine_irradiance` against adaptive quadrature of `G(w) max(0, dot(n, w))`, from nearly
+/// uniform lobes to sun-like ones, at every angle to the normal (grazing and below the horizon
+/// included): within 2% of the lobe's irradiance at normal incidence; the clamped-cosine SG it
+/// replaces misses by 14% 48 degrees off a sharp light.
+#[test]
+fn cosine_irradiance_vs_quadrature() {
+    let n = DVec3::Y;
+    let mut worst: f64 = 0.0;
+    for &lambda in &[1e-3, 0.05, 0.5, 2.0, 8.0, 32.0, 128.0, 1024.0, 1e4, 3e4] {
+        let at = |deg: f64| {
+            let t = deg.to_radians();
+            Sg::new(DVec3::new(t.sin(), t.cos(), 0.0), lambda, 1.7)
+        };
+        let exact = |g: &Sg| integrate_sphere_about(g.axis, Some(n), 1e-10, |w| g.eval(w) * w.dot(n));
+        let e0 = exact(&at(0.0));
+        for deg in [0.0, 10.0, 30.0, 48.0, 70.0, 85.0, 89.9, 90.0, 95.0, 120.0, 180.0] {
+            let g = at(deg);
+            let (q, a) = (exact(&g), cosine_irradiance(&g, n));
+            assert!(a.is_finite() && a >= 0.0, "lambda {lambda} at {deg} deg: {a}");
+            worst = worst.max((a - q).abs() / e0);
+            assert!((a - q).abs() <= 0.02 * e0, "lambda {lambda} at {deg} deg: {a} vs {q} (normal incidence {e0})");
+        }
+    }
+    println!("worst error / normal-incidence irradiance: {worst:.4}");
+    // the clamped-cosine SG's miss for a sharp light 48 degrees off the normal
+    let t = 48f64.to_radians();
+    let sun = Sg::new(DVec3::new(t.sin(), t.cos(), 0.0), 1024.0, 1.0);
+    let old = irradiance_sg_cosine_hemisphere(&[sun], n) / (sun.sphere_integral() * t.cos());
+    let new = cosine_irradiance(&sun, n) / (sun.sphere_integral() * t.cos());
+    assert!(old < 0.9 && (new - 1.0).abs() < 0.01, "old {old} new {new}");
+}

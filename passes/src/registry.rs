@@ -182,6 +182,7 @@ const AVS_PARAMS: &[ParamDoc] = &[
     p("iterations", "2", "0..=16", "adaptation rounds per frame"),
     p("points", "0", "0..=65536", "initial sample points (0: automatic)"),
     p("max_points", "8192", "1..=65536", "upper bound on sample points"),
+    p("pool_points", "4096", "0..=262144", "extra candidate points on triangles larger than the pool spacing, over the scene's area (0: mesh vertices only, the paper's pool)"),
     p("radius", "2.0", "0.01..=100", "search radius in mean nearest-neighbour distances"),
     p("neighbours", "6", "1..=8", "sample points interpolated per pixel"),
     p("ray_neighbours", "4", "0..=8", "neighbours whose maps also mark boundary rays"),

@@ -96,7 +96,7 @@ fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32
     let t_i = sum(&f.gpu_ms, &["avs_shade"]);
     let total = f.gpu_ms.iter().map(|(_, m)| m).sum::<f64>() + st.round_ms.iter().map(|(_, m)| m).sum::<f64>();
     let c = compare(reference, "reference", &image(f), "avs")?;
-    let pool = penumbra_passes::avs::vertex_pool(&s, &s.at(t, Some(t0)))?;
+    let pool = penumbra_passes::avs::vertex_pool(&s, &s.at(t, Some(t0)), &st.pool_plan)?;
     Ok(AvsRun {
         sample_points: st.point_vertices.iter().map(|&v| pool[v]).collect(),
         t_vis: sum(&st.round_ms, &["avs_vis"]),
@@ -269,7 +269,7 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
         let frame = scene.at(args.time, Some(t0));
         let (tris, _, no_shadow) = penumbra_passes::kdtree::world_triangles_shading(&scene, &frame)?;
         let tris: Vec<[glam::Vec3; 3]> = tris.iter().zip(&no_shadow).filter(|(_, ns)| !**ns).map(|(t, _)| *t).collect();
-        let pool = penumbra_passes::avs::vertex_pool(&scene, &frame)?;
+        let pool = penumbra_passes::avs::vertex_pool(&scene, &frame, &penumbra_passes::avs::PoolPlan::vertices_only(&scene, &frame)?)?;
         let offset = penumbra_passes::avs::ray_offset(&pool);
         hc.run(&mut engine, &tris, &ad.sample_points, offset, r, false)?;
         let hr = hc.run(&mut engine, &tris, &ad.sample_points, offset, r, false)?;

@@ -3,10 +3,14 @@
 //! scenes with spatially-varying reflectance"): technique `"avs"`.
 //!
 //! Per frame (all geometry dynamic, the kd-tree rebuilt when anything moved or deformed):
-//! * **Initial sample points** (section 4.1), CPU: k-means over all world vertices with the
-//!   geometric error `e_g` (eq. 6, [`penumbra_math::avs_sampling::kmeans_eg`]), the vertex
-//!   nearest each centre. The set is kept across frames as vertex ids, so sample points follow
-//!   deforming and moving geometry; it is rebuilt only when the vertex count changes.
+//! * **Candidate pool**: the world vertices of every instance (the paper's candidates), plus
+//!   points on triangles larger than the pool spacing ([`PoolPlan`], `pool_points`): the paper's
+//!   meshes have 21k-32k vertices, while a ground plane of two triangles offered no candidate
+//!   where shadows fall (no shadows on `falling`, `balls_on_dish` and the medium scenes).
+//! * **Initial sample points** (section 4.1), CPU: k-means over the pool with the geometric error
+//!   `e_g` (eq. 6, [`penumbra_math::avs_sampling::kmeans_eg`]), the candidate nearest each
+//!   centre. The set is kept across frames as pool indices, so sample points follow deforming and
+//!   moving geometry; it is rebuilt only when the pool changes.
 //! * **Adaptive spatial sampling** (4.3): `iterations` rounds, each submitted as its own small
 //!   graph before the frame's graph (the CPU needs the SH of the new maps): the new points'
 //!   visibility maps (below) and their SH16 projections (`avs_sh`, read back), then on the CPU the
@@ -24,7 +28,8 @@
 //!   (`glsl/avs/avs_cull.comp`) runs the shading's neighbour search (`glsl/include/avs_gather.glsl`)
 //!   per covered pixel over all kept points and sets their bits in the persistent `avs.used`;
 //!   the next frame reads the bits back first and traces (and adapts, and transforms) only the
-//!   flagged points, keeping the others dormant. The first frame traces all.
+//!   flagged points, keeping the others dormant. The first frame traces the points inside the
+//!   view frustum widened by the search radius.
 //! * **HSDT** (section 5): [`crate::hsdt::Hsdt`] turns all maps into fp16 SSDFs.
 //! * **Shading** (section 6), `avs_shade` (`glsl/avs/avs_shade.comp`): per pixel, the sample points
 //!   within the search radius (CPU-built uniform grid) with the best eq. 8 weights, their SSDFs
@@ -99,6 +104,10 @@ pub struct AvsSettings {
     pub points: usize,
     /// Upper bound on sample points after insertions.
     pub max_points: usize,
+    /// Extra candidate points on triangles larger than the pool spacing (see [`PoolPlan`]):
+    /// about this many over the scene's surface area (0: the mesh vertices only, the paper's
+    /// pool).
+    pub pool_points: usize,
     /// Search radius as a multiple of the initial points' mean nearest-neighbour distance.
     pub radius: f32,
     /// Sample points interpolated per pixel (the best eq. 8 weights within the radius, <= 8).
@@ -143,6 +152,7 @@ impl Default for AvsSettings {
             interp_alpha: 0.0,
             points: 0,
             max_points: 8192,
+            pool_points: 4096,
             radius: 2.0,
             neighbours: 6,
             ray_neighbours: 4,
@@ -170,7 +180,7 @@ impl AvsSettings {
 
     /// Sets one parameter. Keys: `r` (128; multiple of the initial grid times a power of two, at
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
-    /// `iterations` (2), `points` (0 = auto), `max_points` (8192), `radius` (2.0), `neighbours`
+    /// `iterations` (2), `points` (0 = auto), `max_points` (8192), `pool_points` (4096), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells` | `table` | `adf`), `cells` (6,
     /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `lobes` (16). Unknown keys and bad values
     /// are errors naming the key.
@@ -202,6 +212,7 @@ impl AvsSettings {
             "iterations" => self.iterations = int(0, 16)? as u32,
             "points" => self.points = int(0, 1 << 16)? as usize,
             "max_points" => self.max_points = int(1, 1 << 16)? as usize,
+            "pool_points" => self.pool_points = int(0, 1 << 18)? as usize,
             "radius" => self.radius = float(0.01, 100.0)?,
             "neighbours" => self.neighbours = int(1, 8)? as u32,
             "ray_neighbours" => self.ray_neighbours = int(0, 8)? as u32,
@@ -223,7 +234,7 @@ impl AvsSettings {
             "cull" => self.cull = flag()?,
             "capture_maps" => self.capture_maps = flag()?,
             other => bail!(
-                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, lobes, cull, capture_maps)"
+                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, lobes, cull, capture_maps)"
             ),
         }
         Ok(())
@@ -257,8 +268,11 @@ impl AvsSettings {
 /// Statistics of the last frame (for tests and the bench).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct AvsStats {
-    /// World vertices (candidate pool).
+    /// Candidates of the pool (world vertices and extra points, see [`PoolPlan`]).
     pub vertices: usize,
+    /// The pool's plan: `vertex_pool(scene, frame, &stats.pool_plan)` is the pool that
+    /// `point_vertices` index.
+    pub pool_plan: Arc<PoolPlan>,
     /// Initial sample points (k-means).
     pub initial_points: usize,
     /// Sample points after the spatial adaptation.
@@ -301,18 +315,127 @@ fn axis_table() -> Arc<Vec<u8>> {
     Arc::new(bytes_of(&penumbra_math::ssdf_integrate::AxisTable::generate(|_| {}).data))
 }
 
-/// The frame's vertex pool: world positions and normals of every instance.
-pub fn vertex_pool(scene: &Scene, frame: &Frame) -> Result<Vec<SurfacePoint>> {
-    let mut out = Vec::new();
-    for inst in &frame.instances {
-        let name = scene.objects.get(inst.object).map(|o| o.name.as_str()).unwrap_or("?");
-        let mesh = match inst.deformed_mesh.as_deref() {
-            Some(m) => m,
-            None => scene.meshes.get(inst.mesh).ok_or_else(|| anyhow!("object '{name}' refers to a missing mesh"))?,
-        };
+/// Where the candidate pool places surface points besides the mesh vertices. The paper selects
+/// sample points among vertices (section 4.1) of meshes with 21k-32k vertices; a coarse mesh (a
+/// ground plane of two triangles) leaves the spatial sampling no candidate where its shadows are,
+/// so triangles larger than the pool spacing get extra candidates, as if the mesh were refined:
+/// `n - 1` points along each edge of length `L > h` (`n = ceil(L / h)`) and the interior points
+/// of the triangle's barycentric grid with `n = ceil(longest edge / h)`. The plan is made once
+/// (spacing and counts) and reused every frame, so the pool keeps its indices while objects move
+/// or deform and its points follow them (barycentric on the frame's vertices).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PoolPlan {
+    /// Spacing `h` of the extra candidates (world units; 0: vertices only).
+    pub spacing: f32,
+    /// Per instance (in `Frame::instances` order).
+    insts: Vec<InstPlan>,
+    /// Candidates in all: vertices plus extra points.
+    pub len: usize,
+    /// Extra (non-vertex) candidates.
+    pub extra: usize,
+}
+
+#[derive(Clone, Debug, Default, PartialEq)]
+struct InstPlan {
+    vertices: usize,
+    /// (a, b, n): `n - 1` points along edge a-b.
+    edges: Vec<[u32; 3]>,
+    /// (i0, i1, i2, n): interior points of the triangle's n-grid.
+    tris: Vec<[u32; 4]>,
+}
+
+/// The mesh of instance `inst` at this frame (deformed or rest) and its object's name.
+fn instance_mesh<'a>(scene: &'a Scene, inst: &'a penumbra_scene::Instance) -> Result<(&'a penumbra_scene::MeshData, &'a str)> {
+    let name = scene.objects.get(inst.object).map(|o| o.name.as_str()).unwrap_or("?");
+    let mesh = match inst.deformed_mesh.as_deref() {
+        Some(m) => m,
+        None => scene.meshes.get(inst.mesh).ok_or_else(|| anyhow!("object '{name}' refers to a missing mesh"))?,
+    };
+    Ok((mesh, name))
+}
+
+impl PoolPlan {
+    /// Vertices only.
+    pub fn vertices_only(scene: &Scene, frame: &Frame) -> Result<Self> {
+        Self::new(scene, frame, 0)
+    }
+
+    /// A plan adding about `extra` candidates: `h = sqrt(A / extra)` for the frame's total world
+    /// triangle area `A`, so surfaces whose own vertices are denser than `h` get none.
+    pub fn new(scene: &Scene, frame: &Frame, extra: usize) -> Result<Self> {
+        let mut world: Vec<(Vec<Vec3>, &[u32])> = Vec::new();
+        let mut area = 0.0f64;
+        for inst in &frame.instances {
+            let (mesh, _) = instance_mesh(scene, inst)?;
+            let pos: Vec<Vec3> = mesh.positions.iter().map(|p| inst.world.transform_point3(*p)).collect();
+            for t in mesh.indices.chunks_exact(3) {
+                let [a, b, c] = [t[0], t[1], t[2]].map(|i| pos.get(i as usize).copied().unwrap_or(Vec3::ZERO));
+                let x = 0.5 * (b - a).cross(c - a).length() as f64;
+                if x.is_finite() {
+                    area += x;
+                }
+            }
+            world.push((pos, &mesh.indices));
+        }
+        let h = if extra > 0 && area > 0.0 { (area / extra as f64).sqrt() as f32 } else { 0.0 };
+        let mut plan = PoolPlan { spacing: h, ..Default::default() };
+        for (pos, indices) in &world {
+            let mut ip = InstPlan { vertices: pos.len(), ..Default::default() };
+            let segs = |l: f32| if h > 0.0 && l.is_finite() && l > h { (l / h).ceil().min(4096.0) as u32 } else { 1 };
+            let mut seen = std::collections::HashSet::new();
+            for t in indices.chunks_exact(3) {
+                if t.iter().any(|&i| i as usize >= pos.len()) {
+                    continue;
+                }
+                let mut longest = 0.0f32;
+                for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+                    let l = (pos[a as usize] - pos[b as usize]).length();
+                    longest = longest.max(if l.is_finite() { l } else { 0.0 });
+                    let key = (a.min(b), a.max(b));
+                    if a != b && seen.insert(key) && segs(l) > 1 {
+                        ip.edges.push([key.0, key.1, segs(l)]);
+                    }
+                }
+                // the grid's n from the longest edge, capped by the area (an equilateral
+                // triangle of side n h has area 0.43 (n h)^2): a sliver gets its edge points only
+                let (a, b, c) = (pos[t[0] as usize], pos[t[1] as usize], pos[t[2] as usize]);
+                let tri_area = 0.5 * (b - a).cross(c - a).length();
+                let n = if tri_area > 0.0 { segs(longest).min(segs((2.5 * tri_area).sqrt())) } else { 1 };
+                // interior points need n >= 3; degenerate triangles get none
+                if n >= 3 {
+                    ip.tris.push([t[0], t[1], t[2], n]);
+                }
+            }
+            plan.extra += ip.edges.iter().map(|e| e[2] as usize - 1).sum::<usize>()
+                + ip.tris.iter().map(|t| ((t[3] - 1) * (t[3] - 2) / 2) as usize).sum::<usize>();
+            plan.len += ip.vertices;
+            plan.insts.push(ip);
+        }
+        plan.len += plan.extra;
+        Ok(plan)
+    }
+
+    /// Whether the plan was made for this frame's instances (same count, same vertex counts).
+    pub fn fits(&self, scene: &Scene, frame: &Frame) -> bool {
+        self.insts.len() == frame.instances.len()
+            && self.insts.iter().zip(&frame.instances).all(|(p, i)| instance_mesh(scene, i).is_ok_and(|(m, _)| m.positions.len() == p.vertices))
+    }
+}
+
+/// The frame's candidate pool: world positions and normals of every instance's vertices, then the
+/// plan's extra points (see [`PoolPlan`]), in a fixed order.
+pub fn vertex_pool(scene: &Scene, frame: &Frame, plan: &PoolPlan) -> Result<Vec<SurfacePoint>> {
+    if !plan.insts.is_empty() && !plan.fits(scene, frame) {
+        bail!("avs: the candidate plan was made for other meshes than this frame's");
+    }
+    let mut out = Vec::with_capacity(plan.len);
+    let mut extra = Vec::with_capacity(plan.extra);
+    for (k, inst) in frame.instances.iter().enumerate() {
+        let (mesh, name) = instance_mesh(scene, inst)?;
         let m3 = Mat3::from_mat4(inst.world);
         let nm = if m3.determinant().abs() > 1e-20 { m3.inverse().transpose() } else { m3 };
         let has_n = mesh.normals.len() == mesh.positions.len();
+        let first = out.len();
         for (i, p) in mesh.positions.iter().enumerate() {
             let pos = inst.world.transform_point3(*p);
             let n = if has_n { (nm * mesh.normals[i]).normalize_or_zero() } else { Vec3::ZERO };
@@ -322,8 +445,53 @@ pub fn vertex_pool(scene: &Scene, frame: &Frame) -> Result<Vec<SurfacePoint>> {
             }
             out.push(SurfacePoint { pos, normal: n });
         }
+        let Some(ip) = plan.insts.get(k) else { continue };
+        let v = &out[first..];
+        // a point at barycentric weights w of vertices idx: position, and the weighted vertex
+        // normals (the face normal where they cancel or are missing)
+        let at = |idx: &[u32], w: &[f32]| {
+            let pos = idx.iter().zip(w).fold(Vec3::ZERO, |s, (&i, &x)| s + v[i as usize].pos * x);
+            let mut n = if has_n { idx.iter().zip(w).fold(Vec3::ZERO, |s, (&i, &x)| s + v[i as usize].normal * x).normalize_or_zero() } else { Vec3::ZERO };
+            if n == Vec3::ZERO && idx.len() == 3 {
+                let [a, b, c] = [0, 1, 2].map(|j| v[idx[j] as usize].pos);
+                n = (b - a).cross(c - a).normalize_or_zero();
+            }
+            if n == Vec3::ZERO {
+                n = v[idx[0] as usize].normal;
+            }
+            SurfacePoint { pos, normal: n }
+        };
+        for &[a, b, n] in &ip.edges {
+            for j in 1..n {
+                let x = j as f32 / n as f32;
+                extra.push(at(&[a, b], &[1.0 - x, x]));
+            }
+        }
+        for &[a, b, c, n] in &ip.tris {
+            for i in 1..n {
+                for j in 1..n - i {
+                    let (u, w) = (i as f32 / n as f32, j as f32 / n as f32);
+                    extra.push(at(&[a, b, c], &[1.0 - u - w, u, w]));
+                }
+            }
+        }
     }
+    out.extend(extra);
     Ok(out)
+}
+
+/// The six planes `(n, d)` of a view-projection matrix's frustum (Gribb-Hartmann, Vulkan depth
+/// 0..1), normalised: `n.p + d >= 0` inside.
+fn frustum_planes(m: glam::Mat4) -> [glam::Vec4; 6] {
+    let (r0, r1, r2, r3) = (m.row(0), m.row(1), m.row(2), m.row(3));
+    [r3 + r0, r3 - r0, r3 + r1, r3 - r1, r2, r3 - r2].map(|p| {
+        let l = p.truncate().length();
+        if l > 0.0 && l.is_finite() {
+            p / l
+        } else {
+            glam::Vec4::new(0.0, 0.0, 0.0, 1.0)
+        }
+    })
 }
 
 /// Offset of the visibility rays' origins along the sample point's normal for the frame's
@@ -421,6 +589,7 @@ pub struct AvsTechnique {
     cull_order: Vec<usize>,
     cull: Pipeline,
     pool_len: usize,
+    plan: Arc<PoolPlan>,
     radius: f32,
     /// Time the adaptation rounds with their own submissions (false: no adaptation rounds are
     /// possible inside a caller's graph without an engine, see `add`).
@@ -488,6 +657,7 @@ impl AvsTechnique {
             cull_order: Vec::new(),
             cull,
             pool_len: usize::MAX,
+            plan: Arc::new(PoolPlan::default()),
             radius: 0.0,
             stats: AvsStats::default(),
         })
@@ -825,7 +995,12 @@ impl crate::technique::Technique for AvsTechnique {
 
     fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
         let frame = inputs.frame;
-        let pool = vertex_pool(&self.scene, frame)?;
+        if self.plan.insts.is_empty() || !self.plan.fits(&self.scene, frame) {
+            self.plan = Arc::new(PoolPlan::new(&self.scene, frame, self.settings.pool_points)?);
+            self.pool_len = usize::MAX;
+        }
+        let pool = vertex_pool(&self.scene, frame, &self.plan)?;
+        self.stats.pool_plan = self.plan.clone();
         if pool.len() != self.pool_len {
             self.pool_len = pool.len();
             self.initial_points(&pool);
@@ -833,6 +1008,17 @@ impl crate::technique::Technique for AvsTechnique {
         self.stats.vertices = pool.len();
         if self.settings.cull && !self.cull_order.is_empty() {
             self.apply_cull_flags(engine)?;
+        } else if self.settings.cull {
+            // no flags yet (first frame): the view frustum, widened by the search radius, decides
+            // which points are traced (the G-buffer flags take over from the next frame)
+            let aspect = inputs.gbuffer.width as f32 / inputs.gbuffer.height.max(1) as f32;
+            let planes = frustum_planes(frame.camera.proj(aspect) * frame.camera.view());
+            let all: Vec<usize> = self.sample_vertices.iter().chain(self.dormant.iter()).copied().collect();
+            let margin = self.radius * 2.5;
+            let (traced, dormant): (Vec<usize>, Vec<usize>) =
+                all.into_iter().partition(|&v| planes.iter().all(|p| p.truncate().dot(pool[v].pos) + p.w >= -margin));
+            self.sample_vertices = traced;
+            self.dormant = dormant;
         } else if !self.dormant.is_empty() {
             // culling off: every kept point is traced again
             let d = std::mem::take(&mut self.dormant);
