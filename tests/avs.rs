@@ -84,7 +84,9 @@ fn accuracy_against_the_reference() {
     let t = 0.5;
     let opts = ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::Exact, ..Default::default() };
     let sg_ref = reference_render(&s, &opts).expect("reference");
-    let fast = with(&s, &[("r", "64"), ("points", "240"), ("iterations", "1")]);
+    // the paper's pool (vertices only): a fixed k = 240 spread over the refined cloth's extra
+    // candidates leaves the hat too few points (relRMSE 1.74); the automatic k grows with the pool
+    let fast = with(&s, &[("r", "64"), ("points", "240"), ("iterations", "1"), ("pool_points", "0")]);
     let (r_avs, avs) = render(&fast, "avs", w, h, &[t], false);
     if std::env::var("AVS_DUMP").is_ok() {
         let st = avs_stats(&r_avs);
@@ -108,8 +110,9 @@ fn accuracy_against_the_reference() {
     }
     // Shadows from the sampled visibility must bring the image much closer to the reference
     // than no shadows, in both integration modes. Measured (80x60, t = 0.5, r = 64, 240 initial
-    // points, 1 round, 32-spp exact reference): relRMSE 0.550 (axis) / 0.553 (cells) against
-    // 2.43 unshadowed; PSNR 21.44 / 21.41 against 21.41 (PSNR is dominated by the brim and crown,
+    // points, 1 round, 32-spp exact reference): relRMSE 0.433 (axis) / 0.438 (cells) against
+    // 2.75 unshadowed; PSNR 21.37 / 21.31 against 20.59 (0.550 / 0.553 and 21.44 / 21.41 before
+    // the SG diffuse term became the exact clamped-cosine mean; PSNR is dominated by the brim and crown,
     // too dark: their vertices lie only at the brim's edges, see the note of issue 8).
     assert!(a.rel_rmse < 0.7, "axis relRMSE {}", a.rel_rmse);
     assert!(c.rel_rmse < 0.7, "cells relRMSE {}", c.rel_rmse);
