@@ -110,9 +110,9 @@ fn accuracy_against_the_reference() {
     }
     // Shadows from the sampled visibility must bring the image much closer to the reference
     // than no shadows, in both integration modes. Measured (80x60, t = 0.5, r = 64, 240 initial
-    // points, 1 round, 32-spp exact reference): relRMSE 0.433 (axis) / 0.438 (cells) against
-    // 2.75 unshadowed; PSNR 21.37 / 21.31 against 20.59 (0.550 / 0.553 and 21.44 / 21.41 before
-    // the SG diffuse term became the exact clamped-cosine mean; PSNR is dominated by the brim and crown,
+    // points, 1 round, 32-spp exact reference): relRMSE 0.406 (axis) / 0.411 (cells) against
+    // 2.69 unshadowed; PSNR 21.83 / 21.78 against 21.10 (0.550 / 0.553 and 21.44 / 21.41 before
+    // the diffuse term became the map's irradiance times the lobes' visible share; PSNR is dominated by the brim and crown,
     // too dark: their vertices lie only at the brim's edges, see the note of issue 8).
     assert!(a.rel_rmse < 0.7, "axis relRMSE {}", a.rel_rmse);
     assert!(c.rel_rmse < 0.7, "cells relRMSE {}", c.rel_rmse);

@@ -49,6 +49,9 @@ layout(set = 0, binding = 12) readonly buffer Grid { uint grid[]; };
 layout(set = 0, binding = 13) readonly buffer Ssdf { uint ssdf[]; };
 // T(lambda, d), [SSDF_N_LAMBDA][SSDF_N_W] (penumbra_math::ssdf_integrate::AxisTable), mode 2
 layout(set = 0, binding = 14) readonly buffer AxisTable { float axis_table[]; };
+// the environment's irradiance map (passes::lighting::irradiance_env): the ratio estimator's
+// unshadowed diffuse term
+layout(set = 0, binding = 15) readonly buffer Irradiance { float irr[]; };
 layout(push_constant) uniform Push {
     uint light_count;
     uint lobe_count;
@@ -61,9 +64,11 @@ layout(push_constant) uniform Push {
     uint flags;      // bit 0: no shadows
     uint cells;      // cells per side (mode 1)
     uint specular_mode;
+    uint diffuse_ratio;  // 1: SH9 irradiance x the SG lobes' visible share; 0: the SG lobes alone
 } pc;
 
 #include "avs_gather.glsl"
+#include "irradiance.glsl"
 
 bool shadows_on() { return (pc.flags & 1u) == 0u && nb_count > 0u; }
 
@@ -287,13 +292,22 @@ void main() {
     gather_neighbours(pos, n);
     pix_frame = avs_frame(n);
     SG cosg = sg_clamped_cosine(n);
-    vec3 diffuse = vec3(0.0);
+    vec3 diffuse = vec3(0.0), diffuse_open = vec3(0.0);
     uint nl = min(pc.lobe_count, 64u);
     for (uint k = 0u; k < nl; ++k) {
         SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
         vec3 e = lobes[2u * k + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
         if (max(e.r, max(e.g, e.b)) <= 0.0) continue;
         diffuse += e * visible(sg_product(l, cosg));
+        diffuse_open += e;
+    }
+    if (pc.diffuse_ratio != 0u) {
+        // ratio estimator: the map's exact irradiance (include/irradiance.glsl, without the
+        // SG fit's error) times the visible share of the lobes' irradiance, per channel
+        vec3 share = vec3(1.0);
+        for (int c = 0; c < 3; ++c)
+            if (diffuse_open[c] > 1e-12) share[c] = clamp(diffuse[c] / diffuse_open[c], 0.0, 1.0);
+        diffuse = irr_eval(n) * share;
     }
     vec3 color = albedo / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);

@@ -34,11 +34,15 @@ layout(set = 0, binding = 10) readonly buffer Lobes { vec4 lobes[]; };  // 2 per
 #ifdef ISG_PER_VERTEX
 // Interpolated per-vertex visibilities: rgb diffuse (shadowed / unshadowed irradiance), a
 // specular (ISG visible fraction of G_j); r < 0: no vertex triangle covers the pixel.
-layout(set = 0, binding = 15) uniform sampler2D vertex_vis;
+layout(set = 0, binding = 16) uniform sampler2D vertex_vis;
 #endif
 // Prefiltered environment (penumbra_math::envmap::prefilter, Gamma_L / int G): [0] level count,
 // per level i at 1 + 4 i: lambda, width, height, offset of its RGB texels in this array.
 layout(set = 0, binding = 12) readonly buffer Prefiltered { float pf[]; };
+// The environment's irradiance map (passes::lighting::irradiance_env): the ratio estimator's
+// unshadowed diffuse term.
+layout(set = 0, binding = 15) readonly buffer Irradiance { float irr[]; };
+#include "irradiance.glsl"
 layout(push_constant) uniform Push {
     uint light_count;
     uint lobe_count;
@@ -49,6 +53,7 @@ layout(push_constant) uniform Push {
     float min_fraction;
     uint specular_mode;  // 0: Gamma_L from the prefiltered maps (paper), 1: from the lighting SGs
     int tri_node_count;  // thin-shell triangle BVH nodes
+    uint diffuse_ratio;  // 1: the map's irradiance x the lobes' visible share; 0: the SG lobes alone
 } pc;
 
 // Unoccluded fraction of a local light seen from p (offset shading point): shadow rays through
@@ -198,9 +203,13 @@ void main() {
     vec3 diffuse = vec3(0.0);
     uint nl = min(pc.lobe_count, 64u);
     if (per_vertex) {
-        for (uint k = 0u; k < nl; ++k) {
-            SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
-            diffuse += lobes[2u * k + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
+        if (pc.diffuse_ratio != 0u) {
+            diffuse = irr_eval(n);
+        } else {
+            for (uint k = 0u; k < nl; ++k) {
+                SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+                diffuse += lobes[2u * k + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
+            }
         }
         diffuse *= (pc.flags & 1u) != 0u ? vec3(1.0) : clamp(vvis.rgb, 0.0, 1.0);
     } else {
@@ -230,6 +239,14 @@ void main() {
             vis_w += y;
         }
         diffuse += skipped * (vis_w > 0.0 ? vis_sum / vis_w : 1.0);
+        if (pc.diffuse_ratio != 0u) {
+            // ratio estimator: the map's exact irradiance (without the SG fit's error) times the
+            // visible share of the lobes' irradiance, per channel
+            vec3 share = vec3(1.0);
+            for (int c = 0; c < 3; ++c)
+                if (unshadowed[c] > 1e-12) share[c] = clamp(diffuse[c] / unshadowed[c], 0.0, 1.0);
+            diffuse = irr_eval(n) * share;
+        }
     }
     vec3 color = albedo / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);

@@ -810,6 +810,44 @@ pub fn fit_sg_lighting(width: usize, height: usize, texels: &[[f32; 3]], k: usiz
     SgEnvFitter::new(width, height, texels, SgFitOptions::default())?.fit(k)
 }
 
+/// Diffuse irradiance `E(n) = int L(w) max(0, dot(n, w)) dw` of a lat-long map on a grid of
+/// `out_width x out_height` directions, row-major RGB: row `j` at `v = j / (out_height - 1)` (the
+/// first and last rows on the poles, where a texel-centred grid would leave the irradiance's
+/// steepest region to extrapolation), column `i` at `u = i / out_width` (same convention as the
+/// map, [`latlong_direction`]), by direct summation over the map box-downsampled (solid-angle weighted, energy kept) to
+/// at most `max_source_rows` rows. Irradiance is smooth (the cosine kernel is 180 degrees wide),
+/// so a 64 x 32 result interpolated bilinearly is within a fraction of a percent, where nine SH
+/// coefficients miss a studio map's irradiance by 4% on average and 14% at worst.
+pub fn irradiance_map(
+    width: usize,
+    height: usize,
+    texels: &[[f32; 3]],
+    out_width: usize,
+    out_height: usize,
+    max_source_rows: usize,
+) -> Result<Vec<[f32; 3]>, EnvError> {
+    let mut src = LatLong::new(width, height, texels)?;
+    while src.height > max_source_rows.max(1) {
+        match src.downsample() {
+            Some(d) => src = d,
+            None => break,
+        }
+    }
+    let weighted: Vec<(DVec3, DVec3)> =
+        (0..src.rgb.len()).map(|i| (src.dir(i), src.rgb[i] * src.solid_angle(i / src.width))).filter(|(_, c)| c.max_element() > 0.0).collect();
+    if out_width == 0 || out_height < 2 {
+        return Err(EnvError::Empty);
+    }
+    Ok((0..out_width * out_height)
+        .into_par_iter()
+        .map(|j| {
+            let n = latlong_direction((j % out_width) as f64 / out_width as f64, (j / out_width) as f64 / (out_height - 1) as f64);
+            let e = weighted.iter().fold(DVec3::ZERO, |acc, (d, c)| acc + *c * d.dot(n).max(0.0));
+            [e.x as f32, e.y as f32, e.z as f32]
+        })
+        .collect())
+}
+
 /// A default sharpness stack for [`prefilter`]: `1, 4, 16, ..., 4096` (glossy to near-mirror;
 /// a lobe of sharpness `lambda` has an angular width of about `1/sqrt(lambda)` rad).
 pub const DEFAULT_PREFILTER_LAMBDAS: [f64; 7] = [1.0, 4.0, 16.0, 64.0, 256.0, 1024.0, 4096.0];

@@ -299,3 +299,30 @@ fn sh_projection_of_a_latlong_map() {
     assert!(project_sh(0, 0, &[], 4).is_err());
     assert_eq!(DEFAULT_PREFILTER_LAMBDAS.len(), 7);
 }
+
+/// The irradiance map: a constant environment gives pi L everywhere; a map with one bright texel
+/// (a sun 1e4 x the sky) gives the sun's power times the clamped cosine plus the sky's pi L, at
+/// every output texel (grazing and back-facing included), within 1% of the sun's normal-incidence
+/// irradiance.
+#[test]
+fn irradiance_map_is_the_cosine_convolution() {
+    let (w, h) = (128, 64);
+    let flat = vec![[0.5f32, 1.0, 2.0]; w * h];
+    let e = irradiance_map(w, h, &flat, 16, 8, 64).unwrap();
+    for t in &e {
+        for (c, l) in t.iter().zip([0.5, 1.0, 2.0]) {
+            assert!((*c as f64 / (std::f64::consts::PI * l) - 1.0).abs() < 1e-3, "{t:?}");
+        }
+    }
+    let mut sun = vec![[0.01f32; 3]; w * h];
+    let (sx, sy) = (37, 20);
+    sun[sy * w + sx] = [1e4; 3];
+    let map = LatLong::new(w, h, &sun).unwrap();
+    let (sd, sp) = (map.dir(sy * w + sx), 1e4 * map.solid_angle(sy));
+    let e = irradiance_map(w, h, &sun, 16, 8, 64).unwrap();
+    for (j, t) in e.iter().enumerate() {
+        let n = latlong_direction((j % 16) as f64 / 16.0, (j / 16) as f64 / 7.0);
+        let expect = sp * sd.dot(n).max(0.0) + std::f64::consts::PI * 0.01;
+        assert!((t[0] as f64 - expect).abs() < 0.01 * sp, "texel {j}: {} vs {expect}", t[0]);
+    }
+}

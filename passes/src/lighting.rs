@@ -52,3 +52,21 @@ pub fn prefiltered_env(scene: &Scene) -> Vec<f32> {
     }
     out
 }
+
+/// Size of [`irradiance_env`]'s map (lat-long, the environment's own frame).
+pub const IRRADIANCE_SIZE: (usize, usize) = (64, 32);
+
+/// The environment's diffuse irradiance as a 64 x 32 lat-long map (exact cosine convolution,
+/// [`penumbra_math::envmap::irradiance_map`]; intensity and rotation are applied by the shader's
+/// lookup, as for [`prefiltered_env`]): `[width, height]` then RGB texels row by row; `[0, 0]`
+/// without an environment. Read by `irr_eval` in `glsl/include/irradiance.glsl`.
+pub fn irradiance_env(scene: &Scene) -> Vec<f32> {
+    let Some(e) = scene.environment.as_ref() else { return vec![0.0, 0.0] };
+    let (w, h) = IRRADIANCE_SIZE;
+    let Ok(map) = penumbra_math::envmap::irradiance_map(e.width as usize, e.height as usize, &e.texels, w, h, 64) else {
+        return vec![0.0, 0.0];
+    };
+    let mut out = vec![w as f32, h as f32];
+    out.extend(map.iter().flat_map(|t| t.map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 })));
+    out
+}

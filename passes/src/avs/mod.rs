@@ -129,6 +129,11 @@ pub struct AvsSettings {
     pub shadows: bool,
     /// Specular Gamma_L from SG-prefiltered environment maps (true) or the lighting lobes.
     pub prefiltered: bool,
+    /// Diffuse environment term: the map's exact irradiance (`lighting::irradiance_env`) times
+    /// the visible share of the SG lobes' irradiance (`true`, a ratio estimator), or the SG lobes
+    /// alone (`false`, the paper's: the 16-lobe fit's error, 5% too bright on the floor of
+    /// `falling`, stays in every unshadowed pixel).
+    pub diffuse_ratio: bool,
     /// Lighting SG lobes.
     pub lobes: usize,
     /// G-buffer culling (section 6 "Optimization"): trace only the sample points that some
@@ -162,6 +167,7 @@ impl Default for AvsSettings {
             cells: 6,
             shadows: true,
             prefiltered: true,
+            diffuse_ratio: true,
             lobes: 16,
             cull: true,
             capture_maps: false,
@@ -182,7 +188,7 @@ impl AvsSettings {
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
     /// `iterations` (2), `points` (0 = auto), `max_points` (8192), `pool_points` (4096), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells` | `table` | `adf`), `cells` (6,
-    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `lobes` (16). Unknown keys and bad values
+    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `lobes` (16). Unknown keys and bad values
     /// are errors naming the key.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
@@ -230,11 +236,18 @@ impl AvsSettings {
             "adaptive" => self.adaptive = flag()?,
             "keep_hits" => self.keep_hits = flag()?,
             "prefiltered" => self.prefiltered = flag()?,
+            "diffuse" => {
+                self.diffuse_ratio = match v {
+                    "ratio" => true,
+                    "sg" => false,
+                    _ => bail!("avs parameter diffuse = '{value}': expected 'ratio' or 'sg'"),
+                }
+            }
             "lobes" => self.lobes = int(1, 64)? as usize,
             "cull" => self.cull = flag()?,
             "capture_maps" => self.capture_maps = flag()?,
             other => bail!(
-                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, lobes, cull, capture_maps)"
+                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, lobes, cull, capture_maps)"
             ),
         }
         Ok(())
@@ -578,6 +591,9 @@ pub struct AvsTechnique {
     pub builder: KdTreeBuilder,
     lobes: Arc<Vec<u8>>,
     prefiltered: Arc<Vec<u8>>,
+    /// The environment's irradiance map (`lighting::irradiance_env`), the ratio estimator's
+    /// unshadowed diffuse term.
+    irradiance: Arc<Vec<u8>>,
     axis_table: Arc<Vec<u8>>,
     lobe_count: u32,
     /// Pool vertices of the current sample points (kept across frames): the traced ones.
@@ -624,8 +640,9 @@ impl AvsTechnique {
                 sb,
                 sb,
                 sb,
+                sb,
             ],
-            44,
+            48,
         )?;
         let cull = compute_pipeline(
             ctx,
@@ -647,6 +664,7 @@ impl AvsTechnique {
             repeat: Sampler::repeat(ctx)?,
             lobes: Arc::new(bytes_of(&lobes)),
             prefiltered: Arc::new(bytes_of(&crate::lighting::prefiltered_env(scene))),
+            irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(scene))),
             axis_table: if settings.integration == Integration::Table { axis_table() } else { Arc::new(vec![0u8; 16]) },
             lobe_count,
             builder: KdTreeBuilder::new(ctx, shaders)?,
@@ -1055,6 +1073,7 @@ impl crate::technique::Technique for AvsTechnique {
         let lobes = graph.create_buffer_init("avs_lobes", self.lobes.as_ref().clone());
         let prefiltered = graph.create_buffer_init("avs_prefiltered", self.prefiltered.as_ref().clone());
         let table = graph.create_buffer_init("avs_axis_table", self.axis_table.as_ref().clone());
+        let irradiance = graph.create_buffer_init("avs_irradiance", self.irradiance.as_ref().clone());
 
         let (scene, gb) = (inputs.handles, inputs.gbuffer);
         let (w, h) = (gb.width, gb.height);
@@ -1070,9 +1089,10 @@ impl crate::technique::Technique for AvsTechnique {
         let gr = p.read(grid_buf, Access::ComputeShaderReadStorage);
         let sd = p.read(ssdf, Access::ComputeShaderReadStorage);
         let tb = p.read(table, Access::ComputeShaderReadStorage);
+        let ir = p.read(irradiance, Access::ComputeShaderReadStorage);
         let pos_scale = samp::scene_scale(&pool.iter().map(|p| p.pos).collect::<Vec<_>>());
         let s = &self.settings;
-        let mut push: Vec<u8> = Vec::with_capacity(44);
+        let mut push: Vec<u8> = Vec::with_capacity(48);
         push.extend(bytes_of(&[scene.light_count, self.lobe_count, r, s.neighbours.clamp(1, 8)]));
         let (wa, wscale) = if s.interp_alpha > 0.0 { (s.interp_alpha, 1.0 / shade_radius) } else { (s.alpha, 1.0 / pos_scale) };
         push.extend(bytes_of(&[wa, wscale, shade_radius]));
@@ -1086,12 +1106,13 @@ impl crate::technique::Technique for AvsTechnique {
             (!s.shadows || points.is_empty()) as u32,
             s.cells.clamp(1, 16),
             (!s.prefiltered) as u32,
+            s.diffuse_ratio as u32,
         ]));
         let pipe = self.shade.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
             let rest = [Bind::StorageBuffer(lights), Bind::SampledImage(textures, repeat)];
-            let storage = crate::util::storage([lobes, prefiltered, pts, gr, sd, tb]);
+            let storage = crate::util::storage([lobes, prefiltered, pts, gr, sd, tb, ir]);
             let binds = [&io.binds(nearest, linear)[..], &rest, &storage].concat();
             crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
         });

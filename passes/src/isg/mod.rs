@@ -72,6 +72,10 @@ pub struct IsgSettings {
     /// Specular `Gamma_L` from the SG-prefiltered environment maps (the paper, eq. 10); false:
     /// from the K lighting SGs (matches the SG-lighting reference).
     pub prefiltered_specular: bool,
+    /// Diffuse environment term: the map's exact irradiance (`lighting::irradiance_env`) times
+    /// the visible share of the SG lobes' irradiance (`true`, a ratio estimator), or the SG lobes
+    /// alone (`false`, the paper's: the 16-lobe fit's error stays in every unshadowed pixel).
+    pub diffuse_ratio: bool,
     /// Build the BVH on the GPU (`isg_bvh` pass, LBVH over Morton codes, up to
     /// [`GPU_BVH_MAX`] spheres); false or more spheres: the CPU median-split BVH.
     pub gpu_bvh: bool,
@@ -102,6 +106,7 @@ impl Default for IsgSettings {
             min_lobe_fraction: 0.02,
             shadows: true,
             prefiltered_specular: true,
+            diffuse_ratio: true,
             gpu_bvh: true,
             per_vertex: false,
             max_edge: 0.1,
@@ -143,6 +148,13 @@ impl IsgSettings {
             }
             "shadows" => self.shadows = flag()?,
             "prefiltered" => self.prefiltered_specular = flag()?,
+            "diffuse" => {
+                self.diffuse_ratio = match v {
+                    "ratio" => true,
+                    "sg" => false,
+                    _ => anyhow::bail!("isg parameter diffuse = '{value}': expected 'ratio' or 'sg'"),
+                }
+            }
             "gpu_bvh" => self.gpu_bvh = flag()?,
             "thin_shells" => self.thin_shells = flag()?,
             "light_shadows" => self.light_shadows = flag()?,
@@ -155,7 +167,7 @@ impl IsgSettings {
             }
             "max_edge" => self.max_edge = v.parse::<f32>().ok().filter(|x| x.is_finite() && *x >= 0.0).ok_or_else(bad)?,
             other => anyhow::bail!(
-                "unknown isg parameter '{other}' (known: lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, gpu_bvh, thin_shells, light_shadows, mode, max_edge)"
+                "unknown isg parameter '{other}' (known: lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, diffuse, gpu_bvh, thin_shells, light_shadows, mode, max_edge)"
             ),
         }
         Ok(())
@@ -368,6 +380,8 @@ pub struct IsgTechnique {
     table: Arc<Vec<u8>>,
     lobes: Arc<Vec<u8>>,
     prefiltered: Arc<Vec<u8>>,
+    /// The environment's irradiance map (the ratio estimator's unshadowed diffuse term).
+    irradiance: Arc<Vec<u8>>,
     lobe_count: u32,
     /// Spheres, BVH nodes, thin-shell triangles and evaluated receiver vertices (per-vertex
     /// mode) of the last frame (for tests and reports).
@@ -377,12 +391,13 @@ pub struct IsgTechnique {
     pub last_vertex_count: usize,
 }
 
-/// Descriptor types of `isg_shade.comp` (bindings 0..=14) and `isg_shade_vertex.comp` (plus 15).
+/// Descriptor types of `isg_shade.comp` (bindings 0..=15) and `isg_shade_vertex.comp` (plus 16).
 fn shade_types(per_vertex: bool) -> Vec<vk::DescriptorType> {
     use vk::DescriptorType as T;
-    // 7 lights, 8 textures, 9 table, 10 lobes, 11 BVH, 12 prefiltered, 13 triangles, 14 their BVH
+    // 7 lights, 8 textures, 9 table, 10 lobes, 11 BVH, 12 prefiltered, 13 triangles, 14 their BVH,
+    // 15 irradiance map
     let io = &crate::shade_env::ShadingIo::TYPES[..];
-    let mut t = [io, &[T::STORAGE_BUFFER, T::COMBINED_IMAGE_SAMPLER], &[T::STORAGE_BUFFER; 6]].concat();
+    let mut t = [io, &[T::STORAGE_BUFFER, T::COMBINED_IMAGE_SAMPLER], &[T::STORAGE_BUFFER; 7]].concat();
     if per_vertex {
         t.push(T::COMBINED_IMAGE_SAMPLER);
     }
@@ -393,7 +408,7 @@ impl IsgTechnique {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: IsgSettings) -> Result<Self> {
         use vk::DescriptorType as T;
         let shade = if settings.per_vertex { "isg/isg_shade_vertex.comp" } else { "isg/isg_shade.comp" };
-        let pipeline = compute_pipeline(ctx, shaders, shade, &shade_types(settings.per_vertex), 36)?;
+        let pipeline = compute_pipeline(ctx, shaders, shade, &shade_types(settings.per_vertex), 40)?;
         let bvh_pipeline = compute_pipeline(ctx, shaders, "isg/isg_bvh.comp", &[T::STORAGE_BUFFER, T::STORAGE_BUFFER], 36)?;
         let vertex_pipelines = if settings.per_vertex {
             Some((
@@ -424,6 +439,7 @@ impl IsgTechnique {
             table: Arc::new(bytes_of(&table)),
             lobes: Arc::new(bytes_of(&lobes)),
             prefiltered: Arc::new(bytes_of(&prefiltered)),
+            irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(scene))),
             lobe_count,
             last_sphere_count: 0,
             last_node_count: 0,
@@ -584,6 +600,7 @@ impl crate::technique::Technique for IsgTechnique {
         let table = graph.create_buffer_init("isg_table", self.table.as_ref().clone());
         let lobes = graph.create_buffer_init("isg_lobes", self.lobes.as_ref().clone());
         let prefiltered = graph.create_buffer_init("isg_prefiltered", self.prefiltered.as_ref().clone());
+        let irradiance = graph.create_buffer_init("isg_irradiance", self.irradiance.as_ref().clone());
         let (bvh, node_count) = if self.settings.gpu_bvh && spheres.len() >= 2 && spheres.len() <= GPU_BVH_MAX {
             self.add_gpu_bvh(graph, &spheres)
         } else {
@@ -620,8 +637,9 @@ impl crate::technique::Technique for IsgTechnique {
         let prefiltered = p.read(prefiltered, Access::ComputeShaderReadStorage);
         let tris_buf = p.read(tris_buf, Access::ComputeShaderReadStorage);
         let tri_bvh = p.read(tri_bvh, Access::ComputeShaderReadStorage);
+        let irradiance = p.read(irradiance, Access::ComputeShaderReadStorage);
         let vertex_vis = vertex_vis.map(|v| p.read(v, Access::ComputeShaderReadSampled));
-        let mut push = Vec::with_capacity(36);
+        let mut push = Vec::with_capacity(40);
         push.extend_from_slice(&scene.light_count.to_le_bytes());
         push.extend_from_slice(&self.lobe_count.to_le_bytes());
         push.extend_from_slice(&node_count.to_le_bytes());
@@ -632,12 +650,13 @@ impl crate::technique::Technique for IsgTechnique {
         push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
         push.extend_from_slice(&(!self.settings.prefiltered_specular as u32).to_le_bytes());
         push.extend_from_slice(&tri_node_count.to_le_bytes());
+        push.extend_from_slice(&(self.settings.diffuse_ratio as u32).to_le_bytes());
         let pipe = self.pipeline.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
             let mut binds = io.binds(nearest, linear);
             binds.extend([Bind::StorageBuffer(lights), Bind::SampledImage(textures, repeat)]);
-            binds.extend(crate::util::storage([table, lobes, bvh, prefiltered, tris_buf, tri_bvh]));
+            binds.extend(crate::util::storage([table, lobes, bvh, prefiltered, tris_buf, tri_bvh, irradiance]));
             if let Some(v) = vertex_vis {
                 binds.push(Bind::SampledImage(v, nearest));
             }
