@@ -21,6 +21,8 @@
 //           only for tiny images. Wrong on lavapipe: a pixel needs more than the driver's 65535
 //           loop iterations per invocation, after which every loop stops early (see
 //           Integration::Adf).
+// Diffuse (diffuse_ratio, default): the map's exact irradiance times the visible share of the
+// lobes' irradiance (include/irradiance.glsl), not the lobes alone (the paper's; its fit error).
 // Local lights: shadowed by the sign of the interpolated SSDF toward the light.
 #include "common.glsl"
 #include "sg.glsl"
@@ -64,7 +66,7 @@ layout(push_constant) uniform Push {
     uint flags;      // bit 0: no shadows
     uint cells;      // cells per side (mode 1)
     uint specular_mode;
-    uint diffuse_ratio;  // 1: SH9 irradiance x the SG lobes' visible share; 0: the SG lobes alone
+    uint diffuse_ratio;  // 1: the map's irradiance x the SG lobes' visible share; 0: the SG lobes alone
 } pc;
 
 #include "avs_gather.glsl"
@@ -301,14 +303,7 @@ void main() {
         diffuse += e * visible(sg_product(l, cosg));
         diffuse_open += e;
     }
-    if (pc.diffuse_ratio != 0u) {
-        // ratio estimator: the map's exact irradiance (include/irradiance.glsl, without the
-        // SG fit's error) times the visible share of the lobes' irradiance, per channel
-        vec3 share = vec3(1.0);
-        for (int c = 0; c < 3; ++c)
-            if (diffuse_open[c] > 1e-12) share[c] = clamp(diffuse[c] / diffuse_open[c], 0.0, 1.0);
-        diffuse = irr_eval(n) * share;
-    }
+    if (pc.diffuse_ratio != 0u) diffuse = irr_ratio(n, diffuse, diffuse_open);
     vec3 color = albedo / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
     color += local_lights(pos, n, v, albedo, kind, m, roughness);

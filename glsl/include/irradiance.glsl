@@ -30,4 +30,14 @@ vec3 irr_eval(vec3 n) {
     return mix(a, b, ay) * cam.params.w;
 }
 
+// The ratio estimator of the SG techniques' diffuse term: the map's irradiance at n times the
+// visible share of the SG lobes' irradiance (shadowed / unshadowed, per channel; 1 where the
+// lobes carry nothing), so the SG fit's error leaves the unshadowed term.
+vec3 irr_ratio(vec3 n, vec3 shadowed, vec3 unshadowed) {
+    vec3 share = vec3(1.0);
+    for (int c = 0; c < 3; ++c)
+        if (unshadowed[c] > 1e-12) share[c] = clamp(shadowed[c] / unshadowed[c], 0.0, 1.0);
+    return irr_eval(n) * share;
+}
+
 #endif

@@ -3,7 +3,8 @@
 // specular: one SG lobe of the BRDF (Blinn-Phong / Cook-Torrance warp; Ashikhmin-Shirley as a
 // Cook-Torrance lobe of its mean roughness) times the cosine SG, Gamma_L = int L G_j from the
 // prefiltered environment maps (or from the lighting lobes), times the ISG visible fraction of
-// G_j (eq. 9). Local lights unshadowed. Included by isg_shade.comp (per pixel) and
+// G_j (eq. 9); with diffuse_ratio (default) the diffuse term is the map's exact irradiance times
+// the lobes' visible share (include/irradiance.glsl). Local lights shadowed by rays. Included by isg_shade.comp (per pixel) and
 // isg_shade_vertex.comp (ISG_PER_VERTEX: the visibilities come interpolated from the mesh
 // vertices, isg_vertex.comp + isg_vertex.vert/.frag; pixels no vertex triangle covered fall
 // back to the per-pixel evaluation).
@@ -239,14 +240,7 @@ void main() {
             vis_w += y;
         }
         diffuse += skipped * (vis_w > 0.0 ? vis_sum / vis_w : 1.0);
-        if (pc.diffuse_ratio != 0u) {
-            // ratio estimator: the map's exact irradiance (without the SG fit's error) times the
-            // visible share of the lobes' irradiance, per channel
-            vec3 share = vec3(1.0);
-            for (int c = 0; c < 3; ++c)
-                if (unshadowed[c] > 1e-12) share[c] = clamp(diffuse[c] / unshadowed[c], 0.0, 1.0);
-            diffuse = irr_eval(n) * share;
-        }
+        if (pc.diffuse_ratio != 0u) diffuse = irr_ratio(n, diffuse, unshadowed);
     }
     vec3 color = albedo / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
