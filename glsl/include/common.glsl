@@ -73,6 +73,21 @@ vec2 dir_to_latlong(vec3 d, vec2 cos_sin_rot) {
     return vec2(phi / (2.0 * PI), theta / PI);
 }
 
+// Bilinear taps of a w x h lat-long grid stored in a buffer, at continuous texel coordinates
+// (fx, fy): columns wrap, rows clamp. Returns the columns and rows (x0, x1, y0, y1); `f` gets the
+// weights of x1 and y1. Shared by the prefiltered-environment and irradiance buffers.
+ivec4 latlong_taps(float fx, float fy, int w, int h, out vec2 f) {
+    fy = clamp(fy, 0.0, float(h - 1));
+    int x0 = int(floor(fx));
+    int y0 = int(floor(fy));
+    f = vec2(fx - float(x0), fy - float(y0));
+    int y1 = min(y0 + 1, h - 1);
+    x0 -= w * int(floor(float(x0) / float(w)));  // wrap (GLSL % is undefined for negatives)
+    x0 = clamp(x0, 0, w - 1);
+    int x1 = x0 + 1 == w ? 0 : x0 + 1;
+    return ivec4(x0, x1, y0, y1);
+}
+
 // Irradiance from 9 SH coefficients (Ramamoorthi and Hanrahan 2001), already convolved.
 vec3 sh9_irradiance(vec4 sh[9], vec3 n) {
     vec3 r = sh[0].rgb * 0.282095;

@@ -16,18 +16,11 @@ vec3 irr_eval(vec3 n) {
     int w = int(irr[0] + 0.5), h = int(irr[1] + 0.5);
     if (w <= 0 || h <= 0) return vec3(0.0);
     vec2 uv = dir_to_latlong(normalize(n), cam.env_rot.xy);
-    float fx = uv.x * float(w);
-    float fy = clamp(uv.y * float(h - 1), 0.0, float(h - 1));
-    int x0 = int(floor(fx));
-    int y0 = int(floor(fy));
-    float ax = fx - float(x0), ay = fy - float(y0);
-    int y1 = min(y0 + 1, h - 1);
-    x0 -= w * int(floor(float(x0) / float(w)));  // wrap (GLSL % is undefined for negatives)
-    x0 = clamp(x0, 0, w - 1);
-    int x1 = x0 + 1 == w ? 0 : x0 + 1;
-    vec3 a = mix(irr_texel(w, x0, y0), irr_texel(w, x1, y0), ax);
-    vec3 b = mix(irr_texel(w, x0, y1), irr_texel(w, x1, y1), ax);
-    return mix(a, b, ay) * cam.params.w;
+    vec2 f;
+    ivec4 t = latlong_taps(uv.x * float(w), uv.y * float(h - 1), w, h, f);
+    vec3 a = mix(irr_texel(w, t.x, t.z), irr_texel(w, t.y, t.z), f.x);
+    vec3 b = mix(irr_texel(w, t.x, t.w), irr_texel(w, t.y, t.w), f.x);
+    return mix(a, b, f.y) * cam.params.w;
 }
 
 // The ratio estimator of the SG techniques' diffuse term: the map's irradiance at n times the

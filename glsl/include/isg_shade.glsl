@@ -132,41 +132,7 @@ vec3 env_lookup(vec3 d) {
     return textureLod(env_map, uv, 0.0).rgb * cam.params.w;
 }
 
-vec3 pf_texel(int off, int w, int x, int y) {
-    int i = off + 3 * (y * w + x);
-    return vec3(pf[i], pf[i + 1], pf[i + 2]);
-}
-
-vec3 pf_level(int l, vec2 uv) {
-    int w = int(pf[2 + 4 * l] + 0.5), h = int(pf[3 + 4 * l] + 0.5), off = int(pf[4 + 4 * l] + 0.5);
-    float fx = uv.x * float(w) - 0.5;
-    float fy = clamp(uv.y * float(h) - 0.5, 0.0, float(h - 1));
-    int x0 = int(floor(fx));
-    int y0 = int(floor(fy));
-    float ax = fx - float(x0), ay = fy - float(y0);
-    int y1 = min(y0 + 1, h - 1);
-    x0 -= w * int(floor(float(x0) / float(w)));  // wrap (GLSL % is undefined for negatives)
-    x0 = clamp(x0, 0, w - 1);
-    int x1 = x0 + 1 == w ? 0 : x0 + 1;
-    vec3 a = mix(pf_texel(off, w, x0, y0), pf_texel(off, w, x1, y0), ax);
-    vec3 b = mix(pf_texel(off, w, x0, y1), pf_texel(off, w, x1, y1), ax);
-    return mix(a, b, ay);
-}
-
-// Normalised Gamma_L(dir, lambda): the environment convolved with a unit-integral SG, linear
-// in log(lambda) between the prefiltered levels (clamped at the ends).
-vec3 pf_eval(vec3 dir, float lambda) {
-    int levels = int(pf[0] + 0.5);
-    if (levels <= 0) return vec3(0.0);
-    vec2 uv = dir_to_latlong(dir, cam.env_rot.xy);
-    float ll = log(max(lambda, 1e-6));
-    int l = 0;
-    while (l + 1 < levels && log(pf[1 + 4 * (l + 1)]) <= ll) ++l;
-    if (l + 1 >= levels) return pf_level(levels - 1, uv) * cam.params.w;
-    float l0 = log(pf[1 + 4 * l]), l1 = log(pf[1 + 4 * (l + 1)]);
-    float t = clamp((ll - l0) / max(l1 - l0, 1e-6), 0.0, 1.0);
-    return mix(pf_level(l, uv), pf_level(l + 1, uv), t) * cam.params.w;
-}
+#include "prefiltered.glsl"
 
 float visible(vec3 p, vec3 n, SG g) {
     if ((pc.flags & 1u) != 0u) return 1.0;
