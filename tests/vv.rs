@@ -43,7 +43,7 @@ fn modes_render_validation_clean_and_match_the_reference() {
     let env = render_env(&s, w, h);
     let env_psnr = compare(&reference.radiance, "reference", &image(&env), "env").unwrap().psnr_db.unwrap_or(99.0);
     println!("env (no shadows): PSNR {env_psnr:.2}");
-    let input_triangles = penumbra_passes::vv::scene_model(&s).unwrap().triangle_count() as u64;
+    let input_triangles = penumbra_passes::vv::scene_model(&s, penumbra_passes::vv::VvSettings::default().refine).unwrap().model.triangle_count() as u64;
     for mode in ["fragment3", "fragment1", "tessellation"] {
         // zeta 4: the displayed radiance of some vertices near the studio lights' shadow edges
         // changes by >= 1/8 under the Phong-256 blur, so their triangles get level 2 or 4

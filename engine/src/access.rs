@@ -49,6 +49,9 @@ pub enum Access {
     // ---- buffers
     /// Storage buffer read in a vertex shader.
     VertexShaderReadStorage,
+    /// Storage buffer read by any shader stage (read-only tables, e.g. the scene's materials
+    /// read by a raster pass's vertex, tessellation and fragment stages).
+    AnyShaderReadStorage,
     /// Uniform buffer read by any shader stage.
     AnyShaderReadUniform,
     /// Vertex buffer binding.
@@ -96,7 +99,7 @@ pub struct AccessInfo {
 
 impl Access {
     /// Every access kind, in declaration order (for tests and documentation).
-    pub const ALL: [Access; 23] = [
+    pub const ALL: [Access; 24] = [
         Access::ColorAttachmentWrite,
         Access::ColorAttachmentReadWrite,
         Access::DepthAttachmentWrite,
@@ -114,6 +117,7 @@ impl Access {
         Access::TransferSrc,
         Access::TransferDst,
         Access::VertexShaderReadStorage,
+        Access::AnyShaderReadStorage,
         Access::AnyShaderReadUniform,
         Access::VertexBuffer,
         Access::IndexBuffer,
@@ -314,6 +318,22 @@ impl Access {
             ),
             Access::VertexShaderReadStorage => (
                 S::VERTEX_SHADER,
+                A::SHADER_STORAGE_READ,
+                L::UNDEFINED,
+                false,
+                false,
+                Applies::Buffer,
+                IU::empty(),
+                BU::STORAGE_BUFFER,
+                None,
+            ),
+            Access::AnyShaderReadStorage => (
+                S::VERTEX_SHADER
+                    | S::TESSELLATION_CONTROL_SHADER
+                    | S::TESSELLATION_EVALUATION_SHADER
+                    | S::GEOMETRY_SHADER
+                    | S::FRAGMENT_SHADER
+                    | S::COMPUTE_SHADER,
                 A::SHADER_STORAGE_READ,
                 L::UNDEFINED,
                 false,

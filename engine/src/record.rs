@@ -137,6 +137,7 @@ impl<'a> RecordContext<'a> {
                         matches!(
                             a,
                             A::VertexShaderReadStorage
+                                | A::AnyShaderReadStorage
                                 | A::FragmentShaderReadStorage
                                 | A::ComputeShaderReadStorage
                                 | A::ComputeShaderWriteStorage

@@ -4,10 +4,9 @@
 // Flat arrays live in 2D images of width 4096 (texelFetch): vv_points (RGBA32F homogeneous
 // points of penumbra_math::vv::VectorizedVisibility), vv_ints (R32UI: seq_offsets,
 // vertex_seqs, tri_offsets, loop_offsets, triples, triangle vertex ids at the offsets in
-// pc.off0/off1), vv_verts (RGBA32F, 4 texels per model vertex: (world position, u), (normal, v),
-// (albedo, albedo-map layer or -1), specular (rgb reflectance, w Phong exponent alpha of eq. 13;
-// 0 = diffuse only)). Albedo maps come from the scene's texture array (material_textures), as
-// material.glsl applies them.
+// pc.off0/off1), vv_verts (RGBA32F, 3 texels per model vertex: (world position, u), (normal, v),
+// (index of its object's material in `mats`, 0, 0, 0)). Materials are the scene's (the frame's
+// table, so animated roughness follows), their maps applied by material.glsl's material_at.
 #ifndef PENUMBRA_VV_DATA_GLSL
 #define PENUMBRA_VV_DATA_GLSL
 #include "common.glsl"
@@ -20,6 +19,11 @@ layout(set = 0, binding = 3) uniform sampler2D vv_verts;
 layout(set = 0, binding = 4) uniform sampler2D vv_sat_tex;
 layout(set = 0, binding = 5) uniform sampler2D vv_sat_blur;
 layout(set = 0, binding = 6) uniform sampler2DArray material_textures;
+layout(set = 0, binding = 7) readonly buffer Materials { MaterialData mats[]; };
+// the mip-filtered lat-long environment (env_shade.glsl's unshadowed glossy lookup)
+layout(set = 0, binding = 8) uniform sampler2D env_map;
+#include "material.glsl"
+#include "env_shade.glsl"
 layout(push_constant) uniform Push {
     ivec4 sat;    // x W, y H, z hemisphere arcs, w mode (0 fragment3, 1 fragment1, 2 tessellation, 3 tessellation3)
     ivec4 off0;   // offsets in vv_ints: x seq_offsets, y vertex_seqs, z tri_offsets, w loop_offsets
@@ -37,66 +41,85 @@ vec4 vv_point(int i) {
     return texelFetch(vv_points, vv_tc(i), 0);
 }
 vec3 vv_vert(int v, int k) {
-    return texelFetch(vv_verts, vv_tc(4 * v + k), 0).xyz;
+    return texelFetch(vv_verts, vv_tc(3 * v + k), 0).xyz;
 }
-vec4 vv_vert_spec(int v) {
-    return texelFetch(vv_verts, vv_tc(4 * v + 3), 0);
+// Texture coordinate of model vertex v.
+vec2 vv_vert_uv(int v) {
+    return vec2(texelFetch(vv_verts, vv_tc(3 * v), 0).w, texelFetch(vv_verts, vv_tc(3 * v + 1), 0).w);
 }
-// (u, v, albedo-map layer) of model vertex v.
-vec3 vv_vert_uv_layer(int v) {
-    return vec3(texelFetch(vv_verts, vv_tc(4 * v), 0).w, texelFetch(vv_verts, vv_tc(4 * v + 1), 0).w,
-                texelFetch(vv_verts, vv_tc(4 * v + 2), 0).w);
+// Index of model vertex v's material.
+int vv_vert_material(int v) {
+    return int(texelFetch(vv_verts, vv_tc(3 * v + 2), 0).x + 0.5);
 }
-// The albedo at texture coordinate uv: the material's albedo times its albedo map (layer < 0:
-// none), as material.glsl's material_at.
-vec3 vv_albedo(vec3 albedo, float layer, vec2 uv) {
-    return layer >= 0.0 ? max(albedo * textureLod(material_textures, vec3(uv, layer), 0.0).rgb, vec3(0.0)) : albedo;
+// The material of model vertex v at texture coordinate uv.
+MaterialData vv_material(int v, vec2 uv) {
+    return material_at(mats[vv_vert_material(v)], uv, material_textures);
 }
 
 // Specular (eq. 14-16) state of one radiance evaluation: the occluder loops clipped to the cap W
-// around the reflected view direction and subtracted from W ∩ hemisphere, cap-weighted.
+// around the reflected view direction, cap-weighted.
 struct VvSpec {
     VvClip clip;
     VvAcc acc;
     vec3 r;        // map-space reflection direction (nudged)
     float cos_xi;  // cap W of the Phong lobe
-    vec3 ks;
 };
 
-// False for a diffuse material or with specular off.
-bool vv_spec_begin(vec3 s, vec3 n, vec4 spec, out VvSpec sp) {
-    vv_acc_init4(sp.acc);
-    sp.cos_xi = vv_phong_cap_cos(spec.w);
-    vec3 view = normalize(cam.eye.xyz - s);
-    // k_s (eq. 13-14, G = 1): the specular reflectance times (n . v)^2, the directional albedo
-    // of the scene's normalised Blinn-Phong lobe (s + 2) / (8 pi) (n.h)^s cos(theta_i) for a
-    // narrow lobe (the half-vector Jacobian 4 (v.h) and cos(theta_i) both ~ n . v)
-    float nv = max(dot(n, view), 0.0);
-    sp.ks = spec.rgb * (nv * nv);
-    sp.r = vv_nudge(vv_to_map(reflect(-view, n), cam.env_rot.xy), sp.cos_xi);
-    vv_clip_init(sp.r, sp.cos_xi, -1.0, pc.sat.z, sp.clip);
-    return pc.par.z > 0.5 && spec.w > 0.0 && max(spec.r, max(spec.g, spec.b)) > 0.0;
+// The Phong exponent alpha of eq. 13 of a material's specular lobe: its GGX alpha a (env_shade's
+// env_alpha, the lobe the unshadowed glossy term is prefiltered with) as the Blinn-Phong
+// exponent s = 2 / a^2 - 2, and Blinn-Phong's (n.h)^s as about (r.l)^(s / 4) (the half vector
+// turns half as far); within [1, 4096] (a wider cap would leave the hemisphere, a narrower one is
+// below fp32's reach in the SAT differences).
+float vv_phong_alpha(MaterialData m) {
+    float a = env_alpha(m);
+    return clamp((2.0 / (a * a) - 2.0) / 4.0, 1.0, 4096.0);
 }
 
-// L_s = k_s gamma U (eq. 14) with gamma of eq. 15 and the unshadowed glossy term U taken over the
-// same cap kernel: U = (2 pi / (alpha + 1)) * (∫_W Cap L_e) / (∫_W Cap dω), the kernel's
-// average radiance times the normalised Phong lobe's integral; k_s = ks (alpha + 1) / (2 pi)
-// (energy-normalised Phong, ks of vv_spec_begin). The denominator of gamma cancels:
-// L_s = ks * ∫_{V ∩ W} Cap L_e / (pi (1 - cos xi)^2). Before the environment intensity.
-vec3 vv_spec_end(sampler2D sat, vec3 nn, inout VvSpec sp) {
-    ivec2 size = pc.sat.xy;
-    vv_add_cap_in_hemisphere(sat, size, pc.par.x, sp.r, sp.cos_xi, nn, pc.sat.z, sp.acc);
-    vec3 num = vv_cap_finish(sat, size, sp.r, sp.cos_xi, true, nn, sp.acc);
-    float d = 1.0 - sp.cos_xi;
-    return sp.ks * max(num, vec3(0.0)) / (PI * max(d * d, 1e-12));
+// False for a diffuse material or with specular off.
+bool vv_spec_begin(vec3 s, vec3 n, MaterialData m, out VvSpec sp) {
+    vv_acc_init4(sp.acc);
+    sp.cos_xi = vv_phong_cap_cos(vv_phong_alpha(m));
+    vec3 view = normalize(cam.eye.xyz - s);
+    sp.r = vv_nudge(vv_to_map(reflect(-view, n), cam.env_rot.xy), sp.cos_xi);
+    vv_clip_init(sp.r, sp.cos_xi, -1.0, pc.sat.z, sp.clip);
+    return pc.par.z > 0.5 && material_kind(m) != 0;
 }
+
+// gamma of eq. 15: the visible share of the cap W (clipped to the hemisphere of the normal),
+// Cap-weighted (eq. 16) under the lighting, from the occluder loops clipped to W (in sp.acc).
+// Exactly 1 when no occluder reaches W (the numerator is then the denominator's sum).
+float vv_spec_gamma(sampler2D sat, vec3 nn, inout VvSpec sp) {
+    ivec2 size = pc.sat.xy;
+    VvAcc whole;
+    vv_acc_init4(whole);
+    vv_add_cap_in_hemisphere(sat, size, pc.par.x, sp.r, sp.cos_xi, nn, pc.sat.z, whole);
+    float den = vv_lum(vv_cap_finish(sat, size, sp.r, sp.cos_xi, true, nn, whole));
+    vv_add_cap_in_hemisphere(sat, size, pc.par.x, sp.r, sp.cos_xi, nn, pc.sat.z, sp.acc);
+    float num = vv_lum(vv_cap_finish(sat, size, sp.r, sp.cos_xi, true, nn, sp.acc));
+    return den > 0.0 ? clamp(num / den, 0.0, 1.0) : 1.0;
+}
+
+// The radiance of one evaluation: the diffuse integral over the visible directions (eq. 9,
+// loop sum `diffuse_sum`, before the intensity) plus the scene material's unshadowed glossy
+// reflection (env_shade.glsl: the prefiltered environment times the split-sum BRDF, as the `env`
+// technique draws it) times gamma (eq. 14: L_s = k_s gamma U with k_s U the unshadowed glossy term).
+vec3 vv_radiance(vec3 diffuse_sum, vec3 s, vec3 n, MaterialData m, bool glossy, float gamma) {
+    vec3 c = m.albedo_kind.rgb / PI * max(diffuse_sum, vec3(0.0)) * cam.params.w;
+    if (glossy) {
+        vec3 d, g;
+        env_unshadowed_parts(n, normalize(cam.eye.xyz - s), m, d, g);
+        c += g * gamma;
+    }
+    return c;
+}
+
 int vv_tri_vertex(int t, int k) {
     return vv_int(pc.off1.y + 3 * t + k);
 }
 
-// Radiance (diffuse, eq. 9/12, plus specular, eq. 14-16, when spec.w > 0) with the visibility
+// Radiance (diffuse, eq. 9/12, plus specular, eq. 14-16, for a glossy material) with the visibility
 // of model vertex v synthesized at s (eq. 3).
-vec3 vv_eval_vertex(sampler2D sat, int v, vec3 s, vec3 n, vec3 albedo, vec4 spec) {
+vec3 vv_eval_vertex(sampler2D sat, int v, vec3 s, vec3 n, MaterialData m) {
     ivec2 size = pc.sat.xy;
     vec2 cs = cam.env_rot.xy;
     vec3 nn = vv_nudge(vv_to_map(n, cs), 0.0);
@@ -104,7 +127,7 @@ vec3 vv_eval_vertex(sampler2D sat, int v, vec3 s, vec3 n, vec3 albedo, vec4 spec
     vv_acc_init(acc);
     vv_add_hemisphere(sat, size, pc.par.x, nn, pc.sat.z, acc);
     VvSpec sp;
-    bool glossy = vv_spec_begin(s, n, spec, sp);
+    bool glossy = vv_spec_begin(s, n, m, sp);
     int first = vv_int(pc.off0.y + 2 * v), count = vv_int(pc.off0.y + 2 * v + 1);
     for (int k = first; k < first + count; k++) {
         int p0 = vv_int(pc.off0.x + k), p1 = vv_int(pc.off0.x + k + 1);
@@ -120,9 +143,7 @@ vec3 vv_eval_vertex(sampler2D sat, int v, vec3 s, vec3 n, vec3 albedo, vec4 spec
         }
         if (glossy) vv_clip_end(sat, size, pc.par.x, sp.clip, sp.acc);
     }
-    vec3 c = albedo / PI * max(vv_finish(sat, size, nn, acc), vec3(0.0));
-    if (glossy) c += vv_spec_end(sat, nn, sp);
-    return c * cam.params.w;
+    return vv_radiance(vv_finish(sat, size, nn, acc), s, n, m, glossy, glossy ? vv_spec_gamma(sat, nn, sp) : 1.0);
 }
 
 // Interpolated direction of one triple (eq. 21, penumbra_math::vv::interpolate).
@@ -139,8 +160,8 @@ vec3 vv_triple_dir(int j, vec3 lambda, vec3 s, vec3 n) {
 }
 
 // Radiance with the interpolated vectorized visibility of triangle t (eq. 21), evaluated once
-// (diffuse and, when spec.w > 0, specular).
-vec3 vv_eval_interp(sampler2D sat, int t, vec3 lambda, vec3 s, vec3 n, vec3 albedo, vec4 spec) {
+// (diffuse and, for a glossy material, specular).
+vec3 vv_eval_interp(sampler2D sat, int t, vec3 lambda, vec3 s, vec3 n, MaterialData m) {
     ivec2 size = pc.sat.xy;
     vec2 cs = cam.env_rot.xy;
     vec3 nn = vv_nudge(vv_to_map(n, cs), 0.0);
@@ -148,7 +169,7 @@ vec3 vv_eval_interp(sampler2D sat, int t, vec3 lambda, vec3 s, vec3 n, vec3 albe
     vv_acc_init(acc);
     vv_add_hemisphere(sat, size, pc.par.x, nn, pc.sat.z, acc);
     VvSpec sp;
-    bool glossy = vv_spec_begin(s, n, spec, sp);
+    bool glossy = vv_spec_begin(s, n, m, sp);
     int l0 = vv_int(pc.off0.z + t), l1 = vv_int(pc.off0.z + t + 1);
     for (int l = l0; l < l1; l++) {
         int a0 = vv_int(pc.off0.w + l), a1 = vv_int(pc.off0.w + l + 1);
@@ -163,15 +184,13 @@ vec3 vv_eval_interp(sampler2D sat, int t, vec3 lambda, vec3 s, vec3 n, vec3 albe
         }
         if (glossy) vv_clip_end(sat, size, pc.par.x, sp.clip, sp.acc);
     }
-    vec3 c = albedo / PI * max(vv_finish(sat, size, nn, acc), vec3(0.0));
-    if (glossy) c += vv_spec_end(sat, nn, sp);
-    return c * cam.params.w;
+    return vv_radiance(vv_finish(sat, size, nn, acc), s, n, m, glossy, glossy ? vv_spec_gamma(sat, nn, sp) : 1.0);
 }
 
 // Eq. 19: three syntheses, three evaluations, blended barycentrically.
-vec3 vv_eval_three(sampler2D sat, ivec3 vids, vec3 lambda, vec3 s, vec3 n, vec3 albedo, vec4 spec) {
+vec3 vv_eval_three(sampler2D sat, ivec3 vids, vec3 lambda, vec3 s, vec3 n, MaterialData m) {
     vec3 c = vec3(0.0);
-    for (int k = 0; k < 3; k++) c += lambda[k] * vv_eval_vertex(sat, vids[k], s, n, albedo, spec);
+    for (int k = 0; k < 3; k++) c += lambda[k] * vv_eval_vertex(sat, vids[k], s, n, m);
     return c;
 }
 #endif

@@ -7,18 +7,15 @@ layout(location = 0) in vec3 v_world;
 layout(location = 1) in vec3 v_normal;
 layout(location = 2) in vec3 v_bary;
 layout(location = 3) flat in ivec3 v_vids;
-layout(location = 4) flat in vec3 v_albedo;
-layout(location = 5) flat in vec4 v_spec;
-layout(location = 6) in vec2 v_uv;
-layout(location = 7) flat in float v_layer;
+layout(location = 4) in vec2 v_uv;
 layout(location = 0) out vec4 o_color;
 
 void main() {
     vec3 n = normalize(v_normal);
     vec3 lambda = max(v_bary, vec3(0.0));
     lambda /= max(lambda.x + lambda.y + lambda.z, 1e-6);
-    vec3 albedo = vv_albedo(v_albedo, v_layer, v_uv);
-    vec3 c = pc.sat.w == 0 ? vv_eval_three(vv_sat_tex, v_vids, lambda, v_world, n, albedo, v_spec)
-                           : vv_eval_interp(vv_sat_tex, gl_PrimitiveID, lambda, v_world, n, albedo, v_spec);
+    MaterialData m = vv_material(v_vids.x, v_uv);
+    vec3 c = pc.sat.w == 0 ? vv_eval_three(vv_sat_tex, v_vids, lambda, v_world, n, m)
+                           : vv_eval_interp(vv_sat_tex, gl_PrimitiveID, lambda, v_world, n, m);
     o_color = vec4(c, 1.0);
 }

@@ -6,21 +6,14 @@ layout(location = 0) out vec3 v_world;
 layout(location = 1) out vec3 v_normal;
 layout(location = 2) out vec3 v_bary;
 layout(location = 3) flat out ivec3 v_vids;
-layout(location = 4) flat out vec3 v_albedo;
-layout(location = 5) flat out vec4 v_spec;
-layout(location = 6) out vec2 v_uv;
-layout(location = 7) flat out float v_layer;
+layout(location = 4) out vec2 v_uv;
 
 void main() {
     int t = gl_VertexIndex / 3, k = gl_VertexIndex % 3;
     int v = vv_tri_vertex(t, k);
     v_world = vv_vert(v, 0);
     v_normal = vv_vert(v, 1);
-    v_albedo = vv_vert(v, 2);
-    v_spec = vv_vert_spec(v);
-    vec3 uvl = vv_vert_uv_layer(v);
-    v_uv = uvl.xy;
-    v_layer = uvl.z;
+    v_uv = vv_vert_uv(v);
     v_bary = vec3(k == 0, k == 1, k == 2);
     v_vids = ivec3(vv_tri_vertex(t, 0), vv_tri_vertex(t, 1), vv_tri_vertex(t, 2));
     gl_Position = cam.view_proj * vec4(v_world, 1.0);

@@ -7,19 +7,15 @@
 layout(vertices = 3) out;
 layout(location = 0) in vec3 v_world[];
 layout(location = 1) in vec3 v_normal[];
-layout(location = 2) in vec3 v_albedo[];
 layout(location = 3) in float v_delta[];
 layout(location = 4) in int v_vid[];
-layout(location = 5) in vec4 v_spec[];
 layout(location = 6) in int v_tri[];
-layout(location = 7) in vec3 v_uvl[];
+layout(location = 7) in vec2 v_uv[];
 layout(location = 0) out vec3 c_world[];
 layout(location = 1) out vec3 c_normal[];
-layout(location = 2) out vec3 c_albedo[];
 layout(location = 4) out int c_vid[];
-layout(location = 5) out vec4 c_spec[];
 layout(location = 6) out int c_tri[];
-layout(location = 7) out vec3 c_uvl[];
+layout(location = 7) out vec2 c_uv[];
 
 float vv_level(float delta) {
     return clamp(exp2(round(pc.par.y * delta)), 1.0, float(pc.off1.z));
@@ -28,11 +24,9 @@ float vv_level(float delta) {
 void main() {
     c_world[gl_InvocationID] = v_world[gl_InvocationID];
     c_normal[gl_InvocationID] = v_normal[gl_InvocationID];
-    c_albedo[gl_InvocationID] = v_albedo[gl_InvocationID];
     c_vid[gl_InvocationID] = v_vid[gl_InvocationID];
-    c_spec[gl_InvocationID] = v_spec[gl_InvocationID];
     c_tri[gl_InvocationID] = v_tri[gl_InvocationID];
-    c_uvl[gl_InvocationID] = v_uvl[gl_InvocationID];
+    c_uv[gl_InvocationID] = v_uv[gl_InvocationID];
     if (gl_InvocationID == 0) {
         float d0 = v_delta[0], d1 = v_delta[1], d2 = v_delta[2];
         gl_TessLevelOuter[0] = vv_level(max(d1, d2));

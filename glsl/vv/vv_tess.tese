@@ -7,28 +7,25 @@
 layout(triangles, equal_spacing, ccw) in;
 layout(location = 0) in vec3 c_world[];
 layout(location = 1) in vec3 c_normal[];
-layout(location = 2) in vec3 c_albedo[];
 layout(location = 4) in int c_vid[];
-layout(location = 5) in vec4 c_spec[];
 // the model triangle from the vertex stage: lavapipe's gl_PrimitiveID here is not the patch
 // index of the draw for the bunny (eq. 21 read other triangles' loops: 17.5 dB at zeta = 1
 // where the corners equal eq. 19's 22.5 dB)
 layout(location = 6) in int c_tri[];
-layout(location = 7) in vec3 c_uvl[];
+layout(location = 7) in vec2 c_uv[];
 layout(location = 0) out vec3 e_color;
 
 void main() {
     vec3 l = gl_TessCoord;
     vec3 s = l.x * c_world[0] + l.y * c_world[1] + l.z * c_world[2];
     vec3 n = normalize(l.x * c_normal[0] + l.y * c_normal[1] + l.z * c_normal[2]);
-    // the albedo map at the tessellated vertex (fragments interpolate the radiance)
-    vec2 uv = l.x * c_uvl[0].xy + l.y * c_uvl[1].xy + l.z * c_uvl[2].xy;
-    vec3 albedo = vv_albedo(c_albedo[0], c_uvl[0].z, uv);
-    vec4 spec = c_spec[0];
+    // the material (texture maps) at the tessellated vertex (fragments interpolate the radiance)
+    vec2 uv = l.x * c_uv[0] + l.y * c_uv[1] + l.z * c_uv[2];
+    MaterialData m = vv_material(c_vid[0], uv);
     if (pc.sat.w == 2) {
-        e_color = vv_eval_interp(vv_sat_tex, c_tri[0], l, s, n, albedo, spec);
+        e_color = vv_eval_interp(vv_sat_tex, c_tri[0], l, s, n, m);
     } else {
-        e_color = vv_eval_three(vv_sat_tex, ivec3(c_vid[0], c_vid[1], c_vid[2]), l, s, n, albedo, spec);
+        e_color = vv_eval_three(vv_sat_tex, ivec3(c_vid[0], c_vid[1], c_vid[2]), l, s, n, m);
     }
     gl_Position = cam.view_proj * vec4(s, 1.0);
 }

@@ -5,14 +5,12 @@
 
 layout(location = 0) out vec3 v_world;
 layout(location = 1) out vec3 v_normal;
-layout(location = 2) out vec3 v_albedo;
 layout(location = 3) out float v_delta;
 layout(location = 4) out int v_vid;
-layout(location = 5) out vec4 v_spec;
 // the model triangle (the control and evaluation stages' gl_PrimitiveID is not relied on)
 layout(location = 6) out int v_tri;
-// (u, v, albedo-map layer) for the evaluation stage's textured albedo
-layout(location = 7) out vec3 v_uvl;
+// texture coordinate for the evaluation stage's material
+layout(location = 7) out vec2 v_uv;
 
 // The displayed value of a radiance (tonemap.comp: exposure, ACES fit, sRGB transfer), [0, 1].
 vec3 vv_display(vec3 c) {
@@ -26,13 +24,12 @@ void main() {
     int v = vv_tri_vertex(t, k);
     v_world = vv_vert(v, 0);
     v_normal = normalize(vv_vert(v, 1));
-    v_albedo = vv_vert(v, 2);
-    v_spec = vv_vert_spec(v);
     v_vid = v;
     v_tri = t;
-    v_uvl = vv_vert_uv_layer(v);
-    vec3 i0 = vv_eval_vertex(vv_sat_tex, v, v_world, v_normal, v_albedo, v_spec);
-    vec3 i1 = vv_eval_vertex(vv_sat_blur, v, v_world, v_normal, v_albedo, v_spec);
+    v_uv = vv_vert_uv(v);
+    MaterialData m = vv_material(v, v_uv);
+    vec3 i0 = vv_eval_vertex(vv_sat_tex, v, v_world, v_normal, m);
+    vec3 i1 = vv_eval_vertex(vv_sat_blur, v, v_world, v_normal, m);
     // eq. 17 in the paper's unit, the displayed value in [0, 1] (its radiance values are the
     // pixel values of the images whose PSNR it reports): both radiances through the display
     // mapping, then the luminance of the difference

@@ -218,6 +218,7 @@ const VV_PARAMS: &[ParamDoc] = &[
     p("max_level", "64", "1..=64", "largest tessellation level"),
     p("resolution", "64", "8..=1024", "visibility-map resolution of the precompute"),
     p("specular", "on", "on/off", "specular term of glossy materials (eq. 14-16)"),
+    p("refine", "1024", "0..=65536", "receiver refinement: edges longer than sqrt(scene area / refine) are split so large triangles get visibility samples (0: meshes as given)"),
 ];
 
 fn create_env(ctx: &Arc<Context>, shaders: &ShaderLibrary, _: &Scene, _: &Params) -> Result<Box<dyn Technique>> {

@@ -350,6 +350,87 @@ impl MeshData {
         }
     }
 
+    /// Splits every edge longer than `max_edge` at its midpoint, pass after pass, until no edge is
+    /// longer or the next pass would exceed `max_triangles` (the mesh of the last complete pass
+    /// is returned, so the cap never leaves a half-refined pass). A triangle with one split edge
+    /// becomes two, with two becomes three (its quad cut along the shorter diagonal), with three
+    /// becomes four. Whether an edge splits depends only on its end positions, so the triangles
+    /// on both sides of an edge agree, also across uv seams (vertices duplicated with other
+    /// attributes): the result has no T-junctions where the input had none. New vertices take
+    /// the mean position and uv of the edge's ends and their normalised mean normal; winding is
+    /// kept. Degenerate (zero-length) edges never split.
+    pub fn refine_long_edges(&self, max_edge: f32, max_triangles: usize) -> MeshData {
+        let mut m = self.clone();
+        if !(max_edge > 0.0) || !max_edge.is_finite() {
+            return m;
+        }
+        let has_uv = m.uvs.len() == m.positions.len();
+        loop {
+            let long = |m: &MeshData, a: u32, b: u32| (m.positions[a as usize] - m.positions[b as usize]).length() > max_edge;
+            // count the triangles of the next pass first (the cap)
+            let mut next = 0usize;
+            let mut any = false;
+            for t in m.indices.chunks_exact(3) {
+                let k = (0..3).filter(|&i| long(&m, t[i], t[(i + 1) % 3])).count();
+                any |= k > 0;
+                next += k + 1;
+            }
+            if !any || next > max_triangles {
+                return m;
+            }
+            let mut mid: std::collections::HashMap<(u32, u32), u32> = std::collections::HashMap::new();
+            let mut midpoint = |m: &mut MeshData, a: u32, b: u32| -> u32 {
+                *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                    let (pa, pb) = (m.positions[a as usize], m.positions[b as usize]);
+                    let n = (m.normals[a as usize] + m.normals[b as usize]).normalize_or(m.normals[a as usize]);
+                    m.positions.push((pa + pb) * 0.5);
+                    m.normals.push(n);
+                    if has_uv {
+                        let uv = (m.uvs[a as usize] + m.uvs[b as usize]) * 0.5;
+                        m.uvs.push(uv);
+                    }
+                    (m.positions.len() - 1) as u32
+                })
+            };
+            let old = std::mem::take(&mut m.indices);
+            let mut out = Vec::with_capacity(next * 3);
+            for t in old.chunks_exact(3) {
+                let split = [long(&m, t[0], t[1]), long(&m, t[1], t[2]), long(&m, t[2], t[0])];
+                match split.iter().filter(|s| **s).count() {
+                    0 => out.extend_from_slice(t),
+                    1 => {
+                        // rotate so the split edge is (a, b)
+                        let r = split.iter().position(|s| *s).unwrap_or(0);
+                        let (a, b, c) = (t[r], t[(r + 1) % 3], t[(r + 2) % 3]);
+                        let ab = midpoint(&mut m, a, b);
+                        out.extend_from_slice(&[a, ab, c, ab, b, c]);
+                    }
+                    2 => {
+                        // rotate so the unsplit edge is (c, a): split edges (a, b) and (b, c)
+                        let r = (split.iter().position(|s| !*s).unwrap_or(2) + 1) % 3;
+                        let (a, b, c) = (t[r], t[(r + 1) % 3], t[(r + 2) % 3]);
+                        let ab = midpoint(&mut m, a, b);
+                        let bc = midpoint(&mut m, b, c);
+                        out.extend_from_slice(&[ab, b, bc]);
+                        // the quad a, ab, bc, c along its shorter diagonal
+                        let p = |i: u32| m.positions[i as usize];
+                        if (p(a) - p(bc)).length() <= (p(ab) - p(c)).length() {
+                            out.extend_from_slice(&[a, ab, bc, a, bc, c]);
+                        } else {
+                            out.extend_from_slice(&[a, ab, c, ab, bc, c]);
+                        }
+                    }
+                    _ => {
+                        let (a, b, c) = (t[0], t[1], t[2]);
+                        let (ab, bc, ca) = (midpoint(&mut m, a, b), midpoint(&mut m, b, c), midpoint(&mut m, c, a));
+                        out.extend_from_slice(&[a, ab, ca, ab, b, bc, ca, bc, c, ab, bc, ca]);
+                    }
+                }
+            }
+            m.indices = out;
+        }
+    }
+
     /// Surface of revolution around +Y of a profile of (radius, height) points listed from the
     /// bottom up (outside on the right when walking the profile). Profile points with radius 0
     /// become poles; a profile starting and ending on the axis gives a closed mesh.
@@ -605,6 +686,49 @@ mod tests {
             let n = m.normals[a] + m.normals[b] + m.normals[c];
             assert!(g.dot(n) > 0.0, "{}: triangle {:?} winds clockwise", m.name, t);
         }
+    }
+
+    fn area(m: &MeshData) -> f32 {
+        m.indices
+            .chunks(3)
+            .map(|t| {
+                let p = |i: u32| m.positions[i as usize];
+                0.5 * (p(t[1]) - p(t[0])).cross(p(t[2]) - p(t[0])).length()
+            })
+            .sum()
+    }
+
+    #[test]
+    fn refine_long_edges_is_conforming_and_keeps_the_surface() {
+        // a 2-triangle floor: every edge ends up at most the limit, area and winding kept
+        let floor = MeshData::plane(6.0, 1);
+        let r = floor.refine_long_edges(0.5, 1 << 20);
+        assert!(r.triangle_count() > 200, "{}", r.triangle_count());
+        for t in r.indices.chunks(3) {
+            for k in 0..3 {
+                let l = (r.positions[t[k] as usize] - r.positions[t[(k + 1) % 3] as usize]).length();
+                assert!(l <= 0.5 + 1e-5, "edge {l}");
+            }
+        }
+        assert!((area(&r) - 36.0).abs() < 1e-3, "{}", area(&r));
+        check_winding(&r);
+        assert_eq!(r.positions.len(), r.uvs.len());
+        // uvs interpolate linearly on a plane: uv = (x, z) + 3
+        for (p, uv) in r.positions.iter().zip(&r.uvs) {
+            assert!((uv.x - (p.x + 3.0)).abs() < 1e-4 && (uv.y - (p.z + 3.0)).abs() < 1e-4, "{p} {uv}");
+        }
+        // a closed mesh with uv seams and poles stays closed (no T-junctions), mixed triangle sizes
+        let s = MeshData::uv_sphere(1.0, 12, 6);
+        assert!(s.is_closed());
+        let r = s.refine_long_edges(0.3, 1 << 20);
+        assert!(r.triangle_count() > 4 * s.triangle_count());
+        assert!(r.is_closed(), "refined sphere has open edges");
+        check_winding(&r);
+        // the cap stops before a pass that would exceed it; nothing to do leaves the mesh as it is
+        let capped = floor.refine_long_edges(0.01, 100);
+        assert!(capped.triangle_count() <= 100 && capped.triangle_count() > 2, "{}", capped.triangle_count());
+        assert_eq!(floor.refine_long_edges(100.0, 1 << 20).indices, floor.indices);
+        assert_eq!(floor.refine_long_edges(0.0, 1 << 20).indices, floor.indices);
     }
 
     #[test]

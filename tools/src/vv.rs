@@ -4,7 +4,7 @@
 
 use anyhow::{anyhow, Result};
 use clap::Args;
-use penumbra_math::vv::{self, ObjectMesh, Stage, VvData, VvModel, VvParams};
+use penumbra_math::vv::{self, Stage, VvData, VvModel, VvParams};
 use penumbra_scene::Scene;
 use std::path::PathBuf;
 
@@ -31,6 +31,10 @@ pub struct VvArgs {
     /// Largest angle between linked entities of a correspondence triple, degrees.
     #[arg(long, default_value_t = VvParams::default().max_link_deg)]
     pub max_link: f32,
+    /// Receiver refinement, as the technique's `refine` parameter: edges longer than
+    /// sqrt(scene area / refine) are split; 0 keeps the meshes as given.
+    #[arg(long, default_value_t = penumbra_passes::vv::VvSettings::default().refine)]
+    pub refine: u32,
     /// Seed of the correspondence (random triangle order, symbolic perturbation).
     #[arg(long, default_value_t = VvParams::default().seed)]
     pub seed: u64,
@@ -52,21 +56,10 @@ impl VvArgs {
     }
 }
 
-/// The static model of a scene: every object in world space at rest, in object order.
-/// Moving or deforming objects are bad input.
-pub fn scene_model(scene: &Scene, name: &str) -> std::result::Result<VvModel, String> {
-    let mut objs = Vec::new();
-    for (i, o) in scene.objects.iter().enumerate() {
-        let info = scene.object_info(i);
-        if info.is_moving() || info.is_deforming() {
-            return Err(format!("{name}: object '{}' moves or deforms; vectorized visibility is precomputed for static geometry", o.name));
-        }
-        let m = scene.meshes.get(o.mesh).ok_or_else(|| format!("{name}: object '{}' has no mesh", o.name))?;
-        objs.push(ObjectMesh { positions: &m.positions, normals: &m.normals, indices: &m.indices, world: o.transform, casts_shadow: info.casts_shadow });
-    }
-    let model = VvModel::from_objects(objs);
-    model.validate().map_err(|e| format!("{name}: {e}"))?;
-    Ok(model)
+/// The static model of a scene as the `vv` technique shades it (`penumbra_passes::vv::scene_model`:
+/// every object in world space, long edges refined). Moving or deforming objects are bad input.
+pub fn scene_model(scene: &Scene, name: &str, refine: u32) -> std::result::Result<VvModel, String> {
+    penumbra_passes::vv::scene_model(scene, refine).map(|g| g.model).map_err(|e| format!("{name}: {e:#}"))
 }
 
 fn bar(len: u64, what: &str) -> indicatif::ProgressBar {
@@ -110,7 +103,7 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<std::result::Result<(), Strin
         Ok(p) => p,
         Err(e) => return Ok(Err(e)),
     };
-    let model = match scene_model(scene, &name) {
+    let model = match scene_model(scene, &name, args.refine) {
         Ok(m) => m,
         Err(e) => return Ok(Err(e)),
     };

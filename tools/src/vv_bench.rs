@@ -37,6 +37,10 @@ pub struct VvArgs {
     /// Visibility-map resolution of the precompute.
     #[arg(long, default_value_t = 64)]
     pub resolution: u32,
+    /// Receiver refinement (the technique's `refine`: about this many vertices over the scene's
+    /// area; 0 = the meshes as given, as the paper's coarse models).
+    #[arg(long, default_value_t = 1024)]
+    pub refine: u32,
     /// Largest tessellation level.
     #[arg(long, default_value_t = 64)]
     pub max_level: u32,
@@ -58,11 +62,11 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
     let reference = reference_render(scene, &opts).context("reference render")?;
     reference.radiance.write_exr(args.out.join("reference.exr"))?;
     println!("reference: {} spp in {:.2} s, mean relative standard error {:.2e}", args.spp, reference.render_seconds, reference.noise.mean_rel_std_error);
-    let data = VvSceneData::cached(scene, args.resolution)?;
+    let data = VvSceneData::cached(scene, args.resolution, args.refine)?;
     println!(
         "precompute: {} vertices, {} triangles; visibility {:.2} s, {:.2} MB; correspondence {}",
-        data.model.positions.len(),
-        data.model.triangle_count(),
+        data.model().positions.len(),
+        data.model().triangle_count(),
         data.visibility_seconds,
         data.visibility_bytes as f64 / 1e6,
         if data.corr.is_some() { format!("{:.2} s, {:.2} MB", data.correspondence_seconds, data.triple_bytes as f64 / 1e6) } else { "not available".into() }
@@ -87,6 +91,7 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
         }
         s.technique_params.insert("sat_width".into(), args.sat_width.to_string());
         s.technique_params.insert("resolution".into(), args.resolution.to_string());
+        s.technique_params.insert("refine".into(), args.refine.to_string());
         s.technique_params.insert("max_level".into(), args.max_level.to_string());
         let settings = penumbra_passes::vv::VvSettings::from_params(&s.technique_params)?;
         let ctx = penumbra::engine::Context::new(&Default::default())?;
@@ -164,8 +169,8 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
         "size": [width, height],
         "reference": {"spp": args.spp, "seconds": reference.render_seconds},
         "precompute": {
-            "vertices": data.model.positions.len(),
-            "triangles": data.model.triangle_count(),
+            "vertices": data.model().positions.len(),
+            "triangles": data.model().triangle_count(),
             "visibility_seconds": data.visibility_seconds,
             "visibility_bytes": data.visibility_bytes,
             "correspondence_seconds": data.correspondence_seconds,

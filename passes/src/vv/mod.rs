@@ -55,7 +55,7 @@
 use crate::shade_env::{ShadeEnvPass, HDR_FORMAT};
 use crate::util::{bytes_of, compute_pipeline, groups, layouts, Pipeline, Sampler};
 use anyhow::{bail, Context as _, Result};
-use glam::{DVec3, Vec3};
+use glam::DVec3;
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, Context, Engine, Graph, ImageHandle, PassKind};
@@ -127,6 +127,9 @@ pub struct VvSettings {
     pub resolution: u32,
     /// Specular term of glossy materials (eq. 14-16); off: their diffuse part only.
     pub specular: bool,
+    /// Receiver refinement: about this many vertices spread over the scene's area (edges longer
+    /// than `sqrt(area / refine)` are split, [`scene_model`]); 0 keeps the meshes as given.
+    pub refine: u32,
 }
 
 impl Default for VvSettings {
@@ -140,6 +143,7 @@ impl Default for VvSettings {
             max_level: 64,
             resolution: VvParams::default().resolution,
             specular: true,
+            refine: 1024,
         }
     }
 }
@@ -154,7 +158,7 @@ impl VvSettings {
     /// Keys: `mode` (fragment3, fragment1, tessellation, tessellation3; default fragment1),
     /// `zeta` (0..=16, default 2), `alpha` (> 0, default 2), `sat_width` (16..=4096, even,
     /// default 256), `arcs` (8..=256, default 32), `max_level` (1..=64), `resolution` (8..=1024),
-    /// `specular` (on / off, default on).
+    /// `specular` (on / off, default on), `refine` (0..=65536, default 1024).
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
         let bad = || anyhow::anyhow!("vv parameter {key} = '{value}': not a valid value");
@@ -183,6 +187,7 @@ impl VvSettings {
             "arcs" => self.hemisphere_arcs = num(8.0, 256.0)? as u32,
             "max_level" => self.max_level = num(1.0, 64.0)? as u32,
             "resolution" => self.resolution = num(8.0, 1024.0)? as u32,
+            "refine" => self.refine = num(0.0, 65536.0)? as u32,
             "specular" => {
                 self.specular = match v {
                     "on" | "true" | "1" => true,
@@ -190,81 +195,129 @@ impl VvSettings {
                     _ => bail!("vv parameter specular = '{value}': expected on or off"),
                 }
             }
-            other => bail!("unknown vv parameter '{other}' (known: mode, zeta, alpha, sat_width, arcs, max_level, resolution, specular)"),
+            other => bail!("unknown vv parameter '{other}' (known: mode, zeta, alpha, sat_width, arcs, max_level, resolution, specular, refine)"),
         }
         Ok(())
     }
 }
 
+/// The geometry vv shades: the scene's objects in world space (object order), their long
+/// triangles refined ([`VvSettings::refine`]), with each vertex's texture coordinate and object.
+pub struct VvGeometry {
+    pub model: VvModel,
+    /// Per model vertex: texture coordinate.
+    pub uvs: Vec<glam::Vec2>,
+    /// Per model vertex: index of its object in `scene.objects`.
+    pub object: Vec<u32>,
+    /// Edge length limit of the refinement (world units; 0: none).
+    pub max_edge: f32,
+}
+
+/// The edge length limit for a refinement target of `refine` vertices over `area` (world
+/// units): `sqrt(area / refine)`, 0 for `refine = 0` (no refinement).
+pub fn refine_edge(area: f64, refine: u32) -> f32 {
+    if refine == 0 || !(area > 0.0) {
+        0.0
+    } else {
+        (area / refine as f64).sqrt() as f32
+    }
+}
+
 /// The model of a scene's shadow-casting and receiving objects in world space (object order).
-pub fn scene_model(scene: &Scene) -> Result<VvModel> {
-    let mut objs = Vec::new();
+/// Vectorized visibility is sampled at vertices (section II-B): a receiver made of a few large
+/// triangles (a two-triangle floor) has its visibility known at its corners only, far from the
+/// shadows falling on it, and renders unshadowed. With `refine > 0` every edge longer than
+/// [`refine_edge`]`(scene area, refine)` is split ([`penumbra_scene::MeshData::refine_long_edges`],
+/// conforming, on the same flat triangles), so such receivers get vertices at the scale of
+/// their shadows; finely tessellated meshes are left as they are. `refine = 0` keeps the
+/// scene's meshes (the paper's coarse models as given).
+pub fn scene_model(scene: &Scene, refine: u32) -> Result<VvGeometry> {
+    let mut world = Vec::new();
     for (i, o) in scene.objects.iter().enumerate() {
         let info = scene.object_info(i);
-        if info.is_moving() {
+        if info.is_moving() || info.is_deforming() {
             bail!("vv: object '{}' moves or deforms; vectorized visibility is precomputed for static geometry", o.name);
         }
         let m = scene.meshes.get(o.mesh).with_context(|| format!("vv: object '{}' has no mesh", o.name))?;
+        world.push((m.transformed(o.transform), info.casts_shadow));
+    }
+    let area: f64 = world
+        .iter()
+        .map(|(m, _)| {
+            m.indices
+                .chunks_exact(3)
+                .map(|t| {
+                    let p = |k: usize| m.positions[t[k] as usize].as_dvec3();
+                    0.5 * (p(1) - p(0)).cross(p(2) - p(0)).length()
+                })
+                .sum::<f64>()
+        })
+        .sum();
+    let max_edge = refine_edge(area, refine);
+    let (mut objs, mut uvs, mut object) = (Vec::new(), Vec::new(), Vec::new());
+    let cap = 8 * refine as usize + world.iter().map(|(m, _)| m.triangle_count()).sum::<usize>();
+    let refined: Vec<(penumbra_scene::MeshData, bool)> =
+        world.into_iter().map(|(m, c)| (if max_edge > 0.0 { m.refine_long_edges(max_edge, cap) } else { m }, c)).collect();
+    for (i, (m, casts_shadow)) in refined.iter().enumerate() {
+        uvs.extend((0..m.positions.len()).map(|v| m.uvs.get(v).copied().unwrap_or_default()));
+        object.extend(std::iter::repeat(i as u32).take(m.positions.len()));
         objs.push(penumbra_math::vv::ObjectMesh {
             positions: &m.positions,
             normals: &m.normals,
             indices: &m.indices,
-            world: o.transform,
-            casts_shadow: info.casts_shadow,
+            world: glam::Mat4::IDENTITY,
+            casts_shadow: *casts_shadow,
         });
     }
     let model = VvModel::from_objects(objs);
     model.validate().map_err(anyhow::Error::msg)?;
-    Ok(model)
+    Ok(VvGeometry { model, uvs, object, max_edge })
 }
 
 /// Offline data of a scene and its cost.
 pub struct VvSceneData {
-    pub model: VvModel,
+    pub geometry: VvGeometry,
     pub vis: VectorizedVisibility,
     pub corr: Option<Correspondence>,
     pub visibility_seconds: f64,
     pub correspondence_seconds: f64,
     pub visibility_bytes: usize,
     pub triple_bytes: usize,
-    /// Per model vertex: albedo of its object's material.
-    pub albedo: Vec<Vec3>,
 }
 
 impl VvSceneData {
     /// The scene's data through the on-disk cache (`<temp>/penumbra-vv/<scene>-<model hash>-
     /// <parameters hash>.pvv`, `penumbra_math::vv::load_or_compute`): computed once per model
-    /// and resolution, then read back by every technique, test and bench process that needs it
-    /// (a stale or corrupt file is recomputed). No state is kept in the process.
-    pub fn cached(scene: &Scene, resolution: u32) -> Result<Arc<Self>> {
-        let model = scene_model(scene)?;
+    /// (after refinement) and resolution, then read back by every technique, test and bench
+    /// process that needs it (a stale or corrupt file is recomputed). No state is kept in the
+    /// process.
+    pub fn cached(scene: &Scene, resolution: u32, refine: u32) -> Result<Arc<Self>> {
+        let geometry = scene_model(scene, refine)?;
         let params = VvParams { resolution, ..Default::default() };
         params.validate().map_err(anyhow::Error::msg)?;
         let dir = std::env::temp_dir().join("penumbra-vv");
+        let model = &geometry.model;
         let bar = progress_bar(model.positions.len() as u64 + 2 * model.triangle_count() as u64, "vv precompute");
-        let (d, _) = penumbra_math::vv::load_or_compute(&model, &params, &dir, &scene.name, &|_, k| bar.inc(k))
+        let (d, _) = penumbra_math::vv::load_or_compute(model, &params, &dir, &scene.name, &|_, k| bar.inc(k))
             .map_err(anyhow::Error::msg)?;
         bar.finish_and_clear();
-        Ok(Arc::new(Self::from_parts(scene, model, d.vis, d.corr, d.stats.visibility_seconds, d.stats.correspondence_seconds)))
-    }
-
-    fn from_parts(
-        scene: &Scene,
-        model: VvModel,
-        vis: VectorizedVisibility,
-        corr: Correspondence,
-        visibility_seconds: f64,
-        correspondence_seconds: f64,
-    ) -> Self {
+        let vis = d.vis;
+        let corr = d.corr;
         let visibility_bytes = vis.points.len() * 16 + (vis.seq_offsets.len() + 2 * vis.vertex_seqs.len()) * 4;
         let triple_bytes = corr.triple_bytes();
-        let mut albedo = Vec::with_capacity(model.positions.len());
-        for o in &scene.objects {
-            let a = scene.materials.get(o.material).map_or(Vec3::splat(0.5), |m| m.albedo);
-            let count = scene.meshes.get(o.mesh).map_or(0, |m| m.positions.len());
-            albedo.extend(std::iter::repeat(a).take(count));
-        }
-        VvSceneData { model, vis, corr: Some(corr), visibility_seconds, correspondence_seconds, visibility_bytes, triple_bytes, albedo }
+        Ok(Arc::new(VvSceneData {
+            geometry,
+            vis,
+            corr: Some(corr),
+            visibility_seconds: d.stats.visibility_seconds,
+            correspondence_seconds: d.stats.correspondence_seconds,
+            visibility_bytes,
+            triple_bytes,
+        }))
+    }
+
+    pub fn model(&self) -> &VvModel {
+        &self.geometry.model
     }
 }
 
@@ -281,46 +334,10 @@ fn progress_bar(len: u64, what: &str) -> indicatif::ProgressBar {
     bar
 }
 
-/// The Phong exponent `alpha` of eq. 13 for a material: Blinn-Phong's `(n.h)^s` is close to
-/// `(r.l)^(s/4)` (the half vector turns half as far), and Cook-Torrance / Ashikhmin-Shirley
-/// carry the equivalent `shininess = 2 / roughness^2 - 2`. 0 for a diffuse material.
-pub fn phong_alpha(m: &penumbra_scene::Material) -> f32 {
-    use penumbra_scene::BrdfKind;
-    match m.kind {
-        BrdfKind::Diffuse => 0.0,
-        _ if m.specular.max_element() <= 0.0 => 0.0,
-        _ => (m.shininess / 4.0).clamp(1.0, 4096.0),
-    }
-}
-
-/// Per model vertex (object order, as [`scene_model`]): the albedo and the specular term
-/// (rgb reflectance, Phong `alpha` of [`phong_alpha`]) of its object's material, its texture
-/// coordinate and the layer of the material's albedo map in the scene's texture array (-1: none).
-pub fn vertex_materials(scene: &Scene) -> (Vec<Vec3>, Vec<[f32; 4]>, Vec<[f32; 3]>) {
-    let (mut albedo, mut spec, mut uv_layer) = (Vec::new(), Vec::new(), Vec::new());
-    for o in &scene.objects {
-        let layer = scene.material_extra(o.material).albedo_map.map_or(-1.0, |l| l as f32);
-        if let Some(mesh) = scene.meshes.get(o.mesh) {
-            uv_layer.extend((0..mesh.positions.len()).map(|i| {
-                let uv = mesh.uvs.get(i).copied().unwrap_or_default();
-                [uv.x, uv.y, layer]
-            }));
-        }
-        let m = scene.materials.get(o.material);
-        let a = m.map_or(Vec3::splat(0.5), |m| m.albedo);
-        let sp = m.map_or([0.0; 4], |m| {
-            let al = phong_alpha(m);
-            if al > 0.0 {
-                [m.specular.x, m.specular.y, m.specular.z, al]
-            } else {
-                [0.0; 4]
-            }
-        });
-        let count = scene.meshes.get(o.mesh).map_or(0, |m| m.positions.len());
-        albedo.extend(std::iter::repeat(a).take(count));
-        spec.extend(std::iter::repeat(sp).take(count));
-    }
-    (albedo, spec, uv_layer)
+/// Per model vertex of `geo`: the index of its object's material in the scene's material table
+/// (the shaders read the frame's `MaterialData` through material.glsl).
+pub fn vertex_materials(scene: &Scene, geo: &VvGeometry) -> Vec<u32> {
+    geo.object.iter().map(|&o| scene.objects.get(o as usize).map_or(0, |o| o.material as u32)).collect()
 }
 
 /// GPU images' contents (built once).
@@ -411,7 +428,7 @@ pub fn phong_blur(width: usize, height: usize, texels: &[[f32; 3]], alpha: f64) 
 impl Uploads {
     fn new(scene: &Scene, data: &VvSceneData, settings: &VvSettings) -> Result<Self> {
         let vis = &data.vis;
-        let model = &data.model;
+        let model = data.model();
         let mut ints: Vec<u32> = Vec::new();
         let off_seq = ints.len();
         ints.extend(&vis.seq_offsets);
@@ -443,16 +460,14 @@ impl Uploads {
         let (points, points_rows) = pad_rows(points, 4);
         // materials from the scene itself (the cached data may come from a scene with the same
         // geometry and other materials)
-        let (albedo, spec, uv_layer) = vertex_materials(scene);
-        let mut verts = Vec::with_capacity(model.positions.len() * 16);
+        let material = vertex_materials(scene, &data.geometry);
+        let mut verts = Vec::with_capacity(model.positions.len() * 12);
         for (i, p) in model.positions.iter().enumerate() {
             let n = model.normals[i];
-            let a = albedo.get(i).copied().unwrap_or(Vec3::splat(0.5));
-            let sp = spec.get(i).copied().unwrap_or([0.0; 4]);
-            let [u, v, layer] = uv_layer.get(i).copied().unwrap_or([0.0, 0.0, -1.0]);
-            // the free w components: texture coordinate and albedo-map layer (vv_data.glsl)
-            verts.extend([p.x, p.y, p.z, u, n.x, n.y, n.z, v, a.x, a.y, a.z, layer]);
-            verts.extend(sp);
+            let uv = data.geometry.uvs.get(i).copied().unwrap_or_default();
+            let mat = material.get(i).copied().unwrap_or(0) as f32;
+            // (position, u), (normal, v), (material index, 0, 0, 0): vv_data.glsl
+            verts.extend([p.x, p.y, p.z, uv.x, n.x, n.y, n.z, uv.y, mat, 0.0, 0.0, 0.0]);
         }
         let (verts, verts_rows) = pad_rows(verts, 4);
         let env = scene.environment.as_ref().context("vv: the scene has no environment map (the technique integrates environment lighting)")?;
@@ -486,6 +501,7 @@ pub struct VvTechnique {
     nearest: Sampler,
     /// Material texture maps (repeat).
     repeat: Sampler,
+    latlong: Sampler,
     settings: VvSettings,
     up: Uploads,
     /// The pipeline-statistics query (null without `pipelineStatisticsQuery`).
@@ -507,7 +523,17 @@ fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, tess: bool) -> R
     let (set_layout, layout) = layouts(
         ctx,
         if tess { "vv_tess" } else { "vv_shade" },
-        &[T::UNIFORM_BUFFER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER],
+        &[
+            T::UNIFORM_BUFFER,
+            T::COMBINED_IMAGE_SAMPLER,
+            T::COMBINED_IMAGE_SAMPLER,
+            T::COMBINED_IMAGE_SAMPLER,
+            T::COMBINED_IMAGE_SAMPLER,
+            T::COMBINED_IMAGE_SAMPLER,
+            T::COMBINED_IMAGE_SAMPLER,
+            T::STORAGE_BUFFER,
+            T::COMBINED_IMAGE_SAMPLER,
+        ],
         vk::ShaderStageFlags::ALL_GRAPHICS,
         64,
     )?;
@@ -582,7 +608,7 @@ fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, tess: bool) -> R
 
 impl VvTechnique {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: VvSettings) -> Result<Self> {
-        let data = VvSceneData::cached(scene, settings.resolution)?;
+        let data = VvSceneData::cached(scene, settings.resolution, settings.refine)?;
         Self::with_data(ctx, shaders, scene, settings, data)
     }
 
@@ -592,7 +618,7 @@ impl VvTechnique {
     ///
     /// [`Technique::add`]: crate::technique::Technique::add
     pub fn sat_only(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: VvSettings) -> Result<Self> {
-        let data = VvSceneData::cached(scene, settings.resolution)?;
+        let data = VvSceneData::cached(scene, settings.resolution, settings.refine)?;
         Self::build(ctx, shaders, scene, settings, data, false)
     }
 
@@ -629,7 +655,7 @@ impl VvTechnique {
         } else {
             vk::QueryPool::null()
         };
-        Ok(VvTechnique { ctx: ctx.clone(), rows, cols, raster, composite, env: ShadeEnvPass::new(ctx, shaders)?, nearest: Sampler::nearest(ctx)?, repeat: Sampler::repeat(ctx)?, settings, up, query, data })
+        Ok(VvTechnique { ctx: ctx.clone(), rows, cols, raster, composite, env: ShadeEnvPass::new(ctx, shaders)?, nearest: Sampler::nearest(ctx)?, repeat: Sampler::repeat(ctx)?, latlong: Sampler::latlong(ctx)?, settings, up, query, data })
     }
 
     pub fn settings(&self) -> &VvSettings {
@@ -746,6 +772,8 @@ impl crate::technique::Technique for VvTechnique {
         let sat = p.read(sat, Access::AnyShaderReadSampled);
         let blur = blur.map(|b| p.read(b, Access::AnyShaderReadSampled)).unwrap_or(sat);
         let textures = p.read(inputs.handles.textures, Access::AnyShaderReadSampled);
+        let materials = p.read(inputs.handles.materials, Access::AnyShaderReadStorage);
+        let env_map = p.read(inputs.env, Access::AnyShaderReadSampled);
         let mut push = Vec::with_capacity(64);
         for v in [self.up.sat_w as i32, self.up.sat_h as i32, self.settings.hemisphere_arcs as i32, self.settings.mode.code()] {
             push.extend_from_slice(&v.to_le_bytes());
@@ -758,7 +786,7 @@ impl crate::technique::Technique for VvTechnique {
         }
         let raster = self.raster.as_ref().context("vv: technique built without its raster pipeline (VvTechnique::sat_only)")?;
         let (pipeline, layout) = (raster.pipeline, raster.layout);
-        let (nearest, repeat) = (self.nearest.sampler, self.repeat.sampler);
+        let (nearest, repeat, latlong) = (self.nearest.sampler, self.repeat.sampler, self.latlong.sampler);
         let vertex_count = 3 * self.up.triangles;
         let query = self.query;
         p.record(move |rc| {
@@ -789,6 +817,8 @@ impl crate::technique::Technique for VvTechnique {
                     Bind::SampledImage(sat, nearest),
                     Bind::SampledImage(blur, nearest),
                     Bind::SampledImage(textures, repeat),
+                    Bind::StorageBuffer(materials),
+                    Bind::SampledImage(env_map, latlong),
                 ],
             )?;
             unsafe {
@@ -820,7 +850,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn specular_parameter_and_phong_alpha() {
+    fn specular_and_refine_parameters() {
         let mut s = VvSettings::default();
         assert!(s.specular);
         s.set("specular", "off").unwrap();
@@ -828,13 +858,10 @@ mod tests {
         s.set("specular", "on").unwrap();
         assert!(s.specular);
         assert!(s.set("specular", "maybe").is_err());
-        let bp = penumbra_scene::Material::blinn_phong("m", Vec3::splat(0.5), Vec3::splat(0.3), 64.0);
-        assert_eq!(phong_alpha(&bp), 16.0);
-        let dull = penumbra_scene::Material::blinn_phong("m", Vec3::splat(0.5), Vec3::ZERO, 64.0);
-        assert_eq!(phong_alpha(&dull), 0.0);
-        assert_eq!(phong_alpha(&penumbra_scene::Material::diffuse("d", Vec3::ONE)), 0.0);
-        // very rough lobes keep alpha >= 1 (the cap W stays within 90 degrees)
-        let rough = penumbra_scene::Material::glossy("g", Vec3::splat(0.5), Vec3::splat(0.04), 1.0);
-        assert_eq!(phong_alpha(&rough), 1.0);
+        s.set("refine", "0").unwrap();
+        assert_eq!(s.refine, 0);
+        assert!(s.set("refine", "-1").is_err());
+        assert_eq!(refine_edge(36.0, 0), 0.0);
+        assert!((refine_edge(36.0, 1024) - 0.1875).abs() < 1e-6);
     }
 }
