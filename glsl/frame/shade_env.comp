@@ -17,49 +17,20 @@ layout(set = 0, binding = 7) readonly buffer Lights { LightData lights[]; };
 layout(set = 0, binding = 8) uniform sampler2DArray material_textures;
 #include "material.glsl"
 #include "env_shade.glsl"
+#include "lights.glsl"
 layout(push_constant) uniform Push { uint light_count; } pc;
 
-// Radiance reflected from local lights, unshadowed. Point and spot lights: radiant intensity
-// `power` (W/sr); sphere lights: emitted radiance `power`, treated as a point of intensity
-// power * pi * r^2 (exact for a sphere's irradiance at normal incidence, far from it).
+// Radiance reflected from local lights (lights.glsl), unshadowed.
 vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
     vec3 sum = vec3(0.0);
     for (uint i = 0u; i < pc.light_count; ++i) {
         LightData l = lights[i];
-        vec3 to_l = l.pos_kind.xyz - pos;
-        float d2 = max(dot(to_l, to_l), 1e-8);
-        vec3 wi = to_l * inversesqrt(d2);
-        float ndl = dot(n, wi);
+        vec3 wi;
+        float dist, ndl;
+        vec3 e = light_incident(l, pos, n, wi, dist, ndl);
         if (ndl <= 0.0) continue;
-        vec3 intensity = l.power_cos_inner.rgb;
-        int lk = int(l.pos_kind.w + 0.5);
-        if (lk == 1) {
-            float c = dot(-wi, normalize(l.dir_cos_outer.xyz));
-            intensity *= smoothstep(l.dir_cos_outer.w, l.power_cos_inner.w, c);
-        } else if (lk == 2) {
-            intensity *= PI * l.extra.x * l.extra.x;
-        }
-        intensity *= light_transmittance(l, sqrt(d2));
-        vec3 f = albedo / PI;
-        if (kind != 0) {
-            vec3 h = normalize(wi + v);
-            float ndh = max(dot(n, h), 0.0);
-            float ndv = max(dot(n, v), 1e-4);
-            vec3 F = m.spec_rough.rgb + (1.0 - m.spec_rough.rgb) * pow(1.0 - max(dot(wi, h), 0.0), 5.0);
-            if (kind == 1) {
-                float s = m.extra.x;
-                f += F * (s + 2.0) / (8.0 * PI) * pow(ndh, s);  // as penumbra-math and the reference
-            } else {
-                float a = roughness * roughness;
-                float a2 = a * a;
-                float dd = ndh * ndh * (a2 - 1.0) + 1.0;
-                float D = a2 / (PI * dd * dd);
-                float k = a * 0.5;
-                float G = ndl / (ndl * (1.0 - k) + k) * ndv / (ndv * (1.0 - k) + k);
-                f += F * D * G / (4.0 * ndl * ndv);
-            }
-        }
-        sum += f * intensity * ndl / d2;
+        vec3 f = light_brdf(wi, n, v, ndl, albedo, kind, m, roughness);
+        sum += f * e * ndl;
     }
     return sum;
 }

@@ -25,6 +25,7 @@ layout(set = 0, binding = 6, rgba32f) uniform writeonly image2D hdr;
 layout(set = 0, binding = 7) readonly buffer Lights { LightData lights[]; };
 layout(set = 0, binding = 8) uniform sampler2DArray material_textures;
 #include "material.glsl"
+#include "lights.glsl"
 layout(set = 0, binding = 10) readonly buffer Lobes { vec4 lobes[]; };  // 2 per lobe: axis+lambda, rgb mu
 #define ISG_TABLE_BINDING 9
 #define ISG_NODES_BINDING 11
@@ -88,41 +89,14 @@ vec3 local_lights(vec3 pos, vec3 p, vec3 n, vec3 v, vec3 albedo, int kind, Mater
     vec3 sum = vec3(0.0);
     for (uint i = 0u; i < pc.light_count; ++i) {
         LightData l = lights[i];
-        vec3 to_l = l.pos_kind.xyz - pos;
-        float d2 = max(dot(to_l, to_l), 1e-8);
-        vec3 wi = to_l * inversesqrt(d2);
-        float ndl = dot(n, wi);
+        vec3 wi;
+        float dist, ndl;
+        vec3 e = light_incident(l, pos, n, wi, dist, ndl);
         if (ndl <= 0.0) continue;
-        vec3 intensity = l.power_cos_inner.rgb;
+        vec3 f = light_brdf(wi, n, v, ndl, albedo, kind, m, roughness);
         int lk = int(l.pos_kind.w + 0.5);
-        if (lk == 1) {
-            float c = dot(-wi, normalize(l.dir_cos_outer.xyz));
-            intensity *= smoothstep(l.dir_cos_outer.w, l.power_cos_inner.w, c);
-        } else if (lk == 2) {
-            intensity *= PI * l.extra.x * l.extra.x;
-        }
-        intensity *= light_transmittance(l, sqrt(d2));
-        vec3 f = albedo / PI;
-        if (kind != 0) {
-            vec3 h = normalize(wi + v);
-            float ndh = max(dot(n, h), 0.0);
-            float ndv = max(dot(n, v), 1e-4);
-            vec3 F = m.spec_rough.rgb + (1.0 - m.spec_rough.rgb) * pow(1.0 - max(dot(wi, h), 0.0), 5.0);
-            if (kind == 1) {
-                float s = m.extra.x;
-                f += F * (s + 2.0) / (8.0 * PI) * pow(ndh, s);
-            } else {
-                float a = roughness * roughness;
-                float a2 = a * a;
-                float dd = ndh * ndh * (a2 - 1.0) + 1.0;
-                float D = a2 / (PI * dd * dd);
-                float k = a * 0.5;
-                float G = ndl / (ndl * (1.0 - k) + k) * ndv / (ndv * (1.0 - k) + k);
-                f += F * D * G / (4.0 * ndl * ndv);
-            }
-        }
         float vis = light_visibility(p, l.pos_kind.xyz - p, lk == 2 ? l.extra.x : 0.0);
-        sum += f * intensity * ndl / d2 * vis;
+        sum += f * e * ndl * vis;
     }
     return sum;
 }

@@ -22,12 +22,14 @@ layout(set = 0, binding = 6) uniform sampler2DArray material_textures;
 layout(set = 0, binding = 7) readonly buffer Materials { MaterialData mats[]; };
 // the mip-filtered lat-long environment (env_shade.glsl's unshadowed glossy lookup)
 layout(set = 0, binding = 8) uniform sampler2D env_map;
+layout(set = 0, binding = 9) readonly buffer Lights { LightData lights[]; };
 #include "material.glsl"
 #include "env_shade.glsl"
+#include "lights.glsl"
 layout(push_constant) uniform Push {
     ivec4 sat;    // x W, y H, z hemisphere arcs, w mode (0 fragment3, 1 fragment1, 2 tessellation, 3 tessellation3)
     ivec4 off0;   // offsets in vv_ints: x seq_offsets, y vertex_seqs, z tri_offsets, w loop_offsets
-    ivec4 off1;   // x triples, y triangle vertex ids, z max tessellation level
+    ivec4 off1;   // x triples, y triangle vertex ids, z max tessellation level, w local lights
     vec4 par;     // x alpha', y zeta, z specular on (1) / off (0)
 } pc;
 
@@ -99,12 +101,58 @@ float vv_spec_gamma(sampler2D sat, vec3 nn, inout VvSpec sp) {
     return den > 0.0 ? clamp(num / den, 0.0, 1.0) : 1.0;
 }
 
+// ---- Local lights: point visibility from the same loops ----------------------------------------
+// The loops bound the occluded directions, so a light's direction is occluded when the loops'
+// winding number about it is positive: each arc a -> b adds the angle it turns through seen from
+// the direction (in the tangent plane there), a closed loop 2 pi per turn around it. Hard shadows
+// (a sphere light counts as its centre); loops carry no depth, so an occluder behind the light
+// still shadows it. The first VV_MAX_LIGHTS lights (VvTechnique::limitations names the rest).
+#define VV_MAX_LIGHTS 8
+struct VvLights {
+    vec3 dir[VV_MAX_LIGHTS];  // map-space unit direction to each light
+    float wind[VV_MAX_LIGHTS];
+    int count;
+};
+
+void vv_lights_begin(vec3 s, out VvLights L) {
+    L.count = min(pc.off1.w, VV_MAX_LIGHTS);
+    for (int k = 0; k < VV_MAX_LIGHTS; k++) {
+        L.wind[k] = 0.0;
+        L.dir[k] = k < L.count ? vv_to_map(normalize(lights[k].pos_kind.xyz - s), cam.env_rot.xy) : vec3(0.0, 1.0, 0.0);
+    }
+}
+
+void vv_lights_arc(inout VvLights L, vec3 a, vec3 b) {
+    for (int k = 0; k < L.count; k++) {
+        vec3 d = L.dir[k];
+        L.wind[k] += atan(dot(d, cross(a, b)), dot(a, b) - dot(a, d) * dot(b, d));
+    }
+}
+
+// Radiance reflected from the local lights that the loops leave visible.
+vec3 vv_lights_end(VvLights L, vec3 s, vec3 n, MaterialData m) {
+    vec3 sum = vec3(0.0);
+    vec3 v = normalize(cam.eye.xyz - s);
+    int kind = material_kind(m);
+    float roughness = env_roughness(m);
+    for (int k = 0; k < L.count; k++) {
+        if (L.wind[k] > PI) continue;  // inside an occluded region
+        vec3 wi;
+        float dist, ndl;
+        vec3 e = light_incident(lights[k], s, n, wi, dist, ndl);
+        if (ndl <= 0.0) continue;
+        sum += light_brdf(wi, n, v, ndl, m.albedo_kind.rgb, kind, m, roughness) * e * ndl;
+    }
+    return sum;
+}
+
 // The radiance of one evaluation: the diffuse integral over the visible directions (eq. 9,
 // loop sum `diffuse_sum`, before the intensity) plus the scene material's unshadowed glossy
 // reflection (env_shade.glsl: the prefiltered environment times the split-sum BRDF, as the `env`
-// technique draws it) times gamma (eq. 14: L_s = k_s gamma U with k_s U the unshadowed glossy term).
-vec3 vv_radiance(vec3 diffuse_sum, vec3 s, vec3 n, MaterialData m, bool glossy, float gamma) {
-    vec3 c = m.albedo_kind.rgb / PI * max(diffuse_sum, vec3(0.0)) * cam.params.w;
+// technique draws it) times gamma (eq. 14: L_s = k_s gamma U with k_s U the unshadowed glossy term),
+// plus the visible local lights.
+vec3 vv_radiance(vec3 diffuse_sum, vec3 s, vec3 n, MaterialData m, bool glossy, float gamma, VvLights L) {
+    vec3 c = m.albedo_kind.rgb / PI * max(diffuse_sum, vec3(0.0)) * cam.params.w + vv_lights_end(L, s, n, m);
     if (glossy) {
         vec3 d, g;
         env_unshadowed_parts(n, normalize(cam.eye.xyz - s), m, d, g);
@@ -128,6 +176,8 @@ vec3 vv_eval_vertex(sampler2D sat, int v, vec3 s, vec3 n, MaterialData m) {
     vv_add_hemisphere(sat, size, pc.par.x, nn, pc.sat.z, acc);
     VvSpec sp;
     bool glossy = vv_spec_begin(s, n, m, sp);
+    VvLights L;
+    vv_lights_begin(s, L);
     int first = vv_int(pc.off0.y + 2 * v), count = vv_int(pc.off0.y + 2 * v + 1);
     for (int k = first; k < first + count; k++) {
         int p0 = vv_int(pc.off0.x + k), p1 = vv_int(pc.off0.x + k + 1);
@@ -137,13 +187,16 @@ vec3 vv_eval_vertex(sampler2D sat, int v, vec3 s, vec3 n, MaterialData m) {
         for (int i = p0; i <= p1; i++) {
             vec3 d = i == p1 ? d0 : vv_to_map(vv_synth(vv_point(i), s, n, n), cs);
             if (i == p0) d0 = d;
-            else vv_arc(sat, size, pc.par.x, prev, d, acc);
+            else {
+                vv_arc(sat, size, pc.par.x, prev, d, acc);
+                vv_lights_arc(L, prev, d);
+            }
             if (glossy && i < p1) vv_clip_push(sat, size, pc.par.x, sp.clip, d, sp.acc);
             prev = d;
         }
         if (glossy) vv_clip_end(sat, size, pc.par.x, sp.clip, sp.acc);
     }
-    return vv_radiance(vv_finish(sat, size, nn, acc), s, n, m, glossy, glossy ? vv_spec_gamma(sat, nn, sp) : 1.0);
+    return vv_radiance(vv_finish(sat, size, nn, acc), s, n, m, glossy, glossy ? vv_spec_gamma(sat, nn, sp) : 1.0, L);
 }
 
 // Interpolated direction of one triple (eq. 21, penumbra_math::vv::interpolate).
@@ -170,6 +223,8 @@ vec3 vv_eval_interp(sampler2D sat, int t, vec3 lambda, vec3 s, vec3 n, MaterialD
     vv_add_hemisphere(sat, size, pc.par.x, nn, pc.sat.z, acc);
     VvSpec sp;
     bool glossy = vv_spec_begin(s, n, m, sp);
+    VvLights L;
+    vv_lights_begin(s, L);
     int l0 = vv_int(pc.off0.z + t), l1 = vv_int(pc.off0.z + t + 1);
     for (int l = l0; l < l1; l++) {
         int a0 = vv_int(pc.off0.w + l), a1 = vv_int(pc.off0.w + l + 1);
@@ -178,13 +233,16 @@ vec3 vv_eval_interp(sampler2D sat, int t, vec3 lambda, vec3 s, vec3 n, MaterialD
         for (int j = a0; j <= a1; j++) {
             vec3 d = j == a1 ? d0 : vv_to_map(vv_triple_dir(j, lambda, s, n), cs);
             if (j == a0) d0 = d;
-            else vv_arc(sat, size, pc.par.x, prev, d, acc);
+            else {
+                vv_arc(sat, size, pc.par.x, prev, d, acc);
+                vv_lights_arc(L, prev, d);
+            }
             if (glossy && j < a1) vv_clip_push(sat, size, pc.par.x, sp.clip, d, sp.acc);
             prev = d;
         }
         if (glossy) vv_clip_end(sat, size, pc.par.x, sp.clip, sp.acc);
     }
-    return vv_radiance(vv_finish(sat, size, nn, acc), s, n, m, glossy, glossy ? vv_spec_gamma(sat, nn, sp) : 1.0);
+    return vv_radiance(vv_finish(sat, size, nn, acc), s, n, m, glossy, glossy ? vv_spec_gamma(sat, nn, sp) : 1.0, L);
 }
 
 // Eq. 19: three syntheses, three evaluations, blended barycentrically.

@@ -28,6 +28,7 @@ layout(set = 0, binding = 12) readonly buffer Lights { LightData lights[]; };
 layout(set = 0, binding = 13) uniform sampler2D vtx_radiance;
 layout(set = 0, binding = 14) uniform sampler2DArray material_textures;
 #include "material.glsl"
+#include "lights.glsl"
 #include "env_shade.glsl"
 layout(push_constant) uniform Push { uint n_inst; uint tensor_count; uint light_count; uint srf; uint window; uint mode; } pc;
 
@@ -38,42 +39,14 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData 
     vec3 sum = vec3(0.0);
     for (uint i = 0u; i < pc.light_count; ++i) {
         LightData l = lights[i];
-        vec3 to_l = l.pos_kind.xyz - pos;
-        float d2 = max(dot(to_l, to_l), 1e-8);
-        vec3 wi = to_l * inversesqrt(d2);
-        float ndl = dot(n, wi);
+        vec3 wi;
+        float dist, ndl;
+        vec3 e = light_incident(l, pos, n, wi, dist, ndl);
         if (ndl <= 0.0) continue;
-        vec3 intensity = l.power_cos_inner.rgb;
-        int lk = int(l.pos_kind.w + 0.5);
-        if (lk == 1) {
-            float c = dot(-wi, normalize(l.dir_cos_outer.xyz));
-            intensity *= smoothstep(l.dir_cos_outer.w, l.power_cos_inner.w, c);
-        } else if (lk == 2) {
-            intensity *= PI * l.extra.x * l.extra.x;
-        }
-        intensity *= light_transmittance(l, sqrt(d2));
-        vec3 f = pc.srf != 0u ? vec3(0.0) : albedo / PI;
-        if (kind != 0) {
-            vec3 h = normalize(wi + v);
-            float ndh = max(dot(n, h), 0.0);
-            float ndv = max(dot(n, v), 1e-4);
-            vec3 F = m.spec_rough.rgb + (1.0 - m.spec_rough.rgb) * pow(1.0 - max(dot(wi, h), 0.0), 5.0);
-            if (kind == 1) {
-                float s = m.extra.x;
-                f += F * (s + 2.0) / (8.0 * PI) * pow(ndh, s);
-            } else {
-                float a = roughness * roughness;
-                float a2 = a * a;
-                float dd = ndh * ndh * (a2 - 1.0) + 1.0;
-                float D = a2 / (PI * dd * dd);
-                float k = a * 0.5;
-                float G = ndl / (ndl * (1.0 - k) + k) * ndv / (ndv * (1.0 - k) + k);
-                f += F * D * G / (4.0 * ndl * ndv);
-            }
-        }
+        vec3 f = light_brdf(wi, n, v, ndl, pc.srf != 0u ? vec3(0.0) : albedo, kind, m, roughness);
         if (all(equal(f, vec3(0.0)))) continue;
-        float vis = sf_visibility_along(pos, wi, self_inst, pc.n_inst, sqrt(d2));
-        sum += vis * f * intensity * ndl / d2;
+        float vis = sf_visibility_along(pos, wi, self_inst, pc.n_inst, dist);
+        sum += vis * f * e * ndl;
     }
     return sum;
 }

@@ -63,6 +63,9 @@ use penumbra_math::vv::{Correspondence, VectorizedVisibility, VvModel, VvParams}
 use penumbra_scene::Scene;
 use std::sync::Arc;
 
+/// Local lights shaded with visibility (`VV_MAX_LIGHTS` of `glsl/include/vv_data.glsl`).
+pub const MAX_LIGHTS: u32 = 8;
+
 /// Width of the 2D images holding flat arrays (`vv_tc` in `glsl/include/vv_data.glsl`).
 pub const TEX_W: usize = 4096;
 
@@ -533,6 +536,7 @@ fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, tess: bool) -> R
             T::COMBINED_IMAGE_SAMPLER,
             T::STORAGE_BUFFER,
             T::COMBINED_IMAGE_SAMPLER,
+            T::STORAGE_BUFFER,
         ],
         vk::ShaderStageFlags::ALL_GRAPHICS,
         64,
@@ -736,15 +740,14 @@ impl crate::technique::Technique for VvTechnique {
     }
 
     fn limitations(&self, scene: &penumbra_scene::Scene) -> Vec<String> {
-        let req = scene.requirements();
         let mut v = Vec::new();
         let roughness_maps = scene.objects.iter().any(|o| scene.material_extra(o.material).roughness_map.is_some());
         if roughness_maps {
             v.push("vv: roughness maps are ignored on vv-shaded objects (the specular lobe uses the material's constant roughness; albedo maps are applied)".into());
         }
-        if req.local_lights {
+        if scene.lights.len() > MAX_LIGHTS as usize {
             v.push(format!(
-                "vv: the {} local light(s) are not rendered on vv-shaded objects (vv overdraws them with environment lighting only)",
+                "vv: only the first {MAX_LIGHTS} of the scene's {} local lights are rendered on vv-shaded objects",
                 scene.lights.len()
             ));
         }
@@ -774,11 +777,14 @@ impl crate::technique::Technique for VvTechnique {
         let textures = p.read(inputs.handles.textures, Access::AnyShaderReadSampled);
         let materials = p.read(inputs.handles.materials, Access::AnyShaderReadStorage);
         let env_map = p.read(inputs.env, Access::AnyShaderReadSampled);
+        let lights = p.read(inputs.handles.lights, Access::AnyShaderReadStorage);
+        let mut off1 = self.up.off1;
+        off1[3] = inputs.handles.light_count.min(MAX_LIGHTS) as i32;
         let mut push = Vec::with_capacity(64);
         for v in [self.up.sat_w as i32, self.up.sat_h as i32, self.settings.hemisphere_arcs as i32, self.settings.mode.code()] {
             push.extend_from_slice(&v.to_le_bytes());
         }
-        for v in self.up.off0.iter().chain(&self.up.off1) {
+        for v in self.up.off0.iter().chain(&off1) {
             push.extend_from_slice(&v.to_le_bytes());
         }
         for v in [self.settings.alpha, self.settings.zeta, if self.settings.specular { 1.0 } else { 0.0 }, 0.0] {
@@ -819,6 +825,7 @@ impl crate::technique::Technique for VvTechnique {
                     Bind::SampledImage(textures, repeat),
                     Bind::StorageBuffer(materials),
                     Bind::SampledImage(env_map, latlong),
+                    Bind::StorageBuffer(lights),
                 ],
             )?;
             unsafe {

@@ -1,0 +1,59 @@
+// The one local-light model of the GPU techniques (point, spot and sphere lights of the scene,
+// `LightData` of common.glsl), without visibility: each technique loops over its light table and
+// multiplies by its own visibility. Matches the reference renderer's direct lighting: point and
+// spot lights have radiant intensity `power` (W/sr; spots fade by smoothstep between the outer
+// and inner cone cosines); a sphere light of emitted radiance `power` and radius r is a point of
+// intensity power * pi * r^2 (exact at normal incidence far from it); the participating medium's
+// transmittance along the way (light_transmittance).
+// Needs common.glsl (PI, LightData, MaterialData, light_transmittance).
+#ifndef PENUMBRA_LIGHTS_GLSL
+#define PENUMBRA_LIGHTS_GLSL
+
+// Irradiance-like factor of light l at pos: intensity x transmittance / distance^2 (rgb), with
+// the unit direction to the light `wi`, its distance and n . wi. Zero (and ndl <= 0) when the
+// light is behind the surface.
+vec3 light_incident(LightData l, vec3 pos, vec3 n, out vec3 wi, out float dist, out float ndl) {
+    vec3 to_l = l.pos_kind.xyz - pos;
+    float d2 = max(dot(to_l, to_l), 1e-8);
+    dist = sqrt(d2);
+    wi = to_l * inversesqrt(d2);
+    ndl = dot(n, wi);
+    if (ndl <= 0.0) return vec3(0.0);
+    vec3 intensity = l.power_cos_inner.rgb;
+    int lk = int(l.pos_kind.w + 0.5);
+    if (lk == 1) {
+        float c = dot(-wi, normalize(l.dir_cos_outer.xyz));
+        intensity *= smoothstep(l.dir_cos_outer.w, l.power_cos_inner.w, c);
+    } else if (lk == 2) {
+        intensity *= PI * l.extra.x * l.extra.x;
+    }
+    return intensity * light_transmittance(l, dist) / d2;
+}
+
+// The BRDF for light from wi towards v: albedo / pi plus, for a glossy material (kind != 0), the
+// normalised Blinn-Phong lobe (kind 1, exponent m.extra.x) or GGX Cook-Torrance of perceptual
+// `roughness` (alpha = roughness^2), with Schlick's Fresnel of F0 = m.spec_rough.rgb.
+vec3 light_brdf(vec3 wi, vec3 n, vec3 v, float ndl, vec3 albedo, int kind, MaterialData m, float roughness) {
+    vec3 f = albedo / PI;
+    if (kind != 0) {
+        vec3 h = normalize(wi + v);
+        float ndh = max(dot(n, h), 0.0);
+        float ndv = max(dot(n, v), 1e-4);
+        vec3 F = m.spec_rough.rgb + (1.0 - m.spec_rough.rgb) * pow(1.0 - max(dot(wi, h), 0.0), 5.0);
+        if (kind == 1) {
+            float s = m.extra.x;
+            f += F * (s + 2.0) / (8.0 * PI) * pow(ndh, s);  // as penumbra-math and the reference
+        } else {
+            float a = roughness * roughness;
+            float a2 = a * a;
+            float dd = ndh * ndh * (a2 - 1.0) + 1.0;
+            float D = a2 / (PI * dd * dd);
+            float k = a * 0.5;
+            float G = ndl / (ndl * (1.0 - k) + k) * ndv / (ndv * (1.0 - k) + k);
+            f += F * D * G / (4.0 * ndl * ndv);
+        }
+    }
+    return f;
+}
+
+#endif
