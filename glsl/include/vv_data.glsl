@@ -199,6 +199,12 @@ vec3 vv_eval_vertex(sampler2D sat, int v, vec3 s, vec3 n, MaterialData m) {
     return vv_radiance(vv_finish(sat, size, nn, acc), s, n, m, glossy, glossy ? vv_spec_gamma(sat, nn, sp) : 1.0, L);
 }
 
+// Eq. 19: three syntheses, three evaluations, blended barycentrically.
+vec3 vv_eval_three(sampler2D sat, ivec3 vids, vec3 lambda, vec3 s, vec3 n, MaterialData m) {
+    vec3 c = vec3(0.0);
+    for (int k = 0; k < 3; k++) c += lambda[k] * vv_eval_vertex(sat, vids[k], s, n, m);
+    return c;
+}
 // Interpolated direction of one triple (eq. 21, penumbra_math::vv::interpolate).
 vec3 vv_triple_dir(int j, vec3 lambda, vec3 s, vec3 n) {
     vec3 a = vec3(0.0);
@@ -225,7 +231,9 @@ vec3 vv_eval_interp(sampler2D sat, int t, vec3 lambda, vec3 s, vec3 n, MaterialD
     bool glossy = vv_spec_begin(s, n, m, sp);
     VvLights L;
     vv_lights_begin(s, L);
-    int l0 = vv_int(pc.off0.z + t), l1 = vv_int(pc.off0.z + t + 1);
+    int l0 = vv_int(pc.off0.z + t), l1 = vv_int(pc.off0.z + t + 1) & 0x7fffffff;
+    // bit 31: the triangle's correspondence is unsound (VvSettings::fallback), eq. 19 instead
+    if (l0 < 0) return vv_eval_three(sat, ivec3(vv_tri_vertex(t, 0), vv_tri_vertex(t, 1), vv_tri_vertex(t, 2)), lambda, s, n, m);
     for (int l = l0; l < l1; l++) {
         int a0 = vv_int(pc.off0.w + l), a1 = vv_int(pc.off0.w + l + 1);
         if (a1 - a0 < 2) continue;
@@ -245,10 +253,4 @@ vec3 vv_eval_interp(sampler2D sat, int t, vec3 lambda, vec3 s, vec3 n, MaterialD
     return vv_radiance(vv_finish(sat, size, nn, acc), s, n, m, glossy, glossy ? vv_spec_gamma(sat, nn, sp) : 1.0, L);
 }
 
-// Eq. 19: three syntheses, three evaluations, blended barycentrically.
-vec3 vv_eval_three(sampler2D sat, ivec3 vids, vec3 lambda, vec3 s, vec3 n, MaterialData m) {
-    vec3 c = vec3(0.0);
-    for (int k = 0; k < 3; k++) c += lambda[k] * vv_eval_vertex(sat, vids[k], s, n, m);
-    return c;
-}
 #endif

@@ -96,6 +96,21 @@ pub fn report(model_name: &str, d: &VvData) {
     );
 }
 
+/// Prints how many triangles' eq. 21 interpolation disagrees with eq. 19's blend
+/// (`penumbra_math::vv::interpolation_disagreement`), by threshold.
+pub fn report_disagreement(model: &VvModel, d: &VvData) {
+    let dis = vv::interpolation_disagreement(model, &d.vis, &d.corr);
+    let count = |t: f32| dis.iter().filter(|&&x| x > t).count();
+    println!(
+        "  eq. 21 vs eq. 19 (occluded solid angle at 4 interior points): {} / {} / {} / {} of {} triangles differ by more than 0.05 / 0.1 / 0.25 / 0.5 sr",
+        count(0.05),
+        count(0.1),
+        count(0.25),
+        count(0.5),
+        dis.len()
+    );
+}
+
 /// Runs the subcommand; `Err(String)` is bad input (exit 2), `anyhow` errors are run-time.
 pub fn run(args: &VvArgs, scene: &Scene) -> Result<std::result::Result<(), String>> {
     let name = args.model.display().to_string();
@@ -113,6 +128,7 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<std::result::Result<(), Strin
             Err(e) => return Ok(Err(e)),
         };
         report(&name, &d);
+        report_disagreement(&model, &d);
         print_evaluation(args, &model, &d);
         println!("{}: valid for {name} (format version {}, resolution {}, seed {})", file.display(), vv::FORMAT_VERSION, d.params.resolution, d.params.seed);
         return Ok(Ok(()));
@@ -123,6 +139,7 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<std::result::Result<(), Strin
     bars.iter().for_each(|b| b.finish_and_clear());
     d.write(&out).map_err(|e| anyhow!(e))?;
     report(&name, &d);
+    report_disagreement(&model, &d);
     print_evaluation(args, &model, &d);
     println!("wrote {} ({:.3} MB)", out.display(), std::fs::metadata(&out).map(|m| m.len()).unwrap_or(0) as f64 / 1e6);
     Ok(Ok(()))

@@ -606,6 +606,36 @@ pub fn corner_errors(model: &VvModel, d: &VvData) -> Vec<[f64; 3]> {
         .collect()
 }
 
+/// Per triangle, the largest disagreement (sr) between eq. 21 and eq. 19 in occluded solid
+/// angle, over the centroid and three interior points (barycentrics 0.6 / 0.2 / 0.2): eq. 21's
+/// interpolated loops against the barycentric blend of the three vertices' synthesized
+/// visibilities (eq. 19's blend, as a solid angle). Both describe the same visibility; a sound
+/// correspondence keeps them close, while crossing or mis-ordered triples (loops that turn
+/// inside out between the corners) give a far larger or a negative occluded angle: black specks
+/// under eq. 21. An interpolated angle outside `[0, 2 pi]` counts as its distance to the range
+/// plus the disagreement.
+pub fn interpolation_disagreement(model: &VvModel, vis: &VectorizedVisibility, corr: &Correspondence) -> Vec<f32> {
+    use rayon::prelude::*;
+    let solid = |l: &[Vec<Vec3>], n: Vec3| l.iter().map(|x| signed_solid_angle(x, n)).sum::<f64>();
+    const POINTS: [[f32; 3]; 4] = [[1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0], [0.6, 0.2, 0.2], [0.2, 0.6, 0.2], [0.2, 0.2, 0.6]];
+    (0..model.triangle_count())
+        .into_par_iter()
+        .map(|t| {
+            let idx = [0, 1, 2].map(|k| model.indices[3 * t + k] as usize);
+            let mut worst = 0.0f64;
+            for l in POINTS {
+                let s: Vec3 = (0..3).map(|k| model.positions[idx[k]] * l[k]).sum();
+                let n = (0..3).map(|k| model.normals[idx[k]] * l[k]).sum::<Vec3>().try_normalize().unwrap_or(model.normals[idx[0]]);
+                let w21 = solid(&interpolate(vis, corr, t, l, s, n), n);
+                let w19: f64 = (0..3).map(|k| l[k] as f64 * solid(&synthesize(vis, idx[k], s, n), n)).sum();
+                let out = (-w21).max(w21 - 2.0 * std::f64::consts::PI).max(0.0);
+                worst = worst.max((w21 - w19).abs() + out);
+            }
+            worst as f32
+        })
+        .collect()
+}
+
 /// Compares `d` with ray tracing at `samples` interior points (deterministic barycentrics from
 /// `seed`, triangles spread over the model) on `map_res x map_res` Lambert directions, and the
 /// interpolation at every triangle's vertices with the vertices' own visibility.

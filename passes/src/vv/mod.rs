@@ -75,6 +75,10 @@ pub struct VvStats {
     /// Triangles after tessellation in the last finished frame (tessellated modes, once a
     /// frame's pipeline statistics are available).
     pub tessellated_triangles: Option<u64>,
+    /// Triangles shaded by eq. 19 in an interpolated mode, their correspondence being unsound
+    /// ([`VvSettings::fallback`]), and all triangles.
+    pub fallback_triangles: usize,
+    pub triangles: usize,
 }
 
 /// Shading modes.
@@ -133,6 +137,10 @@ pub struct VvSettings {
     /// Receiver refinement: about this many vertices spread over the scene's area (edges longer
     /// than `sqrt(area / refine)` are split, [`scene_model`]); 0 keeps the meshes as given.
     pub refine: u32,
+    /// Interpolated modes: triangles whose eq. 21 occluded solid angle disagrees with eq. 19's by
+    /// more than this (sr, `penumbra_math::vv::interpolation_disagreement`) are shaded by eq. 19;
+    /// 0 = eq. 21 everywhere (the paper).
+    pub fallback: f32,
 }
 
 impl Default for VvSettings {
@@ -147,6 +155,7 @@ impl Default for VvSettings {
             resolution: VvParams::default().resolution,
             specular: true,
             refine: 1024,
+            fallback: 0.25,
         }
     }
 }
@@ -161,7 +170,8 @@ impl VvSettings {
     /// Keys: `mode` (fragment3, fragment1, tessellation, tessellation3; default fragment1),
     /// `zeta` (0..=16, default 2), `alpha` (> 0, default 2), `sat_width` (16..=4096, even,
     /// default 256), `arcs` (8..=256, default 32), `max_level` (1..=64), `resolution` (8..=1024),
-    /// `specular` (on / off, default on), `refine` (0..=65536, default 1024).
+    /// `specular` (on / off, default on), `refine` (0..=65536, default 1024), `fallback` (0..=10 sr,
+/// default 0.25; 0 = off).
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
         let bad = || anyhow::anyhow!("vv parameter {key} = '{value}': not a valid value");
@@ -191,6 +201,7 @@ impl VvSettings {
             "max_level" => self.max_level = num(1.0, 64.0)? as u32,
             "resolution" => self.resolution = num(8.0, 1024.0)? as u32,
             "refine" => self.refine = num(0.0, 65536.0)? as u32,
+            "fallback" => self.fallback = num(0.0, 10.0)? as f32,
             "specular" => {
                 self.specular = match v {
                     "on" | "true" | "1" => true,
@@ -198,7 +209,7 @@ impl VvSettings {
                     _ => bail!("vv parameter specular = '{value}': expected on or off"),
                 }
             }
-            other => bail!("unknown vv parameter '{other}' (known: mode, zeta, alpha, sat_width, arcs, max_level, resolution, specular, refine)"),
+            other => bail!("unknown vv parameter '{other}' (known: mode, zeta, alpha, sat_width, arcs, max_level, resolution, specular, refine, fallback)"),
         }
         Ok(())
     }
@@ -355,6 +366,8 @@ struct Uploads {
     sat_h: u32,
     env: Arc<Vec<u8>>,
     blurred: Arc<Vec<u8>>,
+    /// Triangles shaded by eq. 19 in the interpolated modes (`VvSettings::fallback`).
+    fallback_triangles: usize,
 }
 
 fn pad_rows<T: Copy + Default>(mut v: Vec<T>, per_texel: usize) -> (Vec<T>, u32) {
@@ -443,7 +456,18 @@ impl Uploads {
         let empty = Correspondence { tri_offsets: vec![0; model.triangle_count() + 1], loop_offsets: vec![0], triples: Vec::new() };
         let corr = data.corr.as_ref().unwrap_or(&empty);
         off_tri = ints.len();
-        ints.extend(&corr.tri_offsets);
+        // bit 31 of a triangle's first loop offset: its eq. 21 interpolation disagrees with eq. 19
+        // (penumbra_math::vv::interpolation_disagreement) by more than `fallback`: shaded by eq. 19
+        let fallback = if settings.fallback > 0.0 && settings.mode.interpolated() && data.corr.is_some() {
+            penumbra_math::vv::interpolation_disagreement(model, vis, corr).iter().map(|&d| d > settings.fallback).collect()
+        } else {
+            vec![false; model.triangle_count()]
+        };
+        let fallback_triangles = fallback.iter().filter(|f| **f).count();
+        ints.extend(corr.tri_offsets.iter().enumerate().map(|(t, &o)| if fallback.get(t) == Some(&true) { o | 1 << 31 } else { o }));
+        if corr.tri_offsets.last().is_some_and(|&o| o >= 1 << 31) {
+            bail!("vv: too many triple loops for the GPU layout");
+        }
         off_loop = ints.len();
         ints.extend(&corr.loop_offsets);
         off_triples = ints.len();
@@ -488,6 +512,7 @@ impl Uploads {
             sat_h: h as u32,
             env: Arc::new(rgba(&small)),
             blurred: Arc::new(rgba(&blurred)),
+            fallback_triangles,
         })
     }
 }
@@ -736,7 +761,7 @@ impl crate::technique::Technique for VvTechnique {
     fn stats(&self) -> Option<Box<dyn std::any::Any>> {
         // non-blocking: the query holds the last finished frame's count
         let tessellated_triangles = if self.settings.mode.tessellated() { self.read_triangle_count() } else { None };
-        Some(Box::new(VvStats { tessellated_triangles }))
+        Some(Box::new(VvStats { tessellated_triangles, fallback_triangles: self.up.fallback_triangles, triangles: self.up.triangles as usize }))
     }
 
     fn limitations(&self, scene: &penumbra_scene::Scene) -> Vec<String> {
