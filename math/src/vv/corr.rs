@@ -38,6 +38,8 @@ use std::collections::{HashMap, VecDeque};
 const NONE: u32 = u32::MAX;
 const VIRTUAL_KEY: u32 = 0x8000_0000;
 const MAX_COMBOS: usize = 8;
+/// Provisional ids of the virtual points a triangle adds in step 4 (renumbered after it).
+const TMP_VIRTUAL: u32 = 0x4000_0000;
 
 #[derive(Clone, Copy, PartialEq)]
 enum Kind {
@@ -420,82 +422,43 @@ pub fn correspondence(model: &VvModel, topo: &Topology, vis: &mut VectorizedVisi
         }
     }
 
-    // 4. relaxed constraints (Rule 1 ignored, no propagation), per triangle
-    let mut virt: HashMap<(usize, usize, u32), u32> = HashMap::new();
-    for t in 0..ntri {
-        let ents: [Vec<u32>; 3] = [0, 1, 2].map(|k| ctx.entities(t, k).collect());
-        for id in 0..st[t].links.len() {
-            let e = st[t].links[id].e;
-            let Some(c) = (0..3).find(|&k| e[k] == NONE) else { continue };
-            let x = match best_completion(&ctx, &points, &st[t], t, e, c, false, None) {
-                Some(x) => x,
-                None => virtual_point(&ctx, &mut points, &mut virt, t, c, &e),
-            };
-            let mut full = e;
-            full[c] = x;
-            if st[t].links[id].kind == Kind::Partial {
-                stats.relaxed_triples += 1;
-            }
-            st[t].links[id] = Link { e: full, kind: Kind::Relaxed };
-            if !st[t].used[c].contains(&x) {
-                st[t].used[c].push(x);
-            }
+    // 4. relaxed constraints (Rule 1 ignored, no propagation), per triangle. Triangles are
+    // independent here (each completes its own list): they run in parallel, each collecting its
+    // new virtual points under provisional ids (TMP_VIRTUAL + i), which are then numbered in
+    // triangle order, as a sequential pass would.
+    let relaxed: Vec<(u64, Vec<[f32; 4]>)> = st
+        .par_iter_mut()
+        .enumerate()
+        .map(|(t, st_t)| {
+            let mut local: Vec<[f32; 4]> = Vec::new();
+            let mut virt: HashMap<(usize, u32), u32> = HashMap::new();
+            let mut relaxed = 0u64;
+            relax_triangle(&ctx, &points, st_t, t, &mut local, &mut virt, &mut relaxed);
+            progress(1);
+            (relaxed, local)
+        })
+        .collect();
+    for (t, (relaxed, local)) in relaxed.into_iter().enumerate() {
+        stats.relaxed_triples += relaxed as usize;
+        if local.is_empty() {
+            continue;
         }
-        for k in 0..3 {
-            // walk each sequence of slot k cyclically from a covered entity: an uncovered entity
-            // joins the group of its predecessor along the sequence (contiguous runs, so a
-            // region split between groups is cut into arcs, not counted twice)
-            let mut seqs: Vec<u32> = ents[k].iter().map(|&g| ctx.info[g as usize].0).collect();
-            seqs.dedup();
-            for sq in seqs {
-                let run: Vec<u32> = ents[k].iter().copied().filter(|&g| ctx.info[g as usize].0 == sq).collect();
-                let start = run.iter().position(|g| st[t].used[k].contains(g)).map_or(0, |i| i + 1);
-                for step in 0..run.len() {
-                    let g = run[(start + step) % run.len()];
-                    if st[t].used[k].contains(&g) {
-                        continue;
-                    }
-                    let prev = run[(start + step + run.len() - 1) % run.len()];
-                    let pred = st[t].links.iter().rev().find(|l| l.e[k] == prev && !l.e.contains(&NONE)).map(|l| l.e);
-                    let mut e = [NONE; 3];
-                    e[k] = g;
-                    match pred {
-                        Some(p) => {
-                            for c in [(k + 1) % 3, (k + 2) % 3] {
-                                if !ctx.is_real(p[c]) {
-                                    e[c] = p[c];
-                                }
-                            }
-                            for c in [(k + 1) % 3, (k + 2) % 3] {
-                                if e[c] == NONE {
-                                    let only = ctx.info[p[c] as usize].0;
-                                    e[c] = best_completion(&ctx, &points, &st[t], t, e, c, false, Some(only)).unwrap_or(p[c]);
-                                }
-                            }
-                        }
-                        None => {
-                            // real entities first (either order), then virtual points keyed by
-                            // the lowest real slot (one virtual point per group)
-                            for c in [(k + 1) % 3, (k + 2) % 3, (k + 1) % 3] {
-                                if e[c] == NONE {
-                                    if let Some(x) = best_completion(&ctx, &points, &st[t], t, e, c, false, None) {
-                                        e[c] = x;
-                                    }
-                                }
-                            }
-                            for c in [(k + 1) % 3, (k + 2) % 3] {
-                                if e[c] == NONE {
-                                    e[c] = virtual_point(&ctx, &mut points, &mut virt, t, c, &e);
-                                }
-                            }
-                        }
-                    }
-                    add(&mut st[t], e, Kind::Relaxed);
-                    stats.relaxed_triples += 1;
+        let base = points.len() as u32;
+        points.extend_from_slice(&local);
+        for l in &mut st[t].links {
+            for g in &mut l.e {
+                if *g != NONE && *g >= TMP_VIRTUAL {
+                    *g = base + (*g - TMP_VIRTUAL);
                 }
             }
         }
-        progress(1);
+        for u in &mut st[t].used {
+            for g in u.iter_mut() {
+                if *g != NONE && *g >= TMP_VIRTUAL {
+                    *g = base + (*g - TMP_VIRTUAL);
+                }
+            }
+        }
     }
 
     // one pole point per canonical vertex (its unit normal, a direction): jumps are routed
@@ -548,6 +511,92 @@ pub fn correspondence(model: &VvModel, topo: &Topology, vis: &mut VectorizedVisi
     }
     vis.points = points;
     Ok((corr, stats))
+}
+
+/// Step 4 for one triangle: its remaining partial triples completed and every entity not yet in
+/// a triple given one, Rule 1 relaxed, no propagation. New virtual points go to `local`
+/// (provisional ids `TMP_VIRTUAL + i`); `relaxed` counts the triples completed or added.
+fn relax_triangle(
+    ctx: &Ctx,
+    points: &[[f32; 4]],
+    st: &mut TriState,
+    t: usize,
+    local: &mut Vec<[f32; 4]>,
+    virt: &mut HashMap<(usize, u32), u32>,
+    relaxed: &mut u64,
+) {
+    let ents: [Vec<u32>; 3] = [0, 1, 2].map(|k| ctx.entities(t, k).collect());
+    for id in 0..st.links.len() {
+        let e = st.links[id].e;
+        let Some(c) = (0..3).find(|&k| e[k] == NONE) else { continue };
+        let x = match best_completion(ctx, points, st, t, e, c, false, None) {
+            Some(x) => x,
+            None => virtual_point(ctx, points, local, virt, t, c, &e),
+        };
+        let mut full = e;
+        full[c] = x;
+        if st.links[id].kind == Kind::Partial {
+            *relaxed += 1;
+        }
+        st.links[id] = Link { e: full, kind: Kind::Relaxed };
+        if !st.used[c].contains(&x) {
+            st.used[c].push(x);
+        }
+    }
+    for k in 0..3 {
+        // walk each sequence of slot k cyclically from a covered entity: an uncovered entity
+        // joins the group of its predecessor along the sequence (contiguous runs, so a
+        // region split between groups is cut into arcs, not counted twice)
+        let mut seqs: Vec<u32> = ents[k].iter().map(|&g| ctx.info[g as usize].0).collect();
+        seqs.dedup();
+        for sq in seqs {
+            let run: Vec<u32> = ents[k].iter().copied().filter(|&g| ctx.info[g as usize].0 == sq).collect();
+            let start = run.iter().position(|g| st.used[k].contains(g)).map_or(0, |i| i + 1);
+            for step in 0..run.len() {
+                let g = run[(start + step) % run.len()];
+                if st.used[k].contains(&g) {
+                    continue;
+                }
+                let prev = run[(start + step + run.len() - 1) % run.len()];
+                let pred = st.links.iter().rev().find(|l| l.e[k] == prev && !l.e.contains(&NONE)).map(|l| l.e);
+                let mut e = [NONE; 3];
+                e[k] = g;
+                match pred {
+                    Some(p) => {
+                        for c in [(k + 1) % 3, (k + 2) % 3] {
+                            if !ctx.is_real(p[c]) {
+                                e[c] = p[c];
+                            }
+                        }
+                        for c in [(k + 1) % 3, (k + 2) % 3] {
+                            if e[c] == NONE {
+                                let only = ctx.info[p[c] as usize].0;
+                                e[c] = best_completion(ctx, points, st, t, e, c, false, Some(only)).unwrap_or(p[c]);
+                            }
+                        }
+                    }
+                    None => {
+                        // real entities first (either order), then virtual points keyed by
+                        // the lowest real slot (one virtual point per group)
+                        for c in [(k + 1) % 3, (k + 2) % 3, (k + 1) % 3] {
+                            if e[c] == NONE {
+                                if let Some(x) = best_completion(ctx, points, st, t, e, c, false, None) {
+                                    e[c] = x;
+                                }
+                            }
+                        }
+                        for c in [(k + 1) % 3, (k + 2) % 3] {
+                            if e[c] == NONE {
+                                e[c] = virtual_point(ctx, points, local, virt, t, c, &e);
+                            }
+                        }
+                    }
+                }
+                add(st, e, Kind::Relaxed);
+                *relaxed += 1;
+            }
+        }
+    }
 }
 
 /// Step 6: at each vertex `k` of the triangle, the loops' slot-`k` entities must give back the
@@ -703,10 +752,10 @@ fn best_completion(ctx: &Ctx, points: &[[f32; 4]], st: &TriState, t: usize, e: [
 /// The virtual point standing for slot `c` of triangle `t` next to the sequence of the first
 /// real entity of `e`: the mean of that sequence's points (a position when all are positions,
 /// else the mean direction at the centre), so the loop collapses to it at vertex `c`.
-fn virtual_point(ctx: &Ctx, points: &mut Vec<[f32; 4]>, virt: &mut HashMap<(usize, usize, u32), u32>, t: usize, c: usize, e: &[u32; 3]) -> u32 {
+fn virtual_point(ctx: &Ctx, points: &[[f32; 4]], local: &mut Vec<[f32; 4]>, virt: &mut HashMap<(usize, u32), u32>, t: usize, c: usize, e: &[u32; 3]) -> u32 {
     let g = (0..3).filter(|&k| k != c).map(|k| e[k]).find(|&g| ctx.is_real(g)).expect("a link has a real entity");
     let s = ctx.info[g as usize].0;
-    if let Some(&v) = virt.get(&(t, c, s)) {
+    if let Some(&v) = virt.get(&(c, s)) {
         return v;
     }
     let seq: Vec<[f32; 4]> = points[ctx.vis.seq_offsets[s as usize] as usize..ctx.vis.seq_offsets[s as usize + 1] as usize].to_vec();
@@ -718,8 +767,8 @@ fn virtual_point(ctx: &Ctx, points: &mut Vec<[f32; 4]>, virt: &mut HashMap<(usiz
         let m = seq.iter().fold(Vec3::ZERO, |a, q| a + synth_dir(*q, cc).unwrap_or(n)).try_normalize().unwrap_or(n);
         [m.x, m.y, m.z, 0.0]
     };
-    let id = points.len() as u32;
-    points.push(q);
-    virt.insert((t, c, s), id);
+    let id = TMP_VIRTUAL + local.len() as u32;
+    local.push(q);
+    virt.insert((c, s), id);
     id
 }

@@ -241,7 +241,7 @@ pub fn refine_edge(area: f64, refine: u32) -> f32 {
 /// Vectorized visibility is sampled at vertices (section II-B): a receiver made of a few large
 /// triangles (a two-triangle floor) has its visibility known at its corners only, far from the
 /// shadows falling on it, and renders unshadowed. With `refine > 0` every edge longer than
-/// [`refine_edge`]`(scene area, refine)` is split ([`penumbra_scene::MeshData::refine_long_edges`],
+/// [`refine_edge`]`(scene area, refine)`, and than twice the scene's median edge, is split ([`penumbra_scene::MeshData::refine_long_edges`],
 /// conforming, on the same flat triangles), so such receivers get vertices at the scale of
 /// their shadows; finely tessellated meshes are left as they are. `refine = 0` keeps the
 /// scene's meshes (the paper's coarse models as given).
@@ -267,7 +267,22 @@ pub fn scene_model(scene: &Scene, refine: u32) -> Result<VvGeometry> {
                 .sum::<f64>()
         })
         .sum();
-    let max_edge = refine_edge(area, refine);
+    // never below twice the scene's median edge: only triangles far larger than the scene's
+    // typical one (floors, walls) are split, a uniformly tessellated model stays as given
+    let mut edges: Vec<f32> = world
+        .iter()
+        .flat_map(|(m, _)| m.indices.chunks_exact(3).flat_map(move |t| (0..3).map(move |k| (m.positions[t[k] as usize] - m.positions[t[(k + 1) % 3] as usize]).length())))
+        .collect();
+    let median = if edges.is_empty() {
+        0.0
+    } else {
+        let mid = edges.len() / 2;
+        *edges.select_nth_unstable_by(mid, f32::total_cmp).1
+    };
+    let max_edge = match refine_edge(area, refine) {
+        h if h > 0.0 => h.max(2.0 * median),
+        h => h,
+    };
     let (mut objs, mut uvs, mut object) = (Vec::new(), Vec::new(), Vec::new());
     let cap = 8 * refine as usize + world.iter().map(|(m, _)| m.triangle_count()).sum::<usize>();
     let refined: Vec<(penumbra_scene::MeshData, bool)> =
