@@ -322,3 +322,32 @@ fn split_horizon_ring_is_reproduced_at_the_corners() {
         assert!(orig.iter().all(|o| it.any(|x| x == o)), "{l:?}");
     }
 }
+
+#[test]
+fn interpolation_disagreement_flags_a_corrupted_correspondence() {
+    // a box over a 4 x 4 floor: the correspondence of the floor triangles under the box is sound
+    let m = model(&[(grid(4, 4.0, 0.0), false), (cuboid(Vec3::new(0.3, 1.0, 0.0), Vec3::new(0.5, 0.2, 0.4)), true)]);
+    let params = VvParams { resolution: 32, ..Default::default() };
+    let d = compute(&m, &params, &|_, _| {}).unwrap();
+    let dis = interpolation_disagreement(&m, &d.vis, &d.corr);
+    assert_eq!(dis.len(), m.triangle_count());
+    assert!(dis.iter().all(|x| x.is_finite() && *x >= 0.0));
+    // a floor triangle with loops under the box, and its disagreement when sound
+    let t = (0..32).filter(|&t| d.corr.triangle_loops(t).len() > 0).max_by(|&a, &b| {
+        let len = |t: usize| d.corr.triangle_loops(t).map(|l| d.corr.loop_triples(l).len()).sum::<usize>();
+        len(a).cmp(&len(b))
+    });
+    let t = t.expect("a floor triangle sees the box");
+    assert!(dis[t] < 0.25, "sound triangle {t}: {}", dis[t]);
+    // turn its loops inside out (reversed triple order: the occluded region becomes its
+    // complement within the hemisphere, far more than eq. 19's blend)
+    let mut corr = d.corr.clone();
+    for l in corr.triangle_loops(t) {
+        let (a, b) = (corr.loop_offsets[l] as usize, corr.loop_offsets[l + 1] as usize);
+        corr.triples[a..b].reverse();
+    }
+    let bad = interpolation_disagreement(&m, &d.vis, &corr);
+    assert!(bad[t] > 0.5, "reversed loops of triangle {t}: {} (sound {})", bad[t], dis[t]);
+    // the other triangles are unchanged
+    assert!((0..m.triangle_count()).filter(|&u| u != t).all(|u| bad[u] == dis[u]));
+}
