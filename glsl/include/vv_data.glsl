@@ -205,6 +205,14 @@ vec3 vv_eval_three(sampler2D sat, ivec3 vids, vec3 lambda, vec3 s, vec3 n, Mater
     for (int k = 0; k < 3; k++) c += lambda[k] * vv_eval_vertex(sat, vids[k], s, n, m);
     return c;
 }
+// Bit 31 of triangle t's first loop offset: its correspondence is unsound
+// (VvSettings::fallback) and the interpolated modes shade it by eq. 19. Callers choose between
+// vv_eval_three and vv_eval_interp (one copy of each in a shader: lavapipe compiles every
+// inlined copy).
+bool vv_tri_fallback(int t) {
+    return vv_int(pc.off0.z + t) < 0;
+}
+
 // Interpolated direction of one triple (eq. 21, penumbra_math::vv::interpolate).
 vec3 vv_triple_dir(int j, vec3 lambda, vec3 s, vec3 n) {
     vec3 a = vec3(0.0);
@@ -231,9 +239,7 @@ vec3 vv_eval_interp(sampler2D sat, int t, vec3 lambda, vec3 s, vec3 n, MaterialD
     bool glossy = vv_spec_begin(s, n, m, sp);
     VvLights L;
     vv_lights_begin(s, L);
-    int l0 = vv_int(pc.off0.z + t), l1 = vv_int(pc.off0.z + t + 1) & 0x7fffffff;
-    // bit 31: the triangle's correspondence is unsound (VvSettings::fallback), eq. 19 instead
-    if (l0 < 0) return vv_eval_three(sat, ivec3(vv_tri_vertex(t, 0), vv_tri_vertex(t, 1), vv_tri_vertex(t, 2)), lambda, s, n, m);
+    int l0 = vv_int(pc.off0.z + t) & 0x7fffffff, l1 = vv_int(pc.off0.z + t + 1) & 0x7fffffff;
     for (int l = l0; l < l1; l++) {
         int a0 = vv_int(pc.off0.w + l), a1 = vv_int(pc.off0.w + l + 1);
         if (a1 - a0 < 2) continue;

@@ -15,7 +15,7 @@ void main() {
     vec3 lambda = max(v_bary, vec3(0.0));
     lambda /= max(lambda.x + lambda.y + lambda.z, 1e-6);
     MaterialData m = vv_material(v_vids.x, v_uv);
-    vec3 c = pc.sat.w == 0 ? vv_eval_three(vv_sat_tex, v_vids, lambda, v_world, n, m)
-                           : vv_eval_interp(vv_sat_tex, gl_PrimitiveID, lambda, v_world, n, m);
+    vec3 c = pc.sat.w == 0 || vv_tri_fallback(gl_PrimitiveID) ? vv_eval_three(vv_sat_tex, v_vids, lambda, v_world, n, m)
+                                                              : vv_eval_interp(vv_sat_tex, gl_PrimitiveID, lambda, v_world, n, m);
     o_color = vec4(c, 1.0);
 }

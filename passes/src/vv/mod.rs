@@ -383,6 +383,8 @@ struct Uploads {
     blurred: Arc<Vec<u8>>,
     /// Triangles shaded by eq. 19 in the interpolated modes (`VvSettings::fallback`).
     fallback_triangles: usize,
+    /// Hash of the three arrays (the persistent images' names).
+    key: u64,
 }
 
 fn pad_rows<T: Copy + Default>(mut v: Vec<T>, per_texel: usize) -> (Vec<T>, u32) {
@@ -516,10 +518,18 @@ impl Uploads {
         let (w, h, small) = downsample(env.width as usize, env.height as usize, &env.texels, settings.sat_width as usize);
         let blurred = if settings.mode.tessellated() { phong_blur(w, h, &small, 256.0) } else { small.clone() };
         let rgba = |t: &[[f32; 3]]| -> Vec<u8> { bytes_of(&t.iter().map(|c| [c[0], c[1], c[2], 0.0]).collect::<Vec<[f32; 4]>>()) };
+        let (points, ints, verts) = (bytes_of(&points), bytes_of(&ints), bytes_of(&verts));
+        let key = {
+            use std::hash::{Hash, Hasher};
+            let mut h = std::collections::hash_map::DefaultHasher::new();
+            (&points, &ints, &verts).hash(&mut h);
+            h.finish()
+        };
         Ok(Uploads {
-            points: (bytes_of(&points), points_rows),
-            ints: (bytes_of(&ints), ints_rows),
-            verts: (bytes_of(&verts), verts_rows),
+            points: (points, points_rows),
+            ints: (ints, ints_rows),
+            verts: (verts, verts_rows),
+            key,
             off0: [off_seq as i32, off_vseq as i32, off_tri as i32, off_loop as i32],
             off1: [off_triples as i32, off_tv as i32, settings.max_level as i32, 0],
             triangles: model.triangle_count() as u32,
@@ -753,9 +763,15 @@ impl VvTechnique {
         sat
     }
 
-    /// Uploads a flat-array image (`R32G32B32A32_SFLOAT` or `R32_UINT`, width [`TEX_W`]).
-    fn add_array(graph: &mut Graph, name: &str, format: vk::Format, bytes: &[u8], rows: u32) -> ImageHandle {
-        let img = graph.create_image(name, ImageDesc::new_2d(format, TEX_W as u32, rows));
+    /// A flat-array image (`R32G32B32A32_SFLOAT` or `R32_UINT`, width [`TEX_W`]) kept by the
+    /// engine across frames, uploaded on the first frame only (static data: no per-frame
+    /// re-upload). Its name carries the hash of the technique's data (`Uploads::key`), so two vv
+    /// techniques on one engine never read each other's arrays.
+    fn add_array(engine: &mut Engine, graph: &mut Graph, name: &str, key: u64, format: vk::Format, bytes: &[u8], rows: u32) -> ImageHandle {
+        let img = engine.persistent_image(graph, &format!("{name}.{key:016x}"), ImageDesc::new_2d(format, TEX_W as u32, rows));
+        if !graph.persistent_is_new(img) {
+            return img;
+        }
         let region = vk::BufferImageCopy {
             buffer_offset: 0,
             buffer_row_length: 0,
@@ -794,13 +810,14 @@ impl crate::technique::Technique for VvTechnique {
         v
     }
 
-    fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
+    fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
         let base = self.env.add(graph, inputs.handles, inputs.gbuffer, inputs.env);
         let sat = self.add_sat(graph, "vv_sat", &self.up.env);
         let blur = if self.settings.mode.tessellated() { Some(self.add_sat(graph, "vv_sat_blur", &self.up.blurred)) } else { None };
-        let points = Self::add_array(graph, "vv_points", vk::Format::R32G32B32A32_SFLOAT, &self.up.points.0, self.up.points.1);
-        let ints = Self::add_array(graph, "vv_ints", vk::Format::R32_UINT, &self.up.ints.0, self.up.ints.1);
-        let verts = Self::add_array(graph, "vv_verts", vk::Format::R32G32B32A32_SFLOAT, &self.up.verts.0, self.up.verts.1);
+        let key = self.up.key;
+        let points = Self::add_array(engine, graph, "vv_points", key, vk::Format::R32G32B32A32_SFLOAT, &self.up.points.0, self.up.points.1);
+        let ints = Self::add_array(engine, graph, "vv_ints", key, vk::Format::R32_UINT, &self.up.ints.0, self.up.ints.1);
+        let verts = Self::add_array(engine, graph, "vv_verts", key, vk::Format::R32G32B32A32_SFLOAT, &self.up.verts.0, self.up.verts.1);
         let (w, h) = (inputs.gbuffer.width, inputs.gbuffer.height);
         let depth = graph.create_image("vv_depth", ImageDesc::new_2d(crate::gbuffer::DEPTH_FORMAT, w, h));
         let objects = graph.create_image("vv_objects", ImageDesc::new_2d(HDR_FORMAT, w, h));
