@@ -18,11 +18,16 @@ fn precompute_vv_writes_checks_and_rejects_bad_files() {
     std::fs::create_dir_all(&dir).unwrap();
     let out = dir.join("coarse.pvv");
     let scene = "../scenes/coarse.toml";
-    let o = penumbra(&["precompute", "vv", scene, "--resolution", "12", "--out", out.to_str().unwrap()]);
+    // the scene's meshes as given (--refine 0): the two-triangle floor stays two triangles
+    let o = penumbra(&["precompute", "vv", scene, "--resolution", "12", "--refine", "0", "--out", out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", text(&o));
     let t = text(&o);
     assert!(t.contains("257 vertices, 466 triangles") && t.contains("vectorized visibility:") && t.contains("triples") && t.contains("MB"), "{t}");
+    assert!(t.contains("eq. 21 vs eq. 19"), "{t}");
+    // the file belongs to that model only: the default (refined) model is another one
     let o = penumbra(&["precompute", "vv", scene, "--check", out.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    let o = penumbra(&["precompute", "vv", scene, "--refine", "0", "--check", out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("valid for"));
 
@@ -30,7 +35,7 @@ fn precompute_vv_writes_checks_and_rejects_bad_files() {
     let bad = |name: &str, data: &[u8], needle: &str| {
         let p = dir.join(name);
         std::fs::write(&p, data).unwrap();
-        let o = penumbra(&["precompute", "vv", scene, "--check", p.to_str().unwrap()]);
+        let o = penumbra(&["precompute", "vv", scene, "--refine", "0", "--check", p.to_str().unwrap()]);
         assert_eq!(o.status.code(), Some(2), "{name}: {}", text(&o));
         let t = text(&o);
         assert!(t.contains(p.to_str().unwrap()) && t.contains(needle), "{name}: {t}");

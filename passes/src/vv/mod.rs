@@ -24,33 +24,23 @@
 //! displayed pixel values in [0, 1]): each radiance goes through this renderer's display mapping
 //! (exposure, ACES fit, sRGB transfer) before the difference (`glsl/vv/vv_tess.vert`).
 //!
-//! Shading is diffuse (eq. 9/12) plus, for glossy materials, Phong specular by the cap ratio
-//! (eq. 14-16; `specular = off` keeps the diffuse part only). The SAT has a 4th channel (`∫ L_e
-//! dω`) for the Cap weight `l . r - cos xi` of eq. 16. Per evaluation (each of eq. 19's three
-//! or eq. 21's one) the shaders stream the same occluder loops twice: into the diffuse sum, and
-//! through a GLSL port of `penumbra_math::vv_sat::clip_to_cap` (`vv_clip_*` in
-//! `glsl/include/vv_sat.glsl`: the crossings of each great arc with the cap circle, exit -> entry
-//! walks along the circle, arcs that dip into the cap between two outside points, and a winding
-//! test that subtracts the whole cap when an occluder encloses it), then add the cap `W` around
-//! the reflected view direction `r` clipped to the hemisphere of the normal. `W`'s radius `xi`
-//! holds 95% of the Phong lobe's energy (`phong_cap_cos`). Per vertex the material gives the
-//! specular reflectance and the Phong exponent `alpha` ([`phong_alpha`]: Blinn-Phong
-//! `shininess / 4`; Cook-Torrance via its equivalent shininess; no Fresnel). Eq. 13 has G = 1
-//! and a constant glossy reflectance; to match the scene's BRDF (the reference renderer's
-//! normalised Blinn-Phong, whose specular albedo falls as `(n . v)^2` for a narrow lobe: 0.94,
-//! 0.74, 0.30, 0.10 at 0, 29, 57, 74 degrees) the reflectance is scaled by `(n . v)^2` per
-//! evaluation (`vv_spec_begin` in `glsl/include/vv_data.glsl`).
-//!
-//! The paper does not say how the unshadowed glossy integral of eq. 14 (`∫ max(r . l, 0)^alpha
-//! L_e`) is computed. Here it is taken over the same Cap kernel from the SAT, normalised to the
-//! Phong lobe's integral `2 pi / (alpha + 1)`: `U = 2 pi / (alpha + 1) * ∫_W Cap L_e / ∫_W Cap
-//! dω` with `∫_W Cap dω = pi (1 - cos xi)^2`, and `k_s = ks (alpha + 1) / (2 pi)`
-//! (energy-normalised Phong, `ks = specular (n . v)^2`). gamma's denominator then cancels,
-//! `L_s = ks * ∫_{V ∩ W} Cap L_e / (pi (1 - cos xi)^2)`: the lighting stays dynamic (no prefiltered map), at the price of a
-//! linear (Cap) instead of a `cos^alpha` lobe shape. gamma itself is checked against the CPU
-//! `cap_ratio` by [`crate::kernels::vv::VvCapParity`] (tests/vv.rs). Large exponents lose fp32 precision (the Cap
-//! weight is a difference of SAT sums over a small cap). Objects that move or deform are not
-//! supported (their visibility is precomputed at rest, t = 0).
+//! Shading (`glsl/include/vv_data.glsl`): the diffuse integral over the visible directions from
+//! the loops (eq. 9/12); the glossy term as eq. 14, `L_s = k_s U * gamma`, with `k_s U` the
+//! scene material's unshadowed glossy reflection exactly as the `env` technique draws it
+//! (`env_shade.glsl`: prefiltered environment along the reflection, split-sum BRDF) and gamma the
+//! Cap-weighted visible share of the cap W around the reflected view direction (eq. 15-16): the
+//! occluder loops clipped to W (`vv_clip_*` of `glsl/include/vv_sat.glsl`, the port of
+//! `penumbra_math::vv_sat::clip_to_cap`) against W clipped to the normal's hemisphere; exactly 1
+//! when no occluder reaches W. W's Phong exponent follows the material's GGX alpha `a` (Blinn-Phong
+//! `s = 2 / a^2 - 2`, Phong `s / 4`, within [1, 4096]); its radius holds 95 % of the lobe's energy.
+//! Materials come from the frame's material table through `material.glsl` (albedo and roughness
+//! maps, animated roughness); per vertex only its material index is stored. Local lights
+//! (`lights.glsl`, up to [`MAX_LIGHTS`]) are shaded with point visibility from the same loops
+//! (occluded when the loops wind around the light's direction; hard shadows, a sphere light as its
+//! centre; the loops carry no depth, so an occluder behind a light still shadows it). The
+//! interpolated modes shade triangles whose correspondence is unsound by eq. 19
+//! ([`VvSettings::fallback`]). Receivers made of large triangles are refined ([`scene_model`]).
+//! Objects that move or deform are not supported (their visibility is precomputed at rest, t = 0).
 
 use crate::shade_env::{ShadeEnvPass, HDR_FORMAT};
 use crate::util::{bytes_of, compute_pipeline, groups, layouts, Pipeline, Sampler};
@@ -170,8 +160,8 @@ impl VvSettings {
     /// Keys: `mode` (fragment3, fragment1, tessellation, tessellation3; default fragment1),
     /// `zeta` (0..=16, default 2), `alpha` (> 0, default 2), `sat_width` (16..=4096, even,
     /// default 256), `arcs` (8..=256, default 32), `max_level` (1..=64), `resolution` (8..=1024),
-    /// `specular` (on / off, default on), `refine` (0..=65536, default 1024), `fallback` (0..=10 sr,
-/// default 0.25; 0 = off).
+    /// `specular` (on / off, default on), `refine` (0..=65536, default 1024), `fallback` (0..=10
+    /// sr, default 0.25; 0 = off).
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
         let bad = || anyhow::anyhow!("vv parameter {key} = '{value}': not a valid value");
@@ -241,8 +231,9 @@ pub fn refine_edge(area: f64, refine: u32) -> f32 {
 /// Vectorized visibility is sampled at vertices (section II-B): a receiver made of a few large
 /// triangles (a two-triangle floor) has its visibility known at its corners only, far from the
 /// shadows falling on it, and renders unshadowed. With `refine > 0` every edge longer than
-/// [`refine_edge`]`(scene area, refine)`, and than twice the scene's median edge, is split ([`penumbra_scene::MeshData::refine_long_edges`],
-/// conforming, on the same flat triangles), so such receivers get vertices at the scale of
+/// [`refine_edge`]`(scene area, refine)`, and than twice the scene's median edge, is split
+/// ([`penumbra_scene::MeshData::refine_long_edges`], conforming, on the same flat triangles),
+/// so such receivers get vertices at the scale of
 /// their shadows; finely tessellated meshes are left as they are. `refine = 0` keeps the
 /// scene's meshes (the paper's coarse models as given).
 pub fn scene_model(scene: &Scene, refine: u32) -> Result<VvGeometry> {
@@ -796,11 +787,8 @@ impl crate::technique::Technique for VvTechnique {
     }
 
     fn limitations(&self, scene: &penumbra_scene::Scene) -> Vec<String> {
+        // texture maps, animated roughness: the scene's materials through material.glsl
         let mut v = Vec::new();
-        let roughness_maps = scene.objects.iter().any(|o| scene.material_extra(o.material).roughness_map.is_some());
-        if roughness_maps {
-            v.push("vv: roughness maps are ignored on vv-shaded objects (the specular lobe uses the material's constant roughness; albedo maps are applied)".into());
-        }
         if scene.lights.len() > MAX_LIGHTS as usize {
             v.push(format!(
                 "vv: only the first {MAX_LIGHTS} of the scene's {} local lights are rendered on vv-shaded objects",
