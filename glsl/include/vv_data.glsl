@@ -205,6 +205,7 @@ vec3 vv_eval_three(sampler2D sat, ivec3 vids, vec3 lambda, vec3 s, vec3 n, Mater
     for (int k = 0; k < 3; k++) c += lambda[k] * vv_eval_vertex(sat, vids[k], s, n, m);
     return c;
 }
+
 // Bit 31 of triangle t's first loop offset: its correspondence is unsound
 // (VvSettings::fallback) and the interpolated modes shade it by eq. 19. Callers choose between
 // vv_eval_three and vv_eval_interp (one copy of each in a shader: lavapipe compiles every
