@@ -133,6 +133,13 @@ impl Access {
         use vk::ImageLayout as L;
         use vk::ImageUsageFlags as IU;
         use vk::PipelineStageFlags2 as S;
+        // every shader stage (the AnyShader* accesses)
+        let any_shader = S::VERTEX_SHADER
+            | S::TESSELLATION_CONTROL_SHADER
+            | S::TESSELLATION_EVALUATION_SHADER
+            | S::GEOMETRY_SHADER
+            | S::FRAGMENT_SHADER
+            | S::COMPUTE_SHADER;
         let (stage, access, layout, write, reads_previous, applies, image_usage, buffer_usage, depth) = match self {
             Access::ColorAttachmentWrite => (
                 S::COLOR_ATTACHMENT_OUTPUT,
@@ -234,12 +241,7 @@ impl Access {
                 None,
             ),
             Access::AnyShaderReadSampled => (
-                S::VERTEX_SHADER
-                    | S::TESSELLATION_CONTROL_SHADER
-                    | S::TESSELLATION_EVALUATION_SHADER
-                    | S::GEOMETRY_SHADER
-                    | S::FRAGMENT_SHADER
-                    | S::COMPUTE_SHADER,
+                any_shader,
                 A::SHADER_SAMPLED_READ,
                 L::SHADER_READ_ONLY_OPTIMAL,
                 false,
@@ -328,12 +330,7 @@ impl Access {
                 None,
             ),
             Access::AnyShaderReadStorage => (
-                S::VERTEX_SHADER
-                    | S::TESSELLATION_CONTROL_SHADER
-                    | S::TESSELLATION_EVALUATION_SHADER
-                    | S::GEOMETRY_SHADER
-                    | S::FRAGMENT_SHADER
-                    | S::COMPUTE_SHADER,
+                any_shader,
                 A::SHADER_STORAGE_READ,
                 L::UNDEFINED,
                 false,
@@ -344,12 +341,7 @@ impl Access {
                 None,
             ),
             Access::AnyShaderReadUniform => (
-                S::VERTEX_SHADER
-                    | S::TESSELLATION_CONTROL_SHADER
-                    | S::TESSELLATION_EVALUATION_SHADER
-                    | S::GEOMETRY_SHADER
-                    | S::FRAGMENT_SHADER
-                    | S::COMPUTE_SHADER,
+                any_shader,
                 A::UNIFORM_READ,
                 L::UNDEFINED,
                 false,

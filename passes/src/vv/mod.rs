@@ -213,8 +213,6 @@ pub struct VvGeometry {
     pub uvs: Vec<glam::Vec2>,
     /// Per model vertex: index of its object in `scene.objects`.
     pub object: Vec<u32>,
-    /// Edge length limit of the refinement (world units; 0: none).
-    pub max_edge: f32,
 }
 
 /// The edge length limit for a refinement target of `refine` vertices over `area` (world
@@ -277,7 +275,7 @@ pub fn scene_model(scene: &Scene, refine: u32) -> Result<VvGeometry> {
     let (mut objs, mut uvs, mut object) = (Vec::new(), Vec::new(), Vec::new());
     let cap = 8 * refine as usize + world.iter().map(|(m, _)| m.triangle_count()).sum::<usize>();
     let refined: Vec<(penumbra_scene::MeshData, bool)> =
-        world.into_iter().map(|(m, c)| (if max_edge > 0.0 { m.refine_long_edges(max_edge, cap) } else { m }, c)).collect();
+        world.into_iter().map(|(m, c)| (m.refine_long_edges(max_edge, cap), c)).collect();
     for (i, (m, casts_shadow)) in refined.iter().enumerate() {
         uvs.extend((0..m.positions.len()).map(|v| m.uvs.get(v).copied().unwrap_or_default()));
         object.extend(std::iter::repeat(i as u32).take(m.positions.len()));
@@ -291,7 +289,7 @@ pub fn scene_model(scene: &Scene, refine: u32) -> Result<VvGeometry> {
     }
     let model = VvModel::from_objects(objs);
     model.validate().map_err(anyhow::Error::msg)?;
-    Ok(VvGeometry { model, uvs, object, max_edge })
+    Ok(VvGeometry { model, uvs, object })
 }
 
 /// Offline data of a scene and its cost.
