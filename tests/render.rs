@@ -119,3 +119,61 @@ fn empty_scene_and_degenerate_meshes_render_cleanly() {
     assert_eq!(log.error_count(), 0, "{:#?}", log.errors());
     assert!(frames[0].hdr.iter().flatten().all(|c| c.is_finite()));
 }
+
+/// mc's `aa = false` traces its primary rays through the pixel centres, as rasterizing
+/// techniques sample and as the matrix's references (`pixel_grid = 1`) do: over a black ground
+/// under a uniform sky each pixel is then exactly ground or sky, the same as the reference's,
+/// while the default (`aa = true`, jittered) mixes them along the horizon.
+#[test]
+fn mc_without_aa_samples_the_pixel_centres_like_the_reference_grid() {
+    use glam::{Mat4, Vec3};
+    use penumbra_scene::{Material, MeshData, Object};
+    let sky = 0.8f32;
+    let mut s = penumbra_scene::Scene::default_scene();
+    s.meshes = vec![MeshData::plane(40.0, 1)];
+    s.materials = vec![Material::diffuse("black", Vec3::ZERO)];
+    s.objects = vec![Object { name: "ground".into(), mesh: 0, material: 0, transform: Mat4::IDENTITY }];
+    s.material_extras.clear();
+    s.object_info.clear();
+    s.material_animations.clear();
+    s.lights.clear();
+    s.medium = None;
+    s.camera_path = None;
+    s.camera.eye = Vec3::new(0.0, 1.0, 0.0);
+    s.camera.target = Vec3::new(0.3, 1.13, -1.0);
+    s.camera.up = Vec3::new(0.35, 1.0, 0.0).normalize();
+    s.camera.fov_y_deg = 50.0;
+    let s = common::with_env(&s, 8, 4, |_, _| [sky; 3]);
+    let env = s.environment.as_ref().unwrap();
+    let sky = sky * env.intensity;
+    let (w, h) = (12u32, 10u32);
+    let reference = penumbra_reference::render(
+        &s,
+        &penumbra_reference::ReferenceOptions { width: w, height: h, spp: 4, pixel_grid: 1, ..Default::default() },
+    )
+    .unwrap()
+    .radiance;
+    let class = |v: f32| if v.abs() <= 1e-4 * sky { Some(false) } else if (v - sky).abs() <= 1e-4 * sky { Some(true) } else { None };
+    for (aa, must_match) in [("false", true), ("true", false)] {
+        let scene = common::with(&s, &[("spp", "64"), ("aa", aa)]);
+        let (_, frames) = common::render_times(&scene, "mc", w, h, &[0.0], true);
+        let img = common::hdr_image(frames.last().unwrap());
+        let mut mixed = 0;
+        for y in 0..h {
+            for x in 0..w {
+                let (g, r) = (img.get(x, y)[0], reference.get(x, y)[0]);
+                assert!(class(r).is_some(), "reference pixel ({x}, {y}) mixes: {r}");
+                match class(g) {
+                    Some(c) if must_match => assert_eq!(Some(c), class(r), "aa = {aa}: pixel ({x}, {y}) is {g}, the reference's {r}"),
+                    Some(_) => {}
+                    None => mixed += 1,
+                }
+            }
+        }
+        if must_match {
+            assert_eq!(mixed, 0, "aa = false mixed {mixed} pixels");
+        } else {
+            assert!(mixed >= 4, "aa = true should mix pixels along the horizon: {mixed}");
+        }
+    }
+}

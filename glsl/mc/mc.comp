@@ -31,7 +31,7 @@ layout(binding = 11) uniform sampler2DArray material_textures;
 layout(push_constant) uniform Push {
     mat4 inv_view_proj;
     uvec4 size_spp_seed;    // width, height, spp, frame seed
-    uvec4 env_info;         // env width, env height, bit 0 reset | bit 1 env can be sampled, light count
+    uvec4 env_info;         // env width, env height, bit 0 reset | bit 1 env can be sampled | bit 2 pixel centres (no jitter), light count
     vec4 env_rot;           // cos, sin of the environment rotation
 } pc;
 
@@ -293,6 +293,7 @@ void main() {
     vec4 acc = (pc.env_info.z & 1u) != 0u ? vec4(0.0) : imageLoad(accum, ivec2(px));
     for (uint s = 0u; s < pc.size_spp_seed.z; s++) {
         vec2 j = vec2(rnd(), rnd());
+        if ((pc.env_info.z & 4u) != 0u) j = vec2(0.5);
         vec2 ndc = vec2(2.0 * (float(px.x) + j.x) / float(w) - 1.0, 2.0 * (float(px.y) + j.y) / float(h) - 1.0);
         vec3 c = radiance_sample(ndc);
         if (!any(isinf(c)) && !any(isnan(c))) acc.rgb += c;

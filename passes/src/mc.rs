@@ -106,6 +106,10 @@ pub struct McTechnique {
     env: EnvTables,
     /// Samples per pixel per frame (default 4).
     pub spp: u32,
+    /// Primary rays jittered over the pixel (anti-aliased, like the CPU reference's default);
+    /// `false`: through the pixel centre, where rasterizing techniques sample (the accuracy
+    /// matrix's pixel-grid references).
+    pub aa: bool,
     frame_index: u32,
     /// Samples per pixel accumulated in the image after the last frame.
     pub accumulated: u32,
@@ -121,21 +125,28 @@ pub const MAX_SPP_PER_DISPATCH: u32 = 256;
 /// Most samples per pixel per frame.
 pub const MAX_SPP: u32 = 16384;
 
-/// Parses `spp` (1..=16384); any other key is an error.
-pub fn parse_spp(key: &str, value: &str) -> Result<u32> {
-    match key.trim() {
-        "spp" => match value.trim().parse::<u32>() {
-            Ok(n) if (1..=MAX_SPP).contains(&n) => Ok(n),
-            _ => anyhow::bail!("mc: spp = '{}': expected an integer in 1..={MAX_SPP}", value.trim()),
-        },
-        k => anyhow::bail!("mc: unknown parameter '{k}' (known: spp)"),
+/// Parses `spp` (1..=16384).
+pub fn parse_spp(value: &str) -> Result<u32> {
+    match value.trim().parse::<u32>() {
+        Ok(n) if (1..=MAX_SPP).contains(&n) => Ok(n),
+        _ => anyhow::bail!("mc: spp = '{}': expected an integer in 1..={MAX_SPP}", value.trim()),
     }
 }
 
 impl McTechnique {
-    /// Sets one `[technique_params]` entry (`spp`).
+    /// Sets one `[technique_params]` entry (`spp`, `aa`); any other key is an error.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
-        self.spp = parse_spp(key, value)?;
+        match key.trim() {
+            "spp" => self.spp = parse_spp(value)?,
+            "aa" => {
+                self.aa = match value.trim() {
+                    "true" | "1" => true,
+                    "false" | "0" => false,
+                    v => anyhow::bail!("mc: aa = '{v}': expected true or false"),
+                }
+            }
+            k => anyhow::bail!("mc: unknown parameter '{k}' (known: spp, aa)"),
+        }
         Ok(())
     }
 
@@ -172,6 +183,7 @@ impl McTechnique {
             scene: scene.clone(),
             env: EnvTables::new(scene.environment.as_ref()),
             spp: DEFAULT_SPP,
+            aa: true,
             frame_index: 0,
             accumulated: 0,
             tri_count: None,
@@ -256,7 +268,7 @@ impl McTechnique {
             push.extend(bytes_of(&[
                 self.env.width,
                 self.env.height,
-                (reset && chunk == 0) as u32 | (self.env.can_sample as u32) << 1,
+                (reset && chunk == 0) as u32 | (self.env.can_sample as u32) << 1 | (!self.aa as u32) << 2,
                 light_count,
             ]));
             push.extend(bytes_of(&[self.env.cos_rot, self.env.sin_rot, 0.0, 0.0]));

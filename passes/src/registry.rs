@@ -148,7 +148,10 @@ const fn p(key: &'static str, default: &'static str, range: &'static str, doc: &
     ParamDoc { key, default, range, doc }
 }
 
-const MC_PARAMS: &[ParamDoc] = &[p("spp", "4", "1..=16384", "samples per pixel per frame (accumulated over frames while nothing moves; split into dispatches of 256)")];
+const MC_PARAMS: &[ParamDoc] = &[
+    p("spp", "4", "1..=16384", "samples per pixel per frame (accumulated over frames while nothing moves; split into dispatches of 256)"),
+    p("aa", "true", "true|false", "primary rays jittered over the pixel (anti-aliased); false: through the pixel centre, where rasterizing techniques sample (what `bench matrix` compares)"),
+];
 
 const SHADOWMAPS_PARAMS: &[ParamDoc] = &[
     p("count", "32", "1..=1024", "K directional lights (orthographic depth maps) importance-sampled from the environment (the ISG paper's Figure 11: 30 and 1024)"),
@@ -606,7 +609,7 @@ mod tests {
             (sf.params.shells, sf.params.resolution, sf.params.map_res, sf.params.threshold),
             (d.params.shells, d.params.resolution, d.params.map_res, d.params.threshold)
         );
-        assert_eq!(crate::mc::parse_spp("spp", MC_PARAMS[0].default).unwrap(), crate::mc::DEFAULT_SPP);
+        assert_eq!(crate::mc::parse_spp(MC_PARAMS[0].default).unwrap(), crate::mc::DEFAULT_SPP);
         // Every knob is a documented parameter and its values parse.
         for t in REGISTRY {
             for kn in t.knobs {

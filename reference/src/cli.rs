@@ -40,6 +40,10 @@ pub struct ReferenceArgs {
     /// SG lobes fitted to the environment in --mode sg-lighting.
     #[arg(long, default_value_t = 16)]
     pub sg_lobes: u32,
+    /// Primary rays through the centres of an N x N grid of sub-pixels (what a rasterizer sees
+    /// at N x N supersampling; 1 = the pixel centre) instead of anywhere in the pixel (0).
+    #[arg(long, default_value_t = 0)]
+    pub pixel_grid: u32,
     /// Hide the progress bar (it is hidden anyway when stderr is not a terminal).
     #[arg(long)]
     pub no_progress: bool,
@@ -88,6 +92,7 @@ impl ReferenceArgs {
             mode: self.mode,
             sg_lobes: self.sg_lobes,
             progress: !self.no_progress,
+            pixel_grid: self.pixel_grid,
         };
         crate::render::validate(&o)?;
         Ok(o)

@@ -259,7 +259,7 @@ pub fn cache_key(scene_bytes: &[u8], opts: &ConvergeOptions) -> String {
         Mode::Sg => 2,
     };
     let fields = format!(
-        "v{REFERENCE_VERSION} {}x{} frame {} time {:?} fps {} seed {} mode {mode} lobes {} target {}",
+        "v{REFERENCE_VERSION} {}x{} frame {} time {:?} fps {} seed {} mode {mode} lobes {} target {}{}",
         o.width,
         o.height,
         o.frame,
@@ -267,7 +267,8 @@ pub fn cache_key(scene_bytes: &[u8], opts: &ConvergeOptions) -> String {
         o.fps.to_bits(),
         o.seed,
         o.sg_lobes,
-        opts.target_noise.to_bits()
+        opts.target_noise.to_bits(),
+        if o.pixel_grid > 0 { format!(" grid {}", o.pixel_grid) } else { String::new() }
     );
     h = fnv1a64(fields.as_bytes(), h);
     format!("{h:016x}")
@@ -366,6 +367,13 @@ mod tests {
         let mut o4 = o.clone();
         o4.target_noise = 0.02;
         assert_ne!(k, cache_key(b"scene", &o4));
+        // the pixel sampling is part of the key; the default (jittered) keeps the old keys
+        let mut o5 = o.clone();
+        o5.base.pixel_grid = 1;
+        assert_ne!(k, cache_key(b"scene", &o5));
+        let mut o6 = o.clone();
+        o6.base.pixel_grid = 2;
+        assert_ne!(cache_key(b"scene", &o5), cache_key(b"scene", &o6));
     }
 
     #[test]

@@ -2,7 +2,9 @@
 //!
 //! For every pixel of the scene camera (Vulkan clip space, pixel (0, 0) at the top left) it
 //! casts `spp` primary rays through uniformly jittered positions in the pixel (starting on the
-//! near plane) and, at the first hit, estimates the direct lighting integral
+//! near plane; with [`ReferenceOptions::pixel_grid`] = n, through the centre of one of the
+//! pixel's n x n sub-pixels, drawn uniformly: the sample positions of a rasterizer rendering at n
+//! times the size and box-filtering down) and, at the first hit, estimates the direct lighting integral
 //! `L_o(wo) = integral f(wi, wo) L_i(wi) V(wi) cos(theta_i) dwi`
 //! with, per primary ray: one environment sample (alias table over texels, weighted by
 //! luminance x exact texel solid angle), one sample per local light (see [`crate::lights`])
@@ -85,6 +87,15 @@ pub struct ReferenceOptions {
     pub sg_lobes: u32,
     /// Show a progress bar on stderr (only if stderr is a terminal).
     pub progress: bool,
+    /// Where primary rays cross the pixel. 0 (the default): uniformly anywhere in it (a box
+    /// pixel filter, anti-aliased). n >= 1: through the centre of one of its n x n sub-pixels,
+    /// drawn uniformly per sample, so the image converges to the average of those n^2 point
+    /// samples: what a rasterizer sees at n x n supersampling (1: the pixel centre). The
+    /// accuracy matrix compares rasterizing techniques with such a reference, so that its
+    /// numbers measure shading, not the pixel filter (a thin dragon at 40x30 is mostly
+    /// aliasing otherwise).
+    #[serde(default)]
+    pub pixel_grid: u32,
 }
 
 fn default_sg_lobes() -> u32 {
@@ -104,6 +115,7 @@ impl Default for ReferenceOptions {
             mode: Mode::Exact,
             sg_lobes: default_sg_lobes(),
             progress: false,
+            pixel_grid: 0,
         }
     }
 }
@@ -655,6 +667,9 @@ pub fn validate(opts: &ReferenceOptions) -> Result<(), RenderError> {
     if !opts.time_s().is_finite() {
         return bad("time is not finite");
     }
+    if opts.pixel_grid > 16 {
+        return bad(&format!("pixel grid {} is larger than 16", opts.pixel_grid));
+    }
     Ok(())
 }
 
@@ -674,7 +689,7 @@ pub fn render(scene: &Scene, opts: &ReferenceOptions) -> Result<ReferenceImage, 
                     let mut rng = Pcg32::for_pixel(opts.seed, idx);
                     let mut acc = PixelAcc::default();
                     for _ in 0..opts.spp {
-                        let j = rng.next_vec2();
+                        let j = pixel_offset(rng.next_vec2(), opts.pixel_grid);
                         let ndc_x = 2.0 * (x as f32 + j.x) / w as f32 - 1.0;
                         let ndc_y = 2.0 * (y as f32 + j.y) / h as f32 - 1.0;
                         let v = ctx.sample(ndc_x, ndc_y, &mut rng);
@@ -725,6 +740,17 @@ pub fn render(scene: &Scene, opts: &ReferenceOptions) -> Result<ReferenceImage, 
         render_seconds: start.elapsed().as_secs_f64(),
         sg_fit_rel_l2: ctx.sg_fit_rel_l2,
     })
+}
+
+/// The primary ray's position in its pixel for the uniform `u` in [0, 1)^2: `u` itself, or for
+/// a `grid` of n >= 1 the centre of the sub-pixel of the n x n grid that `u` falls in (each drawn
+/// with probability 1 / n^2).
+pub fn pixel_offset(u: glam::Vec2, grid: u32) -> glam::Vec2 {
+    if grid == 0 {
+        return u;
+    }
+    let n = grid as f32;
+    ((u * n).floor().min(glam::Vec2::splat(n - 1.0)) + 0.5) / n
 }
 
 /// Statistics of per-pixel (mean luminance, standard error of the luminance).

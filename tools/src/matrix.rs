@@ -238,8 +238,15 @@ pub(crate) fn render_technique(
 ) -> Result<Run> {
     let ss = args.supersample.max(1);
     let s = scene.clone();
-    let settings =
+    let mut settings =
         RenderSettings { width: w * ss, height: h * ss, technique: Some(name.to_string()), technique_params: params, ..Default::default() };
+    if name == "mc" {
+        // The reference samples the rasterizer's pixel grid (`converge_options`): mc, its GPU
+        // twin, samples the same points (its `aa = false`) unless told otherwise.
+        let (_, mut p) = penumbra::resolve_technique(&s, &settings)?;
+        p.entry("aa".into()).or_insert_with(|| "false".into());
+        settings.technique_params = Some(p);
+    }
     let t_create = Instant::now();
     let mut r = Renderer::new(ctx.clone(), &s, settings)?;
     let create_s = t_create.elapsed().as_secs_f64();
@@ -285,9 +292,19 @@ fn fmt_opt(v: Option<f64>, digits: usize) -> String {
 
 /// The converged reference of `scene`'s frame `frame` at `w` x `h` that the matrix and `bench
 /// pareto` compare with (exact mode, to `noise` RMSE over the mean or `max_spp`).
-pub(crate) fn converge_options(scene: &Scene, w: u32, h: u32, frame: u32, fps: f32, noise: f64, max_spp: u32) -> ConvergeOptions {
+pub(crate) fn converge_options(scene: &Scene, w: u32, h: u32, ss: u32, frame: u32, fps: f32, noise: f64, max_spp: u32) -> ConvergeOptions {
     ConvergeOptions {
-        base: ReferenceOptions { width: w, height: h, frame, time: None, fps, mode: Mode::Exact, progress: true, ..Default::default() },
+        base: ReferenceOptions {
+            width: w,
+            height: h,
+            frame,
+            time: None,
+            fps,
+            mode: Mode::Exact,
+            progress: true,
+            pixel_grid: ss.max(1),
+            ..Default::default()
+        },
         target_noise: noise,
         max_spp,
         progress: true,
@@ -364,7 +381,7 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
             medium_scenes.push(scene.name.clone());
         }
         let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-        let copts = converge_options(&scene, w, h, args.frame, args.fps, args.noise, args.max_spp);
+        let copts = converge_options(&scene, w, h, args.supersample, args.frame, args.fps, args.noise, args.max_spp);
         let reference = load_or_render(&scene, &bytes, &stem, &copts, Some(&cache))
             .with_context(|| format!("reference of {}", path.display()))?;
         eprintln!(

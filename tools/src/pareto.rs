@@ -183,7 +183,7 @@ impl<'a> Target<'a> {
     /// `bytes`, named `stem`) at `size`.
     pub fn new(ctx: &'a Arc<Context>, scene: &'a Scene, bytes: &[u8], stem: &str, size: (u32, u32), measure: Measure) -> Result<Self> {
         let (w, h) = size;
-        let copts = crate::matrix::converge_options(scene, w, h, measure.frame, measure.fps, measure.noise, measure.max_spp);
+        let copts = crate::matrix::converge_options(scene, w, h, measure.supersample, measure.frame, measure.fps, measure.noise, measure.max_spp);
         let reference = load_or_render(scene, bytes, stem, &copts, Some(&measure.cache))
             .with_context(|| format!("reference of {} at {w}x{h}", scene.name))?;
         eprintln!("{w}x{h}: reference {} spp, noise {:.4}", reference.meta.spp, reference.meta.noise_rmse_rel_mean);

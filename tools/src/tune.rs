@@ -176,15 +176,7 @@ fn nothing_within(scene: &Scene, max_error: f64, size: (u32, u32), points: &[Poi
         ),
         None => "; no configuration rendered".into(),
     };
-    // At small sizes the floor is not noise: one sample per pixel against the reference's
-    // pixel-area integral aliases at silhouettes (god_rays at 40x30: mc at 1024 spp stays at
-    // 0.15, nearly all of it on the bunny's ears).
-    let why = if size.0 * size.1 <= 80 * 60 {
-        " (at this size one sample per pixel, against the reference's integral over each pixel, aliases at silhouettes: measure at a larger --size such as 160x120)"
-    } else {
-        ""
-    };
-    crate::bad(format!("no technique reaches RMSE/mean <= {max_error} on '{}' at {}x{}{best}{why}", scene.name, size.0, size.1))
+    crate::bad(format!("no technique reaches RMSE/mean <= {max_error} on '{}' at {}x{}{best}", scene.name, size.0, size.1))
 }
 
 /// The cache of measured points of one scene file, size, frame and device.
@@ -196,7 +188,7 @@ struct PointCache {
 impl PointCache {
     fn open(dir: &Path, stem: &str, bytes: &[u8], o: &TuneOptions, ctx: &Context) -> Self {
         let key = format!(
-            "{} {}x{} f{} frames {} warmup {} {} {} {}",
+            "{} {}x{} f{} frames {} warmup {} {} {} {} pixel-grid references",
             env!("CARGO_PKG_VERSION"),
             o.size.0,
             o.size.1,
