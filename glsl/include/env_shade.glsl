@@ -6,18 +6,11 @@
 // intensity, env_rot) and `env_map` (sampler2D, the mip-filtered lat-long environment), and
 // common.glsl (PI, dir_to_latlong, sh9_irradiance, MaterialData).
 
+#include "env_dfg.glsl"
+
 vec3 env_lookup(vec3 d, float lod) {
     vec2 uv = dir_to_latlong(normalize(d), cam.env_rot.xy);
     return textureLod(env_map, uv, lod).rgb * cam.params.w;
-}
-
-vec3 env_brdf_approx(vec3 f0, float roughness, float ndv) {
-    const vec4 c0 = vec4(-1.0, -0.0275, -0.572, 0.022);
-    const vec4 c1 = vec4(1.0, 0.0425, 1.04, -0.04);
-    vec4 r = roughness * c0 + c1;
-    float a004 = min(r.x * r.x, exp2(-9.28 * ndv)) * r.x + r.y;
-    vec2 ab = vec2(-1.04, 1.04) * a004 + r.zw;
-    return f0 * ab.x + ab.y;
 }
 
 // The material's specular lobe as a GGX alpha: Cook-Torrance alpha = roughness^2 (the
@@ -30,7 +23,18 @@ float env_alpha(MaterialData m) {
     return clamp(kind == 1 || kind == 3 ? sqrt(2.0 / (max(s, 0.0) + 2.0)) : r * r, 4e-4, 1.0);
 }
 
-// The perceptual roughness (sqrt alpha) the split-sum environment BRDF takes, clamped to [0.02, 1].
+// The specular lobe's directional albedo at n.v = ndv, the reference's (env_dfg.glsl, generated
+// from reference/src/brdf.rs by reference/src/dfg.rs): Cook-Torrance as F0 x + y (Schlick), and
+// Ashikhmin-Shirley (Schlick too) by the same table at its lobe width; Blinn-Phong, which has no
+// Fresnel term, as specular z. (The analytic fit used before, Karis 2014's, was 12 % low for a
+// rough metal and gave Blinn-Phong a Fresnel rise: 3.5x too bright at 60 degrees for s = 500.)
+vec3 env_specular_albedo(MaterialData m, float ndv) {
+    int kind = int(m.albedo_kind.w + 0.5);
+    vec3 t = dfg_lookup(ndv, sqrt(env_alpha(m)));
+    return kind == 1 ? m.spec_rough.rgb * t.z : m.spec_rough.rgb * t.x + t.y;
+}
+
+// The perceptual roughness (sqrt alpha) of the local lights' lobes, clamped to [0.02, 1].
 float env_roughness(MaterialData m) {
     return clamp(sqrt(env_alpha(m)), 0.02, 1.0);
 }
@@ -60,7 +64,7 @@ void env_unshadowed_parts(vec3 n, vec3 v, MaterialData m, out vec3 diffuse, out 
         float alpha = env_alpha(m);
         float ndv = max(dot(n, v), 1e-4);
         vec3 r = reflect(-v, n);
-        glossy = env_lookup(r, env_lod(alpha)) * env_brdf_approx(m.spec_rough.rgb, env_roughness(m), ndv);
+        glossy = env_lookup(r, env_lod(alpha)) * env_specular_albedo(m, ndv);
     }
 }
 

@@ -12,7 +12,7 @@
 #include "common.glsl"
 #include "vv_sat.glsl"
 
-layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
+layout(set = 0, binding = 0) uniform Camera { CameraData cam; vec4 cam_dfg[768]; };  // cam_dfg: env_dfg.glsl
 layout(set = 0, binding = 1) uniform sampler2D vv_points;
 layout(set = 0, binding = 2) uniform usampler2D vv_ints;
 layout(set = 0, binding = 3) uniform sampler2D vv_verts;

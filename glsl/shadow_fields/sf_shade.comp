@@ -17,7 +17,7 @@
 
 layout(local_size_x = 8, local_size_y = 8) in;
 
-layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
+layout(set = 0, binding = 0) uniform Camera { CameraData cam; vec4 cam_dfg[768]; };  // cam_dfg: env_dfg.glsl
 layout(set = 0, binding = 1) readonly buffer Materials { MaterialData mats[]; };
 layout(set = 0, binding = 2) uniform sampler2D gb_position;
 layout(set = 0, binding = 3) uniform sampler2D gb_normal;
@@ -108,7 +108,7 @@ void main() {
     if (kind != 0) {
         vec3 r = reflect(-v, n);
         float vis = sf_visibility_along(pos, r, self_inst, pc.n_inst, 1e30);
-        color += vis * env_lookup(r, env_lod(env_alpha(m))) * env_brdf_approx(m.spec_rough.rgb, roughness, ndv);
+        color += vis * env_lookup(r, env_lod(env_alpha(m))) * env_specular_albedo(m, ndv);
     }
     color += local_lights(pos, n, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);
     imageStore(hdr, p, vec4(color, 1.0));

@@ -17,7 +17,7 @@
 // tan(theta), compared in linear depth.
 layout(local_size_x = 8, local_size_y = 8) in;
 #include "common.glsl"
-layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
+layout(set = 0, binding = 0) uniform Camera { CameraData cam; vec4 cam_dfg[768]; };  // cam_dfg: env_dfg.glsl
 layout(set = 0, binding = 1) readonly buffer Materials { MaterialData mats[]; };
 layout(set = 0, binding = 2) uniform sampler2D gb_position;
 layout(set = 0, binding = 3) uniform sampler2D gb_normal;
@@ -213,7 +213,7 @@ void main() {
         float rd_lum = lum(d_all) > 0.0 ? lum(d_vis) / lum(d_all) : 1.0;
         float rg = rd_lum;
         if (b.kind != 0u && g_all > 1e-30) {
-            float albedo = lum(env_brdf_approx(m.spec_rough.rgb, env_roughness(m), max(wo.z, 1e-4)));
+            float albedo = lum(env_specular_albedo(m, max(wo.z, 1e-4)));
             float cover = albedo > 0.0 ? clamp(g_albedo / albedo, 0.0, 1.0) : 0.0;
             rg = mix(rd_lum, g_vis / g_all, cover);
         }

@@ -15,6 +15,7 @@
 pub mod avs_maps;
 pub mod avs_sampling;
 pub mod brdf;
+pub mod dfg;
 pub mod envmap;
 pub mod hsdt;
 pub mod isg;

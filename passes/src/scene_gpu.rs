@@ -75,6 +75,9 @@ pub struct SceneGpu {
     /// every technique attenuates local light on its way in by `exp(-sigma_t d)`
     /// (`light_transmittance` of `glsl/include/common.glsl`), as the reference does.
     sigma_t: Vec3,
+    /// The specular albedo table (`penumbra_math::dfg::packed`) that follows the frame
+    /// constants in the camera buffer (`cam_dfg` of `glsl/include/env_dfg.glsl`).
+    dfg: Vec<[f32; 4]>,
 }
 
 /// Handles of the scene's buffers in one frame's graph.
@@ -154,7 +157,18 @@ impl SceneGpu {
         let extras = (0..scene.materials.len()).map(|i| scene.material_extra(i)).collect();
         let textures = MaterialTextures::new(ctx, &scene.textures)?;
         let sigma_t = scene.medium.map_or(Vec3::ZERO, |m| m.sigma_t().max(Vec3::ZERO));
-        Ok(SceneGpu { ctx: ctx.clone(), vertices, indices, meshes, vertex_count, triangle_count, extras, textures, sigma_t })
+        Ok(SceneGpu {
+            ctx: ctx.clone(),
+            vertices,
+            indices,
+            meshes,
+            vertex_count,
+            triangle_count,
+            extras,
+            textures,
+            sigma_t,
+            dfg: penumbra_math::dfg::packed(),
+        })
     }
 }
 
@@ -296,7 +310,10 @@ impl SceneGpu {
                 ids: [0; 4],
             });
         }
-        let camera = graph.create_buffer_init("frame.camera", bytes_of(std::slice::from_ref(constants)));
+        // the frame constants (`CameraData`), then the specular albedo table (`cam_dfg`)
+        let mut camera_bytes = bytes_of(std::slice::from_ref(constants));
+        camera_bytes.extend(bytes_of(&self.dfg));
+        let camera = graph.create_buffer_init("frame.camera", camera_bytes);
         let instances = graph.create_buffer_init("frame.instances", bytes_of(&inst));
         let deformed_vertices = (!deformed_verts.is_empty())
             .then(|| graph.create_buffer_init("frame.deformed_vertices", bytes_of(&deformed_verts)));

@@ -224,6 +224,17 @@ pub(crate) struct Run {
     pub(crate) ignored: Vec<String>,
 }
 
+/// The parameters `technique` is measured with, from those asked for: the reference samples the
+/// rasterizer's pixel grid ([`converge_options`]), so `mc`, the reference's GPU twin, samples
+/// the same points (`aa = false`) unless `params` say otherwise. `bench pareto` and `tune`
+/// record these, so a configuration chosen from a front renders as it was measured.
+pub(crate) fn measured_params(technique: &str, mut params: registry::Params) -> registry::Params {
+    if technique == "mc" {
+        params.entry("aa".into()).or_insert_with(|| "false".into());
+    }
+    params
+}
+
 /// Renders `name` on `scene` as a matrix cell does (warm-up frames, then timed consecutive
 /// frames ending at frame K) with `params` (`None`: the renderer's rule, the scene's
 /// `[technique_params]` for its own technique only).
@@ -240,13 +251,8 @@ pub(crate) fn render_technique(
     let s = scene.clone();
     let mut settings =
         RenderSettings { width: w * ss, height: h * ss, technique: Some(name.to_string()), technique_params: params, ..Default::default() };
-    if name == "mc" {
-        // The reference samples the rasterizer's pixel grid (`converge_options`): mc, its GPU
-        // twin, samples the same points (its `aa = false`) unless told otherwise.
-        let (_, mut p) = penumbra::resolve_technique(&s, &settings)?;
-        p.entry("aa".into()).or_insert_with(|| "false".into());
-        settings.technique_params = Some(p);
-    }
+    let (_, p) = penumbra::resolve_technique(&s, &settings)?;
+    settings.technique_params = Some(measured_params(name, p));
     let t_create = Instant::now();
     let mut r = Renderer::new(ctx.clone(), &s, settings)?;
     let create_s = t_create.elapsed().as_secs_f64();

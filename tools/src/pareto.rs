@@ -195,6 +195,7 @@ impl<'a> Target<'a> {
     pub fn point(&self, technique: &str, params: &Params) -> Result<std::result::Result<Point, String>> {
         let (w, h) = self.size;
         let margs = self.measure.matrix_args(w, h);
+        let params = &crate::matrix::measured_params(technique, params.clone());
         let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             render_technique(self.ctx, self.scene, technique, Some(params.clone()), &margs, w, h)
         }));

@@ -283,6 +283,7 @@ pub fn tune(path: Option<&Path>, scene: &Scene, o: &TuneOptions) -> Result<Choic
     let mut points: Vec<Point> = Vec::new();
     let mut refused: BTreeMap<&str, String> = BTreeMap::new();
     let mut measure_one = |t: &str, params: &Params, points: &mut Vec<Point>| -> Result<Option<Point>> {
+        let params = &crate::matrix::measured_params(t, params.clone());
         eprint!("  {t} {} ({:.0} s so far) ... ", label(params), started.elapsed().as_secs_f64());
         let p = match cache.get(t, params) {
             Some(p) => {
