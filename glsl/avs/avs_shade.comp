@@ -199,10 +199,7 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData 
     return sum;
 }
 
-vec3 env_lookup(vec3 d) {
-    vec2 uv = dir_to_latlong(normalize(d), cam.env_rot.xy);
-    return textureLod(env_map, uv, 0.0).rgb * cam.params.w;
-}
+#include "env_background.glsl"
 
 #include "prefiltered.glsl"
 
@@ -219,7 +216,7 @@ void main() {
     if (uvm.w < 0.5) {
         vec2 ndc = (vec2(px) + 0.5) / vec2(size) * 2.0 - 1.0;
         vec4 far_p = cam.inv_view_proj * vec4(ndc, 1.0, 1.0);
-        imageStore(hdr, px, vec4(env_lookup(far_p.xyz / far_p.w - cam.eye.xyz), 1.0));
+        imageStore(hdr, px, vec4(env_background(far_p.xyz / far_p.w - cam.eye.xyz), 1.0));
         return;
     }
     vec3 pos = texelFetch(gb_position, px, 0).xyz;

@@ -7,6 +7,7 @@
 // common.glsl (PI, dir_to_latlong, sh9_irradiance, MaterialData).
 
 #include "env_dfg.glsl"
+#include "env_background.glsl"
 
 vec3 env_lookup(vec3 d, float lod) {
     vec2 uv = dir_to_latlong(normalize(d), cam.env_rot.xy);

@@ -82,7 +82,7 @@ void main() {
         vec2 ndc = (vec2(p) + 0.5) / vec2(size) * 2.0 - 1.0;
         vec4 far_p = cam.inv_view_proj * vec4(ndc, 1.0, 1.0);
         vec3 dir = far_p.xyz / far_p.w - cam.eye.xyz;
-        imageStore(hdr, p, vec4(env_lookup(dir, 0.0), 1.0));
+        imageStore(hdr, p, vec4(env_background(dir), 1.0));
         return;
     }
     vec3 pos = texelFetch(gb_position, p, 0).xyz;

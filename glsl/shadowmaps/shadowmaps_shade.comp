@@ -141,7 +141,7 @@ void main() {
     vec4 far_p = cam.inv_view_proj * vec4(ndc, 1.0, 1.0);
     vec3 d = normalize(far_p.xyz / far_p.w - cam.eye.xyz);
     if (uvm.w < 0.5) {
-        imageStore(hdr, px, vec4(env_lookup(d, 0.0), 1.0));
+        imageStore(hdr, px, vec4(env_background(d), 1.0));
         return;
     }
     vec3 p = texelFetch(gb_position, px, 0).xyz;
