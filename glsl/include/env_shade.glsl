@@ -28,7 +28,7 @@ float env_alpha(MaterialData m) {
 // from reference/src/brdf.rs by reference/src/dfg.rs): Cook-Torrance as F0 x + y (Schlick), and
 // Ashikhmin-Shirley (Schlick too) by the same table at its lobe width; Blinn-Phong, which has no
 // Fresnel term, as specular z. (The analytic fit used before, Karis 2014's, was 12 % low for a
-// rough metal and gave Blinn-Phong a Fresnel rise: 3.5x too bright at 60 degrees for s = 500.)
+// rough metal and gave Blinn-Phong a Fresnel rise: 3.2x too bright at 60 degrees for s = 500.)
 vec3 env_specular_albedo(MaterialData m, float ndv) {
     int kind = int(m.albedo_kind.w + 0.5);
     vec3 t = dfg_lookup(ndv, sqrt(env_alpha(m)));
