@@ -298,6 +298,8 @@ pub struct Context {
     pub pipeline_statistics_query: bool,
     /// `maxImageDimension2D`: the largest side of a 2D image on this device.
     pub max_image_dimension_2d: u32,
+    /// `maxStorageBufferRange`: the most bytes one storage-buffer binding may span.
+    pub max_storage_buffer_range: u32,
     /// The Vulkan pipeline cache every pipeline of penumbra is created with.
     pub pipeline_cache: vk::PipelineCache,
     /// Where the cache is saved when the context is dropped (none: in memory only).
@@ -578,6 +580,7 @@ impl Context {
         .context("gpu-allocator")?;
         let push_descriptor = ash::khr::push_descriptor::Device::new(&instance, &device);
         let max_image_dimension_2d = unsafe { instance.get_physical_device_properties(physical) }.limits.max_image_dimension2_d;
+        let max_storage_buffer_range = unsafe { instance.get_physical_device_properties(physical) }.limits.max_storage_buffer_range;
         let debug_utils = debug_instance.as_ref().map(|_| ash::ext::debug_utils::Device::new(&instance, &device));
         // The pipeline cache, seeded from disk when this driver's file is there and sound.
         let props = unsafe { instance.get_physical_device_properties(physical) };
@@ -618,6 +621,7 @@ impl Context {
             tessellation_shader: features.tessellation_shader,
             pipeline_statistics_query: features.pipeline_statistics_query,
             max_image_dimension_2d,
+            max_storage_buffer_range,
             pipeline_cache,
             pipeline_cache_file,
             pipeline_cache_loaded: initial.len(),

@@ -1,7 +1,7 @@
 // Unshadowed environment lighting of a surface point (the `env` technique's, shared with the
 // shadow-map baseline's ratio estimator): diffuse from the 9-coefficient SH irradiance, glossy from
-// the mip-filtered lat-long environment along the reflection direction with an analytic split-sum
-// environment BRDF (Karis 2014, mobile approximation).
+// the mip-filtered lat-long environment along the reflection direction times the reference
+// BRDF's specular albedo (a split sum; env_dfg.glsl).
 // Needs, declared by the includer: `cam` (CameraData: sh, params.z mip count, params.w
 // intensity, env_rot) and `env_map` (sampler2D, the mip-filtered lat-long environment), and
 // common.glsl (PI, dir_to_latlong, sh9_irradiance, MaterialData).
@@ -25,7 +25,7 @@ float env_alpha(MaterialData m) {
 }
 
 // The specular lobe's directional albedo at n.v = ndv, the reference's (env_dfg.glsl, generated
-// from reference/src/brdf.rs by reference/src/dfg.rs): Cook-Torrance as F0 x + y (Schlick), and
+// by math/src/dfg.rs from the reference's lobes): Cook-Torrance as F0 x + y (Schlick), and
 // Ashikhmin-Shirley (Schlick too) by the same table at its lobe width; Blinn-Phong, which has no
 // Fresnel term, as specular z. (The analytic fit used before, Karis 2014's, was 12 % low for a
 // rough metal and gave Blinn-Phong a Fresnel rise: 3.2x too bright at 60 degrees for s = 500.)

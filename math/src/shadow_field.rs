@@ -1411,8 +1411,15 @@ pub mod haar {
         /// initial sample's truncated map, re-interpolated from the coarser grid, stays within
         /// `threshold` of eq. 1 (L1 in the pixel domain) of its own truncated map.
         pub fn build(center: Vec3, vr: f32, maps: &[Vec<Vec<f32>>], r0: usize, table: &CubeTable, keep: f64, adaptive: bool, threshold: f64) -> Self {
+            Self::build_sized(center, vr, maps, r0, table, keep, adaptive, threshold).0
+        }
+
+        /// [`HaarField::build`] and the [`HaarField::bytes`] the fixed field (every shell at
+        /// `r0`) would take, from the same truncation (no second build for the size).
+        #[allow(clippy::too_many_arguments)]
+        pub fn build_sized(center: Vec3, vr: f32, maps: &[Vec<Vec<f32>>], r0: usize, table: &CubeTable, keep: f64, adaptive: bool, threshold: f64) -> (Self, usize) {
             let n = table.n;
-            let shells = maps
+            let built: Vec<(HaarShell, usize)> = maps
                 .par_iter()
                 .map(|g| {
                     let trunc = |m: &Vec<f32>| {
@@ -1421,6 +1428,7 @@ pub mod haar {
                         truncate(&c, n, keep)
                     };
                     let base: Vec<Vec<(u16, f32)>> = g.iter().map(trunc).collect();
+                    let fixed_bytes = 8 + base.iter().map(|c| 2 + 3 * c.len()).sum::<usize>();
                     let dense: Vec<Vec<f32>> = base.iter().map(|s| reconstruct(s, n)).collect();
                     let mut r = r0;
                     let mut cur = base;
@@ -1450,10 +1458,12 @@ pub mod haar {
                         r = r2;
                         cur = coarse_t;
                     }
-                    quantize(r, &cur)
+                    (quantize(r, &cur), fixed_bytes)
                 })
                 .collect();
-            HaarField { n, center, bound_radius: vr, shells }
+            let fixed_bytes = built.iter().map(|b| b.1).sum();
+            let shells = built.into_iter().map(|b| b.0).collect();
+            (HaarField { n, center, bound_radius: vr, shells }, fixed_bytes)
         }
 
         /// Bytes: per kept coefficient a `u16` index and a `u8` value, plus per sample a `u16`
@@ -1462,12 +1472,32 @@ pub mod haar {
             self.shells.iter().map(|s| 8 + s.samples.iter().map(|c| 2 + 3 * c.len()).sum::<usize>()).sum()
         }
 
+        /// Every sample's map of shell `c` decoded and thresholded at 1/2 back to binary
+        /// visibility, one bit per pixel (pixel `k` of a sample is bit `k % 32` of its word
+        /// `k / 32`), samples in order: what the GPU reads (`6 n^2 / 32` words per sample, about
+        /// the compressed size: 5 % of `6 n^2` coefficients at 3 bytes is 0.9 bits per pixel).
+        pub fn shell_bits(&self, c: usize) -> Vec<u32> {
+            let sh = &self.shells[c];
+            let per = (6 * self.n * self.n).div_ceil(32);
+            let mut out = vec![0u32; sh.samples.len() * per];
+            for idx in 0..sh.samples.len() {
+                for (k, v) in self.sample_map(c, idx).iter().enumerate() {
+                    if *v >= 0.5 {
+                        out[idx * per + k / 32] |= 1 << (k % 32);
+                    }
+                }
+            }
+            out
+        }
+
         /// Per-shell resolutions.
         pub fn resolutions(&self) -> Vec<usize> {
             self.shells.iter().map(|s| s.resolution).collect()
         }
 
-        fn sample_map(&self, c: usize, idx: usize) -> Vec<f32> {
+        /// The truncated, dequantized map of sample `idx` of shell `c` (pixel domain, object
+        /// frame, cube faces as [`CubeTable`]).
+        pub fn sample_map(&self, c: usize, idx: usize) -> Vec<f32> {
             let sh = &self.shells[c];
             let sparse: Vec<(u16, f32)> = sh.samples[idx].iter().map(|&(i, q)| (i, sh.min + q as f32 * sh.step)).collect();
             reconstruct(&sparse, self.n)

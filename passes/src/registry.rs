@@ -212,6 +212,15 @@ const SHADOW_FIELDS_PARAMS: &[ParamDoc] = &[
     p("srf", "true", "true/false", "local lights through source radiance fields"),
 ];
 
+const SHADOW_FIELDS_WAVELET_PARAMS: &[ParamDoc] = &[
+    p("shells", "32", "1..=64", "C concentric shells per field, radius 0.2 Vr (1 + c) (paper: 32)"),
+    p("resolution", "32", "power of two 1..=64", "initial shell resolution R, sample points R x R per shell (paper: 64)"),
+    p("cube", "16", "power of two 2..=64", "visibility cube maps of 6 x n x n pixels (paper: 32)"),
+    p("keep", "0.05", "(0, 1]", "fraction of Haar coefficients kept per map (paper: 5 %)"),
+    p("threshold", "0.010", ">= 0", "eq. 1 adaptive subdivision threshold, L1 in the pixel domain (paper: 0.010)"),
+    p("adaptive", "true", "true/false", "adaptive shell resolutions (else every shell at R)"),
+];
+
 const VV_PARAMS: &[ParamDoc] = &[
     p("mode", "fragment1", "fragment3, fragment1, tessellation, tessellation3", "where visibility is evaluated and interpolated"),
     p("zeta", "2", "0..=16", "tessellation quality of eq. 18 (paper: 1 to 4)"),
@@ -261,6 +270,10 @@ fn create_sf(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params:
 }
 fn create_sf_fixed(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
     create_sf_with(false, ctx, shaders, scene, params)
+}
+fn create_sf_wavelet(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+    let options = parsed(crate::shadow_fields::wavelet::SfwOptions::from_params(params))?;
+    Ok(Box::new(crate::shadow_fields::wavelet::WaveletTechnique::new(ctx, shaders, scene, options)?))
 }
 fn create_vv(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
     let settings = parsed(crate::vv::VvSettings::from_params(params))?;
@@ -357,6 +370,19 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         budget: SHADOW_FIELDS_BUDGET,
         knobs: &[k("resolution", &["8", "16"]), k("shells", &["8", "16"])],
         create: create_sf_fixed,
+    },
+    TechniqueInfo {
+        name: "shadow-fields-wavelet",
+        summary: "all-frequency shadow fields (Haar-compressed visibility cube maps, pixel-domain triple product)",
+        params: SHADOW_FIELDS_WAVELET_PARAMS,
+        static_only: false,
+        shadows: true,
+        budget: Budget::RmseRelMean {
+            rmse_rel_mean: 0.15,
+            source: "shadow-fields paper reports no image error; the SH variants' budget: Haar visibility at 6 x 16 x 16 pixels, 5 % of coefficients, interpolated between shell samples",
+        },
+        knobs: &[k("cube", &["8", "32"]), k("resolution", &["8", "32"])],
+        create: create_sf_wavelet,
     },
     TechniqueInfo {
         name: "vv",

@@ -25,6 +25,7 @@
 //! `--param`): see [`SfOptions::set`].
 
 pub mod bench;
+pub mod wavelet;
 
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
 use anyhow::{anyhow, Result};

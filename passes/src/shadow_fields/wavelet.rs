@@ -1,0 +1,380 @@
+//! Technique `shadow-fields-wavelet`: all-frequency shadow fields (Zhou et al. 2005, section 6;
+//! Ng et al. 2004's Haar triple product), per pixel on the GPU.
+//!
+//! * Precompute ([`WaveletFields::build`]): per mesh that casts shadows, a binary visibility cube
+//!   map (`6 x n x n`, object frame) at every sample point of every shell (the same shells and
+//!   polar sample grid as the SH fields), each face Haar-transformed and cut to the largest
+//!   `keep` fraction of coefficients (the paper: 5 %), 8-bit per shell
+//!   ([`penumbra_math::shadow_field::haar::HaarField`]), fixed or adaptive (R halved while eq. 1,
+//!   L1 in the pixel domain, stays under the threshold).
+//! * The GPU holds each sample's truncated map decoded and thresholded back to binary
+//!   visibility (`6 n^2` bits per sample, about the compressed size; [`HaarField::shell_bits`])
+//!   and `sfw_shade.comp` evaluates, per pixel,
+//!   the product of the occluders' maps (bilinear between the sample points of a shell, linear
+//!   between shells, each occluder's rotation applied to the lookup direction instead of to its
+//!   coefficients) in the pixel domain, which at the map resolution is the Haar triple product
+//!   exactly (the product of piecewise-constant maps is piecewise constant on the same pixels).
+//!   Diffuse: the environment's exact irradiance at the normal times the visible share of
+//!   `L cos` over the cube's pixels (a ratio estimator, so the cube's discretization of the
+//!   cosine leaves the unshadowed term alone); glossy: the prefiltered environment along the
+//!   reflection times the visible share of the environment's light within the lobe; local
+//!   lights analytically (no source radiance fields: a delta light's field is one pixel), times
+//!   the occluders' visibility toward them, bilinear in the cube face.
+//!
+//! What it does not do: self-occlusion (the receiver's own field is skipped, as in the SH
+//! per-pixel mode), deforming objects (their rest mesh's field; reported by
+//! [`crate::technique::Technique::limitations`]), caching of the fields on disk.
+
+use crate::util::{bytes_of, compute_pipeline, Pipeline, Sampler};
+use anyhow::{anyhow, Result};
+use glam::Vec3;
+use penumbra_engine::graph::ImageDesc;
+use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::{vk, Access, Bind, Context, Engine, Graph, ImageHandle, PassKind};
+use penumbra_math::shadow_field::haar::{raw_maps, CubeTable, HaarField};
+use penumbra_scene::Scene;
+use std::sync::Arc;
+
+/// Options of the all-frequency variant.
+#[derive(Clone, Debug)]
+pub struct SfwOptions {
+    /// Concentric shells per field (paper: 32), radius 0.2 Vr (1 + c): outside the outermost
+    /// (6.4 Vr at 32) an object casts nothing, so fewer shells cut long shadows short (16:
+    /// sf_spheres' 40x30 error 0.177 of the mean where 32 gives 0.140).
+    pub shells: usize,
+    /// Initial polar resolution R of every shell (power of two; paper: 64). 32 by default: at 16
+    /// sf_spheres' 40x30 error is 0.177 of the mean, at 32 0.140 (32 shells, 16 pixel faces).
+    pub resolution: usize,
+    /// Cube face resolution n of the visibility maps (power of two; paper: 32).
+    pub cube: usize,
+    /// Fraction of Haar coefficients kept per map (paper: 0.05).
+    pub keep: f64,
+    /// Eq. 1 threshold (L1 in the pixel domain) of the adaptive shells (paper: 0.010).
+    pub threshold: f64,
+    /// Adaptive shells (else every shell at R).
+    pub adaptive: bool,
+}
+
+impl Default for SfwOptions {
+    fn default() -> Self {
+        SfwOptions { shells: 32, resolution: 32, cube: 16, keep: 0.05, threshold: 0.010, adaptive: true }
+    }
+}
+
+impl SfwOptions {
+    /// Options from `[technique_params]` / `--param` (see [`SfwOptions::set`]).
+    pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> Result<Self> {
+        let mut o = SfwOptions::default();
+        crate::technique::apply_params(&mut o, params, SfwOptions::set)?;
+        Ok(o)
+    }
+
+    /// Sets one parameter: `shells` (1..=64), `resolution` (power of two 1..=64), `cube` (power
+    /// of two 2..=64), `keep` (0 < keep <= 1), `threshold` (>= 0), `adaptive` (true/false).
+    pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
+        let v = value.trim();
+        let bad = |why: &str| anyhow!("shadow-fields-wavelet parameter {key} = '{value}': {why}");
+        let pow2 = |lo: usize, hi: usize| v.parse::<usize>().ok().filter(|x| (lo..=hi).contains(x) && x.is_power_of_two());
+        match key.trim() {
+            "shells" => self.shells = v.parse::<usize>().ok().filter(|x| (1..=64).contains(x)).ok_or_else(|| bad("expected an integer in 1..=64"))?,
+            "resolution" => self.resolution = pow2(1, 64).ok_or_else(|| bad("expected a power of two in 1..=64"))?,
+            "cube" => self.cube = pow2(2, 64).ok_or_else(|| bad("expected a power of two in 2..=64"))?,
+            "keep" => self.keep = v.parse::<f64>().ok().filter(|x| *x > 0.0 && *x <= 1.0).ok_or_else(|| bad("expected a number in (0, 1]"))?,
+            "threshold" => {
+                self.threshold = v.parse::<f64>().ok().filter(|x| x.is_finite() && *x >= 0.0).ok_or_else(|| bad("expected a finite number >= 0"))?
+            }
+            "adaptive" => {
+                self.adaptive = match v {
+                    "1" | "true" => true,
+                    "0" | "false" => false,
+                    _ => return Err(bad("expected true or false")),
+                }
+            }
+            other => anyhow::bail!("unknown shadow-fields-wavelet parameter '{other}' (known: shells, resolution, cube, keep, threshold, adaptive)"),
+        }
+        Ok(())
+    }
+}
+
+/// What the precompute built for one mesh.
+#[derive(Clone, Debug)]
+pub struct WaveletReport {
+    pub mesh: String,
+    /// Compressed bytes (per kept coefficient a u16 index and a u8 value), fixed / the field
+    /// used (adaptive unless `adaptive = false`).
+    pub fixed_bytes: usize,
+    pub adaptive_bytes: usize,
+    /// Per-shell resolution of the field used.
+    pub resolutions: Vec<usize>,
+    pub seconds: f64,
+}
+
+/// The all-frequency fields of every mesh of a scene (`None`: no triangles, or no object that
+/// uses it casts shadows).
+pub struct WaveletFields {
+    pub fields: Vec<Option<Arc<HaarField>>>,
+    pub reports: Vec<WaveletReport>,
+    pub options: SfwOptions,
+}
+
+impl WaveletFields {
+    /// Ray-casts and compresses the field of every mesh (identical meshes share one).
+    pub fn build(scene: &Scene, options: &SfwOptions) -> Result<Self> {
+        let table = CubeTable::new(options.cube);
+        let mut fields: Vec<Option<Arc<HaarField>>> = Vec::new();
+        let mut reports = Vec::new();
+        for (mi, m) in scene.meshes.iter().enumerate() {
+            // a mesh no shadow-casting object uses needs no field (a floor)
+            let casts = scene.objects.iter().enumerate().any(|(oi, o)| o.mesh == mi && scene.object_info.get(oi).map_or(true, |i| i.casts_shadow));
+            if !casts || m.indices.len() < 3 || m.positions.is_empty() {
+                fields.push(None);
+                reports.push(WaveletReport { mesh: m.name.clone(), fixed_bytes: 0, adaptive_bytes: 0, resolutions: Vec::new(), seconds: 0.0 });
+                continue;
+            }
+            let same = |k: usize| fields[k].is_some() && scene.meshes[k].positions == m.positions && scene.meshes[k].indices == m.indices;
+            if let Some(first) = (0..mi).find(|&k| same(k)) {
+                fields.push(fields[first].clone());
+                reports.push(WaveletReport { mesh: m.name.clone(), seconds: 0.0, ..reports[first].clone() });
+                continue;
+            }
+            let t0 = std::time::Instant::now();
+            let (c, vr, maps) = raw_maps(&m.positions, &m.indices, options.shells, options.resolution, &table);
+            if !(vr.is_finite() && vr > 0.0) {
+                return Err(anyhow!("mesh {mi} '{}': degenerate bounds (radius {vr})", m.name));
+            }
+            let (field, fixed_bytes) = HaarField::build_sized(c, vr, &maps, options.resolution, &table, options.keep, options.adaptive, options.threshold);
+            reports.push(WaveletReport {
+                mesh: m.name.clone(),
+                fixed_bytes,
+                adaptive_bytes: field.bytes(),
+                resolutions: field.resolutions(),
+                seconds: t0.elapsed().as_secs_f64(),
+            });
+            fields.push(Some(Arc::new(field)));
+        }
+        Ok(WaveletFields { fields, reports, options: options.clone() })
+    }
+}
+
+/// std430 `SfwInst` of `sfw_shade.comp` (112 bytes).
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct GpuInst {
+    world_to_local: [[f32; 4]; 4],
+    /// xyz shell centre (object space), w shell step 0.2 Vr.
+    center_step: [f32; 4],
+    /// x first shell, y shell count (0: none), z casts shadow.
+    info: [u32; 4],
+    /// xyz world position of the shell centre.
+    center_world: [f32; 4],
+}
+
+/// The technique.
+pub struct WaveletTechnique {
+    shade: Pipeline,
+    nearest: Sampler,
+    linear: Sampler,
+    repeat: Sampler,
+    pub fields: Arc<WaveletFields>,
+    /// Binary maps of every shell of every distinct mesh (`6 n^2` bits per sample).
+    maps: Arc<Vec<u32>>,
+    /// Per shell: (first word of its maps, R).
+    shells: Vec<[u32; 4]>,
+    /// Per mesh: (first shell, shell count, centre, step).
+    mesh_shells: Vec<(u32, u32, Vec3, f32)>,
+    /// Per cube pixel (world frame): direction, then the environment's radiance times the
+    /// pixel's solid angle.
+    dirs: Arc<Vec<u8>>,
+    irradiance: Arc<Vec<u8>>,
+    casts: Vec<bool>,
+    deforming: Vec<String>,
+}
+
+/// The environment on the cube of face resolution `table.n`, world frame: per pixel the mean
+/// radiance over the pixel (8 x 8 sub-directions, intensity and rotation applied) times its
+/// solid angle; zero without an environment.
+pub fn env_cube(scene: &Scene, table: &CubeTable) -> Vec<[f32; 4]> {
+    let n = table.n;
+    let mut out = Vec::with_capacity(table.dirs.len());
+    const SUB: usize = 8;
+    for f in 0..6 {
+        for i in 0..n {
+            for j in 0..n {
+                let k = (f * n + i) * n + j;
+                let Some(env) = scene.environment.as_ref() else {
+                    out.push([0.0; 4]);
+                    continue;
+                };
+                let mut acc = Vec3::ZERO;
+                let mut wsum = 0.0f32;
+                for a in 0..SUB {
+                    for b in 0..SUB {
+                        let u = 2.0 * (j as f32 + (b as f32 + 0.5) / SUB as f32) / n as f32 - 1.0;
+                        let v = 2.0 * (i as f32 + (a as f32 + 0.5) / SUB as f32) / n as f32 - 1.0;
+                        let d = match f {
+                            0 => Vec3::new(1.0, v, -u),
+                            1 => Vec3::new(-1.0, v, u),
+                            2 => Vec3::new(u, 1.0, -v),
+                            3 => Vec3::new(u, -1.0, v),
+                            4 => Vec3::new(u, v, 1.0),
+                            _ => Vec3::new(-u, v, -1.0),
+                        };
+                        let l = d.length();
+                        let w = 1.0 / (l * l * l);
+                        let r = env.radiance(d / l);
+                        if r.is_finite() {
+                            acc += w * r.max(Vec3::ZERO);
+                        }
+                        wsum += w;
+                    }
+                }
+                let mean = acc / wsum.max(1e-30);
+                let sa = table.w[k] as f32;
+                out.push([mean.x * sa, mean.y * sa, mean.z * sa, 0.0]);
+            }
+        }
+    }
+    out
+}
+
+impl WaveletTechnique {
+    /// Precomputes the fields of `scene` and builds the pipeline.
+    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, options: SfwOptions) -> Result<Self> {
+        let fields = Arc::new(WaveletFields::build(scene, &options)?);
+        use vk::DescriptorType as T;
+        let sb = T::STORAGE_BUFFER;
+        let mut types = crate::shade_env::ShadingIo::TYPES.to_vec();
+        types.extend([sb, sb, sb, sb, sb, sb, T::COMBINED_IMAGE_SAMPLER]);
+        let shade = compute_pipeline(ctx, shaders, "shadow_fields/sfw_shade.comp", &types, 16)?;
+        let table = CubeTable::new(options.cube);
+        let n = table.n;
+        let mut maps: Vec<u32> = Vec::new();
+        let mut shells = Vec::new();
+        let mut mesh_shells = Vec::new();
+        let mut uploaded: Vec<(*const HaarField, (u32, u32, Vec3, f32))> = Vec::new();
+        for f in &fields.fields {
+            let Some(f) = f else {
+                mesh_shells.push((0, 0, Vec3::ZERO, 1.0));
+                continue;
+            };
+            if f.n != n {
+                return Err(anyhow!("shadow-fields-wavelet: a field of cube resolution {} (expected {n})", f.n));
+            }
+            if let Some((_, e)) = uploaded.iter().find(|(p, _)| std::ptr::eq(*p, Arc::as_ptr(f))) {
+                mesh_shells.push(*e);
+                continue;
+            }
+            let e = (shells.len() as u32, f.shells.len() as u32, f.center, 0.2 * f.bound_radius);
+            for (c, s) in f.shells.iter().enumerate() {
+                shells.push([maps.len() as u32, s.resolution as u32, 0, 0]);
+                maps.extend(f.shell_bits(c));
+            }
+            uploaded.push((Arc::as_ptr(f), e));
+            mesh_shells.push(e);
+        }
+        let bytes = 4 * maps.len() as u64;
+        if bytes > ctx.max_storage_buffer_range as u64 {
+            return Err(anyhow!(
+                "shadow-fields-wavelet: the visibility maps take {:.1} MiB, more than this device binds in one buffer ({:.1} MiB): lower shells, resolution or cube",
+                bytes as f64 / 1048576.0,
+                ctx.max_storage_buffer_range as f64 / 1048576.0
+            ));
+        }
+        maps.resize(maps.len().max(4), 0);
+        if shells.is_empty() {
+            shells.push([0; 4]);
+        }
+        let cube = env_cube(scene, &table);
+        let mut dirs: Vec<[f32; 4]> = table.dirs.iter().map(|d| [d.x as f32, d.y as f32, d.z as f32, 0.0]).collect();
+        dirs.extend(cube);
+        let casts = crate::shadow_fields::casts_flags(scene);
+        let deforming = scene
+            .object_info
+            .iter()
+            .enumerate()
+            .filter(|(_, o)| o.is_deforming())
+            .map(|(i, _)| scene.objects.get(i).map_or_else(|| format!("object {i}"), |o| format!("'{}'", o.name)))
+            .collect();
+        Ok(WaveletTechnique {
+            shade,
+            nearest: Sampler::nearest(ctx)?,
+            linear: Sampler::latlong(ctx)?,
+            repeat: Sampler::repeat(ctx)?,
+            fields,
+            maps: Arc::new(maps),
+            shells,
+            mesh_shells,
+            dirs: Arc::new(bytes_of(&dirs)),
+            irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(scene))),
+            casts,
+            deforming,
+        })
+    }
+
+    /// Bytes the GPU holds for the maps.
+    pub fn gpu_bytes(&self) -> usize {
+        4 * self.maps.len()
+    }
+}
+
+impl crate::technique::Technique for WaveletTechnique {
+    fn name(&self) -> &'static str {
+        "shadow-fields-wavelet"
+    }
+
+    fn limitations(&self, _scene: &Scene) -> Vec<String> {
+        if self.deforming.is_empty() {
+            Vec::new()
+        } else {
+            vec![format!(
+                "shadow-fields-wavelet precomputes rigid fields: deforming object(s) {} cast their rest mesh's shadow",
+                self.deforming.join(", ")
+            )]
+        }
+    }
+
+    fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
+        let frame = inputs.frame;
+        let insts: Vec<GpuInst> = frame
+            .instances
+            .iter()
+            .map(|inst| {
+                let (first, count, c, step) = self.mesh_shells.get(inst.mesh).copied().unwrap_or((0, 0, Vec3::ZERO, 1.0));
+                let casts = self.casts.get(inst.object).copied().unwrap_or(true);
+                let cw = inst.world.transform_point3(c);
+                GpuInst {
+                    world_to_local: inst.world.inverse().to_cols_array_2d(),
+                    center_step: [c.x, c.y, c.z, step],
+                    info: [first, count, casts as u32, 0],
+                    center_world: [cw.x, cw.y, cw.z, 0.0],
+                }
+            })
+            .collect();
+        let inst_bytes = if insts.is_empty() { vec![0u8; std::mem::size_of::<GpuInst>()] } else { bytes_of(&insts) };
+        let maps = graph.create_buffer_init("sfw_maps", bytes_of(self.maps.as_ref()));
+        let shells = graph.create_buffer_init("sfw_shells", bytes_of(&self.shells));
+        let inst_buf = graph.create_buffer_init("sfw_insts", inst_bytes);
+        let dirs = graph.create_buffer_init("sfw_dirs", self.dirs.as_ref().clone());
+        let irr = graph.create_buffer_init("sfw_irradiance", self.irradiance.as_ref().clone());
+        let gb = inputs.gbuffer;
+        let (w, hh) = (gb.width, gb.height);
+        let hdr = graph.create_image("hdr", ImageDesc::new_2d(crate::shade_env::HDR_FORMAT, w, hh));
+        let mut p = graph.pass("sfw_shade", PassKind::Compute);
+        let io = crate::shade_env::ShadingIo::declare(&mut p, inputs.handles, gb, inputs.env, hdr);
+        let hdr = io.hdr;
+        let r = [maps, shells, inst_buf, dirs, irr, inputs.handles.lights].map(|b| p.read(b, Access::ComputeShaderReadStorage));
+        let tex = p.read(inputs.handles.textures, Access::ComputeShaderReadSampled);
+        let pipe = self.shade.handle();
+        let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
+        let n = self.fields.options.cube.max(2).next_power_of_two() as u32;
+        let push: Vec<u8> = [frame.instances.len() as u32, inputs.handles.light_count, n, 0u32].iter().flat_map(|x| x.to_le_bytes()).collect();
+        p.record(move |rc| {
+            let mut binds = io.binds(nearest, linear);
+            binds.extend(r.iter().map(|&b| Bind::StorageBuffer(b)));
+            binds.push(Bind::SampledImage(tex, repeat));
+            // one workgroup of 64 per pixel: the cube's directions split over its invocations
+            crate::util::dispatch(rc, pipe, &binds, &push, [w, hh, 1])
+        });
+        Ok(hdr)
+    }
+}
