@@ -7,7 +7,9 @@
 // product. Diffuse: the exact irradiance at n times the visible share of L cos; glossy: the
 // prefiltered environment along the reflection times the visible share of the environment's
 // light inside the lobe; local lights analytic, times the occluders' visibility toward them
-// (bilinear in the cube face), counting only the occluders nearer than the light.
+// (bilinear in the cube face), counting only the occluders nearer than the light. Self-occlusion
+// (per-vertex self-visibility maps, interpolated) multiplies the diffuse environment term and
+// the first 4 lights.
 #include "common.glsl"
 
 layout(local_size_x = 64) in;
@@ -26,7 +28,8 @@ struct SfwInst {
     mat4 world_to_local;
     vec4 center_step;  // xyz shell centre (object space), w shell step 0.2 Vr
     uvec4 info;        // x first shell, y shell count, z casts shadow
-    vec4 center_world;
+    vec4 center_world;  // xyz world position of the shell centre, w world bounding radius
+    mat4 local_to_world;
 };
 layout(set = 0, binding = 9) readonly buffer SfwInsts { SfwInst sfw_inst[]; };
 // [0, 6 n^2): world direction of each cube pixel; [6 n^2, 12 n^2): environment radiance x solid angle
@@ -34,11 +37,16 @@ layout(set = 0, binding = 10) readonly buffer SfwDirs { vec4 sfw_dirs[]; };
 layout(set = 0, binding = 11) readonly buffer Irradiance { float irr[]; };
 layout(set = 0, binding = 12) readonly buffer Lights { LightData lights[]; };
 layout(set = 0, binding = 13) uniform sampler2DArray material_textures;
+// Self-occlusion (sfw_self.comp, interpolated by the sfw_self raster pass): the visible share of
+// the environment's L cos (rgb) and the self-visibility toward the first 4 lights; 1 where the
+// surface has no maps (or with self-occlusion off).
+layout(set = 0, binding = 14) uniform sampler2D self_share;
+layout(set = 0, binding = 15) uniform sampler2D self_lights;
 #include "material.glsl"
 #include "lights.glsl"
 #include "env_shade.glsl"
 #include "irradiance.glsl"
-layout(push_constant) uniform Push { uint n_inst; uint light_count; uint n; uint pad; } pc;
+layout(push_constant) uniform Push { uint n_inst; uint light_count; uint n; uint reproject; } pc;
 
 #define SFW_PI 3.14159265358979
 #define SFW_MAX_OCC 16
@@ -50,11 +58,21 @@ shared uint s_inst[SFW_MAX_OCC];
 shared uint s_off[SFW_MAX_OCC * 8];
 shared float s_w[SFW_MAX_OCC * 8];
 shared float s_dist[SFW_MAX_OCC];
+// Bounding cone of each occluder seen from the point: axis (xyz) and cos of its half-angle (w;
+// -2 when the point is inside the bounding sphere): directions outside it see no occluder.
+shared vec4 s_cone[SFW_MAX_OCC];
 shared vec4 s_red[64 * 3];
-shared vec4 s_pix[4];  // pos, normal, uv_mat, (glossy lobe sharpness, kind)
+// Object-space positions of the taps' sample points, and of the shaded point per occluder.
+shared vec4 s_spos[SFW_MAX_OCC * 8];
+shared vec4 s_plocal[SFW_MAX_OCC];
 
-// Taps of shell c (world point q local to the centre) scaled by w, into slot k*8 + base.
-void shell_taps(uint shell, float theta, float phi, float w, uint k, uint base) {
+vec3 sfw_polar(float theta, float phi) {
+    return vec3(sin(theta) * cos(phi), sin(theta) * sin(phi), cos(theta));
+}
+
+// Taps of shell `shell` (the field's shell index c, radius step (c + 1) about centre) at the
+// point's polar angles, weights scaled by w, into slots k * 8 + base ..
+void shell_taps(uint shell, uint c, vec3 centre, float step, float theta, float phi, float w, uint k, uint base) {
     uvec4 sh = sfw_shells[shell];
     uint r = max(sh.y, 1u);
     float rf = float(r);
@@ -75,6 +93,14 @@ void shell_taps(uint shell, float theta, float phi, float w, uint k, uint base) 
     s_w[k * 8u + base + 1u] = w * (1.0 - fs) * ft;
     s_w[k * 8u + base + 2u] = w * fs * (1.0 - ft);
     s_w[k * 8u + base + 3u] = w * fs * ft;
+    // sample (s, t) at theta = pi (s + 1/2) / R, phi = 2 pi t / R (shadow_field::sample_angles)
+    float rad = step * float(c + 1u);
+    float th0 = SFW_PI * (float(s0) + 0.5) / rf, th1 = SFW_PI * (float(s1) + 0.5) / rf;
+    float ph0 = 2.0 * SFW_PI * float(t0) / rf, ph1 = 2.0 * SFW_PI * float(t1) / rf;
+    s_spos[k * 8u + base + 0u] = vec4(centre + rad * sfw_polar(th0, ph0), 0.0);
+    s_spos[k * 8u + base + 1u] = vec4(centre + rad * sfw_polar(th0, ph1), 0.0);
+    s_spos[k * 8u + base + 2u] = vec4(centre + rad * sfw_polar(th1, ph0), 0.0);
+    s_spos[k * 8u + base + 3u] = vec4(centre + rad * sfw_polar(th1, ph1), 0.0);
 }
 
 // Cube face and continuous texel coordinates (x, y in [0, n)) of unit direction d, faces and
@@ -116,11 +142,40 @@ float occ_vis(uint k, uint texel) {
     return v;
 }
 
+uint cube_texel(vec3 d) {
+    uint face;
+    vec2 xy;
+    cube_coords(d, face, xy);
+    uvec2 ij = min(uvec2(xy), uvec2(pc.n - 1u));
+    return face * pc.n * pc.n + ij.y * pc.n + ij.x;
+}
+
 // Visibility of occluder slot k toward world direction d: nearest texel (cube directions) or
-// bilinear within the face (light directions).
+// bilinear within the face (light directions); 1 outside its bounding cone.
 float occ_vis_dir(uint k, vec3 d, bool bilinear) {
+    vec4 cone = s_cone[k];
+    if (dot(d, cone.xyz) < cone.w) return 1.0;
     SfwInst inst = sfw_inst[s_inst[k]];
     vec3 l = normalize(mat3(inst.world_to_local) * d);
+    if (pc.reproject != 0u && cone.w > -1.0) {
+        // Each tap's sample point looks at where the point's ray passes nearest the object's
+        // centre (instead of along the same direction from a point up to a sample spacing
+        // away): the neighbours agree on where the occluder is, so the interpolation blends
+        // aligned maps instead of shifted copies. Only from outside the bounding sphere: from
+        // inside (a ground plane's field over the objects standing on it) that nearest pass
+        // can be the point itself, seen from samples on the far side of the occluder.
+        vec3 pl = s_plocal[k].xyz;
+        vec3 q = pl + max(dot(inst.center_step.xyz - pl, l), 0.0) * l;
+        float v = 0.0;
+        for (uint t = 0u; t < 8u; t++) {
+            float w = s_w[k * 8u + t];
+            if (!(w > 0.0)) continue;
+            vec3 dt = q - s_spos[k * 8u + t].xyz;
+            float len = length(dt);
+            v += w * map_bit(s_off[k * 8u + t], cube_texel(len > 1e-12 ? dt / len : l));
+        }
+        return v;
+    }
     uint face;
     vec2 xy;
     cube_coords(l, face, xy);
@@ -204,8 +259,13 @@ void main() {
         uint c0 = min(uint(floor(x)), nc - 1u);
         uint c1 = min(c0 + 1u, nc - 1u);
         float w = c1 == c0 ? 0.0 : x - float(c0);
-        shell_taps(inst.info.x + c0, theta, phi, 1.0 - w, lane, 0u);
-        shell_taps(inst.info.x + c1, theta, phi, w, lane, 4u);
+        shell_taps(inst.info.x + c0, c0, inst.center_step.xyz, inst.center_step.w, theta, phi, 1.0 - w, lane, 0u);
+        shell_taps(inst.info.x + c1, c1, inst.center_step.xyz, inst.center_step.w, theta, phi, w, lane, 4u);
+        s_plocal[lane] = vec4(q + inst.center_step.xyz, 0.0);
+        vec3 to_c = inst.center_world.xyz - pos;
+        float dc = length(to_c);
+        float rc = inst.center_world.w;
+        s_cone[lane] = dc > rc && dc > 0.0 ? vec4(to_c / dc, sqrt(max(1.0 - (rc / dc) * (rc / dc), 0.0))) : vec4(0.0, 0.0, 1.0, -2.0);
     }
     barrier();
 
@@ -246,7 +306,9 @@ void main() {
         barrier();
     }
     if (lane != 0u) return;
-    vec3 diffuse = m.albedo_kind.rgb / PI * irr_ratio(n, s_red[0].rgb, s_red[64].rgb);
+    vec3 share_self = texelFetch(self_share, p, 0).rgb;
+    vec4 lights_self = texelFetch(self_lights, p, 0);
+    vec3 diffuse = m.albedo_kind.rgb / PI * irr_ratio(n, s_red[0].rgb, s_red[64].rgb) * share_self;
     vec3 color = diffuse;
     if (kind != 0) {
         float ndv = max(dot(n, v), 1e-4);
@@ -263,7 +325,7 @@ void main() {
         if (ndl <= 0.0) continue;
         vec3 f = light_brdf(wi, n, v, ndl, m.albedo_kind.rgb, kind, m, roughness);
         if (all(equal(f, vec3(0.0)))) continue;
-        float vis = 1.0;
+        float vis = i < 4u ? clamp(lights_self[i], 0.0, 1.0) : 1.0;
         for (uint k = 0u; k < count && vis > 0.0; k++)
             if (s_dist[k] < dist) vis *= clamp(occ_vis_dir(k, wi, true), 0.0, 1.0);
         color += vis * f * e * ndl;

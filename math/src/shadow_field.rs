@@ -1392,6 +1392,44 @@ pub mod haar {
         (center, vr, maps)
     }
 
+    /// Start of the self-visibility rays past the vertex, in bounding radii.
+    pub const SELF_SKIP: f64 = 0.05;
+
+    /// Self-visibility of every vertex of a mesh as binary cube maps (object frame, one bit
+    /// per pixel, pixel `k` at bit `k % 32` of the vertex's word `k / 32`, `6 n^2 / 32` words
+    /// per vertex): 1 where a ray from the vertex (lifted off the surface by 1e-3 of the
+    /// bounding radius along its normal and started [`SELF_SKIP`] bounding radii along the
+    /// ray) escapes the mesh, 0 where it hits it or points below the vertex's tangent plane. Rigid objects keep it for good (the paper's per-vertex
+    /// self-visibility).
+    pub fn self_maps(positions: &[Vec3], normals: &[Vec3], indices: &[u32], table: &CubeTable) -> Vec<u32> {
+        let (_, vr) = super::bounds(positions);
+        let caster = RayCaster::new(positions, indices);
+        let per = table.dirs.len().div_ceil(32);
+        let lift = 1e-3 * vr.max(1e-12) as f64;
+        let far = 1e3 * vr.max(1e-12) as f64;
+        // Hits nearer than this along the ray are the vertex's own neighbourhood (a concave
+        // crease between coarse triangles), which per-vertex values would smear over whole
+        // triangles: skipped.
+        let skip = SELF_SKIP * vr.max(1e-12) as f64;
+        let words: Vec<Vec<u32>> = (0..positions.len())
+            .into_par_iter()
+            .map(|v| {
+                let mut w = vec![0u32; per];
+                let n = normals.get(v).copied().unwrap_or(Vec3::ZERO).as_dvec3();
+                let n = if n.length_squared() > 0.0 && n.is_finite() { n.normalize() } else { DVec3::ZERO };
+                let p = positions[v].as_dvec3() + lift * n;
+                for (k, d) in table.dirs.iter().enumerate() {
+                    let open = if n == DVec3::ZERO { true } else { d.dot(n) >= 0.0 && !caster.occluded(p + *d * skip, *d, far) };
+                    if open {
+                        w[k / 32] |= 1 << (k % 32);
+                    }
+                }
+                w
+            })
+            .collect();
+        words.concat()
+    }
+
     fn bilinear_map(maps: &[Vec<f32>], r: usize, theta: f64, phi: f64) -> Vec<f32> {
         let (s0, s1, fs, t0, t1, ft) = super::grid_weights(r, theta, phi);
         let mut out = vec![0f32; maps[0].len()];

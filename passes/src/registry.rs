@@ -219,6 +219,8 @@ const SHADOW_FIELDS_WAVELET_PARAMS: &[ParamDoc] = &[
     p("keep", "0.05", "(0, 1]", "fraction of Haar coefficients kept per map (paper: 5 %)"),
     p("threshold", "0.010", ">= 0", "eq. 1 adaptive subdivision threshold, L1 in the pixel domain (paper: 0.010)"),
     p("adaptive", "true", "true/false", "adaptive shell resolutions (else every shell at R)"),
+    p("self", "true", "true/false", "self-occlusion from per-vertex self-visibility cube maps, interpolated across the triangles (the diffuse environment term and the first 4 lights)"),
+    p("lookup", "reproject", "reproject, direction", "between shell samples: each sample looks toward where the point's ray passes the occluder (reproject), or along the same direction (the paper)"),
 ];
 
 const VV_PARAMS: &[ParamDoc] = &[

@@ -740,3 +740,43 @@ fn shadow_fields_haar_all_frequency_variant() {
         assert!(frac < 0.05, "shell {c}: {frac}");
     }
 }
+
+/// Per-vertex self-visibility maps (the all-frequency variant's self-occlusion): a convex
+/// sphere's vertices see their whole upper hemisphere and nothing below it; a torus vertex on
+/// the inner side of the ring (facing the hole) sees the far side of the ring block part of its
+/// upper hemisphere, one on the outer equator sees all of it.
+#[test]
+fn shadow_fields_haar_self_visibility_maps() {
+    use penumbra_math::shadow_field::haar::{self_maps, CubeTable};
+    let table = CubeTable::new(8);
+    let per = table.dirs.len().div_ceil(32);
+    let bit = |maps: &[u32], v: usize, k: usize| (maps[v * per + k / 32] >> (k % 32)) & 1 == 1;
+    let s = penumbra_scene::MeshData::icosphere(1.0, 2);
+    let maps = self_maps(&s.positions, &s.normals, &s.indices, &table);
+    assert_eq!(maps.len(), s.positions.len() * per);
+    for v in (0..s.positions.len()).step_by(7) {
+        let n = s.normals[v].as_dvec3();
+        for (k, d) in table.dirs.iter().enumerate() {
+            let c = d.dot(n);
+            if c > 0.05 {
+                assert!(bit(&maps, v, k), "sphere vertex {v}: direction {d:?} (n.d {c}) blocked");
+            } else if c < 0.0 {
+                assert!(!bit(&maps, v, k), "sphere vertex {v}: direction {d:?} below the surface open");
+            }
+        }
+    }
+    let t = penumbra_scene::MeshData::torus(1.0, 0.3, 32, 16);
+    let maps = self_maps(&t.positions, &t.normals, &t.indices, &table);
+    let blocked_above = |v: usize| {
+        let n = t.normals[v].as_dvec3();
+        table.dirs.iter().enumerate().filter(|(k, d)| d.dot(n) > 0.05 && !bit(&maps, v, *k)).count()
+    };
+    // the vertex nearest the torus axis (+y: inner equator) and the one farthest (outer equator)
+    let r = |v: usize| (t.positions[v].x.powi(2) + t.positions[v].z.powi(2)).sqrt();
+    let inner = (0..t.positions.len()).min_by(|&a, &b| r(a).total_cmp(&r(b))).unwrap();
+    let outer = (0..t.positions.len()).max_by(|&a, &b| r(a).total_cmp(&r(b))).unwrap();
+    let (bi, bo) = (blocked_above(inner), blocked_above(outer));
+    println!("torus: inner-equator vertex {bi} upper-hemisphere pixels blocked, outer {bo}");
+    assert!(bi >= 10, "inner vertex sees the far side of the ring: {bi}");
+    assert_eq!(bo, 0, "outer vertex sees its whole upper hemisphere");
+}

@@ -185,7 +185,7 @@ fn issue_for(technique: &str, reason: &str, medium: bool) -> u32 {
     match technique {
         "avs" => 18,
         "isg" | "isg-vertex" => 19,
-        "shadow-fields" | "shadow-fields-fixed" => 20,
+        "shadow-fields" | "shadow-fields-fixed" | "shadow-fields-wavelet" => 20,
         "vv" => 22,
         "mc" | "shadowmaps" => 23,
         _ => 17,

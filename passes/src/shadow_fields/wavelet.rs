@@ -20,17 +20,28 @@
 //!   reflection times the visible share of the environment's light within the lobe; local
 //!   lights analytically (no source radiance fields: a delta light's field is one pixel), times
 //!   the occluders' visibility toward them, bilinear in the cube face.
+//! * Between a shell's samples each sample looks toward where the point's ray passes nearest
+//!   the occluder's centre (`lookup = reproject`, from outside the occluder's bounding sphere),
+//!   so the interpolated maps agree on where the occluder is; `direction` is the paper's
+//!   lookup (the same direction from every sample: shifted shadows blended). Each occluder's
+//!   bounding cone culls its lookups.
+//! * Self-occlusion (`self`, the paper's per-vertex self-visibility): a binary cube map per
+//!   vertex ([`penumbra_math::shadow_field::haar::self_maps`]); per frame `sfw_self.comp` turns
+//!   it into the visible share of the environment's `L cos` and the visibility toward the first
+//!   4 lights, and a raster pass interpolates them across the triangles (coarse meshes suffer:
+//!   a vertex in a concave crease darkens whole triangles; chess's 400-triangle pieces).
 //!
-//! What it does not do: self-occlusion (the receiver's own field is skipped, as in the SH
-//! per-pixel mode), deforming objects (their rest mesh's field; reported by
-//! [`crate::technique::Technique::limitations`]), caching of the fields on disk.
+//! What it does not do: deforming objects (their rest mesh's field; reported by
+//! [`crate::technique::Technique::limitations`]), caching of the fields on disk, keeping the
+//! maps on the GPU between frames (uploaded every frame), sphere lights' extent (shadowed as
+//! points).
 
 use crate::util::{bytes_of, compute_pipeline, Pipeline, Sampler};
 use anyhow::{anyhow, Result};
 use glam::Vec3;
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, Context, Engine, Graph, ImageHandle, PassKind};
+use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, ImageHandle, PassKind};
 use penumbra_math::shadow_field::haar::{raw_maps, CubeTable, HaarField};
 use penumbra_scene::Scene;
 use std::sync::Arc;
@@ -53,11 +64,17 @@ pub struct SfwOptions {
     pub threshold: f64,
     /// Adaptive shells (else every shell at R).
     pub adaptive: bool,
+    /// Interpolate between shell samples with each sample looking at where the point's ray
+    /// passes the occluder (else along the same direction, the paper's lookup).
+    pub reproject: bool,
+    /// Per-vertex self-visibility maps, interpolated across the triangles (the paper's
+    /// self-occlusion; else a surface sees only the other objects).
+    pub self_occlusion: bool,
 }
 
 impl Default for SfwOptions {
     fn default() -> Self {
-        SfwOptions { shells: 32, resolution: 32, cube: 16, keep: 0.05, threshold: 0.010, adaptive: true }
+        SfwOptions { shells: 32, resolution: 32, cube: 16, keep: 0.05, threshold: 0.010, adaptive: true, reproject: true, self_occlusion: true }
     }
 }
 
@@ -70,7 +87,8 @@ impl SfwOptions {
     }
 
     /// Sets one parameter: `shells` (1..=64), `resolution` (power of two 1..=64), `cube` (power
-    /// of two 2..=64), `keep` (0 < keep <= 1), `threshold` (>= 0), `adaptive` (true/false).
+    /// of two 2..=64), `keep` (0 < keep <= 1), `threshold` (>= 0), `adaptive` (true/false),
+    /// `lookup` (`reproject` | `direction`), `self` (true/false).
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
         let bad = |why: &str| anyhow!("shadow-fields-wavelet parameter {key} = '{value}': {why}");
@@ -90,7 +108,21 @@ impl SfwOptions {
                     _ => return Err(bad("expected true or false")),
                 }
             }
-            other => anyhow::bail!("unknown shadow-fields-wavelet parameter '{other}' (known: shells, resolution, cube, keep, threshold, adaptive)"),
+            "lookup" => {
+                self.reproject = match v {
+                    "reproject" => true,
+                    "direction" => false,
+                    _ => return Err(bad("expected reproject or direction")),
+                }
+            }
+            "self" => {
+                self.self_occlusion = match v {
+                    "1" | "true" => true,
+                    "0" | "false" => false,
+                    _ => return Err(bad("expected true or false")),
+                }
+            }
+            other => anyhow::bail!("unknown shadow-fields-wavelet parameter '{other}' (known: shells, resolution, cube, keep, threshold, adaptive, lookup, self)"),
         }
         Ok(())
     }
@@ -113,6 +145,12 @@ pub struct WaveletReport {
 /// uses it casts shadows).
 pub struct WaveletFields {
     pub fields: Vec<Option<Arc<HaarField>>>,
+    /// Per mesh: its vertices' self-visibility maps
+    /// ([`penumbra_math::shadow_field::haar::self_maps`]; `None`: no triangles, or
+    /// self-occlusion off).
+    pub self_maps: Vec<Option<Arc<Vec<u32>>>>,
+    /// Seconds spent on the self-visibility maps.
+    pub self_seconds: f64,
     pub reports: Vec<WaveletReport>,
     pub options: SfwOptions,
 }
@@ -123,6 +161,21 @@ impl WaveletFields {
         let table = CubeTable::new(options.cube);
         let mut fields: Vec<Option<Arc<HaarField>>> = Vec::new();
         let mut reports = Vec::new();
+        let t_self = std::time::Instant::now();
+        let mut self_maps: Vec<Option<Arc<Vec<u32>>>> = Vec::new();
+        for (mi, m) in scene.meshes.iter().enumerate() {
+            let ok = options.self_occlusion && m.indices.len() >= 3 && m.normals.len() == m.positions.len();
+            let same = |k: usize| self_maps[k].is_some() && scene.meshes[k].positions == m.positions && scene.meshes[k].indices == m.indices && scene.meshes[k].normals == m.normals;
+            let maps = if !ok {
+                None
+            } else if let Some(first) = (0..mi).find(|&k| same(k)) {
+                self_maps[first].clone()
+            } else {
+                Some(Arc::new(penumbra_math::shadow_field::haar::self_maps(&m.positions, &m.normals, &m.indices, &table)))
+            };
+            self_maps.push(maps);
+        }
+        let self_seconds = t_self.elapsed().as_secs_f64();
         for (mi, m) in scene.meshes.iter().enumerate() {
             // a mesh no shadow-casting object uses needs no field (a floor)
             let casts = scene.objects.iter().enumerate().any(|(oi, o)| o.mesh == mi && scene.object_info.get(oi).map_or(true, |i| i.casts_shadow));
@@ -152,11 +205,11 @@ impl WaveletFields {
             });
             fields.push(Some(Arc::new(field)));
         }
-        Ok(WaveletFields { fields, reports, options: options.clone() })
+        Ok(WaveletFields { fields, self_maps, self_seconds, reports, options: options.clone() })
     }
 }
 
-/// std430 `SfwInst` of `sfw_shade.comp` (112 bytes).
+/// std430 `SfwInst` of `sfw_shade.comp` and `sfw_self.comp` (176 bytes).
 #[repr(C)]
 #[derive(Clone, Copy)]
 struct GpuInst {
@@ -165,8 +218,10 @@ struct GpuInst {
     center_step: [f32; 4],
     /// x first shell, y shell count (0: none), z casts shadow.
     info: [u32; 4],
-    /// xyz world position of the shell centre.
+    /// xyz world position of the shell centre, w the world bounding radius (Vr times the
+    /// instance's largest axis scale).
     center_world: [f32; 4],
+    local_to_world: [[f32; 4]; 4],
 }
 
 /// The technique.
@@ -188,7 +243,19 @@ pub struct WaveletTechnique {
     irradiance: Arc<Vec<u8>>,
     casts: Vec<bool>,
     deforming: Vec<String>,
+    /// Self-occlusion: the per-vertex pass, the raster pass, every mesh's maps and each
+    /// mesh's first word in them, each mesh's vertices (object position, normal), and each
+    /// mesh's (first index, index count, vertex offset) in the scene's buffers.
+    self_pass: Pipeline,
+    self_raster: Pipeline,
+    self_data: Arc<Vec<u32>>,
+    mesh_self: Vec<Option<u32>>,
+    mesh_verts: Vec<Vec<[f32; 4]>>,
+    mesh_ranges: Vec<(u32, u32, i32)>,
 }
+
+/// Format of the interpolated self-occlusion images.
+const SELF_FORMAT: vk::Format = vk::Format::R16G16B16A16_SFLOAT;
 
 /// The environment on the cube of face resolution `table.n`, world frame: per pixel the mean
 /// radiance over the pixel (8 x 8 sub-directions, intensity and rotation applied) times its
@@ -245,7 +312,59 @@ impl WaveletTechnique {
         let sb = T::STORAGE_BUFFER;
         let mut types = crate::shade_env::ShadingIo::TYPES.to_vec();
         types.extend([sb, sb, sb, sb, sb, sb, T::COMBINED_IMAGE_SAMPLER]);
+        types.extend([T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER]);
         let shade = compute_pipeline(ctx, shaders, "shadow_fields/sfw_shade.comp", &types, 16)?;
+        let self_pass = compute_pipeline(ctx, shaders, "shadow_fields/sfw_self.comp", &[sb; 7], 16)?;
+        let self_raster = {
+            use crate::raster::{raster_pipeline, DepthState, RasterDesc, VertexInput};
+            raster_pipeline(
+                ctx,
+                shaders,
+                &RasterDesc {
+                    name: "sfw_self",
+                    shaders: &["shadow_fields/sfw_self.vert", "shadow_fields/sfw_self.frag"],
+                    descriptors: &[T::UNIFORM_BUFFER, sb, sb, sb],
+                    vertex_input: VertexInput::Position,
+                    colors: &[SELF_FORMAT, SELF_FORMAT],
+                    depth: Some(DepthState { format: crate::gbuffer::DEPTH_FORMAT, write: true, compare: vk::CompareOp::LESS }),
+                    ..Default::default()
+                },
+            )?
+        };
+        let mut self_data: Vec<u32> = Vec::new();
+        let mut mesh_self = Vec::new();
+        let mut mesh_verts = Vec::new();
+        let mut mesh_ranges = Vec::new();
+        let (mut first_index, mut vertex_offset) = (0u32, 0i32);
+        let mut seen_self: Vec<(*const Vec<u32>, u32)> = Vec::new();
+        for (mi, m) in scene.meshes.iter().enumerate() {
+            mesh_ranges.push((first_index, m.indices.len() as u32, vertex_offset));
+            first_index += m.indices.len() as u32;
+            vertex_offset += m.positions.len() as i32;
+            match fields.self_maps.get(mi).and_then(|x| x.as_ref()) {
+                Some(maps) => {
+                    let off = match seen_self.iter().find(|(p, _)| std::ptr::eq(*p, Arc::as_ptr(maps))) {
+                        Some(&(_, o)) => o,
+                        None => {
+                            let o = self_data.len() as u32;
+                            self_data.extend_from_slice(maps);
+                            seen_self.push((Arc::as_ptr(maps), o));
+                            o
+                        }
+                    };
+                    mesh_self.push(Some(off));
+                    mesh_verts.push(m.positions.iter().zip(&m.normals).flat_map(|(p, n)| [[p.x, p.y, p.z, 1.0], [n.x, n.y, n.z, 0.0]]).collect());
+                }
+                None => {
+                    mesh_self.push(None);
+                    mesh_verts.push(Vec::new());
+                }
+            }
+        }
+        if 4 * self_data.len() as u64 > ctx.max_storage_buffer_range as u64 {
+            return Err(anyhow!("shadow-fields-wavelet: the self-visibility maps take {} MiB, more than this device binds in one buffer: lower cube", (4 * self_data.len()) >> 20));
+        }
+        self_data.resize(self_data.len().max(4), 0);
         let table = CubeTable::new(options.cube);
         let n = table.n;
         let mut maps: Vec<u32> = Vec::new();
@@ -308,12 +427,122 @@ impl WaveletTechnique {
             irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(scene))),
             casts,
             deforming,
+            self_pass,
+            self_raster,
+            self_data: Arc::new(self_data),
+            mesh_self,
+            mesh_verts,
+            mesh_ranges,
         })
     }
 
     /// Bytes the GPU holds for the maps.
     pub fn gpu_bytes(&self) -> usize {
         4 * self.maps.len()
+    }
+}
+
+impl WaveletTechnique {
+    /// The self-occlusion images of a frame: per visible instance with maps, every vertex's
+    /// values (sfw_self.comp) interpolated across its triangles by a raster pass into two
+    /// `w x h` images (cleared to 1: no self-occlusion where nothing is drawn).
+    fn add_self(&self, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs, insts: BufferHandle, dirs: BufferHandle, w: u32, hh: u32) -> (ImageHandle, ImageHandle) {
+        let frame = inputs.frame;
+        let n = self.fields.options.cube.max(2).next_power_of_two() as u32;
+        let per = (6 * n * n).div_ceil(32);
+        let mut slots: Vec<[u32; 4]> = Vec::new();
+        let mut verts: Vec<[f32; 4]> = Vec::new();
+        let mut base_of = vec![0i32; frame.instances.len().max(1)];
+        let mut draws = Vec::new();
+        if self.fields.options.self_occlusion {
+            for (ii, inst) in frame.instances.iter().enumerate() {
+                let (Some(Some(off)), Some(&(first, count, offset))) = (self.mesh_self.get(inst.mesh), self.mesh_ranges.get(inst.mesh)) else { continue };
+                let mv = &self.mesh_verts[inst.mesh];
+                let nv = (mv.len() / 2) as u32;
+                if nv == 0 || count == 0 {
+                    continue;
+                }
+                // base[instance] + gl_VertexIndex (which includes the mesh's vertex offset) = slot
+                base_of[ii] = slots.len() as i32 - offset;
+                for v in 0..nv {
+                    slots.push([off + v * per, ii as u32, 0, 0]);
+                }
+                verts.extend_from_slice(mv);
+                draws.push((first, count, offset, ii as u32));
+            }
+        }
+        let total = slots.len() as u32;
+        let img_share = graph.create_image("sfw_self_share", ImageDesc::new_2d(SELF_FORMAT, w, hh));
+        let img_lights = graph.create_image("sfw_self_lights", ImageDesc::new_2d(SELF_FORMAT, w, hh));
+        let depth = graph.create_image("sfw_self_depth", ImageDesc::new_2d(crate::gbuffer::DEPTH_FORMAT, w, hh));
+        let values = if total > 0 {
+            let slot_buf = graph.create_buffer_init("sfw_self_slots", bytes_of(&slots));
+            let vert_buf = graph.create_buffer_init("sfw_self_verts", bytes_of(&verts));
+            let maps = graph.create_buffer_init("sfw_self_maps", bytes_of(self.self_data.as_ref()));
+            let out = graph.create_buffer_init("sfw_self_values", vec![0u8; total as usize * 32]);
+            let mut p = graph.pass("sfw_self", PassKind::Compute);
+            let r = [slot_buf, vert_buf, maps, insts, dirs, inputs.handles.lights].map(|b| p.read(b, Access::ComputeShaderReadStorage));
+            let out = p.write(out, Access::ComputeShaderWriteStorage);
+            let pipe = self.self_pass.handle();
+            let push: Vec<u8> = [total, n, inputs.handles.light_count, 0u32].iter().flat_map(|x| x.to_le_bytes()).collect();
+            let gx = total.min(32768);
+            let gy = total.div_ceil(gx);
+            p.record(move |rc| {
+                let mut binds: Vec<Bind> = r.iter().map(|&b| Bind::StorageBuffer(b)).collect();
+                binds.push(Bind::StorageBuffer(out));
+                crate::util::dispatch(rc, pipe, &binds, &push, [gx, gy, 1])
+            });
+            out
+        } else {
+            graph.create_buffer_init("sfw_self_values", vec![0u8; 32])
+        };
+        let bases_buf = graph.create_buffer_init("sfw_self_bases", bytes_of(&base_of));
+        let mut p = graph.pass("sfw_self_display", PassKind::Raster);
+        let img_share = p.write(img_share, Access::ColorAttachmentWrite);
+        let img_lights = p.write(img_lights, Access::ColorAttachmentWrite);
+        let depth = p.write(depth, Access::DepthAttachmentWrite);
+        let camera = p.read(inputs.handles.camera, Access::AnyShaderReadUniform);
+        let instances = p.read(inputs.handles.instances, Access::VertexShaderReadStorage);
+        let values = p.read(values, Access::VertexShaderReadStorage);
+        let bases_buf = p.read(bases_buf, Access::VertexShaderReadStorage);
+        let vertices = p.read(inputs.handles.vertices, Access::VertexBuffer);
+        let indices = p.read(inputs.handles.indices, Access::IndexBuffer);
+        let (pipeline, layout) = (self.self_raster.pipeline, self.self_raster.layout);
+        p.record(move |rc| {
+            let d = rc.device();
+            let color = [
+                crate::util::color_attachment(rc.image(img_share)?.view, [1.0; 4]),
+                crate::util::color_attachment(rc.image(img_lights)?.view, [1.0; 4]),
+            ];
+            let depth_att = crate::util::depth_attachment(rc.image(depth)?.view, true);
+            let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: hh } };
+            let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&color).depth_attachment(&depth_att);
+            let (vb, ib) = (rc.buffer(vertices)?, rc.buffer(indices)?);
+            unsafe {
+                d.cmd_begin_rendering(rc.cmd, &info);
+                d.cmd_set_viewport(rc.cmd, 0, &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: hh as f32, min_depth: 0.0, max_depth: 1.0 }]);
+                d.cmd_set_scissor(rc.cmd, 0, &[area]);
+                d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+            }
+            rc.push_descriptors(
+                vk::PipelineBindPoint::GRAPHICS,
+                layout,
+                0,
+                &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances), Bind::StorageBuffer(values), Bind::StorageBuffer(bases_buf)],
+            )?;
+            unsafe {
+                if !draws.is_empty() {
+                    d.cmd_bind_index_buffer(rc.cmd, ib.buffer, 0, vk::IndexType::UINT32);
+                    d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb.buffer], &[0]);
+                }
+                for &(first, count, offset, inst) in &draws {
+                    d.cmd_draw_indexed(rc.cmd, count, 1, first, offset, inst);
+                }
+                d.cmd_end_rendering(rc.cmd);
+            }
+            Ok(())
+        });
+        (img_share, img_lights)
     }
 }
 
@@ -342,11 +571,15 @@ impl crate::technique::Technique for WaveletTechnique {
                 let (first, count, c, step) = self.mesh_shells.get(inst.mesh).copied().unwrap_or((0, 0, Vec3::ZERO, 1.0));
                 let casts = self.casts.get(inst.object).copied().unwrap_or(true);
                 let cw = inst.world.transform_point3(c);
+                let scale = inst.world.x_axis.truncate().length().max(inst.world.y_axis.truncate().length()).max(inst.world.z_axis.truncate().length());
+                // 1e-4 of slack: a silhouette pixel's centre exactly on the cone stays inside
+                let radius = 5.0 * step * scale * (1.0 + 1e-4);
                 GpuInst {
                     world_to_local: inst.world.inverse().to_cols_array_2d(),
                     center_step: [c.x, c.y, c.z, step],
                     info: [first, count, casts as u32, 0],
-                    center_world: [cw.x, cw.y, cw.z, 0.0],
+                    center_world: [cw.x, cw.y, cw.z, radius],
+                    local_to_world: inst.world.to_cols_array_2d(),
                 }
             })
             .collect();
@@ -358,20 +591,25 @@ impl crate::technique::Technique for WaveletTechnique {
         let irr = graph.create_buffer_init("sfw_irradiance", self.irradiance.as_ref().clone());
         let gb = inputs.gbuffer;
         let (w, hh) = (gb.width, gb.height);
+        let (self_share, self_lights) = self.add_self(graph, inputs, inst_buf, dirs, w, hh);
         let hdr = graph.create_image("hdr", ImageDesc::new_2d(crate::shade_env::HDR_FORMAT, w, hh));
         let mut p = graph.pass("sfw_shade", PassKind::Compute);
         let io = crate::shade_env::ShadingIo::declare(&mut p, inputs.handles, gb, inputs.env, hdr);
         let hdr = io.hdr;
         let r = [maps, shells, inst_buf, dirs, irr, inputs.handles.lights].map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let tex = p.read(inputs.handles.textures, Access::ComputeShaderReadSampled);
+        let self_share = p.read(self_share, Access::ComputeShaderReadSampled);
+        let self_lights = p.read(self_lights, Access::ComputeShaderReadSampled);
         let pipe = self.shade.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         let n = self.fields.options.cube.max(2).next_power_of_two() as u32;
-        let push: Vec<u8> = [frame.instances.len() as u32, inputs.handles.light_count, n, 0u32].iter().flat_map(|x| x.to_le_bytes()).collect();
+        let push: Vec<u8> = [frame.instances.len() as u32, inputs.handles.light_count, n, self.fields.options.reproject as u32].iter().flat_map(|x| x.to_le_bytes()).collect();
         p.record(move |rc| {
             let mut binds = io.binds(nearest, linear);
             binds.extend(r.iter().map(|&b| Bind::StorageBuffer(b)));
             binds.push(Bind::SampledImage(tex, repeat));
+            binds.push(Bind::SampledImage(self_share, nearest));
+            binds.push(Bind::SampledImage(self_lights, nearest));
             // one workgroup of 64 per pixel: the cube's directions split over its invocations
             crate::util::dispatch(rc, pipe, &binds, &push, [w, hh, 1])
         });
