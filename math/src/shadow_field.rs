@@ -1296,11 +1296,17 @@ pub mod haar {
     /// coefficients: `(index, value)` sorted by index.
     pub fn truncate(c: &[f32], n: usize, keep: f64) -> Vec<(u16, f32)> {
         let count = ((c.len() as f64 * keep).ceil() as usize).clamp(6, c.len());
-        let mut idx: Vec<usize> = (0..c.len()).collect();
-        // face averages first (always kept), then by magnitude
+        // face averages first (always kept), then the largest magnitudes (a selection, not a
+        // sort: this runs for every sample of every shell)
         let is_avg = |i: usize| i % (n * n) == 0;
-        idx.sort_by(|&a, &b| is_avg(b).cmp(&is_avg(a)).then(c[b].abs().total_cmp(&c[a].abs())));
-        let mut out: Vec<(u16, f32)> = idx[..count].iter().map(|&i| (i as u16, c[i])).filter(|(_, v)| *v != 0.0).collect();
+        let mut idx: Vec<usize> = (0..c.len()).filter(|&i| is_avg(i)).collect();
+        let mut rest: Vec<usize> = (0..c.len()).filter(|&i| !is_avg(i)).collect();
+        let more = count.saturating_sub(idx.len()).min(rest.len());
+        if more > 0 && more < rest.len() {
+            rest.select_nth_unstable_by(more - 1, |&a, &b| c[b].abs().total_cmp(&c[a].abs()).then(a.cmp(&b)));
+        }
+        idx.extend_from_slice(&rest[..more]);
+        let mut out: Vec<(u16, f32)> = idx.iter().map(|&i| (i as u16, c[i])).filter(|(_, v)| *v != 0.0).collect();
         out.sort_by_key(|x| x.0);
         out
     }
@@ -1384,7 +1390,26 @@ pub mod haar {
                     .map(|i| {
                         let (th, ph) = sample_angles(r, i / r, i % r);
                         let p = c + radius * polar_dir(th, ph);
-                        table.dirs.iter().map(|d| if caster.occluded(p + *d * eps, *d, far) { 0.0 } else { 1.0 }).collect()
+                        // directions outside the bounding sphere's cone from p cannot hit
+                        // (1e-6 of slack against rounding at its rim)
+                        let to_c = c - p;
+                        let dc = to_c.length();
+                        let rb = vr as f64 * (1.0 + 1e-6);
+                        let cone = if dc > rb { Some((to_c / dc, (1.0 - (rb / dc).powi(2)).max(0.0).sqrt())) } else { None };
+                        table
+                            .dirs
+                            .iter()
+                            .map(|d| {
+                                if cone.is_some_and(|(axis, cos)| d.dot(axis) < cos) {
+                                    return 1.0;
+                                }
+                                if caster.occluded(p + *d * eps, *d, far) {
+                                    0.0
+                                } else {
+                                    1.0
+                                }
+                            })
+                            .collect()
                     })
                     .collect()
             })
