@@ -164,7 +164,7 @@ impl WaveletFields {
         let t_self = std::time::Instant::now();
         let mut self_maps: Vec<Option<Arc<Vec<u32>>>> = Vec::new();
         for (mi, m) in scene.meshes.iter().enumerate() {
-            let ok = options.self_occlusion && m.indices.len() >= 3 && m.normals.len() == m.positions.len();
+            let ok = options.self_occlusion && m.indices.len() >= 3 && m.normals.len() == m.positions.len() && m.positions.iter().all(|p| p.is_finite());
             let same = |k: usize| self_maps[k].is_some() && scene.meshes[k].positions == m.positions && scene.meshes[k].indices == m.indices && scene.meshes[k].normals == m.normals;
             let maps = if !ok {
                 None
@@ -191,10 +191,14 @@ impl WaveletFields {
                 continue;
             }
             let t0 = std::time::Instant::now();
-            let (c, vr, maps) = raw_maps(&m.positions, &m.indices, options.shells, options.resolution, &table);
+            // a mesh collapsed to a point (or with non-finite positions) casts nothing
+            let (_, vr) = penumbra_math::shadow_field::bounds(&m.positions);
             if !(vr.is_finite() && vr > 0.0) {
-                return Err(anyhow!("mesh {mi} '{}': degenerate bounds (radius {vr})", m.name));
+                fields.push(None);
+                reports.push(WaveletReport { mesh: m.name.clone(), fixed_bytes: 0, adaptive_bytes: 0, resolutions: Vec::new(), seconds: 0.0 });
+                continue;
             }
+            let (c, vr, maps) = raw_maps(&m.positions, &m.indices, options.shells, options.resolution, &table);
             let (field, fixed_bytes) = HaarField::build_sized(c, vr, &maps, options.resolution, &table, options.keep, options.adaptive, options.threshold);
             reports.push(WaveletReport {
                 mesh: m.name.clone(),
