@@ -383,7 +383,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
             rmse_rel_mean: 0.15,
             source: "shadow-fields paper reports no image error; the SH variants' budget: Haar visibility at 6 x 16 x 16 pixels, 5 % of coefficients, interpolated between shell samples",
         },
-        knobs: &[k("cube", &["8", "32"]), k("resolution", &["8", "32"])],
+        knobs: &[k("cube", &["8", "32"]), k("resolution", &["16"])],
         create: create_sf_wavelet,
     },
     TechniqueInfo {
