@@ -891,53 +891,79 @@ impl ShadowFieldsTechnique {
                 draws.push((first, count, offset, ii as u32));
             }
         }
-        let bases_buf = graph.create_buffer_init("sf_vertex_bases", bytes_of(&base_of));
         let img = graph.create_image("sf_vertex_radiance", ImageDesc::new_2d(VERTEX_RADIANCE_FORMAT, w, hh));
-        let depth = graph.create_image("sf_vertex_depth", ImageDesc::new_2d(crate::gbuffer::DEPTH_FORMAT, w, hh));
-        let mut p = graph.pass("sf_vertex", PassKind::Raster);
-        let img = p.write(img, Access::ColorAttachmentWrite);
-        let depth = p.write(depth, Access::DepthAttachmentWrite);
-        let camera = p.read(inputs.handles.camera, Access::AnyShaderReadUniform);
-        let instances = p.read(inputs.handles.instances, Access::VertexShaderReadStorage);
-        let rad = p.read(rad, Access::VertexShaderReadStorage);
-        let bases_buf = p.read(bases_buf, Access::VertexShaderReadStorage);
-        let vertices = p.read(inputs.handles.vertices, Access::VertexBuffer);
-        let indices = p.read(inputs.handles.indices, Access::IndexBuffer);
-        let (pipeline, layout) = (self.vertex.pipeline, self.vertex.layout);
-        p.record(move |rc| {
-            let d = rc.device();
-            let color = [crate::util::color_attachment(rc.image(img)?.view, [0.0; 4])];
-            let depth_att = crate::util::depth_attachment(rc.image(depth)?.view, true);
-            let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: hh } };
-            let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&color).depth_attachment(&depth_att);
-            let (vb, ib) = (rc.buffer(vertices)?, rc.buffer(indices)?);
-            unsafe {
-                d.cmd_begin_rendering(rc.cmd, &info);
-                d.cmd_set_viewport(rc.cmd, 0, &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: hh as f32, min_depth: 0.0, max_depth: 1.0 }]);
-                d.cmd_set_scissor(rc.cmd, 0, &[area]);
-                d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
-            }
-            rc.push_descriptors(
-                vk::PipelineBindPoint::GRAPHICS,
-                layout,
-                0,
-                &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances), Bind::StorageBuffer(rad), Bind::StorageBuffer(bases_buf)],
-            )?;
-            unsafe {
-                if !draws.is_empty() {
-                    d.cmd_bind_index_buffer(rc.cmd, ib.buffer, 0, vk::IndexType::UINT32);
-                    d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb.buffer], &[0]);
-                }
-                for &(first, count, offset, inst) in &draws {
-                    d.cmd_draw_indexed(rc.cmd, count, 1, first, offset, inst);
-                }
-                d.cmd_end_rendering(rc.cmd);
-            }
-            Ok(())
-        });
-        img
+        add_vertex_raster(graph, "sf_vertex", &self.vertex, inputs, rad, &base_of, draws, &[(img, [0.0; 4])], w, hh)[0]
     }
 }
+
+/// The per-vertex displays' raster pass (`name`): draws each `(first index, index count, vertex
+/// offset, instance)` of `draws` with `pipe`, whose bindings are the camera, the instances,
+/// `values` (per-vertex data) and `base_of` (each instance's first slot minus its mesh's vertex
+/// offset), into `colors` (cleared to their values) over a depth buffer of its own; returns the
+/// written images in order.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn add_vertex_raster(
+    graph: &mut Graph,
+    name: &str,
+    pipe: &Pipeline,
+    inputs: &crate::technique::TechniqueInputs,
+    values: BufferHandle,
+    base_of: &[i32],
+    draws: Vec<(u32, u32, i32, u32)>,
+    colors: &[(ImageHandle, [f32; 4])],
+    w: u32,
+    hh: u32,
+) -> Vec<ImageHandle> {
+    let bases_buf = graph.create_buffer_init(&format!("{name}_bases"), bytes_of(base_of));
+    let depth = graph.create_image(&format!("{name}_depth"), ImageDesc::new_2d(crate::gbuffer::DEPTH_FORMAT, w, hh));
+    let mut p = graph.pass(name, PassKind::Raster);
+    let colors: Vec<(ImageHandle, [f32; 4])> = colors.iter().map(|&(img, clear)| (p.write(img, Access::ColorAttachmentWrite), clear)).collect();
+    let depth = p.write(depth, Access::DepthAttachmentWrite);
+    let camera = p.read(inputs.handles.camera, Access::AnyShaderReadUniform);
+    let instances = p.read(inputs.handles.instances, Access::VertexShaderReadStorage);
+    let values = p.read(values, Access::VertexShaderReadStorage);
+    let bases_buf = p.read(bases_buf, Access::VertexShaderReadStorage);
+    let vertices = p.read(inputs.handles.vertices, Access::VertexBuffer);
+    let indices = p.read(inputs.handles.indices, Access::IndexBuffer);
+    let (pipeline, layout) = (pipe.pipeline, pipe.layout);
+    let written: Vec<ImageHandle> = colors.iter().map(|c| c.0).collect();
+    p.record(move |rc| {
+        let d = rc.device();
+        let mut color = Vec::with_capacity(colors.len());
+        for &(img, clear) in &colors {
+            color.push(crate::util::color_attachment(rc.image(img)?.view, clear));
+        }
+        let depth_att = crate::util::depth_attachment(rc.image(depth)?.view, true);
+        let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: hh } };
+        let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&color).depth_attachment(&depth_att);
+        let (vb, ib) = (rc.buffer(vertices)?, rc.buffer(indices)?);
+        unsafe {
+            d.cmd_begin_rendering(rc.cmd, &info);
+            d.cmd_set_viewport(rc.cmd, 0, &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: hh as f32, min_depth: 0.0, max_depth: 1.0 }]);
+            d.cmd_set_scissor(rc.cmd, 0, &[area]);
+            d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+        }
+        rc.push_descriptors(
+            vk::PipelineBindPoint::GRAPHICS,
+            layout,
+            0,
+            &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances), Bind::StorageBuffer(values), Bind::StorageBuffer(bases_buf)],
+        )?;
+        unsafe {
+            if !draws.is_empty() {
+                d.cmd_bind_index_buffer(rc.cmd, ib.buffer, 0, vk::IndexType::UINT32);
+                d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb.buffer], &[0]);
+            }
+            for &(first, count, offset, inst) in &draws {
+                d.cmd_draw_indexed(rc.cmd, count, 1, first, offset, inst);
+            }
+            d.cmd_end_rendering(rc.cmd);
+        }
+        Ok(())
+    });
+    written
+}
+
 
 impl crate::technique::Technique for ShadowFieldsTechnique {
     fn name(&self) -> &'static str {

@@ -478,7 +478,6 @@ impl WaveletTechnique {
         let total = slots.len() as u32;
         let img_share = graph.create_image("sfw_self_share", ImageDesc::new_2d(SELF_FORMAT, w, hh));
         let img_lights = graph.create_image("sfw_self_lights", ImageDesc::new_2d(SELF_FORMAT, w, hh));
-        let depth = graph.create_image("sfw_self_depth", ImageDesc::new_2d(crate::gbuffer::DEPTH_FORMAT, w, hh));
         let values = if total > 0 {
             let slot_buf = graph.create_buffer_init("sfw_self_slots", bytes_of(&slots));
             let vert_buf = graph.create_buffer_init("sfw_self_verts", bytes_of(&verts));
@@ -500,53 +499,8 @@ impl WaveletTechnique {
         } else {
             graph.create_buffer_init("sfw_self_values", vec![0u8; 32])
         };
-        let bases_buf = graph.create_buffer_init("sfw_self_bases", bytes_of(&base_of));
-        let mut p = graph.pass("sfw_self_display", PassKind::Raster);
-        let img_share = p.write(img_share, Access::ColorAttachmentWrite);
-        let img_lights = p.write(img_lights, Access::ColorAttachmentWrite);
-        let depth = p.write(depth, Access::DepthAttachmentWrite);
-        let camera = p.read(inputs.handles.camera, Access::AnyShaderReadUniform);
-        let instances = p.read(inputs.handles.instances, Access::VertexShaderReadStorage);
-        let values = p.read(values, Access::VertexShaderReadStorage);
-        let bases_buf = p.read(bases_buf, Access::VertexShaderReadStorage);
-        let vertices = p.read(inputs.handles.vertices, Access::VertexBuffer);
-        let indices = p.read(inputs.handles.indices, Access::IndexBuffer);
-        let (pipeline, layout) = (self.self_raster.pipeline, self.self_raster.layout);
-        p.record(move |rc| {
-            let d = rc.device();
-            let color = [
-                crate::util::color_attachment(rc.image(img_share)?.view, [1.0; 4]),
-                crate::util::color_attachment(rc.image(img_lights)?.view, [1.0; 4]),
-            ];
-            let depth_att = crate::util::depth_attachment(rc.image(depth)?.view, true);
-            let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: hh } };
-            let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&color).depth_attachment(&depth_att);
-            let (vb, ib) = (rc.buffer(vertices)?, rc.buffer(indices)?);
-            unsafe {
-                d.cmd_begin_rendering(rc.cmd, &info);
-                d.cmd_set_viewport(rc.cmd, 0, &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: hh as f32, min_depth: 0.0, max_depth: 1.0 }]);
-                d.cmd_set_scissor(rc.cmd, 0, &[area]);
-                d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
-            }
-            rc.push_descriptors(
-                vk::PipelineBindPoint::GRAPHICS,
-                layout,
-                0,
-                &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances), Bind::StorageBuffer(values), Bind::StorageBuffer(bases_buf)],
-            )?;
-            unsafe {
-                if !draws.is_empty() {
-                    d.cmd_bind_index_buffer(rc.cmd, ib.buffer, 0, vk::IndexType::UINT32);
-                    d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb.buffer], &[0]);
-                }
-                for &(first, count, offset, inst) in &draws {
-                    d.cmd_draw_indexed(rc.cmd, count, 1, first, offset, inst);
-                }
-                d.cmd_end_rendering(rc.cmd);
-            }
-            Ok(())
-        });
-        (img_share, img_lights)
+        let out = super::add_vertex_raster(graph, "sfw_self_display", &self.self_raster, inputs, values, &base_of, draws, &[(img_share, [1.0; 4]), (img_lights, [1.0; 4])], w, hh);
+        (out[0], out[1])
     }
 }
 
