@@ -1204,6 +1204,19 @@ pub mod haar {
     }
 
     impl CubeTable {
+        /// The (unnormalized) point of face `f` at face coordinates `u, v` in [-1, 1]: faces
+        /// +x -x +y -y +z -z, the convention of every map (and of the shaders' cube lookups).
+        pub fn face_point(f: usize, u: f64, v: f64) -> DVec3 {
+            match f {
+                0 => DVec3::new(1.0, v, -u),
+                1 => DVec3::new(-1.0, v, u),
+                2 => DVec3::new(u, 1.0, -v),
+                3 => DVec3::new(u, -1.0, v),
+                4 => DVec3::new(u, v, 1.0),
+                _ => DVec3::new(-u, v, -1.0),
+            }
+        }
+
         /// A table of face resolution `n` (rounded up to a power of two, at least 2).
         pub fn new(n: usize) -> Self {
             let n = n.max(2).next_power_of_two();
@@ -1214,14 +1227,7 @@ pub mod haar {
                     for j in 0..n {
                         let u = 2.0 * (j as f64 + 0.5) / n as f64 - 1.0;
                         let v = 2.0 * (i as f64 + 0.5) / n as f64 - 1.0;
-                        let d = match f {
-                            0 => DVec3::new(1.0, v, -u),
-                            1 => DVec3::new(-1.0, v, u),
-                            2 => DVec3::new(u, 1.0, -v),
-                            3 => DVec3::new(u, -1.0, v),
-                            4 => DVec3::new(u, v, 1.0),
-                            _ => DVec3::new(-u, v, -1.0),
-                        };
+                        let d = Self::face_point(f, u, v);
                         let l = d.length();
                         // solid angle of the pixel ~ area / r^3 (midpoint rule)
                         w.push((2.0 / n as f64).powi(2) / (l * l * l));

@@ -282,14 +282,7 @@ pub fn env_cube(scene: &Scene, table: &CubeTable) -> Vec<[f32; 4]> {
                     for b in 0..SUB {
                         let u = 2.0 * (j as f32 + (b as f32 + 0.5) / SUB as f32) / n as f32 - 1.0;
                         let v = 2.0 * (i as f32 + (a as f32 + 0.5) / SUB as f32) / n as f32 - 1.0;
-                        let d = match f {
-                            0 => Vec3::new(1.0, v, -u),
-                            1 => Vec3::new(-1.0, v, u),
-                            2 => Vec3::new(u, 1.0, -v),
-                            3 => Vec3::new(u, -1.0, v),
-                            4 => Vec3::new(u, v, 1.0),
-                            _ => Vec3::new(-u, v, -1.0),
-                        };
+                        let d = CubeTable::face_point(f, u as f64, v as f64).as_vec3();
                         let l = d.length();
                         let w = 1.0 / (l * l * l);
                         let r = env.radiance(d / l);
