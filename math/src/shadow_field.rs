@@ -60,20 +60,54 @@ impl Default for Params {
 // ---------------------------------------------------------------------------------------------
 // Ray casting (a small binary BVH over the object's triangles, any-hit queries)
 
+/// A BVH node. Inner nodes hold their two children's boxes, so a ray tests both children where
+/// it stands and descends only into those it enters, nearer first.
+#[derive(Clone, Copy)]
 struct Node {
-    lo: DVec3,
-    hi: DVec3,
-    /// leaf: first triangle, count; inner: left child, 0 (right = left + 1 is not assumed)
+    /// Boxes of child 0 and child 1 (inner nodes); unused in leaves.
+    lo: [DVec3; 2],
+    hi: [DVec3; 2],
+    /// Inner: the children's node indices. Leaf: first triangle and count.
     a: u32,
     b: u32,
     leaf: bool,
-    right: u32,
 }
 
-/// Any-hit ray caster over a triangle soup.
+/// Any-hit ray caster over a triangle soup: binned-SAH BVH in f64. Whether a ray is occluded
+/// does not depend on the tree (every triangle a ray can hit lies in boxes it enters: the boxes
+/// are padded by a relative 1e-9 against rounding), only the time to find out does.
 pub struct RayCaster {
     tris: Vec<[DVec3; 3]>,
     nodes: Vec<Node>,
+    /// The root's box (tested before the walk).
+    root: (DVec3, DVec3),
+}
+
+/// Centroid bins of the SAH build.
+const SAH_BINS: usize = 16;
+/// Largest leaf.
+const LEAF_MAX: usize = 4;
+
+fn tri_box(t: &[DVec3; 3]) -> (DVec3, DVec3) {
+    (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]))
+}
+
+fn boxes_of(tris: &[[DVec3; 3]]) -> (DVec3, DVec3) {
+    let mut lo = DVec3::splat(f64::INFINITY);
+    let mut hi = DVec3::splat(f64::NEG_INFINITY);
+    for t in tris {
+        let (a, b) = tri_box(t);
+        lo = lo.min(a);
+        hi = hi.max(b);
+    }
+    // conservative against rounding in the slab test
+    let pad = (hi - lo).max_element().max(hi.abs().max(lo.abs()).max_element()) * 1e-9;
+    (lo - DVec3::splat(pad), hi + DVec3::splat(pad))
+}
+
+fn half_area(lo: DVec3, hi: DVec3) -> f64 {
+    let e = (hi - lo).max(DVec3::ZERO);
+    e.x * e.y + e.y * e.z + e.z * e.x
 }
 
 impl RayCaster {
@@ -85,38 +119,105 @@ impl RayCaster {
             .map(|t| [0, 1, 2].map(|k| positions[t[k] as usize].as_dvec3()))
             .collect();
         let mut nodes = Vec::new();
+        let root = boxes_of(&tris);
         if !tris.is_empty() {
             let n = tris.len();
-            Self::build(&mut tris, 0, n, &mut nodes);
+            nodes.push(Node { lo: [DVec3::ZERO; 2], hi: [DVec3::ZERO; 2], a: 0, b: 0, leaf: true });
+            Self::build(&mut tris, 0, n, 0, &mut nodes, 0);
         }
-        RayCaster { tris, nodes }
+        RayCaster { tris, nodes, root }
     }
 
-    fn build(tris: &mut [[DVec3; 3]], start: usize, end: usize, nodes: &mut Vec<Node>) -> u32 {
-        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    /// Splits `tris[start..end]` (binned SAH over centroids; the median on the longest axis
+    /// when the centroids coincide along it) and fills node `id`.
+    fn build(tris: &mut [[DVec3; 3]], start: usize, end: usize, id: usize, nodes: &mut Vec<Node>, depth: usize) {
+        let n = end - start;
+        if n <= LEAF_MAX || depth >= 48 {
+            nodes[id] = Node { lo: [DVec3::ZERO; 2], hi: [DVec3::ZERO; 2], a: start as u32, b: n as u32, leaf: true };
+            return;
+        }
+        let cen = |t: &[DVec3; 3]| (t[0] + t[1] + t[2]) / 3.0;
+        let (mut clo, mut chi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
         for t in &tris[start..end] {
-            for v in t {
-                lo = lo.min(*v);
-                hi = hi.max(*v);
+            let c = cen(t);
+            clo = clo.min(c);
+            chi = chi.max(c);
+        }
+        let ext = chi - clo;
+        // best (cost, axis, bin boundary) over the three axes
+        let mut best: Option<(f64, usize, usize)> = None;
+        for axis in 0..3 {
+            if !(ext[axis] > 0.0) {
+                continue;
+            }
+            let scale = SAH_BINS as f64 / ext[axis];
+            let bin_of = |t: &[DVec3; 3]| (((cen(t)[axis] - clo[axis]) * scale) as usize).min(SAH_BINS - 1);
+            let mut cnt = [0usize; SAH_BINS];
+            let mut blo = [DVec3::splat(f64::INFINITY); SAH_BINS];
+            let mut bhi = [DVec3::splat(f64::NEG_INFINITY); SAH_BINS];
+            for t in &tris[start..end] {
+                let b = bin_of(t);
+                let (l, h) = tri_box(t);
+                cnt[b] += 1;
+                blo[b] = blo[b].min(l);
+                bhi[b] = bhi[b].max(h);
+            }
+            // sweep: left areas/counts from the left, right from the right
+            let mut right_cost = [0f64; SAH_BINS];
+            let (mut lo, mut hi, mut c) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY), 0usize);
+            for b in (1..SAH_BINS).rev() {
+                lo = lo.min(blo[b]);
+                hi = hi.max(bhi[b]);
+                c += cnt[b];
+                right_cost[b] = if c > 0 { half_area(lo, hi) * c as f64 } else { 0.0 };
+            }
+            let (mut lo, mut hi, mut c) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY), 0usize);
+            for b in 0..SAH_BINS - 1 {
+                lo = lo.min(blo[b]);
+                hi = hi.max(bhi[b]);
+                c += cnt[b];
+                if c == 0 || c == n {
+                    continue;
+                }
+                let cost = half_area(lo, hi) * c as f64 + right_cost[b + 1];
+                if best.is_none_or(|(bc, _, _)| cost < bc) {
+                    best = Some((cost, axis, b + 1));
+                }
             }
         }
-        let id = nodes.len() as u32;
-        nodes.push(Node { lo, hi, a: start as u32, b: (end - start) as u32, leaf: true, right: 0 });
-        if end - start <= 4 {
-            return id;
-        }
-        let ext = hi - lo;
-        let axis = if ext.x >= ext.y && ext.x >= ext.z { 0 } else if ext.y >= ext.z { 1 } else { 2 };
-        let mid = (start + end) / 2;
-        let key = |t: &[DVec3; 3]| (t[0][axis] + t[1][axis] + t[2][axis]) / 3.0;
-        tris[start..end].select_nth_unstable_by(mid - start, |p, q| key(p).total_cmp(&key(q)));
-        let l = Self::build(tris, start, mid, nodes);
-        let r = Self::build(tris, mid, end, nodes);
-        let n = &mut nodes[id as usize];
-        n.leaf = false;
-        n.a = l;
-        n.right = r;
-        id
+        let mid = match best {
+            Some((_, axis, split)) => {
+                let scale = SAH_BINS as f64 / ext[axis];
+                let mut i = start;
+                for j in start..end {
+                    let b = (((cen(&tris[j])[axis] - clo[axis]) * scale) as usize).min(SAH_BINS - 1);
+                    if b < split {
+                        tris.swap(i, j);
+                        i += 1;
+                    }
+                }
+                i
+            }
+            None => start + n / 2, // every centroid in one point: any halving
+        };
+        let children = nodes.len();
+        nodes.push(Node { lo: [DVec3::ZERO; 2], hi: [DVec3::ZERO; 2], a: 0, b: 0, leaf: true });
+        nodes.push(Node { lo: [DVec3::ZERO; 2], hi: [DVec3::ZERO; 2], a: 0, b: 0, leaf: true });
+        let (l0, h0) = boxes_of(&tris[start..mid]);
+        let (l1, h1) = boxes_of(&tris[mid..end]);
+        nodes[id] = Node { lo: [l0, l1], hi: [h0, h1], a: children as u32, b: children as u32 + 1, leaf: false };
+        Self::build(tris, start, mid, children, nodes, depth + 1);
+        Self::build(tris, mid, end, children + 1, nodes, depth + 1);
+    }
+
+    /// Entry distance of the ray into a box, `None` when it misses within `(0, tmax)`.
+    #[inline(always)]
+    fn enter(lo: DVec3, hi: DVec3, o: DVec3, inv: DVec3, tmax: f64) -> Option<f64> {
+        let t0 = (lo - o) * inv;
+        let t1 = (hi - o) * inv;
+        let tn = t0.min(t1).max_element().max(0.0);
+        let tf = t0.max(t1).min_element().min(tmax);
+        (tn <= tf && !tf.is_nan()).then_some(tn)
     }
 
     /// Whether the ray `o + t d`, `t in (0, tmax)`, hits any triangle (both sides).
@@ -125,28 +226,41 @@ impl RayCaster {
             return false;
         }
         let inv = DVec3::ONE / d;
+        if Self::enter(self.root.0, self.root.1, o, inv, tmax).is_none() {
+            return false;
+        }
         let mut stack = [0u32; 64];
         let mut sp = 1;
         while sp > 0 {
             sp -= 1;
             let n = &self.nodes[stack[sp] as usize];
-            let t0 = (n.lo - o) * inv;
-            let t1 = (n.hi - o) * inv;
-            let tn = t0.min(t1).max_element().max(0.0);
-            let tf = t0.max(t1).min_element().min(tmax);
-            if tn > tf || tf.is_nan() {
-                continue;
-            }
             if n.leaf {
                 for t in &self.tris[n.a as usize..(n.a + n.b) as usize] {
                     if crate::ray::ray_triangle(o, d, t, tmax, 1e-14).is_some() {
                         return true;
                     }
                 }
-            } else if sp + 2 <= stack.len() {
-                stack[sp] = n.a;
-                stack[sp + 1] = n.right;
-                sp += 2;
+                continue;
+            }
+            let e0 = Self::enter(n.lo[0], n.hi[0], o, inv, tmax);
+            let e1 = Self::enter(n.lo[1], n.hi[1], o, inv, tmax);
+            // push the farther first so the nearer is walked first (the depth cap keeps 64 enough)
+            match (e0, e1) {
+                (Some(t0), Some(t1)) => {
+                    let (near, far) = if t0 <= t1 { (n.a, n.b) } else { (n.b, n.a) };
+                    stack[sp] = far;
+                    stack[sp + 1] = near;
+                    sp += 2;
+                }
+                (Some(_), None) => {
+                    stack[sp] = n.a;
+                    sp += 1;
+                }
+                (None, Some(_)) => {
+                    stack[sp] = n.b;
+                    sp += 1;
+                }
+                (None, None) => {}
             }
         }
         false
@@ -1306,7 +1420,9 @@ pub mod haar {
         // sort: this runs for every sample of every shell)
         let is_avg = |i: usize| i % (n * n) == 0;
         let mut idx: Vec<usize> = (0..c.len()).filter(|&i| is_avg(i)).collect();
-        let mut rest: Vec<usize> = (0..c.len()).filter(|&i| !is_avg(i)).collect();
+        // zeros are never kept (filtered below) and rank last: leaving them out of the selection
+        // keeps the same set (most detail coefficients of a binary map are zero)
+        let mut rest: Vec<usize> = (0..c.len()).filter(|&i| !is_avg(i) && c[i] != 0.0).collect();
         let more = count.saturating_sub(idx.len()).min(rest.len());
         if more > 0 && more < rest.len() {
             rest.select_nth_unstable_by(more - 1, |&a, &b| c[b].abs().total_cmp(&c[a].abs()).then(a.cmp(&b)));
