@@ -25,7 +25,12 @@ pub fn run() -> Result<f64> {
     // Optional: layered rendering (shaderOutputLayer), which technique `shadowmaps` (what `auto`
     // chooses for a lit scene) needs; declared to penumbra below.
     let mut avail12 = vk::PhysicalDeviceVulkan12Features::default();
-    unsafe { instance.get_physical_device_features2(physical, &mut vk::PhysicalDeviceFeatures2::default().push_next(&mut avail12)) };
+    unsafe {
+        instance.get_physical_device_features2(
+            physical,
+            &mut vk::PhysicalDeviceFeatures2::default().push_next(&mut avail12),
+        )
+    };
     let layered = avail12.shader_output_layer == vk::TRUE && avail12.shader_output_viewport_index == vk::TRUE;
     let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
         .host_query_reset(true)
@@ -95,7 +100,15 @@ pub fn run() -> Result<f64> {
 
     // ---- penumbra on the application's device
     let features = penumbra::engine::ExternalFeatures { shader_output_layer: layered, ..Default::default() };
-    let ctx = Context::from_external_with(entry.clone(), instance.clone(), physical, device.clone(), queue, family, features)?;
+    let ctx = Context::from_external_with(
+        entry.clone(),
+        instance.clone(),
+        physical,
+        device.clone(),
+        queue,
+        family,
+        features,
+    )?;
     let scene = Scene::default_scene();
     let mut renderer = Renderer::new(ctx, &scene, RenderSettings { width: w, height: h, ..Default::default() })?;
     let frame = scene.at(0.0, None);

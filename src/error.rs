@@ -65,7 +65,9 @@ impl Error {
                     _ => {}
                 }
             }
-            if let Some(gpu_allocator::AllocationError::OutOfMemory) = cause.downcast_ref::<gpu_allocator::AllocationError>() {
+            if let Some(gpu_allocator::AllocationError::OutOfMemory) =
+                cause.downcast_ref::<gpu_allocator::AllocationError>()
+            {
                 return Error::OutOfMemory(e);
             }
         }
@@ -79,7 +81,8 @@ mod tests {
 
     #[test]
     fn errors_are_sorted_by_kind() {
-        let bad = anyhow::Error::new(penumbra_passes::registry::BadInput("unknown technique 'x'".into())).context("creating");
+        let bad =
+            anyhow::Error::new(penumbra_passes::registry::BadInput("unknown technique 'x'".into())).context("creating");
         let e = Error::classify(bad, Some(Path::new("scenes/a.toml")));
         assert_eq!(e.kind(), ErrorKind::BadInput);
         assert!(e.to_string().starts_with("scenes/a.toml: creating"), "{e}");

@@ -153,7 +153,10 @@ pub fn decode_texels(format: vk::Format, bytes: &[u8]) -> Option<Vec<[f32; 4]>> 
 /// The technique `settings` choose for `scene` and its parameters: `settings.technique` or the
 /// scene's; `settings.technique_params`, or the scene file's when the technique is the scene's
 /// own. An unregistered name is an error naming the scene file it came from.
-pub fn resolve_technique(scene: &Scene, settings: &RenderSettings) -> Result<(String, penumbra_passes::registry::Params), Error> {
+pub fn resolve_technique(
+    scene: &Scene,
+    settings: &RenderSettings,
+) -> Result<(String, penumbra_passes::registry::Params), Error> {
     resolve_technique_why(scene, settings, true).map(|(n, p, _)| (n, p))
 }
 
@@ -221,7 +224,8 @@ pub struct Renderer {
 impl Renderer {
     /// A renderer on a device of its own (no window).
     pub fn new_headless(scene: &Scene, settings: RenderSettings, validation: bool) -> Result<Self, Error> {
-        let ctx = Context::new(&ContextDesc { validation, ..Default::default() }).map_err(|e| Error::classify(e, None))?;
+        let ctx =
+            Context::new(&ContextDesc { validation, ..Default::default() }).map_err(|e| Error::classify(e, None))?;
         Self::new(ctx, scene, settings)
     }
 
@@ -245,7 +249,8 @@ impl Renderer {
             ));
         }
         let (name, params, chosen) = resolve_technique_why(scene, &settings, ctx.shader_output_layer)?;
-        let mut r = Self::create(ctx, scene, settings, shaders, &name, &params).map_err(|e| Error::classify(e, scene.source.as_deref()))?;
+        let mut r = Self::create(ctx, scene, settings, shaders, &name, &params)
+            .map_err(|e| Error::classify(e, scene.source.as_deref()))?;
         r.auto_choice = chosen;
         Ok(r)
     }
@@ -263,7 +268,8 @@ impl Renderer {
         let effects = penumbra_passes::effect::create_for(scene, &ctx, shaders, &settings.effects)?;
         // An environment map over the device's largest image side is halved until it fits, and
         // the user is told (the loader's own limit, 16384, is what lavapipe allows).
-        let fitted = scene.environment.as_ref().and_then(|e| penumbra_passes::env::fit_to_device(e, ctx.max_image_dimension_2d));
+        let fitted =
+            scene.environment.as_ref().and_then(|e| penumbra_passes::env::fit_to_device(e, ctx.max_image_dimension_2d));
         let env_note = fitted.as_ref().zip(scene.environment.as_ref()).map(|(f, e)| {
             format!(
                 "the environment map ({}x{}) is larger than this device's largest image side ({}): shown downsampled to {}x{}",
@@ -359,7 +365,12 @@ impl Renderer {
     /// (written as a storage image when it is `R8G8B8A8_UNORM` with STORAGE usage, else blitted
     /// into: it then needs TRANSFER_DST usage and a blittable colour format); with `readback`, the HDR and
     /// LDR images are copied to host memory and returned by [`Renderer::render`].
-    pub fn build_graph(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Result<Graph, Error> {
+    pub fn build_graph(
+        &mut self,
+        frame: &Frame,
+        target: Option<ImportedImage>,
+        readback: bool,
+    ) -> Result<Graph, Error> {
         self.build_graph_inner(frame, target, readback).map_err(|e| Error::classify(e, None))
     }
 
@@ -396,9 +407,9 @@ impl Renderer {
         }
         // The tone map writes a storage image: straight into an RGBA8 target with STORAGE usage,
         // else into a transient image blitted into the target (a BGRA8/sRGB swapchain image).
-        let direct = target
-            .as_ref()
-            .is_some_and(|t| t.desc.format == penumbra_passes::tonemap::LDR_FORMAT && t.usage.contains(vk::ImageUsageFlags::STORAGE));
+        let direct = target.as_ref().is_some_and(|t| {
+            t.desc.format == penumbra_passes::tonemap::LDR_FORMAT && t.usage.contains(vk::ImageUsageFlags::STORAGE)
+        });
         let target = target.map(|t| g.import_image("target", t));
         let ldr = self.tonemap.add(&mut g, hdr, target.filter(|_| direct), self.settings.tonemap);
         let mut blitted = None;
@@ -438,7 +449,12 @@ impl Renderer {
     }
 
     /// Builds, compiles and submits one frame; returns the frames that finished meanwhile.
-    pub fn render(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Result<Vec<FrameImages>, Error> {
+    pub fn render(
+        &mut self,
+        frame: &Frame,
+        target: Option<ImportedImage>,
+        readback: bool,
+    ) -> Result<Vec<FrameImages>, Error> {
         self.render_with(frame, target, readback, &SubmitSync::default())
     }
 
@@ -506,10 +522,21 @@ impl Renderer {
                 Some((name.trim_start_matches("dump:").to_string(), decode_texels(*fmt, bytes)?))
             })
             .collect();
-        let target = self.target_format.zip(o.readbacks.get("target_readback").cloned()).map(
-            |((format, width, height), bytes)| TargetTexels { format, width, height, bytes },
-        );
-        FrameImages { frame: o.frame, width: w, height: h, hdr, ldr, gpu_ms: o.gpu_ms, dumps, target, timeline: o.timeline }
+        let target = self
+            .target_format
+            .zip(o.readbacks.get("target_readback").cloned())
+            .map(|((format, width, height), bytes)| TargetTexels { format, width, height, bytes });
+        FrameImages {
+            frame: o.frame,
+            width: w,
+            height: h,
+            hdr,
+            ldr,
+            gpu_ms: o.gpu_ms,
+            dumps,
+            target,
+            timeline: o.timeline,
+        }
     }
 }
 

@@ -3,12 +3,12 @@
 //! follow deforming vertices, parameters, extremes.
 
 use penumbra::{FrameImages, RenderSettings, Renderer};
+use penumbra_passes::avs::AvsStats;
 use penumbra_reference::image::Image;
 use penumbra_reference::metrics::compare;
 use penumbra_reference::render::{render as reference_render, Mode, ReferenceOptions};
 use penumbra_scene::Scene;
 use std::path::PathBuf;
-use penumbra_passes::avs::AvsStats;
 
 mod common;
 use common::{hdr_image as image, render_times as render, scene, with};
@@ -30,7 +30,13 @@ fn dump(img: &Image, name: &str) {
             }
         }
     }
-    penumbra_reference::image::write_png_rgb8(&PathBuf::from(dir).join(format!("{name}.png")), img.width, img.height, &rgb).unwrap();
+    penumbra_reference::image::write_png_rgb8(
+        &PathBuf::from(dir).join(format!("{name}.png")),
+        img.width,
+        img.height,
+        &rgb,
+    )
+    .unwrap();
 }
 
 fn psnr(c: &penumbra_reference::metrics::Comparison) -> f64 {
@@ -44,7 +50,13 @@ const FAST: &[(&str, &str)] = &[("r", "32"), ("points", "96"), ("iterations", "1
 fn paper_scenes_are_validation_clean_and_points_follow_vertices() {
     for name in ["hat_on_cloth.toml", "balls_on_dish.toml", "falling.toml"] {
         let s = with(&scene(name), FAST);
-        let settings = RenderSettings { width: 64, height: 48, technique: Some("avs".into()), technique_params: Some(s.technique_params.clone()), ..Default::default() };
+        let settings = RenderSettings {
+            width: 64,
+            height: 48,
+            technique: Some("avs".into()),
+            technique_params: Some(s.technique_params.clone()),
+            ..Default::default()
+        };
         let mut r = Renderer::new_headless(&s, settings, true).expect("renderer");
         let mut frames = Vec::new();
         let mut stats = Vec::new();
@@ -82,7 +94,8 @@ fn accuracy_against_the_reference() {
     let s = scene("hat_on_cloth.toml");
     let (w, h) = (80, 60);
     let t = 0.5;
-    let opts = ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::Exact, ..Default::default() };
+    let opts =
+        ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::Exact, ..Default::default() };
     let sg_ref = reference_render(&s, &opts).expect("reference");
     // the paper's pool (vertices only): a fixed k = 240 spread over the refined cloth's extra
     // candidates leaves the hat too few points (relRMSE 1.74); the automatic k grows with the pool
@@ -120,7 +133,12 @@ fn accuracy_against_the_reference() {
     assert!(c.rel_rmse < 0.35 * o.rel_rmse, "cells {} vs unshadowed {}", c.rel_rmse, o.rel_rmse);
     assert!(psnr(&a) > 19.0 && psnr(&c) > 19.0, "PSNR {} / {}", psnr(&a), psnr(&c));
     // part A's tabulated T(lambda, d) at the lobe axis: the same bars
-    assert!(tb.rel_rmse < 0.7 && tb.rel_rmse < 0.35 * o.rel_rmse && psnr(&tb) > 19.0, "table: relRMSE {}, PSNR {}", tb.rel_rmse, psnr(&tb));
+    assert!(
+        tb.rel_rmse < 0.7 && tb.rel_rmse < 0.35 * o.rel_rmse && psnr(&tb) > 19.0,
+        "table: relRMSE {}, PSNR {}",
+        tb.rel_rmse,
+        psnr(&tb)
+    );
 }
 
 #[test]
@@ -133,7 +151,18 @@ fn parameters_are_checked() {
     assert_eq!((d.r, d.initial_grid, d.e_max, d.e_min, d.iterations), (128, 16, 0.10, 0.05, 2));
     assert_eq!(d.levels(), 4);
     assert_eq!(p(&[("r", "256"), ("initial_grid", "32")]).unwrap().levels(), 4);
-    for (k, v) in [("r", "100"), ("r", "8"), ("r", "512"), ("initial_grid", "20"), ("e_max", "nan"), ("integration", "exact"), ("bogus", "1"), ("e_min", "0.5"), ("cull", "maybe"), ("keep_hits", "2")] {
+    for (k, v) in [
+        ("r", "100"),
+        ("r", "8"),
+        ("r", "512"),
+        ("initial_grid", "20"),
+        ("e_max", "nan"),
+        ("integration", "exact"),
+        ("bogus", "1"),
+        ("e_min", "0.5"),
+        ("cull", "maybe"),
+        ("keep_hits", "2"),
+    ] {
         let e = p(&[(k, v)]).unwrap_err().to_string();
         assert!(e.contains(k), "{k} = {v}: {e}");
     }
@@ -162,7 +191,13 @@ fn extremes_free_hemispheres_and_points_following_deformation() {
     // both frames, at their deformed positions (the hat squashes).
     // (culling off: with it the second frame traces only the points the first frame's pixels used)
     let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "48"), ("iterations", "0"), ("cull", "false")]);
-    let settings = RenderSettings { width: 40, height: 30, technique: Some("avs".into()), technique_params: Some(s.technique_params.clone()), ..Default::default() };
+    let settings = RenderSettings {
+        width: 40,
+        height: 30,
+        technique: Some("avs".into()),
+        technique_params: Some(s.technique_params.clone()),
+        ..Default::default()
+    };
     let mut r = Renderer::new_headless(&s, settings, false).expect("renderer");
     let f0 = s.at(0.0, None);
     r.render(&f0, None, true).expect("render");
@@ -172,11 +207,18 @@ fn extremes_free_hemispheres_and_points_following_deformation() {
     let b = avs_stats(&r);
     r.finish().expect("finish");
     assert_eq!(a.point_vertices, b.point_vertices);
-    let (p0, p1) = (penumbra_passes::avs::vertex_pool(&s, &f0, &b.pool_plan).unwrap(), penumbra_passes::avs::vertex_pool(&s, &f1, &b.pool_plan).unwrap());
+    let (p0, p1) = (
+        penumbra_passes::avs::vertex_pool(&s, &f0, &b.pool_plan).unwrap(),
+        penumbra_passes::avs::vertex_pool(&s, &f1, &b.pool_plan).unwrap(),
+    );
     let moved = a.point_vertices.iter().filter(|&&v| (p0[v].pos - p1[v].pos).length() > 1e-3).count();
     assert!(moved > 0, "no sample point moved with the deforming hat");
     // Some maps are partly occluded (the hat over the cloth), some fully free.
-    assert!(b.visible_fraction.iter().any(|&v| v < 0.5) && b.visible_fraction.iter().any(|&v| v > 0.95), "{:?}", b.visible_fraction);
+    assert!(
+        b.visible_fraction.iter().any(|&v| v < 0.5) && b.visible_fraction.iter().any(|&v| v > 0.95),
+        "{:?}",
+        b.visible_fraction
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -267,7 +309,11 @@ fn extremes_whole_hemisphere_occluded_or_free() {
             }
         }
         assert!(floor_px > 48 * 36 / 3, "{mode}: only {floor_px} floor pixels in view");
-        println!("{mode}: {} floor maps fully occluded, {} ceiling maps free, {floor_px} floor pixels black", floor.len(), top.len());
+        println!(
+            "{mode}: {} floor maps fully occluded, {} ceiling maps free, {floor_px} floor pixels black",
+            floor.len(),
+            top.len()
+        );
     }
     // Without the ceiling every floor map is free and shading equals the unshadowed image.
     let open_sky = with(&scene_text("open_sky", &base), &fast);
@@ -310,7 +356,12 @@ fn bar_scene() -> (Scene, (glam::Vec3, glam::Vec3), (glam::Vec3, glam::Vec3), f3
 /// technique traces them).
 fn ray_origin(scene: &Scene, p: &penumbra_math::avs_sampling::SurfacePoint) -> glam::Vec3 {
     let f = scene.at(0.0, None);
-    let pool = penumbra_passes::avs::vertex_pool(scene, &f, &penumbra_passes::avs::PoolPlan::vertices_only(scene, &f).unwrap()).unwrap();
+    let pool = penumbra_passes::avs::vertex_pool(
+        scene,
+        &f,
+        &penumbra_passes::avs::PoolPlan::vertices_only(scene, &f).unwrap(),
+    )
+    .unwrap();
     p.pos + p.normal * penumbra_passes::avs::ray_offset(&pool)
 }
 
@@ -323,7 +374,13 @@ fn slim_bar(r: u32) {
     let rs = r.to_string();
     let run = |adaptive: bool, k: u32| {
         let ks = k.to_string();
-        let p = [("r", rs.as_str()), ("points", "169"), ("iterations", "0"), ("ray_neighbours", ks.as_str()), ("adaptive", if adaptive { "true" } else { "false" })];
+        let p = [
+            ("r", rs.as_str()),
+            ("points", "169"),
+            ("iterations", "0"),
+            ("ray_neighbours", ks.as_str()),
+            ("adaptive", if adaptive { "true" } else { "false" }),
+        ];
         let (renderer, _) = render(&with(&s, &p), "avs", 16, 12, &[0.0], false);
         let st = avs_stats(&renderer);
         (floor_points(&st, &with(&s, &p), 0.0), st.visible_fraction.clone(), st.rays)
@@ -346,7 +403,8 @@ fn slim_bar(r: u32) {
     };
     let two_pi = 2.0 * std::f64::consts::PI;
     let tol = 2e-4; // SH16 DC in f32 and texels hit by both objects
-    let (mut checked, mut missed_seedless, mut seeded, mut found0, mut found4, mut seedless_near_box) = (0, 0, 0, 0, 0, 0);
+    let (mut checked, mut missed_seedless, mut seeded, mut found0, mut found4, mut seedless_near_box) =
+        (0, 0, 0, 0, 0, 0);
     let (mut bar_bf, mut bar_a0, mut box_cpu, mut box_a0) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
     for (i, p) in &pts {
         if p.pos.y.abs() > 1e-4 || p.normal.y < 0.99 || p.pos.x.abs() > 0.9 || p.pos.z > 0.3 {
@@ -377,27 +435,43 @@ fn slim_bar(r: u32) {
             }
         }
         let bf = 1.0 - vf_bf[*i] as f64;
-        assert!(bf >= any_lo - tol && bf <= any_hi + tol, "brute force at {:?}: occluded {bf:.5}, expected [{any_lo:.5}, {any_hi:.5}]", p.pos);
+        assert!(
+            bf >= any_lo - tol && bf <= any_hi + tol,
+            "brute force at {:?}: occluded {bf:.5}, expected [{any_lo:.5}, {any_hi:.5}]",
+            p.pos
+        );
         let (a0, a4) = (1.0 - vf_a0[*i] as f64, 1.0 - vf_a4[*i] as f64);
         // the box (wider than an initial cell) is found: at least 95 % of its solid angle
-        assert!(a0 >= 0.95 * box_lo - tol && a4 >= 0.95 * box_lo - tol, "box lost at {:?}: adaptive {a0:.5} / {a4:.5}, box {box_lo:.5}", p.pos);
+        assert!(
+            a0 >= 0.95 * box_lo - tol && a4 >= 0.95 * box_lo - tol,
+            "box lost at {:?}: adaptive {a0:.5} / {a4:.5}, box {box_lo:.5}",
+            p.pos
+        );
         // copying parents never adds occlusion to objects without an interior at the coarse level,
         // and a kept hit (keep_hits) is one texel backed by a hit on its corner
         assert!(a0 <= bf + tol && a4 <= bf + tol, "adaptive {a0} / {a4} > brute force {bf} at {:?}", p.pos);
-        let seeds: Vec<Option<bool>> = (0..16).flat_map(|a| (0..16).map(move |b| (a, b))).map(|(a, b)| classify(o, world(texel_dir_f32(a, b, 16)), bar)).collect();
+        let seeds: Vec<Option<bool>> = (0..16)
+            .flat_map(|a| (0..16).map(move |b| (a, b)))
+            .map(|(a, b)| classify(o, world(texel_dir_f32(a, b, 16)), bar))
+            .collect();
         let bar_found = |occ: f64| occ > box_hi + 0.25 * bar_lo + tol;
         // the bar within one initial cell of the box: the box's boundary rays can find it
         let near_box = (0..256).any(|c| {
-            bar_cells[c] && (0..9).any(|q| {
-                let (ca, cb) = ((c / 16) as i32 + q / 3 - 1, (c % 16) as i32 + q % 3 - 1);
-                (0..16).contains(&ca) && (0..16).contains(&cb) && box_cells[(ca * 16 + cb) as usize]
-            })
+            bar_cells[c]
+                && (0..9).any(|q| {
+                    let (ca, cb) = ((c / 16) as i32 + q / 3 - 1, (c % 16) as i32 + q % 3 - 1);
+                    (0..16).contains(&ca) && (0..16).contains(&cb) && box_cells[(ca * 16 + cb) as usize]
+                })
         });
         if seeds.iter().all(|s| *s == Some(false)) {
             // no initial ray of its own on the bar and the bar away from the box: nothing can start
             // a refinement there (next to the box the box's boundary rays can: with keep_hits they
             // then follow the bar)
-            assert!(near_box || !bar_found(a0), "point {:?} without a seed ray found the bar: {a0} vs box {box_hi}", p.pos);
+            assert!(
+                near_box || !bar_found(a0),
+                "point {:?} without a seed ray found the bar: {a0} vs box {box_hi}",
+                p.pos
+            );
             missed_seedless += 1;
             seedless_near_box += near_box as usize;
         } else if seeds.iter().any(|s| *s == Some(true)) {
@@ -417,7 +491,10 @@ fn slim_bar(r: u32) {
          box {box_cpu:.4} (CPU) vs adaptive {box_a0:.4}; rays: every texel {rays_bf}, adaptive {rays_a0} / {rays_a4}"
     );
     assert!(checked >= 50, "{checked} floor points");
-    assert!(missed_seedless > 0 && seeded > 0, "{missed_seedless} points without / {seeded} with a seed ray: the bar is not slim");
+    assert!(
+        missed_seedless > 0 && seeded > 0,
+        "{missed_seedless} points without / {seeded} with a seed ray: the bar is not slim"
+    );
     assert!(found4 >= found0, "neighbours' rays lost the bar: {found4} < {found0}");
     if r == 128 {
         // Measured (r = 128, 71 floor points): bar found at 35 / 52 points (own / with
@@ -458,7 +535,8 @@ fn light_visibility_agreement(dir_local: glam::Vec3, r: u32, tag: &str, extra: &
         2.0 * wall_half.y,
         2.0 * wall_half.z
     );
-    let s = with(&with(&scene_text(&format!("wall_{tag}"), &toml), &[("r", &r.to_string()), ("iterations", "0")]), extra);
+    let s =
+        with(&with(&scene_text(&format!("wall_{tag}"), &toml), &[("r", &r.to_string()), ("iterations", "0")]), extra);
     let (w, h) = (48u32, 48u32);
     let (renderer, shad) = render(&s, "avs", w, h, &[0.0], false);
     // one mean sample spacing (the search radius is `radius` = 2 spacings)
@@ -467,14 +545,17 @@ fn light_visibility_agreement(dir_local: glam::Vec3, r: u32, tag: &str, extra: &
     let frame = s.at(0.0, None);
     let cam = &frame.camera;
     let inv = (cam.proj(w as f32 / h as f32) * cam.view()).inverse();
-    let shadowed = |p: glam::Vec3| ray_hits_box(p, light - p, wall_c - wall_half, wall_c + wall_half) && (light - p).length() > 0.0;
+    let shadowed = |p: glam::Vec3| {
+        ray_hits_box(p, light - p, wall_c - wall_half, wall_c + wall_half) && (light - p).length() > 0.0
+    };
     let (mut agree, mut total, mut err) = (0usize, 0usize, 0.0f64);
     for py in 0..h {
         for px in 0..w {
             let k = (py * w + px) as usize;
             let (a, b) = (shad[0].hdr[k][0], open[0].hdr[k][0]);
             assert!(a.is_finite() && a >= 0.0, "{tag}: pixel {px},{py} = {a}");
-            let ndc = glam::Vec2::new((px as f32 + 0.5) / w as f32 * 2.0 - 1.0, (py as f32 + 0.5) / h as f32 * 2.0 - 1.0);
+            let ndc =
+                glam::Vec2::new((px as f32 + 0.5) / w as f32 * 2.0 - 1.0, (py as f32 + 0.5) / h as f32 * 2.0 - 1.0);
             let far = inv.project_point3(glam::Vec3::new(ndc.x, ndc.y, 1.0));
             let d = (far - cam.eye).normalize();
             if d.y >= -1e-3 {
@@ -490,7 +571,9 @@ fn light_visibility_agreement(dir_local: glam::Vec3, r: u32, tag: &str, extra: &
                 continue;
             }
             let truth = shadowed(p);
-            let stable = [glam::Vec3::X, glam::Vec3::NEG_X, glam::Vec3::Z, glam::Vec3::NEG_Z].iter().all(|o| shadowed(p + *o * spacing) == truth);
+            let stable = [glam::Vec3::X, glam::Vec3::NEG_X, glam::Vec3::Z, glam::Vec3::NEG_Z]
+                .iter()
+                .all(|o| shadowed(p + *o * spacing) == truth);
             if !stable {
                 continue;
             }
@@ -512,18 +595,35 @@ fn extremes_light_at_the_map_pole_and_seam() {
     // along +y / -y it lies 6 degrees from the phi = 0 / phi = pi seam columns. Measured (48 x 48,
     // r = 64): 1622 / 1623, 1622 / 1623, 1636 / 1636, 1640 / 1640 pixels agree, mean |error|
     // 0.0011 / 0.0011 / 0.0003 / 0.0003.
-    for (dir, tag) in [(glam::Vec3::X, "pole0"), (glam::Vec3::NEG_X, "pole_pi"), (glam::Vec3::Y, "seam0"), (glam::Vec3::NEG_Y, "seam_pi")] {
+    for (dir, tag) in [
+        (glam::Vec3::X, "pole0"),
+        (glam::Vec3::NEG_X, "pole_pi"),
+        (glam::Vec3::Y, "seam0"),
+        (glam::Vec3::NEG_Y, "seam_pi"),
+    ] {
         assert_light_agreement(dir, 64, tag, &[], 0.97, 0.08);
     }
 }
 
 /// [`light_visibility_agreement`] at resolution `r`, asserted: at least 400 classified floor
 /// pixels, at least `min_fraction` of them agreeing, mean |error| below `max_err`.
-fn assert_light_agreement(dir: glam::Vec3, r: u32, tag: &str, params: &[(&str, &str)], min_fraction: f64, max_err: f64) {
+fn assert_light_agreement(
+    dir: glam::Vec3,
+    r: u32,
+    tag: &str,
+    params: &[(&str, &str)],
+    min_fraction: f64,
+    max_err: f64,
+) {
     let (agree, total, mean_err) = light_visibility_agreement(dir, r, tag, params);
-    println!("{tag} (r = {r}): {agree} / {total} pixels agree with the exact light visibility, mean |error| {mean_err:.4}");
+    println!(
+        "{tag} (r = {r}): {agree} / {total} pixels agree with the exact light visibility, mean |error| {mean_err:.4}"
+    );
     assert!(total >= 400, "{tag}: only {total} floor pixels classified");
-    assert!(agree as f64 >= min_fraction * total as f64, "{tag}: {agree} / {total} pixels agree with the exact light visibility");
+    assert!(
+        agree as f64 >= min_fraction * total as f64,
+        "{tag}: {agree} / {total} pixels agree with the exact light visibility"
+    );
     assert!(mean_err < max_err, "{tag}: mean visibility error {mean_err}");
 }
 
@@ -545,7 +645,10 @@ fn extremes_r256_maps_and_fp16_shading() {
     use penumbra_math::avs_sampling::point_frame;
     let (s, bar, boxx, half) = bar_scene();
     let r = 256u32;
-    let s = with(&s, &[("r", "256"), ("points", "24"), ("iterations", "0"), ("adaptive", "false"), ("capture_maps", "true")]);
+    let s = with(
+        &s,
+        &[("r", "256"), ("points", "24"), ("iterations", "0"), ("adaptive", "false"), ("capture_maps", "true")],
+    );
     let (renderer, _) = render(&s, "avs", 16, 12, &[0.0], false);
     let st = avs_stats(&renderer);
     assert_eq!(st.truncated, 0, "visibility passes hit the loop limit");
@@ -611,7 +714,13 @@ fn gbuffer_culling_traces_only_needed_points_and_keeps_the_image() {
     let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "160"), ("iterations", "0")]);
     let two = |cull: &str| {
         let s = with(&s, &[("cull", cull)]);
-        let settings = RenderSettings { width: 64, height: 48, technique: Some("avs".into()), technique_params: Some(s.technique_params.clone()), ..Default::default() };
+        let settings = RenderSettings {
+            width: 64,
+            height: 48,
+            technique: Some("avs".into()),
+            technique_params: Some(s.technique_params.clone()),
+            ..Default::default()
+        };
         let mut r = Renderer::new_headless(&s, settings, true).expect("renderer");
         let mut out = Vec::new();
         let mut stats = Vec::new();
@@ -632,8 +741,15 @@ fn gbuffer_culling_traces_only_needed_points_and_keeps_the_image() {
     assert_eq!(st_on[0].traced_points, st_off[0].traced_points);
     assert_eq!(st_off[1].dormant, 0);
     let (t_on, t_off) = (st_on[1].traced_points, st_off[1].traced_points);
-    println!("second frame: {t_on} of {t_off} maps traced ({} dormant), rays {} vs {}", st_on[1].dormant, st_on[1].rays, st_off[1].rays);
-    assert!(st_on[1].dormant > 0 && t_on + st_on[1].dormant == t_off, "traced {t_on} + dormant {} vs {t_off}", st_on[1].dormant);
+    println!(
+        "second frame: {t_on} of {t_off} maps traced ({} dormant), rays {} vs {}",
+        st_on[1].dormant, st_on[1].rays, st_off[1].rays
+    );
+    assert!(
+        st_on[1].dormant > 0 && t_on + st_on[1].dormant == t_off,
+        "traced {t_on} + dormant {} vs {t_off}",
+        st_on[1].dormant
+    );
     assert!(st_on[1].rays < st_off[1].rays);
     let (a, b) = (&on[1].hdr, &off[1].hdr);
     let mut worst = 0.0f32;
@@ -670,13 +786,22 @@ fn hemicube_baseline_maps_match_the_cpu_ray_test() {
         glam::Vec3::new(lo.x, hi.y, hi.z),
     ];
     let quads = [[0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 5, 4], [3, 2, 6, 7], [0, 3, 7, 4], [1, 2, 6, 5]];
-    let mut tris: Vec<[glam::Vec3; 3]> = quads.iter().flat_map(|q| [[c[q[0]], c[q[1]], c[q[2]]], [c[q[0]], c[q[2]], c[q[3]]]]).collect();
+    let mut tris: Vec<[glam::Vec3; 3]> =
+        quads.iter().flat_map(|q| [[c[q[0]], c[q[1]], c[q[2]]], [c[q[0]], c[q[2]], c[q[3]]]]).collect();
     // the floor (its own plane must not occlude the points on it)
-    let f = [glam::Vec3::new(-1.0, 0.0, -1.0), glam::Vec3::new(1.0, 0.0, -1.0), glam::Vec3::new(1.0, 0.0, 1.0), glam::Vec3::new(-1.0, 0.0, 1.0)];
+    let f = [
+        glam::Vec3::new(-1.0, 0.0, -1.0),
+        glam::Vec3::new(1.0, 0.0, -1.0),
+        glam::Vec3::new(1.0, 0.0, 1.0),
+        glam::Vec3::new(-1.0, 0.0, 1.0),
+    ];
     tris.push([f[0], f[1], f[2]]);
     tris.push([f[0], f[2], f[3]]);
     let points: Vec<SurfacePoint> = (0..12)
-        .map(|i| SurfacePoint { pos: glam::Vec3::new(-0.6 + 0.11 * i as f32, 0.0, 0.3 - 0.07 * i as f32), normal: glam::Vec3::Y })
+        .map(|i| SurfacePoint {
+            pos: glam::Vec3::new(-0.6 + 0.11 * i as f32, 0.0, 0.3 - 0.07 * i as f32),
+            normal: glam::Vec3::Y,
+        })
         .collect();
     let r = 64u32;
     let offset = 1e-3;
@@ -732,7 +857,14 @@ fn coarse_receivers_get_candidates_and_shadows() {
     s.technique_params.insert("diffuse".into(), "sg".into());
     let (w, h) = (48, 36);
     // the environment's SG fit lights the reference too: the comparison is of visibility alone
-    let opts = ReferenceOptions { width: w, height: h, spp: 1024, time: Some(0.0), mode: Mode::SgLighting, ..Default::default() };
+    let opts = ReferenceOptions {
+        width: w,
+        height: h,
+        spp: 1024,
+        time: Some(0.0),
+        mode: Mode::SgLighting,
+        ..Default::default()
+    };
     let reference = reference_render(&s, &opts).expect("reference").radiance;
     let err = |f: &FrameImages, name: &str| {
         let c = compare(&reference, "reference", &image(f), name).unwrap();
@@ -741,14 +873,18 @@ fn coarse_receivers_get_candidates_and_shadows() {
     let fast = [("r", "32"), ("iterations", "1")];
     let (r, pooled) = render(&with(&s, &fast), "avs", w, h, &[0.0], false);
     let st = avs_stats(&r);
-    let (_r, bare) = render(&with(&s, &[("r", "32"), ("iterations", "1"), ("pool_points", "0")]), "avs", w, h, &[0.0], false);
+    let (_r, bare) =
+        render(&with(&s, &[("r", "32"), ("iterations", "1"), ("pool_points", "0")]), "avs", w, h, &[0.0], false);
     let (_r, open) = render(&with(&s, &[("r", "32"), ("shadows", "false")]), "avs", w, h, &[0.0], false);
     dump(&reference, "coarse_floor_reference");
-    for (f, n) in [(&pooled[0], "coarse_floor_pool"), (&bare[0], "coarse_floor_vertices"), (&open[0], "coarse_floor_open")] {
+    for (f, n) in
+        [(&pooled[0], "coarse_floor_pool"), (&bare[0], "coarse_floor_vertices"), (&open[0], "coarse_floor_open")]
+    {
         dump(&image(f), n);
     }
     let (e_pool, e_bare, e_open) = (err(&pooled[0], "pool"), err(&bare[0], "vertices"), err(&open[0], "unshadowed"));
-    let (_r, cells) = render(&with(&s, &[("r", "32"), ("iterations", "1"), ("integration", "cells")]), "avs", w, h, &[0.0], false);
+    let (_r, cells) =
+        render(&with(&s, &[("r", "32"), ("iterations", "1"), ("integration", "cells")]), "avs", w, h, &[0.0], false);
     let e_cells = err(&cells[0], "cells");
     println!(
         "pool: {} candidates ({} extra, spacing {:.3}), {} points; rmse/mean pool {e_pool:.4} (cells {e_cells:.4}), vertices only {e_bare:.4}, unshadowed {e_open:.4}",

@@ -20,9 +20,20 @@ fn an_application_device_without_required_features_is_refused_with_every_problem
     let bad = ExternalFeatures { push_descriptor: false, vulkan12: false, ..Default::default() };
     let problems = bad.problems(&ctx.instance, ctx.physical);
     assert_eq!(problems.len(), 2, "{problems:?}");
-    let e = Context::from_external_with(ctx.entry.clone(), ctx.instance.clone(), ctx.physical, ctx.device.clone(), ctx.queue, ctx.queue_family, bad)
-        .err()
-        .expect("refused")
-        .to_string();
-    assert!(e.contains("2 problem(s)") && e.contains("VK_KHR_push_descriptor") && e.contains("scalarBlockLayout"), "{e}");
+    let e = Context::from_external_with(
+        ctx.entry.clone(),
+        ctx.instance.clone(),
+        ctx.physical,
+        ctx.device.clone(),
+        ctx.queue,
+        ctx.queue_family,
+        bad,
+    )
+    .err()
+    .expect("refused")
+    .to_string();
+    assert!(
+        e.contains("2 problem(s)") && e.contains("VK_KHR_push_descriptor") && e.contains("scalarBlockLayout"),
+        "{e}"
+    );
 }

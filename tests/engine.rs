@@ -147,7 +147,14 @@ fn the_pool_evicts_unused_transients_and_nothing_leaks() {
         let rb = p.write(rb, Access::TransferDst);
         p.record(move |rc| {
             let (s, d) = (rc.buffer(src)?, rc.buffer(rb)?);
-            unsafe { rc.device().cmd_copy_buffer(rc.cmd, s.buffer, d.buffer, &[vk::BufferCopy { src_offset: size - 4, dst_offset: 0, size: 4 }]) };
+            unsafe {
+                rc.device().cmd_copy_buffer(
+                    rc.cmd,
+                    s.buffer,
+                    d.buffer,
+                    &[vk::BufferCopy { src_offset: size - 4, dst_offset: 0, size: 4 }],
+                )
+            };
             Ok(())
         });
         e.submit(g).unwrap();
@@ -227,7 +234,14 @@ fn frames_with_more_passes_than_the_timestamp_pool_are_still_timed() {
             let dst = p.write(next, Access::TransferDst);
             p.record(move |rc| {
                 let (s, d) = (rc.buffer(src)?, rc.buffer(dst)?);
-                unsafe { rc.device().cmd_copy_buffer(rc.cmd, s.buffer, d.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: 256 }]) };
+                unsafe {
+                    rc.device().cmd_copy_buffer(
+                        rc.cmd,
+                        s.buffer,
+                        d.buffer,
+                        &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: 256 }],
+                    )
+                };
                 Ok(())
             });
             buf = dst;
@@ -238,7 +252,14 @@ fn frames_with_more_passes_than_the_timestamp_pool_are_still_timed() {
         let rb = p.write(rb, Access::TransferDst);
         p.record(move |rc| {
             let (s, d) = (rc.buffer(src)?, rc.buffer(rb)?);
-            unsafe { rc.device().cmd_copy_buffer(rc.cmd, s.buffer, d.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: 4 }]) };
+            unsafe {
+                rc.device().cmd_copy_buffer(
+                    rc.cmd,
+                    s.buffer,
+                    d.buffer,
+                    &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: 4 }],
+                )
+            };
             Ok(())
         });
         let (_, done) = e.submit(g).unwrap();

@@ -75,7 +75,8 @@ fn gpu_hsdt_matches_cpu_small_maps_and_batches() {
     let r = 32;
     let maps = test_maps(r, 5);
     check_maps(&ctx, r, &maps, Some(3));
-    let m64: Vec<_> = test_maps(64, 7).into_iter().filter(|(n, _)| n.starts_with("random") || n.contains("pole")).collect();
+    let m64: Vec<_> =
+        test_maps(64, 7).into_iter().filter(|(n, _)| n.starts_with("random") || n.contains("pole")).collect();
     check_maps(&ctx, 64, &m64, Some(4));
     let (mx, mean) = check_maps(&ctx, r, &maps, None);
     println!("r={r}: {} maps, max |GPU - CPU| {mx:.3e} rad, mean {mean:.3e}", maps.len());
@@ -134,7 +135,8 @@ fn glsl_layout_matches_cpu() {
         dirs.push(d.normalize());
     }
     let input: Vec<[f32; 4]> = dirs.iter().map(|d| [d.x as f32, d.y as f32, d.z as f32, 0.0]).collect();
-    let pipe = compute_pipeline(&ctx, &lib, "tests/hsdt_layout_test.comp", &[vk::DescriptorType::STORAGE_BUFFER; 2], 4).unwrap();
+    let pipe = compute_pipeline(&ctx, &lib, "tests/hsdt_layout_test.comp", &[vk::DescriptorType::STORAGE_BUFFER; 2], 4)
+        .unwrap();
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     let mut g = Graph::new();
     let inb = g.create_buffer_init("dirs", bytes_of(&input));
@@ -156,7 +158,9 @@ fn glsl_layout_matches_cpu() {
     let out = engine.drain().unwrap().pop().unwrap();
     let f: Vec<f32> =
         out.readbacks["layout_rb"].chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
-    let v = |k: usize, q: usize| DVec3::new(f[16 * k + 4 * q] as f64, f[16 * k + 4 * q + 1] as f64, f[16 * k + 4 * q + 2] as f64);
+    let v = |k: usize, q: usize| {
+        DVec3::new(f[16 * k + 4 * q] as f64, f[16 * k + 4 * q + 1] as f64, f[16 * k + 4 * q + 2] as f64)
+    };
     let mut edge_skips = 0;
     for k in 0..n {
         let (ti, tj) = (k as u32 / r, k as u32 % r);
@@ -239,7 +243,9 @@ fn glsl_integrals_match_cpu() {
     }
     let n = lobes.len();
     let words: Vec<u32> = ssdf.iter().flat_map(|v| penumbra_math::avs_maps::pack_ssdf_f16(v)).collect();
-    let pipe = compute_pipeline(&ctx, &lib, "tests/hsdt_integrate_test.comp", &[vk::DescriptorType::STORAGE_BUFFER; 5], 8).unwrap();
+    let pipe =
+        compute_pipeline(&ctx, &lib, "tests/hsdt_integrate_test.comp", &[vk::DescriptorType::STORAGE_BUFFER; 5], 8)
+            .unwrap();
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     let mut g = Graph::new();
     let bufs = [
@@ -266,13 +272,19 @@ fn glsl_integrals_match_cpu() {
     add_copy_to_readback(&mut g, o, "int_rb", (n * 8) as u64);
     engine.submit(g).unwrap();
     let out = engine.drain().unwrap().pop().unwrap();
-    let f: Vec<f32> = out.readbacks["int_rb"].chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
+    let f: Vec<f32> =
+        out.readbacks["int_rb"].chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
     let mut worst: f64 = 0.0;
     for (q, (ca, cc, full)) in cpu.iter().enumerate() {
         let (ga, gc) = (f[2 * q] as f64, f[2 * q + 1] as f64);
         let ea = (ga - ca).abs() / full;
         let ec = (gc - cc).abs() / full;
-        assert!(ea < 2e-3 && ec < 2e-3, "lobe {q} ({:?}, {:?}): GPU ({ga}, {gc}) CPU ({ca}, {cc})", lobes[q], params[q]);
+        assert!(
+            ea < 2e-3 && ec < 2e-3,
+            "lobe {q} ({:?}, {:?}): GPU ({ga}, {gc}) CPU ({ca}, {cc})",
+            lobes[q],
+            params[q]
+        );
         worst = worst.max(ea).max(ec);
     }
     println!("{n} (map, lobe) pairs: max |GPU - CPU| = {worst:.2e} of the lobe's sphere integral");

@@ -3,9 +3,9 @@
 
 use penumbra::FrameImages;
 use penumbra_reference::image::Image;
-use std::path::PathBuf;
 use penumbra_reference::metrics::compare;
 use penumbra_reference::render::{render as reference_render, Mode, ReferenceOptions};
+use std::path::PathBuf;
 
 mod common;
 use common::{hdr_image as image, render_times as render, scene};
@@ -91,7 +91,8 @@ fn shader_visibility_matches_cpu() {
             queries.push(VisibilityQuery { p, n: Vec3::Z, axis, gamma: g });
         }
     }
-    let ctx = penumbra::engine::Context::new(&penumbra::engine::ContextDesc { validation: true, ..Default::default() }).expect("context");
+    let ctx = penumbra::engine::Context::new(&penumbra::engine::ContextDesc { validation: true, ..Default::default() })
+        .expect("context");
     let log = ctx.validation.clone();
     let mut engine = penumbra::engine::Engine::new(ctx, 1).expect("engine");
     let shaders = penumbra::shader_library();
@@ -99,7 +100,8 @@ fn shader_visibility_matches_cpu() {
     let gpu = gpu_visibility(&mut engine, &shaders, &queries, &spheres, &tris, side, eps, 0.0).expect("gpu visibility");
     let table = IsgTable::default_table();
     let params = IsgParams { epsilon: eps, patch_side: side as usize };
-    let cs: Vec<Sphere> = spheres.iter().map(|s| Sphere { center: s.center.as_dvec3(), radius: s.radius as f64 }).collect();
+    let cs: Vec<Sphere> =
+        spheres.iter().map(|s| Sphere { center: s.center.as_dvec3(), radius: s.radius as f64 }).collect();
     let ct: Vec<[DVec3; 3]> = tris.iter().map(|t| t.map(|v| v.as_dvec3())).collect();
     let (mut worst, mut sum, mut occluded, mut partial) = (0.0f64, 0.0, 0, 0);
     let mut per_gamma = vec![0.0f64; gammas.len()];
@@ -178,8 +180,11 @@ position = [0.0, 0.5, 0.0]
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes").join("isg_cloth_test.toml");
     let s = penumbra_scene::format::parse_toml(&path, text, &Default::default()).expect("scene");
     let (w, h) = (64, 48);
-    let reference = reference_render(&s, &ReferenceOptions { width: w, height: h, spp: 16, time: Some(0.0), mode: Mode::Exact, ..Default::default() })
-        .expect("reference");
+    let reference = reference_render(
+        &s,
+        &ReferenceOptions { width: w, height: h, spp: 16, time: Some(0.0), mode: Mode::Exact, ..Default::default() },
+    )
+    .expect("reference");
     let with = |params: &[(&str, &str)]| {
         let mut s = s.clone();
         s.technique_params = params.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
@@ -209,7 +214,12 @@ position = [0.0, 0.5, 0.0]
             psnr(&c_off)
         );
         assert!(darker > 100, "{technique}: the cloth casts no shadow ({darker} pixels)");
-        assert!(c_on.rel_rmse < 0.7 * c_off.rel_rmse, "{technique}: thin shells do not help: {} vs {}", c_on.rel_rmse, c_off.rel_rmse);
+        assert!(
+            c_on.rel_rmse < 0.7 * c_off.rel_rmse,
+            "{technique}: thin shells do not help: {} vs {}",
+            c_on.rel_rmse,
+            c_off.rel_rmse
+        );
     }
 }
 
@@ -259,9 +269,11 @@ fn accuracy_against_both_references_and_bvh_variants() {
     let s = scene("falling.toml");
     let (w, h) = (96, 72);
     let t = 1.2;
-    let sg_opts = ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::SgLighting, ..Default::default() };
+    let sg_opts =
+        ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::SgLighting, ..Default::default() };
     let sg_ref = reference_render(&s, &sg_opts).expect("reference");
-    let exact_ref = reference_render(&s, &ReferenceOptions { mode: Mode::Exact, ..sg_opts.clone() }).expect("reference");
+    let exact_ref =
+        reference_render(&s, &ReferenceOptions { mode: Mode::Exact, ..sg_opts.clone() }).expect("reference");
     let (_r, isg) = render(&s, "isg", w, h, &[t], false);
     let (_r, env) = render(&s, "env", w, h, &[t], false);
     let with = |params: &[(&str, &str)]| {
@@ -272,7 +284,8 @@ fn accuracy_against_both_references_and_bvh_variants() {
     // against the SG-lit reference: the SG lobes alone for the diffuse term too (diffuse = sg)
     let (_r, isg_sg) = render(&with(&[("prefiltered", "false"), ("diffuse", "sg")]), "isg", w, h, &[t], false);
     let (_r, vtx_sg) = render(&with(&[("prefiltered", "false"), ("diffuse", "sg")]), "isg-vertex", w, h, &[t], false);
-    let (_r, isg_cpu) = render(&with(&[("prefiltered", "false"), ("diffuse", "sg"), ("gpu_bvh", "false")]), "isg", w, h, &[t], false);
+    let (_r, isg_cpu) =
+        render(&with(&[("prefiltered", "false"), ("diffuse", "sg"), ("gpu_bvh", "false")]), "isg", w, h, &[t], false);
     let (_r, isg_paper) = render(&with(&[("diffuse", "sg")]), "isg", w, h, &[t], false);
     assert!(isg_sg[0].gpu_ms.iter().any(|(p, _)| p == "isg_bvh"), "no isg_bvh pass: {:?}", isg_sg[0].gpu_ms);
     assert!(!isg_cpu[0].gpu_ms.iter().any(|(p, _)| p == "isg_bvh"));
@@ -283,7 +296,13 @@ fn accuracy_against_both_references_and_bvh_variants() {
     let ex_isg = cmp(&exact_ref.radiance, &isg[0], "isg");
     let ex_isg_sg = cmp(&exact_ref.radiance, &isg_sg[0], "isg (SG specular)");
     let ex_env = cmp(&exact_ref.radiance, &env[0], "env");
-    for (what, c) in [("SG ref / isg prefiltered=0", &sg_isg), ("SG ref / env", &sg_env), ("exact ref / isg", &ex_isg), ("exact ref / isg prefiltered=0", &ex_isg_sg), ("exact ref / env", &ex_env)] {
+    for (what, c) in [
+        ("SG ref / isg prefiltered=0", &sg_isg),
+        ("SG ref / env", &sg_env),
+        ("exact ref / isg", &ex_isg),
+        ("exact ref / isg prefiltered=0", &ex_isg_sg),
+        ("exact ref / env", &ex_env),
+    ] {
         println!("{what}: PSNR {:.2} dB, relRMSE {:.4}, FLIP {:.4}", psnr(c), c.rel_rmse, c.flip_mean);
     }
     // Visibility: against the reference with the same SG lighting, shadows must help a lot.
@@ -315,7 +334,12 @@ fn accuracy_against_both_references_and_bvh_variants() {
         psnr(&vtx_pix),
         vtx_pix.rel_rmse
     );
-    assert!(sg_vtx.rel_rmse < 0.5 * sg_env.rel_rmse, "per-vertex relRMSE {} vs env {}", sg_vtx.rel_rmse, sg_env.rel_rmse);
+    assert!(
+        sg_vtx.rel_rmse < 0.5 * sg_env.rel_rmse,
+        "per-vertex relRMSE {} vs env {}",
+        sg_vtx.rel_rmse,
+        sg_env.rel_rmse
+    );
     assert!(psnr(&vtx_pix) > 25.0, "per vertex far from per pixel: {}", vtx_pix.summary());
     // GPU LBVH vs CPU median-split BVH: same leaves, different inner nodes for the LOD.
     let c = compare(&image(&isg_cpu[0]), "cpu bvh", &image(&isg_sg[0]), "gpu lbvh").unwrap();
@@ -333,7 +357,8 @@ fn no_specular_fireflies_at_grazing_view() {
     let s = scene("balls_on_dish.toml");
     let (w, h) = (96, 72);
     let t = 0.5;
-    let opts = ReferenceOptions { width: w, height: h, spp: 16, time: Some(t), mode: Mode::Exact, ..Default::default() };
+    let opts =
+        ReferenceOptions { width: w, height: h, spp: 16, time: Some(t), mode: Mode::Exact, ..Default::default() };
     let reference = reference_render(&s, &opts).expect("reference");
     let (_r, isg) = render(&s, "isg", w, h, &[t], false);
     let (_r, env) = render(&s, "env", w, h, &[t], false);
@@ -365,7 +390,8 @@ fn local_lights_cast_shadows() {
     s.environment = None;
     let (w, h) = (64, 48);
     let t = 0.5;
-    let opts = ReferenceOptions { width: w, height: h, spp: 16, time: Some(t), mode: Mode::Exact, ..Default::default() };
+    let opts =
+        ReferenceOptions { width: w, height: h, spp: 16, time: Some(t), mode: Mode::Exact, ..Default::default() };
     let reference = reference_render(&s, &opts).expect("reference");
     let with = |on: bool| {
         let mut s = s.clone();
@@ -379,7 +405,13 @@ fn local_lights_cast_shadows() {
     let (_r, unlit) = render(&with(false), "isg", w, h, &[t], false);
     let c_on = compare(&reference.radiance, "reference", &image(&lit[0]), "isg").unwrap();
     let c_off = compare(&reference.radiance, "reference", &image(&unlit[0]), "isg, lights unshadowed").unwrap();
-    println!("light shadows on: relRMSE {:.4} PSNR {:.2}; off: relRMSE {:.4} PSNR {:.2}", c_on.rel_rmse, psnr(&c_on), c_off.rel_rmse, psnr(&c_off));
+    println!(
+        "light shadows on: relRMSE {:.4} PSNR {:.2}; off: relRMSE {:.4} PSNR {:.2}",
+        c_on.rel_rmse,
+        psnr(&c_on),
+        c_off.rel_rmse,
+        psnr(&c_off)
+    );
     // measured (64x48, 16 spp): on relRMSE 0.082, 28.1 dB; off 0.186, 22.1 dB
     assert!(c_on.rel_rmse < 0.6 * c_off.rel_rmse, "light shadows do not help: {} vs {}", c_on.rel_rmse, c_off.rel_rmse);
     assert!(psnr(&c_on) > psnr(&c_off) + 3.0, "PSNR {} vs {}", psnr(&c_on), psnr(&c_off));

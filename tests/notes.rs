@@ -40,7 +40,8 @@ fn shadow_fields_and_vv_report_the_textures_and_lights_they_ignore() {
     let n = notes("scenes/coarse.toml", "vv");
     assert!(n.is_empty(), "coarse: {n:?}");
     // more lights than vv shades: it names how many it leaves out
-    let mut scene = Scene::load(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/coarse.toml")).expect("scene");
+    let mut scene =
+        Scene::load(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/coarse.toml")).expect("scene");
     let light = scene.lights[0].clone();
     scene.lights = (0..10).map(|_| light.clone()).collect();
     let settings = RenderSettings { width: 16, height: 16, technique: Some("vv".into()), ..Default::default() };
@@ -61,7 +62,8 @@ fn auto_chooses_a_shadowing_technique_and_says_so() {
     assert!(n[0].starts_with("auto: shadowmaps"), "{n:?}");
     assert!(!n.iter().any(|l| l.contains("renders no shadows")), "{n:?}");
     // a bare model (no technique line) lit by the default environment
-    let model = Scene::load(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/assets/bunny.glb")).expect("model");
+    let model =
+        Scene::load(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/assets/bunny.glb")).expect("model");
     assert_eq!(model.technique, "auto");
     let settings = RenderSettings { width: 16, height: 16, ..Default::default() };
     assert_eq!(Renderer::new_headless(&model, settings, false).expect("renderer").technique_name(), "shadowmaps");

@@ -153,7 +153,15 @@ fn mc_without_aa_samples_the_pixel_centres_like_the_reference_grid() {
     )
     .unwrap()
     .radiance;
-    let class = |v: f32| if v.abs() <= 1e-4 * sky { Some(false) } else if (v - sky).abs() <= 1e-4 * sky { Some(true) } else { None };
+    let class = |v: f32| {
+        if v.abs() <= 1e-4 * sky {
+            Some(false)
+        } else if (v - sky).abs() <= 1e-4 * sky {
+            Some(true)
+        } else {
+            None
+        }
+    };
     for (aa, must_match) in [("false", true), ("true", false)] {
         let scene = common::with(&s, &[("spp", "64"), ("aa", aa)]);
         let (_, frames) = common::render_times(&scene, "mc", w, h, &[0.0], true);
@@ -164,7 +172,9 @@ fn mc_without_aa_samples_the_pixel_centres_like_the_reference_grid() {
                 let (g, r) = (img.get(x, y)[0], reference.get(x, y)[0]);
                 assert!(class(r).is_some(), "reference pixel ({x}, {y}) mixes: {r}");
                 match class(g) {
-                    Some(c) if must_match => assert_eq!(Some(c), class(r), "aa = {aa}: pixel ({x}, {y}) is {g}, the reference's {r}"),
+                    Some(c) if must_match => {
+                        assert_eq!(Some(c), class(r), "aa = {aa}: pixel ({x}, {y}) is {g}, the reference's {r}")
+                    }
                     Some(_) => {}
                     None => mixed += 1,
                 }

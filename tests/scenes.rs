@@ -31,13 +31,16 @@ fn every_builtin_scene_renders_validation_clean() {
     let mut failures = Vec::new();
     for f in files {
         let scene = Scene::load(&f).unwrap_or_else(|e| panic!("{e}"));
-        let settings = penumbra::RenderSettings { width: 64, height: 48, technique: Some("env".into()), ..Default::default() };
-        let mut r = penumbra::Renderer::new_headless(&scene, settings, true).unwrap_or_else(|e| panic!("{}: {e:#}", f.display()));
+        let settings =
+            penumbra::RenderSettings { width: 64, height: 48, technique: Some("env".into()), ..Default::default() };
+        let mut r = penumbra::Renderer::new_headless(&scene, settings, true)
+            .unwrap_or_else(|e| panic!("{}: {e:#}", f.display()));
         let mut frames = Vec::new();
         let mut prev = None;
         for k in 0..3 {
             let t = k as f32 / 30.0;
-            frames.extend(r.render(&scene.at(t, prev), None, true).unwrap_or_else(|e| panic!("{}: {e:#}", f.display())));
+            frames
+                .extend(r.render(&scene.at(t, prev), None, true).unwrap_or_else(|e| panic!("{}: {e:#}", f.display())));
             prev = Some(t);
         }
         frames.extend(r.finish().unwrap());
@@ -140,7 +143,12 @@ fn static_only_techniques_refuse_moving_scenes() {
     let static_only: Vec<_> = penumbra_passes::registry::REGISTRY.iter().filter(|t| t.static_only).collect();
     assert!(!static_only.is_empty());
     for info in static_only {
-        let settings = penumbra::RenderSettings { width: 48, height: 36, technique: Some(info.name.to_string()), ..Default::default() };
+        let settings = penumbra::RenderSettings {
+            width: 48,
+            height: 36,
+            technique: Some(info.name.to_string()),
+            ..Default::default()
+        };
         match penumbra::Renderer::new_headless(&falling, settings, false) {
             Ok(_) => panic!("{}: a static-only technique accepted a moving scene", info.name),
             Err(e) => assert!(format!("{e:#}").contains("static"), "{}: unclear refusal: {e:#}", info.name),
@@ -199,9 +207,13 @@ fn every_registered_technique_can_be_named_by_a_scene_file() {
     let path = dir.join("unknown.toml");
     std::fs::write(&path, format!("technique = \"hsdt\"\n{body}")).unwrap();
     let scene = Scene::load(&path).expect("the scene keeps the name as written");
-    let e = penumbra::Renderer::new_headless(&scene, penumbra::RenderSettings { width: 16, height: 12, ..Default::default() }, false)
-        .err()
-        .expect("an unregistered technique is refused")
-        .to_string();
+    let e = penumbra::Renderer::new_headless(
+        &scene,
+        penumbra::RenderSettings { width: 16, height: 12, ..Default::default() },
+        false,
+    )
+    .err()
+    .expect("an unregistered technique is refused")
+    .to_string();
     assert!(e.contains("unknown.toml") && e.contains("unknown technique 'hsdt'") && e.contains("avs"), "{e}");
 }

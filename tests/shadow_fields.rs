@@ -22,7 +22,15 @@ fn shadow_fields_render_validation_clean_and_against_the_reference() {
     for rep in &fields.reports {
         println!(
             "{}: {} tris, fixed {} B, adaptive {} B, file {} / {} B, precompute {:.2} s (cached {}), R per shell {:?}",
-            rep.mesh, rep.triangles, rep.fixed_bytes, rep.adaptive_bytes, rep.fixed_file_bytes, rep.adaptive_file_bytes, rep.seconds, rep.cached, rep.resolutions
+            rep.mesh,
+            rep.triangles,
+            rep.fixed_bytes,
+            rep.adaptive_bytes,
+            rep.fixed_file_bytes,
+            rep.adaptive_file_bytes,
+            rep.seconds,
+            rep.cached,
+            rep.resolutions
         );
         assert!(rep.adaptive_bytes <= rep.fixed_bytes);
     }
@@ -76,7 +84,8 @@ fn shadow_fields_render_validation_clean_and_against_the_reference() {
     assert!(gained < 0.3 * lost, "ringing gains {gained} vs shadows' {lost}");
 
     // Image error against the exact reference, adaptive vs fixed vs unshadowed.
-    let opts = ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::Exact, ..Default::default() };
+    let opts =
+        ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::Exact, ..Default::default() };
     let reference = reference_render(&s, &opts).expect("reference");
     let (_r, fixed) = render(&s, "shadow-fields-fixed", w, h, &[t], false);
     let ca = compare(&reference.radiance, "reference", &image(sf), "adaptive").unwrap();
@@ -120,7 +129,8 @@ fn shadow_fields_local_lights_vertex_and_pixel_modes_against_the_reference() {
         }
         sc
     };
-    let opts = ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::Exact, ..Default::default() };
+    let opts =
+        ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::Exact, ..Default::default() };
     let reference = reference_render(&s, &opts).expect("reference");
     // the same shading without occluders (lights and environment unshadowed)
     let (_r, open) = render(&with("pixel", false), "shadow-fields", w, h, &[t], false);

@@ -33,7 +33,7 @@ fn occluder_scene(name: &str, medium: &str, camera: &str, light: &str, motion: &
 
 fn occluder_text(name: &str, medium: &str, camera: &str, light: &str, motion: &str) -> String {
     format!(
-            r#"
+        r#"
 name = "{name}"
 [camera]
 {camera}
@@ -136,12 +136,17 @@ fn lit_surfaces_in_a_medium_match_the_reference() {
     // (every technique's local lights) and on its way to the eye (vol_composite), as the CPU
     // reference does; before, the floor under the spot was 1.7x too bright.
     std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
-    let text = occluder_text("vol_lit", "sigma_a = 0.1\nsigma_s = 0.3\ng = 0.3", CAM, SPOT, "")
-        .replace("[materials.black]\ntype = \"diffuse\"\nalbedo = 0.0", "[materials.black]\ntype = \"diffuse\"\nalbedo = 0.6");
+    let text = occluder_text("vol_lit", "sigma_a = 0.1\nsigma_s = 0.3\ng = 0.3", CAM, SPOT, "").replace(
+        "[materials.black]\ntype = \"diffuse\"\nalbedo = 0.0",
+        "[materials.black]\ntype = \"diffuse\"\nalbedo = 0.6",
+    );
     assert!(text.contains("albedo = 0.6"));
     let (w, h) = (96, 72);
     for technique in ["shadowmaps", "mc"] {
-        let scene = scene_from(&format!("vol_lit_{}", technique), &text.replace("name = \"vol_lit\"", &format!("name = \"vol_lit\"\ntechnique = \"{technique}\"")));
+        let scene = scene_from(
+            &format!("vol_lit_{}", technique),
+            &text.replace("name = \"vol_lit\"", &format!("name = \"vol_lit\"\ntechnique = \"{technique}\"")),
+        );
         let (r, img) = render_one(&scene, "full", w, h);
         assert_eq!(r.context().validation.error_count(), 0, "{:?}", r.context().validation.errors());
         drop(r);
@@ -149,7 +154,8 @@ fn lit_surfaces_in_a_medium_match_the_reference() {
         let reference = penumbra_reference::render::render(&scene, &opts).expect("reference");
         let gpu = common::hdr_image(&img);
         let c = penumbra_reference::metrics::compare(&reference.radiance, "reference", &gpu, technique).unwrap();
-        let sum = |im: &penumbra_reference::image::Image| im.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>();
+        let sum =
+            |im: &penumbra_reference::image::Image| im.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>();
         let ratio = sum(&gpu) / sum(&reference.radiance);
         // The floor straight under the light (the image's lower middle): lit, in the medium.
         let floor = |im: &penumbra_reference::image::Image| {
@@ -163,7 +169,10 @@ fn lit_surfaces_in_a_medium_match_the_reference() {
             s
         };
         let floor_ratio = floor(&gpu) / floor(&reference.radiance);
-        println!("{technique}: relRMSE {}, PSNR {:?} dB, energy ratio {ratio:.4}, floor ratio {floor_ratio:.4}", c.rel_rmse, c.psnr_db);
+        println!(
+            "{technique}: relRMSE {}, PSNR {:?} dB, energy ratio {ratio:.4}, floor ratio {floor_ratio:.4}",
+            c.rel_rmse, c.psnr_db
+        );
         assert!((ratio - 1.0).abs() < 0.05, "{technique}: energy ratio {ratio}");
         assert!((floor_ratio - 1.0).abs() < 0.08, "{technique}: floor ratio {floor_ratio}");
     }
@@ -177,16 +186,22 @@ fn lights_beyond_the_scattering_budget_are_named() {
     let settings = RenderSettings { width: 32, height: 24, ..Default::default() };
     let r = Renderer::new_headless(&scene, settings, false).expect("renderer");
     let notes = r.notes().join("\n");
-    assert!(notes.contains("volumetric: ") && notes.contains("'spot'") && notes.contains("'dim' light surfaces only"), "{notes}");
+    assert!(
+        notes.contains("volumetric: ") && notes.contains("'spot'") && notes.contains("'dim' light surfaces only"),
+        "{notes}"
+    );
     // By contribution, not by intensity: a dimmer light beside the camera fills the medium the
     // camera looks through (I exp(-sigma_t d) / d).
-    let near = format!("{SPOT}\n[[light]]\nname = \"near\"\ntype = \"point\"\nposition = [0.3, 1.3, 3.6]\nintensity = 30");
+    let near =
+        format!("{SPOT}\n[[light]]\nname = \"near\"\ntype = \"point\"\nposition = [0.3, 1.3, 3.6]\nintensity = 30");
     let scene = occluder_scene("vol_near_light", MEDIUM, CAM, &near, "");
-    let r = Renderer::new_headless(&scene, RenderSettings { width: 32, height: 24, ..Default::default() }, false).unwrap();
+    let r =
+        Renderer::new_headless(&scene, RenderSettings { width: 32, height: 24, ..Default::default() }, false).unwrap();
     let notes = r.notes().join("\n");
     assert!(notes.contains("('near' at t = 0)") && notes.contains("'spot' light surfaces only"), "{notes}");
     let one = occluder_scene("vol_one_light", MEDIUM, CAM, SPOT, "");
-    let r = Renderer::new_headless(&one, RenderSettings { width: 32, height: 24, ..Default::default() }, false).unwrap();
+    let r =
+        Renderer::new_headless(&one, RenderSettings { width: 32, height: 24, ..Default::default() }, false).unwrap();
     assert!(!r.notes().iter().any(|n| n.contains("scatters one light")), "{:?}", r.notes());
 }
 
@@ -279,7 +294,10 @@ fn hybrid_with_airlight_matches_the_reference_as_plain_marching_does() {
     let (w, h) = (96u32, 72u32);
     for (name, light) in [
         ("vol_hybrid", SPOT),
-        ("vol_hybrid_point", "name = \"p\"\ntype = \"point\"\nposition = [0.3, 2.2, 0.3]\ncolor = [1.0, 0.9, 0.8]\nintensity = 15"),
+        (
+            "vol_hybrid_point",
+            "name = \"p\"\ntype = \"point\"\nposition = [0.3, 2.2, 0.3]\ncolor = [1.0, 0.9, 0.8]\nintensity = 15",
+        ),
     ] {
         let scene = occluder_scene(name, MEDIUM, CAM, light, motion);
         let run = |hybrid: bool| {
@@ -308,10 +326,16 @@ fn hybrid_with_airlight_matches_the_reference_as_plain_marching_does() {
         };
         let reference = penumbra_reference::render::render(&scene, &opts).expect("reference");
         let judge = |img: &Vec<[f32; 4]>, label: &str| {
-            let c = penumbra_reference::metrics::compare(&reference.radiance, "reference", &to_img(img), label).unwrap();
-            let sum = |im: &penumbra_reference::image::Image| im.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>();
+            let c =
+                penumbra_reference::metrics::compare(&reference.radiance, "reference", &to_img(img), label).unwrap();
+            let sum = |im: &penumbra_reference::image::Image| {
+                im.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>()
+            };
             let ratio = sum(&to_img(img)) / sum(&reference.radiance);
-            println!("{name} {label} vs CPU reference: relRMSE {:?}, PSNR {:?} dB, energy ratio {ratio:.4}", c.rel_rmse, c.psnr_db);
+            println!(
+                "{name} {label} vs CPU reference: relRMSE {:?}, PSNR {:?} dB, energy ratio {ratio:.4}",
+                c.rel_rmse, c.psnr_db
+            );
             (c.rel_rmse, ratio)
         };
         let (e_plain, r_plain) = judge(&plain.last_full_hdr, "plain march");
@@ -334,7 +358,12 @@ fn deforming_mover_masks_like_a_rigid_one() {
     assert_eq!(rep.missed_pixels, 0, "{}", rep.table());
     assert!(rep.frames[1..].iter().all(|f| f.changed_pixels > 0), "the squash changes the shafts: {}", rep.table());
     for f in &rep.frames[1..] {
-        assert!(f.marched_fraction < 0.9, "frame {}: the mask covers only the ball's volumes: {}", f.frame, rep.table());
+        assert!(
+            f.marched_fraction < 0.9,
+            "frame {}: the mask covers only the ball's volumes: {}",
+            f.frame,
+            rep.table()
+        );
         assert_eq!(f.mean_abs, 0.0, "frame {}: temporal differs from full: {}", f.frame, rep.table());
     }
 }

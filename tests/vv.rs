@@ -13,7 +13,13 @@ mod common;
 use common::{hdr_image as image, scene, with, with_env};
 
 fn render(scene: &Scene, w: u32, h: u32, validation: bool) -> (Renderer, Vec<FrameImages>) {
-    let settings = RenderSettings { width: w, height: h, technique: Some("vv".into()), technique_params: Some(scene.technique_params.clone()), ..Default::default() };
+    let settings = RenderSettings {
+        width: w,
+        height: h,
+        technique: Some("vv".into()),
+        technique_params: Some(scene.technique_params.clone()),
+        ..Default::default()
+    };
     let mut r = Renderer::new_headless(scene, settings, validation).expect("renderer");
     let mut out = Vec::new();
     for _ in 0..1 {
@@ -38,12 +44,18 @@ fn modes_render_validation_clean_and_match_the_reference() {
     std::env::set_var("PENUMBRA_NO_PROGRESS", "1");
     let s = with(&scene("vv_coarse.toml"), &[("sat_width", "64"), ("resolution", "24"), ("arcs", "12")]);
     let (w, h) = (24, 18);
-    let reference = reference_render(&s, &ReferenceOptions { width: w, height: h, spp: 64, time: Some(0.0), mode: Mode::Exact, ..Default::default() })
-        .expect("reference");
+    let reference = reference_render(
+        &s,
+        &ReferenceOptions { width: w, height: h, spp: 64, time: Some(0.0), mode: Mode::Exact, ..Default::default() },
+    )
+    .expect("reference");
     let env = render_env(&s, w, h);
     let env_psnr = compare(&reference.radiance, "reference", &image(&env), "env").unwrap().psnr_db.unwrap_or(99.0);
     println!("env (no shadows): PSNR {env_psnr:.2}");
-    let input_triangles = penumbra_passes::vv::scene_model(&s, penumbra_passes::vv::VvSettings::default().refine).unwrap().model.triangle_count() as u64;
+    let input_triangles = penumbra_passes::vv::scene_model(&s, penumbra_passes::vv::VvSettings::default().refine)
+        .unwrap()
+        .model
+        .triangle_count() as u64;
     for mode in ["fragment3", "fragment1", "tessellation"] {
         // zeta 4: the displayed radiance of some vertices near the studio lights' shadow edges
         // changes by >= 1/8 under the Phong-256 blur, so their triangles get level 2 or 4
@@ -52,7 +64,10 @@ fn modes_render_validation_clean_and_match_the_reference() {
         let (r, frames) = render(&sm, w, h, true);
         let log = r.context().validation.clone();
         let last = frames.last().expect("frames");
-        assert!(last.hdr.iter().flatten().all(|c| c.is_finite() && *c >= 0.0), "{mode}: non-finite or negative radiance");
+        assert!(
+            last.hdr.iter().flatten().all(|c| c.is_finite() && *c >= 0.0),
+            "{mode}: non-finite or negative radiance"
+        );
         let pass = if mode.starts_with("tess") { "vv_tess" } else { "vv_shade" };
         assert!(last.gpu_ms.iter().any(|(p, _)| p == pass), "{mode}: no {pass} pass: {:?}", last.gpu_ms);
         assert!(last.gpu_ms.iter().any(|(p, _)| p == "vv_sat_cols"), "{mode}: no SAT build pass");
@@ -66,12 +81,16 @@ fn modes_render_validation_clean_and_match_the_reference() {
         let psnr = c.psnr_db.unwrap_or(99.0);
         println!("{mode}: PSNR {psnr:.2} relRMSE {:.4} FLIP {:.4} gpu {:?}", c.rel_rmse, c.flip_mean, last.gpu_ms);
         // the last finished frame's pipeline statistics (the renderer has finished its frames)
-        let tessellated = r.technique_stats::<penumbra_passes::vv::VvStats>().expect("vv keeps statistics").tessellated_triangles;
+        let tessellated =
+            r.technique_stats::<penumbra_passes::vv::VvStats>().expect("vv keeps statistics").tessellated_triangles;
         drop(r);
         if tess {
             let n = tessellated.expect("tessellated triangle count");
             println!("{mode}: {n} triangles after tessellation ({input_triangles} input)");
-            assert!(n > input_triangles, "{mode}: {n} triangles after tessellation, not more than the {input_triangles} input triangles");
+            assert!(
+                n > input_triangles,
+                "{mode}: {n} triangles after tessellation, not more than the {input_triangles} input triangles"
+            );
         }
         assert_eq!(log.error_count(), 0, "{mode}: validation errors: {:#?}", log.errors());
         assert!(psnr > env_psnr + 1.0, "{mode}: PSNR {psnr:.2} not better than unshadowed env {env_psnr:.2}");
@@ -107,10 +126,26 @@ fn parity_cases(sun: glam::DVec3) -> Vec<(&'static str, glam::DVec3, Vec<Vec<gla
         ("seam crossing", dir(0.05, 1.2), vec![cap(dir(0.0, 1.0), 0.35, 9)]),
         ("seam crossing, two loops", dir(6.2, 1.4), vec![cap(dir(0.1, 1.5), 0.3, 7), cap(dir(6.0, 1.1), 0.25, 6)]),
         ("around the north pole", DVec3::new(0.2, 1.0, 0.1).normalize(), vec![cap(dir(1.0, 0.1), 0.4, 10)]),
-        ("arc exactly through the north pole", DVec3::Y, vec![vec![dir(0.0, 0.3), dir(std::f64::consts::FRAC_PI_2, 0.6), dir(std::f64::consts::PI, 0.3)]]),
-        ("over the pole, horizon near both poles", n_side, vec![clamp(cap(dir(std::f64::consts::FRAC_PI_2, 0.25), 0.4, 10), n_side)]),
-        ("around the south pole", DVec3::new(0.1, -1.0, 0.2).normalize(), vec![cap(dir(2.0, std::f64::consts::PI - 0.1), 0.4, 10)]),
-        ("crossing the tangent plane (clamped)", dir(2.5, 1.0), vec![clamp(cap(dir(2.5, 2.3), 0.5, 12), dir(2.5, 1.0))]),
+        (
+            "arc exactly through the north pole",
+            DVec3::Y,
+            vec![vec![dir(0.0, 0.3), dir(std::f64::consts::FRAC_PI_2, 0.6), dir(std::f64::consts::PI, 0.3)]],
+        ),
+        (
+            "over the pole, horizon near both poles",
+            n_side,
+            vec![clamp(cap(dir(std::f64::consts::FRAC_PI_2, 0.25), 0.4, 10), n_side)],
+        ),
+        (
+            "around the south pole",
+            DVec3::new(0.1, -1.0, 0.2).normalize(),
+            vec![cap(dir(2.0, std::f64::consts::PI - 0.1), 0.4, 10)],
+        ),
+        (
+            "crossing the tangent plane (clamped)",
+            dir(2.5, 1.0),
+            vec![clamp(cap(dir(2.5, 2.3), 0.5, 12), dir(2.5, 1.0))],
+        ),
         ("sun hidden", sun, vec![cap(sun, 0.1, 8)]),
         ("sun half covered", sun, vec![cap(dir(sun_p, sun_t + 0.1), 0.1, 12)]),
         ("sun visible, occluder next to it", sun, vec![cap(dir(sun_p + 0.3, sun_t), 0.1, 8)]),
@@ -129,7 +164,11 @@ fn gpu_sat_and_glsl_integral_match_cpu() {
     let big = with_env(&with(&base, &[("sat_width", "1024")]), 1024, 512, |x, y| {
         let sky = 0.2 + 0.8 * (1.0 - y as f32 / 512.0) + 0.1 * ((x as f32) * 0.05).sin();
         let d2 = (x as f32 - 300.0).powi(2) + (y as f32 - 120.0).powi(2);
-        if d2 < 9.0 { [1.0e4, 0.9e4, 0.8e4] } else { [sky, sky * 0.9, sky * 1.1] }
+        if d2 < 9.0 {
+            [1.0e4, 0.9e4, 0.8e4]
+        } else {
+            [sky, sky * 0.9, sky * 1.1]
+        }
     });
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
     let shaders = penumbra::shader_library();
@@ -151,7 +190,9 @@ fn gpu_sat_and_glsl_integral_match_cpu() {
         let sat = tech.add_sat(&mut g, "vv_sat", &texels);
         let gpu_cases: Vec<(glam::Vec3, Vec<Vec<glam::Vec3>>)> = cases
             .iter()
-            .map(|(_, n, loops)| (n.as_vec3(), loops.iter().map(|l| l.iter().rev().map(|d| d.as_vec3()).collect()).collect()))
+            .map(|(_, n, loops)| {
+                (n.as_vec3(), loops.iter().map(|l| l.iter().rev().map(|d| d.as_vec3()).collect()).collect())
+            })
             .collect();
         let integrals = parity.add(&tech, &mut g, sat, &gpu_cases);
         penumbra_passes::readback::add(&mut g, "sat_readback", &[(sat, "sat"), (integrals, "integrals")]);
@@ -160,10 +201,13 @@ fn gpu_sat_and_glsl_integral_match_cpu() {
         println!("{name}: GPU SAT + parity graph in {:.2} s", t0.elapsed().as_secs_f64());
         let bytes = outs.last().unwrap().readbacks.get("sat").expect("readback").clone();
         let gpu: Vec<f32> = bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-        let tex3: Vec<[f32; 3]> = texels.chunks_exact(16).map(|c| {
-            let f = |i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
-            [f(0), f(4), f(8)]
-        }).collect();
+        let tex3: Vec<[f32; 3]> = texels
+            .chunks_exact(16)
+            .map(|c| {
+                let f = |i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
+                [f(0), f(4), f(8)]
+            })
+            .collect();
         let cpu = penumbra_math::vv_sat::Sat::new(w as usize, h as usize, &tex3).unwrap();
         let (cw, ch) = (w as usize + 1, h as usize + 1);
         let (mut max_err, mut scale) = (0.0f64, 0.0f64);
@@ -200,12 +244,26 @@ fn gpu_sat_and_glsl_integral_match_cpu() {
             let g = glam::DVec3::new(gi[4 * i] as f64, gi[4 * i + 1] as f64, gi[4 * i + 2] as f64);
             let err = (lum(g) - lum(c)).abs() / lum(open);
             worst = worst.max(err);
-            println!("{name}: {case:<40} CPU {:.6e} GPU {:.6e} unoccluded {:.6e} error {err:.2e} of unoccluded", lum(c), lum(g), lum(open));
+            println!(
+                "{name}: {case:<40} CPU {:.6e} GPU {:.6e} unoccluded {:.6e} error {err:.2e} of unoccluded",
+                lum(c),
+                lum(g),
+                lum(open)
+            );
             if !loops.is_empty() && lum(c) > lum(open) * (1.0 + 1e-9) {
-                failures.push(format!("{name}: {case}: the occluder adds light on the CPU ({} > {})", lum(c), lum(open)));
+                failures.push(format!(
+                    "{name}: {case}: the occluder adds light on the CPU ({} > {})",
+                    lum(c),
+                    lum(open)
+                ));
             }
             if !(g.is_finite() && err < PARITY_TOL) {
-                failures.push(format!("{name}: {case}: GLSL {} vs CPU {} ({err:.2e} of the unoccluded {})", lum(g), lum(c), lum(open)));
+                failures.push(format!(
+                    "{name}: {case}: GLSL {} vs CPU {} ({err:.2e} of the unoccluded {})",
+                    lum(g),
+                    lum(c),
+                    lum(open)
+                ));
             }
         }
         println!("{name}: worst GLSL-vs-CPU integral error {worst:.2e} of the unoccluded value");
@@ -229,7 +287,11 @@ fn cap_cases(cos_xi: f64) -> Vec<(&'static str, glam::DVec3, glam::DVec3, Vec<Ve
     };
     let positive = |l: Vec<DVec3>| -> Vec<DVec3> {
         let c = l.iter().copied().sum::<DVec3>().normalize();
-        if winding_about(&l, c) > 0 { l } else { l.into_iter().rev().collect() }
+        if winding_about(&l, c) > 0 {
+            l
+        } else {
+            l.into_iter().rev().collect()
+        }
     };
     // a triangle whose first edge crosses the cap with both ends outside it (an arc dipping in)
     let dip = |r: DVec3| -> Vec<DVec3> {
@@ -253,7 +315,12 @@ fn cap_cases(cos_xi: f64) -> Vec<(&'static str, glam::DVec3, glam::DVec3, Vec<Ve
         ("cap inside an occluder (gamma 0)", DVec3::Y, r_in, vec![cap(r_in, xi + 0.15, 14)]),
         ("occluder inside the cap", DVec3::Y, r_in, vec![cap(dir(0.6, 0.35), 0.15, 8)]),
         ("occluder across the cap edge", DVec3::Y, r_free, vec![cap((r_free + ru * 0.5).normalize(), 0.3, 10)]),
-        ("two occluders, inside and across", DVec3::Y, r_free, vec![cap((r_free - ru * 0.1).normalize(), 0.1, 7), cap((r_free + ru * 0.55).normalize(), 0.25, 9)]),
+        (
+            "two occluders, inside and across",
+            DVec3::Y,
+            r_free,
+            vec![cap((r_free - ru * 0.1).normalize(), 0.1, 7), cap((r_free + ru * 0.55).normalize(), 0.25, 9)],
+        ),
         ("cap across the seam", dir(0.0, 1.1), r_seam, vec![cap(dir(6.1, 1.1), 0.3, 9)]),
         ("cap over the north pole", DVec3::Y, r_pole, vec![cap(dir(2.0, 0.15), 0.25, 10)]),
         ("cap across the horizon", DVec3::Y, r_low, vec![clamp(cap(dir(2.2, 1.4), 0.3, 10), DVec3::Y)]),
@@ -285,7 +352,14 @@ fn gpu_cap_ratio_matches_cpu() {
     let cases = cap_cases(cos_xi);
     let gpu_cases: Vec<penumbra_passes::kernels::vv::CapCase> = cases
         .iter()
-        .map(|(_, n, r, loops)| (n.as_vec3(), r.as_vec3(), cos_xi as f32, loops.iter().map(|l| l.iter().rev().map(|d| d.as_vec3()).collect()).collect()))
+        .map(|(_, n, r, loops)| {
+            (
+                n.as_vec3(),
+                r.as_vec3(),
+                cos_xi as f32,
+                loops.iter().map(|l| l.iter().rev().map(|d| d.as_vec3()).collect()).collect(),
+            )
+        })
         .collect();
     let mut failures = Vec::new();
     for (map, s) in [("smooth sky 256x128", smooth), ("studio map 256x128", base)] {
@@ -300,7 +374,9 @@ fn gpu_cap_ratio_matches_cpu() {
         engine.submit(g).unwrap();
         let outs = engine.drain().unwrap();
         let rb = &outs.last().unwrap().readbacks;
-        let f32s = |b: &Vec<u8>| -> Vec<f32> { b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect() };
+        let f32s = |b: &Vec<u8>| -> Vec<f32> {
+            b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+        };
         let gpu_sat = f32s(rb.get("sat").expect("sat readback"));
         let tex3: Vec<[f32; 3]> = texels
             .chunks_exact(16)
@@ -322,7 +398,10 @@ fn gpu_cap_ratio_matches_cpu() {
                 }
             }
         }
-        println!("{map}: GPU vs CPU SAT channel 4 (∫ L_e dω): max abs error {max_err:.3e}, {:.3e} of the largest corner", max_err / scale);
+        println!(
+            "{map}: GPU vs CPU SAT channel 4 (∫ L_e dω): max abs error {max_err:.3e}, {:.3e} of the largest corner",
+            max_err / scale
+        );
         assert!(max_err / scale < 2e-6, "{map}: GPU SAT channel 4 error {:.3e} of the largest value", max_err / scale);
         let gi = f32s(rb.get("gamma").expect("gamma readback"));
         let nc = cases.len();
@@ -338,14 +417,29 @@ fn gpu_cap_ratio_matches_cpu() {
         let mut worst = 0.0f64;
         for (i, (name, n, r, loops)) in cases.iter().enumerate() {
             let cpu_g = penumbra_math::vv_sat::cap_ratio(&cpu, *n, *r, cos_xi, loops, &o);
-            let px = |row: usize| glam::DVec3::new(gi[4 * (row * nc + i)] as f64, gi[4 * (row * nc + i) + 1] as f64, gi[4 * (row * nc + i) + 2] as f64);
+            let px = |row: usize| {
+                glam::DVec3::new(
+                    gi[4 * (row * nc + i)] as f64,
+                    gi[4 * (row * nc + i) + 1] as f64,
+                    gi[4 * (row * nc + i) + 2] as f64,
+                )
+            };
             let (gpu_g, num, den) = (px(0), px(1), px(2));
             let err = (gpu_g - cpu_g).abs().max_element();
             worst = worst.max(err);
-            println!("{map}: {name:<36} gamma CPU {:.5} GPU {:.5} (num {:.4e} den {:.4e}) error {err:.2e}", lum(cpu_g), lum(gpu_g), lum(num), lum(den));
+            println!(
+                "{map}: {name:<36} gamma CPU {:.5} GPU {:.5} (num {:.4e} den {:.4e}) error {err:.2e}",
+                lum(cpu_g),
+                lum(gpu_g),
+                lum(num),
+                lum(den)
+            );
             // gamma error times the denominator = the numerator's error
             if !(gpu_g.is_finite() && err * lum(den) < CAP_PARITY_TOL * lum(den) + floor) {
-                failures.push(format!("{map}: {name}: GLSL gamma {gpu_g:?} vs CPU {cpu_g:?} (den {:.3e}, fp32 floor {floor:.3e})", lum(den)));
+                failures.push(format!(
+                    "{map}: {name}: GLSL gamma {gpu_g:?} vs CPU {cpu_g:?} (den {:.3e}, fp32 floor {floor:.3e})",
+                    lum(den)
+                ));
             }
         }
         println!("{map}: worst GLSL-vs-CPU gamma error {worst:.2e}");
@@ -355,13 +449,32 @@ fn gpu_cap_ratio_matches_cpu() {
             glam::DVec3::new(gi[4 * i] as f64, gi[4 * i + 1] as f64, gi[4 * i + 2] as f64)
         };
         for name in ["free cap (gamma 1)", "free cap, occluder beside it"] {
-            assert!((g_of(name) - glam::DVec3::ONE).abs().max_element() < 1e-3, "{map}: {name}: gamma {:?}", g_of(name));
+            assert!(
+                (g_of(name) - glam::DVec3::ONE).abs().max_element() < 1e-3,
+                "{map}: {name}: gamma {:?}",
+                g_of(name)
+            );
         }
-        assert!(g_of("cap inside an occluder (gamma 0)").max_element() < 1e-3, "{map}: enclosed cap gamma {:?}", g_of("cap inside an occluder (gamma 0)"));
+        assert!(
+            g_of("cap inside an occluder (gamma 0)").max_element() < 1e-3,
+            "{map}: enclosed cap gamma {:?}",
+            g_of("cap inside an occluder (gamma 0)")
+        );
         if map.starts_with("smooth") {
-            for name in ["occluder inside the cap", "occluder across the cap edge", "two occluders, inside and across", "cap across the seam", "cap over the north pole", "cap across the horizon", "arc dipping into the cap"] {
+            for name in [
+                "occluder inside the cap",
+                "occluder across the cap edge",
+                "two occluders, inside and across",
+                "cap across the seam",
+                "cap over the north pole",
+                "cap across the horizon",
+                "arc dipping into the cap",
+            ] {
                 let g = g_of(name);
-                assert!(g.max_element() < 0.99 && g.min_element() > 0.01, "{map}: {name}: gamma {g:?} should be partial");
+                assert!(
+                    g.max_element() < 0.99 && g.min_element() > 0.01,
+                    "{map}: {name}: gamma {g:?} should be partial"
+                );
             }
         }
         drop(tech);
@@ -401,22 +514,41 @@ fn glossy_specular_in_all_modes() {
     std::env::set_var("PENUMBRA_NO_PROGRESS", "1");
     let s = glossy_scene();
     let (w, h) = (24, 18);
-    let reference = reference_render(&s, &ReferenceOptions { width: w, height: h, spp: 256, time: Some(0.0), mode: Mode::Exact, ..Default::default() })
-        .expect("reference");
+    let reference = reference_render(
+        &s,
+        &ReferenceOptions { width: w, height: h, spp: 256, time: Some(0.0), mode: Mode::Exact, ..Default::default() },
+    )
+    .expect("reference");
     let mut psnr = std::collections::BTreeMap::new();
     {
         // context: the env technique (glossy from the prefiltered map, no shadows)
         let env = render_env(&s, w, h);
         let c = compare(&reference.radiance, "reference", &image(&env), "env").unwrap();
-        println!("glossy env (no shadows): PSNR {:.2} relRMSE {:.4} FLIP {:.4}", c.psnr_db.unwrap_or(99.0), c.rel_rmse, c.flip_mean);
+        println!(
+            "glossy env (no shadows): PSNR {:.2} relRMSE {:.4} FLIP {:.4}",
+            c.psnr_db.unwrap_or(99.0),
+            c.rel_rmse,
+            c.flip_mean
+        );
     }
-    for (mode, spec) in [("fragment3", "on"), ("fragment3", "off"), ("fragment1", "on"), ("fragment1", "off"), ("tessellation", "on"), ("tessellation", "off"), ("tessellation3", "on")] {
+    for (mode, spec) in [
+        ("fragment3", "on"),
+        ("fragment3", "off"),
+        ("fragment1", "on"),
+        ("fragment1", "off"),
+        ("tessellation", "on"),
+        ("tessellation", "off"),
+        ("tessellation3", "on"),
+    ] {
         let sm = with(&s, &[("mode", mode), ("specular", spec), ("zeta", "2"), ("max_level", "4")]);
         let t0 = std::time::Instant::now();
         let (r, frames) = render(&sm, w, h, true);
         let log = r.context().validation.clone();
         let last = frames.last().expect("frames");
-        assert!(last.hdr.iter().flatten().all(|c| c.is_finite() && *c >= 0.0), "{mode} specular {spec}: non-finite or negative radiance");
+        assert!(
+            last.hdr.iter().flatten().all(|c| c.is_finite() && *c >= 0.0),
+            "{mode} specular {spec}: non-finite or negative radiance"
+        );
         let c = compare(&reference.radiance, "reference", &image(last), mode).unwrap();
         if let Some(dir) = std::env::var_os("VV_DUMP") {
             let dir = PathBuf::from(dir);
@@ -424,7 +556,12 @@ fn glossy_specular_in_all_modes() {
             reference.radiance.write_exr(dir.join("glossy_reference.exr")).unwrap();
         }
         let p = c.psnr_db.unwrap_or(99.0);
-        println!("glossy {mode} specular {spec}: PSNR {p:.2} relRMSE {:.4} FLIP {:.4} ({:.1} s)", c.rel_rmse, c.flip_mean, t0.elapsed().as_secs_f64());
+        println!(
+            "glossy {mode} specular {spec}: PSNR {p:.2} relRMSE {:.4} FLIP {:.4} ({:.1} s)",
+            c.rel_rmse,
+            c.flip_mean,
+            t0.elapsed().as_secs_f64()
+        );
         drop(r);
         assert_eq!(log.error_count(), 0, "{mode} specular {spec}: validation errors: {:#?}", log.errors());
         psnr.insert((mode, spec), p);
@@ -436,7 +573,10 @@ fn glossy_specular_in_all_modes() {
     for mode in ["tessellation", "tessellation3"] {
         let on = psnr[&(mode, "on")];
         let off = psnr[&("tessellation", "off")];
-        assert!(on > off + 1.0, "{mode}: PSNR with specular {on:.2} not better than tessellation diffuse only {off:.2}");
+        assert!(
+            on > off + 1.0,
+            "{mode}: PSNR with specular {on:.2} not better than tessellation diffuse only {off:.2}"
+        );
     }
 }
 
@@ -476,12 +616,16 @@ fn refined_receivers_and_local_light_shadows() {
     std::env::set_var("PENUMBRA_NO_PROGRESS", "1");
     let s = with(&scene("coarse.toml"), &[("sat_width", "64"), ("resolution", "24"), ("arcs", "12")]);
     let (w, h) = (32, 24);
-    let opts = ReferenceOptions { width: w, height: h, spp: 256, time: Some(0.0), mode: Mode::Exact, ..Default::default() };
+    let opts =
+        ReferenceOptions { width: w, height: h, spp: 256, time: Some(0.0), mode: Mode::Exact, ..Default::default() };
     let err = |reference: &penumbra_reference::image::Image, s: &Scene, name: &str| {
         let (r, frames) = render(s, w, h, true);
         let log = r.context().validation.clone();
         let last = frames.last().expect("frames");
-        assert!(last.hdr.iter().flatten().all(|c| c.is_finite() && *c >= 0.0), "{name}: non-finite or negative radiance");
+        assert!(
+            last.hdr.iter().flatten().all(|c| c.is_finite() && *c >= 0.0),
+            "{name}: non-finite or negative radiance"
+        );
         assert_eq!(log.error_count(), 0, "{name}: validation errors: {:#?}", log.errors());
         let c = compare(reference, "reference", &image(last), name).unwrap();
         println!("{name}: relRMSE {:.4}", c.rel_rmse);

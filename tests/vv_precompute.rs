@@ -4,10 +4,12 @@
 //! different numbers of sequences, determinism, file round trip.
 
 use glam::Vec3;
-use penumbra_math::vv::{self, precompute::trace_occluder, trace::Tracer, ObjectMesh, Topology, VvData, VvModel, VvParams};
-use std::sync::atomic::{AtomicU64, Ordering};
+use penumbra_math::vv::{
+    self, precompute::trace_occluder, trace::Tracer, ObjectMesh, Topology, VvData, VvModel, VvParams,
+};
 use penumbra_scene::Scene;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 fn scene(name: &str) -> Scene {
     Scene::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name)).expect("scene")
@@ -16,13 +18,27 @@ fn scene(name: &str) -> Scene {
 fn model_of(s: &Scene) -> VvModel {
     VvModel::from_objects(s.objects.iter().enumerate().map(|(i, o)| {
         let m = &s.meshes[o.mesh];
-        ObjectMesh { positions: &m.positions, normals: &m.normals, indices: &m.indices, world: o.transform, casts_shadow: s.object_info.get(i).map_or(true, |x| x.casts_shadow) }
+        ObjectMesh {
+            positions: &m.positions,
+            normals: &m.normals,
+            indices: &m.indices,
+            world: o.transform,
+            casts_shadow: s.object_info.get(i).map_or(true, |x| x.casts_shadow),
+        }
     }))
 }
 
 /// Fraction of hemisphere directions (stratified in the Lambert disk) on which `loops` agree
 /// with ray-traced visibility at the point `p` (barycentrics `lambda` of triangle `t`).
-fn agreement(m: &VvModel, topo: &Topology, tracer: &Tracer, t: usize, lambda: [f32; 3], loops: &[Vec<Vec3>], res: u32) -> (f64, usize) {
+fn agreement(
+    m: &VvModel,
+    topo: &Topology,
+    tracer: &Tracer,
+    t: usize,
+    lambda: [f32; 3],
+    loops: &[Vec<Vec3>],
+    res: u32,
+) -> (f64, usize) {
     let idx = [0, 1, 2].map(|k| m.indices[3 * t + k] as usize);
     let p: Vec3 = (0..3).map(|k| lambda[k] * m.positions[idx[k]]).sum();
     let n = (0..3).map(|k| lambda[k] * m.normals[idx[k]]).sum::<Vec3>().normalize();
@@ -49,14 +65,25 @@ fn agreement(m: &VvModel, topo: &Topology, tracer: &Tracer, t: usize, lambda: [f
 
 fn coarse_with_ground(divisions: u32) -> Scene {
     let src = std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/coarse.toml")).unwrap();
-    let src = src.replace("mesh = { type = \"plane\", size = 6 }", &format!("mesh = {{ type = \"plane\", size = 3, divisions = {divisions} }}"));
+    let src = src.replace(
+        "mesh = { type = \"plane\", size = 6 }",
+        &format!("mesh = {{ type = \"plane\", size = 3, divisions = {divisions} }}"),
+    );
     let dir = std::env::temp_dir().join(format!("vv_test_{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let p = dir.join("coarse_ground.toml");
     std::fs::write(&p, src).unwrap();
-    std::fs::copy(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/assets/sunset-dwab.exr"), dir.join("sunset-dwab.exr")).ok();
+    std::fs::copy(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/assets/sunset-dwab.exr"),
+        dir.join("sunset-dwab.exr"),
+    )
+    .ok();
     std::fs::create_dir_all(dir.join("assets")).unwrap();
-    std::fs::copy(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/assets/sunset-dwab.exr"), dir.join("assets/sunset-dwab.exr")).ok();
+    std::fs::copy(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/assets/sunset-dwab.exr"),
+        dir.join("assets/sunset-dwab.exr"),
+    )
+    .ok();
     Scene::load(&p).expect("scene")
 }
 
@@ -122,11 +149,17 @@ fn interpolated_visibility_matches_ray_tracing_and_the_vertices() {
         let idx = [0, 1, 2].map(|k| m.indices[3 * t + k] as usize);
         let p: Vec3 = (0..3).map(|k| lambda[k] * m.positions[idx[k]]).sum();
         let nn = (0..3).map(|k| lambda[k] * m.normals[idx[k]]).sum::<Vec3>().normalize();
-        let (a21, occ) = agreement(&m, &topo, &tracer, t, lambda, &vv::interpolate(&d.vis, &d.corr, t, lambda, p, nn), 32);
+        let (a21, occ) =
+            agreement(&m, &topo, &tracer, t, lambda, &vv::interpolate(&d.vis, &d.corr, t, lambda, p, nn), 32);
         if occ == 0 {
             continue;
         }
-        let a19: f64 = (0..3).map(|k| lambda[k] as f64 * agreement(&m, &topo, &tracer, t, lambda, &vv::synthesize(&d.vis, idx[k], p, nn), 32).0).sum();
+        let a19: f64 = (0..3)
+            .map(|k| {
+                lambda[k] as f64
+                    * agreement(&m, &topo, &tracer, t, lambda, &vv::synthesize(&d.vis, idx[k], p, nn), 32).0
+            })
+            .sum();
         s19 += a19;
         s21 += a21;
         n += 1;
@@ -178,7 +211,11 @@ fn vertices_with_different_sequence_counts_and_determinism() {
             with_empty += 1;
             // some triple of this triangle uses a virtual point for the empty vertex
             let k = c.iter().position(|&x| x == 0).unwrap();
-            let virt = d.corr.triangle_loops(t).flat_map(|l| d.corr.loop_triples(l).to_vec()).any(|tr| tr[k] >= d.vis.vertex_points);
+            let virt = d
+                .corr
+                .triangle_loops(t)
+                .flat_map(|l| d.corr.loop_triples(l).to_vec())
+                .any(|tr| tr[k] >= d.vis.vertex_points);
             assert!(virt, "triangle {t} {c:?}");
         }
     }

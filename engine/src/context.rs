@@ -104,10 +104,10 @@ impl Default for ContextDesc {
 
 /// `$XDG_CACHE_HOME/penumbra`, else `$HOME/.cache/penumbra`, else none.
 pub fn default_pipeline_cache_dir() -> Option<std::path::PathBuf> {
-    let base = std::env::var_os("XDG_CACHE_HOME")
-        .filter(|v| !v.is_empty())
-        .map(std::path::PathBuf::from)
-        .or_else(|| std::env::var_os("HOME").filter(|v| !v.is_empty()).map(|h| std::path::PathBuf::from(h).join(".cache")))?;
+    let base =
+        std::env::var_os("XDG_CACHE_HOME").filter(|v| !v.is_empty()).map(std::path::PathBuf::from).or_else(|| {
+            std::env::var_os("HOME").filter(|v| !v.is_empty()).map(|h| std::path::PathBuf::from(h).join(".cache"))
+        })?;
     Some(base.join("penumbra"))
 }
 
@@ -127,7 +127,11 @@ fn pipeline_cache_header_matches(data: &[u8], props: &vk::PhysicalDeviceProperti
         return false;
     }
     let u = |i: usize| u32::from_le_bytes([data[i], data[i + 1], data[i + 2], data[i + 3]]);
-    u(0) >= 32 && u(4) == 1 && u(8) == props.vendor_id && u(12) == props.device_id && data[16..32] == props.pipeline_cache_uuid
+    u(0) >= 32
+        && u(4) == 1
+        && u(8) == props.vendor_id
+        && u(12) == props.device_id
+        && data[16..32] == props.pipeline_cache_uuid
 }
 
 /// What an application enabled on the device it hands to [`Context::from_external_with`]
@@ -180,7 +184,8 @@ impl ExternalFeatures {
             ));
         }
         let exts = unsafe { instance.enumerate_device_extension_properties(physical) }.unwrap_or_default();
-        let has_push = exts.iter().any(|e| e.extension_name_as_c_str().is_ok_and(|x| x == ash::khr::push_descriptor::NAME));
+        let has_push =
+            exts.iter().any(|e| e.extension_name_as_c_str().is_ok_and(|x| x == ash::khr::push_descriptor::NAME));
         let f10 = unsafe { instance.get_physical_device_features(physical) };
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
         let mut f13 = vk::PhysicalDeviceVulkan13Features::default();
@@ -197,9 +202,24 @@ impl ExternalFeatures {
             }
         };
         need(self.push_descriptor, true, has_push, "VK_KHR_push_descriptor");
-        need(self.vulkan13, true, t(f13.synchronization2) && t(f13.dynamic_rendering) && t(f13.maintenance4), "Vulkan 1.3 synchronization2 + dynamicRendering + maintenance4");
-        need(self.vulkan12, true, t(f12.scalar_block_layout) && t(f12.host_query_reset), "Vulkan 1.2 scalarBlockLayout + hostQueryReset");
-        need(self.shader_output_layer, false, t(f12.shader_output_layer) && t(f12.shader_output_viewport_index), "shaderOutputLayer + shaderOutputViewportIndex");
+        need(
+            self.vulkan13,
+            true,
+            t(f13.synchronization2) && t(f13.dynamic_rendering) && t(f13.maintenance4),
+            "Vulkan 1.3 synchronization2 + dynamicRendering + maintenance4",
+        );
+        need(
+            self.vulkan12,
+            true,
+            t(f12.scalar_block_layout) && t(f12.host_query_reset),
+            "Vulkan 1.2 scalarBlockLayout + hostQueryReset",
+        );
+        need(
+            self.shader_output_layer,
+            false,
+            t(f12.shader_output_layer) && t(f12.shader_output_viewport_index),
+            "shaderOutputLayer + shaderOutputViewportIndex",
+        );
         need(self.tessellation_shader, false, t(f10.tessellation_shader), "tessellationShader");
         need(self.pipeline_statistics_query, false, t(f10.pipeline_statistics_query), "pipelineStatisticsQuery");
         v
@@ -233,7 +253,9 @@ fn report_leak(kind: &str, name: &str) {
     if std::thread::panicking() {
         return;
     }
-    eprintln!("penumbra: {kind} '{name}' dropped without being destroyed (its memory leaks until the context is dropped)");
+    eprintln!(
+        "penumbra: {kind} '{name}' dropped without being destroyed (its memory leaks until the context is dropped)"
+    );
 }
 
 impl Drop for GpuImage {
@@ -447,7 +469,8 @@ impl Context {
             let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut avail12);
             unsafe { instance.get_physical_device_features2(physical, &mut f2) };
         }
-        let shader_output_layer = avail12.shader_output_layer == vk::TRUE && avail12.shader_output_viewport_index == vk::TRUE;
+        let shader_output_layer =
+            avail12.shader_output_layer == vk::TRUE && avail12.shader_output_viewport_index == vk::TRUE;
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
             .host_query_reset(true)
             .scalar_block_layout(true)
@@ -524,7 +547,11 @@ impl Context {
     ) -> Result<Arc<Context>> {
         let problems = features.problems(&instance, physical);
         if !problems.is_empty() {
-            bail!("the application's device cannot run penumbra ({} problem(s)): {}", problems.len(), problems.join("; "));
+            bail!(
+                "the application's device cannot run penumbra ({} problem(s)): {}",
+                problems.len(),
+                problems.join("; ")
+            );
         }
         let props = unsafe { instance.get_physical_device_properties(physical) };
         let name = props.device_name_as_c_str().map(|c| c.to_string_lossy().into_owned()).unwrap_or_default();
@@ -579,8 +606,10 @@ impl Context {
         })
         .context("gpu-allocator")?;
         let push_descriptor = ash::khr::push_descriptor::Device::new(&instance, &device);
-        let max_image_dimension_2d = unsafe { instance.get_physical_device_properties(physical) }.limits.max_image_dimension2_d;
-        let max_storage_buffer_range = unsafe { instance.get_physical_device_properties(physical) }.limits.max_storage_buffer_range;
+        let max_image_dimension_2d =
+            unsafe { instance.get_physical_device_properties(physical) }.limits.max_image_dimension2_d;
+        let max_storage_buffer_range =
+            unsafe { instance.get_physical_device_properties(physical) }.limits.max_storage_buffer_range;
         let debug_utils = debug_instance.as_ref().map(|_| ash::ext::debug_utils::Device::new(&instance, &device));
         // The pipeline cache, seeded from disk when this driver's file is there and sound.
         let props = unsafe { instance.get_physical_device_properties(physical) };
@@ -711,8 +740,11 @@ impl Context {
             }
         };
         unsafe { self.device.bind_image_memory(image, allocation.memory(), allocation.offset())? };
-        let view_type =
-            if desc.array_layers > 1 || desc.array_view { vk::ImageViewType::TYPE_2D_ARRAY } else { vk::ImageViewType::TYPE_2D };
+        let view_type = if desc.array_layers > 1 || desc.array_view {
+            vk::ImageViewType::TYPE_2D_ARRAY
+        } else {
+            vk::ImageViewType::TYPE_2D
+        };
         let vci =
             vk::ImageViewCreateInfo::default().image(image).view_type(view_type).format(desc.format).subresource_range(
                 vk::ImageSubresourceRange {
@@ -820,7 +852,8 @@ impl Context {
     /// unless nothing was added since it was read. Called when the context is dropped.
     pub fn save_pipeline_cache(&self) -> Result<()> {
         let Some(file) = &self.pipeline_cache_file else { return Ok(()) };
-        let data = unsafe { self.device.get_pipeline_cache_data(self.pipeline_cache) }.context("vkGetPipelineCacheData")?;
+        let data =
+            unsafe { self.device.get_pipeline_cache_data(self.pipeline_cache) }.context("vkGetPipelineCacheData")?;
         if data.is_empty() || data.len() == self.pipeline_cache_loaded {
             return Ok(());
         }

@@ -228,8 +228,9 @@ impl Engine {
     /// scene, such as avs's sample points, differ every frame).
     fn evict_unused(&mut self) {
         let now = self.frame;
-        let (keep, old): (Vec<_>, Vec<_>) =
-            std::mem::take(&mut self.free).into_iter().partition(|(_, _, at)| now.saturating_sub(*at) <= POOL_KEEP_FRAMES);
+        let (keep, old): (Vec<_>, Vec<_>) = std::mem::take(&mut self.free)
+            .into_iter()
+            .partition(|(_, _, at)| now.saturating_sub(*at) <= POOL_KEEP_FRAMES);
         self.free = keep;
         self.pool_stats.evicted += old.len();
         for (_, item, _) in old {
@@ -274,8 +275,12 @@ impl Engine {
             )
         };
         Ok(match &key {
-            PoolKey::Image(desc, usage) => PoolItem::Image(self.ctx.create_image(name, desc, *usage).with_context(pooled)?),
-            PoolKey::Buffer(size, usage, host) => PoolItem::Buffer(self.ctx.create_buffer(name, *size, *usage, *host).with_context(pooled)?),
+            PoolKey::Image(desc, usage) => {
+                PoolItem::Image(self.ctx.create_image(name, desc, *usage).with_context(pooled)?)
+            }
+            PoolKey::Buffer(size, usage, host) => {
+                PoolItem::Buffer(self.ctx.create_buffer(name, *size, *usage, *host).with_context(pooled)?)
+            }
         })
     }
 
@@ -302,7 +307,11 @@ impl Engine {
         }
         unsafe { d.reset_fences(&[s.fence])? };
         let mut out = FrameOutput { frame: f.frame, timeline: f.timeline, ..Default::default() };
-        out.timeline.cpu_spans.push(CpuSpan { name: "fence wait", start: wait_start, ms: wait_start.elapsed().as_secs_f64() * 1e3 });
+        out.timeline.cpu_spans.push(CpuSpan {
+            name: "fence wait",
+            start: wait_start,
+            ms: wait_start.elapsed().as_secs_f64() * 1e3,
+        });
         if self.timestamps && !f.passes.is_empty() {
             let n = (f.passes.len() * 2) as u32;
             let mut ts = vec![0u64; n as usize];
@@ -586,7 +595,11 @@ impl Engine {
             .signal_semaphore_infos(&signals)];
         let ts_submit = Instant::now();
         unsafe { d.queue_submit2(self.ctx.queue, &submit, s.fence).context("vkQueueSubmit2")? };
-        timeline.cpu_spans.push(CpuSpan { name: "queue submit", start: ts_submit, ms: ts_submit.elapsed().as_secs_f64() * 1e3 });
+        timeline.cpu_spans.push(CpuSpan {
+            name: "queue submit",
+            start: ts_submit,
+            ms: ts_submit.elapsed().as_secs_f64() * 1e3,
+        });
         timeline.submitted = Some(ts_submit);
         for (res, info) in graph.resources.iter().zip(compiled.resources.iter()) {
             if matches!(res.origin, Origin::Persistent { .. }) && info.first_pass.is_some() {
@@ -629,7 +642,8 @@ impl Engine {
         let slot = self.next_slot;
         let (_, done) = self.submit(graph)?;
         self.pending.extend(done);
-        let out = self.retire(slot)?.ok_or_else(|| anyhow::anyhow!("submit_wait: the submitted frame is not in flight"));
+        let out =
+            self.retire(slot)?.ok_or_else(|| anyhow::anyhow!("submit_wait: the submitted frame is not in flight"));
         self.frame -= 1;
         out
     }

@@ -15,5 +15,8 @@ pub mod shader;
 pub use ash;
 pub use ash::vk;
 pub use context::{Context, ContextDesc, ExternalFeatures, GpuBuffer, GpuImage, ValidationLog};
-pub use exec::{Bind, CpuSpan, Engine, FrameOutput, FrameTimeline, GpuInterval, PhysBuffer, PhysImage, RecordContext, SubmitSync, DEFAULT_FENCE_TIMEOUT, POOL_KEEP_FRAMES};
+pub use exec::{
+    Bind, CpuSpan, Engine, FrameOutput, FrameTimeline, GpuInterval, PhysBuffer, PhysImage, RecordContext, SubmitSync,
+    DEFAULT_FENCE_TIMEOUT, POOL_KEEP_FRAMES,
+};
 pub use graph::{Access, BufferHandle, Graph, ImageDesc, ImageHandle, ImportedImage, PassKind};

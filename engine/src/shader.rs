@@ -96,7 +96,8 @@ mod tests {
         assert_eq!(&a[..4], &0x0723_0203u32.to_le_bytes(), "SPIR-V magic");
         assert!(lib.reload_all().unwrap().is_empty(), "nothing changed on disk");
 
-        std::fs::write(dir.join("a.comp"), "#version 450\nlayout(local_size_x = 1) in;\nvoid main() { oops; }\n").unwrap();
+        std::fs::write(dir.join("a.comp"), "#version 450\nlayout(local_size_x = 1) in;\nvoid main() { oops; }\n")
+            .unwrap();
         std::fs::write(dir.join("b.comp"), "#version 450\nvoid main() { also_bad(); }\n").unwrap();
         let err = lib.reload_all().expect_err("broken sources").to_string();
         assert!(err.contains("2 shader(s) failed"), "{err}");

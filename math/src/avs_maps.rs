@@ -498,7 +498,16 @@ mod tests {
 
     #[test]
     fn half_conversion_matches_ieee() {
-        for (x, h) in [(0.0f32, 0u16), (1.0, 0x3c00), (-2.0, 0xc000), (65504.0, 0x7bff), (1e6, 0x7c00), (6.1035156e-5, 0x0400), (5.9604645e-8, 0x0001), (std::f32::consts::PI, 0x4248)] {
+        for (x, h) in [
+            (0.0f32, 0u16),
+            (1.0, 0x3c00),
+            (-2.0, 0xc000),
+            (65504.0, 0x7bff),
+            (1e6, 0x7c00),
+            (6.1035156e-5, 0x0400),
+            (5.9604645e-8, 0x0001),
+            (std::f32::consts::PI, 0x4248),
+        ] {
             assert_eq!(f32_to_f16(x), h, "{x}");
             if h != 0x7c00 && h != 0x4248 {
                 assert_eq!(f16_to_f32(h), x);

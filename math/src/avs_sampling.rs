@@ -204,7 +204,14 @@ impl Grid {
             dims = dims_for(cell);
         }
         let ncells = (dims[0] * dims[1] * dims[2]) as usize;
-        let mut g = Grid { lo, cell, dims, cell_start: vec![0; ncells + 1], items: vec![0; points.len()], points: points.to_vec() };
+        let mut g = Grid {
+            lo,
+            cell,
+            dims,
+            cell_start: vec![0; ncells + 1],
+            items: vec![0; points.len()],
+            points: points.to_vec(),
+        };
         let cells: Vec<usize> = points.iter().map(|p| g.cell_index(g.cell_of(*p))).collect();
         for &c in &cells {
             g.cell_start[c + 1] += 1;
@@ -515,7 +522,10 @@ mod tests {
         assert!(s.len() >= 12 && s.len() <= 16, "{}", s.len());
         for q in 0..4 {
             let (qx, qz) = (q % 2, q / 2);
-            let n = s.iter().filter(|&&i| (p[i].pos.x >= 10.0) as usize == qx && (p[i].pos.z >= 10.0) as usize == qz).count();
+            let n = s
+                .iter()
+                .filter(|&&i| (p[i].pos.x >= 10.0) as usize == qx && (p[i].pos.z >= 10.0) as usize == qz)
+                .count();
             assert!(n >= 2, "quadrant {q} has {n} points");
         }
         // two coincident sheets with opposite normals never share a cluster representative side:

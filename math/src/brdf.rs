@@ -138,7 +138,8 @@ impl AshikhminShirley {
     /// Seven warped lobes spread along the wider anisotropy direction in half-vector space
     /// (start point of the optimised fit).
     pub fn sg7_initial(&self, wo: DVec3) -> Vec<Sg> {
-        let (wide, nwide, nnarrow) = if self.nu <= self.nv { (DVec3::X, self.nu, self.nv) } else { (DVec3::Y, self.nv, self.nu) };
+        let (wide, nwide, nnarrow) =
+            if self.nu <= self.nv { (DVec3::X, self.nu, self.nv) } else { (DVec3::Y, self.nv, self.nu) };
         let sigma_wide = 1.0 / nwide.max(1e-6).sqrt();
         (0..7)
             .map(|k| {
@@ -241,10 +242,7 @@ pub fn fit_brdf_lobes(f: &dyn Fn(DVec3) -> f64, init: &[Sg], rule: &[(DVec3, f64
     let sw: Vec<f64> = rule.iter().map(|(d, w)| (w * d.z).sqrt()).collect();
     let resid = |p: &[f64]| -> Vec<f64> {
         let lobes = unpack(p);
-        rule.iter()
-            .enumerate()
-            .map(|(i, (d, _))| sw[i] * (Sg::eval_sum(&lobes, *d) - targets[i]))
-            .collect()
+        rule.iter().enumerate().map(|(i, (d, _))| sw[i] * (Sg::eval_sum(&lobes, *d) - targets[i])).collect()
     };
     let cost = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>();
     let mut p: Vec<f64> = init.iter().flat_map(|g| [0.0, 0.0, g.lambda.max(1e-8).ln(), g.mu.max(1e-30).ln()]).collect();

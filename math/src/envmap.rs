@@ -335,7 +335,14 @@ fn out_height(lambda: f64, max_height: usize, density: f64) -> usize {
 }
 
 /// Convolves `src` with a normalised SG of sharpness `lambda` onto an `ow x oh` lat-long grid.
-fn convolve_map(src: &LatLong, lambda: f64, ow: usize, oh: usize, cutoff: f64, values: &(dyn Fn(usize) -> DVec3 + Sync)) -> Vec<(DVec3, f64)> {
+fn convolve_map(
+    src: &LatLong,
+    lambda: f64,
+    ow: usize,
+    oh: usize,
+    cutoff: f64,
+    values: &(dyn Fn(usize) -> DVec3 + Sync),
+) -> Vec<(DVec3, f64)> {
     (0..oh)
         .into_par_iter()
         .flat_map_iter(|y| {
@@ -351,7 +358,13 @@ fn convolve_map(src: &LatLong, lambda: f64, ow: usize, oh: usize, cutoff: f64, v
 /// see the module docs). The output of level `lambda` has height
 /// `min(max_height, pow2(1.5 pi sqrt(lambda)))` (at least 8) and twice that width; the source is
 /// the coarsest mip level that still resolves the lobe.
-pub fn prefilter(width: usize, height: usize, texels: &[[f32; 3]], lambdas: &[f64], max_height: usize) -> Result<Vec<PrefilteredLevel>, EnvError> {
+pub fn prefilter(
+    width: usize,
+    height: usize,
+    texels: &[[f32; 3]],
+    lambdas: &[f64],
+    max_height: usize,
+) -> Result<Vec<PrefilteredLevel>, EnvError> {
     let map = LatLong::new(width, height, texels)?;
     if lambdas.iter().any(|l| !(l.is_finite() && *l >= 0.0)) {
         return Err(EnvError::BadOption("lambdas must be finite and >= 0"));
@@ -474,7 +487,9 @@ impl Part {
 
     /// Luminance energy `sum_i w_i Y_i^2` of this part.
     fn energy(&self) -> f64 {
-        (0..self.map.rgb.len()).map(|i| self.map.solid_angle(i / self.map.width) * luminance(self.map.rgb[i]).powi(2)).sum()
+        (0..self.map.rgb.len())
+            .map(|i| self.map.solid_angle(i / self.map.width) * luminance(self.map.rgb[i]).powi(2))
+            .sum()
     }
 
     /// Best next matching-pursuit lobe for the residual correlations `resid`:
@@ -691,7 +706,8 @@ impl SgEnvFitter {
         // energy decrease is largest (a sun cannot take every lobe, the sky cannot starve it)
         let parts: Vec<&Part> = std::iter::once(&self.sky).chain(self.sun.as_ref()).collect();
         let energies: Vec<f64> = parts.iter().map(|p| p.energy().max(1e-300)).collect();
-        let mut resid: Vec<Vec<Vec<f64>>> = parts.iter().map(|p| p.levels.iter().map(|l| l.corr.clone()).collect()).collect();
+        let mut resid: Vec<Vec<Vec<f64>>> =
+            parts.iter().map(|p| p.levels.iter().map(|l| l.corr.clone()).collect()).collect();
         let mut shapes: Vec<Vec<Sg>> = vec![vec![]; parts.len()];
         for _ in 0..k {
             let mut best: Option<(f64, usize, Sg)> = None;
@@ -833,15 +849,20 @@ pub fn irradiance_map(
             None => break,
         }
     }
-    let weighted: Vec<(DVec3, DVec3)> =
-        (0..src.rgb.len()).map(|i| (src.dir(i), src.rgb[i] * src.solid_angle(i / src.width))).filter(|(_, c)| c.max_element() > 0.0).collect();
+    let weighted: Vec<(DVec3, DVec3)> = (0..src.rgb.len())
+        .map(|i| (src.dir(i), src.rgb[i] * src.solid_angle(i / src.width)))
+        .filter(|(_, c)| c.max_element() > 0.0)
+        .collect();
     if out_width == 0 || out_height < 2 {
         return Err(EnvError::Empty);
     }
     Ok((0..out_width * out_height)
         .into_par_iter()
         .map(|j| {
-            let n = latlong_direction((j % out_width) as f64 / out_width as f64, (j / out_width) as f64 / (out_height - 1) as f64);
+            let n = latlong_direction(
+                (j % out_width) as f64 / out_width as f64,
+                (j / out_width) as f64 / (out_height - 1) as f64,
+            );
             let e = weighted.iter().fold(DVec3::ZERO, |acc, (d, c)| acc + *c * d.dot(n).max(0.0));
             [e.x as f32, e.y as f32, e.z as f32]
         })

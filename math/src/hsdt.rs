@@ -182,7 +182,11 @@ pub fn hsdt_f64(map: &VisMap) -> Vec<f64> {
         for i in 0..r {
             let k = i as usize * ru + j as usize;
             out[k] = if map.get(i, j) {
-                if has[0] { col[0][i as usize] } else { NO_BOUNDARY }
+                if has[0] {
+                    col[0][i as usize]
+                } else {
+                    NO_BOUNDARY
+                }
             } else if has[1] {
                 -col[1][i as usize]
             } else {
@@ -205,7 +209,11 @@ pub fn ssdf_brute_force(map: &VisMap) -> Vec<f64> {
     let mut occ = Vec::new();
     for i in 0..r {
         for j in 0..r {
-            if map.get(i, j) { vis.push(texel_dir(i, j, r)) } else { occ.push(texel_dir(i, j, r)) }
+            if map.get(i, j) {
+                vis.push(texel_dir(i, j, r))
+            } else {
+                occ.push(texel_dir(i, j, r))
+            }
         }
     }
     let mut out = Vec::with_capacity((r * r) as usize);
@@ -304,7 +312,10 @@ pub fn test_maps(r: u32, seed: u64) -> Vec<(String, VisMap)> {
                 (DVec3::new(s * a.cos(), s * a.sin(), z), 0.05 + 0.6 * next())
             })
             .collect();
-        maps.push((format!("random caps {k}"), VisMap::from_dir_fn(r, |w| caps.iter().all(|(c, a)| w.dot(*c) < a.cos()))));
+        maps.push((
+            format!("random caps {k}"),
+            VisMap::from_dir_fn(r, |w| caps.iter().all(|(c, a)| w.dot(*c) < a.cos())),
+        ));
     }
     // random noise at two densities
     for (k, p) in [0.5, 0.97].into_iter().enumerate() {
@@ -356,7 +367,9 @@ mod tests {
     fn hsdt_at_64_against_brute_force() {
         let r = 64;
         let maps = test_maps(r, 99);
-        for (name, m) in maps.iter().filter(|(n, _)| n.starts_with("random") || n.contains("pole") || n.contains("seam")) {
+        for (name, m) in
+            maps.iter().filter(|(n, _)| n.starts_with("random") || n.contains("pole") || n.contains("seam"))
+        {
             let (mx, _) = field_error(&hsdt_f64(m), &ssdf_brute_force(m));
             assert!(mx < 1e-12, "{name}: {mx}");
         }

@@ -54,7 +54,15 @@ pub fn direction(theta: f64, phi: f64) -> DVec3 {
 pub fn angles(d: DVec3) -> (f64, f64) {
     let theta = d.y.clamp(-1.0, 1.0).acos();
     let phi = d.z.atan2(d.x);
-    let phi = if phi < 0.0 { if phi < -FRAC_PI_2 { PI } else { 0.0 } } else { phi };
+    let phi = if phi < 0.0 {
+        if phi < -FRAC_PI_2 {
+            PI
+        } else {
+            0.0
+        }
+    } else {
+        phi
+    };
     (theta, phi)
 }
 

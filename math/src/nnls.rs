@@ -16,7 +16,8 @@ pub fn nnls_gram(q: &[f64], b: &[f64]) -> Vec<f64> {
     let mut passive = vec![false; n];
     let scale = (0..n).map(|i| q[i * n + i].abs()).fold(0.0, f64::max).max(1e-300);
     let tol = 1e-12 * scale * b.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-300) / scale.sqrt();
-    let grad = |x: &[f64]| -> Vec<f64> { (0..n).map(|i| b[i] - (0..n).map(|j| q[i * n + j] * x[j]).sum::<f64>()).collect() };
+    let grad =
+        |x: &[f64]| -> Vec<f64> { (0..n).map(|i| b[i] - (0..n).map(|j| q[i * n + j] * x[j]).sum::<f64>()).collect() };
     for _outer in 0..(3 * n + 10) {
         let w = grad(&x);
         // most positive gradient among the active (zero) set

@@ -87,11 +87,7 @@ pub fn integrate_adaptive<F: FnMut(f64) -> f64>(
         if err <= abs_tol.max(rel_tol * total.abs()) || ivs.len() >= max_intervals {
             return total;
         }
-        let (imax, _) = ivs
-            .iter()
-            .enumerate()
-            .max_by(|x, y| x.1 .3.total_cmp(&y.1 .3))
-            .unwrap();
+        let (imax, _) = ivs.iter().enumerate().max_by(|x, y| x.1 .3.total_cmp(&y.1 .3)).unwrap();
         let (lo, hi, _, _) = ivs[imax];
         let mid = 0.5 * (lo + hi);
         if !(mid > lo && mid < hi) {
@@ -121,7 +117,13 @@ pub fn gauss_legendre(n: usize) -> (Vec<f64>, Vec<f64>) {
                 p0 = p1;
                 p1 = p2;
             }
-            let pn = if n == 0 { 1.0 } else if n == 1 { z } else { p1 };
+            let pn = if n == 0 {
+                1.0
+            } else if n == 1 {
+                z
+            } else {
+                p1
+            };
             let pnm1 = if n == 1 { 1.0 } else { p0 };
             dp = n as f64 * (z * pn - pnm1) / (z * z - 1.0);
             let dz = pn / dp;
@@ -173,10 +175,7 @@ pub fn orthonormal_basis(n: DVec3) -> (DVec3, DVec3) {
     let sign = 1f64.copysign(n.z);
     let a = -1.0 / (sign + n.z);
     let b = n.x * n.y * a;
-    (
-        DVec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
-        DVec3::new(b, sign + n.y * n.y * a, -n.y),
-    )
+    (DVec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x), DVec3::new(b, sign + n.y * n.y * a, -n.y))
 }
 
 /// Adaptive integral over the sphere (or the hemisphere `dot(normal, w) > 0`) of `f`, in polar

@@ -267,7 +267,6 @@ impl RayCaster {
     }
 }
 
-
 // ---------------------------------------------------------------------------------------------
 // Sphere directions
 
@@ -310,7 +309,12 @@ impl DirTable {
 pub fn sample_grid(grid: &[[f32; NCOEF]], r: usize, theta: f64, phi: f64) -> [f64; NCOEF] {
     let (s0, s1, fs, t0, t1, ft) = grid_weights(r, theta, phi);
     let mut out = [0.0; NCOEF];
-    for (idx, w) in [(s0 * r + t0, (1.0 - fs) * (1.0 - ft)), (s0 * r + t1, (1.0 - fs) * ft), (s1 * r + t0, fs * (1.0 - ft)), (s1 * r + t1, fs * ft)] {
+    for (idx, w) in [
+        (s0 * r + t0, (1.0 - fs) * (1.0 - ft)),
+        (s0 * r + t1, (1.0 - fs) * ft),
+        (s1 * r + t0, fs * (1.0 - ft)),
+        (s1 * r + t1, fs * ft),
+    ] {
         for e in 0..NCOEF {
             out[e] += w * grid[idx][e] as f64;
         }
@@ -476,13 +480,10 @@ impl RawField {
             .shells
             .par_iter()
             .map(|g| {
-                let scale = if relative {
-                    g.iter().map(|v| v[0].abs() as f64 * Y0).fold(0.0, f64::max)
-                } else {
-                    1.0
-                };
+                let scale = if relative { g.iter().map(|v| v[0].abs() as f64 * Y0).fold(0.0, f64::max) } else { 1.0 };
                 // tiny absolute floor: a zero shell adapts all the way down
-                let (r, grid, err) = adapt_shell(g, r0, threshold * scale + if relative { 1e-30 } else { 0.0 }, min_resolution, &table);
+                let (r, grid, err) =
+                    adapt_shell(g, r0, threshold * scale + if relative { 1e-30 } else { 0.0 }, min_resolution, &table);
                 quantize(&grid, r, (err / scale.max(1e-30)) as f32)
             })
             .collect();
@@ -542,7 +543,9 @@ pub fn bounds(positions: &[Vec3]) -> (Vec3, f32) {
     if positions.is_empty() {
         return (Vec3::ZERO, 0.0);
     }
-    let (lo, hi) = positions.iter().fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(l, h), p| (l.min(*p), h.max(*p)));
+    let (lo, hi) = positions
+        .iter()
+        .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(l, h), p| (l.min(*p), h.max(*p)));
     let c = (lo + hi) * 0.5;
     let r = positions.iter().map(|p| (*p - c).length()).fold(0.0f32, f32::max);
     (c, r)
@@ -642,7 +645,15 @@ pub fn precompute(
         .collect();
     // upper bound (directions outside the bounding cone are not cast)
     let rays = (params.shells as u64 * (r * r) as u64 + positions.len() as u64) * ndir;
-    Ok(RawField { center, bound_radius: vr, resolution: r, shells, self_transfer, seconds: start.elapsed().as_secs_f64(), rays })
+    Ok(RawField {
+        center,
+        bound_radius: vr,
+        resolution: r,
+        shells,
+        self_transfer,
+        seconds: start.elapsed().as_secs_f64(),
+        rays,
+    })
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -674,7 +685,12 @@ impl ObjectField {
         let r = self.shells[c].resolution as usize;
         let (s0, s1, fs, t0, t1, ft) = grid_weights(r, theta, phi);
         let mut out = [0.0; NCOEF];
-        for (idx, w) in [(s0 * r + t0, (1.0 - fs) * (1.0 - ft)), (s0 * r + t1, (1.0 - fs) * ft), (s1 * r + t0, fs * (1.0 - ft)), (s1 * r + t1, fs * ft)] {
+        for (idx, w) in [
+            (s0 * r + t0, (1.0 - fs) * (1.0 - ft)),
+            (s0 * r + t1, (1.0 - fs) * ft),
+            (s1 * r + t0, fs * (1.0 - ft)),
+            (s1 * r + t1, fs * ft),
+        ] {
             let v = self.sample(c, idx);
             for e in 0..NCOEF {
                 out[e] += w * v[e];
@@ -905,7 +921,12 @@ impl<'a> InstanceFrame<'a> {
         let inv = world.inverse();
         let world_to_local = if inv.is_finite() { inv } else { glam::DMat4::IDENTITY };
         let c = field.map_or(glam::Vec3::ZERO, |f| f.center).as_dvec3();
-        InstanceFrame { field, world_to_local, rot: rotation_blocks(DMat3::from_quat(q)), center_world: world.transform_point3(c) }
+        InstanceFrame {
+            field,
+            world_to_local,
+            rot: rotation_blocks(DMat3::from_quat(q)),
+            center_world: world.transform_point3(c),
+        }
     }
 }
 
@@ -924,7 +945,11 @@ pub struct ShadePoint {
 
 /// Occluded transfer in world space: `T (x) O_1 (x) O_2 ...` over the other instances whose
 /// shells contain the point; returns it and the number of occluders applied.
-pub fn occluded_transfer(p: &ShadePoint, insts: &[InstanceFrame], tensor: &TripleProductTensor) -> ([f64; NCOEF], usize) {
+pub fn occluded_transfer(
+    p: &ShadePoint,
+    insts: &[InstanceFrame],
+    tensor: &TripleProductTensor,
+) -> ([f64; NCOEF], usize) {
     let Some(me) = insts.get(p.inst) else {
         return (p.transfer, 0);
     };
@@ -1040,7 +1065,12 @@ impl LightSource {
 /// the light whose outermost radius is `reach` (shell `c` at `reach (c + 1) / C`, i.e. the
 /// object convention `0.2 Vr (1 + c)` with `Vr = reach / (0.2 C)`), `R x R` samples each. No
 /// self-transfer. `progress(n)` as for [`precompute`].
-pub fn precompute_srf(src: LightSource, reach: f64, params: &Params, progress: &(dyn Fn(u64) + Sync)) -> Result<RawField, String> {
+pub fn precompute_srf(
+    src: LightSource,
+    reach: f64,
+    params: &Params,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<RawField, String> {
     if params.shells == 0 || params.shells > 1024 {
         return Err(format!("source radiance field: shell count {} out of 1..=1024", params.shells));
     }
@@ -1196,11 +1226,25 @@ pub struct LightFrame<'a> {
 
 impl<'a> LightFrame<'a> {
     /// A light at `position`; a spot's `+z` is turned to `direction`.
-    pub fn new(field: Option<&'a ObjectField>, source: LightSource, position: DVec3, direction: DVec3, power: DVec3) -> Self {
-        let dir = if direction.is_finite() && direction.length_squared() > 0.0 { direction.normalize() } else { DVec3::Z };
+    pub fn new(
+        field: Option<&'a ObjectField>,
+        source: LightSource,
+        position: DVec3,
+        direction: DVec3,
+        power: DVec3,
+    ) -> Self {
+        let dir =
+            if direction.is_finite() && direction.length_squared() > 0.0 { direction.normalize() } else { DVec3::Z };
         let q = glam::DQuat::from_rotation_arc(DVec3::Z, dir);
         let world = glam::DMat4::from_rotation_translation(q, position);
-        LightFrame { field, source, world_to_local: world.inverse(), rot: rotation_blocks(DMat3::from_quat(q)), position, power }
+        LightFrame {
+            field,
+            source,
+            world_to_local: world.inverse(),
+            rot: rotation_blocks(DMat3::from_quat(q)),
+            position,
+            power,
+        }
     }
 
     /// World-frame radiance coefficients (unit power) at world point `p`: the SRF inside its
@@ -1447,7 +1491,8 @@ pub mod haar {
 
     /// `1/(4 pi) int |a - b|` of two maps (eq. 1 in the pixel domain).
     pub fn l1(a: &[f32], b: &[f32], t: &CubeTable) -> f64 {
-        a.iter().zip(b).zip(&t.w).map(|((x, y), w)| w * (*x as f64 - *y as f64).abs()).sum::<f64>() / (4.0 * std::f64::consts::PI)
+        a.iter().zip(b).zip(&t.w).map(|((x, y), w)| w * (*x as f64 - *y as f64).abs()).sum::<f64>()
+            / (4.0 * std::f64::consts::PI)
     }
 
     /// One quantized all-frequency shell: per sample the kept coefficients (u16 index, u8
@@ -1492,13 +1537,23 @@ pub mod haar {
         let step = (hi - lo) / 255.0;
         let samples = samples
             .iter()
-            .map(|s| s.iter().map(|&(i, v)| (i, if step > 0.0 { ((v - lo) / step).round().clamp(0.0, 255.0) as u8 } else { 0 })).collect())
+            .map(|s| {
+                s.iter()
+                    .map(|&(i, v)| (i, if step > 0.0 { ((v - lo) / step).round().clamp(0.0, 255.0) as u8 } else { 0 }))
+                    .collect()
+            })
             .collect();
         HaarShell { resolution: r, min: lo, step, samples }
     }
 
     /// Raw (dense) visibility maps of every shell sample at resolution `r` (power of two).
-    pub fn raw_maps(positions: &[Vec3], indices: &[u32], shells: usize, r: usize, table: &CubeTable) -> (Vec3, f32, Vec<Vec<Vec<f32>>>) {
+    pub fn raw_maps(
+        positions: &[Vec3],
+        indices: &[u32],
+        shells: usize,
+        r: usize,
+        table: &CubeTable,
+    ) -> (Vec3, f32, Vec<Vec<Vec<f32>>>) {
         let (center, vr) = super::bounds(positions);
         let caster = RayCaster::new(positions, indices);
         let c = center.as_dvec3();
@@ -1517,7 +1572,8 @@ pub mod haar {
                         let to_c = c - p;
                         let dc = to_c.length();
                         let rb = vr as f64 * (1.0 + 1e-6);
-                        let cone = if dc > rb { Some((to_c / dc, (1.0 - (rb / dc).powi(2)).max(0.0).sqrt())) } else { None };
+                        let cone =
+                            if dc > rb { Some((to_c / dc, (1.0 - (rb / dc).powi(2)).max(0.0).sqrt())) } else { None };
                         table
                             .dirs
                             .iter()
@@ -1566,7 +1622,11 @@ pub mod haar {
                 let n = if n.length_squared() > 0.0 && n.is_finite() { n.normalize() } else { DVec3::ZERO };
                 let p = positions[v].as_dvec3() + lift * n;
                 for (k, d) in table.dirs.iter().enumerate() {
-                    let open = if n == DVec3::ZERO { true } else { d.dot(n) >= 0.0 && !caster.occluded(p + *d * skip, *d, far) };
+                    let open = if n == DVec3::ZERO {
+                        true
+                    } else {
+                        d.dot(n) >= 0.0 && !caster.occluded(p + *d * skip, *d, far)
+                    };
                     if open {
                         w[k / 32] |= 1 << (k % 32);
                     }
@@ -1580,7 +1640,12 @@ pub mod haar {
     fn bilinear_map(maps: &[Vec<f32>], r: usize, theta: f64, phi: f64) -> Vec<f32> {
         let (s0, s1, fs, t0, t1, ft) = super::grid_weights(r, theta, phi);
         let mut out = vec![0f32; maps[0].len()];
-        for (idx, w) in [(s0 * r + t0, (1.0 - fs) * (1.0 - ft)), (s0 * r + t1, (1.0 - fs) * ft), (s1 * r + t0, fs * (1.0 - ft)), (s1 * r + t1, fs * ft)] {
+        for (idx, w) in [
+            (s0 * r + t0, (1.0 - fs) * (1.0 - ft)),
+            (s0 * r + t1, (1.0 - fs) * ft),
+            (s1 * r + t0, fs * (1.0 - ft)),
+            (s1 * r + t1, fs * ft),
+        ] {
             if w > 0.0 {
                 for (o, x) in out.iter_mut().zip(&maps[idx]) {
                     *o += (w as f32) * x;
@@ -1595,14 +1660,32 @@ pub mod haar {
         /// maps are transformed and truncated to `keep`; adaptively, `R` is halved while every
         /// initial sample's truncated map, re-interpolated from the coarser grid, stays within
         /// `threshold` of eq. 1 (L1 in the pixel domain) of its own truncated map.
-        pub fn build(center: Vec3, vr: f32, maps: &[Vec<Vec<f32>>], r0: usize, table: &CubeTable, keep: f64, adaptive: bool, threshold: f64) -> Self {
+        pub fn build(
+            center: Vec3,
+            vr: f32,
+            maps: &[Vec<Vec<f32>>],
+            r0: usize,
+            table: &CubeTable,
+            keep: f64,
+            adaptive: bool,
+            threshold: f64,
+        ) -> Self {
             Self::build_sized(center, vr, maps, r0, table, keep, adaptive, threshold).0
         }
 
         /// [`HaarField::build`] and the [`HaarField::bytes`] the fixed field (every shell at
         /// `r0`) would take, from the same truncation (no second build for the size).
         #[allow(clippy::too_many_arguments)]
-        pub fn build_sized(center: Vec3, vr: f32, maps: &[Vec<Vec<f32>>], r0: usize, table: &CubeTable, keep: f64, adaptive: bool, threshold: f64) -> (Self, usize) {
+        pub fn build_sized(
+            center: Vec3,
+            vr: f32,
+            maps: &[Vec<Vec<f32>>],
+            r0: usize,
+            table: &CubeTable,
+            keep: f64,
+            adaptive: bool,
+            threshold: f64,
+        ) -> (Self, usize) {
             let n = table.n;
             let built: Vec<(HaarShell, usize)> = maps
                 .par_iter()
@@ -1684,7 +1767,8 @@ pub mod haar {
         /// frame, cube faces as [`CubeTable`]).
         pub fn sample_map(&self, c: usize, idx: usize) -> Vec<f32> {
             let sh = &self.shells[c];
-            let sparse: Vec<(u16, f32)> = sh.samples[idx].iter().map(|&(i, q)| (i, sh.min + q as f32 * sh.step)).collect();
+            let sparse: Vec<(u16, f32)> =
+                sh.samples[idx].iter().map(|&(i, q)| (i, sh.min + q as f32 * sh.step)).collect();
             reconstruct(&sparse, self.n)
         }
 

@@ -121,10 +121,8 @@ fn voxelize(positions: &[Vec3], indices: &[u32], resolution: usize) -> Voxels {
     // Bin triangles by the (y, z) columns their bounding boxes touch.
     let (ny, nz) = (dims[1], dims[2]);
     let mut bins: Vec<Vec<u32>> = vec![Vec::new(); ny * nz];
-    let tris: Vec<[DVec3; 3]> = indices
-        .chunks_exact(3)
-        .map(|t| [0, 1, 2].map(|k| positions[t[k] as usize].as_dvec3()))
-        .collect();
+    let tris: Vec<[DVec3; 3]> =
+        indices.chunks_exact(3).map(|t| [0, 1, 2].map(|k| positions[t[k] as usize].as_dvec3())).collect();
     for (ti, t) in tris.iter().enumerate() {
         let ymin = t.iter().map(|p| p.y).fold(f64::INFINITY, f64::min);
         let ymax = t.iter().map(|p| p.y).fold(f64::NEG_INFINITY, f64::max);
@@ -431,7 +429,11 @@ pub fn measure_coverage(
     // Counted on the padded grid (one voxel beyond the mesh bounds): enough for inscribed sets.
     let out_grid = vox.inside.iter().zip(&hit).filter(|(i, h)| !**i && **h).count();
     let inside_f = inside.max(1) as f64;
-    Ok(Coverage { mesh_volume: inside as f64 * vol, covered: covered as f64 / inside_f, outside: out_grid as f64 / inside_f })
+    Ok(Coverage {
+        mesh_volume: inside as f64 * vol,
+        covered: covered as f64 / inside_f,
+        outside: out_grid as f64 / inside_f,
+    })
 }
 
 impl SphereSet {

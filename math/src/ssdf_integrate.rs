@@ -151,7 +151,11 @@ pub fn t_exact(lambda: f64, d: f64) -> f64 {
                 let jac = 2.0 * u * span * 0.5 * (u1 - u0) * w;
                 let (st, ct) = t.sin_cos();
                 let frac = if st * sa < 1e-300 {
-                    if ct * ca >= cr { 1.0 } else { 0.0 }
+                    if ct * ca >= cr {
+                        1.0
+                    } else {
+                        0.0
+                    }
                 } else {
                     ((cr - ct * ca) / (st * sa)).clamp(-1.0, 1.0).acos() / PI
                 };
@@ -160,7 +164,11 @@ pub fn t_exact(lambda: f64, d: f64) -> f64 {
         }
     }
     let f = (cap / full).clamp(0.0, 1.0);
-    if d >= 0.0 { 1.0 - f } else { f }
+    if d >= 0.0 {
+        1.0 - f
+    } else {
+        f
+    }
 }
 
 /// 8-point Gauss-Legendre (node, weight) on [-1, 1].
@@ -212,7 +220,8 @@ impl AxisTable {
 
     /// Bilinear lookup of `T(lambda, d)` (`lambda` clamped to the table range).
     pub fn lookup(&self, lambda: f64, d: f64) -> f64 {
-        let x = ((lambda.max(1e-30).log10() - LOG_LAMBDA_MIN) / (LOG_LAMBDA_MAX - LOG_LAMBDA_MIN) * (N_LAMBDA - 1) as f64)
+        let x = ((lambda.max(1e-30).log10() - LOG_LAMBDA_MIN) / (LOG_LAMBDA_MAX - LOG_LAMBDA_MIN)
+            * (N_LAMBDA - 1) as f64)
             .clamp(0.0, (N_LAMBDA - 1) as f64);
         let dd = d.clamp(-PI, PI) / PI;
         let w = dd.signum() * dd.abs().cbrt();
@@ -316,7 +325,11 @@ pub fn support_angle(lambda: f64) -> f64 {
         return PI;
     }
     let c = 1.0 - 20.7 / lambda;
-    if c <= -1.0 { PI } else { c.acos() }
+    if c <= -1.0 {
+        PI
+    } else {
+        c.acos()
+    }
 }
 
 /// Method (b): cell-based integration with iso-line boundaries (module docs).
@@ -490,14 +503,20 @@ mod tests {
                 for cosine in [false, true] {
                     let bf = brute_force(&vis, &g, cosine, false);
                     let c = visible_cells(&v, &g, cosine);
-                    assert!((c - bf).abs() <= 1e-3 * bf + 1e-6 * g.sphere_integral(), "cells all visible lambda {lambda} {axis:?}: {c} vs {bf}");
+                    assert!(
+                        (c - bf).abs() <= 1e-3 * bf + 1e-6 * g.sphere_integral(),
+                        "cells all visible lambda {lambda} {axis:?}: {c} vs {bf}"
+                    );
                     assert_eq!(visible_cells(&o, &g, cosine), 0.0);
                     assert_eq!(visible_axis(&o, &table, &g, cosine), 0.0);
                 }
                 // (a) on a fully visible map is the hemisphere integral (Tokuyoshi approximation)
                 let a = visible_axis(&v, &table, &g, false);
                 let exact = g.hemisphere_integral(DVec3::Z);
-                assert!((a - exact).abs() <= 0.03 * exact + 0.005 * g.sphere_integral(), "axis all visible: {a} vs {exact}");
+                assert!(
+                    (a - exact).abs() <= 0.03 * exact + 0.005 * g.sphere_integral(),
+                    "axis all visible: {a} vs {exact}"
+                );
             }
         }
     }

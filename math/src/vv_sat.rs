@@ -427,7 +427,11 @@ pub fn clip_to_cap(pts: &[DVec3], axis: DVec3, cos_r: f64, step: f64) -> Vec<DVe
             if arcs_cut_cap(pts, axis, cos_r) {
                 return densify_clip(pts, axis, cos_r, step);
             }
-            return if winding_about(pts, axis) != 0 { cap_loop(axis, cos_r, ((2.0 * PI / step).ceil() as usize).max(8)) } else { Vec::new() };
+            return if winding_about(pts, axis) != 0 {
+                cap_loop(axis, cos_r, ((2.0 * PI / step).ceil() as usize).max(8))
+            } else {
+                Vec::new()
+            };
         }
     };
     let mut out = Vec::with_capacity(n + 8);
@@ -545,7 +549,14 @@ impl Default for IntegrateOptions {
 /// `∫_V (l, 1) L_e dl` over `V` = the cap (`axis`, `cos_r`) minus the occluder loops (each
 /// positive = occluded interior on its left seen from the centre), loops clipped to the cap
 /// first; `clip2` optionally intersects everything with a second cap (`axis2`, `cos2`) first.
-pub fn region_moments(sat: &Sat, axis: DVec3, cos_r: f64, occluders: &[Vec<DVec3>], clip2: Option<(DVec3, f64)>, o: &IntegrateOptions) -> LoopIntegral {
+pub fn region_moments(
+    sat: &Sat,
+    axis: DVec3,
+    cos_r: f64,
+    occluders: &[Vec<DVec3>],
+    clip2: Option<(DVec3, f64)>,
+    o: &IntegrateOptions,
+) -> LoopIntegral {
     let axis = nudge_axis(axis, cos_r);
     let clip2 = clip2.map(|(a, c)| (nudge_axis(a, c), c));
     let mut loops = Vec::with_capacity(occluders.len() + 1);
@@ -621,7 +632,13 @@ pub fn cap_ratio(sat: &Sat, n: DVec3, r: DVec3, cos_xi: f64, occluders: &[Vec<DV
 
 /// Brute-force reference: `∫ (l, 1) L_e` over the directions inside `inside(l)`, each texel
 /// split into `sub x sub` cells with exact cell moments (the map is piecewise constant).
-pub fn brute_force(width: usize, height: usize, texels: &[[f32; 3]], sub: usize, inside: impl Fn(DVec3) -> bool + Sync) -> Moments {
+pub fn brute_force(
+    width: usize,
+    height: usize,
+    texels: &[[f32; 3]],
+    sub: usize,
+    inside: impl Fn(DVec3) -> bool + Sync,
+) -> Moments {
     use rayon::prelude::*;
     let dp = 2.0 * PI / (width * sub) as f64;
     let dt = PI / (height * sub) as f64;
@@ -688,7 +705,8 @@ mod tests {
         for y in 0..h {
             for x in 0..w {
                 let d = crate::envmap::latlong_direction((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
-                let mut c = if d.y > 0.0 { [0.3 + 0.5 * d.y as f32, 0.5 + 0.3 * d.y as f32, 1.0] } else { [0.2, 0.15, 0.1] };
+                let mut c =
+                    if d.y > 0.0 { [0.3 + 0.5 * d.y as f32, 0.5 + 0.3 * d.y as f32, 1.0] } else { [0.2, 0.15, 0.1] };
                 c[0] += 0.3 * (3.0 * d.x).sin().abs() as f32;
                 if let Some((s, k)) = sun {
                     if d.dot(s) > (0.6f64).to_radians().cos() {
@@ -712,7 +730,13 @@ mod tests {
         let t = sat.total();
         assert!((t.0[3].x - 4.0 * PI).abs() < 1e-9, "sphere area {}", t.0[3].x);
         assert!(t.0[0].x.abs() < 1e-9 && t.0[1].x.abs() < 1e-9 && t.0[2].x.abs() < 1e-9);
-        for (axis, cr) in [(DVec3::new(0.3, 0.8, 0.5), 0.7), (DVec3::new(0.1, -0.9, 0.3), 0.2), (DVec3::new(0.9, 0.05, -0.4), 0.0), (DVec3::Y, 0.5), (DVec3::NEG_Y, 0.5)] {
+        for (axis, cr) in [
+            (DVec3::new(0.3, 0.8, 0.5), 0.7),
+            (DVec3::new(0.1, -0.9, 0.3), 0.2),
+            (DVec3::new(0.9, 0.05, -0.4), 0.0),
+            (DVec3::Y, 0.5),
+            (DVec3::NEG_Y, 0.5),
+        ] {
             let axis = axis.normalize();
             let o = IntegrateOptions::default();
             let m = region_moments(&sat, axis, cr, &[], None, &o).moments;
@@ -725,7 +749,16 @@ mod tests {
     }
 
     /// Loops, their brute-force membership test, and both integrals.
-    fn check(sat: &Sat, w: usize, h: usize, tex: &[[f32; 3]], n: DVec3, occ: &[Vec<DVec3>], tol: f64, what: &str) -> f64 {
+    fn check(
+        sat: &Sat,
+        w: usize,
+        h: usize,
+        tex: &[[f32; 3]],
+        n: DVec3,
+        occ: &[Vec<DVec3>],
+        tol: f64,
+        what: &str,
+    ) -> f64 {
         let o = IntegrateOptions::default();
         let got = visible_moments(sat, n, occ, &o).moments;
         let reference = brute_force(w, h, tex, 6, |d| d.dot(n) >= 0.0 && !occ.iter().any(|l| inside_loop(l, d)));
@@ -762,7 +795,13 @@ mod tests {
         let (w, h) = (128, 64);
         let tex = sky(w, h, None);
         let sat = Sat::new(w, h, &tex).unwrap();
-        for n in [DVec3::Y, DVec3::NEG_Y, DVec3::new(0.6, 0.3, -0.74).normalize(), DVec3::new(-0.2, -0.5, 0.84).normalize(), DVec3::X] {
+        for n in [
+            DVec3::Y,
+            DVec3::NEG_Y,
+            DVec3::new(0.6, 0.3, -0.74).normalize(),
+            DVec3::new(-0.2, -0.5, 0.84).normalize(),
+            DVec3::X,
+        ] {
             check(&sat, w, h, &tex, n, &[], 0.01, &format!("hemisphere {n:?}"));
         }
         // empty region: an occluder covering the whole hemisphere
@@ -781,14 +820,17 @@ mod tests {
         let mut rng = 0x9e3779b97f4a7c15u64;
         let mut worst: f64 = 0.0;
         for k in 0..12 {
-            let n = DVec3::new(rand01(&mut rng) - 0.5, rand01(&mut rng) * 0.5 + 0.3, rand01(&mut rng) - 0.5).normalize();
+            let n =
+                DVec3::new(rand01(&mut rng) - 0.5, rand01(&mut rng) * 0.5 + 0.3, rand01(&mut rng) - 0.5).normalize();
             let mut occ = Vec::new();
             for _ in 0..1 + k % 3 {
-                let c = (n + DVec3::new(rand01(&mut rng) - 0.5, rand01(&mut rng) - 0.5, rand01(&mut rng) - 0.5) * 1.6).normalize();
+                let c = (n + DVec3::new(rand01(&mut rng) - 0.5, rand01(&mut rng) - 0.5, rand01(&mut rng) - 0.5) * 1.6)
+                    .normalize();
                 occ.push(polygon(c, 0.15 + 0.3 * rand01(&mut rng), 5 + (rand01(&mut rng) * 10.0) as usize, &mut rng));
             }
             // disjoint occluders only (the representation's loops do not overlap)
-            let overlap = (0..occ.len()).any(|i| (0..occ.len()).any(|j| i != j && occ[i].iter().any(|p| inside_loop(&occ[j], *p))));
+            let overlap = (0..occ.len())
+                .any(|i| (0..occ.len()).any(|j| i != j && occ[i].iter().any(|p| inside_loop(&occ[j], *p))));
             if overlap {
                 continue;
             }
@@ -809,8 +851,16 @@ mod tests {
         let pole = polygon(DVec3::new(0.05, 1.0, 0.02).normalize(), 0.35, 7, &mut rng);
         check(&sat, w, h, &tex, DVec3::new(0.2, 0.9, 0.3).normalize(), &[pole], 0.02, "over the north pole");
         // a single arc passing exactly over the pole
-        let tri = vec![DVec3::new(0.3, 0.9, 0.0).normalize(), DVec3::new(-0.3, 0.9, 0.0).normalize(), DVec3::new(0.0, 0.9, 0.4).normalize()];
-        let tri = if winding_about(&tri, DVec3::new(0.0, 0.95, 0.15).normalize()) > 0 { tri } else { tri.into_iter().rev().collect() };
+        let tri = vec![
+            DVec3::new(0.3, 0.9, 0.0).normalize(),
+            DVec3::new(-0.3, 0.9, 0.0).normalize(),
+            DVec3::new(0.0, 0.9, 0.4).normalize(),
+        ];
+        let tri = if winding_about(&tri, DVec3::new(0.0, 0.95, 0.15).normalize()) > 0 {
+            tri
+        } else {
+            tri.into_iter().rev().collect()
+        };
         check(&sat, w, h, &tex, DVec3::Y, &[tri], 0.02, "arc through the pole");
         let south = polygon(DVec3::new(0.1, -1.0, 0.0).normalize(), 0.3, 8, &mut rng);
         check(&sat, w, h, &tex, DVec3::new(0.0, -0.8, 0.6).normalize(), &[south], 0.02, "around the south pole");
@@ -910,7 +960,10 @@ mod tests {
             f(&num) / f(&den)
         };
         println!("dipping arc: gamma {g:?} reference {reference:?}");
-        assert!(reference.max_element() < 0.95 && reference.min_element() > 0.05, "the loop should cover part of the cap: {reference:?}");
+        assert!(
+            reference.max_element() < 0.95 && reference.min_element() > 0.05,
+            "the loop should cover part of the cap: {reference:?}"
+        );
         assert!((g - reference).abs().max_element() < 0.03, "gamma {g:?} vs brute force {reference:?}");
     }
 }

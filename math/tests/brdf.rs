@@ -13,7 +13,11 @@ fn wo_at(deg: f64) -> DVec3 {
 fn quadrature_rule_sanity() {
     // int_{z>0} cos = pi, with the rule aligned to a tilted lobe axis
     for (deg, lam) in [(0.0, 1.0), (60.0, 100.0), (80.0, 1e4)] {
-        let r = hemisphere_rule_about(DVec3::new(-(deg as f64).to_radians().sin(), 0.0, (deg as f64).to_radians().cos()), lam, 64);
+        let r = hemisphere_rule_about(
+            DVec3::new(-(deg as f64).to_radians().sin(), 0.0, (deg as f64).to_radians().cos()),
+            lam,
+            64,
+        );
         let s: f64 = r.iter().map(|(d, w)| w * d.z).sum();
         // the clipped azimuthal sum is first-order accurate at the horizon
         assert!((s / std::f64::consts::PI - 1.0).abs() < 5e-3, "{deg} {lam}: {s}");
@@ -86,7 +90,10 @@ fn ashikhmin_shirley_seven_lobes() {
             assert!(fit7.lobes.iter().all(|g| g.mu.is_finite() && g.lambda.is_finite() && g.axis.is_finite()));
             assert!(fit7.rel_l2_error <= e7_init + 1e-9);
             assert!(fit7.rel_l2_error < fit1.rel_l2_error, "7 lobes must beat 1 on an anisotropic lobe");
-            line += &format!(" θo={deg:>2}: 1 lobe {:.3}, 7 lobes {:.3} (start {e7_init:.3});", fit1.rel_l2_error, fit7.rel_l2_error);
+            line += &format!(
+                " θo={deg:>2}: 1 lobe {:.3}, 7 lobes {:.3} (start {e7_init:.3});",
+                fit1.rel_l2_error, fit7.rel_l2_error
+            );
             assert!(fit7.rel_l2_error < 0.2, "{nu} {nv} {deg}: {}", fit7.rel_l2_error);
         }
         println!("{line}");

@@ -104,7 +104,10 @@ fn robust_to_a_sun_1e4_brighter_than_the_sky() {
     for k in [4usize, 16] {
         let f = fitter.fit(k).unwrap();
         let fu = unclamped.fit(k).unwrap();
-        println!("sun+sky K={k}: plain L2 (no sun/sky split) rel L2 {:.4} (sun-dominated L2 optimum direction)", fu.rel_l2_error);
+        println!(
+            "sun+sky K={k}: plain L2 (no sun/sky split) rel L2 {:.4} (sun-dominated L2 optimum direction)",
+            fu.rel_l2_error
+        );
         assert!(f.lobes.iter().all(|l| l.mu.is_finite() && l.mu.min_element() >= 0.0 && l.lambda.is_finite()));
         // sky-only error: texels farther than 10 degrees from the sun
         let sky_error = |lobes: &[SgRgb]| {
@@ -240,7 +243,10 @@ fn cc0_maps_fit_error() {
         if std::env::var("PENUMBRA_MATH_COMPARE").is_ok() {
             // report only: the plain least-squares fit without the sun/sky split
             let plain = SgEnvFitter::new(w, h, &t, SgFitOptions { sun_cap: None, ..Default::default() }).unwrap();
-            let e: Vec<String> = [4usize, 8, 16, 32].iter().map(|&k| format!("K={k}: {:.4}", plain.fit(k).unwrap().rel_l2_error)).collect();
+            let e: Vec<String> = [4usize, 8, 16, 32]
+                .iter()
+                .map(|&k| format!("K={k}: {:.4}", plain.fit(k).unwrap().rel_l2_error))
+                .collect();
             println!("{name}: plain L2 fit (sun_cap None): {}", e.join("; "));
         }
     }
@@ -279,7 +285,6 @@ fn prefilter_constant_and_exact_sg() {
     println!("prefilter of an exact SG map: max error relative to the peak {worst:.2e}");
     assert!(worst < 5e-3);
 }
-
 
 #[test]
 fn sh_projection_of_a_latlong_map() {

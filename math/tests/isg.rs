@@ -31,7 +31,8 @@ fn exact_isg_matches_closed_forms() {
     // patch around the axis must approach the SG value times the patch's solid angle.
     let g = 50.0;
     let h = 1e-3;
-    let s = isg_exact(FRAC_PI_2 + h, FRAC_PI_2 + h, g) - isg_exact(FRAC_PI_2 - h, FRAC_PI_2 + h, g)
+    let s = isg_exact(FRAC_PI_2 + h, FRAC_PI_2 + h, g)
+        - isg_exact(FRAC_PI_2 - h, FRAC_PI_2 + h, g)
         - isg_exact(FRAC_PI_2 + h, FRAC_PI_2 - h, g)
         + isg_exact(FRAC_PI_2 - h, FRAC_PI_2 - h, g);
     assert!((s / (4.0 * h * h) - 1.0).abs() < 1e-4, "thin patch {}", s / (4.0 * h * h));
@@ -48,8 +49,14 @@ fn paper_fit_and_table_errors() {
     let fit = fit_error(&paper_fit, &gs, 41);
     let t = table();
     let tab = fit_error(&|th, ph, g| t.eval(th, ph, g), &gs, 41);
-    println!("paper two-sigmoid fit, gamma 1..1e4: max {:.4} (at gamma {:.1}), rms {:.5}", fit.max, fit.worst_gamma, fit.rms);
-    println!("table (16/decade, 65^2), gamma 1..1e4: max {:.5} (at gamma {:.1}), rms {:.6}", tab.max, tab.worst_gamma, tab.rms);
+    println!(
+        "paper two-sigmoid fit, gamma 1..1e4: max {:.4} (at gamma {:.1}), rms {:.5}",
+        fit.max, fit.worst_gamma, fit.rms
+    );
+    println!(
+        "table (16/decade, 65^2), gamma 1..1e4: max {:.5} (at gamma {:.1}), rms {:.6}",
+        tab.max, tab.worst_gamma, tab.rms
+    );
     for g in [1.0, 10.0, 100.0, 1000.0, 1e4] {
         let e = fit_error(&paper_fit, &[g], 41);
         println!("  paper fit at gamma {g}: max {:.4} rms {:.5} (g = {:.2})", e.max, e.rms, paper_g(g));
@@ -179,8 +186,7 @@ fn blocker_extremes() {
 
 /// Two triangles of the rectangle `[-a, a] x [-b, b]` at height `h` above the origin (normal Z).
 fn quad(a: f64, b: f64, h: f64) -> [Triangle; 2] {
-    let (p00, p10, p11, p01) =
-        (DVec3::new(-a, -b, h), DVec3::new(a, -b, h), DVec3::new(a, b, h), DVec3::new(-a, b, h));
+    let (p00, p10, p11, p01) = (DVec3::new(-a, -b, h), DVec3::new(a, -b, h), DVec3::new(a, b, h), DVec3::new(-a, b, h));
     [[p00, p10, p11], [p00, p11, p01]]
 }
 
@@ -253,7 +259,8 @@ fn random_triangles_match_brute_force_and_extremes() {
         let width = (3.0 / g.sqrt()).min(1.2);
         let tris: Vec<Triangle> = (0..4)
             .map(|_| {
-                let c = (axis + DVec3::new(rnd() - 0.5, rnd() - 0.5, rnd() - 0.5) * 2.0 * width).normalize() * (1.0 + 2.0 * rnd());
+                let c = (axis + DVec3::new(rnd() - 0.5, rnd() - 0.5, rnd() - 0.5) * 2.0 * width).normalize()
+                    * (1.0 + 2.0 * rnd());
                 let s = c.length() * width * (0.2 + rnd());
                 [0, 1, 2].map(|_| c + DVec3::new(rnd() - 0.5, rnd() - 0.5, rnd() - 0.5) * s)
             })

@@ -30,7 +30,13 @@ fn uv_sphere(r: f32, seg: u32) -> (Vec<Vec3>, Vec<u32>) {
 
 fn box_mesh(ext: Vec3) -> (Vec<Vec3>, Vec<u32>) {
     let p: Vec<Vec3> = (0..8)
-        .map(|i| Vec3::new(if i & 1 == 1 { ext.x } else { -ext.x }, if i & 2 == 2 { ext.y } else { -ext.y }, if i & 4 == 4 { ext.z } else { -ext.z }))
+        .map(|i| {
+            Vec3::new(
+                if i & 1 == 1 { ext.x } else { -ext.x },
+                if i & 2 == 2 { ext.y } else { -ext.y },
+                if i & 4 == 4 { ext.z } else { -ext.z },
+            )
+        })
         .collect();
     let q = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
     let idx = q.iter().flat_map(|f| [f[0], f[1], f[2], f[0], f[2], f[3]]).collect();
@@ -66,7 +72,10 @@ fn coverage_of_simple_solids() {
     let set = approximate_spheres(&p, &i, 1).unwrap();
     assert_eq!(set.spheres.len(), 1);
     let cov = measure_coverage(&p, &i, &set.spheres, 80).unwrap();
-    println!("sphere, 1 sphere: covered {:.3} outside {:.4} (r {:.3})", cov.covered, cov.outside, set.spheres[0].radius);
+    println!(
+        "sphere, 1 sphere: covered {:.3} outside {:.4} (r {:.3})",
+        cov.covered, cov.outside, set.spheres[0].radius
+    );
     assert!((cov.mesh_volume - 4.0 / 3.0 * std::f64::consts::PI).abs() < 0.15, "volume {}", cov.mesh_volume);
     assert!(cov.covered > 0.9 && cov.outside < 0.05, "{cov:?}");
 
@@ -106,7 +115,14 @@ fn file_round_trip_and_deformation() {
         assert!((b.center - a.center - Vec3::new(0.0, 2.0, 0.0)).length() < 1e-5);
     }
     // Bad files.
-    for bad in ["", "penumbra-spheres 2 0", "penumbra-spheres 1 1", "penumbra-spheres 1 1\n0 0 0 -1 0 0 0 0", "penumbra-spheres 1 1\n0 0 nan 1 0 0 0 0", "penumbra-spheres 1 1\n0 0 0 1 0 0 0"] {
+    for bad in [
+        "",
+        "penumbra-spheres 2 0",
+        "penumbra-spheres 1 1",
+        "penumbra-spheres 1 1\n0 0 0 -1 0 0 0 0",
+        "penumbra-spheres 1 1\n0 0 nan 1 0 0 0 0",
+        "penumbra-spheres 1 1\n0 0 0 1 0 0 0",
+    ] {
         assert!(SphereSet::parse(bad).is_err(), "accepted `{bad}`");
     }
     assert_eq!(SphereSet::parse("# none\npenumbra-spheres 1 0\n").unwrap().spheres.len(), 0);

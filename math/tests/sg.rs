@@ -259,14 +259,15 @@ fn convolution_and_irradiance_vs_quadrature() {
     assert!(rel(conv, q) < 1e-9, "{conv} {q}");
     // irradiance: exact (quadrature of L * max(0, cos)) vs SG-cosine approximations
     for n in [DVec3::Z, DVec3::new(0.0, -1.0, 0.0), DVec3::new(1.0, 0.0, 0.0)] {
-        let exact: f64 = lights
-            .iter()
-            .map(|l| integrate_sphere_about(l.axis, Some(n), 1e-11, |w| l.eval(w) * w.dot(n)))
-            .sum();
+        let exact: f64 =
+            lights.iter().map(|l| integrate_sphere_about(l.axis, Some(n), 1e-11, |w| l.eval(w) * w.dot(n))).sum();
         let a = irradiance_sg_cosine(&lights, n);
         let b = irradiance_sg_cosine_hemisphere(&lights, n);
-        println!("irradiance n={n:?}: exact {exact:.5} sg-cos {a:.5} ({:+.1}%) sg-cos-hemi {b:.5} ({:+.1}%)",
-            100.0 * (a / exact - 1.0), 100.0 * (b / exact - 1.0));
+        println!(
+            "irradiance n={n:?}: exact {exact:.5} sg-cos {a:.5} ({:+.1}%) sg-cos-hemi {b:.5} ({:+.1}%)",
+            100.0 * (a / exact - 1.0),
+            100.0 * (b / exact - 1.0)
+        );
         assert!(a.is_finite() && b.is_finite() && b <= a + 1e-12);
     }
 }

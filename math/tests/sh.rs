@@ -18,8 +18,8 @@ impl Rng {
         (0..n).map(|_| 2.0 * self.next() - 1.0).collect()
     }
     fn rotation(&mut self) -> DMat3 {
-        let q = DQuat::from_xyzw(self.next() - 0.5, self.next() - 0.5, self.next() - 0.5, self.next() - 0.5)
-            .normalize();
+        let q =
+            DQuat::from_xyzw(self.next() - 0.5, self.next() - 0.5, self.next() - 0.5, self.next() - 0.5).normalize();
         DMat3::from_quat(q)
     }
 }

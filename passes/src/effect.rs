@@ -19,7 +19,13 @@ pub trait Effect {
     fn name(&self) -> &'static str;
     /// Declares the effect's passes reading `hdr`; returns the new HDR image (or `hdr` itself
     /// after a read-modify-write).
-    fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &EffectInputs, hdr: ImageHandle) -> Result<ImageHandle>;
+    fn add(
+        &mut self,
+        engine: &mut Engine,
+        graph: &mut Graph,
+        inputs: &EffectInputs,
+        hdr: ImageHandle,
+    ) -> Result<ImageHandle>;
     /// What the effect leaves out or approximates for this scene and device, for the user
     /// (`Renderer::notes`).
     fn notes(&self) -> Vec<String> {
@@ -45,7 +51,8 @@ pub fn create_for(
 ) -> Result<Vec<Box<dyn Effect>>> {
     let mut v: Vec<Box<dyn Effect>> = Vec::new();
     if scene.medium.is_some() {
-        let name = overrides.volumetric.clone().or_else(|| scene.volumetric.clone()).unwrap_or_else(|| "temporal".into());
+        let name =
+            overrides.volumetric.clone().or_else(|| scene.volumetric.clone()).unwrap_or_else(|| "temporal".into());
         let method = crate::volumetric::VolumetricMethod::parse(&name)?;
         let params = crate::volumetric::VolumetricParams { method, ..Default::default() };
         v.push(Box::new(crate::volumetric::VolumetricEffect::new(scene, ctx, shaders, params)?));

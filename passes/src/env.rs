@@ -290,7 +290,11 @@ mod tests {
             mean_e += (0..9).map(|i| e.sh[i][0] as f64 * b[i] as f64).sum::<f64>();
         }
         mean_e /= n as f64;
-        assert!((mean_e / (std::f64::consts::PI * mean_l) - 1.0).abs() < 1e-3, "{mean_e} vs {}", std::f64::consts::PI * mean_l);
+        assert!(
+            (mean_e / (std::f64::consts::PI * mean_l) - 1.0).abs() < 1e-3,
+            "{mean_e} vs {}",
+            std::f64::consts::PI * mean_l
+        );
         // The sun's side is brighter than the opposite side.
         let sun_dir = world_direction((77.0 + 0.5) / w as f32, (20.0 + 0.5) / h as f32, 0.0);
         assert!(sh9_irradiance(&e.sh, sun_dir).x > sh9_irradiance(&e.sh, -sun_dir).x);

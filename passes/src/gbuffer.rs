@@ -52,7 +52,11 @@ impl GBuffer {
 impl GBufferReads {
     /// The three images as consecutive sampled-image bindings with `sampler`.
     pub fn binds(&self, sampler: vk::Sampler) -> [Bind; 3] {
-        [Bind::SampledImage(self.position, sampler), Bind::SampledImage(self.normal, sampler), Bind::SampledImage(self.uv_mat, sampler)]
+        [
+            Bind::SampledImage(self.position, sampler),
+            Bind::SampledImage(self.normal, sampler),
+            Bind::SampledImage(self.uv_mat, sampler),
+        ]
     }
 }
 

@@ -43,8 +43,8 @@
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline};
 use anyhow::{anyhow, bail, Result};
 use glam::{Mat3, Vec3};
-use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::graph::PassBuilder;
+use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, PassKind};
 use penumbra_scene::{Frame, Instance, MeshData, Scene};
 use std::sync::Arc;
@@ -185,7 +185,11 @@ impl WorldMesh<'_> {
             }
             let p = i.map(|k| self.positions[k]);
             if !p.iter().all(|v| v.is_finite()) {
-                return Some(Err(anyhow!("mesh '{}' of object '{}' has non-finite vertices", self.mesh.name, self.name)));
+                return Some(Err(anyhow!(
+                    "mesh '{}' of object '{}' has non-finite vertices",
+                    self.mesh.name,
+                    self.name
+                )));
             }
             ((p[1] - p[0]).cross(p[2] - p[0]).length_squared() > 0.0).then_some(Ok((i, p)))
         })

@@ -36,7 +36,8 @@ pub const PREFILTER_LAMBDAS: [f64; 8] = [0.25, 1.0, 4.0, 16.0, 64.0, 256.0, 1024
 /// environment.
 pub fn prefiltered_env(scene: &Scene) -> Vec<f32> {
     let Some(e) = scene.environment.as_ref() else { return vec![0.0] };
-    let Ok(levels) = penumbra_math::envmap::prefilter(e.width as usize, e.height as usize, &e.texels, &PREFILTER_LAMBDAS, 128)
+    let Ok(levels) =
+        penumbra_math::envmap::prefilter(e.width as usize, e.height as usize, &e.texels, &PREFILTER_LAMBDAS, 128)
     else {
         return vec![0.0];
     };
@@ -63,7 +64,8 @@ pub const IRRADIANCE_SIZE: (usize, usize) = (64, 32);
 pub fn irradiance_env(scene: &Scene) -> Vec<f32> {
     let Some(e) = scene.environment.as_ref() else { return vec![0.0, 0.0] };
     let (w, h) = IRRADIANCE_SIZE;
-    let Ok(map) = penumbra_math::envmap::irradiance_map(e.width as usize, e.height as usize, &e.texels, w, h, 64) else {
+    let Ok(map) = penumbra_math::envmap::irradiance_map(e.width as usize, e.height as usize, &e.texels, w, h, 64)
+    else {
         return vec![0.0, 0.0];
     };
     let mut out = vec![w as f32, h as f32];

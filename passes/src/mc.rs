@@ -38,9 +38,6 @@ use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, Im
 use penumbra_scene::{Frame, Scene};
 use std::sync::Arc;
 
-
-
-
 /// Local lights as `penumbra_reference::lights::LocalLight::new` keeps them (lights that cannot
 /// emit are dropped): 4 vec4 each, the layout of `lights` in `glsl/mc/mc.comp`; the fourth
 /// holds the medium's extinction `sigma_t` in yzw (zero without a medium), by which local light
@@ -57,7 +54,12 @@ pub fn light_table(lights: &[penumbra_scene::LightInstance], sigma_t: Vec3) -> V
         let pos = l.position;
         match l.kind {
             LightKind::Point => {
-                out.extend([[pos.x, pos.y, pos.z, 0.0], [0.0; 4], [power.x, power.y, power.z, 0.0], [0.0, sigma_t.x, sigma_t.y, sigma_t.z]]);
+                out.extend([
+                    [pos.x, pos.y, pos.z, 0.0],
+                    [0.0; 4],
+                    [power.x, power.y, power.z, 0.0],
+                    [0.0, sigma_t.x, sigma_t.y, sigma_t.z],
+                ]);
             }
             LightKind::Spot { inner_deg, outer_deg } => {
                 let axis = l.direction.normalize_or_zero();
@@ -88,8 +90,6 @@ pub fn light_table(lights: &[penumbra_scene::LightInstance], sigma_t: Vec3) -> V
     }
     out
 }
-
-
 
 /// Technique `mc`.
 pub struct McTechnique {
@@ -225,7 +225,8 @@ impl McTechnique {
                 (t, td, true)
             }
         };
-        let env_texels = crate::util::persistent_upload(engine, graph, "mc.env_texels", bytes_of(&self.env.texels), false);
+        let env_texels =
+            crate::util::persistent_upload(engine, graph, "mc.env_texels", bytes_of(&self.env.texels), false);
         let env_cdf = crate::util::persistent_upload(engine, graph, "mc.env_cdf", bytes_of(&self.env.cdf), false);
         let materials =
             graph.create_buffer_init("mc.materials", crate::scene_gpu::material_table(&frame.materials, &self.extras));
@@ -287,7 +288,12 @@ impl McTechnique {
             let repeat = self.repeat.sampler;
             let pipe = self.pipeline.handle();
             p.record(move |rc| {
-                let images = [Bind::StorageImage(acc), Bind::StorageImage(out), Bind::StorageBuffer(lt), Bind::SampledImage(tex, repeat)];
+                let images = [
+                    Bind::StorageImage(acc),
+                    Bind::StorageImage(out),
+                    Bind::StorageBuffer(lt),
+                    Bind::SampledImage(tex, repeat),
+                ];
                 let binds = [kd.binds().as_slice(), &crate::util::storage([td, mats, et, ec]), &images].concat();
                 crate::util::dispatch(rc, pipe, &binds, &push, [groups(width, 8), groups(height, 8), 1])
             });

@@ -322,11 +322,22 @@ pub fn draw_meshes(
 
 /// Begins dynamic rendering with `info` over a `w` x `h` viewport and scissor (depth 0..1) and
 /// binds the graphics `pipeline`.
-pub fn begin(d: &ash::Device, cmd: vk::CommandBuffer, info: &vk::RenderingInfo, w: u32, h: u32, pipeline: vk::Pipeline) {
+pub fn begin(
+    d: &ash::Device,
+    cmd: vk::CommandBuffer,
+    info: &vk::RenderingInfo,
+    w: u32,
+    h: u32,
+    pipeline: vk::Pipeline,
+) {
     let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
     unsafe {
         d.cmd_begin_rendering(cmd, info);
-        d.cmd_set_viewport(cmd, 0, &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: h as f32, min_depth: 0.0, max_depth: 1.0 }]);
+        d.cmd_set_viewport(
+            cmd,
+            0,
+            &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: h as f32, min_depth: 0.0, max_depth: 1.0 }],
+        );
         d.cmd_set_scissor(cmd, 0, &[area]);
         d.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
     }

@@ -135,8 +135,10 @@ pub struct EffectInfo {
 pub const MIN_SHADOW_RECOVERED: f64 = 0.5;
 
 /// Both isg modes (per pixel and per vertex) answer to the paper's figure.
-const ISG_BUDGET: Budget =
-    Budget::RmseRelMean { rmse_rel_mean: 0.05, source: "ISG paper, Fig. 12: RMS errors 3.2 % and 4.6 % against ray tracing" };
+const ISG_BUDGET: Budget = Budget::RmseRelMean {
+    rmse_rel_mean: 0.05,
+    source: "ISG paper, Fig. 12: RMS errors 3.2 % and 4.6 % against ray tracing",
+};
 
 /// Adaptive and fixed shells approximate visibility the same way.
 const SHADOW_FIELDS_BUDGET: Budget = Budget::RmseRelMean {
@@ -239,45 +241,103 @@ const VV_PARAMS: &[ParamDoc] = &[
 fn create_env(ctx: &Arc<Context>, shaders: &ShaderLibrary, _: &Scene, _: &Params) -> Result<Box<dyn Technique>> {
     Ok(Box::new(crate::shade_env::ShadeEnvPass::new(ctx, shaders)?))
 }
-fn create_mc(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+fn create_mc(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    params: &Params,
+) -> Result<Box<dyn Technique>> {
     let mut t = crate::mc::McTechnique::new(ctx, shaders, scene)?;
     parsed(crate::technique::apply_params(&mut t, params, crate::mc::McTechnique::set))?;
     Ok(Box::new(t))
 }
-fn create_shadowmaps(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+fn create_shadowmaps(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    params: &Params,
+) -> Result<Box<dyn Technique>> {
     let settings = parsed(crate::shadowmaps::ShadowMapsSettings::from_params(params))?;
     Ok(Box::new(crate::shadowmaps::ShadowMapsTechnique::new(ctx, shaders, scene, settings)?))
 }
-fn create_isg_with(per_vertex: bool, ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+fn create_isg_with(
+    per_vertex: bool,
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    params: &Params,
+) -> Result<Box<dyn Technique>> {
     let mut settings = crate::isg::IsgSettings { per_vertex, ..Default::default() };
     parsed(crate::technique::apply_params(&mut settings, params, crate::isg::IsgSettings::set))?;
     Ok(Box::new(crate::isg::IsgTechnique::new(ctx, shaders, scene, settings)?))
 }
-fn create_isg(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+fn create_isg(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    params: &Params,
+) -> Result<Box<dyn Technique>> {
     create_isg_with(false, ctx, shaders, scene, params)
 }
-fn create_isg_vertex(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+fn create_isg_vertex(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    params: &Params,
+) -> Result<Box<dyn Technique>> {
     create_isg_with(true, ctx, shaders, scene, params)
 }
-fn create_avs(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+fn create_avs(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    params: &Params,
+) -> Result<Box<dyn Technique>> {
     let settings = parsed(crate::avs::AvsSettings::from_params(params))?;
     Ok(Box::new(crate::avs::AvsTechnique::new(ctx, shaders, scene, settings)?))
 }
-fn create_sf_with(adaptive: bool, ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
-    let options = crate::shadow_fields::SfOptions { adaptive, ..parsed(crate::shadow_fields::SfOptions::from_params(params))? };
+fn create_sf_with(
+    adaptive: bool,
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    params: &Params,
+) -> Result<Box<dyn Technique>> {
+    let options =
+        crate::shadow_fields::SfOptions { adaptive, ..parsed(crate::shadow_fields::SfOptions::from_params(params))? };
     Ok(Box::new(crate::shadow_fields::ShadowFieldsTechnique::new(ctx, shaders, scene, options)?))
 }
-fn create_sf(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+fn create_sf(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    params: &Params,
+) -> Result<Box<dyn Technique>> {
     create_sf_with(true, ctx, shaders, scene, params)
 }
-fn create_sf_fixed(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+fn create_sf_fixed(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    params: &Params,
+) -> Result<Box<dyn Technique>> {
     create_sf_with(false, ctx, shaders, scene, params)
 }
-fn create_sf_wavelet(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+fn create_sf_wavelet(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    params: &Params,
+) -> Result<Box<dyn Technique>> {
     let options = parsed(crate::shadow_fields::wavelet::SfwOptions::from_params(params))?;
     Ok(Box::new(crate::shadow_fields::wavelet::WaveletTechnique::new(ctx, shaders, scene, options)?))
 }
-fn create_vv(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+fn create_vv(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    params: &Params,
+) -> Result<Box<dyn Technique>> {
     let settings = parsed(crate::vv::VvSettings::from_params(params))?;
     Ok(Box::new(crate::vv::VvTechnique::new(ctx, shaders, scene, settings)?))
 }
@@ -510,7 +570,10 @@ pub fn check_params(name: &str, params: &Params) -> Result<()> {
         return Ok(());
     }
     if !info.takes_params() {
-        return Err(bad(format!("technique '{name}' takes no parameters (got: {})", params.keys().cloned().collect::<Vec<_>>().join(", "))));
+        return Err(bad(format!(
+            "technique '{name}' takes no parameters (got: {})",
+            params.keys().cloned().collect::<Vec<_>>().join(", ")
+        )));
     }
     let unknown: Vec<&str> =
         params.keys().map(|k| k.trim()).filter(|k| !info.params.iter().any(|p| p.key == *k)).collect();
@@ -527,7 +590,13 @@ pub fn check_params(name: &str, params: &Params) -> Result<()> {
 
 /// Creates technique `name` (or [`AUTO`]'s choice) for `scene` with `params`: an unknown name, a refused scene
 /// ([`refusal`]) or a bad parameter is an error.
-pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, params: &Params) -> Result<Box<dyn Technique>> {
+pub fn create(
+    name: &str,
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    params: &Params,
+) -> Result<Box<dyn Technique>> {
     if name == AUTO {
         // the chosen technique with the given parameters, or its own when none are given
         let (chosen, own, _) = choose_auto(scene, ctx.shader_output_layer);
@@ -544,7 +613,8 @@ pub fn create(name: &str, ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &S
 /// The registry as text (`penumbra techniques`): every technique with its summary,
 /// requirements, budget and parameters, then every effect.
 pub fn describe() -> String {
-    let mut s = String::from("Techniques (scene files: technique = \"NAME\"; CLI: --technique NAME, --param KEY=VALUE):\n");
+    let mut s =
+        String::from("Techniques (scene files: technique = \"NAME\"; CLI: --technique NAME, --param KEY=VALUE):\n");
     s += "\nauto\n    the default: the engine chooses from the scene's requirements and the measured fronts (today shadowmaps for any lit scene, env without lights) and says so\n";
     for t in REGISTRY {
         s += &format!("\n{}\n    {}\n", t.name, t.summary);
@@ -555,7 +625,9 @@ pub fn describe() -> String {
             Budget::RmseRelMean { rmse_rel_mean, source } => {
                 s += &format!("    accuracy budget: RMSE / reference mean <= {rmse_rel_mean} ({source})\n")
             }
-            Budget::Unbiased { factor, source } => s += &format!("    accuracy budget: unbiased, noise <= {factor}x the reference's ({source})\n"),
+            Budget::Unbiased { factor, source } => {
+                s += &format!("    accuracy budget: unbiased, noise <= {factor}x the reference's ({source})\n")
+            }
             Budget::Baseline { source } => s += &format!("    accuracy budget: none ({source})\n"),
         }
         if t.params.is_empty() {
@@ -563,13 +635,20 @@ pub fn describe() -> String {
         } else {
             s += "    parameters:\n";
             for p in t.params {
-                s += &format!("      {:<14} default {:<10} {:<28} {}\n", p.key, p.default, format!("({})", p.range), p.doc);
+                s += &format!(
+                    "      {:<14} default {:<10} {:<28} {}\n",
+                    p.key,
+                    p.default,
+                    format!("({})", p.range),
+                    p.doc
+                );
             }
         }
     }
     s += "\nEffects (added by what the scene contains):\n";
     for e in EFFECTS {
-        s += &format!("\n{}\n    {}\n    when: {}\n    methods: {}\n", e.name, e.summary, e.when, e.variants.join(", "));
+        s +=
+            &format!("\n{}\n    {}\n    when: {}\n    methods: {}\n", e.name, e.summary, e.when, e.variants.join(", "));
     }
     s
 }
@@ -617,7 +696,9 @@ mod tests {
     /// the documented defaults are the parser's defaults.
     #[test]
     fn documented_parameters_are_the_parsers_parameters() {
-        let defaults = |params: &[ParamDoc]| -> Params { params.iter().map(|p| (p.key.to_string(), p.default.to_string())).collect() };
+        let defaults = |params: &[ParamDoc]| -> Params {
+            params.iter().map(|p| (p.key.to_string(), p.default.to_string())).collect()
+        };
         for t in REGISTRY {
             let all = defaults(t.params);
             check_params(t.name, &all).unwrap();
@@ -630,7 +711,10 @@ mod tests {
         );
         let avs = crate::avs::AvsSettings::from_params(&defaults(AVS_PARAMS)).unwrap();
         let d = crate::avs::AvsSettings::default();
-        assert_eq!((avs.r, avs.e_max, avs.iterations, avs.max_points, avs.neighbours), (d.r, d.e_max, d.iterations, d.max_points, d.neighbours));
+        assert_eq!(
+            (avs.r, avs.e_max, avs.iterations, avs.max_points, avs.neighbours),
+            (d.r, d.e_max, d.iterations, d.max_points, d.neighbours)
+        );
         let sf = crate::shadow_fields::SfOptions::from_params(&defaults(SHADOW_FIELDS_PARAMS)).unwrap();
         let d = crate::shadow_fields::SfOptions::default();
         assert_eq!(
@@ -668,8 +752,10 @@ mod tests {
 
     #[test]
     fn bad_parameters_are_reported_together() {
-        let params: Params =
-            [("zeta", "-3"), ("mode", "fragment1"), ("bogus", "1")].iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+        let params: Params = [("zeta", "-3"), ("mode", "fragment1"), ("bogus", "1")]
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect();
         let e = crate::vv::VvSettings::from_params(&params).unwrap_err().to_string();
         assert!(e.starts_with("2 bad technique parameters"), "{e}");
         assert!(e.contains("zeta") && e.contains("bogus") && !e.contains("fragment1"), "{e}");

@@ -318,8 +318,17 @@ impl SceneGpu {
         let deformed_vertices = (!deformed_verts.is_empty())
             .then(|| graph.create_buffer_init("frame.deformed_vertices", bytes_of(&deformed_verts)));
         let textures = self.textures.add(graph);
-        let handles =
-            SceneHandles { vertices, indices, materials, camera, instances, deformed_vertices, lights, light_count, textures };
+        let handles = SceneHandles {
+            vertices,
+            indices,
+            materials,
+            camera,
+            instances,
+            deformed_vertices,
+            lights,
+            light_count,
+            textures,
+        };
         (handles, draws)
     }
 

@@ -41,7 +41,13 @@ impl ShadingIo {
 
     /// Declares the reads of `scene`'s camera and materials, of `gb` and `env`, and the write of
     /// `hdr` on compute pass `p`.
-    pub fn declare(p: &mut PassBuilder<'_>, scene: &SceneHandles, gb: &GBuffer, env: ImageHandle, hdr: ImageHandle) -> Self {
+    pub fn declare(
+        p: &mut PassBuilder<'_>,
+        scene: &SceneHandles,
+        gb: &GBuffer,
+        env: ImageHandle,
+        hdr: ImageHandle,
+    ) -> Self {
         ShadingIo {
             camera: p.read(scene.camera, Access::AnyShaderReadUniform),
             materials: p.read(scene.materials, Access::ComputeShaderReadStorage),
@@ -113,7 +119,8 @@ impl ShadeEnvPass {
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
             let binds =
-                [io.binds(nearest, linear), vec![Bind::StorageBuffer(lights), Bind::SampledImage(textures, repeat)]].concat();
+                [io.binds(nearest, linear), vec![Bind::StorageBuffer(lights), Bind::SampledImage(textures, repeat)]]
+                    .concat();
             crate::util::dispatch(rc, pipe, &binds, &light_count.to_le_bytes(), [groups(w, 8), groups(h, 8), 1])
         });
         hdr

@@ -122,7 +122,12 @@ fn bounds_of(positions: &[Vec3]) -> (Vec3, Vec3) {
 }
 
 impl ShadowMapsTechnique {
-    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: ShadowMapsSettings) -> Result<Self> {
+    pub fn new(
+        ctx: &Arc<Context>,
+        shaders: &ShaderLibrary,
+        scene: &Scene,
+        settings: ShadowMapsSettings,
+    ) -> Result<Self> {
         use vk::DescriptorType as T;
         if !ctx.shader_output_layer {
             bail!(
@@ -149,7 +154,13 @@ impl ShadowMapsTechnique {
             "shadowmaps/shadowmaps_shade.comp",
             &[
                 &ShadingIo::TYPES[..],
-                &[T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER, T::COMBINED_IMAGE_SAMPLER],
+                &[
+                    T::STORAGE_BUFFER,
+                    T::STORAGE_BUFFER,
+                    T::COMBINED_IMAGE_SAMPLER,
+                    T::STORAGE_BUFFER,
+                    T::COMBINED_IMAGE_SAMPLER,
+                ],
             ]
             .concat(),
             32,
@@ -276,7 +287,12 @@ impl ShadowMapsTechnique {
 
     /// Declares the depth maps (when something changed) and the shading pass; returns the HDR
     /// image.
-    pub fn add_frame(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::FrameInputs) -> Result<ImageHandle> {
+    pub fn add_frame(
+        &mut self,
+        engine: &mut Engine,
+        graph: &mut Graph,
+        inputs: &crate::technique::FrameInputs,
+    ) -> Result<ImageHandle> {
         let frame = inputs.frame;
         let scene = inputs.handles;
         let gb = inputs.gbuffer;
@@ -314,7 +330,10 @@ impl ShadowMapsTechnique {
                 let d = rc.device();
                 let depth_att = crate::util::depth_attachment(rc.image(dw)?.view, true);
                 let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: s, height: s } };
-                let info = vk::RenderingInfo::default().render_area(area).layer_count(layer_count).depth_attachment(&depth_att);
+                let info = vk::RenderingInfo::default()
+                    .render_area(area)
+                    .layer_count(layer_count)
+                    .depth_attachment(&depth_att);
                 let vb = rc.buffer(vertices)?;
                 let ib = rc.buffer(indices)?;
                 let db = match deformed {
@@ -322,12 +341,31 @@ impl ShadowMapsTechnique {
                     None => None,
                 };
                 crate::raster::begin(d, rc.cmd, &info, s, s, pipeline);
-                rc.push_descriptors(vk::PipelineBindPoint::GRAPHICS, layout, 0, &[Bind::StorageBuffer(instances), Bind::StorageBuffer(lb)])?;
-                crate::raster::draw_meshes(d, rc.cmd, &draws, ib.buffer, vb.buffer, db.map(|b| b.buffer), |dr| unsafe {
-                    d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::VERTEX, 0, &bytes_of(&[dr.instance, 0u32]));
-                    let m = dr.mesh;
-                    d.cmd_draw_indexed(rc.cmd, m.index_count, layer_count, m.first_index, m.vertex_offset, 0);
-                });
+                rc.push_descriptors(
+                    vk::PipelineBindPoint::GRAPHICS,
+                    layout,
+                    0,
+                    &[Bind::StorageBuffer(instances), Bind::StorageBuffer(lb)],
+                )?;
+                crate::raster::draw_meshes(
+                    d,
+                    rc.cmd,
+                    &draws,
+                    ib.buffer,
+                    vb.buffer,
+                    db.map(|b| b.buffer),
+                    |dr| unsafe {
+                        d.cmd_push_constants(
+                            rc.cmd,
+                            layout,
+                            vk::ShaderStageFlags::VERTEX,
+                            0,
+                            &bytes_of(&[dr.instance, 0u32]),
+                        );
+                        let m = dr.mesh;
+                        d.cmd_draw_indexed(rc.cmd, m.index_count, layer_count, m.first_index, m.vertex_offset, 0);
+                    },
+                );
                 unsafe { d.cmd_end_rendering(rc.cmd) };
                 Ok(())
             });
@@ -377,7 +415,12 @@ impl crate::technique::Technique for ShadowMapsTechnique {
     fn name(&self) -> &'static str {
         "shadowmaps"
     }
-    fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
+    fn add(
+        &mut self,
+        engine: &mut Engine,
+        graph: &mut Graph,
+        inputs: &crate::technique::TechniqueInputs,
+    ) -> Result<ImageHandle> {
         self.add_frame(engine, graph, inputs)
     }
 }

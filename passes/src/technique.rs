@@ -57,7 +57,8 @@ pub fn apply_params<S>(
     params: &std::collections::BTreeMap<String, String>,
     set: impl Fn(&mut S, &str, &str) -> Result<()>,
 ) -> Result<()> {
-    let errors: Vec<String> = params.iter().filter_map(|(k, v)| set(settings, k, v).err().map(|e| format!("{e:#}"))).collect();
+    let errors: Vec<String> =
+        params.iter().filter_map(|(k, v)| set(settings, k, v).err().map(|e| format!("{e:#}"))).collect();
     match errors.len() {
         0 => Ok(()),
         1 => Err(anyhow::anyhow!("{}", errors[0])),

@@ -57,7 +57,11 @@ impl MaterialTextures {
             final_access: first.then_some(Access::AnyShaderReadSampled),
         };
         let h = graph.import_image("material_textures", imported);
-        if first { self.data.add_upload(graph, h) } else { h }
+        if first {
+            self.data.add_upload(graph, h)
+        } else {
+            h
+        }
     }
 
     /// The upload must be declared again (the frame that declared it was not submitted).
@@ -165,19 +169,13 @@ mod tests {
 
     #[test]
     fn layers_resample_and_mip() {
-        let t = Texture::pattern(
-            "checker",
-            penumbra_scene::Pattern::Checker,
-            64,
-            2.0,
-            glam::Vec4::ZERO,
-            glam::Vec4::ONE,
-        );
+        let t =
+            Texture::pattern("checker", penumbra_scene::Pattern::Checker, 64, 2.0, glam::Vec4::ZERO, glam::Vec4::ONE);
         let m = TextureLayers::new(&[t]);
         assert_eq!(m.layer_count(), 1);
         let mips = &m.layers[0];
         assert_eq!(mips.len(), 9); // 256 .. 1
-        // A 2x2 checker of 0 and 1 averages to 0.5 at the last mip.
+                                   // A 2x2 checker of 0 and 1 averages to 0.5 at the last mip.
         let last = mips.last().unwrap()[0];
         assert!((last[0] - 0.5).abs() < 1e-3, "{last:?}");
         // Top-left quadrant is colour a (0), top-right colour b (1).

@@ -85,7 +85,6 @@ impl Rng {
     }
 }
 
-
 /// Incoherent rays: origins uniform in the (1.2x) scene box, uniform directions, `tmax` infinite
 /// (`finite`: uniform in (0, diagonal)).
 pub fn random_rays(tris: &[[Vec3; 3]], n: usize, seed: u64, finite: bool) -> Vec<Ray> {
@@ -320,10 +319,13 @@ pub fn bench_trace(
         return Err(anyhow!("missing trace timestamps ({:?})", run.gpu_ms));
     }
     let mut rows = Vec::new();
-    for ((name, rays), ms) in
-        [("coherent (camera)", &coherent), ("incoherent (random)", &random), ("shadow (hit points to a light)", &shadow)]
-            .into_iter()
-            .zip(trace_ms)
+    for ((name, rays), ms) in [
+        ("coherent (camera)", &coherent),
+        ("incoherent (random)", &random),
+        ("shadow (hit points to a light)", &shadow),
+    ]
+    .into_iter()
+    .zip(trace_ms)
     {
         // Warm-up (thread pool, caches), then the best of three.
         let mut hits: usize = rays.par_iter().map(|r| cpu.occluded(r) as usize).sum();

@@ -86,7 +86,10 @@ fn scene_sphere_sets_cover_and_follow_the_objects() {
         let (lo, hi) = mesh.bounds().unwrap();
         let (lo, hi) = (inst.world.transform_point3(lo), inst.world.transform_point3(hi));
         for x in &w {
-            assert!(x.center.cmpge(lo.min(hi) - Vec3::splat(0.05)).all() && x.center.cmple(lo.max(hi) + Vec3::splat(0.05)).all());
+            assert!(
+                x.center.cmpge(lo.min(hi) - Vec3::splat(0.05)).all()
+                    && x.center.cmple(lo.max(hi) + Vec3::splat(0.05)).all()
+            );
         }
     }
     println!("hat top sphere heights over time: {heights:?}");
@@ -110,9 +113,12 @@ fn write_scene_sphere_files() {
         for (o, set) in s.objects.iter().zip(&sets) {
             let Some(_) = set else { continue };
             let m = &s.meshes[o.mesh];
-            let set = &penumbra_math::sphereset::approximate_spheres_with(&m.positions, &m.indices, count, res).unwrap();
+            let set =
+                &penumbra_math::sphereset::approximate_spheres_with(&m.positions, &m.indices, count, res).unwrap();
             let cov = measure_coverage(&m.positions, &m.indices, &set.spheres, 64).unwrap();
-            let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(format!("{}.{}.spheres", s.name, o.name));
+            let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                .join("../scenes")
+                .join(format!("{}.{}.spheres", s.name, o.name));
             let text = format!(
                 "# {} spheres for object '{}' of scene '{}' (penumbra_math::sphereset, {res} voxels)\n# coverage: {:.3} of the mesh volume, {:.4} outside\n{}",
                 set.spheres.len(), o.name, s.name, cov.covered, cov.outside, set.to_text()

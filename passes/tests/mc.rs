@@ -11,8 +11,6 @@ use penumbra_reference::metrics::compare;
 use penumbra_reference::render::{render, ReferenceOptions};
 use penumbra_scene::Scene;
 
-
-
 /// Renders one frame of `mc` and returns (image, kd-tree build passes in the graph).
 fn frame(engine: &mut Engine, mc: &mut McTechnique, f: &penumbra_scene::Frame, w: u32, h: u32) -> (Image, usize) {
     let mut g = Graph::new();

@@ -6,7 +6,8 @@ use glam::{DMat3, DMat4, DVec3, Vec3};
 use penumbra_math::sh::{eval_basis, eval_basis_into, TripleProductTensor};
 use penumbra_math::shadow_field::{
     self as sf, cosine_transfer, eq1_error, occluded_transfer, rotate, rotation_blocks, sample_angles, sample_grid,
-    DirTable, InstanceFrame, LightFrame, LightSource, ObjectField, Params, RawField, ShadeOptions, ShadePoint, Window, NCOEF, Y0,
+    DirTable, InstanceFrame, LightFrame, LightSource, ObjectField, Params, RawField, ShadeOptions, ShadePoint, Window,
+    NCOEF, Y0,
 };
 use penumbra_scene::MeshData;
 use std::f64::consts::PI;
@@ -88,7 +89,14 @@ fn shadow_fields_sphere_occluder_matches_the_analytic_cap() {
     // (0.39 x 0.79 rad at R = 8), which shrinks the higher bands.
     let fine = {
         let m = unit_sphere();
-        sf::precompute(&m.positions, &m.normals, &m.indices, &Params { resolution: 32, map_res: 16, ..sphere_params() }, &|_| {}).unwrap()
+        sf::precompute(
+            &m.positions,
+            &m.normals,
+            &m.indices,
+            &Params { resolution: 32, map_res: 16, ..sphere_params() },
+            &|_| {},
+        )
+        .unwrap()
     };
     let lookup_error = |field: &ObjectField| {
         let mut worst = 0.0f64;
@@ -235,7 +243,9 @@ fn shadow_fields_file_round_trip_and_bad_input() {
     assert!(sf::precompute(&[], &[], &[], &p, &|_| {}).is_err());
     assert!(sf::precompute(&[Vec3::ZERO; 3], &[], &[0, 1, 2], &p, &|_| {}).is_err());
     assert!(sf::precompute(&[Vec3::NAN, Vec3::X, Vec3::Y], &[], &[0, 1, 2], &p, &|_| {}).is_err());
-    assert!(sf::precompute(&[Vec3::ZERO, Vec3::X, Vec3::Y], &[], &[0, 1, 2], &Params { shells: 0, ..p }, &|_| {}).is_err());
+    assert!(
+        sf::precompute(&[Vec3::ZERO, Vec3::X, Vec3::Y], &[], &[0, 1, 2], &Params { shells: 0, ..p }, &|_| {}).is_err()
+    );
 }
 
 #[test]
@@ -268,7 +278,12 @@ fn shadow_fields_rotation_near_gimbal_configurations() {
     // its centre must not change the world-space visibility at a fixed world point.
     let field = sphere_raw().to_fixed();
     let tensor = TripleProductTensor::new(4);
-    let p = ShadePoint { pos: DVec3::new(0.2, 0.1, 1.35), inst: 1, albedo: DVec3::ONE, transfer: cosine_transfer(DVec3::Z) };
+    let p = ShadePoint {
+        pos: DVec3::new(0.2, 0.1, 1.35),
+        inst: 1,
+        albedo: DVec3::ONE,
+        transfer: cosine_transfer(DVec3::Z),
+    };
     let base = {
         let insts = [InstanceFrame::new(Some(&field), DMat4::IDENTITY), InstanceFrame::new(None, DMat4::IDENTITY)];
         occluded_transfer(&p, &insts, &tensor).0
@@ -363,12 +378,24 @@ fn shadow_fields_cosine_transfer_and_self_occlusion() {
     for vi in (0..m.positions.len()).step_by(97) {
         let t = f64s(&raw.self_transfer[vi]);
         let c = cosine_transfer(m.normals[vi].as_dvec3());
-        assert!((t[0] - c[0]).abs() < 0.01 && (t[1] - c[1]).abs() < 0.02, "vertex {vi}: {:?} vs {:?}", &t[..4], &c[..4]);
+        assert!(
+            (t[0] - c[0]).abs() < 0.01 && (t[1] - c[1]).abs() < 0.02,
+            "vertex {vi}: {:?} vs {:?}",
+            &t[..4],
+            &c[..4]
+        );
     }
     // Below a cube the cube blocks part of the sphere of directions (a face subtending
     // between 0.3 and 2.6 sr whichever way `cube(0.5)` measures its size).
     let cube = MeshData::cube(0.5);
-    let raw = sf::precompute(&cube.positions, &cube.normals, &cube.indices, &Params { shells: 8, resolution: 4, map_res: 16, ..sphere_params() }, &|_| {}).unwrap();
+    let raw = sf::precompute(
+        &cube.positions,
+        &cube.normals,
+        &cube.indices,
+        &Params { shells: 8, resolution: 4, map_res: 16, ..sphere_params() },
+        &|_| {},
+    )
+    .unwrap();
     let f = raw.to_fixed();
     let o = f.ocv(DVec3::new(0.0, -0.9, 0.0)).unwrap();
     let vis = o[0] / (4.0 * PI).sqrt();
@@ -379,7 +406,8 @@ fn shadow_fields_cosine_transfer_and_self_occlusion() {
 fn shadow_fields_glsl_basis_constants_match_the_sh_library() {
     // The closed forms of `sf_basis` in glsl/include/sf.glsl, read from the file, evaluated
     // at a few directions against penumbra_math::sh.
-    let src = std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../glsl/include/sf.glsl")).unwrap();
+    let src = std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../glsl/include/sf.glsl"))
+        .unwrap();
     let body = &src[src.find("void sf_basis").expect("sf_basis in sf.glsl")..];
     let body = &body[..body.find("\n}").unwrap()];
     let lines: Vec<&str> = body.lines().filter(|l| l.trim_start().starts_with("y[")).collect();
@@ -535,7 +563,11 @@ fn shadow_fields_srf_matches_the_analytic_lights() {
             assert!(inside_worst < 0.2, "{name} inside the innermost shell: {inside_worst}");
         }
         if name != "spot" {
-            assert!(plain_worst > 2.0 * worst.0, "{name}: r^2 interpolation must beat plain linear ({plain_worst} vs {})", worst.0);
+            assert!(
+                plain_worst > 2.0 * worst.0,
+                "{name}: r^2 interpolation must beat plain linear ({plain_worst} vs {})",
+                worst.0
+            );
         }
         // Beyond the outermost shell: the caller's analytic fallback.
         assert!(fixed.rcv(DVec3::new(0.0, 0.0, reach * 1.01)).is_none());
@@ -563,7 +595,9 @@ fn shadow_fields_srf_quantization_with_a_huge_dynamic_range() {
     // 32 shells: the radiance of a point light falls 1024x from the innermost to the outermost
     // shell, and a bright light (1e6) scales everything. Per-shell min/step keeps the relative
     // quantization error of every shell at the same level.
-    let raw = sf::precompute_srf(LightSource::Point, 8.0, &Params { shells: 32, resolution: 8, ..srf_params() }, &|_| {}).unwrap();
+    let raw =
+        sf::precompute_srf(LightSource::Point, 8.0, &Params { shells: 32, resolution: 8, ..srf_params() }, &|_| {})
+            .unwrap();
     let mut bright = raw.clone();
     for g in &mut bright.shells {
         for v in g.iter_mut() {
@@ -602,12 +636,14 @@ fn shadow_fields_lights_are_shadowed_only_by_nearer_occluders() {
     let field = sphere_raw().to_fixed();
     let tensor = TripleProductTensor::new(4);
     let occ = DVec3::new(0.0, 1.4, 0.0);
-    let insts = [InstanceFrame::new(None, DMat4::IDENTITY), InstanceFrame::new(Some(&field), DMat4::from_translation(occ))];
+    let insts =
+        [InstanceFrame::new(None, DMat4::IDENTITY), InstanceFrame::new(Some(&field), DMat4::from_translation(occ))];
     let p = ShadePoint { pos: DVec3::ZERO, inst: 0, albedo: DVec3::ONE, transfer: cosine_transfer(DVec3::Y) };
     let env = [[0.0; 3]; NCOEF];
     let shade = |lpos: DVec3, with_occluder: bool| {
         let l = [LightFrame::new(None, LightSource::Point, lpos, DVec3::Z, DVec3::ONE)];
-        let ins: Vec<InstanceFrame> = if with_occluder { insts.to_vec() } else { vec![insts[0], InstanceFrame { field: None, ..insts[1] }] };
+        let ins: Vec<InstanceFrame> =
+            if with_occluder { insts.to_vec() } else { vec![insts[0], InstanceFrame { field: None, ..insts[1] }] };
         sf::shade_point(&p, &ins, &l, &env, &tensor, &ShadeOptions::default()).x
     };
     let above = DVec3::new(0.0, 2.9, 0.0); // behind the occluder (its centre is nearer)
@@ -631,7 +667,10 @@ fn shadow_fields_window_reduces_ringing_of_overlapping_occluders() {
     let mut insts = vec![InstanceFrame::new(None, DMat4::IDENTITY)];
     for i in 0..12 {
         let c = sf::polar_dir(0.9 + 0.25 * (i % 3) as f64, 2.0 * PI * i as f64 / 12.0);
-        insts.push(InstanceFrame::new(Some(&field), DMat4::from_translation(DVec3::new(c.x, c.z.abs() + 0.3, c.y).normalize() * 1.45)));
+        insts.push(InstanceFrame::new(
+            Some(&field),
+            DMat4::from_translation(DVec3::new(c.x, c.z.abs() + 0.3, c.y).normalize() * 1.45),
+        ));
     }
     assert_eq!(Window::Hanning.sigma().map(|x| (x * 1e3).round()), [1000.0, 854.0, 500.0, 146.0]);
     assert_eq!(Window::Lanczos.sigma().map(|x| (x * 1e3).round()), [1000.0, 900.0, 637.0, 300.0]);
@@ -643,11 +682,16 @@ fn shadow_fields_window_reduces_ringing_of_overlapping_occluders() {
         let mut u = [0.0; NCOEF];
         u[0] = (4.0 * PI).sqrt();
         for inst in &insts[1..] {
-            let mut o = rotate(&inst.rot, &inst.field.unwrap().ocv(inst.world_to_local.transform_point3(DVec3::ZERO)).unwrap());
+            let mut o =
+                rotate(&inst.rot, &inst.field.unwrap().ocv(inst.world_to_local.transform_point3(DVec3::ZERO)).unwrap());
             w.apply(&mut o);
             u = sf::triple(&tensor, &o, &u);
         }
-        let minv = table.dirs.iter().map(|(_, _, y)| u.iter().zip(y).map(|(a, b)| a * b).sum::<f64>()).fold(f64::MAX, f64::min);
+        let minv = table
+            .dirs
+            .iter()
+            .map(|(_, _, y)| u.iter().zip(y).map(|(a, b)| a * b).sum::<f64>())
+            .fold(f64::MAX, f64::min);
         println!("{w:?}: most negative visibility product {minv:.3}, DC {:.3}", u[0] * Y0);
         mins.push(minv);
     }
@@ -692,17 +736,29 @@ fn shadow_fields_haar_all_frequency_variant() {
         let (th, ph) = sample_angles(r0, 1 + k % 6, (3 * k) % 8);
         let dir = sf::polar_dir(th, ph);
         let p = dir * 0.2 * (5 + k % 3 + 1) as f64;
-        let exact: Vec<f32> = table.dirs.iter().map(|d| {
-            let b = d.dot(-p);
-            if b > 0.0 && p.length_squared() - b * b < 1.0 { 0.0 } else { 1.0 }
-        }).collect();
+        let exact: Vec<f32> = table
+            .dirs
+            .iter()
+            .map(|d| {
+                let b = d.dot(-p);
+                if b > 0.0 && p.length_squared() - b * b < 1.0 {
+                    0.0
+                } else {
+                    1.0
+                }
+            })
+            .collect();
         eh = eh.max(haar::l1(&fixed.map_at(p).unwrap(), &exact, &table));
         let o = sh.ocv(p).unwrap();
-        let shmap: Vec<f32> = table.dirs.iter().map(|d| {
-            let mut y = [0.0; NCOEF];
-            eval_basis_into(4, *d, &mut y);
-            o.iter().zip(&y).map(|(a, b)| a * b).sum::<f64>() as f32
-        }).collect();
+        let shmap: Vec<f32> = table
+            .dirs
+            .iter()
+            .map(|d| {
+                let mut y = [0.0; NCOEF];
+                eval_basis_into(4, *d, &mut y);
+                o.iter().zip(&y).map(|(a, b)| a * b).sum::<f64>() as f32
+            })
+            .collect();
         es = es.max(haar::l1(&shmap, &exact, &table));
     }
     println!("largest eq.1 error against ray casting: Haar 5% {eh:.4}, SH order 4 {es:.4}");
@@ -711,10 +767,21 @@ fn shadow_fields_haar_all_frequency_variant() {
     let p = DVec3::ZERO;
     let (a, b) = (DVec3::new(1.4, 0.0, 0.0), DVec3::new(0.0, 0.0, 1.45));
     let prod = HaarField::product_map(&[(&fixed, a), (&fixed, b)], p, n);
-    let exact: Vec<f32> = table.dirs.iter().map(|d| {
-        let hit = |c: DVec3| { let t = d.dot(c); t > 0.0 && c.length_squared() - t * t < 1.0 };
-        if hit(a) || hit(b) { 0.0 } else { 1.0 }
-    }).collect();
+    let exact: Vec<f32> = table
+        .dirs
+        .iter()
+        .map(|d| {
+            let hit = |c: DVec3| {
+                let t = d.dot(c);
+                t > 0.0 && c.length_squared() - t * t < 1.0
+            };
+            if hit(a) || hit(b) {
+                0.0
+            } else {
+                1.0
+            }
+        })
+        .collect();
     let e = haar::l1(&prod, &exact, &table);
     let vis: f64 = prod.iter().zip(&table.w).map(|(v, w)| *v as f64 * w).sum::<f64>() / (4.0 * PI);
     let vis_exact: f64 = exact.iter().zip(&table.w).map(|(v, w)| *v as f64 * w).sum::<f64>() / (4.0 * PI);

@@ -7,12 +7,11 @@ use penumbra_engine::{Context, ContextDesc, Engine};
 use penumbra_math::shadow_field::{InstanceFrame, Params, Window};
 use penumbra_passes::shadow_fields::bench::{bench, BenchOptions};
 use penumbra_passes::shadow_fields::{
-    cpu_shade_points, gpu_shade_points, instance_frames, light_frames, vertex_points, SceneFields, SfOptions, ShadowFieldsTechnique,
+    cpu_shade_points, gpu_shade_points, instance_frames, light_frames, vertex_points, SceneFields, SfOptions,
+    ShadowFieldsTechnique,
 };
 use penumbra_scene::Scene;
 use std::sync::Arc;
-
-
 
 fn small_options() -> SfOptions {
     SfOptions {
@@ -32,7 +31,10 @@ fn shadow_fields_gpu_matches_cpu_and_is_validation_clean() {
     let opts = small_options();
     let fields = Arc::new(SceneFields::build(&scene, &opts).unwrap());
     for r in &fields.reports {
-        println!("{}: {} verts, R {:?}, fixed {} B, adaptive {} B, {:.2} s", r.mesh, r.vertices, r.resolutions, r.fixed_bytes, r.adaptive_bytes, r.seconds);
+        println!(
+            "{}: {} verts, R {:?}, fixed {} B, adaptive {} B, {:.2} s",
+            r.mesh, r.vertices, r.resolutions, r.fixed_bytes, r.adaptive_bytes, r.seconds
+        );
     }
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     for adaptive in [true, false] {
@@ -47,7 +49,11 @@ fn shadow_fields_gpu_matches_cpu_and_is_validation_clean() {
             // The shadows matter: without occluders the radiance differs at many vertices.
             let lone: Vec<InstanceFrame> = insts.iter().map(|i| InstanceFrame { field: None, ..*i }).collect();
             let unshadowed = cpu_shade_points(&points, &lone, &[], &tech.light, &tech.tensor, Window::None);
-            let shadowed = cpu.iter().zip(&unshadowed).filter(|(a, b)| (a.0 - b.0).length() > 1e-3 * b.0.length().max(1e-3)).count();
+            let shadowed = cpu
+                .iter()
+                .zip(&unshadowed)
+                .filter(|(a, b)| (a.0 - b.0).length() > 1e-3 * b.0.length().max(1e-3))
+                .count();
             let peak = cpu.iter().map(|c| c.0.max_element()).fold(0.0f64, f64::max);
             let mut worst = 0.0f64;
             for (c, g) in cpu.iter().zip(&gpu) {
@@ -80,7 +86,8 @@ fn shadow_fields_gpu_matches_cpu_and_is_validation_clean() {
         assert_eq!(&f, if i % 2 == 0 { fx.as_ref() } else { ad.as_ref() }, "{}", p.display());
     }
     let _ = std::fs::remove_dir_all(&dir);
-    let report = bench(&ctx, &lib, &scene, &BenchOptions { sf: opts, time: 0.7, cull: Some(4.0 / 3.0), repeats: 1 }).unwrap();
+    let report =
+        bench(&ctx, &lib, &scene, &BenchOptions { sf: opts, time: 0.7, cull: Some(4.0 / 3.0), repeats: 1 }).unwrap();
     println!("{report}");
     assert!(report.adaptive_bytes < report.fixed_bytes);
     assert!(report.vertices > 0 && report.gpu_vs_cpu_rel_rmse < 1e-3);
@@ -105,7 +112,9 @@ fn shadow_fields_bench_builtin_scenes() {
     }
     for name in ["sf_statues.toml", "sf_bowling.toml", "falling.toml", "sf_lamps.toml"] {
         let scene = Scene::load(root().join("scenes").join(name)).expect("scene");
-        let report = bench(&ctx, &lib, &scene, &BenchOptions { sf: sf.clone(), time: 0.7, cull: Some(4.0 / 3.0), repeats: 3 }).unwrap();
+        let report =
+            bench(&ctx, &lib, &scene, &BenchOptions { sf: sf.clone(), time: 0.7, cull: Some(4.0 / 3.0), repeats: 3 })
+                .unwrap();
         println!("{report}");
         assert!(report.adaptive_bytes <= report.fixed_bytes);
     }
@@ -142,9 +151,20 @@ fn shadow_fields_gpu_lights_and_window_match_cpu() {
         let open = cpu_shade_points(&points, &lone, &lights, &tech.light, &tech.tensor, window);
         let shadowed = cpu.iter().zip(&open).filter(|(a, b)| a.0.length() < 0.8 * b.0.length()).count();
         // the SRF against the analytic radiance (no fields): quantization and interpolation
-        let analytic = cpu_shade_points(&points, &insts, &light_frames(&frame, &fields, true, false), &tech.light, &tech.tensor, window);
+        let analytic = cpu_shade_points(
+            &points,
+            &insts,
+            &light_frames(&frame, &fields, true, false),
+            &tech.light,
+            &tech.tensor,
+            window,
+        );
         let peak = cpu.iter().map(|c| c.0.max_element()).fold(0.0f64, f64::max);
-        let worst = cpu.iter().zip(&gpu).flat_map(|(c, g)| (0..3).map(move |k| (c.0[k] - g[k] as f64).abs())).fold(0.0f64, f64::max);
+        let worst = cpu
+            .iter()
+            .zip(&gpu)
+            .flat_map(|(c, g)| (0..3).map(move |k| (c.0[k] - g[k] as f64).abs()))
+            .fold(0.0f64, f64::max);
         let (mut num, mut den) = (0.0, 0.0);
         for (a, b) in cpu.iter().zip(&analytic) {
             num += (a.0 - b.0).length_squared();

@@ -63,8 +63,11 @@ fn shadowmaps_approach_the_reference_and_shadows_help() {
     let env = run(&scene, "env", &[], w, h, 1);
     let ratio = run(&scene, "shadowmaps", &[], w, h, 3);
     let lights = run(&scene, "shadowmaps", &[("shading", "lights"), ("count", "64")], w, h, 1);
-    let (e_env, e_ratio, e_lights) =
-        (rel(&reference, &env.image, "env"), rel(&reference, &ratio.image, "ratio"), rel(&reference, &lights.image, "lights K=64"));
+    let (e_env, e_ratio, e_lights) = (
+        rel(&reference, &env.image, "env"),
+        rel(&reference, &ratio.image, "ratio"),
+        rel(&reference, &lights.image, "lights K=64"),
+    );
     assert_eq!(ratio.depth_passes, vec![1, 0, 0], "static geometry: the depth maps are rendered once");
     assert!(e_ratio < 0.6 * e_env, "shadows bring it closer to the reference: {e_ratio} vs unshadowed {e_env}");
     assert!(e_lights < e_env, "the sum over 64 shadowed lights beats no shadows: {e_lights} vs {e_env}");

@@ -12,8 +12,6 @@ use penumbra_passes::trace_bench::{camera_rays, random_rays, run_gpu, surface_ra
 use penumbra_scene::Scene;
 use std::path::PathBuf;
 
-
-
 fn scene_paths() -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(root().join("scenes"))
         .unwrap()

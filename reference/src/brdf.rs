@@ -155,9 +155,7 @@ impl Brdf {
             }
             BrdfKind::AshikhminShirley => {
                 let hdk = wi.dot(h).max(1e-6);
-                let spec = as_norm(self.nu, self.nv) / (8.0 * PI)
-                    * as_lobe(self.nu, self.nv, h)
-                    / (hdk * ci.max(co));
+                let spec = as_norm(self.nu, self.nv) / (8.0 * PI) * as_lobe(self.nu, self.nv, h) / (hdk * ci.max(co));
                 let f = schlick(self.specular, hdk);
                 let p5 = |x: f32| {
                     let m = 1.0 - x / 2.0;
@@ -199,9 +197,7 @@ impl Brdf {
                 (s + 2.0) / TAU * h.z.max(0.0).powf(s + 1.0)
             }
             BrdfKind::CookTorrance => ggx_d(self.alpha, h.z) * h.z,
-            BrdfKind::AshikhminShirley => {
-                as_norm(self.nu, self.nv) / TAU * as_lobe(self.nu, self.nv, h)
-            }
+            BrdfKind::AshikhminShirley => as_norm(self.nu, self.nv) / TAU * as_lobe(self.nu, self.nv, h),
         };
         (1.0 - self.p_spec) * pd + self.p_spec * ph / (4.0 * odh)
     }
@@ -330,12 +326,7 @@ mod tests {
         }
         let nf = n as f64;
         let (m, pm) = (s / nf, p / nf);
-        (
-            m,
-            ((s2 / nf - m * m).max(0.0) / (nf - 1.0)).sqrt(),
-            pm,
-            ((p2 / nf - pm * pm).max(0.0) / (nf - 1.0)).sqrt(),
-        )
+        (m, ((s2 / nf - m * m).max(0.0) / (nf - 1.0)).sqrt(), pm, ((p2 / nf - pm * pm).max(0.0) / (nf - 1.0)).sqrt())
     }
 
     fn cases() -> Vec<(&'static str, Brdf)> {

@@ -155,7 +155,8 @@ mod tests {
 
     #[test]
     fn parses_arguments() {
-        let r = R::try_parse_from(["x", "s.toml", "--frame", "3", "--spp", "16", "--size", "64x32", "--out", "o"]).unwrap();
+        let r =
+            R::try_parse_from(["x", "s.toml", "--frame", "3", "--spp", "16", "--size", "64x32", "--out", "o"]).unwrap();
         let o = r.a.options().unwrap();
         assert_eq!((o.width, o.height, o.spp, o.frame), (64, 32, 16, 3));
         assert!((o.time_s() - 0.1).abs() < 1e-6);
@@ -172,8 +173,20 @@ mod tests {
         let out = dir.to_str().unwrap().to_string();
         for (sub, seed, mode) in [("a", "1", "exact"), ("b", "2", "sg")] {
             let r = R::try_parse_from([
-                "x", "--size", "8x6", "--spp", "4", "--seed", seed, "--mode", mode, "--sg-lobes", "4", "--no-progress",
-                "--out", &format!("{out}/{sub}"),
+                "x",
+                "--size",
+                "8x6",
+                "--spp",
+                "4",
+                "--seed",
+                seed,
+                "--mode",
+                mode,
+                "--sg-lobes",
+                "4",
+                "--no-progress",
+                "--out",
+                &format!("{out}/{sub}"),
             ])
             .unwrap();
             run_reference(&r.a, &Scene::default_scene()).unwrap();

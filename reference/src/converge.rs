@@ -394,11 +394,7 @@ mod tests {
         assert!(c.meta.spp >= 8);
         // The estimate is honest: an independent render at the same spp differs from it by about
         // sqrt(2) times the estimated noise (RMS over mean), not by far more or far less.
-        let other = render(
-            &scene,
-            &ReferenceOptions { spp: c.meta.spp, seed: 12345, ..opts.base.clone() },
-        )
-        .unwrap();
+        let other = render(&scene, &ReferenceOptions { spp: c.meta.spp, seed: 12345, ..opts.base.clone() }).unwrap();
         let cmp = crate::metrics::compare(&c.radiance, "a", &other.radiance, "b").unwrap();
         let ratio = cmp.rmse_rel_mean / (c.meta.noise_rmse_rel_mean * 2f64.sqrt());
         assert!((0.5..2.0).contains(&ratio), "independent-render error / expected = {ratio}");

@@ -16,14 +16,7 @@ pub enum ImageError {
     #[error("{path}: cannot write: {message}")]
     Write { path: PathBuf, message: String },
     #[error("size mismatch: {a_path} is {a_width}x{a_height} but {b_path} is {b_width}x{b_height}")]
-    SizeMismatch {
-        a_path: PathBuf,
-        a_width: u32,
-        a_height: u32,
-        b_path: PathBuf,
-        b_width: u32,
-        b_height: u32,
-    },
+    SizeMismatch { a_path: PathBuf, a_width: u32, a_height: u32, b_path: PathBuf, b_width: u32, b_height: u32 },
     #[error("{path}: empty image ({width}x{height})")]
     Empty { path: PathBuf, width: u32, height: u32 },
     #[error("{path}: pixel buffer has {len} pixels, expected {width}x{height}")]
@@ -93,9 +86,7 @@ impl Image {
                 return Err(ImageError::NotFound { path: path.into() })
             }
             Err(e) => return Err(ImageError::Io { path: path.into(), source: e }),
-            Ok(m) if m.is_dir() => {
-                return Err(ImageError::Exr { path: path.into(), message: "is a directory".into() })
-            }
+            Ok(m) if m.is_dir() => return Err(ImageError::Exr { path: path.into(), message: "is a directory".into() }),
             Ok(_) => {}
         }
         // Look at the channels first so that a missing R/G/B gets a clear message.
@@ -106,11 +97,7 @@ impl Image {
             ["R", "G", "B"].iter().all(|n| names.iter().any(|m| m == n))
         });
         if !has_rgb {
-            let found = meta
-                .headers
-                .iter()
-                .flat_map(|h| h.channels.list.iter().map(|c| c.name.to_string()))
-                .collect();
+            let found = meta.headers.iter().flat_map(|h| h.channels.list.iter().map(|c| c.name.to_string())).collect();
             return Err(ImageError::UnsupportedChannels { path: path.into(), found });
         }
         let img = exr::prelude::read_first_rgba_layer_from_file(

@@ -54,10 +54,19 @@ impl LocalLight {
                 }
                 let ci = inner_deg.clamp(0.0, 180.0).to_radians().cos();
                 let co = outer_deg.clamp(0.0, 180.0).to_radians().cos();
-                Some(LocalLight::Spot { pos: l.position, axis, cos_inner: ci, cos_outer: co, intensity: p.max(Vec3::ZERO) })
+                Some(LocalLight::Spot {
+                    pos: l.position,
+                    axis,
+                    cos_inner: ci,
+                    cos_outer: co,
+                    intensity: p.max(Vec3::ZERO),
+                })
             }
-            LightKind::Sphere { radius } => (radius.is_finite() && radius > 0.0)
-                .then_some(LocalLight::Sphere { center: l.position, radius, radiance: p.max(Vec3::ZERO) }),
+            LightKind::Sphere { radius } => (radius.is_finite() && radius > 0.0).then_some(LocalLight::Sphere {
+                center: l.position,
+                radius,
+                radiance: p.max(Vec3::ZERO),
+            }),
         }
     }
 

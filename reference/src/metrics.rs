@@ -93,10 +93,7 @@ impl Comparison {
             self.reference, self.test, self.width, self.height, self.pixels_compared
         );
         if self.non_finite_a + self.non_finite_b > 0 {
-            s += &format!(
-                "non-finite:    {} pixels in A, {} in B (excluded)\n",
-                self.non_finite_a, self.non_finite_b
-            );
+            s += &format!("non-finite:    {} pixels in A, {} in B (excluded)\n", self.non_finite_a, self.non_finite_b);
         }
         s += &format!(
             "PSNR:          {psnr} (peak {:.6} = {})\nRMSE:          {:.6e} ({:.4} of the reference's mean {:.6e})\nrel. RMSE:     {:.6e}\nmean |err|:    {:.6e}\nmax |err|:     {:.6e} at ({}, {})\nFLIP (mean):   {:.6} ({})",

@@ -37,8 +37,8 @@
 
 use crate::brdf::Brdf;
 use crate::geometry::Geometry;
-use crate::lights::LocalLight;
 use crate::image::{Image, ImageError};
+use crate::lights::LocalLight;
 use crate::sampling::{luminance, EnvLight, Frame as ShadingFrame, Pcg32};
 use glam::{Vec3, Vec4};
 use penumbra_scene::Scene;
@@ -48,8 +48,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// What the renderer evaluates.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[derive(clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
 pub enum Mode {
     /// Exact lighting and BRDFs, exact visibility.
     #[default]
@@ -212,10 +211,13 @@ impl ReferenceImage {
             sg_fit_rel_l2: self.sg_fit_rel_l2,
             image,
             std_error_image,
-            estimator: "direct lighting, env importance sampling + BRDF sampling, power-heuristic MIS, exact BVH visibility".into(),
+            estimator:
+                "direct lighting, env importance sampling + BRDF sampling, power-heuristic MIS, exact BVH visibility"
+                    .into(),
         };
         let json = dir.join("reference.json");
-        let text = serde_json::to_string_pretty(&s).map_err(|e| RenderError::Output { path: json.clone(), message: e.to_string() })?;
+        let text = serde_json::to_string_pretty(&s)
+            .map_err(|e| RenderError::Output { path: json.clone(), message: e.to_string() })?;
         std::fs::write(&json, text).map_err(|e| RenderError::Output { path: json.clone(), message: e.to_string() })?;
         Ok(s)
     }
@@ -394,11 +396,8 @@ impl Context {
                 )
                 .map_err(|err| serr(format!("SG fit of the environment: {err}")))?;
                 sg_fit_rel_l2 = Some(fit.rel_l2_error);
-                let lobes: Vec<(Vec3, f32, Vec3)> = fit
-                    .lobes
-                    .iter()
-                    .map(|l| (l.axis.as_vec3(), l.lambda as f32, l.mu.as_vec3()))
-                    .collect();
+                let lobes: Vec<(Vec3, f32, Vec3)> =
+                    fit.lobes.iter().map(|l| (l.axis.as_vec3(), l.lambda as f32, l.mu.as_vec3())).collect();
                 EnvLight::from_sg(e, &lobes).map_err(serr)?
             }
             (None, _) => EnvLight::black(),
@@ -412,7 +411,10 @@ impl Context {
                         t.width > 0 && t.height > 0 && t.texels.len() == t.width as usize * t.height as usize
                     });
                     if !ok {
-                        return Err(serr(format!("material '{}': {what} refers to a missing or empty texture {k}", m.name)));
+                        return Err(serr(format!(
+                            "material '{}': {what} refers to a missing or empty texture {k}",
+                            m.name
+                        )));
                     }
                 }
             }
@@ -561,7 +563,8 @@ impl Context {
             let sb = m.sigma_bar;
             let mass = if t_hit.is_finite() { -(-sb * t_hit).exp_m1() } else { 1.0 };
             let pdf_exp = |t: f32| if mass > 0.0 && t >= 0.0 && t < t_hit { sb * (-sb * t).exp() / mass } else { 0.0 };
-            let eq: Vec<Equiangular> = self.lights.iter().filter_map(|li| Equiangular::new(o, d, li.position(), t_hit)).collect();
+            let eq: Vec<Equiangular> =
+                self.lights.iter().filter_map(|li| Equiangular::new(o, d, li.position(), t_hit)).collect();
             let pdf_sum = |t: f32| pdf_exp(t) + eq.iter().map(|e| e.pdf(t)).sum::<f32>();
             let mut ts = Vec::with_capacity(1 + eq.len());
             let u = rng.next_f32();
@@ -625,7 +628,13 @@ impl Equiangular {
         let h = (o + d * delta - c).length().max(1e-4);
         let theta_a = (-delta / h).atan();
         let theta_b = if t_max.is_finite() { ((t_max - delta) / h).atan() } else { std::f32::consts::FRAC_PI_2 };
-        (theta_b - theta_a > 1e-6 && h.is_finite() && delta.is_finite()).then_some(Equiangular { delta, h, theta_a, theta_b, t_max })
+        (theta_b - theta_a > 1e-6 && h.is_finite() && delta.is_finite()).then_some(Equiangular {
+            delta,
+            h,
+            theta_a,
+            theta_b,
+            t_max,
+        })
     }
     fn sample(&self, u: f32) -> Option<f32> {
         let th = self.theta_a + u * (self.theta_b - self.theta_a);

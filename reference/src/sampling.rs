@@ -247,12 +247,7 @@ impl EnvLight {
     pub fn new(env: &Environment) -> Result<Self, String> {
         let (w, h) = (env.width, env.height);
         if w == 0 || h == 0 || env.texels.len() != w as usize * h as usize {
-            return Err(format!(
-                "environment has {} texels for a {}x{} map",
-                env.texels.len(),
-                w,
-                h
-            ));
+            return Err(format!("environment has {} texels for a {}x{} map", env.texels.len(), w, h));
         }
         if !env.intensity.is_finite() || !env.rotation.is_finite() {
             return Err("environment intensity or rotation is not finite".into());
@@ -277,8 +272,7 @@ impl EnvLight {
                 }
             })
             .collect();
-        let row_cos: Vec<f32> =
-            (0..=h).map(|j| (PI * j as f32 / h as f32).cos()).collect::<Vec<_>>();
+        let row_cos: Vec<f32> = (0..=h).map(|j| (PI * j as f32 / h as f32).cos()).collect::<Vec<_>>();
         let row_solid_angle: Vec<f32> = (0..h as usize)
             .map(|j| {
                 let d = ((j as f64 * std::f64::consts::PI / h as f64).cos()

@@ -42,7 +42,10 @@ fn cook_torrance_albedo_is_the_reference_brdfs() {
         for f0 in [1.0f32, 0.0, 0.9] {
             let brute = brute_albedo(&Brdf::from_material(&material(BrdfKind::CookTorrance, f0, r, 0.0)), ndv);
             let ours = f0 as f64 * a + b;
-            assert!((ours - brute).abs() < 0.01 + 0.01 * brute, "r {r} n.v {ndv} F0 {f0}: table {ours}, quadrature {brute}");
+            assert!(
+                (ours - brute).abs() < 0.01 + 0.01 * brute,
+                "r {r} n.v {ndv} F0 {f0}: table {ours}, quadrature {brute}"
+            );
         }
     }
 }

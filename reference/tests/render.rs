@@ -209,7 +209,13 @@ fn deterministic_across_thread_counts() {
     };
     let a = run(1, &o);
     let b = run(2, &o);
-    assert!(a.radiance.pixels.iter().flatten().zip(b.radiance.pixels.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
+    assert!(a
+        .radiance
+        .pixels
+        .iter()
+        .flatten()
+        .zip(b.radiance.pixels.iter().flatten())
+        .all(|(x, y)| x.to_bits() == y.to_bits()));
     assert_eq!(a.std_error, b.std_error);
     let c = run(2, &ReferenceOptions { seed: 43, ..o });
     assert_ne!(a.radiance, c.radiance);
@@ -223,10 +229,16 @@ fn standard_error_decreases_as_inverse_sqrt_spp() {
     let mut env = Environment::procedural_sky(32, 16);
     // Remove the sun: heavy tails make 16-spp variance estimates unreliable.
     env.texels.iter_mut().for_each(|t| *t = t.map(|c| c.min(2.0)));
-    let mut scene = plane_scene(Material::diffuse("d", Vec3::splat(0.6)), env, camera(Vec3::new(0.0, 2.0, 3.0), Vec3::ZERO, 40.0));
+    let mut scene =
+        plane_scene(Material::diffuse("d", Vec3::splat(0.6)), env, camera(Vec3::new(0.0, 2.0, 3.0), Vec3::ZERO, 40.0));
     scene.meshes.push(MeshData::uv_sphere(0.5, 24, 12));
     scene.materials.push(Material::glossy("g", Vec3::new(0.5, 0.2, 0.1), Vec3::splat(0.04), 0.5));
-    scene.objects.push(Object { name: "s".into(), mesh: 1, material: 1, transform: Mat4::from_translation(Vec3::new(0.0, 0.5, 0.0)) });
+    scene.objects.push(Object {
+        name: "s".into(),
+        mesh: 1,
+        material: 1,
+        transform: Mat4::from_translation(Vec3::new(0.0, 0.5, 0.0)),
+    });
     let a = render(&scene, &opts(12, 8, 16, 5)).unwrap();
     let b = render(&scene, &opts(12, 8, 256, 6)).unwrap();
     let ratio = a.noise.mean_std_error / b.noise.mean_std_error;
@@ -239,8 +251,11 @@ fn standard_error_decreases_as_inverse_sqrt_spp() {
     // estimates are too unreliable for a 5-sigma test on every pixel).
     let n = a.radiance.pixels.len() as f64;
     for c in 0..3 {
-        let mean = |r: &penumbra_reference::ReferenceImage| r.radiance.pixels.iter().map(|p| p[c] as f64).sum::<f64>() / n;
-        let var = |r: &penumbra_reference::ReferenceImage| r.std_error.pixels.iter().map(|p| (p[c] as f64).powi(2)).sum::<f64>() / (n * n);
+        let mean =
+            |r: &penumbra_reference::ReferenceImage| r.radiance.pixels.iter().map(|p| p[c] as f64).sum::<f64>() / n;
+        let var = |r: &penumbra_reference::ReferenceImage| {
+            r.std_error.pixels.iter().map(|p| (p[c] as f64).powi(2)).sum::<f64>() / (n * n)
+        };
         let (d, s) = ((mean(&a) - mean(&b)).abs(), (var(&a) + var(&b)).sqrt());
         assert!(d <= 5.0 * s, "channel {c}: 16 spp mean differs from 256 spp by {d} (se {s})");
     }
@@ -277,7 +292,8 @@ fn writes_exr_and_json() {
     assert_eq!(back, r.radiance);
     let se = penumbra_reference::Image::read_exr(&s.std_error_image).unwrap();
     assert_eq!(se, r.std_error);
-    let j: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("reference.json")).unwrap()).unwrap();
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("reference.json")).unwrap()).unwrap();
     assert_eq!(j["options"]["spp"], 4);
     std::fs::remove_dir_all(&dir).ok();
 }
@@ -330,7 +346,12 @@ fn local_lights_over_diffuse_plane() {
     }
     let radius = 0.5f32;
     let mut s = base();
-    s.lights.push(light(penumbra_scene::LightKind::Sphere { radius }, Vec3::new(0.0, h, 0.0), Vec3::new(3.0, 2.0, 1.0), 1.0));
+    s.lights.push(light(
+        penumbra_scene::LightKind::Sphere { radius },
+        Vec3::new(0.0, h, 0.0),
+        Vec3::new(3.0, 2.0, 1.0),
+        1.0,
+    ));
     let r = render(&s, &opts(2, 2, 4096, 2)).unwrap();
     for (c, (m, se)) in mean_se(&r).into_iter().enumerate() {
         let expect = (albedo * (3 - c) as f32 * (radius / h).powi(2)) as f64;
@@ -364,7 +385,11 @@ fn absorbing_medium_attenuates_the_view_ray() {
 #[test]
 fn single_scattering_of_a_point_light_matches_quadrature() {
     let eye = Vec3::ZERO;
-    let mut s = plane_scene(Material::diffuse("d", Vec3::ONE), uniform_env([0.0; 3], 1.0), camera(eye, Vec3::new(0.0, 0.0, -1.0), 0.01));
+    let mut s = plane_scene(
+        Material::diffuse("d", Vec3::ONE),
+        uniform_env([0.0; 3], 1.0),
+        camera(eye, Vec3::new(0.0, 0.0, -1.0), 0.01),
+    );
     s.objects.clear();
     s.environment = None;
     let p = Vec3::new(0.0, 1.0, -3.0);
@@ -410,7 +435,11 @@ fn sg_lighting_mode_matches_quadrature_of_the_fit() {
     let k = 6usize;
     let fit = penumbra_math::envmap::fit_sg_lighting(32, 16, &env.texels, k).unwrap();
     let albedo = 0.5f32;
-    let s = plane_scene(Material::diffuse("d", Vec3::splat(albedo)), env, camera(Vec3::new(0.0, 3.0, 3.0), Vec3::ZERO, 0.01));
+    let s = plane_scene(
+        Material::diffuse("d", Vec3::splat(albedo)),
+        env,
+        camera(Vec3::new(0.0, 3.0, 3.0), Vec3::ZERO, 0.01),
+    );
     let o = ReferenceOptions { mode: penumbra_reference::Mode::SgLighting, sg_lobes: k as u32, ..opts(2, 2, 4096, 9) };
     let r = render(&s, &o).unwrap();
     assert_eq!(r.sg_fit_rel_l2, Some(fit.rel_l2_error));
@@ -424,14 +453,19 @@ fn sg_lighting_mode_matches_quadrature_of_the_fit() {
         for j in 0..np {
             let ph = (j as f64 + 0.5) / np as f64 * std::f64::consts::TAU;
             let w = glam::DVec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin());
-            let l: glam::DVec3 = fit.lobes.iter().map(|g| g.mu * 2.0 * (g.lambda * ((rot * g.axis).dot(w) - 1.0)).exp()).sum();
+            let l: glam::DVec3 =
+                fit.lobes.iter().map(|g| g.mu * 2.0 * (g.lambda * ((rot * g.axis).dot(w) - 1.0)).exp()).sum();
             e += l * th.cos() * th.sin();
         }
     }
     e *= (std::f64::consts::FRAC_PI_2 / nt as f64) * (std::f64::consts::TAU / np as f64);
     for (c, (m, se)) in mean_se(&r).into_iter().enumerate() {
         let expect = albedo as f64 / std::f64::consts::PI * e[c];
-        eprintln!("SG lighting ({} lobes, fit error {:.3}): channel {c}: {m:.5} vs {expect:.5} (se {se:.1e})", fit.lobes.len(), fit.rel_l2_error);
+        eprintln!(
+            "SG lighting ({} lobes, fit error {:.3}): channel {c}: {m:.5} vs {expect:.5} (se {se:.1e})",
+            fit.lobes.len(),
+            fit.rel_l2_error
+        );
         assert!((m - expect).abs() <= 5.0 * se + 1e-4 * expect, "{m} vs {expect}");
     }
 }
@@ -448,13 +482,26 @@ fn frame_time_moves_objects() {
         }
     }
     let env = Environment { width: 8, height: 4, texels: env_texels, intensity: 1.0, rotation: 0.0 };
-    let mut scene = plane_scene(Material::diffuse("d", Vec3::splat(0.5)), env, camera(Vec3::new(0.0, 1.0, 0.0), Vec3::new(0.0, 1.0, -1.0), 60.0));
+    let mut scene = plane_scene(
+        Material::diffuse("d", Vec3::splat(0.5)),
+        env,
+        camera(Vec3::new(0.0, 1.0, 0.0), Vec3::new(0.0, 1.0, -1.0), 60.0),
+    );
     scene.meshes.push(MeshData::uv_sphere(0.8, 16, 8));
-    scene.objects.push(Object { name: "mover".into(), mesh: 1, material: 0, transform: Mat4::from_translation(Vec3::new(-1.2, 1.0, -3.0)) });
+    scene.objects.push(Object {
+        name: "mover".into(),
+        mesh: 1,
+        material: 0,
+        transform: Mat4::from_translation(Vec3::new(-1.2, 1.0, -3.0)),
+    });
     scene.object_info = vec![
         penumbra_scene::ObjectInfo::default(),
         penumbra_scene::ObjectInfo {
-            motion: penumbra_scene::RigidMotion::Oscillate { amplitude: Vec3::new(2.4, 0.0, 0.0), period: 4.0, phase: 0.0 },
+            motion: penumbra_scene::RigidMotion::Oscillate {
+                amplitude: Vec3::new(2.4, 0.0, 0.0),
+                period: 4.0,
+                phase: 0.0,
+            },
             ..Default::default()
         },
     ];
@@ -498,7 +545,8 @@ fn sg_mode_matches_quadrature_of_sg_lighting_and_sg_brdf() {
         for j in 0..np {
             let ph = (j as f64 + 0.5) / np as f64 * std::f64::consts::TAU;
             let w = glam::DVec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin());
-            let l: glam::DVec3 = fit.lobes.iter().map(|g| g.mu * (g.lambda * ((rot * g.axis).dot(w) - 1.0)).exp()).sum();
+            let l: glam::DVec3 =
+                fit.lobes.iter().map(|g| g.mu * (g.lambda * ((rot * g.axis).dot(w) - 1.0)).exp()).sum();
             let wl = glam::DVec3::new(w.dot(tx), w.dot(by), w.dot(nz));
             let f = albedo as f64 / std::f64::consts::PI + spec as f64 * lobe.eval(wl);
             acc += l * f * th.cos() * th.sin();
@@ -519,7 +567,11 @@ fn sg_mode_matches_quadrature_of_sg_lighting_and_sg_brdf() {
 /// integral_0^inf exp(-sigma_t t) sigma_s L dt = (sigma_s / sigma_t) L, for any phase function.
 #[test]
 fn medium_under_uniform_environment() {
-    let mut s = plane_scene(Material::diffuse("d", Vec3::ONE), uniform_env([2.0, 1.0, 0.5], 1.0), camera(Vec3::ZERO, Vec3::new(0.0, 0.3, -1.0), 50.0));
+    let mut s = plane_scene(
+        Material::diffuse("d", Vec3::ONE),
+        uniform_env([2.0, 1.0, 0.5], 1.0),
+        camera(Vec3::ZERO, Vec3::new(0.0, 0.3, -1.0), 50.0),
+    );
     s.objects.clear();
     let (sa, ss) = (Vec3::new(0.1, 0.2, 0.05), Vec3::new(0.3, 0.1, 0.2));
     s.medium = Some(penumbra_scene::Medium { sigma_a: sa, sigma_s: ss, g: 0.7 });
@@ -549,12 +601,19 @@ fn pixel_grid_samples_sub_pixel_centres() {
     let (w, h) = (12u32, 10u32);
     let is_pure = |v: [f32; 3]| v == [0.0; 3] || v == [sky; 3];
     let jittered = render(&scene, &opts(w, h, 64, 1)).unwrap();
-    let mixed = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).filter(|&(x, y)| !is_pure(jittered.radiance.get(x, y))).count();
+    let mixed = (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .filter(|&(x, y)| !is_pure(jittered.radiance.get(x, y)))
+        .count();
     assert!(mixed >= 4, "the horizon should cross pixels: {mixed} mixed");
     let centre = render(&scene, &ReferenceOptions { pixel_grid: 1, ..opts(w, h, 8, 1) }).unwrap();
     for y in 0..h {
         for x in 0..w {
-            assert!(is_pure(centre.radiance.get(x, y)), "pixel ({x}, {y}) mixes at grid 1: {:?}", centre.radiance.get(x, y));
+            assert!(
+                is_pure(centre.radiance.get(x, y)),
+                "pixel ({x}, {y}) mixes at grid 1: {:?}",
+                centre.radiance.get(x, y)
+            );
         }
     }
     let fine = render(&scene, &ReferenceOptions { pixel_grid: 1, ..opts(2 * w, 2 * h, 2, 1) }).unwrap();

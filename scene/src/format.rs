@@ -29,8 +29,8 @@ use crate::gltf_load::{self, GltfAsset};
 use crate::motion::{Deformation, Interp, RigidMotion, Track};
 use crate::texture::{Pattern, Texture};
 use crate::{
-    CameraPath, Environment, Light, LightKind, LoadOptions, Material, MaterialAnimation, MaterialExtra, Medium,
-    MeshData, Object, ObjectInfo, Scene, BrdfKind,
+    BrdfKind, CameraPath, Environment, Light, LightKind, LoadOptions, Material, MaterialAnimation, MaterialExtra,
+    Medium, MeshData, Object, ObjectInfo, Scene,
 };
 use glam::{Mat4, Quat, Vec3, Vec4};
 use serde::de::{self, Deserializer, SeqAccess, Visitor};
@@ -227,15 +227,54 @@ fn tex_size() -> u32 {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields, tag = "type", rename_all = "snake_case")]
 enum MeshSpec {
-    Plane { size: f32, #[serde(default)] divisions: Option<u32> },
-    Sphere { radius: f32, slices: Option<u32>, stacks: Option<u32> },
-    Icosphere { radius: f32, subdivisions: Option<u32> },
-    Cube { size: f32 },
-    Torus { major_radius: f32, minor_radius: f32, major_segments: Option<u32>, minor_segments: Option<u32> },
-    Cloth { size_x: f32, size_z: f32, nx: Option<u32>, nz: Option<u32>, folds: Option<f32>, fold_height: Option<f32> },
-    Hat { radius: f32, height: f32, segments: Option<u32> },
-    Dish { radius: f32, depth: f32, segments: Option<u32>, rings: Option<u32> },
-    Chess { piece: String, #[serde(default = "one")] scale: f32, segments: Option<u32> },
+    Plane {
+        size: f32,
+        #[serde(default)]
+        divisions: Option<u32>,
+    },
+    Sphere {
+        radius: f32,
+        slices: Option<u32>,
+        stacks: Option<u32>,
+    },
+    Icosphere {
+        radius: f32,
+        subdivisions: Option<u32>,
+    },
+    Cube {
+        size: f32,
+    },
+    Torus {
+        major_radius: f32,
+        minor_radius: f32,
+        major_segments: Option<u32>,
+        minor_segments: Option<u32>,
+    },
+    Cloth {
+        size_x: f32,
+        size_z: f32,
+        nx: Option<u32>,
+        nz: Option<u32>,
+        folds: Option<f32>,
+        fold_height: Option<f32>,
+    },
+    Hat {
+        radius: f32,
+        height: f32,
+        segments: Option<u32>,
+    },
+    Dish {
+        radius: f32,
+        depth: f32,
+        segments: Option<u32>,
+        rings: Option<u32>,
+    },
+    Chess {
+        piece: String,
+        #[serde(default = "one")]
+        scale: f32,
+        segments: Option<u32>,
+    },
 }
 
 #[derive(Deserialize)]
@@ -271,9 +310,26 @@ struct ObjectSpec {
 #[serde(deny_unknown_fields, tag = "type", rename_all = "snake_case")]
 enum MotionSpec {
     Static,
-    Keyframes { keys: Vec<RigidKey>, #[serde(default, rename = "loop")] looping: bool, #[serde(default)] step: bool },
-    Spin { axis: V3, speed_deg: f32, center: Option<V3> },
-    Roll { center: V3, radius: f32, ball_radius: f32, period: f32, #[serde(default)] phase_deg: f32 },
+    Keyframes {
+        keys: Vec<RigidKey>,
+        #[serde(default, rename = "loop")]
+        looping: bool,
+        #[serde(default)]
+        step: bool,
+    },
+    Spin {
+        axis: V3,
+        speed_deg: f32,
+        center: Option<V3>,
+    },
+    Roll {
+        center: V3,
+        radius: f32,
+        ball_radius: f32,
+        period: f32,
+        #[serde(default)]
+        phase_deg: f32,
+    },
     Fall {
         height: f32,
         #[serde(default = "gravity")]
@@ -286,7 +342,12 @@ enum MotionSpec {
         #[serde(default)]
         spin_deg: f32,
     },
-    Oscillate { amplitude: V3, period: f32, #[serde(default)] phase_deg: f32 },
+    Oscillate {
+        amplitude: V3,
+        period: f32,
+        #[serde(default)]
+        phase_deg: f32,
+    },
 }
 fn gravity() -> f32 {
     9.81
@@ -304,8 +365,18 @@ struct RigidKey {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields, tag = "type", rename_all = "snake_case")]
 enum DeformSpec {
-    Wave { amplitude: f32, wavelength: f32, period: f32, direction: Option<V3>, #[serde(default)] pinned: bool },
-    Squash { amount: f32, period: f32 },
+    Wave {
+        amplitude: f32,
+        wavelength: f32,
+        period: f32,
+        direction: Option<V3>,
+        #[serde(default)]
+        pinned: bool,
+    },
+    Squash {
+        amount: f32,
+        period: f32,
+    },
 }
 
 /// Line and column (1-based) of byte offset `at` in `text`.
@@ -337,7 +408,11 @@ impl Ctx<'_> {
     }
     /// Wrap an error from a referenced file with the scene file and line.
     fn referenced(&self, span: std::ops::Range<usize>) -> impl Fn(SceneError) -> SceneError + '_ {
-        move |e| SceneError::Referenced { path: self.path.to_path_buf(), line: line_col(self.text, span.start).0, source: Box::new(e) }
+        move |e| SceneError::Referenced {
+            path: self.path.to_path_buf(),
+            line: line_col(self.text, span.start).0,
+            source: Box::new(e),
+        }
     }
     fn resolve(&self, file: &str) -> PathBuf {
         self.dir.join(file)
@@ -365,11 +440,14 @@ pub fn parse_toml(path: &Path, text: &str, options: &LoadOptions) -> Result<Scen
 }
 
 /// [`parse_toml`] taking what the referenced files need from `budget`.
-pub fn parse_toml_with(path: &Path, text: &str, options: &LoadOptions, budget: &crate::Budget) -> Result<Scene, SceneError> {
-    let file: SceneFile = toml::from_str(text).map_err(|e| SceneError::Syntax {
-        path: path.to_path_buf(),
-        message: e.to_string().trim_end().to_string(),
-    })?;
+pub fn parse_toml_with(
+    path: &Path,
+    text: &str,
+    options: &LoadOptions,
+    budget: &crate::Budget,
+) -> Result<Scene, SceneError> {
+    let file: SceneFile = toml::from_str(text)
+        .map_err(|e| SceneError::Syntax { path: path.to_path_buf(), message: e.to_string().trim_end().to_string() })?;
     let ctx = Ctx { path, text, dir: path.parent().map(Path::to_path_buf).unwrap_or_default(), budget };
     let mut scene = Scene::empty(
         &file.name.clone().unwrap_or_else(|| path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string()),
@@ -380,7 +458,10 @@ pub fn parse_toml_with(path: &Path, text: &str, options: &LoadOptions, budget: &
     if let Some(t) = &file.technique {
         if let Some(known) = &options.techniques {
             if !known.iter().any(|k| k == t) {
-                return Err(SceneError::invalid(path, format!("unknown technique '{t}' (known: {})", known.join(", "))));
+                return Err(SceneError::invalid(
+                    path,
+                    format!("unknown technique '{t}' (known: {})", known.join(", ")),
+                ));
             }
         }
         scene.technique = t.clone();
@@ -414,7 +495,10 @@ pub fn parse_toml_with(path: &Path, text: &str, options: &LoadOptions, budget: &
         return Err(SceneError::invalid(path, format!("camera.fov_deg must be in (0, 180), got {}", cam.fov_y_deg)));
     }
     if !(cam.near > 0.0 && cam.far > cam.near && cam.far.is_finite()) {
-        return Err(SceneError::invalid(path, format!("camera needs 0 < near < far, got near {} far {}", cam.near, cam.far)));
+        return Err(SceneError::invalid(
+            path,
+            format!("camera needs 0 < near < far, got near {} far {}", cam.near, cam.far),
+        ));
     }
     if (cam.eye - cam.target).length() < 1e-6 || (cam.eye - cam.target).cross(cam.up).length() < 1e-9 {
         return Err(SceneError::invalid(path, "camera eye equals target or up is parallel to the view direction"));
@@ -426,7 +510,8 @@ pub fn parse_toml_with(path: &Path, text: &str, options: &LoadOptions, budget: &
             if v.iter().any(|x| !x.is_finite()) {
                 return Err(SceneError::invalid(path, format!("camera.keys: {what} has a NaN/Inf component")));
             }
-            Track::new(times.clone(), v, interp, c.looping).map_err(|m| SceneError::invalid(path, format!("camera.keys: {m}")))
+            Track::new(times.clone(), v, interp, c.looping)
+                .map_err(|m| SceneError::invalid(path, format!("camera.keys: {m}")))
         };
         let eye = mk(c.keys.iter().map(|k| k.eye.0).collect(), "eye")?;
         let target = mk(c.keys.iter().map(|k| k.target.0).collect(), "target")?;
@@ -458,7 +543,10 @@ pub fn parse_toml_with(path: &Path, text: &str, options: &LoadOptions, budget: &
             _ => return Err(SceneError::invalid(path, "environment: give exactly one of `file` or `procedural`")),
         };
         if !(e.intensity.is_finite() && e.intensity >= 0.0) || !e.rotation_deg.is_finite() {
-            return Err(SceneError::invalid(path, "environment: intensity must be finite and >= 0, rotation_deg finite"));
+            return Err(SceneError::invalid(
+                path,
+                "environment: intensity must be finite and >= 0, rotation_deg finite",
+            ));
         }
         env.intensity = e.intensity;
         env.rotation = e.rotation_deg.to_radians();
@@ -528,7 +616,10 @@ pub fn parse_toml_with(path: &Path, text: &str, options: &LoadOptions, budget: &
         scene.medium = Some(Medium { sigma_a: a, sigma_s: s, g: m.g });
         if let Some(v) = &m.volumetric {
             if v != "temporal" && v != "full" {
-                return Err(SceneError::invalid(path, format!("medium: volumetric must be \"temporal\" or \"full\", got \"{v}\"")));
+                return Err(SceneError::invalid(
+                    path,
+                    format!("medium: volumetric must be \"temporal\" or \"full\", got \"{v}\""),
+                ));
             }
             scene.volumetric = Some(v.clone());
         }
@@ -603,7 +694,12 @@ pub fn parse_toml_with(path: &Path, text: &str, options: &LoadOptions, budget: &
                     }),
                 };
                 scene.meshes.push(mesh);
-                scene.objects.push(Object { name: name.clone(), mesh: scene.meshes.len() - 1, material: mat, transform });
+                scene.objects.push(Object {
+                    name: name.clone(),
+                    mesh: scene.meshes.len() - 1,
+                    material: mat,
+                    transform,
+                });
                 scene.object_info.push(ObjectInfo::default());
                 scene.objects.len() - 1..scene.objects.len()
             }
@@ -619,20 +715,33 @@ pub fn parse_toml_with(path: &Path, text: &str, options: &LoadOptions, budget: &
                     Some(AnimSel::On(false)) => None,
                     Some(AnimSel::Index(k)) => {
                         if *k >= asset.animation_names.len() {
-                            return Err(ctx.err_at(span, format!("{what}: animation {k} does not exist ({} has {})", f, asset.animation_names.len())));
+                            return Err(ctx.err_at(
+                                span,
+                                format!(
+                                    "{what}: animation {k} does not exist ({} has {})",
+                                    f,
+                                    asset.animation_names.len()
+                                ),
+                            ));
                         }
                         Some(*k)
                     }
-                    Some(AnimSel::Name(n)) => Some(asset.animation_names.iter().position(|x| x == n).ok_or_else(|| {
-                        ctx.err_at(span.clone(), format!("{what}: no animation named '{n}' in {f} (has {:?})", asset.animation_names))
-                    })?),
+                    Some(AnimSel::Name(n)) => {
+                        Some(asset.animation_names.iter().position(|x| x == n).ok_or_else(|| {
+                            ctx.err_at(
+                                span.clone(),
+                                format!("{what}: no animation named '{n}' in {f} (has {:?})", asset.animation_names),
+                            )
+                        })?)
+                    }
                 };
                 let fit = match o.fit_height {
                     None => Mat4::IDENTITY,
                     Some(h) if h > 0.0 && h.is_finite() => {
                         let mut tmp = Scene::empty("fit");
                         let r = gltf_load::instantiate(&mut tmp, asset, Mat4::IDENTITY, animation, None, &fp)?;
-                        let (lo, hi) = tmp.bounds_at(0.0, r).ok_or_else(|| SceneError::invalid(&fp, "model has no geometry"))?;
+                        let (lo, hi) =
+                            tmp.bounds_at(0.0, r).ok_or_else(|| SceneError::invalid(&fp, "model has no geometry"))?;
                         let s = h / (hi.y - lo.y).max(1e-9);
                         let c = (lo + hi) * 0.5;
                         Mat4::from_scale(Vec3::splat(s)) * Mat4::from_translation(Vec3::new(-c.x, -lo.y, -c.z))
@@ -689,11 +798,15 @@ fn primitive(ctx: &Ctx, span: std::ops::Range<usize>, what: &str, spec: &MeshSpe
     let p = |key: &str, v: f32| positive(ctx, &span, what, key, v);
     let seg = |v: Option<u32>, d: u32| v.unwrap_or(d).clamp(3, 1024);
     Ok(match spec {
-        MeshSpec::Plane { size, divisions } => MeshData::plane(p("size", *size)?, divisions.unwrap_or(1).clamp(1, 1024)),
+        MeshSpec::Plane { size, divisions } => {
+            MeshData::plane(p("size", *size)?, divisions.unwrap_or(1).clamp(1, 1024))
+        }
         MeshSpec::Sphere { radius, slices, stacks } => {
             MeshData::uv_sphere(p("radius", *radius)?, seg(*slices, 32), stacks.unwrap_or(16).clamp(2, 1024))
         }
-        MeshSpec::Icosphere { radius, subdivisions } => MeshData::icosphere(p("radius", *radius)?, subdivisions.unwrap_or(2).min(5)),
+        MeshSpec::Icosphere { radius, subdivisions } => {
+            MeshData::icosphere(p("radius", *radius)?, subdivisions.unwrap_or(2).min(5))
+        }
         MeshSpec::Cube { size } => MeshData::cube(p("size", *size)? * 0.5),
         MeshSpec::Torus { major_radius, minor_radius, major_segments, minor_segments } => MeshData::torus(
             p("major_radius", *major_radius)?,
@@ -707,16 +820,31 @@ fn primitive(ctx: &Ctx, span: std::ops::Range<usize>, what: &str, spec: &MeshSpe
             if !fh.is_finite() || !fo.is_finite() {
                 return Err(ctx.err_at(span, format!("{what}: folds and fold_height must be finite")));
             }
-            MeshData::cloth(p("size_x", *size_x)?, p("size_z", *size_z)?, nx.unwrap_or(32).clamp(1, 1024), nz.unwrap_or(32).clamp(1, 1024), fo, fh)
+            MeshData::cloth(
+                p("size_x", *size_x)?,
+                p("size_z", *size_z)?,
+                nx.unwrap_or(32).clamp(1, 1024),
+                nz.unwrap_or(32).clamp(1, 1024),
+                fo,
+                fh,
+            )
         }
-        MeshSpec::Hat { radius, height, segments } => MeshData::hat(p("radius", *radius)?, p("height", *height)?, seg(*segments, 32)),
-        MeshSpec::Dish { radius, depth, segments, rings } => {
-            MeshData::dish(p("radius", *radius)?, p("depth", *depth)?, seg(*segments, 48), rings.unwrap_or(6).clamp(2, 256))
+        MeshSpec::Hat { radius, height, segments } => {
+            MeshData::hat(p("radius", *radius)?, p("height", *height)?, seg(*segments, 32))
         }
+        MeshSpec::Dish { radius, depth, segments, rings } => MeshData::dish(
+            p("radius", *radius)?,
+            p("depth", *depth)?,
+            seg(*segments, 48),
+            rings.unwrap_or(6).clamp(2, 256),
+        ),
         MeshSpec::Chess { piece, scale, segments } => {
             let s = p("scale", *scale)?;
             let m = MeshData::chess_piece(piece, seg(*segments, 24)).ok_or_else(|| {
-                ctx.err_at(span.clone(), format!("{what}: unknown chess piece '{piece}' (pawn, rook, bishop, queen, king)"))
+                ctx.err_at(
+                    span.clone(),
+                    format!("{what}: unknown chess piece '{piece}' (pawn, rook, bishop, queen, king)"),
+                )
             })?;
             if s == 1.0 {
                 m
@@ -749,8 +877,10 @@ fn motion(ctx: &Ctx, span: std::ops::Range<usize>, what: &str, m: &MotionSpec) -
                 }
             }
             let need = |k: &str| bad(format!("give `{k}` in every key or in none"));
-            let pos = all_or_none(keys.iter().map(|k| k.position.map(|v| v.0)).collect()).map_err(|_| need("position"))?;
-            let rot = all_or_none(keys.iter().map(|k| k.rotation_deg.map(|v| v.0)).collect()).map_err(|_| need("rotation_deg"))?;
+            let pos =
+                all_or_none(keys.iter().map(|k| k.position.map(|v| v.0)).collect()).map_err(|_| need("position"))?;
+            let rot = all_or_none(keys.iter().map(|k| k.rotation_deg.map(|v| v.0)).collect())
+                .map_err(|_| need("rotation_deg"))?;
             let sc = all_or_none(keys.iter().map(|k| k.scale.map(|v| v.0)).collect()).map_err(|_| need("scale"))?;
             for v in pos.iter().chain(rot.iter()).chain(sc.iter()).flatten() {
                 fin(*v, "a key value")?;
@@ -778,7 +908,11 @@ fn motion(ctx: &Ctx, span: std::ops::Range<usize>, what: &str, m: &MotionSpec) -
             center: fin(center.0, "center")?,
             radius: positive(ctx, &span, what, "radius", *radius)?,
             ball_radius: positive(ctx, &span, what, "ball_radius", *ball_radius)?,
-            period: if period.is_finite() && *period != 0.0 { *period } else { return Err(bad("period must be finite and non-zero".into())) },
+            period: if period.is_finite() && *period != 0.0 {
+                *period
+            } else {
+                return Err(bad("period must be finite and non-zero".into()));
+            },
             phase: finf(*phase_deg, "phase_deg")?.to_radians(),
         },
         MotionSpec::Fall { height, gravity, restitution, delay, axis, spin_deg } => {
@@ -810,7 +944,10 @@ fn deform(ctx: &Ctx, span: std::ops::Range<usize>, what: &str, d: &DeformSpec) -
         DeformSpec::Wave { amplitude, wavelength, period, direction, pinned } => {
             let dir = direction.map_or(Vec3::X, |v| v.0);
             if !amplitude.is_finite() || !dir.is_finite() || Vec3::new(dir.x, 0.0, dir.z).length() < 1e-6 {
-                return Err(ctx.err_at(span, format!("{what}: wave: amplitude must be finite and direction a non-zero XZ vector")));
+                return Err(ctx.err_at(
+                    span,
+                    format!("{what}: wave: amplitude must be finite and direction a non-zero XZ vector"),
+                ));
             }
             Deformation::Wave {
                 amplitude: *amplitude,
@@ -853,7 +990,9 @@ fn material(
     };
     let mut mat = match m.kind {
         MaterialType::Diffuse => Material::diffuse(name, albedo),
-        MaterialType::CookTorrance => Material::glossy(name, albedo, specular, check01(m.roughness.unwrap_or(0.5), "roughness")?),
+        MaterialType::CookTorrance => {
+            Material::glossy(name, albedo, specular, check01(m.roughness.unwrap_or(0.5), "roughness")?)
+        }
         MaterialType::BlinnPhong | MaterialType::AshikhminShirley => {
             let s = match (m.shininess, m.roughness) {
                 (Some(s), _) => s,
@@ -886,22 +1025,37 @@ fn material(
     for (spec, srgb, slot) in [(&m.albedo_map, true, 0), (&m.roughness_map, false, 1)] {
         let Some(t) = spec else { continue };
         let tex = match (&t.file, &t.pattern) {
-            (Some(f), None) => Texture::load_with(&ctx.resolve(f), srgb, ctx.budget).map_err(ctx.referenced(span.clone()))?,
+            (Some(f), None) => {
+                Texture::load_with(&ctx.resolve(f), srgb, ctx.budget).map_err(ctx.referenced(span.clone()))?
+            }
             (None, Some(p)) => {
                 let pat = match p.as_str() {
                     "checker" => Pattern::Checker,
                     "stripes" => Pattern::Stripes,
                     "noise" => Pattern::Noise,
-                    _ => return Err(ctx.err_at(span, format!("{what}: unknown pattern '{p}' (checker, stripes, noise)"))),
+                    _ => {
+                        return Err(ctx.err_at(span, format!("{what}: unknown pattern '{p}' (checker, stripes, noise)")))
+                    }
                 };
                 let a = t.a.map_or(Vec3::ONE, |v| v.0);
                 let b = t.b.map_or(Vec3::splat(0.5), |v| v.0);
                 if !a.is_finite() || !b.is_finite() || !t.scale.is_finite() || t.scale <= 0.0 {
-                    return Err(ctx.err_at(span, format!("{what}: pattern colours and scale must be finite (scale > 0)")));
+                    return Err(
+                        ctx.err_at(span, format!("{what}: pattern colours and scale must be finite (scale > 0)"))
+                    );
                 }
-                Texture::pattern(&format!("{name}.{}", if slot == 0 { "albedo" } else { "roughness" }), pat, t.size, t.scale, a.extend(1.0), b.extend(1.0))
+                Texture::pattern(
+                    &format!("{name}.{}", if slot == 0 { "albedo" } else { "roughness" }),
+                    pat,
+                    t.size,
+                    t.scale,
+                    a.extend(1.0),
+                    b.extend(1.0),
+                )
             }
-            _ => return Err(ctx.err_at(span, format!("{what}: a texture map needs exactly one of `file` or `pattern`"))),
+            _ => {
+                return Err(ctx.err_at(span, format!("{what}: a texture map needs exactly one of `file` or `pattern`")))
+            }
         };
         textures.push(tex);
         if slot == 0 {
@@ -919,7 +1073,12 @@ fn material(
         let rough: Vec<Option<f32>> = m.keys.iter().map(|k| k.roughness).collect();
         let alb: Vec<Option<Vec3>> = m.keys.iter().map(|k| k.albedo.map(|v| v.0)).collect();
         let spec: Vec<Option<Vec3>> = m.keys.iter().map(|k| k.specular.map(|v| v.0)).collect();
-        fn track<T: crate::motion::Lerp>(v: Vec<Option<T>>, times: &[f32], looping: bool, k: &str) -> Result<Option<Track<T>>, String> {
+        fn track<T: crate::motion::Lerp>(
+            v: Vec<Option<T>>,
+            times: &[f32],
+            looping: bool,
+            k: &str,
+        ) -> Result<Option<Track<T>>, String> {
             if v.iter().all(|x| x.is_none()) {
                 return Ok(None);
             }

@@ -127,7 +127,10 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
                 (Some(_), None) => {}
                 (None, Some(v)) => {
                     if v.value() >= root.buffer_views.len() {
-                        return Err(gerr(path, format!("image {ii} refers to buffer view {} which does not exist", v.value())));
+                        return Err(gerr(
+                            path,
+                            format!("image {ii} refers to buffer view {} which does not exist", v.value()),
+                        ));
                     }
                     if img.mime_type.is_none() {
                         return Err(gerr(path, format!("image {ii} is stored in a buffer view but has no mimeType")));
@@ -141,13 +144,22 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
         for (ai, a) in root.animations.iter().enumerate() {
             for (ci, c) in a.channels.iter().enumerate() {
                 if c.target.node.value() >= root.nodes.len() {
-                    return Err(gerr(path, format!("animation {ai} channel {ci} targets node {} which does not exist", c.target.node.value())));
+                    return Err(gerr(
+                        path,
+                        format!(
+                            "animation {ai} channel {ci} targets node {} which does not exist",
+                            c.target.node.value()
+                        ),
+                    ));
                 }
                 if matches!(c.target.path, Checked::Invalid) {
                     return Err(gerr(path, format!("animation {ai} channel {ci} has an invalid target path")));
                 }
                 if c.sampler.value() >= a.samplers.len() {
-                    return Err(gerr(path, format!("animation {ai} channel {ci} uses sampler {} which does not exist", c.sampler.value())));
+                    return Err(gerr(
+                        path,
+                        format!("animation {ai} channel {ci} uses sampler {} which does not exist", c.sampler.value()),
+                    ));
                 }
             }
             for (si, smp) in a.samplers.iter().enumerate() {
@@ -156,7 +168,10 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
                 }
                 for acc in [smp.input.value(), smp.output.value()] {
                     if acc >= root.accessors.len() {
-                        return Err(gerr(path, format!("animation {ai} sampler {si} refers to accessor {acc} which does not exist")));
+                        return Err(gerr(
+                            path,
+                            format!("animation {ai} sampler {si} refers to accessor {acc} which does not exist"),
+                        ));
                     }
                 }
             }
@@ -180,10 +195,9 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
     }
     check_accessor_bounds(path, &doc, budget)?;
     let buffers = gltf::import_buffers(&doc, Some(base), blob).map_err(|e| match e {
-        gltf::Error::BufferLength { buffer, expected, actual } => gerr(
-            path,
-            format!("buffer {buffer} is truncated: expected {expected} bytes but the data has {actual}"),
-        ),
+        gltf::Error::BufferLength { buffer, expected, actual } => {
+            gerr(path, format!("buffer {buffer} is truncated: expected {expected} bytes but the data has {actual}"))
+        }
         other => gerr(path, format!("cannot load buffers: {}", describe(&other))),
     })?;
     let bufs: Vec<&[u8]> = buffers.iter().map(|d| d.0.as_slice()).collect();
@@ -202,11 +216,14 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
             check_uri(path, base, uri, &format!("image {}", img.index()))?;
         }
         let encoded = image_bytes(path, base, &img, &buffers, budget)?;
-        let decoded = crate::texture::decode_checked(path, &format!("image {}", img.index()), &encoded, None, budget, 20)
-            .map_err(|e| match e {
-                SceneError::Image { message, .. } => gerr(path, format!("image {} cannot be decoded: {message}", img.index())),
-                e => e,
-            })?;
+        let decoded =
+            crate::texture::decode_checked(path, &format!("image {}", img.index()), &encoded, None, budget, 20)
+                .map_err(|e| match e {
+                    SceneError::Image { message, .. } => {
+                        gerr(path, format!("image {} cannot be decoded: {message}", img.index()))
+                    }
+                    e => e,
+                })?;
         let data = gltf_data(decoded);
         let name = img.name().map(str::to_string).unwrap_or_else(|| format!("image{}", img.index()));
         let tex = convert_image(&name, &data, srgb).ok_or_else(|| SceneError::Unsupported {
@@ -229,17 +246,16 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
         if !base_rgb.is_finite() || !metallic.is_finite() || !roughness.is_finite() {
             return Err(gerr(path, format!("material '{name}' has non-finite factors")));
         }
-        let mut mat = Material::glossy(
-            &name,
-            base_rgb * (1.0 - metallic),
-            Vec3::splat(0.04).lerp(base_rgb, metallic),
-            roughness,
-        );
+        let mut mat =
+            Material::glossy(&name, base_rgb * (1.0 - metallic), Vec3::splat(0.04).lerp(base_rgb, metallic), roughness);
         mat.name = name.clone();
         let mut ex = MaterialExtra { two_sided: m.double_sided(), ..Default::default() };
         if let Some(info) = pbr.base_color_texture() {
             if info.tex_coord() != 0 {
-                warnings.push(format!("{label}: material '{name}': base colour uses TEXCOORD_{}, reading TEXCOORD_0", info.tex_coord()));
+                warnings.push(format!(
+                    "{label}: material '{name}': base colour uses TEXCOORD_{}, reading TEXCOORD_0",
+                    info.tex_coord()
+                ));
             }
             ex.albedo_map = Some(load_image(info.texture().source(), true, &mut textures)?);
             // The texture carries the colour: the factor multiplies it.
@@ -262,9 +278,13 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
             return Err(gerr(path, format!("mesh '{mesh_name}' has non-finite (NaN/Inf) morph weights")));
         }
         for prim in mesh.primitives() {
-            let pname = if mesh.primitives().len() > 1 { format!("{mesh_name}.{}", prim.index()) } else { mesh_name.clone() };
+            let pname =
+                if mesh.primitives().len() > 1 { format!("{mesh_name}.{}", prim.index()) } else { mesh_name.clone() };
             if prim.mode() != Mode::Triangles {
-                warnings.push(format!("{label}: mesh '{pname}': primitive mode {:?} is not triangles, skipped", prim.mode()));
+                warnings.push(format!(
+                    "{label}: mesh '{pname}': primitive mode {:?} is not triangles, skipped",
+                    prim.mode()
+                ));
                 continue;
             }
             let p = read_primitive(path, &label, &pname, &prim, &get, default_weights.clone(), &mut warnings)?;
@@ -317,7 +337,15 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
                     .map(|m| Mat4::from_cols_array_2d(&m))
                     .collect();
                 if v.len() < joints.len() {
-                    return Err(gerr(path, format!("skin {} has {} joints but {} inverse bind matrices", skin.index(), joints.len(), v.len())));
+                    return Err(gerr(
+                        path,
+                        format!(
+                            "skin {} has {} joints but {} inverse bind matrices",
+                            skin.index(),
+                            joints.len(),
+                            v.len()
+                        ),
+                    ));
                 }
                 if v.iter().any(|m| !m.is_finite()) {
                     return Err(gerr(path, format!("skin {} has a non-finite inverse bind matrix", skin.index())));
@@ -342,12 +370,17 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
             check_accessor(path, &sampler.input(), &[Dimensions::Scalar], &[DataType::F32], &format!("{what} times"))?;
             let out = sampler.output();
             let reader = ch.reader(get);
-            let times: Vec<f32> = reader.read_inputs().ok_or_else(|| out_of_bounds(path, &sampler.input(), &what))?.collect();
+            let times: Vec<f32> =
+                reader.read_inputs().ok_or_else(|| out_of_bounds(path, &sampler.input(), &what))?.collect();
             let cubic = sampler.interpolation() == gltf::animation::Interpolation::CubicSpline;
             if cubic {
                 warnings.push(format!("{label}: {what}: cubic-spline keys are interpolated linearly"));
             }
-            let interp = if sampler.interpolation() == gltf::animation::Interpolation::Step { Interp::Step } else { Interp::Linear };
+            let interp = if sampler.interpolation() == gltf::animation::Interpolation::Step {
+                Interp::Step
+            } else {
+                Interp::Linear
+            };
             let node = ch.target().node().index();
             use gltf::animation::util::ReadOutputs;
             let norm = [DataType::F32, DataType::I8, DataType::U8, DataType::I16, DataType::U16];
@@ -356,7 +389,9 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
                     check_accessor(path, &out, &[Dimensions::Vec3], &[DataType::F32], &what)?
                 }
                 gltf::animation::Property::Rotation => check_accessor(path, &out, &[Dimensions::Vec4], &norm, &what)?,
-                gltf::animation::Property::MorphTargetWeights => check_accessor(path, &out, &[Dimensions::Scalar], &norm, &what)?,
+                gltf::animation::Property::MorphTargetWeights => {
+                    check_accessor(path, &out, &[Dimensions::Scalar], &norm, &what)?
+                }
             }
             let outs = reader.read_outputs().ok_or_else(|| out_of_bounds(path, &out, &what))?;
             let bad = |m: String| gerr(path, format!("{what}: {m}"));
@@ -426,7 +461,13 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
                     if let (Some(s), Some(j)) = (skin, &primitives[pi].joints) {
                         let nj = skins[s].joints.len();
                         if let Some(bad) = j.iter().flatten().find(|&&x| x as usize >= nj) {
-                            return Err(gerr(path, format!("mesh '{}': joint index {bad} is out of range (skin {s} has {nj} joints)", primitives[pi].mesh.name)));
+                            return Err(gerr(
+                                path,
+                                format!(
+                                    "mesh '{}': joint index {bad} is out of range (skin {s} has {nj} joints)",
+                                    primitives[pi].mesh.name
+                                ),
+                            ));
                         }
                     }
                     let name = node.name().map(str::to_string).unwrap_or_else(|| primitives[pi].mesh.name.clone());
@@ -489,7 +530,10 @@ fn check_uri(path: &Path, base: &Path, uri: &str, what: &str) -> Result<(), Scen
         return Ok(());
     }
     if uri.contains("://") {
-        return Err(SceneError::Unsupported { path: path.to_path_buf(), feature: format!("URI scheme in {what}: {uri}") });
+        return Err(SceneError::Unsupported {
+            path: path.to_path_buf(),
+            feature: format!("URI scheme in {what}: {uri}"),
+        });
     }
     let decoded = percent_decode(uri);
     let file = base.join(&decoded);
@@ -521,23 +565,34 @@ fn percent_decode(s: &str) -> String {
 /// entries fit theirs, and what reading them allocates fits the budget: counts are checked
 /// before the gltf crate allocates by them.
 fn check_accessor_bounds(path: &Path, doc: &gltf::Document, budget: &Budget) -> Result<(), SceneError> {
-    let fits = |what: &str, view: &gltf::buffer::View, offset: usize, count: usize, size: usize| -> Result<(), SceneError> {
-        let stride = view.stride().unwrap_or(size).max(size) as u128;
-        let need = if count == 0 { 0 } else { offset as u128 + stride * (count as u128 - 1) + size as u128 };
-        if need > view.length() as u128 {
-            return Err(gerr(
-                path,
-                format!("{what}: {count} elements of {size} bytes need {need} bytes of buffer view {}, which holds {}", view.index(), view.length()),
-            ));
-        }
-        if view.offset() as u128 + view.length() as u128 > view.buffer().length() as u128 {
-            return Err(gerr(
-                path,
-                format!("buffer view {} ends at byte {} of buffer {}, which holds {}", view.index(), view.offset() + view.length(), view.buffer().index(), view.buffer().length()),
-            ));
-        }
-        Ok(())
-    };
+    let fits =
+        |what: &str, view: &gltf::buffer::View, offset: usize, count: usize, size: usize| -> Result<(), SceneError> {
+            let stride = view.stride().unwrap_or(size).max(size) as u128;
+            let need = if count == 0 { 0 } else { offset as u128 + stride * (count as u128 - 1) + size as u128 };
+            if need > view.length() as u128 {
+                return Err(gerr(
+                    path,
+                    format!(
+                        "{what}: {count} elements of {size} bytes need {need} bytes of buffer view {}, which holds {}",
+                        view.index(),
+                        view.length()
+                    ),
+                ));
+            }
+            if view.offset() as u128 + view.length() as u128 > view.buffer().length() as u128 {
+                return Err(gerr(
+                    path,
+                    format!(
+                        "buffer view {} ends at byte {} of buffer {}, which holds {}",
+                        view.index(),
+                        view.offset() + view.length(),
+                        view.buffer().index(),
+                        view.buffer().length()
+                    ),
+                ));
+            }
+            Ok(())
+        };
     for acc in doc.accessors() {
         let what = format!("accessor {}", acc.index());
         if let Some(view) = acc.view() {
@@ -552,22 +607,46 @@ fn check_accessor_bounds(path: &Path, doc: &gltf::Document, budget: &Budget) -> 
                 gltf::accessor::sparse::IndexType::U16 => 2,
                 gltf::accessor::sparse::IndexType::U32 => 4,
             };
-            fits(&format!("{what} sparse indices"), &sp.indices().view(), sp.indices().offset() as usize, sp.count(), isize)?;
-            fits(&format!("{what} sparse values"), &sp.values().view(), sp.values().offset() as usize, sp.count(), acc.size())?;
+            fits(
+                &format!("{what} sparse indices"),
+                &sp.indices().view(),
+                sp.indices().offset() as usize,
+                sp.count(),
+                isize,
+            )?;
+            fits(
+                &format!("{what} sparse values"),
+                &sp.values().view(),
+                sp.values().offset() as usize,
+                sp.count(),
+                acc.size(),
+            )?;
         }
         // Read as f32 (or u32) elements, then converted once: twice the f32 size.
         let dims = acc.dimensions().multiplicity() as u64;
-        budget.take(path, &format!("{what} ({} elements)", acc.count()), (acc.count() as u64).saturating_mul(dims * 4 * 2))?;
+        budget.take(
+            path,
+            &format!("{what} ({} elements)", acc.count()),
+            (acc.count() as u64).saturating_mul(dims * 4 * 2),
+        )?;
     }
     Ok(())
 }
 
 /// The encoded bytes of an image: its buffer view, its data URI or its file.
-fn image_bytes(path: &Path, base: &Path, img: &gltf::Image, buffers: &[gltf::buffer::Data], budget: &Budget) -> Result<Vec<u8>, SceneError> {
+fn image_bytes(
+    path: &Path,
+    base: &Path,
+    img: &gltf::Image,
+    buffers: &[gltf::buffer::Data],
+    budget: &Budget,
+) -> Result<Vec<u8>, SceneError> {
     let what = format!("image {}", img.index());
     match img.source() {
         gltf::image::Source::View { view, .. } => {
-            let buf = buffers.get(view.buffer().index()).ok_or_else(|| gerr(path, format!("{what}: buffer {} is missing", view.buffer().index())))?;
+            let buf = buffers
+                .get(view.buffer().index())
+                .ok_or_else(|| gerr(path, format!("{what}: buffer {} is missing", view.buffer().index())))?;
             buf.0
                 .get(view.offset()..view.offset().saturating_add(view.length()))
                 .map(<[u8]>::to_vec)
@@ -575,7 +654,8 @@ fn image_bytes(path: &Path, base: &Path, img: &gltf::Image, buffers: &[gltf::buf
         }
         gltf::image::Source::Uri { uri, .. } => {
             if let Some(rest) = uri.strip_prefix("data:") {
-                let (_, payload) = rest.split_once(";base64,").ok_or_else(|| gerr(path, format!("{what}: data URI is not base64")))?;
+                let (_, payload) =
+                    rest.split_once(";base64,").ok_or_else(|| gerr(path, format!("{what}: data URI is not base64")))?;
                 budget.take(path, &format!("{what} (data URI)"), payload.len() as u64)?;
                 use base64::Engine as _;
                 base64::engine::general_purpose::STANDARD
@@ -617,9 +697,25 @@ fn out_of_bounds(path: &Path, acc: &gltf::Accessor, what: &str) -> SceneError {
 
 /// Check an accessor's element type and layout so reading it cannot hit the gltf crate's
 /// assertions.
-fn check_accessor(path: &Path, acc: &gltf::Accessor, dims: &[Dimensions], types: &[DataType], what: &str) -> Result<(), SceneError> {
+fn check_accessor(
+    path: &Path,
+    acc: &gltf::Accessor,
+    dims: &[Dimensions],
+    types: &[DataType],
+    what: &str,
+) -> Result<(), SceneError> {
     if !dims.contains(&acc.dimensions()) || !types.contains(&acc.data_type()) {
-        return Err(gerr(path, format!("{what}: accessor {} has type {:?} {:?}, expected one of {:?} {:?}", acc.index(), acc.dimensions(), acc.data_type(), dims, types)));
+        return Err(gerr(
+            path,
+            format!(
+                "{what}: accessor {} has type {:?} {:?}, expected one of {:?} {:?}",
+                acc.index(),
+                acc.dimensions(),
+                acc.data_type(),
+                dims,
+                types
+            ),
+        ));
     }
     if acc.count() == 0 {
         return Err(gerr(path, format!("{what}: accessor {} is empty", acc.index())));
@@ -627,7 +723,14 @@ fn check_accessor(path: &Path, acc: &gltf::Accessor, dims: &[Dimensions], types:
     if let Some(view) = acc.view() {
         if let Some(stride) = view.stride() {
             if stride < acc.size() {
-                return Err(gerr(path, format!("{what}: buffer view {} stride {stride} is smaller than an element ({} bytes)", view.index(), acc.size())));
+                return Err(gerr(
+                    path,
+                    format!(
+                        "{what}: buffer view {} stride {stride} is smaller than an element ({} bytes)",
+                        view.index(),
+                        acc.size()
+                    ),
+                ));
             }
         }
     } else if acc.sparse().is_none() {
@@ -674,14 +777,29 @@ where
         }
     }
     if let Some(acc) = prim.indices() {
-        check_accessor(path, &acc, &[Dimensions::Scalar], &[DataType::U8, DataType::U16, DataType::U32], &what("indices"))?;
+        check_accessor(
+            path,
+            &acc,
+            &[Dimensions::Scalar],
+            &[DataType::U8, DataType::U16, DataType::U32],
+            &what("indices"),
+        )?;
     }
     for (k, t) in prim.morph_targets().enumerate() {
         for (acc, s) in [(t.positions(), "POSITION"), (t.normals(), "NORMAL"), (t.tangents(), "TANGENT")] {
             if let Some(acc) = acc {
-                check_accessor(path, &acc, &[Dimensions::Vec3], &[DataType::F32], &what(&format!("morph target {k} {s}")))?;
+                check_accessor(
+                    path,
+                    &acc,
+                    &[Dimensions::Vec3],
+                    &[DataType::F32],
+                    &what(&format!("morph target {k} {s}")),
+                )?;
                 if acc.count() != n {
-                    return Err(gerr(path, what(&format!("morph target {k} {s} has {} elements for {n} vertices", acc.count()))));
+                    return Err(gerr(
+                        path,
+                        what(&format!("morph target {k} {s} has {} elements for {n} vertices", acc.count())),
+                    ));
                 }
             }
         }
@@ -694,27 +812,37 @@ where
         .collect();
     let normals: Vec<Vec3> = match r.read_normals() {
         Some(it) => it.map(Vec3::from_array).collect(),
-        None if prim.get(&Semantic::Normals).is_some() => return Err(out_of_bounds(path, &prim.get(&Semantic::Normals).unwrap(), &what("NORMAL"))),
+        None if prim.get(&Semantic::Normals).is_some() => {
+            return Err(out_of_bounds(path, &prim.get(&Semantic::Normals).unwrap(), &what("NORMAL")))
+        }
         None => Vec::new(),
     };
     let uvs: Vec<Vec2> = match r.read_tex_coords(0) {
         Some(it) => it.into_f32().map(Vec2::from_array).collect(),
-        None if prim.get(&Semantic::TexCoords(0)).is_some() => return Err(gerr(path, what("TEXCOORD_0 lies outside its buffer"))),
+        None if prim.get(&Semantic::TexCoords(0)).is_some() => {
+            return Err(gerr(path, what("TEXCOORD_0 lies outside its buffer")))
+        }
         None => Vec::new(),
     };
     let indices: Vec<u32> = match r.read_indices() {
         Some(it) => it.into_u32().collect(),
-        None if prim.indices().is_some() => return Err(out_of_bounds(path, &prim.indices().unwrap(), &what("indices"))),
+        None if prim.indices().is_some() => {
+            return Err(out_of_bounds(path, &prim.indices().unwrap(), &what("indices")))
+        }
         None => (0..n as u32).collect(),
     };
     let joints = match r.read_joints(0) {
         Some(it) => Some(it.into_u16().collect::<Vec<_>>()),
-        None if prim.get(&Semantic::Joints(0)).is_some() => return Err(gerr(path, what("JOINTS_0 lies outside its buffer"))),
+        None if prim.get(&Semantic::Joints(0)).is_some() => {
+            return Err(gerr(path, what("JOINTS_0 lies outside its buffer")))
+        }
         None => None,
     };
     let weights = match r.read_weights(0) {
         Some(it) => Some(it.into_f32().collect::<Vec<_>>()),
-        None if prim.get(&Semantic::Weights(0)).is_some() => return Err(gerr(path, what("WEIGHTS_0 lies outside its buffer"))),
+        None if prim.get(&Semantic::Weights(0)).is_some() => {
+            return Err(gerr(path, what("WEIGHTS_0 lies outside its buffer")))
+        }
         None => None,
     };
     if joints.is_some() != weights.is_some() {
@@ -727,7 +855,8 @@ where
     }
     let mut targets = Vec::new();
     for (k, (p, nrm, _)) in r.read_morph_targets().enumerate() {
-        let positions: Vec<Vec3> = p.map(|it| it.map(Vec3::from_array).collect()).unwrap_or_else(|| vec![Vec3::ZERO; n]);
+        let positions: Vec<Vec3> =
+            p.map(|it| it.map(Vec3::from_array).collect()).unwrap_or_else(|| vec![Vec3::ZERO; n]);
         let normals: Option<Vec<Vec3>> = nrm.map(|it| it.map(Vec3::from_array).collect());
         if positions.len() != n || normals.as_ref().map_or(false, |v| v.len() != n) {
             return Err(gerr(path, what(&format!("morph target {k} lies outside its buffer"))));
@@ -843,7 +972,12 @@ pub fn instantiate(
         match (part.skin, &prim.joints, &prim.weights) {
             (Some(s), Some(j), Some(w)) => {
                 // Skinned vertices are placed by the joints (the node transform is ignored).
-                info.deformations.push(Deformation::Skin { rig: rig.clone(), skin: s, joints: j.clone(), weights: w.clone() });
+                info.deformations.push(Deformation::Skin {
+                    rig: rig.clone(),
+                    skin: s,
+                    joints: j.clone(),
+                    weights: w.clone(),
+                });
                 transform = placement;
             }
             _ => {

@@ -29,7 +29,7 @@ pub mod texture;
 pub use error::SceneError;
 pub use limits::{Budget, Limits};
 pub use mesh::{EdgeStats, MeshData};
-pub use motion::{Deformation, Interp, RigidMotion, Rig, Track};
+pub use motion::{Deformation, Interp, Rig, RigidMotion, Track};
 pub use texture::{Pattern, Texture};
 
 use glam::{Mat4, Vec3};
@@ -664,12 +664,18 @@ impl Scene {
         for t in TIMES {
             for i in 0..self.objects.len() {
                 if !self.world_at(i, t).is_finite() {
-                    return Err(format!("object '{}': its motion gives a non-finite transform at t = {t}", self.objects[i].name));
+                    return Err(format!(
+                        "object '{}': its motion gives a non-finite transform at t = {t}",
+                        self.objects[i].name
+                    ));
                 }
                 if self.object_info.get(i).is_some_and(|x| x.is_deforming())
                     && self.deformed_mesh(i, t).positions.iter().any(|p| !p.is_finite())
                 {
-                    return Err(format!("object '{}': its deformation gives non-finite vertices at t = {t}", self.objects[i].name));
+                    return Err(format!(
+                        "object '{}': its deformation gives non-finite vertices at t = {t}",
+                        self.objects[i].name
+                    ));
                 }
             }
             for l in &self.lights {
@@ -682,7 +688,11 @@ impl Scene {
             if !c.view().is_finite() {
                 return Err(format!("camera: non-finite view at t = {t}"));
             }
-            if self.materials_at(t).iter().any(|m| !m.albedo.is_finite() || !m.specular.is_finite() || !m.shininess.is_finite()) {
+            if self
+                .materials_at(t)
+                .iter()
+                .any(|m| !m.albedo.is_finite() || !m.specular.is_finite() || !m.shininess.is_finite())
+            {
                 return Err(format!("a material animation gives non-finite values at t = {t}"));
             }
         }
@@ -756,7 +766,8 @@ impl Scene {
         let placement = Mat4::IDENTITY;
         let first = scene.objects.len();
         gltf_load::instantiate(&mut scene, &asset, placement, Some(0), None, path)?;
-        let (lo, hi) = scene.bounds_at(0.0, first..scene.objects.len())
+        let (lo, hi) = scene
+            .bounds_at(0.0, first..scene.objects.len())
             .ok_or_else(|| SceneError::invalid(path, "the model has no geometry"))?;
         let center = (lo + hi) * 0.5;
         let radius = ((hi - lo).length() * 0.5).max(1e-4);
@@ -856,8 +867,7 @@ impl Scene {
                 name: "cube".into(),
                 mesh: 2,
                 material: 2,
-                transform: Mat4::from_translation(Vec3::new(0.9, 0.6, -0.6))
-                    * Mat4::from_rotation_y(0.6),
+                transform: Mat4::from_translation(Vec3::new(0.9, 0.6, -0.6)) * Mat4::from_rotation_y(0.6),
             },
             Object {
                 name: "torus".into(),

@@ -80,7 +80,14 @@ impl Budget {
     }
 
     /// Checks an image's dimensions (from its header) and takes `bytes_per_texel` per texel.
-    pub fn image(&self, path: &Path, what: &str, width: u64, height: u64, bytes_per_texel: u64) -> Result<(), SceneError> {
+    pub fn image(
+        &self,
+        path: &Path,
+        what: &str,
+        width: u64,
+        height: u64,
+        bytes_per_texel: u64,
+    ) -> Result<(), SceneError> {
         let max = self.limits.max_image_dim as u64;
         if width == 0 || height == 0 {
             return Err(SceneError::invalid(path, format!("{what} is empty ({width}x{height})")));
@@ -91,7 +98,11 @@ impl Budget {
                 message: format!("{what} is {width}x{height}, over the largest accepted side of {max} texels"),
             });
         }
-        self.take(path, &format!("{what} ({width}x{height})"), width.saturating_mul(height).saturating_mul(bytes_per_texel))
+        self.take(
+            path,
+            &format!("{what} ({width}x{height})"),
+            width.saturating_mul(height).saturating_mul(bytes_per_texel),
+        )
     }
 
     /// Reads a whole file whose size is at most `max` bytes (and within the budget).
@@ -125,7 +136,13 @@ mod tests {
         let p = Path::new("a.glb");
         b.take(p, "positions", 6 * MIB).unwrap();
         let e = b.take(Path::new("b.exr"), "the environment", 5 * MIB).unwrap_err().to_string();
-        assert!(e.starts_with("b.exr:") && e.contains("the environment") && e.contains("budget of 10 MiB") && e.contains("--memory-budget"), "{e}");
+        assert!(
+            e.starts_with("b.exr:")
+                && e.contains("the environment")
+                && e.contains("budget of 10 MiB")
+                && e.contains("--memory-budget"),
+            "{e}"
+        );
         assert_eq!(b.used(), 6 * MIB);
         let e = b.image(p, "image 0", 100_000, 100_000, 16).unwrap_err().to_string();
         assert!(e.contains("100000x100000") && e.contains("16384"), "{e}");

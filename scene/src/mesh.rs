@@ -249,11 +249,7 @@ impl MeshData {
             return Err(format!("mesh '{}' has no triangles", self.name));
         }
         if self.indices.len() % 3 != 0 {
-            return Err(format!(
-                "mesh '{}': index count {} is not a multiple of 3",
-                self.name,
-                self.indices.len()
-            ));
+            return Err(format!("mesh '{}': index count {} is not a multiple of 3", self.name, self.indices.len()));
         }
         if let Some((k, &i)) = self.indices.iter().enumerate().find(|(_, &i)| i as usize >= nv) {
             return Err(format!(
@@ -267,7 +263,10 @@ impl MeshData {
         /// Coordinates beyond this are rejected: products with transforms would overflow f32.
         const MAX_COORD: f32 = 1e15;
         if let Some((k, p)) = self.positions.iter().enumerate().find(|(_, p)| p.abs().max_element() > MAX_COORD) {
-            return Err(format!("mesh '{}': vertex {} has an out-of-range position {:?} (|coordinate| > 1e15)", self.name, k, p));
+            return Err(format!(
+                "mesh '{}': vertex {} has an out-of-range position {:?} (|coordinate| > 1e15)",
+                self.name, k, p
+            ));
         }
         if !self.normals.is_empty() && self.normals.len() != nv {
             return Err(format!("mesh '{}': {} normals for {} vertices", self.name, self.normals.len(), nv));
@@ -289,10 +288,8 @@ impl MeshData {
         }
         let removed = before - kept.len() / 3;
         if removed > 0 {
-            warnings.push(format!(
-                "{label}: mesh '{}': removed {removed} zero-area triangle(s) of {before}",
-                self.name
-            ));
+            warnings
+                .push(format!("{label}: mesh '{}': removed {removed} zero-area triangle(s) of {before}", self.name));
             self.indices = kept;
         }
         if self.indices.is_empty() {
@@ -366,7 +363,8 @@ impl MeshData {
         }
         let has_uv = m.uvs.len() == m.positions.len();
         loop {
-            let long = |m: &MeshData, a: u32, b: u32| (m.positions[a as usize] - m.positions[b as usize]).length() > max_edge;
+            let long =
+                |m: &MeshData, a: u32, b: u32| (m.positions[a as usize] - m.positions[b as usize]).length() > max_edge;
             // count the triangles of the next pass first (the cap)
             let mut next = 0usize;
             let mut any = false;
@@ -625,17 +623,43 @@ impl MeshData {
         use std::collections::HashMap;
         let t = (1.0 + 5.0f32.sqrt()) / 2.0;
         let mut p: Vec<Vec3> = [
-            (-1.0, t, 0.0), (1.0, t, 0.0), (-1.0, -t, 0.0), (1.0, -t, 0.0),
-            (0.0, -1.0, t), (0.0, 1.0, t), (0.0, -1.0, -t), (0.0, 1.0, -t),
-            (t, 0.0, -1.0), (t, 0.0, 1.0), (-t, 0.0, -1.0), (-t, 0.0, 1.0),
+            (-1.0, t, 0.0),
+            (1.0, t, 0.0),
+            (-1.0, -t, 0.0),
+            (1.0, -t, 0.0),
+            (0.0, -1.0, t),
+            (0.0, 1.0, t),
+            (0.0, -1.0, -t),
+            (0.0, 1.0, -t),
+            (t, 0.0, -1.0),
+            (t, 0.0, 1.0),
+            (-t, 0.0, -1.0),
+            (-t, 0.0, 1.0),
         ]
         .iter()
         .map(|&(x, y, z)| Vec3::new(x, y, z).normalize())
         .collect();
         let mut f: Vec<[u32; 3]> = vec![
-            [0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
-            [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
-            [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1],
+            [0, 11, 5],
+            [0, 5, 1],
+            [0, 1, 7],
+            [0, 7, 10],
+            [0, 10, 11],
+            [1, 5, 9],
+            [5, 11, 4],
+            [11, 10, 2],
+            [10, 7, 6],
+            [7, 1, 8],
+            [3, 9, 4],
+            [3, 4, 2],
+            [3, 2, 6],
+            [3, 6, 8],
+            [3, 8, 9],
+            [4, 9, 5],
+            [2, 4, 11],
+            [6, 2, 10],
+            [8, 6, 7],
+            [9, 8, 1],
         ];
         for _ in 0..subdiv.min(5) {
             let mut mid: HashMap<(u32, u32), u32> = HashMap::new();

@@ -248,12 +248,13 @@ impl Deformation {
             Deformation::Morph { rig, node, .. } => rig.animation.map_or(false, |a| {
                 rig.animations[a].channels.iter().any(|c| c.node == *node && matches!(c.target, Channel::Weights(_)))
             }),
-            Deformation::Skin { rig, skin, .. } => {
-                rig.animation.map_or(false, |a| {
-                    let anim = &rig.animations[a];
-                    rig.skins[*skin].joints.iter().any(|&j| anim.channels.iter().any(|c| rig.is_ancestor_or_self(c.node, j)))
-                })
-            }
+            Deformation::Skin { rig, skin, .. } => rig.animation.map_or(false, |a| {
+                let anim = &rig.animations[a];
+                rig.skins[*skin]
+                    .joints
+                    .iter()
+                    .any(|&j| anim.channels.iter().any(|c| rig.is_ancestor_or_self(c.node, j)))
+            }),
         }
     }
 
@@ -437,9 +438,10 @@ impl Rig {
     /// Whether node `n`'s global transform changes over time.
     pub fn node_animated(&self, n: usize) -> bool {
         self.animation.map_or(false, |a| {
-            self.animations[a].channels.iter().any(|c| {
-                !matches!(c.target, Channel::Weights(_)) && self.is_ancestor_or_self(c.node, n)
-            })
+            self.animations[a]
+                .channels
+                .iter()
+                .any(|c| !matches!(c.target, Channel::Weights(_)) && self.is_ancestor_or_self(c.node, n))
         })
     }
 

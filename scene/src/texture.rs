@@ -197,7 +197,11 @@ impl Environment {
         if let Some(k) = env.texels.iter().position(|t| !t.iter().all(|c| c.is_finite())) {
             return Err(SceneError::invalid(
                 path,
-                format!("environment map texel ({}, {}) is NaN or infinite", k as u32 % env.width, k as u32 / env.width),
+                format!(
+                    "environment map texel ({}, {}) is NaN or infinite",
+                    k as u32 % env.width,
+                    k as u32 / env.width
+                ),
             ));
         }
         Ok(env)
@@ -244,10 +248,9 @@ impl Environment {
             .non_parallel()
             .from_buffered(std::io::Cursor::new(bytes));
         let image = result.map_err(|e| match e {
-            exr::error::Error::NotSupported(what) => SceneError::Unsupported {
-                path: path.to_path_buf(),
-                feature: format!("EXR feature: {what}"),
-            },
+            exr::error::Error::NotSupported(what) => {
+                SceneError::Unsupported { path: path.to_path_buf(), feature: format!("EXR feature: {what}") }
+            }
             exr::error::Error::Invalid(what) if what.contains("layer") || what.contains("channel") => {
                 SceneError::Unsupported {
                     path: path.to_path_buf(),
@@ -277,13 +280,7 @@ impl Environment {
         let img = decode_checked(path, "the environment map", bytes, Some(image::ImageFormat::Hdr), budget, 28)?;
         let rgb = img.to_rgb32f();
         let (width, height) = rgb.dimensions();
-        Ok(Environment {
-            width,
-            height,
-            texels: rgb.pixels().map(|p| p.0).collect(),
-            intensity: 1.0,
-            rotation: 0.0,
-        })
+        Ok(Environment { width, height, texels: rgb.pixels().map(|p| p.0).collect(), intensity: 1.0, rotation: 0.0 })
     }
 
     /// Nearest-texel radiance seen in world direction `d`, with `rotation` (about +Y,

@@ -53,7 +53,11 @@ fn truncated_and_invalid_gltf() {
     fails(&p, &["empty"]);
     let p = write(&dir, "garbage.gltf", b"{ this is not json");
     fails(&p, &["malformed JSON"]);
-    let p = write(&dir, "notgltf.gltf", br#"{"asset": {"version": "2.0"}, "meshes": [{"primitives": [{"attributes": {"POSITION": 7}}]}]}"#);
+    let p = write(
+        &dir,
+        "notgltf.gltf",
+        br#"{"asset": {"version": "2.0"}, "meshes": [{"primitives": [{"attributes": {"POSITION": 7}}]}]}"#,
+    );
     fails(&p, &["invalid glTF"]);
     // Every prefix of a valid file fails cleanly (no panic).
     for cut in (0..full.len()).step_by(37) {
@@ -147,17 +151,26 @@ fn nan_and_inf_positions_and_transforms() {
     let mut bin = Bin::default();
     let mut doc = simple(&mut bin, &pos, &idx, None);
     doc["nodes"][0].as_object_mut().unwrap().remove("translation");
-    doc["nodes"][0]["matrix"] = json!([1.0, 0.0, 0.0, 0.0, 0.0, 1e39, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]);
+    doc["nodes"][0]["matrix"] =
+        json!([1.0, 0.0, 0.0, 0.0, 0.0, 1e39, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]);
     let p = write(&dir, "infmatrix.glb", glb(&doc, &bin.bytes));
     fails(&p, &["non-finite"]);
     // In a scene file.
-    let s = write(&dir, "nan.toml", format!("{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\nposition = [nan, 0, 0]\n"));
+    let s = write(
+        &dir,
+        "nan.toml",
+        format!("{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\nposition = [nan, 0, 0]\n"),
+    );
     fails(&s, &["line 6", "NaN"]);
     let s = write(&dir, "inf.toml", format!("{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\nscale = inf\n"));
     fails(&s, &["object 'object0'", "NaN or infinite"]);
     let s = write(&dir, "nankey.toml", format!("{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\nmotion = {{ type = \"keyframes\", keys = [{{ t = 0, position = [0, 0, 0] }}, {{ t = 1, position = [0, nan, 0] }}] }}\n"));
     fails(&s, &["motion", "NaN"]);
-    let s = write(&dir, "nanenv.toml", "[camera]\neye = [0, nan, 4]\ntarget = 0\n[[object]]\nmesh = { type = \"cube\", size = 1 }\n");
+    let s = write(
+        &dir,
+        "nanenv.toml",
+        "[camera]\neye = [0, nan, 4]\ntarget = 0\n[[object]]\nmesh = { type = \"cube\", size = 1 }\n",
+    );
     fails(&s, &["camera.eye", "NaN"]);
 }
 
@@ -244,15 +257,28 @@ fn empty_scenes() {
 #[test]
 fn unknown_keys_and_wrong_types_name_line_and_column() {
     let dir = temp_dir("toml");
-    let s = write(&dir, "unknown.toml", format!("{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\ncolour = [1, 0, 0]\n"));
+    let s = write(
+        &dir,
+        "unknown.toml",
+        format!("{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\ncolour = [1, 0, 0]\n"),
+    );
     fails(&s, &["line 8", "column 1", "unknown field `colour`"]);
     let s = write(&dir, "unknown2.toml", format!("{HEAD}[materials.m]\ntype = \"diffuse\"\nalbedo = 1\nroughnes = 0.2\n[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\n"));
     fails(&s, &["line 9", "unknown field `roughnes`"]);
-    let s = write(&dir, "toplevel.toml", format!("frames = 3\n{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\n"));
+    let s =
+        write(&dir, "toplevel.toml", format!("frames = 3\n{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\n"));
     fails(&s, &["line 1", "unknown field `frames`"]);
-    let s = write(&dir, "wrongtype.toml", "[camera]\neye = [0, 1, 4]\ntarget = 0\nfov_deg = \"wide\"\n[[object]]\nmesh = { type = \"cube\", size = 1 }\n");
+    let s = write(
+        &dir,
+        "wrongtype.toml",
+        "[camera]\neye = [0, 1, 4]\ntarget = 0\nfov_deg = \"wide\"\n[[object]]\nmesh = { type = \"cube\", size = 1 }\n",
+    );
     fails(&s, &["line 4", "invalid type"]);
-    let s = write(&dir, "wrongvec.toml", "[camera]\neye = [0, 1]\ntarget = 0\n[[object]]\nmesh = { type = \"cube\", size = 1 }\n");
+    let s = write(
+        &dir,
+        "wrongvec.toml",
+        "[camera]\neye = [0, 1]\ntarget = 0\n[[object]]\nmesh = { type = \"cube\", size = 1 }\n",
+    );
     fails(&s, &["line 2", "array of 3 numbers"]);
     let s = write(&dir, "badprim.toml", format!("{HEAD}[[object]]\nmesh = {{ type = \"cone\", size = 1 }}\n"));
     fails(&s, &["line 7", "cone"]);
@@ -260,9 +286,17 @@ fn unknown_keys_and_wrong_types_name_line_and_column() {
     fails(&s, &["line 7", "radius"]);
     let s = write(&dir, "syntax.toml", "[camera\neye = 1\n");
     fails(&s, &["line 1"]);
-    let s = write(&dir, "badmat.toml", format!("{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\nmaterial = \"gold\"\n"));
+    let s = write(
+        &dir,
+        "badmat.toml",
+        format!("{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\nmaterial = \"gold\"\n"),
+    );
     fails(&s, &["line 6", "unknown material 'gold'"]);
-    let s = write(&dir, "tech.toml", format!("technique = \"magic\"\n{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\n"));
+    let s = write(
+        &dir,
+        "tech.toml",
+        format!("technique = \"magic\"\n{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\n"),
+    );
     // The scene keeps the name as written (the renderer checks it against its registry); a
     // caller-supplied list is checked at load.
     assert_eq!(Scene::load(&s).unwrap().technique, "magic");
@@ -277,7 +311,11 @@ fn unknown_keys_and_wrong_types_name_line_and_column() {
     fails(&s, &["medium", "g must be in (-1, 1)"]);
     let s = write(&dir, "keys.toml", format!("{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\nmotion = {{ type = \"keyframes\", keys = [{{ t = 1, position = 0 }}, {{ t = 0, position = 1 }}] }}\n"));
     fails(&s, &["strictly increasing"]);
-    let s = write(&dir, "bothmesh.toml", format!("{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\nfile = \"x.glb\"\n"));
+    let s = write(
+        &dir,
+        "bothmesh.toml",
+        format!("{HEAD}[[object]]\nmesh = {{ type = \"cube\", size = 1 }}\nfile = \"x.glb\"\n"),
+    );
     fails(&s, &["exactly one of `mesh` or `file`"]);
     let s = write(&dir, "utf.toml", b"\xff\xfe[camera]");
     fails(&s, &["UTF-8"]);

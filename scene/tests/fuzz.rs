@@ -132,14 +132,17 @@ fn mutated_scene_files_never_panic() {
     let dir = temp_dir("fuzz-toml");
     std::fs::create_dir_all(dir.join("assets")).unwrap();
     for a in ["studio.exr", "bunny.glb"] {
-        std::fs::copy(format!("{}/../scenes/assets/{a}", env!("CARGO_MANIFEST_DIR")), dir.join("assets").join(a)).unwrap();
+        std::fs::copy(format!("{}/../scenes/assets/{a}", env!("CARGO_MANIFEST_DIR")), dir.join("assets").join(a))
+            .unwrap();
     }
     // Positions of numbers in the text.
     let bytes = src.as_bytes();
     let mut nums = Vec::new();
     let mut i = 0;
     while i < bytes.len() {
-        if bytes[i].is_ascii_digit() && (i == 0 || !bytes[i - 1].is_ascii_alphanumeric() && bytes[i - 1] != b'_' && bytes[i - 1] != b'.') {
+        if bytes[i].is_ascii_digit()
+            && (i == 0 || !bytes[i - 1].is_ascii_alphanumeric() && bytes[i - 1] != b'_' && bytes[i - 1] != b'.')
+        {
             let s = i;
             while i < bytes.len() && (bytes[i].is_ascii_digit() || bytes[i] == b'.') {
                 i += 1;
@@ -155,7 +158,8 @@ fn mutated_scene_files_never_panic() {
         !src[line_start..s].contains('#')
     });
     let repl = ["0", "-1", "1e30", "1e-30", "-1e30", "3.5", "1024", "nan", "inf", "100000", "0.999", "-0.5"];
-    let seed: u64 = std::env::var("PENUMBRA_FUZZ_SEED").ok().and_then(|v| v.parse().ok()).unwrap_or(0x1234_5678_9abc_def1);
+    let seed: u64 =
+        std::env::var("PENUMBRA_FUZZ_SEED").ok().and_then(|v| v.parse().ok()).unwrap_or(0x1234_5678_9abc_def1);
     let mut rng = Rng(seed | 1);
     let f = dir.join("m.toml");
     let (mut ok, mut err) = (0, 0);

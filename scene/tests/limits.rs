@@ -70,7 +70,11 @@ fn gltf_accessor_counts_are_bounded_before_reading() {
     let tiny = LoadOptions { limits: Limits { memory_bytes: 64, ..Limits::default() }, ..Default::default() };
     refused(&p, &tiny, "ok.glb", &["too large", "budget", "--memory-budget"]);
     // ... and through a scene file that places it: the model's file is named.
-    let s = write(&dir, "placed.toml", format!("{HEAD}[environment]\nprocedural = \"sky\"\n[[object]]\nname = \"m\"\nfile = \"sparse.gltf\"\n"));
+    let s = write(
+        &dir,
+        "placed.toml",
+        format!("{HEAD}[environment]\nprocedural = \"sky\"\n[[object]]\nname = \"m\"\nfile = \"sparse.gltf\"\n"),
+    );
     refused(&s, &d, "sparse.gltf", &["too large"]);
 }
 
@@ -168,7 +172,8 @@ fn image_headers_are_checked_before_decoding() {
     let mut bin = Bin::default();
     let mut doc = simple(&mut bin, &pos, &idx, Some(String::new()));
     doc["buffers"][0]["uri"] = serde_json::json!(bin.data_uri());
-    doc["images"] = serde_json::json!([{ "uri": format!("data:image/png;base64,{}", base64(&png_header(60_000, 60_000))) }]);
+    doc["images"] =
+        serde_json::json!([{ "uri": format!("data:image/png;base64,{}", base64(&png_header(60_000, 60_000))) }]);
     doc["textures"] = serde_json::json!([{ "source": 0 }]);
     doc["materials"] = serde_json::json!([{ "pbrMetallicRoughness": { "baseColorTexture": { "index": 0 } } }]);
     doc["meshes"][0]["primitives"][0]["material"] = serde_json::json!(0);
@@ -180,6 +185,7 @@ fn image_headers_are_checked_before_decoding() {
 fn scene_files_have_a_size_limit() {
     let dir = temp_dir("limits-scene");
     let opts = LoadOptions { limits: Limits { max_scene_file_bytes: 1000, ..Limits::default() }, ..Default::default() };
-    let s = write(&dir, "long.toml", format!("{HEAD}[environment]\nprocedural = \"sky\"\n{}", "# padding\n".repeat(200)));
+    let s =
+        write(&dir, "long.toml", format!("{HEAD}[environment]\nprocedural = \"sky\"\n{}", "# padding\n".repeat(200)));
     refused(&s, &opts, "long.toml", &["too large", "scene file"]);
 }

@@ -58,7 +58,9 @@ fn gltf_embedded_external_and_glb_give_the_same_scene() {
         let center = Vec3::new(0.5, 1.5, 0.5);
         let clip = c.proj(1.0) * c.view() * center.extend(1.0);
         assert!(clip.w > 0.0 && (clip.x / clip.w).abs() < 0.2 && (clip.y / clip.w).abs() < 0.2);
-        for corner in [Vec3::new(0.0, 1.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(0.0, 2.0, 0.0), Vec3::new(0.0, 1.0, 1.0)] {
+        for corner in
+            [Vec3::new(0.0, 1.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(0.0, 2.0, 0.0), Vec3::new(0.0, 1.0, 1.0)]
+        {
             let q = c.proj(1.0) * c.view() * corner.extend(1.0);
             assert!(q.w > c.near && (q.x / q.w).abs() < 1.0 && (q.y / q.w).abs() < 1.0, "{f}: {corner} not in view");
         }
@@ -120,7 +122,10 @@ fn rigged(bin: &mut Bin) -> serde_json::Value {
     let i = bin.u32s(&idx);
     let j = bin.u16x4(&[[0, 0, 0, 0], [0, 0, 0, 0], [0, 1, 0, 0], [0, 1, 0, 0], [1, 0, 0, 0], [1, 0, 0, 0]]);
     let w = bin.f32s(
-        &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.5, 0.5, 0.0, 0.0, 0.5, 0.5, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+        &[
+            1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.5, 0.5, 0.0, 0.0, 0.5, 0.5, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0,
+            0.0, 0.0, 0.0,
+        ],
         "VEC4",
     );
     let mut ibm = Vec::new();

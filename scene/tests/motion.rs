@@ -16,7 +16,8 @@ fn track_interpolation_clamping_and_looping() {
     assert_eq!(s.sample(0.99), 1.0);
     assert_eq!(s.sample(1.5), 2.0);
     assert_eq!(s.sample(2.5), 1.0, "loops with period 2");
-    let q = Track::new(vec![0.0, 1.0], vec![Quat::IDENTITY, Quat::from_rotation_y(1.0)], Interp::Linear, false).unwrap();
+    let q =
+        Track::new(vec![0.0, 1.0], vec![Quat::IDENTITY, Quat::from_rotation_y(1.0)], Interp::Linear, false).unwrap();
     assert!(q.sample(0.5).abs_diff_eq(Quat::from_rotation_y(0.5), 1e-6));
     assert!(Track::new(vec![0.0, 0.0], vec![1.0f32, 2.0], Interp::Linear, false).is_err());
     assert!(Track::new(vec![], Vec::<f32>::new(), Interp::Linear, false).is_err());

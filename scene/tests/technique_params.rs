@@ -14,7 +14,10 @@ const BASE: &str = "technique = \"isg\"\n[camera]\neye = [0, 1, 3]\ntarget = [0,
 
 #[test]
 fn parameters_are_read_as_text_and_bad_types_are_errors() {
-    let p = write("ok.toml", &format!("{BASE}[technique_params]\nlobes = 8\nepsilon = 0.02\nshadows = false\nmode = \"fast\"\n"));
+    let p = write(
+        "ok.toml",
+        &format!("{BASE}[technique_params]\nlobes = 8\nepsilon = 0.02\nshadows = false\nmode = \"fast\"\n"),
+    );
     let s = Scene::load(&p).unwrap();
     let got: Vec<_> = s.technique_params.iter().map(|(k, v)| format!("{k}={v}")).collect();
     assert_eq!(got, ["epsilon=0.02", "lobes=8", "mode=fast", "shadows=false"]);

@@ -32,8 +32,21 @@ pub fn with_env(s: &Scene, w: usize, h: usize, f: impl Fn(usize, usize) -> [f32;
 
 /// Renders `scene` with `technique` at the given times (seconds, in order) and returns every
 /// finished frame's images.
-pub fn render_times(scene: &Scene, technique: &str, w: u32, h: u32, times: &[f32], validation: bool) -> (Renderer, Vec<FrameImages>) {
-    let settings = RenderSettings { width: w, height: h, technique: Some(technique.into()), technique_params: Some(scene.technique_params.clone()), ..Default::default() };
+pub fn render_times(
+    scene: &Scene,
+    technique: &str,
+    w: u32,
+    h: u32,
+    times: &[f32],
+    validation: bool,
+) -> (Renderer, Vec<FrameImages>) {
+    let settings = RenderSettings {
+        width: w,
+        height: h,
+        technique: Some(technique.into()),
+        technique_params: Some(scene.technique_params.clone()),
+        ..Default::default()
+    };
     let mut r = Renderer::new_headless(scene, settings, validation).expect("renderer");
     let mut out = Vec::new();
     let mut prev = None;

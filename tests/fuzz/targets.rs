@@ -19,9 +19,18 @@ pub fn load(name: &str, bytes: &[u8]) -> Result<(), String> {
         "scene_toml" => {
             let text = std::str::from_utf8(bytes).map_err(|e| e.to_string())?;
             // relative files resolve under a directory that does not exist
-            penumbra_scene::format::parse_toml_with(Path::new("/nonexistent-fuzz/s.toml"), text, &LoadOptions::default(), &budget).map(drop).map_err(s)
+            penumbra_scene::format::parse_toml_with(
+                Path::new("/nonexistent-fuzz/s.toml"),
+                text,
+                &LoadOptions::default(),
+                &budget,
+            )
+            .map(drop)
+            .map_err(s)
         }
-        "gltf" => penumbra_scene::gltf_load::load_bytes_with(path, bytes, Path::new("/nonexistent-fuzz"), &budget).map(drop).map_err(s),
+        "gltf" => penumbra_scene::gltf_load::load_bytes_with(path, bytes, Path::new("/nonexistent-fuzz"), &budget)
+            .map(drop)
+            .map_err(s),
         "exr" => Environment::from_exr_bytes_with(path, bytes, &budget).map(drop).map_err(s),
         "hdr" => Environment::from_hdr_bytes_with(path, bytes, &budget).map(drop).map_err(s),
         "png" => Texture::from_bytes_with(path, bytes, true, &budget).map(drop).map_err(s),

@@ -78,7 +78,13 @@ fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32
     for (k, v) in params {
         s.technique_params.insert(k.clone(), v.clone());
     }
-    let settings = RenderSettings { width: w, height: h, technique: Some("avs".into()), technique_params: Some(s.technique_params.clone()), ..Default::default() };
+    let settings = RenderSettings {
+        width: w,
+        height: h,
+        technique: Some("avs".into()),
+        technique_params: Some(s.technique_params.clone()),
+        ..Default::default()
+    };
     let mut r = Renderer::new_headless(&s, settings, false)?;
     // two frames (t - 1/30, t): G-buffer culling uses the previous frame's flags; the second is
     // measured
@@ -123,7 +129,16 @@ struct McRun {
     last: (f64, f64, u32),
 }
 
-fn render_mc(scene: &Scene, w: u32, h: u32, t: f32, frames: u32, reference: &Image, avs_ms: f64, avs_rel: f64) -> Result<McRun> {
+fn render_mc(
+    scene: &Scene,
+    w: u32,
+    h: u32,
+    t: f32,
+    frames: u32,
+    reference: &Image,
+    avs_ms: f64,
+    avs_rel: f64,
+) -> Result<McRun> {
     let settings = RenderSettings { width: w, height: h, technique: Some("mc".into()), ..Default::default() };
     let mut r = Renderer::new_headless(scene, settings, false)?;
     let mut out = Vec::new();
@@ -188,11 +203,21 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
     let mut cull_rows = Vec::new();
     for path in &scenes {
         let scene = load(path)?;
-        let opts = ReferenceOptions { width: w, height: h, spp: args.spp, time: Some(args.time), mode: Mode::Exact, progress: true, ..Default::default() };
+        let opts = ReferenceOptions {
+            width: w,
+            height: h,
+            spp: args.spp,
+            time: Some(args.time),
+            mode: Mode::Exact,
+            progress: true,
+            ..Default::default()
+        };
         let reference = reference_render(&scene, &opts)?.radiance;
         let a = render_avs(&scene, &base, w, h, args.time, &reference)?;
         let mc = render_mc(&scene, w, h, args.time, args.mc_frames, &reference, a.total, a.rel_rmse)?;
-        let same = mc.at_time.map_or(format!("not reached in {} frames", mc.last.2), |(p, r, f)| format!("{p:.2} / {r:.3} ({f})"));
+        let same = mc
+            .at_time
+            .map_or(format!("not reached in {} frames", mc.last.2), |(p, r, f)| format!("{p:.2} / {r:.3} ({f})"));
         let reach = mc.to_error.map_or(
             format!("not reached in {} frames (last {:.2} dB / {:.3})", mc.last.2, mc.last.0, mc.last.1),
             |(ms, f)| format!("{ms:.0} ({f}), {:.3}x the avs time", ms / a.total.max(1e-9)),
@@ -219,7 +244,20 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
         let off = render_avs(&scene, &p, w, h, args.time, &reference)?;
         cull_rows.push(format!(
             "| {} | {} | {} / {} | {:.1} / {:.1} | {:.1} / {:.1} | {} / {} | {:.2} / {:.2} | {:.3} / {:.3} |",
-            scene.name, a.dormant, off.traced, a.traced, off.t_v, a.t_v, off.t_s, a.t_s, off.rays, a.rays, off.psnr, a.psnr, off.rel_rmse, a.rel_rmse
+            scene.name,
+            a.dormant,
+            off.traced,
+            a.traced,
+            off.t_v,
+            a.t_v,
+            off.t_s,
+            a.t_s,
+            off.rays,
+            a.rays,
+            off.psnr,
+            a.psnr,
+            off.rel_rmse,
+            a.rel_rmse
         ));
         if first.is_none() {
             first = Some((scene, reference));
@@ -234,7 +272,8 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
     if let Some((scene, reference)) = &first {
         // adf (part A's adaptive cells per pixel and lobe) costs about a millisecond per lobe on
         // lavapipe: only at tiny sizes
-        let modes: &[&str] = if w * h <= 32 * 24 { &["axis", "cells", "table", "adf"] } else { &["axis", "cells", "table"] };
+        let modes: &[&str] =
+            if w * h <= 32 * 24 { &["axis", "cells", "table", "adf"] } else { &["axis", "cells", "table"] };
         println!("\n## Integration modes on {} (second frame; t_I = the avs_shade pass)", scene.name);
         println!("| integration | t_I ms | PSNR dB | relRMSE |");
         println!("|---|---|---|---|");
@@ -249,7 +288,10 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
         return Ok(());
     }
     let (scene, reference) = first.context("no scene")?;
-    println!("\n## Visibility maps on {}: adaptive vs every texel traced (t_V = visibility passes of all rounds)", scene.name);
+    println!(
+        "\n## Visibility maps on {}: adaptive vs every texel traced (t_V = visibility passes of all rounds)",
+        scene.name
+    );
     println!("| r | adaptive t_V ms | rays | brute force t_V ms | rays | ratio |");
     println!("|---|---|---|---|---|---|");
     let mut fig7 = Vec::new();
@@ -269,7 +311,11 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
         let frame = scene.at(args.time, Some(t0));
         let (tris, _, no_shadow) = penumbra_passes::kdtree::world_triangles_shading(&scene, &frame)?;
         let tris: Vec<[glam::Vec3; 3]> = tris.iter().zip(&no_shadow).filter(|(_, ns)| !**ns).map(|(t, _)| *t).collect();
-        let pool = penumbra_passes::avs::vertex_pool(&scene, &frame, &penumbra_passes::avs::PoolPlan::vertices_only(&scene, &frame)?)?;
+        let pool = penumbra_passes::avs::vertex_pool(
+            &scene,
+            &frame,
+            &penumbra_passes::avs::PoolPlan::vertices_only(&scene, &frame)?,
+        )?;
         let offset = penumbra_passes::avs::ray_offset(&pool);
         hc.run(&mut engine, &tris, &ad.sample_points, offset, r, false)?;
         let hr = hc.run(&mut engine, &tris, &ad.sample_points, offset, r, false)?;
@@ -289,7 +335,14 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
         ));
         p.push(("adaptive".into(), "false".into()));
         let bf = render_avs(&scene, &p, w, h, args.time, &reference)?;
-        println!("| {r} | {:.1} | {} | {:.1} | {} | {:.2} |", ad.t_v, ad.rays, bf.t_v, bf.rays, bf.t_v / ad.t_v.max(1e-9));
+        println!(
+            "| {r} | {:.1} | {} | {:.1} | {} | {:.2} |",
+            ad.t_v,
+            ad.rays,
+            bf.t_v,
+            bf.rays,
+            bf.t_v / ad.t_v.max(1e-9)
+        );
     }
     println!(
         "\n## Fig. 7 on {}: visibility-map generation, this method vs rasterized hemicubes (shadow maps), same sample points (second frame, culled), {} triangles",

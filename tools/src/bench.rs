@@ -130,7 +130,13 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
             .technique_params
             .clone()
             .filter(|_| penumbra_passes::registry::info(name).is_some_and(|i| i.takes_params()));
-        let settings = RenderSettings { width: gw, height: gh, technique: Some(name.to_string()), technique_params, ..Default::default() };
+        let settings = RenderSettings {
+            width: gw,
+            height: gh,
+            technique: Some(name.to_string()),
+            technique_params,
+            ..Default::default()
+        };
         let mut r = Renderer::new_headless(scene, settings, false)?;
         device.get_or_insert_with(|| (r.context().device_name.clone(), r.context().driver_info()));
         let frame = scene.at(t, Some(t));
@@ -375,14 +381,21 @@ pub fn run_volumetric(args: &VolumetricArgs, scene: &Scene) -> Result<()> {
         crate::plot::write_chart(path, &chart, &series)?;
         println!("wrote {}", path.display());
     } else if let Some(path) = &args.chart {
-        let line = |name: &str, ms: &dyn Fn(&penumbra_passes::volumetric::bench::VolBenchFrame) -> f64| crate::plot::Series {
-            name: name.into(),
-            points: report.frames.iter().map(|f| (f.frame as f64, ms(f))).collect(),
-            labels: vec![],
-        };
-        let series = [line("temporal (masked re-march)", &|f| f.temporal_total_ms), line("full (every pixel)", &|f| f.full_total_ms)];
+        let line =
+            |name: &str, ms: &dyn Fn(&penumbra_passes::volumetric::bench::VolBenchFrame) -> f64| crate::plot::Series {
+                name: name.into(),
+                points: report.frames.iter().map(|f| (f.frame as f64, ms(f))).collect(),
+                labels: vec![],
+            };
+        let series = [
+            line("temporal (masked re-march)", &|f| f.temporal_total_ms),
+            line("full (every pixel)", &|f| f.full_total_ms),
+        ];
         let chart = crate::plot::Chart {
-            title: format!("{}: volumetric GPU ms per frame, {width}x{height} (overall {:.2}x)", report.scene, report.speedup),
+            title: format!(
+                "{}: volumetric GPU ms per frame, {width}x{height} (overall {:.2}x)",
+                report.scene, report.speedup
+            ),
             x_label: "frame".into(),
             y_label: "GPU ms of the vol_* passes".into(),
             log_x: false,
@@ -410,7 +423,14 @@ pub fn run_trace(args: &TraceArgs, scene: &Scene) -> Result<()> {
     let (width, height) = parse_size(&args.size)?;
     let ctx = penumbra::engine::Context::new(&Default::default())?;
     println!("device: {} ({})", ctx.device_name, ctx.driver_info());
-    let report = penumbra_passes::trace_bench::bench_trace(&ctx, &penumbra::shader_library(), scene, width, height, args.incoherent)?;
+    let report = penumbra_passes::trace_bench::bench_trace(
+        &ctx,
+        &penumbra::shader_library(),
+        scene,
+        width,
+        height,
+        args.incoherent,
+    )?;
     println!("{report}");
     Ok(())
 }
@@ -518,7 +538,10 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
         use penumbra_math::shadow_field::haar::{raw_maps, CubeTable, HaarField};
         let table = CubeTable::new(n.clamp(2, 64));
         let r0 = args.params.resolution.min(32);
-        println!("all frequency (Haar, 5% kept, 6x{0}x{0} cube maps, R = {r0}, {1} shells):", table.n, args.params.shells);
+        println!(
+            "all frequency (Haar, 5% kept, 6x{0}x{0} cube maps, R = {r0}, {1} shells):",
+            table.n, args.params.shells
+        );
         let (mut tf, mut ta) = (0usize, 0usize);
         for (mi, m) in scene.meshes.iter().enumerate() {
             if m.indices.len() < 3 || report.fields.get(mi).is_some_and(|r| r.shared_with.is_some()) {
@@ -541,7 +564,12 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
             tf += f.bytes();
             ta += a.bytes();
         }
-        println!("total all-frequency: fixed {:.1} KB, adaptive {:.1} KB ({:.0}% smaller)", tf as f64 / 1024.0, ta as f64 / 1024.0, 100.0 * (1.0 - ta as f64 / tf.max(1) as f64));
+        println!(
+            "total all-frequency: fixed {:.1} KB, adaptive {:.1} KB ({:.0}% smaller)",
+            tf as f64 / 1024.0,
+            ta as f64 / 1024.0,
+            100.0 * (1.0 - ta as f64 / tf.max(1) as f64)
+        );
     }
     if args.no_images {
         return Ok(());
@@ -549,7 +577,15 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
     // Image errors against the CPU reference (exact mode) of the same frame, every variant
     // rendered through the renderer (fields from the precompute cache the bench just filled).
     let (width, height) = parse_size(&args.size)?;
-    let ropts = ReferenceOptions { width, height, spp: args.spp, time: Some(args.time), mode: Mode::Exact, progress: true, ..Default::default() };
+    let ropts = ReferenceOptions {
+        width,
+        height,
+        spp: args.spp,
+        time: Some(args.time),
+        mode: Mode::Exact,
+        progress: true,
+        ..Default::default()
+    };
     let reference = reference_render(scene, &ropts).context("reference render")?;
     println!(
         "image errors at {width}x{height}, t = {} s, against the CPU reference ({} spp, {:.1} s, noise {:.2e}):",
@@ -561,12 +597,23 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
     for (label, technique, params) in sf_variants(!scene.lights.is_empty()) {
         let mut s = scene.clone();
         s.technique_params = params.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
-        for (k, v) in [("shells", args.params.shells.to_string()), ("resolution", args.params.resolution.to_string()), ("map_res", args.params.map_res.to_string()), ("threshold", args.params.threshold.to_string())] {
+        for (k, v) in [
+            ("shells", args.params.shells.to_string()),
+            ("resolution", args.params.resolution.to_string()),
+            ("map_res", args.params.map_res.to_string()),
+            ("threshold", args.params.threshold.to_string()),
+        ] {
             if technique != "env" {
                 s.technique_params.insert(k.into(), v);
             }
         }
-        let settings = RenderSettings { width, height, technique: Some(technique.to_string()), technique_params: Some(s.technique_params.clone()), ..Default::default() };
+        let settings = RenderSettings {
+            width,
+            height,
+            technique: Some(technique.to_string()),
+            technique_params: Some(s.technique_params.clone()),
+            ..Default::default()
+        };
         let mut r = Renderer::new_headless(&s, settings, false).with_context(|| format!("variant {label}"))?;
         let frame = s.at(args.time, Some(args.time));
         let mut out = Vec::new();
@@ -605,13 +652,27 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
         crate::plot::write_chart(path, &chart, &series)?;
         println!("wrote {}", path.display());
     }
-    if let (Some(a), Some(f)) = (images.iter().find(|(l, _)| *l == "adaptive pixel"), images.iter().find(|(l, _)| *l == "fixed pixel")) {
+    if let (Some(a), Some(f)) =
+        (images.iter().find(|(l, _)| *l == "adaptive pixel"), images.iter().find(|(l, _)| *l == "fixed pixel"))
+    {
         let c = compare(&f.1, "fixed", &a.1, "adaptive")?;
-        println!("adaptive vs fixed (pixel): PSNR {}  relRMSE {:.4}  FLIP {:.4}", c.psnr_db.map_or("inf".into(), |p| format!("{p:.2}")), c.rel_rmse, c.flip_mean);
+        println!(
+            "adaptive vs fixed (pixel): PSNR {}  relRMSE {:.4}  FLIP {:.4}",
+            c.psnr_db.map_or("inf".into(), |p| format!("{p:.2}")),
+            c.rel_rmse,
+            c.flip_mean
+        );
     }
-    if let (Some(a), Some(f)) = (images.iter().find(|(l, _)| *l == "adaptive vertex"), images.iter().find(|(l, _)| *l == "fixed vertex")) {
+    if let (Some(a), Some(f)) =
+        (images.iter().find(|(l, _)| *l == "adaptive vertex"), images.iter().find(|(l, _)| *l == "fixed vertex"))
+    {
         let c = compare(&f.1, "fixed", &a.1, "adaptive")?;
-        println!("adaptive vs fixed (vertex): PSNR {}  relRMSE {:.4}  FLIP {:.4}", c.psnr_db.map_or("inf".into(), |p| format!("{p:.2}")), c.rel_rmse, c.flip_mean);
+        println!(
+            "adaptive vs fixed (vertex): PSNR {}  relRMSE {:.4}  FLIP {:.4}",
+            c.psnr_db.map_or("inf".into(), |p| format!("{p:.2}")),
+            c.rel_rmse,
+            c.flip_mean
+        );
     }
     Ok(())
 }

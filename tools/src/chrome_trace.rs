@@ -18,10 +18,8 @@ use std::time::Instant;
 
 /// The trace of `frames` (frame number, timeline), in submission order.
 pub fn events(frames: &[(u64, FrameTimeline)]) -> Value {
-    let origin: Option<Instant> = frames
-        .iter()
-        .flat_map(|(_, t)| t.cpu_spans.iter().map(|s| s.start).chain(t.submitted))
-        .min();
+    let origin: Option<Instant> =
+        frames.iter().flat_map(|(_, t)| t.cpu_spans.iter().map(|s| s.start).chain(t.submitted)).min();
     let us = |i: Instant| origin.map_or(0.0, |o| i.saturating_duration_since(o).as_secs_f64() * 1e6);
     let mut ev = vec![
         json!({"name": "process_name", "ph": "M", "pid": 1, "args": {"name": "CPU"}}),

@@ -68,7 +68,9 @@ fn par_map<T: Sync, U: Send>(items: &[T], f: impl Fn(usize, &T) -> U + Sync) -> 
         let handles: Vec<_> = items
             .chunks(chunk)
             .enumerate()
-            .map(|(c, part)| s.spawn(move || part.iter().enumerate().map(|(i, x)| f(c * chunk + i, x)).collect::<Vec<U>>()))
+            .map(|(c, part)| {
+                s.spawn(move || part.iter().enumerate().map(|(i, x)| f(c * chunk + i, x)).collect::<Vec<U>>())
+            })
             .collect();
         handles.into_iter().flat_map(|h| h.join().expect("worker thread")).collect()
     })
@@ -96,7 +98,9 @@ fn par_map_each<T: Sync, U: Send>(items: &[T], f: impl Fn(&T) -> U + Sync) -> Ve
 
 fn bar(n: u64, msg: &str) -> ProgressBar {
     let pb = ProgressBar::new(n);
-    pb.set_style(ProgressStyle::with_template("{msg:>28} [{bar:40}] {pos}/{len} {elapsed}").unwrap().progress_chars("=> "));
+    pb.set_style(
+        ProgressStyle::with_template("{msg:>28} [{bar:40}] {pos}/{len} {elapsed}").unwrap().progress_chars("=> "),
+    );
     pb.set_message(msg.to_string());
     pb
 }
@@ -201,20 +205,20 @@ pub fn run(args: &HsdtArgs) -> Result<()> {
             let full = VisMap::filled(r, true);
             let pb = bar(cases.len() as u64, &format!("r={r} lambda={lambda}: integrals"));
             let errs: Vec<(f64, f64, f64, f64)> = par_map_each(&cases, |(mi, m, g)| {
-                    let view = SsdfView { r, values: &gpu[*mi] };
-                    let norm = brute_force(&full, g, true, false).max(1e-300);
-                    let bf = brute_force(m, g, true, false);
-                    let t0 = Instant::now();
-                    let c = visible_cells(&view, g, true);
-                    let tc = t0.elapsed().as_secs_f64();
-                    let norm_sg = brute_force(&full, g, true, true).max(1e-300);
-                    let bfa = brute_force(m, g, true, true);
-                    let t0 = Instant::now();
-                    let a = visible_axis(&view, &table, g, true);
-                    let ta = t0.elapsed().as_secs_f64();
-                    pb.inc(1);
-                    ((a - bfa).abs() / norm_sg, (c - bf).abs() / norm, ta, tc)
-                });
+                let view = SsdfView { r, values: &gpu[*mi] };
+                let norm = brute_force(&full, g, true, false).max(1e-300);
+                let bf = brute_force(m, g, true, false);
+                let t0 = Instant::now();
+                let c = visible_cells(&view, g, true);
+                let tc = t0.elapsed().as_secs_f64();
+                let norm_sg = brute_force(&full, g, true, true).max(1e-300);
+                let bfa = brute_force(m, g, true, true);
+                let t0 = Instant::now();
+                let a = visible_axis(&view, &table, g, true);
+                let ta = t0.elapsed().as_secs_f64();
+                pb.inc(1);
+                ((a - bfa).abs() / norm_sg, (c - bf).abs() / norm, ta, tc)
+            });
             pb.finish();
             let k = errs.len() as f64;
             int_rows.push((
@@ -245,20 +249,20 @@ pub fn run(args: &HsdtArgs) -> Result<()> {
         }
         let ssdf_words: Vec<u32> = gpu.iter().flat_map(|v| pack_ssdf_f16(v)).collect();
         let mut integrate_run = |lobes: &[[f32; 4]], params_a: &[[f32; 4]]| -> Result<(f64, f64)> {
-        let params_b: Vec<[f32; 4]> = params_a.iter().map(|p| [p[0], p[1], p[2], 2.0]).collect();
-        let mut g = Graph::new();
-        let sb = g.create_buffer_init("ssdf", bytes_of(&ssdf_words));
-        let tb = g.create_buffer_init("table", bytes_of(&table.data));
-        let lb = g.create_buffer_init("lobes", bytes_of(&lobes));
-        let pa = g.create_buffer_init("params_a", bytes_of(&params_a));
-        let pbuf = g.create_buffer_init("params_b", bytes_of(&params_b));
-        let oa = integ.add(&mut g, "integrate_axis", sb, tb, lb, pa, q, r);
-        let ob = integ.add(&mut g, "integrate_cells", sb, tb, lb, pbuf, q, r);
-        add_copy_to_readback(&mut g, oa, "oa", q as u64 * 8);
-        add_copy_to_readback(&mut g, ob, "ob", q as u64 * 8);
-        engine.submit(g)?;
-        let o = engine.drain()?.pop().ok_or_else(|| anyhow!("no frame output"))?;
-        Ok((gpu_ms(&o, &["integrate_axis"]) * 1e3 / q as f64, gpu_ms(&o, &["integrate_cells"]) * 1e3 / q as f64))
+            let params_b: Vec<[f32; 4]> = params_a.iter().map(|p| [p[0], p[1], p[2], 2.0]).collect();
+            let mut g = Graph::new();
+            let sb = g.create_buffer_init("ssdf", bytes_of(&ssdf_words));
+            let tb = g.create_buffer_init("table", bytes_of(&table.data));
+            let lb = g.create_buffer_init("lobes", bytes_of(&lobes));
+            let pa = g.create_buffer_init("params_a", bytes_of(&params_a));
+            let pbuf = g.create_buffer_init("params_b", bytes_of(&params_b));
+            let oa = integ.add(&mut g, "integrate_axis", sb, tb, lb, pa, q, r);
+            let ob = integ.add(&mut g, "integrate_cells", sb, tb, lb, pbuf, q, r);
+            add_copy_to_readback(&mut g, oa, "oa", q as u64 * 8);
+            add_copy_to_readback(&mut g, ob, "ob", q as u64 * 8);
+            engine.submit(g)?;
+            let o = engine.drain()?.pop().ok_or_else(|| anyhow!("no frame output"))?;
+            Ok((gpu_ms(&o, &["integrate_axis"]) * 1e3 / q as f64, gpu_ms(&o, &["integrate_cells"]) * 1e3 / q as f64))
         };
         integrate_run(&lobes, &params_a)?; // warm-up
         let (ua, ub) = integrate_run(&lobes, &params_a)?;
@@ -276,7 +280,14 @@ pub fn run(args: &HsdtArgs) -> Result<()> {
     println!("HSDT speed ({} maps per resolution; t_S = GPU time of hsdt_rows + hsdt_cols, timestamps)", n);
     println!(
         "{:>4} {:>12} {:>16} {:>18} {:>18} {:>9} {:>12} {:>12}",
-        "r", "t_S us/pt", "t_S ms/1000 pts", "CPU all cores ms/1k", "CPU 1 core ms/1k", "speedup", "fp16 max", "fp16 mean"
+        "r",
+        "t_S us/pt",
+        "t_S ms/1000 pts",
+        "CPU all cores ms/1k",
+        "CPU 1 core ms/1k",
+        "speedup",
+        "fp16 max",
+        "fp16 mean"
     );
     for (r, n, t_s, ca, c1, fm, fmean) in &speed_rows {
         let per = t_s / *n as f64;

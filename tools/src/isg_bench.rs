@@ -94,7 +94,11 @@ pub fn run_isg(args: &IsgArgs, scene: &Scene) -> Result<()> {
         "ISG on '{}' at {}{}, t = {:.2} s; reference {} spp in {:.1} s",
         scene.name,
         args.size,
-        if args.supersample > 1 { format!(" (GPU at {0}x{0} supersampling, box-filtered)", args.supersample) } else { String::new() },
+        if args.supersample > 1 {
+            format!(" (GPU at {0}x{0} supersampling, box-filtered)", args.supersample)
+        } else {
+            String::new()
+        },
         report["time_s"].as_f64().unwrap_or(0.0),
         args.spp,
         report["reference"]["seconds"].as_f64().unwrap_or(0.0)
@@ -140,7 +144,8 @@ pub fn run_isg(args: &IsgArgs, scene: &Scene) -> Result<()> {
         for r in ["reference", "reference_sg"] {
             let Ok(reference) = read(r) else { continue };
             let c = compare(&reference, r, &img, name)?;
-            let mean = reference.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64 / 3.0).sum::<f64>() / reference.pixels.len().max(1) as f64;
+            let mean = reference.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64 / 3.0).sum::<f64>()
+                / reference.pixels.len().max(1) as f64;
             cells.push(format!("{:.2}%", 100.0 * c.rmse / mean.max(1e-12)));
         }
         println!("| {name} | {} |", cells.join(" | "));

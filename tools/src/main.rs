@@ -16,17 +16,17 @@ use std::process::ExitCode;
 mod avs_bench;
 mod bench;
 mod chrome_trace;
+mod hsdt_bench;
 mod isg_bench;
 mod matrix;
 mod pareto;
-mod hsdt_bench;
 mod plot;
 mod soak;
 mod spheres;
 mod tune;
-mod vv_bench;
 mod view;
 mod vv;
+mod vv_bench;
 
 #[derive(Parser)]
 #[command(name = "penumbra", version, about = "Vulkan rendering of dynamic scenes under all-frequency lighting", long_about = None)]
@@ -205,11 +205,20 @@ pub struct SceneOverrides {
 }
 
 /// `--max-error`: replaces the scene's technique and parameters with the tuned choice.
-fn apply_max_error(mut scene: Scene, path: Option<&Path>, o: &SceneOverrides, width: u32, height: u32) -> Result<Scene> {
+fn apply_max_error(
+    mut scene: Scene,
+    path: Option<&Path>,
+    o: &SceneOverrides,
+    width: u32,
+    height: u32,
+) -> Result<Scene> {
     let Some(e) = o.max_error else { return Ok(scene) };
     let opts = tune::TuneOptions::for_render(e, o.pareto.clone(), width, height);
     if opts.size != (width, height) {
-        eprintln!("note: --max-error measures errors at {}x{} (renders above 160x120 are measured smaller)", opts.size.0, opts.size.1);
+        eprintln!(
+            "note: --max-error measures errors at {}x{} (renders above 160x120 are measured smaller)",
+            opts.size.0, opts.size.1
+        );
     }
     let choice = tune::tune(path, &scene, &opts)?;
     eprintln!("note: --max-error {e}: {}", choice.describe(e));
@@ -278,7 +287,11 @@ fn apply_overrides(
 }
 
 /// A renderer for `scene` (its errors keep their kind: see [`exit_code`]).
-fn new_renderer(ctx: std::sync::Arc<penumbra::engine::Context>, scene: &Scene, settings: RenderSettings) -> Result<Renderer> {
+fn new_renderer(
+    ctx: std::sync::Arc<penumbra::engine::Context>,
+    scene: &Scene,
+    settings: RenderSettings,
+) -> Result<Renderer> {
     Ok(Renderer::new(ctx, scene, settings)?)
 }
 
@@ -380,7 +393,8 @@ fn render(args: &RenderArgs, limits: &Limits) -> Result<()> {
     let mut timelines = Vec::new();
     let mut prev_t = None;
     // A progress bar on terminals only (hidden in CI and pipes).
-    let bar = indicatif::ProgressBar::with_draw_target(Some(args.frames as u64), indicatif::ProgressDrawTarget::stderr());
+    let bar =
+        indicatif::ProgressBar::with_draw_target(Some(args.frames as u64), indicatif::ProgressDrawTarget::stderr());
     bar.set_style(
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames, {elapsed} (eta {eta})")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
@@ -433,11 +447,20 @@ fn render(args: &RenderArgs, limits: &Limits) -> Result<()> {
             .as_array()
             .map(|a| {
                 a.iter()
-                    .map(|p| (p["pass"].as_str().unwrap_or("?").to_string(), p["gpu_ms"]["median_ms"].as_f64().unwrap_or(f64::NAN)))
+                    .map(|p| {
+                        (
+                            p["pass"].as_str().unwrap_or("?").to_string(),
+                            p["gpu_ms"]["median_ms"].as_f64().unwrap_or(f64::NAN),
+                        )
+                    })
                     .collect()
             })
             .unwrap_or_default();
-        let title = format!("{}: GPU ms per pass (median over the frames that ran it), {}", scene.name, r.context().device_name);
+        let title = format!(
+            "{}: GPU ms per pass (median over the frames that ran it), {}",
+            scene.name,
+            r.context().device_name
+        );
         let path = args.out.join("profile.png");
         match plot::write_bars(&path, &title, "ms", &bars) {
             Ok(()) => println!("wrote {}", path.display()),

@@ -249,8 +249,13 @@ pub(crate) fn render_technique(
 ) -> Result<Run> {
     let ss = args.supersample.max(1);
     let s = scene.clone();
-    let mut settings =
-        RenderSettings { width: w * ss, height: h * ss, technique: Some(name.to_string()), technique_params: params, ..Default::default() };
+    let mut settings = RenderSettings {
+        width: w * ss,
+        height: h * ss,
+        technique: Some(name.to_string()),
+        technique_params: params,
+        ..Default::default()
+    };
     let (_, p) = penumbra::resolve_technique(&s, &settings)?;
     settings.technique_params = Some(measured_params(name, p));
     let t_create = Instant::now();
@@ -298,7 +303,16 @@ fn fmt_opt(v: Option<f64>, digits: usize) -> String {
 
 /// The converged reference of `scene`'s frame `frame` at `w` x `h` that the matrix and `bench
 /// pareto` compare with (exact mode, to `noise` RMSE over the mean or `max_spp`).
-pub(crate) fn converge_options(scene: &Scene, w: u32, h: u32, ss: u32, frame: u32, fps: f32, noise: f64, max_spp: u32) -> ConvergeOptions {
+pub(crate) fn converge_options(
+    scene: &Scene,
+    w: u32,
+    h: u32,
+    ss: u32,
+    frame: u32,
+    fps: f32,
+    noise: f64,
+    max_spp: u32,
+) -> ConvergeOptions {
     ConvergeOptions {
         base: ReferenceOptions {
             width: w,
@@ -330,7 +344,10 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
             let mut v = Vec::new();
             for t in list.split(',').map(str::trim).filter(|s| !s.is_empty()) {
                 v.push(registry::info(t).ok_or_else(|| {
-                    crate::bad(format!("--techniques: '{t}' is not a technique (known: {})", registry::names().join(", ")))
+                    crate::bad(format!(
+                        "--techniques: '{t}' is not a technique (known: {})",
+                        registry::names().join(", ")
+                    ))
                 })?);
             }
             v
@@ -429,7 +446,9 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
                 let t0 = Instant::now();
                 let errors_before = ctx.validation.error_count();
                 let messages_before = ctx.validation.errors().len();
-                let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| render_technique(&ctx, &scene, t.name, None, args, w, h)));
+                let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    render_technique(&ctx, &scene, t.name, None, args, w, h)
+                }));
                 match run {
                     Ok(Ok(run)) => {
                         let c = compare(&reference.radiance, "reference", &run.image, t.name)?;
@@ -483,7 +502,8 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
                             cell.validation_errors = Some(n);
                             if n > 0 {
                                 fails.push(format!("{n} validation error(s)"));
-                                let msgs: Vec<String> = ctx.validation.errors().into_iter().skip(messages_before).take(3).collect();
+                                let msgs: Vec<String> =
+                                    ctx.validation.errors().into_iter().skip(messages_before).take(3).collect();
                                 invalid.push((format!("{} x {}", scene.name, t.name), msgs));
                             }
                         }
@@ -514,7 +534,12 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
                                 Some(false) => "FAIL",
                                 None => "baseline",
                             };
-                            tiles.push((t.name.to_string(), Some(run.image), format!("{:.3} {label}", c.rmse_rel_mean), cell.pass));
+                            tiles.push((
+                                t.name.to_string(),
+                                Some(run.image),
+                                format!("{:.3} {label}", c.rmse_rel_mean),
+                                cell.pass,
+                            ));
                         }
                     }
                     Ok(Err(e)) => {
@@ -523,7 +548,10 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
                         cell.pass = Some(false);
                     }
                     Err(p) => {
-                        let msg = p.downcast_ref::<String>().cloned().or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()));
+                        let msg = p
+                            .downcast_ref::<String>()
+                            .cloned()
+                            .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()));
                         cell.status = "error".into();
                         cell.reason = Some(format!("panicked: {}", msg.unwrap_or_default()));
                         cell.pass = Some(false);
@@ -544,7 +572,8 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
         sheet.push((scene.name.clone(), tiles));
     }
     let json = args.out.join("matrix.json");
-    std::fs::write(&json, serde_json::to_string_pretty(&matrix)? + "\n").with_context(|| format!("writing {}", json.display()))?;
+    std::fs::write(&json, serde_json::to_string_pretty(&matrix)? + "\n")
+        .with_context(|| format!("writing {}", json.display()))?;
     let md = args.out.join("matrix.md");
     std::fs::write(&md, table_md(&matrix, &techniques)).with_context(|| format!("writing {}", md.display()))?;
     let png = args.out.join("matrix.png");
@@ -557,7 +586,10 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
     println!("{passing} cells pass, {failing} fail, {} not judged", matrix.cells.len() - passing - failing);
     for r in &matrix.references {
         if r.noise_rmse_rel_mean > args.noise {
-            println!("warning: reference of {} reached noise {:.4} only (target {}, {} spp)", r.scene, r.noise_rmse_rel_mean, args.noise, r.spp);
+            println!(
+                "warning: reference of {} reached noise {:.4} only (target {}, {} spp)",
+                r.scene, r.noise_rmse_rel_mean, args.noise, r.spp
+            );
         }
     }
     if !invalid.is_empty() {
@@ -574,7 +606,9 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
         let mut list = known.clone();
         // Replace the entries of the cells this run judged; keep the others (other sizes, or
         // cells of scenes and techniques not run this time).
-        list.cell.retain(|k| k.size != size || !matrix.cells.iter().any(|c| c.scene == k.scene && c.technique == k.technique));
+        list.cell.retain(|k| {
+            k.size != size || !matrix.cells.iter().any(|c| c.scene == k.scene && c.technique == k.technique)
+        });
         for c in matrix.cells.iter().filter(|c| c.pass == Some(false)) {
             list.cell.push(KnownCell {
                 size: size.clone(),
@@ -735,7 +769,12 @@ fn display_rgb8(img: &Image, key: f32) -> Vec<u8> {
 
 /// The contact sheet: one row per scene, the reference then each technique, each tile labelled
 /// with its technique, rmse_rel_mean and verdict (red frame: fails).
-fn contact_sheet(path: &Path, rows: &[(String, Vec<(String, Option<Image>, String, Option<bool>)>)], w: u32, h: u32) -> Result<()> {
+fn contact_sheet(
+    path: &Path,
+    rows: &[(String, Vec<(String, Option<Image>, String, Option<bool>)>)],
+    w: u32,
+    h: u32,
+) -> Result<()> {
     use plotters::prelude::*;
     crate::plot::register_font()?;
     let label_h = 30u32;
@@ -766,7 +805,10 @@ fn contact_sheet(path: &Path, rows: &[(String, Vec<(String, Option<Image>, Strin
                             let sx = ((tx as f32 / scale) as u32).min(w - 1);
                             let sy = ((ty as f32 / scale) as u32).min(h - 1);
                             let i = ((sy * w + sx) * 3) as usize;
-                            root.draw_pixel((x0 + tx as i32, y0 + ty as i32), &RGBColor(rgb[i], rgb[i + 1], rgb[i + 2]))?;
+                            root.draw_pixel(
+                                (x0 + tx as i32, y0 + ty as i32),
+                                &RGBColor(rgb[i], rgb[i + 1], rgb[i + 2]),
+                            )?;
                         }
                     }
                 } else {
@@ -780,8 +822,15 @@ fn contact_sheet(path: &Path, rows: &[(String, Vec<(String, Option<Image>, Strin
                     Some(false) => RGBColor(230, 60, 60),
                     None => RGBColor(150, 150, 150),
                 };
-                root.draw(&Rectangle::new([(x0, y0), (x0 + tile_w as i32 - 1, y0 + tile_h as i32 - 1)], colour.stroke_width(2)))?;
-                root.draw(&Text::new(name.clone(), (x0 + 2, y0 + tile_h as i32 + 2), font(12.0, RGBColor(235, 235, 235))))?;
+                root.draw(&Rectangle::new(
+                    [(x0, y0), (x0 + tile_w as i32 - 1, y0 + tile_h as i32 - 1)],
+                    colour.stroke_width(2),
+                ))?;
+                root.draw(&Text::new(
+                    name.clone(),
+                    (x0 + 2, y0 + tile_h as i32 + 2),
+                    font(12.0, RGBColor(235, 235, 235)),
+                ))?;
                 root.draw(&Text::new(label.clone(), (x0 + 2, y0 + tile_h as i32 + 15), font(12.0, colour)))?;
             }
         }
@@ -857,7 +906,10 @@ mod tests {
         let back: KnownList = toml::from_str(&text).unwrap();
         assert_eq!(back.cell.len(), 2);
         // The table names every cell's verdict.
-        let md = table_md(&m, &[registry::info("env").unwrap(), registry::info("avs").unwrap(), registry::info("isg").unwrap()]);
+        let md = table_md(
+            &m,
+            &[registry::info("env").unwrap(), registry::info("avs").unwrap(), registry::info("isg").unwrap()],
+        );
         assert!(md.contains("**FAIL**") && md.contains("pass") && md.contains("| a |"), "{md}");
     }
 }

@@ -181,9 +181,25 @@ pub struct Target<'a> {
 impl<'a> Target<'a> {
     /// Loads (or renders and caches) the converged reference of `scene` (read from a file holding
     /// `bytes`, named `stem`) at `size`.
-    pub fn new(ctx: &'a Arc<Context>, scene: &'a Scene, bytes: &[u8], stem: &str, size: (u32, u32), measure: Measure) -> Result<Self> {
+    pub fn new(
+        ctx: &'a Arc<Context>,
+        scene: &'a Scene,
+        bytes: &[u8],
+        stem: &str,
+        size: (u32, u32),
+        measure: Measure,
+    ) -> Result<Self> {
         let (w, h) = size;
-        let copts = crate::matrix::converge_options(scene, w, h, measure.supersample, measure.frame, measure.fps, measure.noise, measure.max_spp);
+        let copts = crate::matrix::converge_options(
+            scene,
+            w,
+            h,
+            measure.supersample,
+            measure.frame,
+            measure.fps,
+            measure.noise,
+            measure.max_spp,
+        );
         let reference = load_or_render(scene, bytes, stem, &copts, Some(&measure.cache))
             .with_context(|| format!("reference of {} at {w}x{h}", scene.name))?;
         eprintln!("{w}x{h}: reference {} spp, noise {:.4}", reference.meta.spp, reference.meta.noise_rmse_rel_mean);
@@ -299,7 +315,12 @@ pub fn run(args: &ParetoArgs) -> Result<()> {
         for t in &techniques {
             for params in configurations(t) {
                 done += 1;
-                eprint!("  [{done}/{total}] {} {} ({:.0} s so far) ... ", t.name, label(&params), started.elapsed().as_secs_f64());
+                eprint!(
+                    "  [{done}/{total}] {} {} ({:.0} s so far) ... ",
+                    t.name,
+                    label(&params),
+                    started.elapsed().as_secs_f64()
+                );
                 match target.point(t.name, &params)? {
                     Ok(p) => {
                         eprintln!("{:.1} ms/frame, rmse/mean {:.4}", p.frame_ms, p.rmse_rel_mean);
@@ -321,10 +342,13 @@ pub fn run(args: &ParetoArgs) -> Result<()> {
 /// Writes `pareto.json`, `pareto.md` and the charts of `fronts` into `out` (series in registry
 /// order).
 pub fn write_outputs(fronts: &[Front], out: &std::path::Path) -> Result<()> {
-    let techniques: Vec<&registry::TechniqueInfo> =
-        registry::REGISTRY.iter().filter(|t| fronts.iter().any(|f| f.points.iter().any(|p| p.technique == t.name))).collect();
+    let techniques: Vec<&registry::TechniqueInfo> = registry::REGISTRY
+        .iter()
+        .filter(|t| fronts.iter().any(|f| f.points.iter().any(|p| p.technique == t.name)))
+        .collect();
     let json = out.join("pareto.json");
-    std::fs::write(&json, serde_json::to_string_pretty(fronts)? + "\n").with_context(|| format!("writing {}", json.display()))?;
+    std::fs::write(&json, serde_json::to_string_pretty(fronts)? + "\n")
+        .with_context(|| format!("writing {}", json.display()))?;
     let md = out.join("pareto.md");
     std::fs::write(&md, table_md(fronts)).with_context(|| format!("writing {}", md.display()))?;
     for (i, f) in fronts.iter().enumerate() {
@@ -416,7 +440,8 @@ pub(crate) mod tests {
 
     #[test]
     fn the_front_keeps_the_undominated_points() {
-        let mut p = vec![pt("a", 1.0, 0.5), pt("b", 2.0, 0.2), pt("c", 3.0, 0.3), pt("d", 10.0, 0.05), pt("e", 2.0, 0.2)];
+        let mut p =
+            vec![pt("a", 1.0, 0.5), pt("b", 2.0, 0.2), pt("c", 3.0, 0.3), pt("d", 10.0, 0.05), pt("e", 2.0, 0.2)];
         mark_front(&mut p);
         let on: Vec<bool> = p.iter().map(|p| p.on_front).collect();
         // c is beaten by b on both; b and its twin e are both kept

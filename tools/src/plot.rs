@@ -89,7 +89,9 @@ pub fn write_chart(path: &Path, chart: &Chart, series: &[Series]) -> Result<()> 
         bail!("{}: no finite point to plot", path.display());
     }
     // A log axis within one decade gets no tick labels: such data is drawn on a linear axis.
-    let log_x = chart.log_x && all().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max) > 10.0 * all().map(|p| p.0).fold(f64::INFINITY, f64::min);
+    let log_x = chart.log_x
+        && all().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max)
+            > 10.0 * all().map(|p| p.0).fold(f64::INFINITY, f64::min);
     let (Some(xr), Some(yr)) = (range(all().map(|p| p.0), log_x), range(all().map(|p| p.1), false)) else {
         bail!("{}: no finite point to plot", path.display());
     };
@@ -128,7 +130,14 @@ fn legend_corner(series: &[Series], xr: (f64, f64), yr: (f64, f64), log_x: bool)
     .unwrap_or(SeriesLabelPosition::LowerRight)
 }
 
-fn draw<X>(path: &Path, chart: &Chart, series: &[Series], x: X, yr: (f64, f64), corner: SeriesLabelPosition) -> Result<()>
+fn draw<X>(
+    path: &Path,
+    chart: &Chart,
+    series: &[Series],
+    x: X,
+    yr: (f64, f64),
+    corner: SeriesLabelPosition,
+) -> Result<()>
 where
     X: AsRangedCoord<Value = f64>,
     X::CoordDescType: ValueFormatter<f64>,
@@ -213,9 +222,12 @@ pub fn write_bars(path: &Path, title: &str, unit: &str, bars: &[(String, f64)]) 
             .map_err(|e| anyhow!("{e}"))?;
         let color = Palette99::pick(4).to_rgba();
         let top = |i: usize| (n - i) as f64;
-        c.draw_series(bars.iter().enumerate().filter(|(_, b)| ok(b.1)).map(|(i, b)| {
-            Rectangle::new([(0.0, top(i) - 0.15), (b.1, top(i) - 0.85)], color.filled())
-        }))
+        c.draw_series(
+            bars.iter()
+                .enumerate()
+                .filter(|(_, b)| ok(b.1))
+                .map(|(i, b)| Rectangle::new([(0.0, top(i) - 0.15), (b.1, top(i) - 0.85)], color.filled())),
+        )
         .map_err(|e| anyhow!("{e}"))?;
         let text = TextStyle::from((FAMILY, 12)).color(&BLACK).pos(Pos::new(HPos::Left, VPos::Center));
         c.draw_series(bars.iter().enumerate().map(|(i, b)| {

@@ -74,14 +74,30 @@ pub fn rss_bytes() -> u64 {
 
 /// Renders `frames` frames of `scene` with `technique` at `w` x `h`, sampling memory every
 /// `every` frames and at the warm-up frame and the last.
-pub fn soak_one(ctx: &std::sync::Arc<Context>, scene: &Scene, technique: &str, frames: u32, warmup: u32, w: u32, h: u32, max_rss_growth: u64) -> Result<Run> {
+pub fn soak_one(
+    ctx: &std::sync::Arc<Context>,
+    scene: &Scene,
+    technique: &str,
+    frames: u32,
+    warmup: u32,
+    w: u32,
+    h: u32,
+    max_rss_growth: u64,
+) -> Result<Run> {
     let settings = RenderSettings { width: w, height: h, technique: Some(technique.to_string()), ..Default::default() };
     let mut r = Renderer::new(ctx.clone(), scene, settings)?;
     let every = (frames / 50).max(1);
     let mut samples = Vec::new();
     let sample = |k: u32, r: &Renderer| {
         let (alloc, n, reserved) = r.context().memory_report();
-        Sample { frame: k, rss_bytes: rss_bytes(), gpu_allocated_bytes: alloc, gpu_allocations: n, gpu_reserved_bytes: reserved, pooled_transients: r.engine.pooled() }
+        Sample {
+            frame: k,
+            rss_bytes: rss_bytes(),
+            gpu_allocated_bytes: alloc,
+            gpu_allocations: n,
+            gpu_reserved_bytes: reserved,
+            pooled_transients: r.engine.pooled(),
+        }
     };
     let fps = 30.0;
     let start = Instant::now();
@@ -109,7 +125,15 @@ pub fn soak_one(ctx: &std::sync::Arc<Context>, scene: &Scene, technique: &str, f
     let gpu_first = peak(first, |s| s.gpu_allocated_bytes);
     let gpu_growth = peak(second, |s| s.gpu_allocated_bytes) - gpu_first;
     let flat = rss_growth <= max_rss_growth as i64 && gpu_growth <= (gpu_first / 50).max(1 << 20);
-    Ok(Run { technique: technique.to_string(), frames, ms_per_frame: ms, samples, rss_growth_bytes: rss_growth, gpu_growth_bytes: gpu_growth, flat })
+    Ok(Run {
+        technique: technique.to_string(),
+        frames,
+        ms_per_frame: ms,
+        samples,
+        rss_growth_bytes: rss_growth,
+        gpu_growth_bytes: gpu_growth,
+        flat,
+    })
 }
 
 fn mib(b: i64) -> f64 {
@@ -129,14 +153,23 @@ pub fn run(args: &SoakArgs, scene: &Scene) -> Result<()> {
     println!("soak: '{}' at {w}x{h}, {} frames per technique, flat after frame {} (RSS within {} MiB, device memory not growing)", scene.name, args.frames, args.warmup, args.max_rss_growth_mib);
     println!(
         "{:<20} {:>9} {:>12} {:>12} {:>12} {:>12} {:>10} {:>10} {:>6}",
-        "technique", "ms/frame", "RSS@warm MiB", "RSS@end MiB", "GPU@warm MiB", "GPU@end MiB", "RSS grew", "GPU grew", "flat"
+        "technique",
+        "ms/frame",
+        "RSS@warm MiB",
+        "RSS@end MiB",
+        "GPU@warm MiB",
+        "GPU@end MiB",
+        "RSS grew",
+        "GPU grew",
+        "flat"
     );
     for t in &techniques {
         if let Some(why) = registry::refusal(t.name, scene) {
             println!("{:<20} refused: {why}", t.name);
             continue;
         }
-        let run = soak_one(&ctx, scene, t.name, args.frames, args.warmup, w, h, max_growth).with_context(|| format!("soak of {}", t.name))?;
+        let run = soak_one(&ctx, scene, t.name, args.frames, args.warmup, w, h, max_growth)
+            .with_context(|| format!("soak of {}", t.name))?;
         let warm = run.samples.iter().find(|s| s.frame >= args.warmup).copied().unwrap_or(run.samples[0]);
         let last = *run.samples.last().unwrap();
         println!(
@@ -163,7 +196,8 @@ pub fn run(args: &SoakArgs, scene: &Scene) -> Result<()> {
         "runs": runs,
     });
     let path = args.out.join("soak.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&json)? + "\n").with_context(|| format!("writing {}", path.display()))?;
+    std::fs::write(&path, serde_json::to_string_pretty(&json)? + "\n")
+        .with_context(|| format!("writing {}", path.display()))?;
     println!("wrote {}", path.display());
     let grown: Vec<&str> = runs.iter().filter(|r| !r.flat).map(|r| r.technique.as_str()).collect();
     if !grown.is_empty() {

@@ -39,7 +39,8 @@ pub fn run(args: &SpheresArgs, scene: &Scene) -> Result<()> {
             .find(|o| scene.meshes.get(o.mesh).is_some_and(|m| m.is_closed()))
             .with_context(|| format!("{file}: no object has a closed mesh (sphere sets approximate solids)"))?,
     };
-    let mesh = scene.meshes.get(object.mesh).with_context(|| format!("{file}: object '{}' has no mesh", object.name))?;
+    let mesh =
+        scene.meshes.get(object.mesh).with_context(|| format!("{file}: object '{}' has no mesh", object.name))?;
     if !mesh.is_closed() {
         let e = mesh.edge_stats();
         anyhow::bail!(

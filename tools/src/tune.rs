@@ -176,7 +176,10 @@ fn nothing_within(scene: &Scene, max_error: f64, size: (u32, u32), points: &[Poi
         ),
         None => "; no configuration rendered".into(),
     };
-    crate::bad(format!("no technique reaches RMSE/mean <= {max_error} on '{}' at {}x{}{best}", scene.name, size.0, size.1))
+    crate::bad(format!(
+        "no technique reaches RMSE/mean <= {max_error} on '{}' at {}x{}{best}",
+        scene.name, size.0, size.1
+    ))
 }
 
 /// The cache of measured points of one scene file, size, frame and device.
@@ -202,7 +205,8 @@ impl PointCache {
         let h = fnv1a64(key.as_bytes(), fnv1a64(bytes, 0xcbf2_9ce4_8422_2325));
         let stem = penumbra_reference::converge::cache_stem(stem);
         let path = dir.join("points").join(format!("{stem}-{}x{}-f{}-{h:016x}.json", o.size.0, o.size.1, o.frame));
-        let points = std::fs::read_to_string(&path).ok().and_then(|t| serde_json::from_str(&t).ok()).unwrap_or_default();
+        let points =
+            std::fs::read_to_string(&path).ok().and_then(|t| serde_json::from_str(&t).ok()).unwrap_or_default();
         PointCache { path, points }
     }
 
@@ -242,10 +246,20 @@ fn from_pareto(file: &Path, scene: &Scene, o: &TuneOptions) -> Result<Choice> {
         return Err(crate::bad(format!("{}: measured on scene '{}', not '{}'", file.display(), f.scene, scene.name)));
     }
     let allowed: Option<Vec<&str>> = o.techniques.as_deref().map(|l| l.split(',').map(str::trim).collect());
-    let points: Vec<Point> =
-        f.points.iter().filter(|p| allowed.as_ref().map_or(true, |a| a.contains(&p.technique.as_str()))).cloned().collect();
+    let points: Vec<Point> = f
+        .points
+        .iter()
+        .filter(|p| allowed.as_ref().map_or(true, |a| a.contains(&p.technique.as_str())))
+        .cloned()
+        .collect();
     let p = cheapest_within(&points, o.max_error).ok_or_else(|| nothing_within(scene, o.max_error, o.size, &points))?;
-    Ok(Choice { point: p.clone(), size: o.size, source: format!("from {}", file.display()), device: f.device.clone(), frame: o.frame })
+    Ok(Choice {
+        point: p.clone(),
+        size: o.size,
+        source: format!("from {}", file.display()),
+        device: f.device.clone(),
+        frame: o.frame,
+    })
 }
 
 /// The cheapest configuration within `o.max_error` on `scene` (read from `path`, or the
@@ -363,7 +377,13 @@ pub fn tune(path: Option<&Path>, scene: &Scene, o: &TuneOptions) -> Result<Choic
     }
     mark_front(&mut points);
     let p = cheapest_within(&points, o.max_error).ok_or_else(|| nothing_within(scene, o.max_error, o.size, &points))?;
-    Ok(Choice { point: p.clone(), size: o.size, source: "measured".into(), device: ctx.device_name.clone(), frame: o.frame })
+    Ok(Choice {
+        point: p.clone(),
+        size: o.size,
+        source: "measured".into(),
+        device: ctx.device_name.clone(),
+        frame: o.frame,
+    })
 }
 
 /// Stores `choice` in the scene file at `path`: `technique`, `[technique_params]` (replaced)
@@ -437,10 +457,15 @@ mod tests {
     use super::*;
     use crate::pareto::tests::pt;
 
-
     #[test]
     fn the_cheapest_point_within_the_error_is_chosen() {
-        let p = vec![pt("env", 1.0, 0.5), pt("sm", 5.0, 0.15), pt("isg", 4.0, 0.19), pt("mc", 50.0, 0.04), pt("nan", 0.1, f64::NAN)];
+        let p = vec![
+            pt("env", 1.0, 0.5),
+            pt("sm", 5.0, 0.15),
+            pt("isg", 4.0, 0.19),
+            pt("mc", 50.0, 0.04),
+            pt("nan", 0.1, f64::NAN),
+        ];
         assert_eq!(cheapest_within(&p, 0.2).unwrap().technique, "isg");
         assert_eq!(cheapest_within(&p, 0.16).unwrap().technique, "sm");
         assert_eq!(cheapest_within(&p, 0.05).unwrap().technique, "mc");
@@ -473,7 +498,10 @@ mod tests {
         assert_eq!(v["technique"].as_str(), Some("mc"));
         assert_eq!(v["technique_params"]["spp"].as_integer(), Some(256));
         assert!(v["technique_params"].get("lobes").is_none(), "{text}");
-        assert!(text.contains("# my scene") && text.contains("RMSE/mean 0.0400") && text.contains("[camera]"), "{text}");
+        assert!(
+            text.contains("# my scene") && text.contains("RMSE/mean 0.0400") && text.contains("[camera]"),
+            "{text}"
+        );
         assert!(write_choice(&dir.join("m.glb"), &c, 0.05).is_err());
         std::fs::remove_dir_all(&dir).ok();
     }

@@ -96,7 +96,12 @@ pub fn view(args: &ViewArgs, limits: &penumbra_scene::Limits) -> Result<()> {
         return Err(bad("--screenshot needs --frames (interactively, press P)"));
     }
     let script = parse_keys(&args.keys).map_err(|e| bad(format!("--keys: {e}")))?;
-    let scene = apply_overrides(load_scene(args.scene.as_deref(), limits)?, &args.o.technique, &args.o.params, &args.o.volumetric)?;
+    let scene = apply_overrides(
+        load_scene(args.scene.as_deref(), limits)?,
+        &args.o.technique,
+        &args.o.params,
+        &args.o.volumetric,
+    )?;
     let scene = apply_max_error(scene, args.scene.as_deref(), &args.o, width, height)?;
     let settings = RenderSettings {
         width,

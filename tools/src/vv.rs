@@ -51,7 +51,14 @@ pub struct VvArgs {
 impl VvArgs {
     /// The parameters, validated (bad values are bad input).
     pub fn params(&self) -> std::result::Result<VvParams, String> {
-        let p = VvParams { resolution: self.resolution, refine_steps: self.refine_steps, tolerance_deg: self.tolerance, max_segment_deg: self.max_segment, max_link_deg: self.max_link, seed: self.seed };
+        let p = VvParams {
+            resolution: self.resolution,
+            refine_steps: self.refine_steps,
+            tolerance_deg: self.tolerance,
+            max_segment_deg: self.max_segment,
+            max_link_deg: self.max_link,
+            seed: self.seed,
+        };
         p.validate().map(|_| p)
     }
 }
@@ -64,7 +71,12 @@ pub fn scene_model(scene: &Scene, name: &str, refine: u32) -> std::result::Resul
 
 fn bar(len: u64, what: &str) -> indicatif::ProgressBar {
     let b = indicatif::ProgressBar::with_draw_target(Some(len), indicatif::ProgressDrawTarget::stderr());
-    b.set_style(indicatif::ProgressStyle::with_template(&format!("{what} {{bar:40}} {{pos}}/{{len}} {{elapsed}} (eta {{eta}})")).unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
+    b.set_style(
+        indicatif::ProgressStyle::with_template(&format!(
+            "{what} {{bar:40}} {{pos}}/{{len}} {{elapsed}} (eta {{eta}})"
+        ))
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
     b
 }
 
@@ -130,12 +142,24 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<std::result::Result<(), Strin
         report(&name, &d);
         report_disagreement(&model, &d);
         print_evaluation(args, &model, &d);
-        println!("{}: valid for {name} (format version {}, resolution {}, seed {})", file.display(), vv::FORMAT_VERSION, d.params.resolution, d.params.seed);
+        println!(
+            "{}: valid for {name} (format version {}, resolution {}, seed {})",
+            file.display(),
+            vv::FORMAT_VERSION,
+            d.params.resolution,
+            d.params.seed
+        );
         return Ok(Ok(()));
     }
-    let out = args.out.clone().unwrap_or_else(|| PathBuf::from(format!("{}.pvv", args.model.file_stem().map_or("model".into(), |s| s.to_string_lossy()))));
-    let bars = [bar(Stage::Visibility.total(&model), "visibility    "), bar(Stage::Correspondence.total(&model), "correspondence")];
-    let d = vv::compute(&model, &params, &|stage, n| bars[(stage == Stage::Correspondence) as usize].inc(n)).map_err(|e| anyhow!("{name}: {e}"))?;
+    let out = args.out.clone().unwrap_or_else(|| {
+        PathBuf::from(format!("{}.pvv", args.model.file_stem().map_or("model".into(), |s| s.to_string_lossy())))
+    });
+    let bars = [
+        bar(Stage::Visibility.total(&model), "visibility    "),
+        bar(Stage::Correspondence.total(&model), "correspondence"),
+    ];
+    let d = vv::compute(&model, &params, &|stage, n| bars[(stage == Stage::Correspondence) as usize].inc(n))
+        .map_err(|e| anyhow!("{name}: {e}"))?;
     bars.iter().for_each(|b| b.finish_and_clear());
     d.write(&out).map_err(|e| anyhow!(e))?;
     report(&name, &d);

@@ -58,10 +58,21 @@ struct Row {
 pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
     let (width, height) = parse_size(&args.size)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let opts = ReferenceOptions { width, height, spp: args.spp, time: Some(0.0), mode: Mode::Exact, progress: true, ..Default::default() };
+    let opts = ReferenceOptions {
+        width,
+        height,
+        spp: args.spp,
+        time: Some(0.0),
+        mode: Mode::Exact,
+        progress: true,
+        ..Default::default()
+    };
     let reference = reference_render(scene, &opts).context("reference render")?;
     reference.radiance.write_exr(args.out.join("reference.exr"))?;
-    println!("reference: {} spp in {:.2} s, mean relative standard error {:.2e}", args.spp, reference.render_seconds, reference.noise.mean_rel_std_error);
+    println!(
+        "reference: {} spp in {:.2} s, mean relative standard error {:.2e}",
+        args.spp, reference.render_seconds, reference.noise.mean_rel_std_error
+    );
     let data = VvSceneData::cached(scene, args.resolution, args.refine)?;
     println!(
         "precompute: {} vertices, {} triangles; visibility {:.2} s, {:.2} MB; correspondence {}",
@@ -69,7 +80,11 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
         data.model().triangle_count(),
         data.visibility_seconds,
         data.visibility_bytes as f64 / 1e6,
-        if data.corr.is_some() { format!("{:.2} s, {:.2} MB", data.correspondence_seconds, data.triple_bytes as f64 / 1e6) } else { "not available".into() }
+        if data.corr.is_some() {
+            format!("{:.2} s, {:.2} MB", data.correspondence_seconds, data.triple_bytes as f64 / 1e6)
+        } else {
+            "not available".into()
+        }
     );
     let mut configs: Vec<(String, Vec<(&str, String)>)> = Vec::new();
     for z in 1..=args.max_zeta.max(1) {
@@ -105,7 +120,13 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
             }
         };
         drop(tech);
-        let rs = RenderSettings { width, height, technique: Some("vv".into()), technique_params: Some(s.technique_params.clone()), ..Default::default() };
+        let rs = RenderSettings {
+            width,
+            height,
+            technique: Some("vv".into()),
+            technique_params: Some(s.technique_params.clone()),
+            ..Default::default()
+        };
         let mut r = Renderer::new(ctx, &s, rs)?;
         device.get_or_insert_with(|| (r.context().device_name.clone(), r.context().driver_info()));
         let frame = s.at(0.0, Some(0.0));
@@ -127,7 +148,10 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
         let tris = r.technique_stats::<VvStats>().and_then(|st| st.tessellated_triangles);
         drop(r);
         let psnr = c.psnr_db.unwrap_or(f64::INFINITY);
-        println!("{name:<22} {ms:>9.2} ms/frame  PSNR {psnr:>6.2}  triangles {}", tris.map_or("-".into(), |t| t.to_string()));
+        println!(
+            "{name:<22} {ms:>9.2} ms/frame  PSNR {psnr:>6.2}  triangles {}",
+            tris.map_or("-".into(), |t| t.to_string())
+        );
         rows.push(Row { config: name.clone(), ms, psnr, triangles: tris });
     }
     println!("\n| config | previous (eq. 19) ms | this (eq. 21) ms | ratio | PSNR prev | PSNR this | triangles prev | triangles this |");

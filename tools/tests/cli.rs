@@ -71,18 +71,25 @@ fn render_default_scene_writes_frames_dumps_and_profile() {
     let trace: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("trace.json")).unwrap()).unwrap();
     let ev = trace["traceEvents"].as_array().unwrap();
-    let spans = |cat: &str| -> Vec<&serde_json::Value> { ev.iter().filter(|e| e["ph"] == "X" && e["cat"] == cat).collect() };
+    let spans =
+        |cat: &str| -> Vec<&serde_json::Value> { ev.iter().filter(|e| e["ph"] == "X" && e["cat"] == cat).collect() };
     for name in ["build graph", "technique", "graph compile", "record", "queue submit", "fence wait"] {
         let n = spans("cpu").iter().filter(|e| e["name"] == name).count();
         assert_eq!(n, 2, "{name}: {n} spans");
     }
     let gpu = spans("gpu");
     for frame in [0, 1] {
-        let names: Vec<&str> = gpu.iter().filter(|e| e["args"]["frame"] == frame).map(|e| e["name"].as_str().unwrap()).collect();
+        let names: Vec<&str> =
+            gpu.iter().filter(|e| e["args"]["frame"] == frame).map(|e| e["name"].as_str().unwrap()).collect();
         assert!(names.contains(&"gbuffer") && names.contains(&"tonemap"), "frame {frame}: {names:?}");
     }
-    let end0 = gpu.iter().filter(|e| e["args"]["frame"] == 0).map(|e| e["ts"].as_f64().unwrap() + e["dur"].as_f64().unwrap()).fold(0.0, f64::max);
-    let start1 = gpu.iter().filter(|e| e["args"]["frame"] == 1).map(|e| e["ts"].as_f64().unwrap()).fold(f64::INFINITY, f64::min);
+    let end0 = gpu
+        .iter()
+        .filter(|e| e["args"]["frame"] == 0)
+        .map(|e| e["ts"].as_f64().unwrap() + e["dur"].as_f64().unwrap())
+        .fold(0.0, f64::max);
+    let start1 =
+        gpu.iter().filter(|e| e["args"]["frame"] == 1).map(|e| e["ts"].as_f64().unwrap()).fold(f64::INFINITY, f64::min);
     assert!(start1 >= end0 - 1e-6, "frame 1's GPU work starts after frame 0's: {start1} < {end0}");
     assert!(ev.iter().all(|e| e["ph"] != "X" || e["dur"].as_f64().unwrap() >= 0.0));
 }
@@ -116,12 +123,21 @@ fn bad_input_exits_2_with_the_file_and_problem() {
         &["render", draco.to_str().unwrap(), "--out", d.to_str().unwrap()],
         &["bunny-draco.glb", "KHR_draco_mesh_compression"],
     );
-    expect_bad_input(&["render", "--technique", "nope", "--out", d.to_str().unwrap()], &["unknown technique 'nope'", "registered", "avs"]);
+    expect_bad_input(
+        &["render", "--technique", "nope", "--out", d.to_str().unwrap()],
+        &["unknown technique 'nope'", "registered", "avs"],
+    );
     // the scene file names a technique the registry does not have
     let tech = d.join("tech.toml");
     std::fs::write(&tech, "technique = \"hsdt\"\n[camera]\neye = [0, 1, 2]\ntarget = [0, 0, 0]\n[[object]]\nmesh = { type = \"cube\", size = 1 }\n").unwrap();
-    expect_bad_input(&["render", tech.to_str().unwrap(), "--out", d.to_str().unwrap()], &["tech.toml", "unknown technique 'hsdt'"]);
-    expect_bad_input(&["render", "--technique", "env", "--param", "lobes=8", "--out", d.to_str().unwrap()], &["env", "takes no parameters"]);
+    expect_bad_input(
+        &["render", tech.to_str().unwrap(), "--out", d.to_str().unwrap()],
+        &["tech.toml", "unknown technique 'hsdt'"],
+    );
+    expect_bad_input(
+        &["render", "--technique", "env", "--param", "lobes=8", "--out", d.to_str().unwrap()],
+        &["env", "takes no parameters"],
+    );
     expect_bad_input(
         &["render", "--technique", "isg", "--param", "bogus=1", "--size", "16x12", "--out", d.to_str().unwrap()],
         &["unknown isg parameter 'bogus'"],
@@ -132,10 +148,25 @@ fn bad_input_exits_2_with_the_file_and_problem() {
     );
     // every bad parameter is named, not only the first
     expect_bad_input(
-        &["render", "--technique", "vv", "--param", "zeta=-1", "--param", "arcs=x", "--size", "16x12", "--out", d.to_str().unwrap()],
+        &[
+            "render",
+            "--technique",
+            "vv",
+            "--param",
+            "zeta=-1",
+            "--param",
+            "arcs=x",
+            "--size",
+            "16x12",
+            "--out",
+            d.to_str().unwrap(),
+        ],
         &["2 bad technique parameters", "zeta", "arcs"],
     );
-    expect_bad_input(&["bench", "avs", "--no-sweep", "--chart", d.join("c.png").to_str().unwrap()], &["--chart", "--no-sweep"]);
+    expect_bad_input(
+        &["bench", "avs", "--no-sweep", "--chart", d.join("c.png").to_str().unwrap()],
+        &["--chart", "--no-sweep"],
+    );
     expect_bad_input(&["render", "--param", "novalue", "--out", d.to_str().unwrap()], &["KEY=VALUE"]);
     expect_bad_input(&["render", "--size", "0x10", "--out", d.to_str().unwrap()], &["size"]);
     expect_bad_input(&["render", "--size", "abc", "--out", d.to_str().unwrap()], &["size"]);
@@ -162,12 +193,19 @@ fn hostile_sizes_exit_2_before_allocating() {
 "meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],"nodes":[{"mesh":0}],"scenes":[{"nodes":[0]}],"scene":0}"#,
     )
     .unwrap();
-    expect_bad_input(&["render", sparse.to_str().unwrap(), "--out", out.to_str().unwrap()], &["sparse.gltf", "too large", "--memory-budget"]);
+    expect_bad_input(
+        &["render", sparse.to_str().unwrap(), "--out", out.to_str().unwrap()],
+        &["sparse.gltf", "too large", "--memory-budget"],
+    );
     // a Radiance header claiming 100000 x 100000
     std::fs::write(d.join("huge.hdr"), b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 100000 +X 100000\n\0\0\0\0").unwrap();
     let env = d.join("env.toml");
-    std::fs::write(&env, "[camera]\neye = [0, 1, 4]\ntarget = [0, 0, 0]\n[environment]\nfile = \"huge.hdr\"\n").unwrap();
-    expect_bad_input(&["render", env.to_str().unwrap(), "--out", out.to_str().unwrap()], &["huge.hdr", "100000x100000"]);
+    std::fs::write(&env, "[camera]\neye = [0, 1, 4]\ntarget = [0, 0, 0]\n[environment]\nfile = \"huge.hdr\"\n")
+        .unwrap();
+    expect_bad_input(
+        &["render", env.to_str().unwrap(), "--out", out.to_str().unwrap()],
+        &["huge.hdr", "100000x100000"],
+    );
     // a real scene over a 1 MiB budget: the flag is honoured and named
     let falling = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/falling.toml");
     expect_bad_input(
@@ -175,7 +213,10 @@ fn hostile_sizes_exit_2_before_allocating() {
         &["too large", "budget of 1.0 MiB"],
     );
     expect_bad_input(&["render", "--size", "20000x10", "--out", out.to_str().unwrap()], &["20000x10"]);
-    expect_bad_input(&["reference", "--spp", "1", "--size", "8x6", "--out", d.join("r.exr").to_str().unwrap()], &["spp"]);
+    expect_bad_input(
+        &["reference", "--spp", "1", "--size", "8x6", "--out", d.join("r.exr").to_str().unwrap()],
+        &["spp"],
+    );
 }
 
 #[test]
@@ -187,7 +228,10 @@ fn help_documents_every_command_and_flag() {
     for name in penumbra_passes::registry::names() {
         assert!(t.contains(&format!("\n{name}\n")), "{name} missing: {t}");
     }
-    assert!(t.contains("e_max") && t.contains("default 0.10") && t.contains("volumetric") && t.contains("temporal, full"), "{t}");
+    assert!(
+        t.contains("e_max") && t.contains("default 0.10") && t.contains("volumetric") && t.contains("temporal, full"),
+        "{t}"
+    );
     let o = penumbra(&["--help"]);
     assert!(o.status.success());
     let t = text(&o);
@@ -236,9 +280,23 @@ fn bench_measures_techniques_against_the_reference() {
     // Supersampled GPU images are box-filtered to the reference's size: a wrong pixel mapping
     // would show as a PSNR collapse against the same ground truth.
     let out2 = tmp("bench-ss");
-    let o = penumbra(&["bench", "techniques", "--size", "32x24", "--spp", "16", "--frames", "1", "--supersample", "3", "--out", out2.to_str().unwrap()]);
+    let o = penumbra(&[
+        "bench",
+        "techniques",
+        "--size",
+        "32x24",
+        "--spp",
+        "16",
+        "--frames",
+        "1",
+        "--supersample",
+        "3",
+        "--out",
+        out2.to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", text(&o));
-    let b: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out2.join("bench.json")).unwrap()).unwrap();
+    let b: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out2.join("bench.json")).unwrap()).unwrap();
     assert_eq!(b["supersample"], 3);
     let ss_psnr = b["techniques"][0]["psnr_db"].as_f64().unwrap();
     assert!(ss_psnr > 20.0, "supersampled env PSNR {ss_psnr} dB (1x at 64x48: {psnr} dB)");
@@ -273,11 +331,24 @@ fn bench_trace_and_volumetric_run_and_report() {
     let o = penumbra(&["bench", "trace", "--size", "32x24", "--incoherent", "500"]);
     let t = text(&o);
     assert!(o.status.success(), "{t}");
-    assert!(t.contains("kd-tree:") && t.contains("obvhs") && t.contains("incoherent") && t.contains("shadow (hit points"), "{t}");
+    assert!(
+        t.contains("kd-tree:") && t.contains("obvhs") && t.contains("incoherent") && t.contains("shadow (hit points"),
+        "{t}"
+    );
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let vol = root.join("scenes/vol_dragon.toml");
     let chart = tmp("volumetric_chart").join("vol.png");
-    let o = penumbra(&["bench", "volumetric", vol.to_str().unwrap(), "--frames", "3", "--size", "48x36", "--chart", chart.to_str().unwrap()]);
+    let o = penumbra(&[
+        "bench",
+        "volumetric",
+        vol.to_str().unwrap(),
+        "--frames",
+        "3",
+        "--size",
+        "48x36",
+        "--chart",
+        chart.to_str().unwrap(),
+    ]);
     let t = text(&o);
     assert!(o.status.success(), "{t}");
     assert!(t.contains("overall speedup") && t.contains("missed pixels 0") && t.contains("whole frames"), "{t}");
@@ -286,8 +357,19 @@ fn bench_trace_and_volumetric_run_and_report() {
     let json = tmp("volumetric_chart").join("vol.json");
     let sweep_chart = tmp("volumetric_chart").join("sweep.png");
     let o = penumbra(&[
-        "bench", "volumetric", vol.to_str().unwrap(), "--frames", "4", "--size", "32x24", "--sweep", "1,4",
-        "--json", json.to_str().unwrap(), "--chart", sweep_chart.to_str().unwrap(),
+        "bench",
+        "volumetric",
+        vol.to_str().unwrap(),
+        "--frames",
+        "4",
+        "--size",
+        "32x24",
+        "--sweep",
+        "1,4",
+        "--json",
+        json.to_str().unwrap(),
+        "--chart",
+        sweep_chart.to_str().unwrap(),
     ]);
     let t = text(&o);
     assert!(o.status.success() && t.contains("reuse sweep") && sweep_chart.exists(), "{t}");
@@ -309,8 +391,20 @@ fn bench_trace_and_volumetric_run_and_report() {
     expect_bad_input(&["bench", "volumetric", no_medium.to_str().unwrap()], &["chess.toml", "no [medium]"]);
     let d = tmp("volumetric_flag");
     let gr = root.join("scenes/god_rays.toml");
-    expect_bad_input(&["render", gr.to_str().unwrap(), "--volumetric", "bogus", "--out", d.to_str().unwrap()], &["bogus"]);
-    let o = penumbra(&["render", gr.to_str().unwrap(), "--volumetric", "full", "--size", "48x36", "--out", d.to_str().unwrap()]);
+    expect_bad_input(
+        &["render", gr.to_str().unwrap(), "--volumetric", "bogus", "--out", d.to_str().unwrap()],
+        &["bogus"],
+    );
+    let o = penumbra(&[
+        "render",
+        gr.to_str().unwrap(),
+        "--volumetric",
+        "full",
+        "--size",
+        "48x36",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", text(&o));
     let g = std::fs::read_to_string(d.join("graph.txt")).unwrap();
     assert!(g.contains("vol_march") && !g.contains("vol_mask"), "full method has no mover mask:\n{g}");
@@ -326,8 +420,12 @@ fn shadow_field_precompute_and_bench() {
     args.extend(small);
     let o = penumbra(&args);
     assert!(o.status.success(), "{}", text(&o));
-    let files: Vec<_> = std::fs::read_dir(&d).unwrap().flatten().map(|e| e.file_name().into_string().unwrap()).collect();
-    assert!(files.iter().any(|f| f.ends_with(".adaptive.psf")) && files.iter().any(|f| f.ends_with(".fixed.psf")), "{files:?}");
+    let files: Vec<_> =
+        std::fs::read_dir(&d).unwrap().flatten().map(|e| e.file_name().into_string().unwrap()).collect();
+    assert!(
+        files.iter().any(|f| f.ends_with(".adaptive.psf")) && files.iter().any(|f| f.ends_with(".fixed.psf")),
+        "{files:?}"
+    );
     for f in &files {
         let bytes = std::fs::read(d.join(f)).unwrap();
         penumbra_math::shadow_field::ObjectField::from_bytes(&bytes).unwrap_or_else(|e| panic!("{f}: {e}"));
@@ -341,12 +439,39 @@ fn shadow_field_precompute_and_bench() {
     assert!(t.contains("per-shell R") && t.contains("GPU vs CPU") && t.contains("ms per frame"), "{t}");
     let missing = root.join("scenes/nope.toml");
     expect_bad_input(&["precompute", "shadow-field", missing.to_str().unwrap()], &["nope.toml"]);
-    expect_bad_input(&["bench", "shadow-fields", scene.to_str().unwrap(), "--resolution", "12"], &["resolution", "power of two"]);
+    expect_bad_input(
+        &["bench", "shadow-fields", scene.to_str().unwrap(), "--resolution", "12"],
+        &["resolution", "power of two"],
+    );
     expect_bad_input(&["precompute", "shadow-field", scene.to_str().unwrap(), "--shells", "0"], &["shells"]);
     // technique parameters: unknown keys and bad values
     let r = d.join("r");
-    expect_bad_input(&["render", scene.to_str().unwrap(), "--size", "16x12", "--out", r.to_str().unwrap(), "--param", "mode=sideways"], &["mode", "sideways"]);
-    expect_bad_input(&["render", scene.to_str().unwrap(), "--size", "16x12", "--out", r.to_str().unwrap(), "--param", "windw=hanning"], &["windw"]);
+    expect_bad_input(
+        &[
+            "render",
+            scene.to_str().unwrap(),
+            "--size",
+            "16x12",
+            "--out",
+            r.to_str().unwrap(),
+            "--param",
+            "mode=sideways",
+        ],
+        &["mode", "sideways"],
+    );
+    expect_bad_input(
+        &[
+            "render",
+            scene.to_str().unwrap(),
+            "--size",
+            "16x12",
+            "--out",
+            r.to_str().unwrap(),
+            "--param",
+            "windw=hanning",
+        ],
+        &["windw"],
+    );
 }
 
 /// `bench soak` (short: CI; the full 1000-frame run is a README command): host RSS and device

@@ -32,7 +32,9 @@ fn the_fuzz_corpus_loads_or_fails_cleanly() {
                 let r = std::panic::catch_unwind(|| targets::load(&t, &bytes));
                 let _ = tx.send(r);
             });
-            let r = rx.recv_timeout(Duration::from_secs(60)).unwrap_or_else(|_| panic!("{target}/{name}: no result within 60 s"));
+            let r = rx
+                .recv_timeout(Duration::from_secs(60))
+                .unwrap_or_else(|_| panic!("{target}/{name}: no result within 60 s"));
             let r = r.unwrap_or_else(|_| panic!("{target}/{name}: panicked"));
             if ["huge", "big", "sparse", "overcount"].iter().any(|p| name.starts_with(p)) {
                 let e = r.expect_err(&format!("{target}/{name} claims gigabytes but loaded"));

@@ -32,7 +32,20 @@ fn matrix(name: &str, extra: &[String]) -> serde_json::Value {
     let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
     let _ = std::fs::remove_dir_all(&out);
     let o = Command::new(env!("CARGO_BIN_EXE_penumbra"))
-        .args(["bench", "matrix", "--size", SIZE, "--supersample", "1", "--warmup", "1", "--frames", "1", "--check", "--validation"])
+        .args([
+            "bench",
+            "matrix",
+            "--size",
+            SIZE,
+            "--supersample",
+            "1",
+            "--warmup",
+            "1",
+            "--frames",
+            "1",
+            "--check",
+            "--validation",
+        ])
         .arg("--cache")
         .arg(repo().join("tests/matrix/references"))
         .arg("--known")
@@ -56,9 +69,14 @@ fn accuracy_matrix_agrees_with_the_known_failures() {
     let all = penumbra_passes::registry::names();
     let cheap: Vec<&str> = all.iter().copied().filter(|t| !EXPENSIVE.contains(t)).collect();
     let a = matrix("matrix_all_scenes", &["--techniques".into(), cheap.join(",")]);
-    let scene_files: Vec<String> =
-        EXPENSIVE_SCENES.iter().map(|s| repo().join("scenes").join(format!("{s}.toml")).display().to_string()).collect();
-    let b = matrix("matrix_expensive", &["--techniques".into(), EXPENSIVE.join(","), "--scenes".into(), scene_files.join(",")]);
+    let scene_files: Vec<String> = EXPENSIVE_SCENES
+        .iter()
+        .map(|s| repo().join("scenes").join(format!("{s}.toml")).display().to_string())
+        .collect();
+    let b = matrix(
+        "matrix_expensive",
+        &["--techniques".into(), EXPENSIVE.join(","), "--scenes".into(), scene_files.join(",")],
+    );
     let cells: Vec<&serde_json::Value> =
         a["cells"].as_array().unwrap().iter().chain(b["cells"].as_array().unwrap().iter()).collect();
     // Every built-in scene appears with every cheap technique, the chosen ones with every technique.
@@ -88,8 +106,20 @@ fn accuracy_matrix_agrees_with_the_known_failures() {
     }
     for c in &cells {
         for k in [
-            "scene", "technique", "status", "reason", "rmse_rel_mean", "rel_rmse", "shadow_recovered", "psnr", "flip", "gpu_ms",
-            "cpu_ms", "frame_ms", "budget", "pass",
+            "scene",
+            "technique",
+            "status",
+            "reason",
+            "rmse_rel_mean",
+            "rel_rmse",
+            "shadow_recovered",
+            "psnr",
+            "flip",
+            "gpu_ms",
+            "cpu_ms",
+            "frame_ms",
+            "budget",
+            "pass",
         ] {
             assert!(c.get(k).is_some(), "cell without {k}: {c}");
         }
@@ -136,13 +166,15 @@ fn pareto_falling(args: &[&str], out: &Path) -> std::process::Output {
 fn pareto_front_of_a_moving_scene() {
     let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("pareto_falling");
     let _ = std::fs::remove_dir_all(&out);
-    let o = pareto_falling(&["--techniques", "env,mc,shadowmaps", "--sizes", SIZE, "--warmup", "1", "--frames", "2"], &out);
+    let o =
+        pareto_falling(&["--techniques", "env,mc,shadowmaps", "--sizes", SIZE, "--warmup", "1", "--frames", "2"], &out);
     let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
     assert!(o.status.success(), "{text}");
     for f in ["pareto.json", "pareto.md", "pareto.png", &format!("pareto_{SIZE}.png")] {
         assert!(out.join(f).exists(), "missing {f}: {text}");
     }
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("pareto.json")).unwrap()).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("pareto.json")).unwrap()).unwrap();
     let fronts = v.as_array().unwrap();
     assert_eq!(fronts.len(), 1);
     let f = &fronts[0];
@@ -169,7 +201,9 @@ fn pareto_front_of_a_moving_scene() {
     }
     // more samples per pixel: mc's error falls
     let mc_err = |spp: &str| {
-        points.iter().find(|p| p["technique"] == "mc" && p["params"]["spp"] == spp).unwrap()["rmse_rel_mean"].as_f64().unwrap()
+        points.iter().find(|p| p["technique"] == "mc" && p["params"]["spp"] == spp).unwrap()["rmse_rel_mean"]
+            .as_f64()
+            .unwrap()
     };
     assert!(mc_err("64") < mc_err("1"), "{points:?}");
     // --from re-draws the table and charts from the JSON without measuring
@@ -184,7 +218,10 @@ fn pareto_front_of_a_moving_scene() {
         .output()
         .expect("run penumbra bench pareto --from");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert_eq!(std::fs::read_to_string(again.join("pareto.md")).unwrap(), std::fs::read_to_string(out.join("pareto.md")).unwrap());
+    assert_eq!(
+        std::fs::read_to_string(again.join("pareto.md")).unwrap(),
+        std::fs::read_to_string(out.join("pareto.md")).unwrap()
+    );
     assert!(again.join("pareto.png").exists());
 }
 
@@ -285,7 +322,10 @@ fn tune_measures_and_writes_the_choice() {
     let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
     assert!(o.status.success(), "{text}");
     // env's defaults and every shadowmaps configuration were measured
-    assert!(text.contains("env defaults") && text.contains("shadowmaps count=8") && text.contains("shadowmaps size=1024"), "{text}");
+    assert!(
+        text.contains("env defaults") && text.contains("shadowmaps count=8") && text.contains("shadowmaps size=1024"),
+        "{text}"
+    );
     assert!(text.contains("chose shadowmaps"), "{text}");
     let chose = text.lines().find(|l| l.starts_with("chose")).unwrap();
     let err: f64 = chose.split("RMSE/mean ").nth(1).unwrap().split_whitespace().next().unwrap().parse().unwrap();

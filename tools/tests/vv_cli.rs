@@ -5,7 +5,11 @@ use std::path::PathBuf;
 use std::process::{Command, Output};
 
 fn penumbra(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_penumbra")).args(args).current_dir(env!("CARGO_MANIFEST_DIR")).output().expect("run penumbra")
+    Command::new(env!("CARGO_BIN_EXE_penumbra"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("run penumbra")
 }
 
 fn text(o: &Output) -> String {
@@ -19,10 +23,17 @@ fn precompute_vv_writes_checks_and_rejects_bad_files() {
     let out = dir.join("coarse.pvv");
     let scene = "../scenes/coarse.toml";
     // the scene's meshes as given (--refine 0): the two-triangle floor stays two triangles
-    let o = penumbra(&["precompute", "vv", scene, "--resolution", "12", "--refine", "0", "--out", out.to_str().unwrap()]);
+    let o =
+        penumbra(&["precompute", "vv", scene, "--resolution", "12", "--refine", "0", "--out", out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", text(&o));
     let t = text(&o);
-    assert!(t.contains("257 vertices, 466 triangles") && t.contains("vectorized visibility:") && t.contains("triples") && t.contains("MB"), "{t}");
+    assert!(
+        t.contains("257 vertices, 466 triangles")
+            && t.contains("vectorized visibility:")
+            && t.contains("triples")
+            && t.contains("MB"),
+        "{t}"
+    );
     assert!(t.contains("eq. 21 vs eq. 19"), "{t}");
     // the file belongs to that model only: the default (refined) model is another one
     let o = penumbra(&["precompute", "vv", scene, "--check", out.to_str().unwrap()]);

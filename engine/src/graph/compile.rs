@@ -417,7 +417,9 @@ pub(crate) fn compile(g: &Graph) -> Result<CompiledGraph, GraphError> {
                 let stencil_mismatch = want_depth
                     && match u.access {
                         Access::DepthAttachmentWrite | Access::DepthAttachmentRead => has_stencil(d.format),
-                        Access::DepthStencilAttachmentWrite | Access::DepthStencilAttachmentRead => !has_stencil(d.format),
+                        Access::DepthStencilAttachmentWrite | Access::DepthStencilAttachmentRead => {
+                            !has_stencil(d.format)
+                        }
                         _ => false,
                     };
                 if is_depth_format(d.format) != want_depth || stencil_mismatch {

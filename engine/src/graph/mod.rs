@@ -13,13 +13,12 @@
 pub use crate::access;
 pub mod compile;
 
+pub use crate::resource::{BufferDesc, BufferHandle, GraphHandle, ImageDesc, ImageHandle};
 pub use access::{Access, AccessInfo, Applies};
 pub use compile::{Barrier, CompiledGraph, CompiledPass, GraphError, Problem, ResourceInfo, ResourceState};
-pub use crate::resource::{BufferDesc, BufferHandle, GraphHandle, ImageDesc, ImageHandle};
 
 use ash::vk;
 use std::fmt;
-
 
 /// Where a resource comes from.
 #[derive(Clone, Debug, PartialEq)]

@@ -1,8 +1,8 @@
 //! Graph tests that need no GPU: barriers, culling, validation, dumps.
 
 use super::compile::BarrierReason;
-use crate::dump;
 use super::*;
+use crate::dump;
 use ash::vk::{AccessFlags2 as A, ImageLayout as L, PipelineStageFlags2 as S};
 
 fn color(g: &mut Graph, name: &str) -> ImageHandle {

@@ -212,7 +212,9 @@ fn order_loop(ctx: &Ctx, mut v: Vec<[u32; 3]>, key: [u32; 3]) -> Vec<[u32; 3]> {
         let p = pos(&v[i], primary);
         let j = (i..v.len()).find(|&j| pos(&v[j], primary) != p).unwrap_or(v.len());
         let mut group = v[i..j].to_vec();
-        group.sort_by_key(|e| others.iter().zip(&refp).map(|(&k, &r)| (pos(e, k) + len(k) - r % len(k)) % len(k)).collect::<Vec<u32>>());
+        group.sort_by_key(|e| {
+            others.iter().zip(&refp).map(|(&k, &r)| (pos(e, k) + len(k) - r % len(k)) % len(k)).collect::<Vec<u32>>()
+        });
         if let Some(last) = group.last() {
             refp = others.iter().map(|&k| pos(last, k)).collect();
         }
@@ -302,9 +304,16 @@ pub fn rgb_tripoints(ents: &[Vec<u32>; 3], dirs: &[Vec<Vec3>; 3], seed: u64, cos
 
 /// Builds the output triple lists of every triangle; appends virtual points to `vis.points`.
 /// `progress(n)` is called with finished-triangle increments (total = 2 x triangle count).
-pub fn correspondence(model: &VvModel, topo: &Topology, vis: &mut VectorizedVisibility, params: &VvParams, progress: &(dyn Fn(u64) + Sync)) -> Result<(Correspondence, VvStats), String> {
+pub fn correspondence(
+    model: &VvModel,
+    topo: &Topology,
+    vis: &mut VectorizedVisibility,
+    params: &VvParams,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(Correspondence, VvStats), String> {
     let ntri = model.triangle_count();
-    let canon: Vec<[u32; 3]> = model.indices.chunks_exact(3).map(|t| [0, 1, 2].map(|k| topo.canon[t[k] as usize])).collect();
+    let canon: Vec<[u32; 3]> =
+        model.indices.chunks_exact(3).map(|t| [0, 1, 2].map(|k| topo.canon[t[k] as usize])).collect();
     let mut adj: HashMap<(u32, u32), Vec<u32>> = HashMap::new();
     for (t, c) in canon.iter().enumerate() {
         if c[0] == c[1] || c[1] == c[2] || c[0] == c[2] {
@@ -334,7 +343,8 @@ pub fn correspondence(model: &VvModel, topo: &Topology, vis: &mut VectorizedVisi
         }
     }
     let cos_link = (params.max_link_deg as f32).to_radians().cos();
-    let ctx = Ctx { vis: VectorizedVisibility { points: Vec::new(), ..vis.clone() }, info, canon, adj, centre, cos_link };
+    let ctx =
+        Ctx { vis: VectorizedVisibility { points: Vec::new(), ..vis.clone() }, info, canon, adj, centre, cos_link };
     let mut points = std::mem::take(&mut vis.points);
     let mut stats = VvStats::default();
 
@@ -474,7 +484,13 @@ pub fn correspondence(model: &VvModel, topo: &Topology, vis: &mut VectorizedVisi
             if l.e.contains(&NONE) {
                 continue;
             }
-            let key = l.e.map(|g| if ctx.is_real(g) { ctx.info[g as usize].0 } else { VIRTUAL_KEY | (g - ctx.vis.vertex_points) });
+            let key = l.e.map(|g| {
+                if ctx.is_real(g) {
+                    ctx.info[g as usize].0
+                } else {
+                    VIRTUAL_KEY | (g - ctx.vis.vertex_points)
+                }
+            });
             match groups.iter_mut().find(|(k, _)| *k == key) {
                 Some((_, v)) => v.push(l.e),
                 None => groups.push((key, vec![l.e])),
@@ -616,7 +632,12 @@ fn relax_triangle(
 /// `vis` gives the sequences (`seq_offsets`, `vertex_points`; its points are not read), `info`
 /// each vertex point's (sequence, position), `pole` the pole point of each slot's vertex.
 /// Returns the number of triples added.
-pub(crate) fn route_jumps(vis: &VectorizedVisibility, info: &[(u32, u32)], loops: &mut [Vec<[u32; 3]>], pole: [u32; 3]) -> usize {
+pub(crate) fn route_jumps(
+    vis: &VectorizedVisibility,
+    info: &[(u32, u32)],
+    loops: &mut [Vec<[u32; 3]>],
+    pole: [u32; 3],
+) -> usize {
     let is_real = |g: u32| g < vis.vertex_points;
     let succ = |g: u32| {
         let (s, p) = info[g as usize];
@@ -665,7 +686,9 @@ pub(crate) fn route_jumps(vis: &VectorizedVisibility, info: &[(u32, u32)], loops
             progress = false;
             for g in std::mem::take(&mut todo) {
                 let h = succ(g);
-                let find = |x: u32| loops.iter().enumerate().find_map(|(li, v)| v.iter().position(|e| e[k] == x).map(|i| (li, i)));
+                let find = |x: u32| {
+                    loops.iter().enumerate().find_map(|(li, v)| v.iter().position(|e| e[k] == x).map(|i| (li, i)))
+                };
                 if let Some((li, i)) = find(g) {
                     let (mut e, mut p) = (loops[li][i], loops[li][i]);
                     e[k] = h;
@@ -691,7 +714,16 @@ pub(crate) fn route_jumps(vis: &VectorizedVisibility, info: &[(u32, u32)], loops
 
 /// Best entity for the empty slot `c` of the partial link `e` in triangle `t`: Rule 2 (and Rule
 /// 1 when `strict`) hold, every real pair within `max_link_deg`, smallest eq. 22.
-fn best_completion(ctx: &Ctx, points: &[[f32; 4]], st: &TriState, t: usize, e: [u32; 3], c: usize, strict: bool, only: Option<u32>) -> Option<u32> {
+fn best_completion(
+    ctx: &Ctx,
+    points: &[[f32; 4]],
+    st: &TriState,
+    t: usize,
+    e: [u32; 3],
+    c: usize,
+    strict: bool,
+    only: Option<u32>,
+) -> Option<u32> {
     let filled_k: Vec<usize> = (0..3).filter(|&k| k != c && ctx.is_real(e[k])).collect();
     let filled: Vec<Vec3> = filled_k.iter().map(|&k| ctx.dir(t, points, e[k])).collect();
     if filled.is_empty() {
@@ -706,7 +738,10 @@ fn best_completion(ctx: &Ctx, points: &[[f32; 4]], st: &TriState, t: usize, e: [
         let mut v: Vec<u32> = st
             .links
             .iter()
-            .filter(|l| ctx.is_real(l.e[c]) && seqs.iter().any(|&(k, s)| ctx.is_real(l.e[k]) && ctx.info[l.e[k] as usize].0 == s))
+            .filter(|l| {
+                ctx.is_real(l.e[c])
+                    && seqs.iter().any(|&(k, s)| ctx.is_real(l.e[k]) && ctx.info[l.e[k] as usize].0 == s)
+            })
             .map(|l| ctx.info[l.e[c] as usize].0)
             .collect();
         v.sort_unstable();
@@ -725,7 +760,10 @@ fn best_completion(ctx: &Ctx, points: &[[f32; 4]], st: &TriState, t: usize, e: [
         // the filled slots (else a merged region would be counted once per group)
         if !strict
             && st.links.iter().any(|l| {
-                l.e[c] == x && filled_k.iter().any(|&k| ctx.is_real(l.e[k]) && ctx.info[l.e[k] as usize].0 != ctx.info[e[k] as usize].0)
+                l.e[c] == x
+                    && filled_k
+                        .iter()
+                        .any(|&k| ctx.is_real(l.e[k]) && ctx.info[l.e[k] as usize].0 != ctx.info[e[k] as usize].0)
             })
         {
             continue;
@@ -752,13 +790,22 @@ fn best_completion(ctx: &Ctx, points: &[[f32; 4]], st: &TriState, t: usize, e: [
 /// The virtual point standing for slot `c` of triangle `t` next to the sequence of the first
 /// real entity of `e`: the mean of that sequence's points (a position when all are positions,
 /// else the mean direction at the centre), so the loop collapses to it at vertex `c`.
-fn virtual_point(ctx: &Ctx, points: &[[f32; 4]], local: &mut Vec<[f32; 4]>, virt: &mut HashMap<(usize, u32), u32>, t: usize, c: usize, e: &[u32; 3]) -> u32 {
+fn virtual_point(
+    ctx: &Ctx,
+    points: &[[f32; 4]],
+    local: &mut Vec<[f32; 4]>,
+    virt: &mut HashMap<(usize, u32), u32>,
+    t: usize,
+    c: usize,
+    e: &[u32; 3],
+) -> u32 {
     let g = (0..3).filter(|&k| k != c).map(|k| e[k]).find(|&g| ctx.is_real(g)).expect("a link has a real entity");
     let s = ctx.info[g as usize].0;
     if let Some(&v) = virt.get(&(c, s)) {
         return v;
     }
-    let seq: Vec<[f32; 4]> = points[ctx.vis.seq_offsets[s as usize] as usize..ctx.vis.seq_offsets[s as usize + 1] as usize].to_vec();
+    let seq: Vec<[f32; 4]> =
+        points[ctx.vis.seq_offsets[s as usize] as usize..ctx.vis.seq_offsets[s as usize + 1] as usize].to_vec();
     let q = if seq.iter().all(|q| q[3] == 1.0) {
         let m = seq.iter().fold(Vec3::ZERO, |a, q| a + Vec3::new(q[0], q[1], q[2])) / seq.len() as f32;
         [m.x, m.y, m.z, 1.0]

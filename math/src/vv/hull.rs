@@ -21,7 +21,8 @@ pub struct Sites {
 /// the input order beyond ties), then perturbs each unique direction by at most ~`1e-7` rad
 /// with a hash of `seed` and its index (deterministic).
 pub fn sites(input: &[DVec3], seed: u64) -> Sites {
-    let mut order: Vec<usize> = (0..input.len()).filter(|&i| input[i].is_finite() && input[i].length_squared() > 0.5).collect();
+    let mut order: Vec<usize> =
+        (0..input.len()).filter(|&i| input[i].is_finite() && input[i].length_squared() > 0.5).collect();
     order.sort_by(|&a, &b| {
         let (p, q) = (input[a], input[b]);
         p.x.total_cmp(&q.x).then(p.y.total_cmp(&q.y)).then(p.z.total_cmp(&q.z)).then(a.cmp(&b))
@@ -93,7 +94,8 @@ pub fn convex_hull(p: &[DVec3]) -> Vec<[usize; 3]> {
         return Vec::new();
     }
     let i0 = 0;
-    let i1 = (1..n).max_by(|&a, &b| (p[a] - p[i0]).length_squared().total_cmp(&(p[b] - p[i0]).length_squared())).unwrap();
+    let i1 =
+        (1..n).max_by(|&a, &b| (p[a] - p[i0]).length_squared().total_cmp(&(p[b] - p[i0]).length_squared())).unwrap();
     let e = (p[i1] - p[i0]).normalize_or_zero();
     let line_d = |x: DVec3| {
         let w = x - p[i0];
@@ -145,7 +147,8 @@ pub fn convex_hull(p: &[DVec3]) -> Vec<[usize; 3]> {
             continue;
         }
         let x = p[i];
-        let visible: Vec<usize> = (0..faces.len()).filter(|&f| faces[f].alive && faces[f].n.dot(x) - faces[f].d > eps).collect();
+        let visible: Vec<usize> =
+            (0..faces.len()).filter(|&f| faces[f].alive && faces[f].n.dot(x) - faces[f].d > eps).collect();
         if visible.is_empty() {
             continue;
         }

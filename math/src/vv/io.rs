@@ -72,14 +72,27 @@ impl VvData {
         }
         let version = r.u32().map_err(err)?;
         if version != FORMAT_VERSION {
-            return Err(err(format!("format version {version}, this build reads version {FORMAT_VERSION} (re-run `penumbra precompute vv`)")));
+            return Err(err(format!(
+                "format version {version}, this build reads version {FORMAT_VERSION} (re-run `penumbra precompute vv`)"
+            )));
         }
         let model_hash = r.u64().map_err(err)?;
         let vertex_count = r.count("vertex count").map_err(err)?;
         let triangle_count = r.count("triangle count").map_err(err)?;
-        let params = VvParams { resolution: r.u32().map_err(err)?, refine_steps: r.u32().map_err(err)?, tolerance_deg: r.f32().map_err(err)?, max_segment_deg: r.f32().map_err(err)?, max_link_deg: r.f32().map_err(err)?, seed: r.u64().map_err(err)? };
+        let params = VvParams {
+            resolution: r.u32().map_err(err)?,
+            refine_steps: r.u32().map_err(err)?,
+            tolerance_deg: r.f32().map_err(err)?,
+            max_segment_deg: r.f32().map_err(err)?,
+            max_link_deg: r.f32().map_err(err)?,
+            seed: r.u64().map_err(err)?,
+        };
         params.validate().map_err(err)?;
-        let mut stats = VvStats { visibility_seconds: r.f64().map_err(err)?, correspondence_seconds: r.f64().map_err(err)?, ..Default::default() };
+        let mut stats = VvStats {
+            visibility_seconds: r.f64().map_err(err)?,
+            correspondence_seconds: r.f64().map_err(err)?,
+            ..Default::default()
+        };
         stats.voronoi_triples = r.u32().map_err(err)? as usize;
         stats.propagated_triples = r.u32().map_err(err)? as usize;
         stats.relaxed_triples = r.u32().map_err(err)? as usize;
@@ -92,7 +105,12 @@ impl VvData {
         if vertex_points > npoints {
             return Err(err(format!("{vertex_points} vertex points > {npoints} points")));
         }
-        let need = 16 * npoints as u64 + 4 * (nseq as u64 + 1) + 8 * vertex_count as u64 + 4 * (triangle_count as u64 + 1) + 4 * (nloops as u64 + 1) + 12 * ntriples as u64;
+        let need = 16 * npoints as u64
+            + 4 * (nseq as u64 + 1)
+            + 8 * vertex_count as u64
+            + 4 * (triangle_count as u64 + 1)
+            + 4 * (nloops as u64 + 1)
+            + 12 * ntriples as u64;
         let have = (b.len() - r.pos) as u64;
         if have < need {
             return Err(err(format!("truncated: {have} bytes of arrays, the header announces {need}")));
@@ -114,7 +132,11 @@ impl VvData {
         let vertex_seqs: Vec<[u32; 2]> = flat.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
         for (v, s) in vertex_seqs.iter().enumerate() {
             if s[0] as u64 + s[1] as u64 > nseq as u64 {
-                return Err(err(format!("vertex {v}: sequences {}..{} out of range ({nseq} sequences)", s[0], s[0] as u64 + s[1] as u64)));
+                return Err(err(format!(
+                    "vertex {v}: sequences {}..{} out of range ({nseq} sequences)",
+                    s[0],
+                    s[0] as u64 + s[1] as u64
+                )));
             }
         }
         let tri_offsets = r.u32s(triangle_count as usize + 1).map_err(err)?;
@@ -140,7 +162,8 @@ impl VvData {
 
     /// Fills the byte sizes of [`VvStats`] from the arrays.
     pub fn with_sizes(mut self) -> Self {
-        self.stats.visibility_bytes = self.vis.points.len() * 16 + self.vis.seq_offsets.len() * 4 + self.vis.vertex_seqs.len() * 8;
+        self.stats.visibility_bytes =
+            self.vis.points.len() * 16 + self.vis.seq_offsets.len() * 4 + self.vis.vertex_seqs.len() * 8;
         self.stats.triple_bytes = self.corr.triple_bytes();
         self
     }
@@ -160,7 +183,8 @@ impl VvData {
 
     /// Whether this data belongs to `model` (counts and hash).
     pub fn check_model(&self, model: &VvModel) -> Result<(), String> {
-        if self.vertex_count as usize != model.positions.len() || self.triangle_count as usize != model.triangle_count() {
+        if self.vertex_count as usize != model.positions.len() || self.triangle_count as usize != model.triangle_count()
+        {
             return Err(format!(
                 "made for a model of {} vertices / {} triangles, this one has {} / {}",
                 self.vertex_count,
@@ -207,7 +231,11 @@ struct Reader<'a> {
 
 impl Reader<'_> {
     fn take(&mut self, n: usize) -> Result<&[u8], String> {
-        let end = self.pos.checked_add(n).filter(|&e| e <= self.b.len()).ok_or_else(|| format!("truncated header (at byte {} of {})", self.pos, self.b.len()))?;
+        let end = self
+            .pos
+            .checked_add(n)
+            .filter(|&e| e <= self.b.len())
+            .ok_or_else(|| format!("truncated header (at byte {} of {})", self.pos, self.b.len()))?;
         let s = &self.b[self.pos..end];
         self.pos = end;
         Ok(s)

@@ -71,9 +71,9 @@ pub mod corr;
 pub mod hull;
 mod io;
 pub mod precompute;
-pub mod trace;
 #[cfg(test)]
 mod tests;
+pub mod trace;
 
 pub use io::FORMAT_VERSION;
 pub use precompute::{precompute_visibility, Topology};
@@ -106,7 +106,14 @@ pub struct VvParams {
 
 impl Default for VvParams {
     fn default() -> Self {
-        VvParams { resolution: 64, refine_steps: 6, tolerance_deg: 1.0, max_segment_deg: 20.0, max_link_deg: 45.0, seed: 1 }
+        VvParams {
+            resolution: 64,
+            refine_steps: 6,
+            tolerance_deg: 1.0,
+            max_segment_deg: 20.0,
+            max_link_deg: 45.0,
+            seed: 1,
+        }
     }
 }
 
@@ -394,7 +401,14 @@ fn fill_missing(v: &mut [Option<Vec3>], n: Vec3) {
 
 /// Interpolated vectorized visibility of triangle `t` (eq. 21) at barycentrics `lambda`, surface
 /// point `s` and unit normal `n`: one loop of unit directions per triple loop.
-pub fn interpolate(vis: &VectorizedVisibility, corr: &Correspondence, t: usize, lambda: [f32; 3], s: Vec3, n: Vec3) -> Vec<Vec<Vec3>> {
+pub fn interpolate(
+    vis: &VectorizedVisibility,
+    corr: &Correspondence,
+    t: usize,
+    lambda: [f32; 3],
+    s: Vec3,
+    n: Vec3,
+) -> Vec<Vec<Vec3>> {
     corr.triangle_loops(t)
         .map(|l| {
             corr.loop_triples(l)
@@ -536,9 +550,16 @@ pub fn compute(model: &VvModel, params: &VvParams, progress: &(dyn Fn(Stage, u64
 /// Cache file of `model` under `dir`: `<dir>/<name>-<model hash>-<params hash>.pvv` (`name`
 /// sanitized).
 pub fn cache_path(dir: &std::path::Path, name: &str, model: &VvModel, params: &VvParams) -> std::path::PathBuf {
-    let clean: String = name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect();
+    let clean: String =
+        name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect();
     let ph = {
-        let m = VvModel { positions: vec![Vec3::new(params.resolution as f32, params.refine_steps as f32, params.tolerance_deg), Vec3::new(params.max_segment_deg, params.max_link_deg, params.seed as f32)], ..Default::default() };
+        let m = VvModel {
+            positions: vec![
+                Vec3::new(params.resolution as f32, params.refine_steps as f32, params.tolerance_deg),
+                Vec3::new(params.max_segment_deg, params.max_link_deg, params.seed as f32),
+            ],
+            ..Default::default()
+        };
         m.hash() ^ params.seed
     };
     dir.join(format!("{clean}-{:016x}-{:08x}.pvv", model.hash(), ph as u32))
@@ -548,7 +569,13 @@ pub fn cache_path(dir: &std::path::Path, name: &str, model: &VvModel, params: &V
 /// with these parameters and this format version; else computes it ([`compute`]) and writes
 /// the file (creating `dir`). Returns the data and the path. A stale or corrupt cache file is
 /// recomputed; I/O errors name the file.
-pub fn load_or_compute(model: &VvModel, params: &VvParams, dir: &std::path::Path, name: &str, progress: &(dyn Fn(Stage, u64) + Sync)) -> Result<(VvData, std::path::PathBuf), String> {
+pub fn load_or_compute(
+    model: &VvModel,
+    params: &VvParams,
+    dir: &std::path::Path,
+    name: &str,
+    progress: &(dyn Fn(Stage, u64) + Sync),
+) -> Result<(VvData, std::path::PathBuf), String> {
     let path = cache_path(dir, name, model, params);
     if path.exists() {
         if let Ok(d) = VvData::read_for(&path, model) {
@@ -600,7 +627,8 @@ pub fn corner_errors(model: &VvModel, d: &VvData) -> Vec<[f64; 3]> {
                 let mut l = [0.0f32; 3];
                 l[k] = 1.0;
                 let (p, n) = (model.positions[idx[k]], model.normals[idx[k]]);
-                (solid(&interpolate(&d.vis, &d.corr, t, l, p, n), n) - solid(&synthesize(&d.vis, idx[k], p, n), n)).abs()
+                (solid(&interpolate(&d.vis, &d.corr, t, l, p, n), n) - solid(&synthesize(&d.vis, idx[k], p, n), n))
+                    .abs()
             })
         })
         .collect()
@@ -617,7 +645,8 @@ pub fn corner_errors(model: &VvModel, d: &VvData) -> Vec<[f64; 3]> {
 pub fn interpolation_disagreement(model: &VvModel, vis: &VectorizedVisibility, corr: &Correspondence) -> Vec<f32> {
     use rayon::prelude::*;
     let solid = |l: &[Vec<Vec3>], n: Vec3| l.iter().map(|x| signed_solid_angle(x, n)).sum::<f64>();
-    const POINTS: [[f32; 3]; 4] = [[1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0], [0.6, 0.2, 0.2], [0.2, 0.6, 0.2], [0.2, 0.2, 0.6]];
+    const POINTS: [[f32; 3]; 4] =
+        [[1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0], [0.6, 0.2, 0.2], [0.2, 0.6, 0.2], [0.2, 0.2, 0.6]];
     (0..model.triangle_count())
         .into_par_iter()
         .map(|t| {
@@ -625,7 +654,11 @@ pub fn interpolation_disagreement(model: &VvModel, vis: &VectorizedVisibility, c
             let mut worst = 0.0f64;
             for l in POINTS {
                 let s: Vec3 = (0..3).map(|k| model.positions[idx[k]] * l[k]).sum();
-                let n = (0..3).map(|k| model.normals[idx[k]] * l[k]).sum::<Vec3>().try_normalize().unwrap_or(model.normals[idx[0]]);
+                let n = (0..3)
+                    .map(|k| model.normals[idx[k]] * l[k])
+                    .sum::<Vec3>()
+                    .try_normalize()
+                    .unwrap_or(model.normals[idx[0]]);
                 let w21 = solid(&interpolate(vis, corr, t, l, s, n), n);
                 let w19: f64 = (0..3).map(|k| l[k] as f64 * solid(&synthesize(vis, idx[k], s, n), n)).sum();
                 let out = (-w21).max(w21 - 2.0 * std::f64::consts::PI).max(0.0);
@@ -648,7 +681,8 @@ pub fn evaluate(model: &VvModel, d: &VvData, samples: usize, map_res: u32, seed:
     let triangles_over = [0.1, 1.0, 3.0].map(|x| corners.iter().filter(|c| c.iter().any(|&e| e > x)).count());
     let mut verr: Vec<f64> = corners.iter().flatten().copied().collect();
     verr.sort_by(|a, b| a.total_cmp(b));
-    let q = |f: f64| verr.get(((verr.len() as f64 * f) as usize).min(verr.len().saturating_sub(1))).copied().unwrap_or(0.0);
+    let q =
+        |f: f64| verr.get(((verr.len() as f64 * f) as usize).min(verr.len().saturating_sub(1))).copied().unwrap_or(0.0);
     let per: Vec<Option<(f64, f64)>> = (0..samples)
         .into_par_iter()
         .map(|i| {
@@ -680,7 +714,8 @@ pub fn evaluate(model: &VvModel, d: &VvData, samples: usize, map_res: u32, seed:
                         continue;
                     }
                     let dir = lambert_inv(u, w, &f);
-                    let truth = precompute::trace_occluder(&tracer, &topo, &local, p.as_dvec3(), n.as_dvec3(), dir).is_some();
+                    let truth =
+                        precompute::trace_occluder(&tracer, &topo, &local, p.as_dvec3(), n.as_dvec3(), dir).is_some();
                     total += 1;
                     occ += truth as usize;
                     let dv = dir.as_vec3();

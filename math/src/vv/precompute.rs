@@ -27,7 +27,10 @@ impl Topology {
     /// Welds positions (relative tolerance 1e-6 of the bounding diagonal) and normals
     /// (1e-4).
     pub fn new(model: &VvModel) -> Self {
-        let (lo, hi) = model.positions.iter().fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(l, h), p| (l.min(*p), h.max(*p)));
+        let (lo, hi) = model
+            .positions
+            .iter()
+            .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(l, h), p| (l.min(*p), h.max(*p)));
         let scale = ((hi - lo).length() as f64).max(1e-30);
         let ps = (scale * 1e-6) as f32;
         let mut groups: HashMap<[i64; 3], u32> = HashMap::new();
@@ -69,7 +72,11 @@ pub fn trace_occluder(tracer: &Tracer, topo: &Topology, local: &[u32], p: DVec3,
 
 /// Precomputes the vectorized visibility of every vertex of `model`. `progress(n)` is called
 /// with finished model-vertex increments (total = vertex count), from any thread.
-pub fn precompute_visibility(model: &VvModel, params: &VvParams, progress: &(dyn Fn(u64) + Sync)) -> Result<VectorizedVisibility, String> {
+pub fn precompute_visibility(
+    model: &VvModel,
+    params: &VvParams,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<VectorizedVisibility, String> {
     model.validate()?;
     params.validate()?;
     let topo = Topology::new(model);
@@ -82,12 +89,23 @@ pub fn precompute_visibility(model: &VvModel, params: &VvParams, progress: &(dyn
     let loops: Vec<Vec<Vec<[f32; 4]>>> = canon
         .par_iter()
         .map(|&v| {
-            let l = vertex_loops(&tracer, &topo, model.positions[v].as_dvec3(), model.normals[v], topo.pos_group[v], params);
+            let l = vertex_loops(
+                &tracer,
+                &topo,
+                model.positions[v].as_dvec3(),
+                model.normals[v],
+                topo.pos_group[v],
+                params,
+            );
             progress(count[v]);
             l
         })
         .collect();
-    let mut vis = VectorizedVisibility { seq_offsets: vec![0], vertex_seqs: vec![[0, 0]; model.positions.len()], ..Default::default() };
+    let mut vis = VectorizedVisibility {
+        seq_offsets: vec![0],
+        vertex_seqs: vec![[0, 0]; model.positions.len()],
+        ..Default::default()
+    };
     let mut range = vec![[0u32; 2]; model.positions.len()];
     for (&v, ls) in canon.iter().zip(&loops) {
         range[v] = [vis.sequence_count() as u32, ls.len() as u32];
@@ -104,7 +122,14 @@ pub fn precompute_visibility(model: &VvModel, params: &VvParams, progress: &(dyn
 }
 
 /// The occluded-region loops of one vertex at `p` with normal `n`.
-pub fn vertex_loops(tracer: &Tracer, topo: &Topology, p: DVec3, n: Vec3, group: u32, params: &VvParams) -> Vec<Vec<[f32; 4]>> {
+pub fn vertex_loops(
+    tracer: &Tracer,
+    topo: &Topology,
+    p: DVec3,
+    n: Vec3,
+    group: u32,
+    params: &VvParams,
+) -> Vec<Vec<[f32; 4]>> {
     let nn = n.as_dvec3().normalize();
     let f = frame(n);
     let big_n = params.resolution as i64;

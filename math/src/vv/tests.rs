@@ -47,7 +47,13 @@ pub(crate) fn cuboid(c: Vec3, h: Vec3) -> (Vec<Vec3>, Vec<Vec3>, Vec<u32>) {
 }
 
 pub(crate) fn model(parts: &[((Vec<Vec3>, Vec<Vec3>, Vec<u32>), bool)]) -> VvModel {
-    VvModel::from_objects(parts.iter().map(|((p, n, i), occ)| ObjectMesh { positions: p, normals: n, indices: i, world: Mat4::IDENTITY, casts_shadow: *occ }))
+    VvModel::from_objects(parts.iter().map(|((p, n, i), occ)| ObjectMesh {
+        positions: p,
+        normals: n,
+        indices: i,
+        world: Mat4::IDENTITY,
+        casts_shadow: *occ,
+    }))
 }
 
 /// Occluded solid angle at `p` by uniform hemisphere sampling (stratified) with the
@@ -129,10 +135,12 @@ fn points_behind_the_tangent_plane_are_clamped_to_the_horizon() {
     // clamped, its loop encloses exactly the upper half
     let cap = |c: Vec3, r: f32, m: usize| -> Vec<Vec3> {
         let (u, v) = (c.any_orthonormal_vector(), c.cross(c.any_orthonormal_vector()));
-        (0..m).map(|i| {
-            let a = i as f32 * std::f32::consts::TAU / m as f32;
-            (c * r.cos() + (u * a.cos() + v * a.sin()) * r.sin()).normalize()
-        }).collect()
+        (0..m)
+            .map(|i| {
+                let a = i as f32 * std::f32::consts::TAU / m as f32;
+                (c * r.cos() + (u * a.cos() + v * a.sin()) * r.sin()).normalize()
+            })
+            .collect()
     };
     let r = 30f32.to_radians();
     let l: Vec<Vec3> = cap(Vec3::X, r, 256).into_iter().map(|d| clamp_to_hemisphere(d, n)).collect();
@@ -154,7 +162,16 @@ fn points_behind_the_tangent_plane_are_clamped_to_the_horizon() {
 fn file_roundtrip_and_malformed_files() {
     let m = model(&[(grid(2, 4.0, 0.0), false), (cuboid(Vec3::new(0.0, 1.0, 0.0), Vec3::splat(0.4)), true)]);
     let vis = precompute_visibility(&m, &VvParams { resolution: 16, ..Default::default() }, &|_| {}).unwrap();
-    let d = VvData { model_hash: m.hash(), vertex_count: m.positions.len() as u32, triangle_count: m.triangle_count() as u32, params: VvParams { resolution: 16, ..Default::default() }, corr: Correspondence { tri_offsets: vec![0; m.triangle_count() + 1], loop_offsets: vec![0], triples: vec![] }, vis, stats: VvStats::default() }.with_sizes();
+    let d = VvData {
+        model_hash: m.hash(),
+        vertex_count: m.positions.len() as u32,
+        triangle_count: m.triangle_count() as u32,
+        params: VvParams { resolution: 16, ..Default::default() },
+        corr: Correspondence { tri_offsets: vec![0; m.triangle_count() + 1], loop_offsets: vec![0], triples: vec![] },
+        vis,
+        stats: VvStats::default(),
+    }
+    .with_sizes();
     let b = d.to_bytes();
     let back = VvData::from_bytes(&b, "x.pvv").unwrap();
     assert_eq!(back, d);
@@ -221,10 +238,12 @@ fn spherical_voronoi_of_duplicate_and_cocircular_sites() {
     assert_eq!(hull::convex_hull(&s.dirs), hull::convex_hull(&s2.dirs));
     // all sites on one great circle (a fully enclosed triangle's horizon loops): no 3D hull,
     // the fan still gives triangles over all sites
-    let ring: Vec<DVec3> = (0..16).map(|i| {
-        let a = i as f64 * std::f64::consts::TAU / 16.0;
-        DVec3::new(a.cos(), 0.0, a.sin())
-    }).collect();
+    let ring: Vec<DVec3> = (0..16)
+        .map(|i| {
+            let a = i as f64 * std::f64::consts::TAU / 16.0;
+            DVec3::new(a.cos(), 0.0, a.sin())
+        })
+        .collect();
     let s = hull::sites(&ring, 3);
     let f = hull::convex_hull(&s.dirs);
     assert!(!f.is_empty());
@@ -260,25 +279,45 @@ fn split_horizon_ring_is_reproduced_at_the_corners() {
     // vertices 1 and 2: two small regions each, points on occluders (w = 1)
     let region = |c: Vec3| -> Vec<[f32; 4]> {
         let (u, v) = (Vec3::Y, c.cross(Vec3::Y).normalize());
-        (0..4).map(|i| {
-            let a = (i as f32 * -90.0).to_radians();
-            let p = c + 0.2 * (u * a.cos() + v * a.sin()) + 0.25 * u;
-            [p.x, p.y, p.z, 1.0]
-        }).collect()
+        (0..4)
+            .map(|i| {
+                let a = (i as f32 * -90.0).to_radians();
+                let p = c + 0.2 * (u * a.cos() + v * a.sin()) + 0.25 * u;
+                [p.x, p.y, p.z, 1.0]
+            })
+            .collect()
     };
     for c in [Vec3::X, -Vec3::X, Vec3::Z, -Vec3::Z] {
         points.extend(region(c));
     }
-    let vis0 = VectorizedVisibility { vertex_points: points.len() as u32, seq_offsets: vec![0, 12, 16, 20, 24, 28], vertex_seqs: vec![[0, 1], [1, 2], [3, 2]], points };
-    let m = VvModel { positions: vec![Vec3::ZERO, Vec3::new(0.05, 0.0, 0.0), Vec3::new(0.0, 0.0, 0.05)], normals: vec![n; 3], indices: vec![0, 1, 2], occluder: vec![true] };
-    let own: Vec<f64> = (0..3).map(|v| synthesize(&vis0, v, m.positions[v], n).iter().map(|l| signed_solid_angle(l, n)).sum()).collect();
+    let vis0 = VectorizedVisibility {
+        vertex_points: points.len() as u32,
+        seq_offsets: vec![0, 12, 16, 20, 24, 28],
+        vertex_seqs: vec![[0, 1], [1, 2], [3, 2]],
+        points,
+    };
+    let m = VvModel {
+        positions: vec![Vec3::ZERO, Vec3::new(0.05, 0.0, 0.0), Vec3::new(0.0, 0.0, 0.05)],
+        normals: vec![n; 3],
+        indices: vec![0, 1, 2],
+        occluder: vec![true],
+    };
+    let own: Vec<f64> = (0..3)
+        .map(|v| synthesize(&vis0, v, m.positions[v], n).iter().map(|l| signed_solid_angle(l, n)).sum())
+        .collect();
     assert!((own[0] - std::f64::consts::TAU).abs() < 1e-6, "ring: {}", own[0]);
     // two groups: ring arcs {0,1,2} + {6,7} with the first regions, {3,4,5} + {8..11} with the
     // second ones (interleaved, as the relaxed stage leaves them)
-    let g0: Vec<[u32; 3]> = [(0, 12, 20), (1, 13, 21), (2, 14, 22), (6, 15, 23), (7, 15, 23)].iter().map(|&(a, b, c)| [a, b, c]).collect();
-    let g1: Vec<[u32; 3]> = [(3, 16, 24), (4, 17, 25), (5, 18, 26), (8, 19, 27), (9, 19, 27), (10, 19, 27), (11, 19, 27)].iter().map(|&(a, b, c)| [a, b, c]).collect();
+    let g0: Vec<[u32; 3]> =
+        [(0, 12, 20), (1, 13, 21), (2, 14, 22), (6, 15, 23), (7, 15, 23)].iter().map(|&(a, b, c)| [a, b, c]).collect();
+    let g1: Vec<[u32; 3]> =
+        [(3, 16, 24), (4, 17, 25), (5, 18, 26), (8, 19, 27), (9, 19, 27), (10, 19, 27), (11, 19, 27)]
+            .iter()
+            .map(|&(a, b, c)| [a, b, c])
+            .collect();
     let build = |vis: &VectorizedVisibility, loops: &[Vec<[u32; 3]>]| {
-        let mut c = Correspondence { tri_offsets: vec![0, loops.len() as u32], loop_offsets: vec![0], triples: Vec::new() };
+        let mut c =
+            Correspondence { tri_offsets: vec![0, loops.len() as u32], loop_offsets: vec![0], triples: Vec::new() };
         for l in loops {
             c.triples.extend_from_slice(l);
             c.loop_offsets.push(c.triples.len() as u32);

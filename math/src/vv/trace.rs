@@ -91,7 +91,13 @@ fn build(tris: &mut [([DVec3; 3], u32)], start: usize, end: usize, nodes: &mut V
         return id;
     }
     let ext = hi - lo;
-    let axis = if ext.x >= ext.y && ext.x >= ext.z { 0 } else if ext.y >= ext.z { 1 } else { 2 };
+    let axis = if ext.x >= ext.y && ext.x >= ext.z {
+        0
+    } else if ext.y >= ext.z {
+        1
+    } else {
+        2
+    };
     let mid = (start + end) / 2;
     let key = |t: &([DVec3; 3], u32)| t.0[0][axis] + t.0[1][axis] + t.0[2][axis];
     tris[start..end].select_nth_unstable_by(mid - start, |p, q| key(p).total_cmp(&key(q)));
@@ -103,4 +109,3 @@ fn build(tris: &mut [([DVec3; 3], u32)], start: usize, end: usize, nodes: &mut V
     n.b = r;
     id
 }
-

@@ -83,7 +83,15 @@ impl HemicubeMaps {
 
     /// Renders and converts the maps of `points` at resolution r in one submission (waited for).
     /// `tris`: world triangles that cast shadows.
-    pub fn run(&self, engine: &mut Engine, tris: &[[Vec3; 3]], points: &[SurfacePoint], offset: f32, r: u32, readback: bool) -> Result<HemicubeResult> {
+    pub fn run(
+        &self,
+        engine: &mut Engine,
+        tris: &[[Vec3; 3]],
+        points: &[SurfacePoint],
+        offset: f32,
+        r: u32,
+        readback: bool,
+    ) -> Result<HemicubeResult> {
         check_res(r).map_err(|e| anyhow::anyhow!("hemicube maps: r: {e}"))?;
         if points.is_empty() {
             bail!("hemicube maps: no sample points");
@@ -110,7 +118,8 @@ impl HemicubeMaps {
         if verts.is_empty() {
             verts.push([0.0; 3]);
         }
-        let faces: Vec<[f32; 16]> = points.iter().flat_map(|p| Self::face_matrices(p, offset, near, far)).map(|m| m.to_cols_array()).collect();
+        let faces: Vec<[f32; 16]> =
+            points.iter().flat_map(|p| Self::face_matrices(p, offset, near, far)).map(|m| m.to_cols_array()).collect();
         let mut g = Graph::new();
         let vb = g.create_buffer_init("avs_hc_vertices", bytes_of(&verts));
         let pts = g.create_buffer_init("avs_hc_points", bytes_of(&super::point_data(points, offset)));
@@ -131,7 +140,8 @@ impl HemicubeMaps {
             p.record(move |rc| {
                 let d = rc.device();
                 let depth_att = crate::util::depth_attachment(rc.image(at)?.view, true);
-                let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: aw, height: ah } };
+                let area =
+                    vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: aw, height: ah } };
                 let info = vk::RenderingInfo::default().render_area(area).layer_count(1).depth_attachment(&depth_att);
                 let vbb = rc.buffer(vbuf)?;
                 unsafe {
@@ -141,10 +151,28 @@ impl HemicubeMaps {
                     for (k, m) in mats.iter().enumerate() {
                         let (e, face) = ((k / 5) as u32, (k % 5) as u32);
                         let (x0, y0) = ((face * fr) as f32, (e * fr) as f32);
-                        d.cmd_set_viewport(rc.cmd, 0, &[vk::Viewport { x: x0, y: y0, width: fr as f32, height: fr as f32, min_depth: 0.0, max_depth: 1.0 }]);
+                        d.cmd_set_viewport(
+                            rc.cmd,
+                            0,
+                            &[vk::Viewport {
+                                x: x0,
+                                y: y0,
+                                width: fr as f32,
+                                height: fr as f32,
+                                min_depth: 0.0,
+                                max_depth: 1.0,
+                            }],
+                        );
                         // side faces: the upper half only (the hemisphere above the horizon)
                         let hgt = if face == 0 { fr } else { fr / 2 };
-                        d.cmd_set_scissor(rc.cmd, 0, &[vk::Rect2D { offset: vk::Offset2D { x: x0 as i32, y: y0 as i32 }, extent: vk::Extent2D { width: fr, height: hgt } }]);
+                        d.cmd_set_scissor(
+                            rc.cmd,
+                            0,
+                            &[vk::Rect2D {
+                                offset: vk::Offset2D { x: x0 as i32, y: y0 as i32 },
+                                extent: vk::Extent2D { width: fr, height: hgt },
+                            }],
+                        );
                         d.cmd_push_constants(rc.cmd, rl, vk::ShaderStageFlags::VERTEX, 0, &bytes_of(m));
                         if vcount > 0 {
                             d.cmd_draw(rc.cmd, vcount, 1, 0, 0);
@@ -159,11 +187,25 @@ impl HemicubeMaps {
             let a = p.read(atlas, Access::ComputeShaderReadSampled);
             let pb = p.read(pts, Access::ComputeShaderReadStorage);
             let fbb = p.read(fb, Access::ComputeShaderReadStorage);
-            let out = p.write(maps, if bi == 0 { Access::ComputeShaderWriteStorage } else { Access::ComputeShaderReadWriteStorage });
+            let out = p.write(
+                maps,
+                if bi == 0 { Access::ComputeShaderWriteStorage } else { Access::ComputeShaderReadWriteStorage },
+            );
             let push = [r, fr, start as u32, count as u32];
             p.record(move |rc| {
-                let binds = [Bind::SampledImage(a, nearest), Bind::StorageBuffer(pb), Bind::StorageBuffer(fbb), Bind::StorageBuffer(out)];
-                crate::util::dispatch(rc, convert, &binds, &bytes_of(&push), [groups(words as u32, 64), count as u32, 1])
+                let binds = [
+                    Bind::SampledImage(a, nearest),
+                    Bind::StorageBuffer(pb),
+                    Bind::StorageBuffer(fbb),
+                    Bind::StorageBuffer(out),
+                ];
+                crate::util::dispatch(
+                    rc,
+                    convert,
+                    &binds,
+                    &bytes_of(&push),
+                    [groups(words as u32, 64), count as u32, 1],
+                )
             });
             maps = out;
         }
@@ -176,13 +218,24 @@ impl HemicubeMaps {
             let size = if readback { total } else { 4 };
             p.record(move |rc| {
                 let (sb, db) = (rc.buffer(s)?, rc.buffer(d)?);
-                unsafe { rc.device().cmd_copy_buffer(rc.cmd, sb.buffer, db.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }]) };
+                unsafe {
+                    rc.device().cmd_copy_buffer(
+                        rc.cmd,
+                        sb.buffer,
+                        db.buffer,
+                        &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size }],
+                    )
+                };
                 Ok(())
             });
         }
         let out = engine.submit_wait(g)?;
         let bytes = out.readbacks.get("avs_hc_readback").cloned().unwrap_or_default();
-        let maps = if readback { bytes.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect() } else { Vec::new() };
+        let maps = if readback {
+            bytes.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+        } else {
+            Vec::new()
+        };
         Ok(HemicubeResult { maps, gpu_ms: out.gpu_ms.clone(), triangles: tris.len() })
     }
 }

@@ -195,14 +195,16 @@ impl AvsSettings {
         let v = value.trim();
         let bad = || anyhow!("avs parameter {key} = '{value}': not a valid value");
         let float = |lo: f32, hi: f32| -> Result<f32> {
-            v.parse::<f32>().ok().filter(|x| x.is_finite() && *x >= lo && *x <= hi).ok_or_else(|| {
-                anyhow!("avs parameter {key} = '{value}': expected a number in [{lo}, {hi}]")
-            })
+            v.parse::<f32>()
+                .ok()
+                .filter(|x| x.is_finite() && *x >= lo && *x <= hi)
+                .ok_or_else(|| anyhow!("avs parameter {key} = '{value}': expected a number in [{lo}, {hi}]"))
         };
         let int = |lo: u64, hi: u64| -> Result<u64> {
-            v.parse::<u64>().ok().filter(|x| *x >= lo && *x <= hi).ok_or_else(|| {
-                anyhow!("avs parameter {key} = '{value}': expected an integer in [{lo}, {hi}]")
-            })
+            v.parse::<u64>()
+                .ok()
+                .filter(|x| *x >= lo && *x <= hi)
+                .ok_or_else(|| anyhow!("avs parameter {key} = '{value}': expected an integer in [{lo}, {hi}]"))
         };
         let flag = || match v {
             "1" | "true" => Ok(true),
@@ -260,7 +262,10 @@ impl AvsSettings {
         if self.initial_grid != 16 && self.initial_grid != 32 {
             bail!("avs parameter initial_grid = {}: expected 16 or 32", self.initial_grid);
         }
-        if self.r < self.initial_grid || !(self.r / self.initial_grid).is_power_of_two() || self.r % self.initial_grid != 0 {
+        if self.r < self.initial_grid
+            || !(self.r / self.initial_grid).is_power_of_two()
+            || self.r % self.initial_grid != 0
+        {
             bail!(
                 "avs parameter r = {}: must be the initial grid ({}) times a power of two",
                 self.r,
@@ -359,7 +364,10 @@ struct InstPlan {
 }
 
 /// The mesh of instance `inst` at this frame (deformed or rest) and its object's name.
-fn instance_mesh<'a>(scene: &'a Scene, inst: &'a penumbra_scene::Instance) -> Result<(&'a penumbra_scene::MeshData, &'a str)> {
+fn instance_mesh<'a>(
+    scene: &'a Scene,
+    inst: &'a penumbra_scene::Instance,
+) -> Result<(&'a penumbra_scene::MeshData, &'a str)> {
     let name = scene.objects.get(inst.object).map(|o| o.name.as_str()).unwrap_or("?");
     let mesh = match inst.deformed_mesh.as_deref() {
         Some(m) => m,
@@ -432,7 +440,11 @@ impl PoolPlan {
     /// Whether the plan was made for this frame's instances (same count, same vertex counts).
     pub fn fits(&self, scene: &Scene, frame: &Frame) -> bool {
         self.insts.len() == frame.instances.len()
-            && self.insts.iter().zip(&frame.instances).all(|(p, i)| instance_mesh(scene, i).is_ok_and(|(m, _)| m.positions.len() == p.vertices))
+            && self
+                .insts
+                .iter()
+                .zip(&frame.instances)
+                .all(|(p, i)| instance_mesh(scene, i).is_ok_and(|(m, _)| m.positions.len() == p.vertices))
     }
 }
 
@@ -465,7 +477,11 @@ pub fn vertex_pool(scene: &Scene, frame: &Frame, plan: &PoolPlan) -> Result<Vec<
         // normals (the face normal where they cancel or are missing)
         let at = |idx: &[u32], w: &[f32]| {
             let pos = idx.iter().zip(w).fold(Vec3::ZERO, |s, (&i, &x)| s + v[i as usize].pos * x);
-            let mut n = if has_n { idx.iter().zip(w).fold(Vec3::ZERO, |s, (&i, &x)| s + v[i as usize].normal * x).normalize_or_zero() } else { Vec3::ZERO };
+            let mut n = if has_n {
+                idx.iter().zip(w).fold(Vec3::ZERO, |s, (&i, &x)| s + v[i as usize].normal * x).normalize_or_zero()
+            } else {
+                Vec3::ZERO
+            };
             if n == Vec3::ZERO && idx.len() == 3 {
                 let [a, b, c] = [0, 1, 2].map(|j| v[idx[j] as usize].pos);
                 n = (b - a).cross(c - a).normalize_or_zero();
@@ -613,7 +629,6 @@ pub struct AvsTechnique {
     pub stats: AvsStats,
 }
 
-
 impl AvsTechnique {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: AvsSettings) -> Result<Self> {
         use vk::DescriptorType as T;
@@ -688,7 +703,11 @@ impl AvsTechnique {
         // coarse triangles start 4 pool spacings apart; the adaptation rounds insert the pool's
         // finer points where the visibility changes)
         let extra = self.plan.extra.min(pool.len());
-        let k = if self.settings.points > 0 { self.settings.points } else { ((pool.len() - extra) / 4 + extra / 16).clamp(16, 2048) };
+        let k = if self.settings.points > 0 {
+            self.settings.points
+        } else {
+            ((pool.len() - extra) / 4 + extra / 16).clamp(16, 2048)
+        };
         let k = k.min(self.settings.max_points);
         self.sample_vertices = samp::kmeans_eg(pool, k, self.settings.alpha, 8, &mut |_, _| {});
         self.dormant.clear();
@@ -712,7 +731,8 @@ impl AvsTechnique {
         let rb = g.create_readback("avs_used_readback", bytes);
         crate::util::copy_buffer(&mut g, "avs_used_readback", used, rb, Some(bytes));
         let out = engine.submit_wait(g)?;
-        let data = out.readbacks.get("avs_used_readback").ok_or_else(|| anyhow!("avs: culling flags readback missing"))?;
+        let data =
+            out.readbacks.get("avs_used_readback").ok_or_else(|| anyhow!("avs: culling flags readback missing"))?;
         let (mut traced, mut dormant) = (Vec::new(), Vec::new());
         for (i, &v) in self.cull_order.iter().enumerate() {
             if (data[i / 8] >> (i % 8)) & 1 == 1 {
@@ -758,7 +778,9 @@ impl AvsTechnique {
             let mut nb: Vec<(f32, usize)> = g
                 .range(*p, self.radius)
                 .into_iter()
-                .filter(|&j| j != e && samp::same_surface(&points[batch[e] as usize], &points[batch[j] as usize], self.radius))
+                .filter(|&j| {
+                    j != e && samp::same_surface(&points[batch[e] as usize], &points[batch[j] as usize], self.radius)
+                })
                 .map(|j| ((pos[j] - *p).length_squared(), j))
                 .collect();
             nb.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -841,7 +863,14 @@ impl AvsTechnique {
 
     /// Declares the SH16 projection of the maps of `batch` (at their slots of `vis`); returns the
     /// `16 * batch` float buffer.
-    fn add_sh(&self, graph: &mut Graph, points_buf: BufferHandle, vis: BufferHandle, batch: &[u32], tag: &str) -> BufferHandle {
+    fn add_sh(
+        &self,
+        graph: &mut Graph,
+        points_buf: BufferHandle,
+        vis: BufferHandle,
+        batch: &[u32],
+        tag: &str,
+    ) -> BufferHandle {
         let n = batch.len() as u32;
         let mut data = batch.to_vec();
         data.push(0);
@@ -865,7 +894,13 @@ impl AvsTechnique {
     /// visibility maps in the persistent `avs.vis` buffer. Every sample point owns a slot (its map
     /// and SSDF); erased points free their slot for later insertions. Returns the points with
     /// their slots and the slot count.
-    fn adapt(&mut self, engine: &mut Engine, pool: &[SurfacePoint], frame: &Frame, image_height: u32) -> Result<(Vec<SurfacePoint>, Vec<u32>, u32)> {
+    fn adapt(
+        &mut self,
+        engine: &mut Engine,
+        pool: &[SurfacePoint],
+        frame: &Frame,
+        image_height: u32,
+    ) -> Result<(Vec<SurfacePoint>, Vec<u32>, u32)> {
         // a pixel's world size at p (at the point's distance from the eye): points closer together
         // than a pixel add no visible detail, so no insertion goes closer to a sample point than
         // that (balls_on_dish at 40 x 30: 1726 points and 19 s of visibility per frame without
@@ -926,8 +961,18 @@ impl AvsTechnique {
                     let sh_bytes = n * SH_COUNT as u64 * 4;
                     unsafe {
                         let dev = rc.device();
-                        dev.cmd_copy_buffer(rc.cmd, sb.buffer, db.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: sh_bytes }]);
-                        dev.cmd_copy_buffer(rc.cmd, rab.buffer, db.buffer, &[vk::BufferCopy { src_offset: 0, dst_offset: sh_bytes, size: n * 4 }]);
+                        dev.cmd_copy_buffer(
+                            rc.cmd,
+                            sb.buffer,
+                            db.buffer,
+                            &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: sh_bytes }],
+                        );
+                        dev.cmd_copy_buffer(
+                            rc.cmd,
+                            rab.buffer,
+                            db.buffer,
+                            &[vk::BufferCopy { src_offset: 0, dst_offset: sh_bytes, size: n * 4 }],
+                        );
                     }
                     Ok(())
                 });
@@ -941,7 +986,8 @@ impl AvsTechnique {
             self.stats.round_ms.extend(out.gpu_ms.iter().cloned());
             let bytes = out.readbacks.get("avs_sh_readback").ok_or_else(|| anyhow!("avs: SH readback missing"))?;
             let word = |i: usize| f32::from_le_bytes(bytes[4 * i..4 * i + 4].try_into().unwrap());
-            let slot_point: std::collections::HashMap<u32, usize> = slots.iter().enumerate().map(|(i, &s)| (s, i)).collect();
+            let slot_point: std::collections::HashMap<u32, usize> =
+                slots.iter().enumerate().map(|(i, &s)| (s, i)).collect();
             for (e, &slot) in batch.iter().enumerate() {
                 let mut v = [0f32; SH_COUNT];
                 for (k, x) in v.iter_mut().enumerate() {
@@ -949,8 +995,13 @@ impl AvsTechnique {
                 }
                 sh[slot_point[&slot]] = Some(v);
                 let map_bytes = words as usize * 4;
-                if let Some(m) = out.readbacks.get("avs_maps_readback").and_then(|m| m.get(slot as usize * map_bytes..(slot as usize + 1) * map_bytes)) {
-                    maps[slot_point[&slot]] = m.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+                if let Some(m) = out
+                    .readbacks
+                    .get("avs_maps_readback")
+                    .and_then(|m| m.get(slot as usize * map_bytes..(slot as usize + 1) * map_bytes))
+                {
+                    maps[slot_point[&slot]] =
+                        m.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
                 }
                 let rays = word(batch.len() * SH_COUNT + e).to_bits();
                 self.stats.rays += (rays & 0x7fff_ffff) as u64;
@@ -959,11 +1010,17 @@ impl AvsTechnique {
             if round == self.settings.iterations {
                 break;
             }
-            let params = samp::AdaptParams { alpha: self.settings.alpha, radius: self.radius, e_max: self.settings.e_max, e_min: self.settings.e_min };
+            let params = samp::AdaptParams {
+                alpha: self.settings.alpha,
+                radius: self.radius,
+                e_max: self.settings.e_max,
+                e_min: self.settings.e_min,
+            };
             let sh_now: Vec<[f32; SH_COUNT]> = sh.iter().map(|c| c.unwrap_or([0.0; SH_COUNT])).collect();
             let step = samp::adapt_step(&points, &self.sample_vertices, &sh_now, pool, &pool_grid, &params);
             let errs: Vec<f32> = step.rel_error.iter().flatten().copied().collect();
-            self.stats.mean_rel_error = if errs.is_empty() { 0.0 } else { errs.iter().sum::<f32>() / errs.len() as f32 };
+            self.stats.mean_rel_error =
+                if errs.is_empty() { 0.0 } else { errs.iter().sum::<f32>() / errs.len() as f32 };
             let room = self.settings.max_points.saturating_sub(points.len() - step.erase.len() + self.dormant.len());
             let grid = Grid::new(&points.iter().map(|p| p.pos).collect::<Vec<_>>(), self.radius);
             let mut insert: Vec<usize> = Vec::new();
@@ -1033,7 +1090,12 @@ impl crate::technique::Technique for AvsTechnique {
         Some(Box::new(self.stats.clone()))
     }
 
-    fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
+    fn add(
+        &mut self,
+        engine: &mut Engine,
+        graph: &mut Graph,
+        inputs: &crate::technique::TechniqueInputs,
+    ) -> Result<ImageHandle> {
         let frame = inputs.frame;
         if self.plan.insts.is_empty() || !self.plan.fits(&self.scene, frame) {
             self.plan = Arc::new(PoolPlan::new(&self.scene, frame, self.settings.pool_points)?);
@@ -1088,7 +1150,8 @@ impl crate::technique::Technique for AvsTechnique {
         let all_pos: Vec<Vec3> = all.iter().map(|&v| pool[v].pos).collect();
         // the per-pixel search radius follows the final density of all kept points (the rounds
         // use the initial one)
-        let shade_radius = if all_pos.len() >= 2 { (self.settings.radius * mean_spacing(&all_pos)).max(1e-6) } else { self.radius };
+        let shade_radius =
+            if all_pos.len() >= 2 { (self.settings.radius * mean_spacing(&all_pos)).max(1e-6) } else { self.radius };
         self.stats.radius = shade_radius;
         let grid = Grid::new(&pos, shade_radius);
         let grid_buf = graph.create_buffer_init("avs_grid", bytes_of(&grid_words(&grid, &slots)));
@@ -1116,7 +1179,8 @@ impl crate::technique::Technique for AvsTechnique {
         let s = &self.settings;
         let mut push: Vec<u8> = Vec::with_capacity(48);
         push.extend(bytes_of(&[scene.light_count, self.lobe_count, r, s.neighbours.clamp(1, 8)]));
-        let (wa, wscale) = if s.interp_alpha > 0.0 { (s.interp_alpha, 1.0 / shade_radius) } else { (s.alpha, 1.0 / pos_scale) };
+        let (wa, wscale) =
+            if s.interp_alpha > 0.0 { (s.interp_alpha, 1.0 / shade_radius) } else { (s.alpha, 1.0 / pos_scale) };
         push.extend(bytes_of(&[wa, wscale, shade_radius]));
         push.extend(bytes_of(&[
             match s.integration {
@@ -1168,7 +1232,11 @@ impl crate::technique::Technique for AvsTechnique {
             push.extend(bytes_of(&[s.neighbours.clamp(1, 8)]));
             let pipe = self.cull.handle();
             p.record(move |rc| {
-                let binds = [&g.binds(nearest)[..], &[Bind::StorageBuffer(pb), Bind::StorageBuffer(gr), Bind::StorageBuffer(u)]].concat();
+                let binds = [
+                    &g.binds(nearest)[..],
+                    &[Bind::StorageBuffer(pb), Bind::StorageBuffer(gr), Bind::StorageBuffer(u)],
+                ]
+                .concat();
                 crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
             });
             self.cull_order = all;

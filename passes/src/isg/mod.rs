@@ -211,7 +211,8 @@ pub fn merge_spheres(a: WorldSphere, b: WorldSphere) -> WorldSphere {
 /// split on the longest axis of the centres; every parent bounds its children.
 pub fn build_bvh(spheres: &[WorldSphere]) -> Vec<GpuNode> {
     let mut nodes = Vec::with_capacity(spheres.len() * 2);
-    let mut idx: Vec<usize> = (0..spheres.len()).filter(|&i| spheres[i].radius > 0.0 && spheres[i].center.is_finite()).collect();
+    let mut idx: Vec<usize> =
+        (0..spheres.len()).filter(|&i| spheres[i].radius > 0.0 && spheres[i].center.is_finite()).collect();
     if idx.is_empty() {
         return nodes;
     }
@@ -220,21 +221,29 @@ pub fn build_bvh(spheres: &[WorldSphere]) -> Vec<GpuNode> {
         nodes.push(GpuNode { sphere: [0.0; 4], info: [-1, -1, -1, 0] });
         if idx.len() == 1 {
             let s = spheres[idx[0]];
-            nodes[me] = GpuNode { sphere: [s.center.x, s.center.y, s.center.z, s.radius], info: [-1, -1, idx[0] as i32, 0] };
+            nodes[me] =
+                GpuNode { sphere: [s.center.x, s.center.y, s.center.z, s.radius], info: [-1, -1, idx[0] as i32, 0] };
             return (me, s);
         }
         let (lo, hi) = idx.iter().fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), &i| {
             (lo.min(spheres[i].center), hi.max(spheres[i].center))
         });
         let ext = hi - lo;
-        let axis = if ext.x >= ext.y && ext.x >= ext.z { 0 } else if ext.y >= ext.z { 1 } else { 2 };
+        let axis = if ext.x >= ext.y && ext.x >= ext.z {
+            0
+        } else if ext.y >= ext.z {
+            1
+        } else {
+            2
+        };
         idx.sort_by(|&a, &b| spheres[a].center[axis].total_cmp(&spheres[b].center[axis]));
         let mid = idx.len() / 2;
         let (l, r) = idx.split_at_mut(mid);
         let (li, ls) = rec(spheres, l, nodes);
         let (ri, rs) = rec(spheres, r, nodes);
         let s = merge_spheres(ls, rs);
-        nodes[me] = GpuNode { sphere: [s.center.x, s.center.y, s.center.z, s.radius], info: [li as i32, ri as i32, -1, 0] };
+        nodes[me] =
+            GpuNode { sphere: [s.center.x, s.center.y, s.center.z, s.radius], info: [li as i32, ri as i32, -1, 0] };
         (me, s)
     }
     rec(spheres, &mut idx, &mut nodes);
@@ -280,7 +289,11 @@ pub fn scene_sphere_sets_noting(scene: &Scene, per_object: usize) -> (Vec<Option
                             }
                         },
                     };
-                    notes.push(format!("{}: {problem}; isg fits {per_object} spheres to '{}' instead", path.display(), o.name));
+                    notes.push(format!(
+                        "{}: {problem}; isg fits {per_object} spheres to '{}' instead",
+                        path.display(),
+                        o.name
+                    ));
                 }
             }
             built
@@ -336,7 +349,10 @@ pub fn frame_thin_triangles(scene: &Scene, frame: &Frame) -> Vec<[Vec3; 3]> {
             _ => &rest.positions,
         };
         for t in rest.indices.chunks_exact(3) {
-            let Some(v) = t.iter().map(|&i| pos.get(i as usize).map(|p| inst.world.transform_point3(*p))).collect::<Option<Vec<_>>>()
+            let Some(v) = t
+                .iter()
+                .map(|&i| pos.get(i as usize).map(|p| inst.world.transform_point3(*p)))
+                .collect::<Option<Vec<_>>>()
             else {
                 continue;
             };
@@ -409,10 +425,27 @@ impl IsgTechnique {
         use vk::DescriptorType as T;
         let shade = if settings.per_vertex { "isg/isg_shade_vertex.comp" } else { "isg/isg_shade.comp" };
         let pipeline = compute_pipeline(ctx, shaders, shade, &shade_types(settings.per_vertex), 40)?;
-        let bvh_pipeline = compute_pipeline(ctx, shaders, "isg/isg_bvh.comp", &[T::STORAGE_BUFFER, T::STORAGE_BUFFER], 36)?;
+        let bvh_pipeline =
+            compute_pipeline(ctx, shaders, "isg/isg_bvh.comp", &[T::STORAGE_BUFFER, T::STORAGE_BUFFER], 36)?;
         let vertex_pipelines = if settings.per_vertex {
             Some((
-                compute_pipeline(ctx, shaders, "isg/isg_vertex.comp", &[T::UNIFORM_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER], 28)?,
+                compute_pipeline(
+                    ctx,
+                    shaders,
+                    "isg/isg_vertex.comp",
+                    &[
+                        T::UNIFORM_BUFFER,
+                        T::STORAGE_BUFFER,
+                        T::STORAGE_BUFFER,
+                        T::STORAGE_BUFFER,
+                        T::STORAGE_BUFFER,
+                        T::STORAGE_BUFFER,
+                        T::STORAGE_BUFFER,
+                        T::STORAGE_BUFFER,
+                        T::STORAGE_BUFFER,
+                    ],
+                    28,
+                )?,
                 vertex::raster_pipeline(ctx, shaders)?,
             ))
         } else {
@@ -460,9 +493,10 @@ impl IsgTechnique {
     fn add_gpu_bvh(&self, graph: &mut Graph, spheres: &[WorldSphere]) -> (penumbra_engine::BufferHandle, i32) {
         let n = spheres.len();
         let data: Vec<[f32; 4]> = spheres.iter().map(|s| [s.center.x, s.center.y, s.center.z, s.radius]).collect();
-        let (lo, hi) = spheres
-            .iter()
-            .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), s| (lo.min(s.center), hi.max(s.center)));
+        let (lo, hi) =
+            spheres.iter().fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), s| {
+                (lo.min(s.center), hi.max(s.center))
+            });
         let inv = (hi - lo).max(Vec3::splat(1e-6)).recip();
         let input = graph.create_buffer_init("isg_spheres", bytes_of(&data));
         let nodes = graph.create_buffer("isg_bvh", ((2 * n - 1) * std::mem::size_of::<GpuNode>()) as u64);
@@ -508,7 +542,9 @@ impl IsgTechnique {
         let verts = graph.create_buffer_init("isg_vertices", bytes_of(&verts));
         let index_buf = graph.create_buffer_init("isg_vertex_indices", bytes_of(&indices));
         let vis = graph.create_buffer("isg_vertex_vis", (count.max(1) as u64) * 16);
-        let Some((compute, raster)) = &self.vertex_pipelines else { anyhow::bail!("isg: per-vertex pipelines missing") };
+        let Some((compute, raster)) = &self.vertex_pipelines else {
+            anyhow::bail!("isg: per-vertex pipelines missing")
+        };
         let vertex_pipe = compute.handle();
         let (rp, rl) = (raster.pipeline, raster.layout);
         let scene = inputs.handles;
@@ -550,8 +586,11 @@ impl IsgTechnique {
             let colors = [crate::util::color_attachment(rc.image(image)?.view, [-1.0; 4])];
             let depth_att = crate::util::depth_attachment(rc.image(depth)?.view, false);
             let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
-            let info =
-                vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&colors).depth_attachment(&depth_att);
+            let info = vk::RenderingInfo::default()
+                .render_area(area)
+                .layer_count(1)
+                .color_attachments(&colors)
+                .depth_attachment(&depth_att);
             let vb = rc.buffer(verts_v)?;
             let ib = rc.buffer(index_buf)?;
             unsafe {
@@ -559,12 +598,24 @@ impl IsgTechnique {
                 d.cmd_set_viewport(
                     rc.cmd,
                     0,
-                    &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: h as f32, min_depth: 0.0, max_depth: 1.0 }],
+                    &[vk::Viewport {
+                        x: 0.0,
+                        y: 0.0,
+                        width: w as f32,
+                        height: h as f32,
+                        min_depth: 0.0,
+                        max_depth: 1.0,
+                    }],
                 );
                 d.cmd_set_scissor(rc.cmd, 0, &[area]);
                 d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, rp);
             }
-            rc.push_descriptors(vk::PipelineBindPoint::GRAPHICS, rl, 0, &[Bind::UniformBuffer(camera), Bind::StorageBuffer(vis)])?;
+            rc.push_descriptors(
+                vk::PipelineBindPoint::GRAPHICS,
+                rl,
+                0,
+                &[Bind::UniformBuffer(camera), Bind::StorageBuffer(vis)],
+            )?;
             unsafe {
                 if count > 0 && index_count > 0 {
                     d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb.buffer], &[0]);
@@ -592,7 +643,12 @@ impl crate::technique::Technique for IsgTechnique {
         self.sphere_notes.clone()
     }
 
-    fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
+    fn add(
+        &mut self,
+        _engine: &mut Engine,
+        graph: &mut Graph,
+        inputs: &crate::technique::TechniqueInputs,
+    ) -> Result<ImageHandle> {
         let spheres = frame_spheres(&self.scene, &self.sets, inputs.frame);
         self.last_sphere_count = spheres.len();
         let (scene, gb) = (inputs.handles, inputs.gbuffer);
@@ -617,11 +673,22 @@ impl crate::technique::Technique for IsgTechnique {
         let tri_node_count = tri_nodes.len() as i32;
         let tri_data: Vec<[f32; 4]> = tris.iter().flat_map(|t| t.map(|p| [p.x, p.y, p.z, 0.0])).collect();
         let tri_data = if tri_data.is_empty() { vec![[0.0f32; 4]; 3] } else { tri_data };
-        let tri_nodes = if tri_nodes.is_empty() { vec![GpuNode { sphere: [0.0; 4], info: [-1; 4] }] } else { tri_nodes };
+        let tri_nodes =
+            if tri_nodes.is_empty() { vec![GpuNode { sphere: [0.0; 4], info: [-1; 4] }] } else { tri_nodes };
         let tris_buf = graph.create_buffer_init("isg_thin_triangles", bytes_of(&tri_data));
         let tri_bvh = graph.create_buffer_init("isg_thin_bvh", bytes_of(&tri_nodes));
         let vertex_vis = if self.settings.per_vertex {
-            Some(self.add_vertex_passes(graph, inputs, table, lobes, bvh, node_count, tris_buf, tri_bvh, tri_node_count)?)
+            Some(self.add_vertex_passes(
+                graph,
+                inputs,
+                table,
+                lobes,
+                bvh,
+                node_count,
+                tris_buf,
+                tri_bvh,
+                tri_node_count,
+            )?)
         } else {
             None
         };
@@ -665,4 +732,3 @@ impl crate::technique::Technique for IsgTechnique {
         Ok(hdr)
     }
 }
-

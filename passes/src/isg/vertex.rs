@@ -55,12 +55,8 @@ pub const MAX_REFINED_TRIANGLES: usize = 1 << 18;
 /// input), within [`MAX_REFINED_TRIANGLES`].
 pub fn refine(positions: &[Vec3], indices: &[u32], scale: f32, max_edge: f32) -> Refined {
     let n = positions.len();
-    let valid: Vec<u32> = indices
-        .chunks_exact(3)
-        .filter(|t| t.iter().all(|&i| (i as usize) < n))
-        .flatten()
-        .copied()
-        .collect();
+    let valid: Vec<u32> =
+        indices.chunks_exact(3).filter(|t| t.iter().all(|&i| (i as usize) < n)).flatten().copied().collect();
     let mut out = Refined { base_vertices: n, splits: Vec::new(), indices: valid, levels: 0 };
     if !(max_edge > 0.0 && max_edge.is_finite() && scale > 0.0 && scale.is_finite()) {
         return out;
@@ -133,7 +129,12 @@ pub struct Receivers {
 fn outside_frustum(view_proj: &Mat4, t: [Vec3; 3]) -> bool {
     let c = t.map(|p| *view_proj * p.extend(1.0));
     let all = |f: &dyn Fn(glam::Vec4) -> bool| c.iter().all(|v| f(*v));
-    all(&|v| v.x < -v.w) || all(&|v| v.x > v.w) || all(&|v| v.y < -v.w) || all(&|v| v.y > v.w) || all(&|v| v.z > v.w) || all(&|v| v.w <= 0.0)
+    all(&|v| v.x < -v.w)
+        || all(&|v| v.x > v.w)
+        || all(&|v| v.y < -v.w)
+        || all(&|v| v.y > v.w)
+        || all(&|v| v.z > v.w)
+        || all(&|v| v.w <= 0.0)
 }
 
 /// Builds the frame's receivers; `cache` keeps each object's subdivision (computed when the
@@ -159,9 +160,8 @@ pub fn frame_receivers(
         }
         let w: Mat4 = inst.world;
         let scale = w.x_axis.truncate().length().max(w.y_axis.truncate().length()).max(w.z_axis.truncate().length());
-        let refined = cache
-            .entry(inst.object)
-            .or_insert_with(|| refine(&rest.positions, &rest.indices, scale, max_edge));
+        let refined =
+            cache.entry(inst.object).or_insert_with(|| refine(&rest.positions, &rest.indices, scale, max_edge));
         if refined.base_vertices != mesh.positions.len() {
             *refined = refine(&rest.positions, &rest.indices, scale, max_edge);
         }
@@ -201,7 +201,10 @@ pub fn frame_receivers(
         for ((wp, wn), u) in wps.iter().zip(&wns).zip(&used) {
             out.evaluated += *u as usize;
             let flags = if two_sided { 1.0 } else { 0.0 } + if *u { 0.0 } else { 2.0 };
-            out.vertices.push(IsgVertex { pos_mat: [wp.x, wp.y, wp.z, inst.material as f32], normal_flags: [wn.x, wn.y, wn.z, flags] });
+            out.vertices.push(IsgVertex {
+                pos_mat: [wp.x, wp.y, wp.z, inst.material as f32],
+                normal_flags: [wn.x, wn.y, wn.z, flags],
+            });
         }
     }
     out
@@ -246,7 +249,8 @@ mod tests {
 
     #[test]
     fn refine_splits_shared_edges_once_and_keeps_the_surface() {
-        let quad = [Vec3::new(0.0, 0.0, 0.0), Vec3::new(4.0, 0.0, 0.0), Vec3::new(4.0, 0.0, 4.0), Vec3::new(0.0, 0.0, 4.0)];
+        let quad =
+            [Vec3::new(0.0, 0.0, 0.0), Vec3::new(4.0, 0.0, 0.0), Vec3::new(4.0, 0.0, 4.0), Vec3::new(0.0, 0.0, 4.0)];
         let idx = [0, 1, 2, 0, 2, 3];
         let r = refine(&quad, &idx, 1.0, 1.0);
         // Longest edge 4 sqrt 2 = 5.66 -> 3 levels (edges 0.71): 2 * 64 triangles, 9 x 9 grid.

@@ -19,14 +19,28 @@ pub struct VvParity {
 impl VvParity {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
         use vk::DescriptorType as T;
-        Ok(VvParity { pipe: compute_pipeline(ctx, shaders, "tests/vv_parity.comp", &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER, T::STORAGE_IMAGE], 32)? })
+        Ok(VvParity {
+            pipe: compute_pipeline(
+                ctx,
+                shaders,
+                "tests/vv_parity.comp",
+                &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER, T::STORAGE_IMAGE],
+                32,
+            )?,
+        })
     }
 
     /// The cases on `sat` (an image of [`crate::vv::VvTechnique::add_sat`] of `tech`'s map size, with its
     /// alpha' and hemisphere arcs). `cases`: `(n, loops)` with loops of map-space unit
     /// directions in part A's orientation (counter-clockwise from outside around the occluded
     /// region). Returns an RGBA32F image of `cases.len() x 1` texels (rgb).
-    pub fn add(&self, tech: &VvTechnique, graph: &mut Graph, sat: ImageHandle, cases: &[(Vec3, Vec<Vec<Vec3>>)]) -> ImageHandle {
+    pub fn add(
+        &self,
+        tech: &VvTechnique,
+        graph: &mut Graph,
+        sat: ImageHandle,
+        cases: &[(Vec3, Vec<Vec<Vec3>>)],
+    ) -> ImageHandle {
         let mut data: Vec<[f32; 4]> = vec![[0.0; 4]; cases.len()];
         for (c, (n, loops)) in cases.iter().enumerate() {
             data[c][0] = data.len() as f32;
@@ -91,7 +105,15 @@ pub struct VvCapParity {
 impl VvCapParity {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
         use vk::DescriptorType as T;
-        Ok(VvCapParity { pipe: compute_pipeline(ctx, shaders, "tests/vv_cap_parity.comp", &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER, T::STORAGE_IMAGE], 32)? })
+        Ok(VvCapParity {
+            pipe: compute_pipeline(
+                ctx,
+                shaders,
+                "tests/vv_cap_parity.comp",
+                &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER, T::STORAGE_IMAGE],
+                32,
+            )?,
+        })
     }
 
     /// The cases on `sat` (an image of [`crate::vv::VvTechnique::add_sat`] of `tech`'s map size, with its
@@ -111,4 +133,3 @@ impl VvCapParity {
         parity_pass(&self.pipe, tech, graph, "vv_cap_parity", sat, data, cases.len() as u32, 3)
     }
 }
-

@@ -4,7 +4,10 @@
 //! GPU paths on the same (culled) vertex set; the CLI adds the image errors of the technique's
 //! variants against the reference renderer.
 
-use super::{cpu_shade_points, gpu_shade_points, instance_frames, light_frames, vertex_points, FieldReport, SceneFields, SfOptions, ShadowFieldsTechnique};
+use super::{
+    cpu_shade_points, gpu_shade_points, instance_frames, light_frames, vertex_points, FieldReport, SceneFields,
+    SfOptions, ShadowFieldsTechnique,
+};
 use anyhow::Result;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{Context, Engine};
@@ -137,7 +140,11 @@ pub fn bench(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, opts: &
 impl fmt::Display for BenchReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(f, "shadow fields: {}", self.scene)?;
-        writeln!(f, "{:<20} {:>7} {:>7} {:>10} {:>10} {:>8}  per-shell R (innermost first)", "mesh", "verts", "tris", "fixed KB", "adapt KB", "precomp s")?;
+        writeln!(
+            f,
+            "{:<20} {:>7} {:>7} {:>10} {:>10} {:>8}  per-shell R (innermost first)",
+            "mesh", "verts", "tris", "fixed KB", "adapt KB", "precomp s"
+        )?;
         for r in self.fields.iter().chain(&self.lights) {
             if let Some(first) = r.shared_with {
                 writeln!(f, "{:<20} {:>7} {:>7}  (shares the field of mesh {first})", r.mesh, r.vertices, r.triangles)?;
@@ -156,11 +163,27 @@ impl fmt::Display for BenchReport {
                 res.join(" ")
             )?;
         }
-        let red = if self.fixed_bytes > 0 { 100.0 * (1.0 - self.adaptive_bytes as f64 / self.fixed_bytes as f64) } else { 0.0 };
-        writeln!(f, "total OOF: fixed {:.1} KB, adaptive {:.1} KB ({red:.0}% smaller)", self.fixed_bytes as f64 / 1024.0, self.adaptive_bytes as f64 / 1024.0)?;
+        let red = if self.fixed_bytes > 0 {
+            100.0 * (1.0 - self.adaptive_bytes as f64 / self.fixed_bytes as f64)
+        } else {
+            0.0
+        };
+        writeln!(
+            f,
+            "total OOF: fixed {:.1} KB, adaptive {:.1} KB ({red:.0}% smaller)",
+            self.fixed_bytes as f64 / 1024.0,
+            self.adaptive_bytes as f64 / 1024.0
+        )?;
         if !self.lights.is_empty() {
-            let (lf, la): (usize, usize) = (self.lights.iter().map(|r| r.fixed_bytes).sum(), self.lights.iter().map(|r| r.adaptive_bytes).sum());
-            writeln!(f, "total SRF: fixed {:.1} KB, adaptive {:.1} KB ({:.0}% smaller)", lf as f64 / 1024.0, la as f64 / 1024.0, 100.0 * (1.0 - la as f64 / lf.max(1) as f64))?;
+            let (lf, la): (usize, usize) =
+                (self.lights.iter().map(|r| r.fixed_bytes).sum(), self.lights.iter().map(|r| r.adaptive_bytes).sum());
+            writeln!(
+                f,
+                "total SRF: fixed {:.1} KB, adaptive {:.1} KB ({:.0}% smaller)",
+                lf as f64 / 1024.0,
+                la as f64 / 1024.0,
+                100.0 * (1.0 - la as f64 / lf.max(1) as f64)
+            )?;
         }
         writeln!(f, "vertices shaded: {}", self.vertices)?;
         writeln!(
@@ -168,7 +191,12 @@ impl fmt::Display for BenchReport {
             "per-vertex radiance: adaptive vs fixed relRMSE {:.4}; GPU vs CPU relRMSE {:.2e}, max abs {:.2e}",
             self.adaptive_vs_fixed_rel_rmse, self.gpu_vs_cpu_rel_rmse, self.gpu_vs_cpu_max_abs
         )?;
-        writeln!(f, "negative lobes: {:.2}% of vertices clamped, most negative {:.3} x mean", 100.0 * self.negative_fraction, self.most_negative_rel)?;
+        writeln!(
+            f,
+            "negative lobes: {:.2}% of vertices clamped, most negative {:.3} x mean",
+            100.0 * self.negative_fraction,
+            self.most_negative_rel
+        )?;
         let ratio = if self.gpu_ms > 0.0 { self.cpu_ms / self.gpu_ms } else { 0.0 };
         writeln!(f, "ms per frame: CPU {:.2}, GPU {:.2} ({ratio:.1}x)", self.cpu_ms, self.gpu_ms)
     }

@@ -200,7 +200,11 @@ pub fn srf_reach(scene: &Scene, li: usize) -> f64 {
     for inst in &frame.instances {
         if let Some((a, b)) = scene.meshes.get(inst.mesh).and_then(|m| m.bounds()) {
             for k in 0..8 {
-                let c = Vec3::new(if k & 1 == 0 { a.x } else { b.x }, if k & 2 == 0 { a.y } else { b.y }, if k & 4 == 0 { a.z } else { b.z });
+                let c = Vec3::new(
+                    if k & 1 == 0 { a.x } else { b.x },
+                    if k & 2 == 0 { a.y } else { b.y },
+                    if k & 4 == 0 { a.z } else { b.z },
+                );
                 let w = inst.world.transform_point3(c);
                 lo = lo.min(w);
                 hi = hi.max(w);
@@ -210,7 +214,11 @@ pub fn srf_reach(scene: &Scene, li: usize) -> f64 {
     let mut d = 0.0f64;
     if lo.is_finite() && hi.is_finite() {
         for k in 0..8 {
-            let c = Vec3::new(if k & 1 == 0 { lo.x } else { hi.x }, if k & 2 == 0 { lo.y } else { hi.y }, if k & 4 == 0 { lo.z } else { hi.z });
+            let c = Vec3::new(
+                if k & 1 == 0 { lo.x } else { hi.x },
+                if k & 2 == 0 { lo.y } else { hi.y },
+                if k & 4 == 0 { lo.z } else { hi.z },
+            );
             d = d.max((c - l.position).length() as f64);
         }
     }
@@ -242,21 +250,33 @@ impl SceneFields {
             if let Some(&first) = by_key.get(&key) {
                 // identical geometry (e.g. the ten pins of a bowling scene): one field
                 let f: (Arc<ObjectField>, Arc<ObjectField>) = fields[first].clone();
-                reports.push(FieldReport { mesh: m.name.clone(), shared_with: Some(first), cached: true, seconds: 0.0, rays: 0, ..reports[first].clone() });
+                reports.push(FieldReport {
+                    mesh: m.name.clone(),
+                    shared_with: Some(first),
+                    cached: true,
+                    seconds: 0.0,
+                    rays: 0,
+                    ..reports[first].clone()
+                });
                 fields.push(f);
                 continue;
             }
             by_key.insert(key.clone(), mi);
-            let paths = options.cache_dir.as_ref().map(|d| (d.join(format!("{key}-fixed.psf")), d.join(format!("{key}-adaptive.psf"))));
+            let paths = options
+                .cache_dir
+                .as_ref()
+                .map(|d| (d.join(format!("{key}-fixed.psf")), d.join(format!("{key}-adaptive.psf"))));
             let loaded = paths.as_ref().and_then(|(f, a)| {
                 let f = ObjectField::from_bytes(&std::fs::read(f).ok()?).ok()?;
                 let a = ObjectField::from_bytes(&std::fs::read(a).ok()?).ok()?;
-                (f.self_transfer.len() == m.positions.len() && a.self_transfer.len() == m.positions.len()).then_some((f, a))
+                (f.self_transfer.len() == m.positions.len() && a.self_transfer.len() == m.positions.len())
+                    .then_some((f, a))
             });
             let (fixed, adaptive, seconds, rays, cached) = match loaded {
                 Some((f, a)) => (f, a, 0.0, 0, true),
                 None => {
-                    let total = (options.params.shells * options.params.resolution.next_power_of_two().pow(2) + m.positions.len()) as u64;
+                    let total = (options.params.shells * options.params.resolution.next_power_of_two().pow(2)
+                        + m.positions.len()) as u64;
                     let done = std::sync::atomic::AtomicU64::new(0);
                     let name = m.name.clone();
                     let show = options.progress;
@@ -309,7 +329,8 @@ impl SceneFields {
         for (li, l) in scene.lights.iter().enumerate() {
             let src = light_source(&l.kind);
             let reach = srf_reach(scene, li);
-            let raw = sf::precompute_srf(src, reach, &options.params, &|_| {}).map_err(|e| anyhow!("light {li} '{}': {e}", l.name))?;
+            let raw = sf::precompute_srf(src, reach, &options.params, &|_| {})
+                .map_err(|e| anyhow!("light {li} '{}': {e}", l.name))?;
             let f = raw.to_fixed();
             let a = raw.to_adaptive_relative(options.params.threshold, options.params.min_resolution);
             light_reports.push(FieldReport {
@@ -347,13 +368,18 @@ impl SceneFields {
 /// `scene` and writes one file per object and variant, `<out>/<mesh>.fixed.psf` and
 /// `<out>/<mesh>.adaptive.psf` (mesh names sanitized, index-suffixed when repeated), read back
 /// with [`ObjectField::from_bytes`]. Returns the per-mesh reports and the paths written.
-pub fn precompute_files(scene: &Scene, options: &SfOptions, out: &std::path::Path) -> Result<(Vec<FieldReport>, Vec<PathBuf>)> {
+pub fn precompute_files(
+    scene: &Scene,
+    options: &SfOptions,
+    out: &std::path::Path,
+) -> Result<(Vec<FieldReport>, Vec<PathBuf>)> {
     let fields = SceneFields::build(scene, options)?;
     std::fs::create_dir_all(out).map_err(|e| anyhow!("{}: {e}", out.display()))?;
     let mut paths = Vec::new();
     let mut seen = std::collections::HashSet::new();
     for (mi, ((f, a), m)) in fields.fields.iter().zip(&scene.meshes).enumerate() {
-        let mut name: String = m.name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect();
+        let mut name: String =
+            m.name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect();
         if name.is_empty() || !seen.insert(name.clone()) {
             name = format!("{name}_{mi}");
             seen.insert(name.clone());
@@ -413,7 +439,12 @@ pub fn casts_flags(scene: &Scene) -> Vec<bool> {
 }
 
 /// Per-frame instance setup for the CPU path.
-pub fn instance_frames<'a>(scene: &Scene, frame: &Frame, fields: &'a SceneFields, adaptive: bool) -> Vec<InstanceFrame<'a>> {
+pub fn instance_frames<'a>(
+    scene: &Scene,
+    frame: &Frame,
+    fields: &'a SceneFields,
+    adaptive: bool,
+) -> Vec<InstanceFrame<'a>> {
     frame
         .instances
         .iter()
@@ -437,7 +468,8 @@ pub fn light_frames<'a>(frame: &Frame, fields: &'a SceneFields, adaptive: bool, 
             let field = if srf { fields.light_field(l.light, adaptive) } else { None };
             let ok = l.power.is_finite()
                 && l.position.is_finite()
-                && (!matches!(l.kind, LightKind::Spot { .. }) || l.direction.is_finite() && l.direction.length_squared() > 0.0);
+                && (!matches!(l.kind, LightKind::Spot { .. })
+                    || l.direction.is_finite() && l.direction.length_squared() > 0.0);
             let power = if ok { l.power.max(Vec3::ZERO).as_dvec3() } else { DVec3::ZERO };
             let pos = if l.position.is_finite() { l.position.as_dvec3() } else { DVec3::ZERO };
             LightFrame::new(field, src, pos, l.direction.as_dvec3(), power)
@@ -467,7 +499,12 @@ pub fn vertex_points(scene: &Scene, frame: &Frame, fields: &SceneFields, cull: O
 /// [`vertex_points`] and each point's slot in the frame's per-vertex array (instances in
 /// order, each with its mesh's vertex count), the first slot of each instance, and the slot
 /// count.
-pub fn visible_vertices(scene: &Scene, frame: &Frame, fields: &SceneFields, cull: Option<f32>) -> (Vec<ShadePoint>, Vec<u32>, Vec<u32>, u32) {
+pub fn visible_vertices(
+    scene: &Scene,
+    frame: &Frame,
+    fields: &SceneFields,
+    cull: Option<f32>,
+) -> (Vec<ShadePoint>, Vec<u32>, Vec<u32>, u32) {
     let aspect = cull.filter(|a| a.is_finite() && *a > 0.0).unwrap_or(1.0);
     let cull = cull.is_some();
     let vp = frame.camera.proj(aspect) * frame.camera.view();
@@ -483,7 +520,11 @@ pub fn visible_vertices(scene: &Scene, frame: &Frame, fields: &SceneFields, cull
         let this_base = base;
         base += nv as u32;
         let Some((_, field)) = fields.fields.get(inst.mesh) else { continue };
-        let albedo = frame.materials.get(inst.material).or(scene.materials.get(inst.material)).map_or(Vec3::splat(0.5), |m| m.albedo);
+        let albedo = frame
+            .materials
+            .get(inst.material)
+            .or(scene.materials.get(inst.material))
+            .map_or(Vec3::splat(0.5), |m| m.albedo);
         let world: Vec<Vec3> = mesh.positions.iter().map(|p| inst.world.transform_point3(*p)).collect();
         let keep = if cull {
             let nm = Mat3::from_mat4(inst.world).inverse().transpose();
@@ -491,7 +532,11 @@ pub fn visible_vertices(scene: &Scene, frame: &Frame, fields: &SceneFields, cull
             // outside codes: bit k set when beyond plane k (x-, x+, y-, y+, near)
             let code = |c: &glam::Vec4| -> u32 {
                 let m = 1.05 * c.w;
-                ((c.x < -m) as u32) | ((c.x > m) as u32) << 1 | ((c.y < -m) as u32) << 2 | ((c.y > m) as u32) << 3 | ((c.w <= 0.0) as u32) << 4
+                ((c.x < -m) as u32)
+                    | ((c.x > m) as u32) << 1
+                    | ((c.y < -m) as u32) << 2
+                    | ((c.y > m) as u32) << 3
+                    | ((c.w <= 0.0) as u32) << 4
             };
             let codes: Vec<u32> = clip.iter().map(code).collect();
             let mut keep = vec![false; nv];
@@ -523,7 +568,12 @@ pub fn visible_vertices(scene: &Scene, frame: &Frame, fields: &SceneFields, cull
                 continue;
             }
             let t = field.self_transfer.get(vi).copied().unwrap_or([0.0; NCOEF]);
-            out.push(ShadePoint { pos: wp.as_dvec3(), inst: ii, albedo: albedo.as_dvec3(), transfer: t.map(|x| x as f64) });
+            out.push(ShadePoint {
+                pos: wp.as_dvec3(),
+                inst: ii,
+                albedo: albedo.as_dvec3(),
+                transfer: t.map(|x| x as f64),
+            });
             slots.push(this_base + vi as u32);
         }
     }
@@ -667,7 +717,8 @@ impl GpuTables {
             let src = self.light_sources.get(l.light).copied().unwrap_or_else(|| light_source(&l.kind));
             let ok = l.power.is_finite()
                 && l.position.is_finite()
-                && (!matches!(l.kind, LightKind::Spot { .. }) || l.direction.is_finite() && l.direction.length_squared() > 0.0);
+                && (!matches!(l.kind, LightKind::Spot { .. })
+                    || l.direction.is_finite() && l.direction.length_squared() > 0.0);
             let power = if ok { l.power.max(Vec3::ZERO) } else { Vec3::ZERO };
             let pos = if l.position.is_finite() { l.position } else { Vec3::ZERO };
             let lf = LightFrame::new(None, src, pos.as_dvec3(), l.direction.as_dvec3(), power.as_dvec3());
@@ -709,12 +760,23 @@ pub struct SfHandles {
 
 /// Uploads the tables, this frame's instances and lights, and the environment lighting
 /// (host-initialised buffers).
-pub fn upload(graph: &mut Graph, tables: &GpuTables, casts: &[bool], frame: &Frame, light: &[[f64; 3]; NCOEF], srf: bool) -> SfHandles {
+pub fn upload(
+    graph: &mut Graph,
+    tables: &GpuTables,
+    casts: &[bool],
+    frame: &Frame,
+    light: &[[f64; 3]; NCOEF],
+    srf: bool,
+) -> SfHandles {
     let insts = tables.instances(casts, frame, srf);
     let light4: Vec<[f32; 4]> = light.iter().map(|c| [c[0] as f32, c[1] as f32, c[2] as f32, 0.0]).collect();
     let mut data = tables.data.clone();
     data.resize(data.len().max(16), 0);
-    let shells = if tables.shells.is_empty() { vec![GpuShell { info: [0; 4], min: [0.0; 16], step: [0.0; 16] }] } else { tables.shells.clone() };
+    let shells = if tables.shells.is_empty() {
+        vec![GpuShell { info: [0; 4], min: [0.0; 16], step: [0.0; 16] }]
+    } else {
+        tables.shells.clone()
+    };
     let inst_bytes = if insts.is_empty() { vec![0u8; std::mem::size_of::<GpuInst>()] } else { bytes_of(&insts) };
     SfHandles {
         data: graph.create_buffer_init("sf_data", data),
@@ -787,7 +849,13 @@ impl ShadowFieldsTechnique {
 
     /// With fields built elsewhere (e.g. shared between the fixed and adaptive variants); mode,
     /// window and srf from the fields' options.
-    pub fn with_fields(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, fields: Arc<SceneFields>, adaptive: bool) -> Result<Self> {
+    pub fn with_fields(
+        ctx: &Arc<Context>,
+        shaders: &ShaderLibrary,
+        scene: &Scene,
+        fields: Arc<SceneFields>,
+        adaptive: bool,
+    ) -> Result<Self> {
         use vk::DescriptorType as T;
         let sb = T::STORAGE_BUFFER;
         let sampled = T::COMBINED_IMAGE_SAMPLER;
@@ -795,7 +863,23 @@ impl ShadowFieldsTechnique {
             ctx,
             shaders,
             "shadow_fields/sf_shade.comp",
-            &[T::UNIFORM_BUFFER, sb, sampled, sampled, sampled, sampled, T::STORAGE_IMAGE, sb, sb, sb, sb, sb, sb, sampled, sampled],
+            &[
+                T::UNIFORM_BUFFER,
+                sb,
+                sampled,
+                sampled,
+                sampled,
+                sampled,
+                T::STORAGE_IMAGE,
+                sb,
+                sb,
+                sb,
+                sb,
+                sb,
+                sb,
+                sampled,
+                sampled,
+            ],
             24,
         )?;
         let points = compute_pipeline(ctx, shaders, "shadow_fields/sf_points.comp", &[sb; 7], 20)?;
@@ -843,26 +927,45 @@ impl ShadowFieldsTechnique {
     /// Adds the per-point pass (GPU rendering path): point `i` writes `vec4` (rgb radiance
     /// times its albedo clamped at 0, w the unclamped minimum channel) at `slots[i]` (`None`:
     /// at `i`) of the returned buffer of `out_len` entries, zero elsewhere.
-    pub fn add_points(&self, graph: &mut Graph, h: &SfHandles, points: &[ShadePoint], slots: Option<&[u32]>, out_len: u32) -> BufferHandle {
+    pub fn add_points(
+        &self,
+        graph: &mut Graph,
+        h: &SfHandles,
+        points: &[ShadePoint],
+        slots: Option<&[u32]>,
+        out_len: u32,
+    ) -> BufferHandle {
         let gp: Vec<GpuPoint> = points
             .iter()
             .enumerate()
             .map(|(i, p)| GpuPoint {
                 pos: [p.pos.x as f32, p.pos.y as f32, p.pos.z as f32, 1.0],
                 albedo: [p.albedo.x as f32, p.albedo.y as f32, p.albedo.z as f32, 1.0],
-                ids: [p.inst as u32, slots.and_then(|s| s.get(i).copied()).unwrap_or(i as u32).min(out_len.saturating_sub(1)), 0, 0],
+                ids: [
+                    p.inst as u32,
+                    slots.and_then(|s| s.get(i).copied()).unwrap_or(i as u32).min(out_len.saturating_sub(1)),
+                    0,
+                    0,
+                ],
                 t: p.transfer.map(|x| x as f32),
             })
             .collect();
         let n = gp.len() as u32;
-        let pts = graph.create_buffer_init("sf_points", if gp.is_empty() { vec![0u8; std::mem::size_of::<GpuPoint>()] } else { bytes_of(&gp) });
+        let pts = graph.create_buffer_init(
+            "sf_points",
+            if gp.is_empty() { vec![0u8; std::mem::size_of::<GpuPoint>()] } else { bytes_of(&gp) },
+        );
         let out = graph.create_buffer_init("sf_point_radiance", vec![0u8; out_len.max(1) as usize * 16]);
         let mut p = graph.pass("sf_points", PassKind::Compute);
-        let r = [h.data, h.shells, h.insts, h.tensor, h.light, pts].map(|b| p.read(b, Access::ComputeShaderReadStorage));
+        let r =
+            [h.data, h.shells, h.insts, h.tensor, h.light, pts].map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let out = p.write(out, Access::ComputeShaderWriteStorage);
         let pipe = self.points.handle();
         let n_light = if self.srf { h.light_count } else { 0 };
-        let push: Vec<u8> = [n, h.inst_count, h.tensor_count, n_light, self.window_code()].iter().flat_map(|x| x.to_le_bytes()).collect();
+        let push: Vec<u8> = [n, h.inst_count, h.tensor_count, n_light, self.window_code()]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
         p.record(move |rc| {
             let mut binds: Vec<Bind> = r.iter().map(|&b| Bind::StorageBuffer(b)).collect();
             binds.push(Bind::StorageBuffer(out));
@@ -873,7 +976,14 @@ impl ShadowFieldsTechnique {
 
     /// The per-vertex display (paper 5): the visible vertices' radiance (albedo 1) on the GPU,
     /// interpolated across the triangles by a raster pass into a `w x h` image.
-    fn add_vertex_display(&self, graph: &mut Graph, h: &SfHandles, inputs: &crate::technique::TechniqueInputs, w: u32, hh: u32) -> ImageHandle {
+    fn add_vertex_display(
+        &self,
+        graph: &mut Graph,
+        h: &SfHandles,
+        inputs: &crate::technique::TechniqueInputs,
+        w: u32,
+        hh: u32,
+    ) -> ImageHandle {
         let frame = inputs.frame;
         let aspect = w as f32 / hh.max(1) as f32;
         let (mut points, slots, bases, total) = visible_vertices(&self.scene, frame, &self.fields, Some(aspect));
@@ -917,7 +1027,8 @@ pub(crate) fn add_vertex_raster(
     let bases_buf = graph.create_buffer_init(&format!("{name}_bases"), bytes_of(base_of));
     let depth = graph.create_image(&format!("{name}_depth"), ImageDesc::new_2d(crate::gbuffer::DEPTH_FORMAT, w, hh));
     let mut p = graph.pass(name, PassKind::Raster);
-    let colors: Vec<(ImageHandle, [f32; 4])> = colors.iter().map(|&(img, clear)| (p.write(img, Access::ColorAttachmentWrite), clear)).collect();
+    let colors: Vec<(ImageHandle, [f32; 4])> =
+        colors.iter().map(|&(img, clear)| (p.write(img, Access::ColorAttachmentWrite), clear)).collect();
     let depth = p.write(depth, Access::DepthAttachmentWrite);
     let camera = p.read(inputs.handles.camera, Access::AnyShaderReadUniform);
     let instances = p.read(inputs.handles.instances, Access::VertexShaderReadStorage);
@@ -935,11 +1046,19 @@ pub(crate) fn add_vertex_raster(
         }
         let depth_att = crate::util::depth_attachment(rc.image(depth)?.view, true);
         let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: hh } };
-        let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&color).depth_attachment(&depth_att);
+        let info = vk::RenderingInfo::default()
+            .render_area(area)
+            .layer_count(1)
+            .color_attachments(&color)
+            .depth_attachment(&depth_att);
         let (vb, ib) = (rc.buffer(vertices)?, rc.buffer(indices)?);
         unsafe {
             d.cmd_begin_rendering(rc.cmd, &info);
-            d.cmd_set_viewport(rc.cmd, 0, &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: hh as f32, min_depth: 0.0, max_depth: 1.0 }]);
+            d.cmd_set_viewport(
+                rc.cmd,
+                0,
+                &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: hh as f32, min_depth: 0.0, max_depth: 1.0 }],
+            );
             d.cmd_set_scissor(rc.cmd, 0, &[area]);
             d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
         }
@@ -947,7 +1066,12 @@ pub(crate) fn add_vertex_raster(
             vk::PipelineBindPoint::GRAPHICS,
             layout,
             0,
-            &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances), Bind::StorageBuffer(values), Bind::StorageBuffer(bases_buf)],
+            &[
+                Bind::UniformBuffer(camera),
+                Bind::StorageBuffer(instances),
+                Bind::StorageBuffer(values),
+                Bind::StorageBuffer(bases_buf),
+            ],
         )?;
         unsafe {
             if !draws.is_empty() {
@@ -964,7 +1088,6 @@ pub(crate) fn add_vertex_raster(
     written
 }
 
-
 impl crate::technique::Technique for ShadowFieldsTechnique {
     fn name(&self) -> &'static str {
         if self.adaptive {
@@ -974,7 +1097,12 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         }
     }
 
-    fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
+    fn add(
+        &mut self,
+        _engine: &mut Engine,
+        graph: &mut Graph,
+        inputs: &crate::technique::TechniqueInputs,
+    ) -> Result<ImageHandle> {
         let h = upload(graph, &self.tables, &self.casts, inputs.frame, &self.light, self.srf);
         let gb = inputs.gbuffer;
         let (w, hh) = (gb.width, gb.height);
@@ -985,15 +1113,17 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         // pixel mode binds the environment in the (unused) vertex-radiance slot
         let vtx = vtx.map(|v| p.read(v, Access::ComputeShaderReadSampled)).unwrap_or(io.env);
         let hdr = io.hdr;
-        let r = [h.data, h.shells, h.insts, h.tensor, h.light, inputs.handles.lights].map(|b| p.read(b, Access::ComputeShaderReadStorage));
+        let r = [h.data, h.shells, h.insts, h.tensor, h.light, inputs.handles.lights]
+            .map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let tex = p.read(inputs.handles.textures, Access::ComputeShaderReadSampled);
         let pipe = self.shade.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         let mode = (self.mode == SfMode::Vertex) as u32;
-        let push: Vec<u8> = [h.inst_count, h.tensor_count, inputs.handles.light_count, self.srf as u32, self.window_code(), mode]
-            .iter()
-            .flat_map(|x| x.to_le_bytes())
-            .collect();
+        let push: Vec<u8> =
+            [h.inst_count, h.tensor_count, inputs.handles.light_count, self.srf as u32, self.window_code(), mode]
+                .iter()
+                .flat_map(|x| x.to_le_bytes())
+                .collect();
         p.record(move |rc| {
             let mut binds = io.binds(nearest, linear);
             binds.extend(r.iter().map(|&b| Bind::StorageBuffer(b)));

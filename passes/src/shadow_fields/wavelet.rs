@@ -74,7 +74,16 @@ pub struct SfwOptions {
 
 impl Default for SfwOptions {
     fn default() -> Self {
-        SfwOptions { shells: 32, resolution: 32, cube: 16, keep: 0.05, threshold: 0.010, adaptive: true, reproject: true, self_occlusion: true }
+        SfwOptions {
+            shells: 32,
+            resolution: 32,
+            cube: 16,
+            keep: 0.05,
+            threshold: 0.010,
+            adaptive: true,
+            reproject: true,
+            self_occlusion: true,
+        }
     }
 }
 
@@ -92,7 +101,8 @@ impl SfwOptions {
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
         let bad = |why: &str| anyhow!("shadow-fields-wavelet parameter {key} = '{value}': {why}");
-        let pow2 = |lo: usize, hi: usize| v.parse::<usize>().ok().filter(|x| (lo..=hi).contains(x) && x.is_power_of_two());
+        let pow2 =
+            |lo: usize, hi: usize| v.parse::<usize>().ok().filter(|x| (lo..=hi).contains(x) && x.is_power_of_two());
         match key.trim() {
             "shells" => self.shells = v.parse::<usize>().ok().filter(|x| (1..=64).contains(x)).ok_or_else(|| bad("expected an integer in 1..=64"))?,
             "resolution" => self.resolution = pow2(1, 64).ok_or_else(|| bad("expected a power of two in 1..=64"))?,
@@ -164,27 +174,52 @@ impl WaveletFields {
         let t_self = std::time::Instant::now();
         let mut self_maps: Vec<Option<Arc<Vec<u32>>>> = Vec::new();
         for (mi, m) in scene.meshes.iter().enumerate() {
-            let ok = options.self_occlusion && m.indices.len() >= 3 && m.normals.len() == m.positions.len() && m.positions.iter().all(|p| p.is_finite());
-            let same = |k: usize| self_maps[k].is_some() && scene.meshes[k].positions == m.positions && scene.meshes[k].indices == m.indices && scene.meshes[k].normals == m.normals;
+            let ok = options.self_occlusion
+                && m.indices.len() >= 3
+                && m.normals.len() == m.positions.len()
+                && m.positions.iter().all(|p| p.is_finite());
+            let same = |k: usize| {
+                self_maps[k].is_some()
+                    && scene.meshes[k].positions == m.positions
+                    && scene.meshes[k].indices == m.indices
+                    && scene.meshes[k].normals == m.normals
+            };
             let maps = if !ok {
                 None
             } else if let Some(first) = (0..mi).find(|&k| same(k)) {
                 self_maps[first].clone()
             } else {
-                Some(Arc::new(penumbra_math::shadow_field::haar::self_maps(&m.positions, &m.normals, &m.indices, &table)))
+                Some(Arc::new(penumbra_math::shadow_field::haar::self_maps(
+                    &m.positions,
+                    &m.normals,
+                    &m.indices,
+                    &table,
+                )))
             };
             self_maps.push(maps);
         }
         let self_seconds = t_self.elapsed().as_secs_f64();
         for (mi, m) in scene.meshes.iter().enumerate() {
             // a mesh no shadow-casting object uses needs no field (a floor)
-            let casts = scene.objects.iter().enumerate().any(|(oi, o)| o.mesh == mi && scene.object_info.get(oi).map_or(true, |i| i.casts_shadow));
+            let casts = scene
+                .objects
+                .iter()
+                .enumerate()
+                .any(|(oi, o)| o.mesh == mi && scene.object_info.get(oi).map_or(true, |i| i.casts_shadow));
             if !casts || m.indices.len() < 3 || m.positions.is_empty() {
                 fields.push(None);
-                reports.push(WaveletReport { mesh: m.name.clone(), fixed_bytes: 0, adaptive_bytes: 0, resolutions: Vec::new(), seconds: 0.0 });
+                reports.push(WaveletReport {
+                    mesh: m.name.clone(),
+                    fixed_bytes: 0,
+                    adaptive_bytes: 0,
+                    resolutions: Vec::new(),
+                    seconds: 0.0,
+                });
                 continue;
             }
-            let same = |k: usize| fields[k].is_some() && scene.meshes[k].positions == m.positions && scene.meshes[k].indices == m.indices;
+            let same = |k: usize| {
+                fields[k].is_some() && scene.meshes[k].positions == m.positions && scene.meshes[k].indices == m.indices
+            };
             if let Some(first) = (0..mi).find(|&k| same(k)) {
                 fields.push(fields[first].clone());
                 reports.push(WaveletReport { mesh: m.name.clone(), seconds: 0.0, ..reports[first].clone() });
@@ -195,11 +230,26 @@ impl WaveletFields {
             let (_, vr) = penumbra_math::shadow_field::bounds(&m.positions);
             if !(vr.is_finite() && vr > 0.0) {
                 fields.push(None);
-                reports.push(WaveletReport { mesh: m.name.clone(), fixed_bytes: 0, adaptive_bytes: 0, resolutions: Vec::new(), seconds: 0.0 });
+                reports.push(WaveletReport {
+                    mesh: m.name.clone(),
+                    fixed_bytes: 0,
+                    adaptive_bytes: 0,
+                    resolutions: Vec::new(),
+                    seconds: 0.0,
+                });
                 continue;
             }
             let (c, vr, maps) = raw_maps(&m.positions, &m.indices, options.shells, options.resolution, &table);
-            let (field, fixed_bytes) = HaarField::build_sized(c, vr, &maps, options.resolution, &table, options.keep, options.adaptive, options.threshold);
+            let (field, fixed_bytes) = HaarField::build_sized(
+                c,
+                vr,
+                &maps,
+                options.resolution,
+                &table,
+                options.keep,
+                options.adaptive,
+                options.threshold,
+            );
             reports.push(WaveletReport {
                 mesh: m.name.clone(),
                 fixed_bytes,
@@ -323,7 +373,11 @@ impl WaveletTechnique {
                     descriptors: &[T::UNIFORM_BUFFER, sb, sb, sb],
                     vertex_input: VertexInput::Position,
                     colors: &[SELF_FORMAT, SELF_FORMAT],
-                    depth: Some(DepthState { format: crate::gbuffer::DEPTH_FORMAT, write: true, compare: vk::CompareOp::LESS }),
+                    depth: Some(DepthState {
+                        format: crate::gbuffer::DEPTH_FORMAT,
+                        write: true,
+                        compare: vk::CompareOp::LESS,
+                    }),
                     ..Default::default()
                 },
             )?
@@ -350,7 +404,13 @@ impl WaveletTechnique {
                         }
                     };
                     mesh_self.push(Some(off));
-                    mesh_verts.push(m.positions.iter().zip(&m.normals).flat_map(|(p, n)| [[p.x, p.y, p.z, 1.0], [n.x, n.y, n.z, 0.0]]).collect());
+                    mesh_verts.push(
+                        m.positions
+                            .iter()
+                            .zip(&m.normals)
+                            .flat_map(|(p, n)| [[p.x, p.y, p.z, 1.0], [n.x, n.y, n.z, 0.0]])
+                            .collect(),
+                    );
                 }
                 None => {
                     mesh_self.push(None);
@@ -443,7 +503,15 @@ impl WaveletTechnique {
     /// The self-occlusion images of a frame: per visible instance with maps, every vertex's
     /// values (sfw_self.comp) interpolated across its triangles by a raster pass into two
     /// `w x h` images (cleared to 1: no self-occlusion where nothing is drawn).
-    fn add_self(&self, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs, insts: BufferHandle, dirs: BufferHandle, w: u32, hh: u32) -> (ImageHandle, ImageHandle) {
+    fn add_self(
+        &self,
+        graph: &mut Graph,
+        inputs: &crate::technique::TechniqueInputs,
+        insts: BufferHandle,
+        dirs: BufferHandle,
+        w: u32,
+        hh: u32,
+    ) -> (ImageHandle, ImageHandle) {
         let frame = inputs.frame;
         let n = self.fields.options.cube.max(2).next_power_of_two() as u32;
         let per = (6 * n * n).div_ceil(32);
@@ -453,7 +521,11 @@ impl WaveletTechnique {
         let mut draws = Vec::new();
         if self.fields.options.self_occlusion {
             for (ii, inst) in frame.instances.iter().enumerate() {
-                let (Some(Some(off)), Some(&(first, count, offset))) = (self.mesh_self.get(inst.mesh), self.mesh_ranges.get(inst.mesh)) else { continue };
+                let (Some(Some(off)), Some(&(first, count, offset))) =
+                    (self.mesh_self.get(inst.mesh), self.mesh_ranges.get(inst.mesh))
+                else {
+                    continue;
+                };
                 let mv = &self.mesh_verts[inst.mesh];
                 let nv = (mv.len() / 2) as u32;
                 if nv == 0 || count == 0 {
@@ -477,10 +549,12 @@ impl WaveletTechnique {
             let maps = graph.create_buffer_init("sfw_self_maps", bytes_of(self.self_data.as_ref()));
             let out = graph.create_buffer_init("sfw_self_values", vec![0u8; total as usize * 32]);
             let mut p = graph.pass("sfw_self", PassKind::Compute);
-            let r = [slot_buf, vert_buf, maps, insts, dirs, inputs.handles.lights].map(|b| p.read(b, Access::ComputeShaderReadStorage));
+            let r = [slot_buf, vert_buf, maps, insts, dirs, inputs.handles.lights]
+                .map(|b| p.read(b, Access::ComputeShaderReadStorage));
             let out = p.write(out, Access::ComputeShaderWriteStorage);
             let pipe = self.self_pass.handle();
-            let push: Vec<u8> = [total, n, inputs.handles.light_count, 0u32].iter().flat_map(|x| x.to_le_bytes()).collect();
+            let push: Vec<u8> =
+                [total, n, inputs.handles.light_count, 0u32].iter().flat_map(|x| x.to_le_bytes()).collect();
             let gx = total.min(32768);
             let gy = total.div_ceil(gx);
             p.record(move |rc| {
@@ -492,7 +566,18 @@ impl WaveletTechnique {
         } else {
             graph.create_buffer_init("sfw_self_values", vec![0u8; 32])
         };
-        let out = super::add_vertex_raster(graph, "sfw_self_display", &self.self_raster, inputs, values, &base_of, draws, &[(img_share, [1.0; 4]), (img_lights, [1.0; 4])], w, hh);
+        let out = super::add_vertex_raster(
+            graph,
+            "sfw_self_display",
+            &self.self_raster,
+            inputs,
+            values,
+            &base_of,
+            draws,
+            &[(img_share, [1.0; 4]), (img_lights, [1.0; 4])],
+            w,
+            hh,
+        );
         (out[0], out[1])
     }
 }
@@ -513,16 +598,28 @@ impl crate::technique::Technique for WaveletTechnique {
         }
     }
 
-    fn add(&mut self, _engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
+    fn add(
+        &mut self,
+        _engine: &mut Engine,
+        graph: &mut Graph,
+        inputs: &crate::technique::TechniqueInputs,
+    ) -> Result<ImageHandle> {
         let frame = inputs.frame;
         let insts: Vec<GpuInst> = frame
             .instances
             .iter()
             .map(|inst| {
-                let (first, count, c, step) = self.mesh_shells.get(inst.mesh).copied().unwrap_or((0, 0, Vec3::ZERO, 1.0));
+                let (first, count, c, step) =
+                    self.mesh_shells.get(inst.mesh).copied().unwrap_or((0, 0, Vec3::ZERO, 1.0));
                 let casts = self.casts.get(inst.object).copied().unwrap_or(true);
                 let cw = inst.world.transform_point3(c);
-                let scale = inst.world.x_axis.truncate().length().max(inst.world.y_axis.truncate().length()).max(inst.world.z_axis.truncate().length());
+                let scale = inst
+                    .world
+                    .x_axis
+                    .truncate()
+                    .length()
+                    .max(inst.world.y_axis.truncate().length())
+                    .max(inst.world.z_axis.truncate().length());
                 // 1e-4 of slack: a silhouette pixel's centre exactly on the cone stays inside
                 let radius = 5.0 * step * scale * (1.0 + 1e-4);
                 GpuInst {
@@ -547,14 +644,19 @@ impl crate::technique::Technique for WaveletTechnique {
         let mut p = graph.pass("sfw_shade", PassKind::Compute);
         let io = crate::shade_env::ShadingIo::declare(&mut p, inputs.handles, gb, inputs.env, hdr);
         let hdr = io.hdr;
-        let r = [maps, shells, inst_buf, dirs, irr, inputs.handles.lights].map(|b| p.read(b, Access::ComputeShaderReadStorage));
+        let r = [maps, shells, inst_buf, dirs, irr, inputs.handles.lights]
+            .map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let tex = p.read(inputs.handles.textures, Access::ComputeShaderReadSampled);
         let self_share = p.read(self_share, Access::ComputeShaderReadSampled);
         let self_lights = p.read(self_lights, Access::ComputeShaderReadSampled);
         let pipe = self.shade.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         let n = self.fields.options.cube.max(2).next_power_of_two() as u32;
-        let push: Vec<u8> = [frame.instances.len() as u32, inputs.handles.light_count, n, self.fields.options.reproject as u32].iter().flat_map(|x| x.to_le_bytes()).collect();
+        let push: Vec<u8> =
+            [frame.instances.len() as u32, inputs.handles.light_count, n, self.fields.options.reproject as u32]
+                .iter()
+                .flat_map(|x| x.to_le_bytes())
+                .collect();
         p.record(move |rc| {
             let mut binds = io.binds(nearest, linear);
             binds.extend(r.iter().map(|&b| Bind::StorageBuffer(b)));

@@ -19,7 +19,11 @@ fn phase4pi(g: f64, xi: f64) -> f64 {
 fn integrand(u: f64, g: f64, xi: f64) -> f64 {
     let t = xi.tan();
     let e = if t.is_finite() { (-u * t).exp() } else { 0.0 };
-    if u == 0.0 { phase4pi(g, xi) } else { e * phase4pi(g, xi) }
+    if u == 0.0 {
+        phase4pi(g, xi)
+    } else {
+        e * phase4pi(g, xi)
+    }
 }
 
 /// `F(u, v)` by composite Simpson with `n` (even) intervals (the test's reference).

@@ -375,10 +375,8 @@ pub fn bench_volumetric(
     let full_frame_ms = frames.iter().map(|f| f.full_frame_ms).sum::<f64>() / n;
     let march = |v: &Vec<(String, f64)>| v.iter().find(|x| x.0 == "vol_march").map(|x| x.1);
     let masked: Vec<&VolBenchFrame> = frames.iter().filter(|f| f.temporal_mode == "masked").collect();
-    let mut ratios: Vec<f64> = masked
-        .iter()
-        .filter_map(|f| Some(march(&f.temporal_ms)? / march(&f.full_ms)?.max(1e-9)))
-        .collect();
+    let mut ratios: Vec<f64> =
+        masked.iter().filter_map(|f| Some(march(&f.temporal_ms)? / march(&f.full_ms)?.max(1e-9))).collect();
     ratios.sort_by(|a, b| a.total_cmp(b));
     let masked_march_ratio = (!ratios.is_empty()).then(|| ratios[ratios.len() / 2]);
     let masked_fraction =

@@ -272,7 +272,11 @@ fn scatter_power(l: &penumbra_scene::LightInstance) -> f32 {
 fn scatter_score(l: &penumbra_scene::LightInstance, eye: Vec3, sigma_t: f32) -> f32 {
     let d = l.position.distance(eye).max(0.1);
     let s = scatter_power(l) * (-sigma_t * d).exp() / d;
-    if s.is_finite() { s } else { 0.0 }
+    if s.is_finite() {
+        s
+    } else {
+        0.0
+    }
 }
 
 fn face_matrices(kind: LightKind, pos: Vec3, dir: Vec3, near: f32, far: f32) -> (Vec<Mat4>, u32) {
@@ -592,7 +596,15 @@ fn mask_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, stencil_format: vk
 /// Front-most (min RGB) and back-most (max alpha) boundary distances per pixel.
 fn volumes_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, stencil: Option<StencilState>) -> Result<Pipeline> {
     let name = if stencil.is_some() { "vol_volumes_masked" } else { "vol_volumes" };
-    volume_pipeline(ctx, shaders, name, "volumetric/vol_volumes.frag", Some(INTERVAL_FORMAT), Blend::MinRgbMaxAlpha, stencil)
+    volume_pipeline(
+        ctx,
+        shaders,
+        name,
+        "volumetric/vol_volumes.frag",
+        Some(INTERVAL_FORMAT),
+        Blend::MinRgbMaxAlpha,
+        stencil,
+    )
 }
 
 /// Shadow-volume draws (extruded by `vol_mask.geom` from the adjacency index buffer) into one
@@ -636,7 +648,8 @@ impl VolumeDraws<'_> {
         let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
         let mut p = graph.pass(name, PassKind::Raster);
         let stencil = self.stencil;
-        let img = p.write(img, if stencil { Access::DepthStencilAttachmentWrite } else { Access::ColorAttachmentWrite });
+        let img =
+            p.write(img, if stencil { Access::DepthStencilAttachmentWrite } else { Access::ColorAttachmentWrite });
         let camera = p.read(sh.camera, Access::AnyShaderReadUniform);
         let instances = p.read(sh.instances, Access::VertexShaderReadStorage);
         let vertices = p.read(sh.vertices, Access::VertexBuffer);
@@ -867,7 +880,8 @@ impl Effect for VolumetricEffect {
             for d in inputs.draws.iter().filter(|d| d.deformed) {
                 let Some(it) = inputs.frame.instances.get(d.instance as usize) else { continue };
                 let Some(cur) = it.deformed_mesh.as_ref() else { continue };
-                let prev = it.prev_deformed_mesh.as_ref().filter(|p| p.positions.len() == cur.positions.len()).unwrap_or(cur);
+                let prev =
+                    it.prev_deformed_mesh.as_ref().filter(|p| p.positions.len() == cur.positions.len()).unwrap_or(cur);
                 let o = d.mesh.vertex_offset.max(0) as usize;
                 for (k, p) in prev.positions.iter().enumerate() {
                     if let Some(v) = verts.get_mut(o + k) {
@@ -980,20 +994,27 @@ impl Effect for VolumetricEffect {
                         (MarchMode::Masked, Some(m), Some(vm)) => (vm, Some(m)),
                         _ => (vp, None),
                     };
-                    let vol =
-                        VolumeDraws {
-                            pipeline: vp,
-                            adjacency: adj_h,
-                            light: block.pos_kind,
-                            near: cam.near,
-                            widen: block.extra[1],
-                            stencil: false,
-                            draws: casters,
-                            deformed: sh.deformed_vertices,
-                            prev_deformed: None,
-                            test_mask,
-                        };
-                    let img = vol.add(graph, "vol_volumes", sh, img, (w, h), [f32::INFINITY, f32::INFINITY, f32::INFINITY, 0.0], &[0]);
+                    let vol = VolumeDraws {
+                        pipeline: vp,
+                        adjacency: adj_h,
+                        light: block.pos_kind,
+                        near: cam.near,
+                        widen: block.extra[1],
+                        stencil: false,
+                        draws: casters,
+                        deformed: sh.deformed_vertices,
+                        prev_deformed: None,
+                        test_mask,
+                    };
+                    let img = vol.add(
+                        graph,
+                        "vol_volumes",
+                        sh,
+                        img,
+                        (w, h),
+                        [f32::INFINITY, f32::INFINITY, f32::INFINITY, 0.0],
+                        &[0],
+                    );
                     intervals = Some(img);
                 }
             }

@@ -260,7 +260,11 @@ pub fn scene_model(scene: &Scene, refine: u32) -> Result<VvGeometry> {
     // typical one (floors, walls) are split, a uniformly tessellated model stays as given
     let mut edges: Vec<f32> = world
         .iter()
-        .flat_map(|(m, _)| m.indices.chunks_exact(3).flat_map(move |t| (0..3).map(move |k| (m.positions[t[k] as usize] - m.positions[t[(k + 1) % 3] as usize]).length())))
+        .flat_map(|(m, _)| {
+            m.indices.chunks_exact(3).flat_map(move |t| {
+                (0..3).map(move |k| (m.positions[t[k] as usize] - m.positions[t[(k + 1) % 3] as usize]).length())
+            })
+        })
         .collect();
     let median = if edges.is_empty() {
         0.0
@@ -417,7 +421,12 @@ pub fn downsample(width: usize, height: usize, texels: &[[f32; 3]], w: usize) ->
 pub fn phong_blur(width: usize, height: usize, texels: &[[f32; 3]], alpha: f64) -> Vec<[f32; 3]> {
     use rayon::prelude::*;
     let dirs: Vec<DVec3> = (0..width * height)
-        .map(|i| penumbra_math::envmap::latlong_direction(((i % width) as f64 + 0.5) / width as f64, ((i / width) as f64 + 0.5) / height as f64))
+        .map(|i| {
+            penumbra_math::envmap::latlong_direction(
+                ((i % width) as f64 + 0.5) / width as f64,
+                ((i / width) as f64 + 0.5) / height as f64,
+            )
+        })
         .collect();
     let sa: Vec<f64> = (0..height)
         .map(|y| {
@@ -459,18 +468,31 @@ impl Uploads {
             ints.extend(s);
         }
         let (off_tri, off_loop, off_triples);
-        let empty = Correspondence { tri_offsets: vec![0; model.triangle_count() + 1], loop_offsets: vec![0], triples: Vec::new() };
+        let empty = Correspondence {
+            tri_offsets: vec![0; model.triangle_count() + 1],
+            loop_offsets: vec![0],
+            triples: Vec::new(),
+        };
         let corr = data.corr.as_ref().unwrap_or(&empty);
         off_tri = ints.len();
         // bit 31 of a triangle's first loop offset: its eq. 21 interpolation disagrees with eq. 19
         // (penumbra_math::vv::interpolation_disagreement) by more than `fallback`: shaded by eq. 19
         let fallback = if settings.fallback > 0.0 && settings.mode.interpolated() && data.corr.is_some() {
-            penumbra_math::vv::interpolation_disagreement(model, vis, corr).iter().map(|&d| d > settings.fallback).collect()
+            penumbra_math::vv::interpolation_disagreement(model, vis, corr)
+                .iter()
+                .map(|&d| d > settings.fallback)
+                .collect()
         } else {
             vec![false; model.triangle_count()]
         };
         let fallback_triangles = fallback.iter().filter(|f| **f).count();
-        ints.extend(corr.tri_offsets.iter().enumerate().map(|(t, &o)| if fallback.get(t) == Some(&true) { o | 1 << 31 } else { o }));
+        ints.extend(corr.tri_offsets.iter().enumerate().map(|(t, &o)| {
+            if fallback.get(t) == Some(&true) {
+                o | 1 << 31
+            } else {
+                o
+            }
+        }));
         if corr.tri_offsets.last().is_some_and(|&o| o >= 1 << 31) {
             bail!("vv: too many triple loops for the GPU layout");
         }
@@ -503,10 +525,16 @@ impl Uploads {
             verts.extend([p.x, p.y, p.z, uv.x, n.x, n.y, n.z, uv.y, mat, 0.0, 0.0, 0.0]);
         }
         let (verts, verts_rows) = pad_rows(verts, 4);
-        let env = scene.environment.as_ref().context("vv: the scene has no environment map (the technique integrates environment lighting)")?;
-        let (w, h, small) = downsample(env.width as usize, env.height as usize, &env.texels, settings.sat_width as usize);
+        let env = scene
+            .environment
+            .as_ref()
+            .context("vv: the scene has no environment map (the technique integrates environment lighting)")?;
+        let (w, h, small) =
+            downsample(env.width as usize, env.height as usize, &env.texels, settings.sat_width as usize);
         let blurred = if settings.mode.tessellated() { phong_blur(w, h, &small, 256.0) } else { small.clone() };
-        let rgba = |t: &[[f32; 3]]| -> Vec<u8> { bytes_of(&t.iter().map(|c| [c[0], c[1], c[2], 0.0]).collect::<Vec<[f32; 4]>>()) };
+        let rgba = |t: &[[f32; 3]]| -> Vec<u8> {
+            bytes_of(&t.iter().map(|c| [c[0], c[1], c[2], 0.0]).collect::<Vec<[f32; 4]>>())
+        };
         let (points, ints, verts) = (bytes_of(&points), bytes_of(&ints), bytes_of(&verts));
         let key = {
             use std::hash::{Hash, Hasher};
@@ -666,14 +694,30 @@ impl VvTechnique {
     }
 
     /// With precomputed data (shared between techniques of a bench).
-    pub fn with_data(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: VvSettings, data: Arc<VvSceneData>) -> Result<Self> {
+    pub fn with_data(
+        ctx: &Arc<Context>,
+        shaders: &ShaderLibrary,
+        scene: &Scene,
+        settings: VvSettings,
+        data: Arc<VvSceneData>,
+    ) -> Result<Self> {
         Self::build(ctx, shaders, scene, settings, data, true)
     }
 
-    fn build(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: VvSettings, data: Arc<VvSceneData>, raster: bool) -> Result<Self> {
+    fn build(
+        ctx: &Arc<Context>,
+        shaders: &ShaderLibrary,
+        scene: &Scene,
+        settings: VvSettings,
+        data: Arc<VvSceneData>,
+        raster: bool,
+    ) -> Result<Self> {
         use vk::DescriptorType as T;
         if settings.mode.interpolated() && data.corr.is_none() {
-            bail!("vv: mode {} needs the per-triangle correspondence (triple lists), which is not available yet", settings.mode.name());
+            bail!(
+                "vv: mode {} needs the per-triangle correspondence (triple lists), which is not available yet",
+                settings.mode.name()
+            );
         }
         let rows = compute_pipeline(ctx, shaders, "vv/vv_sat_rows.comp", &[T::STORAGE_BUFFER, T::STORAGE_IMAGE], 8)?;
         let cols = compute_pipeline(ctx, shaders, "vv/vv_sat_cols.comp", &[T::STORAGE_IMAGE], 8)?;
@@ -685,7 +729,13 @@ impl VvTechnique {
             .into());
         }
         let raster = if raster { Some(raster_pipeline(ctx, shaders, settings.mode.tessellated())?) } else { None };
-        let composite = compute_pipeline(ctx, shaders, "vv/vv_composite.comp", &[T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE], 0)?;
+        let composite = compute_pipeline(
+            ctx,
+            shaders,
+            "vv/vv_composite.comp",
+            &[T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE],
+            0,
+        )?;
         let up = Uploads::new(scene, &data, &settings)?;
         let qci = vk::QueryPoolCreateInfo::default()
             .query_type(vk::QueryType::PIPELINE_STATISTICS)
@@ -698,7 +748,21 @@ impl VvTechnique {
         } else {
             vk::QueryPool::null()
         };
-        Ok(VvTechnique { ctx: ctx.clone(), rows, cols, raster, composite, env: ShadeEnvPass::new(ctx, shaders)?, nearest: Sampler::nearest(ctx)?, repeat: Sampler::repeat(ctx)?, latlong: Sampler::latlong(ctx)?, settings, up, query, data })
+        Ok(VvTechnique {
+            ctx: ctx.clone(),
+            rows,
+            cols,
+            raster,
+            composite,
+            env: ShadeEnvPass::new(ctx, shaders)?,
+            nearest: Sampler::nearest(ctx)?,
+            repeat: Sampler::repeat(ctx)?,
+            latlong: Sampler::latlong(ctx)?,
+            settings,
+            up,
+            query,
+            data,
+        })
     }
 
     pub fn settings(&self) -> &VvSettings {
@@ -711,7 +775,8 @@ impl VvTechnique {
             return None;
         }
         let mut r = [0u64; 1];
-        let ok = unsafe { self.ctx.device.get_query_pool_results(self.query, 0, &mut r, vk::QueryResultFlags::TYPE_64) };
+        let ok =
+            unsafe { self.ctx.device.get_query_pool_results(self.query, 0, &mut r, vk::QueryResultFlags::TYPE_64) };
         ok.ok().map(|_| r[0])
     }
 
@@ -748,7 +813,9 @@ impl VvTechnique {
         let mut p = graph.pass(&format!("{name}_cols"), PassKind::Compute);
         let sat = p.write(sat, Access::ComputeShaderReadWriteStorage);
         let pipe = self.cols.handle();
-        p.record(move |rc| crate::util::dispatch(rc, pipe, &[Bind::StorageImage(sat)], &push, [groups(w + 1, 64), 1, 1]));
+        p.record(move |rc| {
+            crate::util::dispatch(rc, pipe, &[Bind::StorageImage(sat)], &push, [groups(w + 1, 64), 1, 1])
+        });
         sat
     }
 
@@ -756,8 +823,20 @@ impl VvTechnique {
     /// engine across frames, uploaded on the first frame only (static data: no per-frame
     /// re-upload). Its name carries the hash of the technique's data (`Uploads::key`), so two vv
     /// techniques on one engine never read each other's arrays.
-    fn add_array(engine: &mut Engine, graph: &mut Graph, name: &str, key: u64, format: vk::Format, bytes: &[u8], rows: u32) -> ImageHandle {
-        let img = engine.persistent_image(graph, &format!("{name}.{key:016x}"), ImageDesc::new_2d(format, TEX_W as u32, rows));
+    fn add_array(
+        engine: &mut Engine,
+        graph: &mut Graph,
+        name: &str,
+        key: u64,
+        format: vk::Format,
+        bytes: &[u8],
+        rows: u32,
+    ) -> ImageHandle {
+        let img = engine.persistent_image(
+            graph,
+            &format!("{name}.{key:016x}"),
+            ImageDesc::new_2d(format, TEX_W as u32, rows),
+        );
         if !graph.persistent_is_new(img) {
             return img;
         }
@@ -765,7 +844,12 @@ impl VvTechnique {
             buffer_offset: 0,
             buffer_row_length: 0,
             buffer_image_height: 0,
-            image_subresource: vk::ImageSubresourceLayers { aspect_mask: vk::ImageAspectFlags::COLOR, mip_level: 0, base_array_layer: 0, layer_count: 1 },
+            image_subresource: vk::ImageSubresourceLayers {
+                aspect_mask: vk::ImageAspectFlags::COLOR,
+                mip_level: 0,
+                base_array_layer: 0,
+                layer_count: 1,
+            },
             image_offset: vk::Offset3D::default(),
             image_extent: vk::Extent3D { width: TEX_W as u32, height: rows, depth: 1 },
         };
@@ -781,7 +865,11 @@ impl crate::technique::Technique for VvTechnique {
     fn stats(&self) -> Option<Box<dyn std::any::Any>> {
         // non-blocking: the query holds the last finished frame's count
         let tessellated_triangles = if self.settings.mode.tessellated() { self.read_triangle_count() } else { None };
-        Some(Box::new(VvStats { tessellated_triangles, fallback_triangles: self.up.fallback_triangles, triangles: self.up.triangles as usize }))
+        Some(Box::new(VvStats {
+            tessellated_triangles,
+            fallback_triangles: self.up.fallback_triangles,
+            triangles: self.up.triangles as usize,
+        }))
     }
 
     fn limitations(&self, scene: &penumbra_scene::Scene) -> Vec<String> {
@@ -796,14 +884,40 @@ impl crate::technique::Technique for VvTechnique {
         v
     }
 
-    fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &crate::technique::TechniqueInputs) -> Result<ImageHandle> {
+    fn add(
+        &mut self,
+        engine: &mut Engine,
+        graph: &mut Graph,
+        inputs: &crate::technique::TechniqueInputs,
+    ) -> Result<ImageHandle> {
         let base = self.env.add(graph, inputs.handles, inputs.gbuffer, inputs.env);
         let sat = self.add_sat(graph, "vv_sat", &self.up.env);
-        let blur = if self.settings.mode.tessellated() { Some(self.add_sat(graph, "vv_sat_blur", &self.up.blurred)) } else { None };
+        let blur = if self.settings.mode.tessellated() {
+            Some(self.add_sat(graph, "vv_sat_blur", &self.up.blurred))
+        } else {
+            None
+        };
         let key = self.up.key;
-        let points = Self::add_array(engine, graph, "vv_points", key, vk::Format::R32G32B32A32_SFLOAT, &self.up.points.0, self.up.points.1);
-        let ints = Self::add_array(engine, graph, "vv_ints", key, vk::Format::R32_UINT, &self.up.ints.0, self.up.ints.1);
-        let verts = Self::add_array(engine, graph, "vv_verts", key, vk::Format::R32G32B32A32_SFLOAT, &self.up.verts.0, self.up.verts.1);
+        let points = Self::add_array(
+            engine,
+            graph,
+            "vv_points",
+            key,
+            vk::Format::R32G32B32A32_SFLOAT,
+            &self.up.points.0,
+            self.up.points.1,
+        );
+        let ints =
+            Self::add_array(engine, graph, "vv_ints", key, vk::Format::R32_UINT, &self.up.ints.0, self.up.ints.1);
+        let verts = Self::add_array(
+            engine,
+            graph,
+            "vv_verts",
+            key,
+            vk::Format::R32G32B32A32_SFLOAT,
+            &self.up.verts.0,
+            self.up.verts.1,
+        );
         let (w, h) = (inputs.gbuffer.width, inputs.gbuffer.height);
         let depth = graph.create_image("vv_depth", ImageDesc::new_2d(crate::gbuffer::DEPTH_FORMAT, w, h));
         let objects = graph.create_image("vv_objects", ImageDesc::new_2d(HDR_FORMAT, w, h));
@@ -824,7 +938,12 @@ impl crate::technique::Technique for VvTechnique {
         let mut off1 = self.up.off1;
         off1[3] = inputs.handles.light_count.min(MAX_LIGHTS) as i32;
         let mut push = Vec::with_capacity(64);
-        for v in [self.up.sat_w as i32, self.up.sat_h as i32, self.settings.hemisphere_arcs as i32, self.settings.mode.code()] {
+        for v in [
+            self.up.sat_w as i32,
+            self.up.sat_h as i32,
+            self.settings.hemisphere_arcs as i32,
+            self.settings.mode.code(),
+        ] {
             push.extend_from_slice(&v.to_le_bytes());
         }
         for v in self.up.off0.iter().chain(&off1) {
@@ -833,7 +952,8 @@ impl crate::technique::Technique for VvTechnique {
         for v in [self.settings.alpha, self.settings.zeta, if self.settings.specular { 1.0 } else { 0.0 }, 0.0] {
             push.extend_from_slice(&v.to_le_bytes());
         }
-        let raster = self.raster.as_ref().context("vv: technique built without its raster pipeline (VvTechnique::sat_only)")?;
+        let raster =
+            self.raster.as_ref().context("vv: technique built without its raster pipeline (VvTechnique::sat_only)")?;
         let (pipeline, layout) = (raster.pipeline, raster.layout);
         let (nearest, repeat, latlong) = (self.nearest.sampler, self.repeat.sampler, self.latlong.sampler);
         let vertex_count = 3 * self.up.triangles;
@@ -843,14 +963,29 @@ impl crate::technique::Technique for VvTechnique {
             let color = [crate::util::color_attachment(rc.image(objects)?.view, [0.0; 4])];
             let depth_att = crate::util::depth_attachment(rc.image(depth)?.view, true);
             let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
-            let info = vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(&color).depth_attachment(&depth_att);
+            let info = vk::RenderingInfo::default()
+                .render_area(area)
+                .layer_count(1)
+                .color_attachments(&color)
+                .depth_attachment(&depth_att);
             unsafe {
                 if query != vk::QueryPool::null() {
                     d.cmd_reset_query_pool(rc.cmd, query, 0, 1);
                     d.cmd_begin_query(rc.cmd, query, 0, vk::QueryControlFlags::empty());
                 }
                 d.cmd_begin_rendering(rc.cmd, &info);
-                d.cmd_set_viewport(rc.cmd, 0, &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: h as f32, min_depth: 0.0, max_depth: 1.0 }]);
+                d.cmd_set_viewport(
+                    rc.cmd,
+                    0,
+                    &[vk::Viewport {
+                        x: 0.0,
+                        y: 0.0,
+                        width: w as f32,
+                        height: h as f32,
+                        min_depth: 0.0,
+                        max_depth: 1.0,
+                    }],
+                );
                 d.cmd_set_scissor(rc.cmd, 0, &[area]);
                 d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
             }
@@ -888,7 +1023,8 @@ impl crate::technique::Technique for VvTechnique {
         let hdr = p.write(hdr, Access::ComputeShaderWriteStorage);
         let pipe = self.composite.handle();
         p.record(move |rc| {
-            let binds = [Bind::SampledImage(base, nearest), Bind::SampledImage(objects, nearest), Bind::StorageImage(hdr)];
+            let binds =
+                [Bind::SampledImage(base, nearest), Bind::SampledImage(objects, nearest), Bind::StorageImage(hdr)];
             crate::util::dispatch(rc, pipe, &binds, &[], [groups(w, 8), groups(h, 8), 1])
         });
         Ok(hdr)

@@ -139,10 +139,7 @@ pub fn glb(json: &Value, bin: &[u8]) -> Vec<u8> {
 
 /// A unit tetrahedron (closed) as positions + indices.
 pub fn tetra() -> (Vec<f32>, Vec<u32>) {
-    (
-        vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-        vec![0, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3],
-    )
+    (vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], vec![0, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3])
 }
 
 /// A document with one mesh node (tetrahedron unless overridden) and one material.
