@@ -1,5 +1,5 @@
 #!/bin/sh
-# Every test of the workspace (README command 2, after scripts/install-deps.sh; CI runs it via
+# The formatting check, then every test of the workspace (README command 2, after scripts/install-deps.sh; CI runs it via
 # .ci/run). With cargo-nextest 0.9.91 or newer (on the CI machines) every test runs in its own
 # process, the tests of all binaries share the cores and the slowest start first
 # (.config/nextest.toml), so the accuracy matrix overlaps the rest; doctests then run with cargo
@@ -14,6 +14,12 @@ nextest_ok() {
     # test priorities need 0.9.91
     [ "$1" -gt 0 ] || [ "$2" -gt 9 ] || { [ "$2" -eq 9 ] && [ "$3" -ge 91 ]; }
 }
+# Formatting first (seconds): rustfmt.toml's style, `cargo fmt` fixes it.
+if cargo fmt --version >/dev/null 2>&1; then
+    cargo fmt --all --check || { echo "scripts/test.sh: the code is not formatted: run 'cargo fmt'" >&2; exit 1; }
+else
+    echo "scripts/test.sh: warning: rustfmt is not installed (rustup component add rustfmt): formatting not checked" >&2
+fi
 if [ -z "${PENUMBRA_PLAIN_CARGO_TEST:-}" ] && nextest_ok; then
     cargo nextest run --workspace --no-fail-fast "$@"
     cargo test --workspace --doc
