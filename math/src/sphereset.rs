@@ -266,21 +266,56 @@ fn distance_to_outside(v: &Voxels) -> Vec<f64> {
     d
 }
 
-/// Visits the voxels whose centres are within `r` voxels of voxel-space point `c`.
-fn for_voxels_in_sphere(dims: [usize; 3], c: DVec3, r: f64, mut f: impl FnMut(usize, usize, usize)) {
+/// Visits the rows of voxels whose centres are within `r` voxels of voxel-space point `c`: for
+/// each row `(y, z)` that has any, `f(y, z, x0, x1)` with the inclusive x range. The range comes
+/// from a square root and is then settled with the exact test `|p - c|^2 <= r^2` at its ends (the
+/// test is monotone along a row), so the visited voxels are exactly those the test accepts.
+fn for_rows_in_sphere(dims: [usize; 3], c: DVec3, r: f64, mut f: impl FnMut(usize, usize, usize, usize)) {
     let lo = (c - DVec3::splat(r)).floor().max(DVec3::ZERO);
     let hi = (c + DVec3::splat(r)).ceil();
     let r2 = r * r;
+    let (xlo, xhi) = (lo.x as usize, (hi.x as usize).min(dims[0] - 1));
+    if xlo > xhi {
+        return;
+    }
     for z in lo.z as usize..=(hi.z as usize).min(dims[2] - 1) {
         for y in lo.y as usize..=(hi.y as usize).min(dims[1] - 1) {
-            for x in lo.x as usize..=(hi.x as usize).min(dims[0] - 1) {
-                let p = DVec3::new(x as f64, y as f64, z as f64);
-                if p.distance_squared(c) <= r2 {
-                    f(x, y, z);
-                }
+            let inside = |x: usize| DVec3::new(x as f64, y as f64, z as f64).distance_squared(c) <= r2;
+            let (dy, dz) = (y as f64 - c.y, z as f64 - c.z);
+            let rest = r2 - dy * dy - dz * dz;
+            // the nearest voxel of the row to c, then the estimate, settled both ways
+            let mid = (c.x.round().max(xlo as f64) as usize).min(xhi);
+            let s = rest.max(0.0).sqrt();
+            let mut x0 = ((c.x - s).ceil().max(xlo as f64) as usize).min(mid);
+            let mut x1 = ((c.x + s).floor().max(xlo as f64) as usize).clamp(mid, xhi);
+            if !inside(mid) {
+                continue;
             }
+            while x0 > xlo && inside(x0 - 1) {
+                x0 -= 1;
+            }
+            while x0 < mid && !inside(x0) {
+                x0 += 1;
+            }
+            while x1 < xhi && inside(x1 + 1) {
+                x1 += 1;
+            }
+            while x1 > mid && !inside(x1) {
+                x1 -= 1;
+            }
+            f(y, z, x0, x1);
         }
     }
+}
+
+/// Visits the voxels whose centres are within `r` voxels of voxel-space point `c` (z, then y,
+/// then x ascending).
+fn for_voxels_in_sphere(dims: [usize; 3], c: DVec3, r: f64, mut f: impl FnMut(usize, usize, usize)) {
+    for_rows_in_sphere(dims, c, r, |y, z, x0, x1| {
+        for x in x0..=x1 {
+            f(x, y, z);
+        }
+    });
 }
 
 /// Approximates the closed mesh `(positions, indices)` by at most `count` spheres (fewer if the
@@ -345,23 +380,33 @@ pub fn approximate_spheres_with(
         let stride = cands.len().div_ceil(20000);
         cands = cands.into_iter().step_by(stride).collect();
     }
-    let mut covered = vec![false; vox.inside.len()];
-    let gain = |c: &(usize, usize, usize, f64), covered: &[bool]| {
+    // A ball's gain is its count of inside voxels not yet covered, summed per row of the ball from
+    // prefix counts of those voxels (`free`, one row of `px + 1` counts per (y, z)); covering a
+    // ball recounts the rows it touches.
+    let [px, py, pz] = vox.dims;
+    let mut free_voxel = vox.inside.clone();
+    let mut free = vec![0u32; (px + 1) * py * pz];
+    let recount = |free: &mut [u32], free_voxel: &[bool], row: usize| {
+        for x in 0..px {
+            free[row * (px + 1) + x + 1] = free[row * (px + 1) + x] + free_voxel[row * px + x] as u32;
+        }
+    };
+    for row in 0..py * pz {
+        recount(&mut free, &free_voxel, row);
+    }
+    let gain = |c: &(usize, usize, usize, f64), free: &[u32]| {
         let mut g = 0usize;
-        let p = DVec3::new(c.0 as f64, c.1 as f64, c.2 as f64);
-        for_voxels_in_sphere(vox.dims, p, c.3 + 0.5, |x, y, z| {
-            let i = vox.idx(x, y, z);
-            if vox.inside[i] && !covered[i] {
-                g += 1;
-            }
+        for_rows_in_sphere(vox.dims, DVec3::new(c.0 as f64, c.1 as f64, c.2 as f64), c.3 + 0.5, |y, z, x0, x1| {
+            let row = (z * py + y) * (px + 1);
+            g += (free[row + x1 + 1] - free[row + x0]) as usize;
         });
         g
     };
-    let mut heap: BinaryHeap<(usize, usize)> = cands.iter().enumerate().map(|(i, c)| (gain(c, &covered), i)).collect();
+    let mut heap: BinaryHeap<(usize, usize)> = cands.iter().enumerate().map(|(i, c)| (gain(c, &free), i)).collect();
     let mut chosen = Vec::new();
     while chosen.len() < count {
         let Some((_, i)) = heap.pop() else { break };
-        let g = gain(&cands[i], &covered);
+        let g = gain(&cands[i], &free);
         if g == 0 {
             continue;
         }
@@ -372,9 +417,10 @@ pub fn approximate_spheres_with(
             }
         }
         let c = cands[i];
-        for_voxels_in_sphere(vox.dims, DVec3::new(c.0 as f64, c.1 as f64, c.2 as f64), c.3 + 0.5, |x, y, z| {
-            let k = vox.idx(x, y, z);
-            covered[k] = true;
+        for_rows_in_sphere(vox.dims, DVec3::new(c.0 as f64, c.1 as f64, c.2 as f64), c.3 + 0.5, |y, z, x0, x1| {
+            let row = z * py + y;
+            free_voxel[row * px + x0..=row * px + x1].fill(false);
+            recount(&mut free, &free_voxel, row);
         });
         chosen.push(c);
     }
@@ -508,5 +554,49 @@ impl SphereSet {
             return Err(SphereError::Parse(format!("header says {n} spheres, file has {}", spheres.len())));
         }
         Ok(SphereSet { spheres })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The row walk visits exactly the voxels the plain test accepts, in the same order, for
+    /// centres on and between voxels, radii from zero to past the grid, and balls cut by its faces.
+    #[test]
+    fn row_walk_visits_exactly_the_voxels_within_the_radius() {
+        let dims = [13usize, 9, 11];
+        let mut seed = 0x2545f4914f6cdd1du64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut cases =
+            vec![(DVec3::new(6.0, 4.0, 5.0), 0.0), (DVec3::new(6.5, 4.5, 5.5), 2.5), (DVec3::new(-3.0, 4.0, 5.0), 4.0)];
+        cases.push((DVec3::new(6.0, 4.0, 5.0), 30.0));
+        for _ in 0..500 {
+            let c = DVec3::new(next() * 19.0 - 3.0, next() * 15.0 - 3.0, next() * 17.0 - 3.0);
+            let r = if next() < 0.2 { (next() * 6.0).round() } else { next() * 7.0 };
+            cases.push((c, r));
+        }
+        for (c, r) in cases {
+            let mut brute = Vec::new();
+            let lo = (c - DVec3::splat(r)).floor().max(DVec3::ZERO);
+            let hi = (c + DVec3::splat(r)).ceil();
+            for z in lo.z as usize..=(hi.z as usize).min(dims[2] - 1) {
+                for y in lo.y as usize..=(hi.y as usize).min(dims[1] - 1) {
+                    for x in lo.x as usize..=(hi.x as usize).min(dims[0] - 1) {
+                        if DVec3::new(x as f64, y as f64, z as f64).distance_squared(c) <= r * r {
+                            brute.push((x, y, z));
+                        }
+                    }
+                }
+            }
+            let mut walked = Vec::new();
+            for_voxels_in_sphere(dims, c, r, |x, y, z| walked.push((x, y, z)));
+            assert_eq!(walked, brute, "centre {c}, radius {r}");
+        }
     }
 }

@@ -296,10 +296,20 @@ pub fn scene_sphere_sets_noting(scene: &Scene, per_object: usize) -> (Vec<Option
                     ));
                 }
             }
-            built
-                .entry(o.mesh)
-                .or_insert_with(|| approximate_spheres(&mesh.positions, &mesh.indices, per_object).ok())
-                .clone()
+            if let Some(set) = built.get(&o.mesh) {
+                return set.clone();
+            }
+            // a mesh with the same vertices and triangles as one already fitted (the same
+            // procedural ball on several objects) shares its set
+            let same = built.iter().find(|(k, _)| {
+                scene.meshes.get(**k).is_some_and(|m| m.positions == mesh.positions && m.indices == mesh.indices)
+            });
+            let set = match same {
+                Some((_, set)) => set.clone(),
+                None => approximate_spheres(&mesh.positions, &mesh.indices, per_object).ok(),
+            };
+            built.insert(o.mesh, set.clone());
+            set
         })
         .collect();
     (sets, notes)
