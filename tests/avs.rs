@@ -228,7 +228,8 @@ fn extremes_free_hemispheres_and_points_following_deformation() {
 
 /// Writes `toml` to a temporary scene file and loads it.
 fn scene_text(name: &str, toml: &str) -> Scene {
-    let dir = std::env::temp_dir().join(format!("penumbra_avs_{}_{name}", std::process::id()));
+    let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("penumbra_avs_{}_{name}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join(format!("{name}.toml"));
     std::fs::write(&path, toml).unwrap();

@@ -175,7 +175,8 @@ fn pipeline_cache_is_saved_read_back_and_foreign_files_are_ignored() {
     // (atomically) when the context is dropped; a file with another header is not handed to
     // the driver. (lavapipe keeps only the 32-byte header in it: Mesa's own shader cache does
     // its caching; other drivers put their pipelines there.)
-    let dir = std::env::temp_dir().join(format!("penumbra_pcache_{}", std::process::id()));
+    let dir =
+        std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("penumbra_pcache_{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let desc = ContextDesc { pipeline_cache_dir: Some(dir.clone()), ..Default::default() };
     {

@@ -12,7 +12,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 fn scene_from(name: &str, text: &str) -> Scene {
-    let dir = std::env::temp_dir().join(format!("penumbra_vol_{}", std::process::id()));
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("penumbra_vol_{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let p = dir.join(format!("{name}.toml"));
     std::fs::write(&p, text).unwrap();
@@ -448,7 +448,7 @@ fn bench_builtin_volumetric_scenes() {
 #[test]
 fn scene_key_selects_the_method_and_bad_values_are_errors() {
     let base = "name = \"k\"\n[camera]\neye = [0, 1, 3]\ntarget = [0, 0, 0]\n[[light]]\nname = \"p\"\ntype = \"point\"\nposition = [0, 2, 0]\nintensity = 5\n[[object]]\nname = \"b\"\nmesh = { type = \"cube\", size = 0.5 }\n[medium]\nsigma_a = 0.1\nsigma_s = 0.1\n";
-    let dir = std::env::temp_dir().join(format!("penumbra_vol_key_{}", std::process::id()));
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("penumbra_vol_key_{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let load = |extra: &str| {
         let p = dir.join("k.toml");

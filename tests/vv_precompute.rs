@@ -69,7 +69,7 @@ fn coarse_with_ground(divisions: u32) -> Scene {
         "mesh = { type = \"plane\", size = 6 }",
         &format!("mesh = {{ type = \"plane\", size = 3, divisions = {divisions} }}"),
     );
-    let dir = std::env::temp_dir().join(format!("vv_test_{}", std::process::id()));
+    let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("vv_test_{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let p = dir.join("coarse_ground.toml");
     std::fs::write(&p, src).unwrap();
@@ -237,7 +237,7 @@ fn cache_is_written_read_and_repaired() {
     let s = scene("coarse.toml");
     let m = model_of(&s);
     let params = VvParams { resolution: 12, ..Default::default() };
-    let dir = std::env::temp_dir().join(format!("vv_cache_{}", std::process::id()));
+    let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("vv_cache_{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let (a, path) = vv::load_or_compute(&m, &params, &dir, "coarse scene", &|_, _| {}).unwrap();
     assert!(path.exists() && path.file_name().unwrap().to_string_lossy().starts_with("coarse_scene-"));

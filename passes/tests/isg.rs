@@ -133,7 +133,8 @@ fn write_scene_sphere_files() {
 /// spheres and the user a note naming the file.
 #[test]
 fn corrupt_sphere_files_are_reported() {
-    let dir = std::env::temp_dir().join(format!("penumbra-spheres-{}", std::process::id()));
+    let dir =
+        std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("penumbra-spheres-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("s.toml");
     std::fs::write(

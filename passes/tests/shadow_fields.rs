@@ -215,7 +215,8 @@ fn shadow_fields_file_round_trip_and_bad_input() {
     assert_eq!(bytes.len(), f.file_bytes());
     let g = ObjectField::from_bytes(&bytes).unwrap();
     assert_eq!(f, g);
-    let path = std::env::temp_dir().join(format!("sf_test_{}.psf", std::process::id()));
+    let path =
+        std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("sf_test_{}.psf", std::process::id()));
     std::fs::write(&path, &bytes).unwrap();
     assert_eq!(ObjectField::from_bytes(&std::fs::read(&path).unwrap()).unwrap(), f);
     let _ = std::fs::remove_file(&path);

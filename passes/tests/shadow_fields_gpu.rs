@@ -76,7 +76,7 @@ fn shadow_fields_gpu_matches_cpu_and_is_validation_clean() {
     }
     drop(engine);
     // One file per object and variant, read back identical.
-    let dir = std::env::temp_dir().join(format!("sf_files_{}", std::process::id()));
+    let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("sf_files_{}", std::process::id()));
     let (reports, paths) = penumbra_passes::shadow_fields::precompute_files(&scene, &opts, &dir).unwrap();
     assert_eq!(paths.len(), 2 * scene.meshes.len());
     assert_eq!(reports.len(), scene.meshes.len());

@@ -128,7 +128,8 @@ intensity = 10.0
     };
     let mut shadow = Vec::new();
     for casts in [true, false] {
-        let dir = std::env::temp_dir().join(format!("penumbra-sm-casts-{}-{casts}", std::process::id()));
+        let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+            .join(format!("penumbra-sm-casts-{}-{casts}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("casts.toml");
         std::fs::write(&path, text(casts)).unwrap();

@@ -286,7 +286,8 @@ fn bad_options_and_scenes_are_errors() {
 fn writes_exr_and_json() {
     let scene = Scene::default_scene();
     let r = render(&scene, &opts(8, 6, 4, 0)).unwrap();
-    let dir = std::env::temp_dir().join(format!("penumbra-ref-render-{}", std::process::id()));
+    let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("penumbra-ref-render-{}", std::process::id()));
     let s = r.write(&dir).unwrap();
     let back = penumbra_reference::Image::read_exr(&s.image).unwrap();
     assert_eq!(back, r.radiance);

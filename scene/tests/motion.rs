@@ -68,7 +68,8 @@ fn falling_body_lands_and_settles() {
 }
 
 fn scene_from(text: &str, name: &str) -> Scene {
-    let dir = std::env::temp_dir().join(format!("penumbra-scene-{}-motion-{name}", std::process::id()));
+    let dir =
+        PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("penumbra-scene-{}-motion-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let p: PathBuf = dir.join(format!("{name}.toml"));
     std::fs::write(&p, text).unwrap();

@@ -18,7 +18,7 @@ fn text(o: &Output) -> String {
 
 #[test]
 fn precompute_vv_writes_checks_and_rejects_bad_files() {
-    let dir = std::env::temp_dir().join(format!("vv_cli_{}", std::process::id()));
+    let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("vv_cli_{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let out = dir.join("coarse.pvv");
     let scene = "../scenes/coarse.toml";

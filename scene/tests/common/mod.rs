@@ -4,9 +4,10 @@
 use serde_json::{json, Value};
 use std::path::PathBuf;
 
-/// A fresh temporary directory for one test.
+/// A fresh temporary directory for one test (under cargo's target/tmp, not the system temp dir).
 pub fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("penumbra-scene-{}-{name}", std::process::id()));
+    let d = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("penumbra-scene-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
     d
