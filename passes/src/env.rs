@@ -312,6 +312,23 @@ mod tests {
         assert!(e.mips.iter().all(|m| m.2.iter().flatten().all(|c| c.is_finite())));
     }
 
+    /// `mc`'s and `shadowmaps`' importance tables read bad texels as black, as the texture and
+    /// the reference do: no negative radiance to sample or to hit (mc drew negative pixels).
+    #[test]
+    fn importance_tables_read_bad_texels_as_black() {
+        let mut env = uniform(8, 4, 1.0);
+        env.texels[3] = [f32::NAN, 1.0, 1.0];
+        env.texels[5] = [f32::INFINITY, 1.0, 1.0];
+        env.texels[6] = [-149.0, 2.0, 2.0];
+        let t = EnvTables::new(Some(&env));
+        for i in [3, 5, 6] {
+            assert_eq!(t.texels[i], [0.0; 4], "texel {i}");
+        }
+        assert!(t.texels.iter().all(|x| x.iter().all(|c| c.is_finite() && *c >= 0.0)));
+        let p: f32 = t.texels.iter().map(|x| x[3]).sum();
+        assert!((p - 1.0).abs() < 1e-5, "{p}");
+    }
+
     #[test]
     fn missing_environment_is_black() {
         let e = EnvMapGpu::new(None);
@@ -354,7 +371,11 @@ impl EnvTables {
             .texels
             .iter()
             .map(|t| {
-                let v = Vec3::from_array(*t) * intensity;
+                // as the environment texture and the reference read it: a texel with a NaN,
+                // infinite or negative channel is black (studio.exr holds texels down to -149,
+                // which gave `mc` negative pixels)
+                let ok = t.iter().all(|c| c.is_finite() && *c >= 0.0);
+                let v = if ok { Vec3::from_array(*t) * intensity } else { Vec3::ZERO };
                 if v.is_finite() {
                     v
                 } else {
