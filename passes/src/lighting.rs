@@ -3,12 +3,105 @@
 //! lookups. Shared building blocks of the frame layer: no technique owns them.
 
 use glam::DVec3;
-use penumbra_scene::Scene;
+use penumbra_scene::{Environment, Scene};
+
+/// The sources the cached products are computed by: a change to any of them (even a comment)
+/// changes every cache key, so a cache file never outlives the code that wrote it.
+const CACHE_SOURCES: [&[u8]; 5] = [
+    include_bytes!("lighting.rs"),
+    include_bytes!("../../math/src/envmap.rs"),
+    include_bytes!("../../math/src/sg.rs"),
+    include_bytes!("../../math/src/nnls.rs"),
+    include_bytes!("../../math/src/quad.rs"),
+];
+
+/// FNV-1a, 64 bits (stable across toolchains, unlike `std`'s hasher).
+fn fnv(h: &mut u64, bytes: &[u8]) {
+    for b in bytes {
+        *h ^= *b as u64;
+        *h = h.wrapping_mul(0x100_0000_01b3);
+    }
+}
+
+/// Key of a product of environment `e` (texels, size, intensity, rotation), kind and parameters.
+fn cache_key(kind: &str, e: &Environment, params: &[u8]) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for src in CACHE_SOURCES {
+        fnv(&mut h, src);
+    }
+    fnv(&mut h, kind.as_bytes());
+    fnv(&mut h, params);
+    fnv(&mut h, &e.width.to_le_bytes());
+    fnv(&mut h, &e.height.to_le_bytes());
+    fnv(&mut h, &e.intensity.to_bits().to_le_bytes());
+    fnv(&mut h, &e.rotation.to_bits().to_le_bytes());
+    for t in &e.texels {
+        for c in t {
+            fnv(&mut h, &c.to_bits().to_le_bytes());
+        }
+    }
+    h
+}
+
+/// `compute()`'s bytes through the on-disk cache `<temp>/penumbra-lighting/<kind>-<key>.bin`:
+/// the SG fit and the prefiltering take seconds on a 2k map and depend only on the map and their
+/// parameters, so every isg/avs technique, test and bench process after the first reads them
+/// back (as vv's and the shadow fields' precomputes). A file whose header does not match is
+/// recomputed; files are written to a temporary name and renamed (processes may race).
+fn cached_bytes(kind: &str, key: u64, compute: impl FnOnce() -> Vec<u8>) -> Vec<u8> {
+    let dir = std::env::temp_dir().join("penumbra-lighting");
+    let path = dir.join(format!("{kind}-{key:016x}.bin"));
+    let magic = b"PLC1";
+    if let Ok(b) = std::fs::read(&path) {
+        if b.len() >= 20 && &b[..4] == magic && b[4..12] == key.to_le_bytes() {
+            let n = u64::from_le_bytes(b[12..20].try_into().unwrap()) as usize;
+            if b.len() == 20 + n {
+                return b[20..].to_vec();
+            }
+        }
+    }
+    let data = compute();
+    let mut file = Vec::with_capacity(20 + data.len());
+    file.extend_from_slice(magic);
+    file.extend_from_slice(&key.to_le_bytes());
+    file.extend_from_slice(&(data.len() as u64).to_le_bytes());
+    file.extend_from_slice(&data);
+    let tmp = dir.join(format!("{kind}-{key:016x}.{}.tmp", std::process::id()));
+    // a cache that cannot be written only costs the next process the computation
+    if std::fs::create_dir_all(&dir).is_ok()
+        && std::fs::write(&tmp, &file).is_ok()
+        && std::fs::rename(&tmp, &path).is_err()
+    {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    data
+}
+
+fn f32s_to_bytes(v: &[f32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+fn bytes_to_f32s(b: &[u8]) -> Vec<f32> {
+    b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+}
 
 /// Lighting SG lobes of the scene's environment in world space (intensity and rotation
 /// applied), as `[axis, lambda], [rgb mu, 0]` pairs; the fit's relative L2 error.
 pub fn lighting_lobes(scene: &Scene, k: usize) -> (Vec<[f32; 4]>, Option<f64>) {
     let Some(e) = scene.environment.as_ref() else { return (Vec::new(), None) };
+    // cached as the fit's error (f64, NaN: no fit) then the lobes' floats
+    let b = cached_bytes("lobes", cache_key("lobes", e, &(k as u64).to_le_bytes()), || {
+        let (lobes, err) = lighting_lobes_uncached(e, k);
+        let mut b = err.unwrap_or(f64::NAN).to_le_bytes().to_vec();
+        b.extend(f32s_to_bytes(&lobes.iter().flatten().copied().collect::<Vec<f32>>()));
+        b
+    });
+    let err = f64::from_le_bytes(b[..8].try_into().unwrap());
+    let lobes = bytes_to_f32s(&b[8..]).chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect();
+    (lobes, (!err.is_nan()).then_some(err))
+}
+
+fn lighting_lobes_uncached(e: &Environment, k: usize) -> (Vec<[f32; 4]>, Option<f64>) {
     let Ok(fit) = penumbra_math::envmap::fit_sg_lighting(e.width as usize, e.height as usize, &e.texels, k.max(1))
     else {
         return (Vec::new(), None);
@@ -36,6 +129,13 @@ pub const PREFILTER_LAMBDAS: [f64; 8] = [0.25, 1.0, 4.0, 16.0, 64.0, 256.0, 1024
 /// environment.
 pub fn prefiltered_env(scene: &Scene) -> Vec<f32> {
     let Some(e) = scene.environment.as_ref() else { return vec![0.0] };
+    let params: Vec<u8> = PREFILTER_LAMBDAS.iter().flat_map(|l| l.to_le_bytes()).collect();
+    bytes_to_f32s(&cached_bytes("prefiltered", cache_key("prefiltered", e, &params), || {
+        f32s_to_bytes(&prefiltered_env_uncached(e))
+    }))
+}
+
+fn prefiltered_env_uncached(e: &Environment) -> Vec<f32> {
     let Ok(levels) =
         penumbra_math::envmap::prefilter(e.width as usize, e.height as usize, &e.texels, &PREFILTER_LAMBDAS, 128)
     else {
@@ -71,4 +171,61 @@ pub fn irradiance_env(scene: &Scene) -> Vec<f32> {
     let mut out = vec![w as f32, h as f32];
     out.extend(map.iter().flat_map(|t| t.map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 })));
     out
+}
+
+#[cfg(test)]
+mod cache_tests {
+    use super::*;
+
+    /// The cache hands back what was computed, computes once, and recomputes a damaged file.
+    #[test]
+    fn cached_bytes_round_trip_and_damaged_files_are_recomputed() {
+        let kind = format!("test{}", std::process::id());
+        let key = 0x1234_5678_9abc_def0u64;
+        let path = std::env::temp_dir().join("penumbra-lighting").join(format!("{kind}-{key:016x}.bin"));
+        let _ = std::fs::remove_file(&path);
+        let mut calls = 0;
+        let a = cached_bytes(&kind, key, || {
+            calls += 1;
+            vec![1, 2, 3, 4, 5]
+        });
+        let b = cached_bytes(&kind, key, || {
+            calls += 1;
+            vec![9]
+        });
+        assert_eq!((a.as_slice(), b.as_slice(), calls), (&[1u8, 2, 3, 4, 5][..], &[1u8, 2, 3, 4, 5][..], 1));
+        // truncated: recomputed and rewritten
+        let full = std::fs::read(&path).unwrap();
+        std::fs::write(&path, &full[..full.len() - 1]).unwrap();
+        let c = cached_bytes(&kind, key, || vec![7, 7]);
+        assert_eq!(c, vec![7, 7]);
+        assert_eq!(cached_bytes(&kind, key, || vec![0]), vec![7, 7]);
+        let _ = std::fs::remove_file(&path);
+    }
+
+    /// Different maps, parameters or intensities never share a key.
+    #[test]
+    fn cache_keys_follow_the_map_and_the_parameters() {
+        let e = Environment {
+            width: 2,
+            height: 1,
+            texels: vec![[1.0, 2.0, 3.0], [0.5, 0.5, 0.5]],
+            intensity: 1.0,
+            rotation: 0.0,
+        };
+        let mut e2 = e.clone();
+        e2.texels[1][2] = 0.25;
+        let mut e3 = e.clone();
+        e3.intensity = 2.0;
+        let k = cache_key("lobes", &e, &[16]);
+        assert_eq!(k, cache_key("lobes", &e.clone(), &[16]));
+        for other in [
+            cache_key("lobes", &e2, &[16]),
+            cache_key("lobes", &e3, &[16]),
+            cache_key("lobes", &e, &[8]),
+            cache_key("prefiltered", &e, &[16]),
+        ] {
+            assert_ne!(k, other);
+        }
+    }
 }
