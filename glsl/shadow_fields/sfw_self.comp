@@ -27,28 +27,7 @@ layout(push_constant) uniform Push { uint count; uint n; uint light_count; uint 
 
 shared vec4 s_red[128];
 
-void cube_coords(vec3 d, out uint face, out vec2 xy) {
-    vec3 a = abs(d);
-    float u, v, m;
-    if (a.x >= a.y && a.x >= a.z) {
-        m = a.x;
-        face = d.x > 0.0 ? 0u : 1u;
-        u = d.x > 0.0 ? -d.z : d.z;
-        v = d.y;
-    } else if (a.y >= a.z) {
-        m = a.y;
-        face = d.y > 0.0 ? 2u : 3u;
-        u = d.x;
-        v = d.y > 0.0 ? -d.z : d.z;
-    } else {
-        m = a.z;
-        face = d.z > 0.0 ? 4u : 5u;
-        u = d.z > 0.0 ? d.x : -d.x;
-        v = d.y;
-    }
-    m = max(m, 1e-30);
-    xy = (vec2(u, v) / m + 1.0) * 0.5 * float(pc.n);
-}
+#include "sfw_cube.glsl"
 
 float bit(uint off, uint texel) {
     return float((self_maps[off + (texel >> 5)] >> (texel & 31u)) & 1u);
@@ -72,7 +51,7 @@ void main() {
         vec3 L = sfw_dirs[total + i].rgb * c;
         uint face;
         vec2 xy;
-        cube_coords(normalize(to_local * d), face, xy);
+        cube_coords(normalize(to_local * d), pc.n, face, xy);
         uvec2 ij = min(uvec2(xy), uvec2(pc.n - 1u));
         sh += L * bit(info.x, face * pc.n * pc.n + ij.y * pc.n + ij.x);
         un += L;
@@ -98,7 +77,7 @@ void main() {
         vec3 l = normalize(to_local * normalize(to_l));
         uint face;
         vec2 xy;
-        cube_coords(l, face, xy);
+        cube_coords(l, pc.n, face, xy);
         uint n = pc.n;
         vec2 cc = clamp(xy - 0.5, vec2(0.0), vec2(float(n - 1u)));
         uvec2 i0 = min(uvec2(floor(cc)), uvec2(n - 1u));

@@ -103,30 +103,7 @@ void shell_taps(uint shell, uint c, vec3 centre, float step, float theta, float 
     s_spos[k * 8u + base + 3u] = vec4(centre + rad * sfw_polar(th1, ph1), 0.0);
 }
 
-// Cube face and continuous texel coordinates (x, y in [0, n)) of unit direction d, faces and
-// orientation as penumbra_math::shadow_field::haar::CubeTable.
-void cube_coords(vec3 d, out uint face, out vec2 xy) {
-    vec3 a = abs(d);
-    float u, v, m;
-    if (a.x >= a.y && a.x >= a.z) {
-        m = a.x;
-        face = d.x > 0.0 ? 0u : 1u;
-        u = d.x > 0.0 ? -d.z : d.z;
-        v = d.y;
-    } else if (a.y >= a.z) {
-        m = a.y;
-        face = d.y > 0.0 ? 2u : 3u;
-        u = d.x;
-        v = d.y > 0.0 ? -d.z : d.z;
-    } else {
-        m = a.z;
-        face = d.z > 0.0 ? 4u : 5u;
-        u = d.z > 0.0 ? d.x : -d.x;
-        v = d.y;
-    }
-    m = max(m, 1e-30);
-    xy = (vec2(u, v) / m + 1.0) * 0.5 * float(pc.n);
-}
+#include "sfw_cube.glsl"
 
 float map_bit(uint word_off, uint texel) {
     return float((sfw_maps[word_off + (texel >> 5)] >> (texel & 31u)) & 1u);
@@ -145,7 +122,7 @@ float occ_vis(uint k, uint texel) {
 uint cube_texel(vec3 d) {
     uint face;
     vec2 xy;
-    cube_coords(d, face, xy);
+    cube_coords(d, pc.n, face, xy);
     uvec2 ij = min(uvec2(xy), uvec2(pc.n - 1u));
     return face * pc.n * pc.n + ij.y * pc.n + ij.x;
 }
@@ -178,7 +155,7 @@ float occ_vis_dir(uint k, vec3 d, bool bilinear) {
     }
     uint face;
     vec2 xy;
-    cube_coords(l, face, xy);
+    cube_coords(l, pc.n, face, xy);
     uint n = pc.n;
     uint base = face * n * n;
     if (!bilinear) {
