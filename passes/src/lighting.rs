@@ -96,6 +96,9 @@ pub fn lighting_lobes(scene: &Scene, k: usize) -> (Vec<[f32; 4]>, Option<f64>) {
         b.extend(f32s_to_bytes(&lobes.iter().flatten().copied().collect::<Vec<f32>>()));
         b
     });
+    if b.len() < 8 || (b.len() - 8) % 16 != 0 {
+        return lighting_lobes_uncached(e, k); // not what this code writes: ignore it
+    }
     let err = f64::from_le_bytes(b[..8].try_into().unwrap());
     let lobes = bytes_to_f32s(&b[8..]).chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect();
     (lobes, (!err.is_nan()).then_some(err))
