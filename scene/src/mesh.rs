@@ -21,6 +21,12 @@ impl MeshData {
         self.indices.len() / 3
     }
 
+    /// Same vertex positions and triangles (the same procedural ball on several objects): what
+    /// depends on shape only (shadow fields, sphere sets) is computed once for such meshes.
+    pub fn same_shape(&self, other: &MeshData) -> bool {
+        self.positions == other.positions && self.indices == other.indices
+    }
+
     /// Axis-aligned bounds (min, max); `None` for an empty mesh.
     pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
         let first = *self.positions.first()?;

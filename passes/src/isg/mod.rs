@@ -301,9 +301,7 @@ pub fn scene_sphere_sets_noting(scene: &Scene, per_object: usize) -> (Vec<Option
             }
             // a mesh with the same vertices and triangles as one already fitted (the same
             // procedural ball on several objects) shares its set
-            let same = built.iter().find(|(k, _)| {
-                scene.meshes.get(**k).is_some_and(|m| m.positions == mesh.positions && m.indices == mesh.indices)
-            });
+            let same = built.iter().find(|(k, _)| scene.meshes.get(**k).is_some_and(|m| m.same_shape(mesh)));
             let set = match same {
                 Some((_, set)) => set.clone(),
                 None => approximate_spheres(&mesh.positions, &mesh.indices, per_object).ok(),

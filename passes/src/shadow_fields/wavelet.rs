@@ -151,6 +151,19 @@ pub struct WaveletReport {
     pub seconds: f64,
 }
 
+impl WaveletReport {
+    /// A mesh without a field (casts nothing).
+    fn empty(mesh: &str) -> Self {
+        WaveletReport {
+            mesh: mesh.to_string(),
+            fixed_bytes: 0,
+            adaptive_bytes: 0,
+            resolutions: Vec::new(),
+            seconds: 0.0,
+        }
+    }
+}
+
 /// The all-frequency fields of every mesh of a scene (`None`: no triangles, or no object that
 /// uses it casts shadows).
 pub struct WaveletFields {
@@ -179,10 +192,7 @@ impl WaveletFields {
                 && m.normals.len() == m.positions.len()
                 && m.positions.iter().all(|p| p.is_finite());
             let same = |k: usize| {
-                self_maps[k].is_some()
-                    && scene.meshes[k].positions == m.positions
-                    && scene.meshes[k].indices == m.indices
-                    && scene.meshes[k].normals == m.normals
+                self_maps[k].is_some() && scene.meshes[k].same_shape(m) && scene.meshes[k].normals == m.normals
             };
             let maps = if !ok {
                 None
@@ -208,18 +218,10 @@ impl WaveletFields {
                 .any(|(oi, o)| o.mesh == mi && scene.object_info.get(oi).map_or(true, |i| i.casts_shadow));
             if !casts || m.indices.len() < 3 || m.positions.is_empty() {
                 fields.push(None);
-                reports.push(WaveletReport {
-                    mesh: m.name.clone(),
-                    fixed_bytes: 0,
-                    adaptive_bytes: 0,
-                    resolutions: Vec::new(),
-                    seconds: 0.0,
-                });
+                reports.push(WaveletReport::empty(&m.name));
                 continue;
             }
-            let same = |k: usize| {
-                fields[k].is_some() && scene.meshes[k].positions == m.positions && scene.meshes[k].indices == m.indices
-            };
+            let same = |k: usize| fields[k].is_some() && scene.meshes[k].same_shape(m);
             if let Some(first) = (0..mi).find(|&k| same(k)) {
                 fields.push(fields[first].clone());
                 reports.push(WaveletReport { mesh: m.name.clone(), seconds: 0.0, ..reports[first].clone() });
@@ -230,13 +232,7 @@ impl WaveletFields {
             let (_, vr) = penumbra_math::shadow_field::bounds(&m.positions);
             if !(vr.is_finite() && vr > 0.0) {
                 fields.push(None);
-                reports.push(WaveletReport {
-                    mesh: m.name.clone(),
-                    fixed_bytes: 0,
-                    adaptive_bytes: 0,
-                    resolutions: Vec::new(),
-                    seconds: 0.0,
-                });
+                reports.push(WaveletReport::empty(&m.name));
                 continue;
             }
             let (c, vr, maps) = raw_maps(&m.positions, &m.indices, options.shells, options.resolution, &table);
