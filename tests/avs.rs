@@ -763,6 +763,60 @@ fn gbuffer_culling_traces_only_needed_points_and_keeps_the_image() {
 }
 
 #[test]
+fn culled_adaptation_never_drops_points_it_did_not_see() {
+    // With culling, a frame's adaptation sees only the flagged points: an erasure judged on that
+    // subset must not remove the point for good (it goes dormant). Erasing for good cascaded over
+    // frames and left pixels without sample points (black trails over balls_on_dish's dish).
+    // Four frames of a static moment with adaptation rounds (each frame refines further, culled
+    // or not): the culled kept set (traced + dormant) never shrinks, and the culled fourth image
+    // stays the unculled one.
+    let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "160"), ("iterations", "2")]);
+    let four = |cull: &str| {
+        let s = with(&s, &[("cull", cull)]);
+        let settings = RenderSettings {
+            width: 64,
+            height: 48,
+            technique: Some("avs".into()),
+            technique_params: Some(s.technique_params.clone()),
+            ..Default::default()
+        };
+        let mut r = Renderer::new_headless(&s, settings, true).expect("renderer");
+        let mut out = Vec::new();
+        let mut stats = Vec::new();
+        for k in 0..4 {
+            out.extend(r.render(&s.at(0.5, (k > 0).then_some(0.5)), None, true).expect("render"));
+            stats.push(avs_stats(&r));
+        }
+        out.extend(r.finish().expect("finish"));
+        let log = r.context().validation.clone();
+        drop(r);
+        assert_eq!(log.error_count(), 0, "cull = {cull}: validation errors: {:#?}", log.errors());
+        (out, stats)
+    };
+    let (on, st_on) = four("true");
+    let (off, _) = four("false");
+    let kept: Vec<std::collections::HashSet<usize>> =
+        st_on.iter().map(|s| s.kept_vertices.iter().copied().collect()).collect();
+    let erased: usize = st_on[1..].iter().map(|s| s.erased.iter().sum::<usize>()).sum();
+    let dormant: Vec<usize> = st_on.iter().map(|s| s.dormant).collect();
+    println!(
+        "culled: kept per frame {:?}, dormant {dormant:?}, erased in culled frames {erased}",
+        kept.iter().map(|k| k.len()).collect::<Vec<_>>()
+    );
+    assert!(erased > 0, "the culled frames erased nothing: the test does not test the erasure");
+    for k in 1..kept.len() {
+        let lost = kept[k - 1].difference(&kept[k]).count();
+        assert_eq!(lost, 0, "frame {k}: {lost} kept points left the set under culling");
+    }
+    // no pixel turns (nearly) black where the unculled image is lit
+    let (a, b) = (&on[3].hdr, &off[3].hdr);
+    let lum = |p: &[f32; 4]| p[0] + p[1] + p[2];
+    let dark = a.iter().zip(b.iter()).filter(|(p, q)| lum(q) > 0.05 && lum(p) < 0.25 * lum(q)).count();
+    println!("fourth frame: {dark} of {} pixels under a quarter of the unculled image", a.len());
+    assert!(dark * 200 <= a.len(), "{dark} pixels went dark under culling");
+}
+
+#[test]
 fn hemicube_baseline_maps_match_the_cpu_ray_test() {
     // The Fig. 7 baseline (rasterized hemicubes converted to maps) on a floor with a box beside
     // the points: every texel whose centre ray robustly hits / misses the box (or the floor's own

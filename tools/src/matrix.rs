@@ -28,6 +28,53 @@ fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
+/// The repository's checked-in converged references (40x30 for the CI test, 160x120 for the
+/// default size; `tests/matrix/references*/`).
+fn checked_in_references() -> Vec<PathBuf> {
+    let dir = repo_root().join("tests/matrix");
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.is_dir() && p.file_name().is_some_and(|n| n.to_string_lossy().starts_with("references")))
+        .collect();
+    dirs.sort();
+    dirs
+}
+
+/// Copies a checked-in reference of exactly this scene file, size, frame and reference version
+/// into `cache` when the cache lacks it, so that a fresh clone does not spend hours converging
+/// references the repository already holds. `load_or_render` then checks it like any cached one.
+fn seed_reference(cache: &Path, dirs: &[PathBuf], stem: &str, scene_bytes: &[u8], copts: &ConvergeOptions) {
+    use penumbra_reference::converge::{cache_key, cache_path};
+    let key = cache_key(scene_bytes, copts);
+    let dest = cache_path(cache, stem, copts, &key);
+    if dest.exists() {
+        return;
+    }
+    for dir in dirs {
+        let same = |a: &Path, b: &Path| matches!((a.canonicalize(), b.canonicalize()), (Ok(x), Ok(y)) if x == y);
+        if same(dir, cache) {
+            continue;
+        }
+        let src = cache_path(dir, stem, copts, &key);
+        if src.exists() && src.with_extension("json").exists() {
+            let copy = || -> std::io::Result<()> {
+                std::fs::create_dir_all(cache)?;
+                std::fs::copy(src.with_extension("json"), dest.with_extension("json"))?;
+                std::fs::copy(&src, &dest)?;
+                Ok(())
+            };
+            match copy() {
+                Ok(()) => eprintln!("  reference seeded from {}", src.display()),
+                Err(e) => eprintln!("  reference {}: not copied into {}: {e}", src.display(), cache.display()),
+            }
+            return;
+        }
+    }
+}
+
 #[derive(Args, Clone)]
 pub struct MatrixArgs {
     /// Comma-separated scene files (.toml) or glTF models (.glb/.gltf). Default: every
@@ -67,7 +114,9 @@ pub struct MatrixArgs {
     /// Output directory: matrix.json, matrix.md, matrix.png, images/<scene>/<technique>.exr.
     #[arg(long, default_value = "matrix-out")]
     pub out: PathBuf,
-    /// Reference cache directory (default: <temp>/penumbra-references).
+    /// Reference cache directory (default: <temp>/penumbra-references). A reference missing
+    /// there is first looked up among the repository's checked-in ones (tests/matrix/references*/,
+    /// same scene file, size, frame and version) and copied in.
     #[arg(long)]
     pub cache: Option<PathBuf>,
     /// The known-failures list (TOML, `[[cell]]` entries per size). Default:
@@ -370,6 +419,7 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
     };
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let cache = args.cache.clone().unwrap_or_else(|| std::env::temp_dir().join("penumbra-references"));
+    let seeds = checked_in_references();
     let ctx = Context::new(&ContextDesc { validation: args.validation, ..Default::default() })?;
     // (cell, first messages) of every cell with validation errors
     let mut invalid: Vec<(String, Vec<String>)> = Vec::new();
@@ -405,6 +455,7 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
         }
         let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
         let copts = converge_options(&scene, w, h, args.supersample, args.frame, args.fps, args.noise, args.max_spp);
+        seed_reference(&cache, &seeds, &stem, &bytes, &copts);
         let reference = load_or_render(&scene, &bytes, &stem, &copts, Some(&cache))
             .with_context(|| format!("reference of {}", path.display()))?;
         eprintln!(
@@ -874,6 +925,63 @@ mod tests {
             shadow_recovered: Some(0.1),
             reason: String::new(),
         }
+    }
+
+    #[test]
+    fn checked_in_references_match_their_scenes_and_seed_the_cache() {
+        // Every checked-in converged reference must belong to today's scene file (its key hashes
+        // the file): a stale one would be silently re-rendered for hours on a fresh clone. Each is
+        // seeded into an empty cache and then loads from it without rendering.
+        let cache = std::env::temp_dir().join(format!("penumbra-seeded-references-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&cache);
+        let dirs = checked_in_references();
+        assert!(dirs.len() >= 2, "checked-in reference folders: {dirs:?}");
+        let mut checked = 0;
+        for dir in &dirs {
+            for e in std::fs::read_dir(dir).unwrap().flatten() {
+                let p = e.path();
+                if p.extension().is_none_or(|x| x != "json") {
+                    continue;
+                }
+                let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+                let file = p.file_name().unwrap().to_string_lossy().to_string();
+                let stem = file.split('-').next().unwrap().to_string();
+                let scene_path = [
+                    repo_root().join(format!("scenes/{stem}.toml")),
+                    repo_root().join(format!("scenes/assets/{stem}.glb")),
+                ]
+                .into_iter()
+                .find(|p| p.exists())
+                .unwrap_or_else(|| panic!("{}: no scene file named {stem}", p.display()));
+                let scene = Scene::load(&scene_path).unwrap();
+                let bytes = std::fs::read(&scene_path).unwrap();
+                let (w, h) = (meta["width"].as_u64().unwrap() as u32, meta["height"].as_u64().unwrap() as u32);
+                let frame = meta["frame"].as_u64().unwrap() as u32;
+                let seeded = cache.join(&file);
+                assert!(!seeded.exists());
+                // the key does not say the supersampling: the CI size uses 1, the default 2
+                let copts = [2, 1]
+                    .into_iter()
+                    .map(|ss| converge_options(&scene, w, h, ss, frame, 30.0, 0.01, 131072))
+                    .find(|c| {
+                        seed_reference(&cache, &dirs, &stem, &bytes, c);
+                        seeded.exists()
+                    })
+                    .unwrap_or_else(|| converge_options(&scene, w, h, 2, frame, 30.0, 0.01, 131072));
+                assert!(
+                    seeded.exists() && seeded.with_extension("exr").exists(),
+                    "{} is stale: it does not belong to today's {} (render it again with `penumbra bench matrix --cache {}`)",
+                    p.display(),
+                    scene_path.display(),
+                    dir.display()
+                );
+                let c = load_or_render(&scene, &bytes, &stem, &copts, Some(&cache)).unwrap();
+                assert!(c.cached, "{file}: seeded but rendered again");
+                checked += 1;
+            }
+        }
+        assert!(checked >= 40, "{checked} checked-in references");
+        let _ = std::fs::remove_dir_all(&cache);
     }
 
     #[test]
