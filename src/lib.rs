@@ -263,6 +263,21 @@ impl Renderer {
         name: &str,
         params: &penumbra_passes::registry::Params,
     ) -> Result<Self> {
+        // Bad environment texels (NaN, infinite, negative: possible in a scene built in code;
+        // the loader repairs files) are black for every technique, not only for the GPU map.
+        let repaired;
+        let bad_texels = scene.environment.as_ref().map_or(0, |e| e.bad_texels());
+        let scene = match &scene.environment {
+            Some(e) if e.bad_texels() > 0 => {
+                let mut s = scene.clone();
+                if let Some(e) = s.environment.as_mut() {
+                    e.repair_texels();
+                }
+                repaired = s;
+                &repaired
+            }
+            _ => scene,
+        };
         let engine = Engine::new(ctx.clone(), settings.frames_in_flight)?;
         let technique = penumbra_passes::registry::create(name, &ctx, shaders, scene, params)?;
         let effects = penumbra_passes::effect::create_for(scene, &ctx, shaders, &settings.effects)?;
@@ -276,6 +291,8 @@ impl Renderer {
                 e.width, e.height, ctx.max_image_dimension_2d, f.width, f.height
             )
         });
+        let mut env = EnvMapGpu::new(fitted.as_ref().or(scene.environment.as_ref()));
+        env.repaired_texels = bad_texels;
         Ok(Renderer {
             gbuffer: GBufferPass::new(&ctx, shaders)?,
             technique,
@@ -283,7 +300,7 @@ impl Renderer {
             scene: scene.clone(),
             tonemap: TonemapPass::new(&ctx, shaders)?,
             scene_gpu: SceneGpu::new(&ctx, scene)?,
-            env: EnvMapGpu::new(fitted.as_ref().or(scene.environment.as_ref())),
+            env,
             env_note,
             engine,
             settings,

@@ -96,7 +96,7 @@ impl EnvMapGpu {
             .texels
             .iter()
             .map(|t| {
-                let ok = t.iter().all(|c| c.is_finite() && *c >= 0.0);
+                let ok = Environment::texel_ok(t);
                 if !ok {
                     repaired += 1;
                 }
@@ -374,7 +374,7 @@ impl EnvTables {
                 // as the environment texture and the reference read it: a texel with a NaN,
                 // infinite or negative channel is black (studio.exr holds texels down to -149,
                 // which gave `mc` negative pixels)
-                let ok = t.iter().all(|c| c.is_finite() && *c >= 0.0);
+                let ok = Environment::texel_ok(t);
                 let v = if ok { Vec3::from_array(*t) * intensity } else { Vec3::ZERO };
                 if v.is_finite() {
                     v

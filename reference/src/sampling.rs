@@ -260,7 +260,7 @@ impl EnvLight {
             .texels
             .iter()
             .map(|t| {
-                if t.iter().all(|c| c.is_finite() && *c >= 0.0) {
+                if Environment::texel_ok(t) {
                     let v = Vec3::from_array(*t) * env.intensity;
                     if v.is_finite() {
                         v

@@ -550,6 +550,13 @@ pub fn parse_toml_with(
         }
         env.intensity = e.intensity;
         env.rotation = e.rotation_deg.to_radians();
+        let repaired = env.repair_texels();
+        if repaired > 0 {
+            let what = e.file.as_deref().unwrap_or("the environment map");
+            scene.warnings.push(format!(
+                "{what}: {repaired} texels with a negative channel read as black (by every technique and the reference)"
+            ));
+        }
         scene.environment = Some(env);
     }
 

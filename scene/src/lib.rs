@@ -196,6 +196,31 @@ impl Environment {
         }
         Environment { width, height, texels, intensity: 1.0, rotation: 0.0 }
     }
+
+    /// Whether a texel is read as it is: every channel finite and not negative. Any other texel
+    /// is read as black, the whole texel, by every technique and by the reference.
+    pub fn texel_ok(t: &[f32; 3]) -> bool {
+        t.iter().all(|c| c.is_finite() && *c >= 0.0)
+    }
+
+    /// Texels that are not [`Environment::texel_ok`].
+    pub fn bad_texels(&self) -> usize {
+        self.texels.iter().filter(|t| !Self::texel_ok(t)).count()
+    }
+
+    /// Sets every texel that is not [`Environment::texel_ok`] to black and returns how many it
+    /// changed, so that every consumer (SG fits, wavelet cubes, SATs, SH projections, importance
+    /// tables, the GPU map and the reference) reads the same radiance.
+    pub fn repair_texels(&mut self) -> usize {
+        let mut n = 0;
+        for t in self.texels.iter_mut() {
+            if !Self::texel_ok(t) {
+                *t = [0.0; 3];
+                n += 1;
+            }
+        }
+        n
+    }
 }
 
 /// One object of the scene.

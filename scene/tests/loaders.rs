@@ -398,3 +398,31 @@ fn error_type_is_displayable_with_path() {
     assert_eq!(e.path(), Path::new("a/b.obj"));
     assert!(e.to_string().starts_with("a/b.obj: "));
 }
+
+#[test]
+fn negative_environment_texels_are_black_for_everyone_and_reported() {
+    // studio.exr holds texels with channels down to -149: the loader blacks out each such texel
+    // (the whole texel, as the GPU map and the reference read it) so that every technique's
+    // fits, cubes, tables and SATs see the same radiance, and says so in the scene's warnings.
+    let raw = Environment::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets/studio.exr")).unwrap();
+    let bad = raw.bad_texels();
+    assert!(bad > 0, "studio.exr no longer has negative texels: pick another test map");
+    let scene = penumbra_scene::Scene::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/hat_on_cloth.toml"))
+        .unwrap();
+    let env = scene.environment.as_ref().unwrap();
+    assert_eq!(env.bad_texels(), 0);
+    let changed = raw.texels.iter().zip(&env.texels).filter(|(a, b)| a != b).count();
+    assert_eq!(changed, bad, "only the bad texels change");
+    assert!(env.texels.iter().zip(&raw.texels).all(|(t, r)| *t == [0.0; 3] || t == r));
+    let w = scene.warnings.iter().find(|w| w.contains("read as black")).expect("a warning");
+    assert!(w.contains("studio.exr") && w.contains(&bad.to_string()), "{w}");
+    let mut e = Environment {
+        width: 2,
+        height: 1,
+        texels: vec![[1.0, -0.0, 2.0], [f32::NAN, 1.0, 1.0]],
+        intensity: 1.0,
+        rotation: 0.0,
+    };
+    assert_eq!(e.repair_texels(), 1);
+    assert_eq!(e.texels, vec![[1.0, -0.0, 2.0], [0.0; 3]]);
+}
