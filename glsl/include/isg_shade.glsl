@@ -3,7 +3,8 @@
 // specular: one SG lobe of the BRDF (Blinn-Phong / Cook-Torrance warp; Ashikhmin-Shirley as a
 // Cook-Torrance lobe of its mean roughness) times the cosine SG, Gamma_L = int L G_j from the
 // prefiltered environment maps (or from the lighting lobes), times the ISG visible fraction of
-// G_j (eq. 9); with diffuse_ratio (default) the diffuse term is the map's exact irradiance times
+// G_j (eq. 9); with glossy ratio (default) the glossy term is the material model's unshadowed
+// one (env_shade.glsl, the `env` technique's) times that visible fraction; with diffuse_ratio (default) the diffuse term is the map's exact irradiance times
 // the lobes' visible share (include/irradiance.glsl). Local lights shadowed by rays. Included by isg_shade.comp (per pixel) and
 // isg_shade_vertex.comp (ISG_PER_VERTEX: the visibilities come interpolated from the mesh
 // vertices, isg_vertex.comp + isg_vertex.vert/.frag; pixels no vertex triangle covered fall
@@ -15,7 +16,7 @@
 
 layout(local_size_x = 8, local_size_y = 8) in;
 
-layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
+layout(set = 0, binding = 0) uniform Camera { CameraData cam; vec4 cam_dfg[768]; };  // cam_dfg: env_dfg.glsl
 layout(set = 0, binding = 1) readonly buffer Materials { MaterialData mats[]; };
 layout(set = 0, binding = 2) uniform sampler2D gb_position;
 layout(set = 0, binding = 3) uniform sampler2D gb_normal;
@@ -26,6 +27,7 @@ layout(set = 0, binding = 7) readonly buffer Lights { LightData lights[]; };
 layout(set = 0, binding = 8) uniform sampler2DArray material_textures;
 #include "material.glsl"
 #include "lights.glsl"
+#include "env_shade.glsl"
 layout(set = 0, binding = 10) readonly buffer Lobes { vec4 lobes[]; };  // 2 per lobe: axis+lambda, rgb mu
 #define ISG_TABLE_BINDING 9
 #define ISG_NODES_BINDING 11
@@ -53,7 +55,7 @@ layout(push_constant) uniform Push {
     float lod;
     uint flags;  // bit 0: no shadows (debug); bit 1: local lights unshadowed
     float min_fraction;
-    uint specular_mode;  // 0: Gamma_L from the prefiltered maps (paper), 1: from the lighting SGs
+    uint specular_mode;  // 0: Gamma_L from the prefiltered maps (paper), 1: from the lighting SGs, 2: ratio (env_shade.glsl's glossy term x the ISG visible fraction)
     int tri_node_count;  // thin-shell triangle BVH nodes
     uint diffuse_ratio;  // 1: the map's irradiance x the lobes' visible share; 0: the SG lobes alone
 } pc;
@@ -182,7 +184,20 @@ void main() {
     vec3 color = albedo / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
     color += local_lights(pos, p, n, v, albedo, kind, m, roughness);
-    if (kind != 0) {
+    if (kind != 0 && pc.specular_mode == 2u) {
+        // Ratio: the material model's unshadowed glossy term (the `env` technique's split sum,
+        // env_shade.glsl) times the ISG visible fraction of the specular SG lobe x cosine. The
+        // one SG lobe of eq. 9 loses the lobe's Fresnel and masking energy (balls_on_dish's
+        // Cook-Torrance dish came out about 10 % dark with shadows off).
+        vec3 amp;
+        SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
+        SG gj = sg_product(gs, cosg);
+        vec3 glossy = env_lookup(reflect(-v, n), env_lod(env_alpha(m))) * env_specular_albedo(m, ndv);
+        if (max(glossy.r, max(glossy.g, glossy.b)) > 0.0) {
+            float vs = per_vertex ? ((pc.flags & 1u) != 0u ? 1.0 : clamp(vvis.a, 0.0, 1.0)) : visible(p, n, gj);
+            color += glossy * vs;
+        }
+    } else if (kind != 0) {
         // Beckmann warp (Wang et al. 2009), m = roughness^2 as the reference's SG mode.
         vec3 amp;
         SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);

@@ -77,6 +77,11 @@ pub struct IsgSettings {
     /// the visible share of the SG lobes' irradiance (`true`, a ratio estimator), or the SG lobes
     /// alone (`false`, the paper's: the 16-lobe fit's error stays in every unshadowed pixel).
     pub diffuse_ratio: bool,
+    /// Glossy environment term: the material model's unshadowed glossy term (the `env`
+    /// technique's split sum, `glsl/include/env_shade.glsl`) times the ISG visible fraction of
+    /// the specular lobe (`true`, a ratio estimator), or eq. 9's one SG lobe of the BRDF
+    /// (`false`, the paper's: it loses the lobe's Fresnel and masking energy).
+    pub glossy_ratio: bool,
     /// Build the BVH on the GPU (`isg_bvh` pass, LBVH over Morton codes, up to
     /// [`GPU_BVH_MAX`] spheres); false or more spheres: the CPU median-split BVH.
     pub gpu_bvh: bool,
@@ -108,6 +113,7 @@ impl Default for IsgSettings {
             shadows: true,
             prefiltered_specular: true,
             diffuse_ratio: true,
+            glossy_ratio: true,
             gpu_bvh: true,
             per_vertex: false,
             max_edge: 0.1,
@@ -156,6 +162,13 @@ impl IsgSettings {
                     _ => anyhow::bail!("isg parameter diffuse = '{value}': expected 'ratio' or 'sg'"),
                 }
             }
+            "glossy" => {
+                self.glossy_ratio = match v {
+                    "ratio" => true,
+                    "sg" => false,
+                    _ => anyhow::bail!("isg parameter glossy = '{value}': expected 'ratio' or 'sg'"),
+                }
+            }
             "gpu_bvh" => self.gpu_bvh = flag()?,
             "thin_shells" => self.thin_shells = flag()?,
             "light_shadows" => self.light_shadows = flag()?,
@@ -168,7 +181,7 @@ impl IsgSettings {
             }
             "max_edge" => self.max_edge = v.parse::<f32>().ok().filter(|x| x.is_finite() && *x >= 0.0).ok_or_else(bad)?,
             other => anyhow::bail!(
-                "unknown isg parameter '{other}' (known: lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, diffuse, gpu_bvh, thin_shells, light_shadows, mode, max_edge)"
+                "unknown isg parameter '{other}' (known: lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, diffuse, glossy, gpu_bvh, thin_shells, light_shadows, mode, max_edge)"
             ),
         }
         Ok(())
@@ -762,7 +775,8 @@ impl crate::technique::Technique for IsgTechnique {
         let flags = !self.settings.shadows as u32 | (!self.settings.light_shadows as u32) << 1;
         push.extend_from_slice(&flags.to_le_bytes());
         push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
-        push.extend_from_slice(&(!self.settings.prefiltered_specular as u32).to_le_bytes());
+        let specular_mode = if self.settings.glossy_ratio { 2u32 } else { !self.settings.prefiltered_specular as u32 };
+        push.extend_from_slice(&specular_mode.to_le_bytes());
         push.extend_from_slice(&tri_node_count.to_le_bytes());
         push.extend_from_slice(&(self.settings.diffuse_ratio as u32).to_le_bytes());
         let pipe = self.pipeline.handle();
