@@ -23,6 +23,8 @@
 //           Integration::Adf).
 // Diffuse (diffuse_ratio, default): the map's exact irradiance times the visible share of the
 // lobes' irradiance (include/irradiance.glsl), not the lobes alone (the paper's; its fit error).
+// Glossy (glossy ratio, default): the material model's split sum (env_shade.glsl, the `env`
+// technique's) times the specular lobe's SSDF visibility, not the one SG lobe of the BRDF.
 // Local lights: shadowed by the sign of the interpolated SSDF toward the light.
 #include "common.glsl"
 #include "sg.glsl"
@@ -30,7 +32,7 @@
 
 layout(local_size_x = 8, local_size_y = 8) in;
 
-layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
+layout(set = 0, binding = 0) uniform Camera { CameraData cam; vec4 cam_dfg[768]; };  // cam_dfg: env_dfg.glsl
 layout(set = 0, binding = 1) readonly buffer Materials { MaterialData mats[]; };
 layout(set = 0, binding = 2) uniform sampler2D gb_position;
 layout(set = 0, binding = 3) uniform sampler2D gb_normal;
@@ -41,6 +43,7 @@ layout(set = 0, binding = 7) readonly buffer Lights { LightData lights[]; };
 layout(set = 0, binding = 8) uniform sampler2DArray material_textures;
 #include "material.glsl"
 #include "lights.glsl"
+#include "env_shade.glsl"
 layout(set = 0, binding = 9) readonly buffer Lobes { vec4 lobes[]; };
 layout(set = 0, binding = 10) readonly buffer Prefiltered { float pf[]; };
 // 3 vec4 per slot: (position, offset), (tangent, active), (normal, 0)
@@ -66,7 +69,7 @@ layout(push_constant) uniform Push {
     uint mode;       // 0 lobe axis, 1 cells, 2 table, 3 adaptive cells
     uint flags;      // bit 0: no shadows
     uint cells;      // cells per side (mode 1)
-    uint specular_mode;
+    uint specular_mode;  // 0: Gamma_L from the prefiltered maps, 1: from the lighting SGs, 2: ratio (env_shade.glsl's glossy term x the lobe's SSDF visibility)
     uint diffuse_ratio;  // 1: the map's irradiance x the SG lobes' visible share; 0: the SG lobes alone
 } pc;
 
@@ -244,7 +247,14 @@ void main() {
     vec3 color = albedo / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
     color += local_lights(pos, n, v, albedo, kind, m, roughness);
-    if (kind != 0) {
+    if (kind != 0 && pc.specular_mode == 2u) {
+        // Ratio: the material model's unshadowed glossy term (the `env` technique's split sum)
+        // times the SSDF visibility of the specular SG lobe x cosine.
+        vec3 amp;
+        SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
+        vec3 glossy = env_lookup(reflect(-v, n), env_lod(env_alpha(m))) * env_specular_albedo(m, ndv);
+        if (max(glossy.r, max(glossy.g, glossy.b)) > 0.0) color += glossy * visible(sg_product(gs, cosg));
+    } else if (kind != 0) {
         // Beckmann warp (Wang et al. 2009), m = roughness^2 as the reference's SG mode.
         vec3 amp;
         SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);

@@ -200,6 +200,7 @@ const AVS_PARAMS: &[ParamDoc] = &[
     p("keep_hits", "true", "true/false", "keep an occluded parent's hit when its child rays miss"),
     p("prefiltered", "true", "true/false", "specular from SG-prefiltered environment maps"),
     p("diffuse", "ratio", "ratio, sg", "diffuse environment term: the map's exact irradiance times the SG lobes' visible share (ratio) or the SG lobes alone (sg, the paper's)"),
+    p("glossy", "ratio", "ratio, sg", "glossy environment term: the material model's split sum (the env technique's) times the SSDF visibility of the specular lobe (ratio) or the one SG lobe of the BRDF (sg, the paper's)"),
     p("lobes", "16", "1..=64", "lighting spherical Gaussians"),
     p("cull", "true", "true/false", "trace only sample points the previous frame's pixels needed"),
     p("capture_maps", "false", "true/false", "read the final visibility maps back into the technique's stats (tests)"),

@@ -136,6 +136,11 @@ pub struct AvsSettings {
     /// alone (`false`, the paper's: the 16-lobe fit's error, 5% too bright on the floor of
     /// `falling`, stays in every unshadowed pixel).
     pub diffuse_ratio: bool,
+    /// Glossy environment term: the material model's unshadowed glossy term (the `env`
+    /// technique's split sum, `glsl/include/env_shade.glsl`) times the SSDF visibility of the
+    /// specular lobe (`true`, a ratio estimator), or the one SG lobe of the BRDF (`false`, the
+    /// paper's: it loses the lobe's Fresnel and masking energy).
+    pub glossy_ratio: bool,
     /// Lighting SG lobes.
     pub lobes: usize,
     /// G-buffer culling (section 6 "Optimization"): trace only the sample points that some
@@ -170,6 +175,7 @@ impl Default for AvsSettings {
             shadows: true,
             prefiltered: true,
             diffuse_ratio: true,
+            glossy_ratio: true,
             lobes: 16,
             cull: true,
             capture_maps: false,
@@ -190,7 +196,7 @@ impl AvsSettings {
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
     /// `iterations` (2), `points` (0 = auto), `max_points` (8192), `pool_points` (4096), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells` | `table` | `adf`), `cells` (6,
-    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `lobes` (16). Unknown keys and bad values
+    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `glossy` (`ratio` | `sg`), `lobes` (16). Unknown keys and bad values
     /// are errors naming the key.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
@@ -247,11 +253,18 @@ impl AvsSettings {
                     _ => bail!("avs parameter diffuse = '{value}': expected 'ratio' or 'sg'"),
                 }
             }
+            "glossy" => {
+                self.glossy_ratio = match v {
+                    "ratio" => true,
+                    "sg" => false,
+                    _ => bail!("avs parameter glossy = '{value}': expected 'ratio' or 'sg'"),
+                }
+            }
             "lobes" => self.lobes = int(1, 64)? as usize,
             "cull" => self.cull = flag()?,
             "capture_maps" => self.capture_maps = flag()?,
             other => bail!(
-                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, lobes, cull, capture_maps)"
+                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, capture_maps)"
             ),
         }
         Ok(())
@@ -1210,7 +1223,7 @@ impl crate::technique::Technique for AvsTechnique {
             },
             (!s.shadows || points.is_empty()) as u32,
             s.cells.clamp(1, 16),
-            (!s.prefiltered) as u32,
+            if s.glossy_ratio { 2 } else { (!s.prefiltered) as u32 },
             s.diffuse_ratio as u32,
         ]));
         let pipe = self.shade.handle();
