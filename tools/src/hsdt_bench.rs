@@ -268,7 +268,7 @@ pub fn run(args: &HsdtArgs) -> Result<()> {
         let (ua, ub) = integrate_run(&lobes, &params_a)?;
         // coherent order (as neighbouring pixels): sorted by map, then by sharpness
         let mut order: Vec<usize> = (0..q as usize).collect();
-        order.sort_by(|&x, &y| (params_a[x][2], lobes[x][3]).partial_cmp(&(params_a[y][2], lobes[y][3])).unwrap());
+        order.sort_by(|&x, &y| params_a[x][2].total_cmp(&params_a[y][2]).then(lobes[x][3].total_cmp(&lobes[y][3])));
         let lobes_s: Vec<[f32; 4]> = order.iter().map(|&i| lobes[i]).collect();
         let params_s: Vec<[f32; 4]> = order.iter().map(|&i| params_a[i]).collect();
         let (ua_s, ub_s) = integrate_run(&lobes_s, &params_s)?;

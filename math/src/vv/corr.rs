@@ -779,7 +779,8 @@ fn best_completion(
         let cost = filled.iter().map(|f| f.dot(d).clamp(-1.0, 1.0).acos()).sum::<f32>();
         cands.push((!near, cost, x));
     }
-    cands.sort_by(|a, b| (a.0, a.1).partial_cmp(&(b.0, b.1)).unwrap_or(std::cmp::Ordering::Equal));
+    // total order even with a NaN cost (a partial order can make sort_by panic)
+    cands.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
     cands.into_iter().map(|(_, _, x)| x).find(|&x| {
         let mut full = e;
         full[c] = x;
