@@ -338,6 +338,7 @@ impl Renderer {
         v.extend(self.env_note.iter().cloned());
         v.extend(Self::limitations(&scene));
         v.extend(self.technique.limitations(&self.scene));
+        v.extend(self.technique.notes(&self.scene));
         v.extend(self.effects.iter().flat_map(|e| e.notes()));
         v
     }

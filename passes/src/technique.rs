@@ -37,6 +37,12 @@ pub trait Technique {
     fn limitations(&self, _scene: &Scene) -> Vec<String> {
         Vec::new()
     }
+    /// Choices the technique made for `scene` that the user should know of but that leave
+    /// nothing out (isg casting a thin wall as triangles, a sphere file replaced by fitted
+    /// spheres): shown with the limitations, but not failing an accuracy-matrix cell.
+    fn notes(&self, _scene: &Scene) -> Vec<String> {
+        Vec::new()
+    }
     /// For a Monte Carlo technique: the samples per pixel in its image after the last frame
     /// (accumulated over frames where nothing changed); `None` for the others.
     fn samples_per_pixel(&self) -> Option<u32> {

@@ -168,7 +168,8 @@ fn thin_walls_cast_shadows_as_thin_shells() {
     assert!(!penumbra_passes::isg::is_thin_caster(&s, &sets, table));
     assert!(notes.iter().any(|n| n.contains("'dish'") && n.contains("thin-shell")), "{notes:?}");
     let frame = s.at(1.0, None);
-    let tris = penumbra_passes::isg::frame_thin_triangles(&s, &sets, &frame);
+    let parts = penumbra_passes::isg::thin_parts(&s, &sets);
+    let tris = penumbra_passes::isg::frame_thin_triangles(&s, &parts, &frame);
     let dish_tris = s.meshes[s.objects[dish].mesh].indices.len() / 3;
     assert_eq!(tris.len(), dish_tris, "exactly the dish's triangles");
     // the paper's closed objects keep their spheres (covered 85-96 %)
@@ -177,5 +178,41 @@ fn thin_walls_cast_shadows_as_thin_shells() {
         let sets = scene_sphere_sets(&s, 48);
         let i = s.objects.iter().position(|o| o.name == object).unwrap();
         assert!(sets[i].is_some(), "{file}: '{object}' lost its spheres");
+    }
+}
+
+#[test]
+fn thin_parts_outside_the_spheres_cast_as_triangles() {
+    // hat_on_cloth's hat keeps its 48 spheres for the crown, but its 2 cm brim lies outside them
+    // (no shadow on the cloth before): the brim's triangles, and only a part of the hat, are
+    // thin-shell casters. The closed balls are held by their spheres whole.
+    let s = scene("hat_on_cloth.toml");
+    let sets = scene_sphere_sets(&s, 48);
+    let parts = penumbra_passes::isg::thin_parts(&s, &sets);
+    let hat = s.objects.iter().position(|o| o.name == "hat").unwrap();
+    let mesh = &s.meshes[s.objects[hat].mesh];
+    let tris = mesh.indices.len() / 3;
+    println!("hat: {} of {tris} triangles thin", parts[hat].len());
+    assert!(!parts[hat].is_empty() && parts[hat].len() < tris, "{} of {tris}", parts[hat].len());
+    // every thin triangle has a point well outside the crown's radius (the brim)
+    let axis_dist = |k: u32| {
+        let p = mesh.positions[k as usize];
+        (p.x * p.x + p.z * p.z).sqrt()
+    };
+    let crown = (0..mesh.positions.len() as u32)
+        .filter(|&k| mesh.positions[k as usize].y > 0.5 * mesh.positions.iter().map(|p| p.y).fold(0.0, f32::max))
+        .map(axis_dist)
+        .fold(0.0, f32::max);
+    for &t in &parts[hat] {
+        let far = mesh.indices[3 * t as usize..3 * t as usize + 3].iter().map(|&k| axis_dist(k)).fold(0.0, f32::max);
+        assert!(far > crown, "triangle {t} reaches only {far} from the axis (crown radius {crown})");
+    }
+    for (file, object) in [("balls_on_dish.toml", "ball_red"), ("coarse.toml", "ball")] {
+        let s = scene(file);
+        let sets = scene_sphere_sets(&s, 48);
+        let parts = penumbra_passes::isg::thin_parts(&s, &sets);
+        let i = s.objects.iter().position(|o| o.name == object).unwrap();
+        println!("{file} '{object}': {} thin triangles", parts[i].len());
+        assert!(parts[i].is_empty(), "{file}: '{object}' has {} thin triangles", parts[i].len());
     }
 }

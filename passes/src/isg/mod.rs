@@ -391,20 +391,62 @@ pub const MIN_SPHERE_COVERAGE: f64 = 0.5;
 /// Voxels along the longest axis of the coverage measurement.
 const COVERAGE_RESOLUTION: usize = 64;
 
-/// World-space triangles of the frame's thin-shell casters ([`is_thin_caster`]; deformed meshes
-/// when deforming).
-pub fn frame_thin_triangles(scene: &Scene, sets: &[Option<SphereSet>], frame: &Frame) -> Vec<[Vec3; 3]> {
+/// A mesh point farther than this fraction of its object's bounding-box diagonal outside every
+/// sphere of the object's set is not held by the spheres (hat_on_cloth's 2 cm brim).
+pub const THIN_PART_TOLERANCE: f32 = 0.03;
+
+/// Per object, the triangles (indices into its mesh's triangle list) that cast shadows as thin
+/// shells: every triangle of a thin caster ([`is_thin_caster`]); of an object with spheres, the
+/// triangles with a vertex or centroid more than [`THIN_PART_TOLERANCE`] of the object's size
+/// outside all of them (rest pose), the thin parts its spheres do not hold (a hat's brim), so
+/// that they still cast their shadows.
+pub fn thin_parts(scene: &Scene, sets: &[Option<SphereSet>]) -> Vec<Vec<u32>> {
+    (0..scene.objects.len())
+        .map(|i| {
+            let Some(mesh) = scene.objects.get(i).and_then(|o| scene.meshes.get(o.mesh)) else { return Vec::new() };
+            let tris = (mesh.indices.len() / 3) as u32;
+            if is_thin_caster(scene, sets, i) {
+                return (0..tris).collect();
+            }
+            let Some(Some(set)) = sets.get(i) else { return Vec::new() };
+            if !scene.object_info(i).casts_shadow || set.spheres.is_empty() {
+                return Vec::new();
+            }
+            let (lo, hi) = mesh
+                .positions
+                .iter()
+                .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(a, b), p| (a.min(*p), b.max(*p)));
+            let tol = THIN_PART_TOLERANCE * (hi - lo).length();
+            let outside = |p: Vec3| set.spheres.iter().all(|s| (p - s.center).length() - s.radius > tol);
+            let vertex_out: Vec<bool> = mesh.positions.iter().map(|&p| outside(p)).collect();
+            (0..tris)
+                .filter(|&t| {
+                    let idx = &mesh.indices[3 * t as usize..3 * t as usize + 3];
+                    let Some(v) =
+                        idx.iter().map(|&k| mesh.positions.get(k as usize).copied()).collect::<Option<Vec<_>>>()
+                    else {
+                        return false;
+                    };
+                    idx.iter().any(|&k| vertex_out[k as usize]) || outside((v[0] + v[1] + v[2]) / 3.0)
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// World-space triangles of the frame's thin-shell parts ([`thin_parts`]; deformed meshes when
+/// deforming).
+pub fn frame_thin_triangles(scene: &Scene, parts: &[Vec<u32>], frame: &Frame) -> Vec<[Vec3; 3]> {
     let mut out = Vec::new();
     for inst in &frame.instances {
-        if !is_thin_caster(scene, sets, inst.object) {
-            continue;
-        }
+        let Some(part) = parts.get(inst.object).filter(|p| !p.is_empty()) else { continue };
         let Some(rest) = scene.meshes.get(inst.mesh) else { continue };
         let pos = match &inst.deformed_mesh {
             Some(d) if d.positions.len() == rest.positions.len() => &d.positions,
             _ => &rest.positions,
         };
-        for t in rest.indices.chunks_exact(3) {
+        for &t in part {
+            let Some(t) = rest.indices.get(3 * t as usize..3 * t as usize + 3) else { continue };
             let Some(v) = t
                 .iter()
                 .map(|&i| pos.get(i as usize).map(|p| inst.world.transform_point3(*p)))
@@ -436,7 +478,7 @@ pub fn build_triangle_bvh(tris: &[[Vec3; 3]]) -> Vec<GpuNode> {
 
 /// The `"isg"` / `"isg-vertex"` technique.
 pub struct IsgTechnique {
-    /// Problems with the scene's `.spheres` files (shown as limitations).
+    /// Problems with the scene's `.spheres` files and the thin walls and parts cast as triangles (notes).
     sphere_notes: Vec<String>,
     pipeline: Pipeline,
     bvh_pipeline: Pipeline,
@@ -448,6 +490,8 @@ pub struct IsgTechnique {
     settings: IsgSettings,
     scene: Scene,
     sets: Vec<Option<SphereSet>>,
+    /// Per object, its triangles that cast shadows as thin shells ([`thin_parts`]).
+    thin: Vec<Vec<u32>>,
     refined: std::collections::HashMap<usize, vertex::Refined>,
     table: Arc<Vec<u8>>,
     lobes: Arc<Vec<u8>>,
@@ -512,7 +556,20 @@ impl IsgTechnique {
         let prefiltered = crate::lighting::prefiltered_env(scene);
         let lobe_count = (lobes.len() / 2) as u32;
         let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
-        let (sets, sphere_notes) = scene_sphere_sets_noting(scene, settings.spheres_per_object);
+        let (sets, mut sphere_notes) = scene_sphere_sets_noting(scene, settings.spheres_per_object);
+        let thin = thin_parts(scene, &sets);
+        for (i, part) in thin.iter().enumerate() {
+            let (Some(Some(set)), Some(o)) = (sets.get(i), scene.objects.get(i)) else { continue };
+            if !part.is_empty() {
+                let tris = scene.meshes.get(o.mesh).map_or(0, |m| m.indices.len() / 3);
+                sphere_notes.push(format!(
+                    "'{}': {} of its {tris} triangles lie outside its {} spheres (thin parts): they cast their shadows as thin-shell triangles",
+                    o.name,
+                    part.len(),
+                    set.spheres.len()
+                ));
+            }
+        }
         Ok(IsgTechnique {
             pipeline,
             bvh_pipeline,
@@ -521,6 +578,7 @@ impl IsgTechnique {
             linear: Sampler::latlong(ctx)?,
             repeat: Sampler::repeat(ctx)?,
             sets,
+            thin,
             sphere_notes,
             refined: Default::default(),
             scene: scene.clone(),
@@ -695,7 +753,7 @@ impl crate::technique::Technique for IsgTechnique {
         }
     }
 
-    fn limitations(&self, _scene: &Scene) -> Vec<String> {
+    fn notes(&self, _scene: &Scene) -> Vec<String> {
         self.sphere_notes.clone()
     }
 
@@ -724,7 +782,7 @@ impl crate::technique::Technique for IsgTechnique {
         self.last_node_count = node_count as usize;
         // Thin shells: world-space triangles and their BVH (CPU, median splits).
         let tris = if self.settings.thin_shells {
-            frame_thin_triangles(&self.scene, &self.sets, inputs.frame)
+            frame_thin_triangles(&self.scene, &self.thin, inputs.frame)
         } else {
             Vec::new()
         };
