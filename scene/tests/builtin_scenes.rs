@@ -32,7 +32,11 @@ fn every_scene_file_loads_and_evaluates() {
     for name in &names {
         let s = load(name);
         assert!(!s.objects.is_empty());
-        assert!(s.warnings.is_empty(), "{name}: unexpected warnings {:?}", s.warnings);
+        // the shipped HDRIs hold a few texels with a negative channel (studio.exr, sunset-dwab.exr),
+        // read as black and said so; any other repair would be a broken built-in scene
+        let unexpected: Vec<&String> =
+            s.warnings.iter().filter(|w| !w.contains("texels with a negative channel read as black")).collect();
+        assert!(unexpected.is_empty(), "{name}: unexpected warnings {unexpected:?}");
         assert_eq!(s.object_info.len(), s.objects.len());
         assert_eq!(s.material_extras.len(), s.materials.len());
         let mut prev = None;
