@@ -83,6 +83,8 @@ pub struct SsdfView<'a> {
 /// Stored values at least this large are read as the "no boundary" marker `+-pi` (fp16 stores
 /// `pi` as 3.1406; real distances between hemisphere texel centres stay below `pi - h/2`, i.e.
 /// below 3.136 for `r <= 256`).
+// A threshold deliberately below pi (fp16's pi is 3.1406), not an approximation of it.
+#[allow(clippy::approx_constant)]
 pub const NO_BOUNDARY_READ: f64 = 3.14;
 
 /// Texel value corrected from centre-to-centre to centre-to-boundary distance (module docs).
