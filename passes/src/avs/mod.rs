@@ -265,7 +265,7 @@ impl AvsSettings {
         }
         if self.r < self.initial_grid
             || !(self.r / self.initial_grid).is_power_of_two()
-            || self.r % self.initial_grid != 0
+            || !self.r.is_multiple_of(self.initial_grid)
         {
             bail!(
                 "avs parameter r = {}: must be the initial grid ({}) times a power of two",
