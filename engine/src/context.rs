@@ -521,7 +521,6 @@ impl Context {
     /// assumes `shaderOutputLayer` is off (technique `shadowmaps` then refuses to start and `auto`
     /// chooses another); declare optional features with [`Context::from_external_with`]. Pass a
     /// clone of your `Entry`: the loader library must outlive your own use of the handles.
-    #[allow(clippy::too_many_arguments)]
     pub fn from_external(
         entry: ash::Entry,
         instance: ash::Instance,
@@ -535,7 +534,6 @@ impl Context {
 
     /// [`Context::from_external`] for a device created with the optional features in `features`
     /// enabled (penumbra cannot query what a device was created with).
-    #[allow(clippy::too_many_arguments)]
     pub fn from_external_with(
         entry: ash::Entry,
         instance: ash::Instance,
@@ -578,7 +576,6 @@ impl Context {
         Ok(Arc::new(ctx))
     }
 
-    #[allow(clippy::too_many_arguments)]
     fn assemble(
         entry: ash::Entry,
         instance: ash::Instance,

@@ -490,7 +490,6 @@ pub fn triangle_projection(p: DVec3, n: DVec3, t: &Triangle) -> Option<impl Fn(D
 /// [`visible_fraction`] with thin-shell occluders too: every patch whose centre direction
 /// passes through a triangle ([`triangle_projection`]) is occluded (the paper's projected
 /// triangle meshes, section 5).
-#[allow(clippy::too_many_arguments)]
 pub fn visible_fraction_with_triangles(
     table: &IsgTable,
     p: DVec3,

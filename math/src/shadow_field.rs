@@ -1671,7 +1671,6 @@ pub mod haar {
 
         /// [`HaarField::build`] and the [`HaarField::bytes`] the fixed field (every shell at
         /// `r0`) would take, from the same truncation (no second build for the size).
-        #[allow(clippy::too_many_arguments)]
         pub fn build_sized(
             center: Vec3,
             vr: f32,

@@ -275,7 +275,6 @@ fn rect(lobe: &Sg, cosine: bool, t0: f64, t1: f64, p0: f64, p1: f64, m: usize) -
 }
 
 /// Visible part of a boundary texel (iso-line clipping, module docs), `m x m` sub-cells.
-#[allow(clippy::too_many_arguments)]
 fn clipped(lobe: &Sg, cosine: bool, t0: f64, t1: f64, p0: f64, p1: f64, dc: f64, gt: f64, gp: f64, m: usize) -> f64 {
     let (tc, pc) = (0.5 * (t0 + t1), 0.5 * (p0 + p1));
     let theta_major = gt.abs() >= gp.abs(); // line theta = k phi + b

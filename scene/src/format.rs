@@ -973,7 +973,6 @@ fn deform(ctx: &Ctx, span: std::ops::Range<usize>, what: &str, d: &DeformSpec) -
     })
 }
 
-#[allow(clippy::too_many_arguments)]
 fn material(
     ctx: &Ctx,
     span: std::ops::Range<usize>,

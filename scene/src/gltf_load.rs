@@ -732,7 +732,6 @@ fn check_accessor(
     Ok(())
 }
 
-#[allow(clippy::too_many_arguments)]
 fn read_primitive<'a, 's, F>(
     path: &Path,
     label: &str,

@@ -759,7 +759,6 @@ impl AvsTechnique {
 
     /// Declares the visibility passes of `batch` (slots into the points buffer) writing each
     /// final map at its slot of `vis`; returns the new `vis` version and the stats buffer.
-    #[allow(clippy::too_many_arguments)]
     fn add_visibility(
         &self,
         graph: &mut Graph,

@@ -1011,7 +1011,6 @@ impl ShadowFieldsTechnique {
 /// `values` (per-vertex data) and `base_of` (each instance's first slot minus its mesh's vertex
 /// offset), into `colors` (cleared to their values) over a depth buffer of its own; returns the
 /// written images in order.
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn add_vertex_raster(
     graph: &mut Graph,
     name: &str,
