@@ -1,6 +1,6 @@
 //! glTF 2.0 loading (`.gltf` with embedded or external buffers, `.glb`) through the `gltf`
 //! crate: meshes (triangles), node hierarchy, metallic-roughness materials (mapped to
-//! [`BrdfKind::CookTorrance`]), base-colour and metallic-roughness textures, animations
+//! [`BrdfKind::CookTorrance`](crate::BrdfKind::CookTorrance)), base-colour and metallic-roughness textures, animations
 //! (translation / rotation / scale / morph weights; step and linear, cubic-spline keys use
 //! their values linearly), skins and morph targets.
 //!

@@ -10,7 +10,7 @@
 //! - [`Environment`] a lat-long RGB float map (see its docs for orientation).
 //!
 //! Additions (see the README-style docs on each item):
-//! - [`Scene::load`] reads a `.toml` scene file ([`format`]) or a bare `.glb`/`.gltf` model
+//! - [`Scene::load`] reads a `.toml` scene file ([`format`](mod@format)) or a bare `.glb`/`.gltf` model
 //!   ([`Scene::from_model`]); errors are one [`SceneError`] naming the file and the problem;
 //!   repairs of degenerate input are reported in [`Scene::warnings`].
 //! - Lights ([`Light`]), a participating [`Medium`], per-object motion and deformation
@@ -141,7 +141,7 @@ impl Material {
 /// `phi = 2 pi u` grows from -Z towards +X. `rotation` turns the map about +Y
 /// (counter-clockwise seen from above): a world direction `d` looks up
 /// `uv(Ry(-rotation) d)`, see [`Environment::radiance`]. `intensity` scales every texel.
-/// Direction for pixel centre (u, v) in [0,1]^2: phi = 2*pi*u, theta = pi*v,
+/// Direction for pixel centre (u, v) in `[0,1]^2`: phi = 2*pi*u, theta = pi*v,
 /// d = (sin(theta) * sin(phi), cos(theta), -sin(theta) * cos(phi))... see [`Environment::direction`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct Environment {
@@ -156,7 +156,7 @@ pub struct Environment {
 }
 
 impl Environment {
-    /// Unit direction for lat-long coordinates (u, v) in [0,1]^2 (before `rotation`).
+    /// Unit direction for lat-long coordinates (u, v) in `[0,1]^2` (before `rotation`).
     /// u = 0 and u = 1 is the -Z direction... phi grows towards +X; v = 0 is +Y (up).
     pub fn direction(u: f32, v: f32) -> Vec3 {
         let phi = u * std::f32::consts::TAU;
@@ -754,7 +754,7 @@ impl Scene {
         Ok(())
     }
 
-    /// Load a scene: `.toml` scene files ([`format`]) or bare `.glb` / `.gltf` models
+    /// Load a scene: `.toml` scene files ([`format`](mod@format)) or bare `.glb` / `.gltf` models
     /// ([`Scene::from_model`]). The technique name is kept as written (the renderer checks it).
     pub fn load(path: impl AsRef<Path>) -> Result<Scene, SceneError> {
         Self::load_with(path, &LoadOptions::default())

@@ -28,7 +28,7 @@
 //!    bunny). Every step of a slot that is not an edge of its vertex's sequence is routed
 //!    through that vertex's pole (a virtual direction point, its normal), and every edge is
 //!    owned by exactly one loop, so at each vertex the loops are the fan decomposition of its
-//!    own loops ([`route_jumps`]).
+//!    own loops (`route_jumps`).
 
 use super::hull;
 use super::*;
