@@ -14,7 +14,7 @@ fn collect(dir: &Path, out: &mut Vec<PathBuf>) {
     entries.sort();
     for p in entries {
         if p.is_dir() {
-            if p.file_name().map_or(false, |n| n != "include") {
+            if p.file_name().is_some_and(|n| n != "include") {
                 collect(&p, out);
             }
         } else if glsl_compile::stage_for(&p).is_some() {

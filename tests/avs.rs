@@ -475,7 +475,7 @@ fn slim_bar(r: u32) {
             );
             missed_seedless += 1;
             seedless_near_box += near_box as usize;
-        } else if seeds.iter().any(|s| *s == Some(true)) {
+        } else if seeds.contains(&Some(true)) {
             seeded += 1;
         }
         found0 += bar_found(a0) as usize;

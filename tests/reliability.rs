@@ -53,7 +53,7 @@ fn a_frame_past_the_fence_timeout_is_a_device_lost_error() {
     // 320x240 at 64 samples per pixel takes lavapipe far longer than no time at all.
     r.engine.fence_timeout = std::time::Duration::ZERO;
     r.render(&scene.at(0.0, None), None, true).unwrap();
-    let e = r.finish().err().expect("a zero timeout cannot be met");
+    let e = r.finish().expect_err("a zero timeout cannot be met");
     assert_eq!(e.kind(), ErrorKind::DeviceLost, "{e}");
     assert!(e.to_string().contains("did not finish within"), "{e}");
     drop(r);

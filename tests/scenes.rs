@@ -14,7 +14,7 @@ fn scene_files() -> Vec<PathBuf> {
         .unwrap()
         .flatten()
         .map(|e| e.path())
-        .filter(|p| p.extension().map_or(false, |e| e == "toml"))
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
         .collect();
     v.sort();
     v

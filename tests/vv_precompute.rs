@@ -23,7 +23,7 @@ fn model_of(s: &Scene) -> VvModel {
             normals: &m.normals,
             indices: &m.indices,
             world: o.transform,
-            casts_shadow: s.object_info.get(i).map_or(true, |x| x.casts_shadow),
+            casts_shadow: s.object_info.get(i).is_none_or(|x| x.casts_shadow),
         }
     }))
 }

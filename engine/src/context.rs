@@ -350,12 +350,12 @@ impl Context {
         })?;
         let layer_name = c"VK_LAYER_KHRONOS_validation";
         let layers_avail = unsafe { entry.enumerate_instance_layer_properties()? };
-        let has_layer = layers_avail.iter().any(|l| l.layer_name_as_c_str().map_or(false, |n| n == layer_name));
+        let has_layer = layers_avail.iter().any(|l| l.layer_name_as_c_str() == Ok(layer_name));
         if desc.validation && !has_layer {
             bail!("validation requested but VK_LAYER_KHRONOS_validation is not installed (apt-get install vulkan-validationlayers)");
         }
         let ext_avail = unsafe { entry.enumerate_instance_extension_properties(None)? };
-        let has_ext = |n: &CStr| ext_avail.iter().any(|e| e.extension_name_as_c_str().map_or(false, |x| x == n));
+        let has_ext = |n: &CStr| ext_avail.iter().any(|e| e.extension_name_as_c_str() == Ok(n));
         let debug_ext = ash::ext::debug_utils::NAME;
         let has_debug = has_ext(debug_ext);
         let mut exts: Vec<*const c_char> = desc.instance_extensions.iter().map(|e| e.as_ptr()).collect();
@@ -416,7 +416,7 @@ impl Context {
                 continue;
             }
             let dev_exts = unsafe { instance.enumerate_device_extension_properties(p)? };
-            let has = |n: &CStr| dev_exts.iter().any(|e| e.extension_name_as_c_str().map_or(false, |x| x == n));
+            let has = |n: &CStr| dev_exts.iter().any(|e| e.extension_name_as_c_str() == Ok(n));
             if !has(ash::khr::push_descriptor::NAME) {
                 rejected.push(format!("{name}: VK_KHR_push_descriptor missing"));
                 continue;
@@ -521,7 +521,6 @@ impl Context {
     /// assumes `shaderOutputLayer` is off (technique `shadowmaps` then refuses to start and `auto`
     /// chooses another); declare optional features with [`Context::from_external_with`]. Pass a
     /// clone of your `Entry`: the loader library must outlive your own use of the handles.
-    #[allow(clippy::too_many_arguments)]
     pub fn from_external(
         entry: ash::Entry,
         instance: ash::Instance,
@@ -535,7 +534,6 @@ impl Context {
 
     /// [`Context::from_external`] for a device created with the optional features in `features`
     /// enabled (penumbra cannot query what a device was created with).
-    #[allow(clippy::too_many_arguments)]
     pub fn from_external_with(
         entry: ash::Entry,
         instance: ash::Instance,
@@ -578,7 +576,6 @@ impl Context {
         Ok(Arc::new(ctx))
     }
 
-    #[allow(clippy::too_many_arguments)]
     fn assemble(
         entry: ash::Entry,
         instance: ash::Instance,

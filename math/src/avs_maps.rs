@@ -68,7 +68,7 @@ pub const NO_BOUNDARY: f64 = PI;
 
 /// `Ok` if `r` is a supported resolution (multiple of 8 in `[8, 256]`), else a message naming it.
 pub fn check_res(r: u32) -> Result<(), String> {
-    if r < MIN_RES || r > MAX_RES || r % 8 != 0 {
+    if !(MIN_RES..=MAX_RES).contains(&r) || !r.is_multiple_of(8) {
         Err(format!("visibility map resolution {r} is not a multiple of 8 in [{MIN_RES}, {MAX_RES}]"))
     } else {
         Ok(())

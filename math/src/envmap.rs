@@ -185,7 +185,7 @@ impl LatLong {
 
     /// 2x2 solid-angle-weighted box downsample (requires even width and height).
     pub fn downsample(&self) -> Option<LatLong> {
-        if self.width % 2 != 0 || self.height % 2 != 0 || self.height < 2 {
+        if !self.width.is_multiple_of(2) || !self.height.is_multiple_of(2) || self.height < 2 {
             return None;
         }
         let (w2, h2) = (self.width / 2, self.height / 2);
@@ -884,9 +884,8 @@ pub fn project_sh(width: usize, height: usize, texels: &[[f32; 3]], order: usize
     for i in 0..map.rgb.len() {
         let w = map.solid_angle(i / width);
         crate::sh::eval_basis_into(order, map.dir(i), &mut y);
-        for c in 0..3 {
-            let v = map.rgb[i][c] * w;
-            for (o, yk) in out[c].iter_mut().zip(&y) {
+        for (oc, v) in out.iter_mut().zip((map.rgb[i] * w).to_array()) {
+            for (o, yk) in oc.iter_mut().zip(&y) {
                 *o += v * yk;
             }
         }

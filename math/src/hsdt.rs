@@ -43,11 +43,11 @@ pub const NONE: u16 = u16::MAX;
 pub fn latitude_scan(map: &VisMap, i: u32, feature: bool, out: &mut [u16]) {
     let r = map.r as usize;
     let mut last = NONE;
-    for j in 0..r {
+    for (j, o) in out[..r].iter_mut().enumerate() {
         if map.get(i, j as u32) == feature {
             last = j as u16;
         }
-        out[j] = last;
+        *o = last;
     }
     let mut s = NONE;
     for j in (0..r).rev() {

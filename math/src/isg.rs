@@ -475,7 +475,7 @@ pub fn triangle_projection(p: DVec3, n: DVec3, t: &Triangle) -> Option<impl Fn(D
         return None;
     }
     let (la, lb, lc) = (a.length(), b.length(), c.length());
-    if !(la > 0.0 && lb > 0.0 && lc > 0.0) || !(la * lb * lc).is_finite() {
+    if !(la > 0.0 && lb > 0.0 && lc > 0.0 && (la * lb * lc).is_finite()) {
         return None;
     }
     let (nab, nbc, nca) = (a.cross(b), b.cross(c), c.cross(a));
@@ -490,7 +490,6 @@ pub fn triangle_projection(p: DVec3, n: DVec3, t: &Triangle) -> Option<impl Fn(D
 /// [`visible_fraction`] with thin-shell occluders too: every patch whose centre direction
 /// passes through a triangle ([`triangle_projection`]) is occluded (the paper's projected
 /// triangle meshes, section 5).
-#[allow(clippy::too_many_arguments)]
 pub fn visible_fraction_with_triangles(
     table: &IsgTable,
     p: DVec3,

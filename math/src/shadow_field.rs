@@ -668,11 +668,7 @@ impl ObjectField {
     /// Dequantized coefficient vector of sample `idx` of shell `c`.
     pub fn sample(&self, c: usize, idx: usize) -> [f64; NCOEF] {
         let sh = &self.shells[c];
-        let mut out = [0.0; NCOEF];
-        for e in 0..NCOEF {
-            out[e] = sh.min[e] as f64 + sh.data[idx * NCOEF + e] as f64 * sh.step[e] as f64;
-        }
-        out
+        std::array::from_fn(|e| sh.min[e] as f64 + sh.data[idx * NCOEF + e] as f64 * sh.step[e] as f64)
     }
 
     /// Dequantized whole shell grid.
@@ -814,7 +810,7 @@ impl ObjectField {
             let data = take(r as usize * r as usize * NCOEF)?.to_vec();
             shells.push(Shell { resolution: r, min, step, data, adapt_error });
         }
-        if nvert.checked_mul(NCOEF * 4).map_or(true, |n| n > b.len()) {
+        if nvert.checked_mul(NCOEF * 4).is_none_or(|n| n > b.len()) {
             return Err("shadow field file: truncated self-transfer".into());
         }
         let mut self_transfer = Vec::with_capacity(nvert);
@@ -1462,7 +1458,7 @@ pub mod haar {
         let count = ((c.len() as f64 * keep).ceil() as usize).clamp(6, c.len());
         // face averages first (always kept), then the largest magnitudes (a selection, not a
         // sort: this runs for every sample of every shell)
-        let is_avg = |i: usize| i % (n * n) == 0;
+        let is_avg = |i: usize| i.is_multiple_of(n * n);
         let mut idx: Vec<usize> = (0..c.len()).filter(|&i| is_avg(i)).collect();
         // zeros are never kept (filtered below) and rank last: leaving them out of the selection
         // keeps the same set (most detail coefficients of a binary map are zero)
@@ -1675,7 +1671,6 @@ pub mod haar {
 
         /// [`HaarField::build`] and the [`HaarField::bytes`] the fixed field (every shell at
         /// `r0`) would take, from the same truncation (no second build for the size).
-        #[allow(clippy::too_many_arguments)]
         pub fn build_sized(
             center: Vec3,
             vr: f32,

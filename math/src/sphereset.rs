@@ -72,7 +72,7 @@ pub struct Coverage {
 }
 
 fn check_mesh(positions: &[Vec3], indices: &[u32]) -> Result<(), SphereError> {
-    if indices.len() < 3 || indices.len() % 3 != 0 {
+    if indices.len() < 3 || !indices.len().is_multiple_of(3) {
         return Err(SphereError::BadMesh(format!("{} indices (need a positive multiple of 3)", indices.len())));
     }
     if let Some(i) = indices.iter().find(|&&i| i as usize >= positions.len()) {
@@ -217,12 +217,12 @@ fn dt1(f: &mut [f64], v: &mut Vec<usize>, z: &mut Vec<f64>, out: &mut Vec<f64>) 
         }
     }
     k = 0;
-    for q in 0..n {
+    for (q, o) in out.iter_mut().enumerate() {
         while z[k + 1] < q as f64 {
             k += 1;
         }
         let p = v[k];
-        out[q] = (q as f64 - p as f64).powi(2) + f[p];
+        *o = (q as f64 - p as f64).powi(2) + f[p];
     }
     f.copy_from_slice(out);
 }

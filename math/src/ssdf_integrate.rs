@@ -83,6 +83,8 @@ pub struct SsdfView<'a> {
 /// Stored values at least this large are read as the "no boundary" marker `+-pi` (fp16 stores
 /// `pi` as 3.1406; real distances between hemisphere texel centres stay below `pi - h/2`, i.e.
 /// below 3.136 for `r <= 256`).
+// A threshold deliberately below pi (fp16's pi is 3.1406), not an approximation of it.
+#[allow(clippy::approx_constant)]
 pub const NO_BOUNDARY_READ: f64 = 3.14;
 
 /// Texel value corrected from centre-to-centre to centre-to-boundary distance (module docs).
@@ -175,10 +177,10 @@ pub fn t_exact(lambda: f64, d: f64) -> f64 {
 const GL8: [(f64, f64); 8] = [
     (-0.960_289_856_497_536_3, 0.101_228_536_290_376_26),
     (-0.796_666_477_413_626_7, 0.222_381_034_453_374_47),
-    (-0.525_532_409_916_329_0, 0.313_706_645_877_887_3),
-    (-0.183_434_642_495_649_8, 0.362_683_783_378_362_0),
-    (0.183_434_642_495_649_8, 0.362_683_783_378_362_0),
-    (0.525_532_409_916_329_0, 0.313_706_645_877_887_3),
+    (-0.525_532_409_916_329, 0.313_706_645_877_887_3),
+    (-0.183_434_642_495_649_8, 0.362_683_783_378_362),
+    (0.183_434_642_495_649_8, 0.362_683_783_378_362),
+    (0.525_532_409_916_329, 0.313_706_645_877_887_3),
     (0.796_666_477_413_626_7, 0.222_381_034_453_374_47),
     (0.960_289_856_497_536_3, 0.101_228_536_290_376_26),
 ];
@@ -273,7 +275,6 @@ fn rect(lobe: &Sg, cosine: bool, t0: f64, t1: f64, p0: f64, p1: f64, m: usize) -
 }
 
 /// Visible part of a boundary texel (iso-line clipping, module docs), `m x m` sub-cells.
-#[allow(clippy::too_many_arguments)]
 fn clipped(lobe: &Sg, cosine: bool, t0: f64, t1: f64, p0: f64, p1: f64, dc: f64, gt: f64, gp: f64, m: usize) -> f64 {
     let (tc, pc) = (0.5 * (t0 + t1), 0.5 * (p0 + p1));
     let theta_major = gt.abs() >= gp.abs(); // line theta = k phi + b
@@ -452,12 +453,12 @@ mod tests {
             for d in [0.001, 0.05, 0.5, 2.0, 3.0] {
                 let a = t_exact(lambda, d);
                 assert!((a + t_exact(lambda, -d) - 1.0).abs() < 1e-9);
-                assert!(a >= 0.5 && a <= 1.0);
+                assert!((0.5..=1.0).contains(&a));
             }
         }
         // uniform measure: (1 + sin(d/2)) / 2
-        for d in [-2.5, -0.3, 0.7, 2.9] {
-            let want = 0.5 * (1.0 + (0.5 * d as f64).sin());
+        for d in [-2.5f64, -0.3, 0.7, 2.9] {
+            let want = 0.5 * (1.0 + (0.5 * d).sin());
             assert!((t_exact(1e-7, d) - want).abs() < 1e-5, "{d}: {} vs {want}", t_exact(1e-7, d));
         }
         // sharp lobe, locally straight edge: normal CDF of d sqrt(lambda)

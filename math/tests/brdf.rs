@@ -12,12 +12,8 @@ fn wo_at(deg: f64) -> DVec3 {
 #[test]
 fn quadrature_rule_sanity() {
     // int_{z>0} cos = pi, with the rule aligned to a tilted lobe axis
-    for (deg, lam) in [(0.0, 1.0), (60.0, 100.0), (80.0, 1e4)] {
-        let r = hemisphere_rule_about(
-            DVec3::new(-(deg as f64).to_radians().sin(), 0.0, (deg as f64).to_radians().cos()),
-            lam,
-            64,
-        );
+    for (deg, lam) in [(0.0f64, 1.0), (60.0, 100.0), (80.0, 1e4)] {
+        let r = hemisphere_rule_about(DVec3::new(-deg.to_radians().sin(), 0.0, deg.to_radians().cos()), lam, 64);
         let s: f64 = r.iter().map(|(d, w)| w * d.z).sum();
         // the clipped azimuthal sum is first-order accurate at the horizon
         assert!((s / std::f64::consts::PI - 1.0).abs() < 5e-3, "{deg} {lam}: {s}");

@@ -143,7 +143,7 @@ impl EnvMapGpu {
         }
         // Box-filtered mip chain down to 1x1.
         let mut mips = vec![(w, h, base)];
-        while mips.last().map_or(false, |m| m.0 > 1 || m.1 > 1) {
+        while mips.last().is_some_and(|m| m.0 > 1 || m.1 > 1) {
             let (pw, ph, prev) = mips.last().unwrap();
             let (nw, nh) = ((pw / 2).max(1), (ph / 2).max(1));
             let mut next = vec![[0f32; 4]; (nw * nh) as usize];
@@ -206,134 +206,6 @@ impl EnvMapGpu {
             data.extend_from_slice(&bytes_of(texels));
         }
         crate::util::add_image_upload(graph, "env", img, data, regions)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn an_environment_over_the_device_limit_is_halved_until_it_fits_keeping_its_mean() {
-        let texels: Vec<[f32; 3]> = (0..64 * 32).map(|i| [(i % 7) as f32, 1.0, (i / 64) as f32]).collect();
-        let env = Environment { width: 64, height: 32, texels, intensity: 2.0, rotation: 0.5 };
-        assert!(fit_to_device(&env, 64).is_none());
-        let f = fit_to_device(&env, 20).unwrap();
-        assert_eq!((f.width, f.height, f.intensity, f.rotation), (16, 8, 2.0, 0.5));
-        let mean = |e: &Environment| e.texels.iter().map(|t| t[0] + t[1] + t[2]).sum::<f32>() / e.texels.len() as f32;
-        assert!((mean(&f) - mean(&env)).abs() < 1e-3 * mean(&env), "{} {}", mean(&f), mean(&env));
-    }
-
-    fn uniform(w: u32, h: u32, l: f32) -> Environment {
-        Environment { width: w, height: h, texels: vec![[l; 3]; (w * h) as usize], intensity: 1.0, rotation: 0.3 }
-    }
-
-    #[test]
-    fn uniform_environment_gives_pi_irradiance() {
-        let e = EnvMapGpu::new(Some(&uniform(64, 32, 2.0)));
-        for n in [Vec3::X, Vec3::Y, Vec3::NEG_Y, Vec3::new(0.3, -0.5, 0.8).normalize()] {
-            let irr = sh9_irradiance(&e.sh, n);
-            // Midpoint quadrature of sin(theta) on 32 rows: relative error ~ 1e-3.
-            assert!((irr.x / (2.0 * std::f32::consts::PI) - 1.0).abs() < 2e-3, "{n:?}: {irr:?}");
-        }
-        assert_eq!(e.mips.last().unwrap().0, 1);
-        assert_eq!(e.mips.len(), 7);
-    }
-
-    #[test]
-    fn upper_hemisphere_light_matches_clamped_cosine() {
-        // L = 1 above the horizon, 0 below: E(+Y) = pi, E(-Y) = 0, E(horizontal) = pi/2.
-        let (w, h) = (128u32, 64u32);
-        let texels = (0..h).flat_map(|j| (0..w).map(move |_| if j < h / 2 { [1.0; 3] } else { [0.0; 3] })).collect();
-        let env = Environment { width: w, height: h, texels, intensity: 1.0, rotation: 0.0 };
-        let e = EnvMapGpu::new(Some(&env));
-        let pi = std::f32::consts::PI;
-        // Order-2 SH of a hemispherical step: known ringing; bounds from Ramamoorthi-Hanrahan (~9% max error).
-        assert!((sh9_irradiance(&e.sh, Vec3::Y).x - pi).abs() < 0.1 * pi);
-        assert!(sh9_irradiance(&e.sh, Vec3::NEG_Y).x < 0.1 * pi);
-        assert!((sh9_irradiance(&e.sh, Vec3::X).x - pi / 2.0).abs() < 0.02 * pi);
-    }
-
-    #[test]
-    fn sun_1e5_times_the_sky_keeps_energy_and_stays_finite() {
-        let (w, h) = (256u32, 128u32);
-        let mut env = uniform(w, h, 0.5);
-        env.rotation = 0.0;
-        let sun = (20 * w + 77) as usize;
-        env.texels[sun] = [5e4; 3];
-        let e = EnvMapGpu::new(Some(&env));
-        assert!(e.sh.iter().flatten().all(|c| c.is_finite()));
-        assert!(e.mips.iter().all(|m| m.2.iter().flatten().all(|c| c.is_finite() && *c >= 0.0)));
-        // Mean irradiance over the sphere = pi x mean radiance (only the DC term survives).
-        let dw = |j: u32| {
-            (2.0 * std::f64::consts::PI / w as f64)
-                * (std::f64::consts::PI / h as f64)
-                * (std::f64::consts::PI * (j as f64 + 0.5) / h as f64).sin()
-        };
-        let mut energy = 0.0;
-        for j in 0..h {
-            for i in 0..w {
-                energy += env.texels[(j * w + i) as usize][0] as f64 * dw(j);
-            }
-        }
-        let mean_l = energy / (4.0 * std::f64::consts::PI);
-        let mut mean_e = 0.0;
-        let n = 20000;
-        for k in 0..n {
-            // Fibonacci sphere directions.
-            let z = 1.0 - 2.0 * (k as f64 + 0.5) / n as f64;
-            let phi = k as f64 * 2.399963229728653;
-            let r = (1.0 - z * z).sqrt();
-            let d = Vec3::new((r * phi.cos()) as f32, z as f32, (r * phi.sin()) as f32);
-            // Without the clamp at 0 (a sun's SH ringing goes negative): the DC term alone.
-            let b = sh9_basis(d);
-            mean_e += (0..9).map(|i| e.sh[i][0] as f64 * b[i] as f64).sum::<f64>();
-        }
-        mean_e /= n as f64;
-        assert!(
-            (mean_e / (std::f64::consts::PI * mean_l) - 1.0).abs() < 1e-3,
-            "{mean_e} vs {}",
-            std::f64::consts::PI * mean_l
-        );
-        // The sun's side is brighter than the opposite side.
-        let sun_dir = world_direction((77.0 + 0.5) / w as f32, (20.0 + 0.5) / h as f32, 0.0);
-        assert!(sh9_irradiance(&e.sh, sun_dir).x > sh9_irradiance(&e.sh, -sun_dir).x);
-    }
-
-    #[test]
-    fn bad_texels_are_repaired_and_counted() {
-        let mut env = uniform(8, 4, 1.0);
-        env.texels[3] = [f32::NAN, 1.0, 1.0];
-        env.texels[5] = [f32::INFINITY, 1.0, 1.0];
-        env.texels[6] = [-1.0, 1.0, 1.0];
-        let e = EnvMapGpu::new(Some(&env));
-        assert_eq!(e.repaired_texels, 3);
-        assert!(e.sh.iter().flatten().all(|c| c.is_finite()));
-        assert!(e.mips.iter().all(|m| m.2.iter().flatten().all(|c| c.is_finite())));
-    }
-
-    /// `mc`'s and `shadowmaps`' importance tables read bad texels as black, as the texture and
-    /// the reference do: no negative radiance to sample or to hit (mc drew negative pixels).
-    #[test]
-    fn importance_tables_read_bad_texels_as_black() {
-        let mut env = uniform(8, 4, 1.0);
-        env.texels[3] = [f32::NAN, 1.0, 1.0];
-        env.texels[5] = [f32::INFINITY, 1.0, 1.0];
-        env.texels[6] = [-149.0, 2.0, 2.0];
-        let t = EnvTables::new(Some(&env));
-        for i in [3, 5, 6] {
-            assert_eq!(t.texels[i], [0.0; 4], "texel {i}");
-        }
-        assert!(t.texels.iter().all(|x| x.iter().all(|c| c.is_finite() && *c >= 0.0)));
-        let p: f32 = t.texels.iter().map(|x| x[3]).sum();
-        assert!((p - 1.0).abs() < 1e-5, "{p}");
-    }
-
-    #[test]
-    fn missing_environment_is_black() {
-        let e = EnvMapGpu::new(None);
-        assert_eq!(e.intensity, 0.0);
-        assert!(e.sh.iter().flatten().all(|c| *c == 0.0));
     }
 }
 
@@ -472,5 +344,133 @@ impl EnvTables {
         let pdf = self.texels[k][3] / sa;
         (pdf > 0.0 && pdf.is_finite())
             .then(|| (d, Vec3::new(self.texels[k][0], self.texels[k][1], self.texels[k][2]), pdf))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_environment_over_the_device_limit_is_halved_until_it_fits_keeping_its_mean() {
+        let texels: Vec<[f32; 3]> = (0..64 * 32).map(|i| [(i % 7) as f32, 1.0, (i / 64) as f32]).collect();
+        let env = Environment { width: 64, height: 32, texels, intensity: 2.0, rotation: 0.5 };
+        assert!(fit_to_device(&env, 64).is_none());
+        let f = fit_to_device(&env, 20).unwrap();
+        assert_eq!((f.width, f.height, f.intensity, f.rotation), (16, 8, 2.0, 0.5));
+        let mean = |e: &Environment| e.texels.iter().map(|t| t[0] + t[1] + t[2]).sum::<f32>() / e.texels.len() as f32;
+        assert!((mean(&f) - mean(&env)).abs() < 1e-3 * mean(&env), "{} {}", mean(&f), mean(&env));
+    }
+
+    fn uniform(w: u32, h: u32, l: f32) -> Environment {
+        Environment { width: w, height: h, texels: vec![[l; 3]; (w * h) as usize], intensity: 1.0, rotation: 0.3 }
+    }
+
+    #[test]
+    fn uniform_environment_gives_pi_irradiance() {
+        let e = EnvMapGpu::new(Some(&uniform(64, 32, 2.0)));
+        for n in [Vec3::X, Vec3::Y, Vec3::NEG_Y, Vec3::new(0.3, -0.5, 0.8).normalize()] {
+            let irr = sh9_irradiance(&e.sh, n);
+            // Midpoint quadrature of sin(theta) on 32 rows: relative error ~ 1e-3.
+            assert!((irr.x / (2.0 * std::f32::consts::PI) - 1.0).abs() < 2e-3, "{n:?}: {irr:?}");
+        }
+        assert_eq!(e.mips.last().unwrap().0, 1);
+        assert_eq!(e.mips.len(), 7);
+    }
+
+    #[test]
+    fn upper_hemisphere_light_matches_clamped_cosine() {
+        // L = 1 above the horizon, 0 below: E(+Y) = pi, E(-Y) = 0, E(horizontal) = pi/2.
+        let (w, h) = (128u32, 64u32);
+        let texels = (0..h).flat_map(|j| (0..w).map(move |_| if j < h / 2 { [1.0; 3] } else { [0.0; 3] })).collect();
+        let env = Environment { width: w, height: h, texels, intensity: 1.0, rotation: 0.0 };
+        let e = EnvMapGpu::new(Some(&env));
+        let pi = std::f32::consts::PI;
+        // Order-2 SH of a hemispherical step: known ringing; bounds from Ramamoorthi-Hanrahan (~9% max error).
+        assert!((sh9_irradiance(&e.sh, Vec3::Y).x - pi).abs() < 0.1 * pi);
+        assert!(sh9_irradiance(&e.sh, Vec3::NEG_Y).x < 0.1 * pi);
+        assert!((sh9_irradiance(&e.sh, Vec3::X).x - pi / 2.0).abs() < 0.02 * pi);
+    }
+
+    #[test]
+    fn sun_1e5_times_the_sky_keeps_energy_and_stays_finite() {
+        let (w, h) = (256u32, 128u32);
+        let mut env = uniform(w, h, 0.5);
+        env.rotation = 0.0;
+        let sun = (20 * w + 77) as usize;
+        env.texels[sun] = [5e4; 3];
+        let e = EnvMapGpu::new(Some(&env));
+        assert!(e.sh.iter().flatten().all(|c| c.is_finite()));
+        assert!(e.mips.iter().all(|m| m.2.iter().flatten().all(|c| c.is_finite() && *c >= 0.0)));
+        // Mean irradiance over the sphere = pi x mean radiance (only the DC term survives).
+        let dw = |j: u32| {
+            (2.0 * std::f64::consts::PI / w as f64)
+                * (std::f64::consts::PI / h as f64)
+                * (std::f64::consts::PI * (j as f64 + 0.5) / h as f64).sin()
+        };
+        let mut energy = 0.0;
+        for j in 0..h {
+            for i in 0..w {
+                energy += env.texels[(j * w + i) as usize][0] as f64 * dw(j);
+            }
+        }
+        let mean_l = energy / (4.0 * std::f64::consts::PI);
+        let mut mean_e = 0.0;
+        let n = 20000;
+        for k in 0..n {
+            // Fibonacci sphere directions.
+            let z = 1.0 - 2.0 * (k as f64 + 0.5) / n as f64;
+            let phi = k as f64 * 2.399963229728653;
+            let r = (1.0 - z * z).sqrt();
+            let d = Vec3::new((r * phi.cos()) as f32, z as f32, (r * phi.sin()) as f32);
+            // Without the clamp at 0 (a sun's SH ringing goes negative): the DC term alone.
+            let b = sh9_basis(d);
+            mean_e += (0..9).map(|i| e.sh[i][0] as f64 * b[i] as f64).sum::<f64>();
+        }
+        mean_e /= n as f64;
+        assert!(
+            (mean_e / (std::f64::consts::PI * mean_l) - 1.0).abs() < 1e-3,
+            "{mean_e} vs {}",
+            std::f64::consts::PI * mean_l
+        );
+        // The sun's side is brighter than the opposite side.
+        let sun_dir = world_direction((77.0 + 0.5) / w as f32, (20.0 + 0.5) / h as f32, 0.0);
+        assert!(sh9_irradiance(&e.sh, sun_dir).x > sh9_irradiance(&e.sh, -sun_dir).x);
+    }
+
+    #[test]
+    fn bad_texels_are_repaired_and_counted() {
+        let mut env = uniform(8, 4, 1.0);
+        env.texels[3] = [f32::NAN, 1.0, 1.0];
+        env.texels[5] = [f32::INFINITY, 1.0, 1.0];
+        env.texels[6] = [-1.0, 1.0, 1.0];
+        let e = EnvMapGpu::new(Some(&env));
+        assert_eq!(e.repaired_texels, 3);
+        assert!(e.sh.iter().flatten().all(|c| c.is_finite()));
+        assert!(e.mips.iter().all(|m| m.2.iter().flatten().all(|c| c.is_finite())));
+    }
+
+    /// `mc`'s and `shadowmaps`' importance tables read bad texels as black, as the texture and
+    /// the reference do: no negative radiance to sample or to hit (mc drew negative pixels).
+    #[test]
+    fn importance_tables_read_bad_texels_as_black() {
+        let mut env = uniform(8, 4, 1.0);
+        env.texels[3] = [f32::NAN, 1.0, 1.0];
+        env.texels[5] = [f32::INFINITY, 1.0, 1.0];
+        env.texels[6] = [-149.0, 2.0, 2.0];
+        let t = EnvTables::new(Some(&env));
+        for i in [3, 5, 6] {
+            assert_eq!(t.texels[i], [0.0; 4], "texel {i}");
+        }
+        assert!(t.texels.iter().all(|x| x.iter().all(|c| c.is_finite() && *c >= 0.0)));
+        let p: f32 = t.texels.iter().map(|x| x[3]).sum();
+        assert!((p - 1.0).abs() < 1e-5, "{p}");
+    }
+
+    #[test]
+    fn missing_environment_is_black() {
+        let e = EnvMapGpu::new(None);
+        assert_eq!(e.intensity, 0.0);
+        assert!(e.sh.iter().flatten().all(|c| *c == 0.0));
     }
 }

@@ -504,53 +504,6 @@ impl KdTreeBuilder {
     }
 }
 
-#[cfg(test)]
-mod world_tests {
-    use super::*;
-    use std::sync::Arc;
-
-    #[test]
-    fn world_triangles_drop_degenerates_and_name_bad_input() {
-        let scene = Scene::default_scene();
-        let frame = scene.at(0.0, None);
-        let all = world_triangles(&scene, &frame).unwrap();
-        assert!(!all.is_empty());
-        let name = |f: &Frame| scene.objects[f.instances[0].object].name.clone();
-
-        // A degenerate (collinear) triangle appended to the first instance's mesh is dropped.
-        let mut f = frame.clone();
-        let mut m = scene.meshes[f.instances[0].mesh].clone();
-        let n = m.positions.len() as u32;
-        m.positions.extend([Vec3::ZERO, Vec3::X, Vec3::X * 2.0]);
-        m.indices.extend([n, n + 1, n + 2]);
-        f.instances[0].deformed_mesh = Some(Arc::new(m.clone()));
-        assert_eq!(world_triangles(&scene, &f).unwrap().len(), all.len());
-
-        // An index out of range names the mesh and the object.
-        m.indices.extend([0, 1, n + 7]);
-        f.instances[0].deformed_mesh = Some(Arc::new(m.clone()));
-        let e = world_triangles(&scene, &f).unwrap_err().to_string();
-        assert!(e.contains("index out of range") && e.contains(&name(&f)) && e.contains(&m.name), "{e}");
-
-        // Non-finite vertices and transforms are errors naming the object.
-        let mut m2 = scene.meshes[frame.instances[0].mesh].clone();
-        m2.positions[0] = Vec3::NAN;
-        let mut f = frame.clone();
-        f.instances[0].deformed_mesh = Some(Arc::new(m2));
-        let e = world_triangles(&scene, &f).unwrap_err().to_string();
-        assert!(e.contains("non-finite vertices") && e.contains(&name(&f)), "{e}");
-        let mut f = frame.clone();
-        f.instances[0].world.x_axis.x = f32::NAN;
-        let e = world_triangles(&scene, &f).unwrap_err().to_string();
-        assert!(e.contains("non-finite world transform") && e.contains(&name(&f)), "{e}");
-        let mut f = frame.clone();
-        f.instances[0].mesh = 999;
-        f.instances[0].deformed_mesh = None;
-        let e = world_triangles(&scene, &f).unwrap_err().to_string();
-        assert!(e.contains("refers to mesh 999"), "{e}");
-    }
-}
-
 /// Triangles, their shading data and their "casts no shadow" flags.
 pub type ShadingTriangles = (Vec<[Vec3; 3]>, Vec<[f32; 4]>, Vec<bool>);
 
@@ -627,5 +580,52 @@ pub fn bounds(tris: &[[Vec3; 3]]) -> (Vec3, Vec3) {
         (Vec3::ZERO, Vec3::ZERO)
     } else {
         (lo, hi)
+    }
+}
+
+#[cfg(test)]
+mod world_tests {
+    use super::*;
+    use std::sync::Arc;
+
+    #[test]
+    fn world_triangles_drop_degenerates_and_name_bad_input() {
+        let scene = Scene::default_scene();
+        let frame = scene.at(0.0, None);
+        let all = world_triangles(&scene, &frame).unwrap();
+        assert!(!all.is_empty());
+        let name = |f: &Frame| scene.objects[f.instances[0].object].name.clone();
+
+        // A degenerate (collinear) triangle appended to the first instance's mesh is dropped.
+        let mut f = frame.clone();
+        let mut m = scene.meshes[f.instances[0].mesh].clone();
+        let n = m.positions.len() as u32;
+        m.positions.extend([Vec3::ZERO, Vec3::X, Vec3::X * 2.0]);
+        m.indices.extend([n, n + 1, n + 2]);
+        f.instances[0].deformed_mesh = Some(Arc::new(m.clone()));
+        assert_eq!(world_triangles(&scene, &f).unwrap().len(), all.len());
+
+        // An index out of range names the mesh and the object.
+        m.indices.extend([0, 1, n + 7]);
+        f.instances[0].deformed_mesh = Some(Arc::new(m.clone()));
+        let e = world_triangles(&scene, &f).unwrap_err().to_string();
+        assert!(e.contains("index out of range") && e.contains(&name(&f)) && e.contains(&m.name), "{e}");
+
+        // Non-finite vertices and transforms are errors naming the object.
+        let mut m2 = scene.meshes[frame.instances[0].mesh].clone();
+        m2.positions[0] = Vec3::NAN;
+        let mut f = frame.clone();
+        f.instances[0].deformed_mesh = Some(Arc::new(m2));
+        let e = world_triangles(&scene, &f).unwrap_err().to_string();
+        assert!(e.contains("non-finite vertices") && e.contains(&name(&f)), "{e}");
+        let mut f = frame.clone();
+        f.instances[0].world.x_axis.x = f32::NAN;
+        let e = world_triangles(&scene, &f).unwrap_err().to_string();
+        assert!(e.contains("non-finite world transform") && e.contains(&name(&f)), "{e}");
+        let mut f = frame.clone();
+        f.instances[0].mesh = 999;
+        f.instances[0].deformed_mesh = None;
+        let e = world_triangles(&scene, &f).unwrap_err().to_string();
+        assert!(e.contains("refers to mesh 999"), "{e}");
     }
 }

@@ -190,8 +190,6 @@ impl McTechnique {
         })
     }
 
-    /// Copies host data into a persistent buffer when it is new; returns its latest handle.
-
     /// Declares the tree (rebuilt when geometry changed) and the `mc` pass; returns the HDR image.
     pub fn add_frame(
         &mut self,

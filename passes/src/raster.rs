@@ -273,21 +273,6 @@ fn create(
     Ok(Pipeline::from_raw(ctx, pipeline, layout, set_layout))
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn stages_come_from_file_extensions() {
-        assert_eq!(stage_of("a.vert"), Some(vk::ShaderStageFlags::VERTEX));
-        assert_eq!(stage_of("x/b.tesc"), Some(vk::ShaderStageFlags::TESSELLATION_CONTROL));
-        assert_eq!(stage_of("b.tese"), Some(vk::ShaderStageFlags::TESSELLATION_EVALUATION));
-        assert_eq!(stage_of("c.geom"), Some(vk::ShaderStageFlags::GEOMETRY));
-        assert_eq!(stage_of("d.frag"), Some(vk::ShaderStageFlags::FRAGMENT));
-        assert_eq!(stage_of("e.comp"), None);
-    }
-}
-
 /// Records the draws of a frame's meshes: binds the index buffer, then the scene's vertex buffer
 /// `vertices` for the rest meshes and the frame's deformed-vertex buffer `deformed` for the
 /// deformed ones (skipped when absent), calling `draw` for each (it records the draw call, and
@@ -340,5 +325,20 @@ pub fn begin(
         );
         d.cmd_set_scissor(cmd, 0, &[area]);
         d.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stages_come_from_file_extensions() {
+        assert_eq!(stage_of("a.vert"), Some(vk::ShaderStageFlags::VERTEX));
+        assert_eq!(stage_of("x/b.tesc"), Some(vk::ShaderStageFlags::TESSELLATION_CONTROL));
+        assert_eq!(stage_of("b.tese"), Some(vk::ShaderStageFlags::TESSELLATION_EVALUATION));
+        assert_eq!(stage_of("c.geom"), Some(vk::ShaderStageFlags::GEOMETRY));
+        assert_eq!(stage_of("d.frag"), Some(vk::ShaderStageFlags::FRAGMENT));
+        assert_eq!(stage_of("e.comp"), None);
     }
 }

@@ -3,7 +3,7 @@
 //! budget, constructor). Scene files, `--technique`, `penumbra techniques`, the benches and the
 //! accuracy matrix all derive from [`REGISTRY`] and [`EFFECTS`].
 //!
-//! Adding a technique: a module implementing [`Technique`](crate::technique::Technique) under
+//! Adding a technique: a module implementing [`Technique`] under
 //! `passes/src/`, its shaders under `glsl/`, one [`TechniqueInfo`] here (with its parameter docs
 //! and constructor), a scene, a test; then `penumbra bench matrix --techniques NAME --write-known`
 //! records its accuracy cells.

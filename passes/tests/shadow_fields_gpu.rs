@@ -57,8 +57,8 @@ fn shadow_fields_gpu_matches_cpu_and_is_validation_clean() {
             let peak = cpu.iter().map(|c| c.0.max_element()).fold(0.0f64, f64::max);
             let mut worst = 0.0f64;
             for (c, g) in cpu.iter().zip(&gpu) {
-                for k in 0..3 {
-                    worst = worst.max((c.0[k] - g[k] as f64).abs());
+                for (ck, gk) in c.0.to_array().into_iter().zip(g) {
+                    worst = worst.max((ck - *gk as f64).abs());
                 }
                 assert!(g.iter().all(|x| x.is_finite()));
             }

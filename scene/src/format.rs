@@ -542,7 +542,7 @@ pub fn parse_toml_with(
             }
             _ => return Err(SceneError::invalid(path, "environment: give exactly one of `file` or `procedural`")),
         };
-        if !(e.intensity.is_finite() && e.intensity >= 0.0) || !e.rotation_deg.is_finite() {
+        if !(e.intensity.is_finite() && e.intensity >= 0.0 && e.rotation_deg.is_finite()) {
             return Err(SceneError::invalid(
                 path,
                 "environment: intensity must be finite and >= 0, rotation_deg finite",
@@ -973,7 +973,6 @@ fn deform(ctx: &Ctx, span: std::ops::Range<usize>, what: &str, d: &DeformSpec) -
     })
 }
 
-#[allow(clippy::too_many_arguments)]
 fn material(
     ctx: &Ctx,
     span: std::ops::Range<usize>,

@@ -1,6 +1,6 @@
 //! glTF 2.0 loading (`.gltf` with embedded or external buffers, `.glb`) through the `gltf`
 //! crate: meshes (triangles), node hierarchy, metallic-roughness materials (mapped to
-//! [`BrdfKind::CookTorrance`]), base-colour and metallic-roughness textures, animations
+//! [`BrdfKind::CookTorrance`](crate::BrdfKind::CookTorrance)), base-colour and metallic-roughness textures, animations
 //! (translation / rotation / scale / morph weights; step and linear, cubic-spline keys use
 //! their values linearly), skins and morph targets.
 //!
@@ -607,20 +607,8 @@ fn check_accessor_bounds(path: &Path, doc: &gltf::Document, budget: &Budget) -> 
                 gltf::accessor::sparse::IndexType::U16 => 2,
                 gltf::accessor::sparse::IndexType::U32 => 4,
             };
-            fits(
-                &format!("{what} sparse indices"),
-                &sp.indices().view(),
-                sp.indices().offset() as usize,
-                sp.count(),
-                isize,
-            )?;
-            fits(
-                &format!("{what} sparse values"),
-                &sp.values().view(),
-                sp.values().offset() as usize,
-                sp.count(),
-                acc.size(),
-            )?;
+            fits(&format!("{what} sparse indices"), &sp.indices().view(), sp.indices().offset(), sp.count(), isize)?;
+            fits(&format!("{what} sparse values"), &sp.values().view(), sp.values().offset(), sp.count(), acc.size())?;
         }
         // Read as f32 (or u32) elements, then converted once: twice the f32 size.
         let dims = acc.dimensions().multiplicity() as u64;
@@ -744,7 +732,6 @@ fn check_accessor(
     Ok(())
 }
 
-#[allow(clippy::too_many_arguments)]
 fn read_primitive<'a, 's, F>(
     path: &Path,
     label: &str,
@@ -858,7 +845,7 @@ where
         let positions: Vec<Vec3> =
             p.map(|it| it.map(Vec3::from_array).collect()).unwrap_or_else(|| vec![Vec3::ZERO; n]);
         let normals: Option<Vec<Vec3>> = nrm.map(|it| it.map(Vec3::from_array).collect());
-        if positions.len() != n || normals.as_ref().map_or(false, |v| v.len() != n) {
+        if positions.len() != n || normals.as_ref().is_some_and(|v| v.len() != n) {
             return Err(gerr(path, what(&format!("morph target {k} lies outside its buffer"))));
         }
         if positions.iter().chain(normals.iter().flatten()).any(|v| !v.is_finite()) {
@@ -959,7 +946,7 @@ pub fn instantiate(
             }),
         };
         let mut info = ObjectInfo { source: Some(path.to_path_buf()), ..Default::default() };
-        info.thin_shell = prim.material.map_or(false, |m| asset.extras[m].two_sided);
+        info.thin_shell = prim.material.is_some_and(|m| asset.extras[m].two_sided);
         let transform;
         if !prim.targets.is_empty() {
             info.deformations.push(Deformation::Morph {

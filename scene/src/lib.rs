@@ -10,7 +10,7 @@
 //! - [`Environment`] a lat-long RGB float map (see its docs for orientation).
 //!
 //! Additions (see the README-style docs on each item):
-//! - [`Scene::load`] reads a `.toml` scene file ([`format`]) or a bare `.glb`/`.gltf` model
+//! - [`Scene::load`] reads a `.toml` scene file ([`format`](mod@format)) or a bare `.glb`/`.gltf` model
 //!   ([`Scene::from_model`]); errors are one [`SceneError`] naming the file and the problem;
 //!   repairs of degenerate input are reported in [`Scene::warnings`].
 //! - Lights ([`Light`]), a participating [`Medium`], per-object motion and deformation
@@ -141,7 +141,7 @@ impl Material {
 /// `phi = 2 pi u` grows from -Z towards +X. `rotation` turns the map about +Y
 /// (counter-clockwise seen from above): a world direction `d` looks up
 /// `uv(Ry(-rotation) d)`, see [`Environment::radiance`]. `intensity` scales every texel.
-/// Direction for pixel centre (u, v) in [0,1]^2: phi = 2*pi*u, theta = pi*v,
+/// Direction for pixel centre (u, v) in `[0,1]^2`: phi = 2*pi*u, theta = pi*v,
 /// d = (sin(theta) * sin(phi), cos(theta), -sin(theta) * cos(phi))... see [`Environment::direction`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct Environment {
@@ -156,7 +156,7 @@ pub struct Environment {
 }
 
 impl Environment {
-    /// Unit direction for lat-long coordinates (u, v) in [0,1]^2 (before `rotation`).
+    /// Unit direction for lat-long coordinates (u, v) in `[0,1]^2` (before `rotation`).
     /// u = 0 and u = 1 is the -Z direction... phi grows towards +X; v = 0 is +Y (up).
     pub fn direction(u: f32, v: f32) -> Vec3 {
         let phi = u * std::f32::consts::TAU;
@@ -381,7 +381,7 @@ impl Default for ObjectInfo {
 
 impl ObjectInfo {
     pub fn is_moving(&self) -> bool {
-        !self.motion.is_static() || self.node.as_ref().map_or(false, |n| n.rig.node_animated(n.node))
+        !self.motion.is_static() || self.node.as_ref().is_some_and(|n| n.rig.node_animated(n.node))
     }
     pub fn is_deforming(&self) -> bool {
         self.deformations.iter().any(|d| d.is_animated())
@@ -534,9 +534,9 @@ impl Scene {
                 } else {
                     let cur = Arc::new(self.deformed_mesh(i, t));
                     let prev = prev_t.map(|p| Arc::new(self.deformed_mesh(i, p)));
-                    let changed = prev.as_ref().map_or(false, |p| {
-                        p.positions.iter().zip(&cur.positions).any(|(a, b)| !a.abs_diff_eq(*b, 1e-7))
-                    });
+                    let changed = prev
+                        .as_ref()
+                        .is_some_and(|p| p.positions.iter().zip(&cur.positions).any(|(a, b)| !a.abs_diff_eq(*b, 1e-7)));
                     (Some(cur), prev, changed)
                 };
                 Instance {
@@ -561,7 +561,7 @@ impl Scene {
             .enumerate()
             .map(|(i, l)| {
                 let (p, d) = light_at(l, t);
-                let moved = prev_t.map_or(false, |pt| {
+                let moved = prev_t.is_some_and(|pt| {
                     let (pp, pd) = light_at(l, pt);
                     !pp.abs_diff_eq(p, 1e-6) || !pd.abs_diff_eq(d, 1e-6)
                 });
@@ -660,23 +660,23 @@ impl Scene {
             environment_light: self.environment.is_some(),
             local_lights: !self.lights.is_empty(),
             medium: self.medium.is_some(),
-            moving_objects: (0..n).any(|i| info(i).map_or(false, |x| x.is_moving())),
-            deforming_objects: (0..n).any(|i| info(i).map_or(false, |x| x.is_deforming())),
-            thin_shells: (0..n).any(|i| info(i).map_or(false, |x| x.thin_shell)),
+            moving_objects: (0..n).any(|i| info(i).is_some_and(|x| x.is_moving())),
+            deforming_objects: (0..n).any(|i| info(i).is_some_and(|x| x.is_deforming())),
+            thin_shells: (0..n).any(|i| info(i).is_some_and(|x| x.thin_shell)),
             spatially_varying_materials: self
                 .objects
                 .iter()
-                .any(|o| self.material_extras.get(o.material).map_or(false, |e| e.is_spatially_varying())),
-            animated_camera: self.camera_path.as_ref().map_or(false, |p| {
-                p.eye.as_ref().map_or(false, |k| !k.is_constant())
-                    || p.target.as_ref().map_or(false, |k| !k.is_constant())
-                    || p.fov_y_deg.as_ref().map_or(false, |k| !k.is_constant())
+                .any(|o| self.material_extras.get(o.material).is_some_and(|e| e.is_spatially_varying())),
+            animated_camera: self.camera_path.as_ref().is_some_and(|p| {
+                p.eye.as_ref().is_some_and(|k| !k.is_constant())
+                    || p.target.as_ref().is_some_and(|k| !k.is_constant())
+                    || p.fov_y_deg.as_ref().is_some_and(|k| !k.is_constant())
             }),
             animated_lights: self.lights.iter().any(|l| !l.motion.is_static()),
             animated_materials: self.material_animations.iter().any(|a| {
-                a.roughness.as_ref().map_or(false, |k| !k.is_constant())
-                    || a.albedo.as_ref().map_or(false, |k| !k.is_constant())
-                    || a.specular.as_ref().map_or(false, |k| !k.is_constant())
+                a.roughness.as_ref().is_some_and(|k| !k.is_constant())
+                    || a.albedo.as_ref().is_some_and(|k| !k.is_constant())
+                    || a.specular.as_ref().is_some_and(|k| !k.is_constant())
             }),
         }
     }
@@ -754,7 +754,7 @@ impl Scene {
         Ok(())
     }
 
-    /// Load a scene: `.toml` scene files ([`format`]) or bare `.glb` / `.gltf` models
+    /// Load a scene: `.toml` scene files ([`format`](mod@format)) or bare `.glb` / `.gltf` models
     /// ([`Scene::from_model`]). The technique name is kept as written (the renderer checks it).
     pub fn load(path: impl AsRef<Path>) -> Result<Scene, SceneError> {
         Self::load_with(path, &LoadOptions::default())
@@ -785,7 +785,7 @@ impl Scene {
     /// [`Scene::from_model`] taking what the model needs from `budget`.
     pub fn from_model_with(path: &Path, budget: &Budget) -> Result<Scene, SceneError> {
         let asset = gltf_load::load_with(path, budget)?;
-        let mut scene = Scene::empty(&path.file_stem().and_then(|s| s.to_str()).unwrap_or("model").to_string());
+        let mut scene = Scene::empty(path.file_stem().and_then(|s| s.to_str()).unwrap_or("model"));
         scene.source = Some(path.to_path_buf());
         scene.environment = Some(Environment::procedural_sky(256, 128));
         let placement = Mat4::IDENTITY;

@@ -254,7 +254,7 @@ impl MeshData {
         if nv == 0 || self.indices.is_empty() {
             return Err(format!("mesh '{}' has no triangles", self.name));
         }
-        if self.indices.len() % 3 != 0 {
+        if !self.indices.len().is_multiple_of(3) {
             return Err(format!("mesh '{}': index count {} is not a multiple of 3", self.name, self.indices.len()));
         }
         if let Some((k, &i)) = self.indices.iter().enumerate().find(|(_, &i)| i as usize >= nv) {

@@ -129,9 +129,9 @@ impl RigidMotion {
         match self {
             RigidMotion::Static => true,
             RigidMotion::Keyframes { translation, rotation, scale } => {
-                translation.as_ref().map_or(true, |t| t.is_constant())
-                    && rotation.as_ref().map_or(true, |t| t.is_constant())
-                    && scale.as_ref().map_or(true, |t| t.is_constant())
+                translation.as_ref().is_none_or(|t| t.is_constant())
+                    && rotation.as_ref().is_none_or(|t| t.is_constant())
+                    && scale.as_ref().is_none_or(|t| t.is_constant())
             }
             RigidMotion::Spin { speed, .. } => *speed == 0.0,
             RigidMotion::Roll { period, .. } => !period.is_finite() || *period == 0.0,
@@ -245,10 +245,10 @@ impl Deformation {
         match self {
             Deformation::Wave { amplitude, period, .. } => *amplitude != 0.0 && *period != 0.0,
             Deformation::Squash { amount, period } => *amount != 0.0 && *period != 0.0,
-            Deformation::Morph { rig, node, .. } => rig.animation.map_or(false, |a| {
+            Deformation::Morph { rig, node, .. } => rig.animation.is_some_and(|a| {
                 rig.animations[a].channels.iter().any(|c| c.node == *node && matches!(c.target, Channel::Weights(_)))
             }),
-            Deformation::Skin { rig, skin, .. } => rig.animation.map_or(false, |a| {
+            Deformation::Skin { rig, skin, .. } => rig.animation.is_some_and(|a| {
                 let anim = &rig.animations[a];
                 rig.skins[*skin]
                     .joints
@@ -437,7 +437,7 @@ impl Rig {
 
     /// Whether node `n`'s global transform changes over time.
     pub fn node_animated(&self, n: usize) -> bool {
-        self.animation.map_or(false, |a| {
+        self.animation.is_some_and(|a| {
             self.animations[a]
                 .channels
                 .iter()

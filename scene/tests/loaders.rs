@@ -407,8 +407,8 @@ fn negative_environment_texels_are_black_for_everyone_and_reported() {
     let raw = Environment::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets/studio.exr")).unwrap();
     let bad = raw.bad_texels();
     assert!(bad > 0, "studio.exr no longer has negative texels: pick another test map");
-    let scene = penumbra_scene::Scene::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/hat_on_cloth.toml"))
-        .unwrap();
+    let scene =
+        penumbra_scene::Scene::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/hat_on_cloth.toml")).unwrap();
     let env = scene.environment.as_ref().unwrap();
     assert_eq!(env.bad_texels(), 0);
     let changed = raw.texels.iter().zip(&env.texels).filter(|(a, b)| a != b).count();

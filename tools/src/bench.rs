@@ -504,7 +504,7 @@ pub struct ShadowFieldsArgs {
     pub chart: Option<PathBuf>,
 }
 
-/// The variants of the image comparison: (label, technique, [technique_params]).
+/// The variants of the image comparison: (label, technique, `[technique_params]`).
 fn sf_variants(has_lights: bool) -> Vec<(&'static str, &'static str, Vec<(&'static str, &'static str)>)> {
     let mut v = vec![
         ("env (unshadowed)", "env", vec![]),

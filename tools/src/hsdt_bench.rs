@@ -253,8 +253,8 @@ pub fn run(args: &HsdtArgs) -> Result<()> {
             let mut g = Graph::new();
             let sb = g.create_buffer_init("ssdf", bytes_of(&ssdf_words));
             let tb = g.create_buffer_init("table", bytes_of(&table.data));
-            let lb = g.create_buffer_init("lobes", bytes_of(&lobes));
-            let pa = g.create_buffer_init("params_a", bytes_of(&params_a));
+            let lb = g.create_buffer_init("lobes", bytes_of(lobes));
+            let pa = g.create_buffer_init("params_a", bytes_of(params_a));
             let pbuf = g.create_buffer_init("params_b", bytes_of(&params_b));
             let oa = integ.add(&mut g, "integrate_axis", sb, tb, lb, pa, q, r);
             let ob = integ.add(&mut g, "integrate_cells", sb, tb, lb, pbuf, q, r);

@@ -3,6 +3,10 @@
 //! Exit codes: 0 success; 1 a run-time failure (Vulkan, validation errors with --validate);
 //! 2 bad input (scene/model/image files, arguments).
 
+// The doc comments of the clap argument structs are the `--help` text, plain text rather than
+// Markdown: `<technique>.exr` and a scene's `[medium]` table are meant literally there.
+#![allow(rustdoc::invalid_html_tags, rustdoc::broken_intra_doc_links)]
+
 use anyhow::{Context as _, Result};
 use clap::{Args, Parser, Subcommand};
 use penumbra::engine::dump;

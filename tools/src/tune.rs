@@ -249,7 +249,7 @@ fn from_pareto(file: &Path, scene: &Scene, o: &TuneOptions) -> Result<Choice> {
     let points: Vec<Point> = f
         .points
         .iter()
-        .filter(|p| allowed.as_ref().map_or(true, |a| a.contains(&p.technique.as_str())))
+        .filter(|p| allowed.as_ref().is_none_or(|a| a.contains(&p.technique.as_str())))
         .cloned()
         .collect();
     let p = cheapest_within(&points, o.max_error).ok_or_else(|| nothing_within(scene, o.max_error, o.size, &points))?;

@@ -5,7 +5,7 @@
 //! problems at once), culls passes whose results reach no output, and derives the barriers the
 //! declarations imply: one `vkCmdPipelineBarrier2` per pass holding all its transitions. The
 //! compiled form has no GPU handles, so it is unit-testable without a device and can be dumped
-//! deterministically ([`dump`]).
+//! deterministically ([`dump`](crate::dump)).
 //!
 //! Resource handles are versioned: declaring a write returns a new handle; reading an older
 //! version after a newer one was written is an error (its contents are gone).

@@ -28,7 +28,7 @@
 //!    bunny). Every step of a slot that is not an edge of its vertex's sequence is routed
 //!    through that vertex's pole (a virtual direction point, its normal), and every edge is
 //!    owned by exactly one loop, so at each vertex the loops are the fan decomposition of its
-//!    own loops ([`route_jumps`]).
+//!    own loops (`route_jumps`).
 
 use super::hull;
 use super::*;
@@ -225,9 +225,9 @@ fn order_loop(ctx: &Ctx, mut v: Vec<[u32; 3]>, key: [u32; 3]) -> Vec<[u32; 3]> {
 }
 
 fn add(st: &mut TriState, e: [u32; 3], kind: Kind) -> usize {
-    for k in 0..3 {
-        if e[k] != NONE && !st.used[k].contains(&e[k]) {
-            st.used[k].push(e[k]);
+    for (used, g) in st.used.iter_mut().zip(e) {
+        if g != NONE && !used.contains(&g) {
+            used.push(g);
         }
     }
     st.links.push(Link { e, kind });
@@ -261,8 +261,8 @@ pub fn rgb_tripoints(ents: &[Vec<u32>; 3], dirs: &[Vec<Vec3>; 3], seed: u64, cos
     let mut all: Vec<glam::DVec3> = Vec::new();
     let mut who: Vec<(usize, usize)> = Vec::new();
     for k in 0..3 {
-        for i in 0..ents[k].len() {
-            all.push(dirs[k][i].as_dvec3());
+        for (i, d) in dirs[k][..ents[k].len()].iter().enumerate() {
+            all.push(d.as_dvec3());
             who.push((k, i));
         }
     }
@@ -342,7 +342,7 @@ pub fn correspondence(
             info[g as usize] = (s as u32, g - a);
         }
     }
-    let cos_link = (params.max_link_deg as f32).to_radians().cos();
+    let cos_link = params.max_link_deg.to_radians().cos();
     let ctx =
         Ctx { vis: VectorizedVisibility { points: Vec::new(), ..vis.clone() }, info, canon, adj, centre, cos_link };
     let mut points = std::mem::take(&mut vis.points);
@@ -477,10 +477,10 @@ pub fn correspondence(
 
     // 5. loops
     let mut corr = Correspondence { tri_offsets: vec![0], loop_offsets: vec![0], triples: Vec::new() };
-    for t in 0..ntri {
+    for (t, tst) in st[..ntri].iter().enumerate() {
         let mut loops: Vec<Vec<[u32; 3]>> = Vec::new();
         let mut groups: Vec<([u32; 3], Vec<[u32; 3]>)> = Vec::new();
-        for l in &st[t].links {
+        for l in &tst.links {
             if l.e.contains(&NONE) {
                 continue;
             }

@@ -142,11 +142,10 @@ pub fn convex_hull(p: &[DVec3]) -> Vec<[usize; 3]> {
         add(&mut faces, &mut edges, v);
     }
     let eps = 1e-15;
-    for i in 0..n {
+    for (i, &x) in p.iter().enumerate() {
         if i == i0 || i == i1 || i == i2 || i == i3 {
             continue;
         }
-        let x = p[i];
         let visible: Vec<usize> =
             (0..faces.len()).filter(|&f| faces[f].alive && faces[f].n.dot(x) - faces[f].d > eps).collect();
         if visible.is_empty() {

@@ -65,8 +65,6 @@
 //! [`VvModel::from_objects`] (world space, object order), so vertex `v` of object `o` is model
 //! vertex `base[o] + v` and triangle `t` of object `o` is model triangle `tbase[o] + t`.
 
-#![allow(clippy::needless_range_loop)]
-
 pub mod corr;
 pub mod hull;
 mod io;
@@ -177,7 +175,7 @@ impl VvModel {
             m.positions.extend(o.positions.iter().map(|p| o.world.transform_point3(*p)));
             m.normals.extend(o.normals.iter().map(|n| (nm * *n).normalize_or_zero()));
             m.indices.extend(o.indices.iter().map(|i| base + i));
-            m.occluder.extend(std::iter::repeat(o.casts_shadow).take(o.indices.len() / 3));
+            m.occluder.extend(std::iter::repeat_n(o.casts_shadow, o.indices.len() / 3));
         }
         m
     }
@@ -192,7 +190,7 @@ impl VvModel {
         if self.positions.is_empty() || self.indices.len() < 3 {
             return Err("vv: empty model (no triangles)".into());
         }
-        if self.indices.len() % 3 != 0 {
+        if !self.indices.len().is_multiple_of(3) {
             return Err(format!("vv: index count {} is not a multiple of 3", self.indices.len()));
         }
         if self.normals.len() != self.positions.len() {

@@ -184,7 +184,7 @@ pub fn vertex_loops(
     let crossing_point = |edge: usize| -> [f32; 4] {
         let nd = edge / 2;
         let (i, j) = ((nd / w) as i64 - 1, (nd % w) as i64 - 1);
-        let (i2, j2) = if edge % 2 == 0 { (i + 1, j) } else { (i, j + 1) };
+        let (i2, j2) = if edge.is_multiple_of(2) { (i + 1, j) } else { (i, j + 1) };
         let (a, b) = ((uv(i), uv(j)), (uv(i2), uv(j2)));
         let (mut ou, mut vu, mut hit) = match (occ[node(i, j)], occ[node(i2, j2)]) {
             (Some(x), None) => (a, b, x),
@@ -290,8 +290,8 @@ fn dp(dirs: &[DVec3], a: usize, b: usize, tol: f64, cap: f64, keep: &mut [bool])
     let m = dirs.len();
     let (da, db) = (dirs[a], dirs[b % m]);
     let (mut worst, mut wi) = (-1.0, a + 1);
-    for i in a + 1..b {
-        let d = arc_distance(dirs[i], da, db);
+    for (i, &di) in dirs[..b].iter().enumerate().skip(a + 1) {
+        let d = arc_distance(di, da, db);
         if d > worst {
             worst = d;
             wi = i;

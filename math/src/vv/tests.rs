@@ -150,7 +150,7 @@ fn points_behind_the_tangent_plane_are_clamped_to_the_horizon() {
     // the clamped loop says occluded exactly for directions inside the upper half of the cap
     let inside = Vec3::new(0.95, 0.2, 0.0).normalize();
     let outside = Vec3::new(0.7, 0.1, 0.7).normalize();
-    assert!(occluded_by(&[l.clone()], inside, n) && !occluded_by(&[l], outside, n));
+    assert!(occluded_by(std::slice::from_ref(&l), inside, n) && !occluded_by(&[l], outside, n));
     // a cap wholly behind the plane (not around -n) encloses nothing once clamped
     let below = Vec3::new(1.0, -1.0, 0.3).normalize();
     let l: Vec<Vec3> = cap(below, 20f32.to_radians(), 64).into_iter().map(|d| clamp_to_hemisphere(d, n)).collect();
@@ -350,9 +350,9 @@ fn split_horizon_ring_is_reproduced_at_the_corners() {
     let added = corr::route_jumps(&vis, &info, &mut loops, pole);
     assert!(added > 0);
     let after = build(&vis, &loops);
-    for k in 0..3 {
-        let e = (corner(&vis, &after, k) - own[k]).abs();
-        assert!(e < 1e-4, "corner {k}: interpolated {} own {}", corner(&vis, &after, k), own[k]);
+    for (k, &own_k) in own.iter().enumerate() {
+        let e = (corner(&vis, &after, k) - own_k).abs();
+        assert!(e < 1e-4, "corner {k}: interpolated {} own {own_k}", corner(&vis, &after, k));
     }
     // every original triple is still there, in order
     for (l, orig) in loops.iter().zip([&before.triples[..5], &before.triples[5..]]) {
@@ -372,7 +372,7 @@ fn interpolation_disagreement_flags_a_corrupted_correspondence() {
     assert_eq!(dis.len(), m.triangle_count());
     assert!(dis.iter().all(|x| x.is_finite() && *x >= 0.0));
     // a floor triangle with loops under the box, and its disagreement when sound
-    let t = (0..32).filter(|&t| d.corr.triangle_loops(t).len() > 0).max_by(|&a, &b| {
+    let t = (0..32).filter(|&t| !d.corr.triangle_loops(t).is_empty()).max_by(|&a, &b| {
         let len = |t: usize| d.corr.triangle_loops(t).map(|l| d.corr.loop_triples(l).len()).sum::<usize>();
         len(a).cmp(&len(b))
     });

@@ -278,7 +278,7 @@ impl AvsSettings {
         }
         if self.r < self.initial_grid
             || !(self.r / self.initial_grid).is_power_of_two()
-            || self.r % self.initial_grid != 0
+            || !self.r.is_multiple_of(self.initial_grid)
         {
             bail!(
                 "avs parameter r = {}: must be the initial grid ({}) times a power of two",
@@ -772,7 +772,6 @@ impl AvsTechnique {
 
     /// Declares the visibility passes of `batch` (slots into the points buffer) writing each
     /// final map at its slot of `vis`; returns the new `vis` version and the stats buffer.
-    #[allow(clippy::too_many_arguments)]
     fn add_visibility(
         &self,
         graph: &mut Graph,

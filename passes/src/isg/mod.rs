@@ -631,7 +631,6 @@ impl IsgTechnique {
 
     /// Per-vertex mode: the `isg_vertex` compute pass over the frame's receiver vertices and
     /// the `isg_vertex_raster` pass interpolating its output; returns the interpolated image.
-    #[allow(clippy::too_many_arguments)]
     fn add_vertex_passes(
         &mut self,
         graph: &mut Graph,

@@ -22,7 +22,6 @@ impl IntegrateEval {
     /// Adds a pass `name` evaluating `n` (map, lobe) pairs: `lobes` = `n` x (axis.xyz, lambda) f32,
     /// `params` = `n` x (mu, cosine 0/1, map index, methods 1 = (a) / 2 = (b) / 3 = both) f32,
     /// `ssdf` the fp16 maps, `table` the `AxisTable` f32 data. Returns `n` x (a, b) f32.
-    #[allow(clippy::too_many_arguments)]
     pub fn add(
         &self,
         graph: &mut Graph,

@@ -56,7 +56,6 @@ impl VvParity {
 
 /// The pass of [`VvParity`] and [`VvCapParity`]: `count` cases (`data`: case offsets, then the
 /// cases) on `sat`, written to an RGBA32F image `name` of `count x rows` texels.
-#[allow(clippy::too_many_arguments)]
 fn parity_pass(
     pipe: &Pipeline,
     tech: &VvTechnique,

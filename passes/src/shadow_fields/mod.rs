@@ -282,7 +282,7 @@ impl SceneFields {
                     let show = options.progress;
                     let progress = move |n: u64| {
                         let d = done.fetch_add(n, std::sync::atomic::Ordering::Relaxed) + n;
-                        if show && (d % (total / 20).max(1) == 0 || d == total) {
+                        if show && (d.is_multiple_of((total / 20).max(1)) || d == total) {
                             eprintln!("shadow field '{name}': {:.0}%", 100.0 * d as f64 / total as f64);
                         }
                     };
@@ -435,7 +435,7 @@ fn sf_basis(d: DVec3, y: &mut [f64; NCOEF]) {
 
 /// Per object: whether it casts shadows.
 pub fn casts_flags(scene: &Scene) -> Vec<bool> {
-    (0..scene.objects.len()).map(|i| scene.object_info.get(i).map_or(true, |o| o.casts_shadow)).collect()
+    (0..scene.objects.len()).map(|i| scene.object_info.get(i).is_none_or(|o| o.casts_shadow)).collect()
 }
 
 /// Per-frame instance setup for the CPU path.
@@ -449,7 +449,7 @@ pub fn instance_frames<'a>(
         .instances
         .iter()
         .map(|inst| {
-            let casts = scene.object_info.get(inst.object).map_or(true, |i| i.casts_shadow);
+            let casts = scene.object_info.get(inst.object).is_none_or(|i| i.casts_shadow);
             let field = if casts { fields.field(inst.mesh, adaptive) } else { None };
             InstanceFrame::new(field, inst.world.as_dmat4())
         })
@@ -1011,7 +1011,6 @@ impl ShadowFieldsTechnique {
 /// `values` (per-vertex data) and `base_of` (each instance's first slot minus its mesh's vertex
 /// offset), into `colors` (cleared to their values) over a depth buffer of its own; returns the
 /// written images in order.
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn add_vertex_raster(
     graph: &mut Graph,
     name: &str,

@@ -215,7 +215,7 @@ impl WaveletFields {
                 .objects
                 .iter()
                 .enumerate()
-                .any(|(oi, o)| o.mesh == mi && scene.object_info.get(oi).map_or(true, |i| i.casts_shadow));
+                .any(|(oi, o)| o.mesh == mi && scene.object_info.get(oi).is_none_or(|i| i.casts_shadow));
             if !casts || m.indices.len() < 3 || m.positions.is_empty() {
                 fields.push(None);
                 reports.push(WaveletReport::empty(&m.name));

@@ -301,10 +301,10 @@ pub fn bench_volumetric(
         // Missed: the full scattering changed since the previous frame, the temporal frame kept it.
         let (mut missed, mut changed) = (0u64, 0u64);
         if let Some(pf) = &prev_full {
-            for i in 0..n {
-                if differs(b.scatter[i], pf[i]) {
+            for ((bs, ps), ts) in b.scatter.iter().zip(pf).zip(&a.scatter) {
+                if differs(*bs, *ps) {
                     changed += 1;
-                    if a.scatter[i][3] != a.frame_id as f32 {
+                    if ts[3] != a.frame_id as f32 {
                         missed += 1;
                     }
                 }

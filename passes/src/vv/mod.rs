@@ -166,7 +166,7 @@ impl VvSettings {
         let v = value.trim();
         let bad = || anyhow::anyhow!("vv parameter {key} = '{value}': not a valid value");
         let num = |lo: f64, hi: f64| -> Result<f64> {
-            v.parse::<f64>().ok().filter(|x| x.is_finite() && *x >= lo && *x <= hi).ok_or_else(|| bad())
+            v.parse::<f64>().ok().filter(|x| x.is_finite() && *x >= lo && *x <= hi).ok_or_else(&bad)
         };
         match key.trim() {
             "mode" => {
@@ -182,7 +182,7 @@ impl VvSettings {
             "alpha" => self.alpha = num(1e-3, 1e3)? as f32,
             "sat_width" => {
                 let w = num(16.0, 4096.0)? as u32;
-                if w % 2 != 0 {
+                if !w.is_multiple_of(2) {
                     return Err(bad());
                 }
                 self.sat_width = w;
@@ -282,7 +282,7 @@ pub fn scene_model(scene: &Scene, refine: u32) -> Result<VvGeometry> {
         world.into_iter().map(|(m, c)| (m.refine_long_edges(max_edge, cap), c)).collect();
     for (i, (m, casts_shadow)) in refined.iter().enumerate() {
         uvs.extend((0..m.positions.len()).map(|v| m.uvs.get(v).copied().unwrap_or_default()));
-        object.extend(std::iter::repeat(i as u32).take(m.positions.len()));
+        object.extend(std::iter::repeat_n(i as u32, m.positions.len()));
         objs.push(penumbra_math::vv::ObjectMesh {
             positions: &m.positions,
             normals: &m.normals,
