@@ -1,5 +1,5 @@
 #!/bin/sh
-# The formatting check, then every test of the workspace (README command 2, after scripts/install-deps.sh; CI runs it via
+# The formatting check, clippy (warnings are errors), then every test of the workspace (README command 2, after scripts/install-deps.sh; CI runs it via
 # .ci/run). With cargo-nextest 0.9.91 or newer (on the CI machines) every test runs in its own
 # process, the tests of all binaries share the cores and the slowest start first
 # (.config/nextest.toml), so the accuracy matrix overlaps the rest; doctests then run with cargo
@@ -19,6 +19,13 @@ if cargo fmt --version >/dev/null 2>&1; then
     cargo fmt --all --check || { echo "scripts/test.sh: the code is not formatted: run 'cargo fmt'" >&2; exit 1; }
 else
     echo "scripts/test.sh: warning: rustfmt is not installed (rustup component add rustfmt): formatting not checked" >&2
+fi
+# Lints next (a check build, no code generation): clippy's warnings are errors; the few lints
+# allowed workspace-wide are in Cargo.toml's [workspace.lints.clippy], each with its reason.
+if cargo clippy --version >/dev/null 2>&1; then
+    cargo clippy --workspace --all-targets --quiet -- -D warnings || { echo "scripts/test.sh: clippy found problems (cargo clippy --workspace --all-targets)" >&2; exit 1; }
+else
+    echo "scripts/test.sh: warning: clippy is not installed (rustup component add clippy): lints not checked" >&2
 fi
 if [ -z "${PENUMBRA_PLAIN_CARGO_TEST:-}" ] && nextest_ok; then
     cargo nextest run --workspace --no-fail-fast "$@"
