@@ -707,34 +707,39 @@ fn extremes_r256_maps_and_fp16_shading() {
     assert_light_agreement(glam::Vec3::Y, 256, "seam0_r256", &[("points", "48")], 0.995, 0.005);
 }
 
+/// `frames` frames of hat_on_cloth's moment t = 0.5 (the first without a previous frame) at 64x48
+/// with `cull` set on `s`'s avs parameters: the images and avs's statistics after each frame;
+/// validation (with synchronization) must stay clean.
+fn static_frames(s: &Scene, cull: &str, frames: usize) -> (Vec<FrameImages>, Vec<AvsStats>) {
+    let s = with(s, &[("cull", cull)]);
+    let settings = RenderSettings {
+        width: 64,
+        height: 48,
+        technique: Some("avs".into()),
+        technique_params: Some(s.technique_params.clone()),
+        ..Default::default()
+    };
+    let mut r = Renderer::new_headless(&s, settings, true).expect("renderer");
+    let mut out = Vec::new();
+    let mut stats = Vec::new();
+    for k in 0..frames {
+        out.extend(r.render(&s.at(0.5, (k > 0).then_some(0.5)), None, true).expect("render"));
+        stats.push(avs_stats(&r));
+    }
+    out.extend(r.finish().expect("finish"));
+    let log = r.context().validation.clone();
+    drop(r);
+    assert_eq!(log.error_count(), 0, "cull = {cull}: validation errors: {:#?}", log.errors());
+    (out, stats)
+}
+
 #[test]
 fn gbuffer_culling_traces_only_needed_points_and_keeps_the_image() {
     // Two frames of a static moment. Without adaptation rounds the sample set is fixed, so the
     // second frame's shading must pick exactly the same neighbours from the flagged points as from
     // all points: the culled image equals the unculled one, with fewer maps traced.
     let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "160"), ("iterations", "0")]);
-    let two = |cull: &str| {
-        let s = with(&s, &[("cull", cull)]);
-        let settings = RenderSettings {
-            width: 64,
-            height: 48,
-            technique: Some("avs".into()),
-            technique_params: Some(s.technique_params.clone()),
-            ..Default::default()
-        };
-        let mut r = Renderer::new_headless(&s, settings, true).expect("renderer");
-        let mut out = Vec::new();
-        let mut stats = Vec::new();
-        for prev in [None, Some(0.5)] {
-            out.extend(r.render(&s.at(0.5, prev), None, true).expect("render"));
-            stats.push(avs_stats(&r));
-        }
-        out.extend(r.finish().expect("finish"));
-        let log = r.context().validation.clone();
-        drop(r);
-        assert_eq!(log.error_count(), 0, "cull = {cull}: validation errors: {:#?}", log.errors());
-        (out, stats)
-    };
+    let two = |cull: &str| static_frames(&s, cull, 2);
     let (on, st_on) = two("true");
     let (off, st_off) = two("false");
     // the first frame traces every point
@@ -771,28 +776,7 @@ fn culled_adaptation_never_drops_points_it_did_not_see() {
     // or not): the culled kept set (traced + dormant) never shrinks, and the culled fourth image
     // stays the unculled one.
     let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "160"), ("iterations", "2")]);
-    let four = |cull: &str| {
-        let s = with(&s, &[("cull", cull)]);
-        let settings = RenderSettings {
-            width: 64,
-            height: 48,
-            technique: Some("avs".into()),
-            technique_params: Some(s.technique_params.clone()),
-            ..Default::default()
-        };
-        let mut r = Renderer::new_headless(&s, settings, true).expect("renderer");
-        let mut out = Vec::new();
-        let mut stats = Vec::new();
-        for k in 0..4 {
-            out.extend(r.render(&s.at(0.5, (k > 0).then_some(0.5)), None, true).expect("render"));
-            stats.push(avs_stats(&r));
-        }
-        out.extend(r.finish().expect("finish"));
-        let log = r.context().validation.clone();
-        drop(r);
-        assert_eq!(log.error_count(), 0, "cull = {cull}: validation errors: {:#?}", log.errors());
-        (out, stats)
-    };
+    let four = |cull: &str| static_frames(&s, cull, 4);
     let (on, st_on) = four("true");
     let (off, _) = four("false");
     let kept: Vec<std::collections::HashSet<usize>> =
