@@ -1758,6 +1758,100 @@ pub mod haar {
             self.shells.iter().map(|s| s.resolution).collect()
         }
 
+        /// Serializes the field (little endian): `"PSW1"`, cube face resolution `n`, shell
+        /// count, centre, `Vr`, then per shell `R`, min, step, and per sample (`R^2`, in order)
+        /// its coefficient count (`u16`) and coefficients (`u16` index, `u8` value).
+        pub fn to_bytes(&self) -> Vec<u8> {
+            let mut b = Vec::with_capacity(self.bytes() + 64);
+            b.extend_from_slice(b"PSW1");
+            b.extend_from_slice(&(self.n as u32).to_le_bytes());
+            b.extend_from_slice(&(self.shells.len() as u32).to_le_bytes());
+            for v in self.center.to_array().iter().chain([self.bound_radius].iter()) {
+                b.extend_from_slice(&v.to_le_bytes());
+            }
+            for s in &self.shells {
+                b.extend_from_slice(&(s.resolution as u32).to_le_bytes());
+                b.extend_from_slice(&s.min.to_le_bytes());
+                b.extend_from_slice(&s.step.to_le_bytes());
+                for c in &s.samples {
+                    b.extend_from_slice(&(c.len() as u16).to_le_bytes());
+                    for &(i, q) in c {
+                        b.extend_from_slice(&i.to_le_bytes());
+                        b.push(q);
+                    }
+                }
+            }
+            b
+        }
+
+        /// Parses [`HaarField::to_bytes`]; errors (never panics, never allocates more than the
+        /// input's size allows) on truncated or corrupt input.
+        pub fn from_bytes(b: &[u8]) -> Result<Self, String> {
+            let mut pos = 0usize;
+            let mut take = |n: usize| -> Result<&[u8], String> {
+                let end = pos.checked_add(n).filter(|&e| e <= b.len()).ok_or("wavelet field file: truncated")?;
+                let s = &b[pos..end];
+                pos = end;
+                Ok(s)
+            };
+            if take(4)? != b"PSW1" {
+                return Err("wavelet field file: bad magic (expected PSW1)".into());
+            }
+            let u32v = |s: &[u8]| u32::from_le_bytes([s[0], s[1], s[2], s[3]]);
+            let f32v = |s: &[u8]| f32::from_le_bytes([s[0], s[1], s[2], s[3]]);
+            let u16v = |s: &[u8]| u16::from_le_bytes([s[0], s[1]]);
+            let n = u32v(take(4)?) as usize;
+            if !(2..=256).contains(&n) || !n.is_power_of_two() {
+                return Err(format!("wavelet field file: cube resolution {n} (a power of two 2..=256)"));
+            }
+            let pixels = 6 * n * n;
+            let nshell = u32v(take(4)?) as usize;
+            if nshell > 1024 {
+                return Err(format!("wavelet field file: {nshell} shells (max 1024)"));
+            }
+            let mut hdr = [0f32; 4];
+            for h in &mut hdr {
+                *h = f32v(take(4)?);
+            }
+            if !hdr.iter().all(|x| x.is_finite()) || !(hdr[3] >= 0.0) {
+                return Err("wavelet field file: non-finite centre or radius".into());
+            }
+            let mut shells = Vec::with_capacity(nshell);
+            for _ in 0..nshell {
+                let r = u32v(take(4)?) as usize;
+                if r == 0 || r > 4096 {
+                    return Err(format!("wavelet field file: shell resolution {r} out of 1..=4096"));
+                }
+                let (min, step) = (f32v(take(4)?), f32v(take(4)?));
+                if !(min.is_finite() && step.is_finite()) {
+                    return Err("wavelet field file: non-finite quantization".into());
+                }
+                // every sample takes at least its 2-byte count: checked before allocating
+                if r * r * 2 > b.len() {
+                    return Err("wavelet field file: truncated".into());
+                }
+                let mut samples = Vec::with_capacity(r * r);
+                for _ in 0..r * r {
+                    let count = u16v(take(2)?) as usize;
+                    let data = take(3 * count)?;
+                    let mut c = Vec::with_capacity(count);
+                    for e in data.chunks_exact(3) {
+                        let i = u16v(e);
+                        if i as usize >= pixels {
+                            return Err(format!("wavelet field file: coefficient {i} of a {pixels}-pixel map"));
+                        }
+                        c.push((i, e[2]));
+                    }
+                    samples.push(c);
+                }
+                shells.push(HaarShell { resolution: r, min, step, samples });
+            }
+            if pos != b.len() {
+                return Err("wavelet field file: trailing bytes".into());
+            }
+            Ok(HaarField { n, center: Vec3::new(hdr[0], hdr[1], hdr[2]), bound_radius: hdr[3], shells })
+        }
+
         /// The truncated, dequantized map of sample `idx` of shell `c` (pixel domain, object
         /// frame, cube faces as [`CubeTable`]).
         pub fn sample_map(&self, c: usize, idx: usize) -> Vec<f32> {

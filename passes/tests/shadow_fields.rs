@@ -727,6 +727,26 @@ fn shadow_fields_haar_all_frequency_variant() {
     );
     assert!(adaptive.bytes() < fixed.bytes());
     assert!(adaptive.resolutions()[..4].iter().all(|&r| r == 1), "shells inside the sphere collapse");
+    // The cache file (PSW1) round-trips exactly; cut or altered files are errors, not panics.
+    for f in [&fixed, &adaptive] {
+        let b = f.to_bytes();
+        let back = HaarField::from_bytes(&b).unwrap();
+        assert_eq!((back.n, back.center, back.bound_radius), (f.n, f.center, f.bound_radius));
+        assert_eq!(back.resolutions(), f.resolutions());
+        for (x, y) in back.shells.iter().zip(&f.shells) {
+            assert_eq!((x.min, x.step, &x.samples), (y.min, y.step, &y.samples));
+        }
+        assert_eq!(back.to_bytes(), b);
+        for cut in [3, 20, b.len() / 2, b.len() - 1] {
+            assert!(HaarField::from_bytes(&b[..cut]).is_err(), "cut at {cut}");
+        }
+        let mut trailing = b.clone();
+        trailing.push(0);
+        assert!(HaarField::from_bytes(&trailing).is_err());
+        let mut bad_n = b.clone();
+        bad_n[4] = 3;
+        assert!(HaarField::from_bytes(&bad_n).unwrap_err().contains("cube resolution"));
+    }
     // Accuracy at points outside the sphere against ray-cast visibility, next to the
     // order-4 SH field of the same sphere: all frequency is sharper than order-4 SH.
     let sh = sphere_raw().to_fixed();

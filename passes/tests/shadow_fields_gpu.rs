@@ -182,3 +182,47 @@ fn shadow_fields_gpu_lights_and_window_match_cpu() {
     drop(engine);
     assert_eq!(ctx.validation.error_count(), 0, "validation errors: {:#?}", ctx.validation.errors());
 }
+
+/// The all-frequency variant's precompute is cached per mesh and parameter set: a second build
+/// of the same scene loads every field and self-visibility map (no ray casting) and gets the same
+/// data; other parameters miss; a corrupt cache file is recomputed, not trusted.
+#[test]
+fn wavelet_fields_are_cached_per_mesh_and_parameters() {
+    use penumbra_passes::shadow_fields::wavelet::{SfwOptions, WaveletFields};
+    let scene = Scene::load(root().join("scenes/sf_spheres.toml")).expect("scene");
+    let dir = std::env::temp_dir().join(format!("penumbra-sfw-cache-test-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let opts = SfwOptions { shells: 4, resolution: 4, cube: 4, cache_dir: Some(dir.clone()), ..Default::default() };
+    let first = WaveletFields::build(&scene, &opts).unwrap();
+    let built: Vec<_> = first.reports.iter().filter(|r| r.adaptive_bytes > 0).collect();
+    assert!(!built.is_empty() && built.iter().all(|r| !r.cached), "{:?}", first.reports);
+    let files = std::fs::read_dir(&dir).unwrap().count();
+    assert!(files >= 2, "{files} cache files");
+    let second = WaveletFields::build(&scene, &opts).unwrap();
+    assert!(second.reports.iter().filter(|r| r.adaptive_bytes > 0).all(|r| r.cached), "{:?}", second.reports);
+    let same = |a: &WaveletFields, b: &WaveletFields| {
+        a.fields.len() == b.fields.len()
+            && a.fields.iter().zip(&b.fields).all(|(x, y)| match (x, y) {
+                (Some(x), Some(y)) => x.to_bytes() == y.to_bytes(),
+                (None, None) => true,
+                _ => false,
+            })
+            && a.self_maps == b.self_maps
+            && a.reports.iter().zip(&b.reports).all(|(x, y)| x.fixed_bytes == y.fixed_bytes)
+    };
+    assert!(same(&first, &second));
+    // another parameter set misses
+    let other = WaveletFields::build(&scene, &SfwOptions { keep: 0.1, ..opts.clone() }).unwrap();
+    assert!(other.reports.iter().filter(|r| r.adaptive_bytes > 0).all(|r| !r.cached));
+    // corrupt every file: the next build recomputes the same data
+    for e in std::fs::read_dir(&dir).unwrap() {
+        let p = e.unwrap().path();
+        let mut b = std::fs::read(&p).unwrap();
+        b.truncate(b.len() / 2);
+        std::fs::write(&p, b).unwrap();
+    }
+    let third = WaveletFields::build(&scene, &opts).unwrap();
+    assert!(third.reports.iter().filter(|r| r.adaptive_bytes > 0).all(|r| !r.cached));
+    assert!(same(&first, &third));
+    let _ = std::fs::remove_dir_all(&dir);
+}

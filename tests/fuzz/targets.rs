@@ -7,7 +7,7 @@ use std::path::Path;
 
 /// Every target (its corpus: `tests/fuzz/corpus/<name>/`).
 #[allow(dead_code)] // used by the replay test, not by the fuzz binaries
-pub const TARGETS: &[&str] = &["scene_toml", "gltf", "exr", "hdr", "png", "spheres", "pvv", "psf"];
+pub const TARGETS: &[&str] = &["scene_toml", "gltf", "exr", "hdr", "png", "spheres", "pvv", "psf", "psw"];
 
 /// Loads `bytes` as target `name` (an unknown name is an error).
 pub fn load(name: &str, bytes: &[u8]) -> Result<(), String> {
@@ -40,6 +40,7 @@ pub fn load(name: &str, bytes: &[u8]) -> Result<(), String> {
         }
         "pvv" => penumbra_math::vv::VvData::from_bytes(bytes, "fuzz-input").map(drop),
         "psf" => penumbra_math::shadow_field::ObjectField::from_bytes(bytes).map(drop),
+        "psw" => penumbra_math::shadow_field::haar::HaarField::from_bytes(bytes).map(drop),
         other => Err(format!("unknown fuzz target '{other}'")),
     }
 }

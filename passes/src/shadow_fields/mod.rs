@@ -229,6 +229,19 @@ pub fn srf_reach(scene: &Scene, li: usize) -> f64 {
     }
 }
 
+/// Writes one precomputed file of a cache directory (created if missing): beside, then renamed,
+/// so that a reader (another process sharing the cache) never sees half a file. The cache is an
+/// optimisation: failing to write it is not an error.
+pub(crate) fn write_cache_file(path: &std::path::Path, bytes: &[u8]) {
+    if let Some(dir) = path.parent() {
+        let _ = std::fs::create_dir_all(dir);
+    }
+    let tmp = path.with_extension(format!("tmp{}", std::process::id()));
+    if std::fs::write(&tmp, bytes).is_ok() && std::fs::rename(&tmp, path).is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+}
+
 fn cache_key(m: &penumbra_scene::MeshData, p: &Params) -> String {
     let mut h = std::collections::hash_map::DefaultHasher::new();
     for v in m.positions.iter().chain(m.normals.iter()) {
@@ -291,18 +304,8 @@ impl SceneFields {
                     let f = raw.to_fixed();
                     let a = raw.to_adaptive(options.params.threshold, options.params.min_resolution);
                     if let Some((pf, pa)) = &paths {
-                        // The cache is an optimisation: failures to write it are not errors.
-                        if let Some(dir) = pf.parent() {
-                            let _ = std::fs::create_dir_all(dir);
-                        }
-                        // written beside, then renamed: a reader (another process sharing the
-                        // cache) never sees half a file
-                        for (path, bytes) in [(pf, f.to_bytes()), (pa, a.to_bytes())] {
-                            let tmp = path.with_extension(format!("tmp{}", std::process::id()));
-                            if std::fs::write(&tmp, bytes).is_ok() && std::fs::rename(&tmp, path).is_err() {
-                                let _ = std::fs::remove_file(&tmp);
-                            }
-                        }
+                        write_cache_file(pf, &f.to_bytes());
+                        write_cache_file(pa, &a.to_bytes());
                     }
                     (f, a, raw.seconds, raw.rays, false)
                 }

@@ -44,6 +44,8 @@ use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, ImageHandle, PassKind};
 use penumbra_math::shadow_field::haar::{raw_maps, CubeTable, HaarField};
 use penumbra_scene::Scene;
+use std::collections::hash_map::DefaultHasher;
+use std::hash::{Hash, Hasher};
 use std::sync::Arc;
 
 /// Options of the all-frequency variant.
@@ -70,6 +72,10 @@ pub struct SfwOptions {
     /// Per-vertex self-visibility maps, interpolated across the triangles (the paper's
     /// self-occlusion; else a surface sees only the other objects).
     pub self_occlusion: bool,
+    /// Directory of the precomputed fields and self-visibility maps, one file per mesh and
+    /// parameter set (`<hash>.psw`, `<hash>.pss`; `None`: no caching). Default: the shadow
+    /// fields' cache directory under the system's temporary directory.
+    pub cache_dir: Option<std::path::PathBuf>,
 }
 
 impl Default for SfwOptions {
@@ -83,6 +89,7 @@ impl Default for SfwOptions {
             adaptive: true,
             reproject: true,
             self_occlusion: true,
+            cache_dir: Some(std::env::temp_dir().join("penumbra-shadow-fields")),
         }
     }
 }
@@ -149,6 +156,8 @@ pub struct WaveletReport {
     /// Per-shell resolution of the field used.
     pub resolutions: Vec<usize>,
     pub seconds: f64,
+    /// Loaded from the cache directory (no ray casting).
+    pub cached: bool,
 }
 
 impl WaveletReport {
@@ -160,6 +169,7 @@ impl WaveletReport {
             adaptive_bytes: 0,
             resolutions: Vec::new(),
             seconds: 0.0,
+            cached: false,
         }
     }
 }
@@ -199,12 +209,24 @@ impl WaveletFields {
             } else if let Some(first) = (0..mi).find(|&k| same(k)) {
                 self_maps[first].clone()
             } else {
-                Some(Arc::new(penumbra_math::shadow_field::haar::self_maps(
-                    &m.positions,
-                    &m.normals,
-                    &m.indices,
-                    &table,
-                )))
+                let path = cache_path(options, "pss", |h| {
+                    hash_mesh(m, true, h);
+                    table.n.hash(h);
+                });
+                let per = table.dirs.len().div_ceil(32);
+                let loaded =
+                    path.as_ref().and_then(|p| self_maps_from_bytes(&std::fs::read(p).ok()?, m.positions.len(), per));
+                Some(Arc::new(match loaded {
+                    Some(maps) => maps,
+                    None => {
+                        let maps =
+                            penumbra_math::shadow_field::haar::self_maps(&m.positions, &m.normals, &m.indices, &table);
+                        if let Some(p) = &path {
+                            super::write_cache_file(p, &self_maps_to_bytes(&maps, m.positions.len(), per));
+                        }
+                        maps
+                    }
+                }))
             };
             self_maps.push(maps);
         }
@@ -235,28 +257,98 @@ impl WaveletFields {
                 reports.push(WaveletReport::empty(&m.name));
                 continue;
             }
-            let (c, vr, maps) = raw_maps(&m.positions, &m.indices, options.shells, options.resolution, &table);
-            let (field, fixed_bytes) = HaarField::build_sized(
-                c,
-                vr,
-                &maps,
-                options.resolution,
-                &table,
-                options.keep,
-                options.adaptive,
-                options.threshold,
-            );
+            let path = cache_path(options, "psw", |h| {
+                hash_mesh(m, false, h);
+                (options.shells, options.resolution, table.n, options.keep.to_bits()).hash(h);
+                (options.adaptive, options.threshold.to_bits()).hash(h);
+            });
+            // a cached file holds the field used and the fixed field's size
+            let loaded = path.as_ref().and_then(|p| {
+                let b = std::fs::read(p).ok()?;
+                let (size, field) = b.split_at_checked(8)?;
+                let field = HaarField::from_bytes(field).ok().filter(|f| f.n == table.n)?;
+                Some((field, u64::from_le_bytes(size.try_into().ok()?) as usize))
+            });
+            let cached = loaded.is_some();
+            let (field, fixed_bytes) = match loaded {
+                Some(x) => x,
+                None => {
+                    let (c, vr, maps) = raw_maps(&m.positions, &m.indices, options.shells, options.resolution, &table);
+                    let (field, fixed_bytes) = HaarField::build_sized(
+                        c,
+                        vr,
+                        &maps,
+                        options.resolution,
+                        &table,
+                        options.keep,
+                        options.adaptive,
+                        options.threshold,
+                    );
+                    if let Some(p) = &path {
+                        let mut b = (fixed_bytes as u64).to_le_bytes().to_vec();
+                        b.extend(field.to_bytes());
+                        super::write_cache_file(p, &b);
+                    }
+                    (field, fixed_bytes)
+                }
+            };
             reports.push(WaveletReport {
                 mesh: m.name.clone(),
                 fixed_bytes,
                 adaptive_bytes: field.bytes(),
                 resolutions: field.resolutions(),
                 seconds: t0.elapsed().as_secs_f64(),
+                cached,
             });
             fields.push(Some(Arc::new(field)));
         }
         Ok(WaveletFields { fields, self_maps, self_seconds, reports, options: options.clone() })
     }
+}
+
+/// The cache file (extension `ext`) of the inputs `hash` feeds, when `options` cache.
+fn cache_path(options: &SfwOptions, ext: &str, hash: impl FnOnce(&mut DefaultHasher)) -> Option<std::path::PathBuf> {
+    let dir = options.cache_dir.as_ref()?;
+    let mut h = DefaultHasher::new();
+    // the file format's version: a change of the precompute changes it
+    (ext, 1u32).hash(&mut h);
+    hash(&mut h);
+    Some(dir.join(format!("{:016x}.{ext}", h.finish())))
+}
+
+/// Hashes a mesh's positions and indices (and normals).
+fn hash_mesh(m: &penumbra_scene::MeshData, normals: bool, h: &mut DefaultHasher) {
+    for v in &m.positions {
+        v.to_array().map(f32::to_bits).hash(h);
+    }
+    if normals {
+        for v in &m.normals {
+            v.to_array().map(f32::to_bits).hash(h);
+        }
+    }
+    m.indices.hash(h);
+}
+
+/// Self-visibility maps as a cache file: `"PSS1"`, vertex count, words per vertex, the words
+/// (little endian).
+fn self_maps_to_bytes(maps: &[u32], vertices: usize, per: usize) -> Vec<u8> {
+    let mut b = b"PSS1".to_vec();
+    b.extend_from_slice(&(vertices as u32).to_le_bytes());
+    b.extend_from_slice(&(per as u32).to_le_bytes());
+    b.extend(maps.iter().flat_map(|w| w.to_le_bytes()));
+    b
+}
+
+/// Parses [`self_maps_to_bytes`]; `None` unless it holds exactly `vertices` x `per` words.
+fn self_maps_from_bytes(b: &[u8], vertices: usize, per: usize) -> Option<Vec<u32>> {
+    let words = b.strip_prefix(b"PSS1")?;
+    let (head, words) = words.split_at_checked(8)?;
+    let v = u32::from_le_bytes(head[..4].try_into().ok()?) as usize;
+    let p = u32::from_le_bytes(head[4..].try_into().ok()?) as usize;
+    if v != vertices || p != per || words.len() != 4 * vertices * per {
+        return None;
+    }
+    Some(words.chunks_exact(4).map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]])).collect())
 }
 
 /// std430 `SfwInst` of `sfw_shade.comp` and `sfw_self.comp` (176 bytes).
