@@ -200,6 +200,11 @@ pub fn eval_sg_sum(lobes: &[(Vec3, f32, Vec3)], d: Vec3) -> Vec3 {
 }
 
 impl EnvLight {
+    /// Solid angle of one texel of row `j` (0 outside the map).
+    pub fn row_solid_angle(&self, j: usize) -> f32 {
+        self.row_solid_angle.get(j).copied().unwrap_or(0.0)
+    }
+
     /// A black environment (no radiance, never sampled).
     pub fn black() -> Self {
         EnvLight {
@@ -370,103 +375,5 @@ impl EnvLight {
             None => self.texels[k],
         };
         Some((d, l, pdf))
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use glam::Vec3Swizzles;
-
-    #[test]
-    fn alias_table_matches_weights() {
-        let w = [1.0, 0.0, 3.0, 6.0];
-        let t = AliasTable::new(&w).unwrap();
-        let mut counts = [0usize; 4];
-        let mut rng = Pcg32::new(1, 2);
-        let n = 200_000;
-        for _ in 0..n {
-            counts[t.sample(rng.next_f32(), rng.next_f32())] += 1;
-        }
-        for i in 0..4 {
-            let p = w[i] / 10.0;
-            let sigma = (p * (1.0 - p) / n as f64).sqrt();
-            let f = counts[i] as f64 / n as f64;
-            assert!((f - p).abs() <= 5.0 * sigma + 1e-12, "{i}: {f} vs {p}");
-        }
-        assert!(AliasTable::new(&[0.0, 0.0]).is_none());
-    }
-
-    /// The env pdf integrates to 1 over the sphere and agrees with sample(): E[L / pdf] over
-    /// env samples equals the integral of L over the sphere (computed per texel exactly).
-    #[test]
-    fn env_sampling_is_unbiased() {
-        let mut env = Environment::procedural_sky(32, 16);
-        env.rotation = 0.7;
-        env.intensity = 1.5;
-        let e = EnvLight::new(&env).unwrap();
-        // Exact integral of luminance over the sphere.
-        let mut exact = 0.0f64;
-        for (i, t) in env.texels.iter().enumerate() {
-            let j = i / 32;
-            exact += luminance(Vec3::from_array(*t) * 1.5) as f64 * e.row_solid_angle[j] as f64;
-        }
-        let mut rng = Pcg32::new(3, 4);
-        let n = 100_000;
-        let (mut s, mut s2) = (0.0f64, 0.0f64);
-        for _ in 0..n {
-            let u = [rng.next_f32(), rng.next_f32(), rng.next_f32(), rng.next_f32()];
-            let (d, l, pdf) = e.sample(u).unwrap();
-            assert!((pdf - e.pdf(d)).abs() <= 1e-4 * pdf);
-            assert!((l - e.radiance(d)).length() == 0.0);
-            let x = (luminance(l) / pdf) as f64;
-            s += x;
-            s2 += x * x;
-        }
-        let mean = s / n as f64;
-        let se = ((s2 / n as f64 - mean * mean) / (n as f64 - 1.0)).sqrt();
-        assert!((mean - exact).abs() <= 5.0 * se + 1e-4 * exact, "{mean} vs {exact} (se {se})");
-        // pdf integrates to one: uniform sphere quadrature of pdf.
-        let m = 200_000;
-        let mut acc = 0.0f64;
-        for _ in 0..m {
-            let z = 2.0 * rng.next_f32() - 1.0;
-            let phi = TAU * rng.next_f32();
-            let r = (1.0 - z * z).max(0.0).sqrt();
-            acc += e.pdf(Vec3::new(r * phi.cos(), z, r * phi.sin())) as f64 * 4.0 * std::f64::consts::PI;
-        }
-        let integral = acc / m as f64;
-        assert!((integral - 1.0).abs() < 0.05, "pdf integral {integral}");
-    }
-
-    #[test]
-    fn rotation_convention() {
-        let mut env = Environment::procedural_sky(64, 32);
-        let e0 = EnvLight::new(&env).unwrap();
-        env.rotation = 1.0;
-        let e1 = EnvLight::new(&env).unwrap();
-        let q = glam::Quat::from_rotation_y(1.0);
-        let mut rng = Pcg32::new(5, 6);
-        let mut mismatches = 0;
-        for _ in 0..1000 {
-            let d = uniform_hemisphere(rng.next_vec2()).zxy() * if rng.next_f32() < 0.5 { 1.0 } else { -1.0 };
-            if (e1.radiance(q * d) - e0.radiance(d)).length() > 1e-6 {
-                mismatches += 1; // only possible right at texel borders
-            }
-        }
-        assert!(mismatches <= 5, "{mismatches}");
-        // Same lookup as the scene crate's own Environment::radiance (nearest texel).
-        env.intensity = 1.7;
-        let e2 = EnvLight::new(&env).unwrap();
-        let mut differ = 0;
-        for _ in 0..1000 {
-            let d = uniform_hemisphere(rng.next_vec2()).zxy() * if rng.next_f32() < 0.5 { 1.0 } else { -1.0 };
-            if (e2.radiance(d) - env.radiance(d)).length() > 1e-5 * env.radiance(d).length().max(1.0) {
-                differ += 1;
-            }
-        }
-        assert!(differ <= 5, "{differ}");
-        // And the map's +Y pole is world +Y whatever the rotation.
-        assert_eq!(e1.radiance(Vec3::Y), e0.radiance(Vec3::Y));
     }
 }
