@@ -24,7 +24,7 @@ fn fnv(h: &mut u64, bytes: &[u8]) {
 }
 
 /// Key of a product of environment `e` (texels, size, intensity, rotation), kind and parameters.
-fn cache_key(kind: &str, e: &Environment, params: &[u8]) -> u64 {
+pub fn cache_key(kind: &str, e: &Environment, params: &[u8]) -> u64 {
     let mut h = 0xcbf2_9ce4_8422_2325u64;
     for src in CACHE_SOURCES {
         fnv(&mut h, src);
@@ -48,7 +48,7 @@ fn cache_key(kind: &str, e: &Environment, params: &[u8]) -> u64 {
 /// parameters, so every isg/avs technique, test and bench process after the first reads them
 /// back (as vv's and the shadow fields' precomputes). A file whose header does not match is
 /// recomputed; files are written to a temporary name and renamed (processes may race).
-fn cached_bytes(kind: &str, key: u64, compute: impl FnOnce() -> Vec<u8>) -> Vec<u8> {
+pub fn cached_bytes(kind: &str, key: u64, compute: impl FnOnce() -> Vec<u8>) -> Vec<u8> {
     let dir = std::env::temp_dir().join("penumbra-lighting");
     let path = dir.join(format!("{kind}-{key:016x}.bin"));
     let magic = b"PLC1";
@@ -174,61 +174,4 @@ pub fn irradiance_env(scene: &Scene) -> Vec<f32> {
     let mut out = vec![w as f32, h as f32];
     out.extend(map.iter().flat_map(|t| t.map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 })));
     out
-}
-
-#[cfg(test)]
-mod cache_tests {
-    use super::*;
-
-    /// The cache hands back what was computed, computes once, and recomputes a damaged file.
-    #[test]
-    fn cached_bytes_round_trip_and_damaged_files_are_recomputed() {
-        let kind = format!("test{}", std::process::id());
-        let key = 0x1234_5678_9abc_def0u64;
-        let path = std::env::temp_dir().join("penumbra-lighting").join(format!("{kind}-{key:016x}.bin"));
-        let _ = std::fs::remove_file(&path);
-        let mut calls = 0;
-        let a = cached_bytes(&kind, key, || {
-            calls += 1;
-            vec![1, 2, 3, 4, 5]
-        });
-        let b = cached_bytes(&kind, key, || {
-            calls += 1;
-            vec![9]
-        });
-        assert_eq!((a.as_slice(), b.as_slice(), calls), (&[1u8, 2, 3, 4, 5][..], &[1u8, 2, 3, 4, 5][..], 1));
-        // truncated: recomputed and rewritten
-        let full = std::fs::read(&path).unwrap();
-        std::fs::write(&path, &full[..full.len() - 1]).unwrap();
-        let c = cached_bytes(&kind, key, || vec![7, 7]);
-        assert_eq!(c, vec![7, 7]);
-        assert_eq!(cached_bytes(&kind, key, || vec![0]), vec![7, 7]);
-        let _ = std::fs::remove_file(&path);
-    }
-
-    /// Different maps, parameters or intensities never share a key.
-    #[test]
-    fn cache_keys_follow_the_map_and_the_parameters() {
-        let e = Environment {
-            width: 2,
-            height: 1,
-            texels: vec![[1.0, 2.0, 3.0], [0.5, 0.5, 0.5]],
-            intensity: 1.0,
-            rotation: 0.0,
-        };
-        let mut e2 = e.clone();
-        e2.texels[1][2] = 0.25;
-        let mut e3 = e.clone();
-        e3.intensity = 2.0;
-        let k = cache_key("lobes", &e, &[16]);
-        assert_eq!(k, cache_key("lobes", &e.clone(), &[16]));
-        for other in [
-            cache_key("lobes", &e2, &[16]),
-            cache_key("lobes", &e3, &[16]),
-            cache_key("lobes", &e, &[8]),
-            cache_key("prefiltered", &e, &[16]),
-        ] {
-            assert_ne!(k, other);
-        }
-    }
 }

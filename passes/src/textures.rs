@@ -127,6 +127,11 @@ impl TextureLayers {
         TextureLayers { layers }
     }
 
+    /// The mip chain of layer `i` (largest first, `size^2` RGBA texels each); empty outside.
+    pub fn mips(&self, i: usize) -> &[Vec<[f32; 4]>] {
+        self.layers.get(i).map_or(&[], |m| m.as_slice())
+    }
+
     pub fn layer_count(&self) -> u32 {
         self.layers.len() as u32
     }
@@ -160,29 +165,5 @@ impl TextureLayers {
             }
         }
         crate::util::add_image_upload(graph, "textures", img, data, regions)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn layers_resample_and_mip() {
-        let t =
-            Texture::pattern("checker", penumbra_scene::Pattern::Checker, 64, 2.0, glam::Vec4::ZERO, glam::Vec4::ONE);
-        let m = TextureLayers::new(&[t]);
-        assert_eq!(m.layer_count(), 1);
-        let mips = &m.layers[0];
-        assert_eq!(mips.len(), 9); // 256 .. 1
-                                   // A 2x2 checker of 0 and 1 averages to 0.5 at the last mip.
-        let last = mips.last().unwrap()[0];
-        assert!((last[0] - 0.5).abs() < 1e-3, "{last:?}");
-        // Top-left quadrant is colour a (0), top-right colour b (1).
-        assert!(mips[0][(10 * 256 + 10) as usize][0] < 0.01);
-        assert!(mips[0][(10 * 256 + 200) as usize][0] > 0.99);
-        let empty = TextureLayers::new(&[]);
-        assert_eq!(empty.layer_count(), 1);
-        assert_eq!(empty.layers[0][0][0], [1.0; 4]);
     }
 }

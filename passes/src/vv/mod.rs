@@ -1030,24 +1030,3 @@ impl crate::technique::Technique for VvTechnique {
         Ok(hdr)
     }
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn specular_and_refine_parameters() {
-        let mut s = VvSettings::default();
-        assert!(s.specular);
-        s.set("specular", "off").unwrap();
-        assert!(!s.specular);
-        s.set("specular", "on").unwrap();
-        assert!(s.specular);
-        assert!(s.set("specular", "maybe").is_err());
-        s.set("refine", "0").unwrap();
-        assert_eq!(s.refine, 0);
-        assert!(s.set("refine", "-1").is_err());
-        assert_eq!(refine_edge(36.0, 0), 0.0);
-        assert!((refine_edge(36.0, 1024) - 0.1875).abs() < 1e-6);
-    }
-}

@@ -1,0 +1,525 @@
+//! Unit tests of the passes' modules, kept out of the library so that the library is compiled
+//! once rather than again as a test harness (40 s of a clean build).
+
+mod isg_vertex {
+
+    use glam::Vec3;
+
+    use std::collections::HashMap;
+
+    use penumbra_passes::isg::vertex::*;
+
+    #[test]
+    fn a_tiny_max_edge_stays_within_the_triangle_budget() {
+        // 1e-10 asks for 34 levels: the level count is capped before any shift could overflow
+        let p = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        for max_edge in [1e-10, 1e-30, f32::MIN_POSITIVE] {
+            let r = refine(&p, &[0, 1, 2], 1.0, max_edge);
+            assert!(r.indices.len() / 3 <= MAX_REFINED_TRIANGLES && r.indices.len() / 3 > 1, "{max_edge}");
+        }
+    }
+
+    #[test]
+    fn refine_splits_shared_edges_once_and_keeps_the_surface() {
+        let quad =
+            [Vec3::new(0.0, 0.0, 0.0), Vec3::new(4.0, 0.0, 0.0), Vec3::new(4.0, 0.0, 4.0), Vec3::new(0.0, 0.0, 4.0)];
+        let idx = [0, 1, 2, 0, 2, 3];
+        let r = refine(&quad, &idx, 1.0, 1.0);
+        // Longest edge 4 sqrt 2 = 5.66 -> 3 levels (edges 0.71): 2 * 64 triangles, 9 x 9 grid.
+        assert_eq!(r.levels, 3);
+        assert_eq!(r.indices.len() / 3, 128);
+        assert_eq!(r.base_vertices + r.splits.len(), 81);
+        let (p, n) = r.apply(&quad, &[Vec3::Y; 4]);
+        assert!(p.iter().all(|v| v.y == 0.0 && v.x >= 0.0 && v.x <= 4.0 && v.z >= 0.0 && v.z <= 4.0));
+        assert!(n.iter().all(|v| *v == Vec3::Y));
+        let area: f32 = r
+            .indices
+            .chunks_exact(3)
+            .map(|t| 0.5 * (p[t[1] as usize] - p[t[0] as usize]).cross(p[t[2] as usize] - p[t[0] as usize]).length())
+            .sum();
+        assert!((area - 16.0).abs() < 1e-4, "area {area}");
+        // Every edge is shared by two triangles or on the boundary (no T-junctions).
+        let mut edges: HashMap<(u32, u32), u32> = HashMap::new();
+        for t in r.indices.chunks_exact(3) {
+            for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+                *edges.entry((a.min(b), a.max(b))).or_default() += 1;
+            }
+        }
+        assert_eq!(edges.values().filter(|&&c| c == 1).count(), 4 * 8);
+        // Nothing to do, bad thresholds, bad indices.
+        assert_eq!(refine(&quad, &idx, 1.0, 10.0).levels, 0);
+        assert_eq!(refine(&quad, &idx, 1.0, 0.0).levels, 0);
+        assert_eq!(refine(&quad, &idx, f32::NAN, 1.0).levels, 0);
+        assert_eq!(refine(&quad, &[0, 1, 9], 1.0, 1.0).indices.len(), 0);
+        // The triangle budget caps the levels.
+        let r = refine(&quad, &idx, 1.0, 1e-6);
+        assert!(r.indices.len() / 3 <= MAX_REFINED_TRIANGLES && r.levels > 0);
+    }
+}
+
+mod vv {
+
+    use penumbra_passes::vv::*;
+
+    #[test]
+    fn specular_and_refine_parameters() {
+        let mut s = VvSettings::default();
+        assert!(s.specular);
+        s.set("specular", "off").unwrap();
+        assert!(!s.specular);
+        s.set("specular", "on").unwrap();
+        assert!(s.specular);
+        assert!(s.set("specular", "maybe").is_err());
+        s.set("refine", "0").unwrap();
+        assert_eq!(s.refine, 0);
+        assert!(s.set("refine", "-1").is_err());
+        assert_eq!(refine_edge(36.0, 0), 0.0);
+        assert!((refine_edge(36.0, 1024) - 0.1875).abs() < 1e-6);
+    }
+}
+
+mod registry {
+
+    use penumbra_scene::Scene;
+
+    use penumbra_passes::registry::*;
+
+    #[test]
+    fn registry_names_every_technique_once_with_a_budget() {
+        let names = names();
+        let mut sorted = names.clone();
+        sorted.sort();
+        sorted.dedup();
+        assert_eq!(sorted.len(), names.len(), "duplicate names in {names:?}");
+        for t in REGISTRY {
+            match t.budget {
+                Budget::RmseRelMean { rmse_rel_mean, source } => {
+                    assert!(rmse_rel_mean > 0.0 && rmse_rel_mean < 1.0 && !source.is_empty(), "{}", t.name)
+                }
+                Budget::Unbiased { factor, source } => assert!(factor >= 1.0 && !source.is_empty(), "{}", t.name),
+                Budget::Baseline { .. } => assert!(!t.shadows, "{}: a shadow technique needs a budget", t.name),
+            }
+        }
+    }
+
+    /// `auto`: shadowmaps for a lit scene, mc where the device cannot render layered shadow
+    /// maps, env without light; every choice is a registered technique.
+    #[test]
+    fn auto_chooses_by_scene_and_device() {
+        let lit = Scene::default_scene();
+        assert_eq!(choose_auto(&lit, true).0, "shadowmaps");
+        assert_eq!(choose_auto(&lit, false).0, "mc");
+        let mut dark = Scene::empty("dark");
+        dark.environment = None;
+        assert_eq!(choose_auto(&dark, true).0, "env");
+        for (s, l) in [(&lit, true), (&lit, false), (&dark, true)] {
+            let (name, params, why) = choose_auto(s, l);
+            assert!(info(name).is_some() && params.is_empty() && why.starts_with(&format!("auto: {name}")));
+        }
+        assert!(check_name(AUTO).is_ok() && check_name("nope").is_err());
+    }
+
+    /// Each technique's own parser accepts every documented key at its documented default, and
+    /// the documented defaults are the parser's defaults.
+    #[test]
+    fn documented_parameters_are_the_parsers_parameters() {
+        let defaults = |params: &[ParamDoc]| -> Params {
+            params.iter().map(|p| (p.key.to_string(), p.default.to_string())).collect()
+        };
+        for t in REGISTRY {
+            let all = defaults(t.params);
+            check_params(t.name, &all).unwrap();
+        }
+        let isg = penumbra_passes::isg::IsgSettings::from_params(&defaults(lookup("isg").unwrap().params)).unwrap();
+        let d = penumbra_passes::isg::IsgSettings::default();
+        assert_eq!(
+            (isg.lobes, isg.spheres_per_object, isg.patch_side, isg.epsilon, isg.lod, isg.max_edge),
+            (d.lobes, d.spheres_per_object, d.patch_side, d.epsilon, d.lod, d.max_edge)
+        );
+        let avs = penumbra_passes::avs::AvsSettings::from_params(&defaults(lookup("avs").unwrap().params)).unwrap();
+        let d = penumbra_passes::avs::AvsSettings::default();
+        assert_eq!(
+            (avs.r, avs.e_max, avs.iterations, avs.max_points, avs.neighbours),
+            (d.r, d.e_max, d.iterations, d.max_points, d.neighbours)
+        );
+        let sf =
+            penumbra_passes::shadow_fields::SfOptions::from_params(&defaults(lookup("shadow-fields").unwrap().params))
+                .unwrap();
+        let d = penumbra_passes::shadow_fields::SfOptions::default();
+        assert_eq!(
+            (sf.params.shells, sf.params.resolution, sf.params.map_res, sf.params.threshold),
+            (d.params.shells, d.params.resolution, d.params.map_res, d.params.threshold)
+        );
+        assert_eq!(
+            penumbra_passes::mc::parse_spp(lookup("mc").unwrap().params[0].default).unwrap(),
+            penumbra_passes::mc::DEFAULT_SPP
+        );
+        // Every knob is a documented parameter and its values parse.
+        for t in REGISTRY {
+            for kn in t.knobs {
+                for v in kn.values.iter().chain(kn.finer) {
+                    let one: Params = [(kn.key.to_string(), v.to_string())].into_iter().collect();
+                    check_params(t.name, &one).unwrap_or_else(|e| panic!("{} knob {}: {e}", t.name, kn.key));
+                }
+            }
+        }
+        let sm = penumbra_passes::shadowmaps::ShadowMapsSettings::from_params(&defaults(
+            lookup("shadowmaps").unwrap().params,
+        ))
+        .unwrap();
+        assert_eq!(sm, penumbra_passes::shadowmaps::ShadowMapsSettings::default());
+        let vv = penumbra_passes::vv::VvSettings::from_params(&defaults(lookup("vv").unwrap().params)).unwrap();
+        assert_eq!(vv, penumbra_passes::vv::VvSettings::default());
+        // An undocumented key is refused before any parser sees it.
+        for t in REGISTRY {
+            let bogus: Params = [("bogus".to_string(), "1".to_string())].into();
+            let e = check_params(t.name, &bogus).unwrap_err().to_string();
+            assert!(e.contains("bogus"), "{}: {e}", t.name);
+        }
+    }
+
+    #[test]
+    fn unknown_names_list_the_registered_ones() {
+        let e = lookup("hsdt").unwrap_err().to_string();
+        assert!(e.contains("unknown technique 'hsdt'") && e.contains("avs") && e.contains("vv"), "{e}");
+        assert!(describe().contains("shadow-fields-fixed") && describe().contains("volumetric"));
+    }
+
+    #[test]
+    fn bad_parameters_are_reported_together() {
+        let params: Params = [("zeta", "-3"), ("mode", "fragment1"), ("bogus", "1")]
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect();
+        let e = penumbra_passes::vv::VvSettings::from_params(&params).unwrap_err().to_string();
+        assert!(e.starts_with("2 bad technique parameters"), "{e}");
+        assert!(e.contains("zeta") && e.contains("bogus") && !e.contains("fragment1"), "{e}");
+        let one: Params = [("lobes".to_string(), "zero".to_string())].into();
+        let e = penumbra_passes::isg::IsgSettings::from_params(&one).unwrap_err().to_string();
+        assert!(e.contains("lobes") && !e.contains("bad technique parameters"), "{e}");
+        let good: Params = [("mode".to_string(), "vertex".to_string())].into();
+        assert!(penumbra_passes::shadow_fields::SfOptions::from_params(&good).is_ok());
+    }
+}
+
+mod raster {
+
+    use penumbra_engine::vk;
+
+    use penumbra_passes::raster::*;
+
+    #[test]
+    fn stages_come_from_file_extensions() {
+        assert_eq!(stage_of("a.vert"), Some(vk::ShaderStageFlags::VERTEX));
+        assert_eq!(stage_of("x/b.tesc"), Some(vk::ShaderStageFlags::TESSELLATION_CONTROL));
+        assert_eq!(stage_of("b.tese"), Some(vk::ShaderStageFlags::TESSELLATION_EVALUATION));
+        assert_eq!(stage_of("c.geom"), Some(vk::ShaderStageFlags::GEOMETRY));
+        assert_eq!(stage_of("d.frag"), Some(vk::ShaderStageFlags::FRAGMENT));
+        assert_eq!(stage_of("e.comp"), None);
+    }
+}
+
+mod env {
+
+    use glam::Vec3;
+
+    use penumbra_passes::env::*;
+    use penumbra_scene::Environment;
+
+    #[test]
+    fn an_environment_over_the_device_limit_is_halved_until_it_fits_keeping_its_mean() {
+        let texels: Vec<[f32; 3]> = (0..64 * 32).map(|i| [(i % 7) as f32, 1.0, (i / 64) as f32]).collect();
+        let env = Environment { width: 64, height: 32, texels, intensity: 2.0, rotation: 0.5 };
+        assert!(fit_to_device(&env, 64).is_none());
+        let f = fit_to_device(&env, 20).unwrap();
+        assert_eq!((f.width, f.height, f.intensity, f.rotation), (16, 8, 2.0, 0.5));
+        let mean = |e: &Environment| e.texels.iter().map(|t| t[0] + t[1] + t[2]).sum::<f32>() / e.texels.len() as f32;
+        assert!((mean(&f) - mean(&env)).abs() < 1e-3 * mean(&env), "{} {}", mean(&f), mean(&env));
+    }
+
+    fn uniform(w: u32, h: u32, l: f32) -> Environment {
+        Environment { width: w, height: h, texels: vec![[l; 3]; (w * h) as usize], intensity: 1.0, rotation: 0.3 }
+    }
+
+    #[test]
+    fn uniform_environment_gives_pi_irradiance() {
+        let e = EnvMapGpu::new(Some(&uniform(64, 32, 2.0)));
+        for n in [Vec3::X, Vec3::Y, Vec3::NEG_Y, Vec3::new(0.3, -0.5, 0.8).normalize()] {
+            let irr = sh9_irradiance(&e.sh, n);
+            // Midpoint quadrature of sin(theta) on 32 rows: relative error ~ 1e-3.
+            assert!((irr.x / (2.0 * std::f32::consts::PI) - 1.0).abs() < 2e-3, "{n:?}: {irr:?}");
+        }
+        assert_eq!(e.mips.last().unwrap().0, 1);
+        assert_eq!(e.mips.len(), 7);
+    }
+
+    #[test]
+    fn upper_hemisphere_light_matches_clamped_cosine() {
+        // L = 1 above the horizon, 0 below: E(+Y) = pi, E(-Y) = 0, E(horizontal) = pi/2.
+        let (w, h) = (128u32, 64u32);
+        let texels = (0..h).flat_map(|j| (0..w).map(move |_| if j < h / 2 { [1.0; 3] } else { [0.0; 3] })).collect();
+        let env = Environment { width: w, height: h, texels, intensity: 1.0, rotation: 0.0 };
+        let e = EnvMapGpu::new(Some(&env));
+        let pi = std::f32::consts::PI;
+        // Order-2 SH of a hemispherical step: known ringing; bounds from Ramamoorthi-Hanrahan (~9% max error).
+        assert!((sh9_irradiance(&e.sh, Vec3::Y).x - pi).abs() < 0.1 * pi);
+        assert!(sh9_irradiance(&e.sh, Vec3::NEG_Y).x < 0.1 * pi);
+        assert!((sh9_irradiance(&e.sh, Vec3::X).x - pi / 2.0).abs() < 0.02 * pi);
+    }
+
+    #[test]
+    fn sun_1e5_times_the_sky_keeps_energy_and_stays_finite() {
+        let (w, h) = (256u32, 128u32);
+        let mut env = uniform(w, h, 0.5);
+        env.rotation = 0.0;
+        let sun = (20 * w + 77) as usize;
+        env.texels[sun] = [5e4; 3];
+        let e = EnvMapGpu::new(Some(&env));
+        assert!(e.sh.iter().flatten().all(|c| c.is_finite()));
+        assert!(e.mips.iter().all(|m| m.2.iter().flatten().all(|c| c.is_finite() && *c >= 0.0)));
+        // Mean irradiance over the sphere = pi x mean radiance (only the DC term survives).
+        let dw = |j: u32| {
+            (2.0 * std::f64::consts::PI / w as f64)
+                * (std::f64::consts::PI / h as f64)
+                * (std::f64::consts::PI * (j as f64 + 0.5) / h as f64).sin()
+        };
+        let mut energy = 0.0;
+        for j in 0..h {
+            for i in 0..w {
+                energy += env.texels[(j * w + i) as usize][0] as f64 * dw(j);
+            }
+        }
+        let mean_l = energy / (4.0 * std::f64::consts::PI);
+        let mut mean_e = 0.0;
+        let n = 20000;
+        for k in 0..n {
+            // Fibonacci sphere directions.
+            let z = 1.0 - 2.0 * (k as f64 + 0.5) / n as f64;
+            let phi = k as f64 * 2.399963229728653;
+            let r = (1.0 - z * z).sqrt();
+            let d = Vec3::new((r * phi.cos()) as f32, z as f32, (r * phi.sin()) as f32);
+            // Without the clamp at 0 (a sun's SH ringing goes negative): the DC term alone.
+            let b = sh9_basis(d);
+            mean_e += (0..9).map(|i| e.sh[i][0] as f64 * b[i] as f64).sum::<f64>();
+        }
+        mean_e /= n as f64;
+        assert!(
+            (mean_e / (std::f64::consts::PI * mean_l) - 1.0).abs() < 1e-3,
+            "{mean_e} vs {}",
+            std::f64::consts::PI * mean_l
+        );
+        // The sun's side is brighter than the opposite side.
+        let sun_dir = world_direction((77.0 + 0.5) / w as f32, (20.0 + 0.5) / h as f32, 0.0);
+        assert!(sh9_irradiance(&e.sh, sun_dir).x > sh9_irradiance(&e.sh, -sun_dir).x);
+    }
+
+    #[test]
+    fn bad_texels_are_repaired_and_counted() {
+        let mut env = uniform(8, 4, 1.0);
+        env.texels[3] = [f32::NAN, 1.0, 1.0];
+        env.texels[5] = [f32::INFINITY, 1.0, 1.0];
+        env.texels[6] = [-1.0, 1.0, 1.0];
+        let e = EnvMapGpu::new(Some(&env));
+        assert_eq!(e.repaired_texels, 3);
+        assert!(e.sh.iter().flatten().all(|c| c.is_finite()));
+        assert!(e.mips.iter().all(|m| m.2.iter().flatten().all(|c| c.is_finite())));
+    }
+
+    /// `mc`'s and `shadowmaps`' importance tables read bad texels as black, as the texture and
+    /// the reference do: no negative radiance to sample or to hit (mc drew negative pixels).
+    #[test]
+    fn importance_tables_read_bad_texels_as_black() {
+        let mut env = uniform(8, 4, 1.0);
+        env.texels[3] = [f32::NAN, 1.0, 1.0];
+        env.texels[5] = [f32::INFINITY, 1.0, 1.0];
+        env.texels[6] = [-149.0, 2.0, 2.0];
+        let t = EnvTables::new(Some(&env));
+        for i in [3, 5, 6] {
+            assert_eq!(t.texels[i], [0.0; 4], "texel {i}");
+        }
+        assert!(t.texels.iter().all(|x| x.iter().all(|c| c.is_finite() && *c >= 0.0)));
+        let p: f32 = t.texels.iter().map(|x| x[3]).sum();
+        assert!((p - 1.0).abs() < 1e-5, "{p}");
+    }
+
+    #[test]
+    fn missing_environment_is_black() {
+        let e = EnvMapGpu::new(None);
+        assert_eq!(e.intensity, 0.0);
+        assert!(e.sh.iter().flatten().all(|c| *c == 0.0));
+    }
+}
+
+mod volumetric_airlight {
+
+    use penumbra_passes::volumetric::airlight::*;
+
+    #[test]
+    // 1.5707: a sample just inside the table's v range [0, pi/2], not pi/2 itself.
+    #[allow(clippy::approx_constant)]
+    fn isotropic_closed_forms() {
+        // u = 0, g = 0: F = v; v = pi/2, u large: F ~ 1/u.
+        let t = table(0.0);
+        for v in [0.1, 0.7, 1.3, 1.5707] {
+            assert!((lookup(&t, 0.0, v) - v).abs() < 1e-3, "{v}: {}", lookup(&t, 0.0, v));
+        }
+        let u = 300.0;
+        let f = lookup(&t, u, std::f64::consts::FRAC_PI_2);
+        assert!((f * u - 1.0).abs() < 0.02, "{}", f * u);
+    }
+
+    #[test]
+    // 1.5707: a sample just inside the table's v range [0, pi/2], not pi/2 itself.
+    #[allow(clippy::approx_constant)]
+    fn table_matches_direct_integration() {
+        // Relative error of the interpolated table against Simpson with 20000 intervals, over
+        // the range the scenes use (u = sigma_t D from 0 to ~20) and a forward-scattering g.
+        for g in [0.0f32, 0.5, -0.3, 0.9] {
+            let t = table(g);
+            let mut worst = 0.0f64;
+            for u in [0.0, 0.05, 0.3, 1.0, 2.5, 7.0, 20.0, 3000.0] {
+                for v in [0.01, 0.2, 0.5, 0.785, 1.1, 1.4, 1.5707] {
+                    let exact = f_numeric(u, v, g as f64, 20000);
+                    let got = lookup(&t, u, v);
+                    let rel = (got - exact).abs() / exact.abs().max(1e-6);
+                    worst = worst.max(rel);
+                    assert!(rel < 5e-3, "g {g} u {u} v {v}: table {got}, direct {exact}");
+                }
+            }
+            println!("g {g}: worst relative error {worst:.2e}");
+        }
+    }
+}
+
+mod textures {
+
+    use penumbra_scene::Texture;
+
+    use penumbra_passes::textures::*;
+
+    #[test]
+    fn layers_resample_and_mip() {
+        let t =
+            Texture::pattern("checker", penumbra_scene::Pattern::Checker, 64, 2.0, glam::Vec4::ZERO, glam::Vec4::ONE);
+        let m = TextureLayers::new(&[t]);
+        assert_eq!(m.layer_count(), 1);
+        let mips = m.mips(0);
+        assert_eq!(mips.len(), 9); // 256 .. 1
+                                   // A 2x2 checker of 0 and 1 averages to 0.5 at the last mip.
+        let last = mips.last().unwrap()[0];
+        assert!((last[0] - 0.5).abs() < 1e-3, "{last:?}");
+        // Top-left quadrant is colour a (0), top-right colour b (1).
+        assert!(mips[0][(10 * 256 + 10) as usize][0] < 0.01);
+        assert!(mips[0][(10 * 256 + 200) as usize][0] > 0.99);
+        let empty = TextureLayers::new(&[]);
+        assert_eq!(empty.layer_count(), 1);
+        assert_eq!(empty.mips(0)[0][0], [1.0; 4]);
+    }
+}
+mod lighting {
+
+    use penumbra_passes::lighting::*;
+    use penumbra_scene::Environment;
+
+    /// The cache hands back what was computed, computes once, and recomputes a damaged file.
+    #[test]
+    fn cached_bytes_round_trip_and_damaged_files_are_recomputed() {
+        let kind = format!("test{}", std::process::id());
+        let key = 0x1234_5678_9abc_def0u64;
+        let path = std::env::temp_dir().join("penumbra-lighting").join(format!("{kind}-{key:016x}.bin"));
+        let _ = std::fs::remove_file(&path);
+        let mut calls = 0;
+        let a = cached_bytes(&kind, key, || {
+            calls += 1;
+            vec![1, 2, 3, 4, 5]
+        });
+        let b = cached_bytes(&kind, key, || {
+            calls += 1;
+            vec![9]
+        });
+        assert_eq!((a.as_slice(), b.as_slice(), calls), (&[1u8, 2, 3, 4, 5][..], &[1u8, 2, 3, 4, 5][..], 1));
+        // truncated: recomputed and rewritten
+        let full = std::fs::read(&path).unwrap();
+        std::fs::write(&path, &full[..full.len() - 1]).unwrap();
+        let c = cached_bytes(&kind, key, || vec![7, 7]);
+        assert_eq!(c, vec![7, 7]);
+        assert_eq!(cached_bytes(&kind, key, || vec![0]), vec![7, 7]);
+        let _ = std::fs::remove_file(&path);
+    }
+
+    /// Different maps, parameters or intensities never share a key.
+    #[test]
+    fn cache_keys_follow_the_map_and_the_parameters() {
+        let e = Environment {
+            width: 2,
+            height: 1,
+            texels: vec![[1.0, 2.0, 3.0], [0.5, 0.5, 0.5]],
+            intensity: 1.0,
+            rotation: 0.0,
+        };
+        let mut e2 = e.clone();
+        e2.texels[1][2] = 0.25;
+        let mut e3 = e.clone();
+        e3.intensity = 2.0;
+        let k = cache_key("lobes", &e, &[16]);
+        assert_eq!(k, cache_key("lobes", &e.clone(), &[16]));
+        for other in [
+            cache_key("lobes", &e2, &[16]),
+            cache_key("lobes", &e3, &[16]),
+            cache_key("lobes", &e, &[8]),
+            cache_key("prefiltered", &e, &[16]),
+        ] {
+            assert_ne!(k, other);
+        }
+    }
+}
+
+mod kdtree {
+
+    use glam::Vec3;
+
+    use penumbra_passes::kdtree::*;
+    use penumbra_scene::{Frame, Scene};
+    use std::sync::Arc;
+
+    #[test]
+    fn world_triangles_drop_degenerates_and_name_bad_input() {
+        let scene = Scene::default_scene();
+        let frame = scene.at(0.0, None);
+        let all = world_triangles(&scene, &frame).unwrap();
+        assert!(!all.is_empty());
+        let name = |f: &Frame| scene.objects[f.instances[0].object].name.clone();
+
+        // A degenerate (collinear) triangle appended to the first instance's mesh is dropped.
+        let mut f = frame.clone();
+        let mut m = scene.meshes[f.instances[0].mesh].clone();
+        let n = m.positions.len() as u32;
+        m.positions.extend([Vec3::ZERO, Vec3::X, Vec3::X * 2.0]);
+        m.indices.extend([n, n + 1, n + 2]);
+        f.instances[0].deformed_mesh = Some(Arc::new(m.clone()));
+        assert_eq!(world_triangles(&scene, &f).unwrap().len(), all.len());
+
+        // An index out of range names the mesh and the object.
+        m.indices.extend([0, 1, n + 7]);
+        f.instances[0].deformed_mesh = Some(Arc::new(m.clone()));
+        let e = world_triangles(&scene, &f).unwrap_err().to_string();
+        assert!(e.contains("index out of range") && e.contains(&name(&f)) && e.contains(&m.name), "{e}");
+
+        // Non-finite vertices and transforms are errors naming the object.
+        let mut m2 = scene.meshes[frame.instances[0].mesh].clone();
+        m2.positions[0] = Vec3::NAN;
+        let mut f = frame.clone();
+        f.instances[0].deformed_mesh = Some(Arc::new(m2));
+        let e = world_triangles(&scene, &f).unwrap_err().to_string();
+        assert!(e.contains("non-finite vertices") && e.contains(&name(&f)), "{e}");
+        let mut f = frame.clone();
+        f.instances[0].world.x_axis.x = f32::NAN;
+        let e = world_triangles(&scene, &f).unwrap_err().to_string();
+        assert!(e.contains("non-finite world transform") && e.contains(&name(&f)), "{e}");
+        let mut f = frame.clone();
+        f.instances[0].mesh = 999;
+        f.instances[0].deformed_mesh = None;
+        let e = world_triangles(&scene, &f).unwrap_err().to_string();
+        assert!(e.contains("refers to mesh 999"), "{e}");
+    }
+}
