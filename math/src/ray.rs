@@ -28,23 +28,3 @@ pub fn ray_triangle(o: DVec3, d: DVec3, tri: &[DVec3; 3], tmax: f64, det_eps: f6
     let t = e2.dot(q) * inv;
     (t > 0.0 && t < tmax).then_some(t)
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn hits_inside_edges_and_respects_the_interval() {
-        let tri = [DVec3::ZERO, DVec3::X, DVec3::Y];
-        let down = DVec3::new(0.0, 0.0, -1.0);
-        let o = |x, y| DVec3::new(x, y, 1.0);
-        assert_eq!(ray_triangle(o(0.25, 0.25), down, &tri, 10.0, 1e-18), Some(1.0));
-        assert_eq!(ray_triangle(o(0.5, 0.5), down, &tri, 10.0, 1e-18), Some(1.0)); // on the hypotenuse
-        assert_eq!(ray_triangle(o(0.6, 0.6), down, &tri, 10.0, 1e-18), None);
-        assert_eq!(ray_triangle(o(0.25, 0.25), down, &tri, 1.0, 1e-18), None); // t = tmax excluded
-        assert_eq!(ray_triangle(o(0.25, 0.25), -down, &tri, 10.0, 1e-18), None); // behind
-        assert_eq!(ray_triangle(o(0.25, 0.25), DVec3::X, &tri, 10.0, 1e-18), None); // parallel
-        let flat = [DVec3::ZERO, DVec3::X, DVec3::X * 2.0];
-        assert_eq!(ray_triangle(o(0.5, 0.0), down, &flat, 10.0, 1e-18), None); // degenerate
-    }
-}

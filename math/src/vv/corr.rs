@@ -632,7 +632,7 @@ fn relax_triangle(
 /// `vis` gives the sequences (`seq_offsets`, `vertex_points`; its points are not read), `info`
 /// each vertex point's (sequence, position), `pole` the pole point of each slot's vertex.
 /// Returns the number of triples added.
-pub(crate) fn route_jumps(
+pub fn route_jumps(
     vis: &VectorizedVisibility,
     info: &[(u32, u32)],
     loops: &mut [Vec<[u32; 3]>],

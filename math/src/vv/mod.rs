@@ -69,8 +69,6 @@ pub mod corr;
 pub mod hull;
 mod io;
 pub mod precompute;
-#[cfg(test)]
-mod tests;
 pub mod trace;
 
 pub use io::FORMAT_VERSION;
