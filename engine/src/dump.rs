@@ -240,7 +240,8 @@ pub fn to_text(g: &CompiledGraph, timings: Option<&BTreeMap<String, PassStats>>)
     s
 }
 
-fn barrier_text(b: &Barrier) -> String {
+/// One barrier as text (resource, reason, stages and accesses, layouts).
+pub(crate) fn barrier_text(b: &Barrier) -> String {
     if b.image {
         format!(
             "{} ({:?}): {}/{} -> {}/{}, {:?} -> {:?}",

@@ -4,6 +4,7 @@
 pub mod access;
 pub mod context;
 pub mod dump;
+pub mod dump_html;
 pub mod exec;
 pub mod glsl_compile;
 pub mod graph;

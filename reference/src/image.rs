@@ -136,13 +136,18 @@ impl Image {
 
 /// Write an 8-bit RGB PNG (`rgb.len() == 3 * width * height`).
 pub fn write_png_rgb8(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<(), ImageError> {
-    let werr = |m: String| ImageError::Write { path: path.into(), message: m };
-    let file = std::fs::File::create(path).map_err(|e| werr(e.to_string()))?;
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width, height);
+    let bytes = png_rgb8_bytes(width, height, rgb).map_err(|m| ImageError::Write { path: path.into(), message: m })?;
+    std::fs::write(path, bytes).map_err(|e| ImageError::Write { path: path.into(), message: e.to_string() })
+}
+
+/// An 8-bit RGB PNG in memory (`rgb`: `width * height * 3` bytes, rows top first).
+pub fn png_rgb8_bytes(width: u32, height: u32, rgb: &[u8]) -> Result<Vec<u8>, String> {
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, width, height);
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);
-    let mut writer = enc.write_header().map_err(|e| werr(e.to_string()))?;
-    writer.write_image_data(rgb).map_err(|e| werr(e.to_string()))?;
-    writer.finish().map_err(|e| werr(e.to_string()))?;
-    Ok(())
+    let mut writer = enc.write_header().map_err(|e| e.to_string())?;
+    writer.write_image_data(rgb).map_err(|e| e.to_string())?;
+    writer.finish().map_err(|e| e.to_string())?;
+    Ok(out)
 }

@@ -20,6 +20,7 @@ use std::process::ExitCode;
 mod avs_bench;
 mod bench;
 mod chrome_trace;
+mod graph_html;
 mod hsdt_bench;
 mod isg_bench;
 mod matrix;
@@ -49,7 +50,9 @@ enum Cmd {
     ///
     /// Writes DIR/frame_NNNN.exr (linear float radiance) and DIR/frame_NNNN.png (tone-mapped
     /// sRGB) per frame, DIR/graph.json, DIR/graph.dot and DIR/graph.txt (the last frame's
-    /// compiled render graph: passes, culled passes and why, barriers, resources) and
+    /// compiled render graph: passes, culled passes and why, barriers, resources), DIR/graph.html
+    /// (the same graph for a person: one self-contained page with the passes on a GPU timeline,
+    /// resource lifetimes, barriers per pass and thumbnails of the last frame's images) and
     /// DIR/profile.json (per-pass GPU median/min/max ms from timestamps, CPU compile and record ms).
     Render(RenderArgs),
     /// Render CPU ground truth (Monte Carlo, exact visibility) of a scene frame.
@@ -395,6 +398,8 @@ fn render(args: &RenderArgs, limits: &Limits) -> Result<()> {
     );
     let mut written = 0;
     let mut timelines = Vec::new();
+    // the last frame's images, for graph.html's thumbnails
+    let mut last = None;
     let mut prev_t = None;
     // A progress bar on terminals only (hidden in CI and pipes).
     let bar =
@@ -413,13 +418,15 @@ fn render(args: &RenderArgs, limits: &Limits) -> Result<()> {
         prev_t = Some(t);
         for img in r.render(&frame, None, true)? {
             write_frame(&args.out, img.frame as u32, &img)?;
-            timelines.push((img.frame, img.timeline));
+            timelines.push((img.frame, img.timeline.clone()));
+            last = Some(img);
             written += 1;
         }
     }
     for img in r.finish()? {
         write_frame(&args.out, img.frame as u32, &img)?;
-        timelines.push((img.frame, img.timeline));
+        timelines.push((img.frame, img.timeline.clone()));
+        last = Some(img);
         written += 1;
     }
     if let Some(path) = &args.trace {
@@ -432,6 +439,17 @@ fn render(args: &RenderArgs, limits: &Limits) -> Result<()> {
     let json = dump::to_json(graph, Some(&timings));
     std::fs::write(args.out.join("graph.json"), serde_json::to_string_pretty(&json)? + "\n")?;
     std::fs::write(args.out.join("graph.dot"), dump::to_dot(graph))?;
+    let thumbs = last.as_ref().map(graph_html::thumbnails).unwrap_or_default();
+    let title = format!(
+        "{}: frame graph of frame {} ({}, {width}x{height})",
+        scene.name,
+        last.as_ref().map_or(0, |l| l.frame),
+        r.technique_name()
+    );
+    std::fs::write(
+        args.out.join("graph.html"),
+        penumbra::engine::dump_html::to_html(graph, Some(&timings), &title, &thumbs),
+    )?;
     let text = dump::to_text(graph, Some(&timings));
     std::fs::write(args.out.join("graph.txt"), &text)?;
     let mut profile = r.engine.profiler.to_json();
@@ -440,7 +458,10 @@ fn render(args: &RenderArgs, limits: &Limits) -> Result<()> {
     profile["size"] = serde_json::json!([width, height]);
     profile["scene"] = serde_json::json!(scene.name);
     std::fs::write(args.out.join("profile.json"), serde_json::to_string_pretty(&profile)? + "\n")?;
-    println!("wrote {written} frame(s), graph.json, graph.dot, graph.txt and profile.json to {}", args.out.display());
+    println!(
+        "wrote {written} frame(s), graph.json, graph.dot, graph.txt, graph.html and profile.json to {}",
+        args.out.display()
+    );
     if args.dump_graph {
         print!("{text}");
     }

@@ -45,6 +45,7 @@ fn render_default_scene_writes_frames_dumps_and_profile() {
         "graph.json",
         "graph.dot",
         "graph.txt",
+        "graph.html",
         "profile.json",
         "profile.png",
     ] {
@@ -63,6 +64,17 @@ fn render_default_scene_writes_frames_dumps_and_profile() {
     // the default scene's technique is `auto`: shadowmaps, its depth maps kept from frame 0
     assert_eq!(passes, ["gbuffer", "shadowmaps_shade", "tonemap", "dump_passes", "readback"]);
     assert!(graph["passes"][0]["gpu_ms"]["median"].as_f64().unwrap() > 0.0);
+    // graph.html: a row and a timeline bar per pass, the final image and the six dumped ones as
+    // embedded thumbnails, nothing fetched; in a headless Chromium when one is installed.
+    let html = std::fs::read_to_string(out.join("graph.html")).unwrap();
+    for p in &passes {
+        assert!(html.contains(&format!("data-pass=\"{p}\">")), "graph.html has no row for {p}");
+    }
+    assert_eq!(html.matches("<rect class=\"bar\"").count(), passes.len());
+    assert_eq!(html.matches("<img class=\"thumb\"").count(), 7, "ldr and the six dumps");
+    assert!(html.contains("alt=\"gb_normal\"") && html.contains("alt=\"ldr\""));
+    assert!(!html.contains("http://") && !html.contains("https://"));
+    headless_browser_shows(&out.join("graph.html"), &passes);
     let profile: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("profile.json")).unwrap()).unwrap();
     assert_eq!(profile["frames"], 2);
@@ -505,4 +517,51 @@ fn soak_memory_stays_flat() {
         let samples = r["samples"].as_array().unwrap();
         assert!(samples.len() >= 10 && samples.iter().all(|s| s["gpu_allocated_bytes"].as_u64().unwrap() > 0), "{r}");
     }
+}
+
+/// Opens `page` in headless Chromium (Debian's `chromium`, when installed): the DOM it builds
+/// lists every pass, and its screenshot is not blank. Without a Chromium it says so and checks
+/// nothing more (the page is static HTML and SVG, checked above as text).
+fn headless_browser_shows(page: &Path, passes: &[String]) {
+    let Some(browser) = ["chromium", "chromium-browser", "google-chrome"]
+        .into_iter()
+        .find(|b| Command::new(b).arg("--version").output().is_ok_and(|o| o.status.success()))
+    else {
+        println!("no chromium installed: graph.html not opened in a browser");
+        return;
+    };
+    let url = format!("file://{}", page.canonicalize().unwrap().display());
+    let profile = page.with_file_name("chromium-profile");
+    let common = |extra: &[String]| {
+        let mut c = Command::new(browser);
+        c.args(["--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--window-size=1200,900"])
+            .arg(format!("--user-data-dir={}", profile.display()))
+            .args(extra)
+            .arg(&url);
+        c.output().expect("run chromium")
+    };
+    let dom = common(&["--dump-dom".into()]);
+    let dom_text = String::from_utf8_lossy(&dom.stdout);
+    assert!(dom.status.success(), "{}", text(&dom));
+    for p in passes {
+        assert!(dom_text.contains(&format!("data-pass=\"{p}\"")), "the browser's DOM lacks pass {p}");
+    }
+    let shot = page.with_file_name("graph.png");
+    let o = common(&[format!("--screenshot={}", shot.display())]);
+    assert!(o.status.success() && shot.exists(), "{}", text(&o));
+    let mut reader = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&shot).unwrap()))
+        .read_info()
+        .expect("screenshot PNG");
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    let px = info.color_type.samples();
+    let distinct: std::collections::BTreeSet<&[u8]> = buf[..info.buffer_size()].chunks_exact(px).collect();
+    assert!(distinct.len() > 8, "the screenshot is blank ({} colours)", distinct.len());
+    println!(
+        "{browser}: graph.html shows {} passes, screenshot {}x{} with {} colours",
+        passes.len(),
+        info.width,
+        info.height,
+        distinct.len()
+    );
 }

@@ -338,6 +338,57 @@ fn dumps_are_deterministic_and_match_snapshot() {
     }
 }
 
+/// graph.html: every pass is a row (culled ones with their reason), every used resource a
+/// lifetime bar, names are escaped, images are embedded beside their writer, nothing is fetched.
+#[test]
+fn html_page_lists_passes_lifetimes_barriers_and_images() {
+    use crate::dump_html::{to_html, HtmlImage};
+    let mut g = small_frame();
+    // a name that needs escaping
+    let x = color(&mut g, "a<b>&\"c\"");
+    let mut p = g.pass("odd <pass>", PassKind::Compute);
+    p.write(x, Access::ComputeShaderWriteStorage);
+    p.side_effect();
+    p.finish();
+    let c = g.compile().unwrap();
+    let mut timings = std::collections::BTreeMap::new();
+    timings.insert(
+        "shade".to_string(),
+        crate::profile::PassStats { median_ms: 2.5, min_ms: 2.0, max_ms: 3.0, samples: 4 },
+    );
+    let png = vec![0x89, b'P', b'N', b'G'];
+    let images = [HtmlImage { name: "hdr".into(), png: png.clone() }, HtmlImage { name: "elsewhere".into(), png }];
+    let html = to_html(&c, Some(&timings), "small <frame>", &images);
+    assert!(html.starts_with("<!DOCTYPE html>") && html.trim_end().ends_with("</html>"));
+    for (i, p) in c.passes.iter().enumerate() {
+        let row = format!("id=\"pass-{i}\"");
+        assert!(html.contains(&row), "no row for {}", p.name);
+    }
+    assert_eq!(html.matches("<tr class=\"pass").count(), c.passes.len());
+    assert!(html.contains("<tr class=\"pass culled\" id=\"pass-2\" data-pass=\"debug\">"), "{html}");
+    assert!(html.contains("culled: "), "the culled pass's reason");
+    assert!(html.contains("odd &lt;pass&gt;") && !html.contains("odd <pass>"));
+    assert!(html.contains("a&lt;b&gt;&amp;&quot;c&quot;"));
+    assert!(html.contains("<title>small &lt;frame&gt;</title>"));
+    assert!(html.contains("shade 2.500 ms"), "timeline label with the median");
+    // one lifetime bar per used resource
+    let used = c.resources.iter().filter(|r| r.first_pass.is_some()).count();
+    assert_eq!(html.matches("<rect class=\"life").count(), used);
+    // barriers: the gbuffer's layout transitions are listed in its row
+    let gb_row = &html[html.find("id=\"pass-0\"").unwrap()..html.find("id=\"pass-1\"").unwrap()];
+    assert_eq!(gb_row.matches("UNDEFINED").count(), 2, "{gb_row}");
+    // the hdr image sits in the row of the pass that wrote it (shade); the other one below
+    let shade_row = &html[html.find("id=\"pass-1\"").unwrap()..html.find("id=\"pass-2\"").unwrap()];
+    assert!(shade_row.contains("data:image/png;base64,iVBORw"), "{shade_row}");
+    assert!(html.contains("<h2>Images</h2>") && html.contains("alt=\"elsewhere\""));
+    // self-contained
+    assert!(!html.contains("http://") && !html.contains("https://"));
+    // without timings: said, and still every live pass on the timeline
+    let html = to_html(&c, None, "t", &[]);
+    assert!(html.contains("No GPU timings"));
+    assert_eq!(html.matches("<rect class=\"bar\"").count(), c.live_passes().count());
+}
+
 #[test]
 fn depth_stencil_formats_need_depth_stencil_accesses() {
     let mut g = Graph::new();
