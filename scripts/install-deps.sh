@@ -13,9 +13,13 @@
 #                                           (--validate, and the test suite)
 #   xvfb libx11-xcb1 libxcursor1 libxrandr2  an X server without a screen, and the X libraries
 #   libxi6 libxkbcommon-x11-0               winit loads at run time: `penumbra view` windows in tests
+#   chromium (optional)                     headless browser: the test of `render`'s graph.html
+#                                           opens the page in it (skipped, said, without it);
+#                                           installed when root, never required
 # PENUMBRA_DISTRO_MESA=1 keeps the release's own Mesa (no backports).
 set -eu
 PKGS="libshaderc-dev glslang-dev spirv-tools libvulkan1 mesa-vulkan-drivers vulkan-validationlayers xvfb libx11-xcb1 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0"
+OPTIONAL="chromium"
 root=0
 [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1 && root=1
 codename=""
@@ -23,6 +27,10 @@ codename=""
 missing=""
 for p in $PKGS; do
   dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"
+done
+optional_missing=""
+for p in $OPTIONAL; do
+  dpkg -s "$p" >/dev/null 2>&1 || optional_missing="$optional_missing $p"
 done
 mesa_version() { dpkg-query -W -f '${Version}' mesa-vulkan-drivers 2>/dev/null || true; }
 # Mesa's major version from a Debian version string such as 25.0.7-2~bpo12+1 or 22.3.6-1+deb12u2
@@ -58,6 +66,15 @@ if [ -n "$missing" ] || [ "$want_backports" = 1 ]; then
     exit 1
   else
     echo "install-deps: note: lavapipe is Mesa $(mesa_version); bookworm-backports has Mesa 25, about 2x faster (as root: apt-get install -t bookworm-backports mesa-vulkan-drivers)" >&2
+  fi
+fi
+if [ -n "$optional_missing" ]; then
+  if [ "$root" = 1 ]; then
+    echo "install-deps: installing (optional)$optional_missing" >&2
+    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $optional_missing >/dev/null; } \
+      || echo "install-deps: warning: could not install$optional_missing (the graph.html browser check is skipped)" >&2
+  else
+    echo "install-deps: note: without$optional_missing the graph.html test does not open the page in a browser" >&2
   fi
 fi
 echo "install-deps: lavapipe from mesa-vulkan-drivers $(mesa_version)" >&2

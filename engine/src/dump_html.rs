@@ -50,7 +50,7 @@ const STYLE: &str = "body{font:13px/1.4 system-ui,sans-serif;margin:16px;color:#
 h1{font-size:18px;margin:0 0 4px}h2{font-size:15px;margin:20px 0 6px}\
 .sum{color:#555}table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:3px 6px;vertical-align:top;text-align:left}\
 th{background:#f2f2f2}.culled{color:#888;background:#f7f7f7}.mono{font-family:ui-monospace,monospace;font-size:12px}\
-.bar{fill:#4a90d9}.bar.culled{fill:#ccc}.life{fill:#b9d4ef}.life.persist{fill:#f0c987}.life.hl,.bar.hl{fill:#e4572e}\
+.bar{fill:#4a90d9;stroke:#fff;stroke-width:1}.bar.culled{fill:#ccc}.life{fill:#b9d4ef}.life.persist{fill:#f0c987}.life.hl,.bar.hl{fill:#e4572e}\
 .w{fill:#1b5e20}.r{fill:#0d47a1}svg text{font:11px system-ui,sans-serif}img.thumb{max-width:160px;image-rendering:pixelated;border:1px solid #999;margin:2px}\
 tr.pass.hl{background:#fff3e0}";
 
@@ -110,26 +110,43 @@ pub fn to_html(
     let sum: f64 = widths.iter().map(|x| x.1).sum::<f64>().max(1e-9);
     let min_w = 3.0;
     let scale = (w - min_w * widths.len() as f64).max(100.0) / sum;
-    // bars on one row; labels below them, alternating between two lines
-    let _ = writeln!(s, "<svg width=\"{w}\" height=\"{}\" role=\"img\" aria-label=\"GPU timeline\">", 3.0 * row);
+    // Bars on one row; each label on the first of four lines below where it does not overlap
+    // the previous label there (about 6.5 pixels per character), tied to its bar by a tick.
+    let lines = 4usize;
+    let mut ends = vec![f64::NEG_INFINITY; lines];
+    let mut body = String::new();
     let mut x = 0.0;
-    for (k, (i, v)) in widths.iter().enumerate() {
+    let mut used_lines = 1;
+    for (i, v) in &widths {
         let p = &g.passes[*i];
         let bw = min_w + v * scale;
         let label = match ms(&p.name) {
             Some(m) => format!("{} {m:.3} ms", p.name),
             None => p.name.clone(),
         };
+        let line = (0..lines)
+            .find(|&l| ends[l] + 6.0 <= x)
+            .unwrap_or_else(|| (0..lines).min_by(|&a, &b| ends[a].total_cmp(&ends[b])).unwrap_or(0));
+        ends[line] = x + 6.5 * label.chars().count() as f64;
+        used_lines = used_lines.max(line + 1);
+        let ty = row + 12.0 + 15.0 * line as f64;
         let _ = writeln!(
-            s,
-            "<g data-pass=\"{n}\"><rect class=\"bar\" data-pass=\"{n}\" x=\"{x:.1}\" y=\"0\" width=\"{bw:.1}\" height=\"{h}\"><title>{l}</title></rect><text x=\"{x:.1}\" y=\"{ty}\">{l}</text></g>",
+            body,
+            "<g data-pass=\"{n}\"><rect class=\"bar\" data-pass=\"{n}\" x=\"{x:.1}\" y=\"0\" width=\"{bw:.1}\" height=\"{h}\"><title>{l}</title></rect><line x1=\"{x:.1}\" y1=\"{h}\" x2=\"{x:.1}\" y2=\"{:.0}\" stroke=\"#999\"/><text x=\"{tx:.1}\" y=\"{ty}\">{l}</text></g>",
+            ty - 3.0,
             n = esc(&p.name),
             h = row - 4.0,
             l = esc(&label),
-            ty = row + 10.0 + if k % 2 == 0 { 0.0 } else { row - 8.0 },
+            tx = x + 2.0,
         );
         x += bw;
     }
+    let _ = writeln!(
+        s,
+        "<svg width=\"{:.0}\" height=\"{:.0}\" role=\"img\" aria-label=\"GPU timeline\">\n{body}",
+        ends.iter().fold(w, |a, &e| a.max(e + 10.0)),
+        row + 18.0 + 15.0 * used_lines as f64
+    );
     let _ = writeln!(s, "</svg>");
 
     // Resource lifetimes over the pass indices.
@@ -137,14 +154,27 @@ pub fn to_html(
     let (label_w, cell) = (220.0, ((w - 220.0) / n).clamp(4.0, 40.0));
     let used: Vec<_> = g.resources.iter().enumerate().filter(|(_, r)| r.first_pass.is_some()).collect();
     let _ = writeln!(s, "<h2>Resource lifetimes</h2><p class=\"sum\">Columns are passes in recording order; a bar spans a resource's first to last use (blue: transient, orange: imported or persistent); marks: <tspan>&#9650;</tspan> write, <tspan>&#9660;</tspan> read.</p>");
+    // a header of pass names, slanted over their columns
+    // (11 px text, about 6.5 px a character, slanted at 50 degrees: 5 px of height a character)
+    let head = 16.0 + 5.0 * (g.passes.iter().map(|p| p.name.chars().count()).max().unwrap_or(4).min(60) + 4) as f64;
     let _ = writeln!(
         s,
         "<svg width=\"{:.0}\" height=\"{:.0}\" role=\"img\" aria-label=\"resource lifetimes\">",
-        label_w + cell * n + 10.0,
-        18.0 * used.len() as f64 + 10.0
+        label_w + cell * n + 10.0 + head,
+        head + 18.0 * used.len() as f64 + 10.0
     );
+    for (i, p) in g.passes.iter().enumerate() {
+        let cx = label_w + cell * (i as f64 + 0.5);
+        let _ = writeln!(
+            s,
+            "<text data-pass=\"{n}\" transform=\"translate({cx:.1} {:.1}) rotate(-50)\"{}>{i} {n}</text>",
+            head - 4.0,
+            if p.culled.is_some() { " fill=\"#999\"" } else { "" },
+            n = esc(&p.name),
+        );
+    }
     for (row_i, (ri, r)) in used.iter().enumerate() {
-        let y = 18.0 * row_i as f64;
+        let y = head + 18.0 * row_i as f64;
         let (a, b) = (r.first_pass.unwrap_or(0), r.last_pass.unwrap_or(0));
         let users: Vec<String> =
             g.passes.iter().filter(|p| p.uses.iter().any(|u| u.0 as usize == *ri)).map(|p| esc(&p.name)).collect();

@@ -327,7 +327,9 @@ impl Viewer<'_> {
         )?;
         std::fs::write(out.join("graph.dot"), dump::to_dot(g))?;
         std::fs::write(out.join("graph.txt"), dump::to_text(g, Some(&timings)))?;
-        println!("wrote graph.json, graph.dot and graph.txt to {}", out.display());
+        let title = format!("{}: frame graph ({})", self.scene.name, r.technique_name());
+        std::fs::write(out.join("graph.html"), penumbra::engine::dump_html::to_html(g, Some(&timings), &title, &[]))?;
+        println!("wrote graph.json, graph.dot, graph.txt and graph.html to {}", out.display());
         Ok(())
     }
 

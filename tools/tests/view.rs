@@ -158,6 +158,8 @@ fn scripted_keys_switch_technique_reload_shaders_and_dump() {
     assert!(graph.contains("blit_target (Transfer)"), "{graph}");
     assert!(graph.contains("PRESENT_SRC_KHR -> TRANSFER_DST_OPTIMAL"), "{graph}");
     assert!(graph.contains("TRANSFER_DST_OPTIMAL -> PRESENT_SRC_KHR"), "{graph}");
+    let html = std::fs::read_to_string(out.join("graph.html")).unwrap();
+    assert!(html.contains("data-pass=\"blit_target\">") && html.contains("PRESENT_SRC_KHR"), "graph.html");
     let o = penumbra(&["view", "--frames", "2", "--keys", "1:x"], Some(&x.display));
     assert_eq!(o.status.code(), Some(2), "{}", text(&o));
     assert!(text(&o).contains("unknown key 'x'"), "{}", text(&o));
