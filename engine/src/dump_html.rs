@@ -188,7 +188,7 @@ pub fn to_html(
             label_w + cell * a as f64,
             cell * (b + 1 - a.min(b)) as f64,
             esc(&r.name),
-            esc(&r.origin),
+            esc(r.origin),
             bytes_text(r.bytes),
         );
         for (pi, p) in g.passes.iter().enumerate() {
@@ -225,7 +225,7 @@ pub fn to_html(
             let _ = write!(uses, "{what} <span class=\"sum\">{}</span><br>", esc(&format!("{a:?}")));
         }
         let barriers: String = p.barriers.iter().map(|b| format!("{}<br>", esc(&barrier_text(b)))).collect();
-        let thumbs: String = images.iter().filter(|im| image_pass(&im.name) == Some(i)).map(|im| thumb(im)).collect();
+        let thumbs: String = images.iter().filter(|im| image_pass(&im.name) == Some(i)).map(thumb).collect();
         let time = match (culled, ms(&p.name)) {
             (Some(_), _) => "-".to_string(),
             (None, Some(m)) => format!("{m:.3}"),
@@ -271,7 +271,7 @@ pub fn to_html(
             s,
             "<tr><td>{}</td><td>{}</td><td class=\"mono\">{}</td><td>{}</td><td>{life}</td></tr>",
             esc(&r.name),
-            esc(&r.origin),
+            esc(r.origin),
             esc(&d),
             bytes_text(r.bytes)
         );
