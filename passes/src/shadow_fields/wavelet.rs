@@ -266,7 +266,12 @@ impl WaveletFields {
             let loaded = path.as_ref().and_then(|p| {
                 let b = std::fs::read(p).ok()?;
                 let (size, field) = b.split_at_checked(8)?;
-                let field = HaarField::from_bytes(field).ok().filter(|f| f.n == table.n)?;
+                // (the hash names the parameters; a file that disagrees with them is not used)
+                let field = HaarField::from_bytes(field).ok().filter(|f| {
+                    f.n == table.n
+                        && f.shells.len() == options.shells
+                        && f.shells.iter().all(|s| s.resolution <= options.resolution)
+                })?;
                 Some((field, u64::from_le_bytes(size.try_into().ok()?) as usize))
             });
             let cached = loaded.is_some();
