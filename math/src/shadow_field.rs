@@ -768,46 +768,38 @@ impl ObjectField {
 
     /// Parses [`ObjectField::to_bytes`]; errors (never panics) on truncated or corrupt input.
     pub fn from_bytes(b: &[u8]) -> Result<Self, String> {
-        let mut pos = 0usize;
-        let mut take = |n: usize| -> Result<&[u8], String> {
-            let end = pos.checked_add(n).filter(|&e| e <= b.len()).ok_or("shadow field file: truncated")?;
-            let s = &b[pos..end];
-            pos = end;
-            Ok(s)
-        };
-        if take(4)? != b"PSF1" {
+        let mut rd = ByteReader::new(b, "shadow field file");
+        if rd.take(4)? != b"PSF1" {
             return Err("shadow field file: bad magic (expected PSF1)".into());
         }
-        let u32v = |s: &[u8]| u32::from_le_bytes([s[0], s[1], s[2], s[3]]);
-        let f32v = |s: &[u8]| f32::from_le_bytes([s[0], s[1], s[2], s[3]]);
-        let nshell = u32v(take(4)?) as usize;
-        let nvert = u32v(take(4)?) as usize;
+        let nshell = rd.u32()? as usize;
+        let nvert = rd.u32()? as usize;
         if nshell > 1024 {
             return Err(format!("shadow field file: {nshell} shells (max 1024)"));
         }
         let mut hdr = [0f32; 4];
         for h in &mut hdr {
-            *h = f32v(take(4)?);
+            *h = rd.f32()?;
         }
         if !hdr.iter().all(|x| x.is_finite()) || !(hdr[3] >= 0.0) {
             return Err("shadow field file: non-finite centre or radius".into());
         }
         let mut shells = Vec::with_capacity(nshell);
         for _ in 0..nshell {
-            let r = u32v(take(4)?);
+            let r = rd.u32()?;
             if r == 0 || r > 4096 {
                 return Err(format!("shadow field file: shell resolution {r} out of 1..=4096"));
             }
-            let adapt_error = f32v(take(4)?);
+            let adapt_error = rd.f32()?;
             let mut min = [0f32; NCOEF];
             let mut step = [0f32; NCOEF];
             for v in min.iter_mut().chain(step.iter_mut()) {
-                *v = f32v(take(4)?);
+                *v = rd.f32()?;
             }
             if !min.iter().chain(step.iter()).all(|x| x.is_finite()) {
                 return Err("shadow field file: non-finite quantization table".into());
             }
-            let data = take(r as usize * r as usize * NCOEF)?.to_vec();
+            let data = rd.take(r as usize * r as usize * NCOEF)?.to_vec();
             shells.push(Shell { resolution: r, min, step, data, adapt_error });
         }
         if nvert.checked_mul(NCOEF * 4).is_none_or(|n| n > b.len()) {
@@ -817,11 +809,11 @@ impl ObjectField {
         for _ in 0..nvert {
             let mut t = [0f32; NCOEF];
             for v in &mut t {
-                *v = f32v(take(4)?);
+                *v = rd.f32()?;
             }
             self_transfer.push(t);
         }
-        if pos != b.len() {
+        if !rd.done() {
             return Err("shadow field file: trailing bytes".into());
         }
         Ok(ObjectField { center: Vec3::new(hdr[0], hdr[1], hdr[2]), bound_radius: hdr[3], shells, self_transfer })
@@ -1332,6 +1324,50 @@ pub fn shade_points_with(
         .collect()
 }
 
+/// A little-endian reader over a precomputed file's bytes: every read is bounds-checked and
+/// fails with "`<what>`: truncated" (the field files' parsers never panic on corrupt input).
+struct ByteReader<'a> {
+    b: &'a [u8],
+    pos: usize,
+    what: &'static str,
+}
+
+impl<'a> ByteReader<'a> {
+    fn new(b: &'a [u8], what: &'static str) -> Self {
+        ByteReader { b, pos: 0, what }
+    }
+
+    fn take(&mut self, n: usize) -> Result<&'a [u8], String> {
+        let end = self
+            .pos
+            .checked_add(n)
+            .filter(|&e| e <= self.b.len())
+            .ok_or_else(|| format!("{}: truncated", self.what))?;
+        let s = &self.b[self.pos..end];
+        self.pos = end;
+        Ok(s)
+    }
+
+    fn u16(&mut self) -> Result<u16, String> {
+        let s = self.take(2)?;
+        Ok(u16::from_le_bytes([s[0], s[1]]))
+    }
+
+    fn u32(&mut self) -> Result<u32, String> {
+        let s = self.take(4)?;
+        Ok(u32::from_le_bytes([s[0], s[1], s[2], s[3]]))
+    }
+
+    fn f32(&mut self) -> Result<f32, String> {
+        Ok(f32::from_bits(self.u32()?))
+    }
+
+    /// Every byte read.
+    fn done(&self) -> bool {
+        self.pos == self.b.len()
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // All-frequency variant: Haar wavelets on a cube map (CPU)
 
@@ -1343,7 +1379,7 @@ pub fn shade_points_with(
 /// resolution equals the wavelet triple product exactly (the product of two piecewise-constant
 /// maps is piecewise constant on the same pixels); see [`haar::HaarField::product_map`].
 pub mod haar {
-    use super::{angles_of, polar_dir, sample_angles, RayCaster};
+    use super::{angles_of, polar_dir, sample_angles, ByteReader, RayCaster};
     use glam::{DVec3, Vec3};
     use rayon::prelude::*;
 
@@ -1787,42 +1823,33 @@ pub mod haar {
         /// Parses [`HaarField::to_bytes`]; errors (never panics, never allocates more than the
         /// input's size allows) on truncated or corrupt input.
         pub fn from_bytes(b: &[u8]) -> Result<Self, String> {
-            let mut pos = 0usize;
-            let mut take = |n: usize| -> Result<&[u8], String> {
-                let end = pos.checked_add(n).filter(|&e| e <= b.len()).ok_or("wavelet field file: truncated")?;
-                let s = &b[pos..end];
-                pos = end;
-                Ok(s)
-            };
-            if take(4)? != b"PSW1" {
+            let mut rd = ByteReader::new(b, "wavelet field file");
+            if rd.take(4)? != b"PSW1" {
                 return Err("wavelet field file: bad magic (expected PSW1)".into());
             }
-            let u32v = |s: &[u8]| u32::from_le_bytes([s[0], s[1], s[2], s[3]]);
-            let f32v = |s: &[u8]| f32::from_le_bytes([s[0], s[1], s[2], s[3]]);
-            let u16v = |s: &[u8]| u16::from_le_bytes([s[0], s[1]]);
-            let n = u32v(take(4)?) as usize;
+            let n = rd.u32()? as usize;
             if !(2..=256).contains(&n) || !n.is_power_of_two() {
                 return Err(format!("wavelet field file: cube resolution {n} (a power of two 2..=256)"));
             }
             let pixels = 6 * n * n;
-            let nshell = u32v(take(4)?) as usize;
+            let nshell = rd.u32()? as usize;
             if nshell > 1024 {
                 return Err(format!("wavelet field file: {nshell} shells (max 1024)"));
             }
             let mut hdr = [0f32; 4];
             for h in &mut hdr {
-                *h = f32v(take(4)?);
+                *h = rd.f32()?;
             }
             if !hdr.iter().all(|x| x.is_finite()) || !(hdr[3] >= 0.0) {
                 return Err("wavelet field file: non-finite centre or radius".into());
             }
             let mut shells = Vec::with_capacity(nshell);
             for _ in 0..nshell {
-                let r = u32v(take(4)?) as usize;
+                let r = rd.u32()? as usize;
                 if r == 0 || r > 4096 {
                     return Err(format!("wavelet field file: shell resolution {r} out of 1..=4096"));
                 }
-                let (min, step) = (f32v(take(4)?), f32v(take(4)?));
+                let (min, step) = (rd.f32()?, rd.f32()?);
                 if !(min.is_finite() && step.is_finite()) {
                     return Err("wavelet field file: non-finite quantization".into());
                 }
@@ -1832,11 +1859,11 @@ pub mod haar {
                 }
                 let mut samples = Vec::with_capacity(r * r);
                 for _ in 0..r * r {
-                    let count = u16v(take(2)?) as usize;
-                    let data = take(3 * count)?;
+                    let count = rd.u16()? as usize;
+                    let data = rd.take(3 * count)?;
                     let mut c = Vec::with_capacity(count);
                     for e in data.chunks_exact(3) {
-                        let i = u16v(e);
+                        let i = u16::from_le_bytes([e[0], e[1]]);
                         if i as usize >= pixels {
                             return Err(format!("wavelet field file: coefficient {i} of a {pixels}-pixel map"));
                         }
@@ -1846,7 +1873,7 @@ pub mod haar {
                 }
                 shells.push(HaarShell { resolution: r, min, step, samples });
             }
-            if pos != b.len() {
+            if !rd.done() {
                 return Err("wavelet field file: trailing bytes".into());
             }
             Ok(HaarField { n, center: Vec3::new(hdr[0], hdr[1], hdr[2]), bound_radius: hdr[3], shells })
