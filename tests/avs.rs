@@ -50,14 +50,7 @@ const FAST: &[(&str, &str)] = &[("r", "32"), ("points", "96"), ("iterations", "1
 fn paper_scenes_are_validation_clean_and_points_follow_vertices() {
     for name in ["hat_on_cloth.toml", "balls_on_dish.toml", "falling.toml"] {
         let s = with(&scene(name), FAST);
-        let settings = RenderSettings {
-            width: 64,
-            height: 48,
-            technique: Some("avs".into()),
-            technique_params: Some(s.technique_params.clone()),
-            ..Default::default()
-        };
-        let mut r = Renderer::new_headless(&s, settings, true).expect("renderer");
+        let mut r = avs_renderer(&s, 64, 48, true);
         let mut frames = Vec::new();
         let mut stats = Vec::new();
         let mut prev = None;
@@ -191,14 +184,7 @@ fn extremes_free_hemispheres_and_points_following_deformation() {
     // both frames, at their deformed positions (the hat squashes).
     // (culling off: with it the second frame traces only the points the first frame's pixels used)
     let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "48"), ("iterations", "0"), ("cull", "false")]);
-    let settings = RenderSettings {
-        width: 40,
-        height: 30,
-        technique: Some("avs".into()),
-        technique_params: Some(s.technique_params.clone()),
-        ..Default::default()
-    };
-    let mut r = Renderer::new_headless(&s, settings, false).expect("renderer");
+    let mut r = avs_renderer(&s, 40, 30, false);
     let f0 = s.at(0.0, None);
     r.render(&f0, None, true).expect("render");
     let a = avs_stats(&r);
@@ -219,6 +205,19 @@ fn extremes_free_hemispheres_and_points_following_deformation() {
         "{:?}",
         b.visible_fraction
     );
+}
+
+/// A headless renderer of `s` with the avs technique and the scene's parameters, at `width` x
+/// `height`, with or without the validation layer.
+fn avs_renderer(s: &Scene, width: u32, height: u32, validation: bool) -> Renderer {
+    let settings = RenderSettings {
+        width,
+        height,
+        technique: Some("avs".into()),
+        technique_params: Some(s.technique_params.clone()),
+        ..Default::default()
+    };
+    Renderer::new_headless(s, settings, validation).expect("renderer")
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -712,14 +711,7 @@ fn extremes_r256_maps_and_fp16_shading() {
 /// validation (with synchronization) must stay clean.
 fn static_frames(s: &Scene, cull: &str, frames: usize) -> (Vec<FrameImages>, Vec<AvsStats>) {
     let s = with(s, &[("cull", cull)]);
-    let settings = RenderSettings {
-        width: 64,
-        height: 48,
-        technique: Some("avs".into()),
-        technique_params: Some(s.technique_params.clone()),
-        ..Default::default()
-    };
-    let mut r = Renderer::new_headless(&s, settings, true).expect("renderer");
+    let mut r = avs_renderer(&s, 64, 48, true);
     let mut out = Vec::new();
     let mut stats = Vec::new();
     for k in 0..frames {
