@@ -21,16 +21,19 @@ set -eu
 PKGS="libshaderc-dev glslang-dev spirv-tools libvulkan1 mesa-vulkan-drivers vulkan-validationlayers xvfb libx11-xcb1 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0"
 OPTIONAL="chromium"
 root=0
+updated=0
 [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1 && root=1
 codename=""
 [ -r /etc/os-release ] && codename=$(sed -n 's/^VERSION_CODENAME=//p' /etc/os-release | tr -d '"')
+# installed, not merely known to dpkg (a removed package keeps "deinstall ok config-files")
+installed() { dpkg-query -W -f '${Status}' "$1" 2>/dev/null | grep -q "install ok installed"; }
 missing=""
 for p in $PKGS; do
-  dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"
+  installed "$p" || missing="$missing $p"
 done
 optional_missing=""
 for p in $OPTIONAL; do
-  dpkg -s "$p" >/dev/null 2>&1 || optional_missing="$optional_missing $p"
+  installed "$p" || optional_missing="$optional_missing $p"
 done
 mesa_version() { dpkg-query -W -f '${Version}' mesa-vulkan-drivers 2>/dev/null || true; }
 # Mesa's major version from a Debian version string such as 25.0.7-2~bpo12+1 or 22.3.6-1+deb12u2
@@ -52,6 +55,7 @@ if [ -n "$missing" ] || [ "$want_backports" = 1 ]; then
       fi
     fi
     apt-get update -qq
+    updated=1
     if [ -n "$missing" ]; then
       echo "install-deps: installing$missing" >&2
       apt-get install -y -qq --no-install-recommends $missing >/dev/null
@@ -71,7 +75,7 @@ fi
 if [ -n "$optional_missing" ]; then
   if [ "$root" = 1 ]; then
     echo "install-deps: installing (optional)$optional_missing" >&2
-    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $optional_missing >/dev/null; } \
+    { [ "$updated" = 1 ] || apt-get update -qq; } && { DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $optional_missing >/dev/null; } \
       || echo "install-deps: warning: could not install$optional_missing (the graph.html browser check is skipped)" >&2
   else
     echo "install-deps: note: without$optional_missing the graph.html test does not open the page in a browser" >&2
