@@ -31,8 +31,8 @@ struct MaterialData {
 };
 
 struct LightData {
-    vec4 pos_kind;         // xyz position, w kind (0 point, 1 spot, 2 sphere)
-    vec4 dir_cos_outer;    // xyz direction (spot), w cos(outer half-angle)
+    vec4 pos_kind;         // xyz position, w kind (0 point, 1 spot, 2 sphere, 3 directional)
+    vec4 dir_cos_outer;    // xyz unit direction (spot, directional), w cos(outer half-angle)
     vec4 power_cos_inner;  // rgb colour * intensity, w cos(inner half-angle)
     vec4 extra;            // x sphere radius, yzw the medium's extinction sigma_t (0 without a medium)
 };

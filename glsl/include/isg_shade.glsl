@@ -97,7 +97,7 @@ vec3 local_lights(vec3 pos, vec3 p, vec3 n, vec3 v, vec3 albedo, int kind, Mater
         if (ndl <= 0.0) continue;
         vec3 f = light_brdf(wi, n, v, ndl, albedo, kind, m, roughness);
         int lk = int(l.pos_kind.w + 0.5);
-        float vis = light_visibility(p, l.pos_kind.xyz - p, lk == 2 ? l.extra.x : 0.0);
+        float vis = light_visibility(p, light_vector(l, p), lk == 2 ? l.extra.x : 0.0);
         sum += f * e * ndl * vis;
     }
     return sum;

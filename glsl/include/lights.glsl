@@ -1,18 +1,38 @@
-// The one local-light model of the GPU techniques (point, spot and sphere lights of the scene,
+// The one local-light model of the GPU techniques (point, spot, sphere and directional lights of the scene,
 // `LightData` of common.glsl), without visibility: each technique loops over its light table and
 // multiplies by its own visibility. Matches the reference renderer's direct lighting: point and
 // spot lights have radiant intensity `power` (W/sr; spots fade by smoothstep between the outer
 // and inner cone cosines); a sphere light of emitted radiance `power` and radius r is a point of
 // intensity power * pi * r^2 (exact at normal incidence far from it); the participating medium's
-// transmittance along the way (light_transmittance).
+// transmittance along the way (light_transmittance); a directional light gives irradiance `power`
+// to a surface facing it.
 // Needs common.glsl (PI, LightData, MaterialData, light_transmittance).
 #ifndef PENUMBRA_LIGHTS_GLSL
 #define PENUMBRA_LIGHTS_GLSL
+
+// The distance a directional light (kind 3) is taken to be at: shadow rays and occluder searches
+// toward it end there (far beyond any scene penumbra renders; small enough that its square and
+// products with scene coordinates stay finite in fp32).
+const float LIGHT_FAR = 1.0e7;
+
+// The vector from pos to light l: to its position, or LIGHT_FAR along a directional light's
+// reversed direction.
+vec3 light_vector(LightData l, vec3 pos) {
+    return int(l.pos_kind.w + 0.5) == 3 ? -l.dir_cos_outer.xyz * LIGHT_FAR : l.pos_kind.xyz - pos;
+}
 
 // Irradiance-like factor of light l at pos: intensity x transmittance / distance^2 (rgb), with
 // the unit direction to the light `wi`, its distance and n . wi. Zero (and ndl <= 0) when the
 // light is behind the surface.
 vec3 light_incident(LightData l, vec3 pos, vec3 n, out vec3 wi, out float dist, out float ndl) {
+    int lk = int(l.pos_kind.w + 0.5);
+    if (lk == 3) {
+        // directional: irradiance `power` along `dir` from infinitely far (LIGHT_FAR away)
+        wi = -l.dir_cos_outer.xyz;
+        dist = LIGHT_FAR;
+        ndl = dot(n, wi);
+        return ndl > 0.0 ? l.power_cos_inner.rgb : vec3(0.0);
+    }
     vec3 to_l = l.pos_kind.xyz - pos;
     float d2 = max(dot(to_l, to_l), 1e-8);
     dist = sqrt(d2);
@@ -20,7 +40,6 @@ vec3 light_incident(LightData l, vec3 pos, vec3 n, out vec3 wi, out float dist, 
     ndl = dot(n, wi);
     if (ndl <= 0.0) return vec3(0.0);
     vec3 intensity = l.power_cos_inner.rgb;
-    int lk = int(l.pos_kind.w + 0.5);
     if (lk == 1) {
         float c = dot(-wi, normalize(l.dir_cos_outer.xyz));
         intensity *= smoothstep(l.dir_cos_outer.w, l.power_cos_inner.w, c);

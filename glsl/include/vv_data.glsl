@@ -118,7 +118,7 @@ void vv_lights_begin(vec3 s, out VvLights L) {
     L.count = min(pc.off1.w, VV_MAX_LIGHTS);
     for (int k = 0; k < VV_MAX_LIGHTS; k++) {
         L.wind[k] = 0.0;
-        L.dir[k] = k < L.count ? vv_to_map(normalize(lights[k].pos_kind.xyz - s), cam.env_rot.xy) : vec3(0.0, 1.0, 0.0);
+        L.dir[k] = k < L.count ? vv_to_map(normalize(light_vector(lights[k], s)), cam.env_rot.xy) : vec3(0.0, 1.0, 0.0);
     }
 }
 

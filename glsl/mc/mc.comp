@@ -23,8 +23,8 @@ layout(std430, binding = 6) readonly buffer EnvTexels { vec4 env_texels[]; };
 layout(std430, binding = 7) readonly buffer EnvCdf { float env_cdf[]; };
 layout(binding = 8, rgba32f) uniform image2D accum;
 layout(binding = 9, rgba32f) uniform writeonly image2D hdr;
-// local lights (penumbra_reference::lights): (position, kind 0 point / 1 spot / 2 sphere),
-// (spot axis, cos outer), (power: intensity or radiance, cos inner), (sphere radius, 0, 0, 0)
+// local lights (penumbra_reference::lights): (position, kind 0 point / 1 spot / 2 sphere /
+// 3 directional), (spot or directional axis, cos outer), (power: intensity or radiance, cos inner), (sphere radius, 0, 0, 0)
 layout(std430, binding = 10) readonly buffer Lights { vec4 lights[]; };
 // material texture maps (passes/src/textures.rs): layers resampled to 256^2, repeat, bilinear
 layout(binding = 11) uniform sampler2DArray material_textures;
@@ -159,6 +159,15 @@ float sphere_one_minus(uint k, vec3 x) {
 bool light_sample(uint k, vec3 p, vec2 u, out vec3 wi, out float dist, out vec3 li, out float pdf) {
     vec4 l0 = lights[4u * k], l1 = lights[4u * k + 1u], l2 = lights[4u * k + 2u];
     uint kind = uint(l0.w);
+    if (kind == 3u) {
+        // directional: irradiance l2 along -axis from infinitely far (no medium: the scene
+        // loader refuses directional lights in one)
+        wi = -l1.xyz;
+        dist = 3.0e38;
+        li = l2.rgb;
+        pdf = 0.0;
+        return true;
+    }
     vec3 v = l0.xyz - p;
     float d2 = dot(v, v);
     if (kind < 2u) {

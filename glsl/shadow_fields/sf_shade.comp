@@ -43,7 +43,9 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData 
         float dist, ndl;
         vec3 e = light_incident(l, pos, n, wi, dist, ndl);
         if (ndl <= 0.0) continue;
-        vec3 f = light_brdf(wi, n, v, ndl, pc.srf != 0u ? vec3(0.0) : albedo, kind, m, roughness);
+        // a directional light (kind 3) has no source radiance field: its diffuse lobe is here too
+        bool via_srf = pc.srf != 0u && int(l.pos_kind.w + 0.5) != 3;
+        vec3 f = light_brdf(wi, n, v, ndl, via_srf ? vec3(0.0) : albedo, kind, m, roughness);
         if (all(equal(f, vec3(0.0)))) continue;
         float vis = sf_visibility_along(pos, wi, self_inst, pc.n_inst, dist);
         sum += vis * f * e * ndl;

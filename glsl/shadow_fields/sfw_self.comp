@@ -72,7 +72,7 @@ void main() {
         if (s_red[64][c] > 1e-12) share[c] = clamp(s_red[0][c] / s_red[64][c], 0.0, 1.0);
     vec4 lv = vec4(1.0);
     for (uint j = 0u; j < min(pc.light_count, 4u); j++) {
-        vec3 to_l = lights[j].pos_kind.xyz - pw;
+        vec3 to_l = int(lights[j].pos_kind.w + 0.5) == 3 ? -lights[j].dir_cos_outer.xyz : lights[j].pos_kind.xyz - pw;
         if (!(dot(to_l, to_l) > 0.0)) continue;
         vec3 l = normalize(to_local * normalize(to_l));
         uint face;

@@ -10,6 +10,7 @@
 // cosine- and weight-weighted lit fraction over the K directions, its glossy part times the
 // lobe-weighted lit fraction, trusted as far as the directions cover the lobe.
 // Local lights: point and spot lights with a cube shadow map each (6 layers after the K), 3x3 PCF;
+// directional lights with one orthographic map each (as the K, 3x3 PCF);
 // sphere lights from the cube map of their centre with PCSS soft shadows (blocker search, then a
 // filter as wide as the penumbra a sphere of the light's radius casts); radiance with the material's
 // BRDF, sphere lights as points of intensity L pi r^2.
@@ -219,16 +220,28 @@ void main() {
         }
         l = ud * rd + ug * rg;
     }
-    // local lights
+    // local lights: 6 cube layers each after the K, one orthographic layer for a directional one
+    uint next_layer = pc.counts.x;
     for (uint i = 0u; i < pc.counts.y; i++) {
         LightData ld = lights[i];
+        int lk = int(ld.pos_kind.w + 0.5);
+        uint first_layer = next_layer;
+        next_layer += lk == 3 ? 1u : 6u;
+        if (lk == 3) {
+            // directional: irradiance `power` along its direction, lit fraction from its map
+            vec3 wi = -ld.dir_cos_outer.xyz;
+            vec3 lw = vec3(dot(wi, tt), dot(wi, bt), dot(wi, ns));
+            if (lw.z <= 0.0 || wo.z <= 0.0) continue;
+            vec3 f = brdf_eval(b, wo, lw) * lw.z;
+            l += f * ld.power_cos_inner.rgb * (vis_on ? lit_pcf(first_layer, p, lw.z) : 1.0);
+            continue;
+        }
         vec3 to_l = ld.pos_kind.xyz - p;
         float d2 = dot(to_l, to_l);
         if (d2 <= 1e-12) continue;
         vec3 wi = to_l * inversesqrt(d2);
         vec3 lw = vec3(dot(wi, tt), dot(wi, bt), dot(wi, ns));
         if (lw.z <= 0.0 || wo.z <= 0.0) continue;
-        int lk = int(ld.pos_kind.w + 0.5);
         vec3 intensity = ld.power_cos_inner.rgb;
         float radius = ld.extra.x;
         if (lk == 1) {
@@ -247,7 +260,7 @@ void main() {
             vec3 a = abs(wi);
             uint face = a.x >= a.y && a.x >= a.z ? (-wi.x >= 0.0 ? 0u : 1u)
                       : (a.y >= a.z ? (-wi.y >= 0.0 ? 2u : 3u) : (-wi.z >= 0.0 ? 4u : 5u));
-            uint layer = pc.counts.x + 6u * i + face;
+            uint layer = first_layer + face;
             v = lk == 2 ? lit_pcss(layer, p, lw.z, radius) : lit_pcf(layer, p, lw.z);
         }
         l += f * intensity / d2 * v;

@@ -75,6 +75,18 @@ pub fn light_table(lights: &[penumbra_scene::LightInstance], sigma_t: Vec3) -> V
                     [0.0, sigma_t.x, sigma_t.y, sigma_t.z],
                 ]);
             }
+            LightKind::Directional => {
+                let d = l.direction.normalize_or_zero();
+                if d == Vec3::ZERO || !d.is_finite() {
+                    continue;
+                }
+                out.extend([
+                    [0.0, 0.0, 0.0, 3.0],
+                    [d.x, d.y, d.z, 0.0],
+                    [power.x, power.y, power.z, 0.0],
+                    [0.0, sigma_t.x, sigma_t.y, sigma_t.z],
+                ]);
+            }
             LightKind::Sphere { radius } => {
                 if !(radius.is_finite() && radius > 0.0) {
                     continue;

@@ -223,7 +223,7 @@ pub fn material_table(materials: &[Material], extras: &[MaterialExtra]) -> Vec<u
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 struct LightData {
-    /// xyz position, w kind (0 point, 1 spot, 2 sphere)
+    /// xyz position, w kind (0 point, 1 spot, 2 sphere, 3 directional)
     pos_kind: [f32; 4],
     /// xyz direction, w cos(outer cone)
     dir_cos_outer: [f32; 4],
@@ -244,10 +244,14 @@ fn light_table(lights: &[LightInstance], sigma_t: Vec3) -> (Vec<u8>, u32) {
                     (1.0, outer_deg.to_radians().cos(), inner_deg.to_radians().cos(), 0.0)
                 }
                 LightKind::Sphere { radius } => (2.0, -1.0, -1.0, radius),
+                LightKind::Directional => (3.0, -1.0, -1.0, 0.0),
             };
             LightData {
                 pos_kind: [l.position.x, l.position.y, l.position.z, kind],
-                dir_cos_outer: [l.direction.x, l.direction.y, l.direction.z, cos_outer],
+                dir_cos_outer: {
+                    let d = l.direction.normalize_or(Vec3::NEG_Y);
+                    [d.x, d.y, d.z, cos_outer]
+                },
                 power_cos_inner: [l.power.x, l.power.y, l.power.z, cos_inner],
                 extra: [radius, sigma_t.x, sigma_t.y, sigma_t.z],
             }

@@ -241,7 +241,8 @@ impl ShadowMapsTechnique {
     }
 
     /// Per layer: view-projection columns and (kind, near, far, texel size): the K environment
-    /// maps (orthographic over the bounding sphere), then 6 cube faces per local light.
+    /// maps (orthographic over the bounding sphere), then per local light 6 cube faces, or one
+    /// orthographic map for a directional light.
     fn layers(&self, frame: &Frame, size: u32) -> Vec<[f32; 4]> {
         let (c, r) = self.bounding_sphere(frame);
         let mut out = Vec::new();
@@ -251,14 +252,18 @@ impl ShadowMapsTechnique {
             }
             out.push(info);
         };
-        for k in 0..self.settings.count as usize {
-            let d = Vec3::from_slice(&self.env_lights[2 * k][..3]);
+        // an orthographic map over the bounding sphere, seen from direction d (towards the light)
+        let ortho = |d: Vec3| {
             let up = if d.y.abs() < 0.99 { Vec3::Y } else { Vec3::X };
             let eye = c + d * (1.01 * r);
             let view = Mat4::look_to_rh(eye, -d, up);
             let (near, far) = (0.0, 2.02 * r);
             let proj = Mat4::orthographic_rh(-r, r, -r, r, near, far);
-            push(proj * view, [0.0, near, far, 2.0 * r / size as f32]);
+            (proj * view, [0.0, near, far, 2.0 * r / size as f32])
+        };
+        for k in 0..self.settings.count as usize {
+            let (vp, info) = ortho(Vec3::from_slice(&self.env_lights[2 * k][..3]));
+            push(vp, info);
         }
         // +X, -X, +Y, -Y, +Z, -Z (the face the shader picks for the direction from the light)
         let faces = [
@@ -270,6 +275,12 @@ impl ShadowMapsTechnique {
             (-Vec3::Z, Vec3::Y),
         ];
         for l in &frame.lights {
+            if l.kind == LightKind::Directional {
+                // one orthographic layer (the shader counts 1 layer for it, 6 for the others)
+                let (vp, info) = ortho(-l.direction.normalize_or(Vec3::NEG_Y));
+                push(vp, info);
+                continue;
+            }
             let radius = match l.kind {
                 LightKind::Sphere { radius } => radius,
                 _ => 0.0,

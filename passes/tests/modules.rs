@@ -523,3 +523,50 @@ mod kdtree {
         assert!(e.contains("refers to mesh 999"), "{e}");
     }
 }
+
+mod isg_spheres {
+    use glam::{Mat4, Vec3};
+    use penumbra_passes::isg::*;
+    use penumbra_scene::{Material, MeshData, Object, ObjectInfo, Scene};
+
+    /// A box scaled non-uniformly (a pillar: a unit cube scaled by (0.25, 1, 0.25)) gets spheres
+    /// fitted to its scaled shape: every world sphere stays near the pillar (with the unit
+    /// cube's spheres times the largest axis scale they reached 0.5 from its axis, a blob four
+    /// times too wide), while a uniformly scaled box keeps its set in the mesh's frame.
+    #[test]
+    fn non_uniformly_scaled_objects_get_spheres_of_their_shape() {
+        let mut s = Scene::empty("pillar");
+        s.meshes.push(MeshData::cube(0.5));
+        s.materials.push(Material::diffuse("m", Vec3::splat(0.5)));
+        let pillar = Mat4::from_translation(Vec3::new(1.0, 0.5, 0.0)) * Mat4::from_scale(Vec3::new(0.25, 1.0, 0.25));
+        s.objects.push(Object { name: "pillar".into(), mesh: 0, material: 0, transform: pillar });
+        s.objects.push(Object {
+            name: "cube".into(),
+            mesh: 0,
+            material: 0,
+            transform: Mat4::from_scale(Vec3::splat(0.5)),
+        });
+        s.object_info = vec![ObjectInfo::default(); 2];
+        assert_eq!(baked_scale(&s, 0), Vec3::new(0.25, 1.0, 0.25));
+        assert_eq!(baked_scale(&s, 1), Vec3::ONE);
+        let sets = scene_sphere_sets(&s, 16);
+        assert!(sets.iter().all(|x| x.is_some()));
+        let frame = s.at(0.0, None);
+        let spheres = frame_spheres(&s, &sets, &frame);
+        let (mut near_pillar, mut near_cube) = (0, 0);
+        for w in &spheres {
+            let off = w.center - Vec3::new(1.0, 0.5, 0.0);
+            if off.length() < 0.8 {
+                near_pillar += 1;
+                // within the pillar's half-width (0.125) plus a little, across its axis
+                let across = Vec3::new(off.x, 0.0, off.z).length() + w.radius;
+                assert!(across < 0.2, "sphere {w:?} reaches {across} from the pillar's axis");
+                assert!(off.y.abs() - w.radius < 0.55, "{w:?}");
+            } else {
+                near_cube += 1;
+                assert!(w.center.length() + w.radius < 0.5, "{w:?}");
+            }
+        }
+        assert!(near_pillar > 0 && near_cube > 0, "{near_pillar} {near_cube}");
+    }
+}

@@ -6,6 +6,8 @@
 //! - Sphere: a sphere of `radius` emitting uniform radiance `power`, sampled uniformly in the
 //!   cone it subtends. Lights are emitters only: they are invisible to camera rays and do not
 //!   block other light.
+//! - Directional: irradiance `power` (W/m^2 at normal incidence) arriving along `-direction`
+//!   from infinitely far (a delta light; its shadow rays are unbounded).
 
 use glam::{Vec2, Vec3};
 use penumbra_scene::{LightInstance, LightKind};
@@ -13,9 +15,27 @@ use std::f32::consts::TAU;
 
 #[derive(Clone, Copy, Debug)]
 pub enum LocalLight {
-    Point { pos: Vec3, intensity: Vec3 },
-    Spot { pos: Vec3, axis: Vec3, cos_inner: f32, cos_outer: f32, intensity: Vec3 },
-    Sphere { center: Vec3, radius: f32, radiance: Vec3 },
+    Point {
+        pos: Vec3,
+        intensity: Vec3,
+    },
+    Spot {
+        pos: Vec3,
+        axis: Vec3,
+        cos_inner: f32,
+        cos_outer: f32,
+        intensity: Vec3,
+    },
+    Sphere {
+        center: Vec3,
+        radius: f32,
+        radiance: Vec3,
+    },
+    /// `to_light`: the unit direction towards the light (minus the scene's `direction`).
+    Directional {
+        to_light: Vec3,
+        irradiance: Vec3,
+    },
 }
 
 /// A sampled light direction from a point.
@@ -46,6 +66,11 @@ impl LocalLight {
             return None;
         }
         match l.kind {
+            LightKind::Directional => {
+                let d = l.direction.normalize_or_zero();
+                (d != Vec3::ZERO && d.is_finite())
+                    .then_some(LocalLight::Directional { to_light: -d, irradiance: p.max(Vec3::ZERO) })
+            }
             LightKind::Point => Some(LocalLight::Point { pos: l.position, intensity: p.max(Vec3::ZERO) }),
             LightKind::Spot { inner_deg, outer_deg } => {
                 let axis = l.direction.normalize_or_zero();
@@ -70,11 +95,13 @@ impl LocalLight {
         }
     }
 
-    /// The light's position (sphere: its centre), for equiangular distance sampling.
-    pub fn position(&self) -> Vec3 {
+    /// The light's position (sphere: its centre), for equiangular distance sampling; `None` for
+    /// a directional light.
+    pub fn position(&self) -> Option<Vec3> {
         match self {
-            LocalLight::Point { pos, .. } | LocalLight::Spot { pos, .. } => *pos,
-            LocalLight::Sphere { center, .. } => *center,
+            LocalLight::Point { pos, .. } | LocalLight::Spot { pos, .. } => Some(*pos),
+            LocalLight::Sphere { center, .. } => Some(*center),
+            LocalLight::Directional { .. } => None,
         }
     }
 
@@ -85,6 +112,9 @@ impl LocalLight {
     /// Sample the light as seen from `x`.
     pub fn sample(&self, x: Vec3, u: Vec2) -> Option<LightSample> {
         match *self {
+            LocalLight::Directional { to_light, irradiance } => {
+                Some(LightSample { wi: to_light, dist: f32::MAX, li: irradiance, pdf: None })
+            }
             LocalLight::Point { pos, intensity } => {
                 let v = pos - x;
                 let d2 = v.length_squared();

@@ -564,7 +564,7 @@ impl Context {
             let mass = if t_hit.is_finite() { -(-sb * t_hit).exp_m1() } else { 1.0 };
             let pdf_exp = |t: f32| if mass > 0.0 && t >= 0.0 && t < t_hit { sb * (-sb * t).exp() / mass } else { 0.0 };
             let eq: Vec<Equiangular> =
-                self.lights.iter().filter_map(|li| Equiangular::new(o, d, li.position(), t_hit)).collect();
+                self.lights.iter().filter_map(|li| Equiangular::new(o, d, li.position()?, t_hit)).collect();
             let pdf_sum = |t: f32| pdf_exp(t) + eq.iter().map(|e| e.pdf(t)).sum::<f32>();
             let mut ts = Vec::with_capacity(1 + eq.len());
             let u = rng.next_f32();

@@ -9,8 +9,10 @@
 //! [technique_params]         # key = value parameters of the technique (e.g. isg: lobes = 16)
 //! [camera]                   # eye, target, up, fov_deg, near, far; [[camera.keys]] t, eye, target, fov_deg
 //! [environment]              # file = "x.exr" | "x.hdr", or procedural = "sky"; intensity; rotation_deg
-//! [[light]]                  # type = "point" | "spot" | "sphere", position, direction, color,
-//!                            # intensity, inner_deg, outer_deg, radius, motion = {...}
+//! [[light]]                  # type = "point" | "spot" | "sphere" | "directional", position (not for
+//!                            # "directional"), direction, color, intensity (W/sr; directional: the
+//!                            # irradiance it gives a surface facing it), inner_deg, outer_deg,
+//!                            # radius, motion = {...}
 //! [medium]                   # sigma_a, sigma_s, g (Henyey-Greenstein), volumetric = "temporal" | "full"
 //! [materials.NAME]           # type = "diffuse" | "blinn_phong" | "cook_torrance" | "ashikhmin_shirley",
 //!                            # albedo, specular, roughness, shininess, shininess_v, two_sided,
@@ -138,6 +140,7 @@ enum LightType {
     Point,
     Spot,
     Sphere,
+    Directional,
 }
 
 #[derive(Deserialize)]
@@ -146,7 +149,7 @@ struct LightSpec {
     name: Option<String>,
     #[serde(rename = "type")]
     kind: LightType,
-    position: V3,
+    position: Option<V3>,
     direction: Option<V3>,
     color: Option<V3>,
     intensity: f32,
@@ -566,7 +569,14 @@ pub fn parse_toml_with(
         let l = l.get_ref();
         let name = l.name.clone().unwrap_or_else(|| format!("light{i}"));
         let what = format!("light '{name}'");
-        let position = l.position.0;
+        let position = match (&l.kind, l.position) {
+            (LightType::Directional, None) => Vec3::ZERO,
+            (LightType::Directional, Some(_)) => {
+                return Err(ctx.err_at(span, format!("{what}: a directional light has no position (give `direction`)")))
+            }
+            (_, Some(p)) => p.0,
+            (_, None) => return Err(ctx.err_at(span, format!("{what}: missing `position`"))),
+        };
         let direction = l.direction.map_or(Vec3::NEG_Y, |d| d.0);
         let color = l.color.map_or(Vec3::ONE, |c| c.0);
         if !position.is_finite() || !direction.is_finite() || !color.is_finite() || !l.intensity.is_finite() {
@@ -594,6 +604,12 @@ pub fn parse_toml_with(
                     return Err(ctx.err_at(span, format!("{what}: radius must be > 0")));
                 }
                 LightKind::Sphere { radius: r }
+            }
+            LightType::Directional => {
+                if l.direction.is_none() || direction.length() < 1e-6 {
+                    return Err(ctx.err_at(span, format!("{what}: a directional light needs a non-zero `direction`")));
+                }
+                LightKind::Directional
             }
         };
         let motion = match &l.motion {

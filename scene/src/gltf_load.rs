@@ -13,7 +13,7 @@ use crate::error::SceneError;
 use crate::limits::{Budget, Limits};
 use crate::motion::{AnimChannel, Animation, Channel, Deformation, Interp, MorphTarget, Rig, Skin, Track};
 use crate::texture::{srgb_to_linear, Texture};
-use crate::{Material, MaterialExtra, MeshData, NodeMotion, Object, ObjectInfo, Scene};
+use crate::{Light, LightKind, Material, MaterialExtra, MeshData, NodeMotion, Object, ObjectInfo, Scene};
 use glam::{Mat4, Quat, Vec2, Vec3};
 use gltf::accessor::{DataType, Dimensions};
 use gltf::mesh::Mode;
@@ -44,6 +44,38 @@ pub struct Part {
     pub skin: Option<usize>,
 }
 
+/// A `KHR_lights_punctual` light placed by a node of the default scene.
+#[derive(Clone, Debug)]
+pub struct AssetLight {
+    pub name: String,
+    pub node: usize,
+    /// Point, spot or directional (cone half-angles in degrees).
+    pub kind: LightKind,
+    pub color: Vec3,
+    /// The file's intensity (candela for point and spot lights, lux for directional ones)
+    /// divided by 683 lm/W: W/sr, or W/m^2 for a directional light (see [`LUMENS_PER_WATT`]).
+    pub intensity: f32,
+}
+
+/// The glTF extensions penumbra reads.
+pub const SUPPORTED_EXTENSIONS: &[&str] = &["KHR_lights_punctual"];
+
+/// Photometric glTF light intensities (candela, lux) become the scene's radiometric units
+/// (W/sr, W/m^2) divided by this luminous efficacy (the 555 nm maximum, as Blender's exporter
+/// converts watts to them).
+pub const LUMENS_PER_WATT: f32 = 683.0;
+
+/// A perspective camera placed by a node of the default scene (the first one met).
+#[derive(Clone, Debug)]
+pub struct AssetCamera {
+    pub name: String,
+    pub node: usize,
+    pub yfov_deg: f32,
+    pub znear: f32,
+    /// `None`: an infinite projection.
+    pub zfar: Option<f32>,
+}
+
 /// Everything read from a glTF file.
 #[derive(Clone, Debug)]
 pub struct GltfAsset {
@@ -56,6 +88,10 @@ pub struct GltfAsset {
     /// Node hierarchy, animations and skins (no animation selected).
     pub rig: Rig,
     pub animation_names: Vec<String>,
+    /// `KHR_lights_punctual` lights of the default scene.
+    pub lights: Vec<AssetLight>,
+    /// The default scene's first perspective camera.
+    pub camera: Option<AssetCamera>,
     pub warnings: Vec<String>,
 }
 
@@ -204,6 +240,16 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
     let get = |b: gltf::Buffer| bufs.get(b.index()).copied();
     let mut warnings = Vec::new();
     let label = path.display().to_string();
+    // Extensions the file uses that penumbra reads nothing of (required ones were refused above).
+    let ignored: Vec<&str> = doc.extensions_used().filter(|e| !SUPPORTED_EXTENSIONS.contains(e)).collect();
+    if !ignored.is_empty() {
+        warnings.push(format!(
+            "{label}: uses glTF extension{} penumbra ignores: {} (it reads {})",
+            if ignored.len() > 1 { "s" } else { "" },
+            ignored.join(", "),
+            SUPPORTED_EXTENSIONS.join(", ")
+        ));
+    }
 
     // Textures and materials.
     let mut textures = Vec::new();
@@ -263,6 +309,23 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
         }
         if let Some(info) = pbr.metallic_roughness_texture() {
             ex.roughness_map = Some(load_image(info.texture().source(), false, &mut textures)?);
+        }
+        // What the material model has no place for yet, said once per material.
+        let mut ignored: Vec<String> = Vec::new();
+        if m.emissive_factor().iter().any(|&e| e > 0.0) || m.emissive_texture().is_some() {
+            ignored.push("its emission (emissiveFactor/emissiveTexture)".into());
+        }
+        if m.normal_texture().is_some() {
+            ignored.push("its normal map (shading uses the mesh normals)".into());
+        }
+        if m.occlusion_texture().is_some() {
+            ignored.push("its occlusion map (the techniques compute visibility themselves)".into());
+        }
+        if m.alpha_mode() != gltf::material::AlphaMode::Opaque {
+            ignored.push(format!("alpha mode {:?} (rendered opaque)", m.alpha_mode()));
+        }
+        if !ignored.is_empty() {
+            warnings.push(format!("{label}: material '{name}': penumbra ignores {}", ignored.join(", ")));
         }
         materials.push(mat);
         extras.push(ex);
@@ -449,11 +512,55 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
     let mut stack: Vec<usize> = roots.into_iter().rev().collect();
     let nodes: Vec<gltf::Node> = doc.nodes().collect();
     let mut visited = vec![false; n_nodes];
+    let json = doc.as_json();
+    let light_defs: &[gltf::json::extensions::scene::khr_lights_punctual::Light] =
+        json.extensions.as_ref().and_then(|e| e.khr_lights_punctual.as_ref()).map_or(&[], |k| k.lights.as_slice());
+    let mut lights = Vec::new();
+    let mut camera = None;
     while let Some(n) = stack.pop() {
         if std::mem::replace(&mut visited[n], true) {
             continue;
         }
         let node = &nodes[n];
+        if let Some(li) =
+            json.nodes[n].extensions.as_ref().and_then(|e| e.khr_lights_punctual.as_ref()).map(|k| k.light.value())
+        {
+            let def = light_defs.get(li).ok_or_else(|| {
+                gerr(
+                    path,
+                    format!(
+                        "node {n} uses KHR_lights_punctual light {li} which does not exist ({} lights)",
+                        light_defs.len()
+                    ),
+                )
+            })?;
+            lights.push(asset_light(path, &label, n, li, def, &mut warnings)?);
+        }
+        if let Some(cam) = node.camera() {
+            let cname = cam.name().map(str::to_string).unwrap_or_else(|| format!("camera{}", cam.index()));
+            match cam.projection() {
+                gltf::camera::Projection::Perspective(p) if camera.is_none() => {
+                    let (yfov, znear, zfar) = (p.yfov(), p.znear(), p.zfar());
+                    let fov = yfov.to_degrees();
+                    if !(fov > 0.0 && fov < 180.0) || !(znear > 0.0 && znear.is_finite()) {
+                        return Err(gerr(path, format!("camera '{cname}': yfov must be in (0, pi) and znear > 0")));
+                    }
+                    if let Some(f) = zfar.filter(|&f| !(f > znear && f.is_finite())) {
+                        return Err(gerr(
+                            path,
+                            format!("camera '{cname}': zfar {f} must be finite and > znear {znear}"),
+                        ));
+                    }
+                    camera = Some(AssetCamera { name: cname, node: n, yfov_deg: fov, znear, zfar });
+                }
+                gltf::camera::Projection::Perspective(_) => warnings.push(format!(
+                    "{label}: camera '{cname}' ignored (the first perspective camera of the scene is used)"
+                )),
+                gltf::camera::Projection::Orthographic(_) => warnings.push(format!(
+                    "{label}: camera '{cname}' is orthographic, which penumbra does not render: ignored"
+                )),
+            }
+        }
         if let Some(mesh) = node.mesh() {
             for prim in mesh.primitives() {
                 if let Some(&pi) = prim_index.get(&(mesh.index(), prim.index())) {
@@ -493,8 +600,56 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
         textures,
         rig,
         animation_names,
+        lights,
+        camera,
         warnings,
     })
+}
+
+/// A `KHR_lights_punctual` light definition `li`, placed by node `n`.
+fn asset_light(
+    path: &Path,
+    label: &str,
+    n: usize,
+    li: usize,
+    def: &gltf::json::extensions::scene::khr_lights_punctual::Light,
+    warnings: &mut Vec<String>,
+) -> Result<AssetLight, SceneError> {
+    use gltf::json::extensions::scene::khr_lights_punctual::Type;
+    use gltf::json::validation::Checked;
+    let name = def.name.clone().unwrap_or_else(|| format!("light{li}"));
+    let color = Vec3::from_array(def.color);
+    if !color.is_finite() || color.min_element() < 0.0 || !def.intensity.is_finite() || def.intensity < 0.0 {
+        return Err(gerr(path, format!("light '{name}': color and intensity must be finite and >= 0")));
+    }
+    let kind = match &def.type_ {
+        Checked::Valid(Type::Point) => LightKind::Point,
+        Checked::Valid(Type::Directional) => LightKind::Directional,
+        Checked::Valid(Type::Spot) => {
+            let (inner, outer) = def
+                .spot
+                .as_ref()
+                .map_or((0.0, std::f32::consts::FRAC_PI_4), |s| (s.inner_cone_angle, s.outer_cone_angle));
+            let (inner, outer) = (inner.to_degrees(), outer.to_degrees());
+            if !(inner >= 0.0 && inner < outer && outer <= 90.0) {
+                return Err(gerr(
+                    path,
+                    format!("light '{name}': spot cone angles need 0 <= inner < outer <= pi/2, got {inner} and {outer} degrees"),
+                ));
+            }
+            // the scene's spot lights need outer < 90 degrees
+            LightKind::Spot { inner_deg: inner.min(89.0), outer_deg: outer.min(89.5) }
+        }
+        Checked::Invalid => {
+            return Err(gerr(path, format!("light '{name}': invalid type (expected point, spot or directional)")))
+        }
+    };
+    if def.range.is_some() {
+        warnings.push(format!(
+            "{label}: light '{name}': `range` ignored (penumbra's lights fall off with the inverse square everywhere)"
+        ));
+    }
+    Ok(AssetLight { name, node: n, kind, color, intensity: def.intensity / LUMENS_PER_WATT })
 }
 
 fn norm_quat(q: Quat) -> Quat {
@@ -934,6 +1089,16 @@ pub fn instantiate(
     scene.object_info.resize(scene.objects.len(), ObjectInfo::default());
     let first = scene.objects.len();
     scene.warnings.extend(asset.warnings.iter().cloned());
+    if let Some(c) = &asset.camera {
+        // a model placed by a scene file: the scene's [camera] is the one used
+        if scene.source.as_deref() != Some(path) {
+            scene.warnings.push(format!(
+                "{}: camera '{}' ignored (the scene file's [camera] is used)",
+                path.display(),
+                c.name
+            ));
+        }
+    }
     for part in &asset.parts {
         let prim = &asset.primitives[part.primitive];
         let mat = match (material, prim.material) {
@@ -976,6 +1141,26 @@ pub fn instantiate(
         }
         scene.objects.push(Object { name: part.name.clone(), mesh: mesh0 + part.primitive, material: mat, transform });
         scene.object_info.push(info);
+    }
+    for l in &asset.lights {
+        let world = placement * rig.global(l.node, 0.0);
+        if rig.node_animated(l.node) {
+            scene.warnings.push(format!(
+                "{}: light '{}': its node is animated; the light stays where it is at t = 0",
+                path.display(),
+                l.name
+            ));
+        }
+        scene.lights.push(Light {
+            name: l.name.clone(),
+            kind: l.kind,
+            position: world.transform_point3(Vec3::ZERO),
+            // glTF lights shine along their node's -Z
+            direction: world.transform_vector3(Vec3::NEG_Z).normalize_or(Vec3::NEG_Y),
+            color: l.color,
+            intensity: l.intensity,
+            motion: crate::RigidMotion::Static,
+        });
     }
     Ok(first..scene.objects.len())
 }

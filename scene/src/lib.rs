@@ -245,6 +245,11 @@ pub enum LightKind {
     Spot { inner_deg: f32, outer_deg: f32 },
     /// Spherical area light of `radius`; `intensity` is the emitted radiance scale.
     Sphere { radius: f32 },
+    /// Directional (sun) light shining along `direction` from infinitely far; `intensity` is the
+    /// irradiance (W/m^2) it gives a surface facing it, scaled by `color`; `position` is unused.
+    /// Not allowed in a scene with a participating medium (the medium fills all space, so no light
+    /// from infinity reaches it).
+    Directional,
 }
 
 /// A local light. Its world position and direction at time t are `motion.eval(t)` applied to
@@ -254,7 +259,7 @@ pub struct Light {
     pub name: String,
     pub kind: LightKind,
     pub position: Vec3,
-    /// Unit direction the light points to (spot lights; ignored otherwise).
+    /// Unit direction the light points to (spot and directional lights; ignored otherwise).
     pub direction: Vec3,
     /// Linear RGB colour.
     pub color: Vec3,
@@ -770,6 +775,17 @@ impl Scene {
             "glb" | "gltf" => Self::from_model_with(path, &budget)?,
             _ => return Err(SceneError::UnknownFormat { path: path.to_path_buf() }),
         };
+        if scene.medium.is_some() {
+            if let Some(l) = scene.lights.iter().find(|l| matches!(l.kind, LightKind::Directional)) {
+                return Err(SceneError::Unsupported {
+                    path: path.to_path_buf(),
+                    feature: format!(
+                        "directional light '{}' in a scene with a participating medium (the medium fills all space: no light from infinity reaches it; use a spot or point light)",
+                        l.name
+                    ),
+                });
+            }
+        }
         if options.require_closed_meshes {
             scene.check_closed_meshes(&format!("technique '{}' needs closed meshes", scene.technique))?;
         }
@@ -810,6 +826,29 @@ impl Scene {
         scene.object_info.resize(scene.objects.len(), ObjectInfo::default());
         scene.object_info.last_mut().unwrap().casts_shadow = false;
         scene.camera = Camera::framing(lo, hi, 40.0);
+        if let Some(c) = &asset.camera {
+            // the file's camera: at its node's origin looking down the node's -Z, +Y up
+            let world = placement * asset.rig.global(c.node, 0.0);
+            let eye = world.transform_point3(Vec3::ZERO);
+            let forward = world.transform_vector3(Vec3::NEG_Z).normalize_or_zero();
+            let up = world.transform_vector3(Vec3::Y).normalize_or(Vec3::Y);
+            if !eye.is_finite() || forward == Vec3::ZERO || forward.cross(up).length() < 1e-4 {
+                return Err(SceneError::invalid(
+                    path,
+                    format!("camera '{}': its node's transform is degenerate", c.name),
+                ));
+            }
+            // an infinite projection gets the framing's far plane (or one past the model)
+            let far = c.zfar.unwrap_or_else(|| scene.camera.far.max((eye - center).length() + 4.0 * radius));
+            scene.camera = Camera { eye, target: eye + forward, up, fov_y_deg: c.yfov_deg, near: c.znear, far };
+            if asset.rig.node_animated(c.node) {
+                scene.warnings.push(format!(
+                    "{}: camera '{}': its node is animated; the camera stays where it is at t = 0",
+                    path.display(),
+                    c.name
+                ));
+            }
+        }
         scene.check_finite_motion().map_err(|m| SceneError::invalid(path, m))?;
         if !scene.camera.view().is_finite() || !scene.camera.far.is_finite() {
             return Err(SceneError::invalid(path, "the model's bounds are too large to frame"));

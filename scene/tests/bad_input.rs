@@ -433,3 +433,32 @@ fn default_scene_needs_no_files() {
     let f = s.at(1.0, Some(0.0));
     assert!(!f.any_moved());
 }
+
+/// KHR_lights_punctual: a node naming a light that does not exist, an invalid type, bad cone
+/// angles and negative intensities are errors naming the file and the light.
+#[test]
+fn bad_punctual_lights() {
+    let dir = temp_dir("lights");
+    let (pos, idx) = tetra();
+    let with_lights = |lights: serde_json::Value, index: usize| {
+        let mut bin = Bin::default();
+        let mut doc = simple(&mut bin, &pos, &idx, None);
+        doc["extensionsUsed"] = json!(["KHR_lights_punctual"]);
+        doc["extensions"] = json!({"KHR_lights_punctual": {"lights": lights}});
+        doc["nodes"].as_array_mut().unwrap().push(json!({"extensions": {"KHR_lights_punctual": {"light": index}}}));
+        doc["scenes"][0]["nodes"] = json!([0, 1]);
+        glb(&doc, &bin.bytes)
+    };
+    let p = write(&dir, "missing.glb", with_lights(json!([{"type": "point"}]), 3));
+    fails(&p, &["khrLightsPunctual.light", "out of bounds"]);
+    let p = write(
+        &dir,
+        "cone.glb",
+        with_lights(json!([{"name": "s", "type": "spot", "spot": {"innerConeAngle": 0.8, "outerConeAngle": 0.5}}]), 0),
+    );
+    fails(&p, &["light 's'", "cone"]);
+    let p = write(&dir, "negative.glb", with_lights(json!([{"name": "n", "type": "point", "intensity": -1.0}]), 0));
+    fails(&p, &["light 'n'", ">= 0"]);
+    let p = write(&dir, "kind.glb", with_lights(json!([{"name": "k", "type": "area"}]), 0));
+    fails(&p, &["lights[0].type", "invalid value"]);
+}

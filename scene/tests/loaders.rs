@@ -426,3 +426,81 @@ fn negative_environment_texels_are_black_for_everyone_and_reported() {
     assert_eq!(e.repair_texels(), 1);
     assert_eq!(e.texels, vec![[1.0, -0.0, 2.0], [0.0; 3]]);
 }
+
+/// `scenes/assets/sun_and_spot.gltf`: its KHR_lights_punctual sun and spot become scene lights
+/// (placed by their nodes, candela and lux over 683 lm/W), its perspective camera the scene's
+/// camera, and what penumbra ignores (a normal map, an emissive material, KHR_texture_transform)
+/// is said in warnings.
+#[test]
+fn gltf_lights_camera_and_ignored_features() {
+    use penumbra_scene::LightKind;
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets/sun_and_spot.gltf");
+    let s = Scene::load(&path).unwrap();
+    assert_eq!(s.lights.len(), 2, "{:?}", s.lights);
+    let sun = s.lights.iter().find(|l| l.name == "sun").unwrap();
+    assert_eq!(sun.kind, LightKind::Directional);
+    assert!(approx(sun.direction, Vec3::new(-0.5, -1.0, -0.3).normalize(), 1e-4), "{:?}", sun.direction);
+    assert!((sun.intensity - 3.0).abs() < 1e-4, "sun irradiance {}", sun.intensity);
+    let spot = s.lights.iter().find(|l| l.name == "spot").unwrap();
+    let LightKind::Spot { inner_deg, outer_deg } = spot.kind else { panic!("{:?}", spot.kind) };
+    assert!((inner_deg - 0.35f32.to_degrees()).abs() < 1e-3 && (outer_deg - 0.6f32.to_degrees()).abs() < 1e-3);
+    assert!(approx(spot.position, Vec3::new(1.6, 2.4, 1.2), 1e-5), "{:?}", spot.position);
+    assert!(approx(spot.direction, Vec3::new(-1.6, -2.4, -1.2).normalize(), 1e-4), "{:?}", spot.direction);
+    assert!((spot.intensity - 8.0).abs() < 1e-4);
+    let c = &s.camera;
+    assert!(approx(c.eye, Vec3::new(0.0, 2.2, 4.2), 1e-5), "{:?}", c.eye);
+    let forward = (c.target - c.eye).normalize();
+    assert!(approx(forward, (Vec3::new(0.0, 0.35, 0.0) - c.eye).normalize(), 1e-4), "{forward:?}");
+    assert!((c.fov_y_deg - 0.75f32.to_degrees()).abs() < 1e-3 && c.near == 0.05 && c.far == 50.0, "{c:?}");
+    let w = s.warnings.join("\n");
+    for needle in
+        ["KHR_texture_transform", "'crate': penumbra ignores its normal map", "'lamp': penumbra ignores its emission"]
+    {
+        assert!(w.contains(needle), "no warning with '{needle}':\n{w}");
+    }
+    // the same model placed by a scene file: the file's camera wins, and the model's is named
+    let dir = common::temp_dir("sun_and_spot");
+    let toml = format!(
+        "[camera]\neye = [0, 1, 5]\ntarget = [0, 0, 0]\n[[object]]\nname = \"m\"\nfile = \"{}\"\n",
+        path.display()
+    );
+    std::fs::write(dir.join("placed.toml"), toml).unwrap();
+    let placed = Scene::load(dir.join("placed.toml")).unwrap();
+    assert_eq!(placed.camera.eye, Vec3::new(0.0, 1.0, 5.0));
+    assert_eq!(placed.lights.len(), 2);
+    assert!(placed.warnings.iter().any(|w| w.contains("camera 'view' ignored")), "{:?}", placed.warnings);
+}
+
+/// Directional lights in scene files: `direction` required, no `position`, refused with a
+/// medium (nothing from infinity crosses a medium that fills all space).
+#[test]
+fn directional_lights_in_scene_files() {
+    use penumbra_scene::LightKind;
+    let dir = common::temp_dir("directional");
+    let head = "[camera]\neye = [0, 1, 4]\ntarget = [0, 0, 0]\n[[object]]\nname = \"b\"\nmesh = { type = \"cube\", size = 1 }\n";
+    let ok = format!("{head}[[light]]\ntype = \"directional\"\ndirection = [0, -2, 0]\nintensity = 2\n");
+    std::fs::write(dir.join("ok.toml"), ok).unwrap();
+    let s = Scene::load(dir.join("ok.toml")).unwrap();
+    assert_eq!(s.lights[0].kind, LightKind::Directional);
+    assert_eq!(s.lights[0].direction, Vec3::NEG_Y);
+    for (name, body, needle) in [
+        (
+            "pos.toml",
+            "type = \"directional\"\nposition = [0, 1, 0]\ndirection = [0, -1, 0]\nintensity = 1\n",
+            "has no position",
+        ),
+        ("nodir.toml", "type = \"directional\"\nintensity = 1\n", "needs a non-zero `direction`"),
+        ("nopos.toml", "type = \"point\"\nintensity = 1\n", "missing `position`"),
+    ] {
+        std::fs::write(dir.join(name), format!("{head}[[light]]\n{body}")).unwrap();
+        let e = Scene::load(dir.join(name)).unwrap_err().to_string();
+        assert!(e.contains(name) && e.contains(needle), "{name}: {e}");
+    }
+    let medium = format!(
+        "{head}[medium]\nsigma_a = [0.01, 0.01, 0.01]\nsigma_s = [0.1, 0.1, 0.1]\ng = 0.5\n[[light]]\nname = \"sun\"\ntype = \"directional\"\ndirection = [0, -1, 0]\nintensity = 1\n"
+    );
+    std::fs::write(dir.join("medium.toml"), medium).unwrap();
+    let e = Scene::load(dir.join("medium.toml")).unwrap_err();
+    assert!(matches!(e, penumbra_scene::SceneError::Unsupported { .. }), "{e}");
+    assert!(e.to_string().contains("directional light 'sun'") && e.to_string().contains("medium.toml"), "{e}");
+}

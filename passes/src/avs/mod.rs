@@ -163,7 +163,7 @@ impl Default for AvsSettings {
             iterations: 2,
             interp_alpha: 0.0,
             points: 0,
-            max_points: 8192,
+            max_points: 4096,
             pool_points: 4096,
             radius: 2.0,
             neighbours: 6,
@@ -194,7 +194,7 @@ impl AvsSettings {
 
     /// Sets one parameter. Keys: `r` (128; multiple of the initial grid times a power of two, at
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
-    /// `iterations` (2), `points` (0 = auto), `max_points` (8192), `pool_points` (4096), `radius` (2.0), `neighbours`
+    /// `iterations` (2), `points` (0 = auto), `max_points` (4096; lowered to what the device binds, see `AvsTechnique::new`), `pool_points` (4096), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells` | `table` | `adf`), `cells` (6,
     /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `glossy` (`ratio` | `sg`), `lobes` (16). Unknown keys and bad values
     /// are errors naming the key.
@@ -644,12 +644,30 @@ pub struct AvsTechnique {
     /// Time the adaptation rounds with their own submissions (false: no adaptation rounds are
     /// possible inside a caller's graph without an engine, see `add`).
     pub stats: AvsStats,
+    /// Settings the device lowered (see `new`), for [`crate::technique::Technique::notes`].
+    notes: Vec<String>,
 }
 
 impl AvsTechnique {
-    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: AvsSettings) -> Result<Self> {
+    pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, mut settings: AvsSettings) -> Result<Self> {
         use vk::DescriptorType as T;
         settings.validate()?;
+        // Every kept point's fp16 SSDF lives in one storage buffer bound whole: no more points
+        // than the device's maxStorageBufferRange holds (lavapipe: 128 MiB, 4096 SSDFs at r = 128;
+        // vol_big at 160x120 reached 4311 slots and a 141 MB binding).
+        let ssdf_bytes = penumbra_math::avs_maps::ssdf_words_per_map(settings.r) as u64 * 4;
+        let device_points = (ctx.max_storage_buffer_range as u64 / ssdf_bytes.max(1)).max(1) as usize;
+        let mut notes = Vec::new();
+        if settings.max_points > device_points {
+            notes.push(format!(
+                "avs: max_points {} lowered to {device_points}: the device binds at most {} MiB per storage buffer and one SSDF at r = {} takes {} KiB",
+                settings.max_points,
+                ctx.max_storage_buffer_range >> 20,
+                settings.r,
+                ssdf_bytes >> 10
+            ));
+            settings.max_points = device_points;
+        }
         let sb = T::STORAGE_BUFFER;
         let vis = compute_pipeline(ctx, shaders, "avs/avs_vis.comp", &[sb; 9], 32)?;
         let sh = compute_pipeline(ctx, shaders, "avs/avs_sh.comp", &[sb; 4], 8)?;
@@ -711,6 +729,7 @@ impl AvsTechnique {
             plan: Arc::new(PoolPlan::default()),
             radius: 0.0,
             stats: AvsStats::default(),
+            notes,
         })
     }
 
@@ -1118,6 +1137,10 @@ impl crate::technique::Technique for AvsTechnique {
 
     fn stats(&self) -> Option<Box<dyn std::any::Any>> {
         Some(Box::new(self.stats.clone()))
+    }
+
+    fn notes(&self, _scene: &Scene) -> Vec<String> {
+        self.notes.clone()
     }
 
     fn add(

@@ -264,8 +264,27 @@ pub fn build_bvh(spheres: &[WorldSphere]) -> Vec<GpuNode> {
     nodes
 }
 
+/// The axis scales of object `i`'s transform at t = 0 when they differ (by more than 1 %), else
+/// one: its sphere set is fitted to the mesh scaled by them ([`scene_sphere_sets`]) and placed
+/// by the transform without them ([`frame_spheres`]), since a sphere scaled non-uniformly is no
+/// sphere (a box scaled by (0.25, 1, 0.25) holding spheres of its unit-cube radius times 1 cast a
+/// blob four times too wide).
+pub fn baked_scale(scene: &Scene, i: usize) -> Vec3 {
+    if i >= scene.objects.len() {
+        return Vec3::ONE;
+    }
+    let w = scene.world_at(i, 0.0);
+    let s = Vec3::new(w.x_axis.truncate().length(), w.y_axis.truncate().length(), w.z_axis.truncate().length());
+    if !s.is_finite() || s.min_element() <= 0.0 || s.max_element() <= 1.01 * s.min_element() {
+        Vec3::ONE
+    } else {
+        s
+    }
+}
+
 /// Sphere sets of a scene's objects (index = object), `None` for objects without one (thin
-/// shells, non-casters, open meshes, thin walls: see [`is_thin_caster`]).
+/// shells, non-casters, open meshes, thin walls: see [`is_thin_caster`]). An object scaled
+/// non-uniformly gets its set in the scaled mesh's frame ([`baked_scale`]).
 pub fn scene_sphere_sets(scene: &Scene, per_object: usize) -> Vec<Option<SphereSet>> {
     scene_sphere_sets_noting(scene, per_object).0
 }
@@ -275,8 +294,8 @@ pub fn scene_sphere_sets(scene: &Scene, per_object: usize) -> Vec<Option<SphereS
 /// spheres instead, and the user is told.
 pub fn scene_sphere_sets_noting(scene: &Scene, per_object: usize) -> (Vec<Option<SphereSet>>, Vec<String>) {
     let mut notes = Vec::new();
-    // Objects sharing a mesh share its set (built once).
-    let mut built: std::collections::HashMap<usize, Option<SphereSet>> = std::collections::HashMap::new();
+    // Objects sharing a mesh (at the same baked scale) share its set (built once).
+    let mut built: std::collections::HashMap<(usize, [u32; 3]), Option<SphereSet>> = std::collections::HashMap::new();
     let sets = scene
         .objects
         .iter()
@@ -287,9 +306,21 @@ pub fn scene_sphere_sets_noting(scene: &Scene, per_object: usize) -> (Vec<Option
             if !info.casts_shadow || info.thin_shell || !mesh.is_closed() {
                 return None;
             }
+            let baked = baked_scale(scene, i);
+            let scaled: Vec<Vec3> = mesh.positions.iter().map(|&p| p * baked).collect();
+            let key = (o.mesh, baked.to_array().map(f32::to_bits));
             if let Some(dir) = scene.source.as_ref().and_then(|s| s.parent()) {
                 let path = dir.join(format!("{}.{}.spheres", scene.name, o.name));
-                if path.exists() {
+                if path.exists() && baked != Vec3::ONE {
+                    notes.push(format!(
+                        "{}: '{}' is scaled non-uniformly ({:.3}, {:.3}, {:.3}), which spheres in its mesh's frame cannot follow; isg fits {per_object} spheres to the scaled mesh instead",
+                        path.display(),
+                        o.name,
+                        baked.x,
+                        baked.y,
+                        baked.z
+                    ));
+                } else if path.exists() {
                     let problem = match std::fs::read_to_string(&path) {
                         Err(e) => format!("cannot be read ({e})"),
                         Ok(text) => match SphereSet::parse(&text) {
@@ -310,22 +341,24 @@ pub fn scene_sphere_sets_noting(scene: &Scene, per_object: usize) -> (Vec<Option
                     ));
                 }
             }
-            if let Some(set) = built.get(&o.mesh) {
+            if let Some(set) = built.get(&key) {
                 return set.clone();
             }
             // a mesh with the same vertices and triangles as one already fitted (the same
             // procedural ball on several objects) shares its set
-            let same = built.iter().find(|(k, _)| scene.meshes.get(**k).is_some_and(|m| m.same_shape(mesh)));
+            let same = built
+                .iter()
+                .find(|(k, _)| k.1 == key.1 && scene.meshes.get(k.0).is_some_and(|m| m.same_shape(mesh)));
             let set = match same {
                 Some((_, set)) => set.clone(),
                 None => {
-                    let set = approximate_spheres(&mesh.positions, &mesh.indices, per_object).ok();
+                    let set = approximate_spheres(&scaled, &mesh.indices, per_object).ok();
                     // A thin wall (balls_on_dish's dish: 48 spheres cover 19 % of it) cannot be
                     // held by spheres: they cast almost no shadow and, touching the surface, cover
                     // grazing lobes of the points beside them (black speckles). Such an object
                     // casts its shadows as a thin shell instead.
                     let coverage = set.as_ref().and_then(|set| {
-                        measure_coverage(&mesh.positions, &mesh.indices, &set.spheres, COVERAGE_RESOLUTION).ok()
+                        measure_coverage(&scaled, &mesh.indices, &set.spheres, COVERAGE_RESOLUTION).ok()
                     });
                     match coverage {
                         Some(c) if c.covered < MIN_SPHERE_COVERAGE => {
@@ -342,7 +375,7 @@ pub fn scene_sphere_sets_noting(scene: &Scene, per_object: usize) -> (Vec<Option
                     }
                 }
             };
-            built.insert(o.mesh, set.clone());
+            built.insert(key, set.clone());
             set
         })
         .collect();
@@ -355,11 +388,20 @@ pub fn frame_spheres(scene: &Scene, sets: &[Option<SphereSet>], frame: &Frame) -
     for inst in &frame.instances {
         let Some(Some(set)) = sets.get(inst.object) else { continue };
         let Some(rest) = scene.meshes.get(inst.mesh) else { continue };
+        let baked = baked_scale(scene, inst.object);
         let local = match &inst.deformed_mesh {
-            Some(d) if d.positions.len() == rest.positions.len() => set.deformed(&rest.positions, &d.positions),
+            Some(d) if d.positions.len() == rest.positions.len() => {
+                if baked == Vec3::ONE {
+                    set.deformed(&rest.positions, &d.positions)
+                } else {
+                    let scaled = |v: &[Vec3]| v.iter().map(|&p| p * baked).collect::<Vec<_>>();
+                    set.deformed(&scaled(&rest.positions), &scaled(&d.positions))
+                }
+            }
             _ => set.spheres.clone(),
         };
-        let w: Mat4 = inst.world;
+        // the set is in the frame of the mesh scaled by `baked`
+        let w: Mat4 = inst.world * Mat4::from_scale(baked.recip());
         let scale = w.x_axis.truncate().length().max(w.y_axis.truncate().length()).max(w.z_axis.truncate().length());
         for s in local {
             let c = w.transform_point3(s.center);
@@ -412,12 +454,15 @@ pub fn thin_parts(scene: &Scene, sets: &[Option<SphereSet>]) -> Vec<Vec<u32>> {
             if !scene.object_info(i).casts_shadow || set.spheres.is_empty() {
                 return Vec::new();
             }
+            // in the frame the set was fitted in (the mesh scaled by `baked_scale`)
+            let baked = baked_scale(scene, i);
             let (lo, hi) = mesh
                 .positions
                 .iter()
-                .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(a, b), p| (a.min(*p), b.max(*p)));
+                .map(|&p| p * baked)
+                .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(a, b), p| (a.min(p), b.max(p)));
             let tol = THIN_PART_TOLERANCE * (hi - lo).length();
-            let outside = |p: Vec3| set.spheres.iter().all(|s| (p - s.center).length() - s.radius > tol);
+            let outside = |p: Vec3| set.spheres.iter().all(|s| (p * baked - s.center).length() - s.radius > tol);
             let vertex_out: Vec<bool> = mesh.positions.iter().map(|&p| outside(p)).collect();
             (0..tris)
                 .filter(|&t| {

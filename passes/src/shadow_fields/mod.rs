@@ -187,6 +187,9 @@ pub fn light_source(kind: &LightKind) -> LightSource {
             cos_outer: (outer_deg.clamp(0.0, 180.0) as f64).to_radians().cos(),
         },
         LightKind::Sphere { radius } => LightSource::Sphere { radius: radius.max(0.0) as f64 },
+        // no source radiance field: its field instances emit nothing (`instances`,
+        // `light_frames`) and the shaders shade it pointwise
+        LightKind::Directional => LightSource::Point,
     }
 }
 
@@ -471,6 +474,7 @@ pub fn light_frames<'a>(frame: &Frame, fields: &'a SceneFields, adaptive: bool, 
             let field = if srf { fields.light_field(l.light, adaptive) } else { None };
             let ok = l.power.is_finite()
                 && l.position.is_finite()
+                && l.kind != LightKind::Directional
                 && (!matches!(l.kind, LightKind::Spot { .. })
                     || l.direction.is_finite() && l.direction.length_squared() > 0.0);
             let power = if ok { l.power.max(Vec3::ZERO).as_dvec3() } else { DVec3::ZERO };
@@ -718,8 +722,11 @@ impl GpuTables {
             .collect();
         for l in &frame.lights {
             let src = self.light_sources.get(l.light).copied().unwrap_or_else(|| light_source(&l.kind));
+            // a directional light has no source radiance field (the shader shades it pointwise):
+            // its field instance emits nothing
             let ok = l.power.is_finite()
                 && l.position.is_finite()
+                && l.kind != LightKind::Directional
                 && (!matches!(l.kind, LightKind::Spot { .. })
                     || l.direction.is_finite() && l.direction.length_squared() > 0.0);
             let power = if ok { l.power.max(Vec3::ZERO) } else { Vec3::ZERO };

@@ -452,7 +452,12 @@ impl VolumetricEffect {
         let light = f
             .lights
             .iter()
-            .filter(|l| l.power.is_finite() && l.power.max_element() > 0.0 && l.position.is_finite())
+            .filter(|l| {
+                l.power.is_finite()
+                    && l.power.max_element() > 0.0
+                    && l.position.is_finite()
+                    && l.kind != LightKind::Directional
+            })
             .max_by(|a, b| scatter_score(a, eye, sbar).total_cmp(&scatter_score(b, eye, sbar)));
         let Some(l) = light else { return block };
         let (kind_id, cos_o, cos_i, power) = match l.kind {
@@ -464,6 +469,9 @@ impl VolumetricEffect {
                 l.power,
             ),
             LightKind::Sphere { radius } => (0.0, -1.0, -1.0, l.power * std::f32::consts::PI * radius * radius),
+            // the scene loader refuses directional lights with a medium; one made in code scatters
+            // nothing
+            LightKind::Directional => return block,
         };
         let dir = l.direction.try_normalize().unwrap_or(-Vec3::Y);
         // Shadow-map depth range: the scene's bounds seen from the light.
