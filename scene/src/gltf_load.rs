@@ -542,7 +542,7 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
                 gltf::camera::Projection::Perspective(p) if camera.is_none() => {
                     let (yfov, znear, zfar) = (p.yfov(), p.znear(), p.zfar());
                     let fov = yfov.to_degrees();
-                    if !(fov > 0.0 && fov < 180.0) || !(znear > 0.0 && znear.is_finite()) {
+                    if !(fov > 0.0 && fov < 180.0 && znear > 0.0 && znear.is_finite()) {
                         return Err(gerr(path, format!("camera '{cname}': yfov must be in (0, pi) and znear > 0")));
                     }
                     if let Some(f) = zfar.filter(|&f| !(f > znear && f.is_finite())) {
