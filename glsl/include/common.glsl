@@ -28,6 +28,7 @@ struct MaterialData {
     vec4 extra;        // x shininess (Blinn-Phong, Ashikhmin-Shirley nu), y albedo map layer (-1 none),
                        // z roughness map layer (-1 none), w Ashikhmin-Shirley nv (= x if isotropic)
                        // (read through material.glsl's material_at)
+    vec4 emission;     // rgb emitted radiance (seen by the eye only), w emission map layer (-1 none)
 };
 
 struct LightData {

@@ -2,7 +2,8 @@
 // common.glsl, packed by passes/src/scene_gpu.rs) at a surface point, with its texture maps
 // applied exactly as the CPU reference does (penumbra_reference::render::brdf_at): the albedo
 // map multiplies the albedo, the roughness map's G channel multiplies the roughness, and the
-// Blinn-Phong exponent then follows 2 / r^2 - 2. Every technique fetches its materials through
+// Blinn-Phong exponent then follows 2 / r^2 - 2; the emission map multiplies the emission, which
+// each technique adds to what it shades (material_emission). Every technique fetches its materials through
 // `material_at`; a technique that approximates the BRDF (SG lobes, SH transfer, prefiltered
 // lookups) builds its approximation from the returned material.
 #ifndef PENUMBRA_MATERIAL_GLSL
@@ -20,7 +21,14 @@ MaterialData material_at(MaterialData m, vec2 uv, sampler2DArray tex) {
         m.extra.w = clamp(m.extra.w * e / max(m.extra.x, 1e-6), 0.0, 1e6);
         m.extra.x = e;
     }
+    if (m.emission.w >= 0.0) m.emission.rgb = max(m.emission.rgb * textureLod(tex, vec3(uv, m.emission.w), 0.0).rgb, vec3(0.0));
     return m;
+}
+
+// The radiance the surface emits towards the eye (after material_at: its map applied). It
+// lights nothing else: the reference and every technique compute direct lighting only.
+vec3 material_emission(MaterialData m) {
+    return m.emission.rgb;
 }
 
 // 0 diffuse, 1 Blinn-Phong, 2 Cook-Torrance (GGX), 3 Ashikhmin-Shirley (isotropic).

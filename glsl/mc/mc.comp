@@ -231,9 +231,11 @@ vec3 radiance_sample(vec2 ndc) {
     // render.rs brdf_at: the material with its maps at the interpolated uv, then Brdf::new
     vec4 t4 = tri_data[6u * ti + 4u];
     vec2 uv = t4.xy * b0 + t4.zw * b1 + tri_data[6u * ti + 5u].xy * b2;
-    Brdf b = brdf_from_material(material_at(mats[mi], uv, material_textures));
+    MaterialData mat = material_at(mats[mi], uv, material_textures);
+    Brdf b = brdf_from_material(mat);
     vec3 x = p + ng * (3e-5 * (1.0 + max(max(abs(p.x), abs(p.y)), abs(p.z))));
-    vec3 l = vec3(0.0);
+    // what the surface emits towards the eye (direct lighting only: it lights nothing)
+    vec3 l = material_emission(mat);
     // environment sample
     vec4 ue = vec4(rnd(), rnd(), rnd(), rnd());
     vec3 wi, le;

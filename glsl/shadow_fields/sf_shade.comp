@@ -113,5 +113,5 @@ void main() {
         color += vis * env_lookup(r, env_lod(env_alpha(m))) * env_specular_albedo(m, ndv);
     }
     color += local_lights(pos, n, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);
-    imageStore(hdr, p, vec4(color, 1.0));
+    imageStore(hdr, p, vec4(color + material_emission(m), 1.0));
 }

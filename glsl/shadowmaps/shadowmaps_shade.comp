@@ -265,5 +265,5 @@ void main() {
         }
         l += f * intensity / d2 * v;
     }
-    imageStore(hdr, px, vec4(l, 1.0));
+    imageStore(hdr, px, vec4(l + material_emission(m), 1.0));
 }

@@ -51,6 +51,8 @@ struct MaterialData {
     albedo_kind: [f32; 4],
     spec_rough: [f32; 4],
     extra: [f32; 4],
+    /// rgb emitted radiance, w emission map layer (-1 none)
+    emission: [f32; 4],
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -174,7 +176,7 @@ impl SceneGpu {
 
 /// The material table in the layout of `MaterialData` (std430): the one packing of the scene's
 /// materials that every technique reads (`glsl/include/material.glsl`). `extras` gives texture
-/// layers (albedo map, roughness map) and the second Ashikhmin-Shirley exponent per material
+/// layers (albedo map, roughness map, emission map), the emission and the second Ashikhmin-Shirley exponent per material
 /// index (may be shorter). Values are sanitised as the reference's `Brdf::new` does: albedo
 /// finite and >= 0, specular in [0, 1], roughness in [0, 1], exponents in [0, 1e6].
 pub fn material_table(materials: &[Material], extras: &[MaterialExtra]) -> Vec<u8> {
@@ -209,11 +211,15 @@ pub fn material_table(materials: &[Material], extras: &[MaterialExtra]) -> Vec<u
                     x.and_then(|x| x.roughness_map).map_or(-1.0, |l| l as f32),
                     shininess_v,
                 ],
+                emission: {
+                    let e = x.map_or(glam::Vec3::ZERO, |x| san(x.emission));
+                    [e.x, e.y, e.z, x.and_then(|x| x.emission_map).map_or(-1.0, |l| l as f32)]
+                },
             }
         })
         .collect();
     if materials.is_empty() {
-        vec![0u8; 48]
+        vec![0u8; std::mem::size_of::<MaterialData>()]
     } else {
         bytes_of(&materials)
     }

@@ -11,7 +11,8 @@
 //! and one BRDF sample, combined by multiple importance sampling with the power heuristic
 //! (beta = 2). Visibility `V` is traced exactly against every shadow-casting triangle of the
 //! scene at the frame's time (deformed meshes included; `obvhs` CWBVH). Primary rays that miss
-//! see the environment. Only direct lighting: no interreflections, no surface emission.
+//! see the environment. Only direct lighting: no interreflections; a surface's emission
+//! (`MaterialExtra::emission`, times its map) is added where the eye sees it and lights nothing.
 //!
 //! Surfaces are two-sided: the geometric normal is flipped towards the viewer, and a direction
 //! below the geometric surface counts as blocked by it. Shading uses the interpolated vertex
@@ -230,6 +231,8 @@ pub(crate) struct MaterialEval {
     shininess_v: Option<f32>,
     albedo_map: Option<usize>,
     roughness_map: Option<usize>,
+    emission: Vec3,
+    emission_map: Option<usize>,
 }
 
 /// A homogeneous medium.
@@ -424,6 +427,8 @@ impl Context {
                 shininess_v: x.shininess_v,
                 albedo_map: x.albedo_map,
                 roughness_map: x.roughness_map,
+                emission: if x.emission.is_finite() { x.emission.max(Vec3::ZERO) } else { Vec3::ZERO },
+                emission_map: x.emission_map,
             });
         }
         let lights = frame.lights.iter().filter_map(LocalLight::new).collect();
@@ -489,6 +494,17 @@ impl Context {
             shininess = s;
         }
         Brdf::new(m.kind, albedo, m.specular, roughness, shininess, sv)
+    }
+
+    /// The radiance a material emits at `uv` (its emission map applied).
+    fn emission_at(&self, material: u32, uv: glam::Vec2) -> Vec3 {
+        let me = &self.materials[material as usize];
+        match me.emission_map {
+            Some(k) if me.emission != Vec3::ZERO => {
+                (me.emission * self.textures[k].sample(uv).truncate()).max(Vec3::ZERO)
+            }
+            _ => me.emission,
+        }
     }
 
     /// Direct lighting scattered at `p` by `sc`: environment, area and delta lights by light
@@ -601,7 +617,7 @@ impl Context {
                 let origin = hit.p + ng * self.geo.epsilon_at(hit.p);
                 let spec_sg = if self.sg_brdfs { sg_specular(&brdf, wo) } else { None };
                 let sc = Scatter::Surface { brdf, frame, wo, ng, spec_sg, _p: std::marker::PhantomData };
-                l += surface_tr * self.direct(hit.p, origin, &sc, rng);
+                l += surface_tr * (self.direct(hit.p, origin, &sc, rng) + self.emission_at(hit.material, hit.uv));
             }
         }
         if l.is_finite() {

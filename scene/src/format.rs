@@ -15,7 +15,7 @@
 //!                            # radius, motion = {...}
 //! [medium]                   # sigma_a, sigma_s, g (Henyey-Greenstein), volumetric = "temporal" | "full"
 //! [materials.NAME]           # type = "diffuse" | "blinn_phong" | "cook_torrance" | "ashikhmin_shirley",
-//!                            # albedo, specular, roughness, shininess, shininess_v, two_sided,
+//!                            # albedo, specular, roughness, shininess, shininess_v, two_sided, emission (rgb radiance the eye sees),
 //!                            # albedo_map / roughness_map = { file = "x.png" } | { pattern = "checker", ... },
 //!                            # loop, [[materials.NAME.keys]] t, roughness, albedo, specular
 //! [[object]]                 # name, mesh = { type = "sphere", ... } | file = "x.glb", material,
@@ -191,6 +191,7 @@ struct MaterialSpec {
     shininess_v: Option<f32>,
     #[serde(default)]
     two_sided: bool,
+    emission: Option<V3>,
     albedo_map: Option<TextureSpec>,
     roughness_map: Option<TextureSpec>,
     #[serde(default)]
@@ -1035,6 +1036,12 @@ fn material(
         mat.roughness = check01(r, "roughness")?;
     }
     let mut extra = MaterialExtra { two_sided: m.two_sided, ..Default::default() };
+    if let Some(e) = m.emission {
+        if !e.0.is_finite() || e.0.min_element() < 0.0 {
+            return Err(ctx.err_at(span, format!("{what}: emission must be finite and >= 0")));
+        }
+        extra.emission = e.0;
+    }
     if let Some(v) = m.shininess_v {
         if !matches!(m.kind, MaterialType::AshikhminShirley) {
             return Err(ctx.err_at(span, format!("{what}: shininess_v applies to ashikhmin_shirley only")));

@@ -58,7 +58,7 @@ pub struct AssetLight {
 }
 
 /// The glTF extensions penumbra reads.
-pub const SUPPORTED_EXTENSIONS: &[&str] = &["KHR_lights_punctual"];
+pub const SUPPORTED_EXTENSIONS: &[&str] = &["KHR_lights_punctual", "KHR_materials_emissive_strength"];
 
 /// Photometric glTF light intensities (candela, lux) become the scene's radiometric units
 /// (W/sr, W/m^2) divided by this luminous efficacy (the 555 nm maximum, as Blender's exporter
@@ -310,11 +310,20 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
         if let Some(info) = pbr.metallic_roughness_texture() {
             ex.roughness_map = Some(load_image(info.texture().source(), false, &mut textures)?);
         }
+        // Emission: the factor times KHR_materials_emissive_strength, times the texture (sRGB).
+        let strength = m.emissive_strength().unwrap_or(1.0);
+        let emission = Vec3::from_array(m.emissive_factor()) * strength;
+        if !emission.is_finite() || emission.min_element() < 0.0 {
+            return Err(gerr(path, format!("material '{name}' has a non-finite or negative emission")));
+        }
+        ex.emission = emission;
+        if let Some(info) = m.emissive_texture() {
+            if emission != Vec3::ZERO {
+                ex.emission_map = Some(load_image(info.texture().source(), true, &mut textures)?);
+            }
+        }
         // What the material model has no place for yet, said once per material.
         let mut ignored: Vec<String> = Vec::new();
-        if m.emissive_factor().iter().any(|&e| e > 0.0) || m.emissive_texture().is_some() {
-            ignored.push("its emission (emissiveFactor/emissiveTexture)".into());
-        }
         if m.normal_texture().is_some() {
             ignored.push("its normal map (shading uses the mesh normals)".into());
         }
@@ -1080,6 +1089,7 @@ pub fn instantiate(
         scene.material_extras.push(MaterialExtra {
             albedo_map: e.albedo_map.map(|t| t + tex0),
             roughness_map: e.roughness_map.map(|t| t + tex0),
+            emission_map: e.emission_map.map(|t| t + tex0),
             ..e.clone()
         });
     }

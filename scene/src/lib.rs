@@ -317,11 +317,16 @@ pub struct MaterialExtra {
     pub shininess_v: Option<f32>,
     /// Shade both sides (thin shells such as cloth).
     pub two_sided: bool,
+    /// Emitted radiance (linear RGB, W/(sr m^2)) that the surface shows to the eye; it lights
+    /// nothing else (the reference is direct lighting only, and so are the techniques).
+    pub emission: Vec3,
+    /// Emission texture (index into [`Scene::textures`]), multiplies `emission`, linear RGB.
+    pub emission_map: Option<usize>,
 }
 
 impl MaterialExtra {
     pub fn is_spatially_varying(&self) -> bool {
-        self.albedo_map.is_some() || self.roughness_map.is_some()
+        self.albedo_map.is_some() || self.roughness_map.is_some() || self.emission_map.is_some()
     }
 }
 

@@ -429,8 +429,8 @@ fn negative_environment_texels_are_black_for_everyone_and_reported() {
 
 /// `scenes/assets/sun_and_spot.gltf`: its KHR_lights_punctual sun and spot become scene lights
 /// (placed by their nodes, candela and lux over 683 lm/W), its perspective camera the scene's
-/// camera, and what penumbra ignores (a normal map, an emissive material, KHR_texture_transform)
-/// is said in warnings.
+/// camera, its emissive material an emission, and what penumbra ignores (a normal map,
+/// KHR_texture_transform) is said in warnings.
 #[test]
 fn gltf_lights_camera_and_ignored_features() {
     use penumbra_scene::LightKind;
@@ -453,11 +453,14 @@ fn gltf_lights_camera_and_ignored_features() {
     assert!(approx(forward, (Vec3::new(0.0, 0.35, 0.0) - c.eye).normalize(), 1e-4), "{forward:?}");
     assert!((c.fov_y_deg - 0.75f32.to_degrees()).abs() < 1e-3 && c.near == 0.05 && c.far == 50.0, "{c:?}");
     let w = s.warnings.join("\n");
-    for needle in
-        ["KHR_texture_transform", "'crate': penumbra ignores its normal map", "'lamp': penumbra ignores its emission"]
-    {
+    for needle in ["KHR_texture_transform", "'crate': penumbra ignores its normal map"] {
         assert!(w.contains(needle), "no warning with '{needle}':\n{w}");
     }
+    // its emissive material is read, not warned about
+    assert!(!w.contains("emission"), "{w}");
+    let lamp = s.materials.iter().position(|m| m.name == "lamp").unwrap();
+    assert_eq!(s.material_extra(lamp).emission, Vec3::new(1.0, 0.9, 0.5));
+    assert_eq!(s.material_extra(lamp).emission_map, None);
     // the same model placed by a scene file: the file's camera wins, and the model's is named
     let dir = common::temp_dir("sun_and_spot");
     let toml = format!(
@@ -503,4 +506,52 @@ fn directional_lights_in_scene_files() {
     let e = Scene::load(dir.join("medium.toml")).unwrap_err();
     assert!(matches!(e, penumbra_scene::SceneError::Unsupported { .. }), "{e}");
     assert!(e.to_string().contains("directional light 'sun'") && e.to_string().contains("medium.toml"), "{e}");
+}
+
+/// Emission in scene files (`emission = [r, g, b]`) and glTF (factor x
+/// KHR_materials_emissive_strength, with an emissive texture as a map); negative or non-finite
+/// emission is an error.
+#[test]
+fn emission_from_scene_files_and_gltf() {
+    let dir = common::temp_dir("emission");
+    let head = "[camera]\neye = [0, 1, 4]\ntarget = [0, 0, 0]\n[[object]]\nname = \"b\"\nmesh = { type = \"cube\", size = 1 }\nmaterial = \"glow\"\n";
+    std::fs::write(
+        dir.join("ok.toml"),
+        format!("{head}[materials.glow]\ntype = \"diffuse\"\nalbedo = 0.5\nemission = [2, 1, 0]\n"),
+    )
+    .unwrap();
+    let s = Scene::load(dir.join("ok.toml")).unwrap();
+    assert_eq!(s.material_extra(s.objects[0].material).emission, Vec3::new(2.0, 1.0, 0.0));
+    std::fs::write(
+        dir.join("bad.toml"),
+        format!("{head}[materials.glow]\ntype = \"diffuse\"\nalbedo = 0.5\nemission = [-1, 0, 0]\n"),
+    )
+    .unwrap();
+    let e = Scene::load(dir.join("bad.toml")).unwrap_err().to_string();
+    assert!(e.contains("bad.toml") && e.contains("emission must be finite and >= 0"), "{e}");
+    // glTF: strength 4 times the factor, and the emissive texture as the emission map
+    let (pos, idx) = common::tetra();
+    let mut bin = Bin::default();
+    let mut doc = common::simple(&mut bin, &pos, &idx, None);
+    doc["extensionsUsed"] = json!(["KHR_materials_emissive_strength"]);
+    doc["materials"][0]["emissiveFactor"] = json!([0.5, 0.25, 1.0]);
+    doc["materials"][0]["extensions"] = json!({"KHR_materials_emissive_strength": {"emissiveStrength": 4.0}});
+    let png = {
+        let mut b = Vec::new();
+        image::RgbImage::from_pixel(1, 1, image::Rgb([255, 255, 255]))
+            .write_to(&mut std::io::Cursor::new(&mut b), image::ImageFormat::Png)
+            .unwrap();
+        b
+    };
+    doc["images"] = json!([{"uri": format!("data:image/png;base64,{}", common::base64(&png))}]);
+    doc["textures"] = json!([{"source": 0}]);
+    doc["materials"][0]["emissiveTexture"] = json!({"index": 0});
+    let p = dir.join("glow.glb");
+    std::fs::write(&p, common::glb(&doc, &bin.bytes)).unwrap();
+    let s = Scene::load(&p).unwrap();
+    let x = s.material_extra(s.objects[0].material);
+    assert_eq!(x.emission, Vec3::new(2.0, 1.0, 4.0));
+    let map = x.emission_map.expect("emission map");
+    assert_eq!(s.textures[map].texels[0], [1.0, 1.0, 1.0, 1.0]);
+    assert!(s.warnings.iter().all(|w| !w.contains("emissive_strength")), "{:?}", s.warnings);
 }

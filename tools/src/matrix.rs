@@ -949,6 +949,7 @@ mod tests {
                 let scene_path = [
                     repo_root().join(format!("scenes/{stem}.toml")),
                     repo_root().join(format!("scenes/assets/{stem}.glb")),
+                    repo_root().join(format!("scenes/assets/{stem}.gltf")),
                 ]
                 .into_iter()
                 .find(|p| p.exists())
