@@ -274,6 +274,26 @@ pub fn cache_key(scene_bytes: &[u8], opts: &ConvergeOptions) -> String {
     format!("{h:016x}")
 }
 
+/// [`cache_key`] of a loaded scene: its file's bytes, tagged with the renderer features the scene
+/// uses that came after [`REFERENCE_VERSION`]'s last change (surface emission, directional
+/// lights), so that a reference cached before the renderer drew them is not reused, while every
+/// other scene keeps its key (and its checked-in reference).
+pub fn scene_cache_key(scene: &Scene, scene_bytes: &[u8], opts: &ConvergeOptions) -> String {
+    let mut tags = Vec::new();
+    if scene.material_extras.iter().any(|x| x.emission != glam::Vec3::ZERO) {
+        tags.push("emission");
+    }
+    if scene.lights.iter().any(|l| l.kind == penumbra_scene::LightKind::Directional) {
+        tags.push("directional");
+    }
+    if tags.is_empty() {
+        return cache_key(scene_bytes, opts);
+    }
+    let mut bytes = scene_bytes.to_vec();
+    bytes.extend_from_slice(format!("\0penumbra reference features: {}", tags.join(" ")).as_bytes());
+    cache_key(&bytes, opts)
+}
+
 /// A scene file's stem as a cache file name part (anything but ASCII letters, digits, `_` and
 /// `-` becomes `_`).
 pub fn cache_stem(stem: &str) -> String {
@@ -297,7 +317,7 @@ pub fn load_or_render(
     opts: &ConvergeOptions,
     cache: Option<&Path>,
 ) -> Result<Converged, RenderError> {
-    let key = cache_key(scene_bytes, opts);
+    let key = scene_cache_key(scene, scene_bytes, opts);
     let path = cache.map(|d| cache_path(d, stem, opts, &key));
     if let Some(p) = &path {
         let meta_path = p.with_extension("json");

@@ -233,6 +233,30 @@ mod converge {
         assert_ne!(cache_key(b"scene", &o5), cache_key(b"scene", &o6));
     }
 
+    /// A scene using what the reference learned to draw after its version's last change
+    /// (emission, directional lights) gets a key of its own; any other keeps the file's key.
+    #[test]
+    fn scene_cache_key_tags_emission_and_directional_lights() {
+        let o = ConvergeOptions::default();
+        let plain = penumbra_scene::Scene::default_scene();
+        assert_eq!(scene_cache_key(&plain, b"scene", &o), cache_key(b"scene", &o));
+        let mut glow = plain.clone();
+        glow.material_extras.resize(glow.materials.len(), Default::default());
+        glow.material_extras[0].emission = glam::Vec3::ONE;
+        let mut sun = plain.clone();
+        sun.lights.push(penumbra_scene::Light {
+            name: "sun".into(),
+            kind: penumbra_scene::LightKind::Directional,
+            position: glam::Vec3::ZERO,
+            direction: glam::Vec3::NEG_Y,
+            color: glam::Vec3::ONE,
+            intensity: 1.0,
+            motion: penumbra_scene::RigidMotion::Static,
+        });
+        let (kg, ks) = (scene_cache_key(&glow, b"scene", &o), scene_cache_key(&sun, b"scene", &o));
+        assert!(kg != cache_key(b"scene", &o) && ks != cache_key(b"scene", &o) && kg != ks);
+    }
+
     #[test]
     fn converges_to_the_target_and_reuses_the_cache() {
         let scene = Scene::default_scene();

@@ -46,9 +46,16 @@ fn checked_in_references() -> Vec<PathBuf> {
 /// Copies a checked-in reference of exactly this scene file, size, frame and reference version
 /// into `cache` when the cache lacks it, so that a fresh clone does not spend hours converging
 /// references the repository already holds. `load_or_render` then checks it like any cached one.
-fn seed_reference(cache: &Path, dirs: &[PathBuf], stem: &str, scene_bytes: &[u8], copts: &ConvergeOptions) {
-    use penumbra_reference::converge::{cache_key, cache_path};
-    let key = cache_key(scene_bytes, copts);
+fn seed_reference(
+    cache: &Path,
+    dirs: &[PathBuf],
+    scene: &Scene,
+    stem: &str,
+    scene_bytes: &[u8],
+    copts: &ConvergeOptions,
+) {
+    use penumbra_reference::converge::{cache_path, scene_cache_key};
+    let key = scene_cache_key(scene, scene_bytes, copts);
     let dest = cache_path(cache, stem, copts, &key);
     if dest.exists() {
         return;
@@ -455,7 +462,7 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
         }
         let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
         let copts = converge_options(&scene, w, h, args.supersample, args.frame, args.fps, args.noise, args.max_spp);
-        seed_reference(&cache, &seeds, &stem, &bytes, &copts);
+        seed_reference(&cache, &seeds, &scene, &stem, &bytes, &copts);
         let reference = load_or_render(&scene, &bytes, &stem, &copts, Some(&cache))
             .with_context(|| format!("reference of {}", path.display()))?;
         eprintln!(
@@ -965,7 +972,7 @@ mod tests {
                     .into_iter()
                     .map(|ss| converge_options(&scene, w, h, ss, frame, 30.0, 0.01, 131072))
                     .find(|c| {
-                        seed_reference(&cache, &dirs, &stem, &bytes, c);
+                        seed_reference(&cache, &dirs, &scene, &stem, &bytes, c);
                         seeded.exists()
                     })
                     .unwrap_or_else(|| converge_options(&scene, w, h, 2, frame, 30.0, 0.01, 131072));
