@@ -2,6 +2,9 @@
 #include "common.glsl"
 
 layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
+layout(std430, set = 0, binding = 2) readonly buffer Materials { MaterialData mats[]; };
+layout(set = 0, binding = 3) uniform sampler2DArray material_textures;
+#include "material.glsl"
 
 layout(location = 0) in vec3 v_world;
 layout(location = 1) in vec3 v_normal;
@@ -19,9 +22,15 @@ void main() {
     vec3 n = normalize(v_normal);
     vec3 v = cam.eye.xyz - v_world;
     if (!gl_FrontFacing) n = -n;  // two-sided shading
-    // Tangent from screen-space derivatives of position and uv (local frame for anisotropic BRDFs).
+    // dP/du and dP/dv from screen-space derivatives of position and uv: the material's normal map
+    // bends the normal in their frame; the tangent (dP/du) is the local frame of anisotropic BRDFs.
     vec3 dp1 = dFdx(v_world), dp2 = dFdy(v_world);
     vec2 duv1 = dFdx(v_uv), duv2 = dFdy(v_uv);
+    float det = duv1.x * duv2.y - duv1.y * duv2.x;
+    float sg = det < 0.0 ? -1.0 : 1.0;
+    vec3 dpdu = (dp1 * duv2.y - dp2 * duv1.y) * sg;
+    vec3 dpdv = (dp2 * duv1.x - dp1 * duv2.x) * sg;
+    n = material_normal(mats[v_ids.x], v_uv, material_textures, n, dpdu, dpdv);
     vec3 t = dp1 * duv2.y - dp2 * duv1.y;
     t -= n * dot(n, t);
     if (dot(t, t) < 1e-20) {

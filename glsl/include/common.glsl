@@ -29,6 +29,7 @@ struct MaterialData {
                        // z roughness map layer (-1 none), w Ashikhmin-Shirley nv (= x if isotropic)
                        // (read through material.glsl's material_at)
     vec4 emission;     // rgb emitted radiance (seen by the eye only), w emission map layer (-1 none)
+    vec4 normal;       // x tangent-space normal map layer (-1 none), y its scale (material_normal)
 };
 
 struct LightData {

@@ -25,6 +25,23 @@ MaterialData material_at(MaterialData m, vec2 uv, sampler2DArray tex) {
     return m;
 }
 
+// The shading normal n with the material's tangent-space normal map applied at uv (as the
+// reference's normal_at): +x along dpdu, +y along dpdv (the surface's position derivatives along
+// u and v, any length), z along n; x and y scaled by the map's scale. Applied once, where the
+// G-buffer is written (and by mc at its primary hits): every technique shades with the result.
+vec3 material_normal(MaterialData m, vec2 uv, sampler2DArray tex, vec3 n, vec3 dpdu, vec3 dpdv) {
+    if (m.normal.x < 0.0) return n;
+    vec3 t = dpdu - n * dot(n, dpdu);
+    if (!(dot(t, t) >= 1e-20)) return n;
+    t = normalize(t);
+    vec3 b = cross(n, t);
+    if (dot(b, dpdv) < 0.0) b = -b;
+    vec3 c = textureLod(tex, vec3(uv, m.normal.x), 0.0).rgb * 2.0 - 1.0;
+    vec3 nm = t * (c.x * m.normal.y) + b * (c.y * m.normal.y) + n * max(c.z, 1e-3);
+    float l2 = dot(nm, nm);
+    return l2 > 0.0 ? nm * inversesqrt(l2) : n;
+}
+
 // The radiance the surface emits towards the eye (after material_at: its map applied). It
 // lights nothing else: the reference and every technique compute direct lighting only.
 vec3 material_emission(MaterialData m) {

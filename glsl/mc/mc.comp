@@ -215,6 +215,21 @@ vec3 radiance_sample(vec2 ndc) {
     vec3 wo_w = -d;
     if (dot(ng, wo_w) < 0.0) ng = -ng;        // two-sided: towards the viewer
     if (dot(ns, ng) < 0.0) ns = -ns;
+    // render.rs brdf_at: the material with its maps at the interpolated uv, then Brdf::new; its
+    // normal map bends ns in the triangle's dP/du, dP/dv frame (render.rs normal_at)
+    uint mi = floatBitsToUint(t0.w);
+    vec4 t4 = tri_data[6u * ti + 4u];
+    vec2 uv0 = t4.xy, uv1 = t4.zw, uv2 = tri_data[6u * ti + 5u].xy;
+    vec2 uv = uv0 * b0 + uv1 * b1 + uv2 * b2;
+    MaterialData mat = material_at(mats[mi], uv, material_textures);
+    {
+        vec2 d1 = uv1 - uv0, d2 = uv2 - uv0;
+        float det = d1.x * d2.y - d1.y * d2.x;
+        if (abs(det) > 1e-12) {
+            vec3 e1 = p1 - p0, e2 = p2 - p0;
+            ns = material_normal(mat, uv, material_textures, ns, (e1 * d2.y - e2 * d1.y) / det, (e2 * d1.x - e1 * d2.x) / det);
+        }
+    }
     // shading frame (sampling.rs Frame::new)
     vec3 tt = t3.xyz - ns * dot(ns, t3.xyz);
     if (dot(tt, tt) > 1e-12) tt = normalize(tt);
@@ -227,11 +242,6 @@ vec3 radiance_sample(vec2 ndc) {
     vec3 bt = cross(ns, tt);
     mat3 to_world = mat3(tt, bt, ns);
     vec3 wo = vec3(dot(wo_w, tt), dot(wo_w, bt), dot(wo_w, ns));
-    uint mi = floatBitsToUint(t0.w);
-    // render.rs brdf_at: the material with its maps at the interpolated uv, then Brdf::new
-    vec4 t4 = tri_data[6u * ti + 4u];
-    vec2 uv = t4.xy * b0 + t4.zw * b1 + tri_data[6u * ti + 5u].xy * b2;
-    MaterialData mat = material_at(mats[mi], uv, material_textures);
     Brdf b = brdf_from_material(mat);
     vec3 x = p + ng * (3e-5 * (1.0 + max(max(abs(p.x), abs(p.y)), abs(p.z))));
     // what the surface emits towards the eye (direct lighting only: it lights nothing)

@@ -15,6 +15,11 @@ void main() {
     vec3 lambda = max(v_bary, vec3(0.0));
     lambda /= max(lambda.x + lambda.y + lambda.z, 1e-6);
     MaterialData m = vv_material(v_vids.x, v_uv);
+    // the material's normal map (as the G-buffer applies it for the other techniques)
+    vec3 dp1 = dFdx(v_world), dp2 = dFdy(v_world);
+    vec2 duv1 = dFdx(v_uv), duv2 = dFdy(v_uv);
+    float sg = duv1.x * duv2.y - duv1.y * duv2.x < 0.0 ? -1.0 : 1.0;
+    n = material_normal(m, v_uv, material_textures, n, (dp1 * duv2.y - dp2 * duv1.y) * sg, (dp2 * duv1.x - dp1 * duv2.x) * sg);
     vec3 c = pc.sat.w == 0 || vv_tri_fallback(gl_PrimitiveID) ? vv_eval_three(vv_sat_tex, v_vids, lambda, v_world, n, m)
                                                               : vv_eval_interp(vv_sat_tex, gl_PrimitiveID, lambda, v_world, n, m);
     o_color = vec4(c, 1.0);

@@ -62,6 +62,8 @@ impl GBufferReads {
 
 pub struct GBufferPass {
     pipeline: Pipeline,
+    /// The material textures' sampler (normal maps).
+    repeat: crate::util::Sampler,
 }
 
 impl GBufferPass {
@@ -72,14 +74,19 @@ impl GBufferPass {
             &RasterDesc {
                 name: "gbuffer",
                 shaders: &["frame/gbuffer.vert", "frame/gbuffer.frag"],
-                descriptors: &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
+                descriptors: &[
+                    vk::DescriptorType::UNIFORM_BUFFER,
+                    vk::DescriptorType::STORAGE_BUFFER,
+                    vk::DescriptorType::STORAGE_BUFFER,
+                    vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+                ],
                 vertex_input: VertexInput::PositionNormalUv,
                 colors: &[POSITION_FORMAT, NORMAL_FORMAT, UV_MAT_FORMAT, MOTION_FORMAT],
                 depth: Some(DepthState { format: DEPTH_FORMAT, write: true, compare: vk::CompareOp::LESS }),
                 ..Default::default()
             },
         )?;
-        Ok(GBufferPass { pipeline })
+        Ok(GBufferPass { pipeline, repeat: crate::util::Sampler::repeat(ctx)? })
     }
 
     /// Declares the G-buffer images and the `gbuffer` pass that fills them.
@@ -97,6 +104,10 @@ impl GBufferPass {
         let depth = p.write(depth, Access::DepthAttachmentWrite);
         let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
         let instances = p.read(scene.instances, Access::VertexShaderReadStorage);
+        // the materials' normal maps bend the normals as they are written
+        let materials = p.read(scene.materials, Access::FragmentShaderReadStorage);
+        let textures = p.read(scene.textures, Access::FragmentShaderReadSampled);
+        let repeat = self.repeat.sampler;
         let vertices = p.read(scene.vertices, Access::VertexBuffer);
         let indices = p.read(scene.indices, Access::IndexBuffer);
         let deformed = scene.deformed_vertices.map(|h| p.read(h, Access::VertexBuffer));
@@ -126,7 +137,12 @@ impl GBufferPass {
                 vk::PipelineBindPoint::GRAPHICS,
                 layout,
                 0,
-                &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)],
+                &[
+                    Bind::UniformBuffer(camera),
+                    Bind::StorageBuffer(instances),
+                    Bind::StorageBuffer(materials),
+                    Bind::SampledImage(textures, repeat),
+                ],
             )?;
             crate::raster::draw_meshes(d, rc.cmd, &draws, ib.buffer, vb.buffer, db.map(|b| b.buffer), |dr| unsafe {
                 let m = dr.mesh;

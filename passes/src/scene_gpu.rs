@@ -53,6 +53,8 @@ struct MaterialData {
     extra: [f32; 4],
     /// rgb emitted radiance, w emission map layer (-1 none)
     emission: [f32; 4],
+    /// x normal map layer (-1 none), y its scale
+    normal: [f32; 4],
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -214,6 +216,11 @@ pub fn material_table(materials: &[Material], extras: &[MaterialExtra]) -> Vec<u
                 emission: {
                     let e = x.map_or(glam::Vec3::ZERO, |x| san(x.emission));
                     [e.x, e.y, e.z, x.and_then(|x| x.emission_map).map_or(-1.0, |l| l as f32)]
+                },
+                normal: {
+                    let s = x.map_or(1.0, |x| x.normal_scale);
+                    let s = if s.is_finite() && s != 0.0 { s } else { 1.0 };
+                    [x.and_then(|x| x.normal_map).map_or(-1.0, |l| l as f32), s, 0.0, 0.0]
                 },
             }
         })

@@ -20,6 +20,9 @@ pub struct TriData {
     pub n: [Vec3; 3],
     /// World-space dP/du (zero if the mesh has no usable UVs).
     pub tangent: Vec3,
+    /// World-space dP/dv (zero if the mesh has no usable UVs): with `tangent`, the frame of
+    /// tangent-space normal maps.
+    pub bitangent: Vec3,
     /// Vertex texture coordinates (zero if the mesh has none).
     pub uv: [Vec2; 3],
     pub material: u32,
@@ -37,6 +40,8 @@ pub struct Hit {
     /// Unit interpolated shading normal, on the same side as `ng`.
     pub ns: Vec3,
     pub tangent: Vec3,
+    /// dP/dv of the hit triangle.
+    pub bitangent: Vec3,
     /// Interpolated texture coordinates.
     pub uv: Vec2,
     pub material: u32,
@@ -119,27 +124,38 @@ impl Geometry {
                 } else {
                     [ng; 3]
                 };
-                let tangent = if has_uv {
+                let (tangent, bitangent) = if has_uv {
                     let (uv0, uv1, uv2) = (mesh.uvs[i0], mesh.uvs[i1], mesh.uvs[i2]);
                     let (d1, d2): (Vec2, Vec2) = (uv1 - uv0, uv2 - uv0);
                     let det = d1.x * d2.y - d1.y * d2.x;
                     if det.abs() > 1e-12 {
                         let t = (e1 * d2.y - e2 * d1.y) / det;
-                        if t.is_finite() {
-                            t
+                        let b = (e2 * d1.x - e1 * d2.x) / det;
+                        if t.is_finite() && b.is_finite() {
+                            (t, b)
                         } else {
-                            Vec3::ZERO
+                            (Vec3::ZERO, Vec3::ZERO)
                         }
                     } else {
-                        Vec3::ZERO
+                        (Vec3::ZERO, Vec3::ZERO)
                     }
                 } else {
-                    Vec3::ZERO
+                    (Vec3::ZERO, Vec3::ZERO)
                 };
                 extent = extent.max(p0.abs().max_element()).max(p1.abs().max_element()).max(p2.abs().max_element());
                 tris.push(Triangle { v0: a(p0), v1: a(p1), v2: a(p2) });
                 let uv = if has_uv { [mesh.uvs[i0], mesh.uvs[i1], mesh.uvs[i2]] } else { [Vec2::ZERO; 3] };
-                data.push(TriData { v0: p0, e1, e2, n, tangent, uv, material: inst.material as u32, casts_shadow });
+                data.push(TriData {
+                    v0: p0,
+                    e1,
+                    e2,
+                    n,
+                    tangent,
+                    bitangent,
+                    uv,
+                    material: inst.material as u32,
+                    casts_shadow,
+                });
             }
         }
         let bvh = if tris.is_empty() {
@@ -198,7 +214,17 @@ impl Geometry {
         let uv = td.uv[0] * b0 + td.uv[1] * b1 + td.uv[2] * b2;
         // Vertex normals that disagree with the winding: trust the vertex normals' side.
         let ng = if ns.dot(ng) < 0.0 { -ng } else { ng };
-        Some(Hit { t: hit.t, p, ng, ns, tangent: td.tangent, uv, material: td.material, triangle: ti })
+        Some(Hit {
+            t: hit.t,
+            p,
+            ng,
+            ns,
+            tangent: td.tangent,
+            bitangent: td.bitangent,
+            uv,
+            material: td.material,
+            triangle: ti,
+        })
     }
 
     /// True if no shadow-casting triangle blocks `o + t d` for `t` in (0, tmax).

@@ -16,7 +16,8 @@
 //!
 //! Surfaces are two-sided: the geometric normal is flipped towards the viewer, and a direction
 //! below the geometric surface counts as blocked by it. Shading uses the interpolated vertex
-//! normal (and dP/du as tangent); where the viewer is below the shading hemisphere the BRDF is
+//! normal, bent by the material's tangent-space normal map (+x along dP/du, +y along dP/dv), and
+//! dP/du as tangent; where the viewer is below the shading hemisphere the BRDF is
 //! zero. Materials are the frame's (animated) materials with `albedo_map` (multiplies albedo)
 //! and `roughness_map` (G channel multiplies roughness; Phong exponents follow
 //! `2 / r^2 - 2`) sampled bilinearly at the interpolated UV.
@@ -233,6 +234,8 @@ pub(crate) struct MaterialEval {
     roughness_map: Option<usize>,
     emission: Vec3,
     emission_map: Option<usize>,
+    normal_map: Option<usize>,
+    normal_scale: f32,
 }
 
 /// A homogeneous medium.
@@ -429,6 +432,8 @@ impl Context {
                 roughness_map: x.roughness_map,
                 emission: if x.emission.is_finite() { x.emission.max(Vec3::ZERO) } else { Vec3::ZERO },
                 emission_map: x.emission_map,
+                normal_map: x.normal_map,
+                normal_scale: if x.normal_scale.is_finite() && x.normal_scale != 0.0 { x.normal_scale } else { 1.0 },
             });
         }
         let lights = frame.lights.iter().filter_map(LocalLight::new).collect();
@@ -494,6 +499,30 @@ impl Context {
             shininess = s;
         }
         Brdf::new(m.kind, albedo, m.specular, roughness, shininess, sv)
+    }
+
+    /// The shading normal `ns` with the material's tangent-space normal map applied at `uv`
+    /// (`material_normal` in `glsl/include/material.glsl`): +x along dP/du, +y along dP/dv.
+    fn normal_at(&self, material: u32, uv: glam::Vec2, ns: Vec3, dpdu: Vec3, dpdv: Vec3) -> Vec3 {
+        let me = &self.materials[material as usize];
+        let Some(k) = me.normal_map else { return ns };
+        let t = dpdu - ns * ns.dot(dpdu);
+        if t.length_squared() < 1e-20 || !t.is_finite() {
+            return ns;
+        }
+        let t = t.normalize();
+        let mut b = ns.cross(t);
+        if b.dot(dpdv) < 0.0 {
+            b = -b;
+        }
+        let c = self.textures[k].sample(uv).truncate() * 2.0 - Vec3::ONE;
+        let s = me.normal_scale;
+        let n = (t * (c.x * s) + b * (c.y * s) + ns * c.z.max(1e-3)).normalize_or_zero();
+        if n == Vec3::ZERO || !n.is_finite() {
+            ns
+        } else {
+            n
+        }
     }
 
     /// The radiance a material emits at `uv` (its emission map applied).
@@ -611,6 +640,7 @@ impl Context {
                 let wo_w = -d;
                 let ng = if hit.ng.dot(wo_w) >= 0.0 { hit.ng } else { -hit.ng };
                 let ns = if hit.ns.dot(ng) >= 0.0 { hit.ns } else { -hit.ns };
+                let ns = self.normal_at(hit.material, hit.uv, ns, hit.tangent, hit.bitangent);
                 let brdf = self.brdf_at(hit.material, hit.uv);
                 let frame = ShadingFrame::new(ns, hit.tangent);
                 let wo = frame.to_local(wo_w);

@@ -16,7 +16,8 @@
 //! [medium]                   # sigma_a, sigma_s, g (Henyey-Greenstein), volumetric = "temporal" | "full"
 //! [materials.NAME]           # type = "diffuse" | "blinn_phong" | "cook_torrance" | "ashikhmin_shirley",
 //!                            # albedo, specular, roughness, shininess, shininess_v, two_sided, emission (rgb radiance the eye sees),
-//!                            # albedo_map / roughness_map = { file = "x.png" } | { pattern = "checker", ... },
+//!                            # albedo_map / roughness_map / normal_map (tangent space, linear) =
+//!                            # { file = "x.png" } | { pattern = "checker", ... },
 //!                            # loop, [[materials.NAME.keys]] t, roughness, albedo, specular
 //! [[object]]                 # name, mesh = { type = "sphere", ... } | file = "x.glb", material,
 //!                            # position, rotation_deg, scale, fit_height, animation, thin_shell,
@@ -194,6 +195,7 @@ struct MaterialSpec {
     emission: Option<V3>,
     albedo_map: Option<TextureSpec>,
     roughness_map: Option<TextureSpec>,
+    normal_map: Option<TextureSpec>,
     #[serde(default)]
     keys: Vec<MaterialKey>,
     #[serde(default, rename = "loop")]
@@ -1051,7 +1053,7 @@ fn material(
         }
         extra.shininess_v = Some(v);
     }
-    for (spec, srgb, slot) in [(&m.albedo_map, true, 0), (&m.roughness_map, false, 1)] {
+    for (spec, srgb, slot) in [(&m.albedo_map, true, 0), (&m.roughness_map, false, 1), (&m.normal_map, false, 2)] {
         let Some(t) = spec else { continue };
         let tex = match (&t.file, &t.pattern) {
             (Some(f), None) => {
@@ -1074,7 +1076,7 @@ fn material(
                     );
                 }
                 Texture::pattern(
-                    &format!("{name}.{}", if slot == 0 { "albedo" } else { "roughness" }),
+                    &format!("{name}.{}", ["albedo", "roughness", "normal"][slot]),
                     pat,
                     t.size,
                     t.scale,
@@ -1087,10 +1089,10 @@ fn material(
             }
         };
         textures.push(tex);
-        if slot == 0 {
-            extra.albedo_map = Some(textures.len() - 1);
-        } else {
-            extra.roughness_map = Some(textures.len() - 1);
+        match slot {
+            0 => extra.albedo_map = Some(textures.len() - 1),
+            1 => extra.roughness_map = Some(textures.len() - 1),
+            _ => extra.normal_map = Some(textures.len() - 1),
         }
     }
     let _ = Vec4::ZERO;

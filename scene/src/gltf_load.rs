@@ -322,11 +322,22 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
                 ex.emission_map = Some(load_image(info.texture().source(), true, &mut textures)?);
             }
         }
+        if let Some(nt) = m.normal_texture() {
+            if nt.tex_coord() != 0 {
+                warnings.push(format!(
+                    "{label}: material '{name}': normal map uses TEXCOORD_{}, reading TEXCOORD_0",
+                    nt.tex_coord()
+                ));
+            }
+            let scale = nt.scale();
+            if !scale.is_finite() {
+                return Err(gerr(path, format!("material '{name}': normal map scale is not finite")));
+            }
+            ex.normal_map = Some(load_image(nt.texture().source(), false, &mut textures)?);
+            ex.normal_scale = scale;
+        }
         // What the material model has no place for yet, said once per material.
         let mut ignored: Vec<String> = Vec::new();
-        if m.normal_texture().is_some() {
-            ignored.push("its normal map (shading uses the mesh normals)".into());
-        }
         if m.occlusion_texture().is_some() {
             ignored.push("its occlusion map (the techniques compute visibility themselves)".into());
         }
@@ -1090,6 +1101,7 @@ pub fn instantiate(
             albedo_map: e.albedo_map.map(|t| t + tex0),
             roughness_map: e.roughness_map.map(|t| t + tex0),
             emission_map: e.emission_map.map(|t| t + tex0),
+            normal_map: e.normal_map.map(|t| t + tex0),
             ..e.clone()
         });
     }

@@ -322,11 +322,19 @@ pub struct MaterialExtra {
     pub emission: Vec3,
     /// Emission texture (index into [`Scene::textures`]), multiplies `emission`, linear RGB.
     pub emission_map: Option<usize>,
+    /// Tangent-space normal map (index into [`Scene::textures`], linear: rgb = n * 0.5 + 0.5,
+    /// +x along increasing u, +y along increasing v, as glTF's `normalTexture`).
+    pub normal_map: Option<usize>,
+    /// The normal map's x and y scale (glTF's `normalTexture.scale`; 0 is read as 1).
+    pub normal_scale: f32,
 }
 
 impl MaterialExtra {
     pub fn is_spatially_varying(&self) -> bool {
-        self.albedo_map.is_some() || self.roughness_map.is_some() || self.emission_map.is_some()
+        self.albedo_map.is_some()
+            || self.roughness_map.is_some()
+            || self.emission_map.is_some()
+            || self.normal_map.is_some()
     }
 }
 

@@ -429,8 +429,8 @@ fn negative_environment_texels_are_black_for_everyone_and_reported() {
 
 /// `scenes/assets/sun_and_spot.gltf`: its KHR_lights_punctual sun and spot become scene lights
 /// (placed by their nodes, candela and lux over 683 lm/W), its perspective camera the scene's
-/// camera, its emissive material an emission, and what penumbra ignores (a normal map,
-/// KHR_texture_transform) is said in warnings.
+/// camera, its emissive material an emission, its normal map a normal map, and what penumbra
+/// ignores (KHR_texture_transform) is said in a warning.
 #[test]
 fn gltf_lights_camera_and_ignored_features() {
     use penumbra_scene::LightKind;
@@ -453,11 +453,12 @@ fn gltf_lights_camera_and_ignored_features() {
     assert!(approx(forward, (Vec3::new(0.0, 0.35, 0.0) - c.eye).normalize(), 1e-4), "{forward:?}");
     assert!((c.fov_y_deg - 0.75f32.to_degrees()).abs() < 1e-3 && c.near == 0.05 && c.far == 50.0, "{c:?}");
     let w = s.warnings.join("\n");
-    for needle in ["KHR_texture_transform", "'crate': penumbra ignores its normal map"] {
-        assert!(w.contains(needle), "no warning with '{needle}':\n{w}");
-    }
-    // its emissive material is read, not warned about
-    assert!(!w.contains("emission"), "{w}");
+    assert!(w.contains("KHR_texture_transform"), "{w}");
+    // its normal map and emissive material are read, not warned about
+    assert!(!w.contains("normal map") && !w.contains("emission"), "{w}");
+    let crate_m = s.materials.iter().position(|m| m.name == "crate").unwrap();
+    let x = s.material_extra(crate_m);
+    assert!(x.normal_map.is_some() && x.normal_scale == 1.0, "{x:?}");
     let lamp = s.materials.iter().position(|m| m.name == "lamp").unwrap();
     assert_eq!(s.material_extra(lamp).emission, Vec3::new(1.0, 0.9, 0.5));
     assert_eq!(s.material_extra(lamp).emission_map, None);
