@@ -523,6 +523,16 @@ fn emission_from_scene_files_and_gltf() {
     .unwrap();
     let s = Scene::load(dir.join("ok.toml")).unwrap();
     assert_eq!(s.material_extra(s.objects[0].material).emission, Vec3::new(2.0, 1.0, 0.0));
+    // a normal map in a scene file (tangent space, linear)
+    std::fs::write(
+        dir.join("bumps.toml"),
+        format!("{head}[materials.glow]\ntype = \"diffuse\"\nalbedo = 0.5\nnormal_map = {{ pattern = \"noise\", a = [0.5, 0.5, 1], b = [0.6, 0.5, 0.9] }}\n"),
+    )
+    .unwrap();
+    let s = Scene::load(dir.join("bumps.toml")).unwrap();
+    let x = s.material_extra(s.objects[0].material);
+    let k = x.normal_map.expect("normal map");
+    assert!(s.textures[k].name.ends_with(".normal"), "{}", s.textures[k].name);
     std::fs::write(
         dir.join("bad.toml"),
         format!("{head}[materials.glow]\ntype = \"diffuse\"\nalbedo = 0.5\nemission = [-1, 0, 0]\n"),
