@@ -1,5 +1,5 @@
-// The one local-light model of the GPU techniques (point, spot, sphere and directional lights of the scene,
-// `LightData` of common.glsl), without visibility: each technique loops over its light table and
+// The one local-light model of the GPU techniques (point, spot, sphere and directional lights of
+// the scene, `LightData` of common.glsl), without visibility: each technique loops over its light table and
 // multiplies by its own visibility. Matches the reference renderer's direct lighting: point and
 // spot lights have radiant intensity `power` (W/sr; spots fade by smoothstep between the outer
 // and inner cone cosines); a sphere light of emitted radiance `power` and radius r is a point of
