@@ -31,7 +31,7 @@ void main() {
     vec3 dpdu = (dp1 * duv2.y - dp2 * duv1.y) * sg;
     vec3 dpdv = (dp2 * duv1.x - dp1 * duv2.x) * sg;
     n = material_normal(mats[v_ids.x], v_uv, material_textures, n, dpdu, dpdv);
-    vec3 t = dp1 * duv2.y - dp2 * duv1.y;
+    vec3 t = dpdu * sg;  // dP/du times det's magnitude, as before normal maps
     t -= n * dot(n, t);
     if (dot(t, t) < 1e-20) {
         t = abs(n.y) < 0.99 ? cross(vec3(0, 1, 0), n) : cross(vec3(1, 0, 0), n);

@@ -6,6 +6,7 @@
 // toward each of the first 4 local lights (bilinear in the map). The sfw_self raster pass
 // interpolates both across the triangles; sfw_shade.comp multiplies them in.
 #include "common.glsl"
+#include "lights.glsl"
 
 layout(local_size_x = 64) in;
 
@@ -72,7 +73,7 @@ void main() {
         if (s_red[64][c] > 1e-12) share[c] = clamp(s_red[0][c] / s_red[64][c], 0.0, 1.0);
     vec4 lv = vec4(1.0);
     for (uint j = 0u; j < min(pc.light_count, 4u); j++) {
-        vec3 to_l = int(lights[j].pos_kind.w + 0.5) == 3 ? -lights[j].dir_cos_outer.xyz : lights[j].pos_kind.xyz - pw;
+        vec3 to_l = light_vector(lights[j], pw);
         if (!(dot(to_l, to_l) > 0.0)) continue;
         vec3 l = normalize(to_local * normalize(to_l));
         uint face;

@@ -307,7 +307,6 @@ pub fn scene_sphere_sets_noting(scene: &Scene, per_object: usize) -> (Vec<Option
                 return None;
             }
             let baked = baked_scale(scene, i);
-            let scaled: Vec<Vec3> = mesh.positions.iter().map(|&p| p * baked).collect();
             let key = (o.mesh, baked.to_array().map(f32::to_bits));
             if let Some(dir) = scene.source.as_ref().and_then(|s| s.parent()) {
                 let path = dir.join(format!("{}.{}.spheres", scene.name, o.name));
@@ -352,6 +351,7 @@ pub fn scene_sphere_sets_noting(scene: &Scene, per_object: usize) -> (Vec<Option
             let set = match same {
                 Some((_, set)) => set.clone(),
                 None => {
+                    let scaled: Vec<Vec3> = mesh.positions.iter().map(|&p| p * baked).collect();
                     let set = approximate_spheres(&scaled, &mesh.indices, per_object).ok();
                     // A thin wall (balls_on_dish's dish: 48 spheres cover 19 % of it) cannot be
                     // held by spheres: they cast almost no shadow and, touching the surface, cover

@@ -462,6 +462,16 @@ pub fn instance_frames<'a>(
         .collect()
 }
 
+/// Whether light `l` emits through its source-radiance-field instance: the reference can emit
+/// from it (finite power and position, a spot's direction non-zero), and it is not directional
+/// (no source radiance field: the shaders shade it pointwise, its instance emits nothing).
+fn field_emits(l: &penumbra_scene::LightInstance) -> bool {
+    l.power.is_finite()
+        && l.position.is_finite()
+        && l.kind != LightKind::Directional
+        && (!matches!(l.kind, LightKind::Spot { .. }) || l.direction.is_finite() && l.direction.length_squared() > 0.0)
+}
+
 /// Per-frame light setup for the CPU path: every light of the frame with its source radiance
 /// field (`srf`) or analytic everywhere (`!srf`). Lights the reference cannot emit from (zero or
 /// non-finite power or position, zero spot direction) get zero power.
@@ -472,11 +482,7 @@ pub fn light_frames<'a>(frame: &Frame, fields: &'a SceneFields, adaptive: bool, 
         .map(|l| {
             let src = fields.light_sources.get(l.light).copied().unwrap_or_else(|| light_source(&l.kind));
             let field = if srf { fields.light_field(l.light, adaptive) } else { None };
-            let ok = l.power.is_finite()
-                && l.position.is_finite()
-                && l.kind != LightKind::Directional
-                && (!matches!(l.kind, LightKind::Spot { .. })
-                    || l.direction.is_finite() && l.direction.length_squared() > 0.0);
+            let ok = field_emits(l);
             let power = if ok { l.power.max(Vec3::ZERO).as_dvec3() } else { DVec3::ZERO };
             let pos = if l.position.is_finite() { l.position.as_dvec3() } else { DVec3::ZERO };
             LightFrame::new(field, src, pos, l.direction.as_dvec3(), power)
@@ -722,13 +728,7 @@ impl GpuTables {
             .collect();
         for l in &frame.lights {
             let src = self.light_sources.get(l.light).copied().unwrap_or_else(|| light_source(&l.kind));
-            // a directional light has no source radiance field (the shader shades it pointwise):
-            // its field instance emits nothing
-            let ok = l.power.is_finite()
-                && l.position.is_finite()
-                && l.kind != LightKind::Directional
-                && (!matches!(l.kind, LightKind::Spot { .. })
-                    || l.direction.is_finite() && l.direction.length_squared() > 0.0);
+            let ok = field_emits(l);
             let power = if ok { l.power.max(Vec3::ZERO) } else { Vec3::ZERO };
             let pos = if l.position.is_finite() { l.position } else { Vec3::ZERO };
             let lf = LightFrame::new(None, src, pos.as_dvec3(), l.direction.as_dvec3(), power.as_dvec3());
