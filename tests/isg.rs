@@ -331,7 +331,7 @@ fn accuracy_against_both_references_and_bvh_variants() {
     assert!(psnr(&ex_isg) > psnr(&ex_isg_sg), "prefiltered {} vs SG specular {}", psnr(&ex_isg), psnr(&ex_isg_sg));
     assert!(ex_isg.rel_rmse < ex_env.rel_rmse);
     // The ratio estimators (default): the map's exact irradiance times the lobes' visible share
-    // removes the SG fit's error from the diffuse term, the material model's split sum times the
+    // removes the SG fit's error from the diffuse term, the material model's glossy term times the
     // lobe's visible fraction the one-lobe BRDF's from the glossy term. Measured (RMSE over the
     // mean, 32-spp reference): 0.216 against 0.244 with the paper's (diffuse = sg, glossy = sg).
     let ex_paper = cmp(&exact_ref.radiance, &isg_paper[0], "isg (diffuse = sg)");

@@ -252,7 +252,7 @@ void main() {
         // times the SSDF visibility of the specular SG lobe x cosine.
         vec3 amp;
         SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
-        vec3 glossy = env_lookup(reflect(-v, n), env_lod(env_alpha(m))) * env_specular_albedo(m, ndv);
+        vec3 glossy = env_glossy(n, v, m);
         if (max(glossy.r, max(glossy.g, glossy.b)) > 0.0) color += glossy * visible(sg_product(gs, cosg));
     } else if (kind != 0) {
         // Beckmann warp (Wang et al. 2009), m = roughness^2 as the reference's SG mode.

@@ -192,7 +192,7 @@ void main() {
         vec3 amp;
         SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
         SG gj = sg_product(gs, cosg);
-        vec3 glossy = env_lookup(reflect(-v, n), env_lod(env_alpha(m))) * env_specular_albedo(m, ndv);
+        vec3 glossy = env_glossy(n, v, m);
         if (max(glossy.r, max(glossy.g, glossy.b)) > 0.0) {
             float vs = per_vertex ? ((pc.flags & 1u) != 0u ? 1.0 : clamp(vvis.a, 0.0, 1.0)) : visible(p, n, gj);
             color += glossy * vs;

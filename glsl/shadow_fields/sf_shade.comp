@@ -110,7 +110,7 @@ void main() {
     if (kind != 0) {
         vec3 r = reflect(-v, n);
         float vis = sf_visibility_along(pos, r, self_inst, pc.n_inst, 1e30);
-        color += vis * env_lookup(r, env_lod(env_alpha(m))) * env_specular_albedo(m, ndv);
+        color += vis * env_glossy(n, v, m);
     }
     color += local_lights(pos, n, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);
     imageStore(hdr, p, vec4(color + material_emission(m), 1.0));

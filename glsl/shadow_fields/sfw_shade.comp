@@ -291,7 +291,7 @@ void main() {
         float ndv = max(dot(n, v), 1e-4);
         vec2 gs = s_red[128].xy;
         float vis = gs.y > 1e-12 ? clamp(gs.x / gs.y, 0.0, 1.0) : 1.0;
-        color += vis * env_lookup(r, env_lod(alpha)) * env_specular_albedo(m, ndv);
+        color += vis * env_glossy(n, v, m);
     }
     float roughness = env_roughness(m);
     for (uint i = 0u; i < pc.light_count; ++i) {

@@ -141,7 +141,15 @@ impl EnvMapGpu {
                 sh[k][c] = (acc[k][c] * band[l]) as f32;
             }
         }
-        // Box-filtered mip chain down to 1x1.
+        // Box-filtered mip chain down to 1x1, each texel the solid-angle-weighted mean of its
+        // children (a row's weight is its band's cos(theta_top) - cos(theta_bottom)): an
+        // unweighted mean counts the polar rows as much as the equator's, which darkened the
+        // glossy reflections of environments bright at the horizon (a sunset) by up to a third
+        // at the coarse levels rough lobes read.
+        let band = |row: u32, rows: u32| {
+            let t = |r: u32| (std::f64::consts::PI * r as f64 / rows as f64).cos();
+            (t(row) - t(row + 1)).max(0.0) as f32
+        };
         let mut mips = vec![(w, h, base)];
         while mips.last().is_some_and(|m| m.0 > 1 || m.1 > 1) {
             let (pw, ph, prev) = mips.last().unwrap();
@@ -156,13 +164,14 @@ impl EnvMapGpu {
                             let sx = (x * 2 + dx).min(pw - 1);
                             let sy = (y * 2 + dy).min(ph - 1);
                             let t = prev[(sy * pw + sx) as usize];
+                            let wt = band(sy, *ph);
                             for c in 0..4 {
-                                s[c] += t[c];
+                                s[c] += t[c] * wt;
                             }
-                            n += 1.0;
+                            n += wt;
                         }
                     }
-                    next[(y * nw + x) as usize] = s.map(|c| c / n);
+                    next[(y * nw + x) as usize] = if n > 0.0 { s.map(|c| c / n) } else { [0.0; 4] };
                 }
             }
             mips.push((nw, nh, next));

@@ -20,7 +20,7 @@
 //! diffuse part (SH irradiance) times the cosine- and weight-weighted lit fraction over the K
 //! directions, its glossy part (prefiltered reflection) times the lobe-weighted lit fraction,
 //! trusted as far as the directions cover the lobe (their estimate of the lobe's albedo against
-//! the split sum's; a narrow lobe between the directions takes the diffuse fraction). Local
+//! the material model's DFG table; a narrow lobe between the directions takes the diffuse fraction). Local
 //! lights: BRDF x cosine x intensity / d^2 x lit fraction (3x3 PCF; sphere lights as points of
 //! intensity L pi r^2 with PCSS soft shadows from the cube of their centre). Sky pixels show the
 //! environment.

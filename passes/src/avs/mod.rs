@@ -137,7 +137,7 @@ pub struct AvsSettings {
     /// `falling`, stays in every unshadowed pixel).
     pub diffuse_ratio: bool,
     /// Glossy environment term: the material model's unshadowed glossy term (the `env`
-    /// technique's split sum, `glsl/include/env_shade.glsl`) times the SSDF visibility of the
+    /// technique's filtered importance sampling, `env_glossy` in `glsl/include/env_shade.glsl`) times the SSDF visibility of the
     /// specular lobe (`true`, a ratio estimator), or the one SG lobe of the BRDF (`false`, the
     /// paper's: it loses the lobe's Fresnel and masking energy).
     pub glossy_ratio: bool,

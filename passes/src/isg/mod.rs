@@ -78,7 +78,7 @@ pub struct IsgSettings {
     /// alone (`false`, the paper's: the 16-lobe fit's error stays in every unshadowed pixel).
     pub diffuse_ratio: bool,
     /// Glossy environment term: the material model's unshadowed glossy term (the `env`
-    /// technique's split sum, `glsl/include/env_shade.glsl`) times the ISG visible fraction of
+    /// technique's filtered importance sampling, `env_glossy` in `glsl/include/env_shade.glsl`) times the ISG visible fraction of
     /// the specular lobe (`true`, a ratio estimator), or eq. 9's one SG lobe of the BRDF
     /// (`false`, the paper's: it loses the lobe's Fresnel and masking energy).
     pub glossy_ratio: bool,

@@ -27,7 +27,7 @@
 //! Shading (`glsl/include/vv_data.glsl`): the diffuse integral over the visible directions from
 //! the loops (eq. 9/12); the glossy term as eq. 14, `L_s = k_s U * gamma`, with `k_s U` the
 //! scene material's unshadowed glossy reflection exactly as the `env` technique draws it
-//! (`env_shade.glsl`: prefiltered environment along the reflection, split-sum BRDF) and gamma the
+//! (`env_glossy` in `env_shade.glsl`: the BRDF lobe importance-sampled over the mip-filtered environment) and gamma the
 //! Cap-weighted visible share of the cap W around the reflected view direction (eq. 15-16): the
 //! occluder loops clipped to W (`vv_clip_*` of `glsl/include/vv_sat.glsl`, the port of
 //! `penumbra_math::vv_sat::clip_to_cap`) against W clipped to the normal's hemisphere; exactly 1
