@@ -268,6 +268,45 @@ mod env {
     }
 
     #[test]
+    fn mip_levels_keep_the_solid_angle_mean() {
+        // Bright at the horizon, dark at the poles (a sunset's shape): every level's texels,
+        // weighted by their own rows' solid angle, keep the map's mean radiance over the sphere.
+        // (An unweighted box filter counted the polar rows as much as the equator's: its 1x1
+        // level of this map reads 0.64 of the true mean.)
+        let (w, h) = (64u32, 32u32);
+        let texels = (0..h)
+            .flat_map(|j| {
+                let theta = std::f32::consts::PI * (j as f32 + 0.5) / h as f32;
+                (0..w).map(move |_| [theta.sin().powi(40) * 10.0, 1.0, 0.0])
+            })
+            .collect();
+        let env = Environment { width: w, height: h, texels, intensity: 1.0, rotation: 0.0 };
+        let e = EnvMapGpu::new(Some(&env));
+        let mean = |lw: u32, lh: u32, t: &[[f32; 4]]| {
+            let band = |j: u32| {
+                let c = |r: u32| (std::f64::consts::PI * r as f64 / lh as f64).cos();
+                c(j) - c(j + 1)
+            };
+            let mut acc = [0.0f64; 2];
+            for j in 0..lh {
+                for i in 0..lw {
+                    for (c, a) in acc.iter_mut().enumerate() {
+                        *a += t[(j * lw + i) as usize][c] as f64 * band(j) / (2.0 * lw as f64);
+                    }
+                }
+            }
+            acc
+        };
+        let base = mean(e.mips[0].0, e.mips[0].1, &e.mips[0].2);
+        assert!(base[0] > 0.5 && (base[1] - 1.0).abs() < 1e-5, "{base:?}");
+        for (lw, lh, t) in &e.mips {
+            let m = mean(*lw, *lh, t);
+            assert!((m[0] / base[0] - 1.0).abs() < 1e-4, "level {lw}x{lh}: {} vs {}", m[0], base[0]);
+            assert!((m[1] - 1.0).abs() < 1e-5, "level {lw}x{lh}: a uniform channel reads {}", m[1]);
+        }
+    }
+
+    #[test]
     fn sun_1e5_times_the_sky_keeps_energy_and_stays_finite() {
         let (w, h) = (256u32, 128u32);
         let mut env = uniform(w, h, 0.5);
