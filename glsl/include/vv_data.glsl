@@ -12,7 +12,7 @@
 #include "common.glsl"
 #include "vv_sat.glsl"
 
-layout(set = 0, binding = 0) uniform Camera { CameraData cam; vec4 cam_dfg[768]; };  // cam_dfg: env_dfg.glsl
+layout(set = 0, binding = 0) uniform Camera { CameraData cam; vec4 cam_dfg[768]; vec4 cam_irr[512]; };  // cam_dfg: env_dfg.glsl; cam_irr: env_shade.glsl
 layout(set = 0, binding = 1) uniform sampler2D vv_points;
 layout(set = 0, binding = 2) uniform usampler2D vv_ints;
 layout(set = 0, binding = 3) uniform sampler2D vv_verts;
@@ -148,8 +148,8 @@ vec3 vv_lights_end(VvLights L, vec3 s, vec3 n, MaterialData m) {
 
 // The radiance of one evaluation: the diffuse integral over the visible directions (eq. 9,
 // loop sum `diffuse_sum`, before the intensity) plus the scene material's unshadowed glossy
-// reflection (env_shade.glsl: the prefiltered environment times the split-sum BRDF, as the `env`
-// technique draws it) times gamma (eq. 14: L_s = k_s gamma U with k_s U the unshadowed glossy term),
+// reflection (env_shade.glsl's env_glossy: the BRDF lobe importance-sampled over the mip-filtered
+// environment, as the `env` technique draws it) times gamma (eq. 14: L_s = k_s gamma U with k_s U the unshadowed glossy term),
 // plus the visible local lights.
 vec3 vv_radiance(vec3 diffuse_sum, vec3 s, vec3 n, MaterialData m, bool glossy, float gamma, VvLights L) {
     vec3 c = m.albedo_kind.rgb / PI * max(diffuse_sum, vec3(0.0)) * cam.params.w + vv_lights_end(L, s, n, m);

@@ -18,7 +18,7 @@
 // tan(theta), compared in linear depth.
 layout(local_size_x = 8, local_size_y = 8) in;
 #include "common.glsl"
-layout(set = 0, binding = 0) uniform Camera { CameraData cam; vec4 cam_dfg[768]; };  // cam_dfg: env_dfg.glsl
+layout(set = 0, binding = 0) uniform Camera { CameraData cam; vec4 cam_dfg[768]; vec4 cam_irr[512]; };  // cam_dfg: env_dfg.glsl; cam_irr: env_shade.glsl
 layout(set = 0, binding = 1) readonly buffer Materials { MaterialData mats[]; };
 layout(set = 0, binding = 2) uniform sampler2D gb_position;
 layout(set = 0, binding = 3) uniform sampler2D gb_normal;

@@ -157,6 +157,32 @@ fn prefiltered_env_uncached(e: &Environment) -> Vec<f32> {
     out
 }
 
+/// Size of [`camera_irradiance`]'s map: small enough to ride in the camera uniform buffer.
+pub const CAMERA_IRRADIANCE_SIZE: (usize, usize) = (32, 16);
+
+/// The environment's diffuse irradiance (exact cosine convolution, as [`irradiance_env`]) as a
+/// 32 x 16 lat-long map, one `[r, g, b, 0]` per texel, rows from pole to pole at
+/// `v = j / (h - 1)`, columns at `u = i / w`; intensity and rotation applied by the shader's
+/// lookup. It follows the specular albedo table in the camera buffer (`cam_irr` of
+/// `glsl/include/env_shade.glsl`): the unshadowed diffuse term of every technique that shades
+/// through `env_unshadowed_parts`. Zeros without an environment.
+pub fn camera_irradiance(scene: &Scene) -> Vec<[f32; 4]> {
+    let (w, h) = CAMERA_IRRADIANCE_SIZE;
+    let map = scene.environment.as_ref().and_then(|e| {
+        penumbra_math::envmap::irradiance_map(e.width as usize, e.height as usize, &e.texels, w, h, 64).ok()
+    });
+    match map {
+        Some(m) => m
+            .iter()
+            .map(|t| {
+                let c = t.map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 });
+                [c[0], c[1], c[2], 0.0]
+            })
+            .collect(),
+        None => vec![[0.0; 4]; w * h],
+    }
+}
+
 /// Size of [`irradiance_env`]'s map (lat-long, the environment's own frame).
 pub const IRRADIANCE_SIZE: (usize, usize) = (64, 32);
 

@@ -82,6 +82,9 @@ pub struct SceneGpu {
     /// The specular albedo table (`penumbra_math::dfg::packed`) that follows the frame
     /// constants in the camera buffer (`cam_dfg` of `glsl/include/env_dfg.glsl`).
     dfg: Vec<[f32; 4]>,
+    /// The environment's irradiance map (`lighting::camera_irradiance`) that follows the table
+    /// (`cam_irr` of `glsl/include/env_shade.glsl`).
+    irradiance: Vec<[f32; 4]>,
 }
 
 /// Handles of the scene's buffers in one frame's graph.
@@ -172,6 +175,7 @@ impl SceneGpu {
             textures,
             sigma_t,
             dfg: penumbra_math::dfg::packed(),
+            irradiance: crate::lighting::camera_irradiance(scene),
         })
     }
 }
@@ -327,9 +331,11 @@ impl SceneGpu {
                 ids: [0; 4],
             });
         }
-        // the frame constants (`CameraData`), then the specular albedo table (`cam_dfg`)
+        // the frame constants (`CameraData`), the specular albedo table (`cam_dfg`), the
+        // environment's irradiance map (`cam_irr`)
         let mut camera_bytes = bytes_of(std::slice::from_ref(constants));
         camera_bytes.extend(bytes_of(&self.dfg));
+        camera_bytes.extend(bytes_of(&self.irradiance));
         let camera = graph.create_buffer_init("frame.camera", camera_bytes);
         let instances = graph.create_buffer_init("frame.instances", bytes_of(&inst));
         let deformed_vertices = (!deformed_verts.is_empty())

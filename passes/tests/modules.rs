@@ -268,6 +268,68 @@ mod env {
     }
 
     #[test]
+    fn the_unshadowed_diffuse_term_is_the_exact_irradiance_not_sh9() {
+        // studio.exr: its brightest texel is about 1466 times its mean radiance. The map in the
+        // camera buffer (env_shade.glsl's env_irradiance) holds the exact cosine convolution at
+        // its nodes; the 9-coefficient SH it replaced rings far from it.
+        let dir = std::env::temp_dir().join(format!("penumbra-irr-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let exr = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets/studio.exr");
+        let toml = format!(
+            "name = \"irr\"\n[camera]\neye = [0.0, 0.0, 2.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 40\n[environment]\nfile = {:?}\n[materials.m]\ntype = \"diffuse\"\nalbedo = 0.5\n[[object]]\nname = \"o\"\nmesh = {{ type = \"plane\", size = 1 }}\nmaterial = \"m\"\n",
+            exr.display().to_string()
+        );
+        std::fs::write(dir.join("irr.toml"), toml).unwrap();
+        let scene = penumbra_scene::Scene::load(dir.join("irr.toml")).unwrap();
+        let map = penumbra_passes::lighting::camera_irradiance(&scene);
+        let (w, h) = penumbra_passes::lighting::CAMERA_IRRADIANCE_SIZE;
+        assert_eq!(map.len(), w * h);
+        let e = scene.environment.as_ref().unwrap();
+        // brute force over a 4x coarser copy of the map (area averages), channel 0
+        let k = 4usize;
+        let (sw, sh) = (e.width as usize / k, e.height as usize / k);
+        let mut src = Vec::with_capacity(sw * sh);
+        for j in 0..sh {
+            for i in 0..sw {
+                let mut acc = 0.0f64;
+                for y in 0..k {
+                    for x in 0..k {
+                        acc += e.texels[(j * k + y) * e.width as usize + i * k + x][0] as f64;
+                    }
+                }
+                let theta = std::f64::consts::PI * (j as f64 + 0.5) / sh as f64;
+                let dw = (2.0 * std::f64::consts::PI / sw as f64) * (std::f64::consts::PI / sh as f64) * theta.sin();
+                let d = Environment::direction((i as f32 + 0.5) / sw as f32, (j as f32 + 0.5) / sh as f32);
+                src.push((d, acc / (k * k) as f64 * dw));
+            }
+        }
+        let exact = |n: Vec3| src.iter().map(|(d, c)| c * d.dot(n).max(0.0) as f64).sum::<f64>();
+        let env_gpu = EnvMapGpu::new(Some(e));
+        let (mut worst_map, mut worst_sh) = (0.0f64, 0.0f64);
+        let e_max = (0..w * h).map(|i| map[i][0] as f64).fold(0.0, f64::max);
+        for j in (0..h).step_by(3) {
+            for i in (0..w).step_by(3) {
+                let n = Environment::direction(i as f32 / w as f32, j as f32 / (h - 1) as f32);
+                let ex = exact(n);
+                if ex < 0.05 * e_max {
+                    continue;
+                }
+                worst_map = worst_map.max((map[j * w + i][0] as f64 / ex - 1.0).abs());
+                // EnvMapGpu's SH is in the world frame (rotation applied): rotate n likewise
+                let nw = Vec3::new(
+                    n.x * e.rotation.cos() + n.z * e.rotation.sin(),
+                    n.y,
+                    -n.x * e.rotation.sin() + n.z * e.rotation.cos(),
+                );
+                worst_sh = worst_sh.max((sh9_irradiance(&env_gpu.sh, nw).x as f64 / ex - 1.0).abs());
+            }
+        }
+        assert!(worst_map < 0.03, "the map is {worst_map} off the exact irradiance");
+        assert!(worst_sh > 0.2, "SH9 was expected to ring here ({worst_sh})");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
     fn mip_levels_keep_the_solid_angle_mean() {
         // Bright at the horizon, dark at the poles (a sunset's shape): every level's texels,
         // weighted by their own rows' solid angle, keep the map's mean radiance over the sphere.
