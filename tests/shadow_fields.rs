@@ -93,7 +93,7 @@ fn shadow_fields_render_validation_clean_and_against_the_reference() {
     let cu = compare(&reference.radiance, "reference", &image(&un[0]), "unshadowed").unwrap();
     let (_r, env) = render(&s, "env", w, h, &[t], false);
     let ce = compare(&reference.radiance, "reference", &image(&env[0]), "env").unwrap();
-    println!("env (unshadowed SH9 irradiance) vs reference: {}", ce.summary());
+    println!("env (unshadowed) vs reference: {}", ce.summary());
     let caf = compare(&image(&fixed[0]), "fixed", &image(sf), "adaptive").unwrap();
     println!("adaptive vs reference: {}", ca.summary());
     println!("fixed vs reference: {}", cf.summary());

@@ -1,7 +1,7 @@
 #version 450
 // Environment- and local-light shading without shadows: the environment by env_shade.glsl
-// (diffuse from 9-coefficient SH irradiance, specular from the mip-filtered environment map along
-// the reflection direction with an analytic split-sum environment BRDF), local lights below.
+// (diffuse from the exact irradiance map, glossy by filtered importance sampling of the BRDF's lobe
+// over the mip-filtered environment map), local lights below.
 #include "common.glsl"
 
 layout(local_size_x = 8, local_size_y = 8) in;

@@ -1,6 +1,9 @@
-//! The environment map on the GPU: an RGBA32F lat-long image with a box-filtered mip chain
-//! (uploaded once by the `env_upload` transfer pass into a persistent image), and its
-//! 9-coefficient SH irradiance (Ramamoorthi and Hanrahan 2001) for diffuse shading.
+//! The environment map on the GPU: an RGBA32F lat-long image with a solid-angle weighted box
+//! mip chain (uploaded once by the `env_upload` transfer pass into a persistent image; the
+//! glossy term's lookups, `env_glossy` of `glsl/include/env_shade.glsl`), and its 9-coefficient
+//! SH irradiance (Ramamoorthi and Hanrahan 2001; the frame constants carry it, but the diffuse
+//! term reads the exact irradiance map, `lighting::camera_irradiance`, since SH9 rings under a
+//! bright source).
 //!
 //! Orientation: `penumbra_scene::Environment::direction` (v = 0 is +Y); the scene's `rotation`
 //! turns the map about +Y, the shader undoes it per lookup.

@@ -348,7 +348,7 @@ fn create_vv(
 pub const REGISTRY: &[TechniqueInfo] = &[
     TechniqueInfo {
         name: "env",
-        summary: "environment (SH irradiance, prefiltered specular) and local lights, no visibility",
+        summary: "environment (exact irradiance map, importance-sampled glossy lobe) and local lights, no visibility",
         params: &[],
         static_only: false,
         shadows: false,

@@ -17,7 +17,7 @@
 //! x tan(theta)); `shading = "ratio"` (default) is a ratio estimator on the `env` technique's
 //! unshadowed environment lighting (`glsl/include/env_shade.glsl`), so that glossy surfaces keep
 //! the environment's reflection (K delta lights alone render a glossy dish near black): its
-//! diffuse part (SH irradiance) times the cosine- and weight-weighted lit fraction over the K
+//! diffuse part (the irradiance map) times the cosine- and weight-weighted lit fraction over the K
 //! directions, its glossy part (prefiltered reflection) times the lobe-weighted lit fraction,
 //! trusted as far as the directions cover the lobe (their estimate of the lobe's albedo against
 //! the material model's DFG table; a narrow lobe between the directions takes the diffuse fraction). Local
