@@ -147,8 +147,9 @@ impl EnvMapGpu {
         // Box-filtered mip chain down to 1x1, each texel the solid-angle-weighted mean of its
         // children (a row's weight is its band's cos(theta_top) - cos(theta_bottom)): an
         // unweighted mean counts the polar rows as much as the equator's, which darkened the
-        // glossy reflections of environments bright at the horizon (a sunset) by up to a third
-        // at the coarse levels rough lobes read.
+        // glossy reflections of environments bright at the horizon by over a tenth at the
+        // coarse levels rough lobes read (a GGX 0.7 sphere under sunset-dwab.exr: 0.77 -> 0.89
+        // of the reference).
         let band = |row: u32, rows: u32| {
             let t = |r: u32| (std::f64::consts::PI * r as f64 / rows as f64).cos();
             (t(row) - t(row + 1)).max(0.0) as f32
