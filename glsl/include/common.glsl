@@ -12,7 +12,8 @@ struct CameraData {
     vec4 eye;          // xyz eye position
     vec4 params;       // x width, y height, z env mip count, w env intensity
     vec4 env_rot;      // x cos(rotation), y sin(rotation), z exposure, w unused
-    vec4 sh[9];        // irradiance SH (already convolved with the clamped cosine), rgb
+    vec4 sh[9];        // irradiance SH (already convolved with the clamped cosine), rgb; no shader reads
+                       // it since the unshadowed diffuse term reads the exact irradiance map (cam_irr)
 };
 
 struct InstanceData {
@@ -88,20 +89,6 @@ ivec4 latlong_taps(float fx, float fy, int w, int h, out vec2 f) {
     x0 = clamp(x0, 0, w - 1);
     int x1 = x0 + 1 == w ? 0 : x0 + 1;
     return ivec4(x0, x1, y0, y1);
-}
-
-// Irradiance from 9 SH coefficients (Ramamoorthi and Hanrahan 2001), already convolved.
-vec3 sh9_irradiance(vec4 sh[9], vec3 n) {
-    vec3 r = sh[0].rgb * 0.282095;
-    r += sh[1].rgb * 0.488603 * n.y;
-    r += sh[2].rgb * 0.488603 * n.z;
-    r += sh[3].rgb * 0.488603 * n.x;
-    r += sh[4].rgb * 1.092548 * n.x * n.y;
-    r += sh[5].rgb * 1.092548 * n.y * n.z;
-    r += sh[6].rgb * 0.315392 * (3.0 * n.z * n.z - 1.0);
-    r += sh[7].rgb * 1.092548 * n.x * n.z;
-    r += sh[8].rgb * 0.546274 * (n.x * n.x - n.y * n.y);
-    return max(r, vec3(0.0));
 }
 
 #endif

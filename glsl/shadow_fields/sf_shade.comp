@@ -101,11 +101,10 @@ void main() {
         diffuse = sf_shade_point(pos, self_inst, pc.n_inst, n_light, pc.tensor_count, pc.window, u);
     }
     vec3 color = max(m.albedo_kind.rgb * diffuse, vec3(0.0));
-    // Glossy materials: the prefiltered environment along the reflection (as the "env"
-    // technique), shadowed by the occluders' visibility in that direction.
+    // Glossy materials: the material model's glossy environment term (the "env" technique's),
+    // shadowed by the occluders' visibility along the reflection.
     int kind = int(m.albedo_kind.w + 0.5);
     vec3 v = normalize(cam.eye.xyz - pos);
-    float ndv = max(dot(n, v), 1e-4);
     float roughness = env_roughness(m);
     if (kind != 0) {
         vec3 r = reflect(-v, n);

@@ -288,7 +288,6 @@ void main() {
     vec3 diffuse = m.albedo_kind.rgb / PI * irr_ratio(n, s_red[0].rgb, s_red[64].rgb) * share_self;
     vec3 color = diffuse;
     if (kind != 0) {
-        float ndv = max(dot(n, v), 1e-4);
         vec2 gs = s_red[128].xy;
         float vis = gs.y > 1e-12 ? clamp(gs.x / gs.y, 0.0, 1.0) : 1.0;
         color += vis * env_glossy(n, v, m);

@@ -29,7 +29,7 @@ pub struct EnvMapGpu {
     pub repaired_texels: usize,
 }
 
-/// Real SH basis, bands 0..2, in the order used by `sh9_irradiance` in `common.glsl`.
+/// Real SH basis, bands 0..2, in the order of `FrameConstants::sh` (`CameraData.sh`).
 pub fn sh9_basis(d: Vec3) -> [f32; 9] {
     [
         0.282095,

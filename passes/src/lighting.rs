@@ -168,19 +168,20 @@ pub const CAMERA_IRRADIANCE_SIZE: (usize, usize) = (32, 16);
 /// through `env_unshadowed_parts`. Zeros without an environment.
 pub fn camera_irradiance(scene: &Scene) -> Vec<[f32; 4]> {
     let (w, h) = CAMERA_IRRADIANCE_SIZE;
-    let map = scene.environment.as_ref().and_then(|e| {
-        penumbra_math::envmap::irradiance_map(e.width as usize, e.height as usize, &e.texels, w, h, 64).ok()
-    });
-    match map {
-        Some(m) => m
-            .iter()
-            .map(|t| {
-                let c = t.map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 });
-                [c[0], c[1], c[2], 0.0]
-            })
-            .collect(),
+    match irradiance_texels(scene, w, h) {
+        Some(m) => m.iter().map(|c| [c[0], c[1], c[2], 0.0]).collect(),
         None => vec![[0.0; 4]; w * h],
     }
+}
+
+/// The environment's exact irradiance on a `w x h` lat-long grid
+/// ([`penumbra_math::envmap::irradiance_map`], at most 64 source rows), non-finite or negative
+/// channels as 0; `None` without an environment. Shared by [`camera_irradiance`] and
+/// [`irradiance_env`].
+fn irradiance_texels(scene: &Scene, w: usize, h: usize) -> Option<Vec<[f32; 3]>> {
+    let e = scene.environment.as_ref()?;
+    let map = penumbra_math::envmap::irradiance_map(e.width as usize, e.height as usize, &e.texels, w, h, 64).ok()?;
+    Some(map.iter().map(|t| t.map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 })).collect())
 }
 
 /// Size of [`irradiance_env`]'s map (lat-long, the environment's own frame).
@@ -191,13 +192,9 @@ pub const IRRADIANCE_SIZE: (usize, usize) = (64, 32);
 /// lookup, as for [`prefiltered_env`]): `[width, height]` then RGB texels row by row; `[0, 0]`
 /// without an environment. Read by `irr_eval` in `glsl/include/irradiance.glsl`.
 pub fn irradiance_env(scene: &Scene) -> Vec<f32> {
-    let Some(e) = scene.environment.as_ref() else { return vec![0.0, 0.0] };
     let (w, h) = IRRADIANCE_SIZE;
-    let Ok(map) = penumbra_math::envmap::irradiance_map(e.width as usize, e.height as usize, &e.texels, w, h, 64)
-    else {
-        return vec![0.0, 0.0];
-    };
+    let Some(map) = irradiance_texels(scene, w, h) else { return vec![0.0, 0.0] };
     let mut out = vec![w as f32, h as f32];
-    out.extend(map.iter().flat_map(|t| t.map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 })));
+    out.extend(map.iter().flatten());
     out
 }
