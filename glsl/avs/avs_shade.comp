@@ -270,5 +270,5 @@ void main() {
         }
         if (max(gamma_l.r, max(gamma_l.g, gamma_l.b)) > 0.0) color += amp * gamma_l * visible(gj);
     }
-    imageStore(hdr, px, vec4(max(color, vec3(0.0)) + material_emission(m), 1.0));
+    imageStore(hdr, px, vec4(material_reflected(max(color, vec3(0.0)), n, v) + material_emission(m), 1.0));
 }

@@ -58,5 +58,5 @@ void main() {
     m = material_at(m, uvm.xy, material_textures);
     vec3 color = env_unshadowed(n, v, m);
     color += local_lights(pos, n, v, m.albedo_kind.rgb, kind, m, env_roughness(m));
-    imageStore(hdr, p, vec4(color + material_emission(m), 1.0));
+    imageStore(hdr, p, vec4(material_reflected(color, n, v) + material_emission(m), 1.0));
 }

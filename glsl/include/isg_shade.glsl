@@ -217,6 +217,6 @@ void main() {
             color += amp * gamma_l * vs;
         }
     }
-    imageStore(hdr, px, vec4(max(color, vec3(0.0)) + material_emission(m), 1.0));
+    imageStore(hdr, px, vec4(material_reflected(max(color, vec3(0.0)), n, v) + material_emission(m), 1.0));
 }
 #endif

@@ -42,6 +42,15 @@ vec3 material_normal(MaterialData m, vec2 uv, sampler2DArray tex, vec3 n, vec3 d
     return l2 > 0.0 ? nm * inversesqrt(l2) : n;
 }
 
+// The light a surface reflects towards the eye, `color`, where the eye sees the front of the
+// shading hemisphere of the (normal-mapped) normal n from the unit direction v; else nothing: there
+// the BRDF is zero and only emission is seen, the reference's rule (reference/src/render.rs; mc
+// applies it through wo.z). A normal map can turn n from the eye, and so can an interpolated
+// normal at a silhouette (the G-buffer flips it to the eye's side of the triangle, not further).
+vec3 material_reflected(vec3 color, vec3 n, vec3 v) {
+    return dot(n, v) > 0.0 ? color : vec3(0.0);
+}
+
 // The radiance the surface emits towards the eye (after material_at: its map applied). It
 // lights nothing else: the reference and every technique compute direct lighting only.
 vec3 material_emission(MaterialData m) {

@@ -158,7 +158,7 @@ vec3 vv_radiance(vec3 diffuse_sum, vec3 s, vec3 n, MaterialData m, bool glossy, 
         env_unshadowed_parts(n, normalize(cam.eye.xyz - s), m, d, g);
         c += g * gamma;
     }
-    return c + material_emission(m);
+    return material_reflected(c, n, normalize(cam.eye.xyz - s)) + material_emission(m);
 }
 
 int vv_tri_vertex(int t, int k) {

@@ -112,5 +112,5 @@ void main() {
         color += vis * env_glossy(n, v, m);
     }
     color += local_lights(pos, n, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);
-    imageStore(hdr, p, vec4(color + material_emission(m), 1.0));
+    imageStore(hdr, p, vec4(material_reflected(color, n, v) + material_emission(m), 1.0));
 }

@@ -306,5 +306,5 @@ void main() {
             if (s_dist[k] < dist) vis *= clamp(occ_vis_dir(k, wi, true), 0.0, 1.0);
         color += vis * f * e * ndl;
     }
-    imageStore(hdr, p, vec4(max(color, vec3(0.0)) + material_emission(m), 1.0));
+    imageStore(hdr, p, vec4(material_reflected(max(color, vec3(0.0)), n, v) + material_emission(m), 1.0));
 }

@@ -150,7 +150,8 @@ void main() {
     vec3 ns = oct_decode(en.xy);
     vec3 tg = oct_decode(en.zw);
     vec3 wo_w = normalize(cam.eye.xyz - p);
-    if (dot(ns, wo_w) < 0.0) ns = -ns;   // two-sided
+    // (two-sided: the G-buffer's normal is on the eye's side of its triangle; a normal map or an
+    // interpolated normal at a silhouette can still turn it from the eye: material_reflected below)
     vec3 tt = tg - ns * dot(ns, tg);
     if (dot(tt, tt) > 1e-12) tt = normalize(tt);
     else {
@@ -265,5 +266,5 @@ void main() {
         }
         l += f * intensity / d2 * v;
     }
-    imageStore(hdr, px, vec4(l + material_emission(m), 1.0));
+    imageStore(hdr, px, vec4(material_reflected(l, ns, wo_w) + material_emission(m), 1.0));
 }

@@ -58,7 +58,62 @@ pub struct AssetLight {
 }
 
 /// The glTF extensions penumbra reads.
-pub const SUPPORTED_EXTENSIONS: &[&str] = &["KHR_lights_punctual", "KHR_materials_emissive_strength"];
+pub const SUPPORTED_EXTENSIONS: &[&str] =
+    &["KHR_lights_punctual", "KHR_materials_emissive_strength", "KHR_texture_transform"];
+
+/// A `KHR_texture_transform` of one texture reference: `uv' = T(offset) R(rotation) S(scale) uv`
+/// with the extension's matrices (`R = [cos sin; -sin cos]`, counter-clockwise in the image).
+/// penumbra bakes a material's transform into the texture coordinates of the primitives that
+/// use it, so every technique and the reference see the transformed coordinates alike.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct UvTransform {
+    pub offset: [f32; 2],
+    pub rotation: f32,
+    pub scale: [f32; 2],
+}
+
+impl UvTransform {
+    pub const IDENTITY: UvTransform = UvTransform { offset: [0.0, 0.0], rotation: 0.0, scale: [1.0, 1.0] };
+
+    pub fn apply(&self, uv: Vec2) -> Vec2 {
+        let (s, c) = self.rotation.sin_cos();
+        let (x, y) = (uv.x * self.scale[0], uv.y * self.scale[1]);
+        Vec2::new(c * x + s * y + self.offset[0], -s * x + c * y + self.offset[1])
+    }
+
+    /// Reads the extension object of a texture reference (`None`: the reference has none):
+    /// the transform and its `texCoord` override, if any. Errors name what is malformed.
+    pub fn parse(v: Option<&gltf::json::Value>) -> Result<Option<(UvTransform, Option<u64>)>, String> {
+        let Some(v) = v else { return Ok(None) };
+        let obj = v.as_object().ok_or("KHR_texture_transform is not an object")?;
+        let pair = |key: &str, default: [f32; 2]| -> Result<[f32; 2], String> {
+            match obj.get(key) {
+                None => Ok(default),
+                Some(a) => {
+                    let a = a
+                        .as_array()
+                        .filter(|a| a.len() == 2)
+                        .ok_or(format!("KHR_texture_transform {key} is not two numbers"))?;
+                    let x: Vec<f32> = a.iter().filter_map(|x| x.as_f64()).map(|x| x as f32).collect();
+                    if x.len() != 2 || !x.iter().all(|x| x.is_finite()) {
+                        return Err(format!("KHR_texture_transform {key} is not two finite numbers"));
+                    }
+                    Ok([x[0], x[1]])
+                }
+            }
+        };
+        let rotation = match obj.get("rotation") {
+            None => 0.0,
+            Some(r) => r
+                .as_f64()
+                .map(|r| r as f32)
+                .filter(|r| r.is_finite())
+                .ok_or("KHR_texture_transform rotation is not a finite number")?,
+        };
+        let t = UvTransform { offset: pair("offset", [0.0, 0.0])?, rotation, scale: pair("scale", [1.0, 1.0])? };
+        Ok(Some((t, obj.get("texCoord").and_then(|t| t.as_u64()))))
+    }
+}
 
 /// Photometric glTF light intensities (candela, lux) become the scene's radiometric units
 /// (W/sr, W/m^2) divided by this luminous efficacy (the 555 nm maximum, as Blender's exporter
@@ -282,6 +337,7 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
     };
     let mut materials = Vec::new();
     let mut extras = Vec::new();
+    let mut uv_transforms: Vec<Option<UvTransform>> = Vec::new();
     for m in doc.materials() {
         let pbr = m.pbr_metallic_roughness();
         let c = pbr.base_color_factor();
@@ -296,7 +352,16 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
             Material::glossy(&name, base_rgb * (1.0 - metallic), Vec3::splat(0.04).lerp(base_rgb, metallic), roughness);
         mat.name = name.clone();
         let mut ex = MaterialExtra { two_sided: m.double_sided(), ..Default::default() };
+        // KHR_texture_transform of each texture reference the material model reads
+        const TT: &str = "KHR_texture_transform";
+        let mut uv_refs: Vec<(&str, Option<(UvTransform, Option<u64>)>)> = Vec::new();
+        let parse_tt = |what: &'static str, v: Option<&gltf::json::Value>| {
+            UvTransform::parse(v)
+                .map(|t| (what, t))
+                .map_err(|e| gerr(path, format!("material '{name}': {what} texture: {e}")))
+        };
         if let Some(info) = pbr.base_color_texture() {
+            uv_refs.push(parse_tt("base colour", info.extension_value(TT))?);
             if info.tex_coord() != 0 {
                 warnings.push(format!(
                     "{label}: material '{name}': base colour uses TEXCOORD_{}, reading TEXCOORD_0",
@@ -308,6 +373,7 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
             mat.albedo = base_rgb * (1.0 - metallic);
         }
         if let Some(info) = pbr.metallic_roughness_texture() {
+            uv_refs.push(parse_tt("metallic-roughness", info.extension_value(TT))?);
             ex.roughness_map = Some(load_image(info.texture().source(), false, &mut textures)?);
         }
         // Emission: the factor times KHR_materials_emissive_strength, times the texture (sRGB).
@@ -319,6 +385,7 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
         ex.emission = emission;
         if let Some(info) = m.emissive_texture() {
             if emission != Vec3::ZERO {
+                uv_refs.push(parse_tt("emissive", info.extension_value(TT))?);
                 ex.emission_map = Some(load_image(info.texture().source(), true, &mut textures)?);
             }
         }
@@ -333,9 +400,32 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
             if !scale.is_finite() {
                 return Err(gerr(path, format!("material '{name}': normal map scale is not finite")));
             }
+            uv_refs.push(parse_tt("normal", nt.extension_value(TT))?);
             ex.normal_map = Some(load_image(nt.texture().source(), false, &mut textures)?);
             ex.normal_scale = scale;
         }
+        // One transform per material, baked into the texture coordinates of its primitives below:
+        // the first texture's, said when another texture of the material differs.
+        let first = uv_refs.first().map(|(what, t)| (*what, t.map_or(UvTransform::IDENTITY, |t| t.0)));
+        if let Some((what, t0)) = first {
+            if let Some((other, _)) = uv_refs.iter().find(|(_, t)| t.map_or(UvTransform::IDENTITY, |t| t.0) != t0) {
+                warnings.push(format!(
+                    "{label}: material '{name}': its {other} texture has another {TT} than its {what} texture; penumbra applies the {what} texture's to all of them"
+                ));
+            }
+            for (w, t) in &uv_refs {
+                if let Some((_, Some(k))) = t {
+                    if *k != 0 {
+                        warnings.push(format!(
+                            "{label}: material '{name}': {w} texture's {TT} selects TEXCOORD_{k}, reading TEXCOORD_0"
+                        ));
+                    }
+                }
+            }
+        }
+        let uv_transform = first.map(|f| f.1).filter(|t| *t != UvTransform::IDENTITY);
+        uv_transforms.push(uv_transform);
+        ex.uv_transform = uv_transform;
         // What the material model has no place for yet, said once per material.
         let mut ignored: Vec<String> = Vec::new();
         if m.occlusion_texture().is_some() {
@@ -373,6 +463,15 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
             let p = read_primitive(path, &label, &pname, &prim, &get, default_weights.clone(), &mut warnings)?;
             prim_index.insert((mesh.index(), prim.index()), primitives.len());
             primitives.push(p);
+        }
+    }
+
+    // KHR_texture_transform: each primitive's texture coordinates through its material's transform.
+    for p in &mut primitives {
+        if let Some(t) = p.material.and_then(|m| uv_transforms.get(m).copied().flatten()) {
+            for uv in &mut p.mesh.uvs {
+                *uv = t.apply(*uv);
+            }
         }
     }
 

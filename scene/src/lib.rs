@@ -327,6 +327,10 @@ pub struct MaterialExtra {
     pub normal_map: Option<usize>,
     /// The normal map's x and y scale (glTF's `normalTexture.scale`; 0 is read as 1).
     pub normal_scale: f32,
+    /// A glTF material's `KHR_texture_transform`, already baked into the texture coordinates of
+    /// the primitives that use it (kept to say so, e.g. in the reference cache key; nothing
+    /// applies it again).
+    pub uv_transform: Option<gltf_load::UvTransform>,
 }
 
 impl MaterialExtra {

@@ -429,8 +429,8 @@ fn negative_environment_texels_are_black_for_everyone_and_reported() {
 
 /// `scenes/assets/sun_and_spot.gltf`: its KHR_lights_punctual sun and spot become scene lights
 /// (placed by their nodes, candela and lux over 683 lm/W), its perspective camera the scene's
-/// camera, its emissive material an emission, its normal map a normal map, and what penumbra
-/// ignores (KHR_texture_transform) is said in a warning.
+/// camera, its emissive material an emission, its normal map a normal map tiled four times by
+/// its KHR_texture_transform (read, not warned about).
 #[test]
 fn gltf_lights_camera_and_ignored_features() {
     use penumbra_scene::LightKind;
@@ -453,12 +453,15 @@ fn gltf_lights_camera_and_ignored_features() {
     assert!(approx(forward, (Vec3::new(0.0, 0.35, 0.0) - c.eye).normalize(), 1e-4), "{forward:?}");
     assert!((c.fov_y_deg - 0.75f32.to_degrees()).abs() < 1e-3 && c.near == 0.05 && c.far == 50.0, "{c:?}");
     let w = s.warnings.join("\n");
-    assert!(w.contains("KHR_texture_transform"), "{w}");
-    // its normal map and emissive material are read, not warned about
-    assert!(!w.contains("normal map") && !w.contains("emission"), "{w}");
+    // its normal map, its texture transform and its emissive material are read, not warned about
+    assert!(!w.contains("normal map") && !w.contains("emission") && !w.contains("KHR_texture_transform"), "{w}");
     let crate_m = s.materials.iter().position(|m| m.name == "crate").unwrap();
     let x = s.material_extra(crate_m);
     assert!(x.normal_map.is_some() && x.normal_scale == 1.0, "{x:?}");
+    let t = x.uv_transform.expect("the crate's texture transform");
+    assert_eq!((t.offset, t.rotation, t.scale), ([0.0, 0.0], 0.0, [4.0, 4.0]));
+    let crate_uvs = s.objects.iter().filter(|o| o.material == crate_m).flat_map(|o| &s.meshes[o.mesh].uvs);
+    assert!(crate_uvs.fold(0.0f32, |m, uv| m.max(uv.x).max(uv.y)) > 3.9, "the crate's UVs span 0..4");
     let lamp = s.materials.iter().position(|m| m.name == "lamp").unwrap();
     assert_eq!(s.material_extra(lamp).emission, Vec3::new(1.0, 0.9, 0.5));
     assert_eq!(s.material_extra(lamp).emission_map, None);
@@ -565,4 +568,61 @@ fn emission_from_scene_files_and_gltf() {
     let map = x.emission_map.expect("emission map");
     assert_eq!(s.textures[map].texels[0], [1.0, 1.0, 1.0, 1.0]);
     assert!(s.warnings.iter().all(|w| !w.contains("emissive_strength")), "{:?}", s.warnings);
+}
+
+/// KHR_texture_transform (the extension's own example: the lower-left quadrant of the image,
+/// rotated clockwise 90 degrees) is baked into the texture coordinates of the material's
+/// primitives; a texture of the same material with another transform, and a texCoord override,
+/// are said in warnings; a malformed transform is an error naming the material.
+#[test]
+fn gltf_texture_transform_is_baked_into_the_uvs() {
+    let (pos, idx) = common::tetra();
+    let mut bin = Bin::default();
+    let doc = common::simple(&mut bin, &pos, &idx, None);
+    let uv = bin.f32s(&[0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.5, 0.25], "VEC2");
+    let mut doc = bin.document(None, doc);
+    doc["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"] = json!(uv);
+    let png = {
+        let mut b = Vec::new();
+        image::RgbImage::from_pixel(1, 1, image::Rgb([255, 255, 255]))
+            .write_to(&mut std::io::Cursor::new(&mut b), image::ImageFormat::Png)
+            .unwrap();
+        b
+    };
+    doc["images"] = json!([{"uri": format!("data:image/png;base64,{}", common::base64(&png))}]);
+    doc["textures"] = json!([{"source": 0}]);
+    doc["extensionsUsed"] = json!(["KHR_texture_transform"]);
+    let tt = json!({"offset": [0.0, 1.0], "rotation": std::f64::consts::FRAC_PI_2, "scale": [0.5, 0.5]});
+    doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] =
+        json!({"index": 0, "extensions": {"KHR_texture_transform": tt}});
+    let dir = common::temp_dir("texture_transform");
+    let load = |doc: &serde_json::Value, name: &str| {
+        let p = dir.join(name);
+        std::fs::write(&p, common::glb(doc, &bin.bytes)).unwrap();
+        Scene::load(&p)
+    };
+    let s = load(&doc, "quadrant.glb").unwrap();
+    let uvs = &s.meshes[s.objects[0].mesh].uvs;
+    let want = [[0.0, 1.0], [0.0, 0.5], [0.5, 1.0], [0.125, 0.75]];
+    assert_eq!(uvs.len(), 4);
+    for (u, w) in uvs.iter().zip(want) {
+        assert!((u.x - w[0]).abs() < 1e-5 && (u.y - w[1]).abs() < 1e-5, "{uvs:?} against {want:?}");
+    }
+    assert!(s.warnings.iter().all(|w| !w.contains("KHR_texture_transform")), "{:?}", s.warnings);
+    // a normal map of the same material with another transform, and a texCoord override
+    doc["materials"][0]["normalTexture"] =
+        json!({"index": 0, "extensions": {"KHR_texture_transform": {"scale": [4.0, 4.0], "texCoord": 1}}});
+    let s = load(&doc, "mixed.glb").unwrap();
+    let w = s.warnings.join("\n");
+    assert!(w.contains("material 'metal': its normal texture has another KHR_texture_transform"), "{w}");
+    assert!(w.contains("normal texture's KHR_texture_transform selects TEXCOORD_1"), "{w}");
+    assert!((s.meshes[s.objects[0].mesh].uvs[1].y - 0.5).abs() < 1e-5, "the base colour's transform applies");
+    // malformed: an error naming the file and the material
+    doc["materials"][0]["normalTexture"] =
+        json!({"index": 0, "extensions": {"KHR_texture_transform": {"scale": [4.0]}}});
+    let e = load(&doc, "bad.glb").unwrap_err().to_string();
+    assert!(
+        e.contains("bad.glb") && e.contains("material 'metal': normal texture: KHR_texture_transform scale"),
+        "{e}"
+    );
 }
