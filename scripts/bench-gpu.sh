@@ -9,9 +9,11 @@
 #
 # BIN: a release build of `penumbra`; OUT: output folder; REFERENCE_CACHE: converged 640x480
 # references of falling, hat_on_cloth and balls_on_dish (`bench matrix --scenes ... --techniques
-# env --size 640x480 --noise NOISE --cache DIR` renders them on the CPU; 0.01 takes about 25 min
-# on two cores), NOISE their target noise (0.01). The references are looked up, not rendered:
-# `--max-spp 256` bounds the damage when one is missing (and the log says "rendered").
+# env --size 640x480 --noise NOISE --cache DIR` renders them on the CPU, anti-aliased (its default
+# --supersample 2, hence --reference-grid 2 below): about 11 min per scene at NOISE 0.01 on two
+# cores). The references are looked up, not rendered: `--max-spp 256` bounds the damage when one is
+# missing (the log then says "256 spp"). Session 19 ran these steps on an NVIDIA H200 (README,
+# "The speed/accuracy trade on a GPU").
 set -u
 BIN=$1
 OUT=$2
@@ -43,7 +45,7 @@ for scene in falling hat_on_cloth balls_on_dish; do
     # (`bench pareto --from` redraws the merged points)
     for group in fast avs; do
         if [ "$group" = fast ]; then t=$fast; limit=70; else t=avs; limit=60; fi
-        step "pareto_${scene}_$group" $limit "$BIN" bench pareto "scenes/$scene.toml" --techniques "$t" --size 640x480 \
+        step "pareto_${scene}_$group" $limit "$BIN" bench pareto "scenes/$scene.toml" --techniques "$t" --size 640x480 --reference-grid 2 \
             --noise "$NOISE" --max-spp 256 --cache "$REFS" --out "$OUT/pareto_${scene}_$group"
         (cd "$OUT" && tar czf "pareto_${scene}_$group.tgz" "pareto_${scene}_$group" "pareto_${scene}_$group.txt" 2>/dev/null &&
             rm -rf "pareto_${scene}_$group" "pareto_${scene}_$group.txt")

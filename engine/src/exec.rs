@@ -66,7 +66,18 @@ pub struct GpuInterval {
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 enum PoolKey {
     Image(ImageDesc, vk::ImageUsageFlags),
-    Buffer(u64, vk::BufferUsageFlags, bool),
+    /// Size, usage, host access.
+    Buffer(u64, vk::BufferUsageFlags, HostAccess),
+}
+
+/// How the host touches a pooled buffer (its memory type follows).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+enum HostAccess {
+    None,
+    /// Host-initialised (written before submission): write-combined memory.
+    Write,
+    /// Read back after the frame: host-cached memory.
+    Read,
 }
 
 enum PoolItem {
@@ -278,9 +289,13 @@ impl Engine {
             PoolKey::Image(desc, usage) => {
                 PoolItem::Image(self.ctx.create_image(name, desc, *usage).with_context(pooled)?)
             }
-            PoolKey::Buffer(size, usage, host) => {
-                PoolItem::Buffer(self.ctx.create_buffer(name, *size, *usage, *host).with_context(pooled)?)
-            }
+            PoolKey::Buffer(size, usage, host) => PoolItem::Buffer(
+                match host {
+                    HostAccess::Read => self.ctx.create_readback_buffer(name, *size, *usage),
+                    _ => self.ctx.create_buffer(name, *size, *usage, *host == HostAccess::Write),
+                }
+                .with_context(pooled)?,
+            ),
         })
     }
 
@@ -433,7 +448,12 @@ impl Engine {
                         Origin::Readback => vk::BufferUsageFlags::TRANSFER_DST,
                         _ => vk::BufferUsageFlags::empty(),
                     };
-                    let key = PoolKey::Buffer(b.size, info.buffer_usage | extra, b.host_visible);
+                    let host = match (origin, b.host_visible) {
+                        (Origin::Readback, _) => HostAccess::Read,
+                        (_, true) => HostAccess::Write,
+                        (_, false) => HostAccess::None,
+                    };
+                    let key = PoolKey::Buffer(b.size, info.buffer_usage | extra, host);
                     let mut item = self.take(key.clone(), &res.name)?;
                     if let PoolItem::Buffer(buf) = &mut item {
                         if let Some(data) = &res.init_data {

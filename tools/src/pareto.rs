@@ -50,6 +50,13 @@ pub struct ParetoArgs {
     /// Techniques render at N x N the size and are box-filtered down.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=4))]
     pub supersample: u32,
+    /// The reference's pixel grid: each reference pixel averages N x N point samples (default:
+    /// the --supersample factor, so that reference and technique sample the same points). 2 with
+    /// --supersample 1 times images rendered at the size itself against the anti-aliased
+    /// references of `bench matrix`'s default (its --supersample 2), so that a front at 640x480
+    /// reuses them without rendering techniques at 1280x960.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4))]
+    pub reference_grid: Option<u32>,
     /// Target noise of the converged references (RMSE over the mean).
     #[arg(long, default_value_t = 0.01)]
     pub noise: f64,
@@ -140,6 +147,8 @@ pub struct Measure {
     pub frame: u32,
     pub fps: f32,
     pub supersample: u32,
+    /// The reference's pixel grid (0: the supersample factor).
+    pub reference_grid: u32,
     pub noise: f64,
     pub max_spp: u32,
     /// The reference cache directory.
@@ -194,7 +203,7 @@ impl<'a> Target<'a> {
             scene,
             w,
             h,
-            measure.supersample,
+            if measure.reference_grid > 0 { measure.reference_grid } else { measure.supersample },
             measure.frame,
             measure.fps,
             measure.noise,
@@ -300,6 +309,7 @@ pub fn run(args: &ParetoArgs) -> Result<()> {
         frame: args.frame,
         fps: args.fps,
         supersample: args.supersample,
+        reference_grid: args.reference_grid.unwrap_or(0),
         noise: args.noise,
         max_spp: args.max_spp,
         cache: args.cache.clone().unwrap_or_else(|| std::env::temp_dir().join("penumbra-references")),

@@ -287,6 +287,7 @@ pub fn tune(path: Option<&Path>, scene: &Scene, o: &TuneOptions) -> Result<Choic
         frame: o.frame,
         fps: 30.0,
         supersample: 1,
+        reference_grid: 0,
         noise: 0.01,
         max_spp: 131072,
         cache: o.cache.clone(),
