@@ -246,6 +246,13 @@ pub struct GpuBuffer {
     pub(crate) allocation: Option<Allocation>,
 }
 
+impl GpuBuffer {
+    /// The property flags of the memory type the buffer lives in.
+    pub fn memory_flags(&self) -> vk::MemoryPropertyFlags {
+        self.allocation.as_ref().map(|a| a.memory_properties()).unwrap_or_default()
+    }
+}
+
 /// A GPU object dropped without [`Context::destroy_image`] / [`Context::destroy_buffer`] keeps
 /// its device memory until the context goes: say so, so that every owner frees on every path
 /// (the test suite's output is searched for this line).
