@@ -661,7 +661,12 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
         bail!("the validation layer reported errors in {} cell(s)", invalid.len());
     }
     if args.write_known {
-        let mut list = known.clone();
+        // the file as it is now, not as it was when the run began: runs at other sizes may have
+        // written it meanwhile (only this size's judged cells are replaced)
+        let mut list = match std::fs::read_to_string(&known_path) {
+            Ok(t) => toml::from_str(&t).map_err(|e| crate::bad(format!("{}: {e}", known_path.display())))?,
+            Err(_) => known.clone(),
+        };
         // Replace the entries of the cells this run judged; keep the others (other sizes, or
         // cells of scenes and techniques not run this time).
         list.cell.retain(|k| {
