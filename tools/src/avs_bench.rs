@@ -71,6 +71,8 @@ struct AvsRun {
     total: f64,
     psnr: f64,
     rel_rmse: f64,
+    /// Wall-clock ms of the measured frame's parts in the technique (`AvsStats::cpu_ms`).
+    cpu_parts: Vec<(&'static str, f64)>,
 }
 
 fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32, reference: &Image) -> Result<AvsRun> {
@@ -119,6 +121,7 @@ fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32
         total,
         psnr: c.psnr_db.unwrap_or(f64::INFINITY),
         rel_rmse: c.rel_rmse,
+        cpu_parts: st.cpu_ms.clone(),
     })
 }
 
@@ -201,6 +204,7 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let mut first: Option<(Scene, Image)> = None;
     let mut cull_rows = Vec::new();
+    let mut part_rows = Vec::new();
     for path in &scenes {
         let scene = load(path)?;
         let opts = ReferenceOptions {
@@ -239,6 +243,22 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
             same,
             reach
         );
+        part_rows.push(format!(
+            "| {} | {} | {:.1} |",
+            scene.name,
+            a.cpu_parts.iter().map(|(_, ms)| format!("{ms:.1}")).collect::<Vec<_>>().join(" | "),
+            a.cpu_parts.iter().map(|(_, ms)| ms).sum::<f64>()
+        ));
+        if part_rows.len() == 1 {
+            part_rows.insert(
+                0,
+                format!(
+                    "| scene | {} | sum |\n|---|{}---|",
+                    a.cpu_parts.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(" | "),
+                    "---|".repeat(a.cpu_parts.len())
+                ),
+            );
+        }
         let mut p = base.clone();
         p.push(("cull".into(), "false".into()));
         let off = render_avs(&scene, &p, w, h, args.time, &reference)?;
@@ -262,6 +282,14 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
         if first.is_none() {
             first = Some((scene, reference));
         }
+    }
+    println!(
+        "\nt_I, t_V, t_S, ms/frame and the MC columns are GPU ms (timestamps); the wall-clock parts of \
+         the measured frame inside the technique, CPU work and waits for its own submissions (the \
+         adaptation rounds), in ms (`AvsStats::cpu_ms`):\n"
+    );
+    for r in &part_rows {
+        println!("{r}");
     }
     println!("\n## G-buffer culling (section 6 \"Optimization\"), second frame; each cell: off / on");
     println!("| scene | dormant points (on) | maps traced | t_V ms | t_S ms | rays | PSNR dB | relRMSE |");

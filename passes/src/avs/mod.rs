@@ -336,6 +336,15 @@ pub struct AvsStats {
     pub kept_vertices: Vec<usize>,
     /// Visibility maps traced this frame, summed over the adaptation rounds.
     pub traced_points: usize,
+    /// Wall-clock ms of the frame's parts in `add`, in order: `pool` (the candidates at this
+    /// frame's poses), `kmeans` (initial points, when the pool changed), `cull` (the previous
+    /// frame's flags read back: a submission waited for), `rounds_wait` (the adaptation rounds'
+    /// submissions waited for: tree build, tracing, SH projection), `rounds_cpu` (their range
+    /// searches, errors, insertions and erasures), `shading_prep` (neighbour grid and uploads).
+    pub cpu_ms: Vec<(&'static str, f64)>,
+    /// Wall-clock ms of the adaptation rounds' waits for their submissions (in `cpu_ms` as
+    /// `rounds_wait`).
+    pub rounds_wait_ms: f64,
     /// Maps (summed over the rounds) whose visibility pass hit the driver's per-invocation loop
     /// limit (lavapipe: 65535 loop iterations, then every loop ends early; see avs_vis.comp):
     /// their untraced texels are wrong (occluded). 0 unless a chunk's rays need that many kd-tree
@@ -344,6 +353,18 @@ pub struct AvsStats {
     /// The final packed visibility map of every sample point (`words_per_map(r)` words each, in
     /// the order of `point_vertices`), only with [`AvsSettings::capture_maps`] (tests).
     pub maps: Vec<Vec<u32>>,
+}
+
+impl AvsStats {
+    /// Records the ms since `clock` under `name` in [`AvsStats::cpu_ms`] and restarts the clock;
+    /// returns the ms.
+    fn lap(&mut self, clock: &mut std::time::Instant, name: &'static str) -> f64 {
+        let now = std::time::Instant::now();
+        let ms = (now - *clock).as_secs_f64() * 1e3;
+        self.cpu_ms.push((name, ms));
+        *clock = now;
+        ms
+    }
 }
 
 /// Part A's `T(lambda, d)` table as f32 bytes (generated per technique that integrates by table).
@@ -954,6 +975,7 @@ impl AvsTechnique {
         self.stats.rays = 0;
         self.stats.truncated = 0;
         self.stats.traced_points = 0;
+        self.stats.rounds_wait_ms = 0.0;
         // every point is traced again each frame (the geometry is dynamic): slots 0..n
         let mut slots: Vec<u32> = (0..self.sample_vertices.len() as u32).collect();
         let mut nslots = slots.len() as u32;
@@ -1017,7 +1039,9 @@ impl AvsTechnique {
                 let rb = g.create_readback("avs_maps_readback", bytes);
                 crate::util::copy_buffer(&mut g, "avs_maps_readback", vis, rb, Some(bytes));
             }
+            let waited = std::time::Instant::now();
             let out = engine.submit_wait(g)?;
+            self.stats.rounds_wait_ms += waited.elapsed().as_secs_f64() * 1e3;
             self.stats.round_ms.extend(out.gpu_ms.iter().cloned());
             let bytes = out.readbacks.get("avs_sh_readback").ok_or_else(|| anyhow!("avs: SH readback missing"))?;
             let word = |i: usize| f32::from_le_bytes(bytes[4 * i..4 * i + 4].try_into().unwrap());
@@ -1150,16 +1174,20 @@ impl crate::technique::Technique for AvsTechnique {
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {
         let frame = inputs.frame;
+        let mut clock = std::time::Instant::now();
+        self.stats.cpu_ms.clear();
         if self.plan.insts.is_empty() || !self.plan.fits(&self.scene, frame) {
             self.plan = Arc::new(PoolPlan::new(&self.scene, frame, self.settings.pool_points)?);
             self.pool_len = usize::MAX;
         }
         let pool = vertex_pool(&self.scene, frame, &self.plan)?;
         self.stats.pool_plan = self.plan.clone();
+        self.stats.lap(&mut clock, "pool");
         if pool.len() != self.pool_len {
             self.pool_len = pool.len();
             self.initial_points(&pool);
         }
+        self.stats.lap(&mut clock, "kmeans");
         self.stats.vertices = pool.len();
         if self.settings.cull && !self.cull_order.is_empty() {
             self.apply_cull_flags(engine)?;
@@ -1180,7 +1208,12 @@ impl crate::technique::Technique for AvsTechnique {
             self.sample_vertices.extend(d);
         }
         self.stats.dormant = self.dormant.len();
+        self.stats.lap(&mut clock, "cull");
         let (points, slots, nslots) = self.adapt(engine, &pool, frame, inputs.gbuffer.height)?;
+        let waited = self.stats.rounds_wait_ms;
+        let rounds = self.stats.lap(&mut clock, "rounds_wait");
+        self.stats.cpu_ms.last_mut().expect("just pushed").1 = waited;
+        self.stats.cpu_ms.push(("rounds_cpu", (rounds - waited).max(0.0)));
         self.stats.point_vertices = self.sample_vertices.clone();
         self.stats.kept_vertices = self.sample_vertices.iter().chain(&self.dormant).copied().collect();
         let r = self.settings.r;
@@ -1295,6 +1328,7 @@ impl crate::technique::Technique for AvsTechnique {
             });
             self.cull_order = all;
         }
+        self.stats.lap(&mut clock, "shading_prep");
         Ok(hdr)
     }
 }
