@@ -229,7 +229,13 @@ material = "floor"
         }
         (l, r)
     };
-    let opts = penumbra_reference::render::ReferenceOptions { width: w, height: h, spp: 16, time: Some(0.0), ..Default::default() };
+    let opts = penumbra_reference::render::ReferenceOptions {
+        width: w,
+        height: h,
+        spp: 16,
+        time: Some(0.0),
+        ..Default::default()
+    };
     let reference = penumbra_reference::render::render(&scene, &opts).expect("reference");
     let (l, r) = quarters(&|x, y| reference.radiance.get(x, y));
     // which side turns from the eye follows from the plane's u direction; the test asks only that
@@ -242,8 +248,10 @@ material = "floor"
         if penumbra_passes::registry::refusal(name, &scene).is_some() {
             continue;
         }
-        let settings = penumbra::RenderSettings { width: w, height: h, technique: Some(name.into()), ..Default::default() };
-        let mut rr = penumbra::Renderer::new_headless(&scene, settings, true).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        let settings =
+            penumbra::RenderSettings { width: w, height: h, technique: Some(name.into()), ..Default::default() };
+        let mut rr =
+            penumbra::Renderer::new_headless(&scene, settings, true).unwrap_or_else(|e| panic!("{name}: {e:#}"));
         let mut frames = rr.render(&scene.at(0.0, None), None, true).unwrap_or_else(|e| panic!("{name}: {e:#}"));
         frames.extend(rr.finish().unwrap());
         let errors = rr.context().validation.error_count();
@@ -255,7 +263,9 @@ material = "floor"
         });
         let (lit, dark) = if black_right { (l, r) } else { (r, l) };
         if errors > 0 || !(lit > 0.0 && dark <= 1e-3 * lit) {
-            failures.push(format!("{name}: lit side {lit:.4}, side turned from the eye {dark:.6}, {errors} validation errors"));
+            failures.push(format!(
+                "{name}: lit side {lit:.4}, side turned from the eye {dark:.6}, {errors} validation errors"
+            ));
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
