@@ -14,7 +14,7 @@ use clap::Args;
 use penumbra::engine::{Context, ContextDesc};
 use penumbra_passes::registry::{self, Params};
 use penumbra_reference::cli::parse_size;
-use penumbra_reference::converge::load_or_render;
+use penumbra_reference::converge::{load_or_render, ConvergeOptions};
 use penumbra_reference::image::Image;
 use penumbra_reference::metrics::compare;
 use penumbra_scene::Scene;
@@ -156,6 +156,21 @@ pub struct Measure {
 }
 
 impl Measure {
+    /// The converged reference's options at `w` x `h`: its pixel grid is `reference_grid`, else
+    /// the supersample factor.
+    pub(crate) fn reference_options(&self, scene: &Scene, w: u32, h: u32) -> ConvergeOptions {
+        crate::matrix::converge_options(
+            scene,
+            w,
+            h,
+            if self.reference_grid > 0 { self.reference_grid } else { self.supersample },
+            self.frame,
+            self.fps,
+            self.noise,
+            self.max_spp,
+        )
+    }
+
     fn matrix_args(&self, w: u32, h: u32) -> MatrixArgs {
         MatrixArgs {
             scenes: None,
@@ -199,16 +214,7 @@ impl<'a> Target<'a> {
         measure: Measure,
     ) -> Result<Self> {
         let (w, h) = size;
-        let copts = crate::matrix::converge_options(
-            scene,
-            w,
-            h,
-            if measure.reference_grid > 0 { measure.reference_grid } else { measure.supersample },
-            measure.frame,
-            measure.fps,
-            measure.noise,
-            measure.max_spp,
-        );
+        let copts = measure.reference_options(scene, w, h);
         let reference = load_or_render(scene, bytes, stem, &copts, Some(&measure.cache))
             .with_context(|| format!("reference of {} at {w}x{h}", scene.name))?;
         eprintln!("{w}x{h}: reference {} spp, noise {:.4}", reference.meta.spp, reference.meta.noise_rmse_rel_mean);
@@ -446,6 +452,31 @@ pub(crate) mod tests {
             flip: 0.0,
             on_front: false,
         }
+    }
+
+    /// `--reference-grid 2` with `--supersample 1` looks up the reference `bench matrix` renders
+    /// by default (its --supersample 2): the same cache key; without it the grid follows the
+    /// supersample factor (a different reference).
+    #[test]
+    fn the_reference_grid_selects_the_matrix_default_reference() {
+        use penumbra_reference::converge::scene_cache_key;
+        let scene = Scene::default_scene();
+        let m = |ss, grid| Measure {
+            frames: 3,
+            warmup: 2,
+            frame: 30,
+            fps: 30.0,
+            supersample: ss,
+            reference_grid: grid,
+            noise: 0.01,
+            max_spp: 131072,
+            cache: PathBuf::from("."),
+        };
+        let matrix = crate::matrix::converge_options(&scene, 64, 48, 2, 30, 30.0, 0.01, 131072);
+        let key = |o: &ConvergeOptions| scene_cache_key(&scene, b"scene", o);
+        assert_eq!(key(&m(1, 2).reference_options(&scene, 64, 48)), key(&matrix));
+        assert_eq!(key(&m(2, 0).reference_options(&scene, 64, 48)), key(&matrix));
+        assert_ne!(key(&m(1, 0).reference_options(&scene, 64, 48)), key(&matrix));
     }
 
     #[test]
