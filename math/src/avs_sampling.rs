@@ -15,6 +15,7 @@
 
 use crate::avs_maps::{texel_dir, texel_solid_angle, Frame, VisMap};
 use glam::{DVec3, Vec3};
+use rayon::prelude::*;
 
 /// Number of SH coefficients of the spatial error (4 bands).
 pub const SH_COUNT: usize = 16;
@@ -78,7 +79,6 @@ pub fn kmeans_eg(
     let iterations = iterations.max(1);
     for it in 0..iterations {
         let grid = Grid::new(&centres.iter().map(|c| c.pos).collect::<Vec<_>>(), 0.0);
-        use rayon::prelude::*;
         assign.par_iter_mut().enumerate().for_each(|(i, a)| {
             let p = points[i];
             let mut best = (f32::MAX, 0usize);
@@ -409,37 +409,54 @@ pub fn adapt_step(
     let mut inserted = std::collections::HashSet::new();
     let mut grows = vec![false; n];
     let mut candidates = Vec::new();
-    for i in 0..n {
-        let nb: Vec<usize> = grid
-            .range(points[i].pos, params.radius)
-            .into_iter()
-            .filter(|&j| j != i && same_surface(&points[i], &points[j], params.radius))
-            .collect();
-        if nb.is_empty() {
+    // Per point, independent of the others (in parallel): its neighbours, its relative error and,
+    // when it is over e_max, the pool candidate nearest the midpoint towards each neighbour it
+    // differs from. The insertions are then taken in point order, as a sequential loop would.
+    let evals: Vec<(Vec<usize>, Option<f32>, Vec<(usize, Option<usize>)>)> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let nb: Vec<usize> = grid
+                .range(points[i].pos, params.radius)
+                .into_iter()
+                .filter(|&j| j != i && same_surface(&points[i], &points[j], params.radius))
+                .collect();
+            if nb.is_empty() {
+                return (nb, None, Vec::new());
+            }
+            let pairs: Vec<(Vec3, Vec3)> = nb.iter().map(|&j| (points[j].pos, points[j].normal)).collect();
+            let w = eq8_weights(params.alpha, inv, points[i].pos, points[i].normal, &pairs);
+            let mut avg = [0f32; SH_COUNT];
+            for (k, &j) in nb.iter().enumerate() {
+                for c in 0..SH_COUNT {
+                    avg[c] += w[k] * sh[j][c];
+                }
+            }
+            let norm = sh_norm(&sh[i]).max(1e-6);
+            let rel = e_v(&sh[i], &avg) / norm;
+            let mut mids = Vec::new();
+            if rel > params.e_max {
+                for &j in &nb {
+                    if e_v(&sh[i], &sh[j]) / norm > params.e_max {
+                        mids.push((j, pool_grid.nearest(0.5 * (points[i].pos + points[j].pos))));
+                    }
+                }
+            }
+            (nb, Some(rel), mids)
+        })
+        .collect();
+    for (i, (nb, rel, mids)) in evals.into_iter().enumerate() {
+        let Some(rel) = rel else {
             neighbours.push(nb);
             continue;
-        }
-        let pairs: Vec<(Vec3, Vec3)> = nb.iter().map(|&j| (points[j].pos, points[j].normal)).collect();
-        let w = eq8_weights(params.alpha, inv, points[i].pos, points[i].normal, &pairs);
-        let mut avg = [0f32; SH_COUNT];
-        for (k, &j) in nb.iter().enumerate() {
-            for c in 0..SH_COUNT {
-                avg[c] += w[k] * sh[j][c];
-            }
-        }
-        let norm = sh_norm(&sh[i]).max(1e-6);
-        let rel = e_v(&sh[i], &avg) / norm;
+        };
         step.rel_error[i] = Some(rel);
         if rel > params.e_max {
-            for &j in &nb {
-                if e_v(&sh[i], &sh[j]) / norm > params.e_max {
-                    let mid = 0.5 * (points[i].pos + points[j].pos);
-                    if let Some(v) = pool_grid.nearest(mid) {
-                        if !existing.contains(&v) && inserted.insert(v) {
-                            step.insert.push(v);
-                            grows[i] = true;
-                            grows[j] = true;
-                        }
+            for (j, v) in mids {
+                if let Some(v) = v {
+                    if !existing.contains(&v) && inserted.insert(v) {
+                        step.insert.push(v);
+                        grows[i] = true;
+                        grows[j] = true;
                     }
                 }
             }

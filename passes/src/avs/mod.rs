@@ -339,12 +339,17 @@ pub struct AvsStats {
     /// Wall-clock ms of the frame's parts in `add`, in order: `pool` (the candidates at this
     /// frame's poses), `kmeans` (initial points, when the pool changed), `cull` (the previous
     /// frame's flags read back: a submission waited for), `rounds_wait` (the adaptation rounds'
-    /// submissions waited for: tree build, tracing, SH projection), `rounds_cpu` (their range
-    /// searches, errors, insertions and erasures), `shading_prep` (neighbour grid and uploads).
+    /// submissions waited for: tree build, tracing, SH projection), `rounds_step` (their
+    /// `adapt_step`: range searches, errors, candidates), `rounds_cpu` (the rest of their CPU
+    /// work: spacing checks of the insertions, erasures, slots), `shading_prep` (neighbour grid
+    /// and uploads).
     pub cpu_ms: Vec<(&'static str, f64)>,
     /// Wall-clock ms of the adaptation rounds' waits for their submissions (in `cpu_ms` as
     /// `rounds_wait`).
     pub rounds_wait_ms: f64,
+    /// Wall-clock ms of the rounds' `adapt_step` calls (range searches and errors; in `cpu_ms`
+    /// as `rounds_step`, the rest of their CPU work as `rounds_cpu`).
+    pub rounds_step_ms: f64,
     /// Maps (summed over the rounds) whose visibility pass hit the driver's per-invocation loop
     /// limit (lavapipe: 65535 loop iterations, then every loop ends early; see avs_vis.comp):
     /// their untraced texels are wrong (occluded). 0 unless a chunk's rays need that many kd-tree
@@ -976,6 +981,7 @@ impl AvsTechnique {
         self.stats.truncated = 0;
         self.stats.traced_points = 0;
         self.stats.rounds_wait_ms = 0.0;
+        self.stats.rounds_step_ms = 0.0;
         // every point is traced again each frame (the geometry is dynamic): slots 0..n
         let mut slots: Vec<u32> = (0..self.sample_vertices.len() as u32).collect();
         let mut nslots = slots.len() as u32;
@@ -1076,7 +1082,9 @@ impl AvsTechnique {
                 e_min: self.settings.e_min,
             };
             let sh_now: Vec<[f32; SH_COUNT]> = sh.iter().map(|c| c.unwrap_or([0.0; SH_COUNT])).collect();
+            let stepped = std::time::Instant::now();
             let step = samp::adapt_step(&points, &self.sample_vertices, &sh_now, pool, &pool_grid, &params);
+            self.stats.rounds_step_ms += stepped.elapsed().as_secs_f64() * 1e3;
             let errs: Vec<f32> = step.rel_error.iter().flatten().copied().collect();
             self.stats.mean_rel_error =
                 if errs.is_empty() { 0.0 } else { errs.iter().sum::<f32>() / errs.len() as f32 };
@@ -1213,7 +1221,9 @@ impl crate::technique::Technique for AvsTechnique {
         let waited = self.stats.rounds_wait_ms;
         let rounds = self.stats.lap(&mut clock, "rounds_wait");
         self.stats.cpu_ms.last_mut().expect("just pushed").1 = waited;
-        self.stats.cpu_ms.push(("rounds_cpu", (rounds - waited).max(0.0)));
+        let stepped = self.stats.rounds_step_ms;
+        self.stats.cpu_ms.push(("rounds_step", stepped));
+        self.stats.cpu_ms.push(("rounds_cpu", (rounds - waited - stepped).max(0.0)));
         self.stats.point_vertices = self.sample_vertices.clone();
         self.stats.kept_vertices = self.sample_vertices.iter().chain(&self.dormant).copied().collect();
         let r = self.settings.r;
