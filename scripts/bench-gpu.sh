@@ -13,7 +13,8 @@
 # --supersample 2, hence --reference-grid 2 below): about 11 min per scene at NOISE 0.01 on two
 # cores). The references are looked up, not rendered: `--max-spp 256` bounds the damage when one is
 # missing (the log then says "256 spp"). Session 19 ran these steps on an NVIDIA H200 (README,
-# "The speed/accuracy trade on a GPU").
+# "The trade on a GPU") with the references kept in scenes/fronts/h200/references/ (NOISE 0.01):
+#   scripts/bench-gpu.sh target/release/penumbra OUT scenes/fronts/h200/references 0.01
 set -u
 BIN=$1
 OUT=$2
