@@ -550,15 +550,7 @@ fn emission_from_scene_files_and_gltf() {
     doc["extensionsUsed"] = json!(["KHR_materials_emissive_strength"]);
     doc["materials"][0]["emissiveFactor"] = json!([0.5, 0.25, 1.0]);
     doc["materials"][0]["extensions"] = json!({"KHR_materials_emissive_strength": {"emissiveStrength": 4.0}});
-    let png = {
-        let mut b = Vec::new();
-        image::RgbImage::from_pixel(1, 1, image::Rgb([255, 255, 255]))
-            .write_to(&mut std::io::Cursor::new(&mut b), image::ImageFormat::Png)
-            .unwrap();
-        b
-    };
-    doc["images"] = json!([{"uri": format!("data:image/png;base64,{}", common::base64(&png))}]);
-    doc["textures"] = json!([{"source": 0}]);
+    common::white_texture(&mut doc);
     doc["materials"][0]["emissiveTexture"] = json!({"index": 0});
     let p = dir.join("glow.glb");
     std::fs::write(&p, common::glb(&doc, &bin.bytes)).unwrap();
@@ -582,15 +574,7 @@ fn gltf_texture_transform_is_baked_into_the_uvs() {
     let uv = bin.f32s(&[0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.5, 0.25], "VEC2");
     let mut doc = bin.document(None, doc);
     doc["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"] = json!(uv);
-    let png = {
-        let mut b = Vec::new();
-        image::RgbImage::from_pixel(1, 1, image::Rgb([255, 255, 255]))
-            .write_to(&mut std::io::Cursor::new(&mut b), image::ImageFormat::Png)
-            .unwrap();
-        b
-    };
-    doc["images"] = json!([{"uri": format!("data:image/png;base64,{}", common::base64(&png))}]);
-    doc["textures"] = json!([{"source": 0}]);
+    common::white_texture(&mut doc);
     doc["extensionsUsed"] = json!(["KHR_texture_transform"]);
     let tt = json!({"offset": [0.0, 1.0], "rotation": std::f64::consts::FRAC_PI_2, "scale": [0.5, 0.5]});
     doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] =

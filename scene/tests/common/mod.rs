@@ -114,6 +114,16 @@ pub fn base64(data: &[u8]) -> String {
     out
 }
 
+/// Gives `doc` one texture (index 0): a 1x1 white PNG embedded as a data URI.
+pub fn white_texture(doc: &mut Value) {
+    let mut png = Vec::new();
+    image::RgbImage::from_pixel(1, 1, image::Rgb([255, 255, 255]))
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .unwrap();
+    doc["images"] = json!([{"uri": format!("data:image/png;base64,{}", base64(&png))}]);
+    doc["textures"] = json!([{"source": 0}]);
+}
+
 /// A binary glTF container.
 pub fn glb(json: &Value, bin: &[u8]) -> Vec<u8> {
     let mut j = serde_json::to_vec(json).unwrap();
