@@ -346,10 +346,10 @@ pub struct AvsStats {
     pub cpu_ms: Vec<(&'static str, f64)>,
     /// Wall-clock ms of the adaptation rounds' waits for their submissions (in `cpu_ms` as
     /// `rounds_wait`).
-    pub rounds_wait_ms: f64,
+    pub(crate) rounds_wait_ms: f64,
     /// Wall-clock ms of the rounds' `adapt_step` calls (range searches and errors; in `cpu_ms`
     /// as `rounds_step`, the rest of their CPU work as `rounds_cpu`).
-    pub rounds_step_ms: f64,
+    pub(crate) rounds_step_ms: f64,
     /// Maps (summed over the rounds) whose visibility pass hit the driver's per-invocation loop
     /// limit (lavapipe: 65535 loop iterations, then every loop ends early; see avs_vis.comp):
     /// their untraced texels are wrong (occluded). 0 unless a chunk's rays need that many kd-tree
@@ -361,14 +361,11 @@ pub struct AvsStats {
 }
 
 impl AvsStats {
-    /// Records the ms since `clock` under `name` in [`AvsStats::cpu_ms`] and restarts the clock;
-    /// returns the ms.
-    fn lap(&mut self, clock: &mut std::time::Instant, name: &'static str) -> f64 {
+    /// Records the ms since `clock` under `name` in [`AvsStats::cpu_ms`] and restarts the clock.
+    fn lap(&mut self, clock: &mut std::time::Instant, name: &'static str) {
         let now = std::time::Instant::now();
-        let ms = (now - *clock).as_secs_f64() * 1e3;
-        self.cpu_ms.push((name, ms));
+        self.cpu_ms.push((name, (now - *clock).as_secs_f64() * 1e3));
         *clock = now;
-        ms
     }
 }
 
@@ -1218,10 +1215,11 @@ impl crate::technique::Technique for AvsTechnique {
         self.stats.dormant = self.dormant.len();
         self.stats.lap(&mut clock, "cull");
         let (points, slots, nslots) = self.adapt(engine, &pool, frame, inputs.gbuffer.height)?;
-        let waited = self.stats.rounds_wait_ms;
-        let rounds = self.stats.lap(&mut clock, "rounds_wait");
-        self.stats.cpu_ms.last_mut().expect("just pushed").1 = waited;
-        let stepped = self.stats.rounds_step_ms;
+        // the rounds' wall-clock time, split into their waits, their adapt_step and the rest
+        let rounds = clock.elapsed().as_secs_f64() * 1e3;
+        clock = std::time::Instant::now();
+        let (waited, stepped) = (self.stats.rounds_wait_ms, self.stats.rounds_step_ms);
+        self.stats.cpu_ms.push(("rounds_wait", waited));
         self.stats.cpu_ms.push(("rounds_step", stepped));
         self.stats.cpu_ms.push(("rounds_cpu", (rounds - waited - stepped).max(0.0)));
         self.stats.point_vertices = self.sample_vertices.clone();
