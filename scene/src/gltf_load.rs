@@ -337,7 +337,6 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
     };
     let mut materials = Vec::new();
     let mut extras = Vec::new();
-    let mut uv_transforms: Vec<Option<UvTransform>> = Vec::new();
     for m in doc.materials() {
         let pbr = m.pbr_metallic_roughness();
         let c = pbr.base_color_factor();
@@ -423,9 +422,7 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
                 }
             }
         }
-        let uv_transform = first.map(|f| f.1).filter(|t| *t != UvTransform::IDENTITY);
-        uv_transforms.push(uv_transform);
-        ex.uv_transform = uv_transform;
+        ex.uv_transform = first.map(|f| f.1).filter(|t| *t != UvTransform::IDENTITY);
         // What the material model has no place for yet, said once per material.
         let mut ignored: Vec<String> = Vec::new();
         if m.occlusion_texture().is_some() {
@@ -468,7 +465,7 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
 
     // KHR_texture_transform: each primitive's texture coordinates through its material's transform.
     for p in &mut primitives {
-        if let Some(t) = p.material.and_then(|m| uv_transforms.get(m).copied().flatten()) {
+        if let Some(t) = p.material.and_then(|m| extras.get(m).and_then(|x: &MaterialExtra| x.uv_transform)) {
             for uv in &mut p.mesh.uvs {
                 *uv = t.apply(*uv);
             }
