@@ -25,7 +25,9 @@
 // lobes' irradiance (include/irradiance.glsl), not the lobes alone (the paper's; its fit error).
 // Glossy (glossy ratio, default): the material model's split sum (env_shade.glsl, the `env`
 // technique's) times the specular lobe's SSDF visibility, not the one SG lobe of the BRDF.
-// Local lights: shadowed by the sign of the interpolated SSDF toward the light.
+// Local lights (light_shadows): shadow rays traced through the frame's kd-tree (default; the paper
+// lights by the environment only, and a point or spot light's hard shadow is finer than maps
+// interpolated between sample points), or the sign of the interpolated SSDF toward the light.
 #include "common.glsl"
 #include "sg.glsl"
 #include "avs_maps.glsl"
@@ -58,6 +60,16 @@ layout(set = 0, binding = 14) readonly buffer AxisTable { float axis_table[]; };
 // the environment's irradiance map (passes::lighting::irradiance_env): the ratio estimator's
 // unshadowed diffuse term
 layout(set = 0, binding = 15) readonly buffer Irradiance { float irr[]; };
+// the frame's kd-tree (include/kdtree.glsl): local lights' shadow rays (flags bit 1)
+layout(set = 0, binding = 16) readonly buffer Tris { vec4 kd_tris[]; };
+layout(set = 0, binding = 17) readonly buffer Nodes { uvec4 kd_nodes[]; };
+layout(set = 0, binding = 18) readonly buffer Refs { uint kd_refs[]; };
+layout(set = 0, binding = 19) readonly buffer Header { uint kd_hdr[]; };
+#define KD_TRI(i) kd_tris[i]
+#define KD_NODE(i) kd_nodes[i]
+#define KD_REF(i) kd_refs[i]
+#define KD_HDR(i) kd_hdr[i]
+#include "kdtree.glsl"
 layout(push_constant) uniform Push {
     uint light_count;
     uint lobe_count;
@@ -67,10 +79,11 @@ layout(push_constant) uniform Push {
     float inv_scale;
     float radius;
     uint mode;       // 0 lobe axis, 1 cells, 2 table, 3 adaptive cells
-    uint flags;      // bit 0: no shadows
+    uint flags;      // bit 0: no SSDF visibility (shadows off, or no sample points); bit 1: local lights' shadows traced
     uint cells;      // cells per side (mode 1)
     uint specular_mode;  // 0: Gamma_L from the prefiltered maps, 1: from the lighting SGs, 2: ratio (env_shade.glsl's glossy term x the lobe's SSDF visibility)
     uint diffuse_ratio;  // 1: the map's irradiance x the SG lobes' visible share; 0: the SG lobes alone
+    float ray_offset;    // shadow rays start this far along the normal, and skip hits nearer than it (the sample points' offset, avs::ray_offset)
 } pc;
 
 #include "avs_gather.glsl"
@@ -183,8 +196,25 @@ float visible(SG g) {
     return tot > 0.0 ? vis / tot : 1.0;
 }
 
+// Unoccluded fraction of local light l seen from o (the offset shading point): one shadow ray
+// for point, spot and directional lights, lights.glsl's disk targets for a sphere light.
+float traced_light_visibility(vec3 o, LightData l, int lk) {
+    vec3 to_light = light_vector(l, o);
+    int n = lk == 2 ? LIGHT_DISK_POINTS : 1;
+    float vis = 0.0;
+    for (int k = 0; k < n; ++k) {
+        vec3 q = light_disk_target(to_light, lk == 2 ? l.extra.x : 0.0, k);
+        float len = length(q);
+        if (!(len > 0.0)) { vis += 1.0; continue; }
+        vis += kd_trace(o, q / len, pc.ray_offset, len * (1.0 - 1e-4), true).t < 0.0 ? 1.0 : 0.0;
+    }
+    return vis / float(n);
+}
+
 vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
     vec3 sum = vec3(0.0);
+    bool traced = (pc.flags & 2u) != 0u;
+    vec3 o = pos + n * pc.ray_offset;
     for (uint i = 0u; i < pc.light_count; ++i) {
         LightData l = lights[i];
         vec3 wi;
@@ -192,11 +222,16 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData 
         vec3 e = light_incident(l, pos, n, wi, dist, ndl);
         if (ndl <= 0.0) continue;
         vec3 f = light_brdf(wi, n, v, ndl, albedo, kind, m, roughness);
-        // shadowed by the interpolated SSDF toward the light (soft over one texel, or over the
-        // sphere light's angular radius)
         int lk = int(l.pos_kind.w + 0.5);
-        float ang = lk == 2 ? asin(clamp(l.extra.x / dist, 0.0, 1.0)) : 0.0;
-        float vis = shadows_on() ? clamp(0.5 + ssdf_at(wi) / max(2.0 * ang, avs_texel_angle(pc.r)), 0.0, 1.0) : 1.0;
+        float vis = 1.0;
+        if (traced) {
+            vis = traced_light_visibility(o, l, lk);
+        } else if (shadows_on()) {
+            // the interpolated SSDF toward the light (soft over one texel, or over the sphere
+            // light's angular radius)
+            float ang = lk == 2 ? asin(clamp(l.extra.x / dist, 0.0, 1.0)) : 0.0;
+            vis = clamp(0.5 + ssdf_at(wi) / max(2.0 * ang, avs_texel_angle(pc.r)), 0.0, 1.0);
+        }
         sum += f * e * ndl * vis;
     }
     return sum;

@@ -62,29 +62,19 @@ layout(push_constant) uniform Push {
 
 // Unoccluded fraction of a local light seen from p (offset shading point): shadow rays through
 // the sphere BVH and the thin-shell triangles. Point and spot lights: one ray (hard shadow).
-// Sphere lights of radius R: the centre and 8 points on the disk of radius R facing p (two rings
-// at 0.45 R and 0.9 R, rotated against each other), equally weighted: a soft shadow whose
-// penumbra follows the light's size.
+// Sphere lights: lights.glsl's LIGHT_DISK_POINTS targets on the disk facing p.
 float light_visibility(vec3 p, vec3 to_light, float radius) {
     if ((pc.flags & 3u) != 0u) return 1.0;
     float d = length(to_light);
     if (!(d > 0.0)) return 1.0;
-    vec3 w = to_light / d;
-    if (radius <= 0.0) return isg_segment_blocked(p, w, d, pc.node_count, pc.tri_node_count) ? 0.0 : 1.0;
-    vec3 bx = normalize(abs(w.x) < 0.9 ? cross(vec3(1.0, 0.0, 0.0), w) : cross(vec3(0.0, 1.0, 0.0), w));
-    vec3 by = cross(w, bx);
+    if (radius <= 0.0) return isg_segment_blocked(p, to_light / d, d, pc.node_count, pc.tri_node_count) ? 0.0 : 1.0;
     float vis = 0.0;
-    for (int k = 0; k < 9; ++k) {
-        vec3 q = to_light;
-        if (k > 0) {
-            float ring = k <= 4 ? 0.45 : 0.9;
-            float a = 1.5707963 * float(k - 1) + (k <= 4 ? 0.0 : 0.7853982);
-            q += (bx * cos(a) + by * sin(a)) * (ring * radius);
-        }
+    for (int k = 0; k < LIGHT_DISK_POINTS; ++k) {
+        vec3 q = light_disk_target(to_light, radius, k);
         float len = length(q);
         vis += isg_segment_blocked(p, q / len, len, pc.node_count, pc.tri_node_count) ? 0.0 : 1.0;
     }
-    return vis / 9.0;
+    return vis / float(LIGHT_DISK_POINTS);
 }
 
 vec3 local_lights(vec3 pos, vec3 p, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {

@@ -75,4 +75,20 @@ vec3 light_brdf(vec3 wi, vec3 n, vec3 v, float ndl, vec3 albedo, int kind, Mater
     return f;
 }
 
+// Shadow-ray targets on a sphere light (techniques that trace their local lights' shadows):
+// the centre and 8 points on the disk of radius `radius` facing the shading point (two rings at
+// 0.45 and 0.9 of the radius, rotated against each other), equally weighted: a soft shadow whose
+// penumbra follows the light's size. Returns the k-th target (0 <= k < LIGHT_DISK_POINTS) as a
+// vector from the shading point; `to_light` is light_vector's.
+const int LIGHT_DISK_POINTS = 9;
+vec3 light_disk_target(vec3 to_light, float radius, int k) {
+    if (k == 0) return to_light;
+    vec3 w = normalize(to_light);
+    vec3 bx = normalize(abs(w.x) < 0.9 ? cross(vec3(1.0, 0.0, 0.0), w) : cross(vec3(0.0, 1.0, 0.0), w));
+    vec3 by = cross(w, bx);
+    float ring = k <= 4 ? 0.45 : 0.9;
+    float a = 1.5707963 * float(k - 1) + (k <= 4 ? 0.0 : 0.7853982);
+    return to_light + (bx * cos(a) + by * sin(a)) * (ring * radius);
+}
+
 #endif

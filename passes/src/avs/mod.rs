@@ -147,6 +147,12 @@ pub struct AvsSettings {
     /// covered pixel of the previous frame needed (flags written by the `avs_cull` pass, read one
     /// frame late); the first frame traces all.
     pub cull: bool,
+    /// Local lights' shadows by shadow rays through the frame's kd-tree (`true`, default) or by
+    /// the sign of the interpolated SSDF toward the light (`false`). The paper lights by the
+    /// environment only; a point or spot light's hard shadow is finer than visibility maps
+    /// interpolated between sample points (vol_rotating 160x120: the spot light's square shadow
+    /// of the cube drawn as a blob).
+    pub traced_lights: bool,
     /// Read the final visibility maps back into [`AvsStats::maps`] (one more copy per adaptation
     /// round; for tests comparing maps texel by texel).
     pub capture_maps: bool,
@@ -178,6 +184,7 @@ impl Default for AvsSettings {
             glossy_ratio: true,
             lobes: 16,
             cull: true,
+            traced_lights: true,
             capture_maps: false,
         }
     }
@@ -196,7 +203,7 @@ impl AvsSettings {
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
     /// `iterations` (2), `points` (0 = auto), `max_points` (4096; lowered to what the device binds, see `AvsTechnique::new`), `pool_points` (4096), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells` | `table` | `adf`), `cells` (6,
-    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `glossy` (`ratio` | `sg`), `lobes` (16). Unknown keys and bad values
+    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `glossy` (`ratio` | `sg`), `lobes` (16), `light_shadows` (`traced` | `ssdf`). Unknown keys and bad values
     /// are errors naming the key.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
@@ -262,9 +269,16 @@ impl AvsSettings {
             }
             "lobes" => self.lobes = int(1, 64)? as usize,
             "cull" => self.cull = flag()?,
+            "light_shadows" => {
+                self.traced_lights = match v {
+                    "traced" => true,
+                    "ssdf" => false,
+                    _ => bail!("avs parameter light_shadows = '{value}': expected 'traced' or 'ssdf'"),
+                }
+            }
             "capture_maps" => self.capture_maps = flag()?,
             other => bail!(
-                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, capture_maps)"
+                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, light_shadows, capture_maps)"
             ),
         }
         Ok(())
@@ -664,6 +678,8 @@ pub struct AvsTechnique {
     pool_len: usize,
     plan: Arc<PoolPlan>,
     radius: f32,
+    /// The persistent kd-tree holds this frame's triangles (built by the first adaptation round).
+    tree_current: bool,
     /// Time the adaptation rounds with their own submissions (false: no adaptation rounds are
     /// possible inside a caller's graph without an engine, see `add`).
     pub stats: AvsStats,
@@ -715,8 +731,12 @@ impl AvsTechnique {
                 sb,
                 sb,
                 sb,
+                sb,
+                sb,
+                sb,
+                sb,
             ],
-            48,
+            52,
         )?;
         let cull = compute_pipeline(
             ctx,
@@ -751,6 +771,7 @@ impl AvsTechnique {
             pool_len: usize::MAX,
             plan: Arc::new(PoolPlan::default()),
             radius: 0.0,
+            tree_current: false,
             stats: AvsStats::default(),
             notes,
         })
@@ -979,6 +1000,7 @@ impl AvsTechnique {
         self.stats.traced_points = 0;
         self.stats.rounds_wait_ms = 0.0;
         self.stats.rounds_step_ms = 0.0;
+        self.tree_current = false;
         // every point is traced again each frame (the geometry is dynamic): slots 0..n
         let mut slots: Vec<u32> = (0..self.sample_vertices.len() as u32).collect();
         let mut nslots = slots.len() as u32;
@@ -1003,6 +1025,7 @@ impl AvsTechnique {
                 Some(t) => t,
                 None => self.tree(engine, &mut g, frame)?,
             };
+            self.tree_current = true;
             let points_buf = g.create_buffer_init("avs_points", bytes_of(&point_data(&by_slot, offset)));
             let vis = engine.persistent_buffer(&mut g, "avs.vis", cap * words * 4);
             let tag = format!("_i{round}");
@@ -1255,10 +1278,17 @@ impl crate::technique::Technique for AvsTechnique {
         let table = graph.create_buffer_init("avs_axis_table", self.axis_table.as_ref().clone());
         let irradiance = graph.create_buffer_init("avs_irradiance", self.irradiance.as_ref().clone());
 
+        // the frame's triangles for the local lights' shadow rays: the rounds' tree, or built here
+        // when no round traced (no sample points)
+        let tree = match self.tree_current.then(|| self.builder.add_kept(engine, graph)).flatten() {
+            Some(t) => t,
+            None => self.tree(engine, graph, frame)?,
+        };
         let (scene, gb) = (inputs.handles, inputs.gbuffer);
         let (w, h) = (gb.width, gb.height);
         let hdr = graph.create_image("hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
         let mut p = graph.pass("avs_shade", PassKind::Compute);
+        let kd = tree.read(&mut p);
         let io = crate::shade_env::ShadingIo::declare(&mut p, scene, gb, inputs.env, hdr);
         let hdr = io.hdr;
         let lights = p.read(scene.lights, Access::ComputeShaderReadStorage);
@@ -1284,17 +1314,19 @@ impl crate::technique::Technique for AvsTechnique {
                 Integration::Table => 2,
                 Integration::Adf => 3,
             },
-            (!s.shadows || points.is_empty()) as u32,
+            (!s.shadows || points.is_empty()) as u32 | ((s.shadows && s.traced_lights) as u32) << 1,
             s.cells.clamp(1, 16),
             if s.glossy_ratio { 2 } else { (!s.prefiltered) as u32 },
             s.diffuse_ratio as u32,
         ]));
+        // shadow rays leave the pixel's surface as the sample points' rays do
+        push.extend(bytes_of(&[offset]));
         let pipe = self.shade.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
             let rest = [Bind::StorageBuffer(lights), Bind::SampledImage(textures, repeat)];
             let storage = crate::util::storage([lobes, prefiltered, pts, gr, sd, tb, ir]);
-            let binds = [&io.binds(nearest, linear)[..], &rest, &storage].concat();
+            let binds = [&io.binds(nearest, linear)[..], &rest, &storage, &kd.binds()].concat();
             crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
         });
         // G-buffer culling: flag the kept points this frame's covered pixels need (read next frame)
