@@ -203,6 +203,7 @@ const AVS_PARAMS: &[ParamDoc] = &[
     p("glossy", "ratio", "ratio, sg", "glossy environment term: the material model's (the env technique's filtered importance sampling of the lobe) times the SSDF visibility of the specular lobe (ratio) or the one SG lobe of the BRDF (sg, the paper's)"),
     p("lobes", "16", "1..=64", "lighting spherical Gaussians"),
     p("cull", "true", "true/false", "trace only sample points the previous frame's pixels needed"),
+    p("light_shadows", "traced", "traced, ssdf", "local lights' shadows: shadow rays through the frame's kd-tree (traced; the paper lights by the environment only) or the interpolated SSDF toward the light (ssdf)"),
     p("capture_maps", "false", "true/false", "read the final visibility maps back into the technique's stats (tests)"),
 ];
 

@@ -142,6 +142,11 @@ pub struct MatrixArgs {
     /// list says (a wrong barrier is a bug even when the image is right).
     #[arg(long)]
     pub validation: bool,
+    /// A technique parameter for this run, TECHNIQUE.KEY=VALUE (repeatable; over the scene's
+    /// `[technique_params]` where the scene names that technique), to measure a setting against
+    /// the same references. Not with --write-known: the list is of the defaults.
+    #[arg(long = "param", value_name = "TECHNIQUE.KEY=VALUE")]
+    pub params: Vec<String>,
 }
 
 /// One cell of the matrix (the JSON shape other tools read).
@@ -389,8 +394,31 @@ pub(crate) fn converge_options(
     }
 }
 
+/// The parameters of `technique` on `scene` with the run's `--param` overrides; `None` (the
+/// renderer's rule) when none names the technique.
+fn cell_params(scene: &Scene, technique: &str, overrides: &[String]) -> Result<Option<registry::Params>> {
+    let mut params: Option<registry::Params> = None;
+    for o in overrides {
+        let (t, kv) = o.split_once('.').ok_or_else(|| crate::bad(format!("--param {o}: expected TECHNIQUE.KEY=VALUE")))?;
+        let (k, v) = kv.split_once('=').ok_or_else(|| crate::bad(format!("--param {o}: expected TECHNIQUE.KEY=VALUE")))?;
+        registry::check_name(t).map_err(|e| crate::bad(format!("--param {o}: {e}")))?;
+        if t != technique {
+            continue;
+        }
+        params
+            .get_or_insert_with(|| {
+                if scene.technique == technique { scene.technique_params.clone() } else { Default::default() }
+            })
+            .insert(k.trim().to_string(), v.trim().to_string());
+    }
+    Ok(params)
+}
+
 pub fn run(args: &MatrixArgs) -> Result<()> {
     let (w, h) = parse_size(&args.size).map_err(crate::bad)?;
+    if args.write_known && !args.params.is_empty() {
+        return Err(crate::bad("--write-known with --param: the known-failures list is of the default parameters"));
+    }
     if !(args.noise.is_finite() && args.noise > 0.0) {
         return Err(crate::bad(format!("--noise {}: must be positive", args.noise)));
     }
@@ -504,8 +532,9 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
                 let t0 = Instant::now();
                 let errors_before = ctx.validation.error_count();
                 let messages_before = ctx.validation.errors().len();
+                let params = cell_params(&scene, t.name, &args.params)?;
                 let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    render_technique(&ctx, &scene, t.name, None, args, w, h)
+                    render_technique(&ctx, &scene, t.name, params, args, w, h)
                 }));
                 match run {
                     Ok(Ok(run)) => {

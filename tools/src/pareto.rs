@@ -189,6 +189,7 @@ impl Measure {
             check: false,
             write_known: false,
             validation: false,
+            params: Vec::new(),
         }
     }
 }
