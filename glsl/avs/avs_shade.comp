@@ -211,7 +211,7 @@ float traced_light_visibility(vec3 o, LightData l, int lk) {
     return vis / float(n);
 }
 
-vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
+vec3 local_lights(vec3 pos, vec3 n, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
     vec3 sum = vec3(0.0);
     bool traced = (pc.flags & 2u) != 0u;
     vec3 o = pos + n * pc.ray_offset;
@@ -219,7 +219,7 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData 
         LightData l = lights[i];
         vec3 wi;
         float dist, ndl;
-        vec3 e = light_incident(l, pos, n, wi, dist, ndl);
+        vec3 e = light_incident(l, pos, n, ng, wi, dist, ndl);
         if (ndl <= 0.0) continue;
         vec3 f = light_brdf(wi, n, v, ndl, albedo, kind, m, roughness);
         int lk = int(l.pos_kind.w + 0.5);
@@ -257,7 +257,8 @@ void main() {
         imageStore(hdr, px, vec4(env_background(far_p.xyz / far_p.w - cam.eye.xyz), 1.0));
         return;
     }
-    vec3 pos = texelFetch(gb_position, px, 0).xyz;
+    vec4 gp = texelFetch(gb_position, px, 0);
+    vec3 pos = gp.xyz, ng = gb_geometric_normal(gp.w);
     vec3 n = oct_decode(texelFetch(gb_normal, px, 0).xy);
     MaterialData m = mats[uint(uvm.z)];
     vec3 v = normalize(cam.eye.xyz - pos);
@@ -281,7 +282,7 @@ void main() {
     if (pc.diffuse_ratio != 0u) diffuse = irr_ratio(n, diffuse, diffuse_open);
     vec3 color = albedo / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
-    color += local_lights(pos, n, v, albedo, kind, m, roughness);
+    color += local_lights(pos, n, ng, v, albedo, kind, m, roughness);
     if (kind != 0 && pc.specular_mode == 2u) {
         // Ratio: the material model's unshadowed glossy term (the `env` technique's split sum)
         // times the SSDF visibility of the specular SG lobe x cosine.

@@ -13,7 +13,7 @@ layout(location = 3) in vec4 v_clip;
 layout(location = 4) in vec4 v_prev_clip;
 layout(location = 5) flat in uvec2 v_ids;
 
-layout(location = 0) out vec4 o_position;  // world position, linear distance to the eye
+layout(location = 0) out vec4 o_position;  // world position, geometric normal (common.glsl gb_pack_geometric_normal; > 0)
 layout(location = 1) out vec4 o_normal;    // octahedral normal.xy, octahedral tangent.xy
 layout(location = 2) out vec4 o_uv_mat;    // uv, material index, instance id + 1 (0 = sky)
 layout(location = 3) out vec2 o_motion;    // pixels moved since the previous frame
@@ -25,6 +25,10 @@ void main() {
     // dP/du and dP/dv from screen-space derivatives of position and uv: the material's normal map
     // bends the normal in their frame; the tangent (dP/du) is the local frame of anisotropic BRDFs.
     vec3 dp1 = dFdx(v_world), dp2 = dFdy(v_world);
+    // the face's normal (v_world is linear over the triangle), on the vertex normal's side
+    vec3 ng = cross(dp1, dp2);
+    ng = dot(ng, ng) > 1e-30 ? normalize(ng) : n;
+    if (dot(ng, n) < 0.0) ng = -ng;
     vec2 duv1 = dFdx(v_uv), duv2 = dFdy(v_uv);
     float det = duv1.x * duv2.y - duv1.y * duv2.x;
     float sg = det < 0.0 ? -1.0 : 1.0;
@@ -37,7 +41,7 @@ void main() {
         t = abs(n.y) < 0.99 ? cross(vec3(0, 1, 0), n) : cross(vec3(1, 0, 0), n);
     }
     t = normalize(t);
-    o_position = vec4(v_world, length(v));
+    o_position = vec4(v_world, gb_pack_geometric_normal(ng));
     o_normal = vec4(oct_encode(n), oct_encode(t));
     o_uv_mat = vec4(v_uv, float(v_ids.x), float(v_ids.y + 1u));
     vec2 ndc = v_clip.xy / v_clip.w;

@@ -65,6 +65,19 @@ vec3 oct_decode(vec2 e) {
     return normalize(n);
 }
 
+// The G-buffer's geometric normal, in gb_position.w: octahedral with 11 bits per coordinate,
+// stored as the integer 1 + qx + 2048 qy (exact in fp32; > 0 marks a covered pixel, the sky
+// stays 0). The face's normal, turned to the side of the interpolated vertex normal (the
+// reference's ng): light from below it is blocked by the surface itself.
+float gb_pack_geometric_normal(vec3 ng) {
+    uvec2 q = uvec2(round(clamp(oct_encode(ng) * 0.5 + 0.5, 0.0, 1.0) * 2047.0));
+    return float(1u + q.x + 2048u * q.y);
+}
+vec3 gb_geometric_normal(float w) {
+    uint u = uint(max(w, 1.0)) - 1u;
+    return oct_decode(vec2(float(u & 2047u), float(u >> 11u)) / 2047.0 * 2.0 - 1.0);
+}
+
 // Lat-long (u, v) for a world direction, after undoing the environment rotation about +Y.
 vec2 dir_to_latlong(vec3 d, vec2 cos_sin_rot) {
     // Rotate by -rotation about +Y.

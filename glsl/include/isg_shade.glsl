@@ -77,13 +77,13 @@ float light_visibility(vec3 p, vec3 to_light, float radius) {
     return vis / float(LIGHT_DISK_POINTS);
 }
 
-vec3 local_lights(vec3 pos, vec3 p, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
+vec3 local_lights(vec3 pos, vec3 p, vec3 n, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
     vec3 sum = vec3(0.0);
     for (uint i = 0u; i < pc.light_count; ++i) {
         LightData l = lights[i];
         vec3 wi;
         float dist, ndl;
-        vec3 e = light_incident(l, pos, n, wi, dist, ndl);
+        vec3 e = light_incident(l, pos, n, ng, wi, dist, ndl);
         if (ndl <= 0.0) continue;
         vec3 f = light_brdf(wi, n, v, ndl, albedo, kind, m, roughness);
         int lk = int(l.pos_kind.w + 0.5);
@@ -113,7 +113,8 @@ void main() {
         imageStore(hdr, px, vec4(env_background(far_p.xyz / far_p.w - cam.eye.xyz), 1.0));
         return;
     }
-    vec3 pos = texelFetch(gb_position, px, 0).xyz;
+    vec4 gp = texelFetch(gb_position, px, 0);
+    vec3 pos = gp.xyz, ng = gb_geometric_normal(gp.w);
     vec3 n = oct_decode(texelFetch(gb_normal, px, 0).xy);
     MaterialData m = mats[uint(uvm.z)];
     vec3 v = normalize(cam.eye.xyz - pos);
@@ -173,7 +174,7 @@ void main() {
     }
     vec3 color = albedo / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
-    color += local_lights(pos, p, n, v, albedo, kind, m, roughness);
+    color += local_lights(pos, p, n, ng, v, albedo, kind, m, roughness);
     if (kind != 0 && pc.specular_mode == 2u) {
         // Ratio: the material model's unshadowed glossy term (the `env` technique's split sum,
         // env_shade.glsl) times the ISG visible fraction of the specular SG lobe x cosine. The

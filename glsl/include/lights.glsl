@@ -21,10 +21,8 @@ vec3 light_vector(LightData l, vec3 pos) {
     return int(l.pos_kind.w + 0.5) == 3 ? -l.dir_cos_outer.xyz * LIGHT_FAR : l.pos_kind.xyz - pos;
 }
 
-// Irradiance-like factor of light l at pos: intensity x transmittance / distance^2 (rgb), with
-// the unit direction to the light `wi`, its distance and n . wi. Zero (and ndl <= 0) when the
-// light is behind the surface.
-vec3 light_incident(LightData l, vec3 pos, vec3 n, out vec3 wi, out float dist, out float ndl) {
+// light_incident by the shading normal alone.
+vec3 light_incident_shading(LightData l, vec3 pos, vec3 n, out vec3 wi, out float dist, out float ndl) {
     int lk = int(l.pos_kind.w + 0.5);
     if (lk == 3) {
         // directional: irradiance `power` along `dir` from infinitely far (LIGHT_FAR away)
@@ -47,6 +45,20 @@ vec3 light_incident(LightData l, vec3 pos, vec3 n, out vec3 wi, out float dist, 
         intensity *= PI * l.extra.x * l.extra.x;
     }
     return intensity * light_transmittance(l, dist) / d2;
+}
+
+// Irradiance-like factor of light l at pos: intensity x transmittance / distance^2 (rgb), with
+// the unit direction to the light `wi`, its distance and n . wi. Zero (and ndl <= 0) when the
+// light is behind the shading normal n or below the geometric surface ng (the reference's rule:
+// such light is blocked by the surface itself; smooth normals over a thin or coarse feature face
+// lights their face turns from). Shaders without the face's normal pass n as ng.
+vec3 light_incident(LightData l, vec3 pos, vec3 n, vec3 ng, out vec3 wi, out float dist, out float ndl) {
+    vec3 e = light_incident_shading(l, pos, n, wi, dist, ndl);
+    if (dot(wi, ng) <= 0.0) {
+        ndl = 0.0;
+        return vec3(0.0);
+    }
+    return e;
 }
 
 // The BRDF for light from wi towards v: albedo / pi plus, for a glossy material (kind != 0), the

@@ -139,7 +139,7 @@ vec3 vv_lights_end(VvLights L, vec3 s, vec3 n, MaterialData m) {
         if (L.wind[k] > PI) continue;  // inside an occluded region
         vec3 wi;
         float dist, ndl;
-        vec3 e = light_incident(lights[k], s, n, wi, dist, ndl);
+        vec3 e = light_incident(lights[k], s, n, n, wi, dist, ndl)  /* per vertex: no face normal */;
         if (ndl <= 0.0) continue;
         sum += light_brdf(wi, n, v, ndl, m.albedo_kind.rgb, kind, m, roughness) * e * ndl;
     }

@@ -35,13 +35,13 @@ layout(push_constant) uniform Push { uint n_inst; uint tensor_count; uint light_
 // Local lights (as shade_env.comp's local_lights, same BRDFs), pointwise: the specular lobe
 // always, the diffuse lobe only with srf = 0 (else it comes through the source radiance fields),
 // each shadowed by the order-4 visibility toward the light of the other objects nearer than it.
-vec3 local_lights(vec3 pos, vec3 n, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness, uint self_inst) {
+vec3 local_lights(vec3 pos, vec3 n, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness, uint self_inst) {
     vec3 sum = vec3(0.0);
     for (uint i = 0u; i < pc.light_count; ++i) {
         LightData l = lights[i];
         vec3 wi;
         float dist, ndl;
-        vec3 e = light_incident(l, pos, n, wi, dist, ndl);
+        vec3 e = light_incident(l, pos, n, ng, wi, dist, ndl);
         if (ndl <= 0.0) continue;
         // a directional light (kind 3) has no source radiance field: its diffuse lobe is here too
         bool via_srf = pc.srf != 0u && int(l.pos_kind.w + 0.5) != 3;
@@ -87,7 +87,8 @@ void main() {
         imageStore(hdr, p, vec4(env_background(dir), 1.0));
         return;
     }
-    vec3 pos = texelFetch(gb_position, p, 0).xyz;
+    vec4 gp = texelFetch(gb_position, p, 0);
+    vec3 pos = gp.xyz, ng = gb_geometric_normal(gp.w);
     vec3 n = oct_decode(texelFetch(gb_normal, p, 0).xy);
     MaterialData m = material_at(mats[uint(uvm.z)], uvm.xy, material_textures);
     uint self_inst = uint(uvm.w + 0.5) - 1u;
@@ -111,6 +112,6 @@ void main() {
         float vis = sf_visibility_along(pos, r, self_inst, pc.n_inst, 1e30);
         color += vis * env_glossy(n, v, m);
     }
-    color += local_lights(pos, n, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);
+    color += local_lights(pos, n, ng, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);
     imageStore(hdr, p, vec4(material_reflected(color, n, v) + material_emission(m), 1.0));
 }

@@ -186,7 +186,8 @@ void main() {
         }
         return;  // uniform: every invocation read the same texel
     }
-    vec3 pos = texelFetch(gb_position, p, 0).xyz;
+    vec4 gp = texelFetch(gb_position, p, 0);
+    vec3 pos = gp.xyz, ng = gb_geometric_normal(gp.w);
     vec3 n = oct_decode(texelFetch(gb_normal, p, 0).xy);
     uint self_inst = uint(uvm.w + 0.5) - 1u;
     MaterialData m = material_at(mats[uint(uvm.z)], uvm.xy, material_textures);
@@ -297,7 +298,7 @@ void main() {
         LightData l = lights[i];
         vec3 wi;
         float dist, ndl;
-        vec3 e = light_incident(l, pos, n, wi, dist, ndl);
+        vec3 e = light_incident(l, pos, n, ng, wi, dist, ndl);
         if (ndl <= 0.0) continue;
         vec3 f = light_brdf(wi, n, v, ndl, m.albedo_kind.rgb, kind, m, roughness);
         if (all(equal(f, vec3(0.0)))) continue;

@@ -145,7 +145,8 @@ void main() {
         imageStore(hdr, px, vec4(env_background(d), 1.0));
         return;
     }
-    vec3 p = texelFetch(gb_position, px, 0).xyz;
+    vec4 gp = texelFetch(gb_position, px, 0);
+    vec3 p = gp.xyz, ng = gb_geometric_normal(gp.w);
     vec4 en = texelFetch(gb_normal, px, 0);
     vec3 ns = oct_decode(en.xy);
     vec3 tg = oct_decode(en.zw);
@@ -178,7 +179,8 @@ void main() {
         vec3 lw = vec3(dot(wi, tt), dot(wi, bt), dot(wi, ns));
         if (lw.z <= 0.0 || wo.z <= 0.0) continue;
         vec3 w = env_lights[2u * k + 1u].rgb;
-        float v = vis_on ? lit_pcf(k, p, lw.z) : 1.0;
+        // below the geometric surface: blocked by it (lights.glsl's rule)
+        float v = dot(wi, ng) <= 0.0 ? 0.0 : (vis_on ? lit_pcf(k, p, lw.z) : 1.0);
         if (pc.counts.w == 0u) {
             vec3 f = brdf_eval(b, wo, lw) * lw.z * w;
             s_all += f;
@@ -232,7 +234,7 @@ void main() {
             // directional: irradiance `power` along its direction, lit fraction from its map
             vec3 wi = -ld.dir_cos_outer.xyz;
             vec3 lw = vec3(dot(wi, tt), dot(wi, bt), dot(wi, ns));
-            if (lw.z <= 0.0 || wo.z <= 0.0) continue;
+            if (lw.z <= 0.0 || wo.z <= 0.0 || dot(wi, ng) <= 0.0) continue;
             vec3 f = brdf_eval(b, wo, lw) * lw.z;
             l += f * ld.power_cos_inner.rgb * (vis_on ? lit_pcf(first_layer, p, lw.z) : 1.0);
             continue;
@@ -242,7 +244,7 @@ void main() {
         if (d2 <= 1e-12) continue;
         vec3 wi = to_l * inversesqrt(d2);
         vec3 lw = vec3(dot(wi, tt), dot(wi, bt), dot(wi, ns));
-        if (lw.z <= 0.0 || wo.z <= 0.0) continue;
+        if (lw.z <= 0.0 || wo.z <= 0.0 || dot(wi, ng) <= 0.0) continue;
         vec3 intensity = ld.power_cos_inner.rgb;
         float radius = ld.extra.x;
         if (lk == 1) {

@@ -1,4 +1,5 @@
-//! The raster G-buffer pass: world position and eye distance, octahedral normal and tangent
+//! The raster G-buffer pass: world position and the face's geometric normal (packed in `.w`, see
+//! `gb_pack_geometric_normal` in `glsl/include/common.glsl`; > 0 on covered pixels), octahedral normal and tangent
 //! (local frame), uv + material index + instance id, motion vectors in pixels, and depth.
 
 use crate::raster::{raster_pipeline, DepthState, RasterDesc, VertexInput};
