@@ -1,18 +1,12 @@
 //! The G-buffer holds what it claims: world positions on the right objects, unit normals through
 //! fp16 octahedral encoding (including the poles), instance ids, zero motion for a static frame.
 
+mod common;
+
+use common::{geometric_normal, oct_decode};
 use penumbra::{RenderSettings, Renderer};
 use penumbra_scene::Scene;
 
-fn oct_decode(e: [f32; 2]) -> glam::Vec3 {
-    let mut n = glam::Vec3::new(e[0], e[1], 1.0 - e[0].abs() - e[1].abs());
-    if n.z < 0.0 {
-        let (x, y) = (n.x, n.y);
-        n.x = (1.0 - y.abs()) * if x >= 0.0 { 1.0 } else { -1.0 };
-        n.y = (1.0 - x.abs()) * if y >= 0.0 { 1.0 } else { -1.0 };
-    }
-    n.normalize()
-}
 
 #[test]
 fn gbuffer_positions_normals_ids_and_motion() {
@@ -32,10 +26,15 @@ fn gbuffer_positions_normals_ids_and_motion() {
     let mut worst_dot: f32 = 1.0;
     let mut worst_radius: f32 = 0.0;
     let mut up_facing = 0;
+    // the face's normal in gb_position.w: within the facets' angle of the radial direction, on
+    // the vertex normal's side, and the face's (not the interpolated normal)
+    let (mut worst_ng, mut faceted) = (1.0f32, 0usize);
     for i in 0..pos.len() {
         if ids[i][3] < 0.5 {
+            assert_eq!(pos[i][3], 0.0, "sky pixel {i} marked covered");
             continue; // sky
         }
+        assert!(pos[i][3] >= 1.0, "covered pixel {i} without a geometric normal: {}", pos[i][3]);
         assert_eq!(motion[i][0], 0.0, "static frame has motion");
         assert_eq!(motion[i][1], 0.0, "static frame has motion");
         let n = oct_decode([nrm[i][0], nrm[i][1]]);
@@ -47,6 +46,10 @@ fn gbuffer_positions_normals_ids_and_motion() {
             let p = glam::Vec3::new(pos[i][0], pos[i][1], pos[i][2]);
             worst_radius = worst_radius.max(((p - centre).length() - radius).abs());
             worst_dot = worst_dot.min(n.dot((p - centre).normalize()));
+            let ng = geometric_normal(pos[i][3]);
+            worst_ng = worst_ng.min(ng.dot((p - centre).normalize()));
+            assert!(ng.dot(n) > 0.0, "geometric normal {ng} against the shading normal {n}");
+            faceted += (ng.dot(n) < 0.9999) as usize;
             if n.y > 0.99 {
                 up_facing += 1;
             }
@@ -58,6 +61,10 @@ fn gbuffer_positions_normals_ids_and_motion() {
     // Interpolated vertex normals vs the exact radial direction, through fp16 octahedral storage.
     assert!(worst_dot > 0.999, "normal error: dot {worst_dot}");
     assert!(up_facing > 0, "no pixel near the +Y pole of the sphere");
+    // 48x24 facets: a face's normal is within ~5.3 degrees of the radial direction at any of
+    // its points (plus 0.1 degree of 11-bit octahedral storage)
+    assert!(worst_ng > 0.9925, "geometric normal off the radial direction: dot {worst_ng}");
+    assert!(faceted > sphere_px / 2, "only {faceted} of {sphere_px} pixels have a face normal unlike the interpolated one");
 }
 
 #[test]

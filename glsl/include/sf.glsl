@@ -261,7 +261,9 @@ bool sf_inside(SfInst inst, vec3 pw) {
 // occluder multiplies u by its (windowed) visibility, each light adds its power times the double
 // product of its radiance with the current u; the environment adds the double product with
 // the final u.
-vec3 sf_shade_point(vec3 p, uint self_inst, uint inst_count, uint light_count, uint tensor_count, uint window, inout float u[16]) {
+// ng: the surface's geometric normal; a light whose centre lies below it is blocked by the
+// surface (lights.glsl's rule; vec3(0.0) where the face is unknown: per-vertex transfer).
+vec3 sf_shade_point(vec3 p, vec3 ng, uint self_inst, uint inst_count, uint light_count, uint tensor_count, uint window, inout float u[16]) {
     uint ids[SF_MAX_ENT];
     float ds[SF_MAX_ENT];
     uint n = 0u;
@@ -292,6 +294,7 @@ vec3 sf_shade_point(vec3 p, uint self_inst, uint inst_count, uint light_count, u
             sf_triple(o, u, tensor_count, h);
             u = h;
         } else {
+            if (ng != vec3(0.0) && dot(sf_inst[j].center_world.xyz - p, ng) <= 0.0) continue;
             float s[16];
             sf_rcv(sf_inst[j], p, s);
             float dp = 0.0;

@@ -129,6 +129,11 @@ void vv_lights_arc(inout VvLights L, vec3 a, vec3 b) {
     }
 }
 
+// The shaded triangle's face normal on its vertex normals' side, set by the stage that knows it
+// (fragment: from derivatives; tessellation evaluation: from the patch's corners); vec3(0.0)
+// where unknown (the vertex stage). Light from below the face is blocked by it (lights.glsl).
+vec3 vv_face_normal = vec3(0.0);
+
 // Radiance reflected from the local lights that the loops leave visible.
 vec3 vv_lights_end(VvLights L, vec3 s, vec3 n, MaterialData m) {
     vec3 sum = vec3(0.0);
@@ -139,7 +144,7 @@ vec3 vv_lights_end(VvLights L, vec3 s, vec3 n, MaterialData m) {
         if (L.wind[k] > PI) continue;  // inside an occluded region
         vec3 wi;
         float dist, ndl;
-        vec3 e = light_incident(lights[k], s, n, n, wi, dist, ndl)  /* per vertex: no face normal */;
+        vec3 e = light_incident(lights[k], s, n, vv_face_normal == vec3(0.0) ? n : vv_face_normal, wi, dist, ndl);
         if (ndl <= 0.0) continue;
         sum += light_brdf(wi, n, v, ndl, m.albedo_kind.rgb, kind, m, roughness) * e * ndl;
     }

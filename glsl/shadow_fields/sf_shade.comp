@@ -99,7 +99,7 @@ void main() {
         float u[16];
         cosine_transfer(n, u);
         uint n_light = pc.srf != 0u ? pc.light_count : 0u;
-        diffuse = sf_shade_point(pos, self_inst, pc.n_inst, n_light, pc.tensor_count, pc.window, u);
+        diffuse = sf_shade_point(pos, ng, self_inst, pc.n_inst, n_light, pc.tensor_count, pc.window, u);
     }
     vec3 color = max(m.albedo_kind.rgb * diffuse, vec3(0.0));
     // Glossy materials: the material model's glossy environment term (the "env" technique's),

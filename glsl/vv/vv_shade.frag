@@ -17,6 +17,8 @@ void main() {
     MaterialData m = vv_material(v_vids.x, v_uv);
     // the material's normal map (as the G-buffer applies it for the other techniques)
     vec3 dp1 = dFdx(v_world), dp2 = dFdy(v_world);
+    vec3 ng = cross(dp1, dp2);
+    if (dot(ng, ng) > 1e-30) vv_face_normal = normalize(dot(ng, n) < 0.0 ? -ng : ng);
     vec2 duv1 = dFdx(v_uv), duv2 = dFdy(v_uv);
     float sg = duv1.x * duv2.y - duv1.y * duv2.x < 0.0 ? -1.0 : 1.0;
     n = material_normal(m, v_uv, material_textures, n, (dp1 * duv2.y - dp2 * duv1.y) * sg, (dp2 * duv1.x - dp1 * duv2.x) * sg);

@@ -19,6 +19,8 @@ void main() {
     vec3 l = gl_TessCoord;
     vec3 s = l.x * c_world[0] + l.y * c_world[1] + l.z * c_world[2];
     vec3 n = normalize(l.x * c_normal[0] + l.y * c_normal[1] + l.z * c_normal[2]);
+    vec3 ng = cross(c_world[1] - c_world[0], c_world[2] - c_world[0]);
+    if (dot(ng, ng) > 1e-30) vv_face_normal = normalize(dot(ng, n) < 0.0 ? -ng : ng);
     // the material (texture maps) at the tessellated vertex (fragments interpolate the radiance)
     vec2 uv = l.x * c_uv[0] + l.y * c_uv[1] + l.z * c_uv[2];
     MaterialData m = vv_material(c_vid[0], uv);

@@ -81,3 +81,22 @@ pub fn hdr_image(img: &FrameImages) -> penumbra_reference::image::Image {
         [p[0], p[1], p[2]]
     })
 }
+
+/// The G-buffer's octahedral encoding (`oct_decode` of `glsl/include/common.glsl`).
+pub fn oct_decode(e: [f32; 2]) -> glam::Vec3 {
+    let mut n = glam::Vec3::new(e[0], e[1], 1.0 - e[0].abs() - e[1].abs());
+    if n.z < 0.0 {
+        let (x, y) = (n.x, n.y);
+        n.x = (1.0 - y.abs()) * if x >= 0.0 { 1.0 } else { -1.0 };
+        n.y = (1.0 - x.abs()) * if y >= 0.0 { 1.0 } else { -1.0 };
+    }
+    n.normalize()
+}
+
+/// The geometric normal `gb_position.w` holds (`gb_geometric_normal` of `glsl/include/common.glsl`:
+/// octahedral, 11 bits per coordinate, as the integer 1 + qx + 2048 qy).
+pub fn geometric_normal(w: f32) -> glam::Vec3 {
+    let u = (w.max(1.0) as u32) - 1;
+    let e = |q: u32| q as f32 / 2047.0 * 2.0 - 1.0;
+    oct_decode([e(u & 2047), e(u >> 11)])
+}
