@@ -7,7 +7,6 @@ use common::{geometric_normal, oct_decode};
 use penumbra::{RenderSettings, Renderer};
 use penumbra_scene::Scene;
 
-
 #[test]
 fn gbuffer_positions_normals_ids_and_motion() {
     let scene = Scene::default_scene();
@@ -64,7 +63,10 @@ fn gbuffer_positions_normals_ids_and_motion() {
     // 48x24 facets: a face's normal is within ~5.3 degrees of the radial direction at any of
     // its points (plus 0.1 degree of 11-bit octahedral storage)
     assert!(worst_ng > 0.9925, "geometric normal off the radial direction: dot {worst_ng}");
-    assert!(faceted > sphere_px / 2, "only {faceted} of {sphere_px} pixels have a face normal unlike the interpolated one");
+    assert!(
+        faceted > sphere_px / 2,
+        "only {faceted} of {sphere_px} pixels have a face normal unlike the interpolated one"
+    );
 }
 
 #[test]

@@ -383,6 +383,16 @@ pub struct AdaptStep {
     pub erase: Vec<usize>,
 }
 
+/// A sample point whose map is occluded in every direction (`visible`, its map's visible solid
+/// angle, not above 0): a candidate inside a closed object (the pool's points on a floor under a
+/// chess piece's base), every ray hitting the object from within. Its map stands for no visible
+/// surface: it takes no part in the adaptation (neither as a point nor as a neighbour) nor in the
+/// shading's interpolation, where its all-occluded map drew black rings around the objects
+/// standing on it.
+pub fn buried(visible: f32) -> bool {
+    !(visible > 0.0)
+}
+
 /// One step of section 4.3. `points` are the current sample points (their pool indices in
 /// `pool_index`), `sh` their SH16 visibility, `pool` the candidate vertices. A point's neighbours
 /// are the other points within `radius`; `x_avg` is their eq. 8 interpolation; relative error
@@ -390,10 +400,13 @@ pub struct AdaptStep {
 /// at the pool vertex nearest to the pair's midpoint; below `e_min`: an erase candidate. Erasing
 /// takes candidates in order of increasing error and erases one only if none of its neighbours
 /// was erased in this step or is being inserted next to it, so no two adjacent points go at once.
+/// `visible` holds each map's visible solid angle: [`buried`] points are left out, as points and
+/// as neighbours.
 pub fn adapt_step(
     points: &[SurfacePoint],
     pool_index: &[usize],
     sh: &[[f32; SH_COUNT]],
+    visible: &[f32],
     pool: &[SurfacePoint],
     pool_grid: &Grid,
     params: &AdaptParams,
@@ -415,10 +428,13 @@ pub fn adapt_step(
     let evals: Vec<(Vec<usize>, Option<f32>, Vec<(usize, Option<usize>)>)> = (0..n)
         .into_par_iter()
         .map(|i| {
+            if buried(visible[i]) {
+                return (Vec::new(), None, Vec::new());
+            }
             let nb: Vec<usize> = grid
                 .range(points[i].pos, params.radius)
                 .into_iter()
-                .filter(|&j| j != i && same_surface(&points[i], &points[j], params.radius))
+                .filter(|&j| j != i && !buried(visible[j]) && same_surface(&points[i], &points[j], params.radius))
                 .collect();
             if nb.is_empty() {
                 return (nb, None, Vec::new());

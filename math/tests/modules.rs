@@ -541,7 +541,8 @@ mod avs_sampling {
         };
         let sh: Vec<[f32; SH_COUNT]> = pts.iter().map(|p| if p.pos.x < 20.0 { half } else { full }).collect();
         let params = AdaptParams { alpha: 0.3, radius: 4.5, e_max: 0.10, e_min: 0.05 };
-        let st = adapt_step(&pts, &idx, &sh, &pool, &pool_grid, &params);
+        let open = vec![1.0; pts.len()];
+        let st = adapt_step(&pts, &idx, &sh, &open, &pool, &pool_grid, &params);
         // the edge lies between x = 16 and x = 20: a point at x = 18 is inserted
         assert!(st.insert.contains(&18), "{:?}", st.insert);
         assert!(st.insert.iter().all(|&v| !idx.contains(&v)));
@@ -552,7 +553,22 @@ mod avs_sampling {
         // points next to the edge are not erased
         assert!(!st.erase.contains(&4) && !st.erase.contains(&5), "{:?}", st.erase);
         // a lone point (no neighbours) has no error and is kept
-        let st = adapt_step(&pts[..1], &idx[..1], &sh[..1], &pool, &pool_grid, &params);
+        let st = adapt_step(&pts[..1], &idx[..1], &sh[..1], &open[..1], &pool, &pool_grid, &params);
+        assert_eq!(st.rel_error, vec![None]);
+        assert!(st.insert.is_empty() && st.erase.is_empty());
+        // a buried point (all occluded: zero SH, zero visible solid angle) has no error and is
+        // no neighbour: nothing is inserted towards it (pool vertices 2 and 6, the midpoints to
+        // its neighbours), where the same zero map taken as seen draws insertions
+        let mut sh_b = sh.clone();
+        sh_b[1] = [0.0; SH_COUNT];
+        let mut vis_b = open.clone();
+        vis_b[1] = 0.0;
+        let st = adapt_step(&pts, &idx, &sh_b, &vis_b, &pool, &pool_grid, &params);
+        assert_eq!(st.rel_error[1], None);
+        assert!(!st.insert.contains(&2) && !st.insert.contains(&6), "{:?}", st.insert);
+        let st = adapt_step(&pts, &idx, &sh_b, &open, &pool, &pool_grid, &params);
+        assert!(st.insert.contains(&2) || st.insert.contains(&6), "{:?}", st.insert);
+        let st = adapt_step(&pts[..1], &idx[..1], &sh[..1], &open[..1], &pool, &pool_grid, &params);
         assert_eq!(st.rel_error, vec![None]);
         assert!(st.insert.is_empty() && st.erase.is_empty());
     }

@@ -399,15 +399,21 @@ pub(crate) fn converge_options(
 fn cell_params(scene: &Scene, technique: &str, overrides: &[String]) -> Result<Option<registry::Params>> {
     let mut params: Option<registry::Params> = None;
     for o in overrides {
-        let (t, kv) = o.split_once('.').ok_or_else(|| crate::bad(format!("--param {o}: expected TECHNIQUE.KEY=VALUE")))?;
-        let (k, v) = kv.split_once('=').ok_or_else(|| crate::bad(format!("--param {o}: expected TECHNIQUE.KEY=VALUE")))?;
+        let (t, kv) =
+            o.split_once('.').ok_or_else(|| crate::bad(format!("--param {o}: expected TECHNIQUE.KEY=VALUE")))?;
+        let (k, v) =
+            kv.split_once('=').ok_or_else(|| crate::bad(format!("--param {o}: expected TECHNIQUE.KEY=VALUE")))?;
         registry::check_name(t).map_err(|e| crate::bad(format!("--param {o}: {e}")))?;
         if t != technique {
             continue;
         }
         params
             .get_or_insert_with(|| {
-                if scene.technique == technique { scene.technique_params.clone() } else { Default::default() }
+                if scene.technique == technique {
+                    scene.technique_params.clone()
+                } else {
+                    Default::default()
+                }
             })
             .insert(k.trim().to_string(), v.trim().to_string());
     }

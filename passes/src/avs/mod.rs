@@ -56,6 +56,9 @@ use penumbra_math::avs_sampling::{self as samp, Grid, SurfacePoint, SH_COUNT};
 use penumbra_scene::{Frame, Scene};
 use std::sync::Arc;
 
+/// Y_00, the constant SH basis function: a map's SH16 DC is its visible solid angle times it.
+const Y00: f32 = 0.282_094_8;
+
 /// Visibility integration over the SSDF-bounded visible region.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Integration {
@@ -340,6 +343,9 @@ pub struct AvsStats {
     pub point_vertices: Vec<usize>,
     /// Visible fraction of the hemisphere of every sample point (from the SH16 DC term).
     pub visible_fraction: Vec<f32>,
+    /// Sample points left out of the shading as buried (every direction occluded:
+    /// `penumbra_math::avs_sampling::buried`).
+    pub buried: usize,
     /// GPU milliseconds of the adaptation rounds' passes (name, ms), when timed.
     pub round_ms: Vec<(String, f64)>,
     /// Sample points kept but not traced this frame (G-buffer culling: no covered pixel of the
@@ -1102,8 +1108,11 @@ impl AvsTechnique {
                 e_min: self.settings.e_min,
             };
             let sh_now: Vec<[f32; SH_COUNT]> = sh.iter().map(|c| c.unwrap_or([0.0; SH_COUNT])).collect();
+            // each map's visible solid angle: its SH16 DC over Y_00
+            let visible_now: Vec<f32> = sh_now.iter().map(|c| c[0] / Y00).collect();
             let stepped = std::time::Instant::now();
-            let step = samp::adapt_step(&points, &self.sample_vertices, &sh_now, pool, &pool_grid, &params);
+            let step =
+                samp::adapt_step(&points, &self.sample_vertices, &sh_now, &visible_now, pool, &pool_grid, &params);
             self.stats.rounds_step_ms += stepped.elapsed().as_secs_f64() * 1e3;
             let errs: Vec<f32> = step.rel_error.iter().flatten().copied().collect();
             self.stats.mean_rel_error =
@@ -1169,7 +1178,7 @@ impl AvsTechnique {
             maps = keep_maps;
         }
         self.stats.points = self.sample_vertices.len();
-        let dc = 0.282_094_8 * 2.0 * std::f32::consts::PI;
+        let dc = Y00 * 2.0 * std::f32::consts::PI;
         self.stats.visible_fraction = sh.iter().map(|c| c.map_or(-1.0, |c| c[0] / dc)).collect();
         self.stats.maps = if capture { maps } else { Vec::new() };
         if self.stats.truncated > 0 {
@@ -1271,8 +1280,15 @@ impl crate::technique::Technique for AvsTechnique {
         let shade_radius =
             if all_pos.len() >= 2 { (self.settings.radius * mean_spacing(&all_pos)).max(1e-6) } else { self.radius };
         self.stats.radius = shade_radius;
-        let grid = Grid::new(&pos, shade_radius);
-        let grid_buf = graph.create_buffer_init("avs_grid", bytes_of(&grid_words(&grid, &slots)));
+        // the shading interpolates the points that see something: a buried point's map (a
+        // candidate inside a closed object, `samp::buried`) stands for no visible surface
+        let shaded: Vec<usize> =
+            (0..points.len()).filter(|&i| self.stats.visible_fraction.get(i).is_none_or(|&v| v != 0.0)).collect();
+        self.stats.buried = points.len() - shaded.len();
+        let shaded_pos: Vec<Vec3> = shaded.iter().map(|&i| pos[i]).collect();
+        let shaded_slots: Vec<u32> = shaded.iter().map(|&i| slots[i]).collect();
+        let grid = Grid::new(&shaded_pos, shade_radius);
+        let grid_buf = graph.create_buffer_init("avs_grid", bytes_of(&grid_words(&grid, &shaded_slots)));
         let lobes = graph.create_buffer_init("avs_lobes", self.lobes.as_ref().clone());
         let prefiltered = graph.create_buffer_init("avs_prefiltered", self.prefiltered.as_ref().clone());
         let table = graph.create_buffer_init("avs_axis_table", self.axis_table.as_ref().clone());
@@ -1314,7 +1330,7 @@ impl crate::technique::Technique for AvsTechnique {
                 Integration::Table => 2,
                 Integration::Adf => 3,
             },
-            (!s.shadows || points.is_empty()) as u32 | ((s.shadows && s.traced_lights) as u32) << 1,
+            (!s.shadows || shaded.is_empty()) as u32 | ((s.shadows && s.traced_lights) as u32) << 1,
             s.cells.clamp(1, 16),
             if s.glossy_ratio { 2 } else { (!s.prefiltered) as u32 },
             s.diffuse_ratio as u32,
