@@ -187,6 +187,7 @@ const AVS_PARAMS: &[ParamDoc] = &[
     p("alpha", "0.3", "0..=100", "eq. 8 weight falloff"),
     p("interp_alpha", "0", "0..=100", "interpolation falloff (0: the paper's form)"),
     p("iterations", "2", "0..=16", "adaptation rounds per frame"),
+    p("first_iterations", "8", "0..=64", "adaptation rounds of a frame that starts from fresh initial points (at least `iterations`)"),
     p("points", "0", "0..=65536", "initial sample points (0: automatic)"),
     p("max_points", "4096", "1..=65536", "upper bound on sample points (lowered to what one storage buffer of the device holds: 128 MiB on lavapipe, 4096 SSDFs at r = 128)"),
     p("pool_points", "4096", "0..=262144", "extra candidate points on triangles larger than the pool spacing, over the scene's area (0: mesh vertices only, the paper's pool)"),

@@ -97,6 +97,11 @@ pub struct AvsSettings {
     pub alpha: f32,
     /// Spatial adaptation rounds per frame (0: the initial points only).
     pub iterations: u32,
+    /// Rounds of the frame that starts from a fresh initial set (the first frame, or a changed
+    /// pool): the kept set carries every later frame's refinement on, while a fresh one starts
+    /// from k-means points alone (the paper's Figure 5 shows several rounds to settle; chess at
+    /// 160x120 after two frames of two rounds: black halos and missing key-light shadows).
+    pub first_iterations: u32,
     /// alpha of the eq. 8 weights of the per-pixel interpolation, with positions divided by the
     /// search radius (not the scene scale): 0 uses `alpha` with the scene scale (the paper's
     /// form, default; on coarse meshes it weighs a point across a hat brim almost like the one
@@ -170,6 +175,7 @@ impl Default for AvsSettings {
             e_min: 0.05,
             alpha: 0.3,
             iterations: 2,
+            first_iterations: 8,
             interp_alpha: 0.0,
             points: 0,
             max_points: 4096,
@@ -204,7 +210,7 @@ impl AvsSettings {
 
     /// Sets one parameter. Keys: `r` (128; multiple of the initial grid times a power of two, at
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
-    /// `iterations` (2), `points` (0 = auto), `max_points` (4096; lowered to what the device binds, see `AvsTechnique::new`), `pool_points` (4096), `radius` (2.0), `neighbours`
+    /// `iterations` (2), `first_iterations` (8), `points` (0 = auto), `max_points` (4096; lowered to what the device binds, see `AvsTechnique::new`), `pool_points` (4096), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells` | `table` | `adf`), `cells` (6,
     /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `glossy` (`ratio` | `sg`), `lobes` (16), `light_shadows` (`traced` | `ssdf`). Unknown keys and bad values
     /// are errors naming the key.
@@ -236,6 +242,7 @@ impl AvsSettings {
             "alpha" => self.alpha = float(0.0, 100.0)?,
             "interp_alpha" => self.interp_alpha = float(0.0, 100.0)?,
             "iterations" => self.iterations = int(0, 16)? as u32,
+            "first_iterations" => self.first_iterations = int(0, 64)? as u32,
             "points" => self.points = int(0, 1 << 16)? as usize,
             "max_points" => self.max_points = int(1, 1 << 16)? as usize,
             "pool_points" => self.pool_points = int(0, 1 << 18)? as usize,
@@ -281,7 +288,7 @@ impl AvsSettings {
             }
             "capture_maps" => self.capture_maps = flag()?,
             other => bail!(
-                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, light_shadows, capture_maps)"
+                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, first_iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, light_shadows, capture_maps)"
             ),
         }
         Ok(())
@@ -686,6 +693,8 @@ pub struct AvsTechnique {
     radius: f32,
     /// The persistent kd-tree holds this frame's triangles (built by the first adaptation round).
     tree_current: bool,
+    /// The sample points are the k-means initial set, not yet adapted (`first_iterations`).
+    fresh: bool,
     /// Time the adaptation rounds with their own submissions (false: no adaptation rounds are
     /// possible inside a caller's graph without an engine, see `add`).
     pub stats: AvsStats,
@@ -778,6 +787,7 @@ impl AvsTechnique {
             plan: Arc::new(PoolPlan::default()),
             radius: 0.0,
             tree_current: false,
+            fresh: false,
             stats: AvsStats::default(),
             notes,
         })
@@ -801,6 +811,7 @@ impl AvsTechnique {
         let pos: Vec<Vec3> = self.sample_vertices.iter().map(|&v| pool[v].pos).collect();
         self.radius = (self.settings.radius * mean_spacing(&pos)).max(1e-6);
         self.stats.initial_points = self.sample_vertices.len();
+        self.fresh = true;
     }
 
     /// Bytes of the persistent `avs.used` bit set (one bit per kept sample point).
@@ -1014,7 +1025,15 @@ impl AvsTechnique {
         let mut sh: Vec<Option<[f32; SH_COUNT]>> = vec![None; slots.len()];
         let capture = self.settings.capture_maps;
         let mut maps: Vec<Vec<u32>> = vec![Vec::new(); slots.len()];
-        for round in 0..=self.settings.iterations {
+        // a fresh set of initial points (first frame, new pool) refines for `first_iterations`
+        // rounds; later frames continue from the kept set
+        let rounds = if self.fresh {
+            self.settings.first_iterations.max(self.settings.iterations)
+        } else {
+            self.settings.iterations
+        };
+        self.fresh = false;
+        for round in 0..=rounds {
             let points: Vec<SurfacePoint> = self.sample_vertices.iter().map(|&v| pool[v]).collect();
             let batch: Vec<u32> = (0..points.len()).filter(|&i| sh[i].is_none()).map(|i| slots[i]).collect();
             if batch.is_empty() {
@@ -1098,7 +1117,7 @@ impl AvsTechnique {
                 self.stats.rays += (rays & 0x7fff_ffff) as u64;
                 self.stats.truncated += (rays >> 31) as usize;
             }
-            if round == self.settings.iterations {
+            if round == rounds {
                 break;
             }
             let params = samp::AdaptParams {
