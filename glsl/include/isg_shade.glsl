@@ -47,32 +47,55 @@ layout(set = 0, binding = 12) readonly buffer Prefiltered { float pf[]; };
 // unshadowed diffuse term.
 layout(set = 0, binding = 15) readonly buffer Irradiance { float irr[]; };
 #include "irradiance.glsl"
+// The frame's kd-tree (include/kdtree.glsl): local lights' shadow rays through the meshes
+// (flags bit 2), after the per-vertex image at 16.
+#ifdef ISG_PER_VERTEX
+#define ISG_KD_BINDING 17
+#else
+#define ISG_KD_BINDING 16
+#endif
+layout(set = 0, binding = ISG_KD_BINDING) readonly buffer KdTris { vec4 kd_tris[]; };
+layout(set = 0, binding = ISG_KD_BINDING + 1) readonly buffer KdNodes { uvec4 kd_nodes[]; };
+layout(set = 0, binding = ISG_KD_BINDING + 2) readonly buffer KdRefs { uint kd_refs[]; };
+layout(set = 0, binding = ISG_KD_BINDING + 3) readonly buffer KdHeader { uint kd_hdr[]; };
+#define KD_TRI(i) kd_tris[i]
+#define KD_NODE(i) kd_nodes[i]
+#define KD_REF(i) kd_refs[i]
+#define KD_HDR(i) kd_hdr[i]
+#include "kdtree.glsl"
 layout(push_constant) uniform Push {
     uint light_count;
     uint lobe_count;
     int node_count;
     int patch_side;
     float lod;
-    uint flags;  // bit 0: no shadows (debug); bit 1: local lights unshadowed
+    uint flags;  // bit 0: no shadows (debug); bit 1: local lights unshadowed; bit 2: their shadow rays through the meshes (kd-tree), not the spheres
     float min_fraction;
     uint specular_mode;  // 0: Gamma_L from the prefiltered maps (paper), 1: from the lighting SGs, 2: ratio (env_shade.glsl's glossy term x the ISG visible fraction)
     int tri_node_count;  // thin-shell triangle BVH nodes
     uint diffuse_ratio;  // 1: the map's irradiance x the lobes' visible share; 0: the SG lobes alone
 } pc;
 
-// Unoccluded fraction of a local light seen from p (offset shading point): shadow rays through
-// the sphere BVH and the thin-shell triangles. Point and spot lights: one ray (hard shadow).
-// Sphere lights: lights.glsl's LIGHT_DISK_POINTS targets on the disk facing p.
+// Whether the segment from p along unit w for length d is blocked: through the meshes (the
+// frame's kd-tree, flags bit 2) or through the sphere BVH and the thin-shell triangles.
+bool light_segment_blocked(vec3 p, vec3 w, float d) {
+    if ((pc.flags & 4u) != 0u) return kd_trace(p, w, 0.0, d * (1.0 - 1e-4), true).t >= 0.0;
+    return isg_segment_blocked(p, w, d, pc.node_count, pc.tri_node_count);
+}
+
+// Unoccluded fraction of a local light seen from p (offset shading point). Point and spot lights:
+// one ray (hard shadow). Sphere lights: lights.glsl's LIGHT_DISK_POINTS targets on the disk
+// facing p.
 float light_visibility(vec3 p, vec3 to_light, float radius) {
     if ((pc.flags & 3u) != 0u) return 1.0;
     float d = length(to_light);
     if (!(d > 0.0)) return 1.0;
-    if (radius <= 0.0) return isg_segment_blocked(p, to_light / d, d, pc.node_count, pc.tri_node_count) ? 0.0 : 1.0;
+    if (radius <= 0.0) return light_segment_blocked(p, to_light / d, d) ? 0.0 : 1.0;
     float vis = 0.0;
     for (int k = 0; k < LIGHT_DISK_POINTS; ++k) {
         vec3 q = light_disk_target(to_light, radius, k);
         float len = length(q);
-        vis += isg_segment_blocked(p, q / len, len, pc.node_count, pc.tri_node_count) ? 0.0 : 1.0;
+        vis += light_segment_blocked(p, q / len, len) ? 0.0 : 1.0;
     }
     return vis / float(LIGHT_DISK_POINTS);
 }

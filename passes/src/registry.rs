@@ -175,6 +175,7 @@ const ISG_PARAMS: &[ParamDoc] = &[
     p("gpu_bvh", "true", "true/false", "build the sphere BVH on the GPU (up to 1024 spheres)"),
     p("thin_shells", "true", "true/false", "thin shells and open meshes cast shadows by their triangles"),
     p("light_shadows", "true", "true/false", "shadow rays toward local lights"),
+    p("light_occluders", "mesh", "mesh, spheres", "what the local lights' shadow rays hit: the meshes (the frame's kd-tree) or the sphere sets and thin-shell triangles"),
     p("mode", "pixel", "pixel, vertex", "visibility per pixel or per vertex"),
     p("max_edge", "0.1", ">= 0", "per-vertex mode: subdivide until edges are at most this (0: never)"),
 ];

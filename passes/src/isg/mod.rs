@@ -31,9 +31,12 @@
 //!   projected triangles, as Kautz et al. 2004).
 //! * Per-vertex mode ([`vertex`]): the same visibilities at the mesh vertices, interpolated.
 //! * Local lights (`light_shadows`, default on): per pixel, shadow rays from the shading point
-//!   through the sphere BVH (analytic ray-sphere) and the thin-shell triangles: one ray to a
-//!   point or spot light, 9 over a sphere light's disk (soft shadows). The ISG of an SG with the
-//!   light's solid angle would be the paper's alternative; it is not implemented.
+//!   through the meshes (`light_occluders = mesh`, default: the frame's kd-tree, built only for
+//!   scenes with local lights) or through the sphere BVH (analytic ray-sphere) and the thin-shell
+//!   triangles (`spheres`): one ray to a point or spot light, 9 over a sphere light's disk (soft
+//!   shadows). The paper lights by the environment; a local light's hard shadow shows every
+//!   sphere-set gap (god_rays 40x30: two floor pixels beside the bunny lit, 0.208). The ISG of an
+//!   SG with the light's solid angle would be the paper's alternative; it is not implemented.
 //!
 //! Not done: Ashikhmin-Shirley uses one Cook-Torrance lobe.
 
@@ -96,6 +99,9 @@ pub struct IsgSettings {
     /// thin-shell triangles): one ray for point and spot lights (hard shadows), 9 rays over the
     /// disk of a sphere light (soft). Evaluated per pixel in both modes.
     pub light_shadows: bool,
+    /// Local lights' shadow rays through the meshes (`true`, `light_occluders = mesh`: the
+    /// frame's kd-tree) or through the spheres and thin-shell triangles (`false`, `spheres`).
+    pub light_mesh: bool,
 }
 
 /// Most spheres the one-workgroup GPU LBVH takes.
@@ -119,6 +125,7 @@ impl Default for IsgSettings {
             max_edge: 0.1,
             thin_shells: true,
             light_shadows: true,
+            light_mesh: true,
         }
     }
 }
@@ -172,6 +179,13 @@ impl IsgSettings {
             "gpu_bvh" => self.gpu_bvh = flag()?,
             "thin_shells" => self.thin_shells = flag()?,
             "light_shadows" => self.light_shadows = flag()?,
+            "light_occluders" => {
+                self.light_mesh = match v {
+                    "mesh" => true,
+                    "spheres" => false,
+                    _ => anyhow::bail!("isg parameter light_occluders = '{value}': expected 'mesh' or 'spheres'"),
+                }
+            }
             "mode" => {
                 self.per_vertex = match v {
                     "pixel" => false,
@@ -181,7 +195,7 @@ impl IsgSettings {
             }
             "max_edge" => self.max_edge = v.parse::<f32>().ok().filter(|x| x.is_finite() && *x >= 0.0).ok_or_else(bad)?,
             other => anyhow::bail!(
-                "unknown isg parameter '{other}' (known: lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, diffuse, glossy, gpu_bvh, thin_shells, light_shadows, mode, max_edge)"
+                "unknown isg parameter '{other}' (known: lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, diffuse, glossy, gpu_bvh, thin_shells, light_shadows, light_occluders, mode, max_edge)"
             ),
         }
         Ok(())
@@ -550,9 +564,13 @@ pub struct IsgTechnique {
     pub last_node_count: usize,
     pub last_triangle_count: usize,
     pub last_vertex_count: usize,
+    /// The kd-tree of the frame's triangles: local lights' shadow rays (`light_occluders =
+    /// mesh`), for scenes with local lights.
+    kd: Option<crate::kdtree::KdTreeBuilder>,
 }
 
-/// Descriptor types of `isg_shade.comp` (bindings 0..=15) and `isg_shade_vertex.comp` (plus 16).
+/// Descriptor types of `isg_shade.comp` (bindings 0..=19) and `isg_shade_vertex.comp` (0..=20:
+/// its vertex image at 16).
 fn shade_types(per_vertex: bool) -> Vec<vk::DescriptorType> {
     use vk::DescriptorType as T;
     // 7 lights, 8 textures, 9 table, 10 lobes, 11 BVH, 12 prefiltered, 13 triangles, 14 their BVH,
@@ -562,6 +580,8 @@ fn shade_types(per_vertex: bool) -> Vec<vk::DescriptorType> {
     if per_vertex {
         t.push(T::COMBINED_IMAGE_SAMPLER);
     }
+    // the kd-tree's four buffers (local lights' shadow rays)
+    t.extend([T::STORAGE_BUFFER; 4]);
     t
 }
 
@@ -615,6 +635,7 @@ impl IsgTechnique {
                 ));
             }
         }
+        let settings_traces_lights = settings.light_shadows && settings.light_mesh && !scene.lights.is_empty();
         Ok(IsgTechnique {
             pipeline,
             bvh_pipeline,
@@ -637,6 +658,7 @@ impl IsgTechnique {
             last_node_count: 0,
             last_triangle_count: 0,
             last_vertex_count: 0,
+            kd: if settings_traces_lights { Some(crate::kdtree::KdTreeBuilder::new(ctx, shaders)?) } else { None },
         })
     }
 
@@ -803,10 +825,24 @@ impl crate::technique::Technique for IsgTechnique {
 
     fn add(
         &mut self,
-        _engine: &mut Engine,
+        engine: &mut Engine,
         graph: &mut Graph,
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {
+        // local lights' occluders: the frame's triangles (rebuilt when anything moved)
+        let kd_tree = match self.kd.as_mut() {
+            Some(b) => {
+                let (tris, _, no_shadow) = crate::kdtree::world_triangles_shading(&self.scene, inputs.frame)?;
+                let rebuild = inputs.frame.any_moved() || inputs.frame.any_deformed();
+                Some(b.add_triangles_flagged(engine, graph, &tris, Some(&no_shadow), rebuild)?)
+            }
+            None => None,
+        };
+        let kd_dummy: [Option<penumbra_engine::BufferHandle>; 4] = if kd_tree.is_none() {
+            std::array::from_fn(|i| Some(graph.create_buffer_init(&format!("isg_kd_none{i}"), vec![0u8; 16])))
+        } else {
+            [None; 4]
+        };
         let spheres = frame_spheres(&self.scene, &self.sets, inputs.frame);
         self.last_sphere_count = spheres.len();
         let (scene, gb) = (inputs.handles, inputs.gbuffer);
@@ -868,13 +904,21 @@ impl crate::technique::Technique for IsgTechnique {
         let tri_bvh = p.read(tri_bvh, Access::ComputeShaderReadStorage);
         let irradiance = p.read(irradiance, Access::ComputeShaderReadStorage);
         let vertex_vis = vertex_vis.map(|v| p.read(v, Access::ComputeShaderReadSampled));
+        let kd = match &kd_tree {
+            Some(t) => t.read(&mut p).binds(),
+            None => crate::util::storage(
+                kd_dummy.map(|b| p.read(b.expect("dummy kd buffer"), Access::ComputeShaderReadStorage)),
+            ),
+        };
         let mut push = Vec::with_capacity(40);
         push.extend_from_slice(&scene.light_count.to_le_bytes());
         push.extend_from_slice(&self.lobe_count.to_le_bytes());
         push.extend_from_slice(&node_count.to_le_bytes());
         push.extend_from_slice(&(self.settings.patch_side.clamp(1, 32) as i32).to_le_bytes());
         push.extend_from_slice(&self.settings.lod.to_le_bytes());
-        let flags = !self.settings.shadows as u32 | (!self.settings.light_shadows as u32) << 1;
+        let flags = !self.settings.shadows as u32
+            | (!self.settings.light_shadows as u32) << 1
+            | (kd_tree.is_some() as u32) << 2;
         push.extend_from_slice(&flags.to_le_bytes());
         push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
         let specular_mode = if self.settings.glossy_ratio { 2u32 } else { !self.settings.prefiltered_specular as u32 };
@@ -890,6 +934,7 @@ impl crate::technique::Technique for IsgTechnique {
             if let Some(v) = vertex_vis {
                 binds.push(Bind::SampledImage(v, nearest));
             }
+            binds.extend(kd);
             crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
         });
         Ok(hdr)
