@@ -14,7 +14,8 @@
 // sphere lights from the cube map of their centre with PCSS soft shadows (blocker search, then a
 // filter as wide as the penumbra a sphere of the light's radius casts); radiance with the material's
 // BRDF, sphere lights as points of intensity L pi r^2.
-// Lit fraction: 3x3 PCF (more for sphere lights), slope-scaled bias of 1.5 texels + 1.5 texels x
+// Lit fraction: 3x3 PCF (more for sphere lights), slope-scaled bias (the slope of the face: the
+// G-buffer's geometric normal, not the interpolated one) of 1.5 texels + 1.5 texels x
 // tan(theta), compared in linear depth.
 layout(local_size_x = 8, local_size_y = 8) in;
 #include "common.glsl"
@@ -29,12 +30,14 @@ layout(set = 0, binding = 6, rgba32f) uniform writeonly image2D hdr;
 layout(std430, set = 0, binding = 7) readonly buffer Layers { vec4 layers[]; };
 // per environment light k: (direction towards the light, K pdf), (weight rgb, 0)
 layout(std430, set = 0, binding = 8) readonly buffer EnvLights { vec4 env_lights[]; };
+// the K environment layers (size pc.size.x), and the local lights' layers from K on (pc.size.y)
 layout(set = 0, binding = 9) uniform sampler2DArray depth_maps;
 layout(set = 0, binding = 10) readonly buffer Lights { LightData lights[]; };
 layout(set = 0, binding = 11) uniform sampler2DArray material_textures;
+layout(set = 0, binding = 12) uniform sampler2DArray light_depth_maps;
 layout(push_constant) uniform Push {
     uvec4 counts;   // K environment layers, local light count, visibility on, shading (0 lights, 1 ratio)
-    uvec4 size;     // S (map resolution), 0, 0, 0
+    uvec4 size;     // the environment layers' resolution, the local lights' resolution, 0, 0
 } pc;
 
 #define M_PI 3.14159265358979323846
@@ -45,6 +48,9 @@ layout(push_constant) uniform Push {
 
 float lum(vec3 c) { return dot(c, vec3(0.2126, 0.7152, 0.0722)); }
 
+// Texels per side of layer l: the environment's K layers, then the local lights'.
+uint layer_size(uint l) { return l < pc.counts.x ? pc.size.x : pc.size.y; }
+
 mat4 layer_vp(uint l) { return mat4(layers[5u * l], layers[5u * l + 1u], layers[5u * l + 2u], layers[5u * l + 3u]); }
 
 // Linear depth (along the map's axis) of texel c of layer l; where nothing was drawn (the cleared
@@ -52,12 +58,13 @@ mat4 layer_vp(uint l) { return mat4(layers[5u * l], layers[5u * l + 1u], layers[
 // casters' bounding sphere), infinitely far.
 float stored_depth(uint l, ivec2 c) {
     vec4 li = layers[5u * l + 4u];
-    int s = int(pc.size.x);
+    int s = int(layer_size(l));
     if (any(lessThan(c, ivec2(0))) || any(greaterThanEqual(c, ivec2(s)))) {
         if (li.x < 0.5) return 3.0e38;
         c = clamp(c, ivec2(0), ivec2(s - 1));
     }
-    float d = texelFetch(depth_maps, ivec3(c, int(l)), 0).r;
+    float d = l < pc.counts.x ? texelFetch(depth_maps, ivec3(c, int(l)), 0).r
+                              : texelFetch(light_depth_maps, ivec3(c, int(l - pc.counts.x)), 0).r;
     if (d >= 1.0) return 3.0e38;
     return li.x < 0.5 ? li.y + d * (li.z - li.y) : li.y * li.z / (li.z - d * (li.z - li.y));
 }
@@ -68,7 +75,7 @@ void project(uint l, vec3 p, out vec2 t, out float z, out float texel) {
     vec4 li = layers[5u * l + 4u];
     vec4 c = layer_vp(l) * vec4(p, 1.0);
     vec3 ndc = c.xyz / c.w;
-    float s = float(pc.size.x);
+    float s = float(layer_size(l));
     t = (ndc.xy * 0.5 + 0.5) * s - 0.5;
     z = li.x < 0.5 ? li.y + ndc.z * (li.z - li.y) : c.w;
     texel = li.x < 0.5 ? li.w : 2.0 * c.w / s;
@@ -103,10 +110,12 @@ float lit_pcss(uint l, vec3 p, float cos_i, float radius) {
     project(l, p, t, z, texel);
     vec4 li = layers[5u * l + 4u];
     float zb = z - bias_for(texel, cos_i, z);
-    float s = float(pc.size.x);
+    // the widest search and filter: 16 texels of a 256-texel map, as many of this one's texels
+    // as cover the same angle (the sample counts stay 5x5 and 7x7)
+    float widest = 16.0 * max(float(layer_size(l)) / 256.0, 1.0);
     // blockers between the light and p within the light's angular size as seen from p, mapped
     // into the map (texels at p's depth), searched over a 5x5 grid
-    float search = clamp(radius / max(texel, 1e-9), 1.0, 16.0);
+    float search = clamp(radius / max(texel, 1e-9), 1.0, widest);
     float blockers = 0.0, zsum = 0.0;
     for (int dy = -2; dy <= 2; dy++) {
         for (int dx = -2; dx <= 2; dx++) {
@@ -122,7 +131,7 @@ float lit_pcss(uint l, vec3 p, float cos_i, float radius) {
     float zblock = max(zsum / blockers, li.y);
     // penumbra width at p (world), in texels at p's depth
     float penumbra = radius * (z - zblock) / zblock;
-    float filt = clamp(penumbra / max(texel, 1e-9), 1.0, 16.0);
+    float filt = clamp(penumbra / max(texel, 1e-9), 1.0, widest);
     float sum = 0.0;
     for (int dy = -3; dy <= 3; dy++) {
         for (int dx = -3; dx <= 3; dx++) {
@@ -180,7 +189,7 @@ void main() {
         if (lw.z <= 0.0 || wo.z <= 0.0) continue;
         vec3 w = env_lights[2u * k + 1u].rgb;
         // below the geometric surface: blocked by it (lights.glsl's rule)
-        float v = dot(wi, ng) <= 0.0 ? 0.0 : (vis_on ? lit_pcf(k, p, lw.z) : 1.0);
+        float v = dot(wi, ng) <= 0.0 ? 0.0 : (vis_on ? lit_pcf(k, p, dot(wi, ng)) : 1.0);
         if (pc.counts.w == 0u) {
             vec3 f = brdf_eval(b, wo, lw) * lw.z * w;
             s_all += f;
@@ -236,7 +245,7 @@ void main() {
             vec3 lw = vec3(dot(wi, tt), dot(wi, bt), dot(wi, ns));
             if (lw.z <= 0.0 || wo.z <= 0.0 || dot(wi, ng) <= 0.0) continue;
             vec3 f = brdf_eval(b, wo, lw) * lw.z;
-            l += f * ld.power_cos_inner.rgb * (vis_on ? lit_pcf(first_layer, p, lw.z) : 1.0);
+            l += f * ld.power_cos_inner.rgb * (vis_on ? lit_pcf(first_layer, p, dot(wi, ng)) : 1.0);
             continue;
         }
         vec3 to_l = ld.pos_kind.xyz - p;
@@ -264,7 +273,7 @@ void main() {
             uint face = a.x >= a.y && a.x >= a.z ? (-wi.x >= 0.0 ? 0u : 1u)
                       : (a.y >= a.z ? (-wi.y >= 0.0 ? 2u : 3u) : (-wi.z >= 0.0 ? 4u : 5u));
             uint layer = first_layer + face;
-            v = lk == 2 ? lit_pcss(layer, p, lw.z, radius) : lit_pcf(layer, p, lw.z);
+            v = lk == 2 ? lit_pcss(layer, p, dot(wi, ng), radius) : lit_pcf(layer, p, dot(wi, ng));
         }
         l += f * intensity / d2 * v;
     }

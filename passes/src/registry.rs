@@ -157,7 +157,8 @@ const MC_PARAMS: &[ParamDoc] = &[
 
 const SHADOWMAPS_PARAMS: &[ParamDoc] = &[
     p("count", "32", "1..=1024", "K directional lights (orthographic depth maps) importance-sampled from the environment (the ISG paper's Figure 11: 30 and 1024)"),
-    p("size", "256", "16..=4096", "depth-map resolution, texels per side (the ISG paper: 256)"),
+    p("size", "256", "16..=4096", "resolution of the environment directions' depth maps, texels per side (the ISG paper: 256)"),
+    p("light_size", "1024", "16..=4096", "resolution of the local lights' depth maps (cube faces; a directional light's map), texels per side"),
     p("shading", "ratio", "ratio|lights", "lights: the sum over the K lights (the papers' baseline); ratio: the unshadowed environment lighting times the K lights' shadowed/unshadowed ratio"),
 ];
 

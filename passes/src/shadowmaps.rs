@@ -6,15 +6,18 @@
 //! angle), each weighted `L / (K pdf)` so that without shadows the sum estimates the environment
 //! integral. Every light has an orthographic depth map of [`ShadowMapsSettings::size`]^2 texels
 //! over the scene's bounding sphere; every local light a cube of six perspective maps at its
-//! position. All maps are layers of one D32 array image, rasterized in one pass (each draw
-//! instanced once per layer, `gl_Layer` from the vertex shader: Vulkan 1.2 `shaderOutputLayer`),
+//! position ([`ShadowMapsSettings::light_size`]^2 texels each). The maps are layers of two D32
+//! array images (environment, local lights), each rasterized in one pass (each draw instanced
+//! once per layer, `gl_Layer` from the vertex shader: Vulkan 1.2 `shaderOutputLayer`),
 //! kept across frames and re-rendered only when geometry moved or deformed or a light moved.
 //! Objects with `casts_shadow = false` are not drawn into the maps.
 //!
 //! Shading per G-buffer pixel, with the material model's BRDF (`glsl/include/brdf_ref.glsl`,
 //! texture maps applied): `shading = "lights"` is the papers' baseline, the sum over the K lights
 //! of BRDF x cosine x lit fraction x weight (3x3 PCF, slope-scaled bias of 1.5 texels + 1.5 texels
-//! x tan(theta)); `shading = "ratio"` (default) is a ratio estimator on the `env` technique's
+//! x tan(theta), theta the light's angle to the face: the G-buffer's geometric normal, whose
+//! slope the interpolated normal misrepresents on coarse meshes: vol_buddha's crown 0.235 -> 0.067
+//! at 160x120); `shading = "ratio"` (default) is a ratio estimator on the `env` technique's
 //! unshadowed environment lighting (`glsl/include/env_shade.glsl`), so that glossy surfaces keep
 //! the environment's reflection (K delta lights alone render a glossy dish near black): its
 //! diffuse part (the irradiance map) times the cosine- and weight-weighted lit fraction over the K
@@ -52,14 +55,20 @@ pub enum SmShading {
 pub struct ShadowMapsSettings {
     /// Directional lights (and orthographic maps) for the environment, 1..=1024.
     pub count: u32,
-    /// Map resolution (texels per side), 16..=4096.
+    /// Resolution of the environment directions' maps (texels per side), 16..=4096 (the ISG
+    /// paper's baseline: 256).
     pub size: u32,
+    /// Resolution of the local lights' maps (cube faces, a directional light's map), 16..=4096:
+    /// their hard shadows fall on whatever the scene holds, not on a bounding-sphere overview
+    /// (vol_big and vol_complex at 160x120: 0.113 and 0.138 with 256 texels, 0.045 and 0.057 with
+    /// 1024).
+    pub light_size: u32,
     pub shading: SmShading,
 }
 
 impl Default for ShadowMapsSettings {
     fn default() -> Self {
-        ShadowMapsSettings { count: 32, size: 256, shading: SmShading::Ratio }
+        ShadowMapsSettings { count: 32, size: 256, light_size: 1024, shading: SmShading::Ratio }
     }
 }
 
@@ -76,6 +85,10 @@ impl ShadowMapsSettings {
                 Ok(s) if (16..=4096).contains(&s) => self.size = s,
                 _ => bail!("shadowmaps: size = '{v}': expected an integer in 16..=4096"),
             },
+            "light_size" => match v.parse::<u32>() {
+                Ok(s) if (16..=4096).contains(&s) => self.light_size = s,
+                _ => bail!("shadowmaps: light_size = '{v}': expected an integer in 16..=4096"),
+            },
             "shading" => {
                 self.shading = match v {
                     "lights" => SmShading::Lights,
@@ -83,7 +96,7 @@ impl ShadowMapsSettings {
                     _ => bail!("shadowmaps: shading = '{v}': expected lights or ratio"),
                 }
             }
-            k => bail!("shadowmaps: unknown parameter '{k}' (known: count, size, shading)"),
+            k => bail!("shadowmaps: unknown parameter '{k}' (known: count, size, light_size, shading)"),
         }
         Ok(())
     }
@@ -159,6 +172,7 @@ impl ShadowMapsTechnique {
                     T::STORAGE_BUFFER,
                     T::COMBINED_IMAGE_SAMPLER,
                     T::STORAGE_BUFFER,
+                    T::COMBINED_IMAGE_SAMPLER,
                     T::COMBINED_IMAGE_SAMPLER,
                 ],
             ]
@@ -241,9 +255,9 @@ impl ShadowMapsTechnique {
     }
 
     /// Per layer: view-projection columns and (kind, near, far, texel size): the K environment
-    /// maps (orthographic over the bounding sphere), then per local light 6 cube faces, or one
-    /// orthographic map for a directional light.
-    fn layers(&self, frame: &Frame, size: u32) -> Vec<[f32; 4]> {
+    /// maps (orthographic over the bounding sphere, `size` texels), then per local light 6 cube
+    /// faces, or one orthographic map for a directional light (`light_size` texels).
+    fn layers(&self, frame: &Frame, size: u32, light_size: u32) -> Vec<[f32; 4]> {
         let (c, r) = self.bounding_sphere(frame);
         let mut out = Vec::new();
         let mut push = |vp: Mat4, info: [f32; 4]| {
@@ -253,7 +267,7 @@ impl ShadowMapsTechnique {
             out.push(info);
         };
         // an orthographic map over the bounding sphere, seen from direction d (towards the light)
-        let ortho = |d: Vec3| {
+        let ortho = |d: Vec3, size: u32| {
             let up = if d.y.abs() < 0.99 { Vec3::Y } else { Vec3::X };
             let eye = c + d * (1.01 * r);
             let view = Mat4::look_to_rh(eye, -d, up);
@@ -262,7 +276,7 @@ impl ShadowMapsTechnique {
             (proj * view, [0.0, near, far, 2.0 * r / size as f32])
         };
         for k in 0..self.settings.count as usize {
-            let (vp, info) = ortho(Vec3::from_slice(&self.env_lights[2 * k][..3]));
+            let (vp, info) = ortho(Vec3::from_slice(&self.env_lights[2 * k][..3]), size);
             push(vp, info);
         }
         // +X, -X, +Y, -Y, +Z, -Z (the face the shader picks for the direction from the light)
@@ -277,7 +291,7 @@ impl ShadowMapsTechnique {
         for l in &frame.lights {
             if l.kind == LightKind::Directional {
                 // one orthographic layer (the shader counts 1 layer for it, 6 for the others)
-                let (vp, info) = ortho(-l.direction.normalize_or(Vec3::NEG_Y));
+                let (vp, info) = ortho(-l.direction.normalize_or(Vec3::NEG_Y), light_size);
                 push(vp, info);
                 continue;
             }
@@ -296,6 +310,60 @@ impl ShadowMapsTechnique {
         out
     }
 
+    /// The depth pass of layers `first .. first + count` into the layered `depth` image of
+    /// `size`^2 texels (each draw instanced once per layer, `gl_Layer` = instance).
+    #[allow(clippy::too_many_arguments)]
+    fn add_depth_pass(
+        &self,
+        graph: &mut Graph,
+        scene: &crate::scene_gpu::SceneHandles,
+        depth: ImageHandle,
+        layer_buf: penumbra_engine::BufferHandle,
+        draws: &[crate::scene_gpu::Draw],
+        first: u32,
+        count: u32,
+        size: u32,
+        name: &str,
+    ) -> ImageHandle {
+        let mut p = graph.pass(name, PassKind::Raster);
+        let dw = p.write(depth, Access::DepthAttachmentWrite);
+        let instances = p.read(scene.instances, Access::VertexShaderReadStorage);
+        let lb = p.read(layer_buf, Access::VertexShaderReadStorage);
+        let vertices = p.read(scene.vertices, Access::VertexBuffer);
+        let indices = p.read(scene.indices, Access::IndexBuffer);
+        let deformed = scene.deformed_vertices.map(|h| p.read(h, Access::VertexBuffer));
+        let draws = draws.to_vec();
+        let (pipeline, layout) = (self.depth_pipe.pipeline, self.depth_pipe.layout);
+        p.record(move |rc| {
+            let d = rc.device();
+            let depth_att = crate::util::depth_attachment(rc.image(dw)?.view, true);
+            let area =
+                vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: size, height: size } };
+            let info = vk::RenderingInfo::default().render_area(area).layer_count(count).depth_attachment(&depth_att);
+            let vb = rc.buffer(vertices)?;
+            let ib = rc.buffer(indices)?;
+            let db = match deformed {
+                Some(h) => Some(rc.buffer(h)?),
+                None => None,
+            };
+            crate::raster::begin(d, rc.cmd, &info, size, size, pipeline);
+            rc.push_descriptors(
+                vk::PipelineBindPoint::GRAPHICS,
+                layout,
+                0,
+                &[Bind::StorageBuffer(instances), Bind::StorageBuffer(lb)],
+            )?;
+            crate::raster::draw_meshes(d, rc.cmd, &draws, ib.buffer, vb.buffer, db.map(|b| b.buffer), |dr| unsafe {
+                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::VERTEX, 0, &bytes_of(&[dr.instance, first]));
+                let m = dr.mesh;
+                d.cmd_draw_indexed(rc.cmd, m.index_count, count, m.first_index, m.vertex_offset, 0);
+            });
+            unsafe { d.cmd_end_rendering(rc.cmd) };
+            Ok(())
+        });
+        dw
+    }
+
     /// Declares the depth maps (when something changed) and the shading pass; returns the HDR
     /// image.
     pub fn add_frame(
@@ -307,26 +375,29 @@ impl ShadowMapsTechnique {
         let frame = inputs.frame;
         let scene = inputs.handles;
         let gb = inputs.gbuffer;
-        let (k, s) = (self.settings.count, self.settings.size);
-        let layers = self.layers(frame, s);
+        let (k, s, ls) = (self.settings.count, self.settings.size, self.settings.light_size);
+        let layers = self.layers(frame, s, ls);
         let layer_count = (layers.len() / 5) as u32;
+        // the environment's K layers at `size`, the local lights' at `light_size`: two images
+        let light_layers = layer_count - k;
         let geometry_changed = frame.any_moved() || frame.any_deformed();
         let rerender = geometry_changed || self.rendered_layers.as_ref() != Some(&layers);
         let layer_buf = graph.create_buffer_init("shadowmaps.layers", bytes_of(&layers));
         let env_lights = graph.create_buffer_init("shadowmaps.env_lights", bytes_of(&self.env_lights));
-        let depth = engine.persistent_image(
+        let env_depth = engine.persistent_image(
             graph,
-            &format!("shadowmaps.depth.{s}x{layer_count}"),
-            ImageDesc::new_2d(DEPTH_FORMAT, s, s).with_layers(layer_count),
+            &format!("shadowmaps.depth.{s}x{k}"),
+            ImageDesc::new_2d(DEPTH_FORMAT, s, s).with_layers(k),
         );
-        let depth = if rerender || graph.persistent_is_new(depth) {
-            let mut p = graph.pass("shadowmaps_depth", PassKind::Raster);
-            let dw = p.write(depth, Access::DepthAttachmentWrite);
-            let instances = p.read(scene.instances, Access::VertexShaderReadStorage);
-            let lb = p.read(layer_buf, Access::VertexShaderReadStorage);
-            let vertices = p.read(scene.vertices, Access::VertexBuffer);
-            let indices = p.read(scene.indices, Access::IndexBuffer);
-            let deformed = scene.deformed_vertices.map(|h| p.read(h, Access::VertexBuffer));
+        let light_depth = (light_layers > 0).then(|| {
+            engine.persistent_image(
+                graph,
+                &format!("shadowmaps.light_depth.{ls}x{light_layers}"),
+                ImageDesc::new_2d(DEPTH_FORMAT, ls, ls).with_layers(light_layers),
+            )
+        });
+        let fresh = graph.persistent_is_new(env_depth) || light_depth.is_some_and(|d| graph.persistent_is_new(d));
+        let (env_depth, light_depth) = if rerender || fresh {
             let draws: Vec<_> = inputs
                 .draws
                 .iter()
@@ -336,54 +407,14 @@ impl ShadowMapsTechnique {
                 })
                 .copied()
                 .collect();
-            let (pipeline, layout) = (self.depth_pipe.pipeline, self.depth_pipe.layout);
-            p.record(move |rc| {
-                let d = rc.device();
-                let depth_att = crate::util::depth_attachment(rc.image(dw)?.view, true);
-                let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: s, height: s } };
-                let info = vk::RenderingInfo::default()
-                    .render_area(area)
-                    .layer_count(layer_count)
-                    .depth_attachment(&depth_att);
-                let vb = rc.buffer(vertices)?;
-                let ib = rc.buffer(indices)?;
-                let db = match deformed {
-                    Some(h) => Some(rc.buffer(h)?),
-                    None => None,
-                };
-                crate::raster::begin(d, rc.cmd, &info, s, s, pipeline);
-                rc.push_descriptors(
-                    vk::PipelineBindPoint::GRAPHICS,
-                    layout,
-                    0,
-                    &[Bind::StorageBuffer(instances), Bind::StorageBuffer(lb)],
-                )?;
-                crate::raster::draw_meshes(
-                    d,
-                    rc.cmd,
-                    &draws,
-                    ib.buffer,
-                    vb.buffer,
-                    db.map(|b| b.buffer),
-                    |dr| unsafe {
-                        d.cmd_push_constants(
-                            rc.cmd,
-                            layout,
-                            vk::ShaderStageFlags::VERTEX,
-                            0,
-                            &bytes_of(&[dr.instance, 0u32]),
-                        );
-                        let m = dr.mesh;
-                        d.cmd_draw_indexed(rc.cmd, m.index_count, layer_count, m.first_index, m.vertex_offset, 0);
-                    },
-                );
-                unsafe { d.cmd_end_rendering(rc.cmd) };
-                Ok(())
+            let env = self.add_depth_pass(graph, scene, env_depth, layer_buf, &draws, 0, k, s, "shadowmaps_depth");
+            let light = light_depth.map(|d| {
+                self.add_depth_pass(graph, scene, d, layer_buf, &draws, k, light_layers, ls, "shadowmaps_light_depth")
             });
             self.rendered_layers = Some(layers);
-            dw
+            (env, light)
         } else {
-            depth
+            (env_depth, light_depth)
         };
         let (w, h) = (gb.width, gb.height);
         let hdr = graph.create_image("shadowmaps.hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
@@ -393,12 +424,14 @@ impl ShadowMapsTechnique {
             SmShading::Ratio => 1,
         };
         push.extend(bytes_of(&[k, scene.light_count, self.visibility as u32, shading]));
-        push.extend(bytes_of(&[s, 0, 0, 0]));
+        push.extend(bytes_of(&[s, ls, 0, 0]));
         let mut p = graph.pass("shadowmaps_shade", PassKind::Compute);
         let io = ShadingIo::declare(&mut p, scene, gb, inputs.env, hdr);
         let lb = p.read(layer_buf, Access::ComputeShaderReadStorage);
         let el = p.read(env_lights, Access::ComputeShaderReadStorage);
-        let dp = p.read(depth, Access::ComputeShaderReadSampled);
+        let dp = p.read(env_depth, Access::ComputeShaderReadSampled);
+        // no local light: the environment's image stands in (never read)
+        let lp = light_depth.map(|d| p.read(d, Access::ComputeShaderReadSampled)).unwrap_or(dp);
         let lights = p.read(scene.lights, Access::ComputeShaderReadStorage);
         let tex = p.read(scene.textures, Access::ComputeShaderReadSampled);
         let pipe = self.shade_pipe.handle();
@@ -413,6 +446,7 @@ impl ShadowMapsTechnique {
                     Bind::SampledImage(dp, nearest),
                     Bind::StorageBuffer(lights),
                     Bind::SampledImage(tex, repeat),
+                    Bind::SampledImage(lp, nearest),
                 ],
             ]
             .concat();
