@@ -957,12 +957,14 @@ fn coarse_receivers_get_candidates_and_shadows() {
 
 /// A box resting on a finely divided floor: the floor's candidates under it start their rays
 /// inside the closed box, and their maps are occluded in every direction (buried,
-/// `penumbra_math::avs_sampling::buried`). They are left out of the adaptation and of the
-/// shading's interpolation: before, their all-black maps were interpolated into the floor around
-/// the box as a dark ring (chess at 160x120: black rings around every piece's base, rmse/mean
-/// 0.269 -> 0.159). The floor next to the box (within 0.15 of its sides) matches the SG-lit
-/// reference's brightness: measured 0.98 of it (24 of 694 points buried), 0.67 when the buried
-/// maps were interpolated.
+/// `penumbra_math::avs_sampling::buried`). They are left out of the adaptation, and the shading
+/// interpolates them only where they are clearly the nearest (`glsl/include/avs_gather.glsl`):
+/// before, their all-black maps were interpolated into the floor around the box as a dark ring
+/// (chess at 160x120: black rings around every piece's base, rmse/mean 0.269 -> 0.159). The floor
+/// next to the box (within 0.15 of its sides) matches the SG-lit reference's brightness: measured
+/// 0.89 of it (24 of 318 points buried), 0.98 when buried points were never interpolated (which
+/// lit the floor of `extremes_whole_hemisphere_occluded_or_free`'s cave), 0.67 when they were
+/// interpolated like the others.
 #[test]
 fn buried_sample_points_draw_no_rings() {
     let toml = format!(

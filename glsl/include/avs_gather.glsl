@@ -3,7 +3,7 @@
 // e_g (eq. 8). Shared by avs_shade.comp (which interpolates their SSDFs) and avs_cull.comp (which
 // flags the points some pixel needs, the section 6 "Optimization").
 // Before including, declare the buffers
-//   pts[]  : 3 vec4 per slot: (position, offset), (tangent, active), (normal, 0)
+//   pts[]  : 3 vec4 per slot: (position, offset), (tangent, active), (normal, 1: buried)
 //   grid[] : [0..2] dims, [4..6] lower corner (float bits), [7] cell edge (float bits), [8] first
 //            item word; cell_start at 16 (cells + 1 entries, relative to the first item word),
 //            then slots
@@ -20,15 +20,25 @@ uint nb_count = 0u;
 // within `radius` whose normal faces the same side, ranked by e_g = alpha |dp| inv_scale +
 // sqrt(2 - 2 n.n'). Neighbours off the pixel's tangent plane by more than a quarter of the radius
 // lie on other surfaces (cloth under a hat brim): skipped unless nothing else is found (then the
-// radius grows 2.5x, then the plane test is dropped).
+// radius grows 2.5x, then the plane test is dropped). Buried points (every direction occluded: a
+// candidate inside a closed object, or under something that closes its hemisphere) are taken only
+// when they are clearly the nearest (no unburied candidate within sqrt(2) of the nearest buried
+// one's distance: the pixel lies where the object stands, or in the closed space); otherwise only
+// the others: a buried map stands for no visible surface beside the object (interpolated there it
+// drew black rings around the objects on a floor).
 void avs_gather(vec3 pos, vec3 n, float radius, float alpha, float inv_scale, uint max_neighbours) {
     uvec3 dims = uvec3(grid[0], grid[1], grid[2]);
     vec3 lo = vec3(uintBitsToFloat(grid[4]), uintBitsToFloat(grid[5]), uintBitsToFloat(grid[6]));
     float cell = uintBitsToFloat(grid[7]);
     uint items = grid[8];
+    // the m smallest e_g of all candidates (nb_*, best_e) and of the unburied ones (open_*)
     float best_e[MAXN];
+    float open_e[MAXN];
+    uint open_slot[MAXN];
+    uint open_count = 0u;
     uint m = min(max_neighbours, uint(MAXN));
     nb_count = 0u;
+    float near_buried = 1e30, near_open = 1e30;
     for (int pass = 0; pass < 3 && nb_count == 0u; ++pass) {
         float rad = pass == 0 ? radius : 2.5 * radius;
         float plane_tol = pass == 2 ? 1e30 : 0.25 * rad;
@@ -41,22 +51,45 @@ void avs_gather(vec3 pos, vec3 n, float radius, float alpha, float inv_scale, ui
                     uint s0 = grid[16u + ci], s1 = grid[17u + ci];
                     for (uint it = s0; it < s1; ++it) {
                         uint slot = grid[items + it];
-                        vec3 p = pts[3u * slot].xyz, pn = pts[3u * slot + 2u].xyz;
+                        vec3 p = pts[3u * slot].xyz;
+                        vec4 pnb = pts[3u * slot + 2u];
+                        vec3 pn = pnb.xyz;
                         vec3 dp = p - pos;
                         if (dot(dp, dp) > rad * rad || dot(pn, n) <= 0.0 || abs(dot(dp, n)) > plane_tol) continue;
                         float e = alpha * length(dp) * inv_scale + sqrt(max(2.0 - 2.0 * dot(n, pn), 0.0));
-                        // keep the m smallest e_g (insertion)
-                        if (nb_count == m && e >= best_e[m - 1u]) continue;
-                        uint j = nb_count < m ? nb_count++ : m - 1u;
-                        while (j > 0u && best_e[j - 1u] > e) {
-                            best_e[j] = best_e[j - 1u];
-                            nb_slot[j] = nb_slot[j - 1u];
-                            --j;
+                        bool buried = pnb.w > 0.5;
+                        if (buried) near_buried = min(near_buried, dot(dp, dp));
+                        else near_open = min(near_open, dot(dp, dp));
+                        // keep the m smallest e_g (insertion), of all and of the unburied
+                        if (!(nb_count == m && e >= best_e[m - 1u])) {
+                            uint j = nb_count < m ? nb_count++ : m - 1u;
+                            while (j > 0u && best_e[j - 1u] > e) {
+                                best_e[j] = best_e[j - 1u];
+                                nb_slot[j] = nb_slot[j - 1u];
+                                --j;
+                            }
+                            best_e[j] = e;
+                            nb_slot[j] = slot;
                         }
-                        best_e[j] = e;
-                        nb_slot[j] = slot;
+                        if (!buried && !(open_count == m && e >= open_e[m - 1u])) {
+                            uint j = open_count < m ? open_count++ : m - 1u;
+                            while (j > 0u && open_e[j - 1u] > e) {
+                                open_e[j] = open_e[j - 1u];
+                                open_slot[j] = open_slot[j - 1u];
+                                --j;
+                            }
+                            open_e[j] = e;
+                            open_slot[j] = slot;
+                        }
                     }
                 }
+    }
+    if (open_count > 0u && near_open <= 2.0 * near_buried) {
+        nb_count = open_count;
+        for (uint q = 0u; q < open_count; ++q) {
+            best_e[q] = open_e[q];
+            nb_slot[q] = open_slot[q];
+        }
     }
     float sum = 0.0;
     for (uint q = 0u; q < nb_count; ++q) {

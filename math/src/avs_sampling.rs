@@ -385,10 +385,11 @@ pub struct AdaptStep {
 
 /// A sample point whose map is occluded in every direction (`visible`, its map's visible solid
 /// angle, not above 0): a candidate inside a closed object (the pool's points on a floor under a
-/// chess piece's base), every ray hitting the object from within. Its map stands for no visible
-/// surface: it takes no part in the adaptation (neither as a point nor as a neighbour) nor in the
-/// shading's interpolation, where its all-occluded map drew black rings around the objects
-/// standing on it.
+/// chess piece's base), every ray hitting the object from within, or a point under something
+/// that closes its whole hemisphere. Its map stands for no visible surface beside the object: it
+/// takes no part in the adaptation (neither as a point nor as a neighbour), and the shading
+/// interpolates it only where no other point is in reach (`glsl/include/avs_gather.glsl`; its
+/// all-occluded map drew black rings around the objects standing on it).
 pub fn buried(visible: f32) -> bool {
     !(visible > 0.0)
 }

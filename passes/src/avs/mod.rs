@@ -95,7 +95,7 @@ pub struct AvsSettings {
     pub e_min: f32,
     /// alpha of e_g after normalising the scene scale (paper: 0.1 - 0.5).
     pub alpha: f32,
-    /// Spatial adaptation rounds per frame (0: the initial points only).
+    /// Spatial adaptation rounds per frame (0: the initial points only, in every frame).
     pub iterations: u32,
     /// Rounds of the frame that starts from a fresh initial set (the first frame, or a changed
     /// pool): the kept set carries every later frame's refinement on, while a fresh one starts
@@ -1026,8 +1026,8 @@ impl AvsTechnique {
         let capture = self.settings.capture_maps;
         let mut maps: Vec<Vec<u32>> = vec![Vec::new(); slots.len()];
         // a fresh set of initial points (first frame, new pool) refines for `first_iterations`
-        // rounds; later frames continue from the kept set
-        let rounds = if self.fresh {
+        // rounds; later frames continue from the kept set; `iterations = 0`: no adaptation at all
+        let rounds = if self.fresh && self.settings.iterations > 0 {
             self.settings.first_iterations.max(self.settings.iterations)
         } else {
             self.settings.iterations
@@ -1285,11 +1285,22 @@ impl crate::technique::Technique for AvsTechnique {
         let vis = engine.persistent_buffer(graph, "avs.vis", cap * words_per_map(r) as u64 * 4);
         let ssdf = self.hsdt.add(graph, "avs_hsdt", vis, n.max(1), r)?;
         let offset = ray_offset(&pool);
+        // buried points (a candidate inside a closed object, `samp::buried`: every direction
+        // occluded) are interpolated only where no other point is in reach (avs_gather.glsl): their
+        // maps stand for no visible surface next to the object, but a floor under an endless
+        // ceiling is all buried and must stay dark
+        let buried: Vec<bool> =
+            (0..points.len()).map(|i| self.stats.visible_fraction.get(i).is_some_and(|&v| v == 0.0)).collect();
+        self.stats.buried = buried.iter().filter(|&&b| b).count();
         let mut by_slot = vec![SurfacePoint { pos: Vec3::ZERO, normal: Vec3::Y }; nslots as usize];
         for (i, p) in points.iter().enumerate() {
             by_slot[slots[i] as usize] = *p;
         }
-        let points_buf = graph.create_buffer_init("avs_points", bytes_of(&point_data(&by_slot, offset)));
+        let mut point_words = point_data(&by_slot, offset);
+        for (i, _) in buried.iter().enumerate().filter(|(_, &b)| b) {
+            point_words[3 * slots[i] as usize + 2][3] = 1.0;
+        }
+        let points_buf = graph.create_buffer_init("avs_points", bytes_of(&point_words));
         let pos: Vec<Vec3> = points.iter().map(|p| p.pos).collect();
         // every kept point, traced or dormant (the candidates of the G-buffer culling)
         let all: Vec<usize> = self.sample_vertices.iter().chain(self.dormant.iter()).copied().collect();
@@ -1299,15 +1310,8 @@ impl crate::technique::Technique for AvsTechnique {
         let shade_radius =
             if all_pos.len() >= 2 { (self.settings.radius * mean_spacing(&all_pos)).max(1e-6) } else { self.radius };
         self.stats.radius = shade_radius;
-        // the shading interpolates the points that see something: a buried point's map (a
-        // candidate inside a closed object, `samp::buried`) stands for no visible surface
-        let shaded: Vec<usize> =
-            (0..points.len()).filter(|&i| self.stats.visible_fraction.get(i).is_none_or(|&v| v != 0.0)).collect();
-        self.stats.buried = points.len() - shaded.len();
-        let shaded_pos: Vec<Vec3> = shaded.iter().map(|&i| pos[i]).collect();
-        let shaded_slots: Vec<u32> = shaded.iter().map(|&i| slots[i]).collect();
-        let grid = Grid::new(&shaded_pos, shade_radius);
-        let grid_buf = graph.create_buffer_init("avs_grid", bytes_of(&grid_words(&grid, &shaded_slots)));
+        let grid = Grid::new(&pos, shade_radius);
+        let grid_buf = graph.create_buffer_init("avs_grid", bytes_of(&grid_words(&grid, &slots)));
         let lobes = graph.create_buffer_init("avs_lobes", self.lobes.as_ref().clone());
         let prefiltered = graph.create_buffer_init("avs_prefiltered", self.prefiltered.as_ref().clone());
         let table = graph.create_buffer_init("avs_axis_table", self.axis_table.as_ref().clone());
@@ -1349,7 +1353,7 @@ impl crate::technique::Technique for AvsTechnique {
                 Integration::Table => 2,
                 Integration::Adf => 3,
             },
-            (!s.shadows || shaded.is_empty()) as u32 | ((s.shadows && s.traced_lights) as u32) << 1,
+            (!s.shadows || points.is_empty()) as u32 | ((s.shadows && s.traced_lights) as u32) << 1,
             s.cells.clamp(1, 16),
             if s.glossy_ratio { 2 } else { (!s.prefiltered) as u32 },
             s.diffuse_ratio as u32,
