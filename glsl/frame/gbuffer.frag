@@ -20,7 +20,6 @@ layout(location = 3) out vec2 o_motion;    // pixels moved since the previous fr
 
 void main() {
     vec3 n = normalize(v_normal);
-    vec3 v = cam.eye.xyz - v_world;
     if (!gl_FrontFacing) n = -n;  // two-sided shading
     // dP/du and dP/dv from screen-space derivatives of position and uv: the material's normal map
     // bends the normal in their frame; the tangent (dP/du) is the local frame of anisotropic BRDFs.

@@ -350,8 +350,8 @@ pub struct AvsStats {
     pub point_vertices: Vec<usize>,
     /// Visible fraction of the hemisphere of every sample point (from the SH16 DC term).
     pub visible_fraction: Vec<f32>,
-    /// Sample points left out of the shading as buried (every direction occluded:
-    /// `penumbra_math::avs_sampling::buried`).
+    /// Sample points buried (every direction occluded: `penumbra_math::avs_sampling::buried`):
+    /// out of the adaptation, interpolated only where they are clearly a pixel's nearest.
     pub buried: usize,
     /// GPU milliseconds of the adaptation rounds' passes (name, ms), when timed.
     pub round_ms: Vec<(String, f64)>,
