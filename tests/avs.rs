@@ -507,6 +507,15 @@ fn slim_bar(r: u32) {
     }
 }
 
+/// Where the centre of pixel (px, py) of a w x h image sees the floor plane y = 0, through the
+/// camera's inverse view-projection `inv` from `eye`; `None` when its ray does not point down.
+fn floor_point(inv: &glam::Mat4, eye: glam::Vec3, w: u32, h: u32, px: u32, py: u32) -> Option<glam::Vec3> {
+    let ndc = glam::Vec2::new((px as f32 + 0.5) / w as f32 * 2.0 - 1.0, (py as f32 + 0.5) / h as f32 * 2.0 - 1.0);
+    let far = inv.project_point3(glam::Vec3::new(ndc.x, ndc.y, 1.0));
+    let d = (far - eye).normalize();
+    (d.y < -1e-3).then(|| eye + d * (-eye.y / d.y))
+}
+
 /// Floor pixels lit by one low point light whose direction from every floor point lies near the
 /// map's pole (along the tangent) or on its phi seam (along the bitangent), behind a wall:
 /// agreement of the shading's light visibility (avs / unshadowed avs, environment off) with the
@@ -560,14 +569,7 @@ fn light_visibility_agreement(
             let k = (py * w + px) as usize;
             let (a, b) = (shad[0].hdr[k][0], open[0].hdr[k][0]);
             assert!(a.is_finite() && a >= 0.0, "{tag}: pixel {px},{py} = {a}");
-            let ndc =
-                glam::Vec2::new((px as f32 + 0.5) / w as f32 * 2.0 - 1.0, (py as f32 + 0.5) / h as f32 * 2.0 - 1.0);
-            let far = inv.project_point3(glam::Vec3::new(ndc.x, ndc.y, 1.0));
-            let d = (far - cam.eye).normalize();
-            if d.y >= -1e-3 {
-                continue;
-            }
-            let p = cam.eye + d * (-cam.eye.y / d.y);
+            let Some(p) = floor_point(&inv, cam.eye, w, h, px, py) else { continue };
             // floor pixels away from the wall and at least one sample spacing from the shadow edge
             if p.x.abs() > 0.95 || p.z.abs() > 0.95 || b <= 1e-4 {
                 continue;
@@ -901,26 +903,9 @@ fn hemicube_baseline_maps_match_the_cpu_ray_test() {
 /// one; with the vertices only (`pool_points = 0`) it is not.
 #[test]
 fn coarse_receivers_get_candidates_and_shadows() {
-    let toml = format!(
-        "name = \"coarse_floor\"\n[camera]\neye = [0.0, 3.0, 0.8]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 45\n{SKY}\
-         [materials.m]\ntype = \"diffuse\"\nalbedo = 0.7\n\
-         [[object]]\nname = \"floor\"\nmesh = {{ type = \"plane\", size = 4 }}\nmaterial = \"m\"\ncasts_shadow = false\n\
-         [[object]]\nname = \"box\"\nmesh = {{ type = \"cube\", size = 0.6 }}\nmaterial = \"m\"\nposition = [0.0, 0.5, 0.0]\n"
-    );
-    let mut s = scene_text("coarse_floor", &toml);
-    s.technique_params.clear();
-    s.technique_params.insert("diffuse".into(), "sg".into());
+    let s = box_over_floor("coarse_floor", "size = 4 }\ncasts_shadow = false", 0.5);
     let (w, h) = (48, 36);
-    // the environment's SG fit lights the reference too: the comparison is of visibility alone
-    let opts = ReferenceOptions {
-        width: w,
-        height: h,
-        spp: 1024,
-        time: Some(0.0),
-        mode: Mode::SgLighting,
-        ..Default::default()
-    };
-    let reference = reference_render(&s, &opts).expect("reference").radiance;
+    let reference = sg_lit_reference(&s, w, h, 1024);
     let err = |f: &FrameImages, name: &str| {
         let c = compare(&reference, "reference", &image(f), name).unwrap();
         c.rmse / c.reference_mean
@@ -955,6 +940,30 @@ fn coarse_receivers_get_candidates_and_shadows() {
     assert!(e_bare > 0.95 * e_open, "vertices only should miss the box's shadow: {e_bare} vs unshadowed {e_open}");
 }
 
+/// A 0.6 box centred `box_y` over a 4 x 4 floor plane (`floor`: the rest of its mesh table and
+/// object keys, from after `type = "plane", `) under the sky, seen from above; avs with the paper's
+/// SG diffuse term, so that against [`sg_lit_reference`] visibility alone differs.
+fn box_over_floor(name: &str, floor: &str, box_y: f32) -> Scene {
+    let toml = format!(
+        "name = \"{name}\"\n[camera]\neye = [0.0, 3.0, 0.8]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 45\n{SKY}\
+         [materials.m]\ntype = \"diffuse\"\nalbedo = 0.7\n\
+         [[object]]\nname = \"floor\"\nmesh = {{ type = \"plane\", {floor}\nmaterial = \"m\"\n\
+         [[object]]\nname = \"box\"\nmesh = {{ type = \"cube\", size = 0.6 }}\nmaterial = \"m\"\nposition = [0.0, {box_y}, 0.0]\n"
+    );
+    let mut s = scene_text(name, &toml);
+    s.technique_params.clear();
+    s.technique_params.insert("diffuse".into(), "sg".into());
+    s
+}
+
+/// The reference of `s` at time 0 lit by the environment's SG fit (as the techniques' SG terms
+/// are): a comparison of visibility alone.
+fn sg_lit_reference(s: &Scene, w: u32, h: u32, spp: u32) -> Image {
+    let opts =
+        ReferenceOptions { width: w, height: h, spp, time: Some(0.0), mode: Mode::SgLighting, ..Default::default() };
+    reference_render(s, &opts).expect("reference").radiance
+}
+
 /// A box resting on a finely divided floor: the floor's candidates under it start their rays
 /// inside the closed box, and their maps are occluded in every direction (buried,
 /// `penumbra_math::avs_sampling::buried`). They are left out of the adaptation, and the shading
@@ -967,25 +976,9 @@ fn coarse_receivers_get_candidates_and_shadows() {
 /// interpolated like the others.
 #[test]
 fn buried_sample_points_draw_no_rings() {
-    let toml = format!(
-        "name = \"resting_box\"\n[camera]\neye = [0.0, 3.0, 0.8]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 45\n{SKY}\
-         [materials.m]\ntype = \"diffuse\"\nalbedo = 0.7\n\
-         [[object]]\nname = \"floor\"\nmesh = {{ type = \"plane\", size = 4, divisions = 40 }}\nmaterial = \"m\"\n\
-         [[object]]\nname = \"box\"\nmesh = {{ type = \"cube\", size = 0.6 }}\nmaterial = \"m\"\nposition = [0.0, 0.3, 0.0]\n"
-    );
-    let mut s = scene_text("resting_box", &toml);
-    s.technique_params.clear();
-    s.technique_params.insert("diffuse".into(), "sg".into());
+    let s = box_over_floor("resting_box", "size = 4, divisions = 40 }", 0.3);
     let (w, h) = (48, 36);
-    let opts = ReferenceOptions {
-        width: w,
-        height: h,
-        spp: 512,
-        time: Some(0.0),
-        mode: Mode::SgLighting,
-        ..Default::default()
-    };
-    let reference = reference_render(&s, &opts).expect("reference").radiance;
+    let reference = sg_lit_reference(&s, w, h, 512);
     let (r, f) = render(&with(&s, &[("r", "32"), ("iterations", "1")]), "avs", w, h, &[0.0], false);
     let st = avs_stats(&r);
     let img = image(&f[0]);
@@ -996,11 +989,7 @@ fn buried_sample_points_draw_no_rings() {
     let (mut ring_avs, mut ring_ref, mut n) = (0.0f64, 0.0f64, 0usize);
     for py in 0..h {
         for px in 0..w {
-            let ndc =
-                glam::Vec2::new((px as f32 + 0.5) / w as f32 * 2.0 - 1.0, (py as f32 + 0.5) / h as f32 * 2.0 - 1.0);
-            let far = inv.project_point3(glam::Vec3::new(ndc.x, ndc.y, 1.0));
-            let d = (far - cam.eye).normalize();
-            let p = cam.eye + d * (-cam.eye.y / d.y);
+            let Some(p) = floor_point(&inv, cam.eye, w, h, px, py) else { continue };
             let (ax, az) = (p.x.abs(), p.z.abs());
             // on the floor beside the box, and not hidden behind it (the box is 0.6 high)
             if ax.max(az) <= 0.32 || ax.max(az) > 0.45 || p.z < -0.3 {

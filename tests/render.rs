@@ -187,6 +187,34 @@ fn mc_without_aa_samples_the_pixel_centres_like_the_reference_grid() {
     }
 }
 
+/// Every registered technique that accepts `scene`, rendered at time 0 at `w` x `h` under the
+/// validation layer, with `adjust` setting up each one's `RenderSettings`: (technique, its
+/// frame, validation errors).
+fn every_technique(
+    scene: &Scene,
+    w: u32,
+    h: u32,
+    adjust: impl Fn(&str, &mut penumbra::RenderSettings),
+) -> Vec<(&'static str, penumbra::FrameImages, usize)> {
+    let mut out = Vec::new();
+    for name in penumbra_passes::registry::names() {
+        if penumbra_passes::registry::refusal(name, scene).is_some() {
+            continue;
+        }
+        let mut settings =
+            penumbra::RenderSettings { width: w, height: h, technique: Some(name.into()), ..Default::default() };
+        adjust(name, &mut settings);
+        let mut rr =
+            penumbra::Renderer::new_headless(scene, settings, true).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        let mut frames = rr.render(&scene.at(0.0, None), None, true).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        frames.extend(rr.finish().unwrap());
+        let errors = rr.context().validation.error_count();
+        drop(rr);
+        out.push((name, frames.pop().expect("a frame"), errors));
+    }
+    out
+}
+
 /// One material model: where a normal map bends the shading normal away from the eye, the BRDF
 /// is zero and only emission is seen, in the reference (`reference/src/render.rs`) and in every
 /// technique alike. A floor whose constant normal map lays the shading normal along +u (almost in
@@ -244,19 +272,7 @@ material = "floor"
     let (lit, dark) = if black_right { (l, r) } else { (r, l) };
     assert!(lit > 0.0 && dark <= 1e-6 * lit, "reference: lit side {lit}, dark side {dark}");
     let mut failures = Vec::new();
-    for name in penumbra_passes::registry::names() {
-        if penumbra_passes::registry::refusal(name, &scene).is_some() {
-            continue;
-        }
-        let settings =
-            penumbra::RenderSettings { width: w, height: h, technique: Some(name.into()), ..Default::default() };
-        let mut rr =
-            penumbra::Renderer::new_headless(&scene, settings, true).unwrap_or_else(|e| panic!("{name}: {e:#}"));
-        let mut frames = rr.render(&scene.at(0.0, None), None, true).unwrap_or_else(|e| panic!("{name}: {e:#}"));
-        frames.extend(rr.finish().unwrap());
-        let errors = rr.context().validation.error_count();
-        drop(rr);
-        let f = frames.last().expect("a frame");
+    for (name, f, errors) in every_technique(&scene, w, h, |_, _| {}) {
         let (l, r) = quarters(&|x, y| {
             let p = f.hdr[(y * w + x) as usize];
             [p[0], p[1], p[2]]
@@ -307,26 +323,12 @@ material = "m"
     let (w, h) = (96u32, 72u32);
     let mut failures = Vec::new();
     let mut checked = 0usize;
-    for name in penumbra_passes::registry::names() {
-        if penumbra_passes::registry::refusal(name, &scene).is_some() {
-            continue;
-        }
-        let settings = penumbra::RenderSettings {
-            width: w,
-            height: h,
-            technique: Some(name.into()),
-            // mc through the pixel centres, where the G-buffer classified them
-            technique_params: (name == "mc").then(|| [("aa".to_string(), "false".to_string())].into()),
-            dump_passes: true,
-            ..Default::default()
-        };
-        let mut rr =
-            penumbra::Renderer::new_headless(&scene, settings, true).unwrap_or_else(|e| panic!("{name}: {e:#}"));
-        let mut frames = rr.render(&scene.at(0.0, None), None, true).unwrap_or_else(|e| panic!("{name}: {e:#}"));
-        frames.extend(rr.finish().unwrap());
-        let errors = rr.context().validation.error_count();
-        drop(rr);
-        let f = frames.last().expect("a frame");
+    let rendered = every_technique(&scene, w, h, |name, settings| {
+        // mc through the pixel centres, where the G-buffer classified them
+        settings.technique_params = (name == "mc").then(|| [("aa".to_string(), "false".to_string())].into());
+        settings.dump_passes = true;
+    });
+    for (name, f, errors) in rendered {
         let get = |n: &str| &f.dumps.iter().find(|(d, _)| d == n).unwrap_or_else(|| panic!("{name}: no dump {n}")).1;
         let (pos, nrm) = (get("gb_position"), get("gb_normal"));
         // pixels whose shading normal faces the light by more than 3 degrees while their face

@@ -26,6 +26,20 @@ uint nb_count = 0u;
 // one's distance: the pixel lies where the object stands, or in the closed space); otherwise only
 // the others: a buried map stands for no visible surface beside the object (interpolated there it
 // drew black rings around the objects on a floor).
+// Insertion of candidate (e, slot) into the ascending list es/slots of count entries (at most m),
+// in avs_gather's scope (a macro: GLSL passes arrays by copy).
+#define AVS_KEEP_BEST(count, es, slots)                          \
+    if (!(count == m && e >= es[m - 1u])) {                      \
+        uint j = count < m ? count++ : m - 1u;                   \
+        while (j > 0u && es[j - 1u] > e) {                       \
+            es[j] = es[j - 1u];                                  \
+            slots[j] = slots[j - 1u];                            \
+            --j;                                                 \
+        }                                                        \
+        es[j] = e;                                               \
+        slots[j] = slot;                                         \
+    }
+
 void avs_gather(vec3 pos, vec3 n, float radius, float alpha, float inv_scale, uint max_neighbours) {
     uvec3 dims = uvec3(grid[0], grid[1], grid[2]);
     vec3 lo = vec3(uintBitsToFloat(grid[4]), uintBitsToFloat(grid[5]), uintBitsToFloat(grid[6]));
@@ -60,27 +74,9 @@ void avs_gather(vec3 pos, vec3 n, float radius, float alpha, float inv_scale, ui
                         bool buried = pnb.w > 0.5;
                         if (buried) near_buried = min(near_buried, dot(dp, dp));
                         else near_open = min(near_open, dot(dp, dp));
-                        // keep the m smallest e_g (insertion), of all and of the unburied
-                        if (!(nb_count == m && e >= best_e[m - 1u])) {
-                            uint j = nb_count < m ? nb_count++ : m - 1u;
-                            while (j > 0u && best_e[j - 1u] > e) {
-                                best_e[j] = best_e[j - 1u];
-                                nb_slot[j] = nb_slot[j - 1u];
-                                --j;
-                            }
-                            best_e[j] = e;
-                            nb_slot[j] = slot;
-                        }
-                        if (!buried && !(open_count == m && e >= open_e[m - 1u])) {
-                            uint j = open_count < m ? open_count++ : m - 1u;
-                            while (j > 0u && open_e[j - 1u] > e) {
-                                open_e[j] = open_e[j - 1u];
-                                open_slot[j] = open_slot[j - 1u];
-                                --j;
-                            }
-                            open_e[j] = e;
-                            open_slot[j] = slot;
-                        }
+                        // keep the m smallest e_g, of all and of the unburied
+                        AVS_KEEP_BEST(nb_count, best_e, nb_slot);
+                        if (!buried) AVS_KEEP_BEST(open_count, open_e, open_slot);
                     }
                 }
     }

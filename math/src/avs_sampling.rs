@@ -383,6 +383,12 @@ pub struct AdaptStep {
     pub erase: Vec<usize>,
 }
 
+/// The visible solid angle of a map from its SH16 projection: the DC coefficient over the
+/// constant basis function Y_00 = 1 / (2 sqrt(pi)).
+pub fn visible_solid_angle(sh: &[f32; SH_COUNT]) -> f32 {
+    sh[0] * 2.0 * std::f32::consts::PI.sqrt()
+}
+
 /// A sample point whose map is occluded in every direction (`visible`, its map's visible solid
 /// angle, not above 0): a candidate inside a closed object (the pool's points on a floor under a
 /// chess piece's base), every ray hitting the object from within, or a point under something

@@ -394,19 +394,26 @@ pub(crate) fn converge_options(
     }
 }
 
-/// The parameters of `technique` on `scene` with the run's `--param` overrides; `None` (the
-/// renderer's rule) when none names the technique.
-fn cell_params(scene: &Scene, technique: &str, overrides: &[String]) -> Result<Option<registry::Params>> {
+/// The run's `--param TECHNIQUE.KEY=VALUE` overrides as (technique, key, value), checked before
+/// anything renders.
+fn parse_overrides(overrides: &[String]) -> Result<Vec<(String, String, String)>> {
+    overrides
+        .iter()
+        .map(|o| {
+            let bad = || crate::bad(format!("--param {o}: expected TECHNIQUE.KEY=VALUE"));
+            let (t, kv) = o.split_once('.').ok_or_else(bad)?;
+            let (k, v) = kv.split_once('=').ok_or_else(bad)?;
+            registry::check_name(t).map_err(|e| crate::bad(format!("--param {o}: {e}")))?;
+            Ok((t.to_string(), k.trim().to_string(), v.trim().to_string()))
+        })
+        .collect()
+}
+
+/// The parameters of `technique` on `scene` with the run's overrides; `None` (the renderer's
+/// rule) when none names the technique.
+fn cell_params(scene: &Scene, technique: &str, overrides: &[(String, String, String)]) -> Option<registry::Params> {
     let mut params: Option<registry::Params> = None;
-    for o in overrides {
-        let (t, kv) =
-            o.split_once('.').ok_or_else(|| crate::bad(format!("--param {o}: expected TECHNIQUE.KEY=VALUE")))?;
-        let (k, v) =
-            kv.split_once('=').ok_or_else(|| crate::bad(format!("--param {o}: expected TECHNIQUE.KEY=VALUE")))?;
-        registry::check_name(t).map_err(|e| crate::bad(format!("--param {o}: {e}")))?;
-        if t != technique {
-            continue;
-        }
+    for (_, k, v) in overrides.iter().filter(|(t, _, _)| t == technique) {
         params
             .get_or_insert_with(|| {
                 if scene.technique == technique {
@@ -415,9 +422,9 @@ fn cell_params(scene: &Scene, technique: &str, overrides: &[String]) -> Result<O
                     Default::default()
                 }
             })
-            .insert(k.trim().to_string(), v.trim().to_string());
+            .insert(k.clone(), v.clone());
     }
-    Ok(params)
+    params
 }
 
 pub fn run(args: &MatrixArgs) -> Result<()> {
@@ -425,6 +432,7 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
     if args.write_known && !args.params.is_empty() {
         return Err(crate::bad("--write-known with --param: the known-failures list is of the default parameters"));
     }
+    let overrides = parse_overrides(&args.params)?;
     if !(args.noise.is_finite() && args.noise > 0.0) {
         return Err(crate::bad(format!("--noise {}: must be positive", args.noise)));
     }
@@ -538,7 +546,7 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
                 let t0 = Instant::now();
                 let errors_before = ctx.validation.error_count();
                 let messages_before = ctx.validation.errors().len();
-                let params = cell_params(&scene, t.name, &args.params)?;
+                let params = cell_params(&scene, t.name, &overrides);
                 let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
                     render_technique(&ctx, &scene, t.name, params, args, w, h)
                 }));

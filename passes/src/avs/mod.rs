@@ -56,9 +56,6 @@ use penumbra_math::avs_sampling::{self as samp, Grid, SurfacePoint, SH_COUNT};
 use penumbra_scene::{Frame, Scene};
 use std::sync::Arc;
 
-/// Y_00, the constant SH basis function: a map's SH16 DC is its visible solid angle times it.
-const Y00: f32 = 0.282_094_8;
-
 /// Visibility integration over the SSDF-bounded visible region.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Integration {
@@ -1127,8 +1124,7 @@ impl AvsTechnique {
                 e_min: self.settings.e_min,
             };
             let sh_now: Vec<[f32; SH_COUNT]> = sh.iter().map(|c| c.unwrap_or([0.0; SH_COUNT])).collect();
-            // each map's visible solid angle: its SH16 DC over Y_00
-            let visible_now: Vec<f32> = sh_now.iter().map(|c| c[0] / Y00).collect();
+            let visible_now: Vec<f32> = sh_now.iter().map(samp::visible_solid_angle).collect();
             let stepped = std::time::Instant::now();
             let step =
                 samp::adapt_step(&points, &self.sample_vertices, &sh_now, &visible_now, pool, &pool_grid, &params);
@@ -1197,8 +1193,9 @@ impl AvsTechnique {
             maps = keep_maps;
         }
         self.stats.points = self.sample_vertices.len();
-        let dc = Y00 * 2.0 * std::f32::consts::PI;
-        self.stats.visible_fraction = sh.iter().map(|c| c.map_or(-1.0, |c| c[0] / dc)).collect();
+        let two_pi = 2.0 * std::f32::consts::PI;
+        self.stats.visible_fraction =
+            sh.iter().map(|c| c.as_ref().map_or(-1.0, |c| samp::visible_solid_angle(c) / two_pi)).collect();
         self.stats.maps = if capture { maps } else { Vec::new() };
         if self.stats.truncated > 0 {
             eprintln!(

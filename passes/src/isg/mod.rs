@@ -838,10 +838,10 @@ impl crate::technique::Technique for IsgTechnique {
             }
             None => None,
         };
-        let kd_dummy: [Option<penumbra_engine::BufferHandle>; 4] = if kd_tree.is_none() {
-            std::array::from_fn(|i| Some(graph.create_buffer_init(&format!("isg_kd_none{i}"), vec![0u8; 16])))
-        } else {
-            [None; 4]
+        // the tree's four buffers, or four empty stand-ins the shader never reads (flags bit 2 off)
+        let kd_bufs = match &kd_tree {
+            Some(t) => [t.tris, t.nodes, t.refs, t.header],
+            None => std::array::from_fn(|i| graph.create_buffer_init(&format!("isg_kd_none{i}"), vec![0u8; 16])),
         };
         let spheres = frame_spheres(&self.scene, &self.sets, inputs.frame);
         self.last_sphere_count = spheres.len();
@@ -904,12 +904,7 @@ impl crate::technique::Technique for IsgTechnique {
         let tri_bvh = p.read(tri_bvh, Access::ComputeShaderReadStorage);
         let irradiance = p.read(irradiance, Access::ComputeShaderReadStorage);
         let vertex_vis = vertex_vis.map(|v| p.read(v, Access::ComputeShaderReadSampled));
-        let kd = match &kd_tree {
-            Some(t) => t.read(&mut p).binds(),
-            None => crate::util::storage(
-                kd_dummy.map(|b| p.read(b.expect("dummy kd buffer"), Access::ComputeShaderReadStorage)),
-            ),
-        };
+        let kd = kd_bufs.map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let mut push = Vec::with_capacity(40);
         push.extend_from_slice(&scene.light_count.to_le_bytes());
         push.extend_from_slice(&self.lobe_count.to_le_bytes());
@@ -934,7 +929,7 @@ impl crate::technique::Technique for IsgTechnique {
             if let Some(v) = vertex_vis {
                 binds.push(Bind::SampledImage(v, nearest));
             }
-            binds.extend(kd);
+            binds.extend(crate::util::storage(kd));
             crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
         });
         Ok(hdr)
