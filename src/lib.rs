@@ -394,6 +394,9 @@ impl Renderer {
 
     fn build_graph_inner(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Result<Graph> {
         let (w, h) = (self.settings.width, self.settings.height);
+        // collect the frames the GPU has finished (never waits): their late readbacks reach this
+        // frame's technique
+        self.engine.poll()?;
         let mut g = Graph::new();
         let mut constants = FrameConstants::new(frame, self.prev_view_proj, w, h);
         constants.params[2] = self.env.mips.len() as f32;

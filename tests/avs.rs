@@ -39,6 +39,11 @@ fn dump(img: &Image, name: &str) {
     .unwrap();
 }
 
+/// `adaptation = rounds`: the statistics of a frame's own maps (`visible_fraction`, `rays`,
+/// `maps`) once it is built; the default late adaptation reports those of an earlier finished
+/// frame (`AvsStats::late_vertices`).
+const ROUNDS: (&str, &str) = ("adaptation", "rounds");
+
 fn psnr(c: &penumbra_reference::metrics::Comparison) -> f64 {
     c.psnr_db.unwrap_or(f64::INFINITY)
 }
@@ -167,7 +172,7 @@ fn parameters_are_checked() {
 fn extremes_free_hemispheres_and_points_following_deformation() {
     // Nothing casts a shadow: every map is fully visible (SSDF +pi everywhere), so the image equals
     // the unshadowed one.
-    let mut s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "48"), ("iterations", "0")]);
+    let mut s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "48"), ("iterations", "0"), ROUNDS]);
     for info in s.object_info.iter_mut() {
         info.casts_shadow = false;
     }
@@ -183,7 +188,10 @@ fn extremes_free_hemispheres_and_points_following_deformation() {
     // Deforming geometry: without adaptation rounds the sample points are the same vertices in
     // both frames, at their deformed positions (the hat squashes).
     // (culling off: with it the second frame traces only the points the first frame's pixels used)
-    let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "48"), ("iterations", "0"), ("cull", "false")]);
+    let s = with(
+        &scene("hat_on_cloth.toml"),
+        &[("r", "32"), ("points", "48"), ("iterations", "0"), ("cull", "false"), ROUNDS],
+    );
     let mut r = avs_renderer(&s, 40, 30, false);
     let f0 = s.at(0.0, None);
     r.render(&f0, None, true).expect("render");
@@ -279,7 +287,7 @@ fn extremes_whole_hemisphere_occluded_or_free() {
          [[object]]\nname = \"floor\"\nmesh = {{ type = \"plane\", size = 2, divisions = 12 }}\nmaterial = \"floor\"\n"
     );
     let ceiling = "[[object]]\nname = \"ceiling\"\nmesh = { type = \"plane\", size = 400, divisions = 4 }\nmaterial = \"floor\"\nposition = [0.0, 0.3, 0.0]\n";
-    let fast = [("r", "32"), ("iterations", "0")];
+    let fast = [("r", "32"), ("iterations", "0"), ROUNDS];
     let cave = with(&scene_text("cave", &format!("{base}{ceiling}")), &fast);
     // the unshadowed image (visibility 1 whatever the integration mode)
     let (_r, open) = render(&with(&cave, &[("shadows", "false")]), "avs", 48, 36, &[0.0], false);
@@ -378,6 +386,7 @@ fn slim_bar(r: u32) {
             ("r", rs.as_str()),
             ("points", "169"),
             ("iterations", "0"),
+            ROUNDS,
             ("ray_neighbours", ks.as_str()),
             ("adaptive", if adaptive { "true" } else { "false" }),
         ];
@@ -673,7 +682,7 @@ fn extremes_r256_maps_and_fp16_shading() {
     let r = 256u32;
     let s = with(
         &s,
-        &[("r", "256"), ("points", "24"), ("iterations", "0"), ("adaptive", "false"), ("capture_maps", "true")],
+        &[("r", "256"), ("points", "24"), ("iterations", "0"), ("adaptive", "false"), ("capture_maps", "true"), ROUNDS],
     );
     let (renderer, _) = render(&s, "avs", 16, 12, &[0.0], false);
     let st = avs_stats(&renderer);
@@ -734,7 +743,9 @@ fn extremes_r256_maps_and_fp16_shading() {
 
 /// `frames` frames of hat_on_cloth's moment t = 0.5 (the first without a previous frame) at 64x48
 /// with `cull` set on `s`'s avs parameters: the images and avs's statistics after each frame;
-/// validation (with synchronization) must stay clean.
+/// validation (with synchronization) must stay clean. Each frame is finished before the next is
+/// built (as by an application that waits for its frames), so frame k's late readbacks (culling
+/// flags, the SH the late adaptation steps on) reach frame k + 1.
 fn static_frames(s: &Scene, cull: &str, frames: usize) -> (Vec<FrameImages>, Vec<AvsStats>) {
     let s = with(s, &[("cull", cull)]);
     let mut r = avs_renderer(&s, 64, 48, true);
@@ -742,9 +753,9 @@ fn static_frames(s: &Scene, cull: &str, frames: usize) -> (Vec<FrameImages>, Vec
     let mut stats = Vec::new();
     for k in 0..frames {
         out.extend(r.render(&s.at(0.5, (k > 0).then_some(0.5)), None, true).expect("render"));
+        out.extend(r.finish().expect("finish"));
         stats.push(avs_stats(&r));
     }
-    out.extend(r.finish().expect("finish"));
     let log = r.context().validation.clone();
     drop(r);
     assert_eq!(log.error_count(), 0, "cull = {cull}: validation errors: {:#?}", log.errors());
@@ -757,7 +768,8 @@ fn gbuffer_culling_traces_only_needed_points_and_keeps_the_image() {
     // second frame's shading must pick exactly the same neighbours from the flagged points as from
     // all points: the culled image equals the unculled one, with fewer maps traced.
     let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "160"), ("iterations", "0")]);
-    let two = |cull: &str| static_frames(&s, cull, 2);
+    // (a third frame reports the second one's rays: the late statistics)
+    let two = |cull: &str| static_frames(&s, cull, 3);
     let (on, st_on) = two("true");
     let (off, st_off) = two("false");
     // the first frame traces every point
@@ -767,14 +779,15 @@ fn gbuffer_culling_traces_only_needed_points_and_keeps_the_image() {
     let (t_on, t_off) = (st_on[1].traced_points, st_off[1].traced_points);
     println!(
         "second frame: {t_on} of {t_off} maps traced ({} dormant), rays {} vs {}",
-        st_on[1].dormant, st_on[1].rays, st_off[1].rays
+        st_on[1].dormant, st_on[2].rays, st_off[2].rays
     );
     assert!(
         st_on[1].dormant > 0 && t_on + st_on[1].dormant == t_off,
         "traced {t_on} + dormant {} vs {t_off}",
         st_on[1].dormant
     );
-    assert!(st_on[1].rays < st_off[1].rays);
+    assert_eq!(st_on[2].late_vertices, st_on[1].point_vertices);
+    assert!(st_on[2].rays < st_off[2].rays);
     let (a, b) = (&on[1].hdr, &off[1].hdr);
     let mut worst = 0.0f32;
     for (p, q) in a.iter().zip(b.iter()) {
@@ -1009,4 +1022,62 @@ fn buried_sample_points_draw_no_rings() {
     assert!(st.buried > 0, "no candidate under the box was found buried");
     assert!(n >= 20, "only {n} ring pixels");
     assert!((0.85..1.15).contains(&ratio), "the floor beside the box: avs / reference {ratio:.3}");
+}
+
+/// The late adaptation (default): after a setup frame, each frame steps once on the maps of the
+/// newest finished frame, never waiting. Over six frames of a static moment, each finished
+/// before the next is built, it takes the same steps as one waited round per frame
+/// (`adaptation = rounds`, `iterations = 1`), one frame later: the kept set grows where the
+/// visibility changes and the image ends as close to the reference.
+#[test]
+fn late_adaptation_refines_over_frames_without_waiting() {
+    let s = with(
+        &scene("hat_on_cloth.toml"),
+        &[("r", "32"), ("points", "96"), ("iterations", "1"), ("first_iterations", "1")],
+    );
+    let (w, h, t) = (64, 48, 0.5);
+    let opts =
+        ReferenceOptions { width: w, height: h, spp: 16, time: Some(t), mode: Mode::Exact, ..Default::default() };
+    let reference = reference_render(&s, &opts).expect("reference").radiance;
+    let run = |mode: &str| {
+        let s = with(&s, &[("adaptation", mode)]);
+        let mut r = avs_renderer(&s, w, h, true);
+        let (mut last, mut stats, mut waited) = (None, Vec::new(), Vec::new());
+        for k in 0..6 {
+            let mut f = r.render(&s.at(t, (k > 0).then_some(t)), None, true).expect("render");
+            f.extend(r.finish().expect("finish"));
+            last = f.pop();
+            stats.push(avs_stats(&r));
+            waited.push(r.engine.waited_submissions());
+        }
+        let log = r.context().validation.clone();
+        drop(r);
+        assert_eq!(log.error_count(), 0, "{mode}: validation errors: {:#?}", log.errors());
+        let c = compare(&reference, "reference", &image(&last.expect("a frame")), mode).unwrap();
+        (c.rel_rmse, stats, waited)
+    };
+    let (late, st, waited) = run("late");
+    let (rounds, st_r, waited_r) = run("rounds");
+    let points = |st: &[AvsStats]| st.iter().map(|s| (s.points, s.dormant)).collect::<Vec<_>>();
+    println!(
+        "relRMSE late {late:.4} / rounds {rounds:.4}; points late {:?} / rounds {:?}; waited late {waited:?} / rounds {waited_r:?}",
+        points(&st),
+        points(&st_r)
+    );
+    // setup waits (frame 0), later frames never do; the waited rounds wait every frame
+    assert!(waited[0] > 0 && waited.iter().all(|&w| w == waited[0]), "late waited {waited:?}");
+    assert!(waited_r[5] > waited_r[0], "rounds waited {waited_r:?}");
+    for k in 1..6 {
+        // frame k steps on frame k - 1's maps (each frame was finished before the next)
+        if k > 1 {
+            assert_eq!(st[k].late_vertices, st[k - 1].point_vertices, "frame {k}: stepped on the wrong frame");
+        }
+    }
+    let inserted: usize = st[1..].iter().flat_map(|s| s.inserted.iter()).sum();
+    assert!(inserted > 0, "the late frames inserted no point");
+    assert!(st[5].points > st[0].points, "points {:?}", points(&st));
+    // measured: relRMSE 0.3101 late / 0.3102 rounds, 603 / 595 points after six frames (782
+    // points, 780 of them dormant, while the late step also stepped on points culled since)
+    assert!(late <= rounds * 1.1 + 0.01, "late relRMSE {late} vs waited rounds {rounds}");
+    assert!(st[5].points <= st_r[5].points * 5 / 4, "late {:?} vs rounds {:?}", points(&st), points(&st_r));
 }

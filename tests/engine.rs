@@ -293,3 +293,51 @@ fn readback_buffers_are_host_cached() {
     assert!(!has_cached || fr.contains(M::HOST_CACHED), "readback memory {fr:?}, a cached type exists");
     assert!(fu.contains(M::HOST_VISIBLE), "upload memory {fu:?}");
 }
+
+/// A late readback is not returned with its frame: the engine keeps the newest finished copy,
+/// which frames built later read without waiting (`poll` collects finished frames, never blocks).
+#[test]
+fn late_readbacks_reach_later_frames_without_waiting() {
+    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
+    let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).unwrap();
+    let log = ctx.validation.clone();
+    let mut e = Engine::new(ctx.clone(), 2).unwrap();
+    let frame = |e: &mut Engine, value: u32| {
+        let mut g = Graph::new();
+        let b = g.create_buffer("value", 4);
+        let mut p = g.pass("fill", PassKind::Transfer);
+        let w = p.write(b, Access::TransferDst);
+        p.record(move |rc| {
+            let x = rc.buffer(w)?;
+            unsafe { rc.device().cmd_fill_buffer(rc.cmd, x.buffer, 0, 4, value) };
+            Ok(())
+        });
+        let rb = g.create_late_readback("value", 4);
+        penumbra::passes::util::copy_buffer(&mut g, "value_copy", w, rb, Some(4));
+        e.submit(g).unwrap().1
+    };
+    assert!(e.late_readback("value").is_none());
+    let mut outs = Vec::new();
+    for k in 0..5u32 {
+        // what frame k may see: only frames already collected, each newer than the last seen
+        e.poll().unwrap();
+        if let Some(l) = e.late_readback("value") {
+            assert!(l.frame < k as u64);
+            assert_eq!(l.bytes, (100 + l.frame as u32).to_le_bytes());
+        }
+        outs.extend(frame(&mut e, 100 + k));
+    }
+    outs.extend(e.drain().unwrap());
+    assert_eq!(outs.iter().map(|o| o.frame).collect::<Vec<_>>(), vec![0, 1, 2, 3, 4]);
+    // the frames' own outputs do not carry it
+    assert!(outs.iter().all(|o| o.readbacks.is_empty()), "{:?}", outs[0].readbacks.keys());
+    let l = e.late_readback("value").expect("the last frame's copy");
+    assert_eq!((l.frame, l.bytes.clone()), (4, 104u32.to_le_bytes().to_vec()));
+    // poll with nothing in flight, and after a wait: nothing left to collect, nothing returned twice
+    e.poll().unwrap();
+    assert!(e.drain().unwrap().is_empty());
+    e.forget_late_readback("value");
+    assert!(e.late_readback("value").is_none());
+    drop(e);
+    assert_eq!(log.error_count(), 0, "{:#?}", log.errors());
+}

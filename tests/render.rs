@@ -360,3 +360,34 @@ material = "m"
     assert!(checked >= 5, "only {checked} techniques accept the scene");
     assert!(failures.is_empty(), "{failures:#?}");
 }
+
+/// Building a frame never waits on the GPU: after the first frame (whose setup may wait: avs
+/// refines its fresh k-means points by waited rounds), no technique submits and waits for GPU
+/// work while it declares a frame, over frames of moving and deforming geometry.
+#[test]
+fn no_technique_waits_on_the_gpu_while_building_a_frame() {
+    let scene =
+        Scene::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes").join("hat_on_cloth.toml")).unwrap();
+    for name in penumbra_passes::registry::names() {
+        if penumbra_passes::registry::refusal(name, &scene).is_some() {
+            continue;
+        }
+        let mut settings =
+            penumbra::RenderSettings { width: 24, height: 18, technique: Some(name.into()), ..Default::default() };
+        if name == "avs" {
+            // small maps, few points: the late adaptation still steps every frame
+            settings.technique_params =
+                Some([("r", "32"), ("points", "48")].iter().map(|(k, v)| (k.to_string(), v.to_string())).collect());
+        }
+        let mut r =
+            penumbra::Renderer::new_headless(&scene, settings, false).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        r.render(&scene.at(0.0, None), None, false).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        let setup = r.engine.waited_submissions();
+        for k in 1..4 {
+            let t = k as f32 / 30.0;
+            r.render(&scene.at(t, Some(t - 1.0 / 30.0)), None, false).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        }
+        r.finish().unwrap();
+        assert_eq!(r.engine.waited_submissions(), setup, "{name} waited on the GPU while building frames 1-3");
+    }
+}

@@ -37,6 +37,15 @@ pub struct FrameOutput {
     pub timeline: FrameTimeline,
 }
 
+/// The newest contents of a late readback ([`Graph::create_late_readback`]): what a finished
+/// frame copied out, kept by the engine for the frames built after it ([`Engine::late_readback`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LateReadback {
+    /// The frame that wrote it ([`FrameOutput::frame`]).
+    pub frame: u64,
+    pub bytes: Vec<u8>,
+}
+
 /// One frame's CPU spans in the engine and its passes' GPU intervals.
 #[derive(Clone, Debug, Default)]
 pub struct FrameTimeline {
@@ -135,6 +144,10 @@ pub struct Engine {
     pub timestamps: bool,
     /// Outputs of frames that finished during a submit that then failed (returned next time).
     pending: Vec<FrameOutput>,
+    /// The newest late readback of every name (see [`Graph::create_late_readback`]).
+    late: HashMap<String, LateReadback>,
+    /// Submissions made with [`Engine::submit_wait`] so far (see [`Engine::waited_submissions`]).
+    waited: u64,
     /// How long waiting for a frame may take before the GPU counts as hung (device lost).
     /// Default [`DEFAULT_FENCE_TIMEOUT`]: lavapipe takes over a minute for some frames.
     pub fence_timeout: std::time::Duration,
@@ -191,6 +204,8 @@ impl Engine {
             fence_timeout: DEFAULT_FENCE_TIMEOUT,
             timestamps: true,
             pending: Vec::new(),
+            late: HashMap::new(),
+            waited: 0,
         })
     }
 
@@ -360,7 +375,17 @@ impl Engine {
         }
         for (name, idx) in &f.readbacks {
             if let (_, PoolItem::Buffer(b)) = &f.transients[*idx] {
-                out.readbacks.insert(name.clone(), b.mapped().map(|m| m.to_vec()).unwrap_or_default());
+                let bytes = b.mapped().map(|m| m.to_vec()).unwrap_or_default();
+                match name.strip_prefix(crate::graph::LATE_READBACK_PREFIX) {
+                    Some(late) => {
+                        if self.late.get(late).is_none_or(|l| l.frame <= f.frame) {
+                            self.late.insert(late.to_string(), LateReadback { frame: f.frame, bytes });
+                        }
+                    }
+                    None => {
+                        out.readbacks.insert(name.clone(), bytes);
+                    }
+                }
             }
         }
         self.give_back(f.transients);
@@ -486,6 +511,45 @@ impl Engine {
             self.pending.push(o);
         }
         Ok(())
+    }
+
+    /// Collects every frame in flight whose fence has already signalled, without waiting (their
+    /// outputs are returned by the next [`Engine::submit`] or [`Engine::drain`]): late readbacks
+    /// of frames the GPU finished while the CPU built the next one become available to it.
+    pub fn poll(&mut self) -> Result<()> {
+        for i in 0..self.slots.len() {
+            let slot = (self.next_slot + i) % self.slots.len();
+            let Some(_) = &self.slots[slot].in_flight else { continue };
+            let done = unsafe { self.ctx.device.get_fence_status(self.slots[slot].fence) }
+                .map_err(|e| anyhow::Error::new(e).context("polling a frame's fence"))?;
+            if !done {
+                // frames finish in submission order: the later ones are not done either
+                break;
+            }
+            if let Some(o) = self.retire(slot)? {
+                self.pending.push(o);
+            }
+        }
+        Ok(())
+    }
+
+    /// The newest contents of the late readback `name` (declared with
+    /// [`Graph::create_late_readback`]) among the frames collected so far, and the frame that
+    /// wrote it; never waits. `None` until such a frame has been collected.
+    pub fn late_readback(&self, name: &str) -> Option<&LateReadback> {
+        self.late.get(name)
+    }
+
+    /// Forgets the late readback `name` (its producer's data no longer applies).
+    pub fn forget_late_readback(&mut self, name: &str) {
+        self.late.remove(name);
+    }
+
+    /// How many submissions [`Engine::submit_wait`] has made and waited for: building a frame
+    /// never should (only setup work such as avs's refinement of a fresh point set does), which
+    /// tests check by this count.
+    pub fn waited_submissions(&self) -> u64 {
+        self.waited
     }
 
     /// The number the next submitted frame gets ([`FrameOutput::frame`]).
@@ -659,6 +723,7 @@ impl Engine {
     /// without taking the caller's results. It does not count as a frame: the next submit gets
     /// the frame number this one had.
     pub fn submit_wait(&mut self, graph: Graph) -> Result<FrameOutput> {
+        self.waited += 1;
         let slot = self.next_slot;
         let (_, done) = self.submit(graph)?;
         self.pending.extend(done);

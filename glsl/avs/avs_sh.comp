@@ -2,11 +2,13 @@
 #extension GL_GOOGLE_include_directive : require
 // SH16 projection of visibility maps over world directions (Wang et al., section 4.3; CPU mirror
 // penumbra_math::avs_sampling::sh16_project): one workgroup per batch entry, the map at its slot.
+// It also marks a buried point (no visible direction: DC not above 0, avs_sampling::buried) in
+// its normal's w, which avs_gather.glsl reads.
 #include "avs_maps.glsl"
 #include "avs_sh.glsl"
 
 layout(local_size_x = 64) in;
-layout(std430, binding = 0) readonly buffer Points { vec4 pts[]; };
+layout(std430, binding = 0) buffer Points { vec4 pts[]; };
 layout(std430, binding = 1) readonly buffer Batch { uint batch[]; };
 layout(std430, binding = 2) readonly buffer Vis { uint vis[]; };
 layout(std430, binding = 3) writeonly buffer Sh { float sh_out[]; };
@@ -37,6 +39,7 @@ void main() {
             float s = 0.0;
             for (uint q = 0u; q < 64u; ++q) s += partial[q][tid];
             sh_out[16u * e + tid] = s;
+            if (tid == 0u) pts[3u * slot + 2u].w = (s > 0.0) ? 0.0 : 1.0;
         }
         barrier();
     }

@@ -149,6 +149,9 @@ impl fmt::Debug for PassNode {
     }
 }
 
+/// Name prefix of late readbacks ([`Graph::create_late_readback`]).
+pub const LATE_READBACK_PREFIX: &str = "late:";
+
 /// A frame's graph under construction.
 #[derive(Default, Debug)]
 pub struct Graph {
@@ -209,6 +212,14 @@ impl Graph {
         let id = self.add_resource(name, desc, Origin::Readback);
         self.resources[id as usize].output = true;
         BufferHandle { id, version: 0 }
+    }
+
+    /// A readback whose contents the engine keeps instead of returning them with the frame's
+    /// output: the frames built after this one read the newest finished copy with
+    /// `Engine::late_readback(name)` (never waiting), e.g. flags or statistics a technique feeds
+    /// back into its next frames. Named `late:<name>` in the graph.
+    pub fn create_late_readback(&mut self, name: &str, size: u64) -> BufferHandle {
+        self.create_readback(&format!("{LATE_READBACK_PREFIX}{name}"), size)
     }
 
     /// A persistent image kept by the engine across frames under `name`. Version 0 holds the

@@ -11,13 +11,17 @@
 //!   `e_g` (eq. 6, [`penumbra_math::avs_sampling::kmeans_eg`]), the candidate nearest each
 //!   centre. The set is kept across frames as pool indices, so sample points follow deforming and
 //!   moving geometry; it is rebuilt only when the pool changes.
-//! * **Adaptive spatial sampling** (4.3): `iterations` rounds, each submitted as its own small
-//!   graph before the frame's graph (the CPU needs the SH of the new maps): the new points'
-//!   visibility maps (below) and their SH16 projections (`avs_sh`, read back), then on the CPU the
-//!   relative error `e_v(x_i, x_avg) / sum|c_i|` of every point against the eq. 8 interpolation of
-//!   its neighbours within the search radius, insertions above `E_v,max` (nearest vertex to the
-//!   midpoint of a point and each neighbour it disagrees with) and erasures below `E_v,min` (no two
-//!   neighbours in one round) ([`penumbra_math::avs_sampling::adapt_step`]).
+//! * **Adaptive spatial sampling** (4.3): the relative error `e_v(x_i, x_avg) / sum|c_i|` of every
+//!   point against the eq. 8 interpolation of its neighbours' SH16 within the search radius,
+//!   insertions above `E_v,max` (nearest vertex to the midpoint of a point and each neighbour it
+//!   disagrees with) and erasures below `E_v,min` (no two neighbours in one round), on the CPU
+//!   ([`penumbra_math::avs_sampling::adapt_step`]), which needs the SH of the maps (`avs_sh`).
+//!   A fresh set (first frame, changed pool) is refined by `first_iterations` rounds before its
+//!   frame, each submitted as its own small graph and waited for (setup). After that
+//!   (`adaptation = late`, default) every frame traces its kept points in its own graph and copies
+//!   their SH16 into a late readback (`Graph::create_late_readback`); a later frame steps once on
+//!   the newest finished copy (`Engine::late_readback`, never waiting) and applies the step by
+//!   pool vertex to its own set. `adaptation = rounds`: `iterations` waited rounds every frame.
 //! * **Adaptive angular sampling** (4.2), `avs_vis_l<L>` passes (`glsl/avs/avs_vis.comp`): one
 //!   workgroup per sample point; level 0 traces the initial grid (16 x 16 or 32 x 32) with the
 //!   kd-tree tracer, every further level doubles the resolution and traces only texels whose parent
@@ -26,11 +30,12 @@
 //!   the parent. Maps are 1 bit per texel in `penumbra_math::avs_maps`'s layout.
 //! * **G-buffer culling** (section 6 "Optimization", `cull = true`): the `avs_cull` pass
 //!   (`glsl/avs/avs_cull.comp`) runs the shading's neighbour search (`glsl/include/avs_gather.glsl`)
-//!   per covered pixel over all kept points and sets their bits in the persistent `avs.used`;
-//!   the next frame reads the bits back first and traces (and adapts, and transforms) only the
-//!   flagged points, keeping the others dormant. The first frame traces the points inside the
-//!   view frustum widened by the search radius. A point the adaptation erases in a culled frame
-//!   goes dormant (the step saw only the traced subset), so the flags can bring it back.
+//!   per covered pixel over all kept points and sets their bits, copied into a late readback; a
+//!   later frame takes the newest finished frame's bits and traces (and adapts, and transforms)
+//!   only the flagged points and those inserted since, keeping the others dormant. The first frame
+//!   traces the points inside the view frustum widened by the search radius. A point the
+//!   adaptation erases in a culled frame goes dormant (the step saw only the traced subset), so
+//!   the flags can bring it back.
 //! * **HSDT** (section 5): [`crate::hsdt::Hsdt`] turns all maps into fp16 SSDFs.
 //! * **Shading** (section 6), `avs_shade` (`glsl/avs/avs_shade.comp`): per pixel, the sample points
 //!   within the search radius (CPU-built uniform grid) with the best eq. 8 weights, their SSDFs
@@ -92,8 +97,19 @@ pub struct AvsSettings {
     pub e_min: f32,
     /// alpha of e_g after normalising the scene scale (paper: 0.1 - 0.5).
     pub alpha: f32,
-    /// Spatial adaptation rounds per frame (0: the initial points only, in every frame).
+    /// Spatial adaptation rounds per frame (0: the initial points only, in every frame). With
+    /// [`AvsSettings::late`], any value above 0 means one step per frame from the newest finished
+    /// frame's maps.
     pub iterations: u32,
+    /// How the spatial adaptation (4.3) gets the SH of the maps it compares (`adaptation =
+    /// "late"`, default): frames never wait on the GPU. Each frame traces its kept points in its
+    /// own graph and copies their SH16 into a late readback; a later frame takes the newest
+    /// finished copy and runs one `adapt_step` on it (erasing and inserting by pool vertex), so the
+    /// set refines one step per frame, a frame or two behind. Only a fresh k-means set (the first
+    /// frame, or a changed pool) is refined by `first_iterations` waited rounds before its frame,
+    /// as setup. `false` (`"rounds"`): `iterations` rounds in every frame, each a submission
+    /// waited for before the frame's graph (the CPU needs the new maps' SH).
+    pub late: bool,
     /// Rounds of the frame that starts from a fresh initial set (the first frame, or a changed
     /// pool): the kept set carries every later frame's refinement on, while a fresh one starts
     /// from k-means points alone (the paper's Figure 5 shows several rounds to settle; chess at
@@ -149,8 +165,8 @@ pub struct AvsSettings {
     /// Lighting SG lobes.
     pub lobes: usize,
     /// G-buffer culling (section 6 "Optimization"): trace only the sample points that some
-    /// covered pixel of the previous frame needed (flags written by the `avs_cull` pass, read one
-    /// frame late); the first frame traces all.
+    /// covered pixel of an earlier frame needed (flags written by the `avs_cull` pass, taken from
+    /// the newest finished frame, never waited for); the first frame traces the view frustum's.
     pub cull: bool,
     /// Local lights' shadows by shadow rays through the frame's kd-tree (`true`, default) or by
     /// the sign of the interpolated SSDF toward the light (`false`). The paper lights by the
@@ -172,6 +188,7 @@ impl Default for AvsSettings {
             e_min: 0.05,
             alpha: 0.3,
             iterations: 2,
+            late: true,
             first_iterations: 8,
             interp_alpha: 0.0,
             points: 0,
@@ -207,7 +224,7 @@ impl AvsSettings {
 
     /// Sets one parameter. Keys: `r` (128; multiple of the initial grid times a power of two, at
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
-    /// `iterations` (2), `first_iterations` (8), `points` (0 = auto), `max_points` (4096; lowered to what the device binds, see `AvsTechnique::new`), `pool_points` (4096), `radius` (2.0), `neighbours`
+    /// `iterations` (2), `adaptation` (`late` | `rounds`), `first_iterations` (8), `points` (0 = auto), `max_points` (4096; lowered to what the device binds, see `AvsTechnique::new`), `pool_points` (4096), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells` | `table` | `adf`), `cells` (6,
     /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `glossy` (`ratio` | `sg`), `lobes` (16), `light_shadows` (`traced` | `ssdf`). Unknown keys and bad values
     /// are errors naming the key.
@@ -240,6 +257,13 @@ impl AvsSettings {
             "interp_alpha" => self.interp_alpha = float(0.0, 100.0)?,
             "iterations" => self.iterations = int(0, 16)? as u32,
             "first_iterations" => self.first_iterations = int(0, 64)? as u32,
+            "adaptation" => {
+                self.late = match v {
+                    "late" => true,
+                    "rounds" => false,
+                    _ => bail!("avs parameter adaptation = '{value}': expected 'late' or 'rounds'"),
+                }
+            }
             "points" => self.points = int(0, 1 << 16)? as usize,
             "max_points" => self.max_points = int(1, 1 << 16)? as usize,
             "pool_points" => self.pool_points = int(0, 1 << 18)? as usize,
@@ -285,7 +309,7 @@ impl AvsSettings {
             }
             "capture_maps" => self.capture_maps = flag()?,
             other => bail!(
-                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, first_iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, light_shadows, capture_maps)"
+                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, adaptation, first_iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, light_shadows, capture_maps)"
             ),
         }
         Ok(())
@@ -355,18 +379,23 @@ pub struct AvsStats {
     /// Sample points kept but not traced this frame (G-buffer culling: no covered pixel of the
     /// previous frame needed them).
     pub dormant: usize,
+    /// Pool vertices of the maps that `visible_fraction`, `buried`, `rays`, `truncated` and `maps`
+    /// describe: this frame's points with `adaptation = rounds` (and on a setup frame); with the
+    /// late adaptation, those of the newest frame the GPU had finished when this one was built.
+    pub late_vertices: Vec<usize>,
     /// Pool vertex of every kept point at the end of the frame, traced then dormant (culling:
     /// erased points go dormant, so no vertex leaves this set while the pool stays the same).
     pub kept_vertices: Vec<usize>,
     /// Visibility maps traced this frame, summed over the adaptation rounds.
     pub traced_points: usize,
     /// Wall-clock ms of the frame's parts in `add`, in order: `pool` (the candidates at this
-    /// frame's poses), `kmeans` (initial points, when the pool changed), `cull` (the previous
-    /// frame's flags read back: a submission waited for), `rounds_wait` (the adaptation rounds'
-    /// submissions waited for: tree build, tracing, SH projection), `rounds_step` (their
-    /// `adapt_step`: range searches, errors, candidates), `rounds_cpu` (the rest of their CPU
-    /// work: spacing checks of the insertions, erasures, slots), `shading_prep` (neighbour grid
-    /// and uploads).
+    /// frame's poses), `kmeans` (initial points, when the pool changed), `cull` (applying the
+    /// newest finished frame's flags), then on a frame with waited rounds (setup, or `adaptation
+    /// = rounds`) `rounds_wait` (the rounds' submissions waited for: tree build, tracing, SH
+    /// projection), `rounds_step` (their `adapt_step`: range searches, errors, candidates),
+    /// `rounds_cpu` (the rest of their CPU work: spacing checks of the insertions, erasures,
+    /// slots), or on a late frame `late_step` (its one `adapt_step` and the set's update), and
+    /// `shading_prep` (the frame's passes: neighbour grids and uploads).
     pub cpu_ms: Vec<(&'static str, f64)>,
     /// Wall-clock ms of the adaptation rounds' waits for their submissions (in `cpu_ms` as
     /// `rounds_wait`).
@@ -392,6 +421,15 @@ impl AvsStats {
         *clock = now;
     }
 }
+
+/// Late readback (see `Graph::create_late_readback`) of the culling flags of a frame's kept points.
+const LATE_USED: &str = "avs.used";
+/// Late readback of a frame's SH16 per traced point, then its ray counts.
+const LATE_SH: &str = "avs.sh";
+/// Late readback of a frame's final maps (`capture_maps`).
+const LATE_MAPS: &str = "avs.maps";
+/// Frames whose point orders are kept to read their late readbacks.
+const LATE_FRAMES: usize = 6;
 
 /// Part A's `T(lambda, d)` table as f32 bytes (generated per technique that integrates by table).
 fn axis_table() -> Arc<Vec<u8>> {
@@ -622,6 +660,15 @@ pub fn mean_spacing(pos: &[Vec3]) -> f32 {
     }
 }
 
+/// A pixel's world size at a point, at its distance from the frame's eye (`image_height` pixels
+/// over the vertical field of view): no insertion goes closer to a sample point than that.
+fn pixel_spacing(frame: &Frame, image_height: u32) -> impl Fn(Vec3) -> f32 {
+    let cam = &frame.camera;
+    let per_distance = 2.0 * (cam.fov_y_deg.to_radians() * 0.5).tan() / image_height.max(1) as f32;
+    let eye = cam.eye;
+    move |p: Vec3| per_distance * (p - eye).length()
+}
+
 /// GPU layout of the sample points: 3 vec4 per point (position, ray offset), (tangent, 1),
 /// (normal, 0).
 pub fn point_data(points: &[SurfacePoint], offset: f32) -> Vec<[f32; 4]> {
@@ -681,9 +728,19 @@ pub struct AvsTechnique {
     sample_vertices: Vec<usize>,
     /// Sample points kept but not traced (G-buffer culling).
     dormant: Vec<usize>,
-    /// Candidate order of the last frame's `avs_cull` pass (bit i of `avs.used` = vertex
-    /// `cull_order[i]`); empty: no flags yet.
-    cull_order: Vec<usize>,
+    /// Candidate order of recent frames' `avs_cull` passes, by engine frame (bit i of that
+    /// frame's late `avs.used` readback = vertex `order[i]`); empty: no flags asked for yet.
+    cull_orders: Vec<(u64, Vec<usize>)>,
+    /// The frame whose culling flags were applied last.
+    applied_cull: Option<u64>,
+    /// Vertices traced by recent frames of the late adaptation, by engine frame, in slot order:
+    /// what their late `avs.sh` readbacks index.
+    sent: Vec<(u64, Vec<usize>)>,
+    /// The frame whose SH the late adaptation stepped on last.
+    applied_sh: Option<u64>,
+    /// The SH16 of every point after a frame's waited rounds (setup), already on the CPU: the
+    /// late adaptation's first step uses them while no later frame has finished.
+    setup_sh: Option<(Vec<usize>, Vec<[f32; SH_COUNT]>)>,
     cull: Pipeline,
     pool_len: usize,
     plan: Arc<PoolPlan>,
@@ -778,7 +835,11 @@ impl AvsTechnique {
             settings,
             sample_vertices: Vec::new(),
             dormant: Vec::new(),
-            cull_order: Vec::new(),
+            cull_orders: Vec::new(),
+            applied_cull: None,
+            sent: Vec::new(),
+            applied_sh: None,
+            setup_sh: None,
             cull,
             pool_len: usize::MAX,
             plan: Arc::new(PoolPlan::default()),
@@ -804,7 +865,11 @@ impl AvsTechnique {
         let k = k.min(self.settings.max_points);
         self.sample_vertices = samp::kmeans_eg(pool, k, self.settings.alpha, 8, &mut |_, _| {});
         self.dormant.clear();
-        self.cull_order.clear();
+        // flags and SH of earlier frames index the old pool
+        self.cull_orders.clear();
+        self.sent.clear();
+        self.applied_cull = None;
+        self.applied_sh = None;
         let pos: Vec<Vec3> = self.sample_vertices.iter().map(|&v| pool[v].pos).collect();
         self.radius = (self.settings.radius * mean_spacing(&pos)).max(1e-6);
         self.stats.initial_points = self.sample_vertices.len();
@@ -816,28 +881,27 @@ impl AvsTechnique {
         (self.settings.max_points.max(1) as u64).div_ceil(32) * 4
     }
 
-    /// G-buffer culling: reads the last frame's `avs.used` bits (one small submission) and splits
-    /// the kept points into traced (flagged) and dormant ones.
-    fn apply_cull_flags(&mut self, engine: &mut Engine) -> Result<()> {
-        let bytes = self.used_bytes();
-        let mut g = Graph::new();
-        let used = engine.persistent_buffer(&mut g, "avs.used", bytes);
-        let rb = g.create_readback("avs_used_readback", bytes);
-        crate::util::copy_buffer(&mut g, "avs_used_readback", used, rb, Some(bytes));
-        let out = engine.submit_wait(g)?;
-        let data =
-            out.readbacks.get("avs_used_readback").ok_or_else(|| anyhow!("avs: culling flags readback missing"))?;
-        let (mut traced, mut dormant) = (Vec::new(), Vec::new());
-        for (i, &v) in self.cull_order.iter().enumerate() {
-            if (data[i / 8] >> (i % 8)) & 1 == 1 {
-                traced.push(v);
-            } else {
-                dormant.push(v);
-            }
+    /// G-buffer culling: the newest finished frame's `avs.used` bits (a late readback, never
+    /// waited for) split the kept points into traced (flagged) and dormant ones. Points that frame
+    /// did not know (inserted since) stay traced; without newer flags the split stays as it is.
+    fn apply_cull_flags(&mut self, engine: &Engine) {
+        let Some(late) = engine.late_readback(LATE_USED) else { return };
+        if self.applied_cull.is_some_and(|f| f >= late.frame) {
+            return;
         }
+        let Some((_, order)) = self.cull_orders.iter().find(|(f, _)| *f == late.frame) else { return };
+        let data = &late.bytes;
+        let flagged: std::collections::HashMap<usize, bool> = order
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| (v, data.get(i / 8).is_some_and(|b| (b >> (i % 8)) & 1 == 1)))
+            .collect();
+        let all: Vec<usize> = self.sample_vertices.iter().chain(&self.dormant).copied().collect();
+        let (traced, dormant): (Vec<usize>, Vec<usize>) =
+            all.into_iter().partition(|v| flagged.get(v).copied().unwrap_or(true));
         self.sample_vertices = traced;
         self.dormant = dormant;
-        Ok(())
+        self.applied_cull = Some(late.frame);
     }
 
     /// The tree of the frame's triangles (shadow flags from the objects).
@@ -954,8 +1018,9 @@ impl AvsTechnique {
         (vis, stats)
     }
 
-    /// Declares the SH16 projection of the maps of `batch` (at their slots of `vis`); returns the
-    /// `16 * batch` float buffer.
+    /// Declares the SH16 projection of the maps of `batch` (at their slots of `vis`), which also
+    /// marks buried points (`samp::buried`) in `points_buf` (normal.w = 1); returns the `16 *
+    /// batch` float buffer and the points buffer's new version.
     fn add_sh(
         &self,
         graph: &mut Graph,
@@ -963,14 +1028,14 @@ impl AvsTechnique {
         vis: BufferHandle,
         batch: &[u32],
         tag: &str,
-    ) -> BufferHandle {
+    ) -> (BufferHandle, BufferHandle) {
         let n = batch.len() as u32;
         let mut data = batch.to_vec();
         data.push(0);
         let bb = graph.create_buffer_init(&format!("avs_sh_batch{tag}"), bytes_of(&data));
         let out = graph.create_buffer(&format!("avs_sh{tag}"), (n.max(1) as u64) * SH_COUNT as u64 * 4);
         let mut p = graph.pass(&format!("avs_sh{tag}"), PassKind::Compute);
-        let pb = p.read(points_buf, Access::ComputeShaderReadStorage);
+        let pb = p.write(points_buf, Access::ComputeShaderReadWriteStorage);
         let bb = p.read(bb, Access::ComputeShaderReadStorage);
         let v = p.read(vis, Access::ComputeShaderReadStorage);
         let o = p.write(out, Access::ComputeShaderWriteStorage);
@@ -980,7 +1045,35 @@ impl AvsTechnique {
             let binds = crate::util::storage([pb, bb, v, o]);
             crate::util::dispatch(rc, pipe, &binds, &bytes_of(&push), [n.clamp(1, 65535), 1, 1])
         });
-        o
+        (o, pb)
+    }
+
+    /// Copies `n` points' SH16 (`sh`) and then their ray counts (`rays`) into the readback `rb`.
+    fn add_sh_copy(graph: &mut Graph, name: &str, sh: BufferHandle, rays: BufferHandle, rb: BufferHandle, n: u64) {
+        let mut p = graph.pass(name, PassKind::Transfer);
+        let s = p.read(sh, Access::TransferSrc);
+        let ra = p.read(rays, Access::TransferSrc);
+        let d = p.write(rb, Access::TransferDst);
+        p.record(move |rc| {
+            let (sb, rab, db) = (rc.buffer(s)?, rc.buffer(ra)?, rc.buffer(d)?);
+            let sh_bytes = n * SH_COUNT as u64 * 4;
+            unsafe {
+                let dev = rc.device();
+                dev.cmd_copy_buffer(
+                    rc.cmd,
+                    sb.buffer,
+                    db.buffer,
+                    &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: sh_bytes }],
+                );
+                dev.cmd_copy_buffer(
+                    rc.cmd,
+                    rab.buffer,
+                    db.buffer,
+                    &[vk::BufferCopy { src_offset: 0, dst_offset: sh_bytes, size: n * 4 }],
+                );
+            }
+            Ok(())
+        });
     }
 
     /// The spatial adaptation rounds (each its own submission, waited for) and the final
@@ -998,9 +1091,7 @@ impl AvsTechnique {
         // than a pixel add no visible detail, so no insertion goes closer to a sample point than
         // that (balls_on_dish at 40 x 30: 1726 points and 19 s of visibility per frame without
         // it, rmse/mean 0.308 either way)
-        let cam = &frame.camera;
-        let per_distance = 2.0 * (cam.fov_y_deg.to_radians() * 0.5).tan() / image_height.max(1) as f32;
-        let min_spacing = |p: Vec3| per_distance * (p - cam.eye).length();
+        let min_spacing = pixel_spacing(frame, image_height);
         let r = self.settings.r;
         let words = words_per_map(r) as u64;
         let cap = self.settings.max_points.max(self.sample_vertices.len()) as u64;
@@ -1052,36 +1143,11 @@ impl AvsTechnique {
             let vis = engine.persistent_buffer(&mut g, "avs.vis", cap * words * 4);
             let tag = format!("_i{round}");
             let (vis, rays) = self.add_visibility(&mut g, &tree, points_buf, &by_slot, &batch, vis, &tag);
-            let shb = self.add_sh(&mut g, points_buf, vis, &batch, &tag);
+            let (shb, _) = self.add_sh(&mut g, points_buf, vis, &batch, &tag);
             let n = batch.len() as u64;
             self.stats.traced_points += batch.len();
             let rb = g.create_readback("avs_sh_readback", n * (SH_COUNT as u64 + 1) * 4);
-            {
-                let mut p = g.pass("avs_sh_readback", PassKind::Transfer);
-                let s = p.read(shb, Access::TransferSrc);
-                let ra = p.read(rays, Access::TransferSrc);
-                let d = p.write(rb, Access::TransferDst);
-                p.record(move |rc| {
-                    let (sb, rab, db) = (rc.buffer(s)?, rc.buffer(ra)?, rc.buffer(d)?);
-                    let sh_bytes = n * SH_COUNT as u64 * 4;
-                    unsafe {
-                        let dev = rc.device();
-                        dev.cmd_copy_buffer(
-                            rc.cmd,
-                            sb.buffer,
-                            db.buffer,
-                            &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: sh_bytes }],
-                        );
-                        dev.cmd_copy_buffer(
-                            rc.cmd,
-                            rab.buffer,
-                            db.buffer,
-                            &[vk::BufferCopy { src_offset: 0, dst_offset: sh_bytes, size: n * 4 }],
-                        );
-                    }
-                    Ok(())
-                });
-            }
+            Self::add_sh_copy(&mut g, "avs_sh_readback", shb, rays, rb, n);
             if capture {
                 let bytes = (nslots.max(1) as u64).min(cap) * words * 4;
                 let rb = g.create_readback("avs_maps_readback", bytes);
@@ -1193,6 +1259,7 @@ impl AvsTechnique {
             maps = keep_maps;
         }
         self.stats.points = self.sample_vertices.len();
+        self.setup_sh = sh.iter().copied().collect::<Option<Vec<_>>>().map(|sh| (self.sample_vertices.clone(), sh));
         let two_pi = 2.0 * std::f32::consts::PI;
         self.stats.visible_fraction =
             sh.iter().map(|c| c.as_ref().map_or(-1.0, |c| samp::visible_solid_angle(c) / two_pi)).collect();
@@ -1204,6 +1271,150 @@ impl AvsTechnique {
             );
         }
         Ok((self.sample_vertices.iter().map(|&v| pool[v]).collect(), slots, nslots))
+    }
+
+    /// The newest finished frame's late SH readback, if it is newer than the last one used and
+    /// its points are known: fills the map statistics ([`AvsStats::late_vertices`]) and returns
+    /// that frame's pool vertices with their SH16. Never waits.
+    fn take_late_stats(&mut self, engine: &Engine) -> Option<(Vec<usize>, Vec<[f32; SH_COUNT]>)> {
+        let late = engine.late_readback(LATE_SH)?;
+        if self.applied_sh.is_some_and(|f| f >= late.frame) {
+            return None;
+        }
+        let (_, verts) = self.sent.iter().find(|(f, _)| *f == late.frame)?;
+        let n = verts.len();
+        let bytes = &late.bytes;
+        if bytes.len() < n * (SH_COUNT + 1) * 4 {
+            return None;
+        }
+        let word = |i: usize| f32::from_le_bytes([bytes[4 * i], bytes[4 * i + 1], bytes[4 * i + 2], bytes[4 * i + 3]]);
+        let sh: Vec<[f32; SH_COUNT]> = (0..n).map(|e| std::array::from_fn(|k| word(e * SH_COUNT + k))).collect();
+        let (mut rays, mut truncated) = (0u64, 0usize);
+        for e in 0..n {
+            let w = word(n * SH_COUNT + e).to_bits();
+            rays += (w & 0x7fff_ffff) as u64;
+            truncated += (w >> 31) as usize;
+        }
+        let two_pi = 2.0 * std::f32::consts::PI;
+        self.stats.visible_fraction = sh.iter().map(|c| samp::visible_solid_angle(c) / two_pi).collect();
+        self.stats.buried = self.stats.visible_fraction.iter().filter(|&&v| samp::buried(v)).count();
+        self.stats.rays = rays;
+        self.stats.truncated = truncated;
+        self.stats.late_vertices = verts.clone();
+        let words = words_per_map(self.settings.r);
+        self.stats.maps = match engine.late_readback(LATE_MAPS) {
+            Some(m) if self.settings.capture_maps && m.frame == late.frame && m.bytes.len() >= n * words * 4 => m
+                .bytes
+                .chunks_exact(words * 4)
+                .take(n)
+                .map(|c| c.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
+                .collect(),
+            _ => Vec::new(),
+        };
+        if truncated > 0 {
+            eprintln!(
+                "avs: {truncated} visibility maps of frame {} hit the device's per-invocation loop limit (lavapipe: 65535 iterations); their untraced texels read as occluded",
+                late.frame
+            );
+        }
+        self.applied_sh = Some(late.frame);
+        Some((verts.clone(), sh))
+    }
+
+    /// One step of the spatial adaptation (4.3) on the newest finished frame's maps (a late
+    /// readback, never waited for), applied to the current set by pool vertex: erasures leave it
+    /// (under culling they go dormant, as in [`AvsTechnique::adapt`]), insertions join it when no
+    /// kept point is within a pixel's width and there is room.
+    fn late_step(&mut self, engine: &Engine, pool: &[SurfacePoint], frame: &Frame, image_height: u32) {
+        self.stats.inserted.clear();
+        self.stats.erased.clear();
+        self.stats.round_ms.clear();
+        // the newest finished frame's maps, else (right after the setup rounds, before any later
+        // frame finished) the setup's last SH, once
+        let late = self.take_late_stats(engine);
+        let Some((verts, sh)) = late.or_else(|| self.setup_sh.take()) else { return };
+        self.setup_sh = None;
+        // the points this frame traces (culling may have made some of that frame's dormant since):
+        // the step sees the traced subset, as a waited round does; inserting next to points no
+        // pixel needs filled the set with points that went dormant at once (hat_on_cloth 64x48,
+        // six frames: 782 points, 780 of them dormant, against 595 and 192 for waited rounds)
+        let traced: std::collections::HashSet<usize> = self.sample_vertices.iter().copied().collect();
+        let (verts, sh): (Vec<usize>, Vec<[f32; SH_COUNT]>) =
+            verts.into_iter().zip(sh).filter(|(v, _)| traced.contains(v)).unzip();
+        let Some(points) = verts.iter().map(|&v| pool.get(v).copied()).collect::<Option<Vec<SurfacePoint>>>() else {
+            return;
+        };
+        let visible: Vec<f32> = sh.iter().map(samp::visible_solid_angle).collect();
+        let params = samp::AdaptParams {
+            alpha: self.settings.alpha,
+            radius: self.radius,
+            e_max: self.settings.e_max,
+            e_min: self.settings.e_min,
+        };
+        let pool_grid = Grid::new(&pool.iter().map(|p| p.pos).collect::<Vec<_>>(), 0.0);
+        let stepped = std::time::Instant::now();
+        let step = samp::adapt_step(&points, &verts, &sh, &visible, pool, &pool_grid, &params);
+        self.stats.rounds_step_ms = stepped.elapsed().as_secs_f64() * 1e3;
+        let errs: Vec<f32> = step.rel_error.iter().flatten().copied().collect();
+        self.stats.mean_rel_error = if errs.is_empty() { 0.0 } else { errs.iter().sum::<f32>() / errs.len() as f32 };
+        // insertions are spaced against the current set before the erasures, as in the rounds
+        let min_spacing = pixel_spacing(frame, image_height);
+        let current: Vec<Vec3> = self.sample_vertices.iter().map(|&v| pool[v].pos).collect();
+        let grid = Grid::new(&current, self.radius);
+        let erase: std::collections::HashSet<usize> = step.erase.iter().map(|&i| verts[i]).collect();
+        let (gone, kept): (Vec<usize>, Vec<usize>) =
+            std::mem::take(&mut self.sample_vertices).into_iter().partition(|v| erase.contains(v));
+        self.sample_vertices = kept;
+        if self.settings.cull {
+            self.dormant.extend(gone.iter().copied());
+        }
+        let room = self.settings.max_points.saturating_sub(self.sample_vertices.len() + self.dormant.len());
+        let taken: std::collections::HashSet<usize> =
+            self.sample_vertices.iter().chain(&self.dormant).chain(&gone).copied().collect();
+        let mut insert: Vec<usize> = Vec::new();
+        for &v in &step.insert {
+            if insert.len() >= room {
+                break;
+            }
+            if taken.contains(&v) {
+                continue;
+            }
+            let (p, d) = (pool[v].pos, min_spacing(pool[v].pos));
+            if grid.range(p, d).is_empty() && insert.iter().all(|&u| (pool[u].pos - p).length() >= d) {
+                insert.push(v);
+            }
+        }
+        self.stats.inserted.push(insert.len());
+        self.stats.erased.push(gone.len());
+        self.sample_vertices.extend(insert);
+    }
+
+    /// Declares this frame's visibility maps of `points` (slots 0..n of `vis`), their SH16 (which
+    /// marks buried points in `points_buf`) and the late readbacks a later frame adapts from
+    /// (`avs.sh`, and `avs.maps` with `capture_maps`); returns `vis` and `points_buf`.
+    fn add_late_maps(
+        &self,
+        graph: &mut Graph,
+        tree: &KdTreeHandles,
+        points_buf: BufferHandle,
+        points: &[SurfacePoint],
+        vis: BufferHandle,
+    ) -> (BufferHandle, BufferHandle) {
+        let n = points.len();
+        if n == 0 {
+            return (vis, points_buf);
+        }
+        let batch: Vec<u32> = (0..n as u32).collect();
+        let (vis, rays) = self.add_visibility(graph, tree, points_buf, points, &batch, vis, "");
+        let (shb, points_buf) = self.add_sh(graph, points_buf, vis, &batch, "");
+        let rb = graph.create_late_readback(LATE_SH, n as u64 * (SH_COUNT as u64 + 1) * 4);
+        Self::add_sh_copy(graph, "avs_sh_copy", shb, rays, rb, n as u64);
+        if self.settings.capture_maps {
+            let bytes = n as u64 * words_per_map(self.settings.r) as u64 * 4;
+            let rb = graph.create_late_readback(LATE_MAPS, bytes);
+            crate::util::copy_buffer(graph, "avs_maps_copy", vis, rb, Some(bytes));
+        }
+        (vis, points_buf)
     }
 }
 
@@ -1242,8 +1453,8 @@ impl crate::technique::Technique for AvsTechnique {
         }
         self.stats.lap(&mut clock, "kmeans");
         self.stats.vertices = pool.len();
-        if self.settings.cull && !self.cull_order.is_empty() {
-            self.apply_cull_flags(engine)?;
+        if self.settings.cull && !self.cull_orders.is_empty() {
+            self.apply_cull_flags(engine);
         } else if self.settings.cull {
             // no flags yet (first frame): the view frustum, widened by the search radius, decides
             // which points are traced (the G-buffer flags take over from the next frame)
@@ -1262,42 +1473,81 @@ impl crate::technique::Technique for AvsTechnique {
         }
         self.stats.dormant = self.dormant.len();
         self.stats.lap(&mut clock, "cull");
-        let (points, slots, nslots) = self.adapt(engine, &pool, frame, inputs.gbuffer.height)?;
-        // the rounds' wall-clock time, split into their waits, their adapt_step and the rest
-        let rounds = clock.elapsed().as_secs_f64() * 1e3;
-        clock = std::time::Instant::now();
-        let (waited, stepped) = (self.stats.rounds_wait_ms, self.stats.rounds_step_ms);
-        self.stats.cpu_ms.push(("rounds_wait", waited));
-        self.stats.cpu_ms.push(("rounds_step", stepped));
-        self.stats.cpu_ms.push(("rounds_cpu", (rounds - waited - stepped).max(0.0)));
+        let offset = ray_offset(&pool);
+        let r = self.settings.r;
+        let cap = self.settings.max_points.max(self.sample_vertices.len()) as u64;
+        let frame_no = engine.next_frame();
+        // a fresh k-means set is refined by waited rounds before its frame (setup); every later
+        // frame of the late adaptation builds without waiting
+        let rounds_now = !self.settings.late || (self.fresh && self.settings.iterations > 0);
+        let (points, slots, vis, points_buf, tree) = if rounds_now {
+            let (points, slots, nslots) = self.adapt(engine, &pool, frame, inputs.gbuffer.height)?;
+            // the rounds' wall-clock time, split into their waits, their adapt_step and the rest
+            let rounds = clock.elapsed().as_secs_f64() * 1e3;
+            clock = std::time::Instant::now();
+            let (waited, stepped) = (self.stats.rounds_wait_ms, self.stats.rounds_step_ms);
+            self.stats.cpu_ms.push(("rounds_wait", waited));
+            self.stats.cpu_ms.push(("rounds_step", stepped));
+            self.stats.cpu_ms.push(("rounds_cpu", (rounds - waited - stepped).max(0.0)));
+            self.stats.late_vertices = self.sample_vertices.clone();
+            let vis = engine.persistent_buffer(graph, "avs.vis", cap * words_per_map(r) as u64 * 4);
+            // buried points (a candidate inside a closed object, `samp::buried`: every direction
+            // occluded) are interpolated only where no other point is in reach (avs_gather.glsl):
+            // their maps stand for no visible surface next to the object, but a floor under an
+            // endless ceiling is all buried and must stay dark (the late path's `avs_sh` pass sets
+            // the same flag on the GPU)
+            let buried: Vec<bool> =
+                (0..points.len()).map(|i| self.stats.visible_fraction.get(i).is_some_and(|&v| v == 0.0)).collect();
+            self.stats.buried = buried.iter().filter(|&&b| b).count();
+            let mut by_slot = vec![SurfacePoint { pos: Vec3::ZERO, normal: Vec3::Y }; nslots as usize];
+            for (i, p) in points.iter().enumerate() {
+                by_slot[slots[i] as usize] = *p;
+            }
+            let mut point_words = point_data(&by_slot, offset);
+            for (i, _) in buried.iter().enumerate().filter(|(_, &b)| b) {
+                point_words[3 * slots[i] as usize + 2][3] = 1.0;
+            }
+            let points_buf = graph.create_buffer_init("avs_points", bytes_of(&point_words));
+            // the frame's triangles for the local lights' shadow rays: the rounds' tree, or built
+            // here when no round traced (no sample points)
+            let tree = match self.tree_current.then(|| self.builder.add_kept(engine, graph)).flatten() {
+                Some(t) => t,
+                None => self.tree(engine, graph, frame)?,
+            };
+            (points, slots, vis, points_buf, tree)
+        } else {
+            self.fresh = false;
+            if self.settings.iterations > 0 {
+                self.late_step(engine, &pool, frame, inputs.gbuffer.height);
+            } else {
+                self.take_late_stats(engine);
+            }
+            self.stats.lap(&mut clock, "late_step");
+            let points: Vec<SurfacePoint> = self.sample_vertices.iter().map(|&v| pool[v]).collect();
+            let slots: Vec<u32> = (0..points.len() as u32).collect();
+            let tree = self.tree(engine, graph, frame)?;
+            let points_buf = graph.create_buffer_init("avs_points", bytes_of(&point_data(&points, offset)));
+            let vis = engine.persistent_buffer(graph, "avs.vis", cap * words_per_map(r) as u64 * 4);
+            let (vis, points_buf) = self.add_late_maps(graph, &tree, points_buf, &points, vis);
+            self.stats.traced_points = points.len();
+            // (a frame that failed to submit left its number to this one)
+            self.sent.retain(|(f, _)| *f != frame_no);
+            self.sent.push((frame_no, self.sample_vertices.clone()));
+            if self.sent.len() > LATE_FRAMES {
+                self.sent.remove(0);
+            }
+            (points, slots, vis, points_buf, tree)
+        };
+        let nslots = slots.iter().max().map_or(0, |&m| m + 1);
+        self.stats.points = points.len();
         self.stats.point_vertices = self.sample_vertices.clone();
         self.stats.kept_vertices = self.sample_vertices.iter().chain(&self.dormant).copied().collect();
-        let r = self.settings.r;
         let n = nslots;
-        let cap = self.settings.max_points.max(self.sample_vertices.len()) as u64;
         self.stats.map_bytes = points.len() as u64 * words_per_map(r) as u64 * 4;
         self.stats.ssdf_bytes = points.len() as u64 * penumbra_math::avs_maps::ssdf_words_per_map(r) as u64 * 4;
 
         // The frame's graph: SSDFs of the final maps, shading.
-        let vis = engine.persistent_buffer(graph, "avs.vis", cap * words_per_map(r) as u64 * 4);
         let ssdf = self.hsdt.add(graph, "avs_hsdt", vis, n.max(1), r)?;
-        let offset = ray_offset(&pool);
-        // buried points (a candidate inside a closed object, `samp::buried`: every direction
-        // occluded) are interpolated only where no other point is in reach (avs_gather.glsl): their
-        // maps stand for no visible surface next to the object, but a floor under an endless
-        // ceiling is all buried and must stay dark
-        let buried: Vec<bool> =
-            (0..points.len()).map(|i| self.stats.visible_fraction.get(i).is_some_and(|&v| v == 0.0)).collect();
-        self.stats.buried = buried.iter().filter(|&&b| b).count();
-        let mut by_slot = vec![SurfacePoint { pos: Vec3::ZERO, normal: Vec3::Y }; nslots as usize];
-        for (i, p) in points.iter().enumerate() {
-            by_slot[slots[i] as usize] = *p;
-        }
-        let mut point_words = point_data(&by_slot, offset);
-        for (i, _) in buried.iter().enumerate().filter(|(_, &b)| b) {
-            point_words[3 * slots[i] as usize + 2][3] = 1.0;
-        }
-        let points_buf = graph.create_buffer_init("avs_points", bytes_of(&point_words));
         let pos: Vec<Vec3> = points.iter().map(|p| p.pos).collect();
         // every kept point, traced or dormant (the candidates of the G-buffer culling)
         let all: Vec<usize> = self.sample_vertices.iter().chain(self.dormant.iter()).copied().collect();
@@ -1314,12 +1564,6 @@ impl crate::technique::Technique for AvsTechnique {
         let table = graph.create_buffer_init("avs_axis_table", self.axis_table.as_ref().clone());
         let irradiance = graph.create_buffer_init("avs_irradiance", self.irradiance.as_ref().clone());
 
-        // the frame's triangles for the local lights' shadow rays: the rounds' tree, or built here
-        // when no round traced (no sample points)
-        let tree = match self.tree_current.then(|| self.builder.add_kept(engine, graph)).flatten() {
-            Some(t) => t,
-            None => self.tree(engine, graph, frame)?,
-        };
         let (scene, gb) = (inputs.handles, inputs.gbuffer);
         let (w, h) = (gb.width, gb.height);
         let hdr = graph.create_image("hdr", ImageDesc::new_2d(HDR_FORMAT, w, h));
@@ -1366,14 +1610,13 @@ impl crate::technique::Technique for AvsTechnique {
             crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
         });
         // G-buffer culling: flag the kept points this frame's covered pixels need (read next frame)
-        self.cull_order.clear();
         if self.settings.cull && !all.is_empty() && all.len() <= self.settings.max_points {
             let all_pts: Vec<SurfacePoint> = all.iter().map(|&v| pool[v]).collect();
             let ids: Vec<u32> = (0..all.len() as u32).collect();
             let grid_all = Grid::new(&all_pos, shade_radius);
             let pbuf = graph.create_buffer_init("avs_cull_points", bytes_of(&point_data(&all_pts, offset)));
             let gbuf = graph.create_buffer_init("avs_cull_grid", bytes_of(&grid_words(&grid_all, &ids)));
-            let used = engine.persistent_buffer(graph, "avs.used", self.used_bytes());
+            let used = graph.create_buffer("avs_used", self.used_bytes());
             let used = {
                 let mut p = graph.pass("avs_cull_clear", PassKind::Transfer);
                 let u = p.write(used, Access::TransferDst);
@@ -1402,7 +1645,15 @@ impl crate::technique::Technique for AvsTechnique {
                 .concat();
                 crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
             });
-            self.cull_order = all;
+            // read by a later frame, never waited for (`apply_cull_flags`)
+            let bytes = self.used_bytes();
+            let rb = graph.create_late_readback(LATE_USED, bytes);
+            crate::util::copy_buffer(graph, "avs_used_copy", u, rb, Some(bytes));
+            self.cull_orders.retain(|(f, _)| *f != frame_no);
+            self.cull_orders.push((frame_no, all));
+            if self.cull_orders.len() > LATE_FRAMES {
+                self.cull_orders.remove(0);
+            }
         }
         self.stats.lap(&mut clock, "shading_prep");
         Ok(hdr)
