@@ -341,3 +341,22 @@ fn late_readbacks_reach_later_frames_without_waiting() {
     drop(e);
     assert_eq!(log.error_count(), 0, "{:#?}", log.errors());
 }
+
+/// Every shader the build compiled can be reflected (`engine::reflect`): the check of each
+/// pipeline's hand-written layout against its shaders understands all of them, and finds the
+/// bindings they declare (every compute shader binds something).
+#[test]
+fn every_shader_of_the_build_reflects() {
+    let lib = penumbra::shader_library();
+    let mut n = 0;
+    for name in lib.names() {
+        let iface =
+            penumbra::engine::reflect::reflect(lib.get(name).unwrap()).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        if name.ends_with(".comp") {
+            assert!(!iface.bindings.is_empty(), "{name}: no bindings found");
+        }
+        assert!(iface.bindings.keys().all(|&(set, _)| set == 0), "{name}: a set other than 0: {:?}", iface.bindings);
+        n += 1;
+    }
+    assert!(n > 50, "{n} shaders");
+}

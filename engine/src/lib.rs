@@ -10,6 +10,7 @@ pub mod glsl_compile;
 pub mod graph;
 pub mod profile;
 pub mod record;
+pub mod reflect;
 pub mod resource;
 pub mod shader;
 

@@ -133,6 +133,10 @@ pub fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, desc: &Raste
     if tess && (desc.patch_control_points == 0 || desc.topology != vk::PrimitiveTopology::PATCH_LIST) {
         bail!("{} pipeline: tessellation needs the PATCH_LIST topology and patch_control_points", desc.name);
     }
+    // The hand-written layout against what the stages declare (bindings, push block).
+    let code = desc.shaders.iter().map(|s| Ok((*s, shaders.get(s)?))).collect::<Result<Vec<_>>>()?;
+    penumbra_engine::reflect::check_layout(&code, desc.descriptors, desc.push_constant_bytes)
+        .with_context(|| format!("{} pipeline", desc.name))?;
     // Modules first (all destroyed below whatever happens).
     let mut modules = Vec::new();
     let mut err = None;

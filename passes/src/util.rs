@@ -12,12 +12,15 @@ pub struct Pipeline {
     pub pipeline: vk::Pipeline,
     pub layout: vk::PipelineLayout,
     pub set_layout: vk::DescriptorSetLayout,
+    /// Bytes of the shader's push-constant block (reflected; 0: unchecked), which every
+    /// [`dispatch`] must push at least.
+    pub push_bytes: u32,
 }
 
 impl Pipeline {
     /// The pipeline and its layout, to move into a pass's record closure (see [`dispatch`]).
     pub fn handle(&self) -> ComputeHandle {
-        ComputeHandle { pipeline: self.pipeline, layout: self.layout }
+        ComputeHandle { pipeline: self.pipeline, layout: self.layout, push_bytes: self.push_bytes }
     }
 
     /// Takes ownership of objects created elsewhere (graphics pipelines).
@@ -27,7 +30,7 @@ impl Pipeline {
         layout: vk::PipelineLayout,
         set_layout: vk::DescriptorSetLayout,
     ) -> Self {
-        Pipeline { ctx: ctx.clone(), pipeline, layout, set_layout }
+        Pipeline { ctx: ctx.clone(), pipeline, layout, set_layout, push_bytes: 0 }
     }
 }
 
@@ -89,8 +92,12 @@ pub fn compute_pipeline(
     types: &[vk::DescriptorType],
     push_bytes: u32,
 ) -> Result<Pipeline> {
+    let spirv = shaders.get(shader)?;
+    penumbra_engine::reflect::check_layout(&[(shader, spirv)], types, push_bytes)
+        .with_context(|| format!("compute pipeline '{shader}'"))?;
+    let block = penumbra_engine::reflect::reflect(spirv)?.push_bytes;
     let (set_layout, layout) = layouts(ctx, shader, types, vk::ShaderStageFlags::COMPUTE, push_bytes)?;
-    let module = ctx.create_shader_module(shader, shaders.get(shader)?)?;
+    let module = ctx.create_shader_module(shader, spirv)?;
     let stage =
         vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::COMPUTE).module(module).name(c"main");
     let ci = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
@@ -98,7 +105,7 @@ pub fn compute_pipeline(
     unsafe { ctx.device.destroy_shader_module(module, None) };
     let pipeline = res.map_err(|(_, e)| e).with_context(|| format!("compute pipeline '{shader}'"))?[0];
     ctx.set_name(pipeline, shader);
-    Ok(Pipeline { ctx: ctx.clone(), pipeline, layout, set_layout })
+    Ok(Pipeline { ctx: ctx.clone(), pipeline, layout, set_layout, push_bytes: block })
 }
 
 /// A sampler; destroyed on drop.
@@ -209,6 +216,8 @@ pub fn add_image_upload(
 pub struct ComputeHandle {
     pub pipeline: vk::Pipeline,
     pub layout: vk::PipelineLayout,
+    /// Bytes of the shader's push-constant block (0: unchecked).
+    pub push_bytes: u32,
 }
 
 /// The whole recording of a compute pass's dispatch: binds the pipeline, pushes its descriptors
@@ -224,6 +233,13 @@ pub fn dispatch(
 ) -> Result<()> {
     if groups.contains(&0) {
         return Ok(());
+    }
+    if (push.len() as u32) < h.push_bytes {
+        anyhow::bail!(
+            "pushes {} bytes of push constants; the shader's push-constant block takes {}",
+            push.len(),
+            h.push_bytes
+        );
     }
     bind_compute(rc, h.pipeline, h.layout, binds)?;
     unsafe {

@@ -590,24 +590,20 @@ impl Drop for VvTechnique {
 fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, tess: bool) -> Result<Pipeline> {
     use vk::DescriptorType as T;
     let d = &ctx.device;
-    let (set_layout, layout) = layouts(
-        ctx,
-        if tess { "vv_tess" } else { "vv_shade" },
-        &[
-            T::UNIFORM_BUFFER,
-            T::COMBINED_IMAGE_SAMPLER,
-            T::COMBINED_IMAGE_SAMPLER,
-            T::COMBINED_IMAGE_SAMPLER,
-            T::COMBINED_IMAGE_SAMPLER,
-            T::COMBINED_IMAGE_SAMPLER,
-            T::COMBINED_IMAGE_SAMPLER,
-            T::STORAGE_BUFFER,
-            T::COMBINED_IMAGE_SAMPLER,
-            T::STORAGE_BUFFER,
-        ],
-        vk::ShaderStageFlags::ALL_GRAPHICS,
-        64,
-    )?;
+    let types = [
+        T::UNIFORM_BUFFER,
+        T::COMBINED_IMAGE_SAMPLER,
+        T::COMBINED_IMAGE_SAMPLER,
+        T::COMBINED_IMAGE_SAMPLER,
+        T::COMBINED_IMAGE_SAMPLER,
+        T::COMBINED_IMAGE_SAMPLER,
+        T::COMBINED_IMAGE_SAMPLER,
+        T::STORAGE_BUFFER,
+        T::COMBINED_IMAGE_SAMPLER,
+        T::STORAGE_BUFFER,
+    ];
+    let (set_layout, layout) =
+        layouts(ctx, if tess { "vv_tess" } else { "vv_shade" }, &types, vk::ShaderStageFlags::ALL_GRAPHICS, 64)?;
     let names: &[(&str, vk::ShaderStageFlags)] = if tess {
         &[
             ("vv/vv_tess.vert", vk::ShaderStageFlags::VERTEX),
@@ -618,6 +614,14 @@ fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, tess: bool) -> R
     } else {
         &[("vv/vv_shade.vert", vk::ShaderStageFlags::VERTEX), ("vv/vv_shade.frag", vk::ShaderStageFlags::FRAGMENT)]
     };
+    let code = names.iter().map(|(n, _)| Ok((*n, shaders.get(n)?))).collect::<Result<Vec<_>>>()?;
+    if let Err(e) = penumbra_engine::reflect::check_layout(&code, &types, 64) {
+        unsafe {
+            d.destroy_pipeline_layout(layout, None);
+            d.destroy_descriptor_set_layout(set_layout, None);
+        }
+        return Err(e.context(if tess { "vv_tess pipeline" } else { "vv_shade pipeline" }));
+    }
     let mut modules = Vec::new();
     for (n, _) in names {
         modules.push(ctx.create_shader_module(n, shaders.get(n)?)?);
