@@ -39,9 +39,9 @@ fn dump(img: &Image, name: &str) {
     .unwrap();
 }
 
-/// `adaptation = rounds`: the statistics of a frame's own maps (`visible_fraction`, `rays`,
-/// `maps`) once it is built; the default late adaptation reports those of an earlier finished
-/// frame (`AvsStats::late_vertices`).
+/// `adaptation = rounds` (the default, named for tests that rely on it): the statistics of a
+/// frame's own maps (`visible_fraction`, `rays`, `maps`) once it is built; the late adaptation
+/// reports those of an earlier finished frame (`AvsStats::late_vertices`).
 const ROUNDS: (&str, &str) = ("adaptation", "rounds");
 
 fn psnr(c: &penumbra_reference::metrics::Comparison) -> f64 {
@@ -767,35 +767,43 @@ fn gbuffer_culling_traces_only_needed_points_and_keeps_the_image() {
     // Two frames of a static moment. Without adaptation rounds the sample set is fixed, so the
     // second frame's shading must pick exactly the same neighbours from the flagged points as from
     // all points: the culled image equals the unculled one, with fewer maps traced.
-    let s = with(&scene("hat_on_cloth.toml"), &[("r", "32"), ("points", "160"), ("iterations", "0")]);
-    // (a third frame reports the second one's rays: the late statistics)
-    let two = |cull: &str| static_frames(&s, cull, 3);
-    let (on, st_on) = two("true");
-    let (off, st_off) = two("false");
-    // the first frame traces every point
-    assert_eq!(st_on[0].dormant, 0);
-    assert_eq!(st_on[0].traced_points, st_off[0].traced_points);
-    assert_eq!(st_off[1].dormant, 0);
-    let (t_on, t_off) = (st_on[1].traced_points, st_off[1].traced_points);
-    println!(
-        "second frame: {t_on} of {t_off} maps traced ({} dormant), rays {} vs {}",
-        st_on[1].dormant, st_on[2].rays, st_off[2].rays
-    );
-    assert!(
-        st_on[1].dormant > 0 && t_on + st_on[1].dormant == t_off,
-        "traced {t_on} + dormant {} vs {t_off}",
-        st_on[1].dormant
-    );
-    assert_eq!(st_on[2].late_vertices, st_on[1].point_vertices);
-    assert!(st_on[2].rays < st_off[2].rays);
-    let (a, b) = (&on[1].hdr, &off[1].hdr);
-    let mut worst = 0.0f32;
-    for (p, q) in a.iter().zip(b.iter()) {
-        for c in 0..3 {
-            worst = worst.max((p[c] - q[c]).abs() / (q[c].abs() + 1e-3));
+    // Both adaptation modes: the waited rounds (default) and the late one, whose flags and
+    // statistics come back through late readbacks (a third frame reports the second one's rays).
+    for mode in ["rounds", "late"] {
+        let s = with(
+            &scene("hat_on_cloth.toml"),
+            &[("r", "32"), ("points", "160"), ("iterations", "0"), ("adaptation", mode)],
+        );
+        let two = |cull: &str| static_frames(&s, cull, 3);
+        let (on, st_on) = two("true");
+        let (off, st_off) = two("false");
+        // the first frame traces every point
+        assert_eq!(st_on[0].dormant, 0);
+        assert_eq!(st_on[0].traced_points, st_off[0].traced_points);
+        assert_eq!(st_off[1].dormant, 0);
+        let (t_on, t_off) = (st_on[1].traced_points, st_off[1].traced_points);
+        // the statistics of the second frame's maps
+        let k = if mode == "late" { 2 } else { 1 };
+        assert_eq!(st_on[k].late_vertices, st_on[1].point_vertices, "{mode}");
+        println!(
+            "{mode}: second frame: {t_on} of {t_off} maps traced ({} dormant), rays {} vs {}",
+            st_on[1].dormant, st_on[k].rays, st_off[k].rays
+        );
+        assert!(
+            st_on[1].dormant > 0 && t_on + st_on[1].dormant == t_off,
+            "{mode}: traced {t_on} + dormant {} vs {t_off}",
+            st_on[1].dormant
+        );
+        assert!(st_on[k].rays < st_off[k].rays, "{mode}");
+        let (a, b) = (&on[1].hdr, &off[1].hdr);
+        let mut worst = 0.0f32;
+        for (p, q) in a.iter().zip(b.iter()) {
+            for c in 0..3 {
+                worst = worst.max((p[c] - q[c]).abs() / (q[c].abs() + 1e-3));
+            }
         }
+        assert!(worst <= 1e-4, "{mode}: culled image differs from the unculled one: max relative difference {worst}");
     }
-    assert!(worst <= 1e-4, "culled image differs from the unculled one: max relative difference {worst}");
 }
 
 #[test]
@@ -1024,7 +1032,7 @@ fn buried_sample_points_draw_no_rings() {
     assert!((0.85..1.15).contains(&ratio), "the floor beside the box: avs / reference {ratio:.3}");
 }
 
-/// The late adaptation (default): after a setup frame, each frame steps once on the maps of the
+/// The late adaptation (`adaptation = late`): after a setup frame, each frame steps once on the maps of the
 /// newest finished frame, never waiting. Over six frames of a static moment, each finished
 /// before the next is built, it takes the same steps as one waited round per frame
 /// (`adaptation = rounds`, `iterations = 1`), one frame later: the kept set grows where the
