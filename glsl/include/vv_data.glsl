@@ -26,11 +26,21 @@ layout(set = 0, binding = 9) readonly buffer Lights { LightData lights[]; };
 #include "material.glsl"
 #include "env_shade.glsl"
 #include "lights.glsl"
+// The scene's kd-tree (include/kdtree.glsl): the local lights' shadow rays (pc.par.w = 1).
+layout(set = 0, binding = 10) readonly buffer KdTris { vec4 kd_tris[]; };
+layout(set = 0, binding = 11) readonly buffer KdNodes { uvec4 kd_nodes[]; };
+layout(set = 0, binding = 12) readonly buffer KdRefs { uint kd_refs[]; };
+layout(set = 0, binding = 13) readonly buffer KdHeader { uint kd_hdr[]; };
+#define KD_TRI(i) kd_tris[i]
+#define KD_NODE(i) kd_nodes[i]
+#define KD_REF(i) kd_refs[i]
+#define KD_HDR(i) kd_hdr[i]
+#include "kdtree.glsl"
 layout(push_constant) uniform Push {
     ivec4 sat;    // x W, y H, z hemisphere arcs, w mode (0 fragment3, 1 fragment1, 2 tessellation, 3 tessellation3)
     ivec4 off0;   // offsets in vv_ints: x seq_offsets, y vertex_seqs, z tri_offsets, w loop_offsets
     ivec4 off1;   // x triples, y triangle vertex ids, z max tessellation level, w local lights
-    vec4 par;     // x alpha', y zeta, z specular on (1) / off (0)
+    vec4 par;     // x alpha', y zeta, z specular on (1) / off (0), w local lights' shadows traced (1) / from the loops (0)
 } pc;
 
 ivec2 vv_tc(int i) {
@@ -101,12 +111,16 @@ float vv_spec_gamma(sampler2D sat, vec3 nn, inout VvSpec sp) {
     return den > 0.0 ? clamp(num / den, 0.0, 1.0) : 1.0;
 }
 
-// ---- Local lights: point visibility from the same loops ----------------------------------------
-// The loops bound the occluded directions, so a light's direction is occluded when the loops'
-// winding number about it is positive: each arc a -> b adds the angle it turns through seen from
-// the direction (in the tangent plane there), a closed loop 2 pi per turn around it. Hard shadows
-// (a sphere light counts as its centre); loops carry no depth, so an occluder behind the light
-// still shadows it. The first VV_MAX_LIGHTS lights (VvTechnique::limitations names the rest).
+// ---- Local lights ----------------------------------------------------------------------------
+// Traced (pc.par.w = 1, `light_shadows = traced`, default): shadow rays through the scene's
+// kd-tree, a sphere light by lights.glsl's LIGHT_DISK_POINTS targets on its disk (soft shadows),
+// as isg and avs shadow their local lights. From the loops (`light_shadows = loops`): the loops
+// bound the occluded directions, so a light's direction is occluded when the loops' winding
+// number about it is positive: each arc a -> b adds the angle it turns through seen from the
+// direction (in the tangent plane there), a closed loop 2 pi per turn around it. Hard shadows (a
+// sphere light counts as its centre); the loops carry no depth, so an occluder behind the light
+// still shadows it (sun_and_spot: the cube darkened the floor the spot light lit in front of it).
+// The first VV_MAX_LIGHTS lights (VvTechnique::limitations names the rest).
 #define VV_MAX_LIGHTS 8
 struct VvLights {
     vec3 dir[VV_MAX_LIGHTS];  // map-space unit direction to each light
@@ -134,19 +148,42 @@ void vv_lights_arc(inout VvLights L, vec3 a, vec3 b) {
 // where unknown (the vertex stage). Light from below the face is blocked by it (lights.glsl).
 vec3 vv_face_normal = vec3(0.0);
 
-// Radiance reflected from the local lights that the loops leave visible.
+// Unoccluded fraction of light l seen from s (face normal ng) by shadow rays through the kd-tree.
+float vv_light_traced(LightData l, vec3 s, vec3 ng) {
+    vec3 p = s + ng * 1e-3 * max(1.0, length(s));
+    vec3 to_light = light_vector(l, p);
+    float radius = int(l.pos_kind.w + 0.5) == 2 ? l.extra.x : 0.0;
+    int taps = radius > 0.0 ? LIGHT_DISK_POINTS : 1;
+    float vis = 0.0;
+    for (int k = 0; k < taps; ++k) {
+        vec3 q = light_disk_target(to_light, radius, k);
+        float len = length(q);
+        if (!(len > 0.0)) {
+            vis += 1.0;
+            continue;
+        }
+        vis += kd_trace(p, q / len, 0.0, len * (1.0 - 1e-4), true).t >= 0.0 ? 0.0 : 1.0;
+    }
+    return vis / float(taps);
+}
+
+// Radiance reflected from the visible local lights.
 vec3 vv_lights_end(VvLights L, vec3 s, vec3 n, MaterialData m) {
     vec3 sum = vec3(0.0);
     vec3 v = normalize(cam.eye.xyz - s);
     int kind = material_kind(m);
     float roughness = env_roughness(m);
+    bool traced = pc.par.w > 0.5;
+    vec3 ng = vv_face_normal == vec3(0.0) ? n : vv_face_normal;
     for (int k = 0; k < L.count; k++) {
-        if (L.wind[k] > PI) continue;  // inside an occluded region
+        if (!traced && L.wind[k] > PI) continue;  // inside an occluded region
         vec3 wi;
         float dist, ndl;
-        vec3 e = light_incident(lights[k], s, n, vv_face_normal == vec3(0.0) ? n : vv_face_normal, wi, dist, ndl);
+        vec3 e = light_incident(lights[k], s, n, ng, wi, dist, ndl);
         if (ndl <= 0.0) continue;
-        sum += light_brdf(wi, n, v, ndl, m.albedo_kind.rgb, kind, m, roughness) * e * ndl;
+        float vis = traced ? vv_light_traced(lights[k], s, ng) : 1.0;
+        if (vis <= 0.0) continue;
+        sum += light_brdf(wi, n, v, ndl, m.albedo_kind.rgb, kind, m, roughness) * e * ndl * vis;
     }
     return sum;
 }

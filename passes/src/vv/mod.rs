@@ -35,9 +35,11 @@
 //! `s = 2 / a^2 - 2`, Phong `s / 4`, within [1, 4096]); its radius holds 95 % of the lobe's energy.
 //! Materials come from the frame's material table through `material.glsl` (albedo and roughness
 //! maps, animated roughness); per vertex only its material index is stored. Local lights
-//! (`lights.glsl`, up to [`MAX_LIGHTS`]) are shaded with point visibility from the same loops
-//! (occluded when the loops wind around the light's direction; hard shadows, a sphere light as its
-//! centre; the loops carry no depth, so an occluder behind a light still shadows it). The
+//! (`lights.glsl`, up to [`MAX_LIGHTS`]) are shadowed by rays through the scene's kd-tree
+//! (`light_shadows = traced`, default; a sphere light by rays to its disk), or with point
+//! visibility from the same loops (`loops`: occluded when the loops wind around the light's
+//! direction; hard shadows, a sphere light as its centre; the loops carry no depth, so an
+//! occluder behind a light still shadows it). The paper lights by the environment only. The
 //! interpolated modes shade triangles whose correspondence is unsound by eq. 19
 //! ([`VvSettings::fallback`]). Receivers made of large triangles are refined ([`scene_model`]).
 //! Objects that move or deform are not supported (their visibility is precomputed at rest, t = 0).
@@ -131,6 +133,10 @@ pub struct VvSettings {
     /// more than this (sr, `penumbra_math::vv::interpolation_disagreement`) are shaded by eq. 19;
     /// 0 = eq. 21 everywhere (the paper).
     pub fallback: f32,
+    /// Local lights' shadows by shadow rays through the scene's kd-tree (`true`, default;
+    /// `light_shadows = traced`) or from the occluder loops (`false`, `loops`: no depth, so an
+    /// occluder behind a light still shadows it; the paper lights by the environment only).
+    pub traced_lights: bool,
 }
 
 impl Default for VvSettings {
@@ -146,6 +152,7 @@ impl Default for VvSettings {
             specular: true,
             refine: 1024,
             fallback: 0.25,
+            traced_lights: true,
         }
     }
 }
@@ -161,7 +168,7 @@ impl VvSettings {
     /// `zeta` (0..=16, default 2), `alpha` (> 0, default 2), `sat_width` (16..=4096, even,
     /// default 256), `arcs` (8..=256, default 32), `max_level` (1..=64), `resolution` (8..=1024),
     /// `specular` (on / off, default on), `refine` (0..=65536, default 1024), `fallback` (0..=10
-    /// sr, default 0.25; 0 = off).
+    /// sr, default 0.25; 0 = off), `light_shadows` (traced / loops, default traced).
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
         let bad = || anyhow::anyhow!("vv parameter {key} = '{value}': not a valid value");
@@ -199,7 +206,14 @@ impl VvSettings {
                     _ => bail!("vv parameter specular = '{value}': expected on or off"),
                 }
             }
-            other => bail!("unknown vv parameter '{other}' (known: mode, zeta, alpha, sat_width, arcs, max_level, resolution, specular, refine, fallback)"),
+            "light_shadows" => {
+                self.traced_lights = match v {
+                    "traced" => true,
+                    "loops" => false,
+                    _ => bail!("vv parameter light_shadows = '{value}': expected traced or loops"),
+                }
+            }
+            other => bail!("unknown vv parameter '{other}' (known: mode, zeta, alpha, sat_width, arcs, max_level, resolution, specular, refine, fallback, light_shadows)"),
         }
         Ok(())
     }
@@ -577,6 +591,8 @@ pub struct VvTechnique {
     /// The pipeline-statistics query (null without `pipelineStatisticsQuery`).
     query: vk::QueryPool,
     pub data: Arc<VvSceneData>,
+    /// The scene's kd-tree for the local lights' shadow rays (`light_shadows = traced`).
+    kd: Option<crate::kdtree::KdTreeBuilder>,
 }
 
 impl Drop for VvTechnique {
@@ -600,6 +616,11 @@ fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, tess: bool) -> R
         T::COMBINED_IMAGE_SAMPLER,
         T::STORAGE_BUFFER,
         T::COMBINED_IMAGE_SAMPLER,
+        T::STORAGE_BUFFER,
+        // the kd-tree (local lights' shadow rays)
+        T::STORAGE_BUFFER,
+        T::STORAGE_BUFFER,
+        T::STORAGE_BUFFER,
         T::STORAGE_BUFFER,
     ];
     let (set_layout, layout) =
@@ -733,6 +754,12 @@ impl VvTechnique {
             .into());
         }
         let raster = if raster { Some(raster_pipeline(ctx, shaders, settings.mode.tessellated())?) } else { None };
+        // the kd-tree of the local lights' shadow rays (traced, with local lights to shade)
+        let kd = if raster.is_some() && settings.traced_lights && !scene.lights.is_empty() {
+            Some(crate::kdtree::KdTreeBuilder::new(ctx, shaders)?)
+        } else {
+            None
+        };
         let composite = compute_pipeline(
             ctx,
             shaders,
@@ -762,6 +789,7 @@ impl VvTechnique {
             nearest: Sampler::nearest(ctx)?,
             repeat: Sampler::repeat(ctx)?,
             latlong: Sampler::latlong(ctx)?,
+            kd,
             settings,
             up,
             query,
@@ -922,6 +950,20 @@ impl crate::technique::Technique for VvTechnique {
             &self.up.verts.0,
             self.up.verts.1,
         );
+        // the scene's triangles for the local lights' shadow rays (built once: vv's scenes are
+        // static), or placeholders without local lights
+        let kd_tree = match self.kd.as_mut().filter(|_| inputs.handles.light_count > 0) {
+            Some(b) => {
+                let (tris, _, no_shadow) = crate::kdtree::world_triangles_shading(inputs.scene, inputs.frame)?;
+                Some(b.add_triangles_flagged(engine, graph, &tris, Some(&no_shadow), false)?)
+            }
+            None => None,
+        };
+        let kd_bufs = match &kd_tree {
+            Some(t) => [t.tris, t.nodes, t.refs, t.header],
+            None => std::array::from_fn(|i| graph.create_buffer_init(&format!("vv_kd_none{i}"), vec![0u8; 16])),
+        };
+        let kd_tree = kd_tree.is_some();
         let (w, h) = (inputs.gbuffer.width, inputs.gbuffer.height);
         let depth = graph.create_image("vv_depth", ImageDesc::new_2d(crate::gbuffer::DEPTH_FORMAT, w, h));
         let objects = graph.create_image("vv_objects", ImageDesc::new_2d(HDR_FORMAT, w, h));
@@ -939,6 +981,7 @@ impl crate::technique::Technique for VvTechnique {
         let materials = p.read(inputs.handles.materials, Access::AnyShaderReadStorage);
         let env_map = p.read(inputs.env, Access::AnyShaderReadSampled);
         let lights = p.read(inputs.handles.lights, Access::AnyShaderReadStorage);
+        let kd = kd_bufs.map(|b| p.read(b, Access::AnyShaderReadStorage));
         let mut off1 = self.up.off1;
         off1[3] = inputs.handles.light_count.min(MAX_LIGHTS) as i32;
         let mut push = Vec::with_capacity(64);
@@ -953,7 +996,8 @@ impl crate::technique::Technique for VvTechnique {
         for v in self.up.off0.iter().chain(&off1) {
             push.extend_from_slice(&v.to_le_bytes());
         }
-        for v in [self.settings.alpha, self.settings.zeta, if self.settings.specular { 1.0 } else { 0.0 }, 0.0] {
+        let traced = if kd_tree { 1.0 } else { 0.0 };
+        for v in [self.settings.alpha, self.settings.zeta, if self.settings.specular { 1.0 } else { 0.0 }, traced] {
             push.extend_from_slice(&v.to_le_bytes());
         }
         let raster =
@@ -1008,6 +1052,10 @@ impl crate::technique::Technique for VvTechnique {
                     Bind::StorageBuffer(materials),
                     Bind::SampledImage(env_map, latlong),
                     Bind::StorageBuffer(lights),
+                    Bind::StorageBuffer(kd[0]),
+                    Bind::StorageBuffer(kd[1]),
+                    Bind::StorageBuffer(kd[2]),
+                    Bind::StorageBuffer(kd[3]),
                 ],
             )?;
             unsafe {
