@@ -545,9 +545,9 @@ impl Engine {
         self.late.remove(name);
     }
 
-    /// How many submissions [`Engine::submit_wait`] has made and waited for: building a frame
-    /// never should (only setup work such as avs's refinement of a fresh point set does), which
-    /// tests check by this count.
+    /// How many submissions [`Engine::submit_wait`] has made and waited for. Building a frame
+    /// should make none (tests check by this count); the exceptions today are avs's refinement of
+    /// a fresh point set and its default waited adaptation rounds (`adaptation = rounds`).
     pub fn waited_submissions(&self) -> u64 {
         self.waited
     }
