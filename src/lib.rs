@@ -379,7 +379,8 @@ impl Renderer {
         self.env.repaired_texels
     }
 
-    /// Builds the frame graph. With `target`, tone-mapped output goes into that imported image
+    /// Builds the frame graph (first the technique's `prepare`, the one step that may wait on the
+    /// GPU: avs's adaptation rounds). With `target`, tone-mapped output goes into that imported image
     /// (written as a storage image when it is `R8G8B8A8_UNORM` with STORAGE usage, else blitted
     /// into: it then needs TRANSFER_DST usage and a blittable colour format); with `readback`, the HDR and
     /// LDR images are copied to host memory and returned by [`Renderer::render`].
@@ -397,6 +398,13 @@ impl Renderer {
         // collect the frames the GPU has finished (never waits): their late readbacks reach this
         // frame's technique
         self.engine.poll()?;
+        // the technique's setup, which may wait on the GPU (avs's adaptation rounds); everything
+        // after declares the frame through a FrameStore, which cannot submit
+        let t0 = std::time::Instant::now();
+        self.technique
+            .prepare(&mut self.engine, &penumbra_passes::technique::PrepareInputs { frame, width: w, height: h })?;
+        let prepare_ms = t0.elapsed().as_secs_f64() * 1e3;
+        let mut store = penumbra_engine::FrameStore::new(&mut self.engine);
         let mut g = Graph::new();
         let mut constants = FrameConstants::new(frame, self.prev_view_proj, w, h);
         constants.params[2] = self.env.mips.len() as f32;
@@ -406,7 +414,7 @@ impl Renderer {
             constants.sh[i] = [c[0], c[1], c[2], 0.0];
         }
         self.prev_view_proj = Some(constants.view_proj());
-        let env = self.env.add(&mut self.engine, &mut g);
+        let env = self.env.add(&mut store, &mut g);
         let (scene, draws) = self.scene_gpu.add(&mut g, frame, &constants);
         let gb = self.gbuffer.add(&mut g, &scene, draws.clone(), w, h);
         // one set of frame inputs for the technique and the effects
@@ -419,12 +427,12 @@ impl Renderer {
             env,
             env_data: &self.env,
         };
-        let t0 = std::time::Instant::now();
-        let mut hdr = self.technique.add(&mut self.engine, &mut g, &inputs)?;
-        self.technique_cpu_ms = t0.elapsed().as_secs_f64() * 1e3;
+        let t1 = std::time::Instant::now();
+        let mut hdr = self.technique.add(&mut store, &mut g, &inputs)?;
+        self.technique_cpu_ms = prepare_ms + t1.elapsed().as_secs_f64() * 1e3;
         self.technique_started = Some(t0);
         for e in &mut self.effects {
-            hdr = e.add(&mut self.engine, &mut g, &inputs, hdr)?;
+            hdr = e.add(&mut store, &mut g, &inputs, hdr)?;
         }
         // The tone map writes a storage image: straight into an RGBA8 target with STORAGE usage,
         // else into a transient image blitted into the target (a BGRA8/sRGB swapchain image).

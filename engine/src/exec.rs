@@ -46,6 +46,50 @@ pub struct LateReadback {
     pub bytes: Vec<u8>,
 }
 
+/// What building a frame may use of the engine: persistent resources, late readbacks, frame
+/// numbers and the context; no submission. Techniques and effects declare their passes with one
+/// (`Technique::add`), so building a frame cannot wait on the GPU; setup work that must wait gets
+/// the engine itself, before the frame (`Technique::prepare`).
+pub struct FrameStore<'a> {
+    engine: &'a mut Engine,
+}
+
+impl<'a> FrameStore<'a> {
+    pub fn new(engine: &'a mut Engine) -> Self {
+        FrameStore { engine }
+    }
+
+    /// [`Engine::persistent_image`].
+    pub fn persistent_image(&mut self, graph: &mut Graph, name: &str, desc: ImageDesc) -> ImageHandle {
+        self.engine.persistent_image(graph, name, desc)
+    }
+
+    /// [`Engine::persistent_buffer`].
+    pub fn persistent_buffer(&mut self, graph: &mut Graph, name: &str, size: u64) -> BufferHandle {
+        self.engine.persistent_buffer(graph, name, size)
+    }
+
+    /// [`Engine::late_readback`].
+    pub fn late_readback(&self, name: &str) -> Option<&LateReadback> {
+        self.engine.late_readback(name)
+    }
+
+    /// [`Engine::next_frame`]: the number the frame being built will get.
+    pub fn next_frame(&self) -> u64 {
+        self.engine.next_frame()
+    }
+
+    /// The device context.
+    pub fn ctx(&self) -> &Arc<Context> {
+        &self.engine.ctx
+    }
+
+    /// Whether passes are timed ([`Engine::timestamps`]).
+    pub fn timestamps(&self) -> bool {
+        self.engine.timestamps
+    }
+}
+
 /// One frame's CPU spans in the engine and its passes' GPU intervals.
 #[derive(Clone, Debug, Default)]
 pub struct FrameTimeline {

@@ -8,7 +8,7 @@
 
 use anyhow::Result;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{Context, Engine, Graph, ImageHandle};
+use penumbra_engine::{Context, FrameStore, Graph, ImageHandle};
 use penumbra_scene::Scene;
 use std::sync::Arc;
 
@@ -17,11 +17,12 @@ pub type EffectInputs<'a> = crate::technique::FrameInputs<'a>;
 
 pub trait Effect {
     fn name(&self) -> &'static str;
-    /// Declares the effect's passes reading `hdr`; returns the new HDR image (or `hdr` itself
+    /// Declares the effect's passes reading `hdr` (through a [`FrameStore`]: no submission, so
+    /// building the frame never waits on the GPU); returns the new HDR image (or `hdr` itself
     /// after a read-modify-write).
     fn add(
         &mut self,
-        engine: &mut Engine,
+        engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         inputs: &EffectInputs,
         hdr: ImageHandle,

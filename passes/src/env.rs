@@ -11,7 +11,7 @@
 use crate::util::bytes_of;
 use glam::Vec3;
 use penumbra_engine::graph::ImageDesc;
-use penumbra_engine::{vk, Engine, Graph, ImageHandle};
+use penumbra_engine::{vk, FrameStore, Graph, ImageHandle};
 use penumbra_scene::Environment;
 
 /// CPU-side environment data ready for the GPU.
@@ -197,7 +197,7 @@ impl EnvMapGpu {
 
     /// Declares the persistent `env_map` image; on its first frame adds the `env_upload` pass.
     /// Returns the handle to sample.
-    pub fn add(&self, engine: &mut Engine, graph: &mut Graph) -> ImageHandle {
+    pub fn add(&self, engine: &mut FrameStore<'_>, graph: &mut Graph) -> ImageHandle {
         let img = engine.persistent_image(graph, "env_map", self.desc());
         if !graph.persistent_is_new(img) {
             return img;

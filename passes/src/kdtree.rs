@@ -45,7 +45,7 @@ use anyhow::{anyhow, bail, Result};
 use glam::{Mat3, Vec3};
 use penumbra_engine::graph::PassBuilder;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, PassKind};
+use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, FrameStore, Graph, PassKind};
 use penumbra_scene::{Frame, Instance, MeshData, Scene};
 use std::sync::Arc;
 
@@ -296,7 +296,7 @@ impl KdTreeBuilder {
     /// deformed.
     pub fn add(
         &mut self,
-        engine: &mut Engine,
+        engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         scene: &Scene,
         frame: &Frame,
@@ -328,7 +328,7 @@ impl KdTreeBuilder {
         (tris, max_nodes, refs, max_nodes as u32)
     }
 
-    fn persistent(&self, engine: &mut Engine, graph: &mut Graph, n: u32) -> (KdTreeHandles, u64) {
+    fn persistent(&self, engine: &mut FrameStore<'_>, graph: &mut Graph, n: u32) -> (KdTreeHandles, u64) {
         let (tri_bytes, max_nodes, refs, _) = self.sizes(n);
         let h = KdTreeHandles {
             tris: engine.persistent_buffer(graph, "kdtree.tris", tri_bytes),
@@ -346,7 +346,7 @@ impl KdTreeBuilder {
     /// new (first use, size change).
     pub fn add_triangles(
         &mut self,
-        engine: &mut Engine,
+        engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         tris: &[[Vec3; 3]],
         rebuild: bool,
@@ -358,7 +358,7 @@ impl KdTreeBuilder {
     /// (visibility) queries (`ObjectInfo::casts_shadow == false`), closest-hit still finds them.
     pub fn add_triangles_flagged(
         &mut self,
-        engine: &mut Engine,
+        engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         tris: &[[Vec3; 3]],
         no_shadow: Option<&[bool]>,
@@ -380,7 +380,7 @@ impl KdTreeBuilder {
     }
 
     /// The kept tree's handles when one was built and its buffers survived (no rebuild).
-    pub fn add_kept(&mut self, engine: &mut Engine, graph: &mut Graph) -> Option<KdTreeHandles> {
+    pub fn add_kept(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph) -> Option<KdTreeHandles> {
         let n = self.built?;
         let (probe, _) = self.persistent(engine, graph, n);
         let fresh = [probe.tris, probe.nodes, probe.refs, probe.header].iter().any(|b| graph.persistent_is_new(*b));

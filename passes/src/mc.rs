@@ -34,7 +34,7 @@ use anyhow::Result;
 use glam::Vec3;
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, ImageHandle, PassKind};
+use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, FrameStore, Graph, ImageHandle, PassKind};
 use penumbra_scene::{Frame, Scene};
 use std::sync::Arc;
 
@@ -205,7 +205,7 @@ impl McTechnique {
     /// Declares the tree (rebuilt when geometry changed) and the `mc` pass; returns the HDR image.
     pub fn add_frame(
         &mut self,
-        engine: &mut Engine,
+        engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         frame: &Frame,
         width: u32,
@@ -329,7 +329,7 @@ impl crate::technique::Technique for McTechnique {
     }
     fn add(
         &mut self,
-        engine: &mut Engine,
+        engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {

@@ -79,7 +79,7 @@ impl crate::technique::Technique for ShadeEnvPass {
     }
     fn add(
         &mut self,
-        _engine: &mut penumbra_engine::Engine,
+        _engine: &mut penumbra_engine::FrameStore<'_>,
         graph: &mut Graph,
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {

@@ -37,7 +37,7 @@ use anyhow::{bail, Result};
 use glam::{Mat4, Vec3};
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, Context, Engine, Graph, ImageHandle, PassKind};
+use penumbra_engine::{vk, Access, Bind, Context, FrameStore, Graph, ImageHandle, PassKind};
 use penumbra_scene::{Frame, LightKind, Scene};
 use std::sync::Arc;
 
@@ -368,7 +368,7 @@ impl ShadowMapsTechnique {
     /// image.
     pub fn add_frame(
         &mut self,
-        engine: &mut Engine,
+        engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         inputs: &crate::technique::FrameInputs,
     ) -> Result<ImageHandle> {
@@ -462,7 +462,7 @@ impl crate::technique::Technique for ShadowMapsTechnique {
     }
     fn add(
         &mut self,
-        engine: &mut Engine,
+        engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {

@@ -7,7 +7,7 @@ use crate::env::EnvMapGpu;
 use crate::gbuffer::GBuffer;
 use crate::scene_gpu::{DrawList, SceneHandles};
 use anyhow::Result;
-use penumbra_engine::{Engine, Graph, ImageHandle};
+use penumbra_engine::{Engine, FrameStore, Graph, ImageHandle};
 use penumbra_scene::{Frame, Scene};
 
 /// What a technique or an effect gets each frame: the scene as loaded, the frame (its instances,
@@ -27,11 +27,28 @@ pub struct FrameInputs<'a> {
 /// What a technique gets each frame.
 pub type TechniqueInputs<'a> = FrameInputs<'a>;
 
+/// What a technique's setup before a frame gets ([`Technique::prepare`]).
+pub struct PrepareInputs<'a> {
+    pub frame: &'a Frame,
+    /// The image size (the G-buffer's).
+    pub width: u32,
+    pub height: u32,
+}
+
 pub trait Technique {
     /// The name used in scene files (`technique = "..."`) and on the CLI.
     fn name(&self) -> &'static str;
-    /// Declares the technique's passes; returns the HDR radiance image (RGBA32F, G-buffer size).
-    fn add(&mut self, engine: &mut Engine, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle>;
+    /// Work before the frame is declared that may wait on the GPU (submissions of its own
+    /// through the engine); counted in the technique's CPU time. None for every technique but
+    /// `avs`: its fresh point set is refined by waited rounds here, and its default adaptation
+    /// rounds (`adaptation = rounds`) run here every frame (issue 18: they belong on the GPU,
+    /// in the frame's graph).
+    fn prepare(&mut self, _engine: &mut Engine, _inputs: &PrepareInputs) -> Result<()> {
+        Ok(())
+    }
+    /// Declares the technique's passes (with a [`FrameStore`]: no submission, so building the
+    /// frame never waits on the GPU); returns the HDR radiance image (RGBA32F, G-buffer size).
+    fn add(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle>;
     /// What the technique ignores or approximates in `scene` (local lights it does not render,
     /// texture maps, ...), shown to the user instead of a silently different image.
     fn limitations(&self, _scene: &Scene) -> Vec<String> {

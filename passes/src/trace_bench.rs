@@ -184,7 +184,7 @@ pub fn run_gpu(
     sets: &[(Vec<Ray>, Vec<Ray>)],
 ) -> Result<GpuTraceRun> {
     let mut g = Graph::new();
-    let mut tree = builder.add_triangles(engine, &mut g, tris, true)?;
+    let mut tree = builder.add_triangles(&mut penumbra_engine::FrameStore::new(engine), &mut g, tris, true)?;
     let stats_rb = KdTreeBuilder::add_stats_readback(&mut g, &mut tree, "kdtree_stats");
     let _ = stats_rb;
     for (i, (any, closest)) in sets.iter().enumerate() {

@@ -357,7 +357,7 @@ pub fn depth_attachment(view: vk::ImageView, store: bool) -> vk::RenderingAttach
 }
 
 pub fn persistent_upload(
-    engine: &mut penumbra_engine::Engine,
+    engine: &mut penumbra_engine::FrameStore<'_>,
     graph: &mut penumbra_engine::Graph,
     name: &str,
     data: Vec<u8>,

@@ -56,7 +56,9 @@ use anyhow::{anyhow, bail, Result};
 use glam::{Mat3, Vec3};
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, ImageHandle, PassKind};
+use penumbra_engine::{
+    vk, Access, Bind, BufferHandle, Context, Engine, FrameStore, Graph, ImageHandle, LateReadback, PassKind,
+};
 use penumbra_math::avs_maps::{check_res, words_per_map};
 use penumbra_math::avs_sampling::{self as samp, Grid, SurfacePoint, SH_COUNT};
 use penumbra_scene::{Frame, Scene};
@@ -711,6 +713,13 @@ pub fn grid_words(grid: &Grid, slots: &[u32]) -> Vec<u32> {
     out
 }
 
+/// What `Technique::prepare` hands to `add`: the frame's candidate pool and, after waited
+/// rounds, the points with their slots and the slot count.
+struct Prepared {
+    pool: Vec<SurfacePoint>,
+    rounds: Option<(Vec<SurfacePoint>, Vec<u32>, u32)>,
+}
+
 /// The `"avs"` technique.
 pub struct AvsTechnique {
     vis: Pipeline,
@@ -750,6 +759,8 @@ pub struct AvsTechnique {
     /// Pool vertices the late steps inserted or erased, by the frame whose set they changed
     /// first: a step on an older frame's maps leaves their neighbourhood alone.
     changes: Vec<(u64, Vec<usize>)>,
+    /// What `prepare` left for this frame's `add`.
+    prepared: Option<Prepared>,
     cull: Pipeline,
     pool_len: usize,
     plan: Arc<PoolPlan>,
@@ -850,6 +861,7 @@ impl AvsTechnique {
             applied_sh: None,
             setup_sh: None,
             changes: Vec::new(),
+            prepared: None,
             cull,
             pool_len: usize::MAX,
             plan: Arc::new(PoolPlan::default()),
@@ -895,8 +907,8 @@ impl AvsTechnique {
     /// G-buffer culling: the newest finished frame's `avs.used` bits (a late readback, never
     /// waited for) split the kept points into traced (flagged) and dormant ones. Points that frame
     /// did not know (inserted since) stay traced; without newer flags the split stays as it is.
-    fn apply_cull_flags(&mut self, engine: &Engine) {
-        let Some(late) = engine.late_readback(LATE_USED) else { return };
+    fn apply_cull_flags(&mut self, late: Option<&LateReadback>) {
+        let Some(late) = late else { return };
         if self.applied_cull.is_some_and(|f| f >= late.frame) {
             return;
         }
@@ -916,7 +928,7 @@ impl AvsTechnique {
     }
 
     /// The tree of the frame's triangles (shadow flags from the objects).
-    fn tree(&mut self, engine: &mut Engine, graph: &mut Graph, frame: &Frame) -> Result<KdTreeHandles> {
+    fn tree(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, frame: &Frame) -> Result<KdTreeHandles> {
         let (tris, _, no_shadow) = crate::kdtree::world_triangles_shading(&self.scene, frame)?;
         let rebuild = frame.any_moved() || frame.any_deformed();
         self.builder.add_triangles_flagged(engine, graph, &tris, Some(&no_shadow), rebuild)
@@ -1144,10 +1156,10 @@ impl AvsTechnique {
             }
             let mut g = Graph::new();
             // the tree is (re)built in the first round only
-            let kept = if round > 0 { self.builder.add_kept(engine, &mut g) } else { None };
+            let kept = if round > 0 { self.builder.add_kept(&mut FrameStore::new(engine), &mut g) } else { None };
             let tree = match kept {
                 Some(t) => t,
-                None => self.tree(engine, &mut g, frame)?,
+                None => self.tree(&mut FrameStore::new(engine), &mut g, frame)?,
             };
             self.tree_current = true;
             let points_buf = g.create_buffer_init("avs_points", bytes_of(&point_data(&by_slot, offset)));
@@ -1294,8 +1306,12 @@ impl AvsTechnique {
     /// The newest finished frame's late SH readback, if it is newer than the last one used and
     /// its points are known: fills the map statistics ([`AvsStats::late_vertices`]) and returns
     /// that frame's pool vertices with their SH16. Never waits.
-    fn take_late_stats(&mut self, engine: &Engine) -> Option<(u64, Vec<usize>, Vec<[f32; SH_COUNT]>)> {
-        let late = engine.late_readback(LATE_SH)?;
+    fn take_late_stats(
+        &mut self,
+        late: Option<&LateReadback>,
+        late_maps: Option<&LateReadback>,
+    ) -> Option<(u64, Vec<usize>, Vec<[f32; SH_COUNT]>)> {
+        let late = late?;
         if self.applied_sh.is_some_and(|f| f >= late.frame) {
             return None;
         }
@@ -1320,7 +1336,7 @@ impl AvsTechnique {
         self.stats.truncated = truncated;
         self.stats.late_vertices = verts.clone();
         let words = words_per_map(self.settings.r);
-        self.stats.maps = match engine.late_readback(LATE_MAPS) {
+        self.stats.maps = match late_maps {
             Some(m) if self.settings.capture_maps && m.frame == late.frame && m.bytes.len() >= n * words * 4 => m
                 .bytes
                 .chunks_exact(words * 4)
@@ -1343,13 +1359,21 @@ impl AvsTechnique {
     /// readback, never waited for), applied to the current set by pool vertex: erasures leave it
     /// (under culling they go dormant, as in [`AvsTechnique::adapt`]), insertions join it when no
     /// kept point is within a pixel's width and there is room.
-    fn late_step(&mut self, engine: &Engine, pool: &[SurfacePoint], frame: &Frame, image_height: u32) {
+    fn late_step(
+        &mut self,
+        late_sh: Option<&LateReadback>,
+        late_maps: Option<&LateReadback>,
+        frame_no: u64,
+        pool: &[SurfacePoint],
+        frame: &Frame,
+        image_height: u32,
+    ) {
         self.stats.inserted.clear();
         self.stats.erased.clear();
         self.stats.round_ms.clear();
         // the newest finished frame's maps, else (right after the setup rounds, before any later
         // frame finished) the setup's last SH, once
-        let late = self.take_late_stats(engine);
+        let late = self.take_late_stats(late_sh, late_maps);
         let Some((data_frame, verts, sh)) = late.or_else(|| self.setup_sh.take()) else { return };
         self.setup_sh = None;
         // the points this frame traces (culling may have made some of that frame's dormant since):
@@ -1416,7 +1440,7 @@ impl AvsTechnique {
         self.stats.inserted.push(insert.len());
         self.stats.erased.push(gone.len());
         // this frame's set (built next) is the first to show the changes
-        self.changes.push((engine.next_frame(), insert.iter().chain(&gone).copied().collect()));
+        self.changes.push((frame_no, insert.iter().chain(&gone).copied().collect()));
         self.sample_vertices.extend(insert);
     }
 
@@ -1462,12 +1486,7 @@ impl crate::technique::Technique for AvsTechnique {
         self.notes.clone()
     }
 
-    fn add(
-        &mut self,
-        engine: &mut Engine,
-        graph: &mut Graph,
-        inputs: &crate::technique::TechniqueInputs,
-    ) -> Result<ImageHandle> {
+    fn prepare(&mut self, engine: &mut Engine, inputs: &crate::technique::PrepareInputs) -> Result<()> {
         let frame = inputs.frame;
         let mut clock = std::time::Instant::now();
         self.stats.cpu_ms.clear();
@@ -1485,11 +1504,11 @@ impl crate::technique::Technique for AvsTechnique {
         self.stats.lap(&mut clock, "kmeans");
         self.stats.vertices = pool.len();
         if self.settings.cull && !self.cull_orders.is_empty() {
-            self.apply_cull_flags(engine);
+            self.apply_cull_flags(engine.late_readback(LATE_USED));
         } else if self.settings.cull {
             // no flags yet (first frame): the view frustum, widened by the search radius, decides
             // which points are traced (the G-buffer flags take over from the next frame)
-            let aspect = inputs.gbuffer.width as f32 / inputs.gbuffer.height.max(1) as f32;
+            let aspect = inputs.width as f32 / inputs.height.max(1) as f32;
             let planes = frustum_planes(frame.camera.proj(aspect) * frame.camera.view());
             let all: Vec<usize> = self.sample_vertices.iter().chain(self.dormant.iter()).copied().collect();
             let margin = self.radius * 2.5;
@@ -1504,23 +1523,50 @@ impl crate::technique::Technique for AvsTechnique {
         }
         self.stats.dormant = self.dormant.len();
         self.stats.lap(&mut clock, "cull");
-        let offset = ray_offset(&pool);
-        let r = self.settings.r;
-        let cap = self.settings.max_points.max(self.sample_vertices.len()) as u64;
-        let frame_no = engine.next_frame();
         // a fresh k-means set is refined by waited rounds before its frame (setup); every later
         // frame of the late adaptation builds without waiting
         let rounds_now = !self.settings.late || (self.fresh && self.settings.iterations > 0);
-        let (points, slots, vis, points_buf, tree) = if rounds_now {
-            let (points, slots, nslots) = self.adapt(engine, &pool, frame, inputs.gbuffer.height)?;
+        let rounds = if rounds_now {
+            let done = self.adapt(engine, &pool, frame, inputs.height)?;
             // the rounds' wall-clock time, split into their waits, their adapt_step and the rest
             let rounds = clock.elapsed().as_secs_f64() * 1e3;
-            clock = std::time::Instant::now();
             let (waited, stepped) = (self.stats.rounds_wait_ms, self.stats.rounds_step_ms);
             self.stats.cpu_ms.push(("rounds_wait", waited));
             self.stats.cpu_ms.push(("rounds_step", stepped));
             self.stats.cpu_ms.push(("rounds_cpu", (rounds - waited - stepped).max(0.0)));
             self.stats.late_vertices = self.sample_vertices.clone();
+            Some(done)
+        } else {
+            self.fresh = false;
+            let (late_sh, late_maps) = (engine.late_readback(LATE_SH), engine.late_readback(LATE_MAPS));
+            if self.settings.iterations > 0 {
+                self.late_step(late_sh, late_maps, engine.next_frame(), &pool, frame, inputs.height);
+            } else {
+                self.take_late_stats(late_sh, late_maps);
+            }
+            self.stats.lap(&mut clock, "late_step");
+            None
+        };
+        self.prepared = Some(Prepared { pool, rounds });
+        Ok(())
+    }
+
+    fn add(
+        &mut self,
+        engine: &mut FrameStore<'_>,
+        graph: &mut Graph,
+        inputs: &crate::technique::TechniqueInputs,
+    ) -> Result<ImageHandle> {
+        let frame = inputs.frame;
+        let mut clock = std::time::Instant::now();
+        let Some(Prepared { pool, rounds }) = self.prepared.take() else {
+            bail!("avs: a frame declared without its preparation (Technique::prepare)");
+        };
+        let offset = ray_offset(&pool);
+        let r = self.settings.r;
+        let cap = self.settings.max_points.max(self.sample_vertices.len()) as u64;
+        let frame_no = engine.next_frame();
+        let (points, slots, vis, points_buf, tree) = if let Some((points, slots, nslots)) = rounds {
             let vis = engine.persistent_buffer(graph, "avs.vis", cap * words_per_map(r) as u64 * 4);
             // buried points (a candidate inside a closed object, `samp::buried`: every direction
             // occluded) are interpolated only where no other point is in reach (avs_gather.glsl):
@@ -1547,13 +1593,6 @@ impl crate::technique::Technique for AvsTechnique {
             };
             (points, slots, vis, points_buf, tree)
         } else {
-            self.fresh = false;
-            if self.settings.iterations > 0 {
-                self.late_step(engine, &pool, frame, inputs.gbuffer.height);
-            } else {
-                self.take_late_stats(engine);
-            }
-            self.stats.lap(&mut clock, "late_step");
             let points: Vec<SurfacePoint> = self.sample_vertices.iter().map(|&v| pool[v]).collect();
             let slots: Vec<u32> = (0..points.len() as u32).collect();
             let tree = self.tree(engine, graph, frame)?;

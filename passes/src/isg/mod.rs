@@ -46,7 +46,7 @@ use anyhow::Result;
 use glam::{Mat4, Vec3};
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, Context, Engine, Graph, ImageHandle, PassKind};
+use penumbra_engine::{vk, Access, Bind, Context, FrameStore, Graph, ImageHandle, PassKind};
 use penumbra_math::isg::IsgTable;
 use penumbra_math::sphereset::{approximate_spheres, measure_coverage, SphereSet};
 use penumbra_scene::{Frame, Scene};
@@ -825,7 +825,7 @@ impl crate::technique::Technique for IsgTechnique {
 
     fn add(
         &mut self,
-        engine: &mut Engine,
+        engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {

@@ -32,7 +32,7 @@ use anyhow::{anyhow, Result};
 use glam::{DVec3, Mat3, Vec3};
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, ImageHandle, PassKind};
+use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, FrameStore, Graph, ImageHandle, PassKind};
 use penumbra_math::sh::TripleProductTensor;
 use penumbra_math::shadow_field::{
     self as sf, InstanceFrame, LightFrame, LightSource, ObjectField, Params, ShadeOptions, ShadePoint, Window, NCOEF,
@@ -1108,7 +1108,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
 
     fn add(
         &mut self,
-        _engine: &mut Engine,
+        _engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {
@@ -1147,7 +1147,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
 /// Runs the GPU rendering path on `points` for `frame`: per point `[r, g, b, unclamped min]`
 /// and the GPU milliseconds of the `sf_points` pass.
 pub fn gpu_shade_points(
-    engine: &mut Engine,
+    engine: &mut penumbra_engine::Engine,
     tech: &ShadowFieldsTechnique,
     frame: &Frame,
     points: &[ShadePoint],

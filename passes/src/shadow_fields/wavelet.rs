@@ -41,7 +41,7 @@ use anyhow::{anyhow, Result};
 use glam::Vec3;
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Engine, Graph, ImageHandle, PassKind};
+use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, FrameStore, Graph, ImageHandle, PassKind};
 use penumbra_math::shadow_field::haar::{raw_maps, CubeTable, HaarField};
 use penumbra_scene::Scene;
 use std::collections::hash_map::DefaultHasher;
@@ -693,7 +693,7 @@ impl crate::technique::Technique for WaveletTechnique {
 
     fn add(
         &mut self,
-        _engine: &mut Engine,
+        _engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {

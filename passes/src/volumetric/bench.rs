@@ -217,13 +217,15 @@ impl Runner {
             constants.sh[i] = [c[0], c[1], c[2], 0.0];
         }
         self.prev_vp = Some(constants.view_proj());
-        let env = self.env.add(&mut self.engine, &mut g);
+        self.technique.prepare(&mut self.engine, &crate::technique::PrepareInputs { frame, width: w, height: h })?;
+        let mut store = penumbra_engine::FrameStore::new(&mut self.engine);
+        let env = self.env.add(&mut store, &mut g);
         let (handles, draws) = self.scene_gpu.add(&mut g, frame, &constants);
         let gb = self.gbuffer.add(&mut g, &handles, draws.clone(), w, h);
         let inputs =
             EffectInputs { scene, frame, handles: &handles, draws: &draws, gbuffer: &gb, env, env_data: &self.env };
-        let hdr = self.technique.add(&mut self.engine, &mut g, &inputs)?;
-        let out = self.effect.add(&mut self.engine, &mut g, &inputs, hdr)?;
+        let hdr = self.technique.add(&mut store, &mut g, &inputs)?;
+        let out = self.effect.add(&mut store, &mut g, &inputs, hdr)?;
         let info = self.effect.last.expect("effect info");
         let rb = vec![(out, "vol_bench_hdr"), (info.scatter, "vol_bench_scatter")];
         crate::readback::add(&mut g, "bench_readback", &rb);

@@ -77,7 +77,7 @@ use anyhow::{bail, Result};
 use glam::{Mat4, Vec3};
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, Context, Engine, GpuBuffer, Graph, ImageHandle, PassKind};
+use penumbra_engine::{vk, Access, Bind, Context, FrameStore, GpuBuffer, Graph, ImageHandle, PassKind};
 use penumbra_scene::{LightKind, Medium, Scene};
 use std::sync::Arc;
 
@@ -743,7 +743,7 @@ impl Effect for VolumetricEffect {
 
     fn add(
         &mut self,
-        engine: &mut Engine,
+        engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         inputs: &EffectInputs,
         hdr: ImageHandle,

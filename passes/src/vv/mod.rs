@@ -50,7 +50,7 @@ use anyhow::{bail, Context as _, Result};
 use glam::DVec3;
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, Context, Engine, Graph, ImageHandle, PassKind};
+use penumbra_engine::{vk, Access, Bind, Context, FrameStore, Graph, ImageHandle, PassKind};
 use penumbra_math::vv::{Correspondence, VectorizedVisibility, VvModel, VvParams};
 use penumbra_scene::Scene;
 use std::sync::Arc;
@@ -856,7 +856,7 @@ impl VvTechnique {
     /// re-upload). Its name carries the hash of the technique's data (`Uploads::key`), so two vv
     /// techniques on one engine never read each other's arrays.
     fn add_array(
-        engine: &mut Engine,
+        engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         name: &str,
         key: u64,
@@ -918,7 +918,7 @@ impl crate::technique::Technique for VvTechnique {
 
     fn add(
         &mut self,
-        engine: &mut Engine,
+        engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {
