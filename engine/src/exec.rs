@@ -584,11 +584,6 @@ impl Engine {
         self.late.get(name)
     }
 
-    /// Forgets the late readback `name` (its producer's data no longer applies).
-    pub fn forget_late_readback(&mut self, name: &str) {
-        self.late.remove(name);
-    }
-
     /// How many submissions [`Engine::submit_wait`] has made and waited for. Building a frame
     /// should make none (tests check by this count); the exceptions today are avs's refinement of
     /// a fresh point set and its default waited adaptation rounds (`adaptation = rounds`).

@@ -379,6 +379,26 @@ impl KdTreeBuilder {
         self.build_into(graph, h, bytes, tris, no_shadow)
     }
 
+    /// The tree of `frame`'s triangles ([`world_triangles_shading`], shadow flags from the
+    /// objects): the kept one when nothing moved or deformed and its buffers survived (the
+    /// triangles are then not even gathered), else built in this graph.
+    pub fn add_frame(
+        &mut self,
+        engine: &mut FrameStore<'_>,
+        graph: &mut Graph,
+        scene: &Scene,
+        frame: &Frame,
+    ) -> Result<KdTreeHandles> {
+        let moved = frame.any_moved() || frame.any_deformed();
+        if !moved {
+            if let Some(t) = self.add_kept(engine, graph) {
+                return Ok(t);
+            }
+        }
+        let (tris, _, no_shadow) = world_triangles_shading(scene, frame)?;
+        self.add_triangles_flagged(engine, graph, &tris, Some(&no_shadow), moved)
+    }
+
     /// The kept tree's handles when one was built and its buffers survived (no rebuild).
     pub fn add_kept(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph) -> Option<KdTreeHandles> {
         let n = self.built?;

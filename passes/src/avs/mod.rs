@@ -439,6 +439,39 @@ const LATE_MAPS: &str = "avs.maps";
 /// Frames whose point orders are kept to read their late readbacks.
 const LATE_FRAMES: usize = 6;
 
+/// Records `order` (pool vertices) as frame `frame`'s, keeping the last [`LATE_FRAMES`] frames
+/// (a frame that failed to submit left its number to the next one, which replaces it).
+fn push_recent(list: &mut Vec<(u64, Vec<usize>)>, frame: u64, order: Vec<usize>) {
+    list.retain(|(f, _)| *f != frame);
+    list.push((frame, order));
+    if list.len() > LATE_FRAMES {
+        list.remove(0);
+    }
+}
+
+/// A readback of `n` points' SH16 followed by their ray counts (`add_sh_copy`'s layout): the
+/// SH per point, the rays in all and the maps whose tracing hit the driver's loop limit (bit 31
+/// of a count). `None` when it is shorter than that.
+fn parse_sh_readback(bytes: &[u8], n: usize) -> Option<(Vec<[f32; SH_COUNT]>, u64, usize)> {
+    if bytes.len() < n * (SH_COUNT + 1) * 4 {
+        return None;
+    }
+    let word = |i: usize| f32::from_le_bytes([bytes[4 * i], bytes[4 * i + 1], bytes[4 * i + 2], bytes[4 * i + 3]]);
+    let sh = (0..n).map(|e| std::array::from_fn(|k| word(e * SH_COUNT + k))).collect();
+    let (mut rays, mut truncated) = (0u64, 0usize);
+    for e in 0..n {
+        let w = word(n * SH_COUNT + e).to_bits();
+        rays += (w & 0x7fff_ffff) as u64;
+        truncated += (w >> 31) as usize;
+    }
+    Some((sh, rays, truncated))
+}
+
+/// One packed visibility map read back (little-endian words).
+fn map_words(bytes: &[u8]) -> Vec<u32> {
+    bytes.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+}
+
 /// Part A's `T(lambda, d)` table as f32 bytes (generated per technique that integrates by table).
 fn axis_table() -> Arc<Vec<u8>> {
     Arc::new(bytes_of(&penumbra_math::ssdf_integrate::AxisTable::generate(|_| {}).data))
@@ -929,9 +962,7 @@ impl AvsTechnique {
 
     /// The tree of the frame's triangles (shadow flags from the objects).
     fn tree(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, frame: &Frame) -> Result<KdTreeHandles> {
-        let (tris, _, no_shadow) = crate::kdtree::world_triangles_shading(&self.scene, frame)?;
-        let rebuild = frame.any_moved() || frame.any_deformed();
-        self.builder.add_triangles_flagged(engine, graph, &tris, Some(&no_shadow), rebuild)
+        self.builder.add_frame(engine, graph, &self.scene, frame)
     }
 
     /// Declares the visibility passes of `batch` (slots into the points buffer) writing each
@@ -1180,15 +1211,16 @@ impl AvsTechnique {
             let out = engine.submit_wait(g)?;
             self.stats.rounds_wait_ms += waited.elapsed().as_secs_f64() * 1e3;
             self.stats.round_ms.extend(out.gpu_ms.iter().cloned());
-            let bytes = out.readbacks.get("avs_sh_readback").ok_or_else(|| anyhow!("avs: SH readback missing"))?;
-            let word = |i: usize| f32::from_le_bytes(bytes[4 * i..4 * i + 4].try_into().unwrap());
+            let (batch_sh, rays, truncated) = out
+                .readbacks
+                .get("avs_sh_readback")
+                .and_then(|b| parse_sh_readback(b, batch.len()))
+                .ok_or_else(|| anyhow!("avs: SH readback missing"))?;
+            self.stats.rays += rays;
+            self.stats.truncated += truncated;
             let slot_point: std::collections::HashMap<u32, usize> =
                 slots.iter().enumerate().map(|(i, &s)| (s, i)).collect();
-            for (e, &slot) in batch.iter().enumerate() {
-                let mut v = [0f32; SH_COUNT];
-                for (k, x) in v.iter_mut().enumerate() {
-                    *x = word(e * SH_COUNT + k);
-                }
+            for (&slot, v) in batch.iter().zip(batch_sh) {
                 sh[slot_point[&slot]] = Some(v);
                 let map_bytes = words as usize * 4;
                 if let Some(m) = out
@@ -1196,12 +1228,8 @@ impl AvsTechnique {
                     .get("avs_maps_readback")
                     .and_then(|m| m.get(slot as usize * map_bytes..(slot as usize + 1) * map_bytes))
                 {
-                    maps[slot_point[&slot]] =
-                        m.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+                    maps[slot_point[&slot]] = map_words(m);
                 }
-                let rays = word(batch.len() * SH_COUNT + e).to_bits();
-                self.stats.rays += (rays & 0x7fff_ffff) as u64;
-                self.stats.truncated += (rays >> 31) as usize;
             }
             if round == rounds {
                 break;
@@ -1317,18 +1345,7 @@ impl AvsTechnique {
         }
         let (_, verts) = self.sent.iter().find(|(f, _)| *f == late.frame)?;
         let n = verts.len();
-        let bytes = &late.bytes;
-        if bytes.len() < n * (SH_COUNT + 1) * 4 {
-            return None;
-        }
-        let word = |i: usize| f32::from_le_bytes([bytes[4 * i], bytes[4 * i + 1], bytes[4 * i + 2], bytes[4 * i + 3]]);
-        let sh: Vec<[f32; SH_COUNT]> = (0..n).map(|e| std::array::from_fn(|k| word(e * SH_COUNT + k))).collect();
-        let (mut rays, mut truncated) = (0u64, 0usize);
-        for e in 0..n {
-            let w = word(n * SH_COUNT + e).to_bits();
-            rays += (w & 0x7fff_ffff) as u64;
-            truncated += (w >> 31) as usize;
-        }
+        let (sh, rays, truncated) = parse_sh_readback(&late.bytes, n)?;
         let two_pi = 2.0 * std::f32::consts::PI;
         self.stats.visible_fraction = sh.iter().map(|c| samp::visible_solid_angle(c) / two_pi).collect();
         self.stats.buried = self.stats.visible_fraction.iter().filter(|&&v| samp::buried(v)).count();
@@ -1337,12 +1354,9 @@ impl AvsTechnique {
         self.stats.late_vertices = verts.clone();
         let words = words_per_map(self.settings.r);
         self.stats.maps = match late_maps {
-            Some(m) if self.settings.capture_maps && m.frame == late.frame && m.bytes.len() >= n * words * 4 => m
-                .bytes
-                .chunks_exact(words * 4)
-                .take(n)
-                .map(|c| c.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
-                .collect(),
+            Some(m) if self.settings.capture_maps && m.frame == late.frame && m.bytes.len() >= n * words * 4 => {
+                m.bytes.chunks_exact(words * 4).take(n).map(map_words).collect()
+            }
             _ => Vec::new(),
         };
         if truncated > 0 {
@@ -1600,12 +1614,7 @@ impl crate::technique::Technique for AvsTechnique {
             let vis = engine.persistent_buffer(graph, "avs.vis", cap * words_per_map(r) as u64 * 4);
             let (vis, points_buf) = self.add_late_maps(graph, &tree, points_buf, &points, vis);
             self.stats.traced_points = points.len();
-            // (a frame that failed to submit left its number to this one)
-            self.sent.retain(|(f, _)| *f != frame_no);
-            self.sent.push((frame_no, self.sample_vertices.clone()));
-            if self.sent.len() > LATE_FRAMES {
-                self.sent.remove(0);
-            }
+            push_recent(&mut self.sent, frame_no, self.sample_vertices.clone());
             (points, slots, vis, points_buf, tree)
         };
         let nslots = slots.iter().max().map_or(0, |&m| m + 1);
@@ -1719,11 +1728,7 @@ impl crate::technique::Technique for AvsTechnique {
             let bytes = self.used_bytes();
             let rb = graph.create_late_readback(LATE_USED, bytes);
             crate::util::copy_buffer(graph, "avs_used_copy", u, rb, Some(bytes));
-            self.cull_orders.retain(|(f, _)| *f != frame_no);
-            self.cull_orders.push((frame_no, all));
-            if self.cull_orders.len() > LATE_FRAMES {
-                self.cull_orders.remove(0);
-            }
+            push_recent(&mut self.cull_orders, frame_no, all);
         }
         self.stats.lap(&mut clock, "shading_prep");
         Ok(hdr)

@@ -831,11 +831,7 @@ impl crate::technique::Technique for IsgTechnique {
     ) -> Result<ImageHandle> {
         // local lights' occluders: the frame's triangles (rebuilt when anything moved)
         let kd_tree = match self.kd.as_mut() {
-            Some(b) => {
-                let (tris, _, no_shadow) = crate::kdtree::world_triangles_shading(&self.scene, inputs.frame)?;
-                let rebuild = inputs.frame.any_moved() || inputs.frame.any_deformed();
-                Some(b.add_triangles_flagged(engine, graph, &tris, Some(&no_shadow), rebuild)?)
-            }
+            Some(b) => Some(b.add_frame(engine, graph, &self.scene, inputs.frame)?),
             None => None,
         };
         // the tree's four buffers, or four empty stand-ins the shader never reads (flags bit 2 off)

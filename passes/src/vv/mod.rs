@@ -953,10 +953,7 @@ impl crate::technique::Technique for VvTechnique {
         // the scene's triangles for the local lights' shadow rays (built once: vv's scenes are
         // static), or placeholders without local lights
         let kd_tree = match self.kd.as_mut().filter(|_| inputs.handles.light_count > 0) {
-            Some(b) => {
-                let (tris, _, no_shadow) = crate::kdtree::world_triangles_shading(inputs.scene, inputs.frame)?;
-                Some(b.add_triangles_flagged(engine, graph, &tris, Some(&no_shadow), false)?)
-            }
+            Some(b) => Some(b.add_frame(engine, graph, inputs.scene, inputs.frame)?),
             None => None,
         };
         let kd_bufs = match &kd_tree {
