@@ -69,7 +69,7 @@ layout(push_constant) uniform Push {
     int node_count;
     int patch_side;
     float lod;
-    uint flags;  // bit 0: no shadows (debug); bit 1: local lights unshadowed; bit 2: their shadow rays through the meshes (kd-tree), not the spheres
+    uint flags;  // bit 0: no shadows (debug); bit 1: local lights unshadowed; bit 2: their shadow rays through the meshes (kd-tree), not the spheres; bit 3: environment visibility traced through the kd-tree (traced_visible)
     float min_fraction;
     uint specular_mode;  // 0: Gamma_L from the prefiltered maps (paper), 1: from the lighting SGs, 2: ratio (env_shade.glsl's glossy term x the ISG visible fraction)
     int tri_node_count;  // thin-shell triangle BVH nodes
@@ -120,10 +120,45 @@ vec3 local_lights(vec3 pos, vec3 p, vec3 n, vec3 ng, vec3 v, vec3 albedo, int ki
 
 #include "prefiltered.glsl"
 
+// The visible fraction of g estimated by tracing: ISG_TRACED_SAMPLES directions drawn from g
+// (stratified in cos theta, golden-angle azimuths, rotated per pixel) above the tangent plane,
+// each a shadow ray through the frame's kd-tree (`visibility = traced`, flags bit 3: the
+// visibility the sphere proxies and the ISG approximate, for measuring their error apart from
+// the SG lighting's).
+#define ISG_TRACED_SAMPLES 96
+float traced_visible(vec3 p, vec3 n, SG g) {
+    vec3 fz = g.axis;
+    vec3 fx = normalize(abs(fz.x) < 0.9 ? cross(vec3(1.0, 0.0, 0.0), fz) : cross(vec3(0.0, 1.0, 0.0), fz));
+    vec3 fy = cross(fz, fx);
+    uvec2 q = uvec2(gl_GlobalInvocationID.xy);
+    uint hsh = (q.x * 1973u + q.y * 9277u + 26699u) * 0x9E3779B9u;
+    hsh ^= hsh >> 15;
+    hsh *= 0x2C1B3C6Du;
+    hsh ^= hsh >> 12;
+    float r0 = float(hsh & 0xffffu) / 65536.0, r1 = float(hsh >> 16) / 65536.0;
+    float lam = max(g.lambda, 1e-4);
+    float span = 1.0 - exp(-2.0 * lam);
+    float vis = 0.0, cnt = 0.0;
+    for (int k = 0; k < ISG_TRACED_SAMPLES; ++k) {
+        float u = fract((float(k) + r0) / float(ISG_TRACED_SAMPLES));
+        float ct = clamp(1.0 + log(max(1.0 - u * span, 1e-30)) / lam, -1.0, 1.0);
+        float st = sqrt(max(1.0 - ct * ct, 0.0));
+        float ph = 6.28318531 * fract(float(k) * 0.61803399 + r1);
+        vec3 w = (fx * cos(ph) + fy * sin(ph)) * st + fz * ct;
+        if (dot(w, n) <= 0.0) continue;
+        cnt += 1.0;
+        vis += kd_trace(p, w, 0.0, 1e30, true).t >= 0.0 ? 0.0 : 1.0;
+    }
+    return cnt > 0.0 ? vis / cnt : 1.0;
+}
+
 float visible(vec3 p, vec3 n, SG g) {
     if ((pc.flags & 1u) != 0u) return 1.0;
+    if ((pc.flags & 8u) != 0u) return traced_visible(p, n, g);
     return isg_visible(p, n, g.axis, g.lambda, pc.node_count, pc.tri_node_count, pc.patch_side, pc.lod);
 }
+
+#include "isg_lobes.glsl"
 
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
@@ -167,32 +202,10 @@ void main() {
         }
         diffuse *= (pc.flags & 1u) != 0u ? vec3(1.0) : clamp(vvis.rgb, 0.0, 1.0);
     } else {
-        // Diffuse: lobes carrying less than min_fraction of the unshadowed total take the
-        // energy-weighted mean visibility of the others instead of their own traversal.
-        vec3 unshadowed = vec3(0.0);
-        for (uint k = 0u; k < nl; ++k) {
-            SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
-            unshadowed += lobes[2u * k + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
-        }
-        float total = dot(unshadowed, vec3(0.2126, 0.7152, 0.0722));
-        vec3 skipped = vec3(0.0);
-        float vis_sum = 0.0, vis_w = 0.0;
-        for (uint k = 0u; k < nl; ++k) {
-            SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
-            vec3 mu = lobes[2u * k + 1u].rgb;
-            vec3 e = mu * max(sg_cosine_integral(l, n), 0.0);
-            float y = dot(e, vec3(0.2126, 0.7152, 0.0722));
-            if (y <= 0.0) continue;
-            if (y < pc.min_fraction * total) {
-                skipped += e;
-                continue;
-            }
-            float vk = visible(p, n, sg_product(l, cosg));
-            diffuse += e * vk;
-            vis_sum += vk * y;
-            vis_w += y;
-        }
-        diffuse += skipped * (vis_w > 0.0 ? vis_sum / vis_w : 1.0);
+        // Diffuse: include/isg_lobes.glsl (lobes below min_fraction of the light found
+        // visible so far take the mean visibility of those traversed).
+        vec3 unshadowed;
+        diffuse = isg_lobes_diffuse(p, n, nl, pc.min_fraction, unshadowed);
         if (pc.diffuse_ratio != 0u) diffuse = irr_ratio(n, diffuse, unshadowed);
     }
     vec3 color = albedo / PI * diffuse;

@@ -38,6 +38,7 @@ layout(push_constant) uniform Push {
 float visible(vec3 p, vec3 n, SG g) {
     return isg_visible(p, n, g.axis, g.lambda, pc.node_count, pc.tri_node_count, pc.patch_side, pc.lod);
 }
+#include "isg_lobes.glsl"
 
 void main() {
     uint vi = gl_GlobalInvocationID.x;
@@ -59,30 +60,8 @@ void main() {
     float ndv = max(dot(n, v), 1e-4);
     SG cosg = sg_clamped_cosine(n);
     vec3 p = pos + n * 1e-3 * max(1.0, length(pos));
-    uint nl = min(pc.lobe_count, 64u);
-    vec3 unshadowed = vec3(0.0);
-    for (uint k = 0u; k < nl; ++k) {
-        SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
-        unshadowed += lobes[2u * k + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
-    }
-    float total = dot(unshadowed, vec3(0.2126, 0.7152, 0.0722));
-    vec3 shadowed = vec3(0.0), skipped = vec3(0.0);
-    float vis_sum = 0.0, vis_w = 0.0;
-    for (uint k = 0u; k < nl; ++k) {
-        SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
-        vec3 e = lobes[2u * k + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
-        float y = dot(e, vec3(0.2126, 0.7152, 0.0722));
-        if (y <= 0.0) continue;
-        if (y < pc.min_fraction * total) {
-            skipped += e;
-            continue;
-        }
-        float vk = visible(p, n, sg_product(l, cosg));
-        shadowed += e * vk;
-        vis_sum += vk * y;
-        vis_w += y;
-    }
-    shadowed += skipped * (vis_w > 0.0 ? vis_sum / vis_w : 1.0);
+    vec3 unshadowed;
+    vec3 shadowed = isg_lobes_diffuse(p, n, pc.lobe_count, pc.min_fraction, unshadowed);
     vec3 vd = vec3(1.0);
     for (int c = 0; c < 3; ++c) {
         if (unshadowed[c] > 0.0) vd[c] = clamp(shadowed[c] / unshadowed[c], 0.0, 1.0);

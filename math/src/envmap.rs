@@ -15,7 +15,9 @@
 //!    luminance are split into a sky part (clamped) and an excess part; each part is fit by
 //!    steps 1-3 with its own lobes and the lobe sets are joined; matching pursuit gives each
 //!    next lobe to the part whose relative energy decrease is largest.
-//!    Maps without such texels are fit in one part.
+//!    Maps without such texels are fit in one part. By default ([`SunLobes::Moments`]) the
+//!    excess is not fit by least squares but grouped by angle, one lobe per group matching its
+//!    energy, mean direction and angular spread (see [`SunLobes`]).
 //! 1. *Selection* (matching pursuit on luminance): for a ladder of sharpness values
 //!    (`lambda_min` .. the map's resolution limit, ratio `ladder_ratio`) the correlation maps
 //!    `C_lambda(a) = sum_i w_i Y_i G(d_i; a, lambda)` are computed once (a sharpness-matched
@@ -409,12 +411,141 @@ pub struct SgFitOptions {
     /// norm: every lobe goes to the sun's disk-vs-Gaussian residual and broad lobes are bent to
     /// patch it, so the sky is lost.
     pub sun_cap: Option<f64>,
+    /// How the excess part (the sun, studio lights) becomes lobes (default
+    /// [`SunLobes::Moments`]).
+    pub sun_lobes: SunLobes,
 }
+
+/// How [`SgEnvFitter`] fits the excess part of a map split by [`SgFitOptions::sun_cap`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SunLobes {
+    /// Matching pursuit and NNLS, as the sky (least squares): a light of a few degrees with a
+    /// bright core (studio.exr's ring-shaped softbox, about 10 degrees across) becomes a lobe as
+    /// sharp as its core (lambda 1024, 2.5 degrees) plus spikes, so its shadows come out hard and
+    /// their umbrae black.
+    Pursuit,
+    /// The excess texels (whole texels over the cap) grouped by angle (brightest first, a texel
+    /// farther than [`SUN_GROUP_ANGLE`] from every group's mean direction starts a group, then
+    /// each texel goes to the nearest; at most a quarter of the lobes, a weaker group giving its
+    /// energy to the nearest), each group one lobe with the group's
+    /// energy (RGB), its mean direction as axis, and the sharpness whose mean cosine
+    /// `coth(lambda) - 1/lambda` equals the group's: the light's angular extent, which sets its
+    /// shadows' penumbrae, rather than its core's L2 fit. The lobes left go to the sky.
+    Moments,
+}
+
+/// Angle (radians, 15 degrees) from every group's mean direction beyond which an excess texel
+/// starts a group of its own in [`SunLobes::Moments`].
+pub const SUN_GROUP_ANGLE: f64 = 0.2618;
 
 impl Default for SgFitOptions {
     fn default() -> Self {
-        Self { lambda_min: 0.5, lambda_max: None, ladder_ratio: 2.0, refine_passes: 2, sun_cap: Some(100.0) }
+        Self {
+            lambda_min: 0.5,
+            lambda_max: None,
+            ladder_ratio: 2.0,
+            refine_passes: 2,
+            sun_cap: Some(100.0),
+            sun_lobes: SunLobes::Moments,
+        }
     }
+}
+
+/// The sharpness of an SG whose mean cosine about its axis over the sphere,
+/// `coth(lambda) - 1/lambda`, is `r` (in `[lo, hi]`).
+fn lambda_of_mean_cosine(r: f64, lo: f64, hi: f64) -> f64 {
+    let f = |l: f64| 1.0 / l.tanh() - 1.0 / l;
+    if !(r > f(lo)) {
+        return lo;
+    }
+    if r >= f(hi) {
+        return hi;
+    }
+    let (mut a, mut b) = (lo.ln(), hi.ln());
+    for _ in 0..80 {
+        let m = 0.5 * (a + b);
+        if f(m.exp()) < r {
+            a = m;
+        } else {
+            b = m;
+        }
+    }
+    (0.5 * (a + b)).exp()
+}
+
+/// [`SunLobes::Moments`]: at most `max_lobes` (>= 1) lobes for the excess map `map`, sharpness
+/// within `[lambda_lo, lambda_hi]`.
+fn moment_lobes(map: &LatLong, max_lobes: usize, lambda_lo: f64, lambda_hi: f64) -> Vec<SgRgb> {
+    struct Group {
+        /// The mean direction of the texels joined so far.
+        seed: DVec3,
+        rgb: DVec3,
+        weight: f64,
+        moment: DVec3,
+    }
+    let mut texels: Vec<(f64, usize)> = (0..map.rgb.len())
+        .map(|i| (luminance(map.rgb[i]) * map.solid_angle(i / map.width), i))
+        .filter(|(w, _)| *w > 0.0 && w.is_finite())
+        .collect();
+    texels.sort_by(|a, b| b.0.total_cmp(&a.0));
+    // seeds: brightest first, a texel farther than SUN_GROUP_ANGLE from every group's mean
+    // direction so far starts a group; then one Lloyd step: every texel to the group whose
+    // mean direction is nearest (texels of equal brightness, a uniform disk, arrive in no
+    // particular order)
+    let cos_join = SUN_GROUP_ANGLE.cos();
+    let mut groups: Vec<Group> = Vec::new();
+    for &(w, i) in &texels {
+        let d = map.dir(i);
+        let g = match groups.iter().position(|g| g.seed.dot(d) >= cos_join) {
+            Some(j) => j,
+            None => {
+                groups.push(Group { seed: d, rgb: DVec3::ZERO, weight: 0.0, moment: DVec3::ZERO });
+                groups.len() - 1
+            }
+        };
+        let g = &mut groups[g];
+        g.weight += w;
+        g.moment += d * w;
+        g.seed = g.moment.normalize_or(d);
+    }
+    for g in &mut groups {
+        (g.rgb, g.weight, g.moment) = (DVec3::ZERO, 0.0, DVec3::ZERO);
+    }
+    for &(w, i) in &texels {
+        let d = map.dir(i);
+        let g = groups.iter_mut().max_by(|a, b| a.seed.dot(d).total_cmp(&b.seed.dot(d))).unwrap();
+        g.rgb += map.rgb[i] * map.solid_angle(i / map.width);
+        g.weight += w;
+        g.moment += d * w;
+    }
+    groups.retain(|g| g.weight > 0.0);
+    // too many groups: the weakest gives its energy to the group whose mean direction is
+    // nearest, which keeps its own direction and spread (joining their moments would put a
+    // broad lobe between two distant lights)
+    while groups.len() > max_lobes.max(1) {
+        let (j, _) = groups.iter().enumerate().min_by(|a, b| a.1.weight.total_cmp(&b.1.weight)).unwrap();
+        let weak = groups.swap_remove(j);
+        let dir = weak.moment.normalize_or_zero();
+        let near = groups
+            .iter_mut()
+            .max_by(|a, b| a.moment.normalize_or_zero().dot(dir).total_cmp(&b.moment.normalize_or_zero().dot(dir)))
+            .unwrap();
+        near.moment *= (near.weight + weak.weight) / near.weight;
+        near.rgb += weak.rgb;
+        near.weight += weak.weight;
+    }
+    groups
+        .iter()
+        .filter_map(|g| {
+            let len = g.moment.length();
+            if !(len > 0.0 && g.weight > 0.0) {
+                return None;
+            }
+            let lambda = lambda_of_mean_cosine(len / g.weight, lambda_lo, lambda_hi);
+            let unit = Sg { axis: g.moment / len, lambda, mu: 1.0 }.sphere_integral();
+            Some(SgRgb { axis: g.moment / len, lambda, mu: g.rgb / unit })
+        })
+        .collect()
 }
 
 /// Result of an SG environment fit.
@@ -671,6 +802,18 @@ impl SgEnvFitter {
             }
         };
         let has_sun = map.rgb.iter().any(|c| scale(*c) < 1.0);
+        // Moments: a texel over the cap goes to the excess whole (its light's energy in its
+        // lobe), not its part over the cap (a plateau at the cap left in the sky, which the sky's
+        // lobes would spend themselves on)
+        let whole = opts.sun_lobes == SunLobes::Moments;
+        let scale = |c: DVec3| -> f64 {
+            let f = scale(c);
+            if whole && f < 1.0 {
+                0.0
+            } else {
+                f
+            }
+        };
         let sky_rgb: Vec<DVec3> = map.rgb.iter().map(|c| *c * scale(*c)).collect();
         let sky = Part::new(LatLong::from_rgb(width, height, sky_rgb), &lambdas);
         // the excess is made of compact bright sources: only sharp lobes (lambda >= 16)
@@ -702,9 +845,21 @@ impl SgEnvFitter {
         if k == 0 {
             return Err(EnvError::BadOption("need at least one lobe"));
         }
-        // matching pursuit over both parts: each lobe goes to the part whose *relative*
+        // SunLobes::Moments: the excess part's lobes from its groups' moments (at most a
+        // quarter of them), the rest to the sky
+        let mut moment = Vec::new();
+        let sun = match (&self.sun, self.opts.sun_lobes) {
+            (Some(sun), SunLobes::Moments) if k >= 2 => {
+                let hi = sun.levels.last().map_or(self.opts.lambda_min, |l| l.lambda);
+                moment = moment_lobes(&sun.map, (k / 4).max(1), self.opts.lambda_min, hi);
+                None
+            }
+            (sun, _) => sun.as_ref(),
+        };
+        let k = k - moment.len().min(k - 1);
+        // matching pursuit over the parts left: each lobe goes to the part whose *relative*
         // energy decrease is largest (a sun cannot take every lobe, the sky cannot starve it)
-        let parts: Vec<&Part> = std::iter::once(&self.sky).chain(self.sun.as_ref()).collect();
+        let parts: Vec<&Part> = std::iter::once(&self.sky).chain(sun).collect();
         let energies: Vec<f64> = parts.iter().map(|p| p.energy().max(1e-300)).collect();
         let mut resid: Vec<Vec<Vec<f64>>> =
             parts.iter().map(|p| p.levels.iter().map(|l| l.corr.clone()).collect()).collect();
@@ -729,6 +884,7 @@ impl SgEnvFitter {
                 lobes.extend(part.fit_shapes(std::mem::take(&mut shapes[pi]), self.opts.refine_passes));
             }
         }
+        lobes.extend(moment);
         let lobes: Vec<SgRgb> = lobes.into_iter().filter(|l| l.mu.max_element() > 0.0).collect();
         let rel_l2_error = self.map.relative_l2_error(&lobes);
         Ok(SgEnvFit { lobes, rel_l2_error })

@@ -331,3 +331,67 @@ fn irradiance_map_is_the_cosine_convolution() {
         assert!((t[0] as f64 - expect).abs() < 0.01 * sp, "texel {j}: {} vs {expect}", t[0]);
     }
 }
+
+/// A studio light: a disk of 8 degrees radius, 1e3 x brighter than a dim sky, and a second,
+/// weaker one across the sky. Moment lobes (default) keep each light's energy, direction and
+/// angular extent: a uniform disk of radius r has mean cosine (1 + cos r) / 2, the SG of the
+/// same mean cosine has lambda about 2 / (1 - cos r), whose shadows have the disk's penumbrae.
+/// Four lobes leave one for the lights: the weaker gives its energy to the stronger, whose
+/// direction and extent stay its own.
+#[test]
+fn moment_lobes_keep_each_lights_energy_direction_and_extent() {
+    let (w, h) = (512, 256);
+    let key = DVec3::new(0.6, 0.6, -0.3).normalize();
+    let fill = DVec3::new(-0.7, 0.3, 0.6).normalize();
+    let (rk, rf) = (8f64.to_radians(), 4f64.to_radians());
+    let t = make_map(w, h, |d| {
+        let mut c = DVec3::splat(0.02) + DVec3::new(0.01, 0.02, 0.04) * d.y.max(0.0);
+        if d.angle_between(key) < rk {
+            c += DVec3::new(30.0, 28.0, 25.0);
+        }
+        if d.angle_between(fill) < rf {
+            c += DVec3::new(10.0, 10.0, 12.0);
+        }
+        c
+    });
+    let map = LatLong::new(w, h, &t).unwrap();
+    let energy_near = |axis: DVec3, r: f64| -> DVec3 {
+        (0..w * h)
+            .filter(|&i| map.dir(i).angle_between(axis) < r + 0.01)
+            .map(|i| map.rgb[i] * map.solid_angle(i / w))
+            .sum()
+    };
+    let (ek, ef) = (energy_near(key, rk), energy_near(fill, rf));
+    let fitter = SgEnvFitter::new(w, h, &t, SgFitOptions::default()).unwrap();
+    let f = fitter.fit(16).unwrap();
+    let lobe_near = |axis: DVec3| {
+        *f.lobes.iter().filter(|l| l.axis.angle_between(axis) < 0.05).max_by(|a, b| a.mu.x.total_cmp(&b.mu.x)).unwrap()
+    };
+    for (axis, r, e) in [(key, rk, ek), (fill, rf, ef)] {
+        let l = lobe_near(axis);
+        let lobe_energy = l.mu * l.unit().sphere_integral();
+        let want = 2.0 / (1.0 - r.cos());
+        println!(
+            "light of radius {:.1} deg: lobe {:.2} deg off, lambda {:.1} (disk-equivalent {want:.1}), energy {:.3?} of the light's {:.3?}",
+            r.to_degrees(),
+            l.axis.angle_between(axis).to_degrees(),
+            l.lambda,
+            lobe_energy,
+            e
+        );
+        assert!(l.axis.angle_between(axis) < 0.5f64.to_radians());
+        assert!((l.lambda / want - 1.0).abs() < 0.15, "lambda {} against {want}", l.lambda);
+        // the lobe carries the excess over the sky's cap, nearly all of the light
+        assert!((lobe_energy.x / e.x - 1.0).abs() < 0.05, "energy {lobe_energy:?} against {e:?}");
+    }
+    let pursuit =
+        SgEnvFitter::new(w, h, &t, SgFitOptions { sun_lobes: SunLobes::Pursuit, ..Default::default() }).unwrap();
+    println!("rel L2: moments {:.4}, pursuit {:.4}", f.rel_l2_error, pursuit.fit(16).unwrap().rel_l2_error);
+    let f4 = fitter.fit(4).unwrap();
+    let l = f4.lobes.iter().max_by(|a, b| a.mu.x.total_cmp(&b.mu.x)).unwrap();
+    let lights: DVec3 = f4.lobes.iter().filter(|l| l.lambda > 50.0).map(|l| l.mu * l.unit().sphere_integral()).sum();
+    assert_eq!(f4.lobes.iter().filter(|l| l.lambda > 50.0).count(), 1, "{:?}", f4.lobes);
+    assert!(l.axis.angle_between(key) < 0.5f64.to_radians());
+    assert!((l.lambda / (2.0 / (1.0 - rk.cos())) - 1.0).abs() < 0.15);
+    assert!((lights.x / (ek.x + ef.x) - 1.0).abs() < 0.05, "{lights:?} against {:?}", ek + ef);
+}

@@ -168,7 +168,7 @@ const ISG_PARAMS: &[ParamDoc] = &[
     p("side", "12", "1..=32", "patches per side of the discretized visibility region"),
     p("epsilon", "0.01", "1e-6..=0.5", "limiting-angle threshold (paper: 0.01)"),
     p("lod", "1.0", ">= 0", "BVH nodes below lod x patch size are rasterized as one sphere"),
-    p("min_fraction", "0.02", "0..=1", "diffuse lobes below this fraction of the light take the mean visibility"),
+    p("min_fraction", "0.02", "0..=1", "diffuse lobes (taken brightest first) below this fraction of the light found visible so far take the mean visibility of those traversed"),
     p("shadows", "true", "true/false", "false: visibility 1 (shading error only)"),
     p("prefiltered", "true", "true/false", "glossy = sg: specular from SG-prefiltered environment maps (eq. 10)"),
     p("diffuse", "ratio", "ratio, sg", "diffuse environment term: the map's exact irradiance times the SG lobes' visible share (ratio) or the SG lobes alone (sg, the paper's)"),
@@ -177,6 +177,8 @@ const ISG_PARAMS: &[ParamDoc] = &[
     p("thin_shells", "true", "true/false", "thin shells and open meshes cast shadows by their triangles"),
     p("light_shadows", "true", "true/false", "shadow rays toward local lights"),
     p("light_occluders", "mesh", "mesh, spheres", "what the local lights' shadow rays hit: the meshes (the frame's kd-tree) or the sphere sets and thin-shell triangles"),
+    p("thin_tolerance", "0.03", ">= 0", "triangles farther than this fraction of their object's size outside its spheres cast shadows as thin-shell triangles (0: every triangle outside them)"),
+    p("visibility", "isg", "isg, traced", "environment visibility: the ISG over the sphere proxies (the paper's) or 96 shadow rays per lobe through the meshes (traced: a measuring stick for the proxies' error; per-pixel mode only)"),
     p("mode", "pixel", "pixel, vertex", "visibility per pixel or per vertex"),
     p("max_edge", "0.1", ">= 0", "per-vertex mode: subdivide until edges are at most this (0: never)"),
 ];

@@ -68,8 +68,10 @@ pub struct IsgSettings {
     /// BVH descent threshold: an inner node whose projected half-angle is below `lod` times the
     /// patch size is rasterized as one sphere.
     pub lod: f32,
-    /// Diffuse lighting lobes below this fraction of a pixel's unshadowed diffuse light take the
-    /// energy-weighted mean visibility of the others (0 evaluates every lobe).
+    /// Diffuse lighting lobes, taken brightest first, below this fraction of the light found
+    /// visible so far at a pixel take the energy-weighted mean visibility of those traversed
+    /// (0 evaluates every lobe; `glsl/include/isg_lobes.glsl`). Against the visible light, not
+    /// the unshadowed total: in an umbra of the dominant lobe the sky's lobes are traversed.
     pub min_lobe_fraction: f32,
     /// False: visibility 1 everywhere (separates the shading error from the visibility error).
     pub shadows: bool,
@@ -102,6 +104,15 @@ pub struct IsgSettings {
     /// Local lights' shadow rays through the meshes (`true`, `light_occluders = mesh`: the
     /// frame's kd-tree) or through the spheres and thin-shell triangles (`false`, `spheres`).
     pub light_mesh: bool,
+    /// Environment visibility traced through the frame's kd-tree (`visibility = traced`: 96
+    /// shadow rays per lobe drawn from it) instead of the ISG over the sphere proxies (`isg`,
+    /// default): not the paper's method but its measuring stick, the error left when the
+    /// proxies and the ISG are exact, so the visibility's share of a cell's error shows apart
+    /// from the SG lighting's.
+    pub traced_visibility: bool,
+    /// Triangles farther than this fraction of their object's size outside its spheres cast
+    /// shadows as thin shells ([`thin_parts_with`]; default [`THIN_PART_TOLERANCE`]).
+    pub thin_tolerance: f32,
 }
 
 /// Most spheres the one-workgroup GPU LBVH takes.
@@ -126,6 +137,8 @@ impl Default for IsgSettings {
             thin_shells: true,
             light_shadows: true,
             light_mesh: true,
+            traced_visibility: false,
+            thin_tolerance: THIN_PART_TOLERANCE,
         }
     }
 }
@@ -184,6 +197,16 @@ impl IsgSettings {
                     "mesh" => true,
                     "spheres" => false,
                     _ => anyhow::bail!("isg parameter light_occluders = '{value}': expected 'mesh' or 'spheres'"),
+                }
+            }
+            "thin_tolerance" => {
+                self.thin_tolerance = v.parse::<f32>().ok().filter(|x| x.is_finite() && *x >= 0.0).ok_or_else(bad)?
+            }
+            "visibility" => {
+                self.traced_visibility = match v {
+                    "isg" => false,
+                    "traced" => true,
+                    _ => anyhow::bail!("isg parameter visibility = '{value}': expected 'isg' or 'traced'"),
                 }
             }
             "mode" => {
@@ -457,6 +480,12 @@ pub const THIN_PART_TOLERANCE: f32 = 0.03;
 /// outside all of them (rest pose), the thin parts its spheres do not hold (a hat's brim), so
 /// that they still cast their shadows.
 pub fn thin_parts(scene: &Scene, sets: &[Option<SphereSet>]) -> Vec<Vec<u32>> {
+    thin_parts_with(scene, sets, THIN_PART_TOLERANCE)
+}
+
+/// [`thin_parts`] with `tolerance` (a fraction of each object's bounding-box diagonal) in place
+/// of [`THIN_PART_TOLERANCE`]: 0 makes every triangle not inside a sphere a thin shell.
+pub fn thin_parts_with(scene: &Scene, sets: &[Option<SphereSet>], tolerance: f32) -> Vec<Vec<u32>> {
     (0..scene.objects.len())
         .map(|i| {
             let Some(mesh) = scene.objects.get(i).and_then(|o| scene.meshes.get(o.mesh)) else { return Vec::new() };
@@ -475,7 +504,7 @@ pub fn thin_parts(scene: &Scene, sets: &[Option<SphereSet>]) -> Vec<Vec<u32>> {
                 .iter()
                 .map(|&p| p * baked)
                 .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(a, b), p| (a.min(p), b.max(p)));
-            let tol = THIN_PART_TOLERANCE * (hi - lo).length();
+            let tol = tolerance * (hi - lo).length();
             let outside = |p: Vec3| set.spheres.iter().all(|s| (p * baked - s.center).length() - s.radius > tol);
             let vertex_out: Vec<bool> = mesh.positions.iter().map(|&p| outside(p)).collect();
             (0..tris)
@@ -622,7 +651,7 @@ impl IsgTechnique {
         let lobe_count = (lobes.len() / 2) as u32;
         let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
         let (sets, mut sphere_notes) = scene_sphere_sets_noting(scene, settings.spheres_per_object);
-        let thin = thin_parts(scene, &sets);
+        let thin = thin_parts_with(scene, &sets, settings.thin_tolerance);
         for (i, part) in thin.iter().enumerate() {
             let (Some(Some(set)), Some(o)) = (sets.get(i), scene.objects.get(i)) else { continue };
             if !part.is_empty() {
@@ -635,7 +664,8 @@ impl IsgTechnique {
                 ));
             }
         }
-        let settings_traces_lights = settings.light_shadows && settings.light_mesh && !scene.lights.is_empty();
+        let settings_traces_lights =
+            (settings.light_shadows && settings.light_mesh && !scene.lights.is_empty()) || settings.traced_visibility;
         Ok(IsgTechnique {
             pipeline,
             bvh_pipeline,
@@ -909,7 +939,8 @@ impl crate::technique::Technique for IsgTechnique {
         push.extend_from_slice(&self.settings.lod.to_le_bytes());
         let flags = !self.settings.shadows as u32
             | (!self.settings.light_shadows as u32) << 1
-            | (kd_tree.is_some() as u32) << 2;
+            | ((kd_tree.is_some() && self.settings.light_mesh) as u32) << 2
+            | ((kd_tree.is_some() && self.settings.traced_visibility) as u32) << 3;
         push.extend_from_slice(&flags.to_le_bytes());
         push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
         let specular_mode = if self.settings.glossy_ratio { 2u32 } else { !self.settings.prefiltered_specular as u32 };
