@@ -333,11 +333,14 @@ fn accuracy_against_both_references_and_bvh_variants() {
     // The ratio estimators (default): the map's exact irradiance times the lobes' visible share
     // removes the SG fit's error from the diffuse term, the material model's glossy term times the
     // lobe's visible fraction the one-lobe BRDF's from the glossy term. Measured (RMSE over the
-    // mean, 32-spp reference): 0.216 against 0.244 with the paper's (diffuse = sg, glossy = sg).
+    // mean, 32-spp reference): 0.216 against 0.244 with the paper's (diffuse = sg, glossy = sg)
+    // when least squares fitted studio.exr's lights (it lost most of the fill light's energy);
+    // with the moment-matched lobes (session 22) the SG lobes alone come close, 0.204 against
+    // 0.207, most of what is left being the 32-spp reference's noise.
     let ex_paper = cmp(&exact_ref.radiance, &isg_paper[0], "isg (diffuse = sg)");
     let rel = |c: &penumbra_reference::metrics::Comparison| c.rmse / c.reference_mean;
     println!("exact ref, RMSE / mean: isg {:.4}, diffuse = glossy = sg {:.4}", rel(&ex_isg), rel(&ex_paper));
-    assert!(rel(&ex_isg) < 0.9 * rel(&ex_paper), "ratio {} vs SG diffuse {}", rel(&ex_isg), rel(&ex_paper));
+    assert!(rel(&ex_isg) < rel(&ex_paper), "ratio {} vs SG diffuse {}", rel(&ex_isg), rel(&ex_paper));
     // Per-vertex visibility (falling: floor subdivided to 0.1 m edges): interpolation error on
     // top of the per-pixel one.
     let sg_vtx = cmp(&sg_ref.radiance, &vtx_sg[0], "isg-vertex (SG specular)");
@@ -409,11 +412,15 @@ fn local_lights_cast_shadows() {
     let opts =
         ReferenceOptions { width: w, height: h, spp: 16, time: Some(t), mode: Mode::Exact, ..Default::default() };
     let reference = reference_render(&s, &opts).expect("reference");
+    // thin parts at 3 % of an object's size (the default before session 22; at its 1 % the
+    // spheres' thin-shell triangles hold these shapes as well as the meshes: 0.01111 against
+    // 0.01117 rmse, within the reference's noise)
     let with = |on: bool, occluders: &str| {
         let mut s = s.clone();
         s.technique_params.clear();
         s.technique_params.insert("light_shadows".into(), on.to_string());
         s.technique_params.insert("light_occluders".into(), occluders.into());
+        s.technique_params.insert("thin_tolerance".into(), "0.03".into());
         s
     };
     let (r, lit) = render(&with(true, "mesh"), "isg", w, h, &[t], true);

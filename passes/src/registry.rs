@@ -397,7 +397,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         static_only: false,
         shadows: true,
         budget: ISG_BUDGET,
-        knobs: &[k("lobes", &["4", "32"]), k("side", &["4", "24"])],
+        knobs: &[k("lobes", &["4", "32"]), k("side", &["4", "24"]), k("thin_tolerance", &["0.03"])],
         create: create_isg,
     },
     TechniqueInfo {
