@@ -36,6 +36,7 @@ layout(set = 0, binding = 13) readonly buffer KdHeader { uint kd_hdr[]; };
 #define KD_REF(i) kd_refs[i]
 #define KD_HDR(i) kd_hdr[i]
 #include "kdtree.glsl"
+#include "light_rays.glsl"
 layout(push_constant) uniform Push {
     ivec4 sat;    // x W, y H, z hemisphere arcs, w mode (0 fragment3, 1 fragment1, 2 tessellation, 3 tessellation3)
     ivec4 off0;   // offsets in vv_ints: x seq_offsets, y vertex_seqs, z tri_offsets, w loop_offsets
@@ -150,21 +151,7 @@ vec3 vv_face_normal = vec3(0.0);
 
 // Unoccluded fraction of light l seen from s (face normal ng) by shadow rays through the kd-tree.
 float vv_light_traced(LightData l, vec3 s, vec3 ng) {
-    vec3 p = s + ng * 1e-3 * max(1.0, length(s));
-    vec3 to_light = light_vector(l, p);
-    float radius = int(l.pos_kind.w + 0.5) == 2 ? l.extra.x : 0.0;
-    int taps = radius > 0.0 ? LIGHT_DISK_POINTS : 1;
-    float vis = 0.0;
-    for (int k = 0; k < taps; ++k) {
-        vec3 q = light_disk_target(to_light, radius, k);
-        float len = length(q);
-        if (!(len > 0.0)) {
-            vis += 1.0;
-            continue;
-        }
-        vis += kd_trace(p, q / len, 0.0, len * (1.0 - 1e-4), true).t >= 0.0 ? 0.0 : 1.0;
-    }
-    return vis / float(taps);
+    return light_rays_visibility(l, s + ng * 1e-3 * max(1.0, length(s)));
 }
 
 // Radiance reflected from the visible local lights.

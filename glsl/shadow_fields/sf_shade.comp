@@ -9,7 +9,8 @@
 // `env` technique), times the occluders'
 // visibility there, and the local lights' specular lobe, times the visibility toward the light
 // of the occluders nearer than it. With srf = 0 local lights are evaluated pointwise (BRDF
-// times the occluders' visibility toward the light) instead of through their fields.
+// times the occluders' visibility toward the light) instead of through their fields; with
+// traced = 1 (light_shadows = traced) pointwise and shadowed by rays through the kd-tree.
 // Sky pixels show the environment.
 #include "common.glsl"
 #define SF_B0 7
@@ -30,7 +31,30 @@ layout(set = 0, binding = 14) uniform sampler2DArray material_textures;
 #include "material.glsl"
 #include "lights.glsl"
 #include "env_shade.glsl"
-layout(push_constant) uniform Push { uint n_inst; uint tensor_count; uint light_count; uint srf; uint window; uint mode; } pc;
+// The frame's kd-tree (include/kdtree.glsl): the local lights' shadow rays (traced = 1).
+layout(set = 0, binding = 15) readonly buffer KdTris { vec4 kd_tris[]; };
+layout(set = 0, binding = 16) readonly buffer KdNodes { uvec4 kd_nodes[]; };
+layout(set = 0, binding = 17) readonly buffer KdRefs { uint kd_refs[]; };
+layout(set = 0, binding = 18) readonly buffer KdHeader { uint kd_hdr[]; };
+#define KD_TRI(i) kd_tris[i]
+#define KD_NODE(i) kd_nodes[i]
+#define KD_REF(i) kd_refs[i]
+#define KD_HDR(i) kd_hdr[i]
+#include "kdtree.glsl"
+#include "light_rays.glsl"
+// The environment's key lights split off from its SH (SfOptions::key_lights), 2 per light: world
+// axis + lambda, rgb amplitude.
+layout(set = 0, binding = 19) readonly buffer KeyLights { vec4 key[]; };
+// traced: local lights pointwise, shadowed by rays through the kd-tree (light_shadows = traced;
+// srf is then 0); key_count: key lights (traced only)
+layout(push_constant) uniform Push { uint n_inst; uint tensor_count; uint light_count; uint srf; uint window; uint mode; uint traced; uint key_count; } pc;
+
+// Irradiance from the key lights at a point of normal n (offset point p, geometric normal ng).
+vec3 key_lights_irradiance(vec3 p, vec3 n, vec3 ng) {
+    vec3 sum = vec3(0.0);
+    for (uint k = 0u; k < pc.key_count; ++k) sum += key_light_irradiance(key[2u * k], key[2u * k + 1u].rgb, p, n, ng);
+    return sum;
+}
 
 // Local lights (as shade_env.comp's local_lights, same BRDFs), pointwise: the specular lobe
 // always, the diffuse lobe only with srf = 0 (else it comes through the source radiance fields),
@@ -47,7 +71,8 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 ng, vec3 v, vec3 albedo, int kind, Mate
         bool via_srf = pc.srf != 0u && int(l.pos_kind.w + 0.5) != 3;
         vec3 f = light_brdf(wi, n, v, ndl, via_srf ? vec3(0.0) : albedo, kind, m, roughness);
         if (all(equal(f, vec3(0.0)))) continue;
-        float vis = sf_visibility_along(pos, wi, self_inst, pc.n_inst, dist);
+        float vis = pc.traced != 0u ? light_rays_visibility(l, pos + ng * 1e-3 * max(1.0, length(pos)))
+                                    : sf_visibility_along(pos, wi, self_inst, pc.n_inst, dist);
         sum += vis * f * e * ndl;
     }
     return sum;
@@ -101,6 +126,7 @@ void main() {
         uint n_light = pc.srf != 0u ? pc.light_count : 0u;
         diffuse = sf_shade_point(pos, ng, self_inst, pc.n_inst, n_light, pc.tensor_count, pc.window, u);
     }
+    if (pc.key_count > 0u) diffuse += key_lights_irradiance(pos + ng * 1e-3 * max(1.0, length(pos)), n, ng) / PI;
     vec3 color = max(m.albedo_kind.rgb * diffuse, vec3(0.0));
     // Glossy materials: the material model's glossy environment term (the "env" technique's),
     // shadowed by the occluders' visibility along the reflection.
@@ -109,7 +135,8 @@ void main() {
     float roughness = env_roughness(m);
     if (kind != 0) {
         vec3 r = reflect(-v, n);
-        float vis = sf_visibility_along(pos, r, self_inst, pc.n_inst, 1e30);
+        float vis = pc.key_count > 0u ? glossy_rays_visibility(pos + ng * 1e-3 * max(1.0, length(pos)), r, ng, env_alpha(m))
+                                      : sf_visibility_along(pos, r, self_inst, pc.n_inst, 1e30);
         color += vis * env_glossy(n, v, m);
     }
     color += local_lights(pos, n, ng, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);

@@ -46,7 +46,24 @@ layout(set = 0, binding = 15) uniform sampler2D self_lights;
 #include "lights.glsl"
 #include "env_shade.glsl"
 #include "irradiance.glsl"
-layout(push_constant) uniform Push { uint n_inst; uint light_count; uint n; uint reproject; } pc;
+// The frame's kd-tree (include/kdtree.glsl): the local lights' shadow rays (traced = 1).
+layout(set = 0, binding = 16) readonly buffer KdTris { vec4 kd_tris[]; };
+layout(set = 0, binding = 17) readonly buffer KdNodes { uvec4 kd_nodes[]; };
+layout(set = 0, binding = 18) readonly buffer KdRefs { uint kd_refs[]; };
+layout(set = 0, binding = 19) readonly buffer KdHeader { uint kd_hdr[]; };
+#define KD_TRI(i) kd_tris[i]
+#define KD_NODE(i) kd_nodes[i]
+#define KD_REF(i) kd_refs[i]
+#define KD_HDR(i) kd_hdr[i]
+#include "kdtree.glsl"
+#include "light_rays.glsl"
+// The environment's key lights split off its map (SfwOptions::key_lights), 2 per light: world
+// axis + lambda, rgb amplitude; the cube's radiance (SfwDirs) and the irradiance map are then the
+// rest of the map's.
+layout(set = 0, binding = 20) readonly buffer KeyLights { vec4 key[]; };
+// traced: the local lights' shadows by rays through the kd-tree (light_shadows = traced);
+// key_count: key lights (traced only)
+layout(push_constant) uniform Push { uint n_inst; uint light_count; uint n; uint reproject; uint traced; uint key_count; } pc;
 
 #define SFW_PI 3.14159265358979
 #define SFW_MAX_OCC 16
@@ -287,10 +304,14 @@ void main() {
     vec3 share_self = texelFetch(self_share, p, 0).rgb;
     vec4 lights_self = texelFetch(self_lights, p, 0);
     vec3 diffuse = m.albedo_kind.rgb / PI * irr_ratio(n, s_red[0].rgb, s_red[64].rgb) * share_self;
+    vec3 pk = pos + ng * 1e-3 * max(1.0, length(pos));
+    for (uint k = 0u; k < pc.key_count; ++k)
+        diffuse += m.albedo_kind.rgb / PI * key_light_irradiance(key[2u * k], key[2u * k + 1u].rgb, pk, n, ng);
     vec3 color = diffuse;
     if (kind != 0) {
         vec2 gs = s_red[128].xy;
         float vis = gs.y > 1e-12 ? clamp(gs.x / gs.y, 0.0, 1.0) : 1.0;
+        if (pc.key_count > 0u) vis = glossy_rays_visibility(pk, reflect(-v, n), ng, env_alpha(m));
         color += vis * env_glossy(n, v, m);
     }
     float roughness = env_roughness(m);
@@ -302,9 +323,14 @@ void main() {
         if (ndl <= 0.0) continue;
         vec3 f = light_brdf(wi, n, v, ndl, m.albedo_kind.rgb, kind, m, roughness);
         if (all(equal(f, vec3(0.0)))) continue;
-        float vis = i < 4u ? clamp(lights_self[i], 0.0, 1.0) : 1.0;
-        for (uint k = 0u; k < count && vis > 0.0; k++)
-            if (s_dist[k] < dist) vis *= clamp(occ_vis_dir(k, wi, true), 0.0, 1.0);
+        float vis;
+        if (pc.traced != 0u) {
+            vis = light_rays_visibility(l, pos + ng * 1e-3 * max(1.0, length(pos)));
+        } else {
+            vis = i < 4u ? clamp(lights_self[i], 0.0, 1.0) : 1.0;
+            for (uint k = 0u; k < count && vis > 0.0; k++)
+                if (s_dist[k] < dist) vis *= clamp(occ_vis_dir(k, wi, true), 0.0, 1.0);
+        }
         color += vis * f * e * ndl;
     }
     imageStore(hdr, p, vec4(material_reflected(max(color, vec3(0.0)), n, v) + material_emission(m), 1.0));

@@ -1048,3 +1048,42 @@ pub fn project_sh(width: usize, height: usize, texels: &[[f32; 3]], order: usize
     }
     Ok(out)
 }
+
+/// The map's compact bright lights split off: the texels brighter than `sun_cap` (default 100)
+/// times the median luminance, whole, as at most `max_lights` moment-matched lobes (grouped as
+/// [`SunLobes::Moments`] groups them: each lobe with its group's energy, mean direction and
+/// angular extent), and the rest of the map (those texels zero). For a technique that shades a
+/// studio's key light or a sun apart from the sky: `(lights, sky texels)`; no lights (and the
+/// map unchanged) when no texel is over the cap or `sun_cap` is `None`.
+pub fn split_lights(
+    width: usize,
+    height: usize,
+    texels: &[[f32; 3]],
+    opts: &SgFitOptions,
+    max_lights: usize,
+) -> Result<(Vec<SgRgb>, Vec<[f32; 3]>), EnvError> {
+    let map = LatLong::new(width, height, texels)?;
+    let Some(f) = opts.sun_cap else { return Ok((Vec::new(), texels.to_vec())) };
+    if !(f > 0.0) {
+        return Err(EnvError::BadOption("sun_cap must be > 0"));
+    }
+    let mut sorted: Vec<f64> = map.rgb.iter().map(|c| luminance(*c)).collect();
+    sorted.sort_by(|a, b| a.total_cmp(b));
+    let cap = f * sorted[sorted.len() / 2];
+    if !(cap > 0.0) || max_lights == 0 {
+        return Ok((Vec::new(), texels.to_vec()));
+    }
+    let over: Vec<bool> = map.rgb.iter().map(|c| luminance(*c) > cap).collect();
+    if !over.iter().any(|&o| o) {
+        return Ok((Vec::new(), texels.to_vec()));
+    }
+    let excess = LatLong::from_rgb(
+        width,
+        height,
+        map.rgb.iter().zip(&over).map(|(c, &o)| if o { *c } else { DVec3::ZERO }).collect(),
+    );
+    let lmax = opts.lambda_max.unwrap_or(2.0 * (height as f64 / PI).powi(2)).max(opts.lambda_min);
+    let lights = moment_lobes(&excess, max_lights, opts.lambda_min, 4.0 * lmax);
+    let sky = texels.iter().zip(&over).map(|(t, &o)| if o { [0.0; 3] } else { *t }).collect();
+    Ok((lights, sky))
+}

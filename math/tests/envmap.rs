@@ -395,3 +395,30 @@ fn moment_lobes_keep_each_lights_energy_direction_and_extent() {
     assert!((l.lambda / (2.0 / (1.0 - rk.cos())) - 1.0).abs() < 0.15);
     assert!((lights.x / (ek.x + ef.x) - 1.0).abs() < 0.05, "{lights:?} against {:?}", ek + ef);
 }
+
+/// `split_lights`: the lights over the cap leave the map whole (the sky keeps the rest), as
+/// the moment lobes of the fit.
+#[test]
+fn split_lights_takes_the_lights_out_of_the_map() {
+    let (w, h) = (256, 128);
+    let key = DVec3::new(0.5, 0.7, -0.4).normalize();
+    let r = 6f64.to_radians();
+    let t = make_map(w, h, |d| {
+        DVec3::splat(0.05) + if d.angle_between(key) < r { DVec3::splat(40.0) } else { DVec3::ZERO }
+    });
+    let (lights, sky) = split_lights(w, h, &t, &SgFitOptions::default(), 4).unwrap();
+    assert_eq!(lights.len(), 1, "{lights:?}");
+    let l = lights[0];
+    assert!(l.axis.angle_between(key) < 0.5f64.to_radians());
+    assert!((l.lambda / (2.0 / (1.0 - r.cos())) - 1.0).abs() < 0.15, "lambda {}", l.lambda);
+    let map = LatLong::new(w, h, &t).unwrap();
+    let energy = |tx: &[[f32; 3]]| -> f64 { (0..w * h).map(|i| tx[i][0] as f64 * map.solid_angle(i / w)).sum() };
+    let light = l.mu.x * l.unit().sphere_integral();
+    // light + sky = the map, the sky holds no texel of the light
+    assert!(((light + energy(&sky)) / energy(&t) - 1.0).abs() < 0.01);
+    assert!((0..w * h).all(|i| map.dir(i).angle_between(key) >= r || sky[i] == [0.0; 3]));
+    // no light over the cap: nothing split
+    let flat = make_map(w, h, |_| DVec3::splat(1.0));
+    let (none, same) = split_lights(w, h, &flat, &SgFitOptions::default(), 4).unwrap();
+    assert!(none.is_empty() && same == flat);
+}

@@ -220,7 +220,9 @@ const SHADOW_FIELDS_PARAMS: &[ParamDoc] = &[
     p("threshold", "0.010", ">= 0", "eq. 1 adaptive subdivision threshold (paper: 0.010)"),
     p("mode", "pixel", "pixel, vertex", "diffuse shading per pixel or per vertex"),
     p("window", "none", "none, hanning, lanczos", "window of the occluders' visibility before the triple products"),
-    p("srf", "true", "true/false", "local lights through source radiance fields"),
+    p("srf", "true", "true/false", "local lights through source radiance fields (with light_shadows = fields)"),
+    p("light_shadows", "traced", "traced, fields", "local lights' shadows by shadow rays through the frame's kd-tree (the lights then shaded pointwise) or from the fields (the paper's order-4 visibility toward the light)"),
+    p("key_lights", "4", "0..=16", "with light_shadows = traced: the environment's compact bright lights split off its SH as at most this many moment-matched lights with traced shadows (and the glossy lobe's visibility traced); 0: the whole environment in the fields (the paper's)"),
 ];
 
 const SHADOW_FIELDS_WAVELET_PARAMS: &[ParamDoc] = &[
@@ -232,6 +234,8 @@ const SHADOW_FIELDS_WAVELET_PARAMS: &[ParamDoc] = &[
     p("adaptive", "true", "true/false", "adaptive shell resolutions (else every shell at R)"),
     p("self", "true", "true/false", "self-occlusion from per-vertex self-visibility cube maps, interpolated across the triangles (the diffuse environment term and the first 4 lights)"),
     p("lookup", "reproject", "reproject, direction", "between shell samples: each sample looks toward where the point's ray passes the occluder (reproject), or along the same direction (the paper)"),
+    p("light_shadows", "traced", "traced, fields", "local lights' shadows by shadow rays through the frame's kd-tree or from the occluders' fields and the self-visibility maps (the paper's)"),
+    p("key_lights", "4", "0..=16", "with light_shadows = traced: the environment's compact bright lights split off its map as at most this many moment-matched lights with traced shadows (and the glossy lobe's visibility traced); 0: the whole map in the fields (the paper's)"),
 ];
 
 const VV_PARAMS: &[ParamDoc] = &[

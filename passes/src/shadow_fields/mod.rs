@@ -71,6 +71,19 @@ pub struct SfOptions {
     /// Local lights through their source radiance fields (else pointwise, shadowed by the
     /// occluders' visibility toward the light).
     pub srf: bool,
+    /// Local lights' shadows by shadow rays through the frame's kd-tree (`light_shadows =
+    /// traced`, default; the lights are then shaded pointwise, `srf` aside), or from the
+    /// fields (`fields`: the paper's, order-4 visibility toward the light, which blurs a spot
+    /// light's hard shadow into a smudge: vol_rotating's cube).
+    pub light_traced: bool,
+    /// With `light_shadows = traced`: the environment's compact bright lights (a studio's key
+    /// and fill lights, a sun: texels over 100 x the median, whole) split off as at most this
+    /// many moment-matched lobes (`penumbra_math::envmap::split_lights`), each shaded as a light
+    /// of that extent whose shadow is traced (9 rays through the kd-tree across the lobe), the
+    /// rest of the environment through the fields as before. Order-4 SH cannot hold the shadow
+    /// of a light of a few degrees carrying 95 % of a floor's light (studio.exr); 0 keeps the
+    /// whole environment in the fields (the paper's).
+    pub key_lights: usize,
 }
 
 impl Default for SfOptions {
@@ -83,6 +96,8 @@ impl Default for SfOptions {
             mode: SfMode::Pixel,
             window: Window::None,
             srf: true,
+            light_traced: true,
+            key_lights: 4,
         }
     }
 }
@@ -98,7 +113,8 @@ impl SfOptions {
     /// Sets one parameter. Keys: `shells` (C, default 32, 1..=256), `resolution` (initial R,
     /// 32, power of two 1..=256), `map_res` (occlusion map rows, 32, 2..=256), `threshold`
     /// (eq. 1, 0.010, >= 0), `mode` (`pixel` | `vertex`), `window` (`none` | `hanning` |
-    /// `lanczos`), `srf` (local lights through source radiance fields: true/false or 1/0).
+    /// `lanczos`), `srf` (local lights through source radiance fields: true/false or 1/0),
+    /// `light_shadows` (`traced` | `fields`), `key_lights` (0..=16).
     /// Unknown keys and bad values are errors.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
@@ -135,7 +151,17 @@ impl SfOptions {
                     _ => return Err(bad("expected true or false")),
                 }
             }
-            other => anyhow::bail!("unknown shadow-fields parameter '{other}' (known: shells, resolution, map_res, threshold, mode, window, srf)"),
+            "light_shadows" => {
+                self.light_traced = match v {
+                    "traced" => true,
+                    "fields" => false,
+                    _ => return Err(bad("expected traced or fields")),
+                }
+            }
+            "key_lights" => {
+                self.key_lights = v.parse::<usize>().ok().filter(|x| *x <= 16).ok_or_else(|| bad("expected an integer in 0..=16"))?
+            }
+            other => anyhow::bail!("unknown shadow-fields parameter '{other}' (known: shells, resolution, map_res, threshold, mode, window, srf, light_shadows, key_lights)"),
         }
         Ok(())
     }
@@ -401,6 +427,22 @@ pub fn precompute_files(
 
 /// Order-4 SH (rgb) of the environment radiance in world space (intensity and rotation
 /// applied); zero without an environment.
+/// Key-light lobes of `env` in world space (its rotation about +Y and its intensity applied),
+/// 2 per lobe: axis + lambda, RGB amplitude; lobes that are not finite are dropped.
+pub(crate) fn key_light_lobes(env: &Environment, lobes: &[penumbra_math::sg::SgRgb]) -> Vec<[f32; 4]> {
+    let rot = glam::DMat3::from_rotation_y(env.rotation as f64);
+    let mut out = Vec::new();
+    for l in lobes {
+        let a = rot * l.axis;
+        let mu = l.mu * env.intensity as f64;
+        if a.is_finite() && l.lambda.is_finite() && mu.is_finite() {
+            out.push([a.x as f32, a.y as f32, a.z as f32, l.lambda as f32]);
+            out.push([mu.x as f32, mu.y as f32, mu.z as f32, 0.0]);
+        }
+    }
+    out
+}
+
 pub fn env_light_sh(env: Option<&Environment>) -> [[f64; 3]; NCOEF] {
     let mut out = [[0.0; 3]; NCOEF];
     let Some(env) = env else { return out };
@@ -813,11 +855,19 @@ pub struct ShadowFieldsTechnique {
     pub fields: Arc<SceneFields>,
     pub tables: GpuTables,
     pub light: [[f64; 3]; NCOEF],
+    /// The environment's SH that the frames shade with: [`Self::light`] less the key lights
+    /// when they are split off ([`SfOptions::key_lights`]).
+    shade_light: [[f64; 3]; NCOEF],
+    /// The key lights, 2 per light: world axis + lambda, RGB amplitude (intensity applied).
+    key: Vec<[f32; 4]>,
     pub tensor: TripleProductTensor,
     pub adaptive: bool,
     pub mode: SfMode,
     pub window: Window,
     pub srf: bool,
+    /// The frame's kd-tree for the local lights' shadow rays (`light_shadows = traced`, with
+    /// local lights to shade): the lights are then shaded pointwise, not through their fields.
+    kd: Option<crate::kdtree::KdTreeBuilder>,
     /// Per object: casts shadows (`ObjectInfo::casts_shadow`).
     pub casts: Vec<bool>,
     /// Per mesh: (first index, index count, vertex offset) in the scene's index/vertex buffers.
@@ -889,8 +939,13 @@ impl ShadowFieldsTechnique {
                 sb,
                 sampled,
                 sampled,
+                sb,
+                sb,
+                sb,
+                sb,
+                sb,
             ],
-            24,
+            32,
         )?;
         let points = compute_pipeline(ctx, shaders, "shadow_fields/sf_points.comp", &[sb; 7], 20)?;
         let vertex = vertex_pipeline(ctx, shaders)?;
@@ -905,6 +960,23 @@ impl ShadowFieldsTechnique {
             offset += m.positions.len() as i32;
         }
         let o = fields.options.clone();
+        let light = env_light_sh(scene.environment.as_ref());
+        let traced = o.light_traced && (!scene.lights.is_empty() || o.key_lights > 0);
+        let (shade_light, key) = match scene.environment.as_ref() {
+            Some(env) if traced && o.key_lights > 0 => {
+                let (lobes, sky) = penumbra_math::envmap::split_lights(
+                    env.width as usize,
+                    env.height as usize,
+                    &env.texels,
+                    &Default::default(),
+                    o.key_lights,
+                )
+                .map_err(|e| anyhow!("the environment map: splitting off its lights: {e:?}"))?;
+                let sky_env = Environment { texels: sky, ..env.clone() };
+                (env_light_sh(Some(&sky_env)), key_light_lobes(env, &lobes))
+            }
+            _ => (light, Vec::new()),
+        };
         Ok(ShadowFieldsTechnique {
             shade,
             points,
@@ -913,17 +985,30 @@ impl ShadowFieldsTechnique {
             linear: Sampler::latlong(ctx)?,
             repeat: Sampler::repeat(ctx)?,
             tables,
-            light: env_light_sh(scene.environment.as_ref()),
+            light,
+            shade_light,
             tensor,
             adaptive,
             mode: o.mode,
             window: o.window,
             srf: o.srf,
+            kd: if o.light_traced && (!scene.lights.is_empty() || !key.is_empty()) {
+                Some(crate::kdtree::KdTreeBuilder::new(ctx, shaders)?)
+            } else {
+                None
+            },
+            key,
             casts: casts_flags(scene),
             mesh_ranges,
             scene: Arc::new(scene.clone()),
             fields,
         })
+    }
+
+    /// Whether the local lights go through their source radiance fields (`srf`, unless their
+    /// shadows are traced).
+    pub fn lights_through_fields(&self) -> bool {
+        self.srf && self.kd.is_none()
     }
 
     fn window_code(&self) -> u32 {
@@ -936,7 +1021,8 @@ impl ShadowFieldsTechnique {
 
     /// Adds the per-point pass (GPU rendering path): point `i` writes `vec4` (rgb radiance
     /// times its albedo clamped at 0, w the unclamped minimum channel) at `slots[i]` (`None`:
-    /// at `i`) of the returned buffer of `out_len` entries, zero elsewhere.
+    /// at `i`) of the returned buffer of `out_len` entries, zero elsewhere; the local lights
+    /// through their source radiance fields when `srf` (else none: shaded pointwise).
     pub fn add_points(
         &self,
         graph: &mut Graph,
@@ -944,6 +1030,7 @@ impl ShadowFieldsTechnique {
         points: &[ShadePoint],
         slots: Option<&[u32]>,
         out_len: u32,
+        srf: bool,
     ) -> BufferHandle {
         let gp: Vec<GpuPoint> = points
             .iter()
@@ -971,7 +1058,7 @@ impl ShadowFieldsTechnique {
             [h.data, h.shells, h.insts, h.tensor, h.light, pts].map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let out = p.write(out, Access::ComputeShaderWriteStorage);
         let pipe = self.points.handle();
-        let n_light = if self.srf { h.light_count } else { 0 };
+        let n_light = if srf { h.light_count } else { 0 };
         let push: Vec<u8> = [n, h.inst_count, h.tensor_count, n_light, self.window_code()]
             .iter()
             .flat_map(|x| x.to_le_bytes())
@@ -1000,7 +1087,7 @@ impl ShadowFieldsTechnique {
         for p in &mut points {
             p.albedo = DVec3::ONE;
         }
-        let rad = self.add_points(graph, h, &points, Some(&slots), total.max(1));
+        let rad = self.add_points(graph, h, &points, Some(&slots), total.max(1), self.lights_through_fields());
         // base[instance] + gl_VertexIndex (which includes the mesh's vertex offset) = slot
         let mut draws = Vec::new();
         let mut base_of = vec![0i32; frame.instances.len().max(1)];
@@ -1106,13 +1193,48 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         }
     }
 
+    fn limitations(&self, scene: &Scene) -> Vec<String> {
+        let deforming: Vec<String> = scene
+            .object_info
+            .iter()
+            .enumerate()
+            .filter(|(_, o)| o.is_deforming())
+            .map(|(i, _)| scene.objects.get(i).map_or_else(|| format!("object {i}"), |o| format!("'{}'", o.name)))
+            .collect();
+        if deforming.is_empty() {
+            Vec::new()
+        } else {
+            vec![format!(
+                "{} precomputes rigid fields: deforming object(s) {} cast their rest mesh's shadow{}",
+                self.name(),
+                deforming.join(", "),
+                if self.kd.is_some() { " (but toward the local and key lights, whose shadows are traced)" } else { "" }
+            )]
+        }
+    }
+
     fn add(
         &mut self,
-        _engine: &mut FrameStore<'_>,
+        engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {
-        let h = upload(graph, &self.tables, &self.casts, inputs.frame, &self.light, self.srf);
+        let srf = self.lights_through_fields();
+        let h = upload(graph, &self.tables, &self.casts, inputs.frame, &self.shade_light, srf);
+        let key_count = (self.key.len() / 2) as u32;
+        let key = graph
+            .create_buffer_init("sf_key_lights", if self.key.is_empty() { vec![0u8; 32] } else { bytes_of(&self.key) });
+        // the local lights' occluders: the frame's triangles (rebuilt when anything moved), or
+        // four empty stand-ins the shader never reads (traced = 0)
+        let kd_tree = match self.kd.as_mut() {
+            Some(b) => Some(b.add_frame(engine, graph, &self.scene, inputs.frame)?),
+            None => None,
+        };
+        let traced = kd_tree.is_some() as u32;
+        let kd_bufs = match &kd_tree {
+            Some(t) => [t.tris, t.nodes, t.refs, t.header],
+            None => std::array::from_fn(|i| graph.create_buffer_init(&format!("sf_kd_none{i}"), vec![0u8; 16])),
+        };
         let gb = inputs.gbuffer;
         let (w, hh) = (gb.width, gb.height);
         let vtx = (self.mode == SfMode::Vertex).then(|| self.add_vertex_display(graph, &h, inputs, w, hh));
@@ -1125,19 +1247,31 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         let r = [h.data, h.shells, h.insts, h.tensor, h.light, inputs.handles.lights]
             .map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let tex = p.read(inputs.handles.textures, Access::ComputeShaderReadSampled);
+        let kd = kd_bufs.map(|b| p.read(b, Access::ComputeShaderReadStorage));
+        let key = p.read(key, Access::ComputeShaderReadStorage);
         let pipe = self.shade.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         let mode = (self.mode == SfMode::Vertex) as u32;
-        let push: Vec<u8> =
-            [h.inst_count, h.tensor_count, inputs.handles.light_count, self.srf as u32, self.window_code(), mode]
-                .iter()
-                .flat_map(|x| x.to_le_bytes())
-                .collect();
+        let push: Vec<u8> = [
+            h.inst_count,
+            h.tensor_count,
+            inputs.handles.light_count,
+            srf as u32,
+            self.window_code(),
+            mode,
+            traced,
+            key_count * traced,
+        ]
+        .iter()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
         p.record(move |rc| {
             let mut binds = io.binds(nearest, linear);
             binds.extend(r.iter().map(|&b| Bind::StorageBuffer(b)));
             binds.push(Bind::SampledImage(vtx, nearest));
             binds.push(Bind::SampledImage(tex, repeat));
+            binds.extend(crate::util::storage(kd));
+            binds.push(Bind::StorageBuffer(key));
             crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(hh, 8), 1])
         });
         Ok(hdr)
@@ -1154,7 +1288,7 @@ pub fn gpu_shade_points(
 ) -> Result<(Vec<[f32; 4]>, f64)> {
     let mut g = Graph::new();
     let h = upload(&mut g, &tech.tables, &tech.casts, frame, &tech.light, tech.srf);
-    let out = tech.add_points(&mut g, &h, points, None, points.len().max(1) as u32);
+    let out = tech.add_points(&mut g, &h, points, None, points.len().max(1) as u32, tech.srf);
     crate::trace::add_copy_to_readback(&mut g, out, "sf_points_out", points.len().max(1) as u64 * 16);
     engine.submit(g)?;
     let mut outs = engine.drain()?;

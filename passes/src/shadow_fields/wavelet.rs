@@ -72,6 +72,16 @@ pub struct SfwOptions {
     /// Per-vertex self-visibility maps, interpolated across the triangles (the paper's
     /// self-occlusion; else a surface sees only the other objects).
     pub self_occlusion: bool,
+    /// Local lights' shadows by shadow rays through the frame's kd-tree (`light_shadows =
+    /// traced`, default), or from the occluders' fields and the self-visibility maps (`fields`:
+    /// the nearest shell samples' cube maps, which shift and double a spot light's hard shadow:
+    /// vol_rotating's cube).
+    pub light_traced: bool,
+    /// With `light_shadows = traced`: the environment's compact bright lights split off its
+    /// map as at most this many moment-matched lights with traced shadows (and the glossy
+    /// lobe's visibility traced), the rest of the map through the fields (as
+    /// `SfOptions::key_lights`; 0: the whole map in the fields, the paper's).
+    pub key_lights: usize,
     /// Directory of the precomputed fields and self-visibility maps, one file per mesh and
     /// parameter set (`<hash>.psw`, `<hash>.pss`; `None`: no caching). Default: the shadow
     /// fields' cache directory under the system's temporary directory.
@@ -89,6 +99,8 @@ impl Default for SfwOptions {
             adaptive: true,
             reproject: true,
             self_occlusion: true,
+            light_traced: true,
+            key_lights: 4,
             cache_dir: Some(std::env::temp_dir().join("penumbra-shadow-fields")),
         }
     }
@@ -104,7 +116,8 @@ impl SfwOptions {
 
     /// Sets one parameter: `shells` (1..=64), `resolution` (power of two 1..=64), `cube` (power
     /// of two 2..=64), `keep` (0 < keep <= 1), `threshold` (>= 0), `adaptive` (true/false),
-    /// `lookup` (`reproject` | `direction`), `self` (true/false).
+    /// `lookup` (`reproject` | `direction`), `self` (true/false), `light_shadows` (`traced` |
+    /// `fields`), `key_lights` (0..=16).
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
         let bad = |why: &str| anyhow!("shadow-fields-wavelet parameter {key} = '{value}': {why}");
@@ -139,7 +152,17 @@ impl SfwOptions {
                     _ => return Err(bad("expected true or false")),
                 }
             }
-            other => anyhow::bail!("unknown shadow-fields-wavelet parameter '{other}' (known: shells, resolution, cube, keep, threshold, adaptive, lookup, self)"),
+            "light_shadows" => {
+                self.light_traced = match v {
+                    "traced" => true,
+                    "fields" => false,
+                    _ => return Err(bad("expected traced or fields")),
+                }
+            }
+            "key_lights" => {
+                self.key_lights = v.parse::<usize>().ok().filter(|x| *x <= 16).ok_or_else(|| bad("expected an integer in 0..=16"))?
+            }
+            other => anyhow::bail!("unknown shadow-fields-wavelet parameter '{other}' (known: shells, resolution, cube, keep, threshold, adaptive, lookup, self, light_shadows, key_lights)"),
         }
         Ok(())
     }
@@ -399,6 +422,12 @@ pub struct WaveletTechnique {
     mesh_self: Vec<Option<u32>>,
     mesh_verts: Vec<Vec<[f32; 4]>>,
     mesh_ranges: Vec<(u32, u32, i32)>,
+    /// The frame's kd-tree for the local lights' shadow rays and the scene it is built from
+    /// (`light_shadows = traced`, with local lights to shade).
+    kd: Option<(crate::kdtree::KdTreeBuilder, Arc<Scene>)>,
+    /// The key lights split off the environment, 2 per light (world axis + lambda, RGB
+    /// amplitude), shaded with the kd-tree's rays ([`SfwOptions::key_lights`]).
+    key: Vec<[f32; 4]>,
 }
 
 /// Format of the interpolated self-occlusion images.
@@ -453,7 +482,8 @@ impl WaveletTechnique {
         let mut types = crate::shade_env::ShadingIo::TYPES.to_vec();
         types.extend([sb, sb, sb, sb, sb, sb, T::COMBINED_IMAGE_SAMPLER]);
         types.extend([T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER]);
-        let shade = compute_pipeline(ctx, shaders, "shadow_fields/sfw_shade.comp", &types, 16)?;
+        types.extend([sb; 5]);
+        let shade = compute_pipeline(ctx, shaders, "shadow_fields/sfw_shade.comp", &types, 24)?;
         let self_pass = compute_pipeline(ctx, shaders, "shadow_fields/sfw_self.comp", &[sb; 7], 16)?;
         let self_raster = {
             use crate::raster::{raster_pipeline, DepthState, RasterDesc, VertexInput};
@@ -553,7 +583,30 @@ impl WaveletTechnique {
         if shells.is_empty() {
             shells.push([0; 4]);
         }
-        let cube = env_cube(scene, &table);
+        // the key lights split off the environment: the cube's radiance and the irradiance map
+        // are then the rest of the map's
+        let (sky_scene, key) = match scene.environment.as_ref() {
+            Some(env) if options.light_traced && options.key_lights > 0 => {
+                let (lobes, sky) = penumbra_math::envmap::split_lights(
+                    env.width as usize,
+                    env.height as usize,
+                    &env.texels,
+                    &Default::default(),
+                    options.key_lights,
+                )
+                .map_err(|e| anyhow!("the environment map: splitting off its lights: {e:?}"))?;
+                if lobes.is_empty() {
+                    (None, Vec::new())
+                } else {
+                    let mut sc = scene.clone();
+                    sc.environment = Some(penumbra_scene::Environment { texels: sky, ..env.clone() });
+                    (Some(sc), crate::shadow_fields::key_light_lobes(env, &lobes))
+                }
+            }
+            _ => (None, Vec::new()),
+        };
+        let env_scene = sky_scene.as_ref().unwrap_or(scene);
+        let cube = env_cube(env_scene, &table);
         let mut dirs: Vec<[f32; 4]> = table.dirs.iter().map(|d| [d.x as f32, d.y as f32, d.z as f32, 0.0]).collect();
         dirs.extend(cube);
         let casts = crate::shadow_fields::casts_flags(scene);
@@ -574,7 +627,7 @@ impl WaveletTechnique {
             shells,
             mesh_shells,
             dirs: Arc::new(bytes_of(&dirs)),
-            irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(scene))),
+            irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(env_scene))),
             casts,
             deforming,
             self_pass,
@@ -583,6 +636,12 @@ impl WaveletTechnique {
             mesh_self,
             mesh_verts,
             mesh_ranges,
+            kd: if options.light_traced && (!scene.lights.is_empty() || !key.is_empty()) {
+                Some((crate::kdtree::KdTreeBuilder::new(ctx, shaders)?, Arc::new(scene.clone())))
+            } else {
+                None
+            },
+            key,
         })
     }
 
@@ -693,11 +752,27 @@ impl crate::technique::Technique for WaveletTechnique {
 
     fn add(
         &mut self,
-        _engine: &mut FrameStore<'_>,
+        engine: &mut FrameStore<'_>,
         graph: &mut Graph,
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {
         let frame = inputs.frame;
+        // the local lights' occluders: the frame's triangles (rebuilt when anything moved), or
+        // four empty stand-ins the shader never reads (traced = 0)
+        let kd_tree = match self.kd.as_mut() {
+            Some((b, scene)) => Some(b.add_frame(engine, graph, scene, frame)?),
+            None => None,
+        };
+        let traced = kd_tree.is_some() as u32;
+        let kd_bufs = match &kd_tree {
+            Some(t) => [t.tris, t.nodes, t.refs, t.header],
+            None => std::array::from_fn(|i| graph.create_buffer_init(&format!("sfw_kd_none{i}"), vec![0u8; 16])),
+        };
+        let key_count = (self.key.len() / 2) as u32 * traced;
+        let key = graph.create_buffer_init(
+            "sfw_key_lights",
+            if self.key.is_empty() { vec![0u8; 32] } else { bytes_of(&self.key) },
+        );
         let insts: Vec<GpuInst> = frame
             .instances
             .iter()
@@ -742,20 +817,30 @@ impl crate::technique::Technique for WaveletTechnique {
         let tex = p.read(inputs.handles.textures, Access::ComputeShaderReadSampled);
         let self_share = p.read(self_share, Access::ComputeShaderReadSampled);
         let self_lights = p.read(self_lights, Access::ComputeShaderReadSampled);
+        let kd = kd_bufs.map(|b| p.read(b, Access::ComputeShaderReadStorage));
+        let key = p.read(key, Access::ComputeShaderReadStorage);
         let pipe = self.shade.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         let n = self.fields.options.cube.max(2).next_power_of_two() as u32;
-        let push: Vec<u8> =
-            [frame.instances.len() as u32, inputs.handles.light_count, n, self.fields.options.reproject as u32]
-                .iter()
-                .flat_map(|x| x.to_le_bytes())
-                .collect();
+        let push: Vec<u8> = [
+            frame.instances.len() as u32,
+            inputs.handles.light_count,
+            n,
+            self.fields.options.reproject as u32,
+            traced,
+            key_count,
+        ]
+        .iter()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
         p.record(move |rc| {
             let mut binds = io.binds(nearest, linear);
             binds.extend(r.iter().map(|&b| Bind::StorageBuffer(b)));
             binds.push(Bind::SampledImage(tex, repeat));
             binds.push(Bind::SampledImage(self_share, nearest));
             binds.push(Bind::SampledImage(self_lights, nearest));
+            binds.extend(crate::util::storage(kd));
+            binds.push(Bind::StorageBuffer(key));
             // one workgroup of 64 per pixel: the cube's directions split over its invocations
             crate::util::dispatch(rc, pipe, &binds, &push, [w, hh, 1])
         });
