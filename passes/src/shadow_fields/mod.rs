@@ -18,6 +18,11 @@
 //!   transfer of its normal (no self-occlusion). Glossy materials add the prefiltered
 //!   environment along the reflection and the local lights' specular lobe, each shadowed by the
 //!   occluders' visibility in that direction.
+//! * `light_shadows = traced` (default; a departure from the paper, stated): the local lights
+//!   are shaded pointwise with their shadows traced through the frame's kd-tree, and the
+//!   environment's key lights ([`SfOptions::key_lights`]) are split off its SH and shaded the
+//!   same way, the glossy lobe's visibility then traced too; the fields carry the rest of the
+//!   environment (`light_shadows = fields`, `key_lights = 0`: the paper's path).
 //!
 //! Registered as `shadow-fields` (adaptive) and `shadow-fields-fixed` (every shell at the
 //! initial resolution) so `penumbra bench --techniques shadow-fields,shadow-fields-fixed`
@@ -425,8 +430,6 @@ pub fn precompute_files(
     Ok((fields.reports, paths))
 }
 
-/// Order-4 SH (rgb) of the environment radiance in world space (intensity and rotation
-/// applied); zero without an environment.
 /// Key-light lobes of `env` in world space (its rotation about +Y and its intensity applied),
 /// 2 per lobe: axis + lambda, RGB amplitude; lobes that are not finite are dropped.
 pub(crate) fn key_light_lobes(env: &Environment, lobes: &[penumbra_math::sg::SgRgb]) -> Vec<[f32; 4]> {
@@ -443,6 +446,8 @@ pub(crate) fn key_light_lobes(env: &Environment, lobes: &[penumbra_math::sg::SgR
     out
 }
 
+/// Order-4 SH (rgb) of the environment radiance in world space (intensity and rotation
+/// applied); zero without an environment.
 pub fn env_light_sh(env: Option<&Environment>) -> [[f64; 3]; NCOEF] {
     let mut out = [[0.0; 3]; NCOEF];
     let Some(env) = env else { return out };

@@ -31,6 +31,11 @@
 //!   4 lights, and a raster pass interpolates them across the triangles (coarse meshes suffer:
 //!   a vertex in a concave crease darkens whole triangles; chess's 400-triangle pieces).
 //!
+//! * With `light_shadows = traced` (default) the local lights' shadows are rays through the
+//!   frame's kd-tree instead, and the environment's key lights (`key_lights`) are split off the
+//!   map as moment-matched lights with traced shadows, the cube and the irradiance map holding
+//!   the rest (a departure from the paper, which `light_shadows = fields` undoes).
+//!
 //! What it does not do: deforming objects (their rest mesh's field; reported by
 //! [`crate::technique::Technique::limitations`]), caching of the fields on disk, keeping the
 //! maps on the GPU between frames (uploaded every frame), sphere lights' extent (shadowed as
@@ -422,8 +427,8 @@ pub struct WaveletTechnique {
     mesh_self: Vec<Option<u32>>,
     mesh_verts: Vec<Vec<[f32; 4]>>,
     mesh_ranges: Vec<(u32, u32, i32)>,
-    /// The frame's kd-tree for the local lights' shadow rays and the scene it is built from
-    /// (`light_shadows = traced`, with local lights to shade).
+    /// The frame's kd-tree for the local and key lights' shadow rays and the scene it is built
+    /// from (`light_shadows = traced`, with local or key lights to shade).
     kd: Option<(crate::kdtree::KdTreeBuilder, Arc<Scene>)>,
     /// The key lights split off the environment, 2 per light (world axis + lambda, RGB
     /// amplitude), shaded with the kd-tree's rays ([`SfwOptions::key_lights`]).
