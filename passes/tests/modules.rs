@@ -136,6 +136,10 @@ mod registry {
             (isg.lobes, isg.spheres_per_object, isg.patch_side, isg.epsilon, isg.lod, isg.max_edge),
             (d.lobes, d.spheres_per_object, d.patch_side, d.epsilon, d.lod, d.max_edge)
         );
+        assert_eq!(
+            (isg.thin_tolerance, isg.traced_visibility, isg.min_lobe_fraction, isg.light_mesh),
+            (d.thin_tolerance, d.traced_visibility, d.min_lobe_fraction, d.light_mesh)
+        );
         let avs = penumbra_passes::avs::AvsSettings::from_params(&defaults(lookup("avs").unwrap().params)).unwrap();
         let d = penumbra_passes::avs::AvsSettings::default();
         assert_eq!(
@@ -149,6 +153,16 @@ mod registry {
         assert_eq!(
             (sf.params.shells, sf.params.resolution, sf.params.map_res, sf.params.threshold),
             (d.params.shells, d.params.resolution, d.params.map_res, d.params.threshold)
+        );
+        assert_eq!((sf.srf, sf.light_traced, sf.key_lights), (d.srf, d.light_traced, d.key_lights));
+        let sfw = penumbra_passes::shadow_fields::wavelet::SfwOptions::from_params(&defaults(
+            lookup("shadow-fields-wavelet").unwrap().params,
+        ))
+        .unwrap();
+        let d = penumbra_passes::shadow_fields::wavelet::SfwOptions::default();
+        assert_eq!(
+            (sfw.shells, sfw.resolution, sfw.cube, sfw.keep, sfw.threshold, sfw.light_traced, sfw.key_lights),
+            (d.shells, d.resolution, d.cube, d.keep, d.threshold, d.light_traced, d.key_lights)
         );
         assert_eq!(
             penumbra_passes::mc::parse_spp(lookup("mc").unwrap().params[0].default).unwrap(),
