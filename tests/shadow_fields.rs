@@ -2,7 +2,7 @@
 //! validation clean on moving rigid objects, shadows darken (ringing measured), and the
 //! image error of adaptive and fixed fields against the CPU reference (exact mode).
 
-use penumbra_reference::metrics::compare;
+use penumbra_reference::metrics::{compare, Comparison};
 use penumbra_reference::render::{render as reference_render, Mode, ReferenceOptions};
 
 mod common;
@@ -194,6 +194,48 @@ fn shadow_fields_wavelet_casts_the_local_lights_sharp_shadows() {
     assert!(cw.rmse_rel_mean <= 0.8 * cs.rmse_rel_mean, "wavelet {} vs SH {}", cw.rmse_rel_mean, cs.rmse_rel_mean);
 }
 
+/// Both shadow-field variants, with small fields, rendered at `w x h` and time `t` on `s` with
+/// parameter `key` set to `on` (validation on: zero errors asserted) and to `off`, each against
+/// the exact pixel-centre reference (256 spp): per variant `(technique, on, off)`.
+fn variants_on_and_off(
+    s: &penumbra_scene::Scene,
+    (w, h, t): (u32, u32, f32),
+    key: &str,
+    (on, off): (&str, &str),
+) -> Vec<(&'static str, Comparison, Comparison)> {
+    let opts = ReferenceOptions {
+        width: w,
+        height: h,
+        spp: 256,
+        time: Some(t),
+        mode: Mode::Exact,
+        pixel_grid: 1,
+        ..Default::default()
+    };
+    let reference = reference_render(s, &opts).expect("reference");
+    let mut out = Vec::new();
+    for (technique, small) in [
+        ("shadow-fields", &[("shells", "16"), ("resolution", "16"), ("map_res", "16")]),
+        ("shadow-fields-wavelet", &[("shells", "32"), ("resolution", "16"), ("cube", "16")]),
+    ] {
+        let with = |value: &str| {
+            let mut sc = common::with(s, small);
+            sc.technique_params.insert(key.into(), value.into());
+            sc
+        };
+        let (r, frames_on) = render(&with(on), technique, w, h, &[t], true);
+        let log = r.context().validation.clone();
+        drop(r);
+        assert_eq!(log.error_count(), 0, "{technique}: validation errors: {:#?}", log.errors());
+        let (_r, frames_off) = render(&with(off), technique, w, h, &[t], false);
+        let c_on = compare(&reference.radiance, "reference", &image(&frames_on[0]), on).unwrap();
+        let c_off = compare(&reference.radiance, "reference", &image(&frames_off[0]), off).unwrap();
+        println!("{technique}: {key} = {on}: {}\n{technique}: {key} = {off}: {}", c_on.summary(), c_off.summary());
+        out.push((technique, c_on, c_off));
+    }
+    out
+}
+
 /// `light_shadows = traced` (default): the local lights' shadows by rays through the frame's
 /// kd-tree, in both shadow-field variants, against the fields' own visibility toward the
 /// lights (the SH fields' order-4 smear, the wavelet fields' nearest shell samples, which
@@ -206,41 +248,8 @@ fn traced_local_light_shadows_beat_the_fields() {
     let mut s = scene("sf_lamps.toml");
     s.environment = None;
     s.technique_params.clear();
-    let (w, h) = (64, 48);
-    let t = 0.9;
-    let opts = ReferenceOptions {
-        width: w,
-        height: h,
-        spp: 256,
-        time: Some(t),
-        mode: Mode::Exact,
-        pixel_grid: 1,
-        ..Default::default()
-    };
-    let reference = reference_render(&s, &opts).expect("reference");
-    for (technique, small) in [
-        ("shadow-fields", &[("shells", "16"), ("resolution", "16"), ("map_res", "16")]),
-        ("shadow-fields-wavelet", &[("shells", "32"), ("resolution", "16"), ("cube", "16")]),
-    ] {
-        let with = |lights: &str| {
-            let mut sc = common::with(&s, small);
-            sc.technique_params.insert("light_shadows".into(), lights.into());
-            sc
-        };
-        let (r, traced) = render(&with("traced"), technique, w, h, &[t], true);
-        let log = r.context().validation.clone();
-        drop(r);
-        assert_eq!(log.error_count(), 0, "{technique}: validation errors: {:#?}", log.errors());
-        let (_r, fields) = render(&with("fields"), technique, w, h, &[t], false);
-        let ct = compare(&reference.radiance, "reference", &image(&traced[0]), "traced").unwrap();
-        let cf = compare(&reference.radiance, "reference", &image(&fields[0]), "fields").unwrap();
-        println!(
-            "{technique}: rmse/mean traced {:.4}, fields {:.4}\n{technique}: traced {}\n{technique}: fields {}",
-            ct.rmse_rel_mean,
-            cf.rmse_rel_mean,
-            ct.summary(),
-            cf.summary()
-        );
+    for (technique, ct, cf) in variants_on_and_off(&s, (64, 48, 0.9), "light_shadows", ("traced", "fields")) {
+        println!("{technique}: rmse/mean traced {:.4}, fields {:.4}", ct.rmse_rel_mean, cf.rmse_rel_mean);
         assert!(
             ct.rmse_rel_mean < 0.25 * cf.rmse_rel_mean,
             "{technique}: traced {} against fields {}",
@@ -263,34 +272,7 @@ fn traced_local_light_shadows_beat_the_fields() {
 fn key_lights_split_off_the_environment_cast_their_shadows() {
     let mut s = scene("sf_spheres.toml");
     s.technique_params.clear();
-    let (w, h) = (64, 48);
-    let t = 0.5;
-    let opts = ReferenceOptions {
-        width: w,
-        height: h,
-        spp: 256,
-        time: Some(t),
-        mode: Mode::Exact,
-        pixel_grid: 1,
-        ..Default::default()
-    };
-    let reference = reference_render(&s, &opts).expect("reference");
-    for (technique, small) in [
-        ("shadow-fields", &[("shells", "16"), ("resolution", "16"), ("map_res", "16")]),
-        ("shadow-fields-wavelet", &[("shells", "32"), ("resolution", "16"), ("cube", "16")]),
-    ] {
-        let with = |keys: &str| {
-            let mut sc = common::with(&s, small);
-            sc.technique_params.insert("key_lights".into(), keys.into());
-            sc
-        };
-        let (r, keyed) = render(&with("4"), technique, w, h, &[t], true);
-        let log = r.context().validation.clone();
-        drop(r);
-        assert_eq!(log.error_count(), 0, "{technique}: validation errors: {:#?}", log.errors());
-        let (_r, fields) = render(&with("0"), technique, w, h, &[t], false);
-        let ck = compare(&reference.radiance, "reference", &image(&keyed[0]), "key lights").unwrap();
-        let cf = compare(&reference.radiance, "reference", &image(&fields[0]), "all in the fields").unwrap();
+    for (technique, ck, cf) in variants_on_and_off(&s, (64, 48, 0.5), "key_lights", ("4", "0")) {
         println!(
             "{technique}: rmse/mean key lights {:.4}, all in the fields {:.4}",
             ck.rmse_rel_mean, cf.rmse_rel_mean

@@ -25,40 +25,32 @@ float light_rays_visibility(LightData l, vec3 p) {
     return vis / float(taps);
 }
 
-// Irradiance at a point of normal n (offset point p, geometric normal ng) from one of the
-// environment's key lights split off its map (penumbra_math::envmap::split_lights; axis_lambda:
-// world axis + sharpness, mu: rgb amplitude): the lobe's SG-cosine integral times the unoccluded
-// share of 9 rays through the kd-tree across the lobe (lights.glsl's disk pattern at the angular
-// radius 2 / sqrt(lambda) of the uniform disk whose mean cosine the lobe matches; rays under the
-// surface's plane left out). The shadow fields' `key_lights`.
-vec3 key_light_irradiance(vec4 axis_lambda, vec3 mu, vec3 p, vec3 n, vec3 ng) {
-    SG g = sg_make(axis_lambda.xyz, axis_lambda.w, 1.0);
-    vec3 e = mu * max(sg_cosine_integral(g, n), 0.0);
-    if (max(e.r, max(e.g, e.b)) <= 0.0) return vec3(0.0);
-    float radius = 2.0 / sqrt(max(g.lambda, 1e-4));
+// The unoccluded share of a cone of directions about unit `axis`: 9 rays through the kd-tree
+// from p (a point already offset from its surface) in lights.glsl's disk pattern at angular
+// radius `radius` (its tangent), rays under the plane of geometric normal ng left out. Also the
+// glossy lobe's visibility about the reflection at radius GGX alpha where the shadow fields
+// split off key lights (whose sharp reflections their coarse visibility would leave unblocked).
+float cone_rays_visibility(vec3 p, vec3 axis, float radius, vec3 ng) {
     float vis = 0.0, cnt = 0.0;
     for (int j = 0; j < LIGHT_DISK_POINTS; ++j) {
-        vec3 d = normalize(light_disk_target(g.axis, radius, j));
-        if (dot(d, ng) <= 0.0) continue;
-        cnt += 1.0;
-        vis += kd_trace(p, d, 0.0, 1e30, true).t >= 0.0 ? 0.0 : 1.0;
-    }
-    return e * (cnt > 0.0 ? vis / cnt : 1.0);
-}
-
-// The unoccluded share of the glossy lobe about the reflection r (GGX alpha a): 9 rays through the
-// kd-tree in lights.glsl's disk pattern at angular radius a (with key lights: a key light's sharp
-// reflection is blocked by what stands in front of it, which a shadow field's coarse visibility
-// smears away).
-float glossy_rays_visibility(vec3 p, vec3 r, vec3 ng, float a) {
-    float vis = 0.0, cnt = 0.0;
-    for (int j = 0; j < LIGHT_DISK_POINTS; ++j) {
-        vec3 d = normalize(light_disk_target(r, a, j));
+        vec3 d = normalize(light_disk_target(axis, radius, j));
         if (dot(d, ng) <= 0.0) continue;
         cnt += 1.0;
         vis += kd_trace(p, d, 0.0, 1e30, true).t >= 0.0 ? 0.0 : 1.0;
     }
     return cnt > 0.0 ? vis / cnt : 1.0;
+}
+
+// Irradiance at a point of normal n (offset point p, geometric normal ng) from one of the
+// environment's key lights split off its map (penumbra_math::envmap::split_lights; axis_lambda:
+// world axis + sharpness, mu: rgb amplitude): the lobe's SG-cosine integral times the unoccluded
+// share of its cone (cone_rays_visibility at the angular radius 2 / sqrt(lambda) of the uniform
+// disk whose mean cosine the lobe matches). The shadow fields' `key_lights`.
+vec3 key_light_irradiance(vec4 axis_lambda, vec3 mu, vec3 p, vec3 n, vec3 ng) {
+    SG g = sg_make(axis_lambda.xyz, axis_lambda.w, 1.0);
+    vec3 e = mu * max(sg_cosine_integral(g, n), 0.0);
+    if (max(e.r, max(e.g, e.b)) <= 0.0) return vec3(0.0);
+    return e * cone_rays_visibility(p, g.axis, 2.0 / sqrt(max(g.lambda, 1e-4)), ng);
 }
 
 #endif

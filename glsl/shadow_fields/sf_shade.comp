@@ -126,7 +126,8 @@ void main() {
         uint n_light = pc.srf != 0u ? pc.light_count : 0u;
         diffuse = sf_shade_point(pos, ng, self_inst, pc.n_inst, n_light, pc.tensor_count, pc.window, u);
     }
-    if (pc.key_count > 0u) diffuse += key_lights_irradiance(pos + ng * 1e-3 * max(1.0, length(pos)), n, ng) / PI;
+    vec3 po = pos + ng * 1e-3 * max(1.0, length(pos));  // ray origin off the surface
+    if (pc.key_count > 0u) diffuse += key_lights_irradiance(po, n, ng) / PI;
     vec3 color = max(m.albedo_kind.rgb * diffuse, vec3(0.0));
     // Glossy materials: the material model's glossy environment term (the "env" technique's),
     // shadowed by the occluders' visibility along the reflection.
@@ -135,8 +136,7 @@ void main() {
     float roughness = env_roughness(m);
     if (kind != 0) {
         vec3 r = reflect(-v, n);
-        float vis = pc.key_count > 0u ? glossy_rays_visibility(pos + ng * 1e-3 * max(1.0, length(pos)), r, ng, env_alpha(m))
-                                      : sf_visibility_along(pos, r, self_inst, pc.n_inst, 1e30);
+        float vis = pc.key_count > 0u ? cone_rays_visibility(po, r, env_alpha(m), ng) : sf_visibility_along(pos, r, self_inst, pc.n_inst, 1e30);
         color += vis * env_glossy(n, v, m);
     }
     color += local_lights(pos, n, ng, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);

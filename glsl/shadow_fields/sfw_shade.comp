@@ -311,7 +311,7 @@ void main() {
     if (kind != 0) {
         vec2 gs = s_red[128].xy;
         float vis = gs.y > 1e-12 ? clamp(gs.x / gs.y, 0.0, 1.0) : 1.0;
-        if (pc.key_count > 0u) vis = glossy_rays_visibility(pk, reflect(-v, n), ng, env_alpha(m));
+        if (pc.key_count > 0u) vis = cone_rays_visibility(pk, reflect(-v, n), env_alpha(m), ng);
         color += vis * env_glossy(n, v, m);
     }
     float roughness = env_roughness(m);

@@ -122,6 +122,13 @@ pub struct KdTreeHandles {
     pub built_this_frame: bool,
 }
 
+impl KdTreeHandles {
+    /// The four buffers in binding order: triangles, nodes, references, header.
+    pub fn buffers(&self) -> [BufferHandle; 4] {
+        [self.tris, self.nodes, self.refs, self.header]
+    }
+}
+
 /// The tree's four buffers as read by one tracing pass (bindings `tris, nodes, refs, header`
 /// in that order, as the users of `glsl/include/kdtree.glsl` declare them).
 #[derive(Clone, Copy, Debug)]
@@ -291,35 +298,6 @@ impl KdTreeBuilder {
         })
     }
 
-    /// The tree of `frame`'s triangles: declared from the persistent buffers, rebuilt in this
-    /// graph when nothing was built yet, the triangle count changed, or an instance moved or
-    /// deformed.
-    pub fn add(
-        &mut self,
-        engine: &mut FrameStore<'_>,
-        graph: &mut Graph,
-        scene: &Scene,
-        frame: &Frame,
-    ) -> Result<KdTreeHandles> {
-        let changed = frame.any_moved() || frame.any_deformed();
-        if !changed && self.built.is_some() {
-            // Static geometry: declare the kept buffers (rebuilt if they were lost).
-            let n = self.built.unwrap_or(0);
-            let (probe, bytes) = self.persistent(engine, graph, n);
-            let fresh = [probe.tris, probe.nodes, probe.refs, probe.header].iter().any(|b| graph.persistent_is_new(*b));
-            if !fresh {
-                return Ok(KdTreeHandles { extent: self.extent, ..probe });
-            }
-            let tris = world_triangles(scene, frame)?;
-            if tris.len() != n as usize {
-                bail!("kd-tree: static geometry changed its triangle count ({n} -> {})", tris.len());
-            }
-            return self.build_into(graph, probe, bytes, &tris, None);
-        }
-        let tris = world_triangles(scene, frame)?;
-        self.add_triangles(engine, graph, &tris, true)
-    }
-
     fn sizes(&self, n: u32) -> (u64, u64, u64, u32) {
         let n64 = n as u64;
         let tris = (n64 * 48).max(48);
@@ -397,6 +375,27 @@ impl KdTreeBuilder {
         }
         let (tris, _, no_shadow) = world_triangles_shading(scene, frame)?;
         self.add_triangles_flagged(engine, graph, &tris, Some(&no_shadow), moved)
+    }
+
+    /// For a technique whose shader binds the tree only sometimes: with a `builder`, its tree of
+    /// `frame` ([`KdTreeBuilder::add_frame`]) and true; without, four empty stand-in buffers
+    /// (`<prefix>_kd_none<i>`, for a shader told not to read them) and false. The buffers in
+    /// binding order (triangles, nodes, references, header).
+    pub fn add_frame_or_stand_ins(
+        builder: Option<&mut Self>,
+        engine: &mut FrameStore<'_>,
+        graph: &mut Graph,
+        scene: &Scene,
+        frame: &Frame,
+        prefix: &str,
+    ) -> Result<([BufferHandle; 4], bool)> {
+        Ok(match builder {
+            Some(b) => (b.add_frame(engine, graph, scene, frame)?.buffers(), true),
+            None => (
+                std::array::from_fn(|i| graph.create_buffer_init(&format!("{prefix}_kd_none{i}"), vec![0u8; 16])),
+                false,
+            ),
+        })
     }
 
     /// The kept tree's handles when one was built and its buffers survived (no rebuild).

@@ -207,7 +207,8 @@ fn tree_rebuilds_only_when_geometry_changes() {
             let frame = scene.at(t, prev);
             prev = Some(t);
             let mut g = Graph::new();
-            let tree = builder.add(&mut penumbra_engine::FrameStore::new(&mut engine), &mut g, &scene, &frame).unwrap();
+            let tree =
+                builder.add_frame(&mut penumbra_engine::FrameStore::new(&mut engine), &mut g, &scene, &frame).unwrap();
             let built = g.passes().iter().any(|p| p.name.starts_with("kdtree_level"));
             assert_eq!(built, tree.built_this_frame);
             let expect = k == 0 || (dynamic && (frame.any_moved() || frame.any_deformed()));

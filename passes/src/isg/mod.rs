@@ -864,16 +864,16 @@ impl crate::technique::Technique for IsgTechnique {
         graph: &mut Graph,
         inputs: &crate::technique::TechniqueInputs,
     ) -> Result<ImageHandle> {
-        // local lights' occluders: the frame's triangles (rebuilt when anything moved)
-        let kd_tree = match self.kd.as_mut() {
-            Some(b) => Some(b.add_frame(engine, graph, &self.scene, inputs.frame)?),
-            None => None,
-        };
-        // the tree's four buffers, or four empty stand-ins the shader never reads (flags bit 2 off)
-        let kd_bufs = match &kd_tree {
-            Some(t) => [t.tris, t.nodes, t.refs, t.header],
-            None => std::array::from_fn(|i| graph.create_buffer_init(&format!("isg_kd_none{i}"), vec![0u8; 16])),
-        };
+        // local lights' occluders (and traced visibility's): the frame's triangles (rebuilt when
+        // anything moved), or four empty stand-ins the shader never reads (flags bits 2, 3 off)
+        let (kd_bufs, kd_tree) = crate::kdtree::KdTreeBuilder::add_frame_or_stand_ins(
+            self.kd.as_mut(),
+            engine,
+            graph,
+            &self.scene,
+            inputs.frame,
+            "isg",
+        )?;
         let spheres = frame_spheres(&self.scene, &self.sets, inputs.frame);
         self.last_sphere_count = spheres.len();
         let (scene, gb) = (inputs.handles, inputs.gbuffer);
@@ -944,8 +944,8 @@ impl crate::technique::Technique for IsgTechnique {
         push.extend_from_slice(&self.settings.lod.to_le_bytes());
         let flags = !self.settings.shadows as u32
             | (!self.settings.light_shadows as u32) << 1
-            | ((kd_tree.is_some() && self.settings.light_mesh) as u32) << 2
-            | ((kd_tree.is_some() && self.settings.traced_visibility) as u32) << 3;
+            | ((kd_tree && self.settings.light_mesh) as u32) << 2
+            | ((kd_tree && self.settings.traced_visibility) as u32) << 3;
         push.extend_from_slice(&flags.to_le_bytes());
         push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
         let specular_mode = if self.settings.glossy_ratio { 2u32 } else { !self.settings.prefiltered_specular as u32 };

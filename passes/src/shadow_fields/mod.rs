@@ -124,6 +124,9 @@ impl SfOptions {
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
         let bad = |why: &str| anyhow!("shadow-fields parameter {key} = '{value}': {why}");
+        if set_light_option(&mut self.light_traced, &mut self.key_lights, key.trim(), v, &bad)? {
+            return Ok(());
+        }
         match key.trim() {
             "shells" => {
                 self.params.shells = v.parse::<usize>().ok().filter(|x| (1..=256).contains(x)).ok_or_else(|| bad("expected an integer in 1..=256"))?
@@ -155,16 +158,6 @@ impl SfOptions {
                     "0" | "false" => false,
                     _ => return Err(bad("expected true or false")),
                 }
-            }
-            "light_shadows" => {
-                self.light_traced = match v {
-                    "traced" => true,
-                    "fields" => false,
-                    _ => return Err(bad("expected traced or fields")),
-                }
-            }
-            "key_lights" => {
-                self.key_lights = v.parse::<usize>().ok().filter(|x| *x <= 16).ok_or_else(|| bad("expected an integer in 0..=16"))?
             }
             other => anyhow::bail!("unknown shadow-fields parameter '{other}' (known: shells, resolution, map_res, threshold, mode, window, srf, light_shadows, key_lights)"),
         }
@@ -430,9 +423,62 @@ pub fn precompute_files(
     Ok((fields.reports, paths))
 }
 
+/// The light options both shadow-field variants take, `light_shadows` (`traced` | `fields`)
+/// into `light_traced` and `key_lights` (0..=16): whether `key` was one of them (a bad value is
+/// `bad`'s error).
+pub(crate) fn set_light_option(
+    light_traced: &mut bool,
+    key_lights: &mut usize,
+    key: &str,
+    v: &str,
+    bad: &dyn Fn(&str) -> anyhow::Error,
+) -> Result<bool> {
+    match key {
+        "light_shadows" => {
+            *light_traced = match v {
+                "traced" => true,
+                "fields" => false,
+                _ => return Err(bad("expected traced or fields")),
+            }
+        }
+        "key_lights" => {
+            *key_lights =
+                v.parse::<usize>().ok().filter(|x| *x <= 16).ok_or_else(|| bad("expected an integer in 0..=16"))?
+        }
+        _ => return Ok(false),
+    }
+    Ok(true)
+}
+
+/// `env` with its key lights (at most `max`, [`penumbra_math::envmap::split_lights`]) split off:
+/// the rest of the map, and the lights' lobes in world space ([`key_light_lobes`]); `None` when
+/// no texel is over the cap.
+pub(crate) fn split_key_lights(env: &Environment, max: usize) -> Result<Option<(Environment, Vec<[f32; 4]>)>> {
+    let (lobes, sky) = penumbra_math::envmap::split_lights(
+        env.width as usize,
+        env.height as usize,
+        &env.texels,
+        &Default::default(),
+        max,
+    )
+    .map_err(|e| anyhow!("the environment map: splitting off its lights: {e:?}"))?;
+    Ok((!lobes.is_empty()).then(|| (Environment { texels: sky, ..env.clone() }, key_light_lobes(env, &lobes))))
+}
+
+/// The scene's deforming objects, named (quoted), whose rest mesh's field the fields keep.
+pub(crate) fn deforming_objects(scene: &Scene) -> Vec<String> {
+    scene
+        .object_info
+        .iter()
+        .enumerate()
+        .filter(|(_, o)| o.is_deforming())
+        .map(|(i, _)| scene.objects.get(i).map_or_else(|| format!("object {i}"), |o| format!("'{}'", o.name)))
+        .collect()
+}
+
 /// Key-light lobes of `env` in world space (its rotation about +Y and its intensity applied),
 /// 2 per lobe: axis + lambda, RGB amplitude; lobes that are not finite are dropped.
-pub(crate) fn key_light_lobes(env: &Environment, lobes: &[penumbra_math::sg::SgRgb]) -> Vec<[f32; 4]> {
+fn key_light_lobes(env: &Environment, lobes: &[penumbra_math::sg::SgRgb]) -> Vec<[f32; 4]> {
     let rot = glam::DMat3::from_rotation_y(env.rotation as f64);
     let mut out = Vec::new();
     for l in lobes {
@@ -967,20 +1013,13 @@ impl ShadowFieldsTechnique {
         let o = fields.options.clone();
         let light = env_light_sh(scene.environment.as_ref());
         let traced = o.light_traced && (!scene.lights.is_empty() || o.key_lights > 0);
-        let (shade_light, key) = match scene.environment.as_ref() {
-            Some(env) if traced && o.key_lights > 0 => {
-                let (lobes, sky) = penumbra_math::envmap::split_lights(
-                    env.width as usize,
-                    env.height as usize,
-                    &env.texels,
-                    &Default::default(),
-                    o.key_lights,
-                )
-                .map_err(|e| anyhow!("the environment map: splitting off its lights: {e:?}"))?;
-                let sky_env = Environment { texels: sky, ..env.clone() };
-                (env_light_sh(Some(&sky_env)), key_light_lobes(env, &lobes))
-            }
-            _ => (light, Vec::new()),
+        let split = match scene.environment.as_ref() {
+            Some(env) if traced && o.key_lights > 0 => split_key_lights(env, o.key_lights)?,
+            _ => None,
+        };
+        let (shade_light, key) = match split {
+            Some((sky, key)) => (env_light_sh(Some(&sky)), key),
+            None => (light, Vec::new()),
         };
         Ok(ShadowFieldsTechnique {
             shade,
@@ -1199,13 +1238,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
     }
 
     fn limitations(&self, scene: &Scene) -> Vec<String> {
-        let deforming: Vec<String> = scene
-            .object_info
-            .iter()
-            .enumerate()
-            .filter(|(_, o)| o.is_deforming())
-            .map(|(i, _)| scene.objects.get(i).map_or_else(|| format!("object {i}"), |o| format!("'{}'", o.name)))
-            .collect();
+        let deforming = deforming_objects(scene);
         if deforming.is_empty() {
             Vec::new()
         } else {
@@ -1231,15 +1264,15 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
             .create_buffer_init("sf_key_lights", if self.key.is_empty() { vec![0u8; 32] } else { bytes_of(&self.key) });
         // the local lights' occluders: the frame's triangles (rebuilt when anything moved), or
         // four empty stand-ins the shader never reads (traced = 0)
-        let kd_tree = match self.kd.as_mut() {
-            Some(b) => Some(b.add_frame(engine, graph, &self.scene, inputs.frame)?),
-            None => None,
-        };
-        let traced = kd_tree.is_some() as u32;
-        let kd_bufs = match &kd_tree {
-            Some(t) => [t.tris, t.nodes, t.refs, t.header],
-            None => std::array::from_fn(|i| graph.create_buffer_init(&format!("sf_kd_none{i}"), vec![0u8; 16])),
-        };
+        let (kd_bufs, traced) = crate::kdtree::KdTreeBuilder::add_frame_or_stand_ins(
+            self.kd.as_mut(),
+            engine,
+            graph,
+            &self.scene,
+            inputs.frame,
+            "sf",
+        )?;
+        let traced = traced as u32;
         let gb = inputs.gbuffer;
         let (w, hh) = (gb.width, gb.height);
         let vtx = (self.mode == SfMode::Vertex).then(|| self.add_vertex_display(graph, &h, inputs, w, hh));

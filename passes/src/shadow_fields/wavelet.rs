@@ -126,6 +126,9 @@ impl SfwOptions {
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let v = value.trim();
         let bad = |why: &str| anyhow!("shadow-fields-wavelet parameter {key} = '{value}': {why}");
+        if crate::shadow_fields::set_light_option(&mut self.light_traced, &mut self.key_lights, key.trim(), v, &bad)? {
+            return Ok(());
+        }
         let pow2 =
             |lo: usize, hi: usize| v.parse::<usize>().ok().filter(|x| (lo..=hi).contains(x) && x.is_power_of_two());
         match key.trim() {
@@ -156,16 +159,6 @@ impl SfwOptions {
                     "0" | "false" => false,
                     _ => return Err(bad("expected true or false")),
                 }
-            }
-            "light_shadows" => {
-                self.light_traced = match v {
-                    "traced" => true,
-                    "fields" => false,
-                    _ => return Err(bad("expected traced or fields")),
-                }
-            }
-            "key_lights" => {
-                self.key_lights = v.parse::<usize>().ok().filter(|x| *x <= 16).ok_or_else(|| bad("expected an integer in 0..=16"))?
             }
             other => anyhow::bail!("unknown shadow-fields-wavelet parameter '{other}' (known: shells, resolution, cube, keep, threshold, adaptive, lookup, self, light_shadows, key_lights)"),
         }
@@ -427,9 +420,9 @@ pub struct WaveletTechnique {
     mesh_self: Vec<Option<u32>>,
     mesh_verts: Vec<Vec<[f32; 4]>>,
     mesh_ranges: Vec<(u32, u32, i32)>,
-    /// The frame's kd-tree for the local and key lights' shadow rays and the scene it is built
-    /// from (`light_shadows = traced`, with local or key lights to shade).
-    kd: Option<(crate::kdtree::KdTreeBuilder, Arc<Scene>)>,
+    /// The frame's kd-tree for the local and key lights' shadow rays (`light_shadows = traced`,
+    /// with local or key lights to shade).
+    kd: Option<crate::kdtree::KdTreeBuilder>,
     /// The key lights split off the environment, 2 per light (world axis + lambda, RGB
     /// amplitude), shaded with the kd-tree's rays ([`SfwOptions::key_lights`]).
     key: Vec<[f32; 4]>,
@@ -590,38 +583,22 @@ impl WaveletTechnique {
         }
         // the key lights split off the environment: the cube's radiance and the irradiance map
         // are then the rest of the map's
-        let (sky_scene, key) = match scene.environment.as_ref() {
+        let split = match scene.environment.as_ref() {
             Some(env) if options.light_traced && options.key_lights > 0 => {
-                let (lobes, sky) = penumbra_math::envmap::split_lights(
-                    env.width as usize,
-                    env.height as usize,
-                    &env.texels,
-                    &Default::default(),
-                    options.key_lights,
-                )
-                .map_err(|e| anyhow!("the environment map: splitting off its lights: {e:?}"))?;
-                if lobes.is_empty() {
-                    (None, Vec::new())
-                } else {
-                    let mut sc = scene.clone();
-                    sc.environment = Some(penumbra_scene::Environment { texels: sky, ..env.clone() });
-                    (Some(sc), crate::shadow_fields::key_light_lobes(env, &lobes))
-                }
+                crate::shadow_fields::split_key_lights(env, options.key_lights)?
             }
-            _ => (None, Vec::new()),
+            _ => None,
+        };
+        let (sky_scene, key) = match split {
+            Some((sky, key)) => (Some(Scene { environment: Some(sky), ..scene.clone() }), key),
+            None => (None, Vec::new()),
         };
         let env_scene = sky_scene.as_ref().unwrap_or(scene);
         let cube = env_cube(env_scene, &table);
         let mut dirs: Vec<[f32; 4]> = table.dirs.iter().map(|d| [d.x as f32, d.y as f32, d.z as f32, 0.0]).collect();
         dirs.extend(cube);
         let casts = crate::shadow_fields::casts_flags(scene);
-        let deforming = scene
-            .object_info
-            .iter()
-            .enumerate()
-            .filter(|(_, o)| o.is_deforming())
-            .map(|(i, _)| scene.objects.get(i).map_or_else(|| format!("object {i}"), |o| format!("'{}'", o.name)))
-            .collect();
+        let deforming = crate::shadow_fields::deforming_objects(scene);
         Ok(WaveletTechnique {
             shade,
             nearest: Sampler::nearest(ctx)?,
@@ -642,7 +619,7 @@ impl WaveletTechnique {
             mesh_verts,
             mesh_ranges,
             kd: if options.light_traced && (!scene.lights.is_empty() || !key.is_empty()) {
-                Some((crate::kdtree::KdTreeBuilder::new(ctx, shaders)?, Arc::new(scene.clone())))
+                Some(crate::kdtree::KdTreeBuilder::new(ctx, shaders)?)
             } else {
                 None
             },
@@ -764,15 +741,15 @@ impl crate::technique::Technique for WaveletTechnique {
         let frame = inputs.frame;
         // the local lights' occluders: the frame's triangles (rebuilt when anything moved), or
         // four empty stand-ins the shader never reads (traced = 0)
-        let kd_tree = match self.kd.as_mut() {
-            Some((b, scene)) => Some(b.add_frame(engine, graph, scene, frame)?),
-            None => None,
-        };
-        let traced = kd_tree.is_some() as u32;
-        let kd_bufs = match &kd_tree {
-            Some(t) => [t.tris, t.nodes, t.refs, t.header],
-            None => std::array::from_fn(|i| graph.create_buffer_init(&format!("sfw_kd_none{i}"), vec![0u8; 16])),
-        };
+        let (kd_bufs, traced) = crate::kdtree::KdTreeBuilder::add_frame_or_stand_ins(
+            self.kd.as_mut(),
+            engine,
+            graph,
+            inputs.scene,
+            frame,
+            "sfw",
+        )?;
+        let traced = traced as u32;
         let key_count = (self.key.len() / 2) as u32 * traced;
         let key = graph.create_buffer_init(
             "sfw_key_lights",

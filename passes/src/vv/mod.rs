@@ -952,15 +952,14 @@ impl crate::technique::Technique for VvTechnique {
         );
         // the scene's triangles for the local lights' shadow rays (built once: vv's scenes are
         // static), or placeholders without local lights
-        let kd_tree = match self.kd.as_mut().filter(|_| inputs.handles.light_count > 0) {
-            Some(b) => Some(b.add_frame(engine, graph, inputs.scene, inputs.frame)?),
-            None => None,
-        };
-        let kd_bufs = match &kd_tree {
-            Some(t) => [t.tris, t.nodes, t.refs, t.header],
-            None => std::array::from_fn(|i| graph.create_buffer_init(&format!("vv_kd_none{i}"), vec![0u8; 16])),
-        };
-        let kd_tree = kd_tree.is_some();
+        let (kd_bufs, kd_tree) = crate::kdtree::KdTreeBuilder::add_frame_or_stand_ins(
+            self.kd.as_mut().filter(|_| inputs.handles.light_count > 0),
+            engine,
+            graph,
+            inputs.scene,
+            inputs.frame,
+            "vv",
+        )?;
         let (w, h) = (inputs.gbuffer.width, inputs.gbuffer.height);
         let depth = graph.create_image("vv_depth", ImageDesc::new_2d(crate::gbuffer::DEPTH_FORMAT, w, h));
         let objects = graph.create_image("vv_objects", ImageDesc::new_2d(HDR_FORMAT, w, h));
