@@ -25,6 +25,9 @@
 // lobes' irradiance (include/irradiance.glsl), not the lobes alone (the paper's; its fit error).
 // Glossy (glossy ratio, default): the material model's split sum (env_shade.glsl, the `env`
 // technique's) times the specular lobe's SSDF visibility, not the one SG lobe of the BRDF.
+// Key lights (key_lights, with light_shadows = traced): the environment's sun or studio lights
+// split off the map (every SG lobe, the irradiance and the prefiltered maps are the rest's),
+// their diffuse light shadowed by 9 rays each through the kd-tree (light_rays.glsl).
 // Local lights (light_shadows): shadow rays traced through the frame's kd-tree (default; the paper
 // lights by the environment only, and a point or spot light's hard shadow is finer than maps
 // interpolated between sample points), or the sign of the interpolated SSDF toward the light.
@@ -70,6 +73,10 @@ layout(set = 0, binding = 19) readonly buffer Header { uint kd_hdr[]; };
 #define KD_REF(i) kd_refs[i]
 #define KD_HDR(i) kd_hdr[i]
 #include "kdtree.glsl"
+#include "light_rays.glsl"
+// the environment's key lights split off its map (AvsSettings::key_lights), 2 per light: world
+// axis + lambda, rgb amplitude; their diffuse light is shadowed by rays through the kd-tree
+layout(set = 0, binding = 20) readonly buffer KeyLights { vec4 key[]; };
 layout(push_constant) uniform Push {
     uint light_count;
     uint lobe_count;
@@ -79,11 +86,12 @@ layout(push_constant) uniform Push {
     float inv_scale;
     float radius;
     uint mode;       // 0 lobe axis, 1 cells, 2 table, 3 adaptive cells
-    uint flags;      // bit 0: no SSDF visibility (shadows off, or no sample points); bit 1: local lights' shadows traced
+    uint flags;      // bit 0: no SSDF visibility (shadows off, or no sample points); bit 1: local lights' and key lights' shadows traced
     uint cells;      // cells per side (mode 1)
     uint specular_mode;  // 0: Gamma_L from the prefiltered maps, 1: from the lighting SGs, 2: ratio (env_shade.glsl's glossy term x the lobe's SSDF visibility)
     uint diffuse_ratio;  // 1: the map's irradiance x the SG lobes' visible share; 0: the SG lobes alone
     float ray_offset;    // shadow rays start this far along the normal, and skip hits nearer than it (the sample points' offset, avs::ray_offset)
+    uint key_count;      // key lights split off the environment (binding 20)
 } pc;
 
 #include "avs_gather.glsl"
@@ -280,6 +288,18 @@ void main() {
         diffuse_open += e;
     }
     if (pc.diffuse_ratio != 0u) diffuse = irr_ratio(n, diffuse, diffuse_open);
+    if (pc.key_count > 0u) {
+        // ray origin off the surface along the geometric normal (as the shadow fields')
+        vec3 po = pos + ng * 1e-3 * max(1.0, length(pos));
+        for (uint k = 0u; k < min(pc.key_count, 16u); ++k) {
+            vec4 axis_lambda = key[2u * k];
+            vec3 mu = key[2u * k + 1u].rgb;
+            // shadows off (flags bit 1 clear): the same light, unshadowed
+            diffuse += (pc.flags & 2u) != 0u
+                ? key_light_irradiance(axis_lambda, mu, po, n, ng)
+                : mu * max(sg_cosine_integral(sg_make(axis_lambda.xyz, axis_lambda.w, 1.0), n), 0.0);
+        }
+    }
     vec3 color = albedo / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
     color += local_lights(pos, n, ng, v, albedo, kind, m, roughness);

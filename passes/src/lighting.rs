@@ -198,3 +198,34 @@ pub fn irradiance_env(scene: &Scene) -> Vec<f32> {
     out.extend(map.iter().flatten());
     out
 }
+
+/// `env` with its key lights (at most `max`, [`penumbra_math::envmap::split_lights`]) split off:
+/// the rest of the map, and the lights' lobes in world space ([`key_light_lobes`]); `None` when
+/// no texel is over the cap.
+pub fn split_key_lights(env: &Environment, max: usize) -> anyhow::Result<Option<(Environment, Vec<[f32; 4]>)>> {
+    let (lobes, sky) = penumbra_math::envmap::split_lights(
+        env.width as usize,
+        env.height as usize,
+        &env.texels,
+        &Default::default(),
+        max,
+    )
+    .map_err(|e| anyhow::anyhow!("the environment map: splitting off its lights: {e:?}"))?;
+    Ok((!lobes.is_empty()).then(|| (Environment { texels: sky, ..env.clone() }, key_light_lobes(env, &lobes))))
+}
+
+/// Key-light lobes of `env` in world space (its rotation about +Y and its intensity applied),
+/// 2 per lobe: axis + lambda, RGB amplitude; lobes that are not finite are dropped.
+fn key_light_lobes(env: &Environment, lobes: &[penumbra_math::sg::SgRgb]) -> Vec<[f32; 4]> {
+    let rot = glam::DMat3::from_rotation_y(env.rotation as f64);
+    let mut out = Vec::new();
+    for l in lobes {
+        let a = rot * l.axis;
+        let mu = l.mu * env.intensity as f64;
+        if a.is_finite() && l.lambda.is_finite() && mu.is_finite() {
+            out.push([a.x as f32, a.y as f32, a.z as f32, l.lambda as f32]);
+            out.push([mu.x as f32, mu.y as f32, mu.z as f32, 0.0]);
+        }
+    }
+    out
+}

@@ -146,6 +146,7 @@ mod registry {
             (avs.r, avs.e_max, avs.iterations, avs.max_points, avs.neighbours),
             (d.r, d.e_max, d.iterations, d.max_points, d.neighbours)
         );
+        assert_eq!((avs.traced_lights, avs.key_lights), (d.traced_lights, d.key_lights));
         let sf =
             penumbra_passes::shadow_fields::SfOptions::from_params(&defaults(lookup("shadow-fields").unwrap().params))
                 .unwrap();

@@ -450,21 +450,6 @@ pub(crate) fn set_light_option(
     Ok(true)
 }
 
-/// `env` with its key lights (at most `max`, [`penumbra_math::envmap::split_lights`]) split off:
-/// the rest of the map, and the lights' lobes in world space ([`key_light_lobes`]); `None` when
-/// no texel is over the cap.
-pub(crate) fn split_key_lights(env: &Environment, max: usize) -> Result<Option<(Environment, Vec<[f32; 4]>)>> {
-    let (lobes, sky) = penumbra_math::envmap::split_lights(
-        env.width as usize,
-        env.height as usize,
-        &env.texels,
-        &Default::default(),
-        max,
-    )
-    .map_err(|e| anyhow!("the environment map: splitting off its lights: {e:?}"))?;
-    Ok((!lobes.is_empty()).then(|| (Environment { texels: sky, ..env.clone() }, key_light_lobes(env, &lobes))))
-}
-
 /// The scene's deforming objects, named (quoted), whose rest mesh's field the fields keep.
 pub(crate) fn deforming_objects(scene: &Scene) -> Vec<String> {
     scene
@@ -474,22 +459,6 @@ pub(crate) fn deforming_objects(scene: &Scene) -> Vec<String> {
         .filter(|(_, o)| o.is_deforming())
         .map(|(i, _)| scene.objects.get(i).map_or_else(|| format!("object {i}"), |o| format!("'{}'", o.name)))
         .collect()
-}
-
-/// Key-light lobes of `env` in world space (its rotation about +Y and its intensity applied),
-/// 2 per lobe: axis + lambda, RGB amplitude; lobes that are not finite are dropped.
-fn key_light_lobes(env: &Environment, lobes: &[penumbra_math::sg::SgRgb]) -> Vec<[f32; 4]> {
-    let rot = glam::DMat3::from_rotation_y(env.rotation as f64);
-    let mut out = Vec::new();
-    for l in lobes {
-        let a = rot * l.axis;
-        let mu = l.mu * env.intensity as f64;
-        if a.is_finite() && l.lambda.is_finite() && mu.is_finite() {
-            out.push([a.x as f32, a.y as f32, a.z as f32, l.lambda as f32]);
-            out.push([mu.x as f32, mu.y as f32, mu.z as f32, 0.0]);
-        }
-    }
-    out
 }
 
 /// Order-4 SH (rgb) of the environment radiance in world space (intensity and rotation
@@ -1014,7 +983,7 @@ impl ShadowFieldsTechnique {
         let light = env_light_sh(scene.environment.as_ref());
         let traced = o.light_traced && (!scene.lights.is_empty() || o.key_lights > 0);
         let split = match scene.environment.as_ref() {
-            Some(env) if traced && o.key_lights > 0 => split_key_lights(env, o.key_lights)?,
+            Some(env) if traced && o.key_lights > 0 => crate::lighting::split_key_lights(env, o.key_lights)?,
             _ => None,
         };
         let (shade_light, key) = match split {

@@ -585,7 +585,7 @@ impl WaveletTechnique {
         // are then the rest of the map's
         let split = match scene.environment.as_ref() {
             Some(env) if options.light_traced && options.key_lights > 0 => {
-                crate::shadow_fields::split_key_lights(env, options.key_lights)?
+                crate::lighting::split_key_lights(env, options.key_lights)?
             }
             _ => None,
         };
