@@ -3,7 +3,7 @@
 //! lookups. Shared building blocks of the frame layer: no technique owns them.
 
 use glam::DVec3;
-use penumbra_scene::{Environment, Scene};
+use penumbra_scene::Environment;
 
 /// The sources the cached products are computed by: a change to any of them (even a comment)
 /// changes every cache key, so a cache file never outlives the code that wrote it.
@@ -87,8 +87,8 @@ fn bytes_to_f32s(b: &[u8]) -> Vec<f32> {
 
 /// Lighting SG lobes of the scene's environment in world space (intensity and rotation
 /// applied), as `[axis, lambda], [rgb mu, 0]` pairs; the fit's relative L2 error.
-pub fn lighting_lobes(scene: &Scene, k: usize) -> (Vec<[f32; 4]>, Option<f64>) {
-    let Some(e) = scene.environment.as_ref() else { return (Vec::new(), None) };
+pub fn lighting_lobes(env: Option<&Environment>, k: usize) -> (Vec<[f32; 4]>, Option<f64>) {
+    let Some(e) = env else { return (Vec::new(), None) };
     // cached as the fit's error (f64, NaN: no fit) then the lobes' floats
     let b = cached_bytes("lobes", cache_key("lobes", e, &(k as u64).to_le_bytes()), || {
         let (lobes, err) = lighting_lobes_uncached(e, k);
@@ -130,8 +130,8 @@ pub const PREFILTER_LAMBDAS: [f64; 8] = [0.25, 1.0, 4.0, 16.0, 64.0, 256.0, 1024
 /// The environment prefiltered with normalised SGs ([`PREFILTER_LAMBDAS`], at most 128 rows) in
 /// the layout of `Prefiltered` in `glsl/isg/isg_shade.comp`; `[0.0]` (no levels) without an
 /// environment.
-pub fn prefiltered_env(scene: &Scene) -> Vec<f32> {
-    let Some(e) = scene.environment.as_ref() else { return vec![0.0] };
+pub fn prefiltered_env(env: Option<&Environment>) -> Vec<f32> {
+    let Some(e) = env else { return vec![0.0] };
     let params: Vec<u8> = PREFILTER_LAMBDAS.iter().flat_map(|l| l.to_le_bytes()).collect();
     bytes_to_f32s(&cached_bytes("prefiltered", cache_key("prefiltered", e, &params), || {
         f32s_to_bytes(&prefiltered_env_uncached(e))
@@ -166,9 +166,9 @@ pub const CAMERA_IRRADIANCE_SIZE: (usize, usize) = (32, 16);
 /// lookup. It follows the specular albedo table in the camera buffer (`cam_irr` of
 /// `glsl/include/env_shade.glsl`): the unshadowed diffuse term of every technique that shades
 /// through `env_unshadowed_parts`. Zeros without an environment.
-pub fn camera_irradiance(scene: &Scene) -> Vec<[f32; 4]> {
+pub fn camera_irradiance(env: Option<&Environment>) -> Vec<[f32; 4]> {
     let (w, h) = CAMERA_IRRADIANCE_SIZE;
-    match irradiance_texels(scene, w, h) {
+    match irradiance_texels(env, w, h) {
         Some(m) => m.iter().map(|c| [c[0], c[1], c[2], 0.0]).collect(),
         None => vec![[0.0; 4]; w * h],
     }
@@ -178,8 +178,8 @@ pub fn camera_irradiance(scene: &Scene) -> Vec<[f32; 4]> {
 /// ([`penumbra_math::envmap::irradiance_map`], at most 64 source rows), non-finite or negative
 /// channels as 0; `None` without an environment. Shared by [`camera_irradiance`] and
 /// [`irradiance_env`].
-fn irradiance_texels(scene: &Scene, w: usize, h: usize) -> Option<Vec<[f32; 3]>> {
-    let e = scene.environment.as_ref()?;
+fn irradiance_texels(env: Option<&Environment>, w: usize, h: usize) -> Option<Vec<[f32; 3]>> {
+    let e = env?;
     let map = penumbra_math::envmap::irradiance_map(e.width as usize, e.height as usize, &e.texels, w, h, 64).ok()?;
     Some(map.iter().map(|t| t.map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 })).collect())
 }
@@ -191,9 +191,9 @@ pub const IRRADIANCE_SIZE: (usize, usize) = (64, 32);
 /// [`penumbra_math::envmap::irradiance_map`]; intensity and rotation are applied by the shader's
 /// lookup, as for [`prefiltered_env`]): `[width, height]` then RGB texels row by row; `[0, 0]`
 /// without an environment. Read by `irr_eval` in `glsl/include/irradiance.glsl`.
-pub fn irradiance_env(scene: &Scene) -> Vec<f32> {
+pub fn irradiance_env(env: Option<&Environment>) -> Vec<f32> {
     let (w, h) = IRRADIANCE_SIZE;
-    let Some(map) = irradiance_texels(scene, w, h) else { return vec![0.0, 0.0] };
+    let Some(map) = irradiance_texels(env, w, h) else { return vec![0.0, 0.0] };
     let mut out = vec![w as f32, h as f32];
     out.extend(map.iter().flatten());
     out

@@ -175,7 +175,7 @@ impl SceneGpu {
             textures,
             sigma_t,
             dfg: penumbra_math::dfg::packed(),
-            irradiance: crate::lighting::camera_irradiance(scene),
+            irradiance: crate::lighting::camera_irradiance(scene.environment.as_ref()),
         })
     }
 }

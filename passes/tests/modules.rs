@@ -296,7 +296,7 @@ mod env {
         );
         std::fs::write(dir.join("irr.toml"), toml).unwrap();
         let scene = penumbra_scene::Scene::load(dir.join("irr.toml")).unwrap();
-        let map = penumbra_passes::lighting::camera_irradiance(&scene);
+        let map = penumbra_passes::lighting::camera_irradiance(scene.environment.as_ref());
         let (w, h) = penumbra_passes::lighting::CAMERA_IRRADIANCE_SIZE;
         assert_eq!(map.len(), w * h);
         let e = scene.environment.as_ref().unwrap();

@@ -892,12 +892,12 @@ impl AvsTechnique {
             }
             _ => None,
         };
-        let (sky_scene, key) = match split {
-            Some((sky, key)) => (Some(Scene { environment: Some(sky), ..scene.clone() }), key),
+        let (sky, key) = match split {
+            Some((sky, key)) => (Some(sky), key),
             None => (None, Vec::new()),
         };
-        let light_scene = sky_scene.as_ref().unwrap_or(scene);
-        let (lobes, _) = crate::lighting::lighting_lobes(light_scene, settings.lobes);
+        let env = sky.as_ref().or(scene.environment.as_ref());
+        let (lobes, _) = crate::lighting::lighting_lobes(env, settings.lobes);
         let lobe_count = (lobes.len() / 2) as u32;
         let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
         Ok(AvsTechnique {
@@ -909,8 +909,8 @@ impl AvsTechnique {
             linear: Sampler::latlong(ctx)?,
             repeat: Sampler::repeat(ctx)?,
             lobes: Arc::new(bytes_of(&lobes)),
-            prefiltered: Arc::new(bytes_of(&crate::lighting::prefiltered_env(light_scene))),
-            irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(light_scene))),
+            prefiltered: Arc::new(bytes_of(&crate::lighting::prefiltered_env(env))),
+            irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(env))),
             key_count: (key.len() / 2) as u32,
             key_lights: Arc::new(if key.is_empty() { vec![0u8; 32] } else { bytes_of(&key) }),
             axis_table: if settings.integration == Integration::Table { axis_table() } else { Arc::new(vec![0u8; 16]) },

@@ -651,8 +651,8 @@ impl IsgTechnique {
             None
         };
         let table = IsgTable::default_table().to_gpu(settings.epsilon);
-        let (lobes, _) = crate::lighting::lighting_lobes(scene, settings.lobes);
-        let prefiltered = crate::lighting::prefiltered_env(scene);
+        let (lobes, _) = crate::lighting::lighting_lobes(scene.environment.as_ref(), settings.lobes);
+        let prefiltered = crate::lighting::prefiltered_env(scene.environment.as_ref());
         let lobe_count = (lobes.len() / 2) as u32;
         let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
         let (sets, mut sphere_notes) = scene_sphere_sets_noting(scene, settings.spheres_per_object);
@@ -687,7 +687,7 @@ impl IsgTechnique {
             table: Arc::new(bytes_of(&table)),
             lobes: Arc::new(bytes_of(&lobes)),
             prefiltered: Arc::new(bytes_of(&prefiltered)),
-            irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(scene))),
+            irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(scene.environment.as_ref()))),
             lobe_count,
             last_sphere_count: 0,
             last_node_count: 0,

@@ -48,7 +48,7 @@ use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, FrameStore, Graph, ImageHandle, PassKind};
 use penumbra_math::shadow_field::haar::{raw_maps, CubeTable, HaarField};
-use penumbra_scene::Scene;
+use penumbra_scene::{Environment, Scene};
 use std::collections::hash_map::DefaultHasher;
 use std::hash::{Hash, Hasher};
 use std::sync::Arc;
@@ -434,7 +434,7 @@ const SELF_FORMAT: vk::Format = vk::Format::R16G16B16A16_SFLOAT;
 /// The environment on the cube of face resolution `table.n`, world frame: per pixel the mean
 /// radiance over the pixel (8 x 8 sub-directions, intensity and rotation applied) times its
 /// solid angle; zero without an environment.
-pub fn env_cube(scene: &Scene, table: &CubeTable) -> Vec<[f32; 4]> {
+pub fn env_cube(env: Option<&Environment>, table: &CubeTable) -> Vec<[f32; 4]> {
     let n = table.n;
     let mut out = Vec::with_capacity(table.dirs.len());
     const SUB: usize = 8;
@@ -442,7 +442,7 @@ pub fn env_cube(scene: &Scene, table: &CubeTable) -> Vec<[f32; 4]> {
         for i in 0..n {
             for j in 0..n {
                 let k = (f * n + i) * n + j;
-                let Some(env) = scene.environment.as_ref() else {
+                let Some(env) = env else {
                     out.push([0.0; 4]);
                     continue;
                 };
@@ -589,12 +589,12 @@ impl WaveletTechnique {
             }
             _ => None,
         };
-        let (sky_scene, key) = match split {
-            Some((sky, key)) => (Some(Scene { environment: Some(sky), ..scene.clone() }), key),
+        let (sky, key) = match split {
+            Some((sky, key)) => (Some(sky), key),
             None => (None, Vec::new()),
         };
-        let env_scene = sky_scene.as_ref().unwrap_or(scene);
-        let cube = env_cube(env_scene, &table);
+        let env = sky.as_ref().or(scene.environment.as_ref());
+        let cube = env_cube(env, &table);
         let mut dirs: Vec<[f32; 4]> = table.dirs.iter().map(|d| [d.x as f32, d.y as f32, d.z as f32, 0.0]).collect();
         dirs.extend(cube);
         let casts = crate::shadow_fields::casts_flags(scene);
@@ -609,7 +609,7 @@ impl WaveletTechnique {
             shells,
             mesh_shells,
             dirs: Arc::new(bytes_of(&dirs)),
-            irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(env_scene))),
+            irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(env))),
             casts,
             deforming,
             self_pass,
