@@ -213,7 +213,7 @@ void main() {
     color += local_lights(pos, p, n, ng, v, albedo, kind, m, roughness);
     if (kind != 0 && pc.specular_mode == 2u) {
         // Ratio: the material model's unshadowed glossy term (the `env` technique's split sum,
-        // env_shade.glsl) times the ISG visible fraction of the specular SG lobe x cosine. The
+        // env_shade.glsl) times the ISG visibility of the specular SG lobe x cosine. The
         // one SG lobe of eq. 9 loses the lobe's Fresnel and masking energy (balls_on_dish's
         // Cook-Torrance dish came out about 10 % dark with shadows off).
         vec3 amp;
@@ -221,7 +221,9 @@ void main() {
         SG gj = sg_product(gs, cosg);
         vec3 glossy = env_glossy(n, v, m);
         if (max(glossy.r, max(glossy.g, glossy.b)) > 0.0) {
-            float vs = per_vertex ? ((pc.flags & 1u) != 0u ? 1.0 : clamp(vvis.a, 0.0, 1.0)) : visible(p, n, gj);
+            // the light-weighted visible share of the lobe (isg_lobes.glsl)
+            float vs = per_vertex ? ((pc.flags & 1u) != 0u ? 1.0 : clamp(vvis.a, 0.0, 1.0))
+                                  : isg_lobes_glossy_visibility(p, n, nl, pc.min_fraction, gj);
             color += glossy * vs;
         }
     } else if (kind != 0) {

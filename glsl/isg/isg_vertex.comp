@@ -4,7 +4,8 @@
 // them and isg_shade_vertex.comp shades per pixel with them. Per vertex:
 //   rgb: diffuse visibility, sum_k e_k V_k / sum_k e_k per channel (e_k: unshadowed SG-cosine
 //        integral of lighting lobe k, V_k: ISG visible fraction of lobe k times the cosine SG);
-//   a:   specular visibility, the ISG visible fraction of G_j (eq. 9) for the vertex's material
+//   a:   specular visibility, the light-weighted ISG visible share of G_j (eq. 9) for the vertex's
+//        material (isg_lobes_glossy_visibility)
 //        (base roughness; roughness maps are not applied per vertex) and view direction.
 #include "common.glsl"
 #include "sg.glsl"
@@ -77,7 +78,7 @@ void main() {
             float mb = max(roughness * roughness, 1e-3);
             gs = sg_make(r, 2.0 / (mb * mb) / (4.0 * ndv), 1.0);
         }
-        vs = visible(p, n, sg_product(gs, cosg));
+        vs = isg_lobes_glossy_visibility(p, n, pc.lobe_count, pc.min_fraction, sg_product(gs, cosg));
     }
     vis_out[vi] = vec4(vd, vs);
 }
