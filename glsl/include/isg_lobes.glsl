@@ -63,9 +63,9 @@ vec3 isg_lobes_diffuse(vec3 p, vec3 n, uint nl, float min_fraction, out vec3 uns
 // The light-weighted visible share of the glossy lobe gj (the BRDF's specular SG times the
 // cosine): sum_k e_k V_k / sum_k e_k over the lighting lobes (e_k: lobe k's inner product with
 // gj), the ISG paper's specular visibility (eq. 9, per lighting lobe), as a scalar (luminance)
-// ratio for the material model's glossy term; 1 where no lobe reaches gj. The lobe's own visible
-// fraction (every direction of gj weighted alike) darkened a glossy surface whose lobe reaches
-// both a bright sky and a dark occluder below it.
+// ratio for the material model's glossy term (where no lobe reaches gj, its own visible
+// fraction). The lobe's own visible fraction (every direction of gj weighted alike) darkened a
+// glossy surface whose lobe reaches both a bright sky and a dark occluder below it.
 // A lobe narrower than about 4 degrees (lambda > 256) sees nearly constant light: its own
 // visible fraction, one traversal instead of one per lighting lobe (isg_bunny's shininess-1000
 // and chess's ivory lobes at 160x120: the same error at 1.6-1.8x the time per frame).
