@@ -23,8 +23,10 @@
 //           Integration::Adf).
 // Diffuse (diffuse_ratio, default): the map's exact irradiance times the visible share of the
 // lobes' irradiance (include/irradiance.glsl), not the lobes alone (the paper's; its fit error).
-// Glossy (glossy ratio, default): the material model's split sum (env_shade.glsl, the `env`
-// technique's) times the specular lobe's SSDF visibility, not the one SG lobe of the BRDF.
+// Glossy (glossy ratio, default): the material model's glossy term (env_shade.glsl, the `env`
+// technique's) times the specular lobe's light-weighted SSDF visibility (glossy_visibility: the
+// lighting lobes' and key lights' visible shares weighted by their light in the lobe), not the
+// one SG lobe of the BRDF.
 // Key lights (key_lights, with light_shadows = traced): the environment's sun or studio lights
 // split off the map (every SG lobe, the irradiance and the prefiltered maps are the rest's),
 // their diffuse light shadowed by 9 rays each through the kd-tree (light_rays.glsl).
@@ -245,6 +247,27 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 ng, vec3 v, vec3 albedo, int kind, Mate
     return sum;
 }
 
+// The light-weighted SSDF visibility of the glossy lobe gj (the BRDF's specular SG times the
+// cosine): sum_k e_k V_k / sum_k e_k over the lighting lobes and the key lights split off the map
+// (e_k: the luminance of lobe k's inner product with gj; V_k: the visible fraction of their
+// product), as isg's (isg_lobes_glossy_visibility); a lobe narrower than about 4 degrees
+// (lambda > 256), or one no light reaches, takes its own visible fraction.
+float glossy_visibility(SG gj) {
+    if (!shadows_on() || gj.lambda > 256.0) return visible(gj);
+    float num = 0.0, den = 0.0;
+    uint nl = min(pc.lobe_count, 64u);
+    for (uint k = 0u; k < nl + min(pc.key_count, 16u); ++k) {
+        vec4 al = k < nl ? lobes[2u * k] : key[2u * (k - nl)];
+        vec3 mu = k < nl ? lobes[2u * k + 1u].rgb : key[2u * (k - nl) + 1u].rgb;
+        SG l = sg_make(al.xyz, al.w, 1.0);
+        float e = dot(mu, vec3(0.2126, 0.7152, 0.0722)) * sg_inner_product(l, gj);
+        if (!(e > 0.0)) continue;
+        num += e * visible(sg_product(l, gj));
+        den += e;
+    }
+    return den > 0.0 ? clamp(num / den, 0.0, 1.0) : visible(gj);
+}
+
 #include "env_background.glsl"
 
 #include "prefiltered.glsl"
@@ -309,7 +332,7 @@ void main() {
         vec3 amp;
         SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
         vec3 glossy = env_glossy(n, v, m);
-        if (max(glossy.r, max(glossy.g, glossy.b)) > 0.0) color += glossy * visible(sg_product(gs, cosg));
+        if (max(glossy.r, max(glossy.g, glossy.b)) > 0.0) color += glossy * glossy_visibility(sg_product(gs, cosg));
     } else if (kind != 0) {
         // Beckmann warp (Wang et al. 2009), m = roughness^2 as the reference's SG mode.
         vec3 amp;

@@ -166,9 +166,11 @@ pub struct AvsSettings {
     /// `falling`, stays in every unshadowed pixel).
     pub diffuse_ratio: bool,
     /// Glossy environment term: the material model's unshadowed glossy term (the `env`
-    /// technique's filtered importance sampling, `env_glossy` in `glsl/include/env_shade.glsl`) times the SSDF visibility of the
-    /// specular lobe (`true`, a ratio estimator), or the one SG lobe of the BRDF (`false`, the
-    /// paper's: it loses the lobe's Fresnel and masking energy).
+    /// technique's filtered importance sampling, `env_glossy` in `glsl/include/env_shade.glsl`)
+    /// times the light-weighted SSDF visibility of the specular lobe (`true`, a ratio estimator:
+    /// sum_k e_k V_k / sum_k e_k over the lighting lobes and key lights, e_k a light's share of
+    /// the lobe; a lobe sharper than lambda 256 its own visible fraction), or the one SG lobe of
+    /// the BRDF (`false`, the paper's: it loses the lobe's Fresnel and masking energy).
     pub glossy_ratio: bool,
     /// Lighting SG lobes.
     pub lobes: usize,
