@@ -1,6 +1,9 @@
 //! The scene's environment as the SG techniques light with it (isg, avs): K spherical-Gaussian
-//! lighting lobes fitted to the map, and the map prefiltered with normalised SGs for glossy
-//! lookups. Shared building blocks of the frame layer: no technique owns them.
+//! lighting lobes fitted to the map, the map prefiltered with normalised SGs for glossy lookups,
+//! its irradiance, and its key lights split off it (`split_key_lights`: avs and the shadow
+//! fields shade those with traced shadows and the rest through their own visibility). Each takes
+//! the environment, so a split-off rest of the map needs no copy of the scene. Shared building
+//! blocks of the frame layer: no technique owns them.
 
 use glam::DVec3;
 use penumbra_scene::Environment;
