@@ -190,8 +190,8 @@ pub struct AvsSettings {
     /// kd-tree, the rest of the map lit through the SSDFs as before (0: the whole map through the
     /// SSDFs, the paper's). A sun's shadow is as sharp as a spot light's and finer than maps
     /// interpolated between sample points a few pixels apart (chess, sf_statues at 160x120: its
-    /// long shadows drawn as blotches). The glossy term keeps the SSDF visibility of the BRDF
-    /// lobe times the whole map's glossy term.
+    /// long shadows drawn as blotches). The glossy term stays the whole map's glossy term times
+    /// the lobe's SSDF visibility, the key lights among the lights that weigh it (`glossy`).
     pub key_lights: usize,
     /// Read the final visibility maps back into [`AvsStats::maps`] (one more copy per adaptation
     /// round; for tests comparing maps texel by texel).
