@@ -1158,17 +1158,7 @@ fn glossy_visibility_is_weighted_by_the_light() {
     let (_r, avs) = render(&with(&s, &[("r", "64"), ("iterations", "1")]), "avs", w, h, &[1.0], false);
     let avs = image(&avs[0]);
     // the metal ball: the box around it in the 160x120 frame (x 74-102, y 42-72), halved
-    let mean = |img: &Image| {
-        let mut sum = 0.0f64;
-        let mut n = 0;
-        for py in 21..36 {
-            for px in 37..51 {
-                sum += img.get(px, py).iter().map(|&x| x as f64).sum::<f64>();
-                n += 1;
-            }
-        }
-        sum / n as f64
-    };
+    let mean = |img: &Image| common::box_mean(img, 37..51, 21..36);
     let (ball_ref, ball_avs) = (mean(&reference.radiance), mean(&avs));
     println!("metal ball: avs {ball_avs:.4} against the reference's {ball_ref:.4} ({:.3})", ball_avs / ball_ref);
     assert!((ball_avs / ball_ref - 1.0).abs() < 0.03, "the metal ball: {ball_avs} against {ball_ref}");

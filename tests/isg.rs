@@ -525,17 +525,7 @@ fn glossy_visibility_is_weighted_by_the_light() {
     let c = compare(&reference.radiance, "reference", &isg, "isg").unwrap();
     // (the image's rmse/mean, 0.095, is mostly the 256-spp reference's noise under the sun)
     // the metal ball: the box around it in the 160x120 frame (x 74-102, y 42-72), halved
-    let mean = |img: &Image| {
-        let mut sum = 0.0f64;
-        let mut n = 0;
-        for py in 21..36 {
-            for px in 37..51 {
-                sum += img.get(px, py).iter().map(|&x| x as f64).sum::<f64>();
-                n += 1;
-            }
-        }
-        sum / n as f64
-    };
+    let mean = |img: &Image| common::box_mean(img, 37..51, 21..36);
     let (ball_ref, ball_isg) = (mean(&reference.radiance), mean(&isg));
     println!(
         "metal ball: isg {ball_isg:.4} against the reference's {ball_ref:.4} ({:.3}); image rmse/mean {:.4}",

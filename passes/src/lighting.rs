@@ -203,9 +203,11 @@ pub fn irradiance_env(env: Option<&Environment>) -> Vec<f32> {
 }
 
 /// `env` with its key lights (at most `max`, [`penumbra_math::envmap::split_lights`]) split off:
-/// the rest of the map, and the lights' lobes in world space ([`key_light_lobes`]); `None` when
-/// no texel is over the cap.
-pub fn split_key_lights(env: &Environment, max: usize) -> anyhow::Result<Option<(Environment, Vec<[f32; 4]>)>> {
+/// the rest of the map, and the lights' lobes in world space ([`key_light_lobes`]); no map and no
+/// lobes without an environment, with `max = 0` (the split turned off) or when no texel is over
+/// the cap.
+pub fn split_key_lights(env: Option<&Environment>, max: usize) -> anyhow::Result<(Option<Environment>, Vec<[f32; 4]>)> {
+    let Some(env) = env.filter(|_| max > 0) else { return Ok((None, Vec::new())) };
     let (lobes, sky) = penumbra_math::envmap::split_lights(
         env.width as usize,
         env.height as usize,
@@ -214,7 +216,10 @@ pub fn split_key_lights(env: &Environment, max: usize) -> anyhow::Result<Option<
         max,
     )
     .map_err(|e| anyhow::anyhow!("the environment map: splitting off its lights: {e:?}"))?;
-    Ok((!lobes.is_empty()).then(|| (Environment { texels: sky, ..env.clone() }, key_light_lobes(env, &lobes))))
+    if lobes.is_empty() {
+        return Ok((None, Vec::new()));
+    }
+    Ok((Some(Environment { texels: sky, ..env.clone() }), key_light_lobes(env, &lobes)))
 }
 
 /// Key-light lobes of `env` in world space (its rotation about +Y and its intensity applied),

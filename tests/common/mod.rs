@@ -100,3 +100,13 @@ pub fn geometric_normal(w: f32) -> glam::Vec3 {
     let e = |q: u32| q as f32 / 2047.0 * 2.0 - 1.0;
     oct_decode([e(u & 2047), e(u >> 11)])
 }
+
+/// Mean of the RGB sums of `img`'s pixels in columns `xs` and rows `ys`.
+pub fn box_mean(img: &penumbra_reference::image::Image, xs: std::ops::Range<u32>, ys: std::ops::Range<u32>) -> f64 {
+    let n = (xs.len() * ys.len()).max(1) as f64;
+    let sum: f64 = ys
+        .flat_map(|py| xs.clone().map(move |px| (px, py)))
+        .map(|(px, py)| img.get(px, py).iter().map(|&x| x as f64).sum::<f64>())
+        .sum();
+    sum / n
+}

@@ -888,16 +888,8 @@ impl AvsTechnique {
         // the environment's key lights split off (`key_lights`): the SG lobes, the irradiance and
         // the prefiltered maps are the rest of the map's (also with `shadows = false`, where the
         // key lights are unshadowed: the same lighting with visibility 1)
-        let split = match scene.environment.as_ref() {
-            Some(env) if settings.traced_lights && settings.key_lights > 0 => {
-                crate::lighting::split_key_lights(env, settings.key_lights)?
-            }
-            _ => None,
-        };
-        let (sky, key) = match split {
-            Some((sky, key)) => (Some(sky), key),
-            None => (None, Vec::new()),
-        };
+        let max_key = if settings.traced_lights { settings.key_lights } else { 0 };
+        let (sky, key) = crate::lighting::split_key_lights(scene.environment.as_ref(), max_key)?;
         let env = sky.as_ref().or(scene.environment.as_ref());
         let (lobes, _) = crate::lighting::lighting_lobes(env, settings.lobes);
         let lobe_count = (lobes.len() / 2) as u32;

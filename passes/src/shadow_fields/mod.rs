@@ -982,14 +982,9 @@ impl ShadowFieldsTechnique {
         let o = fields.options.clone();
         let light = env_light_sh(scene.environment.as_ref());
         let traced = o.light_traced && (!scene.lights.is_empty() || o.key_lights > 0);
-        let split = match scene.environment.as_ref() {
-            Some(env) if traced && o.key_lights > 0 => crate::lighting::split_key_lights(env, o.key_lights)?,
-            _ => None,
-        };
-        let (shade_light, key) = match split {
-            Some((sky, key)) => (env_light_sh(Some(&sky)), key),
-            None => (light, Vec::new()),
-        };
+        let (sky, key) =
+            crate::lighting::split_key_lights(scene.environment.as_ref(), if traced { o.key_lights } else { 0 })?;
+        let shade_light = sky.as_ref().map_or(light, |sky| env_light_sh(Some(sky)));
         Ok(ShadowFieldsTechnique {
             shade,
             points,

@@ -583,16 +583,8 @@ impl WaveletTechnique {
         }
         // the key lights split off the environment: the cube's radiance and the irradiance map
         // are then the rest of the map's
-        let split = match scene.environment.as_ref() {
-            Some(env) if options.light_traced && options.key_lights > 0 => {
-                crate::lighting::split_key_lights(env, options.key_lights)?
-            }
-            _ => None,
-        };
-        let (sky, key) = match split {
-            Some((sky, key)) => (Some(sky), key),
-            None => (None, Vec::new()),
-        };
+        let max_key = if options.light_traced { options.key_lights } else { 0 };
+        let (sky, key) = crate::lighting::split_key_lights(scene.environment.as_ref(), max_key)?;
         let env = sky.as_ref().or(scene.environment.as_ref());
         let cube = env_cube(env, &table);
         let mut dirs: Vec<[f32; 4]> = table.dirs.iter().map(|d| [d.x as f32, d.y as f32, d.z as f32, 0.0]).collect();
