@@ -6,8 +6,9 @@
 //!
 //! Every accessor is checked (type, component type, bounds, finite values) before use, so a
 //! malformed file gives a [`SceneError`] naming the file and the problem instead of a panic.
-//! Required extensions are not supported (e.g. `KHR_draco_mesh_compression`) and are
-//! reported by name.
+//! Draco-compressed primitives (`KHR_draco_mesh_compression`) are decoded with the pure-Rust
+//! `draco-core` decoder (`read_draco_primitive`); any other required extension is refused by
+//! name.
 
 use crate::error::SceneError;
 use crate::limits::{Budget, Limits};
@@ -59,7 +60,7 @@ pub struct AssetLight {
 
 /// The glTF extensions penumbra reads.
 pub const SUPPORTED_EXTENSIONS: &[&str] =
-    &["KHR_lights_punctual", "KHR_materials_emissive_strength", "KHR_texture_transform"];
+    &["KHR_lights_punctual", "KHR_materials_emissive_strength", "KHR_texture_transform", "KHR_draco_mesh_compression"];
 
 /// A `KHR_texture_transform` of one texture reference: `uv' = T(offset) R(rotation) S(scale) uv`
 /// with the extension's matrices (`R = [cos sin; -sin cos]`, counter-clockwise in the image).
@@ -185,7 +186,7 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
     }
     // Required extensions first, by name (validation would only say "unsupported").
     let raw = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| gerr(path, describe(&e)))?;
-    if let Some(ext) = raw.document.extensions_required().next() {
+    if let Some(ext) = raw.document.extensions_required().find(|e| !SUPPORTED_EXTENSIONS.contains(e)) {
         return Err(SceneError::Unsupported {
             path: path.to_path_buf(),
             feature: format!("glTF extension {ext} (listed in extensionsRequired)"),
@@ -268,9 +269,39 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
             }
         }
     }
-    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| gerr(path, describe(&e)))?;
-    let doc = gltf.document;
-    let blob = gltf.blob;
+    // The gltf crate's validation, less what it says of Draco primitives (their accessors have
+    // no buffer view: the data is in the extension's) and of required extensions penumbra reads
+    // itself (the crate knows neither Draco nor, without its feature, texture transforms).
+    {
+        use gltf::json::validation::{Error as V, Validate};
+        let root = raw.document.as_json();
+        let mut draco_accessors = std::collections::HashSet::new();
+        for p in root.meshes.iter().flat_map(|m| &m.primitives) {
+            if p.extensions.as_ref().is_some_and(|e| e.others.contains_key(DRACO)) {
+                draco_accessors.extend(p.attributes.values().map(|a| a.value()));
+                draco_accessors.extend(p.indices.map(|i| i.value()));
+            }
+        }
+        let mut errors = Vec::new();
+        root.validate(root, gltf::json::Path::new, &mut |p, e| errors.push((p(), e)));
+        errors.retain(|(p, e)| {
+            let p = p.as_str();
+            let viewless = matches!(e, V::Missing)
+                && p.strip_prefix("accessors[")
+                    .and_then(|r| r.strip_suffix("].bufferView"))
+                    .and_then(|i| i.parse::<usize>().ok())
+                    .is_some_and(|i| draco_accessors.contains(&i));
+            let read_by_penumbra = matches!(e, V::Unsupported)
+                && p.starts_with("extensionsRequired")
+                && SUPPORTED_EXTENSIONS.iter().any(|x| p.contains(&format!("\"{x}\"")));
+            !(viewless || read_by_penumbra)
+        });
+        if !errors.is_empty() {
+            return Err(gerr(path, describe(&gltf::Error::Validation(errors))));
+        }
+    }
+    let doc = raw.document;
+    let blob = raw.blob;
     // Buffers: check external files exist so the message names them.
     for b in doc.buffers() {
         if let gltf::buffer::Source::Uri(uri) = b.source() {
@@ -457,7 +488,20 @@ pub fn load_bytes_with(path: &Path, bytes: &[u8], base: &Path, budget: &Budget) 
                 ));
                 continue;
             }
-            let p = read_primitive(path, &label, &pname, &prim, &get, default_weights.clone(), &mut warnings)?;
+            let p = match prim.extension_value(DRACO) {
+                Some(ext) => read_draco_primitive(
+                    path,
+                    &label,
+                    &pname,
+                    &doc,
+                    &prim,
+                    ext,
+                    &get,
+                    default_weights.clone(),
+                    &mut warnings,
+                )?,
+                None => read_primitive(path, &label, &pname, &prim, &get, default_weights.clone(), &mut warnings)?,
+            };
             prim_index.insert((mesh.index(), prim.index()), primitives.len());
             primitives.push(p);
         }
@@ -954,9 +998,9 @@ fn out_of_bounds(path: &Path, acc: &gltf::Accessor, what: &str) -> SceneError {
     gerr(path, format!("{what}: accessor {} lies outside its buffer (truncated data?)", acc.index()))
 }
 
-/// Check an accessor's element type and layout so reading it cannot hit the gltf crate's
-/// assertions.
-fn check_accessor(
+/// Check an accessor's element type and count (a Draco primitive's accessors have no data of
+/// their own: [`check_accessor`] adds the layout checks for those that do).
+fn check_accessor_type(
     path: &Path,
     acc: &gltf::Accessor,
     dims: &[Dimensions],
@@ -979,6 +1023,19 @@ fn check_accessor(
     if acc.count() == 0 {
         return Err(gerr(path, format!("{what}: accessor {} is empty", acc.index())));
     }
+    Ok(())
+}
+
+/// Check an accessor's element type and layout so reading it cannot hit the gltf crate's
+/// assertions.
+fn check_accessor(
+    path: &Path,
+    acc: &gltf::Accessor,
+    dims: &[Dimensions],
+    types: &[DataType],
+    what: &str,
+) -> Result<(), SceneError> {
+    check_accessor_type(path, acc, dims, types, what)?;
     if let Some(view) = acc.view() {
         if let Some(stride) = view.stride() {
             if stride < acc.size() {
@@ -1128,6 +1185,157 @@ where
     // The repair may drop triangles but never vertices, so per-vertex data stays aligned.
     mesh.validate_and_repair(label, warnings).map_err(|m| SceneError::invalid(path, m))?;
     Ok(Primitive { mesh, material: prim.material().index(), joints, weights, targets, default_weights })
+}
+
+/// The extension of Draco-compressed primitives.
+const DRACO: &str = "KHR_draco_mesh_compression";
+
+/// A primitive stored as `KHR_draco_mesh_compression` data: its buffer view decoded by the
+/// pure-Rust `draco-core` decoder, the glTF attributes read from the Draco attributes the
+/// extension maps them to (POSITION, NORMAL, TEXCOORD_0, JOINTS_0, WEIGHTS_0; others ignored as
+/// in uncompressed primitives), the Draco faces as the indices. The decode is bounded by the
+/// counts the primitive's accessors declare (taken from the scene's memory budget with every
+/// accessor): at most twice the declared vertices and triangles. Morph targets on a Draco
+/// primitive are refused by name.
+#[allow(clippy::too_many_arguments)]
+fn read_draco_primitive<'a, 's, F>(
+    path: &Path,
+    label: &str,
+    name: &str,
+    doc: &'a gltf::Document,
+    prim: &gltf::Primitive<'a>,
+    ext: &gltf::json::Value,
+    get: &F,
+    default_weights: Vec<f32>,
+    warnings: &mut Vec<String>,
+) -> Result<Primitive, SceneError>
+where
+    F: Fn(gltf::Buffer<'a>) -> Option<&'s [u8]>,
+{
+    use draco_core::DataType as D;
+    use gltf::Semantic;
+    let what = |s: &str| format!("mesh '{name}' {s}");
+    let view_index = ext
+        .get("bufferView")
+        .and_then(|v| v.as_u64())
+        .ok_or_else(|| gerr(path, what(&format!("{DRACO} has no bufferView"))))? as usize;
+    let view = doc.views().nth(view_index).ok_or_else(|| {
+        gerr(path, what(&format!("{DRACO} refers to buffer view {view_index}, which does not exist")))
+    })?;
+    let ids = ext
+        .get("attributes")
+        .and_then(|v| v.as_object())
+        .ok_or_else(|| gerr(path, what(&format!("{DRACO} has no attributes"))))?;
+    let pos_acc = prim.get(&Semantic::Positions).ok_or_else(|| gerr(path, what("has no POSITION attribute")))?;
+    check_accessor_type(path, &pos_acc, &[Dimensions::Vec3], &[DataType::F32], &what("POSITION"))?;
+    let n = pos_acc.count();
+    let norm_types = [DataType::F32, DataType::U8, DataType::U16];
+    let semantics = [
+        (Semantic::Normals, "NORMAL", Dimensions::Vec3, &[DataType::F32][..]),
+        (Semantic::TexCoords(0), "TEXCOORD_0", Dimensions::Vec2, &norm_types[..]),
+        (Semantic::Joints(0), "JOINTS_0", Dimensions::Vec4, &[DataType::U8, DataType::U16][..]),
+        (Semantic::Weights(0), "WEIGHTS_0", Dimensions::Vec4, &norm_types[..]),
+    ];
+    for (sem, label, dims, types) in &semantics {
+        if let Some(acc) = prim.get(sem) {
+            check_accessor_type(path, &acc, &[*dims], types, &what(label))?;
+        }
+    }
+    let tris = match prim.indices() {
+        Some(acc) => {
+            check_accessor_type(
+                path,
+                &acc,
+                &[Dimensions::Scalar],
+                &[DataType::U8, DataType::U16, DataType::U32],
+                &what("indices"),
+            )?;
+            acc.count() / 3
+        }
+        None => n / 3,
+    };
+    if prim.morph_targets().next().is_some() {
+        return Err(SceneError::Unsupported {
+            path: path.to_path_buf(),
+            feature: format!("morph targets on the Draco-compressed mesh '{name}'"),
+        });
+    }
+    let bytes = get(view.buffer())
+        .and_then(|b| b.get(view.offset()..view.offset().saturating_add(view.length())))
+        .ok_or_else(|| gerr(path, what(&format!("{DRACO}: buffer view {view_index} lies outside its buffer"))))?;
+    let max_points = 2 * n as u64 + 64;
+    let limits = draco_core::DecodeLimits::default()
+        .with_max_points(max_points)
+        .with_max_faces(2 * tris as u64 + 64)
+        .with_max_decoded_bytes(max_points * 4 * 16);
+    let mut buffer = draco_core::DecoderBuffer::new(bytes).with_limits(limits);
+    let mut mesh = draco_core::Mesh::new();
+    draco_core::MeshDecoder::new()
+        .decode(&mut buffer, &mut mesh)
+        .map_err(|e| gerr(path, what(&format!("{DRACO} data in buffer view {view_index} cannot be decoded: {e}"))))?;
+    let points = mesh.num_points();
+    if points == 0 || mesh.num_faces() == 0 {
+        return Err(gerr(path, what(&format!("{DRACO} data in buffer view {view_index} holds no triangles"))));
+    }
+    // One attribute as `comps` floats per point; integers the accessor declares normalized are
+    // scaled to [0, 1] as glTF reads them.
+    let read = |sem: &Semantic, label: &str, comps: usize| -> Result<Option<Vec<f32>>, SceneError> {
+        let Some(id) = ids.get(label) else { return Ok(None) };
+        let id = id
+            .as_u64()
+            .and_then(|v| u32::try_from(v).ok())
+            .ok_or_else(|| gerr(path, what(&format!("{DRACO}: {label}'s attribute id is not an integer"))))?;
+        let a = mesh.attribute_by_unique_id(id).ok_or_else(|| {
+            gerr(path, what(&format!("{DRACO}: {label} is Draco attribute {id}, which the data does not have")))
+        })?;
+        let mut v = a.read_f32s(points, comps);
+        if prim.get(sem).is_some_and(|acc| acc.normalized()) {
+            let scale = match a.data_type() {
+                D::Uint8 => 1.0 / 255.0,
+                D::Uint16 => 1.0 / 65535.0,
+                _ => 1.0,
+            };
+            v.iter_mut().for_each(|x| *x *= scale);
+        }
+        if v.iter().any(|x| !x.is_finite()) {
+            return Err(gerr(path, what(&format!("{label} has non-finite (NaN/Inf) values"))));
+        }
+        Ok(Some(v))
+    };
+    let positions: Vec<Vec3> = read(&Semantic::Positions, "POSITION", 3)?
+        .ok_or_else(|| gerr(path, what(&format!("{DRACO} does not map POSITION to a Draco attribute"))))?
+        .chunks_exact(3)
+        .map(Vec3::from_slice)
+        .collect();
+    let normals: Vec<Vec3> = read(&Semantic::Normals, "NORMAL", 3)?
+        .map(|v| v.chunks_exact(3).map(Vec3::from_slice).collect())
+        .unwrap_or_default();
+    let uvs: Vec<Vec2> = read(&Semantic::TexCoords(0), "TEXCOORD_0", 2)?
+        .map(|v| v.chunks_exact(2).map(Vec2::from_slice).collect())
+        .unwrap_or_default();
+    let joints = match read(&Semantic::Joints(0), "JOINTS_0", 4)? {
+        Some(v) => {
+            if v.iter().any(|&j| j < 0.0 || j > u16::MAX as f32 || j.fract() != 0.0) {
+                return Err(gerr(path, what("JOINTS_0 holds values that are not joint indices")));
+            }
+            Some(v.chunks_exact(4).map(|c| [c[0] as u16, c[1] as u16, c[2] as u16, c[3] as u16]).collect::<Vec<_>>())
+        }
+        None => None,
+    };
+    let weights = read(&Semantic::Weights(0), "WEIGHTS_0", 4)?
+        .map(|v| v.chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect::<Vec<_>>());
+    if joints.is_some() != weights.is_some() {
+        return Err(gerr(path, what("has JOINTS_0 without WEIGHTS_0 or the reverse")));
+    }
+    if points != n {
+        warnings.push(format!(
+            "{label}: mesh '{name}': its Draco data decodes {points} vertices where the POSITION accessor declares {n}"
+        ));
+    }
+    let indices: Vec<u32> = mesh.faces().iter().flat_map(|f| f.map(|p| p.0)).collect();
+    let mut mesh = MeshData { name: name.to_string(), positions, normals, uvs, indices };
+    mesh.validate_and_repair(label, warnings).map_err(|m| SceneError::invalid(path, m))?;
+    Ok(Primitive { mesh, material: prim.material().index(), joints, weights, targets: Vec::new(), default_weights })
 }
 
 fn convert_image(name: &str, d: &gltf::image::Data, srgb: bool) -> Option<Texture> {

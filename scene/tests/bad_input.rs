@@ -103,18 +103,43 @@ fn truncated_and_invalid_gltf() {
 
 #[test]
 fn unsupported_required_extension_is_named() {
+    let dir = temp_dir("required-ext");
+    let (pos, idx) = tetra();
+    let mut bin = Bin::default();
+    let mut doc = simple(&mut bin, &pos, &idx, None);
+    doc["extensionsUsed"] = json!(["EXT_meshopt_compression"]);
+    doc["extensionsRequired"] = json!(["EXT_meshopt_compression"]);
+    let p = write(&dir, "meshopt.glb", glb(&doc, &bin.bytes));
+    let e = fails(&p, &["unsupported", "EXT_meshopt_compression"]);
+    assert!(matches!(e, SceneError::Unsupported { .. }));
+}
+
+/// The real Draco asset with its compressed data damaged: the decoder's error, naming the file,
+/// the mesh and the buffer view; a Draco extension without its buffer view is named too.
+#[test]
+fn damaged_draco_data_is_named() {
     let dir = temp_dir("draco");
+    let real = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets/bunny-draco.glb");
+    let mut b = std::fs::read(&real).unwrap();
+    Scene::load(&real).unwrap_or_else(|e| panic!("{e}"));
+    // The BIN chunk follows the JSON chunk: overwrite the Draco stream after its header.
+    let json_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+    let bin_start = 20 + json_len + 8;
+    for x in &mut b[bin_start + 8..] {
+        *x = 0xA5;
+    }
+    let p = write(&dir, "damaged-draco.glb", &b);
+    fails(&p, &["mesh 'base'", "KHR_draco_mesh_compression", "buffer view 0", "cannot be decoded"]);
+    // An extension object without a bufferView.
     let (pos, idx) = tetra();
     let mut bin = Bin::default();
     let mut doc = simple(&mut bin, &pos, &idx, None);
     doc["extensionsUsed"] = json!(["KHR_draco_mesh_compression"]);
     doc["extensionsRequired"] = json!(["KHR_draco_mesh_compression"]);
-    let p = write(&dir, "draco.glb", glb(&doc, &bin.bytes));
-    let e = fails(&p, &["unsupported", "KHR_draco_mesh_compression"]);
-    assert!(matches!(e, SceneError::Unsupported { .. }));
-    // The real Draco-compressed asset, kept in the repository for this test.
-    let real = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets/bunny-draco.glb");
-    fails(&real, &["bunny-draco.glb", "unsupported", "KHR_draco_mesh_compression"]);
+    doc["meshes"][0]["primitives"][0]["extensions"] =
+        json!({"KHR_draco_mesh_compression": {"attributes": {"POSITION": 0}}});
+    let p = write(&dir, "no-view.glb", glb(&doc, &bin.bytes));
+    fails(&p, &["KHR_draco_mesh_compression has no bufferView"]);
 }
 
 #[test]

@@ -124,6 +124,41 @@ fn mutated_inputs_never_panic() {
     assert_eq!(PANICS.load(Ordering::SeqCst), 0, "a loader panicked (caught or not)");
 }
 
+/// The Draco-compressed bunny with bytes of its compressed stream flipped: the Draco decoder
+/// (draco-core) either decodes something or gives an error naming the file, never a panic.
+#[test]
+fn mutated_draco_streams_never_panic() {
+    install_hook();
+    let dir = temp_dir("fuzz-draco");
+    let real = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets/bunny-draco.glb");
+    let good = std::fs::read(&real).unwrap();
+    let json_len = u32::from_le_bytes(good[12..16].try_into().unwrap()) as usize;
+    let bin_start = 20 + json_len + 8;
+    let seed: u64 = std::env::var("PENUMBRA_FUZZ_SEED").ok().and_then(|v| v.parse().ok()).unwrap_or(0x2545f4914f6cdd1d);
+    let mut rng = Rng(seed | 1);
+    let f = dir.join("d.glb");
+    let mut errors = 0;
+    for k in 0..iterations(200) {
+        let mut b = good.clone();
+        // Mostly the stream's header and connectivity (its first bytes), sometimes anywhere.
+        let span = if k % 2 == 0 { 64 } else { b.len() - bin_start };
+        for _ in 0..1 + k % 3 {
+            let at = bin_start + (rng.next() as usize) % span;
+            b[at] = rng.next() as u8;
+        }
+        std::fs::write(&f, &b).unwrap();
+        match Scene::load(&f) {
+            Ok(s) => assert!(s.meshes.iter().all(|m| m.positions.iter().all(|p| p.is_finite()))),
+            Err(e) => {
+                errors += 1;
+                assert!(e.to_string().contains("d.glb"), "{e}");
+            }
+        }
+    }
+    assert!(errors > 0);
+    assert_eq!(PANICS.load(Ordering::SeqCst), 0, "a loader panicked (caught or not)");
+}
+
 /// Random numbers (including huge, tiny and negative ones) in the documented example scene.
 #[test]
 fn mutated_scene_files_never_panic() {

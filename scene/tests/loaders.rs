@@ -610,3 +610,46 @@ fn gltf_texture_transform_is_baked_into_the_uvs() {
         "{e}"
     );
 }
+
+/// The Draco-compressed bunny (`KHR_draco_mesh_compression`, the asset `bunny.glb` was decoded
+/// from by other tools) decodes to the same mesh as `bunny.glb`: the same vertex and triangle
+/// counts, every vertex within the Draco quantisation of one in the plain file, same normals.
+#[test]
+fn draco_bunny_decodes_to_the_plain_bunny() {
+    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets");
+    let draco = penumbra_scene::gltf_load::load(&assets.join("bunny-draco.glb")).unwrap_or_else(|e| panic!("{e}"));
+    let plain = penumbra_scene::gltf_load::load(&assets.join("bunny.glb")).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(draco.primitives.len(), 1);
+    let (d, p) = (&draco.primitives[0].mesh, &plain.primitives[0].mesh);
+    assert_eq!(d.positions.len(), p.positions.len());
+    assert_eq!(d.indices.len(), p.indices.len());
+    assert!(!draco.warnings.iter().any(|w| w.contains("KHR_draco")), "{:?}", draco.warnings);
+    // Bounding boxes agree to the quantisation (the file's accessor min/max: about 1.8 units wide).
+    let bounds = |m: &penumbra_scene::MeshData| {
+        m.positions.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), &v| (lo.min(v), hi.max(v)))
+    };
+    let ((dl, dh), (pl, ph)) = (bounds(d), bounds(p));
+    assert!(approx(dl, pl, 2e-3) && approx(dh, ph, 2e-3), "{dl} {dh} against {pl} {ph}");
+    // Every decoded vertex has a plain vertex within 2e-3 with a normal within 3 degrees.
+    let mut worst = 0f32;
+    for (v, n) in d.positions.iter().zip(&d.normals) {
+        let k = (0..p.positions.len())
+            .min_by(|&a, &b| p.positions[a].distance_squared(*v).total_cmp(&p.positions[b].distance_squared(*v)))
+            .unwrap();
+        worst = worst.max(p.positions[k].distance(*v));
+        assert!(n.dot(p.normals[k]) > 3f32.to_radians().cos(), "normal {n} against {}", p.normals[k]);
+    }
+    assert!(worst < 2e-3, "farthest decoded vertex from the plain mesh: {worst}");
+    // The same surface: total area within 0.1 %.
+    let area = |m: &penumbra_scene::MeshData| -> f32 {
+        m.indices
+            .chunks_exact(3)
+            .map(|t| {
+                let [a, b, c] = [0, 1, 2].map(|i| m.positions[t[i] as usize]);
+                0.5 * (b - a).cross(c - a).length()
+            })
+            .sum()
+    };
+    assert!((area(d) / area(p) - 1.0).abs() < 1e-3, "{} against {}", area(d), area(p));
+    assert!(d.is_closed(), "the decoded bunny is closed like the plain one");
+}

@@ -130,10 +130,17 @@ fn bad_input_exits_2_with_the_file_and_problem() {
     let glb = d.join("truncated.glb");
     std::fs::write(&glb, b"glTF\x02\x00\x00\x00garbage").unwrap();
     expect_bad_input(&["render", glb.to_str().unwrap(), "--out", d.to_str().unwrap()], &["truncated.glb"]);
-    let draco = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets/bunny-draco.glb");
+    // The Draco bunny with its compressed stream damaged (the intact file renders).
+    let mut draco =
+        std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/assets/bunny-draco.glb")).unwrap();
+    let json_len = u32::from_le_bytes(draco[12..16].try_into().unwrap()) as usize;
+    let len = draco.len();
+    draco[20 + json_len + 16..len].fill(0xA5);
+    let damaged = d.join("damaged-draco.glb");
+    std::fs::write(&damaged, &draco).unwrap();
     expect_bad_input(
-        &["render", draco.to_str().unwrap(), "--out", d.to_str().unwrap()],
-        &["bunny-draco.glb", "KHR_draco_mesh_compression"],
+        &["render", damaged.to_str().unwrap(), "--out", d.to_str().unwrap()],
+        &["damaged-draco.glb", "KHR_draco_mesh_compression", "cannot be decoded"],
     );
     expect_bad_input(
         &["render", "--technique", "nope", "--out", d.to_str().unwrap()],
