@@ -1000,7 +1000,8 @@ mod tests {
                 }
                 let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
                 let file = p.file_name().unwrap().to_string_lossy().to_string();
-                let stem = file.split('-').next().unwrap().to_string();
+                // `{stem}-{w}x{h}-f{frame}-{hash}.json`; a stem may hold dashes (bunny-draco).
+                let stem = file.rsplitn(4, '-').last().unwrap().to_string();
                 let scene_path = [
                     repo_root().join(format!("scenes/{stem}.toml")),
                     repo_root().join(format!("scenes/assets/{stem}.glb")),
