@@ -276,7 +276,8 @@ pub fn cache_key(scene_bytes: &[u8], opts: &ConvergeOptions) -> String {
 
 /// [`cache_key`] of a loaded scene: its file's bytes, tagged with the renderer features the scene
 /// uses that came after [`REFERENCE_VERSION`]'s last change (surface emission, directional
-/// lights, normal maps, glTF texture transforms), so that a reference cached before the renderer drew them is not reused, while every
+/// lights, normal maps, glTF texture transforms, a medium counted from the eye instead of the
+/// near plane), so that a reference cached before the renderer drew them is not reused, while every
 /// other scene keeps its key (and its checked-in reference).
 pub fn scene_cache_key(scene: &Scene, scene_bytes: &[u8], opts: &ConvergeOptions) -> String {
     let mut tags = Vec::new();
@@ -291,6 +292,9 @@ pub fn scene_cache_key(scene: &Scene, scene_bytes: &[u8], opts: &ConvergeOptions
     }
     if scene.material_extras.iter().any(|x| x.uv_transform.is_some()) {
         tags.push("texture_transform");
+    }
+    if scene.medium.is_some() {
+        tags.push("medium_from_the_eye");
     }
     if tags.is_empty() {
         return cache_key(scene_bytes, opts);

@@ -361,17 +361,20 @@ fn local_lights_over_diffuse_plane() {
     }
 }
 
-/// Pure absorption between camera and surface: L = albedo L_env exp(-sigma_a d) (the
-/// environment itself is not attenuated on its way in, see the render module docs).
+/// Pure absorption between camera and surface: L = albedo L_env exp(-sigma_a d), d from the eye
+/// (not from the near plane, here 1 unit in front of it, where the primary ray starts; the GPU
+/// techniques' volumetric pass measures from the eye); the environment itself is not attenuated
+/// on its way in, see the render module docs.
 #[test]
 fn absorbing_medium_attenuates_the_view_ray() {
     let albedo = Vec3::new(0.5, 0.6, 0.7);
     let eye = Vec3::new(0.0, 3.0, 3.0);
-    let mut s = plane_scene(Material::diffuse("d", albedo), uniform_env([1.0; 3], 1.0), camera(eye, Vec3::ZERO, 0.005));
+    let cam = Camera { near: 1.0, ..camera(eye, Vec3::ZERO, 0.005) };
+    let mut s = plane_scene(Material::diffuse("d", albedo), uniform_env([1.0; 3], 1.0), cam);
     let sa = Vec3::new(0.1, 0.2, 0.3);
     s.medium = Some(penumbra_scene::Medium { sigma_a: sa, sigma_s: Vec3::ZERO, g: 0.0 });
     let r = render(&s, &opts(2, 2, 2048, 3)).unwrap();
-    let dist = eye.length() - 0.01; // from the near plane
+    let dist = eye.length();
     for (c, (m, se)) in mean_se(&r).into_iter().enumerate() {
         let expect = (albedo[c] * (-sa[c] * dist).exp()) as f64;
         eprintln!("absorbing medium: channel {c}: {m:.6} vs {expect:.6} (se {se:.1e})");
@@ -413,7 +416,8 @@ fn single_scattering_of_a_point_light_matches_quadrature() {
             let cos = -v[2] / rr; // wi . d with d = -Z
             (-st * t).exp() * ss[c] as f64 * hg(cos) * i0 as f64 * (-st * rr).exp() / (rr * rr)
         };
-        let (t0, t1, n) = (0.01f64, 200.0f64, 400_000usize);
+        // From the eye (the primary ray starts on the near plane, 0.01 in front of it).
+        let (t0, t1, n) = (0.0f64, 200.0f64, 400_000usize);
         let hstep = (t1 - t0) / n as f64;
         let mut acc = f(t0) + f(t1);
         for k in 1..n {
