@@ -155,6 +155,15 @@ const MC_PARAMS: &[ParamDoc] = &[
     p("aa", "true", "true|false", "primary rays jittered over the pixel (anti-aliased); false: through the pixel centre, where rasterizing techniques sample (what `bench matrix` compares)"),
 ];
 
+const MC_DENOISED_PARAMS: &[ParamDoc] = &[
+    p("spp", "4", "1..=64", "samples per pixel of mc per frame (through the pixel centres)"),
+    p("iterations", "4", "1..=8", "a-trous filter iterations (taps 1, 2, 4, ... pixels apart)"),
+    p("history", "5", "1..=1024", "longest temporal history in frames, reprojected through the motion vectors (5: SVGF's alpha = 0.2; longer converges further on still views and drags moving shadows)"),
+    p("phi_color", "4", "> 0", "luminance edge-stopping: differences against phi_color standard deviations of the pixel's noise"),
+    p("phi_normal", "128", "> 0", "normal edge-stopping exponent (pow(n . n_q, phi_normal))"),
+    p("phi_plane", "1", "> 0", "depth edge-stopping: distance from the pixel's tangent plane against phi_plane pixel footprints per tap spacing"),
+];
+
 const SHADOWMAPS_PARAMS: &[ParamDoc] = &[
     p("count", "32", "1..=1024", "K directional lights (orthographic depth maps) importance-sampled from the environment (the ISG paper's Figure 11: 30 and 1024)"),
     p("size", "256", "16..=4096", "resolution of the environment directions' depth maps, texels per side (the ISG paper: 256)"),
@@ -265,6 +274,16 @@ fn create_mc(
     let mut t = crate::mc::McTechnique::new(ctx, shaders, scene)?;
     parsed(crate::technique::apply_params(&mut t, params, crate::mc::McTechnique::set))?;
     Ok(Box::new(t))
+}
+fn create_mc_denoised(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    scene: &Scene,
+    params: &Params,
+) -> Result<Box<dyn Technique>> {
+    let mut settings = crate::mc::denoise::DenoiseSettings::default();
+    parsed(crate::technique::apply_params(&mut settings, params, crate::mc::denoise::DenoiseSettings::set))?;
+    Ok(Box::new(crate::mc::denoise::McDenoised::new(ctx, shaders, scene, settings)?))
 }
 fn create_shadowmaps(
     ctx: &Arc<Context>,
@@ -381,6 +400,19 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         },
         knobs: &[Knob { key: "spp", values: &["1", "16", "64"], finer: &["256", "1024", "4096"] }],
         create: create_mc,
+    },
+    TechniqueInfo {
+        name: "mc-denoised",
+        summary: "mc at a few samples per pixel per frame, denoised by spatio-temporal variance-guided filtering (SVGF): the baseline users pick today",
+        params: MC_DENOISED_PARAMS,
+        static_only: false,
+        shadows: true,
+        budget: Budget::RmseRelMean {
+            rmse_rel_mean: 0.10,
+            source: "no paper reports its error (the vv paper compares against Monte Carlo with a denoiser); documented approximation: an unbiased estimate blurred by an edge-aware filter and a reprojected history, the shadow-map baseline's budget",
+        },
+        knobs: &[k("spp", &["1", "16"]), k("iterations", &["2", "6"])],
+        create: create_mc_denoised,
     },
     TechniqueInfo {
         name: "shadowmaps",

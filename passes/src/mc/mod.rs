@@ -24,6 +24,10 @@
 //! texels). Materials are the scene's one material model (`glsl/include/material.glsl`), with
 //! anisotropic Ashikhmin-Shirley exponents. Not yet (the reference has it): the participating
 //! medium.
+//!
+//! [`denoise`]: the variant `mc-denoised`, a few samples per frame filtered spatio-temporally.
+
+pub mod denoise;
 
 use crate::env::EnvTables;
 use crate::kdtree::{world_triangles_shading, KdTreeBuilder, KdTreeHandles};
@@ -122,6 +126,9 @@ pub struct McTechnique {
     /// `false`: through the pixel centre, where rasterizing techniques sample (the accuracy
     /// matrix's pixel-grid references).
     pub aa: bool,
+    /// Accumulate over frames while nothing changes (`mc`); `false`: every frame's image holds
+    /// only its own `spp` samples (`mc-denoised` accumulates with reprojection instead).
+    pub progressive: bool,
     frame_index: u32,
     /// Samples per pixel accumulated in the image after the last frame.
     pub accumulated: u32,
@@ -196,6 +203,7 @@ impl McTechnique {
             env: EnvTables::new(scene.environment.as_ref()),
             spp: DEFAULT_SPP,
             aa: true,
+            progressive: true,
             frame_index: 0,
             accumulated: 0,
             tri_count: None,
@@ -257,7 +265,8 @@ impl McTechnique {
             || frame.camera_moved
             || !frame.materials_changed.is_empty()
             || frame.lights.iter().any(|l| l.moved)
-            || self.accumulated == 0;
+            || self.accumulated == 0
+            || !self.progressive;
         if reset {
             self.accumulated = 0;
         }

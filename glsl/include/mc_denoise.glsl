@@ -1,0 +1,18 @@
+// Shared by mc-denoised's passes (glsl/mc/mcd_temporal.comp, glsl/mc/mcd_atrous.comp): the
+// reflectance that demodulates mc's radiance into illumination before it is accumulated and
+// filtered, and multiplies it back afterwards (SVGF, Schied et al. 2017, section 4: texture
+// detail is not blurred), from the one material model. The includer declares `mats[]` and
+// `material_textures` and includes material.glsl first.
+#ifndef PENUMBRA_MC_DENOISE_GLSL
+#define PENUMBRA_MC_DENOISE_GLSL
+
+float mcd_luminance(vec3 c) { return dot(c, vec3(0.2126, 0.7152, 0.0722)); }
+
+// Diffuse albedo plus specular colour of the textured material under the pixel (`uvm`: the
+// G-buffer's uv, material index), floored so that black surfaces keep their (emitted) radiance.
+vec3 mcd_reflectance(vec4 uvm) {
+    MaterialData m = material_at(mats[int(uvm.z + 0.5)], uvm.xy, material_textures);
+    return max(m.albedo_kind.rgb + m.spec_rough.rgb, vec3(1e-3));
+}
+
+#endif

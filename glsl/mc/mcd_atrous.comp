@@ -1,0 +1,87 @@
+#version 460
+#extension GL_GOOGLE_include_directive : require
+// mc-denoised, one edge-aware a-trous wavelet iteration (SVGF, Schied et al. 2017, section 4.2;
+// Dammertz et al. 2010): a 5x5 B3-spline kernel with taps `step` pixels apart, each tap
+// weighted by the normals' agreement (pow(n . n_q, phi_normal)), the tap's distance from the
+// pixel's tangent plane against `phi_plane` times the world size of `step` pixels there (the
+// depth term), and the illumination's luminance difference against phi_color times the standard
+// deviation (3x3 Gaussian of the variance) at the pixel; the variance is filtered with the
+// squared weights. The last iteration multiplies the reflectance back; uncovered pixels (sky)
+// keep mc's radiance.
+layout(local_size_x = 8, local_size_y = 8) in;
+#include "common.glsl"
+layout(binding = 0, rgba32f) uniform readonly image2D src;
+layout(binding = 1, rgba32f) uniform writeonly image2D dst;
+layout(binding = 2) uniform sampler2D gb_position;
+layout(binding = 3) uniform sampler2D gb_normal;
+layout(binding = 4) uniform sampler2D gb_uv_mat;
+layout(binding = 5, rgba32f) uniform readonly image2D noisy;
+layout(std430, binding = 6) readonly buffer Materials { MaterialData mats[]; };
+layout(binding = 7) uniform sampler2DArray material_textures;
+#include "material.glsl"
+#include "mc_denoise.glsl"
+
+layout(push_constant) uniform Push {
+    vec4 eye_pixel;  // eye, w: world size of one pixel at unit distance
+    uvec4 step;      // tap spacing, width, height, 1 on the last iteration
+    vec4 phi;        // phi_color, phi_normal, phi_plane, unused
+} pc;
+
+void main() {
+    ivec2 px = ivec2(gl_GlobalInvocationID.xy);
+    ivec2 size = ivec2(pc.step.yz);
+    if (any(greaterThanEqual(px, size))) return;
+    bool last = pc.step.w != 0u;
+    vec4 pos = texelFetch(gb_position, px, 0);
+    if (!(pos.w > 0.0)) {
+        imageStore(dst, px, last ? vec4(imageLoad(noisy, px).rgb, 1.0) : imageLoad(src, px));
+        return;
+    }
+    vec4 cp = imageLoad(src, px);
+    vec3 n = oct_decode(texelFetch(gb_normal, px, 0).xy);
+    // 3x3 Gaussian of the variance: a steadier estimate of the pixel's noise.
+    float gv = 0.0, gw = 0.0;
+    for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+            ivec2 r = px + ivec2(dx, dy);
+            if (any(lessThan(r, ivec2(0))) || any(greaterThanEqual(r, size))) continue;
+            if (!(texelFetch(gb_position, r, 0).w > 0.0)) continue;
+            float w = (dx == 0 ? 2.0 : 1.0) * (dy == 0 ? 2.0 : 1.0);
+            gv += w * imageLoad(src, r).a;
+            gw += w;
+        }
+    }
+    float sigma_l = pc.phi.x * sqrt(max(gv / max(gw, 1e-6), 0.0)) + 1e-6;
+    float dist = length(pos.xyz - pc.eye_pixel.xyz);
+    float plane_tol = max(pc.phi.z * dist * pc.eye_pixel.w * float(pc.step.x), 1e-6);
+    float lp = mcd_luminance(cp.rgb);
+    const float h[3] = float[](0.375, 0.25, 0.0625);
+    vec3 sum = vec3(0.0);
+    float wsum = 0.0, vsum = 0.0;
+    int s = int(pc.step.x);
+    for (int dy = -2; dy <= 2; ++dy) {
+        for (int dx = -2; dx <= 2; ++dx) {
+            ivec2 r = px + ivec2(dx, dy) * s;
+            if (any(lessThan(r, ivec2(0))) || any(greaterThanEqual(r, size))) continue;
+            vec4 rp = texelFetch(gb_position, r, 0);
+            if (!(rp.w > 0.0)) continue;
+            vec4 cq = imageLoad(src, r);
+            vec3 nq = oct_decode(texelFetch(gb_normal, r, 0).xy);
+            float w = h[abs(dx)] * h[abs(dy)];
+            w *= pow(max(dot(n, nq), 0.0), pc.phi.y);
+            w *= exp(-abs(dot(n, rp.xyz - pos.xyz)) / plane_tol);
+            w *= exp(-abs(mcd_luminance(cq.rgb) - lp) / sigma_l);
+            sum += w * cq.rgb;
+            wsum += w;
+            vsum += w * w * cq.a;
+        }
+    }
+    // The centre tap has weight h[0]^2 > 0, so wsum > 0.
+    vec3 filtered = sum / wsum;
+    float var = vsum / (wsum * wsum);
+    if (last) {
+        imageStore(dst, px, vec4(filtered * mcd_reflectance(texelFetch(gb_uv_mat, px, 0)), 1.0));
+    } else {
+        imageStore(dst, px, vec4(filtered, var));
+    }
+}

@@ -1,0 +1,91 @@
+#version 460
+#extension GL_GOOGLE_include_directive : require
+// mc-denoised, temporal accumulation (SVGF, Schied et al. 2017, section 4.1): this frame's mc
+// samples, demodulated by the surface's reflectance, blended with the history found through the
+// G-buffer's motion vector (the pixel the surface covered last frame) when that pixel showed the
+// same instance at the same distance (else the history restarts: disocclusion), with weight
+// 1 / (history length), the length capped at `max_history` (5 by default: SVGF's alpha = 0.2; a
+// longer cap converges further on still views, a shorter one forgets moving shadows sooner: the
+// floor under a falling object keeps its motion vector of zero while its shadow moves). The luminance moments give the
+// variance that steers the a-trous filter; a history shorter than 4 frames takes the 3x3
+// neighbourhood's spatial variance instead where that is larger.
+layout(local_size_x = 8, local_size_y = 8) in;
+#include "common.glsl"
+layout(binding = 0, rgba32f) uniform readonly image2D noisy;
+layout(binding = 1) uniform sampler2D gb_position;
+layout(binding = 2) uniform sampler2D gb_uv_mat;
+layout(binding = 3) uniform sampler2D gb_motion;
+// history: demodulated illumination and history length; luminance moments, distance to the eye,
+// instance id + 1 (0: not covered)
+layout(binding = 4, rgba32f) uniform readonly image2D prev_color;
+layout(binding = 5, rgba32f) uniform readonly image2D prev_aux;
+layout(binding = 6, rgba32f) uniform writeonly image2D new_color;
+layout(binding = 7, rgba32f) uniform writeonly image2D new_aux;
+// the filter's input: illumination and its luminance variance
+layout(binding = 8, rgba32f) uniform writeonly image2D filter_in;
+layout(std430, binding = 9) readonly buffer Materials { MaterialData mats[]; };
+layout(binding = 10) uniform sampler2DArray material_textures;
+#include "material.glsl"
+#include "mc_denoise.glsl"
+
+layout(push_constant) uniform Push {
+    vec4 eye_valid;  // eye, w: 1 when the history images hold the previous frame
+    uvec4 size;      // width, height, max history length, unused
+} pc;
+
+void main() {
+    ivec2 px = ivec2(gl_GlobalInvocationID.xy);
+    ivec2 size = ivec2(pc.size.xy);
+    if (any(greaterThanEqual(px, size))) return;
+    vec4 pos = texelFetch(gb_position, px, 0);
+    vec3 c = imageLoad(noisy, px).rgb;
+    if (!(pos.w > 0.0)) {
+        // Sky: mc's radiance is the environment's, without noise; nothing to keep.
+        imageStore(new_color, px, vec4(0.0));
+        imageStore(new_aux, px, vec4(0.0));
+        imageStore(filter_in, px, vec4(c, 0.0));
+        return;
+    }
+    vec4 uvm = texelFetch(gb_uv_mat, px, 0);
+    vec3 illum = c / mcd_reflectance(uvm);
+    float l = mcd_luminance(illum);
+    float dist = length(pos.xyz - pc.eye_valid.xyz);
+    float len = 0.0;
+    vec3 hist = vec3(0.0);
+    vec2 mom = vec2(0.0);
+    if (pc.eye_valid.w > 0.5) {
+        vec2 prev = vec2(px) + 0.5 - texelFetch(gb_motion, px, 0).xy;
+        ivec2 q = ivec2(floor(prev));
+        if (all(greaterThanEqual(q, ivec2(0))) && all(lessThan(q, size))) {
+            vec4 pa = imageLoad(prev_aux, q);
+            if (abs(pa.w - uvm.w) < 0.5 && abs(pa.z - dist) < 0.05 * dist + 1e-4) {
+                vec4 pcol = imageLoad(prev_color, q);
+                len = pcol.a;
+                hist = pcol.rgb;
+                mom = pa.xy;
+            }
+        }
+    }
+    len = min(len + 1.0, float(max(pc.size.z, 1u)));
+    float a = 1.0 / len;
+    vec3 acc = mix(hist, illum, a);
+    vec2 m = mix(mom, vec2(l, l * l), a);
+    float var = max(m.y - m.x * m.x, 0.0);
+    if (len < 4.0) {
+        float s1 = 0.0, s2 = 0.0, n = 0.0;
+        for (int dy = -1; dy <= 1; ++dy) {
+            for (int dx = -1; dx <= 1; ++dx) {
+                ivec2 r = clamp(px + ivec2(dx, dy), ivec2(0), size - 1);
+                if (!(texelFetch(gb_position, r, 0).w > 0.0)) continue;
+                float lr = mcd_luminance(imageLoad(noisy, r).rgb / mcd_reflectance(texelFetch(gb_uv_mat, r, 0)));
+                s1 += lr;
+                s2 += lr * lr;
+                n += 1.0;
+            }
+        }
+        if (n > 1.0) var = max(var, max(s2 / n - (s1 / n) * (s1 / n), 0.0) * 4.0 / len);
+    }
+    imageStore(new_color, px, vec4(acc, len));
+    imageStore(new_aux, px, vec4(m, dist, uvm.w));
+    imageStore(filter_in, px, vec4(acc, var));
+}

@@ -1,0 +1,36 @@
+//! `mc-denoised` (passes/src/mc/denoise.rs): mc's samples filtered spatio-temporally (SVGF).
+
+mod common;
+use penumbra_reference::metrics::compare;
+use penumbra_reference::ReferenceOptions;
+
+/// falling (objects move every frame, studio.exr) at 96x72 over frames 0-30: four samples per
+/// pixel per frame of `mc` (which restarts every frame: things move), denoised, against the same
+/// samples undenoised and against the unshadowed `env`, all compared with the reference at frame
+/// 30's pixel centres (the objects near the floor, moving fast). The denoiser must remove most of
+/// mc's error and keep the shadows (well under env's error); validation clean. Measured: mc
+/// 0.43, mc-denoised 0.20, env 0.37 (with a 32-frame history instead of 5: 0.30, the shadows
+/// dragged behind the objects).
+#[test]
+fn denoising_the_same_samples_lowers_the_error_and_keeps_the_shadows() {
+    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
+    let s = common::scene("falling.toml");
+    let (w, h) = (96u32, 72u32);
+    let times: Vec<f32> = (0..=30).map(|k| k as f32 / 30.0).collect();
+    let t = *times.last().unwrap();
+    let opts = ReferenceOptions { width: w, height: h, spp: 256, pixel_grid: 1, time: Some(t), ..Default::default() };
+    let reference = penumbra_reference::render(&s, &opts).expect("reference").radiance;
+    let err = |technique: &str, params: &[(&str, &str)]| {
+        let scene = common::with(&s, params);
+        let (r, frames) = common::render_times(&scene, technique, w, h, &times, true);
+        assert_eq!(r.context().validation.error_count(), 0, "{technique}: validation errors");
+        let img = common::hdr_image(frames.last().unwrap());
+        compare(&reference, "reference", &img, technique).expect("compare").rmse_rel_mean
+    };
+    let mc = err("mc", &[("spp", "4"), ("aa", "false")]);
+    let denoised = err("mc-denoised", &[("spp", "4")]);
+    let env = err("env", &[]);
+    eprintln!("rmse/mean at frame 30: mc {mc:.4}, mc-denoised {denoised:.4}, env {env:.4}");
+    assert!(denoised < 0.6 * mc, "mc-denoised {denoised} against mc {mc} from the same samples");
+    assert!(denoised < 0.6 * env, "mc-denoised {denoised} against the unshadowed env {env}");
+}
