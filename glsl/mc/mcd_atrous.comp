@@ -6,8 +6,12 @@
 // pixel's tangent plane against `phi_plane` times the world size of `step` pixels there (the
 // depth term), and the illumination's luminance difference against phi_color times the standard
 // deviation (3x3 Gaussian of the variance) at the pixel; the variance is filtered with the
-// squared weights. The last iteration multiplies the reflectance back; uncovered pixels (sky)
-// keep mc's radiance.
+// squared weights. Taps on a face whose geometric normal is more than about 25 degrees from the
+// pixel's are not mixed at all: the material model's face rule (light from below the face is
+// blocked by it) makes the radiance jump there, and a coarse mesh's face turned from a light
+// must stay black beside its lit neighbour (test light_below_the_face_lights_nothing_in_every_
+// technique). The last iteration multiplies the reflectance back; uncovered pixels (sky) keep
+// mc's radiance.
 layout(local_size_x = 8, local_size_y = 8) in;
 #include "common.glsl"
 layout(binding = 0, rgba32f) uniform readonly image2D src;
@@ -39,6 +43,7 @@ void main() {
     }
     vec4 cp = imageLoad(src, px);
     vec3 n = oct_decode(texelFetch(gb_normal, px, 0).xy);
+    vec3 ng = gb_geometric_normal(pos.w);
     // 3x3 Gaussian of the variance: a steadier estimate of the pixel's noise.
     float gv = 0.0, gw = 0.0;
     for (int dy = -1; dy <= 1; ++dy) {
@@ -64,7 +69,7 @@ void main() {
             ivec2 r = px + ivec2(dx, dy) * s;
             if (any(lessThan(r, ivec2(0))) || any(greaterThanEqual(r, size))) continue;
             vec4 rp = texelFetch(gb_position, r, 0);
-            if (!(rp.w > 0.0)) continue;
+            if (!(rp.w > 0.0) || dot(ng, gb_geometric_normal(rp.w)) < 0.9) continue;
             vec4 cq = imageLoad(src, r);
             vec3 nq = oct_decode(texelFetch(gb_normal, r, 0).xy);
             float w = h[abs(dx)] * h[abs(dy)];

@@ -17,6 +17,13 @@ use crate::kdtree::KdTreeHandles;
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline};
 use anyhow::Result;
 use glam::Vec3;
+use obvhs::{
+    cwbvh::{builder::build_cwbvh_from_tris, CwBvh},
+    ray::{Ray as ORay, RayHit},
+    triangle::Triangle,
+    BvhBuildParams,
+};
+use obvhs_glam::Vec3A;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Graph, PassKind};
 use std::sync::Arc;
@@ -137,4 +144,46 @@ pub fn add_copy_to_readback(
     let rb = graph.create_readback(name, size.max(4));
     let (s, d) = crate::util::copy_buffer(graph, &format!("readback_{name}"), src, rb, Some(size));
     (d, s)
+}
+
+fn a(v: Vec3) -> Vec3A {
+    Vec3A::new(v.x, v.y, v.z)
+}
+
+/// The CPU twin of the tracer: an `obvhs` CWBVH over triangles (Möller-Trumbore test), for CPU
+/// work that must not wait on the GPU (avs's `adaptation = cpu`) and for the tracer's tests and
+/// benchmark.
+pub struct CpuBvh {
+    tris: Vec<Triangle>,
+    bvh: Option<CwBvh>,
+}
+
+impl CpuBvh {
+    pub fn new(tris: &[[Vec3; 3]]) -> Self {
+        let tris: Vec<Triangle> = tris.iter().map(|t| Triangle { v0: a(t[0]), v1: a(t[1]), v2: a(t[2]) }).collect();
+        let bvh = (!tris.is_empty())
+            .then(|| build_cwbvh_from_tris(&tris, BvhBuildParams::medium_build(), &mut Default::default()));
+        CpuBvh { tris, bvh }
+    }
+
+    fn oray(r: &Ray) -> ORay {
+        ORay::new(a(Vec3::from(r.origin)), a(Vec3::from(r.dir)), r.tmin, r.tmax)
+    }
+
+    /// Closest hit: (t, triangle).
+    pub fn closest(&self, r: &Ray) -> Option<(f32, u32)> {
+        let bvh = self.bvh.as_ref()?;
+        let mut hit = RayHit::none();
+        let tris = &self.tris;
+        let found = bvh
+            .ray_traverse(Self::oray(r), &mut hit, |ray, id| tris[bvh.primitive_indices[id] as usize].intersect(ray));
+        (found && hit.t.is_finite()).then(|| (hit.t, bvh.primitive_indices[hit.primitive_id as usize]))
+    }
+
+    /// Any hit in [tmin, tmax].
+    pub fn occluded(&self, r: &Ray) -> bool {
+        let Some(bvh) = self.bvh.as_ref() else { return false };
+        let tris = &self.tris;
+        !bvh.ray_traverse_miss(Self::oray(r), |ray, id| tris[bvh.primitive_indices[id] as usize].intersect(ray))
+    }
 }

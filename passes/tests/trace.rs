@@ -7,8 +7,8 @@ use common::{root, shaders};
 use glam::Vec3;
 use penumbra_engine::{Context, ContextDesc, Engine};
 use penumbra_passes::kdtree::{ray_epsilon, world_triangles, KdTreeBuilder};
-use penumbra_passes::trace::{Ray, Tracer};
-use penumbra_passes::trace_bench::{camera_rays, random_rays, run_gpu, surface_rays, CpuBvh};
+use penumbra_passes::trace::{CpuBvh, Ray, Tracer};
+use penumbra_passes::trace_bench::{camera_rays, random_rays, run_gpu, surface_rays};
 use penumbra_scene::Scene;
 use std::path::PathBuf;
 

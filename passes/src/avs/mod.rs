@@ -118,6 +118,16 @@ pub struct AvsSettings {
     /// less wall-clock on lavapipe. The wait-free default needs the rounds on the GPU inside the
     /// frame's graph (issue 18).
     pub late: bool,
+    /// `adaptation = "cpu"`: every round of the spatial adaptation on the CPU, so that building
+    /// the frame never waits on the GPU and the set refines fully every frame: the SH16 that
+    /// the error metric compares come from a `cpu_grid` x `cpu_grid` visibility map per point
+    /// traced through the frame's triangles in an `obvhs` BVH ([`crate::trace::CpuBvh`], all
+    /// cores) instead of the GPU maps read back; the final set's maps are traced in the frame's
+    /// own graph. The metric sees a coarser map than the r x r one the shading interpolates
+    /// (order-4 SH are smooth; the GPU's first level is the same 16 x 16 grid).
+    pub cpu: bool,
+    /// Side of the CPU maps of `adaptation = "cpu"` (multiple of 8, 8..=64; default 16).
+    pub cpu_grid: u32,
     /// Rounds of the frame that starts from a fresh initial set (the first frame, or a changed
     /// pool): the kept set carries every later frame's refinement on, while a fresh one starts
     /// from k-means points alone (the paper's Figure 5 shows several rounds to settle; chess at
@@ -208,6 +218,8 @@ impl Default for AvsSettings {
             alpha: 0.3,
             iterations: 2,
             late: false,
+            cpu: false,
+            cpu_grid: 16,
             first_iterations: 8,
             interp_alpha: 0.0,
             points: 0,
@@ -244,7 +256,7 @@ impl AvsSettings {
 
     /// Sets one parameter. Keys: `r` (128; multiple of the initial grid times a power of two, at
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
-    /// `iterations` (2), `adaptation` (`late` | `rounds`), `first_iterations` (8), `points` (0 = auto), `max_points` (4096; lowered to what the device binds, see `AvsTechnique::new`), `pool_points` (4096), `radius` (2.0), `neighbours`
+    /// `iterations` (2), `adaptation` (`rounds` | `late` | `cpu`), `cpu_grid` (16), `first_iterations` (8), `points` (0 = auto), `max_points` (4096; lowered to what the device binds, see `AvsTechnique::new`), `pool_points` (4096), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells` | `table` | `adf`), `cells` (6,
     /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `glossy` (`ratio` | `sg`), `lobes` (16), `light_shadows` (`traced` | `ssdf`). Unknown keys and bad values
     /// are errors naming the key.
@@ -278,10 +290,17 @@ impl AvsSettings {
             "iterations" => self.iterations = int(0, 16)? as u32,
             "first_iterations" => self.first_iterations = int(0, 64)? as u32,
             "adaptation" => {
-                self.late = match v {
-                    "late" => true,
-                    "rounds" => false,
-                    _ => bail!("avs parameter adaptation = '{value}': expected 'late' or 'rounds'"),
+                (self.late, self.cpu) = match v {
+                    "late" => (true, false),
+                    "rounds" => (false, false),
+                    "cpu" => (false, true),
+                    _ => bail!("avs parameter adaptation = '{value}': expected 'rounds', 'late' or 'cpu'"),
+                }
+            }
+            "cpu_grid" => {
+                self.cpu_grid = int(8, 64)? as u32;
+                if !self.cpu_grid.is_multiple_of(8) {
+                    bail!("avs parameter cpu_grid = '{value}': expected a multiple of 8 in 8..=64");
                 }
             }
             "points" => self.points = int(0, 1 << 16)? as usize,
@@ -721,6 +740,19 @@ fn pixel_spacing(frame: &Frame, image_height: u32) -> impl Fn(Vec3) -> f32 {
     let per_distance = 2.0 * (cam.fov_y_deg.to_radians() * 0.5).tan() / image_height.max(1) as f32;
     let eye = cam.eye;
     move |p: Vec3| per_distance * (p - eye).length()
+}
+
+/// SH16 of the visibility of `p` from a `grid` x `grid` map in the GPU maps' layout and frame
+/// (`samp::point_frame`), its rays leaving the point `offset` along the normal as
+/// `avs_vis.comp` casts them, any hit through `bvh` occluding: `adaptation = cpu`'s maps.
+pub fn cpu_sh16(bvh: &crate::trace::CpuBvh, p: &SurfacePoint, offset: f32, grid: u32) -> [f32; SH_COUNT] {
+    let f = samp::point_frame(p.normal);
+    let o = p.pos + f.n.as_vec3() * offset;
+    let map = penumbra_math::avs_maps::VisMap::from_fn(grid, |i, j| {
+        let d = f.to_world(penumbra_math::avs_maps::texel_dir(i, j, grid)).as_vec3();
+        !bvh.occluded(&crate::trace::Ray::new(o, d, 0.0, 1e30))
+    });
+    samp::sh16_project(&map, &f)
 }
 
 /// GPU layout of the sample points: 3 vec4 per point (position, ray offset), (tangent, 1),
@@ -1186,6 +1218,14 @@ impl AvsTechnique {
         self.stats.rounds_wait_ms = 0.0;
         self.stats.rounds_step_ms = 0.0;
         self.tree_current = false;
+        // `adaptation = cpu`: the frame's shadow-casting triangles on the CPU, for the rounds' maps
+        let cpu = if self.settings.cpu {
+            let (tris, _, no_shadow) = crate::kdtree::world_triangles_shading(&self.scene, frame)?;
+            let casting: Vec<[Vec3; 3]> = tris.iter().zip(&no_shadow).filter(|(_, &ns)| !ns).map(|(t, _)| *t).collect();
+            Some(crate::trace::CpuBvh::new(&casting))
+        } else {
+            None
+        };
         // every point is traced again each frame (the geometry is dynamic): slots 0..n
         let mut slots: Vec<u32> = (0..self.sample_vertices.len() as u32).collect();
         let mut nslots = slots.len() as u32;
@@ -1211,50 +1251,63 @@ impl AvsTechnique {
             for (i, p) in points.iter().enumerate() {
                 by_slot[slots[i] as usize] = *p;
             }
-            let mut g = Graph::new();
-            // the tree is (re)built in the first round only
-            let kept = if round > 0 { self.builder.add_kept(&mut FrameStore::new(engine), &mut g) } else { None };
-            let tree = match kept {
-                Some(t) => t,
-                None => self.tree(&mut FrameStore::new(engine), &mut g, frame)?,
-            };
-            self.tree_current = true;
-            let points_buf = g.create_buffer_init("avs_points", bytes_of(&point_data(&by_slot, offset)));
-            let vis = engine.persistent_buffer(&mut g, "avs.vis", cap * words * 4);
-            let tag = format!("_i{round}");
-            let (vis, rays) = self.add_visibility(&mut g, &tree, points_buf, &by_slot, &batch, vis, &tag);
-            let (shb, _) = self.add_sh(&mut g, points_buf, vis, &batch, &tag);
-            let n = batch.len() as u64;
-            self.stats.traced_points += batch.len();
-            let rb = g.create_readback("avs_sh_readback", n * (SH_COUNT as u64 + 1) * 4);
-            Self::add_sh_copy(&mut g, "avs_sh_readback", shb, rays, rb, n);
-            if capture {
-                let bytes = (nslots.max(1) as u64).min(cap) * words * 4;
-                let rb = g.create_readback("avs_maps_readback", bytes);
-                crate::util::copy_buffer(&mut g, "avs_maps_readback", vis, rb, Some(bytes));
-            }
-            let waited = std::time::Instant::now();
-            let out = engine.submit_wait(g)?;
-            self.stats.rounds_wait_ms += waited.elapsed().as_secs_f64() * 1e3;
-            self.stats.round_ms.extend(out.gpu_ms.iter().cloned());
-            let (batch_sh, rays, truncated) = out
-                .readbacks
-                .get("avs_sh_readback")
-                .and_then(|b| parse_sh_readback(b, batch.len()))
-                .ok_or_else(|| anyhow!("avs: SH readback missing"))?;
-            self.stats.rays += rays;
-            self.stats.truncated += truncated;
             let slot_point: std::collections::HashMap<u32, usize> =
                 slots.iter().enumerate().map(|(i, &s)| (s, i)).collect();
-            for (&slot, v) in batch.iter().zip(batch_sh) {
-                sh[slot_point[&slot]] = Some(v);
-                let map_bytes = words as usize * 4;
-                if let Some(m) = out
+            if let Some(cpu) = &cpu {
+                let grid = self.settings.cpu_grid;
+                let batch_sh: Vec<[f32; SH_COUNT]> = {
+                    use rayon::prelude::*;
+                    batch.par_iter().map(|&slot| cpu_sh16(cpu, &by_slot[slot as usize], offset, grid)).collect()
+                };
+                self.stats.traced_points += batch.len();
+                self.stats.rays += batch.len() as u64 * (grid * grid) as u64;
+                for (&slot, v) in batch.iter().zip(batch_sh) {
+                    sh[slot_point[&slot]] = Some(v);
+                }
+            } else {
+                let mut g = Graph::new();
+                // the tree is (re)built in the first round only
+                let kept = if round > 0 { self.builder.add_kept(&mut FrameStore::new(engine), &mut g) } else { None };
+                let tree = match kept {
+                    Some(t) => t,
+                    None => self.tree(&mut FrameStore::new(engine), &mut g, frame)?,
+                };
+                self.tree_current = true;
+                let points_buf = g.create_buffer_init("avs_points", bytes_of(&point_data(&by_slot, offset)));
+                let vis = engine.persistent_buffer(&mut g, "avs.vis", cap * words * 4);
+                let tag = format!("_i{round}");
+                let (vis, rays) = self.add_visibility(&mut g, &tree, points_buf, &by_slot, &batch, vis, &tag);
+                let (shb, _) = self.add_sh(&mut g, points_buf, vis, &batch, &tag);
+                let n = batch.len() as u64;
+                self.stats.traced_points += batch.len();
+                let rb = g.create_readback("avs_sh_readback", n * (SH_COUNT as u64 + 1) * 4);
+                Self::add_sh_copy(&mut g, "avs_sh_readback", shb, rays, rb, n);
+                if capture {
+                    let bytes = (nslots.max(1) as u64).min(cap) * words * 4;
+                    let rb = g.create_readback("avs_maps_readback", bytes);
+                    crate::util::copy_buffer(&mut g, "avs_maps_readback", vis, rb, Some(bytes));
+                }
+                let waited = std::time::Instant::now();
+                let out = engine.submit_wait(g)?;
+                self.stats.rounds_wait_ms += waited.elapsed().as_secs_f64() * 1e3;
+                self.stats.round_ms.extend(out.gpu_ms.iter().cloned());
+                let (batch_sh, rays, truncated) = out
                     .readbacks
-                    .get("avs_maps_readback")
-                    .and_then(|m| m.get(slot as usize * map_bytes..(slot as usize + 1) * map_bytes))
-                {
-                    maps[slot_point[&slot]] = map_words(m);
+                    .get("avs_sh_readback")
+                    .and_then(|b| parse_sh_readback(b, batch.len()))
+                    .ok_or_else(|| anyhow!("avs: SH readback missing"))?;
+                self.stats.rays += rays;
+                self.stats.truncated += truncated;
+                for (&slot, v) in batch.iter().zip(batch_sh) {
+                    sh[slot_point[&slot]] = Some(v);
+                    let map_bytes = words as usize * 4;
+                    if let Some(m) = out
+                        .readbacks
+                        .get("avs_maps_readback")
+                        .and_then(|m| m.get(slot as usize * map_bytes..(slot as usize + 1) * map_bytes))
+                    {
+                        maps[slot_point[&slot]] = map_words(m);
+                    }
                 }
             }
             if round == rounds {
@@ -1502,6 +1555,10 @@ impl AvsTechnique {
         let batch: Vec<u32> = (0..n as u32).collect();
         let (vis, rays) = self.add_visibility(graph, tree, points_buf, points, &batch, vis, "");
         let (shb, points_buf) = self.add_sh(graph, points_buf, vis, &batch, "");
+        if !self.settings.late {
+            // `adaptation = cpu`: the SH (and the buried flags `avs_sh` sets) serve the frame only
+            return (vis, points_buf);
+        }
         let rb = graph.create_late_readback(LATE_SH, n as u64 * (SH_COUNT as u64 + 1) * 4);
         Self::add_sh_copy(graph, "avs_sh_copy", shb, rays, rb, n as u64);
         if self.settings.capture_maps {
@@ -1575,7 +1632,8 @@ impl crate::technique::Technique for AvsTechnique {
             self.stats.cpu_ms.push(("rounds_step", stepped));
             self.stats.cpu_ms.push(("rounds_cpu", (rounds - waited - stepped).max(0.0)));
             self.stats.late_vertices = self.sample_vertices.clone();
-            Some(done)
+            // `adaptation = cpu` traced no GPU maps: the frame's graph traces the final set's
+            (!self.settings.cpu).then_some(done)
         } else {
             self.fresh = false;
             let (late_sh, late_maps) = (engine.late_readback(LATE_SH), engine.late_readback(LATE_MAPS));
@@ -1640,7 +1698,9 @@ impl crate::technique::Technique for AvsTechnique {
             let vis = engine.persistent_buffer(graph, "avs.vis", cap * words_per_map(r) as u64 * 4);
             let (vis, points_buf) = self.add_late_maps(graph, &tree, points_buf, &points, vis);
             self.stats.traced_points = points.len();
-            push_recent(&mut self.sent, frame_no, self.sample_vertices.clone());
+            if self.settings.late {
+                push_recent(&mut self.sent, frame_no, self.sample_vertices.clone());
+            }
             (points, slots, vis, points_buf, tree)
         };
         let nslots = slots.iter().max().map_or(0, |&m| m + 1);

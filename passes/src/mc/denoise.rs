@@ -12,9 +12,11 @@
 //!    each pixel's variance (spatial over 3x3 while the history is shorter than 4 frames). The
 //!    history (two pairs of persistent images, ping-ponged) keeps the unfiltered accumulation.
 //! 3. `mcd_atrous.<k>` (`glsl/mc/mcd_atrous.comp`), `iterations` times (fewer on small images:
-//!    [`filter_iterations`]) with taps 1, 2, 4, ... pixels apart: edge-aware a-trous wavelet filtering stopped by normals, distance from the
-//!    tangent plane and luminance against the filtered variance; the last multiplies the
-//!    reflectance back.
+//!    [`filter_iterations`]) with taps 1, 2, 4, ... pixels apart: edge-aware a-trous wavelet
+//!    filtering stopped by normals, distance from the tangent plane and luminance against the
+//!    filtered variance, never across faces whose geometric normals differ by more than about
+//!    25 degrees (the material model's face rule makes the radiance jump there); the last
+//!    multiplies the reflectance back.
 //!
 //! Biased by design (blur across soft shadow gradients, ghosting where history is reused under
 //! changing light): the accuracy matrix measures it against the reference like every technique.
