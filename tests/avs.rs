@@ -1083,6 +1083,34 @@ fn buried_sample_points_draw_no_rings() {
     assert!((0.85..1.15).contains(&ratio), "the floor beside the box: avs / reference {ratio:.3}");
 }
 
+/// `frames` frames of `s` at time `t` (a static moment, each finished before the next is built)
+/// with `adaptation = mode` under validation (zero errors asserted), at the reference's size:
+/// the last frame's relRMSE against `reference`, each frame's statistics, and the engine's count
+/// of waited submissions after each frame.
+fn frames_of_a_moment(
+    s: &Scene,
+    mode: &str,
+    reference: &Image,
+    t: f32,
+    frames: usize,
+) -> (f64, Vec<AvsStats>, Vec<u64>) {
+    let s = with(s, &[("adaptation", mode)]);
+    let mut r = avs_renderer(&s, reference.width, reference.height, true);
+    let (mut last, mut stats, mut waited) = (None, Vec::new(), Vec::new());
+    for k in 0..frames {
+        let mut f = r.render(&s.at(t, (k > 0).then_some(t)), None, true).expect("render");
+        f.extend(r.finish().expect("finish"));
+        last = f.pop();
+        stats.push(avs_stats(&r));
+        waited.push(r.engine.waited_submissions());
+    }
+    let log = r.context().validation.clone();
+    drop(r);
+    assert_eq!(log.error_count(), 0, "{mode}: validation errors: {:#?}", log.errors());
+    let c = compare(reference, "reference", &image(&last.expect("a frame")), mode).unwrap();
+    (c.rel_rmse, stats, waited)
+}
+
 /// The late adaptation (`adaptation = late`): after a setup frame, each frame steps once on the maps of the
 /// newest finished frame, never waiting. Over six frames of a static moment, each finished
 /// before the next is built, it takes the same steps as one waited round per frame
@@ -1098,23 +1126,7 @@ fn late_adaptation_refines_over_frames_without_waiting() {
     let opts =
         ReferenceOptions { width: w, height: h, spp: 16, time: Some(t), mode: Mode::Exact, ..Default::default() };
     let reference = reference_render(&s, &opts).expect("reference").radiance;
-    let run = |mode: &str| {
-        let s = with(&s, &[("adaptation", mode)]);
-        let mut r = avs_renderer(&s, w, h, true);
-        let (mut last, mut stats, mut waited) = (None, Vec::new(), Vec::new());
-        for k in 0..6 {
-            let mut f = r.render(&s.at(t, (k > 0).then_some(t)), None, true).expect("render");
-            f.extend(r.finish().expect("finish"));
-            last = f.pop();
-            stats.push(avs_stats(&r));
-            waited.push(r.engine.waited_submissions());
-        }
-        let log = r.context().validation.clone();
-        drop(r);
-        assert_eq!(log.error_count(), 0, "{mode}: validation errors: {:#?}", log.errors());
-        let c = compare(&reference, "reference", &image(&last.expect("a frame")), mode).unwrap();
-        (c.rel_rmse, stats, waited)
-    };
+    let run = |mode: &str| frames_of_a_moment(&s, mode, &reference, t, 6);
     let (late, st, waited) = run("late");
     let (rounds, st_r, waited_r) = run("rounds");
     let points = |st: &[AvsStats]| st.iter().map(|s| (s.points, s.dormant)).collect::<Vec<_>>();
@@ -1139,6 +1151,37 @@ fn late_adaptation_refines_over_frames_without_waiting() {
     // points, 780 of them dormant, while the late step also stepped on points culled since)
     assert!(late <= rounds * 1.1 + 0.01, "late relRMSE {late} vs waited rounds {rounds}");
     assert!(st[5].points <= st_r[5].points * 5 / 4, "late {:?} vs rounds {:?}", points(&st), points(&st_r));
+}
+
+/// `adaptation = cpu`: every round of the spatial adaptation on the CPU (the SH16 of 16 x 16 maps
+/// traced through an `obvhs` BVH on all cores), the final set's maps in the frame's own graph:
+/// no frame waits on the GPU, not even the first (whose fresh set is refined by its rounds), the
+/// set still refines (points inserted), and the image is as close to the reference as with the
+/// waited rounds.
+#[test]
+fn cpu_adaptation_never_waits() {
+    let s = with(
+        &scene("hat_on_cloth.toml"),
+        &[("r", "32"), ("points", "96"), ("iterations", "1"), ("first_iterations", "2")],
+    );
+    let (w, h, t) = (64, 48, 0.5);
+    let opts =
+        ReferenceOptions { width: w, height: h, spp: 16, time: Some(t), mode: Mode::Exact, ..Default::default() };
+    let reference = reference_render(&s, &opts).expect("reference").radiance;
+    let run = |mode: &str| frames_of_a_moment(&s, mode, &reference, t, 3);
+    let (cpu, st, waited) = run("cpu");
+    let (rounds, st_r, waited_r) = run("rounds");
+    let points = |st: &[AvsStats]| st.iter().map(|s| s.points).collect::<Vec<_>>();
+    println!(
+        "relRMSE cpu {cpu:.4} / rounds {rounds:.4}; points cpu {:?} / rounds {:?}; waited cpu {waited:?} / rounds {waited_r:?}",
+        points(&st),
+        points(&st_r)
+    );
+    assert_eq!(waited, vec![0; 3], "adaptation = cpu waited on the GPU");
+    assert!(waited_r[2] > waited_r[0] && waited_r[0] > 0, "rounds waited {waited_r:?}");
+    let inserted: usize = st.iter().flat_map(|s| s.inserted.iter()).sum();
+    assert!(inserted > 0, "the CPU rounds inserted no point");
+    assert!(cpu <= rounds * 1.1 + 0.01, "cpu relRMSE {cpu} vs waited rounds {rounds}");
 }
 
 /// The glossy term's SSDF visibility weighted by the light (`glossy_visibility` in

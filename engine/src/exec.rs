@@ -585,8 +585,8 @@ impl Engine {
     }
 
     /// How many submissions [`Engine::submit_wait`] has made and waited for. Building a frame
-    /// should make none (tests check by this count); the exceptions today are avs's refinement of
-    /// a fresh point set and its default waited adaptation rounds (`adaptation = rounds`).
+    /// should make none (tests check by this count); the one exception is avs when asked for its
+    /// waited GPU adaptation rounds (`adaptation = rounds`, or a fresh point set's with `late`).
     pub fn waited_submissions(&self) -> u64 {
         self.waited
     }

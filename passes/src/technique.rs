@@ -40,9 +40,9 @@ pub trait Technique {
     fn name(&self) -> &'static str;
     /// Work before the frame is declared that may wait on the GPU (submissions of its own
     /// through the engine); counted in the technique's CPU time. None for every technique but
-    /// `avs`: its fresh point set is refined by waited rounds here, and its default adaptation
-    /// rounds (`adaptation = rounds`) run here every frame (issue 18: they belong on the GPU,
-    /// in the frame's graph).
+    /// `avs`, whose spatial adaptation runs here: on the CPU by default (`adaptation = cpu`, no
+    /// wait), or as waited GPU rounds when asked (`adaptation = rounds`; with `late`, only a fresh
+    /// point set's).
     fn prepare(&mut self, _engine: &mut Engine, _inputs: &PrepareInputs) -> Result<()> {
         Ok(())
     }

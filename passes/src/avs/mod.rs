@@ -15,14 +15,20 @@
 //!   point against the eq. 8 interpolation of its neighbours' SH16 within the search radius,
 //!   insertions above `E_v,max` (nearest vertex to the midpoint of a point and each neighbour it
 //!   disagrees with) and erasures below `E_v,min` (no two neighbours in one round), on the CPU
-//!   ([`penumbra_math::avs_sampling::adapt_step`]), which needs the SH of the maps (`avs_sh`).
-//!   A fresh set (first frame, changed pool) is refined by `first_iterations` rounds before its
-//!   frame, each submitted as its own small graph and waited for. After that, `adaptation =
-//!   rounds` (default): `iterations` such waited rounds every frame (building the frame waits on
-//!   the GPU); `adaptation = late`: every frame traces its kept points in its own graph and
-//!   copies their SH16 into a late readback (`Graph::create_late_readback`); a later frame steps
-//!   once on the newest finished copy (`Engine::late_readback`, never waiting) and applies the
-//!   step by pool vertex to its own set (see [`AvsSettings::late`] for what that costs).
+//!   ([`penumbra_math::avs_sampling::adapt_step`]). A fresh set (first frame, changed pool) is
+//!   refined by `first_iterations` rounds, every later frame by `iterations`. Where the rounds get
+//!   the SH16 of the points they compare: `adaptation = cpu` (default) from 16 x 16 maps traced
+//!   on the CPU through an `obvhs` BVH of the frame's triangles ([`cpu_sh16`]), so no round waits
+//!   and the final set's maps are traced once, in the frame's own graph (building a frame never
+//!   waits on the GPU); `adaptation = rounds`: from the GPU maps themselves (`avs_sh`), each
+//!   round a small graph submitted and waited for (the paper's); `adaptation = late`: every
+//!   frame traces its kept points in its own graph and copies their SH16 into a late readback
+//!   (`Graph::create_late_readback`); a later frame steps once on the newest finished copy
+//!   (`Engine::late_readback`, never waiting) and applies the step by pool vertex to its own set
+//!   (see [`AvsSettings::late`] for what that costs). Measured at 160x120 over the 20 scenes avs
+//!   accepts (session 24): `cpu` and `rounds` give the same errors within 0.003 rmse/mean
+//!   (balls_on_dish 0.047 against 0.050), `cpu` in half the wall-clock on lavapipe (falling 10.0
+//!   against 21.1 s per frame, hat_on_cloth 9.7 against 23.8), 10-250 ms of it on the CPU.
 //! * **Adaptive angular sampling** (4.2), `avs_vis_l<L>` passes (`glsl/avs/avs_vis.comp`): one
 //!   workgroup per sample point; level 0 traces the initial grid (16 x 16 or 32 x 32) with the
 //!   kd-tree tracer, every further level doubles the resolution and traces only texels whose parent
@@ -104,10 +110,10 @@ pub struct AvsSettings {
     /// [`AvsSettings::late`], any value above 0 means one step per frame from the newest finished
     /// frame's maps.
     pub iterations: u32,
-    /// How the spatial adaptation (4.3) gets the SH of the maps it compares. `false`
-    /// (`adaptation = "rounds"`, default): `iterations` rounds in every frame, each a submission
-    /// waited for before the frame's graph (the CPU needs the new maps' SH): building the frame
-    /// waits on the GPU. `true` (`"late"`): frames never wait. Each frame traces its kept points
+    /// How the spatial adaptation (4.3) gets the SH of the maps it compares (with
+    /// [`AvsSettings::cpu`] false). `false` (`adaptation = "rounds"`): `iterations` rounds in
+    /// every frame, each a submission waited for before the frame's graph (the CPU needs the new
+    /// maps' SH): building the frame waits on the GPU. `true` (`"late"`): frames never wait. Each frame traces its kept points
     /// in its own graph and copies their SH16 into a late readback; a later frame takes the
     /// newest finished copy and runs one `adapt_step` on it (erasing and inserting by pool
     /// vertex, leaving alone what later steps changed), so the set refines one step per frame, a
@@ -115,10 +121,10 @@ pub struct AvsSettings {
     /// refined by `first_iterations` waited rounds before its frame, as setup. Not the default:
     /// half the steps on older maps lose accuracy where things move (160x120, seven frames:
     /// falling 0.124 against 0.078 rmse/mean, hat_on_cloth 0.093 against 0.078) for about 10%
-    /// less wall-clock on lavapipe. The wait-free default needs the rounds on the GPU inside the
-    /// frame's graph (issue 18).
+    /// less wall-clock on lavapipe. [`AvsSettings::cpu`] (the default) never waits either,
+    /// without that cost.
     pub late: bool,
-    /// `adaptation = "cpu"`: every round of the spatial adaptation on the CPU, so that building
+    /// `adaptation = "cpu"` (default): every round of the spatial adaptation on the CPU, so that building
     /// the frame never waits on the GPU and the set refines fully every frame: the SH16 that
     /// the error metric compares come from a `cpu_grid` x `cpu_grid` visibility map per point
     /// traced through the frame's triangles in an `obvhs` BVH ([`crate::trace::CpuBvh`], all
@@ -218,7 +224,7 @@ impl Default for AvsSettings {
             alpha: 0.3,
             iterations: 2,
             late: false,
-            cpu: false,
+            cpu: true,
             cpu_grid: 16,
             first_iterations: 8,
             interp_alpha: 0.0,
@@ -412,7 +418,9 @@ pub struct AvsStats {
     /// Visible fraction of the hemisphere of every sample point (from the SH16 DC term).
     pub visible_fraction: Vec<f32>,
     /// Sample points buried (every direction occluded: `penumbra_math::avs_sampling::buried`):
-    /// out of the adaptation, interpolated only where they are clearly a pixel's nearest.
+    /// out of the adaptation, interpolated only where they are clearly a pixel's nearest. With
+    /// `adaptation = cpu`, counted from the rounds' CPU maps (the shading flags them from the
+    /// frame's own GPU maps).
     pub buried: usize,
     /// GPU milliseconds of the adaptation rounds' passes (name, ms), when timed.
     pub round_ms: Vec<(String, f64)>,
@@ -1698,6 +1706,10 @@ impl crate::technique::Technique for AvsTechnique {
             let vis = engine.persistent_buffer(graph, "avs.vis", cap * words_per_map(r) as u64 * 4);
             let (vis, points_buf) = self.add_late_maps(graph, &tree, points_buf, &points, vis);
             self.stats.traced_points = points.len();
+            if self.settings.cpu {
+                // the rounds' CPU maps (the shading takes the flag from the frame's own maps, `avs_sh`)
+                self.stats.buried = self.stats.visible_fraction.iter().filter(|&&v| v == 0.0).count();
+            }
             if self.settings.late {
                 push_recent(&mut self.sent, frame_no, self.sample_vertices.clone());
             }
