@@ -27,6 +27,9 @@ if cargo clippy --version >/dev/null 2>&1; then
 else
     echo "scripts/test.sh: warning: clippy is not installed (rustup component add clippy): lints not checked" >&2
 fi
+# API documentation builds without warnings (broken or private intra-doc links fail; libraries
+# only: the CLI's binary shares the facade's name, which rustdoc cannot tell apart).
+RUSTDOCFLAGS="${RUSTDOCFLAGS:-} -D warnings" cargo doc --workspace --no-deps --lib --quiet || { echo "scripts/test.sh: cargo doc found problems (cargo doc --workspace --no-deps --lib)" >&2; exit 1; }
 if [ -z "${PENUMBRA_PLAIN_CARGO_TEST:-}" ] && nextest_ok; then
     cargo nextest run --workspace --no-fail-fast "$@"
     cargo test --workspace --doc

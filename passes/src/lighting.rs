@@ -203,7 +203,7 @@ pub fn irradiance_env(env: Option<&Environment>) -> Vec<f32> {
 }
 
 /// `env` with its key lights (at most `max`, [`penumbra_math::envmap::split_lights`]) split off:
-/// the rest of the map, and the lights' lobes in world space ([`key_light_lobes`]); no map and no
+/// the rest of the map, and the lights' lobes in world space (`key_light_lobes`); no map and no
 /// lobes without an environment, with `max = 0` (the split turned off) or when no texel is over
 /// the cap.
 pub fn split_key_lights(env: Option<&Environment>, max: usize) -> anyhow::Result<(Option<Environment>, Vec<[f32; 4]>)> {
