@@ -5,7 +5,7 @@
 // environment sample (texel distribution proportional to luminance x solid angle, as the CPU
 // reference's alias table) and one BRDF sample, combined by the power heuristic; shadow rays are
 // any-hit queries through the same tree. Same estimator, BRDFs and conventions as
-// penumbra_reference (render.rs, brdf.rs, sampling.rs); see passes/src/mc.rs for what is left out.
+// penumbra_reference (render.rs, brdf.rs, sampling.rs); see passes/src/mc/mod.rs for what is left out.
 // Progressive: accum.rgb sums samples, accum.a counts them; hdr = accum.rgb / accum.a.
 layout(local_size_x = 8, local_size_y = 8) in;
 layout(std430, binding = 0) readonly buffer Tris { vec4 kd_tris[]; };
