@@ -1060,6 +1060,23 @@ fn check_accessor(
     Ok(())
 }
 
+/// Component types a normalized float attribute may be stored as.
+const NORMALIZED_TYPES: &[DataType] = &[DataType::F32, DataType::U8, DataType::U16];
+/// Component types of triangle indices.
+const INDEX_TYPES: &[DataType] = &[DataType::U8, DataType::U16, DataType::U32];
+
+/// The per-vertex attributes penumbra reads besides POSITION (F32 VEC3): semantic, name in the
+/// file, element type and the component types accepted (uncompressed and Draco primitives alike).
+fn vertex_attributes() -> [(gltf::Semantic, &'static str, Dimensions, &'static [DataType]); 4] {
+    use gltf::Semantic;
+    [
+        (Semantic::Normals, "NORMAL", Dimensions::Vec3, &[DataType::F32]),
+        (Semantic::TexCoords(0), "TEXCOORD_0", Dimensions::Vec2, NORMALIZED_TYPES),
+        (Semantic::Joints(0), "JOINTS_0", Dimensions::Vec4, &[DataType::U8, DataType::U16]),
+        (Semantic::Weights(0), "WEIGHTS_0", Dimensions::Vec4, NORMALIZED_TYPES),
+    ]
+}
+
 fn read_primitive<'a, 's, F>(
     path: &Path,
     label: &str,
@@ -1077,13 +1094,7 @@ where
     let pos_acc = prim.get(&Semantic::Positions).ok_or_else(|| gerr(path, what("has no POSITION attribute")))?;
     check_accessor(path, &pos_acc, &[Dimensions::Vec3], &[DataType::F32], &what("POSITION"))?;
     let n = pos_acc.count();
-    let norm_types = [DataType::F32, DataType::U8, DataType::U16];
-    for (sem, dims, types) in [
-        (Semantic::Normals, Dimensions::Vec3, &[DataType::F32][..]),
-        (Semantic::TexCoords(0), Dimensions::Vec2, &norm_types[..]),
-        (Semantic::Joints(0), Dimensions::Vec4, &[DataType::U8, DataType::U16][..]),
-        (Semantic::Weights(0), Dimensions::Vec4, &norm_types[..]),
-    ] {
+    for (sem, _, dims, types) in vertex_attributes() {
         if let Some(acc) = prim.get(&sem) {
             check_accessor(path, &acc, &[dims], types, &what(&format!("{sem:?}")))?;
             if acc.count() != n {
@@ -1092,13 +1103,7 @@ where
         }
     }
     if let Some(acc) = prim.indices() {
-        check_accessor(
-            path,
-            &acc,
-            &[Dimensions::Scalar],
-            &[DataType::U8, DataType::U16, DataType::U32],
-            &what("indices"),
-        )?;
+        check_accessor(path, &acc, &[Dimensions::Scalar], INDEX_TYPES, &what("indices"))?;
     }
     for (k, t) in prim.morph_targets().enumerate() {
         for (acc, s) in [(t.positions(), "POSITION"), (t.normals(), "NORMAL"), (t.tangents(), "TANGENT")] {
@@ -1229,27 +1234,14 @@ where
     let pos_acc = prim.get(&Semantic::Positions).ok_or_else(|| gerr(path, what("has no POSITION attribute")))?;
     check_accessor_type(path, &pos_acc, &[Dimensions::Vec3], &[DataType::F32], &what("POSITION"))?;
     let n = pos_acc.count();
-    let norm_types = [DataType::F32, DataType::U8, DataType::U16];
-    let semantics = [
-        (Semantic::Normals, "NORMAL", Dimensions::Vec3, &[DataType::F32][..]),
-        (Semantic::TexCoords(0), "TEXCOORD_0", Dimensions::Vec2, &norm_types[..]),
-        (Semantic::Joints(0), "JOINTS_0", Dimensions::Vec4, &[DataType::U8, DataType::U16][..]),
-        (Semantic::Weights(0), "WEIGHTS_0", Dimensions::Vec4, &norm_types[..]),
-    ];
-    for (sem, label, dims, types) in &semantics {
-        if let Some(acc) = prim.get(sem) {
-            check_accessor_type(path, &acc, &[*dims], types, &what(label))?;
+    for (sem, label, dims, types) in vertex_attributes() {
+        if let Some(acc) = prim.get(&sem) {
+            check_accessor_type(path, &acc, &[dims], types, &what(label))?;
         }
     }
     let tris = match prim.indices() {
         Some(acc) => {
-            check_accessor_type(
-                path,
-                &acc,
-                &[Dimensions::Scalar],
-                &[DataType::U8, DataType::U16, DataType::U32],
-                &what("indices"),
-            )?;
+            check_accessor_type(path, &acc, &[Dimensions::Scalar], INDEX_TYPES, &what("indices"))?;
             acc.count() / 3
         }
         None => n / 3,

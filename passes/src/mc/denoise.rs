@@ -142,11 +142,9 @@ impl crate::technique::Technique for McDenoised {
         let frame = inputs.frame;
         self.mc.spp = self.settings.spp;
         self.mc.scene_textures = Some(inputs.handles.textures);
-        let noisy = self.mc.add_frame(engine, graph, frame, w, h);
+        let noisy = self.mc.add_frame_and_materials(engine, graph, frame, w, h);
         self.mc.scene_textures = None;
-        let noisy = noisy?;
-        let materials = graph
-            .create_buffer_init("mcd.materials", crate::scene_gpu::material_table(&frame.materials, &self.mc.extras));
+        let (noisy, materials) = noisy?;
         let textures = inputs.handles.textures;
         let desc = ImageDesc::new_2d(HDR_FORMAT, w, h);
         let read = (self.frames % 2) as usize;

@@ -219,6 +219,19 @@ impl McTechnique {
         width: u32,
         height: u32,
     ) -> Result<ImageHandle> {
+        Ok(self.add_frame_and_materials(engine, graph, frame, width, height)?.0)
+    }
+
+    /// [`McTechnique::add_frame`], also returning the frame's material table (uploaded once for
+    /// the passes that follow, `mc-denoised`'s demodulation).
+    fn add_frame_and_materials(
+        &mut self,
+        engine: &mut FrameStore<'_>,
+        graph: &mut Graph,
+        frame: &Frame,
+        width: u32,
+        height: u32,
+    ) -> Result<(ImageHandle, BufferHandle)> {
         let geometry_changed = frame.any_moved() || frame.any_deformed();
         let kept =
             if geometry_changed || self.tri_count.is_none() { None } else { self.builder.add_kept(engine, graph) };
@@ -320,7 +333,7 @@ impl McTechnique {
             hdr = out;
         }
         self.accumulated += self.spp;
-        Ok(hdr)
+        Ok((hdr, materials))
     }
 
     fn persistent_upload_into(graph: &mut Graph, h: BufferHandle, data: Vec<u8>) -> BufferHandle {
