@@ -1,9 +1,10 @@
 #!/bin/sh
-# The formatting check, clippy (warnings are errors), then every test of the workspace (README command 2, after scripts/install-deps.sh; CI runs it via
-# .ci/run). With cargo-nextest 0.9.91 or newer (on the CI machines) every test runs in its own
-# process, the tests of all binaries share the cores and the slowest start first
-# (.config/nextest.toml), so the accuracy matrix overlaps the rest; doctests then run with cargo
-# test. Without it: plain `cargo test`, one test binary after the other (the same tests,
+# The formatting check, clippy (warnings are errors), the API docs, then every test of the
+# workspace, then the release build with the CLI's tests against it (README command 2, after
+# scripts/install-deps.sh; CI runs it via .ci/run). With cargo-nextest 0.9.91 or newer (on the
+# CI machines) every test runs in its own process, the tests of all binaries share the cores and
+# the slowest start first (.config/nextest.toml), so the accuracy matrix overlaps the rest;
+# doctests then run with cargo test. Without it: plain `cargo test`, one test binary after the other (the same tests,
 # slower). PENUMBRA_PLAIN_CARGO_TEST=1 forces that.
 set -eu
 cd "$(dirname "$0")/.."
@@ -35,4 +36,15 @@ if [ -z "${PENUMBRA_PLAIN_CARGO_TEST:-}" ] && nextest_ok; then
     cargo test --workspace --doc
 else
     cargo test --workspace "$@"
+fi
+# The release build (what README command 1 runs and users ship) and the CLI's tests again
+# against it: exit codes, messages and hostile inputs where arithmetic wraps instead of
+# panicking. PENUMBRA_SKIP_RELEASE=1 skips this leg (a quicker local run).
+if [ -z "${PENUMBRA_SKIP_RELEASE:-}" ]; then
+    cargo build --release --bin penumbra --quiet
+    if [ -z "${PENUMBRA_PLAIN_CARGO_TEST:-}" ] && nextest_ok; then
+        PENUMBRA_BIN="$PWD/target/release/penumbra" cargo nextest run -p penumbra-tools --test cli --no-fail-fast
+    else
+        PENUMBRA_BIN="$PWD/target/release/penumbra" cargo test -p penumbra-tools --test cli
+    fi
 fi

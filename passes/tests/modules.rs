@@ -16,7 +16,17 @@ mod isg_vertex {
         for max_edge in [1e-10, 1e-30, f32::MIN_POSITIVE] {
             let r = refine(&p, &[0, 1, 2], 1.0, max_edge);
             assert!(r.indices.len() / 3 <= MAX_REFINED_TRIANGLES && r.indices.len() / 3 > 1, "{max_edge}");
+            // what was asked is reported beside what the budget allows (the technique's note)
+            let (asked, applied) = subdivision_levels(1, longest_edge(&p, &[0, 1, 2]), max_edge);
+            assert_eq!(applied, r.levels, "{max_edge}");
+            assert!(asked > applied && asked >= 34, "{max_edge}: asked {asked}");
         }
+        // within the budget nothing is cut; nothing is asked where no edge is too long
+        assert_eq!(subdivision_levels(1, 4.0, 1.0), (2, 2));
+        assert_eq!(subdivision_levels(1, 1.0, 2.0), (0, 0));
+        assert_eq!(subdivision_levels(1, f32::NAN, 1.0), (0, 0));
+        // an index outside the positions is skipped, not read
+        assert_eq!(longest_edge(&p, &[0, 1, 7, 0, 1, 2]), 2f32.sqrt());
     }
 
     #[test]

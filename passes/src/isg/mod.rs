@@ -669,6 +669,24 @@ impl IsgTechnique {
                 ));
             }
         }
+        if settings.per_vertex {
+            // what max_edge asks beyond the triangle budget is said, not silently dropped
+            for (i, o) in scene.objects.iter().enumerate() {
+                let Some(mesh) = scene.meshes.get(o.mesh) else { continue };
+                let longest = vertex::longest_edge(&mesh.positions, &mesh.indices)
+                    * vertex::largest_scale(&scene.world_at(i, 0.0));
+                let (asked, applied) = vertex::subdivision_levels(mesh.indices.len() / 3, longest, settings.max_edge);
+                if asked > applied {
+                    sphere_notes.push(format!(
+                        "'{}': subdivided {applied} times, not the {asked} times max_edge = {:e} asks (at most {} triangles per object): its longest edge stays {:.3e}",
+                        o.name,
+                        settings.max_edge,
+                        vertex::MAX_REFINED_TRIANGLES,
+                        longest / (1u64 << applied) as f32
+                    ));
+                }
+            }
+        }
         let settings_traces_lights =
             (settings.light_shadows && settings.light_mesh && !scene.lights.is_empty()) || settings.traced_visibility;
         Ok(IsgTechnique {

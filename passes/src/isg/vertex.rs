@@ -61,24 +61,8 @@ pub fn refine(positions: &[Vec3], indices: &[u32], scale: f32, max_edge: f32) ->
     if !(max_edge > 0.0 && max_edge.is_finite() && scale > 0.0 && scale.is_finite()) {
         return out;
     }
-    let longest = out
-        .indices
-        .chunks_exact(3)
-        .flat_map(|t| {
-            let [a, b, c] = [positions[t[0] as usize], positions[t[1] as usize], positions[t[2] as usize]];
-            [(a - b).length(), (b - c).length(), (c - a).length()]
-        })
-        .filter(|l| l.is_finite())
-        .fold(0.0f32, f32::max)
-        * scale;
-    if !(longest > max_edge) {
-        return out;
-    }
-    // at most 15 levels (4^15 triangles per triangle) before the budget below: no shift overflows
-    let mut levels = ((longest / max_edge).log2().ceil().max(0.0) as u32).min(15);
-    while levels > 0 && (out.indices.len() / 3) << (2 * levels) > MAX_REFINED_TRIANGLES {
-        levels -= 1;
-    }
+    let (_, levels) =
+        subdivision_levels(out.indices.len() / 3, longest_edge(positions, &out.indices) * scale, max_edge);
     let mut count = n as u32;
     for _ in 0..levels {
         let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
@@ -99,6 +83,41 @@ pub fn refine(positions: &[Vec3], indices: &[u32], scale: f32, max_edge: f32) ->
         out.levels += 1;
     }
     out
+}
+
+/// The largest scale factor of `w`'s axes (what subdivision measures edges with).
+pub fn largest_scale(w: &Mat4) -> f32 {
+    w.x_axis.truncate().length().max(w.y_axis.truncate().length()).max(w.z_axis.truncate().length())
+}
+
+/// The longest finite edge of the triangles `indices` (triangles with an index outside
+/// `positions` are skipped).
+pub fn longest_edge(positions: &[Vec3], indices: &[u32]) -> f32 {
+    indices
+        .chunks_exact(3)
+        .filter_map(|t| {
+            Some([*positions.get(t[0] as usize)?, *positions.get(t[1] as usize)?, *positions.get(t[2] as usize)?])
+        })
+        .flat_map(|[a, b, c]| [(a - b).length(), (b - c).length(), (c - a).length()])
+        .filter(|l| l.is_finite())
+        .fold(0.0f32, f32::max)
+}
+
+/// Midpoint-subdivision levels that bring a longest edge of `longest` (world units) to at most
+/// `max_edge`: `(asked, applied)`, where `applied` is what [`refine`] does for `triangles`
+/// triangles within [`MAX_REFINED_TRIANGLES`] (asked > applied: the budget stopped it short).
+pub fn subdivision_levels(triangles: usize, longest: f32, max_edge: f32) -> (u32, u32) {
+    if !(max_edge > 0.0 && max_edge.is_finite() && longest > max_edge && longest.is_finite()) {
+        return (0, 0);
+    }
+    // saturating float-to-int cast: 1e-10 asks for 34 levels, f32::MIN_POSITIVE for 127
+    let asked = (longest / max_edge).log2().ceil().max(0.0) as u32;
+    // at most 15 levels (4^15 triangles per triangle) before the budget: no shift overflows
+    let mut levels = asked.min(15);
+    while levels > 0 && triangles << (2 * levels) > MAX_REFINED_TRIANGLES {
+        levels -= 1;
+    }
+    (asked, levels)
 }
 
 impl Refined {
@@ -159,7 +178,7 @@ pub fn frame_receivers(
             continue;
         }
         let w: Mat4 = inst.world;
-        let scale = w.x_axis.truncate().length().max(w.y_axis.truncate().length()).max(w.z_axis.truncate().length());
+        let scale = largest_scale(&w);
         let refined =
             cache.entry(inst.object).or_insert_with(|| refine(&rest.positions, &rest.indices, scale, max_edge));
         if refined.base_vertices != mesh.positions.len() {
