@@ -24,7 +24,9 @@ use anyhow::Result;
 use glam::Mat4;
 use penumbra_engine::graph::compile::CompiledGraph;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Context, ContextDesc, Engine, FrameOutput, Graph, ImportedImage, SubmitSync};
+use penumbra_engine::{
+    vk, Access, Context, ContextDesc, Engine, FrameOutput, Graph, HostSignal, ImportedImage, SubmitSync,
+};
 use penumbra_passes::effect::{Effect, EffectOverrides};
 use penumbra_passes::env::EnvMapGpu;
 use penumbra_passes::scene_gpu::FrameConstants;
@@ -496,6 +498,38 @@ impl Renderer {
         readback: bool,
         sync: &SubmitSync,
     ) -> Result<Vec<FrameImages>, Error> {
+        Ok(self.run_frame(frame, target, readback, |engine, g| engine.submit_with(g, sync).map(|(c, d)| (c, d, ())))?.0)
+    }
+
+    /// Records the frame into the host's command buffer `cmd` instead of submitting it (the
+    /// host's frame loop or frame graph runs penumbra's passes in its own submission): `target`
+    /// enters and leaves in the states its [`ImportedImage`] declares, as when penumbra submits.
+    /// `cmd` must be begun, outside a render pass, for the context's queue family; pipeline,
+    /// descriptor and push-constant state bound before is not kept. The host submits `cmd` once,
+    /// signalling the returned [`HostFrame::signal`] in that same submission
+    /// ([`HostSignal::submit_info`]); penumbra never waits on the device for it, and the frame's
+    /// images come back from a later `render`/`record_into`/[`Renderer::finish`]. Needs the
+    /// `timelineSemaphore` feature ([`penumbra_engine::ExternalFeatures::timeline_semaphore`]).
+    pub fn record_into(
+        &mut self,
+        frame: &Frame,
+        target: Option<ImportedImage>,
+        readback: bool,
+        cmd: vk::CommandBuffer,
+    ) -> Result<HostFrame, Error> {
+        let (done, signal) = self.run_frame(frame, target, readback, |engine, g| engine.record_into(g, cmd))?;
+        Ok(HostFrame { signal, done })
+    }
+
+    /// Builds the frame's graph and hands it to `go` (submit, or record into the host's command
+    /// buffer); keeps the CPU spans for the frame's timeline.
+    fn run_frame<T>(
+        &mut self,
+        frame: &Frame,
+        target: Option<ImportedImage>,
+        readback: bool,
+        go: impl FnOnce(&mut Engine, Graph) -> anyhow::Result<(CompiledGraph, Vec<FrameOutput>, T)>,
+    ) -> Result<(Vec<FrameImages>, T), Error> {
         let tb = std::time::Instant::now();
         let g = self.build_graph(frame, target, readback)?;
         let mut spans =
@@ -504,7 +538,7 @@ impl Renderer {
             spans.push(penumbra_engine::CpuSpan { name: "technique", start: t, ms: self.technique_cpu_ms });
         }
         let frame_no = self.engine.next_frame();
-        let (compiled, done) = match self.engine.submit_with(g, sync) {
+        let (compiled, done, extra) = match go(&mut self.engine, g) {
             Ok(r) => r,
             Err(e) => {
                 // One-time uploads declared in the failed frame must be declared again.
@@ -514,7 +548,7 @@ impl Renderer {
         };
         self.last_graph = Some(compiled);
         self.pending_spans.insert(frame_no, spans);
-        Ok(self.decode_all(done))
+        Ok((self.decode_all(done), extra))
     }
 
     fn decode_all(&mut self, done: Vec<FrameOutput>) -> Vec<FrameImages> {
@@ -570,6 +604,15 @@ impl Renderer {
 }
 
 /// An imported image description for a tone-mapped target the application owns
+/// A frame recorded into a host's command buffer ([`Renderer::record_into`]).
+#[derive(Debug)]
+pub struct HostFrame {
+    /// What the host's submission of the command buffer must signal.
+    pub signal: HostSignal,
+    /// Frames that completed meanwhile (as [`Renderer::render`] returns them).
+    pub done: Vec<FrameImages>,
+}
+
 /// (`R8G8B8A8_UNORM`, usage STORAGE | TRANSFER_SRC), left ready for a transfer read.
 pub fn target_image(
     image: vk::Image,
@@ -591,8 +634,10 @@ pub fn target_image(
 
 impl Drop for Renderer {
     fn drop(&mut self) {
-        // Pipelines and scene buffers are destroyed by the fields' drops: the GPU must be done.
-        let _ = self.engine.ctx.wait_idle();
+        // Pipelines and scene buffers are destroyed by the fields' drops: the GPU must be done
+        // with every frame of this renderer (its own frames only: a host's device keeps running
+        // the host's work).
+        let _ = self.engine.drain();
     }
 }
 

@@ -155,6 +155,9 @@ pub struct ExternalFeatures {
     /// `pipelineStatisticsQuery` (vv counts its tessellated triangles with it; without it the
     /// count is not kept).
     pub pipeline_statistics_query: bool,
+    /// Vulkan 1.2 `timelineSemaphore` (recording into the host's command buffers,
+    /// `Engine::record_into` / `Renderer::record_into`, refuses without it).
+    pub timeline_semaphore: bool,
 }
 
 impl Default for ExternalFeatures {
@@ -166,6 +169,7 @@ impl Default for ExternalFeatures {
             shader_output_layer: false,
             tessellation_shader: false,
             pipeline_statistics_query: false,
+            timeline_semaphore: false,
         }
     }
 }
@@ -222,6 +226,7 @@ impl ExternalFeatures {
         );
         need(self.tessellation_shader, false, t(f10.tessellation_shader), "tessellationShader");
         need(self.pipeline_statistics_query, false, t(f10.pipeline_statistics_query), "pipelineStatisticsQuery");
+        need(self.timeline_semaphore, false, t(f12.timeline_semaphore), "timelineSemaphore");
         v
     }
 }
@@ -325,6 +330,8 @@ pub struct Context {
     pub tessellation_shader: bool,
     /// `pipelineStatisticsQuery` is enabled (vv's triangle count).
     pub pipeline_statistics_query: bool,
+    /// `timelineSemaphore` is enabled (frames recorded into a host's command buffers).
+    pub timeline_semaphore: bool,
     /// `maxImageDimension2D`: the largest side of a 2D image on this device.
     pub max_image_dimension_2d: u32,
     /// `maxStorageBufferRange`: the most bytes one storage-buffer binding may span.
@@ -478,9 +485,11 @@ impl Context {
         }
         let shader_output_layer =
             avail12.shader_output_layer == vk::TRUE && avail12.shader_output_viewport_index == vk::TRUE;
+        let timeline_semaphore = avail12.timeline_semaphore == vk::TRUE;
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
             .host_query_reset(true)
             .scalar_block_layout(true)
+            .timeline_semaphore(timeline_semaphore)
             .shader_output_layer(shader_output_layer)
             .shader_output_viewport_index(shader_output_layer);
         let mut f13 = vk::PhysicalDeviceVulkan13Features::default()
@@ -515,6 +524,7 @@ impl Context {
                 shader_output_layer,
                 tessellation_shader: avail.tessellation_shader == vk::TRUE,
                 pipeline_statistics_query: avail.pipeline_statistics_query == vk::TRUE,
+                timeline_semaphore,
                 ..Default::default()
             },
             desc.pipeline_cache_dir.clone(),
@@ -653,6 +663,7 @@ impl Context {
             shader_output_layer: features.shader_output_layer,
             tessellation_shader: features.tessellation_shader,
             pipeline_statistics_query: features.pipeline_statistics_query,
+            timeline_semaphore: features.timeline_semaphore,
             max_image_dimension_2d,
             max_storage_buffer_range,
             pipeline_cache,
@@ -897,7 +908,11 @@ impl Drop for Context {
             eprintln!("warning: the pipeline cache was not saved: {e:#}");
         }
         unsafe {
-            let _ = self.device.device_wait_idle();
+            // a host's device is the host's to wait on: every engine on this context waited for
+            // its own frames when it was dropped
+            if self.owned {
+                let _ = self.device.device_wait_idle();
+            }
             self.device.destroy_pipeline_cache(self.pipeline_cache, None);
             ManuallyDrop::drop(&mut self.allocator);
             if self.owned {

@@ -69,6 +69,11 @@ impl<'a> FrameStore<'a> {
         self.engine.persistent_buffer(graph, name, size)
     }
 
+    /// [`Engine::has_persistent_buffer`].
+    pub fn has_persistent_buffer(&self, name: &str, size: u64) -> bool {
+        self.engine.has_persistent_buffer(name, size)
+    }
+
     /// [`Engine::late_readback`].
     pub fn late_readback(&self, name: &str) -> Option<&LateReadback> {
         self.engine.late_readback(name)
@@ -144,6 +149,44 @@ struct InFlight {
     passes: Vec<String>,
     transients: Vec<(PoolKey, PoolItem)>,
     readbacks: Vec<(String, usize)>,
+    /// How the frame's completion is seen: the slot's fence (penumbra submitted it) or a value
+    /// of the engine's timeline semaphore (a host submitted the command buffer it was recorded
+    /// into, [`Engine::record_into`]).
+    done_at: Option<u64>,
+}
+
+/// What a host must signal when it submits a command buffer penumbra recorded into
+/// ([`Engine::record_into`]): `semaphore` (a timeline semaphore of the engine's) to `value`, in
+/// the same `vkQueueSubmit2` as the command buffer (a `VkSemaphoreSubmitInfo` with the stage
+/// mask `ALL_COMMANDS`), on a queue of the engine's queue family. penumbra learns from it that
+/// the frame is complete (readbacks, timings, resource reuse) and never waits on the device.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HostSignal {
+    pub semaphore: vk::Semaphore,
+    pub value: u64,
+}
+
+impl HostSignal {
+    /// The signal as a `VkSemaphoreSubmitInfo` for the host's `vkQueueSubmit2`.
+    pub fn submit_info(&self) -> vk::SemaphoreSubmitInfo<'static> {
+        vk::SemaphoreSubmitInfo::default()
+            .semaphore(self.semaphore)
+            .value(self.value)
+            .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
+    }
+}
+
+/// A frame recorded and ready to go on the GPU: what `submit_with` submits itself and
+/// `record_into` hands to the host.
+struct Recorded {
+    compiled: CompiledGraph,
+    slot: usize,
+    timeline: FrameTimeline,
+    pass_names: Vec<String>,
+    transients: Vec<(PoolKey, PoolItem)>,
+    readbacks: Vec<(String, usize)>,
+    /// Persistent resources' states after the frame: (name, state).
+    persistent_states: Vec<(String, ResourceState)>,
 }
 
 struct FrameSlot {
@@ -195,6 +238,9 @@ pub struct Engine {
     /// How long waiting for a frame may take before the GPU counts as hung (device lost).
     /// Default [`DEFAULT_FENCE_TIMEOUT`]: lavapipe takes over a minute for some frames.
     pub fence_timeout: std::time::Duration,
+    /// The timeline semaphore hosts signal for frames recorded into their command buffers
+    /// (`None` where the device has no `timelineSemaphore` enabled), and the last value given.
+    host_timeline: Option<(vk::Semaphore, u64)>,
 }
 
 /// The default [`Engine::fence_timeout`].
@@ -236,7 +282,17 @@ impl Engine {
             ctx.set_name(queries, &format!("frame_slot{i}.timestamps"));
             slots.push(FrameSlot { cmd_pool, cmd, fence, queries, query_capacity: MAX_QUERIES, in_flight: None });
         }
+        let host_timeline = if ctx.timeline_semaphore {
+            let mut ti = vk::SemaphoreTypeCreateInfo::default().semaphore_type(vk::SemaphoreType::TIMELINE);
+            let sem =
+                unsafe { ctx.device.create_semaphore(&vk::SemaphoreCreateInfo::default().push_next(&mut ti), None)? };
+            ctx.set_name(sem, "host_frames.timeline");
+            Some((sem, 0))
+        } else {
+            None
+        };
         Ok(Engine {
+            host_timeline,
             ctx,
             slots,
             next_slot: 0,
@@ -265,6 +321,13 @@ impl Engine {
         graph.persistent_image(name, desc, state)
     }
 
+    /// Whether a persistent buffer `name` of `size` bytes survives from earlier frames (a
+    /// declaration now would not be new), without declaring it.
+    pub fn has_persistent_buffer(&self, name: &str, size: u64) -> bool {
+        let d = ResourceDesc::Buffer(crate::graph::BufferDesc { size, host_visible: false });
+        self.persistent.get(name).is_some_and(|p| p.desc == d)
+    }
+
     /// Declares a persistent buffer in `graph`.
     pub fn persistent_buffer(&mut self, graph: &mut Graph, name: &str, size: u64) -> BufferHandle {
         let d = ResourceDesc::Buffer(crate::graph::BufferDesc { size, host_visible: false });
@@ -278,7 +341,7 @@ impl Engine {
             Some(_) => {
                 // Described differently now: drop it once the GPU is done with it.
                 if let Some(p) = self.persistent.remove(name) {
-                    let _ = self.ctx.wait_idle();
+                    self.wait_in_flight();
                     self.destroy_item(p.item);
                 }
                 None
@@ -365,21 +428,35 @@ impl Engine {
         let s = &self.slots[slot];
         let timeout_ns = u64::try_from(self.fence_timeout.as_nanos()).unwrap_or(u64::MAX);
         let wait_start = Instant::now();
-        match unsafe { d.wait_for_fences(&[s.fence], true, timeout_ns) } {
+        let waited = match (f.done_at, self.host_timeline) {
+            (Some(value), Some((sem, _))) => unsafe {
+                let (sems, values) = ([sem], [value]);
+                d.wait_semaphores(&vk::SemaphoreWaitInfo::default().semaphores(&sems).values(&values), timeout_ns)
+            },
+            _ => unsafe { d.wait_for_fences(&[s.fence], true, timeout_ns) },
+        };
+        match waited {
             Ok(()) => {}
             Err(vk::Result::TIMEOUT) => {
                 let frame = f.frame;
                 self.slots[slot].in_flight = Some(f);
                 // A GPU that does not finish is as good as lost: the caller gets the device-lost
                 // kind (exit code 4 on the command line), not a wait that never returns.
+                let host = if self.slots[slot].in_flight.as_ref().is_some_and(|f| f.done_at.is_some()) {
+                    " (or the host never submitted the command buffer it was recorded into)"
+                } else {
+                    ""
+                };
                 return Err(anyhow::Error::new(vk::Result::ERROR_DEVICE_LOST).context(format!(
-                    "frame {frame} did not finish within {:.0} s (Engine::fence_timeout): the GPU hung",
+                    "frame {frame} did not finish within {:.0} s (Engine::fence_timeout): the GPU hung{host}",
                     self.fence_timeout.as_secs_f64()
                 )));
             }
             Err(e) => return Err(anyhow::Error::new(e).context(format!("waiting for frame {}", f.frame))),
         }
-        unsafe { d.reset_fences(&[s.fence])? };
+        if f.done_at.is_none() {
+            unsafe { d.reset_fences(&[s.fence])? };
+        }
         let mut out = FrameOutput { frame: f.frame, timeline: f.timeline, ..Default::default() };
         out.timeline.cpu_spans.push(CpuSpan {
             name: "fence wait",
@@ -563,9 +640,14 @@ impl Engine {
     pub fn poll(&mut self) -> Result<()> {
         for i in 0..self.slots.len() {
             let slot = (self.next_slot + i) % self.slots.len();
-            let Some(_) = &self.slots[slot].in_flight else { continue };
-            let done = unsafe { self.ctx.device.get_fence_status(self.slots[slot].fence) }
-                .map_err(|e| anyhow::Error::new(e).context("polling a frame's fence"))?;
+            let Some(f) = &self.slots[slot].in_flight else { continue };
+            let done = match (f.done_at, self.host_timeline) {
+                (Some(value), Some((sem, _))) => unsafe { self.ctx.device.get_semaphore_counter_value(sem) }
+                    .map(|v| v >= value)
+                    .map_err(|e| anyhow::Error::new(e).context("polling a host-submitted frame's semaphore"))?,
+                _ => unsafe { self.ctx.device.get_fence_status(self.slots[slot].fence) }
+                    .map_err(|e| anyhow::Error::new(e).context("polling a frame's fence"))?,
+            };
             if !done {
                 // frames finish in submission order: the later ones are not done either
                 break;
@@ -604,7 +686,68 @@ impl Engine {
 
     /// [`Engine::submit`] with semaphores to wait on and signal (a swapchain's acquire and
     /// render-finished semaphores).
-    pub fn submit_with(&mut self, mut graph: Graph, sync: &SubmitSync) -> Result<(CompiledGraph, Vec<FrameOutput>)> {
+    pub fn submit_with(&mut self, graph: Graph, sync: &SubmitSync) -> Result<(CompiledGraph, Vec<FrameOutput>)> {
+        let mut rec = self.record(graph, None)?;
+        let d = &self.ctx.device;
+        let s = &self.slots[rec.slot];
+        let done = std::mem::take(&mut self.pending);
+        let cmd_infos = [vk::CommandBufferSubmitInfo::default().command_buffer(s.cmd)];
+        let sem = |&(semaphore, stage): &(vk::Semaphore, vk::PipelineStageFlags2)| {
+            vk::SemaphoreSubmitInfo::default().semaphore(semaphore).stage_mask(stage)
+        };
+        let waits: Vec<_> = sync.wait.iter().map(sem).collect();
+        let signals: Vec<_> = sync.signal.iter().map(sem).collect();
+        let submit = [vk::SubmitInfo2::default()
+            .command_buffer_infos(&cmd_infos)
+            .wait_semaphore_infos(&waits)
+            .signal_semaphore_infos(&signals)];
+        let ts_submit = Instant::now();
+        if let Err(e) = unsafe { d.queue_submit2(self.ctx.queue, &submit, s.fence) } {
+            self.give_back(std::mem::take(&mut rec.transients));
+            return Err(anyhow::Error::new(e).context("vkQueueSubmit2"));
+        }
+        rec.timeline.cpu_spans.push(CpuSpan {
+            name: "queue submit",
+            start: ts_submit,
+            ms: ts_submit.elapsed().as_secs_f64() * 1e3,
+        });
+        rec.timeline.submitted = Some(ts_submit);
+        Ok((self.commit(rec, None), done))
+    }
+
+    /// Records `graph` into the host's command buffer `cmd` (begun, outside a render pass, on
+    /// the engine's queue family) instead of submitting it: the host's frame graph runs
+    /// penumbra's passes inside its own submission. Imported resources enter and leave in the
+    /// states their [`crate::graph::External`] declarations give, as in a frame penumbra
+    /// submits; pipeline, descriptor and push-constant state the host bound before is not kept
+    /// (bind again after). The host must submit `cmd` once, signalling the returned
+    /// [`HostSignal`] in the same submission; the frame's outputs then come back from a later
+    /// `submit`/`record_into`/`poll`+`drain` as for any frame. Returns the compiled graph, the
+    /// outputs of frames that completed meanwhile, and the signal. Needs `timelineSemaphore`
+    /// ([`crate::context::ExternalFeatures::timeline_semaphore`]).
+    pub fn record_into(
+        &mut self,
+        graph: Graph,
+        cmd: vk::CommandBuffer,
+    ) -> Result<(CompiledGraph, Vec<FrameOutput>, HostSignal)> {
+        let Some((semaphore, last)) = self.host_timeline else {
+            bail!(
+                "recording into a host's command buffer needs the Vulkan 1.2 feature timelineSemaphore \
+                 enabled on the device (ExternalFeatures::timeline_semaphore)"
+            );
+        };
+        let rec = self.record(graph, Some(cmd))?;
+        let done = std::mem::take(&mut self.pending);
+        let value = last + 1;
+        self.host_timeline = Some((semaphore, value));
+        Ok((self.commit(rec, Some(value)), done, HostSignal { semaphore, value }))
+    }
+
+    /// Compiles `graph`, waits for the next slot's previous frame, resolves the resources and
+    /// records every live pass: into the slot's own command buffer (`host_cmd` none; begun and
+    /// ended here) or into the host's. On a graph or recording error nothing is left to submit
+    /// and every problem is reported together.
+    fn record(&mut self, mut graph: Graph, host_cmd: Option<vk::CommandBuffer>) -> Result<Recorded> {
         let t0 = Instant::now();
         self.evict_unused();
         let compiled = graph.compile()?;
@@ -650,13 +793,15 @@ impl Engine {
         }
         let d = &self.ctx.device;
         let s = &self.slots[slot];
-        let cmd = s.cmd;
-        unsafe {
-            d.reset_command_pool(s.cmd_pool, vk::CommandPoolResetFlags::empty())?;
-            d.begin_command_buffer(
-                cmd,
-                &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
-            )?;
+        let cmd = host_cmd.unwrap_or(s.cmd);
+        if host_cmd.is_none() {
+            unsafe {
+                d.reset_command_pool(s.cmd_pool, vk::CommandPoolResetFlags::empty())?;
+                d.begin_command_buffer(
+                    cmd,
+                    &vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
+                )?;
+            }
         }
         let timestamps = self.timestamps && needed <= s.query_capacity;
         if timestamps {
@@ -696,51 +841,79 @@ impl Engine {
             pass_names.push(cp.name.clone());
         }
         emit_barriers(d, cmd, &compiled.final_barriers, &images, &buffers);
-        unsafe { d.end_command_buffer(cmd)? };
+        if host_cmd.is_none() {
+            if let Err(e) = unsafe { d.end_command_buffer(cmd) } {
+                self.give_back(transients);
+                return Err(anyhow::Error::new(e).context("vkEndCommandBuffer"));
+            }
+        }
         self.profiler.add_cpu("record", t1.elapsed().as_secs_f64() * 1e3);
         timeline.cpu_spans.push(CpuSpan { name: "record", start: t1, ms: t1.elapsed().as_secs_f64() * 1e3 });
         if !errors.is_empty() {
             self.give_back(transients);
-            bail!("recording failed, frame not submitted; {} error(s):\n  - {}", errors.len(), errors.join("\n  - "));
+            let host =
+                if host_cmd.is_some() { " (the host's command buffer holds a partial frame: reset it)" } else { "" };
+            bail!(
+                "recording failed, frame not submitted{host}; {} error(s):\n  - {}",
+                errors.len(),
+                errors.join("\n  - ")
+            );
         }
+        let persistent_states = graph
+            .resources
+            .iter()
+            .zip(compiled.resources.iter())
+            .filter(|(res, info)| matches!(res.origin, Origin::Persistent { .. }) && info.first_pass.is_some())
+            .map(|(res, info)| (res.name.clone(), info.final_state.clone()))
+            .collect();
+        Ok(Recorded {
+            compiled,
+            slot,
+            timeline,
+            pass_names: if timestamps { pass_names } else { Vec::new() },
+            transients,
+            readbacks,
+            persistent_states,
+        })
+    }
 
-        // ---- submit
-        let done = std::mem::take(&mut self.pending);
-        let cmd_infos = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
-        let sem = |&(semaphore, stage): &(vk::Semaphore, vk::PipelineStageFlags2)| {
-            vk::SemaphoreSubmitInfo::default().semaphore(semaphore).stage_mask(stage)
-        };
-        let waits: Vec<_> = sync.wait.iter().map(sem).collect();
-        let signals: Vec<_> = sync.signal.iter().map(sem).collect();
-        let submit = [vk::SubmitInfo2::default()
-            .command_buffer_infos(&cmd_infos)
-            .wait_semaphore_infos(&waits)
-            .signal_semaphore_infos(&signals)];
-        let ts_submit = Instant::now();
-        unsafe { d.queue_submit2(self.ctx.queue, &submit, s.fence).context("vkQueueSubmit2")? };
-        timeline.cpu_spans.push(CpuSpan {
-            name: "queue submit",
-            start: ts_submit,
-            ms: ts_submit.elapsed().as_secs_f64() * 1e3,
+    /// Makes a recorded frame the slot's frame in flight (submitted, or handed to the host to
+    /// signal `done_at`): persistent resources take their final states, the frame number and
+    /// slot advance.
+    fn commit(&mut self, rec: Recorded, done_at: Option<u64>) -> CompiledGraph {
+        for (name, state) in rec.persistent_states {
+            if let Some(p) = self.persistent.get_mut(&name) {
+                p.state = state;
+            }
+        }
+        self.slots[rec.slot].in_flight = Some(InFlight {
+            frame: self.frame,
+            timeline: rec.timeline,
+            passes: rec.pass_names,
+            transients: rec.transients,
+            readbacks: rec.readbacks,
+            done_at,
         });
-        timeline.submitted = Some(ts_submit);
-        for (res, info) in graph.resources.iter().zip(compiled.resources.iter()) {
-            if matches!(res.origin, Origin::Persistent { .. }) && info.first_pass.is_some() {
-                if let Some(p) = self.persistent.get_mut(&res.name) {
-                    p.state = info.final_state.clone();
+        self.frame += 1;
+        self.next_slot = (rec.slot + 1) % self.slots.len();
+        rec.compiled
+    }
+
+    /// Waits for every frame in flight, keeping their outputs for the next `submit`/`drain`. A
+    /// frame that does not finish (a hung GPU, a host that never submitted) falls back to
+    /// waiting for the whole device (within the driver's own limits).
+    fn wait_in_flight(&mut self) {
+        for i in 0..self.slots.len() {
+            let slot = (self.next_slot + i) % self.slots.len();
+            match self.retire(slot) {
+                Ok(Some(o)) => self.pending.push(o),
+                Ok(None) => {}
+                Err(_) => {
+                    let _ = self.ctx.wait_idle();
+                    return;
                 }
             }
         }
-        self.slots[slot].in_flight = Some(InFlight {
-            frame: self.frame,
-            timeline,
-            passes: if timestamps { pass_names } else { Vec::new() },
-            transients,
-            readbacks,
-        });
-        self.frame += 1;
-        self.next_slot = (slot + 1) % self.slots.len();
-        Ok((compiled, done))
     }
 
     /// Waits for every frame in flight and returns their outputs in submission order.
@@ -831,7 +1004,8 @@ fn emit_barriers(
 
 impl Drop for Engine {
     fn drop(&mut self) {
-        let _ = self.ctx.wait_idle();
+        // penumbra's own frames, not the whole device (a host's device runs the host's work too)
+        self.wait_in_flight();
         for i in 0..self.slots.len() {
             if let Some(f) = self.slots[i].in_flight.take() {
                 self.give_back(f.transients);
@@ -850,6 +1024,9 @@ impl Drop for Engine {
                 d.destroy_fence(s.fence, None);
                 d.destroy_command_pool(s.cmd_pool, None);
             }
+        }
+        if let Some((sem, _)) = self.host_timeline {
+            unsafe { d.destroy_semaphore(sem, None) };
         }
     }
 }

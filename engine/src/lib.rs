@@ -18,7 +18,7 @@ pub use ash;
 pub use ash::vk;
 pub use context::{Context, ContextDesc, ExternalFeatures, GpuBuffer, GpuImage, ValidationLog};
 pub use exec::{
-    Bind, CpuSpan, Engine, FrameOutput, FrameStore, FrameTimeline, GpuInterval, LateReadback, PhysBuffer, PhysImage,
-    RecordContext, SubmitSync, DEFAULT_FENCE_TIMEOUT, POOL_KEEP_FRAMES,
+    Bind, CpuSpan, Engine, FrameOutput, FrameStore, FrameTimeline, GpuInterval, HostSignal, LateReadback, PhysBuffer,
+    PhysImage, RecordContext, SubmitSync, DEFAULT_FENCE_TIMEOUT, POOL_KEEP_FRAMES,
 };
 pub use graph::{Access, BufferHandle, Graph, ImageDesc, ImageHandle, ImportedImage, PassKind};

@@ -306,18 +306,22 @@ impl KdTreeBuilder {
         (tris, max_nodes, refs, max_nodes as u32)
     }
 
-    fn persistent(&self, engine: &mut FrameStore<'_>, graph: &mut Graph, n: u32) -> (KdTreeHandles, u64) {
+    /// The tree's persistent buffers for `n` triangles: (name, bytes) in binding order.
+    fn persistent_buffers(&self, n: u32) -> [(&'static str, u64); 4] {
         let (tri_bytes, max_nodes, refs, _) = self.sizes(n);
-        let h = KdTreeHandles {
-            tris: engine.persistent_buffer(graph, "kdtree.tris", tri_bytes),
-            nodes: engine.persistent_buffer(graph, "kdtree.nodes", max_nodes * 16),
-            refs: engine.persistent_buffer(graph, "kdtree.refs", refs * 4),
-            header: engine.persistent_buffer(graph, "kdtree.header", HEADER_WORDS * 4),
-            triangles: n,
-            extent: 1.0,
-            built_this_frame: false,
-        };
-        (h, tri_bytes + max_nodes * 16 + refs * 4 + HEADER_WORDS * 4)
+        [
+            ("kdtree.tris", tri_bytes),
+            ("kdtree.nodes", max_nodes * 16),
+            ("kdtree.refs", refs * 4),
+            ("kdtree.header", HEADER_WORDS * 4),
+        ]
+    }
+
+    fn persistent(&self, engine: &mut FrameStore<'_>, graph: &mut Graph, n: u32) -> (KdTreeHandles, u64) {
+        let b = self.persistent_buffers(n);
+        let [tris, nodes, refs, header] = b.map(|(name, size)| engine.persistent_buffer(graph, name, size));
+        let h = KdTreeHandles { tris, nodes, refs, header, triangles: n, extent: 1.0, built_this_frame: false };
+        (h, b.iter().map(|(_, size)| size).sum())
     }
 
     /// The tree of `tris`; built in this graph when `rebuild` or when the persistent buffers are
@@ -398,12 +402,16 @@ impl KdTreeBuilder {
         })
     }
 
-    /// The kept tree's handles when one was built and its buffers survived (no rebuild).
+    /// The kept tree's handles when one was built and its buffers survived (no rebuild). When
+    /// they did not (first use, or a frame that built the tree was never submitted), nothing is
+    /// declared in `graph`: the caller builds the tree there.
     pub fn add_kept(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph) -> Option<KdTreeHandles> {
         let n = self.built?;
+        if !self.persistent_buffers(n).iter().all(|(name, size)| engine.has_persistent_buffer(name, *size)) {
+            return None;
+        }
         let (probe, _) = self.persistent(engine, graph, n);
-        let fresh = [probe.tris, probe.nodes, probe.refs, probe.header].iter().any(|b| graph.persistent_is_new(*b));
-        (!fresh).then_some(KdTreeHandles { extent: self.extent, ..probe })
+        Some(KdTreeHandles { extent: self.extent, ..probe })
     }
 
     fn build_into(
