@@ -636,8 +636,11 @@ impl Drop for Renderer {
     fn drop(&mut self) {
         // Pipelines and scene buffers are destroyed by the fields' drops: the GPU must be done
         // with every frame of this renderer (its own frames only: a host's device keeps running
-        // the host's work).
-        let _ = self.engine.drain();
+        // the host's work); a frame that does not finish within the engine's timeout (a hung
+        // GPU, a host that never submitted) leaves only the device-wide wait
+        if self.engine.drain().is_err() {
+            let _ = self.engine.ctx.wait_idle();
+        }
     }
 }
 
