@@ -26,6 +26,7 @@ mod isg_bench;
 mod matrix;
 mod pareto;
 mod plot;
+mod renderdoc_capture;
 mod soak;
 mod spheres;
 mod tune;
@@ -178,6 +179,11 @@ struct RenderArgs {
     /// passes' GPU intervals, on their own tracks.
     #[arg(long, value_name = "FILE.json")]
     trace: Option<PathBuf>,
+    /// Capture frame N (0-based) with RenderDoc's in-application API and print the capture's
+    /// path. penumbra must run under RenderDoc (`renderdoccmd capture -w penumbra render ...
+    /// --renderdoc-capture N`, or launched from qrenderdoc); without it: exit 2, saying so.
+    #[arg(long, value_name = "N")]
+    renderdoc_capture: Option<u32>,
     #[command(flatten)]
     o: SceneOverrides,
 }
@@ -363,6 +369,8 @@ fn render(args: &RenderArgs, limits: &Limits) -> Result<()> {
     if !(args.fps.is_finite() && args.fps > 0.0) {
         return Err(bad("--fps must be a positive number"));
     }
+    let mut capture =
+        args.renderdoc_capture.map(|n| renderdoc_capture::FrameCapture::new(n, args.frames)).transpose()?;
     let scene = load_scene(args.scene.as_deref(), limits)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let settings = RenderSettings {
@@ -416,7 +424,11 @@ fn render(args: &RenderArgs, limits: &Limits) -> Result<()> {
         let t = k as f32 / args.fps;
         let frame = scene.at(t, prev_t);
         prev_t = Some(t);
-        for img in r.render(&frame, None, true)? {
+        let done = match capture.as_mut() {
+            Some(c) => c.around(k, || Ok(r.render(&frame, None, true)?))?,
+            None => r.render(&frame, None, true)?,
+        };
+        for img in done {
             write_frame(&args.out, img.frame as u32, &img)?;
             timelines.push((img.frame, img.timeline.clone()));
             last = Some(img);

@@ -237,6 +237,15 @@ fn hostile_sizes_exit_2_before_allocating() {
         &["too large", "budget of 1.0 MiB"],
     );
     expect_bad_input(&["render", "--size", "20000x10", "--out", out.to_str().unwrap()], &["20000x10"]);
+    // a RenderDoc capture asked of a process RenderDoc is not loaded in, or past the last frame
+    expect_bad_input(
+        &["render", "--size", "8x6", "--renderdoc-capture", "0", "--out", out.to_str().unwrap()],
+        &["RenderDoc is not loaded", "renderdoccmd capture"],
+    );
+    expect_bad_input(
+        &["render", "--size", "8x6", "--frames", "2", "--renderdoc-capture", "2", "--out", out.to_str().unwrap()],
+        &["--renderdoc-capture 2 is past the last frame (1"],
+    );
     expect_bad_input(
         &["reference", "--spp", "1", "--size", "8x6", "--out", d.join("r.exr").to_str().unwrap()],
         &["spp"],
