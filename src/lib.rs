@@ -199,6 +199,9 @@ pub struct Renderer {
     /// The scene as loaded (effects read its medium, lights, ...).
     scene: Scene,
     tonemap: TonemapPass,
+    hud: penumbra_passes::hud::HudPass,
+    /// Drawn over the tone-mapped image of every frame while set ([`Renderer::set_overlay`]).
+    overlay: Option<penumbra_passes::hud::Overlay>,
     scene_gpu: SceneGpu,
     env: EnvMapGpu,
     pub engine: Engine,
@@ -301,6 +304,8 @@ impl Renderer {
             effects,
             scene: scene.clone(),
             tonemap: TonemapPass::new(&ctx, shaders)?,
+            hud: penumbra_passes::hud::HudPass::new(&ctx, shaders)?,
+            overlay: None,
             scene_gpu: SceneGpu::new(&ctx, scene)?,
             env,
             env_note,
@@ -381,6 +386,12 @@ impl Renderer {
         self.env.repaired_texels
     }
 
+    /// Sets (or clears) an overlay drawn over the tone-mapped image of the frames built from
+    /// now on (a heads-up display: `penumbra view`'s H key); the HDR image is not touched.
+    pub fn set_overlay(&mut self, overlay: Option<penumbra_passes::hud::Overlay>) {
+        self.overlay = overlay;
+    }
+
     /// Builds the frame graph (first the technique's `prepare`, the one step that may wait on the
     /// GPU: avs's adaptation rounds). With `target`, tone-mapped output goes into that imported image
     /// (written as a storage image when it is `R8G8B8A8_UNORM` with STORAGE usage, else blitted
@@ -442,7 +453,10 @@ impl Renderer {
             t.desc.format == penumbra_passes::tonemap::LDR_FORMAT && t.usage.contains(vk::ImageUsageFlags::STORAGE)
         });
         let target = target.map(|t| g.import_image("target", t));
-        let ldr = self.tonemap.add(&mut g, hdr, target.filter(|_| direct), self.settings.tonemap);
+        let mut ldr = self.tonemap.add(&mut g, hdr, target.filter(|_| direct), self.settings.tonemap);
+        if let Some(o) = &self.overlay {
+            ldr = self.hud.add(&mut g, ldr, o);
+        }
         let mut blitted = None;
         if let (Some(t), false) = (target, direct) {
             blitted = Some(penumbra_passes::blit::add(&mut g, "blit_target", ldr, t));

@@ -8,6 +8,7 @@ pub mod effect;
 pub mod env;
 pub mod gbuffer;
 pub mod hsdt;
+pub mod hud;
 pub mod isg;
 pub mod kdtree;
 pub mod kernels;

@@ -696,3 +696,29 @@ mod isg_spheres {
         assert!(near_pillar > 0 && near_cube > 0, "{near_pillar} {near_cube}");
     }
 }
+
+mod hud {
+    use penumbra_passes::hud::Overlay;
+
+    #[test]
+    fn text_is_drawn_in_the_8x8_font_on_a_box() {
+        // 'I' of the font: rows 0x1E, 0x0C x5, 0x1E, 0 (bit x = column x)
+        let o = Overlay::text(&["I".to_string()], 1);
+        assert_eq!((o.width, o.height), (8 + 4, 9 + 4));
+        assert_eq!(o.texels.len(), (o.width * o.height) as usize);
+        let (pad, ink) = (2, |x, y| o.ink_at(x, y));
+        assert!((1..=4).all(|x| ink(pad + x, pad)) && !ink(pad, pad) && !ink(pad + 5, pad));
+        assert!(ink(pad + 2, pad + 3) && ink(pad + 3, pad + 3) && !ink(pad + 1, pad + 3));
+        assert!(!ink(pad + 2, pad + 7), "the glyph's last row is empty");
+        // the box behind: translucent black, never transparent
+        assert!(o.texels.iter().all(|&t| t >> 24 > 0));
+        // twice the scale: every ink texel a 2x2 block, the box grows with it
+        let big = Overlay::text(&["I".to_string(), "II".to_string()], 2);
+        assert_eq!((big.width, big.height), (2 * 16 + 8, 2 * 18 + 8));
+        assert!(big.ink_at(4 + 2, 4) && big.ink_at(4 + 3, 5) && !big.ink_at(4 + 1, 4));
+        // outside ASCII: a question mark, not a blank or a panic
+        let q = Overlay::text(&["é".to_string()], 1);
+        assert_eq!(q.texels, Overlay::text(&["?".to_string()], 1).texels);
+        assert_eq!(Overlay::text(&[], 1).texels.len(), 16);
+    }
+}

@@ -10,9 +10,13 @@
 //! `Present` access declares), and present. No barrier is written here: the graph derives them.
 //!
 //! Keys: Esc/Q quit, Space pause/resume, Left/Right step one frame while paused, T next
-//! technique, R reload shaders (recompile `glsl/` from source; on errors every failing file is
-//! printed and the running pipelines stay), P screenshot (PNG of the presented image), G write
-//! the frame graph dumps.
+//! technique, C next parameter preset of the technique (its defaults, then each speed/accuracy
+//! knob value the registry declares, as `bench pareto` sweeps them), H heads-up overlay on/off
+//! (technique and parameters, frame and GPU ms, the slowest passes, and the configuration's
+//! measured error when the scene's `fronts/<scene>.pareto.json` or `--pareto` has it), R reload
+//! shaders (recompile `glsl/` from source; on errors every failing file is printed and the
+//! running pipelines stay), P screenshot (PNG of the presented image), G write the frame graph
+//! dumps.
 
 use crate::{apply_max_error, apply_overrides, bad, load_scene, new_renderer, report_validation};
 use anyhow::{anyhow, bail, Context as _, Result};
@@ -60,12 +64,12 @@ pub struct ViewArgs {
     #[command(flatten)]
     o: crate::SceneOverrides,
     /// Scripted key presses before given frames, e.g. `2:t,4:r,5:p` (keys: q, space, left,
-    /// right, t, r, p, g), for demos and tests.
+    /// right, t, c, h, r, p, g), for demos and tests.
     #[arg(long, default_value = "")]
     keys: String,
 }
 
-const KEYS: [&str; 8] = ["q", "space", "left", "right", "t", "r", "p", "g"];
+const KEYS: [&str; 10] = ["q", "space", "left", "right", "t", "c", "h", "r", "p", "g"];
 
 /// Parses `FRAME:KEY,...`.
 fn parse_keys(s: &str) -> Result<Vec<(u32, String)>, String> {
@@ -132,6 +136,13 @@ pub fn view(args: &ViewArgs, limits: &penumbra_scene::Limits) -> Result<()> {
         shaders: None,
         t_cursor: None,
         script,
+        hud: false,
+        hud_announce: false,
+        preset: 0,
+        last_draw: None,
+        frame_ms: 0.0,
+        slowest: Vec::new(),
+        fronts: load_fronts(args.scene.as_deref(), args.o.pareto.as_deref()),
     };
     event_loop.run_app(&mut app).context("window event loop")?;
     let validation = app.validation.clone();
@@ -171,6 +182,30 @@ struct Viewer<'a> {
     t_cursor: Option<String>,
     /// Shaders recompiled by R (the embedded ones until then).
     shaders: Option<penumbra::engine::shader::ShaderLibrary>,
+    /// The heads-up overlay is shown (H).
+    hud: bool,
+    /// Print the overlay's lines with the next frame (it was just turned on, or its
+    /// configuration changed): scripts and tests read what a person sees.
+    hud_announce: bool,
+    /// The preset C chose last (index into the technique's configurations).
+    preset: usize,
+    last_draw: Option<std::time::Instant>,
+    /// Wall-clock milliseconds between the last two frames drawn.
+    frame_ms: f64,
+    /// The last finished frame's passes, slowest first (GPU ms).
+    slowest: Vec<(String, f64)>,
+    /// Measured points for this scene (its `fronts/<scene>.pareto.json`, or `--pareto`).
+    fronts: Vec<crate::pareto::Front>,
+}
+
+/// The measured fronts the overlay looks errors up in: `--pareto FILE`, else the scene file's
+/// `fronts/<stem>.pareto.json` beside it (the built-in paper scenes have one); none when absent.
+fn load_fronts(scene: Option<&Path>, pareto: Option<&Path>) -> Vec<crate::pareto::Front> {
+    let path = pareto.map(Path::to_path_buf).or_else(|| {
+        let s = scene?;
+        Some(s.parent()?.join("fronts").join(format!("{}.pareto.json", s.file_stem()?.to_string_lossy())))
+    });
+    path.filter(|p| p.exists()).and_then(|p| crate::pareto::read_fronts(&p).ok()).unwrap_or_default()
 }
 
 impl ApplicationHandler for Viewer<'_> {
@@ -182,7 +217,7 @@ impl ApplicationHandler for Viewer<'_> {
             Ok(s) => {
                 self.validation = Some(s.ctx.validation.clone());
                 println!(
-                    "penumbra view: scene '{}' with '{}' on {} ({:?} swapchain); Esc quits, Space pauses, T next technique, P screenshot, G graph dump",
+                    "penumbra view: scene '{}' with '{}' on {} ({:?} swapchain); Esc quits, Space pauses, T next technique, C next preset, H overlay, P screenshot, G graph dump",
                     self.scene.name,
                     self.technique(),
                     s.ctx.device_name,
@@ -240,6 +275,11 @@ impl Viewer<'_> {
             "right" => self.step += 1,
             "left" => self.step -= 1,
             "t" => self.next_technique()?,
+            "c" => self.next_preset()?,
+            "h" => {
+                self.hud = !self.hud;
+                self.hud_announce = self.hud;
+            }
             "r" => self.reload_shaders()?,
             "p" => {
                 self.shots += 1;
@@ -298,6 +338,8 @@ impl Viewer<'_> {
         let scene = self.scene.clone();
         let mut settings = self.settings.clone();
         settings.technique = Some(next.to_string());
+        // a preset (C) belongs to the technique it was chosen for
+        settings.technique_params = None;
         let lib = self.shaders.clone().unwrap_or_else(penumbra::shader_library);
         // The old renderer keeps running if the new technique cannot be created (e.g. it needs
         // parameters the scene does not give).
@@ -309,10 +351,70 @@ impl Viewer<'_> {
                 }
                 s.renderer = Some(r);
                 self.settings = settings;
+                self.preset = 0;
             }
             Err(e) => eprintln!("technique {next}: {e:#} (still showing {})", self.technique()),
         }
         Ok(())
+    }
+
+    /// The technique running and its parameters (as the renderer resolved them: `auto`'s
+    /// choice, the settings' or the scene's parameters).
+    fn running(&self) -> (String, penumbra_passes::registry::Params) {
+        let layered = self.state.as_ref().is_some_and(|s| s.ctx.shader_output_layer);
+        penumbra::resolve_technique_why(&self.scene, &self.settings, layered)
+            .map(|(n, p, _)| (n, p))
+            .unwrap_or_else(|_| (self.technique(), Default::default()))
+    }
+
+    /// Recreates the renderer with the running technique's next preset: its defaults, then each
+    /// knob value of the registry alone (what `bench pareto` measures), so a person sees the
+    /// trade live.
+    fn next_preset(&mut self) -> Result<()> {
+        let (name, _) = self.running();
+        let Some(info) = penumbra_passes::registry::info(&name) else { return Ok(()) };
+        let presets = crate::pareto::configurations(info);
+        self.preset = (self.preset + 1) % presets.len();
+        let params = presets[self.preset].clone();
+        let Some(s) = &mut self.state else { return Ok(()) };
+        let mut settings = self.settings.clone();
+        settings.technique = Some(name.clone());
+        settings.technique_params = Some(params.clone());
+        let lib = self.shaders.clone().unwrap_or_else(penumbra::shader_library);
+        match penumbra::Renderer::new_with_shaders(s.ctx.clone(), &self.scene, settings.clone(), &lib) {
+            Ok(r) => {
+                println!("preset {}/{}: {name} {}", self.preset + 1, presets.len(), crate::pareto::label(&params));
+                s.renderer = Some(r);
+                self.settings = settings;
+                self.hud_announce = self.hud;
+            }
+            Err(e) => eprintln!("preset {}: {e:#} (still showing the previous one)", crate::pareto::label(&params)),
+        }
+        Ok(())
+    }
+
+    /// The overlay's lines for the frame at scene time `t`.
+    fn hud_lines(&self, t: f32) -> Vec<String> {
+        let (name, params) = self.running();
+        let mut v = vec![
+            format!("{} t={t:.2}s{}", self.scene.name, if self.paused { " (paused)" } else { "" }),
+            format!("{name} {}", crate::pareto::label(&params)),
+            format!("frame {:.1} ms  GPU {:.1} ms", self.frame_ms, self.gpu_ms),
+        ];
+        for (pass, ms) in self.slowest.iter().take(3) {
+            v.push(format!("  {pass} {ms:.2} ms"));
+        }
+        let measured = crate::matrix::measured_params(&name, params);
+        let hit = self
+            .fronts
+            .iter()
+            .find_map(|f| f.points.iter().find(|p| p.technique == name && p.params == measured).map(|p| (f, p)));
+        v.push(match hit {
+            Some((f, p)) => format!("error {:.3} RMSE/mean at {}x{}", p.rmse_rel_mean, f.size[0], f.size[1]),
+            None => "error: not measured (bench pareto)".to_string(),
+        });
+        v.push("H overlay  C preset  T technique".to_string());
+        v
     }
 
     fn dump_graph(&mut self) -> Result<()> {
@@ -344,7 +446,22 @@ impl Viewer<'_> {
         let t = k as f32 / self.args.fps;
         let frame = self.scene.at(t, self.prev_t);
         let want_shot = if last { self.args.screenshot.clone() } else { self.screenshot_next.take() };
+        let now = std::time::Instant::now();
+        if let Some(prev) = self.last_draw.replace(now) {
+            self.frame_ms = (now - prev).as_secs_f64() * 1e3;
+        }
+        let overlay = self.hud.then(|| {
+            let lines = self.hud_lines(t);
+            if std::mem::take(&mut self.hud_announce) {
+                println!("overlay:\n  {}", lines.join("\n  "));
+            }
+            let scale = if self.settings.height >= 400 { 2 } else { 1 };
+            penumbra_passes::hud::Overlay::text(&lines, scale)
+        });
         let Some(s) = &mut self.state else { return Ok(()) };
+        if let Some(r) = s.renderer.as_mut() {
+            r.set_overlay(overlay);
+        }
         let Some(done) = s.draw(&frame, want_shot.is_some())? else {
             // Out of date or minimized: nothing was submitted; retry with the next event.
             if !last {
@@ -359,6 +476,8 @@ impl Viewer<'_> {
         }
         for img in &done {
             self.gpu_ms = img.gpu_ms.iter().map(|(_, ms)| ms).sum();
+            self.slowest = img.gpu_ms.clone();
+            self.slowest.sort_by(|a, b| b.1.total_cmp(&a.1));
         }
         if let Some(path) = &want_shot {
             s.pending_shots.push((shot_frame, path.clone()));

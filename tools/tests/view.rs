@@ -165,6 +165,63 @@ fn scripted_keys_switch_technique_reload_shaders_and_dump() {
     assert!(text(&o).contains("unknown key 'x'"), "{}", text(&o));
 }
 
+/// H shows the heads-up overlay over the presented image (the rest of the image is what
+/// `render` writes, texel for texel), C cycles the technique's parameter presets, and the
+/// overlay gives the configuration's error from the scene's measured front.
+#[test]
+fn overlay_shows_the_configuration_and_presets_cycle() {
+    let x = Xvfb::start();
+    let out = tmp("view_hud");
+    let shot = out.join("shot.png");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/falling.toml");
+    let scene = scene.to_str().unwrap();
+    let args = ["--size", "320x240", "--technique", "shadowmaps"];
+    let o = penumbra(
+        &[&["view", scene], &args[..], &["--frames", "4", "--keys", "0:h,1:c", "--screenshot"]]
+            .concat()
+            .into_iter()
+            .chain([shot.to_str().unwrap(), "--validate"])
+            .collect::<Vec<_>>(),
+        Some(&x.display),
+    );
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("validation: 0 error(s)"), "{t}");
+    // the first preset after the defaults: shadowmaps' first knob value, measured on the front
+    assert!(t.contains("preset 2/5: shadowmaps count=8"), "{t}");
+    assert!(t.contains("overlay:") && t.contains("shadowmaps count=8"), "{t}");
+    assert!(t.contains("error 0.035 RMSE/mean at 160x120"), "{t}");
+    let o = penumbra(
+        &[&["render", scene], &args[..], &["--param", "count=8", "--frames", "4", "--out", out.to_str().unwrap()]]
+            .concat(),
+        None,
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let (w, h, presented) = rgb(&shot);
+    let (_, _, rendered) = rgb(&out.join("frame_0003.png"));
+    assert_eq!((w, h), (320, 240));
+    let at = |img: &[u8], x: u32, y: u32| -> [u8; 3] {
+        let i = ((y * w + x) * 3) as usize;
+        [img[i], img[i + 1], img[i + 2]]
+    };
+    // below the overlay's eight lines the presented image is the rendered one
+    for y in 120..h {
+        for x in 0..w {
+            assert_eq!(at(&presented, x, y), at(&rendered, x, y), "({x}, {y}) outside the overlay");
+        }
+    }
+    // the overlay: white glyphs on a darkened box in the top-left corner
+    let (mut ink, mut darker) = (0, 0);
+    for y in 8..80 {
+        for x in 8..200 {
+            let (p, r) = (at(&presented, x, y), at(&rendered, x, y));
+            ink += (p == [255, 255, 255] && r != [255, 255, 255]) as u32;
+            darker += p.iter().zip(r).all(|(a, b)| *a < b) as u32;
+        }
+    }
+    assert!(ink > 300 && darker > 3000, "overlay not visible: {ink} ink texels, {darker} darkened");
+}
+
 #[test]
 fn view_without_a_display_or_with_bad_flags_fails_cleanly() {
     let o = penumbra(&["view", "--frames", "1"], None);
