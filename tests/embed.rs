@@ -129,3 +129,49 @@ fn recorded_frames_match_submitted_ones_and_are_validation_clean() {
     }
     assert_eq!(log.error_count(), 0, "validation errors: {:#?}", log.errors());
 }
+
+/// A host moves its renderer to a render thread: `Renderer` is `Send` (every technique and
+/// effect is), and the shared `Context` is `Send + Sync`. Checked at compile time, used here.
+#[test]
+fn a_renderer_moves_to_another_thread() {
+    fn send<T: Send>() {}
+    fn send_sync<T: Send + Sync>() {}
+    send::<penumbra::Renderer>();
+    send_sync::<penumbra::engine::Context>();
+    let scene = penumbra_scene::Scene::default_scene();
+    let settings = penumbra::RenderSettings { width: 16, height: 12, ..Default::default() };
+    let mut r = penumbra::Renderer::new_headless(&scene, settings, false).expect("renderer");
+    let frames = std::thread::spawn(move || {
+        let mut v = r.render(&scene.at(0.0, None), None, true).expect("frame");
+        v.extend(r.finish().expect("finish"));
+        v
+    })
+    .join()
+    .expect("render thread");
+    assert_eq!(frames.len(), 1);
+    assert_eq!(frames[0].ldr.len(), 16 * 12 * 4);
+}
+
+/// Debug labels and object names reach a capture tool when embedded too: a host that enabled
+/// `VK_EXT_debug_utils` on its instance says so (`ExternalFeatures::debug_utils`) and penumbra
+/// names its objects and labels its passes (without the claim it cannot know, and does not).
+#[test]
+fn embedded_debug_labels_follow_the_hosts_instance() {
+    use penumbra::engine::{Context, ContextDesc, ExternalFeatures};
+    let ctx = Context::new(&ContextDesc::default()).expect("context");
+    assert!(ctx.debug_utils.is_some(), "penumbra's own instance enables VK_EXT_debug_utils where the loader has it");
+    let wrap = |debug_utils| {
+        let features = ExternalFeatures { debug_utils, ..Default::default() };
+        let (i, d) = (ctx.instance.clone(), ctx.device.clone());
+        Context::from_external_with(ctx.entry.clone(), i, ctx.physical, d, ctx.queue, ctx.queue_family, features)
+    };
+    assert!(wrap(false).expect("host context").debug_utils.is_none());
+    let host = wrap(true).expect("an instance with debug utils");
+    assert!(host.debug_utils.is_some());
+    // its passes are labelled in the command buffers it records (a frame runs through it)
+    let scene = penumbra_scene::Scene::default_scene();
+    let settings = penumbra::RenderSettings { width: 16, height: 12, ..Default::default() };
+    let mut r = penumbra::Renderer::new(host, &scene, settings).expect("renderer");
+    r.render(&scene.at(0.0, None), None, true).expect("frame");
+    assert_eq!(r.finish().expect("finish").len(), 1);
+}

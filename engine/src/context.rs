@@ -158,6 +158,12 @@ pub struct ExternalFeatures {
     /// Vulkan 1.2 `timelineSemaphore` (recording into the host's command buffers,
     /// `Engine::record_into` / `Renderer::record_into`, refuses without it).
     pub timeline_semaphore: bool,
+    /// The host's instance has `VK_EXT_debug_utils` enabled: penumbra names its objects and
+    /// labels every pass in command buffers, so a capture tool (RenderDoc, Nsight) shows
+    /// penumbra's passes by name inside the host's frame. Not checkable (the loader answers
+    /// for the extension's commands whether or not the instance enabled it): declare it only
+    /// when enabled.
+    pub debug_utils: bool,
 }
 
 impl Default for ExternalFeatures {
@@ -170,6 +176,7 @@ impl Default for ExternalFeatures {
             tessellation_shader: false,
             pipeline_statistics_query: false,
             timeline_semaphore: false,
+            debug_utils: false,
         }
     }
 }
@@ -624,7 +631,8 @@ impl Context {
             unsafe { instance.get_physical_device_properties(physical) }.limits.max_image_dimension2_d;
         let max_storage_buffer_range =
             unsafe { instance.get_physical_device_properties(physical) }.limits.max_storage_buffer_range;
-        let debug_utils = debug_instance.as_ref().map(|_| ash::ext::debug_utils::Device::new(&instance, &device));
+        let debug_utils = (debug_instance.is_some() || features.debug_utils)
+            .then(|| ash::ext::debug_utils::Device::new(&instance, &device));
         // The pipeline cache, seeded from disk when this driver's file is there and sound.
         let props = unsafe { instance.get_physical_device_properties(physical) };
         let pipeline_cache_file = pipeline_cache_dir.map(|d| pipeline_cache_file(&d, &props));

@@ -15,7 +15,8 @@ use std::sync::Arc;
 /// What an effect gets each frame (the same as a technique).
 pub type EffectInputs<'a> = crate::technique::FrameInputs<'a>;
 
-pub trait Effect {
+/// A pass chain added after the technique (`Send`, as techniques are).
+pub trait Effect: Send {
     fn name(&self) -> &'static str;
     /// Declares the effect's passes reading `hdr` (through a [`FrameStore`]: no submission, so
     /// building the frame never waits on the GPU); returns the new HDR image (or `hdr` itself

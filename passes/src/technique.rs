@@ -35,7 +35,9 @@ pub struct PrepareInputs<'a> {
     pub height: u32,
 }
 
-pub trait Technique {
+/// A visibility technique. `Send`, so that an embedding host can move its renderer to a render
+/// thread (no technique holds thread-bound state).
+pub trait Technique: Send {
     /// The name used in scene files (`technique = "..."`) and on the CLI.
     fn name(&self) -> &'static str;
     /// Work before the frame is declared that may wait on the GPU (submissions of its own
