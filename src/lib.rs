@@ -403,10 +403,42 @@ impl Renderer {
         target: Option<ImportedImage>,
         readback: bool,
     ) -> Result<Graph, Error> {
-        self.build_graph_inner(frame, target, readback).map_err(|e| Error::classify(e, None))
+        self.build_graph_outputs(frame, target.into(), readback)
     }
 
-    fn build_graph_inner(&mut self, frame: &Frame, target: Option<ImportedImage>, readback: bool) -> Result<Graph> {
+    /// [`Renderer::build_graph`] writing every image of `outputs` (tone-mapped, HDR, depth).
+    pub fn build_graph_outputs(&mut self, frame: &Frame, outputs: Outputs, readback: bool) -> Result<Graph, Error> {
+        let (w, h) = (self.settings.width, self.settings.height);
+        for (what, img, fits) in [
+            (
+                "HDR",
+                &outputs.hdr,
+                "a colour format with blit support (a float one keeps the radiance: R32G32B32A32_SFLOAT exactly) and TRANSFER_DST usage",
+            ),
+            ("depth", &outputs.depth, "D32_SFLOAT with TRANSFER_DST usage"),
+        ] {
+            let Some(img) = img else { continue };
+            let d = &img.desc;
+            let format_ok = if what == "depth" {
+                d.format == penumbra_passes::gbuffer::DEPTH_FORMAT
+            } else {
+                d.aspect() == vk::ImageAspectFlags::COLOR
+            };
+            if (d.width, d.height) != (w, h) || !format_ok || !img.usage.contains(vk::ImageUsageFlags::TRANSFER_DST) {
+                return Err(Error::bad_input(
+                    None,
+                    format!(
+                        "the {what} output is {}x{} {:?} with usage {:?}: it must be the render size {w}x{h}, {fits}",
+                        d.width, d.height, d.format, img.usage
+                    ),
+                ));
+            }
+        }
+        self.build_graph_inner(frame, outputs, readback).map_err(|e| Error::classify(e, None))
+    }
+
+    fn build_graph_inner(&mut self, frame: &Frame, outputs: Outputs, readback: bool) -> Result<Graph> {
+        let Outputs { ldr: target, hdr: hdr_out, depth: depth_out } = outputs;
         let (w, h) = (self.settings.width, self.settings.height);
         // collect the frames the GPU has finished (never waits): their late readbacks reach this
         // frame's technique
@@ -453,6 +485,16 @@ impl Renderer {
             t.desc.format == penumbra_passes::tonemap::LDR_FORMAT && t.usage.contains(vk::ImageUsageFlags::STORAGE)
         });
         let target = target.map(|t| g.import_image("target", t));
+        // the host's HDR and depth images: copies of the frame's (same size; the blit converts
+        // the float format, depth must match)
+        if let Some(o) = hdr_out {
+            let o = g.import_image("output_hdr", o);
+            penumbra_passes::blit::add(&mut g, "output_hdr", hdr, o);
+        }
+        if let Some(o) = depth_out {
+            let o = g.import_image("output_depth", o);
+            penumbra_passes::blit::add(&mut g, "output_depth", gb.depth, o);
+        }
         let mut ldr = self.tonemap.add(&mut g, hdr, target.filter(|_| direct), self.settings.tonemap);
         if let Some(o) = &self.overlay {
             ldr = self.hud.add(&mut g, ldr, o);
@@ -512,12 +554,27 @@ impl Renderer {
         readback: bool,
         sync: &SubmitSync,
     ) -> Result<Vec<FrameImages>, Error> {
-        Ok(self.run_frame(frame, target, readback, |engine, g| engine.submit_with(g, sync).map(|(c, d)| (c, d, ())))?.0)
+        self.render_outputs(frame, target.into(), readback, sync)
+    }
+
+    /// [`Renderer::render_with`] writing every image of `outputs`: the tone-mapped target, and
+    /// copies of the frame's HDR radiance and G-buffer depth into the host's images.
+    pub fn render_outputs(
+        &mut self,
+        frame: &Frame,
+        outputs: Outputs,
+        readback: bool,
+        sync: &SubmitSync,
+    ) -> Result<Vec<FrameImages>, Error> {
+        Ok(self
+            .run_frame(frame, outputs, readback, |engine, g| engine.submit_with(g, sync).map(|(c, d)| (c, d, ())))?
+            .0)
     }
 
     /// Records the frame into the host's command buffer `cmd` instead of submitting it (the
-    /// host's frame loop or frame graph runs penumbra's passes in its own submission): `target`
-    /// enters and leaves in the states its [`ImportedImage`] declares, as when penumbra submits.
+    /// host's frame loop or frame graph runs penumbra's passes in its own submission): the
+    /// `outputs` (a tone-mapped target, or [`Outputs`] with HDR and depth) enter and leave in the
+    /// states their [`ImportedImage`]s declare, as when penumbra submits.
     /// `cmd` must be begun, outside a render pass, for the context's queue family; pipeline,
     /// descriptor and push-constant state bound before is not kept. The host submits `cmd` once,
     /// signalling the returned [`HostFrame::signal`] in that same submission
@@ -527,11 +584,11 @@ impl Renderer {
     pub fn record_into(
         &mut self,
         frame: &Frame,
-        target: Option<ImportedImage>,
+        outputs: impl Into<Outputs>,
         readback: bool,
         cmd: vk::CommandBuffer,
     ) -> Result<HostFrame, Error> {
-        let (done, signal) = self.run_frame(frame, target, readback, |engine, g| engine.record_into(g, cmd))?;
+        let (done, signal) = self.run_frame(frame, outputs.into(), readback, |engine, g| engine.record_into(g, cmd))?;
         Ok(HostFrame { signal, done })
     }
 
@@ -540,12 +597,12 @@ impl Renderer {
     fn run_frame<T>(
         &mut self,
         frame: &Frame,
-        target: Option<ImportedImage>,
+        outputs: Outputs,
         readback: bool,
         go: impl FnOnce(&mut Engine, Graph) -> anyhow::Result<(CompiledGraph, Vec<FrameOutput>, T)>,
     ) -> Result<(Vec<FrameImages>, T), Error> {
         let tb = std::time::Instant::now();
-        let g = self.build_graph(frame, target, readback)?;
+        let g = self.build_graph_outputs(frame, outputs, readback)?;
         let mut spans =
             vec![penumbra_engine::CpuSpan { name: "build graph", start: tb, ms: tb.elapsed().as_secs_f64() * 1e3 }];
         if let Some(t) = self.technique_started.take() {
@@ -618,6 +675,25 @@ impl Renderer {
 }
 
 /// An imported image description for a tone-mapped target the application owns
+/// The host's images a frame writes ([`Renderer::render_outputs`], [`Renderer::record_into`]):
+/// `ldr`, the tone-mapped image (as `target` elsewhere); `hdr`, a copy of the linear radiance
+/// (a float colour format, blitted: R32G32B32A32_SFLOAT exact, R16G16B16A16_SFLOAT rounded);
+/// `depth`, a copy of the G-buffer's depth (`D32_SFLOAT`, the camera's projection, 1 = far).
+/// HDR and depth images are the render size with TRANSFER_DST usage; each enters and leaves in
+/// the states its [`ImportedImage`] declares.
+#[derive(Clone, Debug, Default)]
+pub struct Outputs {
+    pub ldr: Option<ImportedImage>,
+    pub hdr: Option<ImportedImage>,
+    pub depth: Option<ImportedImage>,
+}
+
+impl From<Option<ImportedImage>> for Outputs {
+    fn from(ldr: Option<ImportedImage>) -> Self {
+        Outputs { ldr, ..Default::default() }
+    }
+}
+
 /// A frame recorded into a host's command buffer ([`Renderer::record_into`]).
 #[derive(Debug)]
 pub struct HostFrame {

@@ -58,7 +58,14 @@ fn an_application_device_without_required_features_is_refused_with_every_problem
     let scene = penumbra_scene::Scene::default_scene();
     let settings = penumbra::RenderSettings { width: 16, height: 12, ..Default::default() };
     let mut r = penumbra::Renderer::new(host, &scene, settings).expect("renderer");
-    let e = r.record_into(&scene.at(0.0, None), None, true, penumbra::engine::vk::CommandBuffer::null()).err();
+    let e = r
+        .record_into(
+            &scene.at(0.0, None),
+            penumbra::Outputs::default(),
+            true,
+            penumbra::engine::vk::CommandBuffer::null(),
+        )
+        .err();
     let e = e.expect("refused").to_string();
     assert!(e.contains("timelineSemaphore"), "{e}");
     r.render(&scene.at(0.0, None), None, true).expect("submitting still works");
@@ -107,7 +114,7 @@ fn recorded_frames_match_submitted_ones_and_are_validation_clean() {
         // frames in flight have been retired by then, and so has the host's submission)
         let cmd = cmds[i / 2];
         unsafe { d.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default()) }.unwrap();
-        let rec = b.record_into(&frame, None, true, cmd).expect("record");
+        let rec = b.record_into(&frame, penumbra::Outputs::default(), true, cmd).expect("record");
         got.extend(rec.done);
         unsafe {
             d.end_command_buffer(cmd).unwrap();
@@ -174,4 +181,65 @@ fn embedded_debug_labels_follow_the_hosts_instance() {
     let mut r = penumbra::Renderer::new(host, &scene, settings).expect("renderer");
     r.render(&scene.at(0.0, None), None, true).expect("frame");
     assert_eq!(r.finish().expect("finish").len(), 1);
+}
+
+/// HDR and depth outputs: a host's float image and depth image receive the frame's linear
+/// radiance and G-buffer depth (compared texel for texel with penumbra's own readbacks);
+/// images of the wrong size or format are refused by name.
+#[test]
+fn hdr_and_depth_outputs_are_the_frames() {
+    use penumbra::engine::{vk, Access, Graph, ImageDesc, ImportedImage, SubmitSync};
+    use penumbra::{decode_texels, Outputs, RenderSettings, Renderer};
+    let scene = penumbra_scene::Scene::default_scene();
+    let (w, h) = (48, 32);
+    let settings = RenderSettings { width: w, height: h, dump_passes: true, ..Default::default() };
+    let mut r = Renderer::new_headless(&scene, settings, true).expect("renderer");
+    let ctx = r.context().clone();
+    let usage = vk::ImageUsageFlags::TRANSFER_DST | vk::ImageUsageFlags::TRANSFER_SRC;
+    let make = |name: &str, format| ctx.create_image(name, &ImageDesc::new_2d(format, w, h), usage).expect("image");
+    let hdr_img = make("host_hdr", vk::Format::R32G32B32A32_SFLOAT);
+    let depth_img = make("host_depth", vk::Format::D32_SFLOAT);
+    let import =
+        |img: &penumbra::engine::GpuImage, initial: Option<Access>, layout, last: Option<Access>| ImportedImage {
+            image: img.image,
+            view: img.view,
+            desc: img.desc.clone(),
+            usage,
+            initial,
+            initial_layout: layout,
+            final_access: last,
+        };
+    let fresh = |img| import(img, None, vk::ImageLayout::UNDEFINED, Some(Access::TransferSrc));
+    let outputs = Outputs { ldr: None, hdr: Some(fresh(&hdr_img)), depth: Some(fresh(&depth_img)) };
+    let mut frames = r.render_outputs(&scene.at(0.0, None), outputs, true, &SubmitSync::default()).expect("frame");
+    frames.extend(r.finish().expect("finish"));
+    let f = frames.pop().expect("the frame");
+    // the host reads its images back (a graph of its own on penumbra's engine)
+    let mut g = Graph::new();
+    let after = |img| import(img, Some(Access::TransferSrc), vk::ImageLayout::TRANSFER_SRC_OPTIMAL, None);
+    let (hh, dh) =
+        (g.import_image("host_hdr_image", after(&hdr_img)), g.import_image("host_depth_image", after(&depth_img)));
+    penumbra_passes::readback::add(&mut g, "host_readback", &[(hh, "host_hdr"), (dh, "host_depth")]);
+    let out = r.engine.submit_wait(g).expect("host readback");
+    let host_hdr = decode_texels(vk::Format::R32G32B32A32_SFLOAT, &out.readbacks["host_hdr"]).unwrap();
+    let host_depth = decode_texels(vk::Format::D32_SFLOAT, &out.readbacks["host_depth"]).unwrap();
+    assert_eq!(host_hdr.len(), (w * h) as usize);
+    assert!(host_hdr == f.hdr, "the host's HDR image is not the frame's radiance");
+    let depth = &f.dumps.iter().find(|(n, _)| n == "gb_depth").expect("the G-buffer depth dump").1;
+    assert!(&host_depth == depth, "the host's depth image is not the frame's depth");
+    assert!(depth.iter().any(|d| d[0] < 1.0) && depth.iter().any(|d| d[0] == 1.0), "geometry and background");
+    // wrong size, wrong depth format: refused naming the output
+    let small = ctx.create_image("small", &ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, 8, 8), usage).unwrap();
+    let bad = Outputs { hdr: Some(fresh(&small)), ..Default::default() };
+    let e = r.render_outputs(&scene.at(0.0, None), bad, false, &SubmitSync::default()).err().expect("refused");
+    assert!(e.to_string().contains("the HDR output is 8x8") && e.to_string().contains("48x32"), "{e}");
+    let bad = Outputs { depth: Some(fresh(&hdr_img)), ..Default::default() };
+    let e = r.render_outputs(&scene.at(0.0, None), bad, false, &SubmitSync::default()).err().expect("refused");
+    assert!(e.to_string().contains("the depth output") && e.to_string().contains("D32_SFLOAT"), "{e}");
+    let log = ctx.validation.clone();
+    drop(r);
+    for img in [hdr_img, depth_img, small] {
+        ctx.destroy_image(img);
+    }
+    assert_eq!(log.error_count(), 0, "validation errors: {:#?}", log.errors());
 }

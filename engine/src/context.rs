@@ -778,9 +778,31 @@ impl Context {
                     layer_count: desc.array_layers,
                 },
             );
-        let view = unsafe { self.device.create_image_view(&vci, None) }?;
+        // a view only where the usage allows one (a transfer-only image has none: null)
+        let viewable = vk::ImageUsageFlags::SAMPLED
+            | vk::ImageUsageFlags::STORAGE
+            | vk::ImageUsageFlags::COLOR_ATTACHMENT
+            | vk::ImageUsageFlags::DEPTH_STENCIL_ATTACHMENT
+            | vk::ImageUsageFlags::INPUT_ATTACHMENT
+            | vk::ImageUsageFlags::TRANSIENT_ATTACHMENT;
+        let view = if usage.intersects(viewable) {
+            match unsafe { self.device.create_image_view(&vci, None) } {
+                Ok(v) => v,
+                Err(e) => {
+                    unsafe { self.device.destroy_image(image, None) };
+                    if let Ok(mut a) = self.allocator.lock() {
+                        let _ = a.free(allocation);
+                    }
+                    return Err(anyhow::Error::new(e).context(format!("vkCreateImageView '{name}'")));
+                }
+            }
+        } else {
+            vk::ImageView::null()
+        };
         self.set_name(image, name);
-        self.set_name(view, &format!("{name}.view"));
+        if view != vk::ImageView::null() {
+            self.set_name(view, &format!("{name}.view"));
+        }
         Ok(GpuImage { name: name.to_string(), image, view, desc: desc.clone(), usage, allocation: Some(allocation) })
     }
 
