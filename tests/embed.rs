@@ -231,10 +231,10 @@ fn hdr_and_depth_outputs_are_the_frames() {
     // wrong size, wrong depth format: refused naming the output
     let small = ctx.create_image("small", &ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, 8, 8), usage).unwrap();
     let bad = Outputs { hdr: Some(fresh(&small)), ..Default::default() };
-    let e = r.render_outputs(&scene.at(0.0, None), bad, false, &SubmitSync::default()).err().expect("refused");
+    let e = r.render_outputs(&scene.at(0.0, None), bad, false, &SubmitSync::default()).expect_err("refused");
     assert!(e.to_string().contains("the HDR output is 8x8") && e.to_string().contains("48x32"), "{e}");
     let bad = Outputs { depth: Some(fresh(&hdr_img)), ..Default::default() };
-    let e = r.render_outputs(&scene.at(0.0, None), bad, false, &SubmitSync::default()).err().expect("refused");
+    let e = r.render_outputs(&scene.at(0.0, None), bad, false, &SubmitSync::default()).expect_err("refused");
     assert!(e.to_string().contains("the depth output") && e.to_string().contains("D32_SFLOAT"), "{e}");
     let log = ctx.validation.clone();
     drop(r);
