@@ -132,7 +132,6 @@ fn fill_then_copy(e: &mut Engine, declare_fill_as_write: bool) -> Vec<u8> {
 
 #[test]
 fn missing_write_declaration_is_caught_by_sync_validation() {
-    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
     let mut e = engine(true);
     let log: Arc<_> = e.ctx.validation.clone();
     let ok = fill_then_copy(&mut e, true);

@@ -92,7 +92,6 @@ fn accumulate_frame(e: &mut Engine) -> Graph {
 
 #[test]
 fn persistent_buffer_carries_state_across_frames_in_flight() {
-    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).unwrap();
     let log = ctx.validation.clone();
     let mut e = Engine::new(ctx, 2).unwrap();
@@ -298,7 +297,6 @@ fn readback_buffers_are_host_cached() {
 /// which frames built later read without waiting (`poll` collects finished frames, never blocks).
 #[test]
 fn late_readbacks_reach_later_frames_without_waiting() {
-    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).unwrap();
     let log = ctx.validation.clone();
     let mut e = Engine::new(ctx.clone(), 2).unwrap();

@@ -13,7 +13,6 @@ use penumbra_reference::ReferenceOptions;
 /// dragged behind the objects).
 #[test]
 fn denoising_the_same_samples_lowers_the_error_and_keeps_the_shadows() {
-    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
     let s = common::scene("falling.toml");
     let (w, h) = (96u32, 72u32);
     let times: Vec<f32> = (0..=30).map(|k| k as f32 / 30.0).collect();

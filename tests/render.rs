@@ -222,7 +222,6 @@ fn every_technique(
 /// that is black in the reference must be black in every technique, and the other side lit.
 #[test]
 fn a_normal_map_that_turns_from_the_eye_is_black_in_every_technique() {
-    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
     let text = r#"
 name = "facing_test"
 [camera]
@@ -295,7 +294,6 @@ material = "floor"
 /// in every technique (160x120: avs 0.268 -> 0.038 rmse/mean, shadowmaps 0.398 -> 0.235).
 #[test]
 fn light_below_the_face_lights_nothing_in_every_technique() {
-    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
     let text = r#"
 name = "face_test"
 [camera]

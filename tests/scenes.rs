@@ -25,7 +25,6 @@ fn scene_files() -> Vec<PathBuf> {
 /// `tools/tests/matrix.rs`): validation clean, finite, lit, and the graph the scene needs.
 #[test]
 fn every_builtin_scene_renders_validation_clean() {
-    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
     let files = scene_files();
     assert!(files.len() >= 6, "expected the built-in scenes, found {files:?}");
     let mut failures = Vec::new();

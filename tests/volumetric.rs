@@ -94,7 +94,6 @@ fn full_method_matches_the_cpu_reference_for_a_point_light() {
 }
 
 fn full_vs_reference(name: &str, light: &str) {
-    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
     let scene = occluder_scene(name, MEDIUM, CAM, light, "");
     let (w, h) = (96, 72);
     let (r, img) = render_one(&scene, "full", w, h);
@@ -135,7 +134,6 @@ fn lit_surfaces_in_a_medium_match_the_reference() {
     // Grey floor, pale ball: the surfaces' light is attenuated through the medium on its way in
     // (every technique's local lights) and on its way to the eye (vol_composite), as the CPU
     // reference does; before, the floor under the spot was 1.7x too bright.
-    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
     let text = occluder_text("vol_lit", "sigma_a = 0.1\nsigma_s = 0.3\ng = 0.3", CAM, SPOT, "").replace(
         "[materials.black]\ntype = \"diffuse\"\nalbedo = 0.0",
         "[materials.black]\ntype = \"diffuse\"\nalbedo = 0.6",
@@ -229,7 +227,6 @@ fn a_scene_without_medium_has_no_volumetric_passes_and_god_rays_has_them() {
 }
 
 fn ctx() -> Arc<Context> {
-    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
     Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context")
 }
 
@@ -473,7 +470,6 @@ fn scene_key_selects_the_method_and_bad_values_are_errors() {
 
 #[test]
 fn odd_lights_render_finite_and_validation_clean() {
-    std::env::set_var("PENUMBRA_QUIET_VALIDATION", "1");
     let motion = "motion = { type = \"keyframes\", keys = [{ t = 0.0, position = [-0.4, 1.2, 0.0] }, { t = 1.0, position = [0.6, 1.2, 0.0] }] }";
     let lights = [
         // Sphere light (scatters as a point of equal power), point light at the eye, a near-

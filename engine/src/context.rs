@@ -62,10 +62,10 @@ unsafe extern "system" fn debug_callback(
     let d = &*data;
     let msg =
         if d.p_message.is_null() { String::new() } else { CStr::from_ptr(d.p_message).to_string_lossy().into_owned() };
-    if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR)
-        && std::env::var_os("PENUMBRA_QUIET_VALIDATION").is_none()
-    {
-        eprintln!("[vulkan] {msg}");
+    // through `tracing` (target `penumbra::vulkan`): the CLI prints it, a host routes or
+    // filters it, tests that provoke errors on purpose stay quiet; the log counts it either way
+    if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) {
+        tracing::error!(target: "penumbra::vulkan", "{msg}");
     }
     log.push(severity, msg);
     vk::FALSE
@@ -935,7 +935,7 @@ impl Context {
 impl Drop for Context {
     fn drop(&mut self) {
         if let Err(e) = self.save_pipeline_cache() {
-            eprintln!("warning: the pipeline cache was not saved: {e:#}");
+            tracing::warn!("the pipeline cache was not saved: {e:#}");
         }
         unsafe {
             // a host's device is the host's to wait on: every engine on this context waited for

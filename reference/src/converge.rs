@@ -192,7 +192,7 @@ pub fn render_converged(scene: &Scene, opts: &ConvergeOptions) -> Result<Converg
         noise = halves_noise(&ia, &ib).unwrap_or(f64::INFINITY);
         let spp_half = a.spp;
         if opts.progress {
-            eprintln!(
+            tracing::info!(
                 "reference {}: {} spp, estimated noise {:.4} (target {}) after {:.1} s",
                 opts.label,
                 2 * spp_half,
@@ -343,7 +343,7 @@ pub fn load_or_render(
                 {
                     return Ok(Converged { radiance: img, meta, cached: true });
                 }
-                _ => eprintln!("reference cache {}: stale or unreadable, rendering again", p.display()),
+                _ => tracing::info!("reference cache {}: stale or unreadable, rendering again", p.display()),
             }
         }
     }
@@ -359,7 +359,7 @@ pub fn load_or_render(
             std::fs::write(p.with_extension("json"), text).map_err(|e| e.to_string())
         };
         if let Err(e) = write() {
-            eprintln!("reference cache {}: not written: {e}", p.display());
+            tracing::warn!("reference cache {}: not written: {e}", p.display());
         }
     }
     Ok(c)

@@ -625,6 +625,18 @@ fn main() -> ExitCode {
             std::env::set_var("XDG_RUNTIME_DIR", &dir);
         }
     }
+    // The libraries' messages (warnings, reference and precompute progress, validation
+    // errors) come through `tracing`: printed on stderr, `RUST_LOG` filters them (default:
+    // info; e.g. RUST_LOG=warn for warnings only, RUST_LOG=penumbra::vulkan=off).
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .without_time()
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .init();
     let cli = Cli::parse();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,

@@ -1410,7 +1410,7 @@ impl AvsTechnique {
             sh.iter().map(|c| c.as_ref().map_or(-1.0, |c| samp::visible_solid_angle(c) / two_pi)).collect();
         self.stats.maps = if capture { maps } else { Vec::new() };
         if self.stats.truncated > 0 {
-            eprintln!(
+            tracing::warn!(
                 "avs: {} visibility maps hit the device's per-invocation loop limit (lavapipe: 65535 iterations); their untraced texels read as occluded",
                 self.stats.truncated
             );
@@ -1447,7 +1447,7 @@ impl AvsTechnique {
             _ => Vec::new(),
         };
         if truncated > 0 {
-            eprintln!(
+            tracing::warn!(
                 "avs: {truncated} visibility maps of frame {} hit the device's per-invocation loop limit (lavapipe: 65535 iterations); their untraced texels read as occluded",
                 late.frame
             );

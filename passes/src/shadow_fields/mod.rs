@@ -323,7 +323,7 @@ impl SceneFields {
                     let progress = move |n: u64| {
                         let d = done.fetch_add(n, std::sync::atomic::Ordering::Relaxed) + n;
                         if show && (d.is_multiple_of((total / 20).max(1)) || d == total) {
-                            eprintln!("shadow field '{name}': {:.0}%", 100.0 * d as f64 / total as f64);
+                            tracing::info!("shadow field '{name}': {:.0}%", 100.0 * d as f64 / total as f64);
                         }
                     };
                     let raw = sf::precompute(&m.positions, &m.normals, &m.indices, &options.params, &progress)
