@@ -17,6 +17,23 @@ fn renders_into_an_application_image_in_both_modes() {
     assert!((host_mean - mean).abs() < 0.5, "the recorded frame (mean {host_mean}) is not the submitted one ({mean})");
 }
 
+/// `ctx`'s instance, device and queue wrapped as a host's would be, with `features` declared.
+fn as_host(
+    ctx: &penumbra::engine::Context,
+    features: penumbra::engine::ExternalFeatures,
+) -> anyhow::Result<std::sync::Arc<penumbra::engine::Context>> {
+    let (i, d) = (ctx.instance.clone(), ctx.device.clone());
+    penumbra::engine::Context::from_external_with(
+        ctx.entry.clone(),
+        i,
+        ctx.physical,
+        d,
+        ctx.queue,
+        ctx.queue_family,
+        features,
+    )
+}
+
 /// `Context::from_external_with` checks what the application declares against penumbra's needs
 /// and the device, and refuses with every problem at once (issue 25).
 #[test]
@@ -28,33 +45,14 @@ fn an_application_device_without_required_features_is_refused_with_every_problem
     let bad = ExternalFeatures { push_descriptor: false, vulkan12: false, ..Default::default() };
     let problems = bad.problems(&ctx.instance, ctx.physical);
     assert_eq!(problems.len(), 2, "{problems:?}");
-    let e = Context::from_external_with(
-        ctx.entry.clone(),
-        ctx.instance.clone(),
-        ctx.physical,
-        ctx.device.clone(),
-        ctx.queue,
-        ctx.queue_family,
-        bad,
-    )
-    .err()
-    .expect("refused")
-    .to_string();
+    let e = as_host(&ctx, bad).err().expect("refused").to_string();
     assert!(
         e.contains("2 problem(s)") && e.contains("VK_KHR_push_descriptor") && e.contains("scalarBlockLayout"),
         "{e}"
     );
     // a host that did not declare timelineSemaphore: recording into its command buffers is
     // refused by name (nothing recorded), submitting works
-    let host = Context::from_external(
-        ctx.entry.clone(),
-        ctx.instance.clone(),
-        ctx.physical,
-        ctx.device.clone(),
-        ctx.queue,
-        ctx.queue_family,
-    )
-    .expect("host context");
+    let host = as_host(&ctx, ExternalFeatures::default()).expect("host context");
     let scene = penumbra_scene::Scene::default_scene();
     let settings = penumbra::RenderSettings { width: 16, height: 12, ..Default::default() };
     let mut r = penumbra::Renderer::new(host, &scene, settings).expect("renderer");
@@ -167,11 +165,7 @@ fn embedded_debug_labels_follow_the_hosts_instance() {
     use penumbra::engine::{Context, ContextDesc, ExternalFeatures};
     let ctx = Context::new(&ContextDesc::default()).expect("context");
     assert!(ctx.debug_utils.is_some(), "penumbra's own instance enables VK_EXT_debug_utils where the loader has it");
-    let wrap = |debug_utils| {
-        let features = ExternalFeatures { debug_utils, ..Default::default() };
-        let (i, d) = (ctx.instance.clone(), ctx.device.clone());
-        Context::from_external_with(ctx.entry.clone(), i, ctx.physical, d, ctx.queue, ctx.queue_family, features)
-    };
+    let wrap = |debug_utils| as_host(&ctx, ExternalFeatures { debug_utils, ..Default::default() });
     assert!(wrap(false).expect("host context").debug_utils.is_none());
     let host = wrap(true).expect("an instance with debug utils");
     assert!(host.debug_utils.is_some());
