@@ -414,6 +414,7 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
             x_label: "ms per frame (second frame, lavapipe)".into(),
             y_label: format!("PSNR vs reference, {} spp (dB)", args.spp),
             log_x: true,
+            log_y: false,
             legend: true,
         };
         crate::plot::write_chart(path, &chart, &series)?;

@@ -217,6 +217,7 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
         x_label: "GPU ms per frame (median, lavapipe)".into(),
         y_label: "PSNR vs reference (dB)".into(),
         log_x: true,
+        log_y: false,
         legend: false,
     };
     match crate::plot::write_chart(&args.out.join("tradeoff.png"), &chart, &series) {
@@ -376,6 +377,7 @@ pub fn run_volumetric(args: &VolumetricArgs, scene: &Scene) -> Result<()> {
             x_label: "reused frame number (refresh period - 1)".into(),
             y_label: "frames per second (whole-frame GPU time)".into(),
             log_x: false,
+            log_y: false,
             legend: true,
         };
         crate::plot::write_chart(path, &chart, &series)?;
@@ -399,6 +401,7 @@ pub fn run_volumetric(args: &VolumetricArgs, scene: &Scene) -> Result<()> {
             x_label: "frame".into(),
             y_label: "GPU ms of the vol_* passes".into(),
             log_x: false,
+            log_y: false,
             legend: true,
         };
         crate::plot::write_chart(path, &chart, &series)?;
@@ -647,6 +650,7 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
             x_label: "GPU ms per frame (median of 3, lavapipe)".into(),
             y_label: format!("PSNR vs reference, {} spp (dB)", args.spp),
             log_x: true,
+            log_y: false,
             legend: true, // variants cluster: colours and a legend, not point labels
         };
         crate::plot::write_chart(path, &chart, &series)?;

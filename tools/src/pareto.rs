@@ -374,6 +374,7 @@ pub fn write_outputs(fronts: &[Front], out: &std::path::Path) -> Result<()> {
             x_label: "ms per frame (wall clock)".into(),
             y_label: "RMSE / reference mean".into(),
             log_x: true,
+            log_y: true,
             legend: true,
         };
         let series: Vec<crate::plot::Series> = techniques

@@ -4,7 +4,6 @@
 
 use anyhow::{anyhow, bail, Context as _, Result};
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
-use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::path::Path;
@@ -31,6 +30,8 @@ pub struct Chart {
     /// Logarithmic x axis (points with x <= 0 are left out); linear when the points span less
     /// than a decade (a log axis would have no tick label).
     pub log_x: bool,
+    /// Logarithmic y axis (points with y <= 0 are left out); linear within a decade, as x.
+    pub log_y: bool,
     /// Draw a legend box of the series' names (leave it off when every point is labelled).
     pub legend: bool,
 }
@@ -65,11 +66,12 @@ fn range(v: impl Iterator<Item = f64>, log: bool) -> Option<(f64, f64)> {
 }
 
 /// Writes `series` as a line-and-point chart to `path` (PNG, 800x560). Points with a non-finite
-/// coordinate (or x <= 0 on a log axis) are left out; a chart with no point left is an error
+/// coordinate (or a coordinate <= 0 on a log axis) are left out; a chart with no point left is an error
 /// naming the file.
 pub fn write_chart(path: &Path, chart: &Chart, series: &[Series]) -> Result<()> {
     register_font()?;
-    let keep = |&(x, y): &(f64, f64)| x.is_finite() && y.is_finite() && (!chart.log_x || x > 0.0);
+    let keep =
+        |&(x, y): &(f64, f64)| x.is_finite() && y.is_finite() && (!chart.log_x || x > 0.0) && (!chart.log_y || y > 0.0);
     let series: Vec<Series> = series
         .iter()
         .map(|s| {
@@ -86,28 +88,39 @@ pub fn write_chart(path: &Path, chart: &Chart, series: &[Series]) -> Result<()> 
         .collect();
     let all = || series.iter().flat_map(|s| s.points.iter().copied());
     if all().next().is_none() {
-        bail!("{}: no finite point to plot", path.display());
+        bail!("{}: no finite point to plot (a log axis leaves out points <= 0)", path.display());
     }
     // A log axis within one decade gets no tick labels: such data is drawn on a linear axis.
-    let log_x = chart.log_x
-        && all().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max)
-            > 10.0 * all().map(|p| p.0).fold(f64::INFINITY, f64::min);
-    let (Some(xr), Some(yr)) = (range(all().map(|p| p.0), log_x), range(all().map(|p| p.1), false)) else {
-        bail!("{}: no finite point to plot", path.display());
+    let spans_decade = |v: Vec<f64>| {
+        v.iter().copied().fold(f64::NEG_INFINITY, f64::max) > 10.0 * v.iter().copied().fold(f64::INFINITY, f64::min)
     };
-    let corner = legend_corner(&series, xr, yr, log_x);
-    let res = if log_x {
-        draw(path, chart, &series, (xr.0..xr.1).log_scale(), yr, corner)
-    } else {
-        draw(path, chart, &series, xr.0..xr.1, yr, corner)
+    let log_x = chart.log_x && spans_decade(all().map(|p| p.0).collect());
+    let log_y = chart.log_y && spans_decade(all().map(|p| p.1).collect());
+    let (Some(xr), Some(yr)) = (range(all().map(|p| p.0), log_x), range(all().map(|p| p.1), log_y)) else {
+        bail!("{}: no finite point to plot (a log axis leaves out points <= 0)", path.display());
+    };
+    let corner = legend_corner(&series, xr, yr, log_x, log_y);
+    let (x, y) = (xr.0..xr.1, yr.0..yr.1);
+    let res = match (log_x, log_y) {
+        (true, true) => draw(path, chart, &series, x.log_scale(), y.log_scale(), corner),
+        (true, false) => draw(path, chart, &series, x.log_scale(), y, corner),
+        (false, true) => draw(path, chart, &series, x, y.log_scale(), corner),
+        (false, false) => draw(path, chart, &series, x, y, corner),
     };
     res.with_context(|| format!("writing chart {}", path.display()))
 }
 
 /// The corner of the plot with the fewest points (the legend box goes there and hides least).
-fn legend_corner(series: &[Series], xr: (f64, f64), yr: (f64, f64), log_x: bool) -> SeriesLabelPosition {
-    let fx = |x: f64| if log_x { (x.ln() - xr.0.ln()) / (xr.1.ln() - xr.0.ln()) } else { (x - xr.0) / (xr.1 - xr.0) };
-    let fy = |y: f64| (y - yr.0) / (yr.1 - yr.0);
+fn legend_corner(series: &[Series], xr: (f64, f64), yr: (f64, f64), log_x: bool, log_y: bool) -> SeriesLabelPosition {
+    let unit = |v: f64, r: (f64, f64), log: bool| {
+        if log {
+            (v.ln() - r.0.ln()) / (r.1.ln() - r.0.ln())
+        } else {
+            (v - r.0) / (r.1 - r.0)
+        }
+    };
+    let fx = |x: f64| unit(x, xr, log_x);
+    let fy = |y: f64| unit(y, yr, log_y);
     let count = |right: bool, upper: bool| {
         series
             .iter()
@@ -130,17 +143,12 @@ fn legend_corner(series: &[Series], xr: (f64, f64), yr: (f64, f64), log_x: bool)
     .unwrap_or(SeriesLabelPosition::LowerRight)
 }
 
-fn draw<X>(
-    path: &Path,
-    chart: &Chart,
-    series: &[Series],
-    x: X,
-    yr: (f64, f64),
-    corner: SeriesLabelPosition,
-) -> Result<()>
+fn draw<X, Y>(path: &Path, chart: &Chart, series: &[Series], x: X, y: Y, corner: SeriesLabelPosition) -> Result<()>
 where
     X: AsRangedCoord<Value = f64>,
     X::CoordDescType: ValueFormatter<f64>,
+    Y: AsRangedCoord<Value = f64>,
+    Y::CoordDescType: ValueFormatter<f64>,
 {
     let root = BitMapBackend::new(path, (800, 560)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
@@ -149,7 +157,7 @@ where
         .margin(14)
         .x_label_area_size(44)
         .y_label_area_size(64)
-        .build_cartesian_2d(x, RangedCoordf64::from(yr.0..yr.1))
+        .build_cartesian_2d(x, y)
         .map_err(|e| anyhow!("{e}"))?;
     c.configure_mesh()
         .x_desc(&chart.x_label)
@@ -266,12 +274,46 @@ mod tests {
         ];
         for log_x in [false, true] {
             let p = dir.join(format!("c{log_x}.png"));
-            let chart = Chart { title: "t".into(), x_label: "ms".into(), y_label: "dB".into(), log_x, legend: !log_x };
+            let chart = Chart {
+                title: "t".into(),
+                x_label: "ms".into(),
+                y_label: "dB".into(),
+                log_x,
+                log_y: false,
+                legend: !log_x,
+            };
             write_chart(&p, &chart, &s).unwrap();
             assert_eq!(png_size(&p), (800, 560));
         }
+        // log-log (an error front): y <= 0 left out, a y span over a decade on a log axis; a
+        // chart whose only positive y values are gone is an error
+        let e = vec![Series {
+            name: "err".into(),
+            points: vec![(1.0, 0.9), (30.0, 0.02), (100.0, 0.0), (300.0, -0.1)],
+            labels: vec![],
+        }];
+        let p = dir.join("loglog.png");
+        let chart = Chart {
+            title: "t".into(),
+            x_label: "ms".into(),
+            y_label: "e".into(),
+            log_x: true,
+            log_y: true,
+            legend: true,
+        };
+        write_chart(&p, &chart, &e).unwrap();
+        assert_eq!(png_size(&p), (800, 560));
+        let zeros = [Series { name: "z".into(), points: vec![(1.0, 0.0), (2.0, -1.0)], labels: vec![] }];
+        assert!(write_chart(&p, &chart, &zeros).unwrap_err().to_string().contains("no finite point"));
         let p = dir.join("empty.png");
-        let chart = Chart { title: "t".into(), x_label: "ms".into(), y_label: "dB".into(), log_x: true, legend: true };
+        let chart = Chart {
+            title: "t".into(),
+            x_label: "ms".into(),
+            y_label: "dB".into(),
+            log_x: true,
+            log_y: false,
+            legend: true,
+        };
         let bad = [Series { name: "n".into(), points: vec![(0.0, 1.0), (f64::INFINITY, 2.0)], labels: vec![] }];
         let err = write_chart(&p, &chart, &bad).unwrap_err().to_string();
         assert!(err.contains("empty.png") && err.contains("no finite point"), "{err}");

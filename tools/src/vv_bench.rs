@@ -218,6 +218,7 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
         x_label: "GPU ms per frame (median, lavapipe)".into(),
         y_label: format!("PSNR vs reference, {} spp (dB)", args.spp),
         log_x: true,
+        log_y: false,
         legend: true,
     };
     let path = args.out.join("vv_tradeoff.png");
