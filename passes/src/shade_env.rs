@@ -4,6 +4,7 @@
 
 use crate::gbuffer::{GBuffer, GBufferReads};
 use crate::scene_gpu::SceneHandles;
+use crate::technique::TechniqueInputs;
 use crate::util::{compute_pipeline, groups, Pipeline, Sampler};
 use anyhow::Result;
 use penumbra_engine::graph::{ImageDesc, PassBuilder};
@@ -81,7 +82,7 @@ impl crate::technique::Technique for ShadeEnvPass {
         &mut self,
         _engine: &mut penumbra_engine::FrameStore<'_>,
         graph: &mut Graph,
-        inputs: &crate::technique::TechniqueInputs,
+        inputs: &TechniqueInputs,
     ) -> Result<ImageHandle> {
         Ok(ShadeEnvPass::add(self, graph, inputs.handles, inputs.gbuffer, inputs.env))
     }

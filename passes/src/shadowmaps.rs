@@ -32,6 +32,7 @@ use crate::env::EnvTables;
 use crate::gbuffer::DEPTH_FORMAT;
 use crate::raster::{raster_pipeline, DepthState, RasterDesc, VertexInput};
 use crate::shade_env::{ShadingIo, HDR_FORMAT};
+use crate::technique::TechniqueInputs;
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
 use anyhow::{bail, Result};
 use glam::{Mat4, Vec3};
@@ -460,12 +461,7 @@ impl crate::technique::Technique for ShadowMapsTechnique {
     fn name(&self) -> &'static str {
         "shadowmaps"
     }
-    fn add(
-        &mut self,
-        engine: &mut FrameStore<'_>,
-        graph: &mut Graph,
-        inputs: &crate::technique::TechniqueInputs,
-    ) -> Result<ImageHandle> {
+    fn add(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle> {
         self.add_frame(engine, graph, inputs)
     }
 }

@@ -57,6 +57,7 @@ pub mod hemicube;
 
 use crate::kdtree::{KdTreeBuilder, KdTreeHandles};
 use crate::shade_env::HDR_FORMAT;
+use crate::technique::TechniqueInputs;
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
 use anyhow::{anyhow, bail, Result};
 use glam::{Mat3, Vec3};
@@ -1657,12 +1658,7 @@ impl crate::technique::Technique for AvsTechnique {
         Ok(())
     }
 
-    fn add(
-        &mut self,
-        engine: &mut FrameStore<'_>,
-        graph: &mut Graph,
-        inputs: &crate::technique::TechniqueInputs,
-    ) -> Result<ImageHandle> {
+    fn add(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle> {
         let frame = inputs.frame;
         let mut clock = std::time::Instant::now();
         let Some(Prepared { pool, rounds }) = self.prepared.take() else {

@@ -41,6 +41,7 @@
 //! Not done: Ashikhmin-Shirley uses one Cook-Torrance lobe.
 
 use crate::shade_env::HDR_FORMAT;
+use crate::technique::TechniqueInputs;
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
 use anyhow::Result;
 use glam::{Mat4, Vec3};
@@ -754,7 +755,7 @@ impl IsgTechnique {
     fn add_vertex_passes(
         &mut self,
         graph: &mut Graph,
-        inputs: &crate::technique::TechniqueInputs,
+        inputs: &TechniqueInputs,
         table: penumbra_engine::BufferHandle,
         lobes: penumbra_engine::BufferHandle,
         bvh: penumbra_engine::BufferHandle,
@@ -876,12 +877,7 @@ impl crate::technique::Technique for IsgTechnique {
         self.sphere_notes.clone()
     }
 
-    fn add(
-        &mut self,
-        engine: &mut FrameStore<'_>,
-        graph: &mut Graph,
-        inputs: &crate::technique::TechniqueInputs,
-    ) -> Result<ImageHandle> {
+    fn add(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle> {
         // local lights' occluders (and traced visibility's): the frame's triangles (rebuilt when
         // anything moved), or four empty stand-ins the shader never reads (flags bits 2, 3 off)
         let (kd_bufs, kd_tree) = crate::kdtree::KdTreeBuilder::add_frame_or_stand_ins(

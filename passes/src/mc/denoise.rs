@@ -23,6 +23,7 @@
 
 use super::McTechnique;
 use crate::shade_env::HDR_FORMAT;
+use crate::technique::TechniqueInputs;
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
 use anyhow::{bail, Result};
 use penumbra_engine::graph::ImageDesc;
@@ -131,12 +132,7 @@ impl crate::technique::Technique for McDenoised {
         "mc-denoised"
     }
 
-    fn add(
-        &mut self,
-        engine: &mut FrameStore<'_>,
-        graph: &mut Graph,
-        inputs: &crate::technique::TechniqueInputs,
-    ) -> Result<ImageHandle> {
+    fn add(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle> {
         let gb = inputs.gbuffer;
         let (w, h) = (gb.width, gb.height);
         let frame = inputs.frame;

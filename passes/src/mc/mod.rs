@@ -33,6 +33,7 @@ use crate::env::EnvTables;
 use crate::kdtree::{world_triangles_shading, KdTreeBuilder, KdTreeHandles};
 use crate::scene_gpu::FrameConstants;
 use crate::shade_env::HDR_FORMAT;
+use crate::technique::TechniqueInputs;
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline};
 use anyhow::Result;
 use glam::Vec3;
@@ -349,12 +350,7 @@ impl crate::technique::Technique for McTechnique {
     fn name(&self) -> &'static str {
         "mc"
     }
-    fn add(
-        &mut self,
-        engine: &mut FrameStore<'_>,
-        graph: &mut Graph,
-        inputs: &crate::technique::TechniqueInputs,
-    ) -> Result<ImageHandle> {
+    fn add(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle> {
         self.scene_textures = Some(inputs.handles.textures);
         let r = self.add_frame(engine, graph, inputs.frame, inputs.gbuffer.width, inputs.gbuffer.height);
         self.scene_textures = None;

@@ -32,6 +32,7 @@
 pub mod bench;
 pub mod wavelet;
 
+use crate::technique::TechniqueInputs;
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
 use anyhow::{anyhow, Result};
 use glam::{DVec3, Mat3, Vec3};
@@ -1085,7 +1086,7 @@ impl ShadowFieldsTechnique {
         &self,
         graph: &mut Graph,
         h: &SfHandles,
-        inputs: &crate::technique::TechniqueInputs,
+        inputs: &TechniqueInputs,
         w: u32,
         hh: u32,
     ) -> ImageHandle {
@@ -1120,7 +1121,7 @@ pub(crate) fn add_vertex_raster(
     graph: &mut Graph,
     name: &str,
     pipe: &Pipeline,
-    inputs: &crate::technique::TechniqueInputs,
+    inputs: &TechniqueInputs,
     values: BufferHandle,
     base_of: &[i32],
     draws: Vec<(u32, u32, i32, u32)>,
@@ -1215,12 +1216,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         }
     }
 
-    fn add(
-        &mut self,
-        engine: &mut FrameStore<'_>,
-        graph: &mut Graph,
-        inputs: &crate::technique::TechniqueInputs,
-    ) -> Result<ImageHandle> {
+    fn add(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle> {
         let srf = self.lights_through_fields();
         let h = upload(graph, &self.tables, &self.casts, inputs.frame, &self.shade_light, srf);
         let key_count = (self.key.len() / 2) as u32;

@@ -41,6 +41,7 @@
 //! maps on the GPU between frames (uploaded every frame), sphere lights' extent (shadowed as
 //! points).
 
+use crate::technique::TechniqueInputs;
 use crate::util::{bytes_of, compute_pipeline, Pipeline, Sampler};
 use anyhow::{anyhow, Result};
 use glam::Vec3;
@@ -632,7 +633,7 @@ impl WaveletTechnique {
     fn add_self(
         &self,
         graph: &mut Graph,
-        inputs: &crate::technique::TechniqueInputs,
+        inputs: &TechniqueInputs,
         insts: BufferHandle,
         dirs: BufferHandle,
         w: u32,
@@ -724,12 +725,7 @@ impl crate::technique::Technique for WaveletTechnique {
         }
     }
 
-    fn add(
-        &mut self,
-        engine: &mut FrameStore<'_>,
-        graph: &mut Graph,
-        inputs: &crate::technique::TechniqueInputs,
-    ) -> Result<ImageHandle> {
+    fn add(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle> {
         let frame = inputs.frame;
         // the local lights' occluders: the frame's triangles (rebuilt when anything moved), or
         // four empty stand-ins the shader never reads (traced = 0)

@@ -45,6 +45,7 @@
 //! Objects that move or deform are not supported (their visibility is precomputed at rest, t = 0).
 
 use crate::shade_env::{ShadeEnvPass, HDR_FORMAT};
+use crate::technique::TechniqueInputs;
 use crate::util::{bytes_of, compute_pipeline, groups, layouts, Pipeline, Sampler};
 use anyhow::{bail, Context as _, Result};
 use glam::DVec3;
@@ -916,12 +917,7 @@ impl crate::technique::Technique for VvTechnique {
         v
     }
 
-    fn add(
-        &mut self,
-        engine: &mut FrameStore<'_>,
-        graph: &mut Graph,
-        inputs: &crate::technique::TechniqueInputs,
-    ) -> Result<ImageHandle> {
+    fn add(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle> {
         let base = self.env.add(graph, inputs.handles, inputs.gbuffer, inputs.env);
         let sat = self.add_sat(graph, "vv_sat", &self.up.env);
         let blur = if self.settings.mode.tessellated() {
