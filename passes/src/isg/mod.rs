@@ -827,23 +827,7 @@ impl IsgTechnique {
                 .depth_attachment(&depth_att);
             let vb = rc.buffer(verts_v)?;
             let ib = rc.buffer(index_buf)?;
-            unsafe {
-                d.cmd_begin_rendering(rc.cmd, &info);
-                d.cmd_set_viewport(
-                    rc.cmd,
-                    0,
-                    &[vk::Viewport {
-                        x: 0.0,
-                        y: 0.0,
-                        width: w as f32,
-                        height: h as f32,
-                        min_depth: 0.0,
-                        max_depth: 1.0,
-                    }],
-                );
-                d.cmd_set_scissor(rc.cmd, 0, &[area]);
-                d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, rp);
-            }
+            crate::raster::begin(d, rc.cmd, &info, w, h, rp);
             rc.push_descriptors(
                 vk::PipelineBindPoint::GRAPHICS,
                 rl,

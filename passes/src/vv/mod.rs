@@ -46,7 +46,7 @@
 
 use crate::shade_env::{ShadeEnvPass, HDR_FORMAT};
 use crate::technique::TechniqueInputs;
-use crate::util::{bytes_of, compute_pipeline, groups, layouts, Pipeline, Sampler};
+use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
 use anyhow::{bail, Context as _, Result};
 use glam::DVec3;
 use penumbra_engine::graph::ImageDesc;
@@ -604,9 +604,15 @@ impl Drop for VvTechnique {
     }
 }
 
+/// The stages of vv's raster pipeline (`tess`: the tessellated mode's), which its push
+/// constants are visible to.
+fn raster_stages(tess: bool) -> vk::ShaderStageFlags {
+    let tess_stages = vk::ShaderStageFlags::TESSELLATION_CONTROL | vk::ShaderStageFlags::TESSELLATION_EVALUATION;
+    vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT | if tess { tess_stages } else { Default::default() }
+}
+
 fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, tess: bool) -> Result<Pipeline> {
     use vk::DescriptorType as T;
-    let d = &ctx.device;
     let types = [
         T::UNIFORM_BUFFER,
         T::COMBINED_IMAGE_SAMPLER,
@@ -624,83 +630,27 @@ fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, tess: bool) -> R
         T::STORAGE_BUFFER,
         T::STORAGE_BUFFER,
     ];
-    let (set_layout, layout) =
-        layouts(ctx, if tess { "vv_tess" } else { "vv_shade" }, &types, vk::ShaderStageFlags::ALL_GRAPHICS, 64)?;
-    let names: &[(&str, vk::ShaderStageFlags)] = if tess {
-        &[
-            ("vv/vv_tess.vert", vk::ShaderStageFlags::VERTEX),
-            ("vv/vv_tess.tesc", vk::ShaderStageFlags::TESSELLATION_CONTROL),
-            ("vv/vv_tess.tese", vk::ShaderStageFlags::TESSELLATION_EVALUATION),
-            ("vv/vv_tess.frag", vk::ShaderStageFlags::FRAGMENT),
-        ]
+    let (name, files): (&str, &[&str]) = if tess {
+        ("vv_tess", &["vv/vv_tess.vert", "vv/vv_tess.tesc", "vv/vv_tess.tese", "vv/vv_tess.frag"])
     } else {
-        &[("vv/vv_shade.vert", vk::ShaderStageFlags::VERTEX), ("vv/vv_shade.frag", vk::ShaderStageFlags::FRAGMENT)]
+        ("vv_shade", &["vv/vv_shade.vert", "vv/vv_shade.frag"])
     };
-    let code = names.iter().map(|(n, _)| Ok((*n, shaders.get(n)?))).collect::<Result<Vec<_>>>()?;
-    if let Err(e) = penumbra_engine::reflect::check_layout(&code, &types, 64) {
-        unsafe {
-            d.destroy_pipeline_layout(layout, None);
-            d.destroy_descriptor_set_layout(set_layout, None);
-        }
-        return Err(e.context(if tess { "vv_tess pipeline" } else { "vv_shade pipeline" }));
-    }
-    let mut modules = Vec::new();
-    for (n, _) in names {
-        modules.push(ctx.create_shader_module(n, shaders.get(n)?)?);
-    }
-    let stages: Vec<_> = names
-        .iter()
-        .zip(&modules)
-        .map(|((_, s), m)| vk::PipelineShaderStageCreateInfo::default().stage(*s).module(*m).name(c"main"))
-        .collect();
-    let vi = vk::PipelineVertexInputStateCreateInfo::default();
-    let ia = vk::PipelineInputAssemblyStateCreateInfo::default().topology(if tess {
-        vk::PrimitiveTopology::PATCH_LIST
-    } else {
-        vk::PrimitiveTopology::TRIANGLE_LIST
-    });
-    let ts = vk::PipelineTessellationStateCreateInfo::default().patch_control_points(3);
-    let vp = vk::PipelineViewportStateCreateInfo::default().viewport_count(1).scissor_count(1);
-    let rs = vk::PipelineRasterizationStateCreateInfo::default()
-        .polygon_mode(vk::PolygonMode::FILL)
-        .cull_mode(vk::CullModeFlags::NONE)
-        .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
-        .line_width(1.0);
-    let ms = vk::PipelineMultisampleStateCreateInfo::default().rasterization_samples(vk::SampleCountFlags::TYPE_1);
-    let ds = vk::PipelineDepthStencilStateCreateInfo::default()
-        .depth_test_enable(true)
-        .depth_write_enable(true)
-        .depth_compare_op(vk::CompareOp::LESS);
-    let blend = [vk::PipelineColorBlendAttachmentState::default().color_write_mask(vk::ColorComponentFlags::RGBA)];
-    let cb = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend);
-    let dyn_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
-    let dy = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dyn_states);
-    let formats = [HDR_FORMAT];
-    let mut rendering = vk::PipelineRenderingCreateInfo::default()
-        .color_attachment_formats(&formats)
-        .depth_attachment_format(crate::gbuffer::DEPTH_FORMAT);
-    let mut ci = vk::GraphicsPipelineCreateInfo::default()
-        .stages(&stages)
-        .vertex_input_state(&vi)
-        .input_assembly_state(&ia)
-        .viewport_state(&vp)
-        .rasterization_state(&rs)
-        .multisample_state(&ms)
-        .depth_stencil_state(&ds)
-        .color_blend_state(&cb)
-        .dynamic_state(&dy)
-        .layout(layout)
-        .push_next(&mut rendering);
-    if tess {
-        ci = ci.tessellation_state(&ts);
-    }
-    let res = unsafe { d.create_graphics_pipelines(ctx.pipeline_cache, &[ci], None) };
-    for m in modules {
-        unsafe { d.destroy_shader_module(m, None) };
-    }
-    let pipeline = res.map_err(|(_, e)| e).context("vv raster pipeline")?[0];
-    ctx.set_name(pipeline, if tess { "vv_tess" } else { "vv_shade" });
-    Ok(Pipeline::from_raw(ctx, pipeline, layout, set_layout))
+    let desc = crate::raster::RasterDesc {
+        name,
+        shaders: files,
+        descriptors: &types,
+        push_constant_bytes: 64,
+        topology: if tess { vk::PrimitiveTopology::PATCH_LIST } else { vk::PrimitiveTopology::TRIANGLE_LIST },
+        patch_control_points: if tess { 3 } else { 0 },
+        colors: &[HDR_FORMAT],
+        depth: Some(crate::raster::DepthState {
+            format: crate::gbuffer::DEPTH_FORMAT,
+            write: true,
+            compare: vk::CompareOp::LESS,
+        }),
+        ..Default::default()
+    };
+    crate::raster::raster_pipeline(ctx, shaders, &desc)
 }
 
 impl VvTechnique {
@@ -1013,22 +963,8 @@ impl crate::technique::Technique for VvTechnique {
                     d.cmd_reset_query_pool(rc.cmd, query, 0, 1);
                     d.cmd_begin_query(rc.cmd, query, 0, vk::QueryControlFlags::empty());
                 }
-                d.cmd_begin_rendering(rc.cmd, &info);
-                d.cmd_set_viewport(
-                    rc.cmd,
-                    0,
-                    &[vk::Viewport {
-                        x: 0.0,
-                        y: 0.0,
-                        width: w as f32,
-                        height: h as f32,
-                        min_depth: 0.0,
-                        max_depth: 1.0,
-                    }],
-                );
-                d.cmd_set_scissor(rc.cmd, 0, &[area]);
-                d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
             }
+            crate::raster::begin(d, rc.cmd, &info, w, h, pipeline);
             rc.push_descriptors(
                 vk::PipelineBindPoint::GRAPHICS,
                 layout,
@@ -1051,7 +987,7 @@ impl crate::technique::Technique for VvTechnique {
                 ],
             )?;
             unsafe {
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::ALL_GRAPHICS, 0, &push);
+                d.cmd_push_constants(rc.cmd, layout, raster_stages(tess), 0, &push);
                 d.cmd_draw(rc.cmd, vertex_count, 1, 0, 0);
                 d.cmd_end_rendering(rc.cmd);
                 if query != vk::QueryPool::null() {
