@@ -690,7 +690,6 @@ impl Engine {
         let mut rec = self.record(graph, None)?;
         let d = &self.ctx.device;
         let s = &self.slots[rec.slot];
-        let done = std::mem::take(&mut self.pending);
         let cmd_infos = [vk::CommandBufferSubmitInfo::default().command_buffer(s.cmd)];
         let sem = |&(semaphore, stage): &(vk::Semaphore, vk::PipelineStageFlags2)| {
             vk::SemaphoreSubmitInfo::default().semaphore(semaphore).stage_mask(stage)
@@ -712,6 +711,8 @@ impl Engine {
             ms: ts_submit.elapsed().as_secs_f64() * 1e3,
         });
         rec.timeline.submitted = Some(ts_submit);
+        // (on a failed submit the frames collected meanwhile stay pending for the next call)
+        let done = std::mem::take(&mut self.pending);
         Ok((self.commit(rec, None), done))
     }
 
@@ -723,8 +724,10 @@ impl Engine {
     /// (bind again after). The host must submit `cmd` once, signalling the returned
     /// [`HostSignal`] in the same submission; the frame's outputs then come back from a later
     /// `submit`/`record_into`/`poll`+`drain` as for any frame. Returns the compiled graph, the
-    /// outputs of frames that completed meanwhile, and the signal. Needs `timelineSemaphore`
-    /// ([`crate::context::ExternalFeatures::timeline_semaphore`]).
+    /// outputs of frames that completed meanwhile, and the signal. A host that throws `cmd`
+    /// away instead signals the value itself (`vkSignalSemaphore`), else penumbra waits for
+    /// that frame up to [`Engine::fence_timeout`] when it next needs the slot or is dropped.
+    /// Needs `timelineSemaphore` ([`crate::context::ExternalFeatures::timeline_semaphore`]).
     pub fn record_into(
         &mut self,
         graph: Graph,
