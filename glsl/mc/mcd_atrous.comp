@@ -28,7 +28,7 @@ layout(binding = 7) uniform sampler2DArray material_textures;
 layout(push_constant) uniform Push {
     vec4 eye_pixel;  // eye, w: world size of one pixel at unit distance
     uvec4 step;      // tap spacing, width, height, 1 on the last iteration
-    vec4 phi;        // phi_color, phi_normal, phi_plane, unused
+    vec4 phi;        // phi_color, phi_normal, phi_plane, phi_lobe
 } pc;
 
 void main() {
@@ -60,6 +60,21 @@ void main() {
     float dist = length(pos.xyz - pc.eye_pixel.xyz);
     float plane_tol = max(pc.phi.z * dist * pc.eye_pixel.w * float(pc.step.x), 1e-6);
     float lp = mcd_luminance(cp.rgb);
+    // Glossy pixels: a tap counts as much as its mirror direction falls inside this pixel's
+    // specular lobe (sharpness ~ 1 / (2 r^2) about the reflection vector; Blinn-Phong s: s / 4),
+    // scaled by the specular share of the reflectance and phi_lobe. A sharp highlight (the sun
+    // in a shininess-1000 bunny: 20-115 against a mean of 1.4) then stays where it is instead of
+    // being spread over the a-trous footprint; diffuse surfaces are filtered as before.
+    vec3 eye = pc.eye_pixel.xyz;
+    vec3 mirror = reflect(-normalize(eye - pos.xyz), n);
+    float lobe = 0.0;
+    {
+        vec4 uvm = texelFetch(gb_uv_mat, px, 0);
+        MaterialData m = material_at(mats[int(uvm.z + 0.5)], uvm.xy, material_textures);
+        float ks = mcd_luminance(m.spec_rough.rgb) / max(mcd_luminance(m.spec_rough.rgb + m.albedo_kind.rgb), 1e-6);
+        float r = material_roughness(m);
+        lobe = material_kind(m) == 0 ? 0.0 : pc.phi.w * ks * 0.5 / max(r * r, 1e-4);
+    }
     const float h[3] = float[](0.375, 0.25, 0.0625);
     vec3 sum = vec3(0.0);
     float wsum = 0.0, vsum = 0.0;
@@ -76,6 +91,10 @@ void main() {
             w *= pow(max(dot(n, nq), 0.0), pc.phi.y);
             w *= exp(-abs(dot(n, rp.xyz - pos.xyz)) / plane_tol);
             w *= exp(-abs(mcd_luminance(cq.rgb) - lp) / sigma_l);
+            if (lobe > 0.0) {
+                vec3 mq = reflect(-normalize(eye - rp.xyz), nq);
+                w *= exp(lobe * (dot(mirror, mq) - 1.0));
+            }
             sum += w * cq.rgb;
             wsum += w;
             vsum += w * w * cq.a;

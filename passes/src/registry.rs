@@ -162,6 +162,7 @@ const MC_DENOISED_PARAMS: &[ParamDoc] = &[
     p("phi_color", "4", "> 0", "luminance edge-stopping: differences against phi_color standard deviations of the pixel's noise"),
     p("phi_normal", "128", "> 0", "normal edge-stopping exponent (pow(n . n_q, phi_normal))"),
     p("phi_plane", "1", "> 0", "depth edge-stopping: distance from the pixel's tangent plane against phi_plane pixel footprints per tap spacing"),
+    p("phi_lobe", "4", ">= 0", "specular-lobe edge-stopping on glossy pixels: taps weighted by how far their mirror direction falls inside the pixel's specular lobe (0: off)"),
 ];
 
 const SHADOWMAPS_PARAMS: &[ParamDoc] = &[
