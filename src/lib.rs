@@ -675,7 +675,6 @@ impl Renderer {
     }
 }
 
-/// An imported image description for a tone-mapped target the application owns
 /// The host's images a frame writes ([`Renderer::render_outputs`], [`Renderer::record_into`]):
 /// `ldr`, the tone-mapped image (as `target` elsewhere); `hdr`, a copy of the linear radiance
 /// (a float colour format, blitted: R32G32B32A32_SFLOAT exact, R16G16B16A16_SFLOAT rounded);
@@ -704,6 +703,7 @@ pub struct HostFrame {
     pub done: Vec<FrameImages>,
 }
 
+/// An imported image description for a tone-mapped target the application owns
 /// (`R8G8B8A8_UNORM`, usage STORAGE | TRANSFER_SRC), left ready for a transfer read.
 pub fn target_image(
     image: vk::Image,
