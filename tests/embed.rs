@@ -46,6 +46,13 @@ fn an_application_device_without_required_features_is_refused_with_every_problem
     let problems = bad.problems(&ctx.instance, ctx.physical);
     assert_eq!(problems.len(), 2, "{problems:?}");
     let e = as_host(&ctx, bad).err().expect("refused").to_string();
+    // a queue family that does not exist is one more problem, listed with the others
+    let (i, d) = (ctx.instance.clone(), ctx.device.clone());
+    let e3 = Context::from_external_with(ctx.entry.clone(), i, ctx.physical, d, ctx.queue, 99, bad)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(e3.contains("3 problem(s)") && e3.contains("queue family 99 does not exist"), "{e3}");
     assert!(
         e.contains("2 problem(s)") && e.contains("VK_KHR_push_descriptor") && e.contains("scalarBlockLayout"),
         "{e}"

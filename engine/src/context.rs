@@ -567,7 +567,18 @@ impl Context {
         queue_family: u32,
         features: ExternalFeatures,
     ) -> Result<Arc<Context>> {
-        let problems = features.problems(&instance, physical);
+        let mut problems = features.problems(&instance, physical);
+        // the queue penumbra submits to (or records for): graphics and compute (transfer implied)
+        let families = unsafe { instance.get_physical_device_queue_family_properties(physical) };
+        match families.get(queue_family as usize) {
+            None => {
+                problems.push(format!("queue family {queue_family} does not exist ({} on this device)", families.len()))
+            }
+            Some(q) if !q.queue_flags.contains(vk::QueueFlags::GRAPHICS | vk::QueueFlags::COMPUTE) => problems.push(
+                format!("queue family {queue_family} has {:?}: penumbra needs GRAPHICS and COMPUTE", q.queue_flags),
+            ),
+            Some(_) => {}
+        }
         if !problems.is_empty() {
             bail!(
                 "the application's device cannot run penumbra ({} problem(s)): {}",
