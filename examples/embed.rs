@@ -19,6 +19,9 @@ pub struct Embedded {
     pub submitted_mean: f64,
     pub host_copy: Vec<u8>,
     pub penumbra_readback: Vec<u8>,
+    /// penumbra names its objects and labels its passes on the application's device (the
+    /// application enabled VK_EXT_debug_utils and said so).
+    pub labelled: bool,
 }
 
 /// Runs both modes.
@@ -26,7 +29,18 @@ pub fn run() -> Result<Embedded> {
     // ---- the application's own Vulkan objects
     let entry = unsafe { ash::Entry::load()? };
     let app = vk::ApplicationInfo::default().api_version(vk::API_VERSION_1_3);
-    let instance = unsafe { entry.create_instance(&vk::InstanceCreateInfo::default().application_info(&app), None)? };
+    // VK_EXT_debug_utils where the loader has it: penumbra then names its objects and labels its
+    // passes inside the application's frames (declared below), for RenderDoc and the like
+    let debug_utils = unsafe { entry.enumerate_instance_extension_properties(None)? }
+        .iter()
+        .any(|e| e.extension_name_as_c_str() == Ok(ash::ext::debug_utils::NAME));
+    let instance_exts: Vec<_> = debug_utils.then_some(ash::ext::debug_utils::NAME.as_ptr()).into_iter().collect();
+    let instance = unsafe {
+        entry.create_instance(
+            &vk::InstanceCreateInfo::default().application_info(&app).enabled_extension_names(&instance_exts),
+            None,
+        )?
+    };
     let physical = unsafe { instance.enumerate_physical_devices()? }.into_iter().next().context("no Vulkan device")?;
     let family = unsafe { instance.get_physical_device_queue_family_properties(physical) }
         .iter()
@@ -116,6 +130,7 @@ pub fn run() -> Result<Embedded> {
     let features = penumbra::engine::ExternalFeatures {
         shader_output_layer: layered,
         timeline_semaphore: true,
+        debug_utils,
         ..Default::default()
     };
     let ctx = Context::from_external_with(
@@ -127,6 +142,7 @@ pub fn run() -> Result<Embedded> {
         family,
         features,
     )?;
+    let labelled = ctx.debug_utils.is_some();
     let scene = Scene::default_scene();
     let mut renderer = Renderer::new(ctx, &scene, RenderSettings { width: w, height: h, ..Default::default() })?;
     let frame = scene.at(0.0, None);
@@ -231,7 +247,7 @@ pub fn run() -> Result<Embedded> {
         device.destroy_device(None);
         instance.destroy_instance(None);
     }
-    Ok(Embedded { submitted_mean, host_copy, penumbra_readback })
+    Ok(Embedded { submitted_mean, host_copy, penumbra_readback, labelled })
 }
 
 #[allow(dead_code)]

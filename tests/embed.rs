@@ -15,6 +15,8 @@ fn renders_into_an_application_image_in_both_modes() {
     assert!(e.host_copy == e.penumbra_readback, "the application's copy differs from penumbra's readback");
     let host_mean = e.host_copy.iter().map(|&b| b as f64).sum::<f64>() / e.host_copy.len() as f64;
     assert!((host_mean - mean).abs() < 0.5, "the recorded frame (mean {host_mean}) is not the submitted one ({mean})");
+    // the Vulkan loader provides VK_EXT_debug_utils: the example enables and declares it
+    assert!(e.labelled, "penumbra's passes are not labelled on the application's device");
 }
 
 /// `ctx`'s instance, device and queue wrapped as a host's would be, with `features` declared.
