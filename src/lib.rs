@@ -579,8 +579,9 @@ impl Renderer {
     /// descriptor and push-constant state bound before is not kept. The host submits `cmd` once,
     /// signalling the returned [`HostFrame::signal`] in that same submission
     /// ([`HostSignal::submit_info`]); penumbra never waits on the device for it, and the frame's
-    /// images come back from a later `render`/`record_into`/[`Renderer::finish`]. A host that
-    /// discards `cmd` signals the value itself (`vkSignalSemaphore`). Needs the
+    /// images come back from a later `render`/`record_into`/[`Renderer::finish`]. `cmd` must be
+    /// submitted (the renderer's resources already count the frame as run): a host that cannot
+    /// signals the value itself (`vkSignalSemaphore`) and drops the renderer. Needs the
     /// `timelineSemaphore` feature ([`penumbra_engine::ExternalFeatures::timeline_semaphore`]).
     pub fn record_into(
         &mut self,

@@ -724,10 +724,12 @@ impl Engine {
     /// (bind again after). The host must submit `cmd` once, signalling the returned
     /// [`HostSignal`] in the same submission; the frame's outputs then come back from a later
     /// `submit`/`record_into`/`poll`+`drain` as for any frame. Returns the compiled graph, the
-    /// outputs of frames that completed meanwhile, and the signal. A host that throws `cmd`
-    /// away instead signals the value itself (`vkSignalSemaphore`), else penumbra waits for
-    /// that frame up to [`Engine::fence_timeout`] when it next needs the slot or is dropped.
-    /// Needs `timelineSemaphore` ([`crate::context::ExternalFeatures::timeline_semaphore`]).
+    /// outputs of frames that completed meanwhile, and the signal. The frame counts as
+    /// submitted from here (persistent resources take their final states), so `cmd` must be
+    /// submitted: a host that cannot submit it signals the value itself (`vkSignalSemaphore`,
+    /// else penumbra waits up to [`Engine::fence_timeout`] for it) and drops this engine, whose
+    /// persistent resources are then in states it no longer knows. Needs `timelineSemaphore`
+    /// ([`crate::context::ExternalFeatures::timeline_semaphore`]).
     pub fn record_into(
         &mut self,
         graph: Graph,
