@@ -333,29 +333,39 @@ impl Viewer<'_> {
         let cur = self.t_cursor.clone().unwrap_or_else(|| self.technique());
         let next = list[(list.iter().position(|t| *t == cur).map_or(0, |i| i + 1)) % list.len()];
         self.t_cursor = Some(next.to_string());
-        let Some(s) = &mut self.state else { return Ok(()) };
         // (the renderer gives the scene's parameters to the scene's own technique only)
-        let scene = self.scene.clone();
         let mut settings = self.settings.clone();
         settings.technique = Some(next.to_string());
         // a preset (C) belongs to the technique it was chosen for
         settings.technique_params = None;
+        if self.switch_renderer(settings, format!("technique: {next}"), &format!("technique {next}")) {
+            self.preset = 0;
+        }
+        Ok(())
+    }
+
+    /// Replaces the renderer with one built from `settings` (same device, window and shaders):
+    /// prints `announce` and the new renderer's notes, and returns true; when it cannot be built
+    /// (e.g. a technique needing parameters the scene does not give) the old one keeps running
+    /// and the error is printed after `what`.
+    fn switch_renderer(&mut self, settings: RenderSettings, announce: String, what: &str) -> bool {
+        let Some(s) = &mut self.state else { return false };
         let lib = self.shaders.clone().unwrap_or_else(penumbra::shader_library);
-        // The old renderer keeps running if the new technique cannot be created (e.g. it needs
-        // parameters the scene does not give).
-        match penumbra::Renderer::new_with_shaders(s.ctx.clone(), &scene, settings.clone(), &lib) {
+        match penumbra::Renderer::new_with_shaders(s.ctx.clone(), &self.scene, settings.clone(), &lib) {
             Ok(r) => {
-                println!("technique: {next}");
+                println!("{announce}");
                 for l in r.notes() {
                     eprintln!("note: {l}");
                 }
                 s.renderer = Some(r);
                 self.settings = settings;
-                self.preset = 0;
+                true
             }
-            Err(e) => eprintln!("technique {next}: {e:#} (still showing {})", self.technique()),
+            Err(e) => {
+                eprintln!("{what}: {e:#} (still showing {})", self.technique());
+                false
+            }
         }
-        Ok(())
     }
 
     /// The technique running and its parameters (as the renderer resolved them: `auto`'s
@@ -376,19 +386,13 @@ impl Viewer<'_> {
         let presets = crate::pareto::configurations(info);
         self.preset = (self.preset + 1) % presets.len();
         let params = presets[self.preset].clone();
-        let Some(s) = &mut self.state else { return Ok(()) };
+        let label = crate::pareto::label(&params);
         let mut settings = self.settings.clone();
         settings.technique = Some(name.clone());
-        settings.technique_params = Some(params.clone());
-        let lib = self.shaders.clone().unwrap_or_else(penumbra::shader_library);
-        match penumbra::Renderer::new_with_shaders(s.ctx.clone(), &self.scene, settings.clone(), &lib) {
-            Ok(r) => {
-                println!("preset {}/{}: {name} {}", self.preset + 1, presets.len(), crate::pareto::label(&params));
-                s.renderer = Some(r);
-                self.settings = settings;
-                self.hud_announce = self.hud;
-            }
-            Err(e) => eprintln!("preset {}: {e:#} (still showing the previous one)", crate::pareto::label(&params)),
+        settings.technique_params = Some(params);
+        let announce = format!("preset {}/{}: {name} {label}", self.preset + 1, presets.len());
+        if self.switch_renderer(settings, announce, &format!("preset {label}")) {
+            self.hud_announce = self.hud;
         }
         Ok(())
     }
