@@ -5,7 +5,6 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
-use std::time::{Duration, Instant};
 
 fn tmp(name: &str) -> PathBuf {
     let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
@@ -18,52 +17,31 @@ fn text(o: &Output) -> String {
     format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
 }
 
-/// An Xvfb server on a free display, killed on drop.
+/// An Xvfb server on a display it chose itself, killed on drop.
 struct Xvfb {
     child: Child,
     display: String,
+    /// Xvfb's stdout, kept open for the server's lifetime.
+    _stdout: std::io::BufReader<std::process::ChildStdout>,
 }
 
 impl Xvfb {
     fn start() -> Xvfb {
-        // Tests of this file run in parallel in one process: each takes its own range of display
-        // numbers (two servers raced for one number, and one test talked to the other's server,
-        // which was killed under it).
-        static NEXT: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
-        let base = 140 + (std::process::id() % 300) + 50 * NEXT.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-        for n in 0..50 {
-            let num = base + n;
-            if Path::new(&format!("/tmp/.X11-unix/X{num}")).exists()
-                || Path::new(&format!("/tmp/.X{num}-lock")).exists()
-            {
-                continue;
-            }
-            let child = Command::new("Xvfb")
-                .args([format!(":{num}").as_str(), "-screen", "0", "640x480x24", "-nolisten", "tcp"])
-                .stdout(Stdio::null())
-                .stderr(Stdio::null())
-                .spawn()
-                .expect("Xvfb is needed for the window tests (scripts/install-deps.sh installs the package xvfb)");
-            let mut child = child;
-            let t0 = Instant::now();
-            let mut exited = false;
-            while t0.elapsed() < Duration::from_secs(10) {
-                // a server that exited lost the number to another one (another process's test)
-                if child.try_wait().ok().flatten().is_some() {
-                    exited = true;
-                    break;
-                }
-                if Path::new(&format!("/tmp/.X11-unix/X{num}")).exists() {
-                    return Xvfb { child, display: format!(":{num}") };
-                }
-                std::thread::sleep(Duration::from_millis(50));
-            }
-            if exited {
-                continue;
-            }
-            panic!("Xvfb :{num} did not start");
-        }
-        panic!("no free X display number");
+        // Xvfb picks a free display number and writes it to its stdout once it accepts
+        // connections (-displayfd 1). Choosing numbers here raced: under nextest every test is
+        // its own process, two servers were started on one number, and a test could talk to the
+        // other test's server, killed under it ("Failed to set window title: Connection").
+        let mut child = Command::new("Xvfb")
+            .args(["-displayfd", "1", "-screen", "0", "640x480x24", "-nolisten", "tcp"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("Xvfb is needed for the window tests (scripts/install-deps.sh installs the package xvfb)");
+        let mut line = String::new();
+        let mut stdout = std::io::BufReader::new(child.stdout.take().expect("Xvfb's stdout"));
+        std::io::BufRead::read_line(&mut stdout, &mut line).expect("reading Xvfb's display");
+        let num: u32 = line.trim().parse().unwrap_or_else(|_| panic!("Xvfb did not start (it wrote {line:?})"));
+        Xvfb { child, display: format!(":{num}"), _stdout: stdout }
     }
 }
 
