@@ -626,10 +626,11 @@ fn main() -> ExitCode {
         }
     }
     // The libraries' messages (warnings, reference and precompute progress, validation
-    // errors) come through `tracing`: printed on stderr, `RUST_LOG` filters them (default:
-    // info; e.g. RUST_LOG=warn for warnings only, RUST_LOG=penumbra::vulkan=off).
+    // errors) come through `tracing`: printed on stderr, `RUST_LOG` filters them. Default:
+    // penumbra's own crates at info (targets starting with "penumbra"), nothing from the
+    // dependencies (winit's X11 chatter); e.g. RUST_LOG=warn, RUST_LOG=penumbra::vulkan=off.
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("penumbra=info"));
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
