@@ -8,11 +8,17 @@
 
 float mcd_luminance(vec3 c) { return dot(c, vec3(0.2126, 0.7152, 0.0722)); }
 
-// Diffuse albedo plus specular colour of the textured material under the pixel (`uvm`: the
-// G-buffer's uv, material index), floored so that black surfaces keep their (emitted) radiance.
-vec3 mcd_reflectance(vec4 uvm) {
-    MaterialData m = material_at(mats[int(uvm.z + 0.5)], uvm.xy, material_textures);
+// Diffuse albedo plus specular colour of a textured material (of the pixel's, from its `uvm`),
+// floored so that black surfaces keep their (emitted) radiance.
+vec3 mcd_reflectance_of(MaterialData m) {
     return max(m.albedo_kind.rgb + m.spec_rough.rgb, vec3(1e-3));
 }
+
+// The material under the pixel (`uvm`: the G-buffer's uv, material index).
+MaterialData mcd_material(vec4 uvm) {
+    return material_at(mats[int(uvm.z + 0.5)], uvm.xy, material_textures);
+}
+
+vec3 mcd_reflectance(vec4 uvm) { return mcd_reflectance_of(mcd_material(uvm)); }
 
 #endif

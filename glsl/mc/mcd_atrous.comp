@@ -67,14 +67,10 @@ void main() {
     // being spread over the a-trous footprint; diffuse surfaces are filtered as before.
     vec3 eye = pc.eye_pixel.xyz;
     vec3 mirror = reflect(-normalize(eye - pos.xyz), n);
-    float lobe = 0.0;
-    {
-        vec4 uvm = texelFetch(gb_uv_mat, px, 0);
-        MaterialData m = material_at(mats[int(uvm.z + 0.5)], uvm.xy, material_textures);
-        float ks = mcd_luminance(m.spec_rough.rgb) / max(mcd_luminance(m.spec_rough.rgb + m.albedo_kind.rgb), 1e-6);
-        float r = material_roughness(m);
-        lobe = material_kind(m) == 0 ? 0.0 : pc.phi.w * ks * 0.5 / max(r * r, 1e-4);
-    }
+    MaterialData m = mcd_material(texelFetch(gb_uv_mat, px, 0));
+    float ks = mcd_luminance(m.spec_rough.rgb) / max(mcd_luminance(m.spec_rough.rgb + m.albedo_kind.rgb), 1e-6);
+    float rough = material_roughness(m);
+    float lobe = material_kind(m) == 0 ? 0.0 : pc.phi.w * ks * 0.5 / max(rough * rough, 1e-4);
     const float h[3] = float[](0.375, 0.25, 0.0625);
     vec3 sum = vec3(0.0);
     float wsum = 0.0, vsum = 0.0;
@@ -104,7 +100,7 @@ void main() {
     vec3 filtered = sum / wsum;
     float var = vsum / (wsum * wsum);
     if (last) {
-        imageStore(dst, px, vec4(filtered * mcd_reflectance(texelFetch(gb_uv_mat, px, 0)), 1.0));
+        imageStore(dst, px, vec4(filtered * mcd_reflectance_of(m), 1.0));
     } else {
         imageStore(dst, px, vec4(filtered, var));
     }
