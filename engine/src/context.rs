@@ -88,6 +88,11 @@ pub struct ContextDesc {
     pub device_name: Option<String>,
     /// Enable VK_KHR_swapchain (for a window).
     pub swapchain: bool,
+    /// The loop guard (a test and debugging mode): enable `bufferDeviceAddress` and keep a
+    /// host-visible guard buffer into which shaders compiled by
+    /// `ShaderLibrary::with_loop_guard` count their loop iterations
+    /// ([`Context::loop_guard_counts`]).
+    pub loop_guard: bool,
 }
 
 impl Default for ContextDesc {
@@ -98,6 +103,7 @@ impl Default for ContextDesc {
             instance_extensions: Vec::new(),
             device_name: None,
             swapchain: false,
+            loop_guard: false,
         }
     }
 }
@@ -343,6 +349,8 @@ pub struct Context {
     pub max_image_dimension_2d: u32,
     /// `maxStorageBufferRange`: the most bytes one storage-buffer binding may span.
     pub max_storage_buffer_range: u32,
+    /// The loop guard's buffer and its device address ([`ContextDesc::loop_guard`]).
+    loop_guard: Option<(GpuBuffer, u64)>,
     /// The Vulkan pipeline cache every pipeline of penumbra is created with.
     pub pipeline_cache: vk::PipelineCache,
     /// Where the cache is saved when the context is dropped (none: in memory only).
@@ -493,7 +501,11 @@ impl Context {
         let shader_output_layer =
             avail12.shader_output_layer == vk::TRUE && avail12.shader_output_viewport_index == vk::TRUE;
         let timeline_semaphore = avail12.timeline_semaphore == vk::TRUE;
+        if desc.loop_guard && avail12.buffer_device_address != vk::TRUE {
+            bail!("the loop guard needs bufferDeviceAddress, which {device_name} does not have");
+        }
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
+            .buffer_device_address(desc.loop_guard)
             .host_query_reset(true)
             .scalar_block_layout(true)
             .timeline_semaphore(timeline_semaphore)
@@ -527,6 +539,7 @@ impl Context {
             validation,
             desc.validation,
             true,
+            desc.loop_guard,
             ExternalFeatures {
                 shader_output_layer,
                 tessellation_shader: avail.tessellation_shader == vk::TRUE,
@@ -604,6 +617,7 @@ impl Context {
             Arc::new(ValidationLog::default()),
             false,
             false,
+            false,
             features,
             // An embedding host's context keeps its pipeline cache in memory.
             None,
@@ -625,6 +639,7 @@ impl Context {
         validation: Arc<ValidationLog>,
         validation_enabled: bool,
         owned: bool,
+        loop_guard: bool,
         features: ExternalFeatures,
         pipeline_cache_dir: Option<std::path::PathBuf>,
     ) -> Result<Context> {
@@ -633,7 +648,7 @@ impl Context {
             device: device.clone(),
             physical_device: physical,
             debug_settings: Default::default(),
-            buffer_device_address: false,
+            buffer_device_address: loop_guard,
             allocation_sizes: Default::default(),
         })
         .context("gpu-allocator")?;
@@ -664,7 +679,7 @@ impl Context {
                 .or_else(|_| device.create_pipeline_cache(&vk::PipelineCacheCreateInfo::default(), None))
         }
         .context("vkCreatePipelineCache")?;
-        Ok(Context {
+        let mut ctx = Context {
             entry,
             instance,
             physical,
@@ -690,7 +705,60 @@ impl Context {
             pipeline_cache_loaded: initial.len(),
             allocator: ManuallyDrop::new(Mutex::new(allocator)),
             owned,
-        })
+            loop_guard: None,
+        };
+        if loop_guard {
+            let slots = 1024u64;
+            let bytes = slots * (crate::glsl_compile::LOOP_GUARD_SLOT_WORDS * 4) as u64;
+            let mut buf = ctx.create_readback_buffer(
+                "loop_guard",
+                bytes,
+                vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS,
+            )?;
+            buf.write(&vec![0u8; bytes as usize])?;
+            let address = unsafe {
+                ctx.device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(buf.buffer))
+            };
+            ctx.loop_guard = Some((buf, address));
+        }
+        Ok(ctx)
+    }
+
+    /// How many shader slots the loop guard buffer holds (0 without it).
+    pub fn loop_guard_slots(&self) -> usize {
+        self.loop_guard.as_ref().map_or(0, |g| g.0.size as usize / (crate::glsl_compile::LOOP_GUARD_SLOT_WORDS * 4))
+    }
+
+    /// The loop guard buffer's device address ([`ContextDesc::loop_guard`]).
+    pub fn loop_guard_address(&self) -> Option<u64> {
+        self.loop_guard.as_ref().map(|g| g.1)
+    }
+
+    /// The loop guard's counts per shader slot (`ShaderLibrary::loop_guard_slot`): the most loop
+    /// iterations one invocation ran, how many invocations reached 32768 and 65535, and 1 when
+    /// any invocation of the shader returned (0: it did not run). Read
+    /// after the frames were waited for (`Engine::finish`); the shaders write the buffer through
+    /// its device address, outside the graph's declared accesses, and the guard is a debugging
+    /// aid, not a synchronised output.
+    pub fn loop_guard_counts(&self) -> Option<Vec<[u32; 4]>> {
+        let bytes = self.loop_guard.as_ref()?.0.mapped()?;
+        let words: Vec<u32> = bytes
+            .chunks_exact(4)
+            .map(|c| unsafe { std::ptr::read_volatile(c.as_ptr() as *const u32) }.to_le())
+            .collect();
+        Some(words.chunks_exact(crate::glsl_compile::LOOP_GUARD_SLOT_WORDS).map(|s| [s[0], s[1], s[2], s[3]]).collect())
+    }
+
+    /// Sets the loop guard's counts to zero (while no frame is in flight).
+    pub fn reset_loop_guard(&self) {
+        let Some((buf, _)) = self.loop_guard.as_ref() else { return };
+        if let Some(p) = buf.allocation.as_ref().and_then(|a| a.mapped_ptr()) {
+            let words = p.as_ptr() as *mut u32;
+            for i in 0..buf.size as usize / 4 {
+                // device memory that shaders write through its address: volatile, never a &mut
+                unsafe { std::ptr::write_volatile(words.add(i), 0) };
+            }
+        }
     }
 
     /// The driver's name and version (`VkPhysicalDeviceDriverProperties`, Vulkan 1.2), e.g.
@@ -955,6 +1023,9 @@ impl Drop for Context {
                 let _ = self.device.device_wait_idle();
             }
             self.device.destroy_pipeline_cache(self.pipeline_cache, None);
+            if let Some((buf, _)) = self.loop_guard.take() {
+                self.destroy_buffer(buf);
+            }
             ManuallyDrop::drop(&mut self.allocator);
             if self.owned {
                 self.device.destroy_device(None);

@@ -11,11 +11,84 @@ pub struct ShaderLibrary {
     shaders: BTreeMap<String, Vec<u8>>,
     /// Where `glsl/` lives, for [`ShaderLibrary::reload`].
     pub source_dir: Option<PathBuf>,
+    /// Compiled with every loop counted ([`ShaderLibrary::with_loop_guard`]).
+    loop_guard: bool,
 }
 
 impl ShaderLibrary {
     pub fn from_embedded(table: &[(&str, &[u8])], source_dir: Option<PathBuf>) -> Self {
-        ShaderLibrary { shaders: table.iter().map(|(k, v)| (k.to_string(), v.to_vec())).collect(), source_dir }
+        ShaderLibrary {
+            shaders: table.iter().map(|(k, v)| (k.to_string(), v.to_vec())).collect(),
+            source_dir,
+            loop_guard: false,
+        }
+    }
+
+    /// The same shaders recompiled from `source_dir` with every loop counted (the loop guard:
+    /// `glsl_compile::instrument_loops`): each invocation counts its loop iterations and reports
+    /// the most, and whether it reached 32768 or 65535 (lavapipe 22.3's silent limit), into the
+    /// guard buffer of a context created with `ContextDesc::loop_guard`
+    /// ([`crate::Context::loop_guard_counts`]). For tests and `--loop-guard` runs: slower shaders,
+    /// about 30 s of compiling on one core (spread over every core).
+    pub fn with_loop_guard(&self) -> Result<ShaderLibrary> {
+        let dir = self.source_dir.clone().ok_or_else(|| anyhow!("the loop guard needs the shader sources (glsl/)"))?;
+        let names: Vec<&String> = self.shaders.keys().collect();
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).min(names.len().max(1));
+        let next = std::sync::atomic::AtomicUsize::new(0);
+        let compiled: Vec<(usize, Result<Vec<u32>, String>)> = std::thread::scope(|s| {
+            let workers: Vec<_> = (0..threads)
+                .map(|_| {
+                    s.spawn(|| {
+                        let mut done = Vec::new();
+                        loop {
+                            let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                            let Some(name) = names.get(i) else { break };
+                            let r = crate::glsl_compile::compile_glsl_file_with(
+                                &dir.join(name),
+                                &dir.join("include"),
+                                true,
+                            );
+                            done.push((i, r));
+                        }
+                        done
+                    })
+                })
+                .collect();
+            workers.into_iter().flat_map(|w| w.join().unwrap_or_default()).collect()
+        });
+        let mut shaders = BTreeMap::new();
+        let mut errors = Vec::new();
+        for (i, r) in compiled {
+            match r {
+                Ok(words) => {
+                    shaders.insert(names[i].clone(), words.iter().flat_map(|w| w.to_le_bytes()).collect());
+                }
+                Err(e) => errors.push(e),
+            }
+        }
+        if !errors.is_empty() || shaders.len() != names.len() {
+            return Err(anyhow!(
+                "loop guard: {} of {} shader(s) failed to compile:\n{}",
+                names.len() - shaders.len(),
+                names.len(),
+                errors.join("\n")
+            ));
+        }
+        Ok(ShaderLibrary { shaders, source_dir: Some(dir), loop_guard: true })
+    }
+
+    /// The shader's slot in the loop guard's buffer (its index among the library's names), when
+    /// the library counts loops.
+    pub fn loop_guard_slot(&self, name: &str) -> Option<u32> {
+        if !self.loop_guard {
+            return None;
+        }
+        self.shaders.keys().position(|k| k == name).map(|i| i as u32)
+    }
+
+    /// Whether the library counts loops ([`ShaderLibrary::with_loop_guard`]).
+    pub fn is_loop_guarded(&self) -> bool {
+        self.loop_guard
     }
 
     /// SPIR-V bytes of `name` (e.g. `"frame/gbuffer.vert"`).
@@ -36,8 +109,8 @@ impl ShaderLibrary {
     /// embedded SPIR-V. Errors name the file and line.
     pub fn reload(&mut self, name: &str) -> Result<()> {
         let dir = self.source_dir.clone().ok_or_else(|| anyhow!("no shader source directory set"))?;
-        let words =
-            crate::glsl_compile::compile_glsl_file(&dir.join(name), &dir.join("include")).map_err(|e| anyhow!(e))?;
+        let words = crate::glsl_compile::compile_glsl_file_with(&dir.join(name), &dir.join("include"), self.loop_guard)
+            .map_err(|e| anyhow!(e))?;
         self.shaders.insert(name.to_string(), words.iter().flat_map(|w| w.to_le_bytes()).collect());
         Ok(())
     }
@@ -50,7 +123,7 @@ impl ShaderLibrary {
         let mut fresh = BTreeMap::new();
         let mut errors = Vec::new();
         for name in self.shaders.keys() {
-            match crate::glsl_compile::compile_glsl_file(&dir.join(name), &dir.join("include")) {
+            match crate::glsl_compile::compile_glsl_file_with(&dir.join(name), &dir.join("include"), self.loop_guard) {
                 Ok(words) => {
                     fresh.insert(name.clone(), words.iter().flat_map(|w| w.to_le_bytes()).collect::<Vec<u8>>());
                 }
@@ -69,6 +142,43 @@ impl ShaderLibrary {
     pub fn compile_source(name: &str, source: &str, include_dir: &Path) -> Result<Vec<u32>> {
         let kind = crate::glsl_compile::stage_for(Path::new(name)).ok_or_else(|| anyhow!("{name}: unknown stage"))?;
         crate::glsl_compile::compile_glsl_source(source, kind, Path::new(name), include_dir).map_err(|e| anyhow!(e))
+    }
+}
+
+/// The loop guard's specialization constants for one shader stage: the guard buffer's address and
+/// the shader's slot. Pipelines built from a loop-guarded library set them on every stage.
+pub struct LoopGuardSpec {
+    data: [u32; 3],
+    entries: [ash::vk::SpecializationMapEntry; 3],
+}
+
+impl LoopGuardSpec {
+    /// `None` for an ordinary library; an error when the library counts loops but the context
+    /// has no guard buffer (`ContextDesc::loop_guard`).
+    pub fn for_shader(ctx: &crate::Context, shaders: &ShaderLibrary, name: &str) -> Result<Option<LoopGuardSpec>> {
+        let Some(slot) = shaders.loop_guard_slot(name) else { return Ok(None) };
+        let address = ctx.loop_guard_address().ok_or_else(|| {
+            anyhow!("'{name}' counts its loops (a loop-guarded library) but the context has no loop guard buffer")
+        })?;
+        if slot as usize >= ctx.loop_guard_slots() {
+            return Err(anyhow!("loop guard: '{name}' has slot {slot}, the buffer {}", ctx.loop_guard_slots()));
+        }
+        let ids = crate::glsl_compile::LOOP_GUARD_CONSTANT_IDS;
+        let entry = |i: usize| ash::vk::SpecializationMapEntry { constant_id: ids[i], offset: 4 * i as u32, size: 4 };
+        Ok(Some(LoopGuardSpec {
+            data: [address as u32, (address >> 32) as u32, slot],
+            entries: [entry(0), entry(1), entry(2)],
+        }))
+    }
+
+    fn bytes(&self) -> &[u8] {
+        // [u32; 3] as its 12 bytes (u8 has no alignment, every bit pattern valid)
+        unsafe { std::slice::from_raw_parts(self.data.as_ptr() as *const u8, 12) }
+    }
+
+    /// The specialization info (borrows `self`).
+    pub fn info(&self) -> ash::vk::SpecializationInfo<'_> {
+        ash::vk::SpecializationInfo::default().map_entries(&self.entries).data(self.bytes())
     }
 }
 

@@ -149,9 +149,14 @@ pub fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, desc: &Raste
             }
         }
     }
-    let result = match err {
-        Some(e) => Err(e),
-        None => create(ctx, desc, &modules, stage_flags),
+    let guards = desc
+        .shaders
+        .iter()
+        .map(|s| penumbra_engine::shader::LoopGuardSpec::for_shader(ctx, shaders, s))
+        .collect::<Result<Vec<_>>>();
+    let result = match (err, guards) {
+        (Some(e), _) | (None, Err(e)) => Err(e),
+        (None, Ok(guards)) => create(ctx, desc, &modules, &guards, stage_flags),
     };
     for m in modules {
         unsafe { ctx.device.destroy_shader_module(m, None) };
@@ -163,14 +168,24 @@ fn create(
     ctx: &Arc<Context>,
     desc: &RasterDesc,
     modules: &[vk::ShaderModule],
+    guards: &[Option<penumbra_engine::shader::LoopGuardSpec>],
     stage_flags: vk::ShaderStageFlags,
 ) -> Result<Pipeline> {
+    let guard_infos: Vec<_> = guards.iter().map(|g| g.as_ref().map(|g| g.info())).collect();
     let stages: Vec<_> = desc
         .shaders
         .iter()
         .zip(modules)
-        .map(|(s, &m)| {
-            vk::PipelineShaderStageCreateInfo::default().stage(stage_of(s).expect("checked")).module(m).name(c"main")
+        .zip(&guard_infos)
+        .map(|((s, &m), guard)| {
+            let st = vk::PipelineShaderStageCreateInfo::default()
+                .stage(stage_of(s).expect("checked"))
+                .module(m)
+                .name(c"main");
+            match guard {
+                Some(info) => st.specialization_info(info),
+                None => st,
+            }
         })
         .collect();
     let stride = match desc.vertex_input {

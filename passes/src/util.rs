@@ -97,9 +97,14 @@ pub fn compute_pipeline(
         .with_context(|| format!("compute pipeline '{shader}'"))?;
     let block = penumbra_engine::reflect::reflect(spirv)?.push_bytes;
     let (set_layout, layout) = layouts(ctx, shader, types, vk::ShaderStageFlags::COMPUTE, push_bytes)?;
+    let guard = penumbra_engine::shader::LoopGuardSpec::for_shader(ctx, shaders, shader)?;
+    let guard_info = guard.as_ref().map(|g| g.info());
     let module = ctx.create_shader_module(shader, spirv)?;
-    let stage =
+    let mut stage =
         vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::COMPUTE).module(module).name(c"main");
+    if let Some(info) = guard_info.as_ref() {
+        stage = stage.specialization_info(info);
+    }
     let ci = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
     let res = unsafe { ctx.device.create_compute_pipelines(ctx.pipeline_cache, &ci, None) };
     unsafe { ctx.device.destroy_shader_module(module, None) };
