@@ -114,18 +114,19 @@ layout(constant_id = {lo}) const uint PENUMBRA_GUARD_LO = 0u;
 layout(constant_id = {hi}) const uint PENUMBRA_GUARD_HI = 0u;
 layout(constant_id = {slot}) const uint PENUMBRA_GUARD_SLOT = 0u;
 uint penumbra_loop_ticks = 0u;
-void penumbra_loop_report(uint counter) {{
+void penumbra_loop_report() {{
     if (PENUMBRA_GUARD_LO == 0u && PENUMBRA_GUARD_HI == 0u) return;
     PenumbraLoopGuard g = PenumbraLoopGuard(uvec2(PENUMBRA_GUARD_LO, PENUMBRA_GUARD_HI));
     uint base = PENUMBRA_GUARD_SLOT * {words}u;
-    if (counter != 0u) atomicAdd(g.penumbra_slots[base + counter], 1u);
     if (penumbra_loop_ticks > g.penumbra_slots[base]) atomicMax(g.penumbra_slots[base], penumbra_loop_ticks);
-    if (counter == 0u && g.penumbra_slots[base + 3u] == 0u) g.penumbra_slots[base + 3u] = 1u;
+    if (penumbra_loop_ticks >= {near}u) atomicAdd(g.penumbra_slots[base + 1u], 1u);
+    if (penumbra_loop_ticks >= {limit}u) atomicAdd(g.penumbra_slots[base + 2u], 1u);
+    if (g.penumbra_slots[base + 3u] == 0u) g.penumbra_slots[base + 3u] = 1u;
 }}
+// one add per iteration (a report inside every loop made llvmpipe's compile of the larger
+// shaders take minutes): the count is reported when main returns
 bool penumbra_loop_tick() {{
     penumbra_loop_ticks++;
-    if (penumbra_loop_ticks == {near}u) penumbra_loop_report(1u);
-    if (penumbra_loop_ticks == {limit}u) penumbra_loop_report(2u);
     return true;
 }}
 #define main penumbra_guarded_main
@@ -193,6 +194,11 @@ pub fn instrument_loops(source: &str, top: bool) -> Result<String, String> {
                 i += 1;
             }
             let word = &source[start..i];
+            if word == "discard" || word == "terminateInvocation" {
+                // the count is reported when main returns: an invocation that ends otherwise
+                // would go uncounted
+                return Err(format!("'{word}' at byte {start}: the loop guard cannot count a shader that ends invocations early"));
+            }
             if word != "for" && word != "while" {
                 continue;
             }
@@ -262,7 +268,7 @@ pub fn instrument_loops(source: &str, top: bool) -> Result<String, String> {
     // GLSL >= 330: `#line n` numbers the next line n; that line is the rest of the #version line
     s.push_str(&format!("#line {version_line}\n"));
     s.push_str(&out[end..]);
-    s.push_str("\n#undef main\nvoid main() { penumbra_guarded_main(); penumbra_loop_report(0u); }\n");
+    s.push_str("\n#undef main\nvoid main() { penumbra_guarded_main(); penumbra_loop_report(); }\n");
     Ok(s)
 }
 
@@ -287,10 +293,11 @@ mod tests {
         assert_eq!(inc.matches("penumbra_loop_tick").count(), 5, "{inc}");
         let top = instrument_loops(src, true).unwrap();
         assert!(top.starts_with("#version 460\n#extension GL_EXT_buffer_reference"), "{top}");
-        assert!(top.contains("#define main penumbra_guarded_main") && top.ends_with("penumbra_loop_report(0u); }\n"));
+        assert!(top.contains("#define main penumbra_guarded_main") && top.ends_with("penumbra_loop_report(); }\n"));
         assert!(instrument_loops("void f() { while (a(b) { }", false).is_err(), "unbalanced");
         assert!(instrument_loops("void f() { for (int i = 0) { } }", false).is_err(), "a for without two semicolons");
         assert!(instrument_loops("void f() { }", true).is_err(), "no #version line");
+        assert!(instrument_loops("void f() { if (x) discard; }", false).unwrap_err().contains("discard"));
     }
 
     #[test]

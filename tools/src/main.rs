@@ -23,6 +23,7 @@ mod chrome_trace;
 mod graph_html;
 mod hsdt_bench;
 mod isg_bench;
+mod loop_guard;
 mod matrix;
 mod pareto;
 mod plot;
@@ -109,6 +110,11 @@ enum BenchCmd {
     /// built-in default scene without SCENE) at a small size; host RSS and device memory are
     /// sampled and must stay flat after --warmup frames (exit 1 when they grow); writes soak.json.
     Soak(soak::SoakArgs),
+    /// The loop guard: every scene with every technique that accepts it, rendered with shaders
+    /// whose loops are counted; per shader the most loop iterations one invocation ran (lavapipe
+    /// in Mesa 22.3 silently ends an invocation's loops at 65535 in total) and where; exit 1
+    /// when an invocation reached the limit; writes loop_guard.json and loop_guard.md.
+    LoopGuard(loop_guard::LoopGuardArgs),
     /// Volumetric shadows: the temporal method against the full baseline on the same frames
     /// (GPU ms per pass, speedup, marched fraction, image difference, missed pixels).
     Volumetric(bench::VolumetricArgs),
@@ -581,6 +587,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Cmd::Bench(BenchCmd::Matrix(a)) => matrix::run(&a),
         Cmd::Bench(BenchCmd::Pareto(a)) => pareto::run(&a),
+        Cmd::Bench(BenchCmd::LoopGuard(a)) => loop_guard::run(&a),
         Cmd::Bench(BenchCmd::Soak(a)) => {
             let scene = load_scene(a.scene.as_deref(), &limits)?;
             soak::run(&a, &scene)

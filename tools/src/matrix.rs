@@ -253,7 +253,7 @@ fn issue_for(technique: &str, reason: &str, medium: bool) -> u32 {
     }
 }
 
-fn default_scenes() -> Result<Vec<PathBuf>> {
+pub(crate) fn default_scenes() -> Result<Vec<PathBuf>> {
     let dir = repo_root().join("scenes");
     let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
         .with_context(|| format!("listing {}", dir.display()))?
@@ -396,7 +396,7 @@ pub(crate) fn converge_options(
 
 /// The run's `--param TECHNIQUE.KEY=VALUE` overrides as (technique, key, value), checked before
 /// anything renders.
-fn parse_overrides(overrides: &[String]) -> Result<Vec<(String, String, String)>> {
+pub(crate) fn parse_overrides(overrides: &[String]) -> Result<Vec<(String, String, String)>> {
     overrides
         .iter()
         .map(|o| {
@@ -411,7 +411,7 @@ fn parse_overrides(overrides: &[String]) -> Result<Vec<(String, String, String)>
 
 /// The parameters of `technique` on `scene` with the run's overrides; `None` (the renderer's
 /// rule) when none names the technique.
-fn cell_params(scene: &Scene, technique: &str, overrides: &[(String, String, String)]) -> Option<registry::Params> {
+pub(crate) fn cell_params(scene: &Scene, technique: &str, overrides: &[(String, String, String)]) -> Option<registry::Params> {
     let mut params: Option<registry::Params> = None;
     for (_, k, v) in overrides.iter().filter(|(t, _, _)| t == technique) {
         params

@@ -1,0 +1,264 @@
+//! `penumbra bench loop-guard`: every scene with every technique that accepts it, rendered with
+//! shaders whose loops are counted (`ShaderLibrary::with_loop_guard`), so that no shader comes
+//! near lavapipe 22.3's silent per-invocation loop limit (65535 iterations in total) unseen. Per
+//! shader: the most loop iterations one invocation ran, where, and how many invocations reached
+//! 32768 and 65535. Exit 1 when an invocation reached the limit or a cell failed to render.
+
+use anyhow::{Context as _, Result};
+use clap::Args;
+use penumbra::engine::glsl_compile::{LOOP_GUARD_LIMIT, LOOP_GUARD_NEAR};
+use penumbra::engine::{Context, ContextDesc};
+use penumbra::{RenderSettings, Renderer};
+use penumbra_passes::registry;
+use penumbra_reference::cli::parse_size;
+use penumbra_scene::Scene;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(Args, Clone)]
+pub struct LoopGuardArgs {
+    /// Comma-separated scene files (default: every built-in scene, as `bench matrix`).
+    #[arg(long)]
+    pub scenes: Option<String>,
+    /// Comma-separated techniques (default: every registered one; each scene's refusals skipped).
+    #[arg(long)]
+    pub techniques: Option<String>,
+    /// A technique parameter for this run, `TECHNIQUE.KEY=VALUE` (repeatable), e.g.
+    /// `avs.integration=adf` to guard a non-default mode.
+    #[arg(long = "param")]
+    pub params: Vec<String>,
+    #[arg(long, default_value = "32x24")]
+    pub size: String,
+    /// Frames per cell (moving: the scene's animation at 30 fps), so that temporal paths and
+    /// rebuilds run.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..))]
+    pub frames: u32,
+    /// Vulkan validation with synchronization validation (slower).
+    #[arg(long)]
+    pub validation: bool,
+    /// Output directory: loop_guard.json and loop_guard.md.
+    #[arg(long, default_value = "loop-guard-out")]
+    pub out: PathBuf,
+}
+
+/// One shader's counts over the whole run.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ShaderCounts {
+    pub shader: String,
+    /// Cells (scene, technique) in which an invocation of the shader ran.
+    pub cells: u32,
+    /// The most loop iterations one invocation ran (every loop of the invocation together).
+    pub max_iterations: u32,
+    /// The cell of that maximum, `scene/technique`.
+    pub max_at: String,
+    /// Invocations that reached 32768 iterations, summed over the cells.
+    pub near: u64,
+    /// Invocations that reached 65535 (truncated on Mesa 22.3's lavapipe).
+    pub at_limit: u64,
+}
+
+/// One cell of the run.
+#[derive(Clone, Debug, Serialize)]
+pub struct CellRun {
+    pub scene: String,
+    pub technique: String,
+    /// "ok", "refused: ...", or "error: ...".
+    pub status: String,
+    pub seconds: f64,
+}
+
+pub fn run(args: &LoopGuardArgs) -> Result<()> {
+    let (w, h) = parse_size(&args.size).map_err(crate::bad)?;
+    let overrides = crate::matrix::parse_overrides(&args.params)?;
+    let techniques: Vec<&'static registry::TechniqueInfo> = match &args.techniques {
+        None => registry::REGISTRY.iter().collect(),
+        Some(list) => list
+            .split(',')
+            .map(str::trim)
+            .filter(|s| !s.is_empty())
+            .map(|t| registry::lookup(t).map_err(crate::bad))
+            .collect::<Result<_>>()?,
+    };
+    let scenes: Vec<PathBuf> = match &args.scenes {
+        None => crate::matrix::default_scenes()?,
+        Some(list) => list.split(',').map(str::trim).filter(|s| !s.is_empty()).map(PathBuf::from).collect(),
+    };
+    for p in &scenes {
+        if !p.exists() {
+            return Err(crate::bad(format!("{}: no such scene file", p.display())));
+        }
+    }
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let started = Instant::now();
+    let shaders = penumbra::shader_library().with_loop_guard()?;
+    eprintln!("loop guard: shaders compiled with counted loops in {:.1} s", started.elapsed().as_secs_f64());
+    let ctx = Context::new(&ContextDesc { validation: args.validation, loop_guard: true, ..Default::default() })?;
+    let names: Vec<String> = shaders.names().map(str::to_string).collect();
+    let mut counts: Vec<ShaderCounts> =
+        names.iter().map(|n| ShaderCounts { shader: n.clone(), ..Default::default() }).collect();
+    let mut cells = Vec::new();
+    let total = scenes.len() * techniques.len();
+    let bar = indicatif::ProgressBar::with_draw_target(Some(total as u64), indicatif::ProgressDrawTarget::stderr());
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} cells, {elapsed} (eta {eta}) {msg}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    for path in &scenes {
+        let scene = Scene::load(path).map_err(|e| crate::bad(format!("{}: {e}", path.display())))?;
+        for t in &techniques {
+            bar.inc(1);
+            bar.set_message(format!("{} / {}", scene.name, t.name));
+            let cell_start = Instant::now();
+            let status = match registry::refusal(t.name, &scene) {
+                Some(why) => format!("refused: {why}"),
+                None => {
+                    ctx.reset_loop_guard();
+                    match render_cell(&ctx, &shaders, &scene, t.name, &overrides, w, h, args.frames) {
+                        Ok(()) => {
+                            let at = format!("{}/{}", scene.name, t.name);
+                            let slots = ctx.loop_guard_counts().context("the context has no loop guard")?;
+                            for (c, s) in counts.iter_mut().zip(&slots) {
+                                let [max, near, limit, ran] = *s;
+                                if ran == 0 && max == 0 {
+                                    continue;
+                                }
+                                c.cells += 1;
+                                if max > c.max_iterations {
+                                    c.max_iterations = max;
+                                    c.max_at = at.clone();
+                                }
+                                c.near += near as u64;
+                                c.at_limit += limit as u64;
+                            }
+                            "ok".to_string()
+                        }
+                        Err(e) => format!("error: {e:#}"),
+                    }
+                }
+            };
+            if status.starts_with("error") {
+                bar.println(format!("{} / {}: {status}", scene.name, t.name));
+            }
+            cells.push(CellRun {
+                scene: scene.name.clone(),
+                technique: t.name.to_string(),
+                status,
+                seconds: cell_start.elapsed().as_secs_f64(),
+            });
+        }
+    }
+    bar.finish_and_clear();
+    let rendered = cells.iter().filter(|c| c.status == "ok").count();
+    let errors: Vec<&CellRun> = cells.iter().filter(|c| c.status.starts_with("error")).collect();
+    let md = table_md(&counts, &ctx.driver_info(), w, h, args.frames, rendered);
+    print!("{md}");
+    let json = serde_json::json!({
+        "device": ctx.device_name,
+        "driver": ctx.driver_info(),
+        "size": [w, h],
+        "frames": args.frames,
+        "params": args.params,
+        "near": LOOP_GUARD_NEAR,
+        "limit": LOOP_GUARD_LIMIT,
+        "shaders": counts,
+        "cells": cells,
+        "seconds": started.elapsed().as_secs_f64(),
+    });
+    let path = args.out.join("loop_guard.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&json)? + "\n")
+        .with_context(|| format!("writing {}", path.display()))?;
+    std::fs::write(args.out.join("loop_guard.md"), &md)?;
+    println!("wrote {} and loop_guard.md ({:.0} s)", path.display(), started.elapsed().as_secs_f64());
+    let v = ctx.validation.error_count();
+    if v > 0 {
+        anyhow::bail!("{v} validation error(s): {:?}", ctx.validation.errors().iter().take(3).collect::<Vec<_>>());
+    }
+    let over: Vec<String> = counts
+        .iter()
+        .filter(|c| c.at_limit > 0)
+        .map(|c| format!("{} ({} at {})", c.shader, c.max_iterations, c.max_at))
+        .collect();
+    if !errors.is_empty() {
+        anyhow::bail!(
+            "{} cell(s) failed to render: {}",
+            errors.len(),
+            errors.iter().map(|c| format!("{}/{}", c.scene, c.technique)).collect::<Vec<_>>().join(", ")
+        );
+    }
+    if !over.is_empty() {
+        anyhow::bail!("invocations reached the loop limit ({LOOP_GUARD_LIMIT}) in: {}", over.join(", "));
+    }
+    Ok(())
+}
+
+#[allow(clippy::too_many_arguments)]
+fn render_cell(
+    ctx: &std::sync::Arc<Context>,
+    shaders: &penumbra::engine::shader::ShaderLibrary,
+    scene: &Scene,
+    technique: &str,
+    overrides: &[(String, String, String)],
+    w: u32,
+    h: u32,
+    frames: u32,
+) -> Result<()> {
+    let settings = RenderSettings {
+        width: w,
+        height: h,
+        technique: Some(technique.to_string()),
+        technique_params: crate::matrix::cell_params(scene, technique, overrides),
+        ..Default::default()
+    };
+    let mut r = Renderer::new_with_shaders(ctx.clone(), scene, settings, shaders)?;
+    let mut prev = None;
+    for k in 0..frames {
+        let t = k as f32 / 30.0;
+        r.render(&scene.at(t, prev), None, false)?;
+        prev = Some(t);
+    }
+    r.finish()?;
+    Ok(())
+}
+
+/// The per-shader table (README, "lavapipe's loop limit").
+fn table_md(counts: &[ShaderCounts], driver: &str, w: u32, h: u32, frames: u32, cells: usize) -> String {
+    let mut s = format!(
+        "Loop guard, {driver}, {w}x{h}, {frames} frame(s) per cell, {cells} cells rendered.\n\
+         Iterations per invocation (all of its loops, as written in GLSL); Mesa 22.3 truncates at {LOOP_GUARD_LIMIT}, Mesa 25 has no limit.\n\n\
+         | shader | cells | most iterations | at (scene/technique) | invocations >= {LOOP_GUARD_NEAR} | >= {LOOP_GUARD_LIMIT} | on Mesa 22.3 |\n\
+         |---|---|---|---|---|---|---|\n"
+    );
+    let mut by_dir: BTreeMap<&str, Vec<&ShaderCounts>> = BTreeMap::new();
+    for c in counts {
+        by_dir.entry(c.shader.split('/').next().unwrap_or("")).or_default().push(c);
+    }
+    let mut idle = Vec::new();
+    for c in by_dir.values().flatten() {
+        if c.cells == 0 {
+            idle.push(c.shader.as_str());
+            continue;
+        }
+        let verdict = if c.at_limit > 0 {
+            "truncated"
+        } else if c.near > 0 {
+            "near the limit"
+        } else {
+            "within"
+        };
+        s.push_str(&format!(
+            "| `{}` | {} | {} | {} | {} | {} | {verdict} |\n",
+            c.shader,
+            c.cells,
+            c.max_iterations,
+            if c.max_iterations > 0 { c.max_at.as_str() } else { "-" },
+            c.near,
+            c.at_limit
+        ));
+    }
+    if !idle.is_empty() {
+        s.push_str(&format!("\nNot run by any cell: {}.\n", idle.join(", ")));
+    }
+    s
+}
