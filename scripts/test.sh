@@ -39,12 +39,13 @@ else
 fi
 # The release build (what README command 1 runs and users ship) and the CLI's tests again
 # against it: exit codes, messages and hostile inputs where arithmetic wraps instead of
-# panicking. PENUMBRA_SKIP_RELEASE=1 skips this leg (a quicker local run).
+# panicking; here too the loop guard's sweep (ignored in plain `cargo test`: about 6 minutes).
+# PENUMBRA_SKIP_RELEASE=1 skips this leg (a quicker local run).
 if [ -z "${PENUMBRA_SKIP_RELEASE:-}" ]; then
     cargo build --release --bin penumbra --quiet
     if [ -z "${PENUMBRA_PLAIN_CARGO_TEST:-}" ] && nextest_ok; then
-        PENUMBRA_BIN="$PWD/target/release/penumbra" cargo nextest run -p penumbra-tools --test cli --no-fail-fast
+        PENUMBRA_BIN="$PWD/target/release/penumbra" cargo nextest run -p penumbra-tools --test cli --no-fail-fast --run-ignored all
     else
-        PENUMBRA_BIN="$PWD/target/release/penumbra" cargo test -p penumbra-tools --test cli
+        PENUMBRA_BIN="$PWD/target/release/penumbra" cargo test -p penumbra-tools --test cli -- --include-ignored
     fi
 fi

@@ -17,6 +17,35 @@ pub fn stage_for(path: &Path) -> Option<shaderc::ShaderKind> {
     })
 }
 
+/// Compiles `files` on every core (one file per task; glslang is the slow part of a clean build),
+/// results in the order of `files`.
+pub fn compile_glsl_files(files: &[PathBuf], include_dir: &Path, loop_guard: bool) -> Vec<Result<Vec<u32>, String>> {
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).min(files.len().max(1));
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let results: Vec<(usize, Result<Vec<u32>, String>)> = std::thread::scope(|s| {
+        let workers: Vec<_> = (0..threads)
+            .map(|_| {
+                s.spawn(|| {
+                    let mut done = Vec::new();
+                    loop {
+                        let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        let Some(f) = files.get(i) else { break };
+                        done.push((i, compile_glsl_file_with(f, include_dir, loop_guard)));
+                    }
+                    done
+                })
+            })
+            .collect();
+        workers.into_iter().filter_map(|w| w.join().ok()).flatten().collect()
+    });
+    let mut out: Vec<Result<Vec<u32>, String>> =
+        files.iter().map(|f| Err(format!("{}: its compile thread panicked", f.display()))).collect();
+    for (i, r) in results {
+        out[i] = r;
+    }
+    out
+}
+
 /// Compiles one GLSL file to SPIR-V words. `#include "x.glsl"` is resolved relative to the
 /// including file, then in `include_dir`. Errors carry `file:line: message` lines from glslang.
 pub fn compile_glsl_file(path: &Path, include_dir: &Path) -> Result<Vec<u32>, String> {
@@ -197,7 +226,9 @@ pub fn instrument_loops(source: &str, top: bool) -> Result<String, String> {
             if word == "discard" || word == "terminateInvocation" {
                 // the count is reported when main returns: an invocation that ends otherwise
                 // would go uncounted
-                return Err(format!("'{word}' at byte {start}: the loop guard cannot count a shader that ends invocations early"));
+                return Err(format!(
+                    "'{word}' at byte {start}: the loop guard cannot count a shader that ends invocations early"
+                ));
             }
             if word != "for" && word != "while" {
                 continue;

@@ -28,52 +28,11 @@ impl ShaderLibrary {
     /// `glsl_compile::instrument_loops`): each invocation counts its loop iterations and reports
     /// the most, and whether it reached 32768 or 65535 (lavapipe 22.3's silent limit), into the
     /// guard buffer of a context created with `ContextDesc::loop_guard`
-    /// ([`crate::Context::loop_guard_counts`]). For tests and `--loop-guard` runs: slower shaders,
-    /// about 30 s of compiling on one core (spread over every core).
+    /// ([`crate::Context::loop_guard_counts`]). For tests and `penumbra bench loop-guard`: slower
+    /// shaders (and their pipelines slower to create), about 30 s of compiling on one core.
     pub fn with_loop_guard(&self) -> Result<ShaderLibrary> {
         let dir = self.source_dir.clone().ok_or_else(|| anyhow!("the loop guard needs the shader sources (glsl/)"))?;
-        let names: Vec<&String> = self.shaders.keys().collect();
-        let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).min(names.len().max(1));
-        let next = std::sync::atomic::AtomicUsize::new(0);
-        let compiled: Vec<(usize, Result<Vec<u32>, String>)> = std::thread::scope(|s| {
-            let workers: Vec<_> = (0..threads)
-                .map(|_| {
-                    s.spawn(|| {
-                        let mut done = Vec::new();
-                        loop {
-                            let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                            let Some(name) = names.get(i) else { break };
-                            let r = crate::glsl_compile::compile_glsl_file_with(
-                                &dir.join(name),
-                                &dir.join("include"),
-                                true,
-                            );
-                            done.push((i, r));
-                        }
-                        done
-                    })
-                })
-                .collect();
-            workers.into_iter().flat_map(|w| w.join().unwrap_or_default()).collect()
-        });
-        let mut shaders = BTreeMap::new();
-        let mut errors = Vec::new();
-        for (i, r) in compiled {
-            match r {
-                Ok(words) => {
-                    shaders.insert(names[i].clone(), words.iter().flat_map(|w| w.to_le_bytes()).collect());
-                }
-                Err(e) => errors.push(e),
-            }
-        }
-        if !errors.is_empty() || shaders.len() != names.len() {
-            return Err(anyhow!(
-                "loop guard: {} of {} shader(s) failed to compile:\n{}",
-                names.len() - shaders.len(),
-                names.len(),
-                errors.join("\n")
-            ));
-        }
+        let shaders = self.compile_all(&dir, true)?;
         Ok(ShaderLibrary { shaders, source_dir: Some(dir), loop_guard: true })
     }
 
@@ -120,22 +79,31 @@ impl ShaderLibrary {
     /// with its line and message. Returns the names whose SPIR-V changed.
     pub fn reload_all(&mut self) -> Result<Vec<String>> {
         let dir = self.source_dir.clone().ok_or_else(|| anyhow!("no shader source directory set"))?;
-        let mut fresh = BTreeMap::new();
+        let fresh = self.compile_all(&dir, self.loop_guard)?;
+        let changed = fresh.iter().filter(|(k, v)| self.shaders.get(*k) != Some(*v)).map(|(k, _)| k.clone()).collect();
+        self.shaders = fresh;
+        Ok(changed)
+    }
+
+    /// Every shader of the library compiled from `dir` on every core; all or nothing, the error
+    /// listing every failing file with its line and message.
+    fn compile_all(&self, dir: &Path, loop_guard: bool) -> Result<BTreeMap<String, Vec<u8>>> {
+        let files: Vec<PathBuf> = self.shaders.keys().map(|n| dir.join(n)).collect();
+        let compiled = crate::glsl_compile::compile_glsl_files(&files, &dir.join("include"), loop_guard);
+        let mut shaders = BTreeMap::new();
         let mut errors = Vec::new();
-        for name in self.shaders.keys() {
-            match crate::glsl_compile::compile_glsl_file_with(&dir.join(name), &dir.join("include"), self.loop_guard) {
+        for (name, r) in self.shaders.keys().zip(compiled) {
+            match r {
                 Ok(words) => {
-                    fresh.insert(name.clone(), words.iter().flat_map(|w| w.to_le_bytes()).collect::<Vec<u8>>());
+                    shaders.insert(name.clone(), words.iter().flat_map(|w| w.to_le_bytes()).collect());
                 }
-                Err(e) => errors.push(e.to_string()),
+                Err(e) => errors.push(e),
             }
         }
         if !errors.is_empty() {
             return Err(anyhow!("{} shader(s) failed to compile:\n{}", errors.len(), errors.join("\n")));
         }
-        let changed = fresh.iter().filter(|(k, v)| self.shaders.get(*k) != Some(*v)).map(|(k, _)| k.clone()).collect();
-        self.shaders = fresh;
-        Ok(changed)
+        Ok(shaders)
     }
 
     /// Compiles a GLSL source string at run time (tests, tools).

@@ -38,6 +38,11 @@ pub struct LoopGuardArgs {
     /// Vulkan validation with synchronization validation (slower).
     #[arg(long)]
     pub validation: bool,
+    /// The checked-in list of cells known to reach the limit (default
+    /// `tests/loop_guard/known_over_limit.toml`): a cell that reaches it and is not listed, or
+    /// is listed and no longer reaches it, fails the run.
+    #[arg(long)]
+    pub known: Option<PathBuf>,
     /// Output directory: loop_guard.json and loop_guard.md.
     #[arg(long, default_value = "loop-guard-out")]
     pub out: PathBuf,
@@ -67,6 +72,30 @@ pub struct CellRun {
     /// "ok", "refused: ...", or "error: ...".
     pub status: String,
     pub seconds: f64,
+    /// The shaders whose loops ran in this cell: (shader, most iterations, invocations >= 32768,
+    /// invocations >= 65535).
+    pub shaders: Vec<(String, u32, u32, u32)>,
+}
+
+/// A cell known to reach the limit (`tests/loop_guard/known_over_limit.toml`).
+#[derive(Clone, Debug, serde::Deserialize, Serialize)]
+pub struct KnownOver {
+    pub shader: String,
+    pub scene: String,
+    pub technique: String,
+    /// The most iterations measured when it was listed.
+    pub max_iterations: u32,
+    /// Why, and what would fix it.
+    pub why: String,
+}
+
+#[derive(Clone, Debug, Default, serde::Deserialize)]
+struct KnownList {
+    /// The size the list was measured at (`WxH`): only a run at it judges listed cells stale.
+    #[serde(default)]
+    size: Option<String>,
+    #[serde(default)]
+    over: Vec<KnownOver>,
 }
 
 pub fn run(args: &LoopGuardArgs) -> Result<()> {
@@ -90,6 +119,13 @@ pub fn run(args: &LoopGuardArgs) -> Result<()> {
             return Err(crate::bad(format!("{}: no such scene file", p.display())));
         }
     }
+    let known_path =
+        args.known.clone().unwrap_or_else(|| crate::matrix::repo_root().join("tests/loop_guard/known_over_limit.toml"));
+    let known: KnownList = match std::fs::read_to_string(&known_path) {
+        Ok(t) => toml::from_str(&t).map_err(|e| crate::bad(format!("{}: {e}", known_path.display())))?,
+        Err(e) if args.known.is_some() => return Err(crate::bad(format!("{}: {e}", known_path.display()))),
+        Err(_) => KnownList::default(),
+    };
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let started = Instant::now();
     let shaders = penumbra::shader_library().with_loop_guard()?;
@@ -105,12 +141,23 @@ pub fn run(args: &LoopGuardArgs) -> Result<()> {
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} cells, {elapsed} (eta {eta}) {msg}")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    for path in &scenes {
+    for (si, path) in scenes.iter().enumerate() {
         let scene = Scene::load(path).map_err(|e| crate::bad(format!("{}: {e}", path.display())))?;
+        if bar.is_hidden() {
+            // logs and CI: a line per scene instead of the bar
+            eprintln!(
+                "[{}/{}] {} ({:.0} s so far)",
+                si + 1,
+                scenes.len(),
+                path.display(),
+                started.elapsed().as_secs_f64()
+            );
+        }
         for t in &techniques {
             bar.inc(1);
             bar.set_message(format!("{} / {}", scene.name, t.name));
             let cell_start = Instant::now();
+            let mut in_cell = Vec::new();
             let status = match registry::refusal(t.name, &scene) {
                 Some(why) => format!("refused: {why}"),
                 None => {
@@ -131,6 +178,9 @@ pub fn run(args: &LoopGuardArgs) -> Result<()> {
                                 }
                                 c.near += near as u64;
                                 c.at_limit += limit as u64;
+                                if max > 0 {
+                                    in_cell.push((c.shader.clone(), max, near, limit));
+                                }
                             }
                             "ok".to_string()
                         }
@@ -146,6 +196,7 @@ pub fn run(args: &LoopGuardArgs) -> Result<()> {
                 technique: t.name.to_string(),
                 status,
                 seconds: cell_start.elapsed().as_secs_f64(),
+                shaders: in_cell,
             });
         }
     }
@@ -175,11 +226,6 @@ pub fn run(args: &LoopGuardArgs) -> Result<()> {
     if v > 0 {
         anyhow::bail!("{v} validation error(s): {:?}", ctx.validation.errors().iter().take(3).collect::<Vec<_>>());
     }
-    let over: Vec<String> = counts
-        .iter()
-        .filter(|c| c.at_limit > 0)
-        .map(|c| format!("{} ({} at {})", c.shader, c.max_iterations, c.max_at))
-        .collect();
     if !errors.is_empty() {
         anyhow::bail!(
             "{} cell(s) failed to render: {}",
@@ -187,8 +233,22 @@ pub fn run(args: &LoopGuardArgs) -> Result<()> {
             errors.iter().map(|c| format!("{}/{}", c.scene, c.technique)).collect::<Vec<_>>().join(", ")
         );
     }
-    if !over.is_empty() {
-        anyhow::bail!("invocations reached the loop limit ({LOOP_GUARD_LIMIT}) in: {}", over.join(", "));
+    let same_size = known.size.as_deref().and_then(|s| parse_size(s).ok()) == Some((w, h));
+    let problems = check_known(&cells, &known.over, same_size);
+    if !problems.is_empty() {
+        anyhow::bail!(
+            "the loop limit ({LOOP_GUARD_LIMIT}) against {}:\n  {}",
+            known_path.display(),
+            problems.join("\n  ")
+        );
+    }
+    let listed = cells.iter().filter(|c| known.over.iter().any(|k| k.scene == c.scene && k.technique == c.technique));
+    if listed.clone().count() > 0 {
+        println!(
+            "known to reach the limit (listed in {}): {}",
+            known_path.display(),
+            listed.map(|c| format!("{}/{}", c.scene, c.technique)).collect::<Vec<_>>().join(", ")
+        );
     }
     Ok(())
 }
@@ -220,6 +280,37 @@ fn render_cell(
     }
     r.finish()?;
     Ok(())
+}
+
+/// Every cell that reached the limit without being listed, and (`judge_stale`: a run at the list's
+/// size) every listed cell that ran and no longer reaches it (the list is kept true both ways, as
+/// the matrix's known failures are).
+pub fn check_known(cells: &[CellRun], known: &[KnownOver], judge_stale: bool) -> Vec<String> {
+    let mut problems = Vec::new();
+    for c in cells {
+        for (shader, max, _, limit) in &c.shaders {
+            let listed = known.iter().any(|k| &k.shader == shader && k.scene == c.scene && k.technique == c.technique);
+            if *limit > 0 && !listed {
+                problems.push(format!(
+                    "{shader} on {}/{}: {limit} invocation(s) reached the limit (most: {max} iterations), not listed",
+                    c.scene, c.technique
+                ));
+            }
+        }
+    }
+    for k in known.iter().filter(|_| judge_stale) {
+        let Some(c) = cells.iter().find(|c| c.scene == k.scene && c.technique == k.technique && c.status == "ok")
+        else {
+            continue;
+        };
+        if !c.shaders.iter().any(|(s, _, _, limit)| s == &k.shader && *limit > 0) {
+            problems.push(format!(
+                "{} on {}/{} no longer reaches the limit (listed at {} iterations): remove it from the list",
+                k.shader, k.scene, k.technique, k.max_iterations
+            ));
+        }
+    }
+    problems
 }
 
 /// The per-shader table (README, "lavapipe's loop limit").
@@ -261,4 +352,44 @@ fn table_md(counts: &[ShaderCounts], driver: &str, w: u32, h: u32, frames: u32, 
         s.push_str(&format!("\nNot run by any cell: {}.\n", idle.join(", ")));
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cell(scene: &str, technique: &str, shaders: &[(&str, u32, u32)]) -> CellRun {
+        CellRun {
+            scene: scene.into(),
+            technique: technique.into(),
+            status: "ok".into(),
+            seconds: 0.0,
+            shaders: shaders.iter().map(|(s, max, limit)| (s.to_string(), *max, 0, *limit)).collect(),
+        }
+    }
+
+    fn known(shader: &str, scene: &str, technique: &str) -> KnownOver {
+        KnownOver {
+            shader: shader.into(),
+            scene: scene.into(),
+            technique: technique.into(),
+            max_iterations: 70000,
+            why: String::new(),
+        }
+    }
+
+    #[test]
+    fn the_known_list_must_match_both_ways() {
+        let cells = [cell("a", "isg", &[("isg/isg_shade.comp", 70000, 3)]), cell("b", "isg", &[("x.comp", 10, 0)])];
+        let listed = [known("isg/isg_shade.comp", "a", "isg")];
+        assert!(check_known(&cells, &listed, true).is_empty());
+        let p = check_known(&cells, &[], false);
+        assert!(p.len() == 1 && p[0].contains("not listed"), "{p:?}");
+        let stale = [known("isg/isg_shade.comp", "a", "isg"), known("x.comp", "b", "isg")];
+        let p = check_known(&cells, &stale, true);
+        assert!(p.len() == 1 && p[0].contains("no longer reaches"), "{p:?}");
+        assert!(check_known(&cells, &stale, false).is_empty(), "another size does not judge staleness");
+        // a listed cell the run did not render is not judged
+        assert!(check_known(&cells[..1], &stale, true).is_empty());
+    }
 }

@@ -24,7 +24,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 /// The repository root (scenes/, tests/matrix/), as built.
-fn repo_root() -> PathBuf {
+pub(crate) fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
@@ -411,7 +411,11 @@ pub(crate) fn parse_overrides(overrides: &[String]) -> Result<Vec<(String, Strin
 
 /// The parameters of `technique` on `scene` with the run's overrides; `None` (the renderer's
 /// rule) when none names the technique.
-pub(crate) fn cell_params(scene: &Scene, technique: &str, overrides: &[(String, String, String)]) -> Option<registry::Params> {
+pub(crate) fn cell_params(
+    scene: &Scene,
+    technique: &str,
+    overrides: &[(String, String, String)],
+) -> Option<registry::Params> {
     let mut params: Option<registry::Params> = None;
     for (_, k, v) in overrides.iter().filter(|(t, _, _)| t == technique) {
         params
