@@ -715,7 +715,10 @@ impl Context {
                 bytes,
                 vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS,
             )?;
-            buf.write(&vec![0u8; bytes as usize])?;
+            if let Err(e) = buf.write(&vec![0u8; bytes as usize]) {
+                ctx.destroy_buffer(buf);
+                return Err(e);
+            }
             let address = unsafe {
                 ctx.device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(buf.buffer))
             };
@@ -744,7 +747,7 @@ impl Context {
         let bytes = self.loop_guard.as_ref()?.0.mapped()?;
         let words: Vec<u32> = bytes
             .chunks_exact(4)
-            .map(|c| unsafe { std::ptr::read_volatile(c.as_ptr() as *const u32) }.to_le())
+            .map(|c| u32::from_le(unsafe { std::ptr::read_volatile(c.as_ptr() as *const u32) }))
             .collect();
         Some(words.chunks_exact(crate::glsl_compile::LOOP_GUARD_SLOT_WORDS).map(|s| [s[0], s[1], s[2], s[3]]).collect())
     }
