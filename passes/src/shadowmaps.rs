@@ -103,9 +103,7 @@ impl ShadowMapsSettings {
     }
 
     pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> Result<Self> {
-        let mut s = ShadowMapsSettings::default();
-        crate::technique::apply_params(&mut s, params, ShadowMapsSettings::set)?;
-        Ok(s)
+        crate::technique::settings_from_params(params, Self::set)
     }
 }
 

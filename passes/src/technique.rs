@@ -75,6 +75,17 @@ pub trait Technique: Send {
     }
 }
 
+/// `S`'s defaults with every parameter in `params` set through `set` (every bad one reported, as
+/// [`apply_params`]): the `from_params` of every technique's settings.
+pub fn settings_from_params<S: Default>(
+    params: &std::collections::BTreeMap<String, String>,
+    set: impl Fn(&mut S, &str, &str) -> Result<()>,
+) -> Result<S> {
+    let mut s = S::default();
+    apply_params(&mut s, params, set)?;
+    Ok(s)
+}
+
 /// Applies every `key = value` of `params` (a scene's `[technique_params]` and `--param`s) to
 /// `settings` with `set`, reporting all the bad ones together (one per line), not only the first.
 pub fn apply_params<S>(

@@ -255,8 +255,7 @@ impl Default for AvsSettings {
 impl AvsSettings {
     /// Defaults with `params` applied.
     pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> Result<Self> {
-        let mut s = AvsSettings::default();
-        crate::technique::apply_params(&mut s, params, AvsSettings::set)?;
+        let s: Self = crate::technique::settings_from_params(params, Self::set)?;
         s.validate()?;
         Ok(s)
     }

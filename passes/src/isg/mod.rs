@@ -147,9 +147,7 @@ impl Default for IsgSettings {
 impl IsgSettings {
     /// Defaults with the scene's `technique_params` applied (see [`IsgSettings::set`]).
     pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> anyhow::Result<Self> {
-        let mut s = IsgSettings::default();
-        crate::technique::apply_params(&mut s, params, IsgSettings::set)?;
-        Ok(s)
+        crate::technique::settings_from_params(params, Self::set)
     }
 
     /// Sets one parameter. Keys: `lobes` (K, default 16), `spheres` (per object, 48), `side`

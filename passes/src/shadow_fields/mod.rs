@@ -111,9 +111,7 @@ impl Default for SfOptions {
 impl SfOptions {
     /// Options from `[technique_params]` / `--param` (see [`SfOptions::set`]).
     pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> Result<Self> {
-        let mut o = SfOptions::default();
-        crate::technique::apply_params(&mut o, params, SfOptions::set)?;
-        Ok(o)
+        crate::technique::settings_from_params(params, Self::set)
     }
 
     /// Sets one parameter. Keys: `shells` (C, default 32, 1..=256), `resolution` (initial R,

@@ -115,9 +115,7 @@ impl Default for SfwOptions {
 impl SfwOptions {
     /// Options from `[technique_params]` / `--param` (see [`SfwOptions::set`]).
     pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> Result<Self> {
-        let mut o = SfwOptions::default();
-        crate::technique::apply_params(&mut o, params, SfwOptions::set)?;
-        Ok(o)
+        crate::technique::settings_from_params(params, Self::set)
     }
 
     /// Sets one parameter: `shells` (1..=64), `resolution` (power of two 1..=64), `cube` (power

@@ -160,9 +160,7 @@ impl Default for VvSettings {
 
 impl VvSettings {
     pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> Result<Self> {
-        let mut s = VvSettings::default();
-        crate::technique::apply_params(&mut s, params, VvSettings::set)?;
-        Ok(s)
+        crate::technique::settings_from_params(params, Self::set)
     }
 
     /// Keys: `mode` (fragment3, fragment1, tessellation, tessellation3; default fragment1),
