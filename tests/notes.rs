@@ -75,3 +75,22 @@ fn auto_chooses_a_shadowing_technique_and_says_so() {
     assert_eq!(r.technique_name(), "env");
     assert!(r.notes()[0].contains("no light"), "{:?}", r.notes());
 }
+
+/// isg says when the driver ends shader loops early (Mesa 22.3's lavapipe, found by the loop
+/// guard cutting isg's visibility loops short) and only then: the note follows the device's
+/// measured loop limit.
+#[test]
+fn isg_names_a_driver_that_cuts_its_loops_short() {
+    let ctx = penumbra::engine::Context::new(&Default::default()).expect("context");
+    let mut engine = penumbra::engine::Engine::new(ctx.clone(), 1).expect("engine");
+    let limit = penumbra_passes::kernels::loop_probe::loop_limit(&mut engine, &penumbra::shader_library(), 100_000)
+        .expect("probe");
+    drop(engine);
+    for t in ["isg", "isg-vertex"] {
+        let scene = Scene::load(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/falling.toml")).unwrap();
+        let settings = RenderSettings { width: 16, height: 16, technique: Some(t.into()), ..Default::default() };
+        let n = Renderer::new(ctx.clone(), &scene, settings).expect("renderer").notes();
+        let said = n.iter().any(|l| l.contains("ends a shader invocation's loops after"));
+        assert_eq!(said, limit.is_some(), "{t} on {} (limit {limit:?}): {n:?}", ctx.driver_info());
+    }
+}

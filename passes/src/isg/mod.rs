@@ -686,6 +686,17 @@ impl IsgTechnique {
                 }
             }
         }
+        // Mesa 22.3's lavapipe ends an invocation's loops after 65535 iterations, silently; the
+        // loop guard (`penumbra bench loop-guard`) measured isg's visibility loops past that on
+        // most scenes with occluders: where the driver has the limit, say so
+        let mut probe = penumbra_engine::Engine::new(ctx.clone(), 1)?;
+        if let Some(n) = crate::kernels::loop_probe::loop_limit(&mut probe, shaders, 100_000)? {
+            sphere_notes.push(format!(
+                "this driver ({}) ends a shader invocation's loops after {n} iterations: isg's visibility loops (every lighting lobe's BVH walks and patch rasterization in one invocation) pass that where many occluders overlap (balls_on_dish, falling, hat_on_cloth, chess, sf_bowling, sf_statues, the bunnies), and those pixels come out wrong; lavapipe in Mesa 25 has no such limit",
+                ctx.driver_info()
+            ));
+        }
+        drop(probe);
         let settings_traces_lights =
             (settings.light_shadows && settings.light_mesh && !scene.lights.is_empty()) || settings.traced_visibility;
         Ok(IsgTechnique {
