@@ -710,19 +710,16 @@ impl Context {
         if loop_guard {
             let slots = 1024u64;
             let bytes = slots * (crate::glsl_compile::LOOP_GUARD_SLOT_WORDS * 4) as u64;
-            let mut buf = ctx.create_readback_buffer(
+            let buf = ctx.create_readback_buffer(
                 "loop_guard",
                 bytes,
                 vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS,
             )?;
-            if let Err(e) = buf.write(&vec![0u8; bytes as usize]) {
-                ctx.destroy_buffer(buf);
-                return Err(e);
-            }
             let address = unsafe {
                 ctx.device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(buf.buffer))
             };
             ctx.loop_guard = Some((buf, address));
+            ctx.reset_loop_guard();
         }
         Ok(ctx)
     }

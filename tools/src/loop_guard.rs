@@ -261,13 +261,13 @@ pub fn run(args: &LoopGuardArgs) -> Result<()> {
             problems.join("\n  ")
         );
     }
-    let listed = cells.iter().filter(|c| known.over.iter().any(|k| k.scene == c.scene && k.technique == c.technique));
-    if listed.clone().count() > 0 {
-        println!(
-            "known to reach the limit (listed in {}): {}",
-            known_path.display(),
-            listed.map(|c| format!("{}/{}", c.scene, c.technique)).collect::<Vec<_>>().join(", ")
-        );
+    let listed: Vec<String> = cells
+        .iter()
+        .filter(|c| known.over.iter().any(|k| k.scene == c.scene && k.technique == c.technique))
+        .map(|c| format!("{}/{}", c.scene, c.technique))
+        .collect();
+    if !listed.is_empty() {
+        println!("known to reach the limit (listed in {}): {}", known_path.display(), listed.join(", "));
     }
     Ok(())
 }
