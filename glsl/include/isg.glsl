@@ -17,6 +17,15 @@ struct IsgNode {
 layout(set = 0, binding = ISG_TABLE_BINDING) readonly buffer IsgTableBuf { float isg_t[]; };
 layout(set = 0, binding = ISG_NODES_BINDING) readonly buffer IsgNodes { IsgNode isg_nodes[]; };
 
+// The invocation's choices (penumbra_math::isg::{IsgModel, PatchRule}), set by the including
+// shader from its push constants before calling isg_visible:
+// isg_paper_fit: the corners' normalized ISG by eq. 14's two sigmoids with the appendix
+//   polynomials (their coefficients follow the table's data, IsgTable::to_gpu), not the table;
+// isg_paper_rule: a sphere occludes every patch its cap overlaps (the paper's rule), not only
+//   those whose centre it covers.
+bool isg_paper_fit = false;
+bool isg_paper_rule = false;
+
 float isg_level_gamma(int l) {
     return pow(10.0, isg_t[2] + float(l) / isg_t[0]);
 }
@@ -48,8 +57,24 @@ vec2 isg_level_pos(float gamma) {
     return vec2(l0, clamp(x - l0, 0.0, 1.0));
 }
 
+float isg_sigmoid(float x) {
+    return x >= 0.0 ? 1.0 / (1.0 + exp(-x)) : exp(x) / (1.0 + exp(x));
+}
+
+// The appendix's quartic k (0: g, 1: h) in gamma / 100, gamma clamped to the fit's 1..1e4.
+float isg_paper_poly(int k, float gamma) {
+    int levels = int(isg_t[3] + 0.5), n = int(isg_t[1] + 0.5);
+    int c = 4 + levels + levels * n * n + 5 * k;
+    float x = clamp(gamma, 1.0, 1e4) / 100.0;
+    return (((isg_t[c] * x + isg_t[c + 1]) * x + isg_t[c + 2]) * x + isg_t[c + 3]) * x + isg_t[c + 4];
+}
+
 // Normalized ISG S(theta, phi) / S(pi, pi), in [0, 1].
 float isg_eval(float th, float ph, float gamma) {
+    if (isg_paper_fit) {
+        float g = max(gamma, 0.0);
+        return isg_sigmoid(isg_paper_poly(0, g) * (th - ISG_HALF_PI)) * isg_sigmoid(isg_paper_poly(1, g) * (ph - ISG_HALF_PI));
+    }
     vec2 lp = isg_level_pos(gamma);
     int l0 = int(lp.x);
     float g = max(gamma, 1e-2);
@@ -111,11 +136,58 @@ uint isg_cap_bits(int i, vec3 cl, float rho, float phc, float cos_psi, float phi
     return bits;
 }
 
+// The cap's phi half-width at polar angle th (rho = |cl.xz|): pi when the whole circle of
+// latitude is inside, -1 when none of it is (penumbra_math::isg's cap_half_width).
+float isg_cap_half_width(float th, vec3 cl, float rho, float cos_psi) {
+    float rhs = cos_psi - cos(th) * cl.y;
+    float den = sin(th) * rho;
+    if (den <= 1e-7) return rhs <= 0.0 ? 3.14159265 : -1.0;
+    float q = rhs / den;
+    if (q <= -1.0) return 3.14159265;
+    return q <= 1.0 ? acos(q) : -1.0;
+}
+
+// The paper's rule (isg_paper_rule): marks every patch whose extent overlaps the cap (rows
+// meeting theta_c +- psi; in each row the cap's phi range at its widest over the row, at the
+// row's edges or nearest the cap's centre). Mirror of penumbra_math::isg's mark_cap_paper.
+bool isg_mark_cap_paper(vec3 cl, float psi, float delta, float step_a, int side) {
+    float cos_psi = cos(psi);
+    float rho = length(cl.xz);
+    float phc = atan(cl.z, cl.x);
+    float phi0 = ISG_HALF_PI - delta;
+    float thc = acos(clamp(cl.y, -1.0, 1.0));
+    int r0 = max(int(floor((thc - psi - phi0) / step_a)), 0);
+    int r1 = min(int(ceil((thc + psi - phi0) / step_a)) - 1, side - 1);
+    bool any_occ = false;
+    for (int i = r0; i <= r1; ++i) {
+        float t0 = phi0 + step_a * float(i), t1 = phi0 + step_a * float(i + 1);
+        float w = max(max(isg_cap_half_width(t0, cl, rho, cos_psi), isg_cap_half_width(t1, cl, rho, cos_psi)),
+                      isg_cap_half_width(clamp(thc, t0, t1), cl, rho, cos_psi));
+        if (w < 0.0) continue;
+        uint bits = 0u;
+        for (int k = -1; k <= 1; ++k) {
+            float a = phc + 6.28318531 * float(k) - w;
+            float b = phc + 6.28318531 * float(k) + w;
+            int j0 = max(int(floor((a - phi0) / step_a)), 0);
+            int j1 = min(int(ceil((b - phi0) / step_a)) - 1, side - 1);
+            if (j1 >= j0) {
+                uint hi = j1 >= 31 ? 0xffffffffu : ((1u << uint(j1 + 1)) - 1u);
+                uint lo = (1u << uint(j0)) - 1u;
+                bits |= hi & ~lo;
+            }
+        }
+        isg_mask[i] |= bits;
+        any_occ = any_occ || bits != 0u;
+    }
+    return any_occ;
+}
+
 // Marks the patches covered by the cap (world unit centre direction c, angular radius psi);
 // true if any patch was marked.
 bool isg_mark_cap(vec3 c, float psi, vec3 fx, vec3 fy, vec3 fz, float delta, float step_a, int side) {
     float cos_psi = cos(psi);
     vec3 cl = vec3(dot(c, fx), dot(c, fy), dot(c, fz));
+    if (isg_paper_rule) return isg_mark_cap_paper(cl, psi, delta, step_a, side);
     float rho = length(cl.xz);
     float phc = atan(cl.z, cl.x);
     float phi0 = ISG_HALF_PI - delta;

@@ -69,7 +69,7 @@ layout(push_constant) uniform Push {
     int node_count;
     int patch_side;
     float lod;
-    uint flags;  // bit 0: no shadows (debug); bit 1: local lights unshadowed; bit 2: their shadow rays through the meshes (kd-tree), not the spheres; bit 3: environment visibility traced through the kd-tree (traced_visible)
+    uint flags;  // bit 0: no shadows (debug); bit 1: local lights unshadowed; bit 2: their shadow rays through the meshes (kd-tree), not the spheres; bit 3: environment visibility traced through the kd-tree (traced_visible); bit 4: isg_paper_fit, bit 5: isg_paper_rule (isg.glsl)
     float min_fraction;
     uint specular_mode;  // 0: Gamma_L from the prefiltered maps (paper), 1: from the lighting SGs, 2: ratio (env_shade.glsl's glossy term x the ISG visible fraction)
     int tri_node_count;  // thin-shell triangle BVH nodes
@@ -164,6 +164,8 @@ void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
     ivec2 size = imageSize(hdr);
     if (px.x >= size.x || px.y >= size.y) return;
+    isg_paper_fit = (pc.flags & 16u) != 0u;
+    isg_paper_rule = (pc.flags & 32u) != 0u;
     vec4 uvm = texelFetch(gb_uv_mat, px, 0);
     if (uvm.w < 0.5) {
         vec2 ndc = (vec2(px) + 0.5) / vec2(size) * 2.0 - 1.0;

@@ -34,6 +34,7 @@ layout(push_constant) uniform Push {
     int patch_side;
     float lod;
     float min_fraction;
+    uint flags;  // bit 4: isg_paper_fit, bit 5: isg_paper_rule (glsl/include/isg.glsl)
 } pc;
 
 float visible(vec3 p, vec3 n, SG g) {
@@ -44,6 +45,8 @@ float visible(vec3 p, vec3 n, SG g) {
 void main() {
     uint vi = gl_GlobalInvocationID.x;
     if (vi >= pc.vertex_count) return;
+    isg_paper_fit = (pc.flags & 16u) != 0u;
+    isg_paper_rule = (pc.flags & 32u) != 0u;
     vec4 a = verts[2u * vi], b = verts[2u * vi + 1u];
     if ((uint(b.w + 0.5) & 2u) != 0u) {  // no visible triangle uses it
         vis_out[vi] = vec4(1.0);

@@ -19,11 +19,14 @@ layout(push_constant) uniform Push {
     int tri_node_count;
     int patch_side;
     float lod;
+    uint flags;  // bit 4: isg_paper_fit, bit 5: isg_paper_rule
 } pc;
 
 void main() {
     uint i = gl_GlobalInvocationID.x;
     if (i >= pc.count) return;
+    isg_paper_fit = (pc.flags & 16u) != 0u;
+    isg_paper_rule = (pc.flags & 32u) != 0u;
     vec3 p = q[3u * i].xyz, n = q[3u * i + 1u].xyz;
     vec4 ag = q[3u * i + 2u];
     vis[i] = isg_visible(p, n, ag.xyz, ag.w, pc.node_count, pc.tri_node_count, pc.patch_side, pc.lod);

@@ -402,11 +402,14 @@ impl IsgTable {
     }
 
     /// Layout for the GPU (`glsl/include/isg.glsl`): header `[per_decade, n, log_min, levels]` as
-    /// f32, then `levels` limiting angles for `epsilon`, then the data.
+    /// f32, then `levels` limiting angles for `epsilon`, then the data, then the paper's fit
+    /// ([`PAPER_G`], [`PAPER_H`]: 10 values).
     pub fn to_gpu(&self, epsilon: f64) -> Vec<f32> {
         let mut v = vec![self.per_decade as f32, self.n as f32, self.log_min as f32, self.levels as f32];
         v.extend(self.level_limiting_angles(epsilon));
         v.extend_from_slice(&self.data);
+        // the paper's fit (`isg_paper_poly` in glsl/include/isg.glsl): g's then h's coefficients
+        v.extend(PAPER_G.iter().chain(&PAPER_H).map(|&c| c as f32));
         v
     }
 }
@@ -420,6 +423,31 @@ pub struct Sphere {
     pub radius: f64,
 }
 
+/// How the normalized ISG of a patch's corners is evaluated.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum IsgModel {
+    /// [`IsgTable::eval`], the tabulated pre-integration (default: the fit's error, see
+    /// [`fit_error`], is what the table removes).
+    #[default]
+    Table,
+    /// [`paper_fit`], eq. 14's two sigmoids with the appendix polynomials (the paper's).
+    PaperFit,
+}
+
+/// Which patches a blocker sphere occludes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum PatchRule {
+    /// A patch whose centre direction lies in the sphere's projected cap (default).
+    #[default]
+    Centre,
+    /// The paper's rule (section 4.1): a patch whose angular extent overlaps the cap's
+    /// occluded ranges (rows meeting `theta_l +- psi_l`, in each row the cap's `phi` range at its
+    /// widest over the row), so every patch the cap touches counts as wholly occluded
+    /// (conservative: shadows grow by up to a patch). Thin-shell triangles keep the centre rule
+    /// (the paper rasterizes them).
+    Paper,
+}
+
 /// Parameters of the visibility integral (paper defaults).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IsgParams {
@@ -427,12 +455,75 @@ pub struct IsgParams {
     pub epsilon: f64,
     /// Patches per side of the discretized region (paper: 100 to 400 patches, i.e. 10 to 20).
     pub patch_side: usize,
+    /// The corners' normalized ISG: the table or the paper's sigmoid fit.
+    pub model: IsgModel,
+    /// Which patches a sphere occludes.
+    pub rule: PatchRule,
 }
 
 impl Default for IsgParams {
     fn default() -> Self {
-        IsgParams { epsilon: 0.01, patch_side: 16 }
+        IsgParams { epsilon: 0.01, patch_side: 16, model: IsgModel::Table, rule: PatchRule::Centre }
     }
+}
+
+/// The `phi` half-width of the cap (local centre `cl`, cosine radius `cos_psi`) at polar angle
+/// `theta`: `Some(pi)` when the whole circle of latitude is inside, `None` when none of it is.
+fn cap_half_width(theta: f64, cl: DVec3, cos_psi: f64) -> Option<f64> {
+    let rhs = cos_psi - theta.cos() * cl.y;
+    let den = theta.sin() * DVec3::new(cl.x, 0.0, cl.z).length();
+    if den <= 1e-7 {
+        return (rhs <= 0.0).then_some(PI);
+    }
+    let q = rhs / den;
+    if q <= -1.0 {
+        Some(PI)
+    } else if q <= 1.0 {
+        Some(q.acos())
+    } else {
+        None
+    }
+}
+
+/// The paper's rule ([`PatchRule::Paper`]): marks in `occluded` (`side x side`, rows `theta`)
+/// every patch of the region `pi/2 +- delta` whose extent overlaps the cap; true if any.
+/// Mirror of `isg_cap_bits_paper` in `glsl/include/isg.glsl`.
+fn mark_cap_paper(occluded: &mut [bool], side: usize, delta: f64, cl: DVec3, psi: f64) -> bool {
+    let step = 2.0 * delta / side as f64;
+    let phi0 = FRAC_PI_2 - delta;
+    let thc = cl.y.clamp(-1.0, 1.0).acos();
+    let phc = cl.z.atan2(cl.x);
+    let cos_psi = psi.cos();
+    let mut any = false;
+    let r0 = ((thc - psi - phi0) / step).floor().max(0.0) as usize;
+    let r1 = ((thc + psi - phi0) / step).ceil() - 1.0;
+    if r1 < 0.0 {
+        return false;
+    }
+    let r1 = (r1 as usize).min(side - 1);
+    for i in r0..=r1 {
+        let (t0, t1) = (phi0 + step * i as f64, phi0 + step * (i + 1) as f64);
+        // the widest the cap gets over the row: at its edges or nearest the cap's centre
+        let w =
+            [t0, t1, thc.clamp(t0, t1)].into_iter().filter_map(|t| cap_half_width(t, cl, cos_psi)).fold(-1.0, f64::max);
+        if w < 0.0 {
+            continue;
+        }
+        for k in -1..=1 {
+            let a = phc + std::f64::consts::TAU * k as f64 - w;
+            let b = phc + std::f64::consts::TAU * k as f64 + w;
+            let j0 = ((a - phi0) / step).floor().max(0.0);
+            let j1 = (((b - phi0) / step).ceil() - 1.0).min((side - 1) as f64);
+            if j1 < j0 {
+                continue;
+            }
+            for j in j0 as usize..=j1 as usize {
+                occluded[i * side + j] = true;
+                any = true;
+            }
+        }
+    }
+    any
 }
 
 /// Orthonormal frame whose `z` is `axis` (the SG lobe axis); the same frame as
@@ -524,6 +615,10 @@ pub fn visible_fraction_with_triangles(
         }
         let cos_psi = psi.cos();
         let cl = DVec3::new(c.dot(fx), c.dot(fy), c.dot(fz));
+        if params.rule == PatchRule::Paper {
+            any = mark_cap_paper(&mut occluded, side, delta, cl, psi) || any;
+            continue;
+        }
         for i in 0..side {
             let t = FRAC_PI_2 - delta + 2.0 * delta * (i as f64 + 0.5) / side as f64;
             for j in 0..side {
@@ -564,7 +659,15 @@ pub fn visible_fraction_with_triangles(
     for i in 0..side {
         for j in 0..side {
             if occluded[i * side + j] {
-                occ += table.patch(edges[i], edges[i + 1], edges[j], edges[j + 1], gamma);
+                let (t0, t1, p0, p1) = (edges[i], edges[i + 1], edges[j], edges[j + 1]);
+                occ += match params.model {
+                    IsgModel::Table => table.patch(t0, t1, p0, p1, gamma),
+                    IsgModel::PaperFit => {
+                        (paper_fit(t1, p1, gamma) - paper_fit(t0, p1, gamma) - paper_fit(t1, p0, gamma)
+                            + paper_fit(t0, p0, gamma))
+                        .max(0.0)
+                    }
+                };
             }
         }
     }

@@ -191,6 +191,9 @@ const ISG_PARAMS: &[ParamDoc] = &[
     p("visibility", "isg", "isg, traced", "environment visibility: the ISG over the sphere proxies (the paper's) or 96 shadow rays per lobe through the meshes (traced: a measuring stick for the proxies' error; per-pixel mode only)"),
     p("mode", "pixel", "pixel, vertex", "visibility per pixel or per vertex"),
     p("max_edge", "0.1", ">= 0", "per-vertex mode: subdivide until edges are at most this (0: never)"),
+    p("pixel_refine", "0.2", ">= 0", "per-vertex mode: triangles whose corners' visibilities differ by more than this are evaluated per pixel (1: never, the paper's pure per-vertex mode)"),
+    p("isg_eval", "table", "table, sigmoid", "the patches' normalized ISG: the tabulated pre-integration or eq. 14's two sigmoids with the appendix polynomials (the paper's; poor below gamma of about 100)"),
+    p("patch_rule", "centre", "centre, paper", "a sphere occludes the patches whose centre its cap covers, or every patch it overlaps (the paper's rule, conservative)"),
 ];
 
 const AVS_PARAMS: &[ParamDoc] = &[

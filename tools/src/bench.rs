@@ -84,6 +84,57 @@ pub(crate) fn technique_gpu_ms(r: &Renderer) -> f64 {
         .sum()
 }
 
+/// One technique measured at one still frame: its image (box-filtered down from the
+/// supersampled render), its passes' GPU statistics and its GPU ms per frame.
+pub(crate) struct Measured {
+    pub image: Image,
+    pub passes: serde_json::Value,
+    pub technique_ms: f64,
+    pub device: String,
+    pub driver: String,
+}
+
+/// Renders `name` (with `params`) at `width x height` times `supersample`, frame time `t`:
+/// one warm-up frame outside the statistics (its passes' first dispatches include lavapipe's
+/// shader compilation, seconds for the larger technique shaders), then `frames` timed frames.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn measure_technique(
+    scene: &Scene,
+    name: &str,
+    params: Option<std::collections::BTreeMap<String, String>>,
+    width: u32,
+    height: u32,
+    supersample: u32,
+    t: f32,
+    frames: u32,
+) -> Result<Measured> {
+    let ss = supersample.max(1);
+    let settings = RenderSettings {
+        width: width * ss,
+        height: height * ss,
+        technique: Some(name.to_string()),
+        technique_params: params,
+        ..Default::default()
+    };
+    let mut r = Renderer::new_headless(scene, settings, false)?;
+    let frame = scene.at(t, Some(t));
+    let mut images = r.render(&frame, None, true)?;
+    images.extend(r.finish()?);
+    r.engine.profiler.reset();
+    for _ in 0..frames.max(1) {
+        images.extend(r.render(&frame, None, true)?);
+    }
+    images.extend(r.finish()?);
+    let last = images.last().context("no frame finished")?;
+    Ok(Measured {
+        image: downsample(&last.hdr, width, height, ss),
+        passes: serde_json::to_value(r.engine.profiler.gpu_stats())?,
+        technique_ms: technique_gpu_ms(&r),
+        device: r.context().device_name.clone(),
+        driver: r.context().driver_info(),
+    })
+}
+
 pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
     let (width, height) = parse_size(&args.size)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
@@ -124,38 +175,16 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
     let mut baseline_ms = None;
     let mut device: Option<(String, String)> = None;
     for name in args.techniques.split(',').map(str::trim).filter(|s| !s.is_empty()) {
-        let ss = args.supersample.max(1);
-        let (gw, gh) = (width * ss, height * ss);
         let technique_params = args
             .technique_params
             .clone()
             .filter(|_| penumbra_passes::registry::info(name).is_some_and(|i| i.takes_params()));
-        let settings = RenderSettings {
-            width: gw,
-            height: gh,
-            technique: Some(name.to_string()),
-            technique_params,
-            ..Default::default()
-        };
-        let mut r = Renderer::new_headless(scene, settings, false)?;
-        device.get_or_insert_with(|| (r.context().device_name.clone(), r.context().driver_info()));
-        let frame = scene.at(t, Some(t));
-        // One warm-up frame outside the statistics: its passes' first dispatches include
-        // lavapipe's shader compilation (seconds for the larger technique shaders).
-        let mut images = r.render(&frame, None, true)?;
-        images.extend(r.finish()?);
-        r.engine.profiler.reset();
-        for _ in 0..args.frames.max(1) {
-            images.extend(r.render(&frame, None, true)?);
-        }
-        images.extend(r.finish()?);
-        let last = images.last().context("no frame finished")?;
-        let img = downsample(&last.hdr, width, height, ss);
+        let m = measure_technique(scene, name, technique_params, width, height, args.supersample, t, args.frames)?;
+        device.get_or_insert_with(|| (m.device.clone(), m.driver.clone()));
+        let (img, stats, technique_ms) = (m.image, m.passes, m.technique_ms);
         img.write_exr(args.out.join(format!("{name}.exr")))?;
         let c = compare(&reference.radiance, "reference", &img, name)?;
         write_diff_png(&reference.radiance, &img, &args.out.join(format!("{name}_diff.png")))?;
-        let stats = r.engine.profiler.gpu_stats();
-        let technique_ms = technique_gpu_ms(&r);
         let base = *baseline_ms.get_or_insert(technique_ms);
         let vs_sg = match &sg_reference {
             Some(sg) => Some(compare(&sg.radiance, "reference_sg", &img, name)?),

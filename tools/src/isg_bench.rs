@@ -41,7 +41,19 @@ pub struct IsgArgs {
     /// sub-pixel highlights (shininess 1000) against the pixel-integrating reference.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=8))]
     pub supersample: u32,
+    /// Skip the variants table (the paper's sigmoid fit and patch rule against the defaults,
+    /// per-vertex refinement off): only the two modes with their defaults.
+    #[arg(long)]
+    pub no_variants: bool,
 }
+
+/// The alternatives `bench isg` measures against the defaults: (technique, parameters, what).
+pub const VARIANTS: &[(&str, &[(&str, &str)], &str)] = &[
+    ("isg", &[("isg_eval", "sigmoid")], "eq. 14's sigmoid fit instead of the table"),
+    ("isg", &[("patch_rule", "paper")], "the paper's overlap rule instead of patch centres"),
+    ("isg", &[("isg_eval", "sigmoid"), ("patch_rule", "paper")], "both: the paper's visibility integral"),
+    ("isg-vertex", &[("pixel_refine", "1")], "no per-pixel refinement: the paper's pure per-vertex mode"),
+];
 
 impl IsgArgs {
     /// The scene with the ISG parameters applied (a bad key or value is an error naming it).
@@ -63,6 +75,55 @@ impl IsgArgs {
         }
         Ok(scene)
     }
+}
+
+/// RMSE over the mean radiance of `img` against `reference`.
+fn rmse_over_mean(reference: &Image, img: &Image) -> Result<f64> {
+    let c = compare(reference, "reference", img, "technique")?;
+    let mean = reference.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64 / 3.0).sum::<f64>()
+        / reference.pixels.len().max(1) as f64;
+    Ok(c.rmse / mean.max(1e-12))
+}
+
+/// The [`VARIANTS`] table: each variant rendered as the defaults were (same frame, size,
+/// supersampling, timed frames) and compared with the same two references; writes
+/// `variants.json`.
+fn variants(args: &IsgArgs, scene: &Scene, rows: &[serde_json::Value]) -> Result<()> {
+    let (w, h) = penumbra_reference::cli::parse_size(&args.size)?;
+    let t = args.frame as f32 / args.fps;
+    let full = Image::read_exr(args.out.join("reference.exr"))?;
+    let sg = Image::read_exr(args.out.join("reference_sg.exr"))?;
+    println!();
+    println!("| technique | variant | GPU ms/frame | RMSE / mean vs full reference | vs SG-lighting reference |");
+    println!("|---|---|---|---|---|");
+    let mut out = Vec::new();
+    for name in ["isg", "isg-vertex"] {
+        let Ok(img) = Image::read_exr(args.out.join(format!("{name}.exr"))) else { continue };
+        let ms = rows.iter().find(|r| r["technique"] == name).and_then(|r| r["gpu_ms_per_frame"].as_f64());
+        let (ef, es) = (rmse_over_mean(&full, &img)?, rmse_over_mean(&sg, &img)?);
+        println!(
+            "| {name} | defaults | {} | {:.2}% | {:.2}% |",
+            ms.map_or("-".into(), |m| format!("{m:.2}")),
+            100.0 * ef,
+            100.0 * es
+        );
+        out.push(serde_json::json!({"technique": name, "variant": "defaults", "gpu_ms_per_frame": ms, "rmse_over_mean": ef, "rmse_over_mean_sg": es}));
+    }
+    for (name, params, what) in VARIANTS {
+        let mut p = scene.technique_params.clone();
+        for (k, v) in *params {
+            p.insert(k.to_string(), v.to_string());
+        }
+        let label = params.iter().map(|(k, v)| format!("{k}={v}")).collect::<Vec<_>>().join(" ");
+        let m = crate::bench::measure_technique(scene, name, Some(p), w, h, args.supersample, t, args.frames)?;
+        let file = format!("{name}_{}.exr", label.replace(['=', ' '], "_"));
+        m.image.write_exr(args.out.join(&file))?;
+        let (ef, es) = (rmse_over_mean(&full, &m.image)?, rmse_over_mean(&sg, &m.image)?);
+        println!("| {name} | {label} ({what}) | {:.2} | {:.2}% | {:.2}% |", m.technique_ms, 100.0 * ef, 100.0 * es);
+        out.push(serde_json::json!({"technique": name, "variant": label, "image": file, "gpu_ms_per_frame": m.technique_ms, "rmse_over_mean": ef, "rmse_over_mean_sg": es}));
+    }
+    std::fs::write(args.out.join("variants.json"), serde_json::to_string_pretty(&out)?)?;
+    Ok(())
 }
 
 /// Runs `bench techniques --techniques isg,isg-vertex --sg-reference` and prints its results as
@@ -149,6 +210,9 @@ pub fn run_isg(args: &IsgArgs, scene: &Scene) -> Result<()> {
             cells.push(format!("{:.2}%", 100.0 * c.rmse / mean.max(1e-12)));
         }
         println!("| {name} | {} |", cells.join(" | "));
+    }
+    if !args.no_variants {
+        variants(args, &scene, &rows)?;
     }
     if let (Ok(px), Ok(vx)) = (read("isg"), read("isg-vertex")) {
         let c = compare(&px, "per pixel", &vx, "per vertex")?;

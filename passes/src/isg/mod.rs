@@ -96,6 +96,15 @@ pub struct IsgSettings {
     /// Per-vertex mode: meshes are subdivided until their longest edge is at most this (world
     /// units; 0: never).
     pub max_edge: f32,
+    /// Per-vertex mode: a triangle whose vertices' visibilities (diffuse per channel, or glossy)
+    /// differ by more than this is evaluated per pixel (shadow boundaries, glossy visibility that
+    /// changes across a coarse triangle); 1 or more: never, the paper's pure per-vertex mode.
+    pub pixel_refine: f32,
+    /// The corners' normalized ISG: the table (default) or eq. 14's sigmoids (`isg_eval`).
+    pub model: penumbra_math::isg::IsgModel,
+    /// Which patches a sphere occludes: centre (default) or the paper's overlap rule
+    /// (`patch_rule`).
+    pub rule: penumbra_math::isg::PatchRule,
     /// Thin shells (and open meshes) cast shadows by their projected triangles.
     pub thin_shells: bool,
     /// Local lights are shadowed by shadow rays through the same occluders (sphere BVH and
@@ -135,6 +144,9 @@ impl Default for IsgSettings {
             gpu_bvh: true,
             per_vertex: false,
             max_edge: 0.1,
+            pixel_refine: 0.2,
+            model: penumbra_math::isg::IsgModel::Table,
+            rule: penumbra_math::isg::PatchRule::Centre,
             thin_shells: true,
             light_shadows: true,
             light_mesh: true,
@@ -145,6 +157,13 @@ impl Default for IsgSettings {
 }
 
 impl IsgSettings {
+    /// Bits 4 and 5 of the shaders' flags: `isg_paper_fit` and `isg_paper_rule` in
+    /// `glsl/include/isg.glsl`.
+    pub fn model_flags(&self) -> u32 {
+        use penumbra_math::isg::{IsgModel, PatchRule};
+        ((self.model == IsgModel::PaperFit) as u32) << 4 | ((self.rule == PatchRule::Paper) as u32) << 5
+    }
+
     /// Defaults with the scene's `technique_params` applied (see [`IsgSettings::set`]).
     pub fn from_params(params: &std::collections::BTreeMap<String, String>) -> anyhow::Result<Self> {
         crate::technique::settings_from_params(params, Self::set)
@@ -153,7 +172,10 @@ impl IsgSettings {
     /// Sets one parameter. Keys: `lobes` (K, default 16), `spheres` (per object, 48), `side`
     /// (patches per side, 12), `epsilon` (0.01), `lod` (1.0), `min_fraction` (0.02), `shadows`,
     /// `prefiltered`, `gpu_bvh`, `thin_shells`, `light_shadows` (true/false or 1/0), `mode` (`pixel` or
-    /// `vertex`), `max_edge` (per-vertex subdivision, world units, 0.1; 0: none). Unknown keys
+    /// `vertex`), `max_edge` (per-vertex subdivision, world units, 0.1; 0: none), `pixel_refine`
+    /// (per-vertex mode: the corner visibility spread above which a triangle is evaluated per
+    /// pixel, 0.2; 1: never), `isg_eval` (`table` or the paper's `sigmoid`), `patch_rule`
+    /// (`centre` or the paper's `paper`). Unknown keys
     /// and bad values are errors.
     pub fn set(&mut self, key: &str, value: &str) -> anyhow::Result<()> {
         let v = value.trim();
@@ -216,8 +238,25 @@ impl IsgSettings {
                 }
             }
             "max_edge" => self.max_edge = v.parse::<f32>().ok().filter(|x| x.is_finite() && *x >= 0.0).ok_or_else(bad)?,
+            "isg_eval" => {
+                self.model = match v {
+                    "table" => penumbra_math::isg::IsgModel::Table,
+                    "sigmoid" => penumbra_math::isg::IsgModel::PaperFit,
+                    _ => anyhow::bail!("isg parameter isg_eval = '{value}': expected 'table' or 'sigmoid'"),
+                }
+            }
+            "patch_rule" => {
+                self.rule = match v {
+                    "centre" | "center" => penumbra_math::isg::PatchRule::Centre,
+                    "paper" => penumbra_math::isg::PatchRule::Paper,
+                    _ => anyhow::bail!("isg parameter patch_rule = '{value}': expected 'centre' or 'paper'"),
+                }
+            }
+            "pixel_refine" => {
+                self.pixel_refine = v.parse::<f32>().ok().filter(|x| x.is_finite() && *x >= 0.0).ok_or_else(bad)?
+            }
             other => anyhow::bail!(
-                "unknown isg parameter '{other}' (known: lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, diffuse, glossy, gpu_bvh, thin_shells, light_shadows, light_occluders, mode, max_edge)"
+                "unknown isg parameter '{other}' (known: lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, diffuse, glossy, gpu_bvh, thin_shells, light_shadows, light_occluders, mode, max_edge, pixel_refine, isg_eval, patch_rule)"
             ),
         }
         Ok(())
@@ -642,7 +681,7 @@ impl IsgTechnique {
                         T::STORAGE_BUFFER,
                         T::STORAGE_BUFFER,
                     ],
-                    28,
+                    32,
                 )?,
                 vertex::raster_pipeline(ctx, shaders)?,
             ))
@@ -801,7 +840,7 @@ impl IsgTechnique {
         let bvh = p.read(bvh, Access::ComputeShaderReadStorage);
         let tris = p.read(tris, Access::ComputeShaderReadStorage);
         let tri_nodes = p.read(tri_nodes, Access::ComputeShaderReadStorage);
-        let mut push = Vec::with_capacity(28);
+        let mut push = Vec::with_capacity(32);
         push.extend_from_slice(&count.to_le_bytes());
         push.extend_from_slice(&self.lobe_count.to_le_bytes());
         push.extend_from_slice(&(if self.settings.shadows { node_count } else { 0 }).to_le_bytes());
@@ -809,6 +848,7 @@ impl IsgTechnique {
         push.extend_from_slice(&(self.settings.patch_side.clamp(1, 32) as i32).to_le_bytes());
         push.extend_from_slice(&self.settings.lod.to_le_bytes());
         push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
+        push.extend_from_slice(&self.settings.model_flags().to_le_bytes());
         p.record(move |rc| {
             let storage = crate::util::storage([materials, verts_c, vis, lobes, table, bvh, tris, tri_nodes]);
             let binds = [&[Bind::UniformBuffer(camera)][..], &storage].concat();
@@ -821,8 +861,9 @@ impl IsgTechnique {
         let depth = p.write(depth, Access::DepthAttachmentWrite);
         let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
         let vis = p.read(vis, Access::VertexShaderReadStorage);
-        let verts_v = p.read(verts, Access::VertexBuffer);
-        let index_buf = p.read(index_buf, Access::IndexBuffer);
+        let verts_v = p.read(verts, Access::VertexShaderReadStorage);
+        let index_buf = p.read(index_buf, Access::VertexShaderReadStorage);
+        let refine = self.settings.pixel_refine;
         p.record(move |rc| {
             let d = rc.device();
             // cleared to r < 0: no receiver triangle here (per-pixel fallback)
@@ -834,20 +875,23 @@ impl IsgTechnique {
                 .layer_count(1)
                 .color_attachments(&colors)
                 .depth_attachment(&depth_att);
-            let vb = rc.buffer(verts_v)?;
-            let ib = rc.buffer(index_buf)?;
             crate::raster::begin(d, rc.cmd, &info, w, h, rp);
             rc.push_descriptors(
                 vk::PipelineBindPoint::GRAPHICS,
                 rl,
                 0,
-                &[Bind::UniformBuffer(camera), Bind::StorageBuffer(vis)],
+                &[
+                    Bind::UniformBuffer(camera),
+                    Bind::StorageBuffer(vis),
+                    Bind::StorageBuffer(verts_v),
+                    Bind::StorageBuffer(index_buf),
+                ],
             )?;
             unsafe {
                 if count > 0 && index_count > 0 {
-                    d.cmd_bind_vertex_buffers(rc.cmd, 0, &[vb.buffer], &[0]);
-                    d.cmd_bind_index_buffer(rc.cmd, ib.buffer, 0, vk::IndexType::UINT32);
-                    d.cmd_draw_indexed(rc.cmd, index_count, 1, 0, 0, 0);
+                    let stages = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT;
+                    d.cmd_push_constants(rc.cmd, rl, stages, 0, &refine.to_le_bytes());
+                    d.cmd_draw(rc.cmd, index_count, 1, 0, 0);
                 }
                 d.cmd_end_rendering(rc.cmd);
             }
@@ -952,7 +996,8 @@ impl crate::technique::Technique for IsgTechnique {
         let flags = !self.settings.shadows as u32
             | (!self.settings.light_shadows as u32) << 1
             | ((kd_tree && self.settings.light_mesh) as u32) << 2
-            | ((kd_tree && self.settings.traced_visibility) as u32) << 3;
+            | ((kd_tree && self.settings.traced_visibility) as u32) << 3
+            | self.settings.model_flags();
         push.extend_from_slice(&flags.to_le_bytes());
         push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
         let specular_mode = if self.settings.glossy_ratio { 2u32 } else { !self.settings.prefiltered_specular as u32 };

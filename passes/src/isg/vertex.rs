@@ -234,7 +234,9 @@ pub const VIS_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
 /// Its depth buffer.
 pub const VIS_DEPTH_FORMAT: vk::Format = vk::Format::D32_SFLOAT;
 
-/// The raster pipeline of `isg_vertex_raster` (camera uniform + per-vertex visibility storage).
+/// The raster pipeline of `isg_vertex_raster`: camera uniform, per-vertex visibilities, the
+/// vertices and the triangles' indices (storage buffers read by the vertex shader, which draws
+/// unindexed, three invocations per triangle), and `pixel_refine` as a 4-byte push constant.
 pub fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
     use crate::raster::{DepthState, RasterDesc, VertexInput};
     crate::raster::raster_pipeline(
@@ -243,8 +245,14 @@ pub fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pi
         &RasterDesc {
             name: "isg_vertex_raster",
             shaders: &["isg/isg_vertex.vert", "isg/isg_vertex.frag"],
-            descriptors: &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
-            vertex_input: VertexInput::PositionOfStride(std::mem::size_of::<IsgVertex>() as u32),
+            descriptors: &[
+                vk::DescriptorType::UNIFORM_BUFFER,
+                vk::DescriptorType::STORAGE_BUFFER,
+                vk::DescriptorType::STORAGE_BUFFER,
+                vk::DescriptorType::STORAGE_BUFFER,
+            ],
+            push_constant_bytes: 4,
+            vertex_input: VertexInput::None,
             colors: &[VIS_FORMAT],
             depth: Some(DepthState { format: VIS_DEPTH_FORMAT, write: true, compare: vk::CompareOp::LESS }),
             ..Default::default()

@@ -21,21 +21,22 @@ pub struct VisibilityQuery {
 /// Evaluates `isg_visible` (`glsl/include/isg.glsl`) on the GPU for `queries` against
 /// `spheres` (CPU BVH) and thin-shell `triangles` (one compute dispatch of
 /// `glsl/tests/isg_parity.comp` in a graph of its own): the shader side of the shader-vs-CPU parity
-/// test against [`penumbra_math::isg::visible_fraction_with_triangles`].
+/// test against [`penumbra_math::isg::visible_fraction_with_triangles`] with the same `params`
+/// (patches per side up to 32, epsilon, the ISG model and the patch rule).
 pub fn gpu_visibility(
     engine: &mut Engine,
     shaders: &ShaderLibrary,
     queries: &[VisibilityQuery],
     spheres: &[WorldSphere],
     triangles: &[[Vec3; 3]],
-    patch_side: u32,
-    epsilon: f64,
+    params: &penumbra_math::isg::IsgParams,
     lod: f32,
 ) -> Result<Vec<f32>> {
+    use penumbra_math::isg::{IsgModel, PatchRule};
     use vk::DescriptorType as T;
     let ctx = engine.ctx.clone();
-    let pipeline = compute_pipeline(&ctx, shaders, "tests/isg_parity.comp", &[T::STORAGE_BUFFER; 6], 20)?;
-    let table = IsgTable::default_table().to_gpu(epsilon);
+    let pipeline = compute_pipeline(&ctx, shaders, "tests/isg_parity.comp", &[T::STORAGE_BUFFER; 6], 24)?;
+    let table = IsgTable::default_table().to_gpu(params.epsilon);
     let nodes = build_bvh(spheres);
     let node_count = nodes.len() as i32;
     let nodes = if nodes.is_empty() { vec![GpuNode { sphere: [0.0; 4], info: [-1; 4] }] } else { nodes };
@@ -64,12 +65,14 @@ pub fn gpu_visibility(
     let nb = p.read(nb, Access::ComputeShaderReadStorage);
     let trb = p.read(trb, Access::ComputeShaderReadStorage);
     let tnb = p.read(tnb, Access::ComputeShaderReadStorage);
-    let mut push = Vec::with_capacity(20);
+    let mut push = Vec::with_capacity(24);
     push.extend_from_slice(&count.to_le_bytes());
     push.extend_from_slice(&node_count.to_le_bytes());
     push.extend_from_slice(&tri_node_count.to_le_bytes());
-    push.extend_from_slice(&(patch_side.clamp(1, 32) as i32).to_le_bytes());
+    push.extend_from_slice(&(params.patch_side.clamp(1, 32) as i32).to_le_bytes());
     push.extend_from_slice(&lod.to_le_bytes());
+    let flags = ((params.model == IsgModel::PaperFit) as u32) << 4 | ((params.rule == PatchRule::Paper) as u32) << 5;
+    push.extend_from_slice(&flags.to_le_bytes());
     let pipe = pipeline.handle();
     p.record(move |rc| {
         let binds = crate::util::storage([qb, out_w, tb, nb, trb, tnb]);
