@@ -94,9 +94,10 @@ pub(crate) struct Measured {
     pub driver: String,
 }
 
-/// Renders `name` (with `params`) at `width x height` times `supersample`, frame time `t`:
-/// one warm-up frame outside the statistics (its passes' first dispatches include lavapipe's
-/// shader compilation, seconds for the larger technique shaders), then `frames` timed frames.
+/// Renders `name` (with `params`) at `width x height` times `supersample`, the still frame at
+/// time `t`: one warm-up frame outside the statistics (its passes' first dispatches include
+/// lavapipe's shader compilation, seconds for the larger technique shaders), then `frames` timed
+/// frames. (`bench pareto`'s points are measured over moving frames: `pareto::Target::point`.)
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn measure_technique(
     scene: &Scene,

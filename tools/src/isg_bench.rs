@@ -2,8 +2,9 @@
 //! against the full reference and the SG-lighting reference (exact visibility), in one run.
 
 use crate::bench::{run, BenchArgs};
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use clap::Args;
+use penumbra_passes::registry;
 use penumbra_reference::image::Image;
 use penumbra_reference::metrics::compare;
 use penumbra_scene::Scene;
@@ -45,6 +46,17 @@ pub struct IsgArgs {
     /// per-vertex refinement off): only the two modes with their defaults.
     #[arg(long)]
     pub no_variants: bool,
+    /// Skip the paper's comparisons (isg against 30 and 1024 shadow maps as Figure 11, and
+    /// against `mc` at equal error, over moving frames against the converged reference).
+    #[arg(long)]
+    pub no_paper: bool,
+    /// The `mc` sample counts per frame tried for the equal-error comparison (ascending).
+    #[arg(long, default_value = "1,2,4,8,16,32,64,128,256", value_delimiter = ',')]
+    pub mc_spp: Vec<u32>,
+    /// Converged reference cache of the paper's comparisons (default: <temp>/penumbra-references,
+    /// shared with `bench matrix`; the repository's checked-in references are copied in).
+    #[arg(long)]
+    pub cache: Option<PathBuf>,
 }
 
 /// The alternatives `bench isg` measures against the defaults: (technique, parameters, what).
@@ -124,6 +136,162 @@ fn variants(args: &IsgArgs, scene: &Scene, rows: &[serde_json::Value]) -> Result
     }
     std::fs::write(args.out.join("variants.json"), serde_json::to_string_pretty(&out)?)?;
     Ok(())
+}
+
+/// The configurations of the paper's comparisons: (technique, parameters, the paper's figure).
+pub const PAPER_POINTS: &[(&str, &[(&str, &str)], &str)] = &[
+    ("isg", &[], "Figure 11: 14.5 ms (per vertex, 400x400, GeForce GTX 580)"),
+    ("isg-vertex", &[], ""),
+    ("shadowmaps", &[("count", "30"), ("shading", "lights")], "Figure 11: 30 maps, 23.0 ms"),
+    ("shadowmaps", &[("count", "1024"), ("shading", "lights")], "Figure 11: 1024 maps, 262 ms"),
+    ("shadowmaps", &[], "the project's default (32 maps, ratio shading)"),
+];
+
+/// `mc`'s frame cost at `isg`'s error, from `mc`'s points `(spp, ms, error)` (ascending spp):
+/// log-log interpolation between the two points that bracket the error. `Ok(ms)`: reached (with
+/// the spp bracket); `Err(most accurate point)`: never reached.
+pub fn equal_error_ms(mc: &[(u32, f64, f64)], error: f64) -> Result<(f64, u32, u32), (u32, f64, f64)> {
+    let mut best = (0, 0.0, f64::INFINITY);
+    for (i, &(spp, ms, e)) in mc.iter().enumerate() {
+        if e < best.2 {
+            best = (spp, ms, e);
+        }
+        if e <= error {
+            let Some(&(spp0, ms0, e0)) = i.checked_sub(1).and_then(|j| mc.get(j)) else {
+                return Ok((ms, spp, spp)); // the fewest samples tried already reach it
+            };
+            if !(e0 > e && e > 0.0 && ms0 > 0.0 && ms > 0.0) {
+                return Ok((ms, spp0, spp));
+            }
+            let f = (error.ln() - e0.ln()) / (e.ln() - e0.ln());
+            return Ok(((ms0.ln() + f * (ms.ln() - ms0.ln())).exp(), spp0, spp));
+        }
+    }
+    Err(best)
+}
+
+/// The paper's comparisons on this scene, measured as `bench pareto` measures a point (a
+/// matrix cell: two warm-up frames, three consecutive timed frames of the moving scene ending
+/// at frame K, wall-clock ms with GPU and CPU beside it) against the converged reference of
+/// `bench matrix` (its 2 x 2 pixel grid; images at the size itself): isg and isg-vertex, the
+/// shadow-map baselines of Figure 11 and mc's sample counts, then isg against mc at equal error.
+/// Writes `paper/pareto.{json,md,png}`.
+fn paper_comparisons(args: &IsgArgs, scene: &Scene) -> Result<()> {
+    use crate::pareto::{mark_front, Measure, Target};
+    let (w, h) = penumbra_reference::cli::parse_size(&args.size)?;
+    let (bytes, stem) = match &args.scene {
+        Some(p) => (
+            std::fs::read(p).with_context(|| format!("reading {}", p.display()))?,
+            p.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default(),
+        ),
+        None => (b"built-in default scene".to_vec(), "default".to_string()),
+    };
+    let measure = Measure {
+        frames: 3,
+        warmup: 2,
+        frame: args.frame,
+        fps: args.fps,
+        supersample: 1,
+        reference_grid: 2,
+        noise: 0.01,
+        max_spp: 131072,
+        cache: args.cache.clone().unwrap_or_else(|| std::env::temp_dir().join("penumbra-references")),
+    };
+    let ctx = penumbra_engine::Context::new(&penumbra_engine::ContextDesc::default())?;
+    println!();
+    println!(
+        "The paper's comparisons on '{}' at {w}x{h}, frames {}..{} (moving), against the converged reference:",
+        scene.name,
+        args.frame.saturating_sub(4),
+        args.frame
+    );
+    let target = Target::new(&ctx, scene, &bytes, &stem, (w, h), measure)?;
+    let mut front = target.front();
+    let params_of = |technique: &str, kv: &[(&str, &str)]| {
+        let mut p: registry::Params =
+            if technique == scene.technique { scene.technique_params.clone() } else { Default::default() };
+        p.extend(kv.iter().map(|(k, v)| (k.to_string(), v.to_string())));
+        p
+    };
+    let mut rows: Vec<(String, String, Option<crate::pareto::Point>)> = Vec::new();
+    let measure_point = |front: &mut crate::pareto::Front,
+                         technique: &str,
+                         kv: &[(&str, &str)]|
+     -> Result<Option<crate::pareto::Point>> {
+        let p = params_of(technique, kv);
+        eprint!("  {technique} {} ... ", crate::pareto::label(&p));
+        Ok(match target.point(technique, &p)? {
+            Ok(pt) => {
+                eprintln!("{:.1} ms/frame, rmse/mean {:.4}", pt.frame_ms, pt.rmse_rel_mean);
+                front.points.push(pt.clone());
+                Some(pt)
+            }
+            Err(e) => {
+                eprintln!("error: {e}");
+                front.errors.push((technique.to_string(), p, e));
+                None
+            }
+        })
+    };
+    for (technique, kv, paper) in PAPER_POINTS {
+        if registry::refusal(technique, scene).is_some() {
+            continue;
+        }
+        let pt = measure_point(&mut front, technique, kv)?;
+        let label = if kv.is_empty() {
+            "defaults".to_string()
+        } else {
+            kv.iter().map(|(k, v)| format!("{k}={v}")).collect::<Vec<_>>().join(" ")
+        };
+        rows.push((format!("{technique} {label}"), paper.to_string(), pt));
+    }
+    let isg_error = rows.first().and_then(|r| r.2.as_ref()).map(|p| (p.rmse_rel_mean, p.frame_ms));
+    let mut mc = Vec::new();
+    let mut spps = args.mc_spp.clone();
+    spps.sort_unstable();
+    spps.dedup();
+    for spp in spps.into_iter().filter(|s| (1..=16384).contains(s)) {
+        let v = spp.to_string();
+        let pt = measure_point(&mut front, "mc", &[("spp", &v)])?;
+        if let Some(p) = &pt {
+            mc.push((spp, p.frame_ms, p.rmse_rel_mean));
+        }
+        rows.push((format!("mc spp={spp}"), String::new(), pt));
+        // one point past isg's error is enough to bracket it
+        if let (Some((e, _)), Some(p)) = (isg_error, mc.iter().rev().nth(1)) {
+            if p.2 <= e {
+                break;
+            }
+        }
+    }
+    println!("| configuration | ms/frame (wall) | GPU ms | CPU ms | RMSE / mean | the paper |");
+    println!("|---|---|---|---|---|---|");
+    for (label, paper, pt) in &rows {
+        match pt {
+            Some(p) => println!(
+                "| {label} | {:.1} | {:.1} | {:.1} | {:.4} | {paper} |",
+                p.frame_ms, p.gpu_ms, p.cpu_ms, p.rmse_rel_mean
+            ),
+            None => println!("| {label} | error | | | | {paper} |"),
+        }
+    }
+    if let Some((e, ms)) = isg_error {
+        match equal_error_ms(&mc, e) {
+            Ok((mc_ms, a, b)) => println!(
+                "\nisg at RMSE / mean {e:.4}: mc reaches it at {mc_ms:.1} ms/frame (between spp {a} and {b}, log-log): isg is {:.2}x {} ({ms:.1} ms/frame)",
+                if ms <= mc_ms { mc_ms / ms } else { ms / mc_ms },
+                if ms <= mc_ms { "faster" } else { "slower" }
+            ),
+            Err((spp, mc_ms, best)) => println!(
+                "\nisg at RMSE / mean {e:.4}: mc does not reach it by spp {spp} (RMSE / mean {best:.4} at {mc_ms:.1} ms/frame): isg is more than {:.2}x faster at equal error",
+                mc_ms / ms
+            ),
+        }
+    }
+    mark_front(&mut front.points);
+    let dir = args.out.join("paper");
+    std::fs::create_dir_all(&dir)?;
+    crate::pareto::write_outputs(&[front], &dir)
 }
 
 /// Runs `bench techniques --techniques isg,isg-vertex --sg-reference` and prints its results as
@@ -214,6 +382,9 @@ pub fn run_isg(args: &IsgArgs, scene: &Scene) -> Result<()> {
     if !args.no_variants {
         variants(args, &scene, &rows)?;
     }
+    if !args.no_paper {
+        paper_comparisons(args, &scene)?;
+    }
     if let (Ok(px), Ok(vx)) = (read("isg"), read("isg-vertex")) {
         let c = compare(&px, "per pixel", &vx, "per vertex")?;
         println!();
@@ -225,4 +396,25 @@ pub fn run_isg(args: &IsgArgs, scene: &Scene) -> Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::equal_error_ms;
+
+    #[test]
+    fn equal_error_interpolates_mc_in_log_log() {
+        // error halves per 4x samples, cost grows 4x
+        let mc = [(1, 10.0, 0.4), (4, 40.0, 0.2), (16, 160.0, 0.1)];
+        let (ms, a, b) = equal_error_ms(&mc, 0.2).unwrap();
+        assert!((ms - 40.0).abs() < 1e-9 && (a, b) == (1, 4), "{ms} {a} {b}");
+        // between 4 and 16 spp: error 0.1414 (log midpoint) costs 80 ms (log midpoint)
+        let (ms, a, b) = equal_error_ms(&mc, 0.2f64.sqrt() * 0.1f64.sqrt()).unwrap();
+        assert!((ms - 80.0).abs() < 1e-6 && (a, b) == (4, 16), "{ms}");
+        // already reached by the fewest samples: that point's cost
+        assert_eq!(equal_error_ms(&mc, 0.5).unwrap(), (10.0, 1, 1));
+        // never reached: the most accurate point
+        assert_eq!(equal_error_ms(&mc, 0.05).unwrap_err(), (16, 160.0, 0.1));
+        assert!(equal_error_ms(&[], 0.1).is_err());
+    }
 }

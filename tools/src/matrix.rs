@@ -30,7 +30,7 @@ pub(crate) fn repo_root() -> PathBuf {
 
 /// The repository's checked-in converged references (40x30 for the CI test, 160x120 for the
 /// default size; `tests/matrix/references*/`).
-fn checked_in_references() -> Vec<PathBuf> {
+pub(crate) fn checked_in_references() -> Vec<PathBuf> {
     let dir = repo_root().join("tests/matrix");
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(&dir)
         .into_iter()
@@ -46,7 +46,7 @@ fn checked_in_references() -> Vec<PathBuf> {
 /// Copies a checked-in reference of exactly this scene file, size, frame and reference version
 /// into `cache` when the cache lacks it, so that a fresh clone does not spend hours converging
 /// references the repository already holds. `load_or_render` then checks it like any cached one.
-fn seed_reference(
+pub(crate) fn seed_reference(
     cache: &Path,
     dirs: &[PathBuf],
     scene: &Scene,

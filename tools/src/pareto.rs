@@ -216,6 +216,15 @@ impl<'a> Target<'a> {
     ) -> Result<Self> {
         let (w, h) = size;
         let copts = measure.reference_options(scene, w, h);
+        // a fresh clone converges nothing the repository holds (tests/matrix/references*)
+        crate::matrix::seed_reference(
+            &measure.cache,
+            &crate::matrix::checked_in_references(),
+            scene,
+            stem,
+            bytes,
+            &copts,
+        );
         let reference = load_or_render(scene, bytes, stem, &copts, Some(&measure.cache))
             .with_context(|| format!("reference of {} at {w}x{h}", scene.name))?;
         eprintln!("{w}x{h}: reference {} spp, noise {:.4}", reference.meta.spp, reference.meta.noise_rmse_rel_mean);
