@@ -2,7 +2,9 @@
 //! are evaluated at the mesh vertices in compute (`isg_vertex`, `glsl/isg/isg_vertex.comp`), the
 //! raster interpolates them over the triangles (`isg_vertex_raster`, `glsl/isg/isg_vertex.vert/.frag`,
 //! an RGBA32F image with its own depth buffer) and `isg_shade_vertex.comp` shades every pixel
-//! with them (pixels no receiver triangle covers fall back to the per-pixel evaluation).
+//! with them (pixels no receiver triangle covers fall back to the per-pixel evaluation, and so do
+//! the pixels of a triangle whose corners' visibilities differ by more than `pixel_refine`: the
+//! vertex shader, drawing unindexed, reads its triangle's three corners and writes -1 over its pixels).
 //!
 //! The receivers are every instance's mesh (deformed when the object deforms) in world space,
 //! built on the CPU per frame. A per-vertex method needs vertices where the shadows are: meshes
