@@ -251,7 +251,8 @@ fn paper_comparisons(args: &IsgArgs, scene: &Scene) -> Result<()> {
         };
         rows.push((format!("{technique} {label}"), paper.to_string(), pt));
     }
-    let isg_error = rows.first().and_then(|r| r.2.as_ref()).map(|p| (p.rmse_rel_mean, p.frame_ms));
+    let isg_error =
+        rows.iter().find(|r| r.0 == "isg defaults").and_then(|r| r.2.as_ref()).map(|p| (p.rmse_rel_mean, p.frame_ms));
     let mut mc = Vec::new();
     let mut spps = args.mc_spp.clone();
     spps.sort_unstable();
