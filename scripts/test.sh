@@ -39,7 +39,8 @@ else
 fi
 # The release build (what README command 1 runs and users ship) and the CLI's tests again
 # against it: exit codes, messages and hostile inputs where arithmetic wraps instead of
-# panicking; here too the loop guard's sweep (ignored in plain `cargo test`: about 5 minutes).
+# panicking; here too the loop guard's sweep (ignored in plain `cargo test`: two tests side by
+# side, about 4 minutes).
 # PENUMBRA_SKIP_RELEASE=1 skips this leg (a quicker local run).
 if [ -z "${PENUMBRA_SKIP_RELEASE:-}" ]; then
     cargo build --release --bin penumbra --quiet

@@ -102,6 +102,13 @@ uint isg_mask[ISG_MAX_SIDE];
 float isg_sin_c[ISG_MAX_SIDE];
 float isg_cos_c[ISG_MAX_SIDE];
 
+// Bits j0..=j1 of a row's mask (none when j1 < j0; 0 <= j0, j1 <= 31).
+uint isg_bit_range(int j0, int j1) {
+    if (j1 < j0) return 0u;
+    uint hi = j1 >= 31 ? 0xffffffffu : ((1u << uint(j1 + 1)) - 1u);
+    return hi & ~((1u << uint(j0)) - 1u);
+}
+
 // Bits of row i (patch centres at theta_i) whose centre lies in the cap of local centre
 // direction cl (rho = |cl.xz|, phc = atan(cl.z, cl.x)) and cosine radius cos_psi: per row,
 // cos(phi - phi_c) >= q, i.e. phi within phi_c +- acos(q): an index range, no per-patch
@@ -124,11 +131,7 @@ uint isg_cap_bits(int i, vec3 cl, float rho, float phc, float cos_psi, float phi
                 float b = phc + 6.28318531 * float(k) + w;
                 int j0 = max(int(ceil((a - phi0) / step_a - 0.5)), 0);
                 int j1 = min(int(floor((b - phi0) / step_a - 0.5)), side - 1);
-                if (j1 >= j0) {
-                    uint hi = j1 >= 31 ? 0xffffffffu : ((1u << uint(j1 + 1)) - 1u);
-                    uint lo = (1u << uint(j0)) - 1u;
-                    bits |= hi & ~lo;
-                }
+                bits |= isg_bit_range(j0, j1);
             }
         }
     }
@@ -170,11 +173,7 @@ bool isg_mark_cap_paper(vec3 cl, float psi, float delta, float step_a, int side)
             float b = phc + 6.28318531 * float(k) + w;
             int j0 = max(int(floor((a - phi0) / step_a)), 0);
             int j1 = min(int(ceil((b - phi0) / step_a)) - 1, side - 1);
-            if (j1 >= j0) {
-                uint hi = j1 >= 31 ? 0xffffffffu : ((1u << uint(j1 + 1)) - 1u);
-                uint lo = (1u << uint(j0)) - 1u;
-                bits |= hi & ~lo;
-            }
+            bits |= isg_bit_range(j0, j1);
         }
         isg_mask[i] |= bits;
         any_occ = any_occ || bits != 0u;

@@ -225,6 +225,12 @@ fn sigmoid(x: f64) -> f64 {
     }
 }
 
+/// The integral over `[t0, t1] x [p0, p1]` of a normalized ISG `s(theta, phi)` (its summed-area
+/// difference, never negative).
+pub fn summed_area_patch(s: impl Fn(f64, f64) -> f64, t0: f64, t1: f64, p0: f64, p1: f64) -> f64 {
+    (s(t1, p1) - s(t0, p1) - s(t1, p0) + s(t0, p0)).max(0.0)
+}
+
 /// The paper's two-sigmoid fit of the normalized ISG (eq. 14).
 pub fn paper_fit(theta: f64, phi: f64, gamma: f64) -> f64 {
     sigmoid(paper_g(gamma) * (theta - FRAC_PI_2)) * sigmoid(paper_h(gamma) * (phi - FRAC_PI_2))
@@ -373,8 +379,7 @@ impl IsgTable {
 
     /// Normalized integral over the patch `[t0, t1] x [p0, p1]` (summed-area difference).
     pub fn patch(&self, t0: f64, t1: f64, p0: f64, p1: f64, gamma: f64) -> f64 {
-        (self.eval(t1, p1, gamma) - self.eval(t0, p1, gamma) - self.eval(t1, p0, gamma) + self.eval(t0, p0, gamma))
-            .max(0.0)
+        summed_area_patch(|t, p| self.eval(t, p, gamma), t0, t1, p0, p1)
     }
 
     /// Limiting angle `Delta`: half-width about `pi/2` such that the normalized ISG marginal
@@ -487,7 +492,7 @@ fn cap_half_width(theta: f64, cl: DVec3, cos_psi: f64) -> Option<f64> {
 
 /// The paper's rule ([`PatchRule::Paper`]): marks in `occluded` (`side x side`, rows `theta`)
 /// every patch of the region `pi/2 +- delta` whose extent overlaps the cap; true if any.
-/// Mirror of `isg_cap_bits_paper` in `glsl/include/isg.glsl`.
+/// Mirror of `isg_mark_cap_paper` in `glsl/include/isg.glsl`.
 fn mark_cap_paper(occluded: &mut [bool], side: usize, delta: f64, cl: DVec3, psi: f64) -> bool {
     let step = 2.0 * delta / side as f64;
     let phi0 = FRAC_PI_2 - delta;
@@ -662,11 +667,7 @@ pub fn visible_fraction_with_triangles(
                 let (t0, t1, p0, p1) = (edges[i], edges[i + 1], edges[j], edges[j + 1]);
                 occ += match params.model {
                     IsgModel::Table => table.patch(t0, t1, p0, p1, gamma),
-                    IsgModel::PaperFit => {
-                        (paper_fit(t1, p1, gamma) - paper_fit(t0, p1, gamma) - paper_fit(t1, p0, gamma)
-                            + paper_fit(t0, p0, gamma))
-                        .max(0.0)
-                    }
+                    IsgModel::PaperFit => summed_area_patch(|t, p| paper_fit(t, p, gamma), t0, t1, p0, p1),
                 };
             }
         }

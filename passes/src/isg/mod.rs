@@ -157,11 +157,9 @@ impl Default for IsgSettings {
 }
 
 impl IsgSettings {
-    /// Bits 4 and 5 of the shaders' flags: `isg_paper_fit` and `isg_paper_rule` in
-    /// `glsl/include/isg.glsl`.
+    /// Bits 4 and 5 of the shaders' flags ([`model_flags`]).
     pub fn model_flags(&self) -> u32 {
-        use penumbra_math::isg::{IsgModel, PatchRule};
-        ((self.model == IsgModel::PaperFit) as u32) << 4 | ((self.rule == PatchRule::Paper) as u32) << 5
+        model_flags(self.model, self.rule)
     }
 
     /// Defaults with the scene's `technique_params` applied (see [`IsgSettings::set`]).
@@ -261,6 +259,13 @@ impl IsgSettings {
         }
         Ok(())
     }
+}
+
+/// Bits 4 and 5 of the ISG shaders' flags: `isg_paper_fit` and `isg_paper_rule` in
+/// `glsl/include/isg.glsl` (every shader that includes it reads them from its push constants).
+pub fn model_flags(model: penumbra_math::isg::IsgModel, rule: penumbra_math::isg::PatchRule) -> u32 {
+    use penumbra_math::isg::{IsgModel, PatchRule};
+    ((model == IsgModel::PaperFit) as u32) << 4 | ((rule == PatchRule::Paper) as u32) << 5
 }
 
 /// A world-space sphere.

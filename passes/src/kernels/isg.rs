@@ -32,7 +32,6 @@ pub fn gpu_visibility(
     params: &penumbra_math::isg::IsgParams,
     lod: f32,
 ) -> Result<Vec<f32>> {
-    use penumbra_math::isg::{IsgModel, PatchRule};
     use vk::DescriptorType as T;
     let ctx = engine.ctx.clone();
     let pipeline = compute_pipeline(&ctx, shaders, "tests/isg_parity.comp", &[T::STORAGE_BUFFER; 6], 24)?;
@@ -71,8 +70,7 @@ pub fn gpu_visibility(
     push.extend_from_slice(&tri_node_count.to_le_bytes());
     push.extend_from_slice(&(params.patch_side.clamp(1, 32) as i32).to_le_bytes());
     push.extend_from_slice(&lod.to_le_bytes());
-    let flags = ((params.model == IsgModel::PaperFit) as u32) << 4 | ((params.rule == PatchRule::Paper) as u32) << 5;
-    push.extend_from_slice(&flags.to_le_bytes());
+    push.extend_from_slice(&crate::isg::model_flags(params.model, params.rule).to_le_bytes());
     let pipe = pipeline.handle();
     p.record(move |rc| {
         let binds = crate::util::storage([qb, out_w, tb, nb, trb, tnb]);
