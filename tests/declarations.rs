@@ -109,21 +109,7 @@ fn fill_then_copy(e: &mut Engine, declare_fill_as_write: bool) -> Vec<u8> {
         unsafe { rc.device().cmd_fill_buffer(rc.cmd, b.buffer, 0, 256, 0x2a2a2a2a) };
         Ok(())
     });
-    let mut pass = g.pass("copy", PassKind::Transfer);
-    let src = pass.read(data, Access::TransferSrc);
-    let dst = pass.write(rb, Access::TransferDst);
-    pass.record(move |rc| {
-        let (s, d) = (rc.buffer(src)?, rc.buffer(dst)?);
-        unsafe {
-            rc.device().cmd_copy_buffer(
-                rc.cmd,
-                s.buffer,
-                d.buffer,
-                &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: 256 }],
-            )
-        };
-        Ok(())
-    });
+    penumbra_passes::util::copy_buffer(&mut g, "copy", data, rb, Some(256));
     let (compiled, _) = e.submit(g).unwrap();
     let copy = compiled.pass("copy").unwrap();
     assert_eq!(copy.barriers.len(), if declare_fill_as_write { 1 } else { 0 });

@@ -1,7 +1,21 @@
 //! Engine behaviour on the device: persistent resources across frames in flight, pool reuse,
 //! timestamps per pass.
 
-use penumbra::engine::{vk, Access, Context, ContextDesc, Engine, Graph, PassKind};
+use penumbra::engine::{vk, Access, BufferHandle, Context, ContextDesc, Engine, Graph, PassKind};
+use penumbra::passes::util::copy_buffer;
+
+/// Transfer pass `name` filling the first `size` bytes of `buf` with the word `value`; returns
+/// the written version.
+fn fill(g: &mut Graph, name: &str, buf: BufferHandle, size: u64, value: u32) -> BufferHandle {
+    let mut p = g.pass(name, PassKind::Transfer);
+    let buf = p.write(buf, Access::TransferDst);
+    p.record(move |rc| {
+        let b = rc.buffer(buf)?;
+        unsafe { rc.device().cmd_fill_buffer(rc.cmd, b.buffer, 0, size, value) };
+        Ok(())
+    });
+    buf
+}
 
 /// Each frame shifts a persistent buffer of 16 words up by one word through a transient copy and
 /// writes 1 into word 0, then reads it back: after frame k the first k+1 words are 1. Any lost
@@ -14,41 +28,10 @@ fn accumulate_frame(e: &mut Engine) -> Graph {
     let sum = g.create_buffer("sum", 64);
     let rb = g.create_readback("acc_rb", 64);
     // Frame 0 starts the accumulator at zero.
-    let acc = if fresh {
-        let mut p = g.pass("zero", PassKind::Transfer);
-        let acc = p.write(acc, Access::TransferDst);
-        p.record(move |rc| {
-            let b = rc.buffer(acc)?;
-            unsafe { rc.device().cmd_fill_buffer(rc.cmd, b.buffer, 0, 64, 0) };
-            Ok(())
-        });
-        acc
-    } else {
-        acc
-    };
+    let acc = if fresh { fill(&mut g, "zero", acc, 64, 0) } else { acc };
     // sum = acc (last frame's contents).
-    let mut p = g.pass("copy_in", PassKind::Transfer);
-    let src = p.read(acc, Access::TransferSrc);
-    let sum = p.write(sum, Access::TransferDst);
-    p.record(move |rc| {
-        let (s, d) = (rc.buffer(src)?, rc.buffer(sum)?);
-        unsafe {
-            rc.device().cmd_copy_buffer(
-                rc.cmd,
-                s.buffer,
-                d.buffer,
-                &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: 64 }],
-            )
-        };
-        Ok(())
-    });
-    let mut p = g.pass("ones", PassKind::Transfer);
-    let ones = p.write(ones, Access::TransferDst);
-    p.record(move |rc| {
-        let b = rc.buffer(ones)?;
-        unsafe { rc.device().cmd_fill_buffer(rc.cmd, b.buffer, 0, 64, 1) };
-        Ok(())
-    });
+    let (_, sum) = copy_buffer(&mut g, "copy_in", acc, sum, Some(64));
+    let ones = fill(&mut g, "ones", ones, 64, 1);
     // acc[i+1] = sum[i] shifted by one word, acc[0] = 1: after k frames acc holds a ramp of 1s.
     let mut p = g.pass("shift", PassKind::Transfer);
     let s2 = p.read(sum, Access::TransferSrc);
@@ -72,21 +55,7 @@ fn accumulate_frame(e: &mut Engine) -> Graph {
         }
         Ok(())
     });
-    let mut p = g.pass("read", PassKind::Transfer);
-    let a3 = p.read(acc2, Access::TransferSrc);
-    let rb = p.write(rb, Access::TransferDst);
-    p.record(move |rc| {
-        let (s, d) = (rc.buffer(a3)?, rc.buffer(rb)?);
-        unsafe {
-            rc.device().cmd_copy_buffer(
-                rc.cmd,
-                s.buffer,
-                d.buffer,
-                &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: 64 }],
-            )
-        };
-        Ok(())
-    });
+    copy_buffer(&mut g, "read", acc2, rb, Some(64));
     g
 }
 
@@ -134,28 +103,8 @@ fn the_pool_evicts_unused_transients_and_nothing_leaks() {
         let size = 4096 * (k + 1);
         let grow = g.create_buffer("grow", size);
         let rb = g.create_readback("grow_rb", 4);
-        let mut p = g.pass("fill", PassKind::Transfer);
-        let grow = p.write(grow, Access::TransferDst);
-        p.record(move |rc| {
-            let b = rc.buffer(grow)?;
-            unsafe { rc.device().cmd_fill_buffer(rc.cmd, b.buffer, 0, size, k as u32) };
-            Ok(())
-        });
-        let mut p = g.pass("read", PassKind::Transfer);
-        let src = p.read(grow, Access::TransferSrc);
-        let rb = p.write(rb, Access::TransferDst);
-        p.record(move |rc| {
-            let (s, d) = (rc.buffer(src)?, rc.buffer(rb)?);
-            unsafe {
-                rc.device().cmd_copy_buffer(
-                    rc.cmd,
-                    s.buffer,
-                    d.buffer,
-                    &[vk::BufferCopy { src_offset: size - 4, dst_offset: 0, size: 4 }],
-                )
-            };
-            Ok(())
-        });
+        let grow = fill(&mut g, "fill", grow, size, k as u32);
+        copy_buffer(&mut g, "read", grow, rb, Some(4));
         e.submit(g).unwrap();
         peak = peak.max(e.pooled());
     }
@@ -218,50 +167,14 @@ fn frames_with_more_passes_than_the_timestamp_pool_are_still_timed() {
         let mut g = Graph::new();
         // A chain: each pass copies the previous buffer into the next and adds nothing, so none
         // is culled.
-        let mut buf = g.create_buffer("chain0", 256);
-        let mut p = g.pass("fill", PassKind::Transfer);
-        let b = p.write(buf, Access::TransferDst);
-        p.record(move |rc| {
-            let x = rc.buffer(b)?;
-            unsafe { rc.device().cmd_fill_buffer(rc.cmd, x.buffer, 0, 256, 199) };
-            Ok(())
-        });
-        buf = b;
+        let chain0 = g.create_buffer("chain0", 256);
+        let mut buf = fill(&mut g, "fill", chain0, 256, 199);
         for k in 1..200u32 {
             let next = g.create_buffer(&format!("chain{k}"), 256);
-            let mut p = g.pass(&format!("copy{k}"), PassKind::Transfer);
-            let src = p.read(buf, Access::TransferSrc);
-            let dst = p.write(next, Access::TransferDst);
-            p.record(move |rc| {
-                let (s, d) = (rc.buffer(src)?, rc.buffer(dst)?);
-                unsafe {
-                    rc.device().cmd_copy_buffer(
-                        rc.cmd,
-                        s.buffer,
-                        d.buffer,
-                        &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: 256 }],
-                    )
-                };
-                Ok(())
-            });
-            buf = dst;
+            buf = copy_buffer(&mut g, &format!("copy{k}"), buf, next, Some(256)).1;
         }
         let rb = g.create_readback("chain_rb", 4);
-        let mut p = g.pass("read", PassKind::Transfer);
-        let src = p.read(buf, Access::TransferSrc);
-        let rb = p.write(rb, Access::TransferDst);
-        p.record(move |rc| {
-            let (s, d) = (rc.buffer(src)?, rc.buffer(rb)?);
-            unsafe {
-                rc.device().cmd_copy_buffer(
-                    rc.cmd,
-                    s.buffer,
-                    d.buffer,
-                    &[vk::BufferCopy { src_offset: 0, dst_offset: 0, size: 4 }],
-                )
-            };
-            Ok(())
-        });
+        copy_buffer(&mut g, "read", buf, rb, Some(4));
         let (_, done) = e.submit(g).unwrap();
         outs.extend(done);
     }
@@ -303,13 +216,7 @@ fn late_readbacks_reach_later_frames_without_waiting() {
     let frame = |e: &mut Engine, value: u32| {
         let mut g = Graph::new();
         let b = g.create_buffer("value", 4);
-        let mut p = g.pass("fill", PassKind::Transfer);
-        let w = p.write(b, Access::TransferDst);
-        p.record(move |rc| {
-            let x = rc.buffer(w)?;
-            unsafe { rc.device().cmd_fill_buffer(rc.cmd, x.buffer, 0, 4, value) };
-            Ok(())
-        });
+        let w = fill(&mut g, "fill", b, 4, value);
         let rb = g.create_late_readback("value", 4);
         penumbra::passes::util::copy_buffer(&mut g, "value_copy", w, rb, Some(4));
         e.submit(g).unwrap().1

@@ -45,20 +45,12 @@ fn agreement(
     let local: Vec<u32> = idx.iter().map(|&v| topo.pos_group[v]).collect();
     let f = vv::frame(n);
     let (mut agree, mut total, mut occluded) = (0, 0, 0);
-    for i in 0..res {
-        for j in 0..res {
-            let u = -1.0 + (i as f64 + 0.5) * 2.0 / res as f64;
-            let w = -1.0 + (j as f64 + 0.5) * 2.0 / res as f64;
-            if u * u + w * w >= 1.0 {
-                continue;
-            }
-            let d = vv::lambert_inv(u, w, &f);
-            let truth = trace_occluder(tracer, topo, &local, p.as_dvec3(), n.as_dvec3(), d).is_some();
-            let ours = vv::occluded_by(loops, d.as_vec3(), n);
-            total += 1;
-            occluded += truth as usize;
-            agree += (truth == ours) as usize;
-        }
+    for d in vv::lambert_grid(res, &f) {
+        let truth = trace_occluder(tracer, topo, &local, p.as_dvec3(), n.as_dvec3(), d).is_some();
+        let ours = vv::occluded_by(loops, d.as_vec3(), n);
+        total += 1;
+        occluded += truth as usize;
+        agree += (truth == ours) as usize;
     }
     (agree as f64 / total as f64, occluded)
 }

@@ -5,7 +5,7 @@
 // It also marks a buried point (no visible direction: DC not above 0, avs_sampling::buried) in
 // its normal's w, which avs_gather.glsl reads.
 #include "avs_maps.glsl"
-#include "avs_sh.glsl"
+#include "sh16.glsl"
 
 layout(local_size_x = 64) in;
 layout(std430, binding = 0) buffer Points { vec4 pts[]; };
@@ -29,7 +29,7 @@ void main() {
             if (!AVS_VIS_BIT(vis, slot * words, k)) continue;
             uint i = k / pc.r, j = k % pc.r;
             float y[16];
-            avs_sh16(fr * avs_texel_dir(i, j, pc.r), y);
+            sh16_basis(fr * avs_texel_dir(i, j, pc.r), y);
             float sa = avs_texel_solid_angle(i, pc.r);
             for (int c = 0; c < 16; ++c) acc[c] += y[c] * sa;
         }

@@ -5,6 +5,7 @@
 //   sf_tensor (SfEntry), and SF_TENSOR_COUNT entries.
 #ifndef SF_GLSL
 #define SF_GLSL
+#include "sh16.glsl"
 
 #define SF_PI 3.14159265358979
 
@@ -133,33 +134,12 @@ vec3 sf_double(float u[16]) {
     return c;
 }
 
-// Order-4 real SH basis (penumbra_math::sh convention, Condon-Shortley phase) at unit d.
-void sf_basis(vec3 d, out float y[16]) {
-    float x = d.x, yy = d.y, z = d.z;
-    y[0] = 0.282094792;
-    y[1] = -0.488602512 * yy;
-    y[2] = 0.488602512 * z;
-    y[3] = -0.488602512 * x;
-    y[4] = 1.092548431 * x * yy;
-    y[5] = -1.092548431 * yy * z;
-    y[6] = 0.315391565 * (3.0 * z * z - 1.0);
-    y[7] = -1.092548431 * x * z;
-    y[8] = 0.546274215 * (x * x - yy * yy);
-    y[9] = -0.590043590 * yy * (3.0 * x * x - yy * yy);
-    y[10] = 2.890611443 * x * yy * z;
-    y[11] = -0.457045799 * yy * (5.0 * z * z - 1.0);
-    y[12] = 0.373176333 * z * (5.0 * z * z - 3.0);
-    y[13] = -0.457045799 * x * (5.0 * z * z - 1.0);
-    y[14] = 1.445305721 * z * (x * x - yy * yy);
-    y[15] = -0.590043590 * x * (x * x - 3.0 * yy * yy);
-}
-
 // Product over the other instances (whose centres are nearer than max_dist) of their
 // visibility in world direction d at point p (each clamped to [0, 1]): shadowing of the glossy
 // environment term and of local lights' specular term.
 float sf_visibility_along(vec3 p, vec3 d, uint self_inst, uint inst_count, float max_dist) {
     float y[16];
-    sf_basis(d, y);
+    sh16_basis(d, y);
     float v = 1.0;
     for (uint j = 0u; j < inst_count; j++) {
         if (j == self_inst) continue;
@@ -192,7 +172,7 @@ void sf_light_analytic(SfInst inst, vec3 q, out float o[16]) {
     float r = sqrt(r2);
     vec3 s = q / r;
     float y[16];
-    sf_basis(-s, y);
+    sh16_basis(-s, y);
     int kind = int(inst.light_a.w + 0.5);
     if (kind == 2) {
         float a = inst.light_b.z;

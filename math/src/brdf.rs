@@ -316,38 +316,7 @@ pub fn fit_brdf_lobes(f: &dyn Fn(DVec3) -> f64, init: &[Sg], rule: &[(DVec3, f64
 
 fn solve_dense(m: &[f64], b: &[f64], n: usize) -> Option<Vec<f64>> {
     // Cholesky (m is SPD after damping)
-    let mut l = m.to_vec();
-    for j in 0..n {
-        let mut d = l[j * n + j];
-        for k in 0..j {
-            d -= l[j * n + k] * l[j * n + k];
-        }
-        if !(d > 0.0) {
-            return None;
-        }
-        let d = d.sqrt();
-        l[j * n + j] = d;
-        for i in (j + 1)..n {
-            let mut s = l[i * n + j];
-            for k in 0..j {
-                s -= l[i * n + k] * l[j * n + k];
-            }
-            l[i * n + j] = s / d;
-        }
-    }
-    let mut y = b.to_vec();
-    for i in 0..n {
-        for k in 0..i {
-            y[i] -= l[i * n + k] * y[k];
-        }
-        y[i] /= l[i * n + i];
-    }
-    for i in (0..n).rev() {
-        for k in (i + 1)..n {
-            y[i] -= l[k * n + i] * y[k];
-        }
-        y[i] /= l[i * n + i];
-    }
+    let y = crate::nnls::cholesky_solve(&mut m.to_vec(), n, b.to_vec(), None)?;
     y.iter().all(|v| v.is_finite()).then_some(y)
 }
 

@@ -83,34 +83,45 @@ fn solve_spd(q: &[f64], n: usize, idx: &[usize], b: &[f64]) -> Vec<f64> {
     for i in 0..m {
         a[i * m + i] += 1e-12 * tr.max(1e-300);
     }
-    // Cholesky in place (lower)
-    for j in 0..m {
-        let mut d = a[j * m + j];
+    let y: Vec<f64> = idx.iter().map(|&i| b[i]).collect();
+    cholesky_solve(&mut a, m, y, Some(1e-300)).expect("a floored pivot never fails")
+}
+
+/// Solves `A x = y` for a symmetric positive definite `A` (row-major `n x n`, overwritten by its
+/// lower Cholesky factor). A pivot at or below zero (or NaN) fails unless `floor` is given, which
+/// then bounds every pivot from below.
+pub(crate) fn cholesky_solve(a: &mut [f64], n: usize, mut y: Vec<f64>, floor: Option<f64>) -> Option<Vec<f64>> {
+    for j in 0..n {
+        let mut d = a[j * n + j];
         for k in 0..j {
-            d -= a[j * m + k] * a[j * m + k];
+            d -= a[j * n + k] * a[j * n + k];
         }
-        let d = d.max(1e-300).sqrt();
-        a[j * m + j] = d;
-        for i in (j + 1)..m {
-            let mut s = a[i * m + j];
+        let d = match floor {
+            Some(f) => d.max(f),
+            None if d > 0.0 => d,
+            None => return None,
+        }
+        .sqrt();
+        a[j * n + j] = d;
+        for i in (j + 1)..n {
+            let mut s = a[i * n + j];
             for k in 0..j {
-                s -= a[i * m + k] * a[j * m + k];
+                s -= a[i * n + k] * a[j * n + k];
             }
-            a[i * m + j] = s / d;
+            a[i * n + j] = s / d;
         }
     }
-    let mut y: Vec<f64> = idx.iter().map(|&i| b[i]).collect();
-    for i in 0..m {
+    for i in 0..n {
         for k in 0..i {
-            y[i] -= a[i * m + k] * y[k];
+            y[i] -= a[i * n + k] * y[k];
         }
-        y[i] /= a[i * m + i];
+        y[i] /= a[i * n + i];
     }
-    for i in (0..m).rev() {
-        for k in (i + 1)..m {
-            y[i] -= a[k * m + i] * y[k];
+    for i in (0..n).rev() {
+        for k in (i + 1)..n {
+            y[i] -= a[k * n + i] * y[k];
         }
-        y[i] /= a[i * m + i];
+        y[i] /= a[i * n + i];
     }
-    y
+    Some(y)
 }

@@ -772,24 +772,12 @@ impl ObjectField {
         if rd.take(4)? != b"PSF1" {
             return Err("shadow field file: bad magic (expected PSF1)".into());
         }
-        let nshell = rd.u32()? as usize;
+        let nshell = rd.shell_count()?;
         let nvert = rd.u32()? as usize;
-        if nshell > 1024 {
-            return Err(format!("shadow field file: {nshell} shells (max 1024)"));
-        }
-        let mut hdr = [0f32; 4];
-        for h in &mut hdr {
-            *h = rd.f32()?;
-        }
-        if !hdr.iter().all(|x| x.is_finite()) || !(hdr[3] >= 0.0) {
-            return Err("shadow field file: non-finite centre or radius".into());
-        }
+        let hdr = rd.centre_radius()?;
         let mut shells = Vec::with_capacity(nshell);
         for _ in 0..nshell {
-            let r = rd.u32()?;
-            if r == 0 || r > 4096 {
-                return Err(format!("shadow field file: shell resolution {r} out of 1..=4096"));
-            }
+            let r = rd.shell_resolution()? as u32;
             let adapt_error = rd.f32()?;
             let mut min = [0f32; NCOEF];
             let mut step = [0f32; NCOEF];
@@ -1362,6 +1350,33 @@ impl<'a> ByteReader<'a> {
         Ok(f32::from_bits(self.u32()?))
     }
 
+    /// A field's shell count (at most 1024).
+    fn shell_count(&mut self) -> Result<usize, String> {
+        let n = self.u32()? as usize;
+        if n > 1024 {
+            return Err(format!("{}: {n} shells (max 1024)", self.what));
+        }
+        Ok(n)
+    }
+
+    /// A field's centre and bounding radius (finite, the radius not negative).
+    fn centre_radius(&mut self) -> Result<[f32; 4], String> {
+        let hdr = [self.f32()?, self.f32()?, self.f32()?, self.f32()?];
+        if !hdr.iter().all(|x| x.is_finite()) || !(hdr[3] >= 0.0) {
+            return Err(format!("{}: non-finite centre or radius", self.what));
+        }
+        Ok(hdr)
+    }
+
+    /// A shell's resolution (1..=4096).
+    fn shell_resolution(&mut self) -> Result<usize, String> {
+        let r = self.u32()? as usize;
+        if r == 0 || r > 4096 {
+            return Err(format!("{}: shell resolution {r} out of 1..=4096", self.what));
+        }
+        Ok(r)
+    }
+
     /// Every byte read.
     fn done(&self) -> bool {
         self.pos == self.b.len()
@@ -1832,23 +1847,11 @@ pub mod haar {
                 return Err(format!("wavelet field file: cube resolution {n} (a power of two 2..=256)"));
             }
             let pixels = 6 * n * n;
-            let nshell = rd.u32()? as usize;
-            if nshell > 1024 {
-                return Err(format!("wavelet field file: {nshell} shells (max 1024)"));
-            }
-            let mut hdr = [0f32; 4];
-            for h in &mut hdr {
-                *h = rd.f32()?;
-            }
-            if !hdr.iter().all(|x| x.is_finite()) || !(hdr[3] >= 0.0) {
-                return Err("wavelet field file: non-finite centre or radius".into());
-            }
+            let nshell = rd.shell_count()?;
+            let hdr = rd.centre_radius()?;
             let mut shells = Vec::with_capacity(nshell);
             for _ in 0..nshell {
-                let r = rd.u32()? as usize;
-                if r == 0 || r > 4096 {
-                    return Err(format!("wavelet field file: shell resolution {r} out of 1..=4096"));
-                }
+                let r = rd.shell_resolution()?;
                 let (min, step) = (rd.f32()?, rd.f32()?);
                 if !(min.is_finite() && step.is_finite()) {
                     return Err("wavelet field file: non-finite quantization".into());

@@ -15,11 +15,7 @@ pub fn one_minus_exp_neg_over_x(x: f64) -> f64 {
 /// f32 version of [`one_minus_exp_neg_over_x`].
 #[inline]
 pub fn one_minus_exp_neg_over_x_f32(x: f32) -> f32 {
-    if x == 0.0 {
-        1.0
-    } else {
-        -(-x).exp_m1() / x
-    }
+    one_minus_exp_neg_over_x(x as f64) as f32
 }
 
 /// Error function `erf(x) = 2/sqrt(pi) * int_0^x exp(-t^2) dt`.

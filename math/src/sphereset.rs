@@ -233,33 +233,23 @@ fn distance_to_outside(v: &Voxels) -> Vec<f64> {
     let mut d: Vec<f64> = v.inside.iter().map(|&i| if i { f64::INFINITY } else { 0.0 }).collect();
     let (mut vv, mut zz, mut out) = (Vec::new(), Vec::new(), Vec::new());
     let mut line = Vec::new();
-    for z in 0..nz {
-        for y in 0..ny {
-            line.clear();
-            line.extend((0..nx).map(|x| d[v.idx(x, y, z)]));
-            dt1(&mut line, &mut vv, &mut zz, &mut out);
-            for x in 0..nx {
-                d[v.idx(x, y, z)] = line[x];
-            }
-        }
-    }
-    for z in 0..nz {
-        for x in 0..nx {
-            line.clear();
-            line.extend((0..ny).map(|y| d[v.idx(x, y, z)]));
-            dt1(&mut line, &mut vv, &mut zz, &mut out);
-            for y in 0..ny {
-                d[v.idx(x, y, z)] = line[y];
-            }
-        }
-    }
-    for y in 0..ny {
-        for x in 0..nx {
-            line.clear();
-            line.extend((0..nz).map(|z| d[v.idx(x, y, z)]));
-            dt1(&mut line, &mut vv, &mut zz, &mut out);
-            for z in 0..nz {
-                d[v.idx(x, y, z)] = line[z];
+    let dims = [nx, ny, nz];
+    // one pass per axis over every line of voxels along it
+    for axis in 0..3 {
+        let (u, w) = ((axis + 1) % 3, (axis + 2) % 3);
+        let at = |k: usize, i: usize, j: usize| {
+            let mut c = [0; 3];
+            (c[axis], c[u], c[w]) = (k, i, j);
+            v.idx(c[0], c[1], c[2])
+        };
+        for j in 0..dims[w] {
+            for i in 0..dims[u] {
+                line.clear();
+                line.extend((0..dims[axis]).map(|k| d[at(k, i, j)]));
+                dt1(&mut line, &mut vv, &mut zz, &mut out);
+                for (k, &x) in line.iter().enumerate() {
+                    d[at(k, i, j)] = x;
+                }
             }
         }
     }

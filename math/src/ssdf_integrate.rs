@@ -280,29 +280,28 @@ fn clipped(lobe: &Sg, cosine: bool, t0: f64, t1: f64, p0: f64, p1: f64, dc: f64,
     let theta_major = gt.abs() >= gp.abs(); // line theta = k phi + b
     let (o0, o1, i0, i1) = if theta_major { (p0, p1, t0, t1) } else { (t0, t1, p0, p1) };
     let (go, gi, oc, ic) = if theta_major { (gp, gt, pc, tc) } else { (gt, gp, tc, pc) };
-    let dout = (o1 - o0) / m as f64;
+    composite_gl3(o0, o1, m, |o| {
+        // zero of dc + go (o - oc) + gi (inner - ic)
+        let cross = ic - (dc + go * (o - oc)) / gi;
+        let (lo, hi) = if gi > 0.0 { (cross.max(i0), i1) } else { (i0, cross.min(i1)) };
+        if hi <= lo {
+            return 0.0;
+        }
+        composite_gl3(lo, hi, m, |inn| {
+            let (t, p) = if theta_major { (inn, o) } else { (o, inn) };
+            integrand(lobe, cosine, t, p) * t.sin()
+        })
+    })
+}
+
+/// `int_lo^hi f`: 3-point Gauss-Legendre on each of `m` equal cells.
+fn composite_gl3(lo: f64, hi: f64, m: usize, mut f: impl FnMut(f64) -> f64) -> f64 {
+    let h = (hi - lo) / m as f64;
     let mut s = 0.0;
     for a in 0..m {
-        let ocell = o0 + (a as f64 + 0.5) * dout;
-        for (x, wx) in GL3_X.iter().zip(GL3_W) {
-            let o = ocell + 0.5 * dout * x;
-            // zero of dc + go (o - oc) + gi (inner - ic)
-            let cross = ic - (dc + go * (o - oc)) / gi;
-            let (lo, hi) = if gi > 0.0 { (cross.max(i0), i1) } else { (i0, cross.min(i1)) };
-            if hi <= lo {
-                continue;
-            }
-            let din = (hi - lo) / m as f64;
-            let mut inner = 0.0;
-            for b in 0..m {
-                let icell = lo + (b as f64 + 0.5) * din;
-                for (y, wy) in GL3_X.iter().zip(GL3_W) {
-                    let inn = icell + 0.5 * din * y;
-                    let (t, p) = if theta_major { (inn, o) } else { (o, inn) };
-                    inner += wy * integrand(lobe, cosine, t, p) * t.sin();
-                }
-            }
-            s += wx * 0.5 * dout * inner * 0.5 * din;
+        let c = lo + (a as f64 + 0.5) * h;
+        for (x, w) in GL3_X.iter().zip(GL3_W) {
+            s += w * 0.5 * h * f(c + 0.5 * h * x);
         }
     }
     s

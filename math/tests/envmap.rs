@@ -156,36 +156,14 @@ fn robust_to_a_sun_1e4_brighter_than_the_sky() {
 }
 
 fn read_exr(path: &str) -> Result<(usize, usize, Vec<[f32; 3]>), String> {
-    use exr::prelude::*;
-    struct Buf {
-        w: usize,
-        h: usize,
-        t: Vec<[f32; 3]>,
-    }
-    let img = read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .specific_channels()
-        .required("R")
-        .required("G")
-        .required("B")
-        .collect_pixels(
-            |res: Vec2<usize>, _: &(ChannelDescription, ChannelDescription, ChannelDescription)| Buf {
-                w: res.width(),
-                h: res.height(),
-                t: vec![[0.0; 3]; res.width() * res.height()],
-            },
-            |b: &mut Buf, pos: Vec2<usize>, (r, g, bl): (f32, f32, f32)| {
-                let w = b.w;
-                b.t[pos.y() * w + pos.x()] = [r, g, bl];
-            },
-        )
-        .first_valid_layer()
-        .all_attributes()
-        .from_file(path)
-        .map_err(|e| e.to_string())?;
-    let b = img.layer_data.channel_data.pixels;
-    Ok((b.w, b.h, b.t))
+    type Texels = (usize, usize, Vec<[f32; 3]>);
+    let img = exr::prelude::read_first_rgba_layer_from_file(
+        path,
+        |res, _| (res.width(), res.height(), vec![[0.0; 3]; res.width() * res.height()]),
+        |(w, _, t): &mut Texels, pos, (r, g, b, _): (f32, f32, f32, f32)| t[pos.y() * *w + pos.x()] = [r, g, b],
+    )
+    .map_err(|e| e.to_string())?;
+    Ok(img.layer_data.channel_data.pixels)
 }
 
 #[test]

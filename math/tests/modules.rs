@@ -1090,18 +1090,10 @@ mod vv {
         let nn = m.normals[v].as_dvec3();
         let f = frame(m.normals[v]);
         let mut occ = 0;
-        for i in 0..n_samples {
-            for j in 0..n_samples {
-                // equal-area: uniform in the Lambert disk
-                let u = -1.0 + (i as f64 + 0.5) * 2.0 / n_samples as f64;
-                let w = -1.0 + (j as f64 + 0.5) * 2.0 / n_samples as f64;
-                if u * u + w * w >= 1.0 {
-                    continue;
-                }
-                let d = lambert_inv(u, w, &f);
-                if trace_occluder(&tracer, &topo, &[topo.pos_group[v]], m.positions[v].as_dvec3(), nn, d).is_some() {
-                    occ += 1;
-                }
+        // equal-area: uniform in the Lambert disk
+        for d in lambert_grid(n_samples, &f) {
+            if trace_occluder(&tracer, &topo, &[topo.pos_group[v]], m.positions[v].as_dvec3(), nn, d).is_some() {
+                occ += 1;
             }
         }
         // each disk cell of area (2/n)^2 is a solid angle 2 pi * area / pi

@@ -465,6 +465,17 @@ pub fn lambert_inv(u: f64, v: f64, frame: &[DVec3; 3]) -> DVec3 {
     (frame[0] * (u * s) + frame[1] * (v * s) + frame[2] * z).normalize()
 }
 
+/// Stratified equal-area directions of the hemisphere of `frame`: the centres of an `res x res`
+/// grid over the Lambert disk that fall inside it, mapped by [`lambert_inv`]. Each stands for a
+/// solid angle of `2 pi (2 / res)^2 / pi`.
+pub fn lambert_grid(res: u32, frame: &[DVec3; 3]) -> impl Iterator<Item = DVec3> + '_ {
+    let cell = move |i: u32| -1.0 + (i as f64 + 0.5) * 2.0 / res as f64;
+    (0..res)
+        .flat_map(move |i| (0..res).map(move |j| (cell(i), cell(j))))
+        .filter(|(u, w)| u * u + w * w < 1.0)
+        .map(|(u, w)| lambert_inv(u, w, frame))
+}
+
 /// Orthonormal frame `(t, b, n)` with `t x b = n`.
 pub fn frame(n: Vec3) -> [DVec3; 3] {
     let n = n.as_dvec3().normalize();
@@ -702,23 +713,15 @@ pub fn evaluate(model: &VvModel, d: &VvData, samples: usize, map_res: u32, seed:
             let syn: Vec<Vec<Vec<Vec3>>> = (0..3).map(|k| synthesize(&d.vis, idx[k], p, n)).collect();
             let interp = interpolate(&d.vis, &d.corr, t, lambda, p, n);
             let (mut a19, mut a21, mut total, mut occ) = (0.0, 0.0, 0usize, 0usize);
-            for i in 0..map_res {
-                for j in 0..map_res {
-                    let u = -1.0 + (i as f64 + 0.5) * 2.0 / map_res as f64;
-                    let w = -1.0 + (j as f64 + 0.5) * 2.0 / map_res as f64;
-                    if u * u + w * w >= 1.0 {
-                        continue;
-                    }
-                    let dir = lambert_inv(u, w, &f);
-                    let truth =
-                        precompute::trace_occluder(&tracer, &topo, &local, p.as_dvec3(), n.as_dvec3(), dir).is_some();
-                    total += 1;
-                    occ += truth as usize;
-                    let dv = dir.as_vec3();
-                    a21 += (occluded_by(&interp, dv, n) == truth) as u32 as f64;
-                    for k in 0..3 {
-                        a19 += lambda[k] as f64 * (occluded_by(&syn[k], dv, n) == truth) as u32 as f64;
-                    }
+            for dir in lambert_grid(map_res, &f) {
+                let truth =
+                    precompute::trace_occluder(&tracer, &topo, &local, p.as_dvec3(), n.as_dvec3(), dir).is_some();
+                total += 1;
+                occ += truth as usize;
+                let dv = dir.as_vec3();
+                a21 += (occluded_by(&interp, dv, n) == truth) as u32 as f64;
+                for k in 0..3 {
+                    a19 += lambda[k] as f64 * (occluded_by(&syn[k], dv, n) == truth) as u32 as f64;
                 }
             }
             (occ > 0 && total > 0).then(|| (a19 / total as f64, a21 / total as f64))

@@ -1,8 +1,9 @@
 // Real SH of order 4 (16 coefficients) at a unit direction, in the convention of
 // penumbra_math::sh (index l*l + l + m, Condon-Shortley phase: Y_1^-1 = -0.4886 y, Y_1^1 = -0.4886 x).
-#ifndef PENUMBRA_AVS_SH_GLSL
-#define PENUMBRA_AVS_SH_GLSL
-void avs_sh16(vec3 d, out float y[16]) {
+// The one copy of the basis: avs's visibility maps and shadow fields' occlusion and lighting.
+#ifndef PENUMBRA_SH16_GLSL
+#define PENUMBRA_SH16_GLSL
+void sh16_basis(vec3 d, out float y[16]) {
     float x = d.x, yy = d.y, z = d.z;
     y[0] = 0.28209479177;
     y[1] = -0.48860251190 * yy;
