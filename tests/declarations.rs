@@ -28,7 +28,7 @@ fn engine(validation: bool) -> Engine {
 #[test]
 fn storage_image_declared_as_sampled_is_caught_by_the_graph() {
     let mut e = engine(false);
-    let p = compute_pipeline(&e.ctx, &library(), "t.comp", &[vk::DescriptorType::STORAGE_IMAGE], 0).unwrap();
+    let p = compute_pipeline(&e.ctx, &library(), "t.comp", 0).unwrap();
     let (pipeline, layout) = (p.pipeline, p.layout);
     let mut g = Graph::new();
     let img = g.create_image("img", ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, 8, 8));

@@ -7,8 +7,8 @@
 use glam::DVec3;
 use penumbra::passes::hsdt::{decode_ssdf, Hsdt};
 use penumbra::passes::trace::add_copy_to_readback;
-use penumbra::passes::util::{bind_compute, bytes_of, compute_pipeline, groups};
-use penumbra_engine::{vk, Access, Bind, Context, ContextDesc, Engine, Graph, PassKind};
+use penumbra::passes::util::{bytes_of, compute_pipeline, dispatch, groups};
+use penumbra_engine::{Access, Bind, Context, ContextDesc, Engine, Graph, PassKind};
 use penumbra_math::avs_maps::{
     angle_between, dir_to_texel, f16_to_f32, f32_to_f16, texel_angle, texel_dir, texel_solid_angle, Frame, VisMap,
 };
@@ -135,8 +135,7 @@ fn glsl_layout_matches_cpu() {
         dirs.push(d.normalize());
     }
     let input: Vec<[f32; 4]> = dirs.iter().map(|d| [d.x as f32, d.y as f32, d.z as f32, 0.0]).collect();
-    let pipe = compute_pipeline(&ctx, &lib, "tests/hsdt_layout_test.comp", &[vk::DescriptorType::STORAGE_BUFFER; 2], 4)
-        .unwrap();
+    let pipe = compute_pipeline(&ctx, &lib, "tests/hsdt_layout_test.comp", 4).unwrap();
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     let mut g = Graph::new();
     let inb = g.create_buffer_init("dirs", bytes_of(&input));
@@ -144,14 +143,9 @@ fn glsl_layout_matches_cpu() {
     let mut p = g.pass("layout_test", PassKind::Compute);
     let i = p.read(inb, Access::ComputeShaderReadStorage);
     let o = p.write(outb, Access::ComputeShaderWriteStorage);
-    let (pp, layout) = (pipe.pipeline, pipe.layout);
+    let h = pipe.handle();
     p.record(move |rc| {
-        bind_compute(rc, pp, layout, &[Bind::StorageBuffer(i), Bind::StorageBuffer(o)])?;
-        unsafe {
-            rc.device().cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&[r]));
-            rc.device().cmd_dispatch(rc.cmd, groups(r * r, 64), 1, 1);
-        }
-        Ok(())
+        dispatch(rc, h, &[Bind::StorageBuffer(i), Bind::StorageBuffer(o)], &bytes_of(&[r]), [groups(r * r, 64), 1, 1])
     });
     add_copy_to_readback(&mut g, o, "layout_rb", (n * 4 * 16) as u64);
     engine.submit(g).unwrap();
@@ -243,9 +237,7 @@ fn glsl_integrals_match_cpu() {
     }
     let n = lobes.len();
     let words: Vec<u32> = ssdf.iter().flat_map(|v| penumbra_math::avs_maps::pack_ssdf_f16(v)).collect();
-    let pipe =
-        compute_pipeline(&ctx, &lib, "tests/hsdt_integrate_test.comp", &[vk::DescriptorType::STORAGE_BUFFER; 5], 8)
-            .unwrap();
+    let pipe = compute_pipeline(&ctx, &lib, "tests/hsdt_integrate_test.comp", 8).unwrap();
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     let mut g = Graph::new();
     let bufs = [
@@ -258,16 +250,11 @@ fn glsl_integrals_match_cpu() {
     let mut p = g.pass("integrate_test", PassKind::Compute);
     let ins: Vec<_> = bufs.iter().map(|b| p.read(*b, Access::ComputeShaderReadStorage)).collect();
     let o = p.write(outb, Access::ComputeShaderWriteStorage);
-    let (pp, layout) = (pipe.pipeline, pipe.layout);
+    let h = pipe.handle();
     p.record(move |rc| {
         let mut binds: Vec<Bind> = ins.iter().map(|b| Bind::StorageBuffer(*b)).collect();
         binds.push(Bind::StorageBuffer(o));
-        bind_compute(rc, pp, layout, &binds)?;
-        unsafe {
-            rc.device().cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::COMPUTE, 0, &bytes_of(&[r, n as u32]));
-            rc.device().cmd_dispatch(rc.cmd, groups(n as u32, 16), 1, 1);
-        }
-        Ok(())
+        dispatch(rc, h, &binds, &bytes_of(&[r, n as u32]), [groups(n as u32, 16), 1, 1])
     });
     add_copy_to_readback(&mut g, o, "int_rb", (n * 8) as u64);
     engine.submit(g).unwrap();

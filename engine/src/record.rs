@@ -80,14 +80,47 @@ impl<'a> RecordContext<'a> {
         set: u32,
         binds: &[Bind],
     ) -> Result<()> {
+        self.push(bind_point, layout, set, binds, None)
+    }
+
+    /// Pushes set 0 of a pipeline whose layout is `shader_set` (its shaders' own bindings,
+    /// [`crate::reflect::SetLayout`]): binding i = `binds[i]`, checked against the pass's
+    /// declarations as in [`Self::push_descriptors`] and against the shaders: a bind of another
+    /// type than the shader's binding is an error naming it, a binding the shaders use and
+    /// `binds` does not reach is an error, and a bind no stage uses is checked but not written.
+    pub fn push_set(
+        &self,
+        bind_point: vk::PipelineBindPoint,
+        layout: vk::PipelineLayout,
+        shader_set: &crate::reflect::SetLayout,
+        binds: &[Bind],
+    ) -> Result<()> {
+        if let Some((b, t)) = shader_set.bindings().find(|&(b, _)| b as usize >= binds.len()) {
+            bail!("pass '{}': its shaders use binding {b} ({t:?}) but it binds {} descriptors", self.pass, binds.len());
+        }
+        self.push(bind_point, layout, 0, binds, Some(shader_set))
+    }
+
+    fn push(
+        &self,
+        bind_point: vk::PipelineBindPoint,
+        layout: vk::PipelineLayout,
+        set: u32,
+        binds: &[Bind],
+        shader_set: Option<&crate::reflect::SetLayout>,
+    ) -> Result<()> {
         use crate::access::Access as A;
-        let mut image_infos: Vec<[vk::DescriptorImageInfo; 1]> = Vec::new();
-        let mut buffer_infos: Vec<[vk::DescriptorBufferInfo; 1]> = Vec::new();
-        let mut kinds = Vec::new();
-        for b in binds {
-            match *b {
+        use vk::DescriptorType as T;
+        enum Info {
+            Image(vk::DescriptorImageInfo),
+            Buffer(vk::DescriptorBufferInfo),
+        }
+        let mut infos = Vec::with_capacity(binds.len());
+        for (binding, b) in binds.iter().enumerate() {
+            // the descriptor's type, the bound resource (its graph id) and its info
+            let (ty, id, info) = match *b {
                 Bind::SampledImage(h, sampler) => {
-                    self.check_bind(h.raw().0, "a sampled image", |a| {
+                    let ok = |a| {
                         matches!(
                             a,
                             A::VertexShaderReadSampled
@@ -95,17 +128,18 @@ impl<'a> RecordContext<'a> {
                                 | A::ComputeShaderReadSampled
                                 | A::AnyShaderReadSampled
                         )
-                    })?;
-                    let img = self.image(h)?;
-                    image_infos.push([vk::DescriptorImageInfo {
-                        sampler,
-                        image_view: img.view,
-                        image_layout: vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
-                    }]);
-                    kinds.push((vk::DescriptorType::COMBINED_IMAGE_SAMPLER, image_infos.len() - 1));
+                    };
+                    self.check_bind(h.raw().0, "a sampled image", ok)?;
+                    let image_view = self.image(h)?.view;
+                    let image_layout = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
+                    (
+                        T::COMBINED_IMAGE_SAMPLER,
+                        h.raw().0,
+                        Info::Image(vk::DescriptorImageInfo { sampler, image_view, image_layout }),
+                    )
                 }
                 Bind::StorageImage(h) => {
-                    self.check_bind(h.raw().0, "a storage image", |a| {
+                    let ok = |a| {
                         matches!(
                             a,
                             A::FragmentShaderReadStorage
@@ -113,27 +147,22 @@ impl<'a> RecordContext<'a> {
                                 | A::ComputeShaderWriteStorage
                                 | A::ComputeShaderReadWriteStorage
                         )
-                    })?;
-                    let img = self.image(h)?;
-                    image_infos.push([vk::DescriptorImageInfo {
+                    };
+                    self.check_bind(h.raw().0, "a storage image", ok)?;
+                    let image_view = self.image(h)?.view;
+                    let info = vk::DescriptorImageInfo {
                         sampler: vk::Sampler::null(),
-                        image_view: img.view,
+                        image_view,
                         image_layout: vk::ImageLayout::GENERAL,
-                    }]);
-                    kinds.push((vk::DescriptorType::STORAGE_IMAGE, image_infos.len() - 1));
+                    };
+                    (T::STORAGE_IMAGE, h.raw().0, Info::Image(info))
                 }
                 Bind::UniformBuffer(h) => {
                     self.check_bind(h.raw().0, "a uniform buffer", |a| a == A::AnyShaderReadUniform)?;
-                    let buf = self.buffer(h)?;
-                    buffer_infos.push([vk::DescriptorBufferInfo {
-                        buffer: buf.buffer,
-                        offset: 0,
-                        range: vk::WHOLE_SIZE,
-                    }]);
-                    kinds.push((vk::DescriptorType::UNIFORM_BUFFER, buffer_infos.len() - 1));
+                    (T::UNIFORM_BUFFER, h.raw().0, Info::Buffer(self.whole(h)?))
                 }
                 Bind::StorageBuffer(h) => {
-                    self.check_bind(h.raw().0, "a storage buffer", |a| {
+                    let ok = |a| {
                         matches!(
                             a,
                             A::VertexShaderReadStorage
@@ -143,32 +172,42 @@ impl<'a> RecordContext<'a> {
                                 | A::ComputeShaderWriteStorage
                                 | A::ComputeShaderReadWriteStorage
                         )
-                    })?;
-                    let buf = self.buffer(h)?;
-                    buffer_infos.push([vk::DescriptorBufferInfo {
-                        buffer: buf.buffer,
-                        offset: 0,
-                        range: vk::WHOLE_SIZE,
-                    }]);
-                    kinds.push((vk::DescriptorType::STORAGE_BUFFER, buffer_infos.len() - 1));
+                    };
+                    self.check_bind(h.raw().0, "a storage buffer", ok)?;
+                    (T::STORAGE_BUFFER, h.raw().0, Info::Buffer(self.whole(h)?))
                 }
+            };
+            match shader_set.map(|s| s.get(binding)) {
+                // no stage uses it: checked, not written
+                Some(None) => continue,
+                Some(Some(t)) if t != ty => bail!(
+                    "pass '{}': binding {binding} is a {t:?} in its shaders but the pass binds '{}' as a {ty:?}",
+                    self.pass,
+                    self.name(id)
+                ),
+                _ => infos.push((binding as u32, ty, info)),
             }
         }
-        let writes: Vec<vk::WriteDescriptorSet> = kinds
+        let writes: Vec<_> = infos
             .iter()
-            .enumerate()
-            .map(|(binding, (ty, idx))| {
-                let w = vk::WriteDescriptorSet::default().dst_binding(binding as u32).descriptor_type(*ty);
-                match *ty {
-                    vk::DescriptorType::UNIFORM_BUFFER | vk::DescriptorType::STORAGE_BUFFER => {
-                        w.buffer_info(&buffer_infos[*idx])
-                    }
-                    _ => w.image_info(&image_infos[*idx]),
+            .map(|(binding, ty, info)| {
+                let w = vk::WriteDescriptorSet::default().dst_binding(*binding).descriptor_type(*ty);
+                match info {
+                    Info::Image(x) => w.image_info(std::slice::from_ref(x)),
+                    Info::Buffer(x) => w.buffer_info(std::slice::from_ref(x)),
                 }
             })
             .collect();
+        if writes.is_empty() {
+            return Ok(());
+        }
         unsafe { self.ctx.push_descriptor.cmd_push_descriptor_set(self.cmd, bind_point, layout, set, &writes) };
         Ok(())
+    }
+
+    /// The whole of the buffer behind `h`, as a descriptor.
+    fn whole(&self, h: BufferHandle) -> Result<vk::DescriptorBufferInfo> {
+        Ok(vk::DescriptorBufferInfo { buffer: self.buffer(h)?.buffer, offset: 0, range: vk::WHOLE_SIZE })
     }
 
     /// The buffer behind a handle this pass declared.

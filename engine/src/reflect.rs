@@ -1,10 +1,10 @@
 //! What a SPIR-V module expects of its pipeline layout: its descriptor bindings (set, binding,
 //! descriptor type, count) and the bytes of its push-constant block, read from the module's own
-//! declarations; and [`check_layout`], which compares them with a pipeline's hand-written layout
-//! once, when the pipeline is created, so that a binding declared with the wrong type, a binding
-//! the layout lacks, or a push range shorter than the shader's block is an error naming the
-//! shader and the binding instead of a validation message at draw time (or silently wrong data
-//! on a driver without validation).
+//! declarations; [`SetLayout`], a pipeline's push-descriptor set made from them (the binding
+//! contract stated once, in the GLSL), and [`check_push_range`]: a binding of two types in two
+//! stages, or a push range shorter than a shader's block, is an error naming the shader and the
+//! binding when the pipeline is created, instead of a validation message at draw time (or
+//! silently wrong data on a driver without validation).
 //!
 //! Only what the project's shaders use is understood (no external crate: the registry offers
 //! none offline): storage and uniform buffers, combined image samplers, sampled and storage
@@ -245,46 +245,93 @@ fn size_of(
     })
 }
 
-/// Checks a pipeline layout written by hand (binding `i` of set 0 of type `types[i]`, one
-/// descriptor each; `push_bytes` of push constants) against what its shader modules (`(name,
-/// SPIR-V)`, one per stage) declare. Every binding a shader uses must be in the layout with its
-/// type and count, in set 0, and the push range must cover every stage's push-constant block.
-/// Bindings no stage uses are allowed (the optimiser drops unused ones). Every mismatch is
-/// reported, naming the shader.
-pub fn check_layout(modules: &[(&str, &[u8])], types: &[vk::DescriptorType], push_bytes: u32) -> Result<()> {
-    let mut errors = Vec::new();
-    for (name, spirv) in modules {
-        let iface = match reflect(spirv) {
-            Ok(i) => i,
-            Err(e) => {
-                errors.push(format!("{name}: {e:#}"));
-                continue;
-            }
-        };
-        for (&(set, binding), b) in &iface.bindings {
-            let declared = if set == 0 { types.get(binding as usize) } else { None };
-            match declared {
-                None => errors.push(format!(
-                    "{name}: set {set} binding {binding} ({:?}) is not in the pipeline's layout ({} bindings in set 0)",
-                    b.ty,
-                    types.len()
-                )),
-                Some(t) if *t != b.ty => errors.push(format!(
-                    "{name}: binding {binding} is a {:?} in the shader but the layout declares {t:?}",
-                    b.ty
-                )),
-                Some(_) if b.count != 1 => errors.push(format!(
-                    "{name}: binding {binding} is an array of {} descriptors; the layout declares one",
-                    b.count
-                )),
-                Some(_) => {}
+/// The most bindings a push-descriptor set of the project's pipelines holds.
+pub const MAX_SET_BINDINGS: usize = 32;
+
+/// The descriptor type of each binding of a pipeline's push-descriptor set (set 0), as its
+/// shaders declare them: binding `i` is `get(i)`, `None` where no stage uses it (the optimiser
+/// drops unused bindings). A pipeline's layout is made from this, and a pass's binds are checked
+/// against it when pushed ([`crate::RecordContext::push_set`]), so the binding contract is stated
+/// once, in the GLSL, instead of again in a hand-written type list.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SetLayout {
+    types: [Option<vk::DescriptorType>; MAX_SET_BINDINGS],
+}
+
+impl SetLayout {
+    /// The union of the bindings the modules (`(name, SPIR-V)`, one per stage) declare. Every
+    /// binding must be in set 0, a single descriptor, of one type in every stage that uses it,
+    /// and below [`MAX_SET_BINDINGS`]; every violation is reported, naming the shader.
+    pub fn of(modules: &[(&str, &[u8])]) -> Result<Self> {
+        let mut set = SetLayout::default();
+        let mut errors = Vec::new();
+        for (name, spirv) in modules {
+            let iface = match reflect(spirv) {
+                Ok(i) => i,
+                Err(e) => {
+                    errors.push(format!("{name}: {e:#}"));
+                    continue;
+                }
+            };
+            for (&(s, binding), b) in &iface.bindings {
+                let slot = set.types.get_mut(binding as usize);
+                match slot {
+                    _ if s != 0 => {
+                        errors.push(format!("{name}: binding {binding} is in set {s}; push descriptors use set 0"))
+                    }
+                    _ if b.count != 1 => {
+                        errors.push(format!("{name}: binding {binding} is an array of {} descriptors", b.count))
+                    }
+                    None => {
+                        errors.push(format!("{name}: binding {binding} is past the {MAX_SET_BINDINGS} a set holds"))
+                    }
+                    Some(Some(t)) if *t != b.ty => errors
+                        .push(format!("{name}: binding {binding} is a {:?}, another stage declares a {t:?}", b.ty)),
+                    Some(t) => *t = Some(b.ty),
+                }
             }
         }
-        if iface.push_bytes > push_bytes {
-            errors.push(format!(
+        if !errors.is_empty() {
+            bail!("the shaders' descriptor bindings cannot make one set:\n  - {}", errors.join("\n  - "));
+        }
+        Ok(set)
+    }
+
+    /// Binding `i` of type `types[i]`, every one used (layouts written by hand).
+    pub fn from_types(types: &[vk::DescriptorType]) -> Result<Self> {
+        if types.len() > MAX_SET_BINDINGS {
+            bail!("{} bindings (a set holds at most {MAX_SET_BINDINGS})", types.len());
+        }
+        let mut set = SetLayout::default();
+        for (slot, t) in set.types.iter_mut().zip(types) {
+            *slot = Some(*t);
+        }
+        Ok(set)
+    }
+
+    /// The type of binding `i` (`None`: not used by any stage).
+    pub fn get(&self, i: usize) -> Option<vk::DescriptorType> {
+        self.types.get(i).copied().flatten()
+    }
+
+    /// The used bindings and their types, in binding order.
+    pub fn bindings(&self) -> impl Iterator<Item = (u32, vk::DescriptorType)> + '_ {
+        self.types.iter().enumerate().filter_map(|(i, t)| t.map(|t| (i as u32, t)))
+    }
+}
+
+/// Checks that a pipeline's push range (`push_bytes`) covers every stage's push-constant block;
+/// every short one is reported, naming the shader.
+pub fn check_push_range(modules: &[(&str, &[u8])], push_bytes: u32) -> Result<()> {
+    let mut errors = Vec::new();
+    for (name, spirv) in modules {
+        match reflect(spirv) {
+            Ok(iface) if iface.push_bytes > push_bytes => errors.push(format!(
                 "{name}: its push-constant block takes {} bytes but the layout's range is {push_bytes}",
                 iface.push_bytes
-            ));
+            )),
+            Ok(_) => {}
+            Err(e) => errors.push(format!("{name}: {e:#}")),
         }
     }
     if !errors.is_empty() {
@@ -342,7 +389,7 @@ mod tests {
     }
 
     #[test]
-    fn a_layout_that_disagrees_with_its_shader_is_an_error_naming_both() {
+    fn the_set_is_the_shaders_own_and_disagreements_are_errors_naming_them() {
         use vk::DescriptorType as T;
         let m = spirv(COMPUTE, ShaderKind::Compute);
         let good = [
@@ -353,16 +400,30 @@ mod tests {
             T::STORAGE_IMAGE,
             T::COMBINED_IMAGE_SAMPLER,
         ];
-        check_layout(&[("c.comp", &m)], &good, 28).unwrap();
-        // an extra binding the shader does not use, and a larger push range: fine
-        check_layout(&[("c.comp", &m)], &[&good[..], &[T::STORAGE_BUFFER]].concat(), 64).unwrap();
-        let mut wrong = good;
-        wrong[3] = T::SAMPLED_IMAGE;
-        let e = check_layout(&[("c.comp", &m)], &wrong, 28).unwrap_err().to_string();
-        assert!(e.contains("c.comp: binding 3 is a COMBINED_IMAGE_SAMPLER") && e.contains("SAMPLED_IMAGE"), "{e}");
-        let e = check_layout(&[("c.comp", &m)], &good[..5], 16).unwrap_err().to_string();
-        assert!(e.contains("binding 5") && e.contains("not in the pipeline's layout"), "{e}");
-        assert!(e.contains("takes 28 bytes but the layout's range is 16"), "{e}");
+        assert_eq!(SetLayout::of(&[("c.comp", &m)]).unwrap(), SetLayout::from_types(&good).unwrap());
+        check_push_range(&[("c.comp", &m)], 28).unwrap();
+        check_push_range(&[("c.comp", &m)], 64).unwrap();
+        let e = check_push_range(&[("c.comp", &m)], 16).unwrap_err().to_string();
+        assert!(e.contains("c.comp: its push-constant block takes 28 bytes but the layout's range is 16"), "{e}");
+        // two stages: the union of their bindings; one binding of two types is an error
+        let vert = r#"#version 460
+            layout(std430, binding = 1) readonly buffer B { vec4 b[]; };
+            layout(std430, binding = 3) readonly buffer C { vec4 c[]; };
+            void main() { gl_Position = b[gl_VertexIndex] + c[0]; }"#;
+        let frag = r#"#version 460
+            layout(binding = 0) uniform U { vec4 v; } u;
+            layout(location = 0) out vec4 o;
+            void main() { o = u.v; }"#;
+        let (v, f) = (spirv(vert, ShaderKind::Vertex), spirv(frag, ShaderKind::Fragment));
+        let set = SetLayout::of(&[("v.vert", &v), ("f.frag", &f)]).unwrap();
+        let got: Vec<_> = set.bindings().collect();
+        assert_eq!(got, vec![(0, T::UNIFORM_BUFFER), (1, T::STORAGE_BUFFER), (3, T::STORAGE_BUFFER)]);
+        assert_eq!(set.get(2), None, "a binding no stage uses is left out");
+        let e = SetLayout::of(&[("v.vert", &v), ("c.comp", &m)]).unwrap_err().to_string();
+        assert!(
+            e.contains("c.comp: binding 3 is a COMBINED_IMAGE_SAMPLER, another stage declares a STORAGE_BUFFER"),
+            "{e}"
+        );
         assert!(reflect(&[0u8; 24]).is_err());
     }
 
@@ -380,7 +441,7 @@ mod tests {
         );
         // mat4 (64) then vec2[3] with an 8-byte stride (std430)
         assert_eq!(iface.push_bytes, 64 + 24);
-        let e = check_layout(&[("f.frag", &spirv(frag, ShaderKind::Fragment))], &[], 88).unwrap_err().to_string();
-        assert!(e.contains("set 1 binding 2"), "{e}");
+        let e = SetLayout::of(&[("f.frag", &spirv(frag, ShaderKind::Fragment))]).unwrap_err().to_string();
+        assert!(e.contains("f.frag: binding 2 is in set 1"), "{e}");
     }
 }

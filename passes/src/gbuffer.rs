@@ -75,12 +75,6 @@ impl GBufferPass {
             &RasterDesc {
                 name: "gbuffer",
                 shaders: &["frame/gbuffer.vert", "frame/gbuffer.frag"],
-                descriptors: &[
-                    vk::DescriptorType::UNIFORM_BUFFER,
-                    vk::DescriptorType::STORAGE_BUFFER,
-                    vk::DescriptorType::STORAGE_BUFFER,
-                    vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
-                ],
                 vertex_input: VertexInput::PositionNormalUv,
                 colors: &[POSITION_FORMAT, NORMAL_FORMAT, UV_MAT_FORMAT, MOTION_FORMAT],
                 depth: Some(DepthState { format: DEPTH_FORMAT, write: true, compare: vk::CompareOp::LESS }),
@@ -113,7 +107,7 @@ impl GBufferPass {
         let indices = p.read(scene.indices, Access::IndexBuffer);
         let deformed = scene.deformed_vertices.map(|h| p.read(h, Access::VertexBuffer));
         let pipeline = self.pipeline.pipeline;
-        let layout = self.pipeline.layout;
+        let layout = self.pipeline.handle();
         p.record(move |rc| {
             let d = rc.device();
             let color = |h: ImageHandle| -> Result<vk::RenderingAttachmentInfo<'static>> {
@@ -134,10 +128,9 @@ impl GBufferPass {
                 None => None,
             };
             crate::raster::begin(d, rc.cmd, &info, width, height, pipeline);
-            rc.push_descriptors(
-                vk::PipelineBindPoint::GRAPHICS,
-                layout,
-                0,
+            crate::util::push_graphics(
+                rc,
+                &layout,
                 &[
                     Bind::UniformBuffer(camera),
                     Bind::StorageBuffer(instances),

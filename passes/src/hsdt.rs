@@ -16,7 +16,7 @@
 use crate::util::{bytes_of, compute_pipeline, dispatch, groups, Pipeline};
 use anyhow::{anyhow, Result};
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Graph, PassKind};
+use penumbra_engine::{Access, Bind, BufferHandle, Context, Graph, PassKind};
 use penumbra_math::avs_maps::{check_res, ssdf_words_per_map, words_per_map};
 use std::sync::Arc;
 
@@ -40,10 +40,9 @@ pub fn batch_maps(r: u32) -> u32 {
 
 impl Hsdt {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        let sb = vk::DescriptorType::STORAGE_BUFFER;
         Ok(Hsdt {
-            rows: compute_pipeline(ctx, shaders, "hsdt/hsdt_rows.comp", &[sb; 2], 16)?,
-            cols: compute_pipeline(ctx, shaders, "hsdt/hsdt_cols.comp", &[sb; 3], 16)?,
+            rows: compute_pipeline(ctx, shaders, "hsdt/hsdt_rows.comp", 16)?,
+            cols: compute_pipeline(ctx, shaders, "hsdt/hsdt_cols.comp", 16)?,
             batch: None,
         })
     }

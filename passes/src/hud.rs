@@ -6,7 +6,7 @@
 use crate::util::{compute_pipeline, groups, Pipeline};
 use anyhow::Result;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, Context, Graph, ImageHandle, PassKind};
+use penumbra_engine::{Access, Bind, Context, Graph, ImageHandle, PassKind};
 use std::sync::Arc;
 
 /// Texels to overlay, RGBA8 packed little-endian (`r | g << 8 | b << 16 | a << 24`, straight
@@ -71,8 +71,7 @@ pub struct HudPass {
 
 impl HudPass {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        use vk::DescriptorType as T;
-        let pipeline = compute_pipeline(ctx, shaders, "frame/hud.comp", &[T::STORAGE_IMAGE, T::STORAGE_BUFFER], 16)?;
+        let pipeline = compute_pipeline(ctx, shaders, "frame/hud.comp", 16)?;
         Ok(HudPass { pipeline })
     }
 

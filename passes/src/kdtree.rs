@@ -45,7 +45,7 @@ use anyhow::{anyhow, bail, Result};
 use glam::{Mat3, Vec3};
 use penumbra_engine::graph::PassBuilder;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, FrameStore, Graph, PassKind};
+use penumbra_engine::{Access, Bind, BufferHandle, Context, FrameStore, Graph, PassKind};
 use penumbra_scene::{Frame, Instance, MeshData, Scene};
 use std::sync::Arc;
 
@@ -282,10 +282,9 @@ pub struct KdTreeBuilder {
 
 impl KdTreeBuilder {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        use vk::DescriptorType as T;
-        let init = compute_pipeline(ctx, shaders, "trace/kdtree_init.comp", &[T::STORAGE_BUFFER; 4], 32)?;
-        let build = compute_pipeline(ctx, shaders, "trace/kdtree_build.comp", &[T::STORAGE_BUFFER; 5], 32)?;
-        let small = compute_pipeline(ctx, shaders, "trace/kdtree_small.comp", &[T::STORAGE_BUFFER; 5], 32)?;
+        let init = compute_pipeline(ctx, shaders, "trace/kdtree_init.comp", 32)?;
+        let build = compute_pipeline(ctx, shaders, "trace/kdtree_build.comp", 32)?;
+        let small = compute_pipeline(ctx, shaders, "trace/kdtree_small.comp", 32)?;
         Ok(KdTreeBuilder {
             init,
             build,

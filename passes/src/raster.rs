@@ -69,8 +69,6 @@ pub struct RasterDesc<'a> {
     /// Shader files under `glsl/`; the stage comes from the extension
     /// (`.vert`, `.tesc`, `.tese`, `.geom`, `.frag`).
     pub shaders: &'a [&'a str],
-    /// Push-descriptor bindings 0.. (visible to every stage of the pipeline).
-    pub descriptors: &'a [vk::DescriptorType],
     pub push_constant_bytes: u32,
     pub vertex_input: VertexInput,
     pub topology: vk::PrimitiveTopology,
@@ -88,7 +86,6 @@ impl Default for RasterDesc<'_> {
         RasterDesc {
             name: "raster",
             shaders: &[],
-            descriptors: &[],
             push_constant_bytes: 0,
             vertex_input: VertexInput::None,
             topology: vk::PrimitiveTopology::TRIANGLE_LIST,
@@ -133,9 +130,11 @@ pub fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, desc: &Raste
     if tess && (desc.patch_control_points == 0 || desc.topology != vk::PrimitiveTopology::PATCH_LIST) {
         bail!("{} pipeline: tessellation needs the PATCH_LIST topology and patch_control_points", desc.name);
     }
-    // The hand-written layout against what the stages declare (bindings, push block).
+    // The push-descriptor set from what the stages declare (visible to every stage); the push
+    // range checked against their blocks.
     let code = desc.shaders.iter().map(|s| Ok((*s, shaders.get(s)?))).collect::<Result<Vec<_>>>()?;
-    penumbra_engine::reflect::check_layout(&code, desc.descriptors, desc.push_constant_bytes)
+    let set = penumbra_engine::reflect::SetLayout::of(&code).with_context(|| format!("{} pipeline", desc.name))?;
+    penumbra_engine::reflect::check_push_range(&code, desc.push_constant_bytes)
         .with_context(|| format!("{} pipeline", desc.name))?;
     // Modules first (all destroyed below whatever happens).
     let mut modules = Vec::new();
@@ -156,7 +155,7 @@ pub fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, desc: &Raste
         .collect::<Result<Vec<_>>>();
     let result = match (err, guards) {
         (Some(e), _) | (None, Err(e)) => Err(e),
-        (None, Ok(guards)) => create(ctx, desc, &modules, &guards, stage_flags),
+        (None, Ok(guards)) => create(ctx, desc, &modules, &guards, stage_flags, set),
     };
     for m in modules {
         unsafe { ctx.device.destroy_shader_module(m, None) };
@@ -170,6 +169,7 @@ fn create(
     modules: &[vk::ShaderModule],
     guards: &[Option<penumbra_engine::shader::LoopGuardSpec>],
     stage_flags: vk::ShaderStageFlags,
+    set: penumbra_engine::reflect::SetLayout,
 ) -> Result<Pipeline> {
     let guard_infos: Vec<_> = guards.iter().map(|g| g.as_ref().map(|g| g.info())).collect();
     let stages: Vec<_> = desc
@@ -262,7 +262,7 @@ fn create(
         .color_attachment_formats(desc.colors)
         .depth_attachment_format(desc.depth.map_or(vk::Format::UNDEFINED, |d| d.format))
         .stencil_attachment_format(desc.stencil.map_or(vk::Format::UNDEFINED, |s| s.format()));
-    let (set_layout, layout) = layouts(ctx, desc.name, desc.descriptors, stage_flags, desc.push_constant_bytes)?;
+    let (set_layout, layout) = layouts(ctx, desc.name, &set, stage_flags, desc.push_constant_bytes)?;
     let mut ci = vk::GraphicsPipelineCreateInfo::default()
         .stages(&stages)
         .vertex_input_state(&vi)
@@ -290,7 +290,7 @@ fn create(
         }
     };
     ctx.set_name(pipeline, desc.name);
-    Ok(Pipeline::from_raw(ctx, pipeline, layout, set_layout))
+    Ok(Pipeline::from_raw(ctx, pipeline, layout, set_layout, set))
 }
 
 /// Records the draws of a frame's meshes: binds the index buffer, then the scene's vertex buffer

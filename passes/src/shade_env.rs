@@ -28,18 +28,6 @@ pub struct ShadingIo {
 }
 
 impl ShadingIo {
-    /// Descriptor types of the bindings [`ShadingIo::binds`] returns (0..=6): camera, materials,
-    /// G-buffer position, normal and uv/material, environment, HDR output.
-    pub const TYPES: [vk::DescriptorType; 7] = [
-        vk::DescriptorType::UNIFORM_BUFFER,
-        vk::DescriptorType::STORAGE_BUFFER,
-        vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
-        vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
-        vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
-        vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
-        vk::DescriptorType::STORAGE_IMAGE,
-    ];
-
     /// Declares the reads of `scene`'s camera and materials, of `gb` and `env`, and the write of
     /// `hdr` on compute pass `p`.
     pub fn declare(
@@ -90,14 +78,7 @@ impl crate::technique::Technique for ShadeEnvPass {
 
 impl ShadeEnvPass {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        use vk::DescriptorType as T;
-        let pipeline = compute_pipeline(
-            ctx,
-            shaders,
-            "frame/shade_env.comp",
-            &[&ShadingIo::TYPES[..], &[T::STORAGE_BUFFER, T::COMBINED_IMAGE_SAMPLER]].concat(),
-            4,
-        )?;
+        let pipeline = compute_pipeline(ctx, shaders, "frame/shade_env.comp", 4)?;
         Ok(ShadeEnvPass {
             pipeline,
             nearest: Sampler::nearest(ctx)?,

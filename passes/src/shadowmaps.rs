@@ -140,7 +140,6 @@ impl ShadowMapsTechnique {
         scene: &Scene,
         settings: ShadowMapsSettings,
     ) -> Result<Self> {
-        use vk::DescriptorType as T;
         if !ctx.shader_output_layer {
             bail!(
                 "shadowmaps: the device ({}) lacks Vulkan 1.2 shaderOutputLayer (or it was not enabled), which the layered shadow-map pass needs",
@@ -153,31 +152,13 @@ impl ShadowMapsTechnique {
             &RasterDesc {
                 name: "shadowmaps_depth",
                 shaders: &["shadowmaps/shadowmaps_depth.vert"],
-                descriptors: &[T::STORAGE_BUFFER, T::STORAGE_BUFFER],
                 push_constant_bytes: 8,
                 vertex_input: VertexInput::Position,
                 depth: Some(DepthState { format: DEPTH_FORMAT, write: true, compare: vk::CompareOp::LESS }),
                 ..Default::default()
             },
         )?;
-        let shade_pipe = compute_pipeline(
-            ctx,
-            shaders,
-            "shadowmaps/shadowmaps_shade.comp",
-            &[
-                &ShadingIo::TYPES[..],
-                &[
-                    T::STORAGE_BUFFER,
-                    T::STORAGE_BUFFER,
-                    T::COMBINED_IMAGE_SAMPLER,
-                    T::STORAGE_BUFFER,
-                    T::COMBINED_IMAGE_SAMPLER,
-                    T::COMBINED_IMAGE_SAMPLER,
-                ],
-            ]
-            .concat(),
-            32,
-        )?;
+        let shade_pipe = compute_pipeline(ctx, shaders, "shadowmaps/shadowmaps_shade.comp", 32)?;
         let mut t = ShadowMapsTechnique {
             depth_pipe,
             shade_pipe,
@@ -332,7 +313,7 @@ impl ShadowMapsTechnique {
         let indices = p.read(scene.indices, Access::IndexBuffer);
         let deformed = scene.deformed_vertices.map(|h| p.read(h, Access::VertexBuffer));
         let draws = draws.to_vec();
-        let (pipeline, layout) = (self.depth_pipe.pipeline, self.depth_pipe.layout);
+        let (pipeline, layout) = (self.depth_pipe.pipeline, self.depth_pipe.handle());
         p.record(move |rc| {
             let d = rc.device();
             let depth_att = crate::util::depth_attachment(rc.image(dw)?.view, true);
@@ -346,14 +327,15 @@ impl ShadowMapsTechnique {
                 None => None,
             };
             crate::raster::begin(d, rc.cmd, &info, size, size, pipeline);
-            rc.push_descriptors(
-                vk::PipelineBindPoint::GRAPHICS,
-                layout,
-                0,
-                &[Bind::StorageBuffer(instances), Bind::StorageBuffer(lb)],
-            )?;
+            crate::util::push_graphics(rc, &layout, &[Bind::StorageBuffer(instances), Bind::StorageBuffer(lb)])?;
             crate::raster::draw_meshes(d, rc.cmd, &draws, ib.buffer, vb.buffer, db.map(|b| b.buffer), |dr| unsafe {
-                d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::VERTEX, 0, &bytes_of(&[dr.instance, first]));
+                d.cmd_push_constants(
+                    rc.cmd,
+                    layout.layout,
+                    vk::ShaderStageFlags::VERTEX,
+                    0,
+                    &bytes_of(&[dr.instance, first]),
+                );
                 let m = dr.mesh;
                 d.cmd_draw_indexed(rc.cmd, m.index_count, count, m.first_index, m.vertex_offset, 0);
             });

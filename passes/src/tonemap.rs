@@ -31,9 +31,7 @@ pub struct TonemapPass {
 
 impl TonemapPass {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        use vk::DescriptorType as T;
-        let pipeline =
-            compute_pipeline(ctx, shaders, "frame/tonemap.comp", &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE], 4)?;
+        let pipeline = compute_pipeline(ctx, shaders, "frame/tonemap.comp", 4)?;
         Ok(TonemapPass { pipeline, nearest: Sampler::nearest(ctx)? })
     }
 

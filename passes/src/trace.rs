@@ -25,7 +25,7 @@ use obvhs::{
 };
 use obvhs_glam::Vec3A;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Graph, PassKind};
+use penumbra_engine::{Access, Bind, BufferHandle, Context, Graph, PassKind};
 use std::sync::Arc;
 
 pub const RAY_BYTES: u64 = 32;
@@ -86,7 +86,7 @@ pub struct Tracer {
 
 impl Tracer {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        let pipeline = compute_pipeline(ctx, shaders, "trace/trace.comp", &[vk::DescriptorType::STORAGE_BUFFER; 6], 8)?;
+        let pipeline = compute_pipeline(ctx, shaders, "trace/trace.comp", 8)?;
         Ok(Tracer { pipeline })
     }
 

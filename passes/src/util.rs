@@ -2,6 +2,7 @@
 //! samplers. Every object is named for validation messages.
 
 use anyhow::{Context as _, Result};
+use penumbra_engine::reflect::SetLayout;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Context};
 use std::sync::Arc;
@@ -12,6 +13,9 @@ pub struct Pipeline {
     pub pipeline: vk::Pipeline,
     pub layout: vk::PipelineLayout,
     pub set_layout: vk::DescriptorSetLayout,
+    /// The push-descriptor set's bindings, as the shaders declare them (the layout is made from
+    /// them; binds are checked against them when pushed).
+    pub set: SetLayout,
     /// Bytes of the shader's push-constant block (reflected; 0: unchecked), which every
     /// [`dispatch`] must push at least.
     pub push_bytes: u32,
@@ -19,18 +23,20 @@ pub struct Pipeline {
 
 impl Pipeline {
     /// The pipeline and its layout, to move into a pass's record closure (see [`dispatch`]).
-    pub fn handle(&self) -> ComputeHandle {
-        ComputeHandle { pipeline: self.pipeline, layout: self.layout, push_bytes: self.push_bytes }
+    pub fn handle(&self) -> PipelineHandle {
+        PipelineHandle { pipeline: self.pipeline, layout: self.layout, set: self.set, push_bytes: self.push_bytes }
     }
 
-    /// Takes ownership of objects created elsewhere (graphics pipelines).
+    /// Takes ownership of objects created elsewhere (graphics pipelines) whose set layout was
+    /// made from `set`.
     pub fn from_raw(
         ctx: &Arc<Context>,
         pipeline: vk::Pipeline,
         layout: vk::PipelineLayout,
         set_layout: vk::DescriptorSetLayout,
+        set: SetLayout,
     ) -> Self {
-        Pipeline { ctx: ctx.clone(), pipeline, layout, set_layout, push_bytes: 0 }
+        Pipeline { ctx: ctx.clone(), pipeline, layout, set_layout, set, push_bytes: 0 }
     }
 }
 
@@ -44,22 +50,21 @@ impl Drop for Pipeline {
     }
 }
 
-/// A push-descriptor set layout with binding i of type `types[i]`, visible to `stages`, and a
-/// pipeline layout with `push_bytes` of push constants.
+/// A push-descriptor set layout with `set`'s bindings, visible to `stages`, and a pipeline
+/// layout with `push_bytes` of push constants.
 pub fn layouts(
     ctx: &Context,
     name: &str,
-    types: &[vk::DescriptorType],
+    set: &SetLayout,
     stages: vk::ShaderStageFlags,
     push_bytes: u32,
 ) -> Result<(vk::DescriptorSetLayout, vk::PipelineLayout)> {
-    let bindings: Vec<_> = types
-        .iter()
-        .enumerate()
+    let bindings: Vec<_> = set
+        .bindings()
         .map(|(i, t)| {
             vk::DescriptorSetLayoutBinding::default()
-                .binding(i as u32)
-                .descriptor_type(*t)
+                .binding(i)
+                .descriptor_type(t)
                 .descriptor_count(1)
                 .stage_flags(stages)
         })
@@ -84,19 +89,21 @@ pub fn layouts(
     Ok((set_layout, layout))
 }
 
-/// A compute pipeline from `shader` (e.g. `"frame/tonemap.comp"`).
+/// A compute pipeline from `shader` (e.g. `"frame/tonemap.comp"`) with `push_bytes` of push
+/// constants; its descriptor bindings are the shader's own (binding `i` of its GLSL is
+/// `binds[i]` of every [`dispatch`]).
 pub fn compute_pipeline(
     ctx: &Arc<Context>,
     shaders: &ShaderLibrary,
     shader: &str,
-    types: &[vk::DescriptorType],
     push_bytes: u32,
 ) -> Result<Pipeline> {
     let spirv = shaders.get(shader)?;
-    penumbra_engine::reflect::check_layout(&[(shader, spirv)], types, push_bytes)
+    let set = SetLayout::of(&[(shader, spirv)]).with_context(|| format!("compute pipeline '{shader}'"))?;
+    penumbra_engine::reflect::check_push_range(&[(shader, spirv)], push_bytes)
         .with_context(|| format!("compute pipeline '{shader}'"))?;
     let block = penumbra_engine::reflect::reflect(spirv)?.push_bytes;
-    let (set_layout, layout) = layouts(ctx, shader, types, vk::ShaderStageFlags::COMPUTE, push_bytes)?;
+    let (set_layout, layout) = layouts(ctx, shader, &set, vk::ShaderStageFlags::COMPUTE, push_bytes)?;
     let guard = penumbra_engine::shader::LoopGuardSpec::for_shader(ctx, shaders, shader)?;
     let guard_info = guard.as_ref().map(|g| g.info());
     let module = ctx.create_shader_module(shader, spirv)?;
@@ -110,7 +117,7 @@ pub fn compute_pipeline(
     unsafe { ctx.device.destroy_shader_module(module, None) };
     let pipeline = res.map_err(|(_, e)| e).with_context(|| format!("compute pipeline '{shader}'"))?[0];
     ctx.set_name(pipeline, shader);
-    Ok(Pipeline { ctx: ctx.clone(), pipeline, layout, set_layout, push_bytes: block })
+    Ok(Pipeline { ctx: ctx.clone(), pipeline, layout, set_layout, set, push_bytes: block })
 }
 
 /// A sampler; destroyed on drop.
@@ -216,11 +223,14 @@ pub fn add_image_upload(
     img
 }
 
-/// A compute pipeline and its layout (plain handles, `Copy`), owned by a [`Pipeline`].
+/// A pipeline, its layout and its shaders' bindings (plain handles, `Copy`), owned by a
+/// [`Pipeline`]: what a pass's record closure takes to dispatch or draw with it.
 #[derive(Clone, Copy, Debug)]
-pub struct ComputeHandle {
+pub struct PipelineHandle {
     pub pipeline: vk::Pipeline,
     pub layout: vk::PipelineLayout,
+    /// The shader's bindings.
+    pub set: SetLayout,
     /// Bytes of the shader's push-constant block (0: unchecked).
     pub push_bytes: u32,
 }
@@ -231,7 +241,7 @@ pub struct ComputeHandle {
 /// but it would still bind and push for nothing).
 pub fn dispatch(
     rc: &penumbra_engine::RecordContext,
-    h: ComputeHandle,
+    h: PipelineHandle,
     binds: &[penumbra_engine::Bind],
     push: &[u8],
     groups: [u32; 3],
@@ -246,7 +256,7 @@ pub fn dispatch(
             h.push_bytes
         );
     }
-    bind_compute(rc, h.pipeline, h.layout, binds)?;
+    bind_compute(rc, &h, binds)?;
     unsafe {
         let d = rc.device();
         if !push.is_empty() {
@@ -257,15 +267,25 @@ pub fn dispatch(
     Ok(())
 }
 
-/// Binds a compute pipeline and pushes its descriptors (checked against the pass's declarations).
+/// Binds a compute pipeline and pushes its descriptors (checked against the pass's declarations
+/// and the shader's bindings).
 pub fn bind_compute(
     rc: &penumbra_engine::RecordContext,
-    pipeline: vk::Pipeline,
-    layout: vk::PipelineLayout,
+    h: &PipelineHandle,
     binds: &[penumbra_engine::Bind],
 ) -> Result<()> {
-    unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, pipeline) };
-    rc.push_descriptors(vk::PipelineBindPoint::COMPUTE, layout, 0, binds)
+    unsafe { rc.device().cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::COMPUTE, h.pipeline) };
+    rc.push_set(vk::PipelineBindPoint::COMPUTE, h.layout, &h.set, binds)
+}
+
+/// Pushes a graphics pipeline's descriptors (checked against the pass's declarations and the
+/// shaders' bindings); the pipeline is bound by [`crate::raster::begin`].
+pub fn push_graphics(
+    rc: &penumbra_engine::RecordContext,
+    h: &PipelineHandle,
+    binds: &[penumbra_engine::Bind],
+) -> Result<()> {
+    rc.push_set(vk::PipelineBindPoint::GRAPHICS, h.layout, &h.set, binds)
 }
 
 /// Adds transfer pass `name` copying the first `size` bytes of `src` into `dst` (`None`: as much

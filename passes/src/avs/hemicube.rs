@@ -54,14 +54,7 @@ impl HemicubeMaps {
                 ..Default::default()
             },
         )?;
-        use vk::DescriptorType as T;
-        let convert = compute_pipeline(
-            ctx,
-            shaders,
-            "avs/avs_hemicube.comp",
-            &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER, T::STORAGE_BUFFER, T::STORAGE_BUFFER],
-            16,
-        )?;
+        let convert = compute_pipeline(ctx, shaders, "avs/avs_hemicube.comp", 16)?;
         Ok(HemicubeMaps { raster, convert, nearest: Sampler::nearest(ctx)? })
     }
 

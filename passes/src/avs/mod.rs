@@ -868,7 +868,6 @@ pub struct AvsTechnique {
 
 impl AvsTechnique {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, mut settings: AvsSettings) -> Result<Self> {
-        use vk::DescriptorType as T;
         settings.validate()?;
         // Every kept point's fp16 SSDF lives in one storage buffer bound whole: no more points
         // than the device's maxStorageBufferRange holds (lavapipe: 128 MiB, 4096 SSDFs at r = 128;
@@ -886,45 +885,10 @@ impl AvsTechnique {
             ));
             settings.max_points = device_points;
         }
-        let sb = T::STORAGE_BUFFER;
-        let vis = compute_pipeline(ctx, shaders, "avs/avs_vis.comp", &[sb; 9], 32)?;
-        let sh = compute_pipeline(ctx, shaders, "avs/avs_sh.comp", &[sb; 4], 8)?;
-        let shade = compute_pipeline(
-            ctx,
-            shaders,
-            "avs/avs_shade.comp",
-            &[
-                T::UNIFORM_BUFFER,
-                sb,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::STORAGE_IMAGE,
-                sb,
-                T::COMBINED_IMAGE_SAMPLER,
-                sb,
-                sb,
-                sb,
-                sb,
-                sb,
-                sb,
-                sb,
-                sb,
-                sb,
-                sb,
-                sb,
-                sb,
-            ],
-            56,
-        )?;
-        let cull = compute_pipeline(
-            ctx,
-            shaders,
-            "avs/avs_cull.comp",
-            &[T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, sb, sb, sb],
-            16,
-        )?;
+        let vis = compute_pipeline(ctx, shaders, "avs/avs_vis.comp", 32)?;
+        let sh = compute_pipeline(ctx, shaders, "avs/avs_sh.comp", 8)?;
+        let shade = compute_pipeline(ctx, shaders, "avs/avs_shade.comp", 56)?;
+        let cull = compute_pipeline(ctx, shaders, "avs/avs_cull.comp", 16)?;
         // the environment's key lights split off (`key_lights`): the SG lobes, the irradiance and
         // the prefiltered maps are the rest of the map's (also with `shadows = false`, where the
         // key lights are unshadowed: the same lighting with visibility 1)

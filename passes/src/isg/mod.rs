@@ -646,50 +646,13 @@ pub struct IsgTechnique {
     kd: Option<crate::kdtree::KdTreeBuilder>,
 }
 
-/// Descriptor types of `isg_shade.comp` (bindings 0..=19) and `isg_shade_vertex.comp` (0..=20:
-/// its vertex image at 16).
-fn shade_types(per_vertex: bool) -> Vec<vk::DescriptorType> {
-    use vk::DescriptorType as T;
-    // 7 lights, 8 textures, 9 table, 10 lobes, 11 BVH, 12 prefiltered, 13 triangles, 14 their BVH,
-    // 15 irradiance map
-    let io = &crate::shade_env::ShadingIo::TYPES[..];
-    let mut t = [io, &[T::STORAGE_BUFFER, T::COMBINED_IMAGE_SAMPLER], &[T::STORAGE_BUFFER; 7]].concat();
-    if per_vertex {
-        t.push(T::COMBINED_IMAGE_SAMPLER);
-    }
-    // the kd-tree's four buffers (local lights' shadow rays)
-    t.extend([T::STORAGE_BUFFER; 4]);
-    t
-}
-
 impl IsgTechnique {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: IsgSettings) -> Result<Self> {
-        use vk::DescriptorType as T;
         let shade = if settings.per_vertex { "isg/isg_shade_vertex.comp" } else { "isg/isg_shade.comp" };
-        let pipeline = compute_pipeline(ctx, shaders, shade, &shade_types(settings.per_vertex), 40)?;
-        let bvh_pipeline =
-            compute_pipeline(ctx, shaders, "isg/isg_bvh.comp", &[T::STORAGE_BUFFER, T::STORAGE_BUFFER], 36)?;
+        let pipeline = compute_pipeline(ctx, shaders, shade, 40)?;
+        let bvh_pipeline = compute_pipeline(ctx, shaders, "isg/isg_bvh.comp", 36)?;
         let vertex_pipelines = if settings.per_vertex {
-            Some((
-                compute_pipeline(
-                    ctx,
-                    shaders,
-                    "isg/isg_vertex.comp",
-                    &[
-                        T::UNIFORM_BUFFER,
-                        T::STORAGE_BUFFER,
-                        T::STORAGE_BUFFER,
-                        T::STORAGE_BUFFER,
-                        T::STORAGE_BUFFER,
-                        T::STORAGE_BUFFER,
-                        T::STORAGE_BUFFER,
-                        T::STORAGE_BUFFER,
-                        T::STORAGE_BUFFER,
-                    ],
-                    32,
-                )?,
-                vertex::raster_pipeline(ctx, shaders)?,
-            ))
+            Some((compute_pipeline(ctx, shaders, "isg/isg_vertex.comp", 32)?, vertex::raster_pipeline(ctx, shaders)?))
         } else {
             None
         };
@@ -833,7 +796,7 @@ impl IsgTechnique {
             anyhow::bail!("isg: per-vertex pipelines missing")
         };
         let vertex_pipe = compute.handle();
-        let (rp, rl) = (raster.pipeline, raster.layout);
+        let (rp, rl) = (raster.pipeline, raster.handle());
         let scene = inputs.handles;
         let mut p = graph.pass("isg_vertex", PassKind::Compute);
         let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
@@ -881,10 +844,9 @@ impl IsgTechnique {
                 .color_attachments(&colors)
                 .depth_attachment(&depth_att);
             crate::raster::begin(d, rc.cmd, &info, w, h, rp);
-            rc.push_descriptors(
-                vk::PipelineBindPoint::GRAPHICS,
-                rl,
-                0,
+            crate::util::push_graphics(
+                rc,
+                &rl,
                 &[
                     Bind::UniformBuffer(camera),
                     Bind::StorageBuffer(vis),
@@ -895,7 +857,7 @@ impl IsgTechnique {
             unsafe {
                 if count > 0 && index_count > 0 {
                     let stages = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT;
-                    d.cmd_push_constants(rc.cmd, rl, stages, 0, &refine.to_le_bytes());
+                    d.cmd_push_constants(rc.cmd, rl.layout, stages, 0, &refine.to_le_bytes());
                     d.cmd_draw(rc.cmd, index_count, 1, 0, 0);
                 }
                 d.cmd_end_rendering(rc.cmd);

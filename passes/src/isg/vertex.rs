@@ -247,12 +247,6 @@ pub fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pi
         &RasterDesc {
             name: "isg_vertex_raster",
             shaders: &["isg/isg_vertex.vert", "isg/isg_vertex.frag"],
-            descriptors: &[
-                vk::DescriptorType::UNIFORM_BUFFER,
-                vk::DescriptorType::STORAGE_BUFFER,
-                vk::DescriptorType::STORAGE_BUFFER,
-                vk::DescriptorType::STORAGE_BUFFER,
-            ],
             push_constant_bytes: 4,
             vertex_input: VertexInput::None,
             colors: &[VIS_FORMAT],

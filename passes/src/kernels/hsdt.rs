@@ -4,7 +4,7 @@
 use crate::util::{bytes_of, compute_pipeline, dispatch, groups, Pipeline};
 use anyhow::Result;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, Graph, PassKind};
+use penumbra_engine::{Access, Bind, BufferHandle, Context, Graph, PassKind};
 use std::sync::Arc;
 
 /// Evaluator of the SSDF integrals of `glsl/include/ssdf_integrate.glsl` for (map, lobe) pairs
@@ -15,8 +15,7 @@ pub struct IntegrateEval {
 
 impl IntegrateEval {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        let sb = vk::DescriptorType::STORAGE_BUFFER;
-        Ok(IntegrateEval { pipe: compute_pipeline(ctx, shaders, "tests/hsdt_integrate_test.comp", &[sb; 5], 8)? })
+        Ok(IntegrateEval { pipe: compute_pipeline(ctx, shaders, "tests/hsdt_integrate_test.comp", 8)? })
     }
 
     /// Adds a pass `name` evaluating `n` (map, lobe) pairs: `lobes` = `n` x (axis.xyz, lambda) f32,

@@ -8,7 +8,7 @@
 use crate::util::{compute_pipeline, storage};
 use anyhow::Result;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Engine, Graph, PassKind};
+use penumbra_engine::{Access, Engine, Graph, PassKind};
 
 /// What one invocation ran of two loops of `first` and `second` iterations.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -21,7 +21,7 @@ pub struct LoopCounts {
 /// iterations each really ran.
 pub fn run_loops(engine: &mut Engine, shaders: &ShaderLibrary, first: u32, second: u32) -> Result<LoopCounts> {
     let ctx = engine.ctx.clone();
-    let pipeline = compute_pipeline(&ctx, shaders, "tests/loop_probe.comp", &[vk::DescriptorType::STORAGE_BUFFER], 8)?;
+    let pipeline = compute_pipeline(&ctx, shaders, "tests/loop_probe.comp", 8)?;
     let mut graph = Graph::new();
     let out = graph.create_buffer("loop_probe_out", 8);
     let mut p = graph.pass("loop_probe", PassKind::Compute);

@@ -18,16 +18,7 @@ pub struct VvParity {
 
 impl VvParity {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        use vk::DescriptorType as T;
-        Ok(VvParity {
-            pipe: compute_pipeline(
-                ctx,
-                shaders,
-                "tests/vv_parity.comp",
-                &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER, T::STORAGE_IMAGE],
-                32,
-            )?,
-        })
+        Ok(VvParity { pipe: compute_pipeline(ctx, shaders, "tests/vv_parity.comp", 32)? })
     }
 
     /// The cases on `sat` (an image of [`crate::vv::VvTechnique::add_sat`] of `tech`'s map size, with its
@@ -103,16 +94,7 @@ pub struct VvCapParity {
 
 impl VvCapParity {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        use vk::DescriptorType as T;
-        Ok(VvCapParity {
-            pipe: compute_pipeline(
-                ctx,
-                shaders,
-                "tests/vv_cap_parity.comp",
-                &[T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER, T::STORAGE_IMAGE],
-                32,
-            )?,
-        })
+        Ok(VvCapParity { pipe: compute_pipeline(ctx, shaders, "tests/vv_cap_parity.comp", 32)? })
     }
 
     /// The cases on `sat` (an image of [`crate::vv::VvTechnique::add_sat`] of `tech`'s map size, with its

@@ -28,7 +28,7 @@ use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
 use anyhow::{bail, Result};
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, Context, FrameStore, Graph, ImageHandle, PassKind};
+use penumbra_engine::{Access, Bind, Context, FrameStore, Graph, ImageHandle, PassKind};
 use penumbra_scene::Scene;
 use std::sync::Arc;
 
@@ -132,11 +132,8 @@ pub struct McDenoised {
 
 impl McDenoised {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, settings: DenoiseSettings) -> Result<Self> {
-        use vk::DescriptorType as T;
-        let (si, ci, sb) = (T::STORAGE_IMAGE, T::COMBINED_IMAGE_SAMPLER, T::STORAGE_BUFFER);
-        let temporal =
-            compute_pipeline(ctx, shaders, "mc/mcd_temporal.comp", &[si, ci, ci, ci, si, si, si, si, si, sb, ci], 32)?;
-        let atrous = compute_pipeline(ctx, shaders, "mc/mcd_atrous.comp", &[si, si, ci, ci, ci, si, sb, ci], 48)?;
+        let temporal = compute_pipeline(ctx, shaders, "mc/mcd_temporal.comp", 32)?;
+        let atrous = compute_pipeline(ctx, shaders, "mc/mcd_atrous.comp", 48)?;
         let mut mc = McTechnique::new(ctx, shaders, scene)?;
         mc.spp = settings.spp;
         mc.aa = false;

@@ -39,7 +39,7 @@ use anyhow::Result;
 use glam::Vec3;
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
-use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, FrameStore, Graph, ImageHandle, PassKind};
+use penumbra_engine::{Access, Bind, BufferHandle, Context, FrameStore, Graph, ImageHandle, PassKind};
 use penumbra_scene::{Frame, Scene};
 use std::sync::Arc;
 
@@ -171,27 +171,7 @@ impl McTechnique {
     }
 
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene) -> Result<Self> {
-        use vk::DescriptorType as T;
-        let pipeline = compute_pipeline(
-            ctx,
-            shaders,
-            "mc/mc.comp",
-            &[
-                T::STORAGE_BUFFER,
-                T::STORAGE_BUFFER,
-                T::STORAGE_BUFFER,
-                T::STORAGE_BUFFER,
-                T::STORAGE_BUFFER,
-                T::STORAGE_BUFFER,
-                T::STORAGE_BUFFER,
-                T::STORAGE_BUFFER,
-                T::STORAGE_IMAGE,
-                T::STORAGE_IMAGE,
-                T::STORAGE_BUFFER,
-                T::COMBINED_IMAGE_SAMPLER,
-            ],
-            112,
-        )?;
+        let pipeline = compute_pipeline(ctx, shaders, "mc/mc.comp", 112)?;
         Ok(McTechnique {
             pipeline,
             textures: crate::textures::MaterialTextures::new(ctx, &scene.textures)?,

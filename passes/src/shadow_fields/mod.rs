@@ -899,14 +899,12 @@ pub const VERTEX_RADIANCE_FORMAT: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
 
 fn vertex_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeline> {
     use crate::raster::{raster_pipeline, DepthState, RasterDesc, VertexInput};
-    let sb = vk::DescriptorType::STORAGE_BUFFER;
     raster_pipeline(
         ctx,
         shaders,
         &RasterDesc {
             name: "sf_vertex",
             shaders: &["shadow_fields/sf_vertex.vert", "shadow_fields/sf_vertex.frag"],
-            descriptors: &[vk::DescriptorType::UNIFORM_BUFFER, sb, sb, sb],
             vertex_input: VertexInput::Position,
             colors: &[VERTEX_RADIANCE_FORMAT],
             depth: Some(DepthState { format: crate::gbuffer::DEPTH_FORMAT, write: true, compare: vk::CompareOp::LESS }),
@@ -935,38 +933,8 @@ impl ShadowFieldsTechnique {
         fields: Arc<SceneFields>,
         adaptive: bool,
     ) -> Result<Self> {
-        use vk::DescriptorType as T;
-        let sb = T::STORAGE_BUFFER;
-        let sampled = T::COMBINED_IMAGE_SAMPLER;
-        let shade = compute_pipeline(
-            ctx,
-            shaders,
-            "shadow_fields/sf_shade.comp",
-            &[
-                T::UNIFORM_BUFFER,
-                sb,
-                sampled,
-                sampled,
-                sampled,
-                sampled,
-                T::STORAGE_IMAGE,
-                sb,
-                sb,
-                sb,
-                sb,
-                sb,
-                sb,
-                sampled,
-                sampled,
-                sb,
-                sb,
-                sb,
-                sb,
-                sb,
-            ],
-            32,
-        )?;
-        let points = compute_pipeline(ctx, shaders, "shadow_fields/sf_points.comp", &[sb; 7], 20)?;
+        let shade = compute_pipeline(ctx, shaders, "shadow_fields/sf_shade.comp", 32)?;
+        let points = compute_pipeline(ctx, shaders, "shadow_fields/sf_points.comp", 20)?;
         let vertex = vertex_pipeline(ctx, shaders)?;
         let tensor = TripleProductTensor::new(sf::ORDER);
         let mut tables = GpuTables::new(&fields, adaptive, &tensor);
@@ -1139,7 +1107,7 @@ pub(crate) fn add_vertex_raster(
     let bases_buf = p.read(bases_buf, Access::VertexShaderReadStorage);
     let vertices = p.read(inputs.handles.vertices, Access::VertexBuffer);
     let indices = p.read(inputs.handles.indices, Access::IndexBuffer);
-    let (pipeline, layout) = (pipe.pipeline, pipe.layout);
+    let (pipeline, layout) = (pipe.pipeline, pipe.handle());
     let written: Vec<ImageHandle> = colors.iter().map(|c| c.0).collect();
     p.record(move |rc| {
         let d = rc.device();
@@ -1165,10 +1133,9 @@ pub(crate) fn add_vertex_raster(
             d.cmd_set_scissor(rc.cmd, 0, &[area]);
             d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
         }
-        rc.push_descriptors(
-            vk::PipelineBindPoint::GRAPHICS,
-            layout,
-            0,
+        crate::util::push_graphics(
+            rc,
+            &layout,
             &[
                 Bind::UniformBuffer(camera),
                 Bind::StorageBuffer(instances),

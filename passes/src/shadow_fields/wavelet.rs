@@ -474,14 +474,8 @@ impl WaveletTechnique {
     /// Precomputes the fields of `scene` and builds the pipeline.
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, options: SfwOptions) -> Result<Self> {
         let fields = Arc::new(WaveletFields::build(scene, &options)?);
-        use vk::DescriptorType as T;
-        let sb = T::STORAGE_BUFFER;
-        let mut types = crate::shade_env::ShadingIo::TYPES.to_vec();
-        types.extend([sb, sb, sb, sb, sb, sb, T::COMBINED_IMAGE_SAMPLER]);
-        types.extend([T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER]);
-        types.extend([sb; 5]);
-        let shade = compute_pipeline(ctx, shaders, "shadow_fields/sfw_shade.comp", &types, 24)?;
-        let self_pass = compute_pipeline(ctx, shaders, "shadow_fields/sfw_self.comp", &[sb; 7], 16)?;
+        let shade = compute_pipeline(ctx, shaders, "shadow_fields/sfw_shade.comp", 24)?;
+        let self_pass = compute_pipeline(ctx, shaders, "shadow_fields/sfw_self.comp", 16)?;
         let self_raster = {
             use crate::raster::{raster_pipeline, DepthState, RasterDesc, VertexInput};
             raster_pipeline(
@@ -490,7 +484,6 @@ impl WaveletTechnique {
                 &RasterDesc {
                     name: "sfw_self",
                     shaders: &["shadow_fields/sfw_self.vert", "shadow_fields/sfw_self.frag"],
-                    descriptors: &[T::UNIFORM_BUFFER, sb, sb, sb],
                     vertex_input: VertexInput::Position,
                     colors: &[SELF_FORMAT, SELF_FORMAT],
                     depth: Some(DepthState {

@@ -302,7 +302,6 @@ impl VolumetricEffect {
         if params.reuse_frames == 0 || params.samples == 0 || params.shadow_size < 16 || params.shadow_size > 4096 {
             bail!("volumetric parameters out of range: {params:?}");
         }
-        use vk::DescriptorType as T;
         let shadow = shadow_pipeline(ctx, shaders)?;
         let feats = unsafe { ctx.instance.get_physical_device_features(ctx.physical) };
         let mut notes = Vec::new();
@@ -333,20 +332,12 @@ impl VolumetricEffect {
             }
             _ => None,
         };
-        let comp_types = [
-            T::UNIFORM_BUFFER,
-            T::STORAGE_BUFFER,
-            T::COMBINED_IMAGE_SAMPLER,
-            T::COMBINED_IMAGE_SAMPLER,
-            T::COMBINED_IMAGE_SAMPLER,
-            T::STORAGE_IMAGE,
-        ];
         let march = march_pipeline(ctx, shaders, None)?;
         let march_masked = match mask {
             Some(_) => Some(march_pipeline(ctx, shaders, Some(StencilState::TestNonZero { format: stencil_format }))?),
             None => None,
         };
-        let composite = compute_pipeline(ctx, shaders, "volumetric/vol_composite.comp", &comp_types, 0)?;
+        let composite = compute_pipeline(ctx, shaders, "volumetric/vol_composite.comp", 0)?;
         // Adjacency for meshes of objects that can move.
         let mut adj = Vec::new();
         let mut adj_ranges = vec![None; scene.meshes.len()];
@@ -530,7 +521,6 @@ fn shadow_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeli
         &RasterDesc {
             name: "vol_shadow",
             shaders: &["volumetric/vol_shadow.vert"],
-            descriptors: &[vk::DescriptorType::STORAGE_BUFFER],
             push_constant_bytes: 64,
             vertex_input: VertexInput::Position,
             depth: Some(DepthState { format: SHADOW_FORMAT, write: true, compare: vk::CompareOp::LESS_OR_EQUAL }),
@@ -542,21 +532,12 @@ fn shadow_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Pipeli
 /// The march (`vol_march.frag` over one full-viewport triangle) into an RGBA32F colour target;
 /// with `stencil`, only where the mask's stencil is not 0.
 fn march_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, stencil: Option<StencilState>) -> Result<Pipeline> {
-    use vk::DescriptorType as T;
     raster_pipeline(
         ctx,
         shaders,
         &RasterDesc {
             name: if stencil.is_some() { "vol_march_masked" } else { "vol_march" },
             shaders: &["volumetric/vol_fullscreen.vert", "volumetric/vol_march.frag"],
-            descriptors: &[
-                T::UNIFORM_BUFFER,
-                T::STORAGE_BUFFER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::COMBINED_IMAGE_SAMPLER,
-                T::STORAGE_BUFFER,
-            ],
             colors: &[SCATTER_FORMAT],
             stencil,
             ..Default::default()
@@ -581,7 +562,6 @@ fn volume_pipeline(
         &RasterDesc {
             name,
             shaders: &["volumetric/vol_mask.vert", "volumetric/vol_mask.geom", frag],
-            descriptors: &[vk::DescriptorType::UNIFORM_BUFFER, vk::DescriptorType::STORAGE_BUFFER],
             push_constant_bytes: 32,
             vertex_input: VertexInput::Position,
             topology: vk::PrimitiveTopology::TRIANGLE_LIST_WITH_ADJACENCY,
@@ -653,7 +633,7 @@ impl VolumeDraws<'_> {
         clear: [f32; 4],
         use_prev: &'static [u32],
     ) -> ImageHandle {
-        let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.layout);
+        let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.handle());
         let mut p = graph.pass(name, PassKind::Raster);
         let stencil = self.stencil;
         let img =
@@ -692,19 +672,14 @@ impl VolumeDraws<'_> {
             };
             let ib = rc.buffer(adj_h)?.buffer;
             crate::raster::begin(d, rc.cmd, &info, w, h, pipeline);
-            rc.push_descriptors(
-                vk::PipelineBindPoint::GRAPHICS,
-                layout,
-                0,
-                &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)],
-            )?;
+            crate::util::push_graphics(rc, &layout, &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)])?;
             let stages = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::GEOMETRY | vk::ShaderStageFlags::FRAGMENT;
             unsafe {
                 d.cmd_bind_index_buffer(rc.cmd, ib, 0, vk::IndexType::UINT32);
                 for &prev in use_prev {
                     let mut pc = bytes_of(&[lp[0], lp[1], lp[2], near]);
                     pc.extend(bytes_of(&[prev, widen.to_bits(), 0, 0]));
-                    d.cmd_push_constants(rc.cmd, layout, stages, 0, &pc);
+                    d.cmd_push_constants(rc.cmd, layout.layout, stages, 0, &pc);
                     let mut bound = None;
                     for &(inst, r, vo, def) in &draws {
                         let buffer = match (def, prev != 0) {
@@ -775,7 +750,7 @@ impl Effect for VolumetricEffect {
             let vertices = p.read(sh.vertices, Access::VertexBuffer);
             let indices = p.read(sh.indices, Access::IndexBuffer);
             let deformed = sh.deformed_vertices.map(|hd| p.read(hd, Access::VertexBuffer));
-            let (pipeline, layout) = (self.shadow.pipeline, self.shadow.layout);
+            let (pipeline, layout) = (self.shadow.pipeline, self.shadow.handle());
             let mats: Vec<[[f32; 4]; 4]> = block.face_vp[..faces as usize].to_vec();
             let draws = if has_light { shadow_draws } else { Vec::new() };
             p.record(move |rc| {
@@ -794,7 +769,7 @@ impl Effect for VolumetricEffect {
                     d.cmd_begin_rendering(rc.cmd, &info);
                     d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
                 }
-                rc.push_descriptors(vk::PipelineBindPoint::GRAPHICS, layout, 0, &[Bind::StorageBuffer(instances)])?;
+                crate::util::push_graphics(rc, &layout, &[Bind::StorageBuffer(instances)])?;
                 unsafe {
                     if !draws.is_empty() {
                         d.cmd_bind_index_buffer(rc.cmd, ib, 0, vk::IndexType::UINT32);
@@ -810,7 +785,13 @@ impl Effect for VolumetricEffect {
                                 extent: vk::Extent2D { width: ts, height: ts },
                             }],
                         );
-                        d.cmd_push_constants(rc.cmd, layout, vk::ShaderStageFlags::VERTEX, 0, &bytes_of(&m.concat()));
+                        d.cmd_push_constants(
+                            rc.cmd,
+                            layout.layout,
+                            vk::ShaderStageFlags::VERTEX,
+                            0,
+                            &bytes_of(&m.concat()),
+                        );
                         for pass_deformed in [false, true] {
                             let buffer = if pass_deformed { db } else { Some(vb) };
                             let Some(buffer) = buffer else { continue };
@@ -1053,7 +1034,7 @@ impl Effect for VolumetricEffect {
                 (MarchMode::Masked, Some(m)) => m,
                 _ => &self.march,
             };
-            let (pipeline, layout, nearest) = (pipe.pipeline, pipe.layout, self.nearest.sampler);
+            let (pipeline, layout, nearest) = (pipe.pipeline, pipe.handle(), self.nearest.sampler);
             p.record(move |rc| {
                 let d = rc.device();
                 let view = rc.image(out)?.view;
@@ -1071,10 +1052,9 @@ impl Effect for VolumetricEffect {
                     info = info.stencil_attachment(st);
                 }
                 crate::raster::begin(d, rc.cmd, &info, w, h, pipeline);
-                rc.push_descriptors(
-                    vk::PipelineBindPoint::GRAPHICS,
-                    layout,
-                    0,
+                crate::util::push_graphics(
+                    rc,
+                    &layout,
                     &[
                         Bind::UniformBuffer(camera),
                         Bind::StorageBuffer(lb),

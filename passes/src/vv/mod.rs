@@ -610,24 +610,6 @@ fn raster_stages(tess: bool) -> vk::ShaderStageFlags {
 }
 
 fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, tess: bool) -> Result<Pipeline> {
-    use vk::DescriptorType as T;
-    let types = [
-        T::UNIFORM_BUFFER,
-        T::COMBINED_IMAGE_SAMPLER,
-        T::COMBINED_IMAGE_SAMPLER,
-        T::COMBINED_IMAGE_SAMPLER,
-        T::COMBINED_IMAGE_SAMPLER,
-        T::COMBINED_IMAGE_SAMPLER,
-        T::COMBINED_IMAGE_SAMPLER,
-        T::STORAGE_BUFFER,
-        T::COMBINED_IMAGE_SAMPLER,
-        T::STORAGE_BUFFER,
-        // the kd-tree (local lights' shadow rays)
-        T::STORAGE_BUFFER,
-        T::STORAGE_BUFFER,
-        T::STORAGE_BUFFER,
-        T::STORAGE_BUFFER,
-    ];
     let (name, files): (&str, &[&str]) = if tess {
         ("vv_tess", &["vv/vv_tess.vert", "vv/vv_tess.tesc", "vv/vv_tess.tese", "vv/vv_tess.frag"])
     } else {
@@ -636,7 +618,6 @@ fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, tess: bool) -> R
     let desc = crate::raster::RasterDesc {
         name,
         shaders: files,
-        descriptors: &types,
         push_constant_bytes: 64,
         topology: if tess { vk::PrimitiveTopology::PATCH_LIST } else { vk::PrimitiveTopology::TRIANGLE_LIST },
         patch_control_points: if tess { 3 } else { 0 },
@@ -686,15 +667,14 @@ impl VvTechnique {
         data: Arc<VvSceneData>,
         raster: bool,
     ) -> Result<Self> {
-        use vk::DescriptorType as T;
         if settings.mode.interpolated() && data.corr.is_none() {
             bail!(
                 "vv: mode {} needs the per-triangle correspondence (triple lists), which is not available yet",
                 settings.mode.name()
             );
         }
-        let rows = compute_pipeline(ctx, shaders, "vv/vv_sat_rows.comp", &[T::STORAGE_BUFFER, T::STORAGE_IMAGE], 8)?;
-        let cols = compute_pipeline(ctx, shaders, "vv/vv_sat_cols.comp", &[T::STORAGE_IMAGE], 8)?;
+        let rows = compute_pipeline(ctx, shaders, "vv/vv_sat_rows.comp", 8)?;
+        let cols = compute_pipeline(ctx, shaders, "vv/vv_sat_cols.comp", 8)?;
         if raster && settings.mode.tessellated() && !ctx.tessellation_shader {
             return Err(crate::registry::BadInput(format!(
                 "vv: mode {} needs tessellation shaders, which this device (or the application that created it) has not enabled; use mode = fragment1 or fragment3",
@@ -709,13 +689,7 @@ impl VvTechnique {
         } else {
             None
         };
-        let composite = compute_pipeline(
-            ctx,
-            shaders,
-            "vv/vv_composite.comp",
-            &[T::COMBINED_IMAGE_SAMPLER, T::COMBINED_IMAGE_SAMPLER, T::STORAGE_IMAGE],
-            0,
-        )?;
+        let composite = compute_pipeline(ctx, shaders, "vv/vv_composite.comp", 0)?;
         let up = Uploads::new(scene, &data, &settings)?;
         let qci = vk::QueryPoolCreateInfo::default()
             .query_type(vk::QueryType::PIPELINE_STATISTICS)
@@ -942,7 +916,7 @@ impl crate::technique::Technique for VvTechnique {
         }
         let raster =
             self.raster.as_ref().context("vv: technique built without its raster pipeline (VvTechnique::sat_only)")?;
-        let (pipeline, layout) = (raster.pipeline, raster.layout);
+        let (pipeline, layout) = (raster.pipeline, raster.handle());
         let (nearest, repeat, latlong) = (self.nearest.sampler, self.repeat.sampler, self.latlong.sampler);
         let vertex_count = 3 * self.up.triangles;
         let query = self.query;
@@ -963,10 +937,9 @@ impl crate::technique::Technique for VvTechnique {
                 }
             }
             crate::raster::begin(d, rc.cmd, &info, w, h, pipeline);
-            rc.push_descriptors(
-                vk::PipelineBindPoint::GRAPHICS,
-                layout,
-                0,
+            crate::util::push_graphics(
+                rc,
+                &layout,
                 &[
                     Bind::UniformBuffer(camera),
                     Bind::SampledImage(points, nearest),
@@ -985,7 +958,7 @@ impl crate::technique::Technique for VvTechnique {
                 ],
             )?;
             unsafe {
-                d.cmd_push_constants(rc.cmd, layout, raster_stages(tess), 0, &push);
+                d.cmd_push_constants(rc.cmd, layout.layout, raster_stages(tess), 0, &push);
                 d.cmd_draw(rc.cmd, vertex_count, 1, 0, 0);
                 d.cmd_end_rendering(rc.cmd);
                 if query != vk::QueryPool::null() {
