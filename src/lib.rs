@@ -64,6 +64,25 @@ pub struct RenderSettings {
     pub effects: EffectOverrides,
 }
 
+impl RenderSettings {
+    /// `width x height` frames of `technique` with exactly `params` (a scene's own
+    /// `[technique_params]`, or others), every other setting at its default.
+    pub fn with_technique(
+        width: u32,
+        height: u32,
+        technique: &str,
+        params: &penumbra_passes::registry::Params,
+    ) -> Self {
+        RenderSettings {
+            width,
+            height,
+            technique: Some(technique.into()),
+            technique_params: Some(params.clone()),
+            ..Default::default()
+        }
+    }
+}
+
 impl Default for RenderSettings {
     fn default() -> Self {
         RenderSettings {

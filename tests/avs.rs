@@ -6,11 +6,12 @@ use penumbra::{FrameImages, RenderSettings, Renderer};
 use penumbra_passes::avs::AvsStats;
 use penumbra_reference::image::Image;
 use penumbra_reference::metrics::compare;
-use penumbra_reference::render::{render as reference_render, Mode, ReferenceOptions};
+use penumbra_reference::render::Mode;
 use penumbra_scene::Scene;
 use std::path::PathBuf;
 
 mod common;
+use common::reference_at;
 use common::{hdr_image as image, render_times as render, scene, with};
 
 /// The avs technique's statistics of `r`'s last frame.
@@ -90,11 +91,8 @@ fn paper_scenes_are_validation_clean_and_points_follow_vertices() {
 #[test]
 fn accuracy_against_the_reference() {
     let s = scene("hat_on_cloth.toml");
-    let (w, h) = (80, 60);
-    let t = 0.5;
-    let opts =
-        ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::Exact, ..Default::default() };
-    let sg_ref = reference_render(&s, &opts).expect("reference");
+    let (w, h, t) = (80, 60, 0.5);
+    let sg_ref = reference_at(&s, (w, h), 32, t, Mode::Exact);
     // the paper's pool (vertices only): a fixed k = 240 spread over the refined cloth's extra
     // candidates leaves the hat too few points (relRMSE 1.74); the automatic k grows with the pool
     let fast = with(&s, &[("r", "64"), ("points", "240"), ("iterations", "1"), ("pool_points", "0")]);
@@ -219,13 +217,7 @@ fn extremes_free_hemispheres_and_points_following_deformation() {
 /// A headless renderer of `s` with the avs technique and the scene's parameters, at `width` x
 /// `height`, with or without the validation layer.
 fn avs_renderer(s: &Scene, width: u32, height: u32, validation: bool) -> Renderer {
-    let settings = RenderSettings {
-        width,
-        height,
-        technique: Some("avs".into()),
-        technique_params: Some(s.technique_params.clone()),
-        ..Default::default()
-    };
+    let settings = RenderSettings::with_technique(width, height, "avs", &s.technique_params);
     Renderer::new_headless(s, settings, validation).expect("renderer")
 }
 
@@ -253,6 +245,19 @@ fn scene_text(name: &str, toml: &str) -> Scene {
 fn floor_points(st: &AvsStats, scene: &Scene, t: f32) -> Vec<(usize, penumbra_math::avs_sampling::SurfacePoint)> {
     let pool = penumbra_passes::avs::vertex_pool(scene, &scene.at(t, None), &st.pool_plan).unwrap();
     st.point_vertices.iter().enumerate().map(|(i, &v)| (i, pool[v])).collect()
+}
+
+/// Whether the ray from `o` along `d` surely hits the box `b` (it hits the box shrunk by `m` on
+/// every side: `Some(true)`), surely misses it (it misses the box grown by `m`: `Some(false)`) or
+/// passes too close to its surface to tell (`None`).
+fn classify_ray(o: glam::Vec3, d: glam::Vec3, b: (glam::Vec3, glam::Vec3), m: f32) -> Option<bool> {
+    if ray_hits_box(o, d, b.0 + m, b.1 - m) {
+        Some(true)
+    } else if !ray_hits_box(o, d, b.0 - m, b.1 + m) {
+        Some(false)
+    } else {
+        None
+    }
 }
 
 /// Ray-box slab test: does the ray o + s d (s > 0) pass through the box [lo, hi]?
@@ -403,16 +408,7 @@ fn slim_bar(r: u32) {
     assert_eq!(pts.iter().map(|p| p.1.pos).collect::<Vec<_>>(), pts_a.iter().map(|p| p.1.pos).collect::<Vec<_>>());
     // CPU prediction per texel-centre ray (robust: the ray hits the object shrunk by 20 % of the
     // bar's half thickness / misses it grown by as much; rays in between are ambiguous)
-    let m = 0.2 * half;
-    let classify = |o: glam::Vec3, d: glam::Vec3, b: (glam::Vec3, glam::Vec3)| -> Option<bool> {
-        if ray_hits_box(o, d, b.0 + m, b.1 - m) {
-            Some(true)
-        } else if !ray_hits_box(o, d, b.0 - m, b.1 + m) {
-            Some(false)
-        } else {
-            None
-        }
-    };
+    let classify = |o, d, b| classify_ray(o, d, b, 0.2 * half);
     let two_pi = 2.0 * std::f64::consts::PI;
     let tol = 2e-4; // SH16 DC in f32 and texels hit by both objects
     let (mut checked, mut missed_seedless, mut seeded, mut found0, mut found4, mut seedless_near_box) =
@@ -660,9 +656,7 @@ fn key_lights_split_off_the_environment_cast_their_shadows() {
         *m = penumbra_scene::Material::diffuse(&m.name, m.albedo);
     }
     let (w, h, t) = (64, 48, 0.5);
-    let opts =
-        ReferenceOptions { width: w, height: h, spp: 256, time: Some(t), mode: Mode::Exact, ..Default::default() };
-    let reference = reference_render(&s, &opts).expect("reference");
+    let reference = reference_at(&s, (w, h), 256, t, Mode::Exact);
     let fast = [("r", "32"), ("iterations", "1")];
     let (r, key) = render(&with(&s, &fast), "avs", w, h, &[t], true);
     let log = r.context().validation.clone();
@@ -741,16 +735,7 @@ fn extremes_r256_maps_and_fp16_shading() {
     let per_map = (r * r) as u64;
     assert_eq!(st.rays, st.traced_points as u64 * per_map, "rays of {} maps", st.traced_points);
     assert_eq!(st.maps.len(), st.points);
-    let m = 0.2 * half;
-    let classify = |o: glam::Vec3, d: glam::Vec3, b: (glam::Vec3, glam::Vec3)| -> Option<bool> {
-        if ray_hits_box(o, d, b.0 + m, b.1 - m) {
-            Some(true)
-        } else if !ray_hits_box(o, d, b.0 - m, b.1 + m) {
-            Some(false)
-        } else {
-            None
-        }
-    };
+    let classify = |o, d, b| classify_ray(o, d, b, 0.2 * half);
     let (mut floor, mut sure, mut wrong, mut occluded) = (0usize, 0usize, 0usize, 0usize);
     let mut worst_dc = 0.0f64;
     for (i, p) in floor_points(&st, &s, 0.0) {
@@ -1031,9 +1016,7 @@ fn box_over_floor(name: &str, floor: &str, box_y: f32) -> Scene {
 /// The reference of `s` at time 0 lit by the environment's SG fit (as the techniques' SG terms
 /// are): a comparison of visibility alone.
 fn sg_lit_reference(s: &Scene, w: u32, h: u32, spp: u32) -> Image {
-    let opts =
-        ReferenceOptions { width: w, height: h, spp, time: Some(0.0), mode: Mode::SgLighting, ..Default::default() };
-    reference_render(s, &opts).expect("reference").radiance
+    reference_at(s, (w, h), spp, 0.0, Mode::SgLighting).radiance
 }
 
 /// A box resting on a finely divided floor: the floor's candidates under it start their rays
@@ -1083,17 +1066,14 @@ fn buried_sample_points_draw_no_rings() {
     assert!((0.85..1.15).contains(&ratio), "the floor beside the box: avs / reference {ratio:.3}");
 }
 
+/// A run's relRMSE against the reference, its stats and its GPU waits, per frame.
+type Moment = (f64, Vec<AvsStats>, Vec<u64>);
+
 /// `frames` frames of `s` at time `t` (a static moment, each finished before the next is built)
 /// with `adaptation = mode` under validation (zero errors asserted), at the reference's size:
 /// the last frame's relRMSE against `reference`, each frame's statistics, and the engine's count
 /// of waited submissions after each frame.
-fn frames_of_a_moment(
-    s: &Scene,
-    mode: &str,
-    reference: &Image,
-    t: f32,
-    frames: usize,
-) -> (f64, Vec<AvsStats>, Vec<u64>) {
+fn frames_of_a_moment(s: &Scene, mode: &str, reference: &Image, t: f32, frames: usize) -> Moment {
     let s = with(s, &[("adaptation", mode)]);
     let mut r = avs_renderer(&s, reference.width, reference.height, true);
     let (mut last, mut stats, mut waited) = (None, Vec::new(), Vec::new());
@@ -1111,6 +1091,29 @@ fn frames_of_a_moment(
     (c.rel_rmse, stats, waited)
 }
 
+/// `frames` frames of one moment of a small hat_on_cloth (r = 32, 96 points, one round a frame,
+/// `first_iterations` on the first) with `adaptation = mode` and with the waited rounds, each
+/// against the 16-spp reference: (relRMSE, stats per frame, waits per frame) of both.
+fn against_waited_rounds(mode: &str, first_iterations: &str, frames: usize) -> (Moment, Moment) {
+    let params = [("r", "32"), ("points", "96"), ("iterations", "1"), ("first_iterations", first_iterations)];
+    let s = with(&scene("hat_on_cloth.toml"), &params);
+    let (w, h, t) = (64, 48, 0.5);
+    let reference = reference_at(&s, (w, h), 16, t, Mode::Exact).radiance;
+    let (a, b) =
+        (frames_of_a_moment(&s, mode, &reference, t, frames), frames_of_a_moment(&s, "rounds", &reference, t, frames));
+    let points = |st: &[AvsStats]| st.iter().map(|s| (s.points, s.dormant)).collect::<Vec<_>>();
+    println!(
+        "relRMSE {mode} {:.4} / rounds {:.4}; points (kept, dormant) {mode} {:?} / rounds {:?}; waited {mode} {:?} / rounds {:?}",
+        a.0,
+        b.0,
+        points(&a.1),
+        points(&b.1),
+        a.2,
+        b.2
+    );
+    (a, b)
+}
+
 /// The late adaptation (`adaptation = late`): after a setup frame, each frame steps once on the maps of the
 /// newest finished frame, never waiting. Over six frames of a static moment, each finished
 /// before the next is built, it takes the same steps as one waited round per frame
@@ -1118,23 +1121,8 @@ fn frames_of_a_moment(
 /// visibility changes and the image ends as close to the reference.
 #[test]
 fn late_adaptation_refines_over_frames_without_waiting() {
-    let s = with(
-        &scene("hat_on_cloth.toml"),
-        &[("r", "32"), ("points", "96"), ("iterations", "1"), ("first_iterations", "1")],
-    );
-    let (w, h, t) = (64, 48, 0.5);
-    let opts =
-        ReferenceOptions { width: w, height: h, spp: 16, time: Some(t), mode: Mode::Exact, ..Default::default() };
-    let reference = reference_render(&s, &opts).expect("reference").radiance;
-    let run = |mode: &str| frames_of_a_moment(&s, mode, &reference, t, 6);
-    let (late, st, waited) = run("late");
-    let (rounds, st_r, waited_r) = run("rounds");
+    let ((late, st, waited), (rounds, st_r, waited_r)) = against_waited_rounds("late", "1", 6);
     let points = |st: &[AvsStats]| st.iter().map(|s| (s.points, s.dormant)).collect::<Vec<_>>();
-    println!(
-        "relRMSE late {late:.4} / rounds {rounds:.4}; points late {:?} / rounds {:?}; waited late {waited:?} / rounds {waited_r:?}",
-        points(&st),
-        points(&st_r)
-    );
     // setup waits (frame 0), later frames never do; the waited rounds wait every frame
     assert!(waited[0] > 0 && waited.iter().all(|&w| w == waited[0]), "late waited {waited:?}");
     assert!(waited_r[5] > waited_r[0], "rounds waited {waited_r:?}");
@@ -1160,23 +1148,7 @@ fn late_adaptation_refines_over_frames_without_waiting() {
 /// waited rounds.
 #[test]
 fn cpu_adaptation_never_waits() {
-    let s = with(
-        &scene("hat_on_cloth.toml"),
-        &[("r", "32"), ("points", "96"), ("iterations", "1"), ("first_iterations", "2")],
-    );
-    let (w, h, t) = (64, 48, 0.5);
-    let opts =
-        ReferenceOptions { width: w, height: h, spp: 16, time: Some(t), mode: Mode::Exact, ..Default::default() };
-    let reference = reference_render(&s, &opts).expect("reference").radiance;
-    let run = |mode: &str| frames_of_a_moment(&s, mode, &reference, t, 3);
-    let (cpu, st, waited) = run("cpu");
-    let (rounds, st_r, waited_r) = run("rounds");
-    let points = |st: &[AvsStats]| st.iter().map(|s| s.points).collect::<Vec<_>>();
-    println!(
-        "relRMSE cpu {cpu:.4} / rounds {rounds:.4}; points cpu {:?} / rounds {:?}; waited cpu {waited:?} / rounds {waited_r:?}",
-        points(&st),
-        points(&st_r)
-    );
+    let ((cpu, st, waited), (rounds, _, waited_r)) = against_waited_rounds("cpu", "2", 3);
     assert_eq!(waited, vec![0; 3], "adaptation = cpu waited on the GPU");
     assert!(waited_r[2] > waited_r[0] && waited_r[0] > 0, "rounds waited {waited_r:?}");
     let inserted: usize = st.iter().flat_map(|s| s.inserted.iter()).sum();
@@ -1195,9 +1167,7 @@ fn cpu_adaptation_never_waits() {
 fn glossy_visibility_is_weighted_by_the_light() {
     let s = scene("trace_test.toml");
     let (w, h) = (80, 60);
-    let opts =
-        ReferenceOptions { width: w, height: h, spp: 256, time: Some(1.0), mode: Mode::Exact, ..Default::default() };
-    let reference = reference_render(&s, &opts).expect("reference");
+    let reference = reference_at(&s, (w, h), 256, 1.0, Mode::Exact);
     let (_r, avs) = render(&with(&s, &[("r", "64"), ("iterations", "1")]), "avs", w, h, &[1.0], false);
     let avs = image(&avs[0]);
     // the metal ball: the box around it in the 160x120 frame (x 74-102, y 42-72), halved

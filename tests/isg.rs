@@ -8,6 +8,7 @@ use penumbra_reference::render::{render as reference_render, Mode, ReferenceOpti
 use std::path::PathBuf;
 
 mod common;
+use common::reference_at;
 use common::{hdr_image as image, render_times as render, scene};
 
 fn check_frames(frames: &[FrameImages], n: usize) {
@@ -275,13 +276,9 @@ fn psnr(c: &penumbra_reference::metrics::Comparison) -> f64 {
 #[test]
 fn accuracy_against_both_references_and_bvh_variants() {
     let s = scene("falling.toml");
-    let (w, h) = (96, 72);
-    let t = 1.2;
-    let sg_opts =
-        ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::SgLighting, ..Default::default() };
-    let sg_ref = reference_render(&s, &sg_opts).expect("reference");
-    let exact_ref =
-        reference_render(&s, &ReferenceOptions { mode: Mode::Exact, ..sg_opts.clone() }).expect("reference");
+    let (w, h, t) = (96, 72, 1.2);
+    let sg_ref = reference_at(&s, (w, h), 32, t, Mode::SgLighting);
+    let exact_ref = reference_at(&s, (w, h), 32, t, Mode::Exact);
     let (_r, isg) = render(&s, "isg", w, h, &[t], false);
     let (_r, env) = render(&s, "env", w, h, &[t], false);
     let with = |params: &[(&str, &str)]| {
@@ -381,11 +378,8 @@ fn accuracy_against_both_references_and_bvh_variants() {
 #[test]
 fn no_specular_fireflies_at_grazing_view() {
     let s = scene("balls_on_dish.toml");
-    let (w, h) = (96, 72);
-    let t = 0.5;
-    let opts =
-        ReferenceOptions { width: w, height: h, spp: 16, time: Some(t), mode: Mode::Exact, ..Default::default() };
-    let reference = reference_render(&s, &opts).expect("reference");
+    let (w, h, t) = (96, 72, 0.5);
+    let reference = reference_at(&s, (w, h), 16, t, Mode::Exact);
     let (_r, isg) = render(&s, "isg", w, h, &[t], false);
     let (_r, env) = render(&s, "env", w, h, &[t], false);
     let c_isg = compare(&reference.radiance, "reference", &image(&isg[0]), "isg").unwrap();
@@ -415,11 +409,8 @@ fn local_lights_cast_shadows() {
     // without the environment, so that the lights' shadows dominate the error
     let mut s = scene("sf_lamps.toml");
     s.environment = None;
-    let (w, h) = (64, 48);
-    let t = 0.5;
-    let opts =
-        ReferenceOptions { width: w, height: h, spp: 16, time: Some(t), mode: Mode::Exact, ..Default::default() };
-    let reference = reference_render(&s, &opts).expect("reference");
+    let (w, h, t) = (64, 48, 0.5);
+    let reference = reference_at(&s, (w, h), 16, t, Mode::Exact);
     // thin parts at 3 % of an object's size (the default before session 22; at its 1 % the
     // spheres' thin-shell triangles hold these shapes as well as the meshes: 0.01111 against
     // 0.01117 rmse, within the reference's noise)
@@ -481,11 +472,8 @@ fn local_lights_cast_shadows() {
 #[test]
 fn the_key_lights_umbra_keeps_the_rest_of_the_light() {
     let s = scene("isg_bunny.toml");
-    let (w, h) = (80, 60);
-    let t = 1.0;
-    let opts =
-        ReferenceOptions { width: w, height: h, spp: 64, time: Some(t), mode: Mode::Exact, ..Default::default() };
-    let reference = reference_render(&s, &opts).expect("reference");
+    let (w, h, t) = (80, 60, 1.0);
+    let reference = reference_at(&s, (w, h), 64, t, Mode::Exact);
     let with = |params: &[(&str, &str)]| common::with(&s, params);
     let (r, isg) = render(&s, "isg", w, h, &[t], true);
     let log = r.context().validation.clone();
@@ -525,9 +513,7 @@ fn the_key_lights_umbra_keeps_the_rest_of_the_light() {
 fn glossy_visibility_is_weighted_by_the_light() {
     let s = scene("trace_test.toml");
     let (w, h) = (80, 60);
-    let opts =
-        ReferenceOptions { width: w, height: h, spp: 256, time: Some(1.0), mode: Mode::Exact, ..Default::default() };
-    let reference = reference_render(&s, &opts).expect("reference");
+    let reference = reference_at(&s, (w, h), 256, 1.0, Mode::Exact);
     let (_r, isg) = render(&s, "isg", w, h, &[1.0], false);
     let isg = image(&isg[0]);
     let c = compare(&reference.radiance, "reference", &isg, "isg").unwrap();
@@ -550,8 +536,7 @@ fn glossy_visibility_is_weighted_by_the_light() {
 /// along the cloth's triangles; `pixel_refine = 0` evaluates every triangle that is not uniform.
 #[test]
 fn pixel_refine_evaluates_shadow_edges_per_pixel() {
-    let (w, h) = (80, 60);
-    let t = 1.0;
+    let (w, h, t) = (80, 60, 1.0);
     let base = scene("hat_on_cloth.toml");
     let with = |refine: Option<&str>| {
         let mut s = base.clone();

@@ -6,13 +6,13 @@ use penumbra_reference::metrics::{compare, Comparison};
 use penumbra_reference::render::{render as reference_render, Mode, ReferenceOptions};
 
 mod common;
+use common::reference_at;
 use common::{hdr_image as image, render_times as render, scene};
 
 #[test]
 fn shadow_fields_render_validation_clean_and_against_the_reference() {
     let s = scene("sf_spheres.toml");
-    let (w, h) = (64, 48);
-    let t = 0.8;
+    let (w, h, t) = (64, 48, 0.8);
     let start = std::time::Instant::now();
     let (r, frames) = render(&s, "shadow-fields", w, h, &[0.0, t], true);
     println!("shadow-fields: precompute (or cache load) + 2 frames in {:.1} s", start.elapsed().as_secs_f64());
@@ -84,9 +84,7 @@ fn shadow_fields_render_validation_clean_and_against_the_reference() {
     assert!(gained < 0.3 * lost, "ringing gains {gained} vs shadows' {lost}");
 
     // Image error against the exact reference, adaptive vs fixed vs unshadowed.
-    let opts =
-        ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::Exact, ..Default::default() };
-    let reference = reference_render(&s, &opts).expect("reference");
+    let reference = reference_at(&s, (w, h), 32, t, Mode::Exact);
     let (_r, fixed) = render(&s, "shadow-fields-fixed", w, h, &[t], false);
     let ca = compare(&reference.radiance, "reference", &image(sf), "adaptive").unwrap();
     let cf = compare(&reference.radiance, "reference", &image(&fixed[0]), "fixed").unwrap();
@@ -111,8 +109,7 @@ fn shadow_fields_render_validation_clean_and_against_the_reference() {
 #[test]
 fn shadow_fields_local_lights_vertex_and_pixel_modes_against_the_reference() {
     let s = scene("sf_lamps.toml");
-    let (w, h) = (64, 48);
-    let t = 0.9;
+    let (w, h, t) = (64, 48, 0.9);
     let with = |mode: &str, casts: bool| {
         let mut sc = s.clone();
         // small fields (the defaults' precompute is for the bench): 16 shells, R = 16
@@ -132,9 +129,7 @@ fn shadow_fields_local_lights_vertex_and_pixel_modes_against_the_reference() {
         }
         sc
     };
-    let opts =
-        ReferenceOptions { width: w, height: h, spp: 32, time: Some(t), mode: Mode::Exact, ..Default::default() };
-    let reference = reference_render(&s, &opts).expect("reference");
+    let reference = reference_at(&s, (w, h), 32, t, Mode::Exact);
     // the same shading without occluders (lights and environment unshadowed)
     let (_r, open) = render(&with("pixel", false), "shadow-fields", w, h, &[t], false);
     let cu = compare(&reference.radiance, "reference", &image(&open[0]), "unshadowed").unwrap();
@@ -166,8 +161,7 @@ fn shadow_fields_local_lights_vertex_and_pixel_modes_against_the_reference() {
 #[test]
 fn shadow_fields_wavelet_casts_the_local_lights_sharp_shadows() {
     let s = scene("sf_lamps.toml");
-    let (w, h) = (64, 48);
-    let t = 0.9;
+    let (w, h, t) = (64, 48, 0.9);
     let opts = ReferenceOptions { width: w, height: h, spp: 256, time: Some(t), pixel_grid: 1, ..Default::default() };
     let reference = reference_render(&s, &opts).expect("reference");
     let mut sw = s.clone();

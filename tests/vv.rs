@@ -10,16 +10,11 @@ use penumbra_scene::Scene;
 use std::path::PathBuf;
 
 mod common;
+use common::reference_at;
 use common::{hdr_image as image, scene, with, with_env};
 
 fn render(scene: &Scene, w: u32, h: u32, validation: bool) -> (Renderer, Vec<FrameImages>) {
-    let settings = RenderSettings {
-        width: w,
-        height: h,
-        technique: Some("vv".into()),
-        technique_params: Some(scene.technique_params.clone()),
-        ..Default::default()
-    };
+    let settings = RenderSettings::with_technique(w, h, "vv", &scene.technique_params);
     let mut r = Renderer::new_headless(scene, settings, validation).expect("renderer");
     let mut out = Vec::new();
     for _ in 0..1 {
@@ -201,27 +196,11 @@ fn gpu_sat_and_glsl_integral_match_cpu() {
         println!("{name}: GPU SAT + parity graph in {:.2} s", t0.elapsed().as_secs_f64());
         let bytes = outs.last().unwrap().readbacks.get("sat").expect("readback").clone();
         let gpu: Vec<f32> = bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-        let tex3: Vec<[f32; 3]> = texels
-            .chunks_exact(16)
-            .map(|c| {
-                let f = |i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
-                [f(0), f(4), f(8)]
-            })
-            .collect();
-        let cpu = penumbra_math::vv_sat::Sat::new(w as usize, h as usize, &tex3).unwrap();
-        let (cw, ch) = (w as usize + 1, h as usize + 1);
+        let cpu = cpu_sat(w, h, &texels);
         let (mut max_err, mut scale) = (0.0f64, 0.0f64);
         for k in 0..3 {
-            for y in 0..ch {
-                for x in 0..cw {
-                    let c = cpu.corners[y * cw + x].0[k];
-                    let i = ((k * ch + y) * cw + x) * 4;
-                    for ch3 in 0..3 {
-                        max_err = max_err.max((gpu[i + ch3] as f64 - c[ch3]).abs());
-                        scale = scale.max(c[ch3].abs());
-                    }
-                }
-            }
+            let (e, s) = sat_error(&cpu, &gpu, k);
+            (max_err, scale) = (max_err.max(e), scale.max(s));
         }
         let rel = max_err / scale;
         println!("{name}: GPU vs CPU SAT max abs error {max_err:.3e}, relative to the largest corner {rel:.3e}");
@@ -378,26 +357,8 @@ fn gpu_cap_ratio_matches_cpu() {
             b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
         };
         let gpu_sat = f32s(rb.get("sat").expect("sat readback"));
-        let tex3: Vec<[f32; 3]> = texels
-            .chunks_exact(16)
-            .map(|c| {
-                let f = |i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
-                [f(0), f(4), f(8)]
-            })
-            .collect();
-        let cpu = penumbra_math::vv_sat::Sat::new(w as usize, h as usize, &tex3).unwrap();
-        let (cw, ch) = (w as usize + 1, h as usize + 1);
-        let (mut max_err, mut scale) = (0.0f64, 0.0f64);
-        for y in 0..ch {
-            for x in 0..cw {
-                let c = cpu.corners[y * cw + x].0[3];
-                let i = ((3 * ch + y) * cw + x) * 4;
-                for k in 0..3 {
-                    max_err = max_err.max((gpu_sat[i + k] as f64 - c[k]).abs());
-                    scale = scale.max(c[k].abs());
-                }
-            }
-        }
+        let cpu = cpu_sat(w, h, &texels);
+        let (max_err, scale) = sat_error(&cpu, &gpu_sat, 3);
         println!(
             "{map}: GPU vs CPU SAT channel 4 (∫ L_e dω): max abs error {max_err:.3e}, {:.3e} of the largest corner",
             max_err / scale
@@ -672,9 +633,7 @@ fn an_occluder_behind_a_light_casts_no_shadow() {
     let s = with_env(&s, 8, 4, |_, _| [0.0; 3]);
     let s = with(&s, &[("sat_width", "64"), ("resolution", "24"), ("arcs", "12"), ("refine", "256")]);
     let (w, h) = (32, 24);
-    let opts =
-        ReferenceOptions { width: w, height: h, spp: 64, time: Some(0.0), mode: Mode::Exact, ..Default::default() };
-    let reference = reference_render(&s, &opts).expect("reference").radiance;
+    let reference = reference_at(&s, (w, h), 64, 0.0, Mode::Exact).radiance;
     let run = |shadows: &str| {
         let (r, frames) = render(&with(&s, &[("light_shadows", shadows)]), w, h, true);
         let log = r.context().validation.clone();
@@ -687,4 +646,26 @@ fn an_occluder_behind_a_light_casts_no_shadow() {
     let (traced, loops) = (run("traced"), run("loops"));
     assert!(traced < 0.5 * loops, "traced {traced:.4} not well below the loops' {loops:.4}");
     assert!(traced < 0.15, "traced relRMSE {traced:.4}");
+}
+
+/// The CPU summed-area table of `w x h` texels (RGBA f32 bytes, alpha unused).
+fn cpu_sat(w: u32, h: u32, texels: &[u8]) -> penumbra_math::vv_sat::Sat {
+    let f = |c: &[u8], i: usize| f32::from_le_bytes([c[i], c[i + 1], c[i + 2], c[i + 3]]);
+    let tex3: Vec<[f32; 3]> = texels.chunks_exact(16).map(|c| [f(c, 0), f(c, 4), f(c, 8)]).collect();
+    penumbra_math::vv_sat::Sat::new(w as usize, h as usize, &tex3).unwrap()
+}
+
+/// The GPU summed-area table's channel `k` (`gpu`: the corners of each channel in turn, RGBA
+/// f32) against the CPU one's: the largest absolute difference and the largest corner value.
+fn sat_error(cpu: &penumbra_math::vv_sat::Sat, gpu: &[f32], k: usize) -> (f64, f64) {
+    let n = cpu.corners.len();
+    let (mut max_err, mut scale) = (0.0f64, 0.0f64);
+    for (j, corner) in cpu.corners.iter().enumerate() {
+        let i = (k * n + j) * 4;
+        for (x, c) in corner.0[k].to_array().iter().enumerate() {
+            max_err = max_err.max((gpu[i + x] as f64 - c).abs());
+            scale = scale.max(c.abs());
+        }
+    }
+    (max_err, scale)
 }

@@ -114,13 +114,8 @@ fn interpolated_visibility_matches_ray_tracing_and_the_vertices() {
     // at the vertices (lambda = e_k) the interpolated visibility is the vertex's own
     let mut verr = Vec::new();
     for t in 0..m.triangle_count() {
-        let idx = [0, 1, 2].map(|k| m.indices[3 * t + k] as usize);
         for k in 0..3 {
-            let mut l = [0.0f32; 3];
-            l[k] = 1.0;
-            let (p, n) = (m.positions[idx[k]], m.normals[idx[k]]);
-            let a = solid(&vv::interpolate(&d.vis, &d.corr, t, l, p, n), n);
-            let b = solid(&vv::synthesize(&d.vis, idx[k], p, n), n);
+            let (a, b) = at_corner(&m, &d, t, k);
             verr.push((a - b).abs());
         }
     }
@@ -163,6 +158,16 @@ fn interpolated_visibility_matches_ray_tracing_and_the_vertices() {
     assert!(s21 > 0.96 && s21 > s19 - 0.01, "eq. 21 agrees on {s21} (eq. 19 blend {s19})");
 }
 
+/// At corner `k` of triangle `t`: the occluded solid angle of the interpolated visibility
+/// (eq. 21 at lambda = e_k) and of the vertex's own (eq. 3).
+fn at_corner(m: &VvModel, d: &VvData, t: usize, k: usize) -> (f64, f64) {
+    let v = m.indices[3 * t + k] as usize;
+    let mut l = [0.0f32; 3];
+    l[k] = 1.0;
+    let (p, n) = (m.positions[v], m.normals[v]);
+    (solid(&vv::interpolate(&d.vis, &d.corr, t, l, p, n), n), solid(&vv::synthesize(&d.vis, v, p, n), n))
+}
+
 /// Triangles whose vertices see different numbers of sequences (a vertex of the ball that sees
 /// the ring next to one that does not): the loops collapse at the empty vertex through a virtual
 /// point and are the other vertices' own visibility there.
@@ -184,11 +189,7 @@ fn vertices_with_different_sequence_counts_and_determinism() {
         }
         mixed += 1;
         for k in 0..3 {
-            let mut l = [0.0f32; 3];
-            l[k] = 1.0;
-            let (p, n) = (m.positions[idx[k]], m.normals[idx[k]]);
-            let a = solid(&vv::interpolate(&d.vis, &d.corr, t, l, p, n), n);
-            let b = solid(&vv::synthesize(&d.vis, idx[k], p, n), n);
+            let (a, b) = at_corner(&m, &d, t, k);
             pairs += 1;
             if (a - b).abs() < 0.05 + 0.05 * b {
                 close += 1;

@@ -22,17 +22,8 @@ pub fn add(graph: &mut Graph, name: &str, src: ImageHandle, dst: ImageHandle) ->
             .dst_subresource(layers(d.aspect()))
             .dst_offsets(corner(d.width, d.height));
         let filter = if (s.width, s.height) == (d.width, d.height) { vk::Filter::NEAREST } else { vk::Filter::LINEAR };
-        unsafe {
-            rc.device().cmd_blit_image(
-                rc.cmd,
-                si.image,
-                vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
-                di.image,
-                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-                &[region],
-                filter,
-            )
-        };
+        let (from, to) = (vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::TRANSFER_DST_OPTIMAL);
+        unsafe { rc.device().cmd_blit_image(rc.cmd, si.image, from, di.image, to, &[region], filter) };
         Ok(())
     });
     dst

@@ -202,23 +202,11 @@ impl EnvMapGpu {
         if !graph.persistent_is_new(img) {
             return img;
         }
-        let mut data = Vec::new();
-        let mut regions = Vec::new();
-        for (level, (w, h, texels)) in self.mips.iter().enumerate() {
-            regions.push(
-                vk::BufferImageCopy::default()
-                    .buffer_offset(data.len() as u64)
-                    .image_subresource(vk::ImageSubresourceLayers {
-                        aspect_mask: vk::ImageAspectFlags::COLOR,
-                        mip_level: level as u32,
-                        base_array_layer: 0,
-                        layer_count: 1,
-                    })
-                    .image_extent(vk::Extent3D { width: *w, height: *h, depth: 1 }),
-            );
-            data.extend_from_slice(&bytes_of(texels));
-        }
-        crate::util::add_image_upload(graph, "env", img, data, regions)
+        let bytes: Vec<Vec<u8>> = self.mips.iter().map(|(_, _, texels)| bytes_of(texels)).collect();
+        let parts = self.mips.iter().zip(&bytes).enumerate().map(|(level, ((w, h, _), bytes))| {
+            crate::util::Subresource { mip: level as u32, layer: 0, width: *w, height: *h, bytes }
+        });
+        crate::util::add_image_upload(graph, "env", img, parts)
     }
 }
 

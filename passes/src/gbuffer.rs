@@ -92,10 +92,8 @@ impl GBufferPass {
         let motion = graph.create_image("gb_motion", ImageDesc::new_2d(MOTION_FORMAT, width, height));
         let depth = graph.create_image("gb_depth", ImageDesc::new_2d(DEPTH_FORMAT, width, height));
         let mut p = graph.pass("gbuffer", PassKind::Raster);
-        let position = p.write(position, Access::ColorAttachmentWrite);
-        let normal = p.write(normal, Access::ColorAttachmentWrite);
-        let uv_mat = p.write(uv_mat, Access::ColorAttachmentWrite);
-        let motion = p.write(motion, Access::ColorAttachmentWrite);
+        let [position, normal, uv_mat, motion] =
+            [position, normal, uv_mat, motion].map(|h| p.write(h, Access::ColorAttachmentWrite));
         let depth = p.write(depth, Access::DepthAttachmentWrite);
         let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
         let instances = p.read(scene.instances, Access::VertexShaderReadStorage);
@@ -103,10 +101,7 @@ impl GBufferPass {
         let materials = p.read(scene.materials, Access::FragmentShaderReadStorage);
         let textures = p.read(scene.textures, Access::FragmentShaderReadSampled);
         let repeat = self.repeat.sampler;
-        let vertices = p.read(scene.vertices, Access::VertexBuffer);
-        let indices = p.read(scene.indices, Access::IndexBuffer);
-        let deformed = scene.deformed_vertices.map(|h| p.read(h, Access::VertexBuffer));
-        let pipeline = self.pipeline.pipeline;
+        let meshes = crate::raster::MeshBuffers::declare(&mut p, scene);
         let layout = self.pipeline.handle();
         p.record(move |rc| {
             let d = rc.device();
@@ -115,21 +110,12 @@ impl GBufferPass {
             };
             let colors = [color(position)?, color(normal)?, color(uv_mat)?, color(motion)?];
             let depth_att = crate::util::depth_attachment(rc.image(depth)?.view, true);
-            let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width, height } };
-            let info = vk::RenderingInfo::default()
-                .render_area(area)
-                .layer_count(1)
-                .color_attachments(&colors)
-                .depth_attachment(&depth_att);
-            let vb = rc.buffer(vertices)?;
-            let ib = rc.buffer(indices)?;
-            let db = match deformed {
-                Some(h) => Some(rc.buffer(h)?),
-                None => None,
-            };
-            crate::raster::begin(d, rc.cmd, &info, width, height, pipeline);
-            crate::util::push_graphics(
+            let info = crate::raster::rendering_info(width, height, &colors, &depth_att);
+            crate::raster::begin(
                 rc,
+                &info,
+                width,
+                height,
                 &layout,
                 &[
                     Bind::UniformBuffer(camera),
@@ -138,10 +124,7 @@ impl GBufferPass {
                     Bind::SampledImage(textures, repeat),
                 ],
             )?;
-            crate::raster::draw_meshes(d, rc.cmd, &draws, ib.buffer, vb.buffer, db.map(|b| b.buffer), |dr| unsafe {
-                let m = dr.mesh;
-                d.cmd_draw_indexed(rc.cmd, m.index_count, 1, m.first_index, m.vertex_offset, dr.instance);
-            });
+            crate::raster::draw_instances(rc, &meshes, &draws)?;
             unsafe { d.cmd_end_rendering(rc.cmd) };
             Ok(())
         });

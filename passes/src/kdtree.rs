@@ -471,10 +471,8 @@ impl KdTreeBuilder {
         }
         push[3] = n;
         let mut p = graph.pass("kdtree_init", PassKind::Compute);
-        let nodes = p.write(h.nodes, Access::ComputeShaderWriteStorage);
-        let bx = p.write(boxes, Access::ComputeShaderWriteStorage);
-        let refs = p.write(h.refs, Access::ComputeShaderWriteStorage);
-        let header = p.write(h.header, Access::ComputeShaderWriteStorage);
+        let [nodes, bx, refs, header] =
+            [h.nodes, boxes, h.refs, h.header].map(|h| p.write(h, Access::ComputeShaderWriteStorage));
         let pipe = self.init.handle();
         p.record(move |rc| {
             let binds = crate::util::storage([nodes, bx, refs, header]);

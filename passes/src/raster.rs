@@ -293,24 +293,42 @@ fn create(
     Ok(Pipeline::from_raw(ctx, pipeline, layout, set_layout, set))
 }
 
-/// Records the draws of a frame's meshes: binds the index buffer, then the scene's vertex buffer
-/// `vertices` for the rest meshes and the frame's deformed-vertex buffer `deformed` for the
-/// deformed ones (skipped when absent), calling `draw` for each (it records the draw call, and
-/// any per-draw state such as push constants). Call inside a rendering pass with the pipeline
-/// bound.
-pub fn draw_meshes(
-    d: &ash::Device,
-    cmd: vk::CommandBuffer,
-    draws: &[crate::scene_gpu::Draw],
-    indices: vk::Buffer,
-    vertices: vk::Buffer,
-    deformed: Option<vk::Buffer>,
-    mut draw: impl FnMut(&crate::scene_gpu::Draw),
-) {
-    if draws.is_empty() {
-        return;
+/// The scene's vertex, index and deformed-vertex buffers as a raster pass reads them.
+#[derive(Clone, Copy, Debug)]
+pub struct MeshBuffers {
+    vertices: penumbra_engine::BufferHandle,
+    indices: penumbra_engine::BufferHandle,
+    deformed: Option<penumbra_engine::BufferHandle>,
+}
+
+impl MeshBuffers {
+    /// Declares pass `p`'s reads of the scene's vertex and index buffers (and of the frame's
+    /// deformed vertices, when it has any).
+    pub fn declare(p: &mut penumbra_engine::graph::PassBuilder, scene: &crate::scene_gpu::SceneHandles) -> Self {
+        use penumbra_engine::Access;
+        MeshBuffers {
+            vertices: p.read(scene.vertices, Access::VertexBuffer),
+            indices: p.read(scene.indices, Access::IndexBuffer),
+            deformed: scene.deformed_vertices.map(|h| p.read(h, Access::VertexBuffer)),
+        }
     }
-    unsafe { d.cmd_bind_index_buffer(cmd, indices, 0, vk::IndexType::UINT32) };
+}
+
+/// Binds `meshes`' index buffer and, for the static then the deformed draws, their vertex
+/// buffer, calling `draw` for each of `draws` (which records the draw call itself).
+pub fn draw_meshes(
+    rc: &penumbra_engine::RecordContext,
+    meshes: &MeshBuffers,
+    draws: &[crate::scene_gpu::Draw],
+    mut draw: impl FnMut(&crate::scene_gpu::Draw),
+) -> Result<()> {
+    if draws.is_empty() {
+        return Ok(());
+    }
+    let (d, cmd) = (rc.device(), rc.cmd);
+    let vertices = rc.buffer(meshes.vertices)?.buffer;
+    let deformed = meshes.deformed.map(|h| rc.buffer(h)).transpose()?.map(|b| b.buffer);
+    unsafe { d.cmd_bind_index_buffer(cmd, rc.buffer(meshes.indices)?.buffer, 0, vk::IndexType::UINT32) };
     for pass_deformed in [false, true] {
         let buffer = if pass_deformed { deformed } else { Some(vertices) };
         let Some(buffer) = buffer else { continue };
@@ -323,18 +341,46 @@ pub fn draw_meshes(
             draw(dr);
         }
     }
+    Ok(())
 }
 
-/// Begins dynamic rendering with `info` over a `w` x `h` viewport and scissor (depth 0..1) and
-/// binds the graphics `pipeline`.
+/// One layer of `w` x `h` pixels rendered into `colors` and `depth`.
+pub fn rendering_info<'a>(
+    w: u32,
+    h: u32,
+    colors: &'a [vk::RenderingAttachmentInfo<'a>],
+    depth: &'a vk::RenderingAttachmentInfo<'a>,
+) -> vk::RenderingInfo<'a> {
+    let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
+    vk::RenderingInfo::default().render_area(area).layer_count(1).color_attachments(colors).depth_attachment(depth)
+}
+
+/// Draws one instance of each of `draws` (instance index `Draw::instance`), as
+/// [`draw_meshes`] binds their buffers.
+pub fn draw_instances(
+    rc: &penumbra_engine::RecordContext,
+    meshes: &MeshBuffers,
+    draws: &[crate::scene_gpu::Draw],
+) -> Result<()> {
+    let d = rc.device();
+    draw_meshes(rc, meshes, draws, |dr| unsafe {
+        let m = dr.mesh;
+        d.cmd_draw_indexed(rc.cmd, m.index_count, 1, m.first_index, m.vertex_offset, dr.instance);
+    })
+}
+
+/// Begins dynamic rendering with `info` over a `w` x `h` viewport and scissor (depth 0..1),
+/// binds the graphics pipeline `pipe` and pushes its descriptors `binds` (checked as
+/// [`crate::util::push_graphics`] checks them).
 pub fn begin(
-    d: &ash::Device,
-    cmd: vk::CommandBuffer,
+    rc: &penumbra_engine::RecordContext,
     info: &vk::RenderingInfo,
     w: u32,
     h: u32,
-    pipeline: vk::Pipeline,
-) {
+    pipe: &crate::util::PipelineHandle,
+    binds: &[penumbra_engine::Bind],
+) -> Result<()> {
+    let (d, cmd) = (rc.device(), rc.cmd);
     let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
     unsafe {
         d.cmd_begin_rendering(cmd, info);
@@ -344,6 +390,7 @@ pub fn begin(
             &[vk::Viewport { x: 0.0, y: 0.0, width: w as f32, height: h as f32, min_depth: 0.0, max_depth: 1.0 }],
         );
         d.cmd_set_scissor(cmd, 0, &[area]);
-        d.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+        d.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, pipe.pipeline);
     }
+    crate::util::push_graphics(rc, pipe, binds)
 }

@@ -35,15 +35,8 @@ pub fn add(graph: &mut Graph, name: &str, images: &[(ImageHandle, &str)]) -> Vec
                     layer_count: 1,
                 })
                 .image_extent(vk::Extent3D { width: d.width, height: d.height, depth: 1 });
-            unsafe {
-                rc.device().cmd_copy_image_to_buffer(
-                    rc.cmd,
-                    src.image,
-                    vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
-                    dst.buffer,
-                    &[region],
-                )
-            };
+            let from = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
+            unsafe { rc.device().cmd_copy_image_to_buffer(rc.cmd, src.image, from, dst.buffer, &[region]) };
         }
         Ok(())
     });

@@ -76,28 +76,13 @@ impl Default for ShadowMapsSettings {
 impl ShadowMapsSettings {
     /// Sets one parameter from its scene-file text.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
-        let v = value.trim();
-        match key.trim() {
-            "count" => match v.parse::<u32>() {
-                Ok(k) if (1..=1024).contains(&k) => self.count = k,
-                _ => bail!("shadowmaps: count = '{v}': expected an integer in 1..=1024"),
-            },
-            "size" => match v.parse::<u32>() {
-                Ok(s) if (16..=4096).contains(&s) => self.size = s,
-                _ => bail!("shadowmaps: size = '{v}': expected an integer in 16..=4096"),
-            },
-            "light_size" => match v.parse::<u32>() {
-                Ok(s) if (16..=4096).contains(&s) => self.light_size = s,
-                _ => bail!("shadowmaps: light_size = '{v}': expected an integer in 16..=4096"),
-            },
-            "shading" => {
-                self.shading = match v {
-                    "lights" => SmShading::Lights,
-                    "ratio" => SmShading::Ratio,
-                    _ => bail!("shadowmaps: shading = '{v}': expected lights or ratio"),
-                }
-            }
-            k => bail!("shadowmaps: unknown parameter '{k}' (known: count, size, light_size, shading)"),
+        let p = crate::technique::Param::new("shadowmaps", key, value);
+        match p.key() {
+            "count" => self.count = p.int(1, 1024)? as u32,
+            "size" => self.size = p.int(16, 4096)? as u32,
+            "light_size" => self.light_size = p.int(16, 4096)? as u32,
+            "shading" => self.shading = p.choice(&[("lights", SmShading::Lights), ("ratio", SmShading::Ratio)])?,
+            _ => return Err(p.unknown("count, size, light_size, shading")),
         }
         Ok(())
     }
@@ -309,26 +294,24 @@ impl ShadowMapsTechnique {
         let dw = p.write(depth, Access::DepthAttachmentWrite);
         let instances = p.read(scene.instances, Access::VertexShaderReadStorage);
         let lb = p.read(layer_buf, Access::VertexShaderReadStorage);
-        let vertices = p.read(scene.vertices, Access::VertexBuffer);
-        let indices = p.read(scene.indices, Access::IndexBuffer);
-        let deformed = scene.deformed_vertices.map(|h| p.read(h, Access::VertexBuffer));
+        let meshes = crate::raster::MeshBuffers::declare(&mut p, scene);
         let draws = draws.to_vec();
-        let (pipeline, layout) = (self.depth_pipe.pipeline, self.depth_pipe.handle());
+        let layout = self.depth_pipe.handle();
         p.record(move |rc| {
             let d = rc.device();
             let depth_att = crate::util::depth_attachment(rc.image(dw)?.view, true);
             let area =
                 vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: size, height: size } };
             let info = vk::RenderingInfo::default().render_area(area).layer_count(count).depth_attachment(&depth_att);
-            let vb = rc.buffer(vertices)?;
-            let ib = rc.buffer(indices)?;
-            let db = match deformed {
-                Some(h) => Some(rc.buffer(h)?),
-                None => None,
-            };
-            crate::raster::begin(d, rc.cmd, &info, size, size, pipeline);
-            crate::util::push_graphics(rc, &layout, &[Bind::StorageBuffer(instances), Bind::StorageBuffer(lb)])?;
-            crate::raster::draw_meshes(d, rc.cmd, &draws, ib.buffer, vb.buffer, db.map(|b| b.buffer), |dr| unsafe {
+            crate::raster::begin(
+                rc,
+                &info,
+                size,
+                size,
+                &layout,
+                &[Bind::StorageBuffer(instances), Bind::StorageBuffer(lb)],
+            )?;
+            crate::raster::draw_meshes(rc, &meshes, &draws, |dr| unsafe {
                 d.cmd_push_constants(
                     rc.cmd,
                     layout.layout,
@@ -338,7 +321,7 @@ impl ShadowMapsTechnique {
                 );
                 let m = dr.mesh;
                 d.cmd_draw_indexed(rc.cmd, m.index_count, count, m.first_index, m.vertex_offset, 0);
-            });
+            })?;
             unsafe { d.cmd_end_rendering(rc.cmd) };
             Ok(())
         });

@@ -101,3 +101,86 @@ pub fn apply_params<S>(
         n => Err(anyhow::anyhow!("{n} bad technique parameters:\n  {}", errors.join("\n  "))),
     }
 }
+
+/// One `key = value` technique parameter as a technique's `set` reads it: typed readers whose
+/// errors all read "`<technique>` parameter `<key>` = '`<value>`': expected ..." (the value as
+/// written, surrounding white space ignored).
+#[derive(Clone, Copy, Debug)]
+pub struct Param<'a> {
+    technique: &'a str,
+    key: &'a str,
+    value: &'a str,
+}
+
+impl<'a> Param<'a> {
+    pub fn new(technique: &'a str, key: &'a str, value: &'a str) -> Self {
+        Param { technique, key: key.trim(), value }
+    }
+
+    /// The key, trimmed.
+    pub fn key(&self) -> &'a str {
+        self.key
+    }
+
+    /// The value, trimmed.
+    pub fn text(&self) -> &'a str {
+        self.value.trim()
+    }
+
+    /// The error for a value that is not `expected`.
+    pub fn bad(&self, expected: &str) -> anyhow::Error {
+        anyhow::anyhow!("{} parameter {} = '{}': expected {expected}", self.technique, self.key, self.value)
+    }
+
+    /// The error for a key the technique does not take (`known`: the keys it takes).
+    pub fn unknown(&self, known: &str) -> anyhow::Error {
+        anyhow::anyhow!("unknown {} parameter '{}' (known: {known})", self.technique, self.key)
+    }
+
+    /// `true`/`1` or `false`/`0`.
+    pub fn flag(&self) -> Result<bool> {
+        self.choice(&[("true", true), ("1", true), ("false", false), ("0", false)])
+            .map_err(|_| self.bad("true or false"))
+    }
+
+    /// An integer in `lo..=hi`.
+    pub fn int(&self, lo: u64, hi: u64) -> Result<u64> {
+        self.text()
+            .parse::<u64>()
+            .ok()
+            .filter(|x| (lo..=hi).contains(x))
+            .ok_or_else(|| self.bad(&format!("an integer in {lo}..={hi}")))
+    }
+
+    /// A power of two in `lo..=hi`.
+    pub fn pow2(&self, lo: u64, hi: u64) -> Result<u64> {
+        let n = self.int(lo, hi).map_err(|_| self.bad(&format!("a power of two in {lo}..={hi}")))?;
+        if n.is_power_of_two() {
+            Ok(n)
+        } else {
+            Err(self.bad(&format!("a power of two in {lo}..={hi}")))
+        }
+    }
+
+    /// A finite number in `[lo, hi]`.
+    pub fn float(&self, lo: f64, hi: f64) -> Result<f64> {
+        self.number(|x| x >= lo && x <= hi, &format!("a number in [{lo}, {hi}]"))
+    }
+
+    /// A finite number for which `ok` holds (`what` says which, for the error).
+    pub fn number(&self, ok: impl Fn(f64) -> bool, what: &str) -> Result<f64> {
+        self.text().parse::<f64>().ok().filter(|x| x.is_finite() && ok(*x)).ok_or_else(|| self.bad(what))
+    }
+
+    /// The value of the option whose name the text is.
+    pub fn choice<T: Copy>(&self, options: &[(&str, T)]) -> Result<T> {
+        if let Some((_, t)) = options.iter().find(|(name, _)| *name == self.text()) {
+            return Ok(*t);
+        }
+        let names: Vec<String> = options.iter().map(|(n, _)| format!("'{n}'")).collect();
+        Err(self.bad(&match names.split_last() {
+            Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+            _ => names.concat(),
+        }))
+    }
+}

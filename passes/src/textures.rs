@@ -145,25 +145,14 @@ impl TextureLayers {
 
     /// Declares the `textures_upload` pass writing every layer and mip into `img`.
     fn add_upload(&self, graph: &mut Graph, img: ImageHandle) -> ImageHandle {
-        let mut data = Vec::new();
-        let mut regions = Vec::new();
-        for (layer, mips) in self.layers.iter().enumerate() {
-            for (level, texels) in mips.iter().enumerate() {
+        let bytes: Vec<Vec<Vec<u8>>> =
+            self.layers.iter().map(|mips| mips.iter().map(|texels| bytes_of(texels)).collect()).collect();
+        let parts = bytes.iter().enumerate().flat_map(|(layer, mips)| {
+            mips.iter().enumerate().map(move |(level, bytes)| {
                 let s = (LAYER_SIZE >> level).max(1);
-                regions.push(
-                    vk::BufferImageCopy::default()
-                        .buffer_offset(data.len() as u64)
-                        .image_subresource(vk::ImageSubresourceLayers {
-                            aspect_mask: vk::ImageAspectFlags::COLOR,
-                            mip_level: level as u32,
-                            base_array_layer: layer as u32,
-                            layer_count: 1,
-                        })
-                        .image_extent(vk::Extent3D { width: s, height: s, depth: 1 }),
-                );
-                data.extend_from_slice(&bytes_of(texels));
-            }
-        }
-        crate::util::add_image_upload(graph, "textures", img, data, regions)
+                crate::util::Subresource { mip: level as u32, layer: layer as u32, width: s, height: s, bytes }
+            })
+        });
+        crate::util::add_image_upload(graph, "textures", img, parts)
     }
 }

@@ -192,32 +192,47 @@ pub fn bytes_of<T: Copy>(v: &[T]) -> Vec<u8> {
     out
 }
 
-/// Declares a `{name}_upload` transfer pass copying host `data` (through a host-initialised
-/// `{name}_staging` buffer) into `img` with `regions` (buffer offsets into `data`). Returns the
-/// written image handle.
-pub fn add_image_upload(
+/// One subresource of an image upload: mip level, array layer, extent and texel bytes.
+pub struct Subresource<'a> {
+    pub mip: u32,
+    pub layer: u32,
+    pub width: u32,
+    pub height: u32,
+    pub bytes: &'a [u8],
+}
+
+/// Declares a `{name}_upload` transfer pass copying `parts` (through one host-initialised
+/// `{name}_staging` buffer) into their subresources of `img`. Returns the written image handle.
+pub fn add_image_upload<'a>(
     graph: &mut penumbra_engine::Graph,
     name: &str,
     img: penumbra_engine::ImageHandle,
-    data: Vec<u8>,
-    regions: Vec<vk::BufferImageCopy>,
+    parts: impl IntoIterator<Item = Subresource<'a>>,
 ) -> penumbra_engine::ImageHandle {
     use penumbra_engine::{Access, PassKind};
+    let (mut data, mut regions) = (Vec::new(), Vec::new());
+    for s in parts {
+        regions.push(
+            vk::BufferImageCopy::default()
+                .buffer_offset(data.len() as u64)
+                .image_subresource(vk::ImageSubresourceLayers {
+                    aspect_mask: vk::ImageAspectFlags::COLOR,
+                    mip_level: s.mip,
+                    base_array_layer: s.layer,
+                    layer_count: 1,
+                })
+                .image_extent(vk::Extent3D { width: s.width, height: s.height, depth: 1 }),
+        );
+        data.extend_from_slice(s.bytes);
+    }
     let staging = graph.create_buffer_init(&format!("{name}_staging"), data);
     let mut p = graph.pass(&format!("{name}_upload"), PassKind::Transfer);
     p.read(staging, Access::TransferSrc);
     let img = p.write(img, Access::TransferDst);
     p.record(move |rc| {
         let (src, dst) = (rc.buffer(staging)?, rc.image(img)?);
-        unsafe {
-            rc.device().cmd_copy_buffer_to_image(
-                rc.cmd,
-                src.buffer,
-                dst.image,
-                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-                &regions,
-            )
-        };
+        let layout = vk::ImageLayout::TRANSFER_DST_OPTIMAL;
+        unsafe { rc.device().cmd_copy_buffer_to_image(rc.cmd, src.buffer, dst.image, layout, &regions) };
         Ok(())
     });
     img

@@ -175,10 +175,7 @@ mod registry {
             (sfw.shells, sfw.resolution, sfw.cube, sfw.keep, sfw.threshold, sfw.light_traced, sfw.key_lights),
             (d.shells, d.resolution, d.cube, d.keep, d.threshold, d.light_traced, d.key_lights)
         );
-        assert_eq!(
-            penumbra_passes::mc::parse_spp(lookup("mc").unwrap().params[0].default).unwrap(),
-            penumbra_passes::mc::DEFAULT_SPP
-        );
+        assert_eq!(lookup("mc").unwrap().params[0].default.parse::<u32>().unwrap(), penumbra_passes::mc::DEFAULT_SPP);
         // Every knob is a documented parameter and its values parse.
         for t in REGISTRY {
             for kn in t.knobs {

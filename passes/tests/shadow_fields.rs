@@ -405,11 +405,12 @@ fn shadow_fields_cosine_transfer_and_self_occlusion() {
 
 #[test]
 fn shadow_fields_glsl_basis_constants_match_the_sh_library() {
-    // The closed forms of `sf_basis` in glsl/include/sf.glsl, read from the file, evaluated
-    // at a few directions against penumbra_math::sh.
-    let src = std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../glsl/include/sf.glsl"))
-        .unwrap();
-    let body = &src[src.find("void sf_basis").expect("sf_basis in sf.glsl")..];
+    // The closed forms of `sh16_basis` in glsl/include/sh16.glsl (shadow fields' and avs's),
+    // read from the file, evaluated at a few directions against penumbra_math::sh.
+    let src =
+        std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../glsl/include/sh16.glsl"))
+            .unwrap();
+    let body = &src[src.find("void sh16_basis").expect("sh16_basis in sh16.glsl")..];
     let body = &body[..body.find("\n}").unwrap()];
     let lines: Vec<&str> = body.lines().filter(|l| l.trim_start().starts_with("y[")).collect();
     assert_eq!(lines.len(), 16);

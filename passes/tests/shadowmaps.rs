@@ -54,12 +54,18 @@ fn rel(reference: &Image, img: &Image, tag: &str) -> f64 {
     c.rel_rmse
 }
 
+/// `scenes/<name>.toml` and its 256-spp reference at `w x h`, frame 0.
+fn scene_and_reference(name: &str, w: u32, h: u32) -> (Scene, penumbra_reference::image::Image) {
+    let scene = Scene::load(root().join(format!("scenes/{name}.toml"))).unwrap();
+    let opts = ReferenceOptions { width: w, height: h, spp: 256, time: Some(0.0), seed: 5, ..Default::default() };
+    let reference = render(&scene, &opts).unwrap().radiance;
+    (scene, reference)
+}
+
 #[test]
 fn shadowmaps_approach_the_reference_and_shadows_help() {
     let (w, h) = (64u32, 48u32);
-    let scene = Scene::load(root().join("scenes/trace_test.toml")).unwrap();
-    let opts = ReferenceOptions { width: w, height: h, spp: 256, time: Some(0.0), seed: 5, ..Default::default() };
-    let reference = render(&scene, &opts).unwrap().radiance;
+    let (scene, reference) = scene_and_reference("trace_test", w, h);
     let env = run(&scene, "env", &[], w, h, 1);
     let ratio = run(&scene, "shadowmaps", &[], w, h, 3);
     let lights = run(&scene, "shadowmaps", &[("shading", "lights"), ("count", "64")], w, h, 1);
@@ -82,9 +88,7 @@ fn shadowmaps_approach_the_reference_and_shadows_help() {
 #[test]
 fn local_lights_cast_shadows() {
     let (w, h) = (48u32, 36u32);
-    let scene = Scene::load(root().join("scenes/sf_lamps.toml")).unwrap();
-    let opts = ReferenceOptions { width: w, height: h, spp: 256, time: Some(0.0), seed: 5, ..Default::default() };
-    let reference = render(&scene, &opts).unwrap().radiance;
+    let (scene, reference) = scene_and_reference("sf_lamps", w, h);
     let env = run(&scene, "env", &[], w, h, 1);
     let sm = run(&scene, "shadowmaps", &[], w, h, 1);
     let (e_env, e_sm) = (rel(&reference, &env.image, "env"), rel(&reference, &sm.image, "shadowmaps"));

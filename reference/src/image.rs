@@ -62,7 +62,8 @@ impl Image {
         self.pixels.iter().filter(|p| !p.iter().all(|c| c.is_finite())).count()
     }
 
-    fn check(&self, path: &Path) -> Result<(), ImageError> {
+    /// Not empty, and holding `width x height` pixels (`path` names it in the error).
+    pub(crate) fn check(&self, path: &Path) -> Result<(), ImageError> {
         if self.width == 0 || self.height == 0 {
             return Err(ImageError::Empty { path: path.into(), width: self.width, height: self.height });
         }

@@ -144,19 +144,8 @@ pub fn to_srgb8(img: &Image, exposure: f32) -> Vec<u8> {
 }
 
 fn check_same_size(a: &Image, an: &str, b: &Image, bn: &str) -> Result<(), ImageError> {
-    for (img, n) in [(a, an), (b, bn)] {
-        if img.width == 0 || img.height == 0 {
-            return Err(ImageError::Empty { path: n.into(), width: img.width, height: img.height });
-        }
-        if img.pixels.len() != img.width as usize * img.height as usize {
-            return Err(ImageError::BadBuffer {
-                path: n.into(),
-                width: img.width,
-                height: img.height,
-                len: img.pixels.len(),
-            });
-        }
-    }
+    a.check(std::path::Path::new(an))?;
+    b.check(std::path::Path::new(bn))?;
     if a.width != b.width || a.height != b.height {
         return Err(ImageError::SizeMismatch {
             a_path: an.into(),

@@ -167,25 +167,7 @@ fn white_furnace_each_brdf() {
 /// and a sphere placed at -X (left of a camera looking down -Z) appears in the left half.
 #[test]
 fn image_orientation() {
-    let mut texels = Vec::new();
-    for j in 0..4 {
-        for _ in 0..8 {
-            texels.push(if j < 2 { [0.0, 0.0, 1.0] } else { [1.0, 0.0, 0.0] });
-        }
-    }
-    let env = Environment { width: 8, height: 4, texels, intensity: 1.0, rotation: 0.0 };
-    let mut scene = plane_scene(
-        Material::diffuse("d", Vec3::splat(0.5)),
-        env,
-        camera(Vec3::new(0.0, 1.0, 0.0), Vec3::new(0.0, 1.0, -1.0), 60.0),
-    );
-    scene.meshes.push(MeshData::uv_sphere(0.8, 16, 8));
-    scene.objects.push(Object {
-        name: "left".into(),
-        mesh: 1,
-        material: 0,
-        transform: Mat4::from_translation(Vec3::new(-1.2, 1.0, -3.0)),
-    });
+    let scene = sphere_left_of_centre("left");
     let r = render(&scene, &opts(16, 8, 4, 0)).unwrap();
     for x in 0..16 {
         assert_eq!(r.radiance.get(x, 0), [0.0, 0.0, 1.0], "top row must be sky at x={x}");
@@ -451,19 +433,11 @@ fn sg_lighting_mode_matches_quadrature_of_the_fit() {
     // Quadrature: E = int_{y > 0} L(R_y(rot) d_map) ... expressed in world space:
     // L_world(w) = intensity * sum_k mu_k exp(lambda_k (dot(R axis_k, w) - 1)).
     let rot = glam::DQuat::from_rotation_y(0.5);
-    let (nt, np) = (400usize, 800usize);
-    let mut e = glam::DVec3::ZERO;
-    for i in 0..nt {
-        let th = (i as f64 + 0.5) / nt as f64 * std::f64::consts::FRAC_PI_2;
-        for j in 0..np {
-            let ph = (j as f64 + 0.5) / np as f64 * std::f64::consts::TAU;
-            let w = glam::DVec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin());
-            let l: glam::DVec3 =
-                fit.lobes.iter().map(|g| g.mu * 2.0 * (g.lambda * ((rot * g.axis).dot(w) - 1.0)).exp()).sum();
-            e += l * th.cos() * th.sin();
-        }
-    }
-    e *= (std::f64::consts::FRAC_PI_2 / nt as f64) * (std::f64::consts::TAU / np as f64);
+    let e = upper_hemisphere_integral(400, 800, |w| {
+        let l: glam::DVec3 =
+            fit.lobes.iter().map(|g| g.mu * 2.0 * (g.lambda * ((rot * g.axis).dot(w) - 1.0)).exp()).sum();
+        l * w.y
+    });
     for (c, (m, se)) in mean_se(&r).into_iter().enumerate() {
         let expect = albedo as f64 / std::f64::consts::PI * e[c];
         eprintln!(
@@ -480,25 +454,7 @@ fn sg_lighting_mode_matches_quadrature_of_the_fit() {
 /// the same image as frame 30.
 #[test]
 fn frame_time_moves_objects() {
-    let mut env_texels = Vec::new();
-    for j in 0..4 {
-        for _ in 0..8 {
-            env_texels.push(if j < 2 { [0.0, 0.0, 1.0] } else { [1.0, 0.0, 0.0] });
-        }
-    }
-    let env = Environment { width: 8, height: 4, texels: env_texels, intensity: 1.0, rotation: 0.0 };
-    let mut scene = plane_scene(
-        Material::diffuse("d", Vec3::splat(0.5)),
-        env,
-        camera(Vec3::new(0.0, 1.0, 0.0), Vec3::new(0.0, 1.0, -1.0), 60.0),
-    );
-    scene.meshes.push(MeshData::uv_sphere(0.8, 16, 8));
-    scene.objects.push(Object {
-        name: "mover".into(),
-        mesh: 1,
-        material: 0,
-        transform: Mat4::from_translation(Vec3::new(-1.2, 1.0, -3.0)),
-    });
+    let mut scene = sphere_left_of_centre("mover");
     scene.object_info = vec![
         penumbra_scene::ObjectInfo::default(),
         penumbra_scene::ObjectInfo {
@@ -543,21 +499,12 @@ fn sg_mode_matches_quadrature_of_sg_lighting_and_sg_brdf() {
     let wo_l = glam::DVec3::new(wo.dot(tx), wo.dot(by), wo.dot(nz));
     let lobe = penumbra_math::brdf::BlinnPhong { shininess: s as f64 }.sg_warp(wo_l);
     let rot = glam::DQuat::from_rotation_y(-0.8);
-    let (nt, np) = (600usize, 1200usize);
-    let mut acc = glam::DVec3::ZERO;
-    for i in 0..nt {
-        let th = (i as f64 + 0.5) / nt as f64 * std::f64::consts::FRAC_PI_2;
-        for j in 0..np {
-            let ph = (j as f64 + 0.5) / np as f64 * std::f64::consts::TAU;
-            let w = glam::DVec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin());
-            let l: glam::DVec3 =
-                fit.lobes.iter().map(|g| g.mu * (g.lambda * ((rot * g.axis).dot(w) - 1.0)).exp()).sum();
-            let wl = glam::DVec3::new(w.dot(tx), w.dot(by), w.dot(nz));
-            let f = albedo as f64 / std::f64::consts::PI + spec as f64 * lobe.eval(wl);
-            acc += l * f * th.cos() * th.sin();
-        }
-    }
-    acc *= (std::f64::consts::FRAC_PI_2 / nt as f64) * (std::f64::consts::TAU / np as f64);
+    let acc = upper_hemisphere_integral(600, 1200, |w| {
+        let l: glam::DVec3 = fit.lobes.iter().map(|g| g.mu * (g.lambda * ((rot * g.axis).dot(w) - 1.0)).exp()).sum();
+        let wl = glam::DVec3::new(w.dot(tx), w.dot(by), w.dot(nz));
+        let f = albedo as f64 / std::f64::consts::PI + spec as f64 * lobe.eval(wl);
+        l * f * w.y
+    });
     for (c, (m, se)) in mean_se(&r).into_iter().enumerate() {
         eprintln!("SG mode: channel {c}: {m:.5} vs quadrature {:.5} (se {se:.1e})", acc[c]);
         assert!((m - acc[c]).abs() <= 5.0 * se + 1e-4 * acc[c], "{m} vs {}", acc[c]);
@@ -632,4 +579,39 @@ fn pixel_grid_samples_sub_pixel_centres() {
         }
     }
     assert!(penumbra_reference::render::validate(&ReferenceOptions { pixel_grid: 17, ..opts(w, h, 8, 1) }).is_err());
+}
+
+/// A grey plane under an environment of blue sky over a red ground (8 x 4 texels), seen from
+/// 1 unit above the plane, and a sphere `name` of radius 0.8 left of the view's centre.
+fn sphere_left_of_centre(name: &str) -> Scene {
+    let texels = (0..32).map(|i| if i / 8 < 2 { [0.0, 0.0, 1.0] } else { [1.0, 0.0, 0.0] }).collect();
+    let env = Environment { width: 8, height: 4, texels, intensity: 1.0, rotation: 0.0 };
+    let mut scene = plane_scene(
+        Material::diffuse("d", Vec3::splat(0.5)),
+        env,
+        camera(Vec3::new(0.0, 1.0, 0.0), Vec3::new(0.0, 1.0, -1.0), 60.0),
+    );
+    scene.meshes.push(MeshData::uv_sphere(0.8, 16, 8));
+    scene.objects.push(Object {
+        name: name.into(),
+        mesh: 1,
+        material: 0,
+        transform: Mat4::from_translation(Vec3::new(-1.2, 1.0, -3.0)),
+    });
+    scene
+}
+
+/// The midpoint-rule integral of `f` over the hemisphere y > 0 (`nt` polar by `np` azimuthal
+/// cells, each weighted by its solid angle).
+fn upper_hemisphere_integral(nt: usize, np: usize, f: impl Fn(glam::DVec3) -> glam::DVec3) -> glam::DVec3 {
+    let (dt, dp) = (std::f64::consts::FRAC_PI_2 / nt as f64, std::f64::consts::TAU / np as f64);
+    let mut sum = glam::DVec3::ZERO;
+    for i in 0..nt {
+        let th = (i as f64 + 0.5) * dt;
+        for j in 0..np {
+            let ph = (j as f64 + 0.5) * dp;
+            sum += f(glam::DVec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin())) * th.sin();
+        }
+    }
+    sum * dt * dp
 }

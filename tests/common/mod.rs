@@ -40,13 +40,7 @@ pub fn render_times(
     times: &[f32],
     validation: bool,
 ) -> (Renderer, Vec<FrameImages>) {
-    let settings = RenderSettings {
-        width: w,
-        height: h,
-        technique: Some(technique.into()),
-        technique_params: Some(scene.technique_params.clone()),
-        ..Default::default()
-    };
+    let settings = RenderSettings::with_technique(w, h, technique, &scene.technique_params);
     let mut r = Renderer::new_headless(scene, settings, validation).expect("renderer");
     let mut out = Vec::new();
     let mut prev = None;
@@ -109,4 +103,24 @@ pub fn box_mean(img: &penumbra_reference::image::Image, xs: std::ops::Range<u32>
         .map(|(px, py)| img.get(px, py).iter().map(|&x| x as f64).sum::<f64>())
         .sum();
     sum / n
+}
+
+/// The CPU reference of `scene` at `w x h`, `spp` samples per pixel, at `t` seconds, in `mode`
+/// (every other option at its default).
+pub fn reference_at(
+    scene: &Scene,
+    (w, h): (u32, u32),
+    spp: u32,
+    t: f32,
+    mode: penumbra_reference::render::Mode,
+) -> penumbra_reference::render::ReferenceImage {
+    let opts = penumbra_reference::render::ReferenceOptions {
+        width: w,
+        height: h,
+        spp,
+        time: Some(t),
+        mode,
+        ..Default::default()
+    };
+    penumbra_reference::render::render(scene, &opts).expect("reference")
 }

@@ -9,7 +9,7 @@
 
 use anyhow::{Context as _, Result};
 use clap::Args;
-use penumbra::{FrameImages, RenderSettings, Renderer};
+use penumbra::{RenderSettings, Renderer};
 use penumbra_reference::cli::parse_size;
 use penumbra_reference::image::Image;
 use penumbra_reference::metrics::compare;
@@ -45,13 +45,6 @@ pub struct AvsArgs {
     pub chart: Option<PathBuf>,
 }
 
-fn image(f: &FrameImages) -> Image {
-    Image::from_fn(f.width, f.height, |x, y| {
-        let p = f.hdr[(y * f.width + x) as usize];
-        [p[0], p[1], p[2]]
-    })
-}
-
 /// One measured avs render.
 struct AvsRun {
     /// Sample points of the measured frame at their positions then (the traced ones).
@@ -84,13 +77,7 @@ fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32
     for (k, v) in params {
         s.technique_params.insert(k.clone(), v.clone());
     }
-    let settings = RenderSettings {
-        width: w,
-        height: h,
-        technique: Some("avs".into()),
-        technique_params: Some(s.technique_params.clone()),
-        ..Default::default()
-    };
+    let settings = RenderSettings::with_technique(w, h, "avs", &s.technique_params);
     let mut r = Renderer::new_headless(&s, settings, false)?;
     // two frames (t - 1/30, t): G-buffer culling uses the previous frame's flags; the second is
     // measured
@@ -110,7 +97,7 @@ fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32
     let t_s = sum(&f.gpu_ms, &["avs_hsdt"]);
     let t_i = sum(&f.gpu_ms, &["avs_shade"]);
     let total = passes.iter().map(|(_, m)| m).sum::<f64>();
-    let c = compare(reference, "reference", &image(f), "avs")?;
+    let c = compare(reference, "reference", &crate::bench::hdr_image(f), "avs")?;
     let pool = penumbra_passes::avs::vertex_pool(&s, &s.at(t, Some(t0)), &st.pool_plan)?;
     Ok(AvsRun {
         sample_points: st.point_vertices.iter().map(|&v| pool[v]).collect(),
@@ -162,7 +149,7 @@ fn render_mc(
     let mut run = McRun { at_time: None, to_error: None, last: (0.0, 0.0, 0) };
     for (k, f) in out.iter().enumerate() {
         cum += f.gpu_ms.iter().map(|(_, m)| m).sum::<f64>();
-        let c = compare(reference, "reference", &image(f), "mc")?;
+        let c = compare(reference, "reference", &crate::bench::hdr_image(f), "mc")?;
         let psnr = c.psnr_db.unwrap_or(f64::INFINITY);
         let frames = k as u32 + 1;
         if run.at_time.is_none() && cum >= avs_ms {
@@ -409,14 +396,12 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
         series.push(line);
     }
     if let Some(path) = &args.chart {
-        let chart = crate::plot::Chart {
-            title: format!("{}: avs error against time (E_v,max x r), {w}x{h}", scene.name),
-            x_label: "ms per frame (second frame, lavapipe)".into(),
-            y_label: format!("PSNR vs reference, {} spp (dB)", args.spp),
-            log_x: true,
-            log_y: false,
-            legend: true,
-        };
+        let chart = crate::plot::Chart::new(
+            format!("{}: avs error against time (E_v,max x r), {w}x{h}", scene.name),
+            "ms per frame (second frame, lavapipe)",
+            format!("PSNR vs reference, {} spp (dB)", args.spp),
+        )
+        .log(true, false);
         crate::plot::write_chart(path, &chart, &series)?;
         println!("wrote {}", path.display());
     }

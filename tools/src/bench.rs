@@ -55,6 +55,11 @@ pub struct BenchArgs {
     pub technique_params: Option<penumbra_passes::registry::Params>,
 }
 
+/// A frame's radiance as an image (alpha dropped).
+pub(crate) fn hdr_image(f: &penumbra::FrameImages) -> Image {
+    downsample(&f.hdr, f.width, f.height, 1)
+}
+
 /// Box-filters a `ss`-times larger RGBA readback down to `w` x `h` (`--supersample`).
 pub(crate) fn downsample(hdr: &[[f32; 4]], w: u32, h: u32, ss: u32) -> Image {
     let gw = w * ss;
@@ -136,6 +141,40 @@ pub(crate) fn measure_technique(
     })
 }
 
+/// Writes a bench's JSON report to `path` and says so: the device and driver that measured it
+/// (`None`: nothing was measured), the scene and image size, then `body`'s fields.
+pub(crate) fn write_report(
+    path: &std::path::Path,
+    device: Option<(String, String)>,
+    scene: &str,
+    size: [u32; 2],
+    body: serde_json::Value,
+) -> Result<()> {
+    let (device, driver) = device.unwrap_or_default();
+    let mut report = serde_json::json!({"device": device, "driver": driver, "scene": scene, "size": size});
+    if let (Some(r), serde_json::Value::Object(b)) = (report.as_object_mut(), body) {
+        r.extend(b);
+    }
+    std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+/// Renders the CPU reference of `scene` with `opts` into `out/reference.exr` and says so.
+pub(crate) fn reference_into(
+    scene: &Scene,
+    opts: &ReferenceOptions,
+    out: &std::path::Path,
+) -> Result<penumbra_reference::render::ReferenceImage> {
+    let reference = reference_render(scene, opts).context("reference render")?;
+    reference.radiance.write_exr(out.join("reference.exr"))?;
+    println!(
+        "reference: {} spp in {:.2} s, mean relative standard error {:.2e}",
+        opts.spp, reference.render_seconds, reference.noise.mean_rel_std_error
+    );
+    Ok(reference)
+}
+
 pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
     let (width, height) = parse_size(&args.size)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
@@ -152,12 +191,7 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
         progress: true,
         ..Default::default()
     };
-    let reference = reference_render(scene, &opts).context("reference render")?;
-    reference.radiance.write_exr(args.out.join("reference.exr"))?;
-    println!(
-        "reference: {} spp in {:.2} s, mean relative standard error {:.2e}",
-        args.spp, reference.render_seconds, reference.noise.mean_rel_std_error
-    );
+    let reference = reference_into(scene, &opts, &args.out)?;
     let sg_reference = if args.sg_reference {
         let r = reference_render(scene, &ReferenceOptions { mode: Mode::SgLighting, ..opts.clone() })
             .context("SG-lighting reference render")?;
@@ -220,19 +254,13 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
             );
         }
     }
-    let (device, driver) = device.unwrap_or_default();
-    let report = serde_json::json!({
-        "device": device,
-        "driver": driver,
-        "scene": scene.name,
-        "size": [width, height],
+    let body = serde_json::json!({
         "supersample": args.supersample.max(1),
         "time_s": t,
         "reference": {"spp": args.spp, "seconds": reference.render_seconds, "noise": reference.noise},
         "techniques": rows,
     });
-    std::fs::write(args.out.join("bench.json"), serde_json::to_string_pretty(&report)? + "\n")?;
-    println!("wrote {}", args.out.join("bench.json").display());
+    write_report(&args.out.join("bench.json"), device, &scene.name, [width, height], body)?;
     // The speed/accuracy trade as a picture: one point per technique.
     let series: Vec<crate::plot::Series> = rows
         .iter()
@@ -242,14 +270,13 @@ pub fn run(args: &BenchArgs, scene: &Scene) -> Result<()> {
             crate::plot::Series { name: name.clone(), points: vec![point], labels: vec![format!(" {name}")] }
         })
         .collect();
-    let chart = crate::plot::Chart {
-        title: format!("{}: error against time ({}x{}, {}-spp reference)", scene.name, width, height, args.spp),
-        x_label: "GPU ms per frame (median, lavapipe)".into(),
-        y_label: "PSNR vs reference (dB)".into(),
-        log_x: true,
-        log_y: false,
-        legend: false,
-    };
+    let chart = crate::plot::Chart::new(
+        format!("{}: error against time ({}x{}, {}-spp reference)", scene.name, width, height, args.spp),
+        "GPU ms per frame (median, lavapipe)",
+        "PSNR vs reference (dB)",
+    )
+    .log(true, false)
+    .legend(false);
     match crate::plot::write_chart(&args.out.join("tradeoff.png"), &chart, &series) {
         Ok(()) => println!("wrote {}", args.out.join("tradeoff.png").display()),
         // e.g. every technique matched the reference exactly (infinite PSNR): nothing to plot
@@ -402,14 +429,11 @@ pub fn run_volumetric(args: &VolumetricArgs, scene: &Scene) -> Result<()> {
                 labels: vec![],
             },
         ];
-        let chart = crate::plot::Chart {
-            title: format!("{}: frame rate against the reused frame number, {width}x{height}", report.scene),
-            x_label: "reused frame number (refresh period - 1)".into(),
-            y_label: "frames per second (whole-frame GPU time)".into(),
-            log_x: false,
-            log_y: false,
-            legend: true,
-        };
+        let chart = crate::plot::Chart::new(
+            format!("{}: frame rate against the reused frame number, {width}x{height}", report.scene),
+            "reused frame number (refresh period - 1)",
+            "frames per second (whole-frame GPU time)",
+        );
         crate::plot::write_chart(path, &chart, &series)?;
         println!("wrote {}", path.display());
     } else if let Some(path) = &args.chart {
@@ -423,17 +447,11 @@ pub fn run_volumetric(args: &VolumetricArgs, scene: &Scene) -> Result<()> {
             line("temporal (masked re-march)", &|f| f.temporal_total_ms),
             line("full (every pixel)", &|f| f.full_total_ms),
         ];
-        let chart = crate::plot::Chart {
-            title: format!(
-                "{}: volumetric GPU ms per frame, {width}x{height} (overall {:.2}x)",
-                report.scene, report.speedup
-            ),
-            x_label: "frame".into(),
-            y_label: "GPU ms of the vol_* passes".into(),
-            log_x: false,
-            log_y: false,
-            legend: true,
-        };
+        let chart = crate::plot::Chart::new(
+            format!("{}: volumetric GPU ms per frame, {width}x{height} (overall {:.2}x)", report.scene, report.speedup),
+            "frame",
+            "GPU ms of the vol_* passes",
+        );
         crate::plot::write_chart(path, &chart, &series)?;
         println!("wrote {}", path.display());
     }
@@ -640,13 +658,7 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
                 s.technique_params.insert(k.into(), v);
             }
         }
-        let settings = RenderSettings {
-            width,
-            height,
-            technique: Some(technique.to_string()),
-            technique_params: Some(s.technique_params.clone()),
-            ..Default::default()
-        };
+        let settings = RenderSettings::with_technique(width, height, technique, &s.technique_params);
         let mut r = Renderer::new_headless(&s, settings, false).with_context(|| format!("variant {label}"))?;
         let frame = s.at(args.time, Some(args.time));
         let mut out = Vec::new();
@@ -654,11 +666,7 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
             out.extend(r.render(&frame, None, true)?);
         }
         out.extend(r.finish()?);
-        let last = out.last().context("no frame finished")?;
-        let img = Image::from_fn(width, height, |x, y| {
-            let p = last.hdr[(y * width + x) as usize];
-            [p[0], p[1], p[2]]
-        });
+        let img = crate::bench::hdr_image(out.last().context("no frame finished")?);
         let ms = technique_gpu_ms(&r);
         let c = compare(&reference.radiance, "reference", &img, label)?;
         println!(
@@ -675,38 +683,27 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
             .iter()
             .map(|&(l, ms, db)| crate::plot::Series { name: l.into(), points: vec![(ms, db)], labels: vec![] })
             .collect();
-        let chart = crate::plot::Chart {
-            title: format!("{}: shadow-field variants at {width}x{height}, t = {} s", scene.name, args.time),
-            x_label: "GPU ms per frame (median of 3, lavapipe)".into(),
-            y_label: format!("PSNR vs reference, {} spp (dB)", args.spp),
-            log_x: true,
-            log_y: false,
-            legend: true, // variants cluster: colours and a legend, not point labels
-        };
+        // variants cluster: colours and a legend, not point labels
+        let chart = crate::plot::Chart::new(
+            format!("{}: shadow-field variants at {width}x{height}, t = {} s", scene.name, args.time),
+            "GPU ms per frame (median of 3, lavapipe)",
+            format!("PSNR vs reference, {} spp (dB)", args.spp),
+        )
+        .log(true, false);
         crate::plot::write_chart(path, &chart, &series)?;
         println!("wrote {}", path.display());
     }
-    if let (Some(a), Some(f)) =
-        (images.iter().find(|(l, _)| *l == "adaptive pixel"), images.iter().find(|(l, _)| *l == "fixed pixel"))
-    {
-        let c = compare(&f.1, "fixed", &a.1, "adaptive")?;
-        println!(
-            "adaptive vs fixed (pixel): PSNR {}  relRMSE {:.4}  FLIP {:.4}",
-            c.psnr_db.map_or("inf".into(), |p| format!("{p:.2}")),
-            c.rel_rmse,
-            c.flip_mean
-        );
-    }
-    if let (Some(a), Some(f)) =
-        (images.iter().find(|(l, _)| *l == "adaptive vertex"), images.iter().find(|(l, _)| *l == "fixed vertex"))
-    {
-        let c = compare(&f.1, "fixed", &a.1, "adaptive")?;
-        println!(
-            "adaptive vs fixed (vertex): PSNR {}  relRMSE {:.4}  FLIP {:.4}",
-            c.psnr_db.map_or("inf".into(), |p| format!("{p:.2}")),
-            c.rel_rmse,
-            c.flip_mean
-        );
+    for mode in ["pixel", "vertex"] {
+        let find = |kind: &str| images.iter().find(|(l, _)| *l == format!("{kind} {mode}"));
+        if let (Some(a), Some(f)) = (find("adaptive"), find("fixed")) {
+            let c = compare(&f.1, "fixed", &a.1, "adaptive")?;
+            println!(
+                "adaptive vs fixed ({mode}): PSNR {}  relRMSE {:.4}  FLIP {:.4}",
+                c.psnr_db.map_or("inf".into(), |p| format!("{p:.2}")),
+                c.rel_rmse,
+                c.flip_mean
+            );
+        }
     }
     Ok(())
 }

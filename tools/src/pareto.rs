@@ -378,14 +378,12 @@ pub fn write_outputs(fronts: &[Front], out: &std::path::Path) -> Result<()> {
     let md = out.join("pareto.md");
     std::fs::write(&md, table_md(fronts)).with_context(|| format!("writing {}", md.display()))?;
     for (i, f) in fronts.iter().enumerate() {
-        let chart = crate::plot::Chart {
-            title: format!("{} {}x{}: error against cost (front: *)", f.scene, f.size[0], f.size[1]),
-            x_label: "ms per frame (wall clock)".into(),
-            y_label: "RMSE / reference mean".into(),
-            log_x: true,
-            log_y: true,
-            legend: true,
-        };
+        let chart = crate::plot::Chart::new(
+            format!("{} {}x{}: error against cost (front: *)", f.scene, f.size[0], f.size[1]),
+            "ms per frame (wall clock)",
+            "RMSE / reference mean",
+        )
+        .log(true, true);
         let series: Vec<crate::plot::Series> = techniques
             .iter()
             .filter_map(|t| {

@@ -36,6 +36,24 @@ pub struct Chart {
     pub legend: bool,
 }
 
+impl Chart {
+    /// Linear axes with a legend; see [`Chart::log`] and [`Chart::legend`].
+    pub fn new(title: impl Into<String>, x_label: impl Into<String>, y_label: impl Into<String>) -> Self {
+        let (title, x_label, y_label) = (title.into(), x_label.into(), y_label.into());
+        Chart { title, x_label, y_label, log_x: false, log_y: false, legend: true }
+    }
+
+    /// Logarithmic x and/or y axes.
+    pub fn log(self, log_x: bool, log_y: bool) -> Self {
+        Chart { log_x, log_y, ..self }
+    }
+
+    /// With or without a legend box.
+    pub fn legend(self, legend: bool) -> Self {
+        Chart { legend, ..self }
+    }
+}
+
 pub(crate) fn register_font() -> Result<()> {
     static ONCE: Once = Once::new();
     let mut res = Ok(());
@@ -274,14 +292,7 @@ mod tests {
         ];
         for log_x in [false, true] {
             let p = dir.join(format!("c{log_x}.png"));
-            let chart = Chart {
-                title: "t".into(),
-                x_label: "ms".into(),
-                y_label: "dB".into(),
-                log_x,
-                log_y: false,
-                legend: !log_x,
-            };
+            let chart = Chart::new("t", "ms", "dB").log(log_x, false).legend(!log_x);
             write_chart(&p, &chart, &s).unwrap();
             assert_eq!(png_size(&p), (800, 560));
         }
@@ -293,27 +304,13 @@ mod tests {
             labels: vec![],
         }];
         let p = dir.join("loglog.png");
-        let chart = Chart {
-            title: "t".into(),
-            x_label: "ms".into(),
-            y_label: "e".into(),
-            log_x: true,
-            log_y: true,
-            legend: true,
-        };
+        let chart = Chart::new("t", "ms", "e").log(true, true);
         write_chart(&p, &chart, &e).unwrap();
         assert_eq!(png_size(&p), (800, 560));
         let zeros = [Series { name: "z".into(), points: vec![(1.0, 0.0), (2.0, -1.0)], labels: vec![] }];
         assert!(write_chart(&p, &chart, &zeros).unwrap_err().to_string().contains("no finite point"));
         let p = dir.join("empty.png");
-        let chart = Chart {
-            title: "t".into(),
-            x_label: "ms".into(),
-            y_label: "dB".into(),
-            log_x: true,
-            log_y: false,
-            legend: true,
-        };
+        let chart = Chart::new("t", "ms", "dB").log(true, false);
         let bad = [Series { name: "n".into(), points: vec![(0.0, 1.0), (f64::INFINITY, 2.0)], labels: vec![] }];
         let err = write_chart(&p, &chart, &bad).unwrap_err().to_string();
         assert!(err.contains("empty.png") && err.contains("no finite point"), "{err}");

@@ -10,9 +10,8 @@ use clap::Args;
 use penumbra::{RenderSettings, Renderer};
 use penumbra_passes::vv::{VvSceneData, VvStats};
 use penumbra_reference::cli::parse_size;
-use penumbra_reference::image::Image;
 use penumbra_reference::metrics::compare;
-use penumbra_reference::render::{render as reference_render, Mode, ReferenceOptions};
+use penumbra_reference::render::{Mode, ReferenceOptions};
 use penumbra_scene::Scene;
 use std::path::PathBuf;
 
@@ -67,12 +66,7 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
         progress: true,
         ..Default::default()
     };
-    let reference = reference_render(scene, &opts).context("reference render")?;
-    reference.radiance.write_exr(args.out.join("reference.exr"))?;
-    println!(
-        "reference: {} spp in {:.2} s, mean relative standard error {:.2e}",
-        args.spp, reference.render_seconds, reference.noise.mean_rel_std_error
-    );
+    let reference = crate::bench::reference_into(scene, &opts, &args.out)?;
     let data = VvSceneData::cached(scene, args.resolution, args.refine)?;
     println!(
         "precompute: {} vertices, {} triangles; visibility {:.2} s, {:.2} MB; correspondence {}",
@@ -120,13 +114,7 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
             }
         };
         drop(tech);
-        let rs = RenderSettings {
-            width,
-            height,
-            technique: Some("vv".into()),
-            technique_params: Some(s.technique_params.clone()),
-            ..Default::default()
-        };
+        let rs = RenderSettings::with_technique(width, height, "vv", &s.technique_params);
         let mut r = Renderer::new(ctx, &s, rs)?;
         device.get_or_insert_with(|| (r.context().device_name.clone(), r.context().driver_info()));
         let frame = s.at(0.0, Some(0.0));
@@ -135,11 +123,7 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
             images.extend(r.render(&frame, None, true)?);
         }
         images.extend(r.finish()?);
-        let last = images.last().context("no frame finished")?;
-        let img = Image::from_fn(width, height, |x, y| {
-            let p = last.hdr[(y * width + x) as usize];
-            [p[0], p[1], p[2]]
-        });
+        let img = crate::bench::hdr_image(images.last().context("no frame finished")?);
         img.write_exr(args.out.join(format!("{}.exr", name.replace([' ', '='], "_"))))?;
         let c = compare(&reference.radiance, "reference", &img, name)?;
         let stats = r.engine.profiler.gpu_stats();
@@ -185,12 +169,7 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
             "interpolated": rb.map(|r| serde_json::json!({"ms": r.ms, "psnr_db": r.psnr, "triangles": r.triangles})),
         }));
     }
-    let (device, driver) = device.unwrap_or_default();
-    let report = serde_json::json!({
-        "device": device,
-        "driver": driver,
-        "scene": scene.name,
-        "size": [width, height],
+    let body = serde_json::json!({
         "reference": {"spp": args.spp, "seconds": reference.render_seconds},
         "precompute": {
             "vertices": data.model().positions.len(),
@@ -202,8 +181,7 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
         },
         "rows": json,
     });
-    std::fs::write(args.out.join("vv_bench.json"), serde_json::to_string_pretty(&report)? + "\n")?;
-    println!("wrote {}", args.out.join("vv_bench.json").display());
+    crate::bench::write_report(&args.out.join("vv_bench.json"), device, &scene.name, [width, height], body)?;
     // Fig. 11's comparison as a picture: per method, PSNR against ms over zeta and per fragment.
     let method = |name: &str, pick: &dyn Fn(&(String, String, String)) -> &String| {
         let (points, labels) = pairs
@@ -213,14 +191,12 @@ pub fn run(args: &VvArgs, scene: &Scene) -> Result<()> {
         crate::plot::Series { name: name.into(), points, labels }
     };
     let series = [method("previous (eq. 19)", &|p| &p.1), method("this paper (eq. 21)", &|p| &p.2)];
-    let chart = crate::plot::Chart {
-        title: format!("{}: vv error against time, {width}x{height}", scene.name),
-        x_label: "GPU ms per frame (median, lavapipe)".into(),
-        y_label: format!("PSNR vs reference, {} spp (dB)", args.spp),
-        log_x: true,
-        log_y: false,
-        legend: true,
-    };
+    let chart = crate::plot::Chart::new(
+        format!("{}: vv error against time, {width}x{height}", scene.name),
+        "GPU ms per frame (median, lavapipe)",
+        format!("PSNR vs reference, {} spp (dB)", args.spp),
+    )
+    .log(true, false);
     let path = args.out.join("vv_tradeoff.png");
     match crate::plot::write_chart(&path, &chart, &series) {
         Ok(()) => println!("wrote {}", path.display()),

@@ -3,6 +3,9 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+mod common;
+use common::{text, tmp};
+
 /// The binary under test: `PENUMBRA_BIN` when set (scripts/test.sh runs these tests again
 /// against the release build: release-only behaviour such as wrapping arithmetic), else the
 /// one cargo built for this test.
@@ -10,17 +13,6 @@ fn penumbra(args: &[&str]) -> Output {
     let bin =
         std::env::var_os("PENUMBRA_BIN").map_or_else(|| PathBuf::from(env!("CARGO_BIN_EXE_penumbra")), PathBuf::from);
     Command::new(&bin).args(args).output().unwrap_or_else(|e| panic!("run {}: {e}", bin.display()))
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn text(o: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
 }
 
 #[test]

@@ -3,19 +3,11 @@
 //! read back from the swapchain image and must equal, texel for texel, what `penumbra render`
 //! writes for the same frame; validation (with synchronization validation) must stay clean.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 
-fn tmp(name: &str) -> PathBuf {
-    let d = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn text(o: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
-}
+mod common;
+use common::{text, tmp};
 
 /// An Xvfb server on a display it chose itself, killed on drop.
 struct Xvfb {

@@ -4,16 +4,15 @@
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
+mod common;
+use common::text;
+
 fn penumbra(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_penumbra"))
         .args(args)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .expect("run penumbra")
-}
-
-fn text(o: &Output) -> String {
-    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
 }
 
 #[test]

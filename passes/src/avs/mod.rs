@@ -267,26 +267,11 @@ impl AvsSettings {
     /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `glossy` (`ratio` | `sg`), `lobes` (16), `light_shadows` (`traced` | `ssdf`). Unknown keys and bad values
     /// are errors naming the key.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
-        let v = value.trim();
-        let bad = || anyhow!("avs parameter {key} = '{value}': not a valid value");
-        let float = |lo: f32, hi: f32| -> Result<f32> {
-            v.parse::<f32>()
-                .ok()
-                .filter(|x| x.is_finite() && *x >= lo && *x <= hi)
-                .ok_or_else(|| anyhow!("avs parameter {key} = '{value}': expected a number in [{lo}, {hi}]"))
-        };
-        let int = |lo: u64, hi: u64| -> Result<u64> {
-            v.parse::<u64>()
-                .ok()
-                .filter(|x| *x >= lo && *x <= hi)
-                .ok_or_else(|| anyhow!("avs parameter {key} = '{value}': expected an integer in [{lo}, {hi}]"))
-        };
-        let flag = || match v {
-            "1" | "true" => Ok(true),
-            "0" | "false" => Ok(false),
-            _ => Err(bad()),
-        };
-        match key.trim() {
+        let p = crate::technique::Param::new("avs", key, value);
+        let float = |lo: f32, hi: f32| p.float(lo as f64, hi as f64).map(|x| x as f32);
+        let int = |lo: u64, hi: u64| p.int(lo, hi);
+        let ratio_or_sg = [("ratio", true), ("sg", false)];
+        match p.key() {
             "r" => self.r = int(8, 256)? as u32,
             "initial_grid" => self.initial_grid = int(16, 32)? as u32,
             "e_max" => self.e_max = float(0.0, 100.0)?,
@@ -296,17 +281,13 @@ impl AvsSettings {
             "iterations" => self.iterations = int(0, 16)? as u32,
             "first_iterations" => self.first_iterations = int(0, 64)? as u32,
             "adaptation" => {
-                (self.late, self.cpu) = match v {
-                    "late" => (true, false),
-                    "rounds" => (false, false),
-                    "cpu" => (false, true),
-                    _ => bail!("avs parameter adaptation = '{value}': expected 'rounds', 'late' or 'cpu'"),
-                }
+                (self.late, self.cpu) =
+                    p.choice(&[("rounds", (false, false)), ("late", (true, false)), ("cpu", (false, true))])?
             }
             "cpu_grid" => {
                 self.cpu_grid = int(8, 64)? as u32;
                 if !self.cpu_grid.is_multiple_of(8) {
-                    bail!("avs parameter cpu_grid = '{value}': expected a multiple of 8 in 8..=64");
+                    return Err(p.bad("a multiple of 8 in 8..=64"));
                 }
             }
             "points" => self.points = int(0, 1 << 16)? as usize,
@@ -316,47 +297,26 @@ impl AvsSettings {
             "neighbours" => self.neighbours = int(1, 8)? as u32,
             "ray_neighbours" => self.ray_neighbours = int(0, 8)? as u32,
             "integration" => {
-                self.integration = match v {
-                    "axis" => Integration::Axis,
-                    "cells" => Integration::Cells,
-                    "table" => Integration::Table,
-                    "adf" => Integration::Adf,
-                    _ => bail!("avs parameter integration = '{value}': expected 'axis', 'cells', 'table' or 'adf'"),
-                }
+                self.integration = p.choice(&[
+                    ("axis", Integration::Axis),
+                    ("cells", Integration::Cells),
+                    ("table", Integration::Table),
+                    ("adf", Integration::Adf),
+                ])?
             }
             "cells" => self.cells = int(1, 16)? as u32,
-            "shadows" => self.shadows = flag()?,
-            "adaptive" => self.adaptive = flag()?,
-            "keep_hits" => self.keep_hits = flag()?,
-            "prefiltered" => self.prefiltered = flag()?,
-            "diffuse" => {
-                self.diffuse_ratio = match v {
-                    "ratio" => true,
-                    "sg" => false,
-                    _ => bail!("avs parameter diffuse = '{value}': expected 'ratio' or 'sg'"),
-                }
-            }
-            "glossy" => {
-                self.glossy_ratio = match v {
-                    "ratio" => true,
-                    "sg" => false,
-                    _ => bail!("avs parameter glossy = '{value}': expected 'ratio' or 'sg'"),
-                }
-            }
+            "shadows" => self.shadows = p.flag()?,
+            "adaptive" => self.adaptive = p.flag()?,
+            "keep_hits" => self.keep_hits = p.flag()?,
+            "prefiltered" => self.prefiltered = p.flag()?,
+            "diffuse" => self.diffuse_ratio = p.choice(&ratio_or_sg)?,
+            "glossy" => self.glossy_ratio = p.choice(&ratio_or_sg)?,
             "lobes" => self.lobes = int(1, 64)? as usize,
-            "cull" => self.cull = flag()?,
-            "light_shadows" => {
-                self.traced_lights = match v {
-                    "traced" => true,
-                    "ssdf" => false,
-                    _ => bail!("avs parameter light_shadows = '{value}': expected 'traced' or 'ssdf'"),
-                }
-            }
+            "cull" => self.cull = p.flag()?,
+            "light_shadows" => self.traced_lights = p.choice(&[("traced", true), ("ssdf", false)])?,
             "key_lights" => self.key_lights = int(0, 16)? as usize,
-            "capture_maps" => self.capture_maps = flag()?,
-            other => bail!(
-                "unknown avs parameter '{other}' (known: r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, adaptation, first_iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, light_shadows, key_lights, capture_maps)"
-            ),
+            "capture_maps" => self.capture_maps = p.flag()?,
+            _ => return Err(p.unknown("r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, adaptation, first_iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, light_shadows, key_lights, capture_maps")),
         }
         Ok(())
     }
@@ -1057,12 +1017,8 @@ impl AvsTechnique {
             // the shader's level: 0 traces every texel and reads no previous level
             let level = level - first;
             let mut p = graph.pass(&format!("avs_vis{tag}_l{level}"), PassKind::Compute);
-            let t0 = p.read(tree.tris, Access::ComputeShaderReadStorage);
-            let t1 = p.read(tree.nodes, Access::ComputeShaderReadStorage);
-            let t2 = p.read(tree.refs, Access::ComputeShaderReadStorage);
-            let t3 = p.read(tree.header, Access::ComputeShaderReadStorage);
-            let pb = p.read(points_buf, Access::ComputeShaderReadStorage);
-            let bb = p.read(batch_buf, Access::ComputeShaderReadStorage);
+            let [t0, t1, t2, t3, pb, bb] = [tree.tris, tree.nodes, tree.refs, tree.header, points_buf, batch_buf]
+                .map(|h| p.read(h, Access::ComputeShaderReadStorage));
             // level 0 reads nothing: bind the output's sibling scratch as a dummy "previous"
             let prev_idx = (level as usize + 1) % 2;
             let prev = if level == 0 {
@@ -1710,14 +1666,9 @@ impl crate::technique::Technique for AvsTechnique {
         let hdr = io.hdr;
         let lights = p.read(scene.lights, Access::ComputeShaderReadStorage);
         let textures = p.read(scene.textures, Access::ComputeShaderReadSampled);
-        let lobes = p.read(lobes, Access::ComputeShaderReadStorage);
-        let prefiltered = p.read(prefiltered, Access::ComputeShaderReadStorage);
-        let pts = p.read(points_buf, Access::ComputeShaderReadStorage);
-        let gr = p.read(grid_buf, Access::ComputeShaderReadStorage);
-        let sd = p.read(ssdf, Access::ComputeShaderReadStorage);
-        let tb = p.read(table, Access::ComputeShaderReadStorage);
-        let ir = p.read(irradiance, Access::ComputeShaderReadStorage);
-        let kl = p.read(key_lights, Access::ComputeShaderReadStorage);
+        let [lobes, prefiltered, pts, gr, sd, tb, ir, kl] =
+            [lobes, prefiltered, points_buf, grid_buf, ssdf, table, irradiance, key_lights]
+                .map(|h| p.read(h, Access::ComputeShaderReadStorage));
         let pos_scale = samp::scene_scale(&pool.iter().map(|p| p.pos).collect::<Vec<_>>());
         let s = &self.settings;
         let mut push: Vec<u8> = Vec::with_capacity(56);

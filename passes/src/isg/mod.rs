@@ -176,86 +176,38 @@ impl IsgSettings {
     /// (`centre` or the paper's `paper`). Unknown keys
     /// and bad values are errors.
     pub fn set(&mut self, key: &str, value: &str) -> anyhow::Result<()> {
-        let v = value.trim();
-        let bad = || anyhow::anyhow!("isg parameter {key} = '{value}': not a valid value");
-        let flag = || match v {
-            "1" | "true" => Ok(true),
-            "0" | "false" => Ok(false),
-            _ => Err(bad()),
-        };
-        match key.trim() {
-            "lobes" => self.lobes = v.parse::<usize>().map_err(|_| bad())?.clamp(1, 64),
-            "spheres" => self.spheres_per_object = v.parse::<usize>().map_err(|_| bad())?.min(4096),
-            "side" => self.patch_side = v.parse::<u32>().map_err(|_| bad())?.clamp(1, 32),
-            "epsilon" => self.epsilon = v.parse::<f64>().ok().filter(|x| x.is_finite()).ok_or_else(bad)?.clamp(1e-6, 0.5),
-            "lod" => self.lod = v.parse::<f32>().ok().filter(|x| x.is_finite()).ok_or_else(bad)?.max(0.0),
-            "min_fraction" => {
-                self.min_lobe_fraction = v.parse::<f32>().ok().filter(|x| x.is_finite()).ok_or_else(bad)?.clamp(0.0, 1.0)
-            }
-            "shadows" => self.shadows = flag()?,
-            "prefiltered" => self.prefiltered_specular = flag()?,
-            "diffuse" => {
-                self.diffuse_ratio = match v {
-                    "ratio" => true,
-                    "sg" => false,
-                    _ => anyhow::bail!("isg parameter diffuse = '{value}': expected 'ratio' or 'sg'"),
-                }
-            }
-            "glossy" => {
-                self.glossy_ratio = match v {
-                    "ratio" => true,
-                    "sg" => false,
-                    _ => anyhow::bail!("isg parameter glossy = '{value}': expected 'ratio' or 'sg'"),
-                }
-            }
-            "gpu_bvh" => self.gpu_bvh = flag()?,
-            "thin_shells" => self.thin_shells = flag()?,
-            "light_shadows" => self.light_shadows = flag()?,
-            "light_occluders" => {
-                self.light_mesh = match v {
-                    "mesh" => true,
-                    "spheres" => false,
-                    _ => anyhow::bail!("isg parameter light_occluders = '{value}': expected 'mesh' or 'spheres'"),
-                }
-            }
-            "thin_tolerance" => {
-                self.thin_tolerance = v.parse::<f32>().ok().filter(|x| x.is_finite() && *x >= 0.0).ok_or_else(bad)?
-            }
-            "visibility" => {
-                self.traced_visibility = match v {
-                    "isg" => false,
-                    "traced" => true,
-                    _ => anyhow::bail!("isg parameter visibility = '{value}': expected 'isg' or 'traced'"),
-                }
-            }
-            "mode" => {
-                self.per_vertex = match v {
-                    "pixel" => false,
-                    "vertex" => true,
-                    _ => return Err(bad()),
-                }
-            }
-            "max_edge" => self.max_edge = v.parse::<f32>().ok().filter(|x| x.is_finite() && *x >= 0.0).ok_or_else(bad)?,
-            "isg_eval" => {
-                self.model = match v {
-                    "table" => penumbra_math::isg::IsgModel::Table,
-                    "sigmoid" => penumbra_math::isg::IsgModel::PaperFit,
-                    _ => anyhow::bail!("isg parameter isg_eval = '{value}': expected 'table' or 'sigmoid'"),
-                }
-            }
+        use penumbra_math::isg::{IsgModel, PatchRule};
+        let p = crate::technique::Param::new("isg", key, value);
+        // counts and sizes are clamped into their ranges, as the scene files have them
+        let count = || p.int(0, u64::MAX).map_err(|_| p.bad("a whole number"));
+        let num = |lo: f64, hi: f64| p.number(|_| true, "a finite number").map(|x| x.clamp(lo, hi));
+        let at_least_0 = || p.number(|x| x >= 0.0, "a finite number >= 0").map(|x| x as f32);
+        let ratio_or_sg = [("ratio", true), ("sg", false)];
+        match p.key() {
+            "lobes" => self.lobes = count()?.clamp(1, 64) as usize,
+            "spheres" => self.spheres_per_object = count()?.min(4096) as usize,
+            "side" => self.patch_side = count()?.clamp(1, 32) as u32,
+            "epsilon" => self.epsilon = num(1e-6, 0.5)?,
+            "lod" => self.lod = num(0.0, f64::INFINITY)? as f32,
+            "min_fraction" => self.min_lobe_fraction = num(0.0, 1.0)? as f32,
+            "shadows" => self.shadows = p.flag()?,
+            "prefiltered" => self.prefiltered_specular = p.flag()?,
+            "diffuse" => self.diffuse_ratio = p.choice(&ratio_or_sg)?,
+            "glossy" => self.glossy_ratio = p.choice(&ratio_or_sg)?,
+            "gpu_bvh" => self.gpu_bvh = p.flag()?,
+            "thin_shells" => self.thin_shells = p.flag()?,
+            "light_shadows" => self.light_shadows = p.flag()?,
+            "light_occluders" => self.light_mesh = p.choice(&[("mesh", true), ("spheres", false)])?,
+            "thin_tolerance" => self.thin_tolerance = at_least_0()?,
+            "visibility" => self.traced_visibility = p.choice(&[("isg", false), ("traced", true)])?,
+            "mode" => self.per_vertex = p.choice(&[("pixel", false), ("vertex", true)])?,
+            "max_edge" => self.max_edge = at_least_0()?,
+            "isg_eval" => self.model = p.choice(&[("table", IsgModel::Table), ("sigmoid", IsgModel::PaperFit)])?,
             "patch_rule" => {
-                self.rule = match v {
-                    "centre" | "center" => penumbra_math::isg::PatchRule::Centre,
-                    "paper" => penumbra_math::isg::PatchRule::Paper,
-                    _ => anyhow::bail!("isg parameter patch_rule = '{value}': expected 'centre' or 'paper'"),
-                }
+                self.rule = p.choice(&[("centre", PatchRule::Centre), ("center", PatchRule::Centre), ("paper", PatchRule::Paper)])?
             }
-            "pixel_refine" => {
-                self.pixel_refine = v.parse::<f32>().ok().filter(|x| x.is_finite() && *x >= 0.0).ok_or_else(bad)?
-            }
-            other => anyhow::bail!(
-                "unknown isg parameter '{other}' (known: lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, diffuse, glossy, gpu_bvh, thin_shells, light_shadows, light_occluders, mode, max_edge, pixel_refine, isg_eval, patch_rule)"
-            ),
+            "pixel_refine" => self.pixel_refine = at_least_0()?,
+            _ => return Err(p.unknown("lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, diffuse, glossy, gpu_bvh, thin_shells, light_shadows, light_occluders, thin_tolerance, visibility, mode, max_edge, pixel_refine, isg_eval, patch_rule")),
         }
         Ok(())
     }
@@ -796,18 +748,15 @@ impl IsgTechnique {
             anyhow::bail!("isg: per-vertex pipelines missing")
         };
         let vertex_pipe = compute.handle();
-        let (rp, rl) = (raster.pipeline, raster.handle());
+        let rl = raster.handle();
         let scene = inputs.handles;
         let mut p = graph.pass("isg_vertex", PassKind::Compute);
         let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
         let materials = p.read(scene.materials, Access::ComputeShaderReadStorage);
         let verts_c = p.read(verts, Access::ComputeShaderReadStorage);
         let vis = p.write(vis, Access::ComputeShaderWriteStorage);
-        let lobes = p.read(lobes, Access::ComputeShaderReadStorage);
-        let table = p.read(table, Access::ComputeShaderReadStorage);
-        let bvh = p.read(bvh, Access::ComputeShaderReadStorage);
-        let tris = p.read(tris, Access::ComputeShaderReadStorage);
-        let tri_nodes = p.read(tri_nodes, Access::ComputeShaderReadStorage);
+        let [lobes, table, bvh, tris, tri_nodes] =
+            [lobes, table, bvh, tris, tri_nodes].map(|h| p.read(h, Access::ComputeShaderReadStorage));
         let mut push = Vec::with_capacity(32);
         push.extend_from_slice(&count.to_le_bytes());
         push.extend_from_slice(&self.lobe_count.to_le_bytes());
@@ -828,24 +777,19 @@ impl IsgTechnique {
         let image = p.write(image, Access::ColorAttachmentWrite);
         let depth = p.write(depth, Access::DepthAttachmentWrite);
         let camera = p.read(scene.camera, Access::AnyShaderReadUniform);
-        let vis = p.read(vis, Access::VertexShaderReadStorage);
-        let verts_v = p.read(verts, Access::VertexShaderReadStorage);
-        let index_buf = p.read(index_buf, Access::VertexShaderReadStorage);
+        let [vis, verts_v, index_buf] = [vis, verts, index_buf].map(|h| p.read(h, Access::VertexShaderReadStorage));
         let refine = self.settings.pixel_refine;
         p.record(move |rc| {
             let d = rc.device();
             // cleared to r < 0: no receiver triangle here (per-pixel fallback)
             let colors = [crate::util::color_attachment(rc.image(image)?.view, [-1.0; 4])];
             let depth_att = crate::util::depth_attachment(rc.image(depth)?.view, false);
-            let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
-            let info = vk::RenderingInfo::default()
-                .render_area(area)
-                .layer_count(1)
-                .color_attachments(&colors)
-                .depth_attachment(&depth_att);
-            crate::raster::begin(d, rc.cmd, &info, w, h, rp);
-            crate::util::push_graphics(
+            let info = crate::raster::rendering_info(w, h, &colors, &depth_att);
+            crate::raster::begin(
                 rc,
+                &info,
+                w,
+                h,
                 &rl,
                 &[
                     Bind::UniformBuffer(camera),
@@ -945,13 +889,9 @@ impl crate::technique::Technique for IsgTechnique {
         let hdr = io.hdr;
         let lights = p.read(scene.lights, Access::ComputeShaderReadStorage);
         let textures = p.read(scene.textures, Access::ComputeShaderReadSampled);
-        let table = p.read(table, Access::ComputeShaderReadStorage);
-        let lobes = p.read(lobes, Access::ComputeShaderReadStorage);
-        let bvh = p.read(bvh, Access::ComputeShaderReadStorage);
-        let prefiltered = p.read(prefiltered, Access::ComputeShaderReadStorage);
-        let tris_buf = p.read(tris_buf, Access::ComputeShaderReadStorage);
-        let tri_bvh = p.read(tri_bvh, Access::ComputeShaderReadStorage);
-        let irradiance = p.read(irradiance, Access::ComputeShaderReadStorage);
+        let [table, lobes, bvh, prefiltered, tris_buf, tri_bvh, irradiance] =
+            [table, lobes, bvh, prefiltered, tris_buf, tri_bvh, irradiance]
+                .map(|h| p.read(h, Access::ComputeShaderReadStorage));
         let vertex_vis = vertex_vis.map(|v| p.read(v, Access::ComputeShaderReadSampled));
         let kd = kd_bufs.map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let mut push = Vec::with_capacity(40);

@@ -59,10 +59,7 @@ pub fn gpu_visibility(
     let mut p = graph.pass("isg_parity", PassKind::Compute);
     let qb = p.read(qb, Access::ComputeShaderReadStorage);
     let out_w = p.write(out, Access::ComputeShaderWriteStorage);
-    let tb = p.read(tb, Access::ComputeShaderReadStorage);
-    let nb = p.read(nb, Access::ComputeShaderReadStorage);
-    let trb = p.read(trb, Access::ComputeShaderReadStorage);
-    let tnb = p.read(tnb, Access::ComputeShaderReadStorage);
+    let [tb, nb, trb, tnb] = [tb, nb, trb, tnb].map(|h| p.read(h, Access::ComputeShaderReadStorage));
     let mut push = Vec::with_capacity(24);
     push.extend_from_slice(&count.to_le_bytes());
     push.extend_from_slice(&node_count.to_le_bytes());

@@ -25,7 +25,7 @@ use super::McTechnique;
 use crate::shade_env::HDR_FORMAT;
 use crate::technique::TechniqueInputs;
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
-use anyhow::{bail, Result};
+use anyhow::Result;
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{Access, Bind, Context, FrameStore, Graph, ImageHandle, PassKind};
@@ -72,35 +72,18 @@ impl Default for DenoiseSettings {
 impl DenoiseSettings {
     /// Sets one `[technique_params]` entry; any other key is an error.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
-        let v = value.trim();
-        let int = |lo: u32, hi: u32| -> Result<u32> {
-            match v.parse::<u32>() {
-                Ok(n) if (lo..=hi).contains(&n) => Ok(n),
-                _ => bail!("mc-denoised: {key} = '{v}': expected an integer in {lo}..={hi}"),
-            }
-        };
-        let positive = || -> Result<f32> {
-            match v.parse::<f32>() {
-                Ok(x) if x.is_finite() && x > 0.0 => Ok(x),
-                _ => bail!("mc-denoised: {key} = '{v}': expected a finite number > 0"),
-            }
-        };
-        match key.trim() {
+        let p = crate::technique::Param::new("mc-denoised", key, value);
+        let int = |lo: u64, hi: u64| p.int(lo, hi).map(|n| n as u32);
+        let positive = || p.number(|x| x > 0.0, "a finite number > 0").map(|x| x as f32);
+        match p.key() {
             "spp" => self.spp = int(1, 64)?,
             "iterations" => self.iterations = int(1, 8)?,
             "history" => self.history = int(1, 1024)?,
             "phi_color" => self.phi_color = positive()?,
             "phi_normal" => self.phi_normal = positive()?,
             "phi_plane" => self.phi_plane = positive()?,
-            "phi_lobe" => {
-                self.phi_lobe = match v.parse::<f32>() {
-                    Ok(x) if x.is_finite() && x >= 0.0 => x,
-                    _ => bail!("mc-denoised: {key} = '{v}': expected a finite number >= 0"),
-                }
-            }
-            k => bail!(
-                "mc-denoised: unknown parameter '{k}' (known: spp, iterations, history, phi_color, phi_normal, phi_plane, phi_lobe)"
-            ),
+            "phi_lobe" => self.phi_lobe = p.number(|x| x >= 0.0, "a finite number >= 0")? as f32,
+            _ => return Err(p.unknown("spp, iterations, history, phi_color, phi_normal, phi_plane, phi_lobe")),
         }
         Ok(())
     }
@@ -153,7 +136,7 @@ impl crate::technique::Technique for McDenoised {
         let frame = inputs.frame;
         self.mc.spp = self.settings.spp;
         self.mc.scene_textures = Some(inputs.handles.textures);
-        let noisy = self.mc.add_frame_and_materials(engine, graph, frame, w, h);
+        let noisy = self.mc.add_frame(engine, graph, frame, w, h);
         self.mc.scene_textures = None;
         let (noisy, materials) = noisy?;
         let textures = inputs.handles.textures;
@@ -178,14 +161,11 @@ impl crate::technique::Technique for McDenoised {
         let mut filter_in = {
             let mut p = graph.pass("mcd_temporal", PassKind::Compute);
             let nz = p.read(noisy, Access::ComputeShaderReadStorage);
-            let pos = p.read(gb.position, Access::ComputeShaderReadSampled);
-            let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
-            let mo = p.read(gb.motion, Access::ComputeShaderReadSampled);
+            let [pos, uvm, mo] =
+                [gb.position, gb.uv_mat, gb.motion].map(|h| p.read(h, Access::ComputeShaderReadSampled));
             let pc = p.read(prev_color, Access::ComputeShaderReadStorage);
             let pa = p.read(prev_aux, Access::ComputeShaderReadStorage);
-            let nc = p.write(new_color, Access::ComputeShaderWriteStorage);
-            let na = p.write(new_aux, Access::ComputeShaderWriteStorage);
-            let fi = p.write(filter_in, Access::ComputeShaderWriteStorage);
+            let [nc, na, fi] = [new_color, new_aux, filter_in].map(|h| p.write(h, Access::ComputeShaderWriteStorage));
             let mats = p.read(materials, Access::ComputeShaderReadStorage);
             let tex = p.read(textures, Access::ComputeShaderReadSampled);
             let pipe = self.temporal.handle();
@@ -224,9 +204,8 @@ impl crate::technique::Technique for McDenoised {
             let mut p = graph.pass(&format!("mcd_atrous.{k}"), PassKind::Compute);
             let src = p.read(filter_in, Access::ComputeShaderReadStorage);
             let out = p.write(dst, Access::ComputeShaderWriteStorage);
-            let pos = p.read(gb.position, Access::ComputeShaderReadSampled);
-            let nrm = p.read(gb.normal, Access::ComputeShaderReadSampled);
-            let uvm = p.read(gb.uv_mat, Access::ComputeShaderReadSampled);
+            let [pos, nrm, uvm] =
+                [gb.position, gb.normal, gb.uv_mat].map(|h| p.read(h, Access::ComputeShaderReadSampled));
             let nz = p.read(noisy, Access::ComputeShaderReadStorage);
             let mats = p.read(materials, Access::ComputeShaderReadStorage);
             let tex = p.read(textures, Access::ComputeShaderReadSampled);

@@ -145,27 +145,14 @@ pub const MAX_SPP_PER_DISPATCH: u32 = 256;
 /// Most samples per pixel per frame.
 pub const MAX_SPP: u32 = 16384;
 
-/// Parses `spp` (1..=16384).
-pub fn parse_spp(value: &str) -> Result<u32> {
-    match value.trim().parse::<u32>() {
-        Ok(n) if (1..=MAX_SPP).contains(&n) => Ok(n),
-        _ => anyhow::bail!("mc: spp = '{}': expected an integer in 1..={MAX_SPP}", value.trim()),
-    }
-}
-
 impl McTechnique {
-    /// Sets one `[technique_params]` entry (`spp`, `aa`); any other key is an error.
+    /// Sets one `[technique_params]` entry (`spp` 1..=16384, `aa`); any other key is an error.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
-        match key.trim() {
-            "spp" => self.spp = parse_spp(value)?,
-            "aa" => {
-                self.aa = match value.trim() {
-                    "true" | "1" => true,
-                    "false" | "0" => false,
-                    v => anyhow::bail!("mc: aa = '{v}': expected true or false"),
-                }
-            }
-            k => anyhow::bail!("mc: unknown parameter '{k}' (known: spp, aa)"),
+        let p = crate::technique::Param::new("mc", key, value);
+        match p.key() {
+            "spp" => self.spp = p.int(1, MAX_SPP as u64)? as u32,
+            "aa" => self.aa = p.flag()?,
+            _ => return Err(p.unknown("spp, aa")),
         }
         Ok(())
     }
@@ -191,21 +178,10 @@ impl McTechnique {
         })
     }
 
-    /// Declares the tree (rebuilt when geometry changed) and the `mc` pass; returns the HDR image.
+    /// Declares the tree (rebuilt when geometry changed) and the `mc` pass; returns the HDR image
+    /// and the frame's material table (uploaded once for the passes that follow, `mc-denoised`'s
+    /// demodulation).
     pub fn add_frame(
-        &mut self,
-        engine: &mut FrameStore<'_>,
-        graph: &mut Graph,
-        frame: &Frame,
-        width: u32,
-        height: u32,
-    ) -> Result<ImageHandle> {
-        Ok(self.add_frame_and_materials(engine, graph, frame, width, height)?.0)
-    }
-
-    /// [`McTechnique::add_frame`], also returning the frame's material table (uploaded once for
-    /// the passes that follow, `mc-denoised`'s demodulation).
-    fn add_frame_and_materials(
         &mut self,
         engine: &mut FrameStore<'_>,
         graph: &mut Graph,
@@ -290,10 +266,8 @@ impl McTechnique {
             let name = if chunk == 0 { "mc".to_string() } else { format!("mc.{chunk}") };
             let mut p = graph.pass(&name, PassKind::Compute);
             let kd = tree.read(&mut p);
-            let td = p.read(tridata, Access::ComputeShaderReadStorage);
-            let mats = p.read(materials, Access::ComputeShaderReadStorage);
-            let et = p.read(env_texels, Access::ComputeShaderReadStorage);
-            let ec = p.read(env_cdf, Access::ComputeShaderReadStorage);
+            let [td, mats, et, ec] =
+                [tridata, materials, env_texels, env_cdf].map(|h| p.read(h, Access::ComputeShaderReadStorage));
             let acc = p.write(accum, Access::ComputeShaderReadWriteStorage);
             let out = p.write(hdr, Access::ComputeShaderWriteStorage);
             let lt = p.read(lights, Access::ComputeShaderReadStorage);
@@ -332,7 +306,9 @@ impl crate::technique::Technique for McTechnique {
     }
     fn add(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle> {
         self.scene_textures = Some(inputs.handles.textures);
-        let r = self.add_frame(engine, graph, inputs.frame, inputs.gbuffer.width, inputs.gbuffer.height);
+        let r = self
+            .add_frame(engine, graph, inputs.frame, inputs.gbuffer.width, inputs.gbuffer.height)
+            .map(|(hdr, _)| hdr);
         self.scene_textures = None;
         r
     }

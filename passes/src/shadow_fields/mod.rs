@@ -121,44 +121,23 @@ impl SfOptions {
     /// `light_shadows` (`traced` | `fields`), `key_lights` (0..=16).
     /// Unknown keys and bad values are errors.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
-        let v = value.trim();
-        let bad = |why: &str| anyhow!("shadow-fields parameter {key} = '{value}': {why}");
-        if set_light_option(&mut self.light_traced, &mut self.key_lights, key.trim(), v, &bad)? {
+        let p = crate::technique::Param::new("shadow-fields", key, value);
+        if set_light_option(&mut self.light_traced, &mut self.key_lights, &p)? {
             return Ok(());
         }
-        match key.trim() {
-            "shells" => {
-                self.params.shells = v.parse::<usize>().ok().filter(|x| (1..=256).contains(x)).ok_or_else(|| bad("expected an integer in 1..=256"))?
+        match p.key() {
+            "shells" => self.params.shells = p.int(1, 256)? as usize,
+            "resolution" => self.params.resolution = p.pow2(1, 256)? as usize,
+            "map_res" => self.params.map_res = p.int(2, 256)? as usize,
+            "threshold" => self.params.threshold = p.number(|x| x >= 0.0, "a finite number >= 0")?,
+            "mode" => self.mode = p.choice(&[("pixel", SfMode::Pixel), ("vertex", SfMode::Vertex)])?,
+            "window" => self.window = Window::parse(p.text()).ok_or_else(|| p.bad("none, hanning or lanczos"))?,
+            "srf" => self.srf = p.flag()?,
+            _ => {
+                return Err(
+                    p.unknown("shells, resolution, map_res, threshold, mode, window, srf, light_shadows, key_lights")
+                )
             }
-            "resolution" => {
-                self.params.resolution = v
-                    .parse::<usize>()
-                    .ok()
-                    .filter(|x| (1..=256).contains(x) && x.is_power_of_two())
-                    .ok_or_else(|| bad("expected a power of two in 1..=256"))?
-            }
-            "map_res" => {
-                self.params.map_res = v.parse::<usize>().ok().filter(|x| (2..=256).contains(x)).ok_or_else(|| bad("expected an integer in 2..=256"))?
-            }
-            "threshold" => {
-                self.params.threshold = v.parse::<f64>().ok().filter(|x| x.is_finite() && *x >= 0.0).ok_or_else(|| bad("expected a finite number >= 0"))?
-            }
-            "mode" => {
-                self.mode = match v {
-                    "vertex" => SfMode::Vertex,
-                    "pixel" => SfMode::Pixel,
-                    _ => return Err(bad("expected pixel or vertex")),
-                }
-            }
-            "window" => self.window = Window::parse(v).ok_or_else(|| bad("expected none, hanning or lanczos"))?,
-            "srf" => {
-                self.srf = match v {
-                    "1" | "true" => true,
-                    "0" | "false" => false,
-                    _ => return Err(bad("expected true or false")),
-                }
-            }
-            other => anyhow::bail!("unknown shadow-fields parameter '{other}' (known: shells, resolution, map_res, threshold, mode, window, srf, light_shadows, key_lights)"),
         }
         Ok(())
     }
@@ -428,22 +407,11 @@ pub fn precompute_files(
 pub(crate) fn set_light_option(
     light_traced: &mut bool,
     key_lights: &mut usize,
-    key: &str,
-    v: &str,
-    bad: &dyn Fn(&str) -> anyhow::Error,
+    p: &crate::technique::Param,
 ) -> Result<bool> {
-    match key {
-        "light_shadows" => {
-            *light_traced = match v {
-                "traced" => true,
-                "fields" => false,
-                _ => return Err(bad("expected traced or fields")),
-            }
-        }
-        "key_lights" => {
-            *key_lights =
-                v.parse::<usize>().ok().filter(|x| *x <= 16).ok_or_else(|| bad("expected an integer in 0..=16"))?
-        }
+    match p.key() {
+        "light_shadows" => *light_traced = p.choice(&[("traced", true), ("fields", false)])?,
+        "key_lights" => *key_lights = p.int(0, 16)? as usize,
         _ => return Ok(false),
     }
     Ok(true)
@@ -1034,10 +1002,7 @@ impl ShadowFieldsTechnique {
         let out = p.write(out, Access::ComputeShaderWriteStorage);
         let pipe = self.points.handle();
         let n_light = if srf { h.light_count } else { 0 };
-        let push: Vec<u8> = [n, h.inst_count, h.tensor_count, n_light, self.window_code()]
-            .iter()
-            .flat_map(|x| x.to_le_bytes())
-            .collect();
+        let push = crate::util::bytes_of(&[n, h.inst_count, h.tensor_count, n_light, self.window_code()]);
         p.record(move |rc| {
             let mut binds: Vec<Bind> = r.iter().map(|&b| Bind::StorageBuffer(b)).collect();
             binds.push(Bind::StorageBuffer(out));
@@ -1102,9 +1067,8 @@ pub(crate) fn add_vertex_raster(
         colors.iter().map(|&(img, clear)| (p.write(img, Access::ColorAttachmentWrite), clear)).collect();
     let depth = p.write(depth, Access::DepthAttachmentWrite);
     let camera = p.read(inputs.handles.camera, Access::AnyShaderReadUniform);
-    let instances = p.read(inputs.handles.instances, Access::VertexShaderReadStorage);
-    let values = p.read(values, Access::VertexShaderReadStorage);
-    let bases_buf = p.read(bases_buf, Access::VertexShaderReadStorage);
+    let [instances, values, bases_buf] =
+        [inputs.handles.instances, values, bases_buf].map(|h| p.read(h, Access::VertexShaderReadStorage));
     let vertices = p.read(inputs.handles.vertices, Access::VertexBuffer);
     let indices = p.read(inputs.handles.indices, Access::IndexBuffer);
     let (pipeline, layout) = (pipe.pipeline, pipe.handle());
@@ -1215,7 +1179,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         let pipe = self.shade.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         let mode = (self.mode == SfMode::Vertex) as u32;
-        let push: Vec<u8> = [
+        let push = crate::util::bytes_of(&[
             h.inst_count,
             h.tensor_count,
             inputs.handles.light_count,
@@ -1224,10 +1188,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
             mode,
             traced,
             key_count * traced,
-        ]
-        .iter()
-        .flat_map(|x| x.to_le_bytes())
-        .collect();
+        ]);
         p.record(move |rc| {
             let mut binds = io.binds(nearest, linear);
             binds.extend(r.iter().map(|&b| Bind::StorageBuffer(b)));

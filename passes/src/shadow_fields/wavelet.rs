@@ -123,43 +123,24 @@ impl SfwOptions {
     /// `lookup` (`reproject` | `direction`), `self` (true/false), `light_shadows` (`traced` |
     /// `fields`), `key_lights` (0..=16).
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
-        let v = value.trim();
-        let bad = |why: &str| anyhow!("shadow-fields-wavelet parameter {key} = '{value}': {why}");
-        if crate::shadow_fields::set_light_option(&mut self.light_traced, &mut self.key_lights, key.trim(), v, &bad)? {
+        let p = crate::technique::Param::new("shadow-fields-wavelet", key, value);
+        if crate::shadow_fields::set_light_option(&mut self.light_traced, &mut self.key_lights, &p)? {
             return Ok(());
         }
-        let pow2 =
-            |lo: usize, hi: usize| v.parse::<usize>().ok().filter(|x| (lo..=hi).contains(x) && x.is_power_of_two());
-        match key.trim() {
-            "shells" => self.shells = v.parse::<usize>().ok().filter(|x| (1..=64).contains(x)).ok_or_else(|| bad("expected an integer in 1..=64"))?,
-            "resolution" => self.resolution = pow2(1, 64).ok_or_else(|| bad("expected a power of two in 1..=64"))?,
-            "cube" => self.cube = pow2(2, 64).ok_or_else(|| bad("expected a power of two in 2..=64"))?,
-            "keep" => self.keep = v.parse::<f64>().ok().filter(|x| *x > 0.0 && *x <= 1.0).ok_or_else(|| bad("expected a number in (0, 1]"))?,
-            "threshold" => {
-                self.threshold = v.parse::<f64>().ok().filter(|x| x.is_finite() && *x >= 0.0).ok_or_else(|| bad("expected a finite number >= 0"))?
+        match p.key() {
+            "shells" => self.shells = p.int(1, 64)? as usize,
+            "resolution" => self.resolution = p.pow2(1, 64)? as usize,
+            "cube" => self.cube = p.pow2(2, 64)? as usize,
+            "keep" => self.keep = p.number(|x| x > 0.0 && x <= 1.0, "a number in (0, 1]")?,
+            "threshold" => self.threshold = p.number(|x| x >= 0.0, "a finite number >= 0")?,
+            "adaptive" => self.adaptive = p.flag()?,
+            "lookup" => self.reproject = p.choice(&[("reproject", true), ("direction", false)])?,
+            "self" => self.self_occlusion = p.flag()?,
+            _ => {
+                return Err(p.unknown(
+                    "shells, resolution, cube, keep, threshold, adaptive, lookup, self, light_shadows, key_lights",
+                ))
             }
-            "adaptive" => {
-                self.adaptive = match v {
-                    "1" | "true" => true,
-                    "0" | "false" => false,
-                    _ => return Err(bad("expected true or false")),
-                }
-            }
-            "lookup" => {
-                self.reproject = match v {
-                    "reproject" => true,
-                    "direction" => false,
-                    _ => return Err(bad("expected reproject or direction")),
-                }
-            }
-            "self" => {
-                self.self_occlusion = match v {
-                    "1" | "true" => true,
-                    "0" | "false" => false,
-                    _ => return Err(bad("expected true or false")),
-                }
-            }
-            other => anyhow::bail!("unknown shadow-fields-wavelet parameter '{other}' (known: shells, resolution, cube, keep, threshold, adaptive, lookup, self, light_shadows, key_lights)"),
         }
         Ok(())
     }
@@ -671,8 +652,7 @@ impl WaveletTechnique {
                 .map(|b| p.read(b, Access::ComputeShaderReadStorage));
             let out = p.write(out, Access::ComputeShaderWriteStorage);
             let pipe = self.self_pass.handle();
-            let push: Vec<u8> =
-                [total, n, inputs.handles.light_count, 0u32].iter().flat_map(|x| x.to_le_bytes()).collect();
+            let push = crate::util::bytes_of(&[total, n, inputs.handles.light_count, 0u32]);
             let gx = total.min(32768);
             let gy = total.div_ceil(gx);
             p.record(move |rc| {
@@ -775,25 +755,21 @@ impl crate::technique::Technique for WaveletTechnique {
         let hdr = io.hdr;
         let r = [maps, shells, inst_buf, dirs, irr, inputs.handles.lights]
             .map(|b| p.read(b, Access::ComputeShaderReadStorage));
-        let tex = p.read(inputs.handles.textures, Access::ComputeShaderReadSampled);
-        let self_share = p.read(self_share, Access::ComputeShaderReadSampled);
-        let self_lights = p.read(self_lights, Access::ComputeShaderReadSampled);
+        let [tex, self_share, self_lights] =
+            [inputs.handles.textures, self_share, self_lights].map(|h| p.read(h, Access::ComputeShaderReadSampled));
         let kd = kd_bufs.map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let key = p.read(key, Access::ComputeShaderReadStorage);
         let pipe = self.shade.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         let n = self.fields.options.cube.max(2).next_power_of_two() as u32;
-        let push: Vec<u8> = [
+        let push = crate::util::bytes_of(&[
             frame.instances.len() as u32,
             inputs.handles.light_count,
             n,
             self.fields.options.reproject as u32,
             traced,
             key_count,
-        ]
-        .iter()
-        .flat_map(|x| x.to_le_bytes())
-        .collect();
+        ]);
         p.record(move |rc| {
             let mut binds = io.binds(nearest, linear);
             binds.extend(r.iter().map(|&b| Bind::StorageBuffer(b)));

@@ -633,7 +633,7 @@ impl VolumeDraws<'_> {
         clear: [f32; 4],
         use_prev: &'static [u32],
     ) -> ImageHandle {
-        let (pipeline, layout) = (self.pipeline.pipeline, self.pipeline.handle());
+        let layout = self.pipeline.handle();
         let mut p = graph.pass(name, PassKind::Raster);
         let stencil = self.stencil;
         let img =
@@ -671,8 +671,14 @@ impl VolumeDraws<'_> {
                 None => None,
             };
             let ib = rc.buffer(adj_h)?.buffer;
-            crate::raster::begin(d, rc.cmd, &info, w, h, pipeline);
-            crate::util::push_graphics(rc, &layout, &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)])?;
+            crate::raster::begin(
+                rc,
+                &info,
+                w,
+                h,
+                &layout,
+                &[Bind::UniformBuffer(camera), Bind::StorageBuffer(instances)],
+            )?;
             let stages = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::GEOMETRY | vk::ShaderStageFlags::FRAGMENT;
             unsafe {
                 d.cmd_bind_index_buffer(rc.cmd, ib, 0, vk::IndexType::UINT32);
@@ -747,9 +753,7 @@ impl Effect for VolumetricEffect {
             let mut p = graph.pass("vol_shadow", PassKind::Raster);
             let smap = p.write(smap, Access::DepthAttachmentWrite);
             let instances = p.read(sh.instances, Access::VertexShaderReadStorage);
-            let vertices = p.read(sh.vertices, Access::VertexBuffer);
-            let indices = p.read(sh.indices, Access::IndexBuffer);
-            let deformed = sh.deformed_vertices.map(|hd| p.read(hd, Access::VertexBuffer));
+            let meshes = crate::raster::MeshBuffers::declare(&mut p, sh);
             let (pipeline, layout) = (self.shadow.pipeline, self.shadow.handle());
             let mats: Vec<[[f32; 4]; 4]> = block.face_vp[..faces as usize].to_vec();
             let draws = if has_light { shadow_draws } else { Vec::new() };
@@ -759,22 +763,13 @@ impl Effect for VolumetricEffect {
                 let area =
                     vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: smw, height: smh } };
                 let info = vk::RenderingInfo::default().render_area(area).layer_count(1).depth_attachment(&att);
-                let vb = rc.buffer(vertices)?.buffer;
-                let ib = rc.buffer(indices)?.buffer;
-                let db = match deformed {
-                    Some(hd) => Some(rc.buffer(hd)?.buffer),
-                    None => None,
-                };
                 unsafe {
                     d.cmd_begin_rendering(rc.cmd, &info);
                     d.cmd_bind_pipeline(rc.cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
                 }
                 crate::util::push_graphics(rc, &layout, &[Bind::StorageBuffer(instances)])?;
-                unsafe {
-                    if !draws.is_empty() {
-                        d.cmd_bind_index_buffer(rc.cmd, ib, 0, vk::IndexType::UINT32);
-                    }
-                    for (fi, m) in mats.iter().enumerate() {
+                for (fi, m) in mats.iter().enumerate() {
+                    unsafe {
                         let (tx, ty) = if faces == 6 { ((fi as u32 % 3) * ts, (fi as u32 / 3) * ts) } else { (0, 0) };
                         d.cmd_set_viewport(rc.cmd, 0, &[viewport(tx as f32, ty as f32, ts as f32, ts as f32)]);
                         d.cmd_set_scissor(
@@ -792,29 +787,10 @@ impl Effect for VolumetricEffect {
                             0,
                             &bytes_of(&m.concat()),
                         );
-                        for pass_deformed in [false, true] {
-                            let buffer = if pass_deformed { db } else { Some(vb) };
-                            let Some(buffer) = buffer else { continue };
-                            let mut bound = false;
-                            for dr in draws.iter().filter(|dr| dr.deformed == pass_deformed) {
-                                if !bound {
-                                    d.cmd_bind_vertex_buffers(rc.cmd, 0, &[buffer], &[0]);
-                                    bound = true;
-                                }
-                                let mr = dr.mesh;
-                                d.cmd_draw_indexed(
-                                    rc.cmd,
-                                    mr.index_count,
-                                    1,
-                                    mr.first_index,
-                                    mr.vertex_offset,
-                                    dr.instance,
-                                );
-                            }
-                        }
                     }
-                    d.cmd_end_rendering(rc.cmd);
+                    crate::raster::draw_instances(rc, &meshes, &draws)?;
                 }
+                unsafe { d.cmd_end_rendering(rc.cmd) };
                 Ok(())
             });
             smap
@@ -1034,7 +1010,7 @@ impl Effect for VolumetricEffect {
                 (MarchMode::Masked, Some(m)) => m,
                 _ => &self.march,
             };
-            let (pipeline, layout, nearest) = (pipe.pipeline, pipe.handle(), self.nearest.sampler);
+            let (layout, nearest) = (pipe.handle(), self.nearest.sampler);
             p.record(move |rc| {
                 let d = rc.device();
                 let view = rc.image(out)?.view;
@@ -1051,9 +1027,11 @@ impl Effect for VolumetricEffect {
                 if let Some(st) = st.as_ref() {
                     info = info.stencil_attachment(st);
                 }
-                crate::raster::begin(d, rc.cmd, &info, w, h, pipeline);
-                crate::util::push_graphics(
+                crate::raster::begin(
                     rc,
+                    &info,
+                    w,
+                    h,
                     &layout,
                     &[
                         Bind::UniformBuffer(camera),
@@ -1078,9 +1056,7 @@ impl Effect for VolumetricEffect {
         let mut p = graph.pass("vol_composite", PassKind::Compute);
         let camera = p.read(sh.camera, Access::AnyShaderReadUniform);
         let lb = p.read(light_buf, Access::ComputeShaderReadStorage);
-        let pos = p.read(gb.position, Access::ComputeShaderReadSampled);
-        let hin = p.read(hdr, Access::ComputeShaderReadSampled);
-        let sc = p.read(scatter, Access::ComputeShaderReadSampled);
+        let [pos, hin, sc] = [gb.position, hdr, scatter].map(|h| p.read(h, Access::ComputeShaderReadSampled));
         let out = p.write(out, Access::ComputeShaderWriteStorage);
         let (pipe, nearest) = (self.composite.handle(), self.nearest.sampler);
         p.record(move |rc| {

@@ -169,50 +169,45 @@ impl VvSettings {
     /// `specular` (on / off, default on), `refine` (0..=65536, default 1024), `fallback` (0..=10
     /// sr, default 0.25; 0 = off), `light_shadows` (traced / loops, default traced).
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
-        let v = value.trim();
-        let bad = || anyhow::anyhow!("vv parameter {key} = '{value}': not a valid value");
-        let num = |lo: f64, hi: f64| -> Result<f64> {
-            v.parse::<f64>().ok().filter(|x| x.is_finite() && *x >= lo && *x <= hi).ok_or_else(&bad)
-        };
-        match key.trim() {
+        let p = crate::technique::Param::new("vv", key, value);
+        let num = |lo: f64, hi: f64| p.float(lo, hi);
+        let int = |lo: u64, hi: u64| p.int(lo, hi).map(|x| x as u32);
+        match p.key() {
             "mode" => {
-                self.mode = match v {
-                    "fragment3" => VvMode::Fragment3,
-                    "fragment1" => VvMode::Fragment1,
-                    "tessellation" => VvMode::Tessellation,
-                    "tessellation3" => VvMode::Tessellation3,
-                    _ => bail!("vv parameter mode = '{value}': expected fragment3, fragment1, tessellation or tessellation3"),
-                }
+                self.mode = p.choice(&[
+                    ("fragment3", VvMode::Fragment3),
+                    ("fragment1", VvMode::Fragment1),
+                    ("tessellation", VvMode::Tessellation),
+                    ("tessellation3", VvMode::Tessellation3),
+                ])?
             }
             "zeta" => self.zeta = num(0.0, 16.0)? as f32,
             "alpha" => self.alpha = num(1e-3, 1e3)? as f32,
             "sat_width" => {
-                let w = num(16.0, 4096.0)? as u32;
-                if !w.is_multiple_of(2) {
-                    return Err(bad());
+                self.sat_width = int(16, 4096)?;
+                if !self.sat_width.is_multiple_of(2) {
+                    return Err(p.bad("an even integer in 16..=4096"));
                 }
-                self.sat_width = w;
             }
-            "arcs" => self.hemisphere_arcs = num(8.0, 256.0)? as u32,
-            "max_level" => self.max_level = num(1.0, 64.0)? as u32,
-            "resolution" => self.resolution = num(8.0, 1024.0)? as u32,
-            "refine" => self.refine = num(0.0, 65536.0)? as u32,
+            "arcs" => self.hemisphere_arcs = int(8, 256)?,
+            "max_level" => self.max_level = int(1, 64)?,
+            "resolution" => self.resolution = int(8, 1024)?,
+            "refine" => self.refine = int(0, 65536)?,
             "fallback" => self.fallback = num(0.0, 10.0)? as f32,
             "specular" => {
-                self.specular = match v {
-                    "on" | "true" | "1" => true,
-                    "off" | "false" | "0" => false,
-                    _ => bail!("vv parameter specular = '{value}': expected on or off"),
-                }
+                self.specular = p.choice(&[
+                    ("on", true),
+                    ("true", true),
+                    ("1", true),
+                    ("off", false),
+                    ("false", false),
+                    ("0", false),
+                ])?
             }
-            "light_shadows" => {
-                self.traced_lights = match v {
-                    "traced" => true,
-                    "loops" => false,
-                    _ => bail!("vv parameter light_shadows = '{value}': expected traced or loops"),
-                }
-            }
-            other => bail!("unknown vv parameter '{other}' (known: mode, zeta, alpha, sat_width, arcs, max_level, resolution, specular, refine, fallback, light_shadows)"),
+            "light_shadows" => self.traced_lights = p.choice(&[("traced", true), ("loops", false)])?,
+            _ => return Err(p.unknown(
+                "mode, zeta, alpha, sat_width, arcs, max_level, resolution, specular, refine, fallback, light_shadows",
+            )),
         }
         Ok(())
     }
@@ -795,20 +790,8 @@ impl VvTechnique {
         if !graph.persistent_is_new(img) {
             return img;
         }
-        let region = vk::BufferImageCopy {
-            buffer_offset: 0,
-            buffer_row_length: 0,
-            buffer_image_height: 0,
-            image_subresource: vk::ImageSubresourceLayers {
-                aspect_mask: vk::ImageAspectFlags::COLOR,
-                mip_level: 0,
-                base_array_layer: 0,
-                layer_count: 1,
-            },
-            image_offset: vk::Offset3D::default(),
-            image_extent: vk::Extent3D { width: TEX_W as u32, height: rows, depth: 1 },
-        };
-        crate::util::add_image_upload(graph, name, img, bytes.to_vec(), vec![region])
+        let part = crate::util::Subresource { mip: 0, layer: 0, width: TEX_W as u32, height: rows, bytes };
+        crate::util::add_image_upload(graph, name, img, [part])
     }
 }
 
@@ -848,26 +831,13 @@ impl crate::technique::Technique for VvTechnique {
             None
         };
         let key = self.up.key;
-        let points = Self::add_array(
-            engine,
-            graph,
-            "vv_points",
-            key,
-            vk::Format::R32G32B32A32_SFLOAT,
-            &self.up.points.0,
-            self.up.points.1,
-        );
-        let ints =
-            Self::add_array(engine, graph, "vv_ints", key, vk::Format::R32_UINT, &self.up.ints.0, self.up.ints.1);
-        let verts = Self::add_array(
-            engine,
-            graph,
-            "vv_verts",
-            key,
-            vk::Format::R32G32B32A32_SFLOAT,
-            &self.up.verts.0,
-            self.up.verts.1,
-        );
+        let (vec4, uint) = (vk::Format::R32G32B32A32_SFLOAT, vk::Format::R32_UINT);
+        let mut array = |name: &str, format, (bytes, rows): &(Vec<u8>, u32)| {
+            Self::add_array(engine, graph, name, key, format, bytes, *rows)
+        };
+        let points = array("vv_points", vec4, &self.up.points);
+        let ints = array("vv_ints", uint, &self.up.ints);
+        let verts = array("vv_verts", vec4, &self.up.verts);
         // the scene's triangles for the local lights' shadow rays (built once: vv's scenes are
         // static), or placeholders without local lights
         let (kd_bufs, kd_tree) = crate::kdtree::KdTreeBuilder::add_frame_or_stand_ins(
@@ -886,10 +856,7 @@ impl crate::technique::Technique for VvTechnique {
         let objects = p.write(objects, Access::ColorAttachmentWrite);
         let depth = p.write(depth, Access::DepthAttachmentWrite);
         let camera = p.read(inputs.handles.camera, Access::AnyShaderReadUniform);
-        let points = p.read(points, Access::AnyShaderReadSampled);
-        let ints = p.read(ints, Access::AnyShaderReadSampled);
-        let verts = p.read(verts, Access::AnyShaderReadSampled);
-        let sat = p.read(sat, Access::AnyShaderReadSampled);
+        let [points, ints, verts, sat] = [points, ints, verts, sat].map(|h| p.read(h, Access::AnyShaderReadSampled));
         let blur = blur.map(|b| p.read(b, Access::AnyShaderReadSampled)).unwrap_or(sat);
         let textures = p.read(inputs.handles.textures, Access::AnyShaderReadSampled);
         let materials = p.read(inputs.handles.materials, Access::AnyShaderReadStorage);
@@ -916,7 +883,7 @@ impl crate::technique::Technique for VvTechnique {
         }
         let raster =
             self.raster.as_ref().context("vv: technique built without its raster pipeline (VvTechnique::sat_only)")?;
-        let (pipeline, layout) = (raster.pipeline, raster.handle());
+        let layout = raster.handle();
         let (nearest, repeat, latlong) = (self.nearest.sampler, self.repeat.sampler, self.latlong.sampler);
         let vertex_count = 3 * self.up.triangles;
         let query = self.query;
@@ -924,21 +891,18 @@ impl crate::technique::Technique for VvTechnique {
             let d = rc.device();
             let color = [crate::util::color_attachment(rc.image(objects)?.view, [0.0; 4])];
             let depth_att = crate::util::depth_attachment(rc.image(depth)?.view, true);
-            let area = vk::Rect2D { offset: vk::Offset2D::default(), extent: vk::Extent2D { width: w, height: h } };
-            let info = vk::RenderingInfo::default()
-                .render_area(area)
-                .layer_count(1)
-                .color_attachments(&color)
-                .depth_attachment(&depth_att);
+            let info = crate::raster::rendering_info(w, h, &color, &depth_att);
             unsafe {
                 if query != vk::QueryPool::null() {
                     d.cmd_reset_query_pool(rc.cmd, query, 0, 1);
                     d.cmd_begin_query(rc.cmd, query, 0, vk::QueryControlFlags::empty());
                 }
             }
-            crate::raster::begin(d, rc.cmd, &info, w, h, pipeline);
-            crate::util::push_graphics(
+            crate::raster::begin(
                 rc,
+                &info,
+                w,
+                h,
                 &layout,
                 &[
                     Bind::UniformBuffer(camera),
