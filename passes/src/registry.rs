@@ -263,7 +263,7 @@ const VV_PARAMS: &[ParamDoc] = &[
     p("resolution", "64", "8..=1024", "visibility-map resolution of the precompute"),
     p("specular", "on", "on/off", "specular term of glossy materials (eq. 14-16)"),
     p("refine", "1024", "0..=65536", "receiver refinement: edges longer than sqrt(scene area / refine) are split so large triangles get visibility samples (0: meshes as given)"),
-    p("fallback", "0.1", "0..=10", "interpolated modes: triangles whose eq. 21 occluded solid angle disagrees with eq. 19 by more than this many sr are shaded by eq. 19 (0: eq. 21 everywhere, the paper)"),
+    p("fallback", "0.05", "0..=10", "interpolated modes: triangles whose eq. 21 occluded solid angle disagrees with eq. 19 by more than this many sr are shaded by eq. 19 (0: eq. 21 everywhere, the paper)"),
     p("light_shadows", "traced", "traced, loops", "local lights' shadows: shadow rays through the scene's kd-tree, or from the occluder loops (no depth: an occluder behind a light still shadows it)"),
 ];
 

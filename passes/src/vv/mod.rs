@@ -152,7 +152,7 @@ impl Default for VvSettings {
             resolution: VvParams::default().resolution,
             specular: true,
             refine: 1024,
-            fallback: 0.1,
+            fallback: 0.05,
             traced_lights: true,
         }
     }
@@ -167,7 +167,7 @@ impl VvSettings {
     /// `zeta` (0..=16, default 2), `alpha` (> 0, default 2), `sat_width` (16..=4096, even,
     /// default 256), `arcs` (8..=256, default 32), `max_level` (1..=64), `resolution` (8..=1024),
     /// `specular` (on / off, default on), `refine` (0..=65536, default 1024), `fallback` (0..=10
-    /// sr, default 0.1; 0 = off), `light_shadows` (traced / loops, default traced).
+    /// sr, default 0.05; 0 = off), `light_shadows` (traced / loops, default traced).
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let p = crate::technique::Param::new("vv", key, value);
         let num = |lo: f64, hi: f64| p.float(lo, hi);
