@@ -141,3 +141,59 @@ fn shader_errors_name_file_and_line() {
     assert_eq!(lib.get("frame/tonemap.comp").unwrap().len(), before);
     assert!(lib.reload("missing.comp").is_err());
 }
+
+/// A pipeline's descriptor set is its shader's own bindings: a pass that binds fewer
+/// descriptors than the shader uses, or a descriptor of another type than the shader declares,
+/// fails the frame naming the pass and the binding; a binding the shader does not use (binding 1
+/// here, left out of the SPIR-V) is checked against the declarations but not written, so the
+/// right binds run validation-clean.
+#[test]
+fn binds_are_checked_against_the_shaders_own_bindings() {
+    const TWO: &str = r#"#version 450
+layout(local_size_x = 8, local_size_y = 8) in;
+layout(set = 0, binding = 0, rgba32f) uniform image2D img;
+layout(std430, set = 0, binding = 1) readonly buffer Unused { float unused[]; };
+layout(std430, set = 0, binding = 2) readonly buffer Scale { float scale[]; };
+void main() { imageStore(img, ivec2(gl_GlobalInvocationID.xy), vec4(scale[0])); }
+"#;
+    let words = ShaderLibrary::compile_source("two.comp", TWO, Path::new("glsl/include")).unwrap();
+    let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+    let lib = ShaderLibrary::from_embedded(&[("two.comp", bytes.as_slice())], None);
+    let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).unwrap();
+    let log = ctx.validation.clone();
+    let mut e = Engine::new(ctx, 1).unwrap();
+    let p = compute_pipeline(&e.ctx, &lib, "two.comp", 0).unwrap();
+    let set: Vec<_> = p.set.bindings().collect();
+    assert_eq!(set, vec![(0, vk::DescriptorType::STORAGE_IMAGE), (2, vk::DescriptorType::STORAGE_BUFFER)]);
+    // how many binds the pass gives (0: image, 1: unused buffer, 2: scale), and binding 2 as an image
+    let frame = |e: &mut Engine, n: usize, wrong_type: bool| {
+        let h = p.handle();
+        let mut g = Graph::new();
+        let img = g.create_image("img", ImageDesc::new_2d(vk::Format::R32G32B32A32_SFLOAT, 8, 8));
+        let buf = g.create_buffer_init("scale", 1.0f32.to_le_bytes().to_vec());
+        let mut pass = g.pass("two", PassKind::Compute);
+        let img = pass.write(img, Access::ComputeShaderWriteStorage);
+        let buf = pass.read(buf, Access::ComputeShaderReadStorage);
+        pass.side_effect();
+        pass.record(move |rc| {
+            let third = if wrong_type { Bind::StorageImage(img) } else { Bind::StorageBuffer(buf) };
+            let binds = [Bind::StorageImage(img), Bind::StorageBuffer(buf), third];
+            penumbra_passes::util::dispatch(rc, h, &binds[..n], &[], [1, 1, 1])
+        });
+        e.submit(g).map(|_| ()).map_err(|err| err.to_string())
+    };
+    let err = frame(&mut e, 2, false).expect_err("binding 2 left out");
+    assert!(err.contains("pass 'two': its shaders use binding 2 (STORAGE_BUFFER) but it binds 2 descriptors"), "{err}");
+    let err = frame(&mut e, 3, true).expect_err("binding 2 of the wrong type");
+    assert!(
+        err.contains(
+            "pass 'two': binding 2 is a STORAGE_BUFFER in its shaders but the pass binds 'img' as a STORAGE_IMAGE"
+        ),
+        "{err}"
+    );
+    frame(&mut e, 3, false).expect("the shader's bindings, binding 1 unused");
+    e.drain().unwrap();
+    drop(p);
+    drop(e);
+    assert_eq!(log.error_count(), 0, "{:#?}", log.errors());
+}
