@@ -1,7 +1,7 @@
 //! What a SPIR-V module expects of its pipeline layout: its descriptor bindings (set, binding,
 //! descriptor type, count) and the bytes of its push-constant block, read from the module's own
-//! declarations; [`SetLayout`], a pipeline's push-descriptor set made from them (the binding
-//! contract stated once, in the GLSL), and [`check_push_range`]: a binding of two types in two
+//! declarations; and [`pipeline_interface`], a pipeline's push-descriptor set ([`SetLayout`])
+//! made from them (the binding contract stated once, in the GLSL): a binding of two types in two
 //! stages, or a push range shorter than a shader's block, is an error naming the shader and the
 //! binding when the pipeline is created, instead of a validation message at draw time (or
 //! silently wrong data on a driver without validation).
@@ -259,56 +259,6 @@ pub struct SetLayout {
 }
 
 impl SetLayout {
-    /// The union of the bindings the modules (`(name, SPIR-V)`, one per stage) declare. Every
-    /// binding must be in set 0, a single descriptor, of one type in every stage that uses it,
-    /// and below [`MAX_SET_BINDINGS`]; every violation is reported, naming the shader.
-    pub fn of(modules: &[(&str, &[u8])]) -> Result<Self> {
-        let mut set = SetLayout::default();
-        let mut errors = Vec::new();
-        for (name, spirv) in modules {
-            let iface = match reflect(spirv) {
-                Ok(i) => i,
-                Err(e) => {
-                    errors.push(format!("{name}: {e:#}"));
-                    continue;
-                }
-            };
-            for (&(s, binding), b) in &iface.bindings {
-                let slot = set.types.get_mut(binding as usize);
-                match slot {
-                    _ if s != 0 => {
-                        errors.push(format!("{name}: binding {binding} is in set {s}; push descriptors use set 0"))
-                    }
-                    _ if b.count != 1 => {
-                        errors.push(format!("{name}: binding {binding} is an array of {} descriptors", b.count))
-                    }
-                    None => {
-                        errors.push(format!("{name}: binding {binding} is past the {MAX_SET_BINDINGS} a set holds"))
-                    }
-                    Some(Some(t)) if *t != b.ty => errors
-                        .push(format!("{name}: binding {binding} is a {:?}, another stage declares a {t:?}", b.ty)),
-                    Some(t) => *t = Some(b.ty),
-                }
-            }
-        }
-        if !errors.is_empty() {
-            bail!("the shaders' descriptor bindings cannot make one set:\n  - {}", errors.join("\n  - "));
-        }
-        Ok(set)
-    }
-
-    /// Binding `i` of type `types[i]`, every one used (layouts written by hand).
-    pub fn from_types(types: &[vk::DescriptorType]) -> Result<Self> {
-        if types.len() > MAX_SET_BINDINGS {
-            bail!("{} bindings (a set holds at most {MAX_SET_BINDINGS})", types.len());
-        }
-        let mut set = SetLayout::default();
-        for (slot, t) in set.types.iter_mut().zip(types) {
-            *slot = Some(*t);
-        }
-        Ok(set)
-    }
-
     /// The type of binding `i` (`None`: not used by any stage).
     pub fn get(&self, i: usize) -> Option<vk::DescriptorType> {
         self.types.get(i).copied().flatten()
@@ -320,24 +270,59 @@ impl SetLayout {
     }
 }
 
-/// Checks that a pipeline's push range (`push_bytes`) covers every stage's push-constant block;
-/// every short one is reported, naming the shader.
-pub fn check_push_range(modules: &[(&str, &[u8])], push_bytes: u32) -> Result<()> {
+/// What a pipeline's layout is made from: its push-descriptor set and the largest push-constant
+/// block of its stages.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PipelineInterface {
+    pub set: SetLayout,
+    /// Bytes of the largest push-constant block (0: none).
+    pub push_bytes: u32,
+}
+
+/// Reads the modules (`(name, SPIR-V)`, one per stage) of a pipeline whose push range is
+/// `push_range` bytes: the union of their bindings as its [`SetLayout`] and their largest
+/// push-constant block. Every binding must be in set 0, a single descriptor, of one type in
+/// every stage that uses it and below [`MAX_SET_BINDINGS`], and the push range must cover every
+/// stage's block; every violation is reported at once, naming the shader.
+pub fn pipeline_interface(modules: &[(&str, &[u8])], push_range: u32) -> Result<PipelineInterface> {
+    let mut set = SetLayout::default();
+    let mut push_bytes = 0;
     let mut errors = Vec::new();
     for (name, spirv) in modules {
-        match reflect(spirv) {
-            Ok(iface) if iface.push_bytes > push_bytes => errors.push(format!(
-                "{name}: its push-constant block takes {} bytes but the layout's range is {push_bytes}",
-                iface.push_bytes
-            )),
-            Ok(_) => {}
-            Err(e) => errors.push(format!("{name}: {e:#}")),
+        let iface = match reflect(spirv) {
+            Ok(i) => i,
+            Err(e) => {
+                errors.push(format!("{name}: {e:#}"));
+                continue;
+            }
+        };
+        for (&(s, binding), b) in &iface.bindings {
+            match set.types.get_mut(binding as usize) {
+                _ if s != 0 => {
+                    errors.push(format!("{name}: binding {binding} is in set {s}; push descriptors use set 0"))
+                }
+                _ if b.count != 1 => {
+                    errors.push(format!("{name}: binding {binding} is an array of {} descriptors", b.count))
+                }
+                None => errors.push(format!("{name}: binding {binding} is past the {MAX_SET_BINDINGS} a set holds")),
+                Some(Some(t)) if *t != b.ty => {
+                    errors.push(format!("{name}: binding {binding} is a {:?}, another stage declares a {t:?}", b.ty))
+                }
+                Some(t) => *t = Some(b.ty),
+            }
         }
+        if iface.push_bytes > push_range {
+            errors.push(format!(
+                "{name}: its push-constant block takes {} bytes but the layout's range is {push_range}",
+                iface.push_bytes
+            ));
+        }
+        push_bytes = push_bytes.max(iface.push_bytes);
     }
     if !errors.is_empty() {
         bail!("pipeline layout does not match its shaders:\n  - {}", errors.join("\n  - "));
     }
-    Ok(())
+    Ok(PipelineInterface { set, push_bytes })
 }
 
 #[cfg(test)]
@@ -400,10 +385,13 @@ mod tests {
             T::STORAGE_IMAGE,
             T::COMBINED_IMAGE_SAMPLER,
         ];
-        assert_eq!(SetLayout::of(&[("c.comp", &m)]).unwrap(), SetLayout::from_types(&good).unwrap());
-        check_push_range(&[("c.comp", &m)], 28).unwrap();
-        check_push_range(&[("c.comp", &m)], 64).unwrap();
-        let e = check_push_range(&[("c.comp", &m)], 16).unwrap_err().to_string();
+        let one = |push_range| pipeline_interface(&[("c.comp", &m)], push_range);
+        let iface = one(28).unwrap();
+        let want: Vec<(u32, T)> = good.iter().enumerate().map(|(i, t)| (i as u32, *t)).collect();
+        assert_eq!(iface.set.bindings().collect::<Vec<_>>(), want);
+        assert_eq!(iface.push_bytes, 28);
+        assert_eq!(one(64).unwrap(), iface, "a larger push range: fine");
+        let e = one(16).unwrap_err().to_string();
         assert!(e.contains("c.comp: its push-constant block takes 28 bytes but the layout's range is 16"), "{e}");
         // two stages: the union of their bindings; one binding of two types is an error
         let vert = r#"#version 460
@@ -415,11 +403,11 @@ mod tests {
             layout(location = 0) out vec4 o;
             void main() { o = u.v; }"#;
         let (v, f) = (spirv(vert, ShaderKind::Vertex), spirv(frag, ShaderKind::Fragment));
-        let set = SetLayout::of(&[("v.vert", &v), ("f.frag", &f)]).unwrap();
+        let set = pipeline_interface(&[("v.vert", &v), ("f.frag", &f)], 0).unwrap().set;
         let got: Vec<_> = set.bindings().collect();
         assert_eq!(got, vec![(0, T::UNIFORM_BUFFER), (1, T::STORAGE_BUFFER), (3, T::STORAGE_BUFFER)]);
         assert_eq!(set.get(2), None, "a binding no stage uses is left out");
-        let e = SetLayout::of(&[("v.vert", &v), ("c.comp", &m)]).unwrap_err().to_string();
+        let e = pipeline_interface(&[("v.vert", &v), ("c.comp", &m)], 28).unwrap_err().to_string();
         assert!(
             e.contains("c.comp: binding 3 is a COMBINED_IMAGE_SAMPLER, another stage declares a STORAGE_BUFFER"),
             "{e}"
@@ -441,7 +429,7 @@ mod tests {
         );
         // mat4 (64) then vec2[3] with an 8-byte stride (std430)
         assert_eq!(iface.push_bytes, 64 + 24);
-        let e = SetLayout::of(&[("f.frag", &spirv(frag, ShaderKind::Fragment))]).unwrap_err().to_string();
+        let e = pipeline_interface(&[("f.frag", &spirv(frag, ShaderKind::Fragment))], 88).unwrap_err().to_string();
         assert!(e.contains("f.frag: binding 2 is in set 1"), "{e}");
     }
 }

@@ -133,9 +133,9 @@ pub fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, desc: &Raste
     // The push-descriptor set from what the stages declare (visible to every stage); the push
     // range checked against their blocks.
     let code = desc.shaders.iter().map(|s| Ok((*s, shaders.get(s)?))).collect::<Result<Vec<_>>>()?;
-    let set = penumbra_engine::reflect::SetLayout::of(&code).with_context(|| format!("{} pipeline", desc.name))?;
-    penumbra_engine::reflect::check_push_range(&code, desc.push_constant_bytes)
-        .with_context(|| format!("{} pipeline", desc.name))?;
+    let set = penumbra_engine::reflect::pipeline_interface(&code, desc.push_constant_bytes)
+        .with_context(|| format!("{} pipeline", desc.name))?
+        .set;
     // Modules first (all destroyed below whatever happens).
     let mut modules = Vec::new();
     let mut err = None;

@@ -154,12 +154,8 @@ impl<'a> Param<'a> {
 
     /// A power of two in `lo..=hi`.
     pub fn pow2(&self, lo: u64, hi: u64) -> Result<u64> {
-        let n = self.int(lo, hi).map_err(|_| self.bad(&format!("a power of two in {lo}..={hi}")))?;
-        if n.is_power_of_two() {
-            Ok(n)
-        } else {
-            Err(self.bad(&format!("a power of two in {lo}..={hi}")))
-        }
+        let n = self.int(lo, hi).ok().filter(|n| n.is_power_of_two());
+        n.ok_or_else(|| self.bad(&format!("a power of two in {lo}..={hi}")))
     }
 
     /// A finite number in `[lo, hi]`.

@@ -99,10 +99,9 @@ pub fn compute_pipeline(
     push_bytes: u32,
 ) -> Result<Pipeline> {
     let spirv = shaders.get(shader)?;
-    let set = SetLayout::of(&[(shader, spirv)]).with_context(|| format!("compute pipeline '{shader}'"))?;
-    penumbra_engine::reflect::check_push_range(&[(shader, spirv)], push_bytes)
+    let iface = penumbra_engine::reflect::pipeline_interface(&[(shader, spirv)], push_bytes)
         .with_context(|| format!("compute pipeline '{shader}'"))?;
-    let block = penumbra_engine::reflect::reflect(spirv)?.push_bytes;
+    let (set, block) = (iface.set, iface.push_bytes);
     let (set_layout, layout) = layouts(ctx, shader, &set, vk::ShaderStageFlags::COMPUTE, push_bytes)?;
     let guard = penumbra_engine::shader::LoopGuardSpec::for_shader(ctx, shaders, shader)?;
     let guard_info = guard.as_ref().map(|g| g.info());

@@ -12,7 +12,7 @@ use clap::{Args, Parser, Subcommand};
 use penumbra::engine::dump;
 use penumbra::{RenderSettings, Renderer};
 use penumbra_reference::cli::{parse_size, CompareArgs, ReferenceArgs};
-use penumbra_reference::image::{write_png_rgb8, Image};
+use penumbra_reference::image::write_png_rgb8;
 use penumbra_scene::{Limits, LoadOptions, Scene, SceneError};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -344,11 +344,7 @@ fn report_validation(log: &penumbra::engine::ValidationLog) -> Result<()> {
 
 fn write_frame(out: &Path, index: u32, img: &penumbra::FrameImages) -> Result<()> {
     let exr = out.join(format!("frame_{index:04}.exr"));
-    let hdr = Image::from_fn(img.width, img.height, |x, y| {
-        let p = img.hdr[(y * img.width + x) as usize];
-        [p[0], p[1], p[2]]
-    });
-    hdr.write_exr(&exr).with_context(|| format!("writing {}", exr.display()))?;
+    bench::hdr_image(img).write_exr(&exr).with_context(|| format!("writing {}", exr.display()))?;
     let png = out.join(format!("frame_{index:04}.png"));
     let rgb: Vec<u8> = img.ldr.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect();
     write_png_rgb8(&png, img.width, img.height, &rgb).with_context(|| format!("writing {}", png.display()))?;
@@ -357,11 +353,9 @@ fn write_frame(out: &Path, index: u32, img: &penumbra::FrameImages) -> Result<()
         std::fs::create_dir_all(&dir)?;
         for (name, texels) in &img.dumps {
             let path = dir.join(format!("frame_{index:04}_{name}.exr"));
-            let im = Image::from_fn(img.width, img.height, |x, y| {
-                let p = texels[(y * img.width + x) as usize];
-                [p[0], p[1], p[2]]
-            });
-            im.write_exr(&path).with_context(|| format!("writing {}", path.display()))?;
+            bench::downsample(texels, img.width, img.height, 1)
+                .write_exr(&path)
+                .with_context(|| format!("writing {}", path.display()))?;
         }
     }
     Ok(())

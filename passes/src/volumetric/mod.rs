@@ -662,14 +662,8 @@ impl VolumeDraws<'_> {
                 (false, None) => info.color_attachments(&atts),
             };
             let vb = rc.buffer(vertices)?.buffer;
-            let db = match deformed {
-                Some(b) => Some(rc.buffer(b)?.buffer),
-                None => None,
-            };
-            let pdb = match prev_deformed {
-                Some(b) => Some(rc.buffer(b)?.buffer),
-                None => None,
-            };
+            let db = deformed.map(|b| rc.buffer(b)).transpose()?.map(|b| b.buffer);
+            let pdb = prev_deformed.map(|b| rc.buffer(b)).transpose()?.map(|b| b.buffer);
             let ib = rc.buffer(adj_h)?.buffer;
             crate::raster::begin(
                 rc,
