@@ -472,11 +472,7 @@ impl Renderer {
         let mut g = Graph::new();
         let mut constants = FrameConstants::new(frame, self.prev_view_proj, w, h);
         constants.params[2] = self.env.mips.len() as f32;
-        constants.params[3] = self.env.intensity;
-        constants.env_rot = [self.env.rotation.cos(), self.env.rotation.sin(), self.settings.tonemap.exposure, 0.0];
-        for (i, c) in self.env.sh.iter().enumerate() {
-            constants.sh[i] = [c[0], c[1], c[2], 0.0];
-        }
+        constants.env_rot[2] = self.settings.tonemap.exposure;
         self.prev_view_proj = Some(constants.view_proj());
         let env = self.env.add(&mut store, &mut g);
         let (scene, draws) = self.scene_gpu.add(&mut g, frame, &constants);

@@ -12,8 +12,7 @@ struct CameraData {
     vec4 eye;          // xyz eye position
     vec4 params;       // x width, y height, z env mip count, w env intensity
     vec4 env_rot;      // x cos(rotation), y sin(rotation), z exposure, w unused
-    vec4 sh[9];        // irradiance SH (already convolved with the clamped cosine), rgb; no shader reads
-                       // it since the unshadowed diffuse term reads the exact irradiance map (cam_irr)
+                       // (rotation and intensity: the frame's, penumbra_scene::Frame::environment)
 };
 
 struct InstanceData {

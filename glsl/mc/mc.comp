@@ -17,7 +17,7 @@ layout(std430, binding = 4) readonly buffer TriData { vec4 tri_data[]; };
 // the scene's materials (passes/src/scene_gpu.rs material_table, read through material.glsl)
 #include "common.glsl"
 layout(std430, binding = 5) readonly buffer Materials { MaterialData mats[]; };
-// env texels: rgb radiance (intensity applied), w = pmf of the texel
+// env texels: rgb radiance at intensity 1 (pc.env_rot.z scales it), w = pmf of the texel
 layout(std430, binding = 6) readonly buffer EnvTexels { vec4 env_texels[]; };
 // env CDFs: marginal over rows (h + 1 floats), then per row the conditional (w + 1 floats)
 layout(std430, binding = 7) readonly buffer EnvCdf { float env_cdf[]; };
@@ -32,7 +32,7 @@ layout(push_constant) uniform Push {
     mat4 inv_view_proj;
     uvec4 size_spp_seed;    // width, height, spp, frame seed
     uvec4 env_info;         // env width, env height, bit 0 reset | bit 1 env can be sampled | bit 2 pixel centres (no jitter), light count
-    vec4 env_rot;           // cos, sin of the environment rotation
+    vec4 env_rot;           // cos, sin of the environment rotation, its intensity (the frame's)
 } pc;
 
 #define KD_TRI(i) kd_tris[i]
@@ -76,7 +76,7 @@ float row_solid_angle(uint j) {
     float h = float(pc.env_info.y);
     return (cos(M_PI * float(j) / h) - cos(M_PI * float(j + 1u) / h)) * M_TAU / float(pc.env_info.x);
 }
-vec3 env_radiance(vec3 d) { return env_texels[env_texel(d)].rgb; }
+vec3 env_radiance(vec3 d) { return env_texels[env_texel(d)].rgb * pc.env_rot.z; }
 float env_pdf(vec3 d) {
     if ((pc.env_info.z & 2u) == 0u) return 0.0;
     uint k = env_texel(d);
@@ -104,7 +104,7 @@ bool env_sample(vec4 u, out vec3 d, out vec3 le, out float pdf) {
     uint k = env_texel(d);
     pdf = env_texels[k].w / row_solid_angle(k / w);
     if (!(pdf > 0.0)) return false;
-    le = env_texels[k].rgb;
+    le = env_texels[k].rgb * pc.env_rot.z;
     return true;
 }
 

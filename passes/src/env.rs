@@ -1,9 +1,8 @@
 //! The environment map on the GPU: an RGBA32F lat-long image with a solid-angle weighted box
 //! mip chain (uploaded once by the `env_upload` transfer pass into a persistent image; the
 //! glossy term's lookups, `env_glossy` of `glsl/include/env_shade.glsl`), and its 9-coefficient
-//! SH irradiance (Ramamoorthi and Hanrahan 2001; the frame constants carry it, but the diffuse
-//! term reads the exact irradiance map, `lighting::camera_irradiance`, since SH9 rings under a
-//! bright source).
+//! SH irradiance (Ramamoorthi and Hanrahan 2001; kept for tests: the diffuse term reads the exact
+//! irradiance map, `lighting::camera_irradiance`, since SH9 rings under a bright source).
 //!
 //! Orientation: `penumbra_scene::Environment::direction` (v = 0 is +Y); the scene's `rotation`
 //! turns the map about +Y, the shader undoes it per lookup.
@@ -12,7 +11,7 @@ use crate::util::bytes_of;
 use glam::Vec3;
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::{vk, FrameStore, Graph, ImageHandle};
-use penumbra_scene::Environment;
+use penumbra_scene::{Environment, EnvironmentState};
 
 /// CPU-side environment data ready for the GPU.
 #[derive(Clone, Debug)]
@@ -21,15 +20,19 @@ pub struct EnvMapGpu {
     pub height: u32,
     /// RGBA texels of every mip level, level 0 first.
     pub mips: Vec<(u32, u32, Vec<[f32; 4]>)>,
-    /// Irradiance SH (already convolved with the clamped cosine), rgb per coefficient.
+    /// Irradiance SH (already convolved with the clamped cosine), rgb per coefficient, in the world
+    /// frame of the loaded rotation: a CPU reference for tests (no shader reads it; the diffuse
+    /// term reads the exact irradiance map, `lighting::camera_irradiance`).
     pub sh: [[f32; 3]; 9],
+    /// The loaded intensity and rotation; a frame's own (animated, `Frame::environment`) reach
+    /// the shaders through `FrameConstants`.
     pub intensity: f32,
     pub rotation: f32,
     /// Texels that were NaN/Inf/negative and were replaced by 0.
     pub repaired_texels: usize,
 }
 
-/// Real SH basis, bands 0..2, in the order of `FrameConstants::sh` (`CameraData.sh`).
+/// Real SH basis, bands 0..2, in the order of [`EnvMapGpu::sh`].
 pub fn sh9_basis(d: Vec3) -> [f32; 9] {
     [
         0.282095,
@@ -213,17 +216,21 @@ impl EnvMapGpu {
 // ---- Importance tables of the environment (mc, shadowmaps): texel distribution proportional to
 // luminance x solid angle, as the CPU reference's alias table.
 
-/// Environment sampling tables (CPU side).
+/// Environment sampling tables (CPU side), in the map's own frame at unit intensity: the
+/// environment's state (rotation, intensity; animated per frame, [`EnvTables::set_state`]) is
+/// applied when sampling, so the tables are built once.
 pub struct EnvTables {
     pub width: u32,
     pub height: u32,
-    /// rgb radiance (intensity applied), w = probability of the texel.
+    /// rgb radiance (at intensity 1), w = probability of the texel.
     pub texels: Vec<[f32; 4]>,
     /// Marginal CDF over rows (height + 1), then each row's conditional CDF (width + 1).
     pub cdf: Vec<f32>,
     pub can_sample: bool,
+    /// The current state: cos and sin of the rotation, and the intensity.
     pub cos_rot: f32,
     pub sin_rot: f32,
+    pub intensity: f32,
 }
 
 fn luminance(c: Vec3) -> f64 {
@@ -238,8 +245,6 @@ impl EnvTables {
             _ => &black,
         };
         let (w, h) = (env.width as usize, env.height as usize);
-        let intensity = if env.intensity.is_finite() { env.intensity } else { 0.0 };
-        let rot = if env.rotation.is_finite() { env.rotation } else { 0.0 };
         let rad: Vec<Vec3> = env
             .texels
             .iter()
@@ -248,7 +253,7 @@ impl EnvTables {
                 // infinite or negative channel is black (studio.exr holds texels down to -149,
                 // which gave `mc` negative pixels)
                 let ok = Environment::texel_ok(t);
-                let v = if ok { Vec3::from_array(*t) * intensity } else { Vec3::ZERO };
+                let v = if ok { Vec3::from_array(*t) } else { Vec3::ZERO };
                 if v.is_finite() {
                     v
                 } else {
@@ -291,7 +296,29 @@ impl EnvTables {
             .zip(&weights)
             .map(|(r, wt)| [r.x, r.y, r.z, if can_sample { (wt / total) as f32 } else { 0.0 }])
             .collect();
-        EnvTables { width: w as u32, height: h as u32, texels, cdf, can_sample, cos_rot: rot.cos(), sin_rot: rot.sin() }
+        let mut t = EnvTables {
+            width: w as u32,
+            height: h as u32,
+            texels,
+            cdf,
+            can_sample,
+            cos_rot: 1.0,
+            sin_rot: 0.0,
+            intensity: 0.0,
+        };
+        t.set_state(EnvironmentState { rotation: env.rotation, intensity: env.intensity });
+        t
+    }
+
+    /// Turns and scales the environment to `state` (a frame's, `Frame::environment`); a value
+    /// that is not finite reads as 0. Returns whether anything changed.
+    pub fn set_state(&mut self, state: EnvironmentState) -> bool {
+        let rot = if state.rotation.is_finite() { state.rotation } else { 0.0 };
+        let intensity = if state.intensity.is_finite() { state.intensity.max(0.0) } else { 0.0 };
+        let (sin_rot, cos_rot) = rot.sin_cos();
+        let changed = (cos_rot, sin_rot, intensity) != (self.cos_rot, self.sin_rot, self.intensity);
+        (self.cos_rot, self.sin_rot, self.intensity) = (cos_rot, sin_rot, intensity);
+        changed
     }
 }
 
@@ -320,7 +347,8 @@ impl EnvTables {
         j * self.width as usize + i
     }
 
-    /// Samples a world direction from four uniforms: (direction, radiance, solid-angle pdf).
+    /// Samples a world direction from four uniforms: (direction, radiance, solid-angle pdf), at
+    /// the current state.
     pub fn sample(&self, u: [f32; 4]) -> Option<(Vec3, Vec3, f32)> {
         if !self.can_sample {
             return None;
@@ -344,6 +372,6 @@ impl EnvTables {
             / w as f32;
         let pdf = self.texels[k][3] / sa;
         (pdf > 0.0 && pdf.is_finite())
-            .then(|| (d, Vec3::new(self.texels[k][0], self.texels[k][1], self.texels[k][2]), pdf))
+            .then(|| (d, Vec3::new(self.texels[k][0], self.texels[k][1], self.texels[k][2]) * self.intensity, pdf))
     }
 }

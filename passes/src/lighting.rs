@@ -6,7 +6,7 @@
 //! blocks of the frame layer: no technique owns them.
 
 use glam::DVec3;
-use penumbra_scene::Environment;
+use penumbra_scene::{Environment, EnvironmentState};
 
 /// The sources the cached products are computed by: a change to any of them (even a comment)
 /// changes every cache key, so a cache file never outlives the code that wrote it.
@@ -88,9 +88,18 @@ fn bytes_to_f32s(b: &[u8]) -> Vec<f32> {
     b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
 }
 
-/// Lighting SG lobes of the scene's environment in world space (intensity and rotation
-/// applied), as `[axis, lambda], [rgb mu, 0]` pairs; the fit's relative L2 error.
+/// Lighting SG lobes of the scene's environment in world space (its loaded intensity and rotation
+/// applied, [`lobes_at`]), as `[axis, lambda], [rgb mu, 0]` pairs; the fit's relative L2 error.
 pub fn lighting_lobes(env: Option<&Environment>, k: usize) -> (Vec<[f32; 4]>, Option<f64>) {
+    let (lobes, err) = lighting_lobes_local(env, k);
+    (lobes_at(&lobes, env.map_or(EnvironmentState::NONE, Environment::state)), err)
+}
+
+/// Lighting SG lobes fitted to the environment's texels, in the map's own frame at intensity 1
+/// (lobes that are not finite dropped), as [`lighting_lobes`]'s pairs: a frame's lobes are
+/// [`lobes_at`] its `Frame::environment`, so an animated environment (turned, dimmed) is not
+/// fitted again.
+pub fn lighting_lobes_local(env: Option<&Environment>, k: usize) -> (Vec<[f32; 4]>, Option<f64>) {
     let Some(e) = env else { return (Vec::new(), None) };
     // cached as the fit's error (f64, NaN: no fit) then the lobes' floats
     let b = cached_bytes("lobes", cache_key("lobes", e, &(k as u64).to_le_bytes()), || {
@@ -112,19 +121,37 @@ fn lighting_lobes_uncached(e: &Environment, k: usize) -> (Vec<[f32; 4]>, Option<
     else {
         return (Vec::new(), None);
     };
-    let (s, c) = (e.rotation as f64).sin_cos();
     let mut out = Vec::new();
     for l in &fit.lobes {
-        let a = l.axis;
-        let axis = DVec3::new(c * a.x + s * a.z, a.y, -s * a.x + c * a.z);
-        let mu = l.mu * e.intensity as f64;
-        if !(axis.is_finite() && l.lambda.is_finite() && mu.is_finite()) {
+        let (a, mu) = (l.axis, l.mu);
+        if !(a.is_finite() && l.lambda.is_finite() && mu.is_finite()) {
             continue;
         }
-        out.push([axis.x as f32, axis.y as f32, axis.z as f32, l.lambda as f32]);
+        out.push([a.x as f32, a.y as f32, a.z as f32, l.lambda as f32]);
         out.push([mu.x as f32, mu.y as f32, mu.z as f32, 0.0]);
     }
     (out, Some(fit.rel_l2_error))
+}
+
+/// `lobes` (`[axis, lambda], [rgb mu, 0]` pairs in the map's frame at intensity 1,
+/// [`lighting_lobes_local`]) in world space at `state`: axes turned by its rotation about +Y,
+/// amplitudes scaled by its intensity. As many pairs as given: a pair that would not be finite
+/// becomes a black lobe.
+pub fn lobes_at(lobes: &[[f32; 4]], state: EnvironmentState) -> Vec<[f32; 4]> {
+    let (s, c) = (state.rotation as f64).sin_cos();
+    let mut out = Vec::with_capacity(lobes.len());
+    for pair in lobes.chunks_exact(2) {
+        let (a, mu) = (DVec3::new(pair[0][0] as f64, pair[0][1] as f64, pair[0][2] as f64), pair[1]);
+        let axis = DVec3::new(c * a.x + s * a.z, a.y, -s * a.x + c * a.z);
+        let mu = [mu[0], mu[1], mu[2]].map(|m| m * state.intensity);
+        if axis.is_finite() && pair[0][3].is_finite() && mu.iter().all(|m| m.is_finite()) {
+            out.push([axis.x as f32, axis.y as f32, axis.z as f32, pair[0][3]]);
+            out.push([mu[0], mu[1], mu[2], 0.0]);
+        } else {
+            out.extend([[0.0, 1.0, 0.0, 1.0], [0.0; 4]]);
+        }
+    }
+    out
 }
 
 /// SG sharpness levels of the prefiltered environment (0.25 and the math crate's default stack).
@@ -203,7 +230,8 @@ pub fn irradiance_env(env: Option<&Environment>) -> Vec<f32> {
 }
 
 /// `env` with its key lights (at most `max`, [`penumbra_math::envmap::split_lights`]) split off:
-/// the rest of the map, and the lights' lobes in world space (`key_light_lobes`); no map and no
+/// the rest of the map, and the lights' lobes in the map's frame at intensity 1 (pairs as
+/// [`lighting_lobes_local`]'s: a frame's are [`lobes_at`] its environment's state); no map and no
 /// lobes without an environment, with `max = 0` (the split turned off) or when no texel is over
 /// the cap.
 pub fn split_key_lights(env: Option<&Environment>, max: usize) -> anyhow::Result<(Option<Environment>, Vec<[f32; 4]>)> {
@@ -219,21 +247,12 @@ pub fn split_key_lights(env: Option<&Environment>, max: usize) -> anyhow::Result
     if lobes.is_empty() {
         return Ok((None, Vec::new()));
     }
-    Ok((Some(Environment { texels: sky, ..env.clone() }), key_light_lobes(env, &lobes)))
-}
-
-/// Key-light lobes of `env` in world space (its rotation about +Y and its intensity applied),
-/// 2 per lobe: axis + lambda, RGB amplitude; lobes that are not finite are dropped.
-fn key_light_lobes(env: &Environment, lobes: &[penumbra_math::sg::SgRgb]) -> Vec<[f32; 4]> {
-    let rot = glam::DMat3::from_rotation_y(env.rotation as f64);
     let mut out = Vec::new();
-    for l in lobes {
-        let a = rot * l.axis;
-        let mu = l.mu * env.intensity as f64;
-        if a.is_finite() && l.lambda.is_finite() && mu.is_finite() {
-            out.push([a.x as f32, a.y as f32, a.z as f32, l.lambda as f32]);
-            out.push([mu.x as f32, mu.y as f32, mu.z as f32, 0.0]);
+    for l in &lobes {
+        if l.axis.is_finite() && l.lambda.is_finite() && l.mu.is_finite() {
+            out.push([l.axis.x as f32, l.axis.y as f32, l.axis.z as f32, l.lambda as f32]);
+            out.push([l.mu.x as f32, l.mu.y as f32, l.mu.z as f32, 0.0]);
         }
     }
-    out
+    Ok((Some(Environment { texels: sky, ..env.clone() }), out))
 }

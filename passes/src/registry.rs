@@ -78,6 +78,9 @@ pub struct TechniqueInfo {
     /// Precomputes visibility for static geometry only: refuses scenes whose objects move or
     /// deform.
     pub static_only: bool,
+    /// Follows an animated environment (`Frame::environment`: rotation and intensity per frame);
+    /// false: it bakes the lighting when created and refuses a scene whose environment is animated.
+    pub animated_environment: bool,
     /// Renders shadows: the matrix requires `shadow_recovered >= 0.5` on every scene it accepts.
     pub shadows: bool,
     pub budget: Budget,
@@ -106,6 +109,7 @@ impl std::fmt::Debug for TechniqueInfo {
         f.debug_struct("TechniqueInfo")
             .field("name", &self.name)
             .field("static_only", &self.static_only)
+            .field("animated_environment", &self.animated_environment)
             .field("shadows", &self.shadows)
             .field("budget", &self.budget)
             .finish_non_exhaustive()
@@ -388,6 +392,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "environment (exact irradiance map, importance-sampled glossy lobe) and local lights, no visibility",
         params: &[],
         static_only: false,
+        animated_environment: true,
         shadows: false,
         budget: Budget::Baseline { source: "unshadowed baseline: no visibility, so no accuracy budget" },
         knobs: &[],
@@ -398,6 +403,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "GPU Monte Carlo with the reference's estimator, progressive while nothing moves",
         params: MC_PARAMS,
         static_only: false,
+        animated_environment: true,
         shadows: true,
         budget: Budget::Unbiased {
             factor: 1.5,
@@ -411,6 +417,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "mc at a few samples per pixel per frame, denoised by spatio-temporal variance-guided filtering (SVGF): the baseline users pick today",
         params: MC_DENOISED_PARAMS,
         static_only: false,
+        animated_environment: true,
         shadows: true,
         budget: Budget::RmseRelMean {
             rmse_rel_mean: 0.10,
@@ -424,6 +431,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "rasterized shadow maps: the environment as K shadowed directional lights, a cube map per local light (the papers' baseline)",
         params: SHADOWMAPS_PARAMS,
         static_only: false,
+        animated_environment: true,
         shadows: true,
         budget: Budget::RmseRelMean {
             rmse_rel_mean: 0.10,
@@ -437,6 +445,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "integral spherical Gaussians, per-pixel visibility over sphere sets (Iwasaki et al. 2012)",
         params: ISG_PARAMS,
         static_only: false,
+        animated_environment: true,
         shadows: true,
         budget: ISG_BUDGET,
         knobs: &[k("lobes", &["4", "32"]), k("side", &["4", "24"]), k("thin_tolerance", &["0.03"])],
@@ -447,6 +456,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "integral spherical Gaussians with per-vertex visibility",
         params: ISG_PARAMS,
         static_only: false,
+        animated_environment: true,
         shadows: true,
         budget: ISG_BUDGET,
         knobs: &[k("lobes", &["4", "32"]), k("max_edge", &["0", "0.05"])],
@@ -457,6 +467,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "adaptive visibility sampling with hemispherical distance transforms (Wang et al.)",
         params: AVS_PARAMS,
         static_only: false,
+        animated_environment: true,
         shadows: true,
         budget: Budget::RmseRelMean {
             rmse_rel_mean: 0.10,
@@ -470,6 +481,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "adaptive shadow fields (SH occlusion and source radiance fields, adaptive shells)",
         params: SHADOW_FIELDS_PARAMS,
         static_only: false,
+        animated_environment: true,
         shadows: true,
         budget: SHADOW_FIELDS_BUDGET,
         knobs: &[k("resolution", &["8", "16"]), k("shells", &["8", "16"])],
@@ -480,6 +492,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "shadow fields at fixed (non-adaptive) shell resolution",
         params: SHADOW_FIELDS_PARAMS,
         static_only: false,
+        animated_environment: true,
         shadows: true,
         budget: SHADOW_FIELDS_BUDGET,
         knobs: &[k("resolution", &["8", "16"]), k("shells", &["8", "16"])],
@@ -490,6 +503,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "all-frequency shadow fields (Haar-compressed visibility cube maps, pixel-domain triple product)",
         params: SHADOW_FIELDS_WAVELET_PARAMS,
         static_only: false,
+        animated_environment: true,
         shadows: true,
         budget: Budget::RmseRelMean {
             rmse_rel_mean: 0.15,
@@ -503,6 +517,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "vectorized visibility with spherical Voronoi interpolation (static geometry)",
         params: VV_PARAMS,
         static_only: true,
+        animated_environment: false,
         shadows: true,
         budget: Budget::RmseRelMean {
             rmse_rel_mean: 0.10,
@@ -595,9 +610,16 @@ pub fn lookup(name: &str) -> Result<&'static TechniqueInfo> {
 }
 
 /// Why technique `name` refuses `scene` before anything is built, if it does: a static-only
-/// technique on moving or deforming geometry (naming the object).
+/// technique on moving or deforming geometry (naming the object), a technique that bakes the
+/// lighting on an animated environment.
 pub fn refusal(name: &str, scene: &Scene) -> Option<String> {
     let info = info(name)?;
+    if !info.animated_environment && scene.requirements().animated_environment {
+        return Some(format!(
+            "'{name}' bakes the environment's lighting when it is created; this scene animates the environment's rotation or intensity ([[environment.keys]]); techniques that follow it: {}",
+            REGISTRY.iter().filter(|t| t.animated_environment).map(|t| t.name).collect::<Vec<_>>().join(", ")
+        ));
+    }
     if info.static_only {
         for (i, o) in scene.objects.iter().enumerate() {
             let oi = scene.object_info(i);
@@ -672,6 +694,9 @@ pub fn describe() -> String {
         s += &format!("\n{}\n    {}\n", t.name, t.summary);
         if t.static_only {
             s += "    static geometry only (refuses scenes whose objects move or deform)\n";
+        }
+        if !t.animated_environment {
+            s += "    fixed environment lighting (refuses scenes whose [[environment.keys]] turn or dim it)\n";
         }
         match t.budget {
             Budget::RmseRelMean { rmse_rel_mean, source } => {

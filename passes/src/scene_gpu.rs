@@ -27,11 +27,10 @@ pub struct FrameConstants {
     pub prev_view_proj: [[f32; 4]; 4],
     pub inv_view_proj: [[f32; 4]; 4],
     pub eye: [f32; 4],
-    /// width, height, env mip count, env intensity
+    /// width, height, env mip count, env intensity (the frame's)
     pub params: [f32; 4],
-    /// cos(rotation), sin(rotation), exposure, unused
+    /// cos(rotation), sin(rotation) (the frame's environment rotation), exposure, unused
     pub env_rot: [f32; 4],
-    pub sh: [[f32; 4]; 9],
 }
 
 /// std430 layout of `InstanceData`.
@@ -366,8 +365,9 @@ impl SceneGpu {
 }
 
 impl FrameConstants {
-    /// Camera matrices for `frame` at `width` x `height`; `prev` is the previous frame's camera
-    /// (the same camera on the first frame).
+    /// Camera matrices for `frame` at `width` x `height`, and its environment's rotation and
+    /// intensity (`Frame::environment`); `prev` is the previous frame's camera (the same camera
+    /// on the first frame). The environment's mip count and the exposure are the caller's (1).
     pub fn new(frame: &Frame, prev_view_proj: Option<Mat4>, width: u32, height: u32) -> Self {
         let aspect = width as f32 / height.max(1) as f32;
         let vp = frame.camera.proj(aspect) * frame.camera.view();
@@ -377,9 +377,8 @@ impl FrameConstants {
             prev_view_proj: prev_view_proj.unwrap_or(vp).to_cols_array_2d(),
             inv_view_proj: vp.inverse().to_cols_array_2d(),
             eye: [eye.x, eye.y, eye.z, 1.0],
-            params: [width as f32, height as f32, 1.0, 1.0],
-            env_rot: [1.0, 0.0, 1.0, 0.0],
-            sh: [[0.0; 4]; 9],
+            params: [width as f32, height as f32, 1.0, frame.environment.intensity],
+            env_rot: [frame.environment.rotation.cos(), frame.environment.rotation.sin(), 1.0, 0.0],
         }
     }
 

@@ -339,6 +339,11 @@ impl ShadowMapsTechnique {
         let frame = inputs.frame;
         let scene = inputs.handles;
         let gb = inputs.gbuffer;
+        // an animated environment: the same K texels, turned and scaled to this frame's state
+        // (new directions, so the maps are rendered again)
+        if self.env.set_state(frame.environment) {
+            self.set_count(self.settings.count);
+        }
         let (k, s, ls) = (self.settings.count, self.settings.size, self.settings.light_size);
         let layers = self.layers(frame, s, ls);
         let layer_count = (layers.len() / 5) as u32;

@@ -112,6 +112,34 @@ mod registry {
         }
     }
 
+    /// A technique that bakes the lighting refuses a scene whose environment is animated, naming
+    /// the ones that follow it; with the environment still, it is accepted.
+    #[test]
+    fn techniques_that_bake_the_lighting_refuse_an_animated_environment() {
+        let mut s = Scene::default_scene();
+        assert!(s.environment.is_some());
+        let key = |t, r| penumbra_scene::Track::new(vec![0.0, t], vec![0.0, r], penumbra_scene::Interp::Linear, false);
+        s.environment_animation =
+            Some(penumbra_scene::EnvironmentAnimation { rotation: Some(key(1.0, 1.5).unwrap()), intensity: None });
+        assert!(s.requirements().animated_environment);
+        let baked: Vec<_> = REGISTRY.iter().filter(|t| !t.animated_environment).collect();
+        assert!(!baked.is_empty());
+        for t in REGISTRY {
+            match refusal(t.name, &s) {
+                Some(why) => {
+                    assert!(!t.animated_environment, "{}: {why}", t.name);
+                    assert!(why.contains("[[environment.keys]]") && why.contains("isg"), "{why}");
+                }
+                None => assert!(t.animated_environment, "{} must refuse", t.name),
+            }
+        }
+        // a constant track animates nothing
+        s.environment_animation =
+            Some(penumbra_scene::EnvironmentAnimation { rotation: Some(key(1.0, 0.0).unwrap()), intensity: None });
+        assert!(!s.requirements().animated_environment);
+        assert!(baked.iter().all(|t| refusal(t.name, &s).is_none() || t.static_only));
+    }
+
     /// `auto`: shadowmaps for a lit scene, mc where the device cannot render layered shadow
     /// maps, env without light; every choice is a registered technique.
     #[test]
@@ -593,6 +621,93 @@ mod lighting {
             cache_key("prefiltered", &e, &[16]),
         ] {
             assert_ne!(k, other);
+        }
+    }
+}
+
+/// An animated environment (`Frame::environment`): what the techniques build once, in the map's
+/// frame at intensity 1, and turn and scale per frame gives what building it at that state gives.
+mod environment_state {
+
+    use glam::Vec3;
+    use penumbra_passes::{env::EnvTables, lighting, shadow_fields};
+    use penumbra_scene::{Environment, EnvironmentState};
+
+    /// A small map with a bright off-axis spot (so a turn about +Y moves it) over a dim sky.
+    fn spot_map() -> Environment {
+        let (w, h) = (64u32, 32u32);
+        let texels = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                if (x as i32 - 40).abs() < 3 && (y as i32 - 10).abs() < 3 {
+                    [40.0, 30.0, 20.0]
+                } else {
+                    [0.2, 0.3, 0.5]
+                }
+            })
+            .collect();
+        Environment { width: w, height: h, texels, intensity: 1.0, rotation: 0.0 }
+    }
+
+    const STATE: EnvironmentState = EnvironmentState { rotation: 1.1, intensity: 0.6 };
+
+    #[test]
+    fn lobes_turned_and_scaled_per_frame_are_the_lobes_fitted_at_that_state() {
+        let e = spot_map();
+        let (local, err) = lighting::lighting_lobes_local(Some(&e), 8);
+        assert!(err.is_some() && local.len() >= 2);
+        let at = lighting::lobes_at(&local, STATE);
+        let turned = Environment { rotation: STATE.rotation, intensity: STATE.intensity, ..e.clone() };
+        let (direct, _) = lighting::lighting_lobes(Some(&turned), 8);
+        assert_eq!(at.len(), direct.len());
+        for (a, b) in at.iter().zip(&direct) {
+            for c in 0..4 {
+                assert!((a[c] - b[c]).abs() <= 1e-5 * (1.0 + b[c].abs()), "{a:?} vs {b:?}");
+            }
+        }
+        // the brightest lobe points at the spot, turned with the map
+        let brightest = at.chunks(2).max_by(|a, b| a[1][0].total_cmp(&b[1][0])).unwrap();
+        let axis = Vec3::new(brightest[0][0], brightest[0][1], brightest[0][2]);
+        let spot = Environment::direction(40.5 / 64.0, 10.5 / 32.0);
+        let (s, c) = STATE.rotation.sin_cos();
+        let spot_world = Vec3::new(c * spot.x + s * spot.z, spot.y, -s * spot.x + c * spot.z);
+        assert!(axis.dot(spot_world) > 0.95, "{axis} vs {spot_world}");
+        // a black lobe stands in for one that would not be finite: the count never changes
+        let inf = EnvironmentState { rotation: 0.0, intensity: f32::INFINITY };
+        let black = lighting::lobes_at(&local, inf);
+        assert_eq!(black.len(), local.len());
+        assert!(black.chunks(2).all(|p| p[1] == [0.0; 4]));
+    }
+
+    #[test]
+    fn the_shadow_fields_sh_turned_per_frame_is_the_sh_projected_at_that_state() {
+        let e = spot_map();
+        let unit = EnvironmentState { rotation: 0.0, intensity: 1.0 };
+        let local = shadow_fields::env_light_sh_at(Some(&e), unit);
+        let at = shadow_fields::sh_at(&local, STATE);
+        let direct = shadow_fields::env_light_sh_at(Some(&e), STATE);
+        let norm: f64 = direct.iter().flatten().map(|c| c * c).sum::<f64>().sqrt();
+        let diff: f64 =
+            at.iter().flatten().zip(direct.iter().flatten()).map(|(a, b)| (a - b) * (a - b)).sum::<f64>().sqrt();
+        // the projection is a quadrature over the map's texels, the rotation exact: they agree to
+        // the quadrature's error
+        assert!(diff < 2e-3 * norm, "{diff} of {norm}");
+        assert_eq!(shadow_fields::env_light_sh(Some(&e)), shadow_fields::env_light_sh_at(Some(&e), e.state()));
+    }
+
+    #[test]
+    fn importance_tables_sample_the_turned_and_scaled_map() {
+        let e = spot_map();
+        let mut t = EnvTables::new(Some(&e));
+        assert!(!t.set_state(e.state()), "the loaded state is the tables' own");
+        assert!(t.set_state(STATE));
+        let turned = Environment { rotation: STATE.rotation, intensity: STATE.intensity, ..e.clone() };
+        for k in 0..64 {
+            let u = [(k as f32 + 0.5) / 64.0, ((k * 37) % 64) as f32 / 64.0 + 0.007, 0.5, 0.5];
+            let (d, l, pdf) = t.sample(u).unwrap();
+            assert!(pdf > 0.0);
+            let want = turned.radiance(d);
+            assert!((l - want).abs().max_element() <= 1e-4 * (1.0 + want.max_element()), "{d}: {l} vs {want}");
         }
     }
 }

@@ -43,7 +43,7 @@ use crate::image::{Image, ImageError};
 use crate::lights::LocalLight;
 use crate::sampling::{luminance, EnvLight, Frame as ShadingFrame, Pcg32};
 use glam::{Vec3, Vec4};
-use penumbra_scene::Scene;
+use penumbra_scene::{Environment, Scene};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -393,7 +393,13 @@ impl Context {
         let frame = scene.at(t, None);
         let geo = Geometry::new(scene, &frame).map_err(serr)?;
         let mut sg_fit_rel_l2 = None;
-        let env = match (&scene.environment, opts.mode) {
+        // the environment as lit at this time (its animation's rotation and intensity)
+        let env_now = scene.environment.as_ref().map(|e| Environment {
+            rotation: frame.environment.rotation,
+            intensity: frame.environment.intensity,
+            ..e.clone()
+        });
+        let env = match (&env_now, opts.mode) {
             (Some(e), Mode::Exact) => EnvLight::new(e).map_err(serr)?,
             (Some(e), Mode::SgLighting | Mode::Sg) => {
                 let fit = penumbra_math::envmap::fit_sg_lighting(

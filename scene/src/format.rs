@@ -8,7 +8,8 @@
 //! technique = "auto"         # visibility technique, default "auto" (the engine chooses)
 //! [technique_params]         # key = value parameters of the technique (e.g. isg: lobes = 16)
 //! [camera]                   # eye, target, up, fov_deg, near, far; [[camera.keys]] t, eye, target, fov_deg
-//! [environment]              # file = "x.exr" | "x.hdr", or procedural = "sky"; intensity; rotation_deg
+//! [environment]              # file = "x.exr" | "x.hdr", or procedural = "sky"; intensity; rotation_deg;
+//!                            # loop, [[environment.keys]] t, rotation_deg, intensity
 //! [[light]]                  # type = "point" | "spot" | "sphere" | "directional", position (not for
 //!                            # "directional"), direction, color, intensity (W/sr; directional: the
 //!                            # irradiance it gives a surface facing it), inner_deg, outer_deg,
@@ -133,6 +134,19 @@ struct EnvSpec {
     intensity: f32,
     #[serde(default)]
     rotation_deg: f32,
+    /// Keyframes of rotation_deg and intensity over time (each in every key or in none).
+    #[serde(default)]
+    keys: Vec<EnvKey>,
+    #[serde(default, rename = "loop")]
+    looping: bool,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct EnvKey {
+    t: f32,
+    rotation_deg: Option<f32>,
+    intensity: Option<f32>,
 }
 
 #[derive(Deserialize)]
@@ -541,7 +555,9 @@ pub fn parse_toml_with(
         let span = e.span();
         let e = e.get_ref();
         let mut env = match (&e.file, &e.procedural) {
-            (Some(f), None) => Environment::load_with(&ctx.resolve(f), ctx.budget).map_err(ctx.referenced(span))?,
+            (Some(f), None) => {
+                Environment::load_with(&ctx.resolve(f), ctx.budget).map_err(ctx.referenced(span.clone()))?
+            }
             (None, Some(p)) if p == "sky" => Environment::procedural_sky(256, 128),
             (None, Some(p)) => {
                 return Err(SceneError::invalid(path, format!("environment.procedural: unknown '{p}' (known: sky)")))
@@ -556,6 +572,26 @@ pub fn parse_toml_with(
         }
         env.intensity = e.intensity;
         env.rotation = e.rotation_deg.to_radians();
+        if !e.keys.is_empty() {
+            let bad = |m: String| ctx.err_at(span.clone(), format!("environment.keys: {m}"));
+            let times: Vec<f32> = e.keys.iter().map(|k| k.t).collect();
+            let rot: Vec<Option<f32>> = e.keys.iter().map(|k| k.rotation_deg.map(f32::to_radians)).collect();
+            let int: Vec<Option<f32>> = e.keys.iter().map(|k| k.intensity).collect();
+            if rot.iter().flatten().any(|r| !r.is_finite()) {
+                return Err(bad("rotation_deg must be finite".into()));
+            }
+            if int.iter().flatten().any(|i| !(i.is_finite() && *i >= 0.0)) {
+                return Err(bad("intensity must be finite and >= 0".into()));
+            }
+            let anim = crate::EnvironmentAnimation {
+                rotation: keyed_track(rot, &times, e.looping, "rotation_deg").map_err(bad)?,
+                intensity: keyed_track(int, &times, e.looping, "intensity").map_err(bad)?,
+            };
+            if anim.rotation.is_none() && anim.intensity.is_none() {
+                return Err(bad("give rotation_deg or intensity in the keys".into()));
+            }
+            scene.environment_animation = Some(anim);
+        }
         let repaired = env.repair_texels();
         if repaired > 0 {
             let what = e.file.as_deref().unwrap_or("the environment map");
@@ -1104,20 +1140,6 @@ fn material(
         let rough: Vec<Option<f32>> = m.keys.iter().map(|k| k.roughness).collect();
         let alb: Vec<Option<Vec3>> = m.keys.iter().map(|k| k.albedo.map(|v| v.0)).collect();
         let spec: Vec<Option<Vec3>> = m.keys.iter().map(|k| k.specular.map(|v| v.0)).collect();
-        fn track<T: crate::motion::Lerp>(
-            v: Vec<Option<T>>,
-            times: &[f32],
-            looping: bool,
-            k: &str,
-        ) -> Result<Option<Track<T>>, String> {
-            if v.iter().all(|x| x.is_none()) {
-                return Ok(None);
-            }
-            if v.iter().any(|x| x.is_none()) {
-                return Err(format!("give `{k}` in every key or in none"));
-            }
-            Track::new(times.to_vec(), v.into_iter().flatten().collect(), Interp::Linear, looping).map(Some)
-        }
         if rough.iter().flatten().any(|r| !(0.0..=1.0).contains(r)) {
             return Err(bad("roughness must be in [0, 1]".into()));
         }
@@ -1126,10 +1148,27 @@ fn material(
         }
         Some(MaterialAnimation {
             material: index,
-            roughness: track(rough, &times, m.looping, "roughness").map_err(bad)?,
-            albedo: track(alb, &times, m.looping, "albedo").map_err(bad)?,
-            specular: track(spec, &times, m.looping, "specular").map_err(bad)?,
+            roughness: keyed_track(rough, &times, m.looping, "roughness").map_err(bad)?,
+            albedo: keyed_track(alb, &times, m.looping, "albedo").map_err(bad)?,
+            specular: keyed_track(spec, &times, m.looping, "specular").map_err(bad)?,
         })
     };
     Ok((mat, extra, anim))
+}
+
+/// A linear track of one keyed value (`k`) of `[[...keys]]`: `None` when no key gives it, an error
+/// when only some do.
+fn keyed_track<T: crate::motion::Lerp>(
+    v: Vec<Option<T>>,
+    times: &[f32],
+    looping: bool,
+    k: &str,
+) -> Result<Option<Track<T>>, String> {
+    if v.iter().all(|x| x.is_none()) {
+        return Ok(None);
+    }
+    if v.iter().any(|x| x.is_none()) {
+        return Err(format!("give `{k}` in every key or in none"));
+    }
+    Track::new(times.to_vec(), v.into_iter().flatten().collect(), Interp::Linear, looping).map(Some)
 }

@@ -156,6 +156,11 @@ pub struct Environment {
 }
 
 impl Environment {
+    /// Its rotation and intensity as loaded (a frame's own: `Frame::environment`).
+    pub fn state(&self) -> EnvironmentState {
+        EnvironmentState { rotation: self.rotation, intensity: self.intensity }
+    }
+
     /// Unit direction for lat-long coordinates (u, v) in `[0,1]^2` (before `rotation`).
     /// u = 0 and u = 1 is the -Z direction... phi grows towards +X; v = 0 is +Y (up).
     pub fn direction(u: f32, v: f32) -> Vec3 {
@@ -354,6 +359,27 @@ pub struct MaterialAnimation {
     pub specular: Option<Track<Vec3>>,
 }
 
+/// Animated environment lighting (`[[environment.keys]]`, applied by [`Scene::at`]): each track,
+/// when present, overrides the environment's rotation (radians about +Y) or intensity.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct EnvironmentAnimation {
+    pub rotation: Option<Track<f32>>,
+    pub intensity: Option<Track<f32>>,
+}
+
+/// The environment's lighting state at one time: its rotation about +Y (radians) and its
+/// intensity (the scale of every texel). The texels never change over time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EnvironmentState {
+    pub rotation: f32,
+    pub intensity: f32,
+}
+
+impl EnvironmentState {
+    /// No environment: nothing turned, nothing lit.
+    pub const NONE: EnvironmentState = EnvironmentState { rotation: 0.0, intensity: 0.0 };
+}
+
 /// An animated camera: each track, when present, overrides the camera field.
 #[derive(Clone, Debug, PartialEq, Default)]
 pub struct CameraPath {
@@ -433,6 +459,8 @@ pub struct Requirements {
     pub animated_lights: bool,
     /// Some material parameter is animated.
     pub animated_materials: bool,
+    /// The environment's rotation or intensity is animated (`[[environment.keys]]`).
+    pub animated_environment: bool,
 }
 
 impl Requirements {
@@ -485,6 +513,8 @@ pub struct Scene {
     pub object_info: Vec<ObjectInfo>,
     pub material_animations: Vec<MaterialAnimation>,
     pub camera_path: Option<CameraPath>,
+    /// The environment's rotation and intensity over time (`None`: as loaded, constant).
+    pub environment_animation: Option<EnvironmentAnimation>,
     /// Repairs made while loading (zero-area triangles removed, normals normalized, ...).
     pub warnings: Vec<String>,
     /// The file the scene was loaded from.
@@ -525,6 +555,11 @@ pub struct Frame {
     pub materials: Vec<Material>,
     /// Indices of materials whose parameters changed since the previous frame.
     pub materials_changed: Vec<usize>,
+    /// The environment's rotation and intensity at this time ([`EnvironmentState::NONE`]
+    /// without an environment); the texels are `Scene::environment`'s.
+    pub environment: EnvironmentState,
+    /// The environment's rotation or intensity changed since the previous frame.
+    pub environment_changed: bool,
 }
 
 impl Frame {
@@ -598,7 +633,36 @@ impl Scene {
             }
             None => Vec::new(),
         };
-        Frame { time: t, camera, instances, prev_camera, camera_moved, lights, materials, materials_changed }
+        let environment = self.environment_at(t);
+        let environment_changed = prev_t.is_some_and(|p| self.environment_at(p) != environment);
+        Frame {
+            time: t,
+            camera,
+            instances,
+            prev_camera,
+            camera_moved,
+            lights,
+            materials,
+            materials_changed,
+            environment,
+            environment_changed,
+        }
+    }
+
+    /// The environment's rotation and intensity at time `t` (its animation's tracks override the
+    /// loaded values); [`EnvironmentState::NONE`] without an environment.
+    pub fn environment_at(&self, t: f32) -> EnvironmentState {
+        let Some(e) = &self.environment else { return EnvironmentState::NONE };
+        let mut s = EnvironmentState { rotation: e.rotation, intensity: e.intensity };
+        if let Some(a) = &self.environment_animation {
+            if let Some(k) = &a.rotation {
+                s.rotation = k.sample(t);
+            }
+            if let Some(k) = &a.intensity {
+                s.intensity = k.sample(t).max(0.0);
+            }
+        }
+        s
     }
 
     /// World transform of object `i` at time `t`.
@@ -700,6 +764,11 @@ impl Scene {
                     || a.albedo.as_ref().is_some_and(|k| !k.is_constant())
                     || a.specular.as_ref().is_some_and(|k| !k.is_constant())
             }),
+            animated_environment: self.environment.is_some()
+                && self.environment_animation.as_ref().is_some_and(|a| {
+                    a.rotation.as_ref().is_some_and(|k| !k.is_constant())
+                        || a.intensity.as_ref().is_some_and(|k| !k.is_constant())
+                }),
         }
     }
 
@@ -899,6 +968,7 @@ impl Scene {
             object_info: Vec::new(),
             material_animations: Vec::new(),
             camera_path: None,
+            environment_animation: None,
             warnings: Vec::new(),
             source: None,
         }

@@ -286,10 +286,16 @@ impl Environment {
     /// Nearest-texel radiance seen in world direction `d`, with `rotation` (about +Y,
     /// counter-clockwise seen from above) and `intensity` applied.
     pub fn radiance(&self, d: Vec3) -> Vec3 {
-        let local = glam::Quat::from_rotation_y(-self.rotation) * d;
+        self.radiance_at(d, self.state())
+    }
+
+    /// [`Environment::radiance`] with `state`'s rotation and intensity (a frame's, animated)
+    /// instead of the loaded ones.
+    pub fn radiance_at(&self, d: Vec3, state: crate::EnvironmentState) -> Vec3 {
+        let local = glam::Quat::from_rotation_y(-state.rotation) * d;
         let (u, v) = Self::uv(local);
         let i = ((u * self.width as f32) as u32).min(self.width.saturating_sub(1));
         let j = ((v * self.height as f32) as u32).min(self.height.saturating_sub(1));
-        Vec3::from_array(self.texels[(j * self.width + i) as usize]) * self.intensity
+        Vec3::from_array(self.texels[(j * self.width + i) as usize]) * state.intensity
     }
 }

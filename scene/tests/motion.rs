@@ -161,3 +161,53 @@ fn static_objects_never_move() {
         assert!(f.instances[0].deformed_mesh.is_none());
     }
 }
+
+#[test]
+fn environment_keys_turn_and_dim_the_lighting_over_time() {
+    let s = scene_from(
+        "[camera]\neye = [0, 1, 5]\ntarget = 0\n[environment]\nprocedural = \"sky\"\nintensity = 2\nrotation_deg = 10\nkeys = [{ t = 0, rotation_deg = 0, intensity = 1 }, { t = 2, rotation_deg = 90, intensity = 3 }]\n[[object]]\nmesh = { type = \"sphere\", radius = 1 }\n",
+        "env_keys",
+    );
+    assert!(s.requirements().animated_environment);
+    let f = s.at(1.0, Some(0.5));
+    assert!((f.environment.rotation - 45f32.to_radians()).abs() < 1e-6, "{:?}", f.environment);
+    assert!((f.environment.intensity - 2.0).abs() < 1e-6);
+    assert!(f.environment_changed && !f.any_moved());
+    // the first frame has no previous one; after the last key the lighting holds
+    assert!(!s.at(1.0, None).environment_changed);
+    let late = s.at(5.0, Some(4.0));
+    assert!(!late.environment_changed && (late.environment.intensity - 3.0).abs() < 1e-6);
+    // the loaded values stand without keys, and without an environment nothing lights
+    let plain = scene_from(
+        "[camera]\neye = [0, 1, 5]\ntarget = 0\n[environment]\nprocedural = \"sky\"\nintensity = 2\nrotation_deg = 90\n[[object]]\nmesh = { type = \"sphere\", radius = 1 }\n",
+        "env_plain",
+    );
+    assert!(!plain.requirements().animated_environment);
+    let e = plain.at(3.0, Some(2.0)).environment;
+    assert_eq!(e, penumbra_scene::EnvironmentState { rotation: 90f32.to_radians(), intensity: 2.0 });
+    let none = scene_from(
+        "[camera]\neye = [0, 1, 5]\ntarget = 0\n[[object]]\nmesh = { type = \"sphere\", radius = 1 }\n",
+        "no_env",
+    );
+    assert_eq!(none.at(0.0, None).environment, penumbra_scene::EnvironmentState::NONE);
+}
+
+#[test]
+fn environment_keys_are_checked() {
+    for (keys, want) in [
+        ("[{ t = 0, rotation_deg = 0 }, { t = 1, intensity = 2 }]", "give `rotation_deg` in every key or in none"),
+        ("[{ t = 0, intensity = -1 }]", "intensity must be finite and >= 0"),
+        ("[{ t = 0 }, { t = 1 }]", "give rotation_deg or intensity in the keys"),
+        ("[{ t = 1, intensity = 1 }, { t = 0, intensity = 2 }]", "environment.keys"),
+    ] {
+        let text = format!(
+            "[camera]\neye = [0, 1, 5]\ntarget = 0\n[environment]\nprocedural = \"sky\"\nkeys = {keys}\n[[object]]\nmesh = {{ type = \"sphere\", radius = 1 }}\n"
+        );
+        let dir = std::env::temp_dir().join(format!("penumbra-envkeys-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("bad.toml");
+        std::fs::write(&path, text).unwrap();
+        let err = penumbra_scene::Scene::load(&path).unwrap_err().to_string();
+        assert!(err.contains(want) && err.contains("bad.toml"), "{keys}: {err}");
+    }
+}

@@ -778,7 +778,9 @@ pub struct AvsTechnique {
     pub settings: AvsSettings,
     scene: Scene,
     pub builder: KdTreeBuilder,
-    lobes: Arc<Vec<u8>>,
+    /// The lighting lobes in the map's frame at intensity 1 (`lighting::lighting_lobes_local`),
+    /// turned and scaled per frame (`lighting::lobes_at`).
+    lobes: Vec<[f32; 4]>,
     prefiltered: Arc<Vec<u8>>,
     /// The environment's irradiance map (`lighting::irradiance_env`), the ratio estimator's
     /// unshadowed diffuse term.
@@ -786,8 +788,9 @@ pub struct AvsTechnique {
     axis_table: Arc<Vec<u8>>,
     lobe_count: u32,
     /// The environment's key lights split off its map ([`AvsSettings::key_lights`]), 2 vec4 per
-    /// light (world axis + lambda, rgb amplitude), and their count.
-    key_lights: Arc<Vec<u8>>,
+    /// light (axis + lambda, rgb amplitude; the map's frame at intensity 1, as `lobes`), and
+    /// their count.
+    key_lights: Vec<[f32; 4]>,
     key_count: u32,
     /// Pool vertices of the current sample points (kept across frames): the traced ones.
     sample_vertices: Vec<usize>,
@@ -855,7 +858,7 @@ impl AvsTechnique {
         let max_key = if settings.traced_lights { settings.key_lights } else { 0 };
         let (sky, key) = crate::lighting::split_key_lights(scene.environment.as_ref(), max_key)?;
         let env = sky.as_ref().or(scene.environment.as_ref());
-        let (lobes, _) = crate::lighting::lighting_lobes(env, settings.lobes);
+        let (lobes, _) = crate::lighting::lighting_lobes_local(env, settings.lobes);
         let lobe_count = (lobes.len() / 2) as u32;
         let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
         Ok(AvsTechnique {
@@ -866,11 +869,11 @@ impl AvsTechnique {
             nearest: Sampler::nearest(ctx)?,
             linear: Sampler::latlong(ctx)?,
             repeat: Sampler::repeat(ctx)?,
-            lobes: Arc::new(bytes_of(&lobes)),
+            lobes,
             prefiltered: Arc::new(bytes_of(&crate::lighting::prefiltered_env(env))),
             irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(env))),
             key_count: (key.len() / 2) as u32,
-            key_lights: Arc::new(if key.is_empty() { vec![0u8; 32] } else { bytes_of(&key) }),
+            key_lights: key,
             axis_table: if settings.integration == Integration::Table { axis_table() } else { Arc::new(vec![0u8; 16]) },
             lobe_count,
             builder: KdTreeBuilder::new(ctx, shaders)?,
@@ -1651,11 +1654,15 @@ impl crate::technique::Technique for AvsTechnique {
         self.stats.radius = shade_radius;
         let grid = Grid::new(&pos, shade_radius);
         let grid_buf = graph.create_buffer_init("avs_grid", bytes_of(&grid_words(&grid, &slots)));
-        let lobes = graph.create_buffer_init("avs_lobes", self.lobes.as_ref().clone());
+        // the lighting and key-light lobes turned and scaled to the frame's environment
+        let state = inputs.frame.environment;
+        let lobes = graph.create_buffer_init("avs_lobes", bytes_of(&crate::lighting::lobes_at(&self.lobes, state)));
         let prefiltered = graph.create_buffer_init("avs_prefiltered", self.prefiltered.as_ref().clone());
         let table = graph.create_buffer_init("avs_axis_table", self.axis_table.as_ref().clone());
         let irradiance = graph.create_buffer_init("avs_irradiance", self.irradiance.as_ref().clone());
-        let key_lights = graph.create_buffer_init("avs_key_lights", self.key_lights.as_ref().clone());
+        let key = crate::lighting::lobes_at(&self.key_lights, state);
+        let key_lights =
+            graph.create_buffer_init("avs_key_lights", if key.is_empty() { vec![0u8; 32] } else { bytes_of(&key) });
 
         let (scene, gb) = (inputs.handles, inputs.gbuffer);
         let (w, h) = (gb.width, gb.height);

@@ -582,7 +582,9 @@ pub struct IsgTechnique {
     thin: Vec<Vec<u32>>,
     refined: std::collections::HashMap<usize, vertex::Refined>,
     table: Arc<Vec<u8>>,
-    lobes: Arc<Vec<u8>>,
+    /// The lighting lobes in the map's frame at intensity 1 (`lighting::lighting_lobes_local`):
+    /// each frame turns and scales them to its environment's state (`lighting::lobes_at`).
+    lobes: Vec<[f32; 4]>,
     prefiltered: Arc<Vec<u8>>,
     /// The environment's irradiance map (the ratio estimator's unshadowed diffuse term).
     irradiance: Arc<Vec<u8>>,
@@ -609,7 +611,7 @@ impl IsgTechnique {
             None
         };
         let table = IsgTable::default_table().to_gpu(settings.epsilon);
-        let (lobes, _) = crate::lighting::lighting_lobes(scene.environment.as_ref(), settings.lobes);
+        let (lobes, _) = crate::lighting::lighting_lobes_local(scene.environment.as_ref(), settings.lobes);
         let prefiltered = crate::lighting::prefiltered_env(scene.environment.as_ref());
         let lobe_count = (lobes.len() / 2) as u32;
         let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
@@ -672,7 +674,7 @@ impl IsgTechnique {
             scene: scene.clone(),
             settings,
             table: Arc::new(bytes_of(&table)),
-            lobes: Arc::new(bytes_of(&lobes)),
+            lobes,
             prefiltered: Arc::new(bytes_of(&prefiltered)),
             irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(scene.environment.as_ref()))),
             lobe_count,
@@ -841,7 +843,8 @@ impl crate::technique::Technique for IsgTechnique {
         let (scene, gb) = (inputs.handles, inputs.gbuffer);
         let (w, h) = (gb.width, gb.height);
         let table = graph.create_buffer_init("isg_table", self.table.as_ref().clone());
-        let lobes = graph.create_buffer_init("isg_lobes", self.lobes.as_ref().clone());
+        let lobes = crate::lighting::lobes_at(&self.lobes, inputs.frame.environment);
+        let lobes = graph.create_buffer_init("isg_lobes", bytes_of(&lobes));
         let prefiltered = graph.create_buffer_init("isg_prefiltered", self.prefiltered.as_ref().clone());
         let irradiance = graph.create_buffer_init("isg_irradiance", self.irradiance.as_ref().clone());
         let (bvh, node_count) = if self.settings.gpu_bvh && spheres.len() >= 2 && spheres.len() <= GPU_BVH_MAX {

@@ -15,8 +15,9 @@
 //! environment.
 //!
 //! Progressive: a persistent RGBA32F image sums the samples (alpha counts them) and the output is
-//! the mean; it restarts when the camera, an object, a deformation, a light or a material changed, when
-//! the tree was rebuilt, or when the image is new (first frame, resize).
+//! the mean; it restarts when the camera, an object, a deformation, a light, a material or the
+//! environment's rotation or intensity changed, when the tree was rebuilt, or when the image is
+//! new (first frame, resize).
 //!
 //! Texture maps (albedo multiplies, roughness G channel multiplies roughness and sets Phong-type
 //! exponents to `2 / r^2 - 2`) are sampled bilinearly from the scene's texture array
@@ -229,7 +230,11 @@ impl McTechnique {
         let lights = graph
             .create_buffer_init("mc.lights", if light_data.is_empty() { vec![0u8; 64] } else { bytes_of(&light_data) });
         let accum = engine.persistent_image(graph, "mc.accum", ImageDesc::new_2d(HDR_FORMAT, width, height));
+        // the environment turned and scaled to this frame's state (the tables stay as built)
+        let env_changed = self.env.set_state(frame.environment);
         let reset = graph.persistent_is_new(accum)
+            || env_changed
+            || frame.environment_changed
             || rebuilt
             || geometry_changed
             || frame.camera_moved
@@ -261,7 +266,7 @@ impl McTechnique {
                 (reset && chunk == 0) as u32 | (self.env.can_sample as u32) << 1 | (!self.aa as u32) << 2,
                 light_count,
             ]));
-            push.extend(bytes_of(&[self.env.cos_rot, self.env.sin_rot, 0.0, 0.0]));
+            push.extend(bytes_of(&[self.env.cos_rot, self.env.sin_rot, self.env.intensity, 0.0]));
             self.frame_index = self.frame_index.wrapping_add(1);
             let name = if chunk == 0 { "mc".to_string() } else { format!("mc.{chunk}") };
             let mut p = graph.pass(&name, PassKind::Compute);

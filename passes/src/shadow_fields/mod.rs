@@ -44,7 +44,7 @@ use penumbra_math::shadow_field::{
     self as sf, InstanceFrame, LightFrame, LightSource, ObjectField, Params, ShadeOptions, ShadePoint, Window, NCOEF,
     ROT_FLOATS,
 };
-use penumbra_scene::{Environment, Frame, LightKind, Scene};
+use penumbra_scene::{Environment, EnvironmentState, Frame, LightKind, Scene};
 use std::hash::{Hash, Hasher};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -428,9 +428,15 @@ pub(crate) fn deforming_objects(scene: &Scene) -> Vec<String> {
         .collect()
 }
 
-/// Order-4 SH (rgb) of the environment radiance in world space (intensity and rotation
-/// applied); zero without an environment.
+/// Order-4 SH (rgb) of the environment radiance in world space (its loaded intensity and
+/// rotation applied); zero without an environment.
 pub fn env_light_sh(env: Option<&Environment>) -> [[f64; 3]; NCOEF] {
+    env_light_sh_at(env, env.map_or(EnvironmentState::NONE, Environment::state))
+}
+
+/// [`env_light_sh`] at `state` (the map turned by its rotation about +Y, scaled by its
+/// intensity).
+pub fn env_light_sh_at(env: Option<&Environment>, state: EnvironmentState) -> [[f64; 3]; NCOEF] {
     let mut out = [[0.0; 3]; NCOEF];
     let Some(env) = env else { return out };
     let (w, h) = (env.width as usize, env.height as usize);
@@ -438,7 +444,7 @@ pub fn env_light_sh(env: Option<&Environment>) -> [[f64; 3]; NCOEF] {
         return out;
     }
     let stride = (w / 256).max(1);
-    let rot = Mat3::from_rotation_y(env.rotation);
+    let rot = Mat3::from_rotation_y(state.rotation);
     let mut y = [0.0; NCOEF];
     let dphi = std::f64::consts::TAU / w as f64;
     let dth = std::f64::consts::PI / h as f64;
@@ -453,12 +459,26 @@ pub fn env_light_sh(env: Option<&Environment>) -> [[f64; 3]; NCOEF] {
             let d = (rot * Environment::direction(u, v as f32)).as_dvec3();
             sf_basis(d, &mut y);
             let t = env.texels[j * w + i];
-            let wgt = wgt_row * cols as f64 * dphi * env.intensity as f64;
+            let wgt = wgt_row * cols as f64 * dphi * state.intensity as f64;
             for e in 0..NCOEF {
                 for c in 0..3 {
                     out[e][c] += wgt * t[c] as f64 * y[e];
                 }
             }
+        }
+    }
+    out
+}
+
+/// `sh` (rgb, the map's frame at intensity 1: [`env_light_sh_at`] at rotation 0, intensity 1)
+/// turned by `state`'s rotation about +Y (an exact SH rotation) and scaled by its intensity.
+pub fn sh_at(sh: &[[f64; 3]; NCOEF], state: EnvironmentState) -> [[f64; 3]; NCOEF] {
+    let r = penumbra_math::sh::ShRotation::new(sf::ORDER, glam::DMat3::from_rotation_y(state.rotation as f64));
+    let mut out = [[0.0; 3]; NCOEF];
+    for c in 0..3 {
+        let turned = r.apply(&sh.iter().map(|v| v[c]).collect::<Vec<f64>>());
+        for (o, t) in out.iter_mut().zip(turned) {
+            o[c] = t * state.intensity as f64;
         }
     }
     out
@@ -843,9 +863,12 @@ pub struct ShadowFieldsTechnique {
     pub tables: GpuTables,
     pub light: [[f64; 3]; NCOEF],
     /// The environment's SH that the frames shade with: [`Self::light`] less the key lights
-    /// when they are split off ([`SfOptions::key_lights`]).
-    shade_light: [[f64; 3]; NCOEF],
-    /// The key lights, 2 per light: world axis + lambda, RGB amplitude (intensity applied).
+    /// when they are split off ([`SfOptions::key_lights`]), in the map's frame at intensity 1.
+    shade_light_local: [[f64; 3]; NCOEF],
+    /// The last frame's environment state and its SH ([`sh_at`] of `shade_light_local`).
+    shade_light: Option<(EnvironmentState, [[f64; 3]; NCOEF])>,
+    /// The key lights, 2 per light: axis + lambda, RGB amplitude, in the map's frame at intensity
+    /// 1 (`lighting::lobes_at` the frame's state).
     key: Vec<[f32; 4]>,
     pub tensor: TripleProductTensor,
     pub adaptive: bool,
@@ -919,7 +942,10 @@ impl ShadowFieldsTechnique {
         let traced = o.light_traced && (!scene.lights.is_empty() || o.key_lights > 0);
         let (sky, key) =
             crate::lighting::split_key_lights(scene.environment.as_ref(), if traced { o.key_lights } else { 0 })?;
-        let shade_light = sky.as_ref().map_or(light, |sky| env_light_sh(Some(sky)));
+        // the SH the frames shade with, in the map's frame at intensity 1 (each frame's is turned
+        // and scaled to its environment's state)
+        let unit = EnvironmentState { rotation: 0.0, intensity: 1.0 };
+        let shade_light_local = env_light_sh_at(sky.as_ref().or(scene.environment.as_ref()), unit);
         Ok(ShadowFieldsTechnique {
             shade,
             points,
@@ -929,7 +955,8 @@ impl ShadowFieldsTechnique {
             repeat: Sampler::repeat(ctx)?,
             tables,
             light,
-            shade_light,
+            shade_light_local,
+            shade_light: None,
             tensor,
             adaptive,
             mode: o.mode,
@@ -1147,10 +1174,18 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
 
     fn add(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle> {
         let srf = self.lights_through_fields();
-        let h = upload(graph, &self.tables, &self.casts, inputs.frame, &self.shade_light, srf);
+        // the environment's SH and key lights turned and scaled to the frame's state
+        let state = inputs.frame.environment;
+        let light = match self.shade_light {
+            Some((s, l)) if s == state => l,
+            _ => sh_at(&self.shade_light_local, state),
+        };
+        self.shade_light = Some((state, light));
+        let h = upload(graph, &self.tables, &self.casts, inputs.frame, &light, srf);
         let key_count = (self.key.len() / 2) as u32;
-        let key = graph
-            .create_buffer_init("sf_key_lights", if self.key.is_empty() { vec![0u8; 32] } else { bytes_of(&self.key) });
+        let key = crate::lighting::lobes_at(&self.key, state);
+        let key =
+            graph.create_buffer_init("sf_key_lights", if key.is_empty() { vec![0u8; 32] } else { bytes_of(&key) });
         // the local lights' occluders: the frame's triangles (rebuilt when anything moved), or
         // four empty stand-ins the shader never reads (traced = 0)
         let (kd_bufs, traced) = crate::kdtree::KdTreeBuilder::add_frame_or_stand_ins(

@@ -49,7 +49,7 @@ use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, FrameStore, Graph, ImageHandle, PassKind};
 use penumbra_math::shadow_field::haar::{raw_maps, CubeTable, HaarField};
-use penumbra_scene::{Environment, Scene};
+use penumbra_scene::{Environment, EnvironmentState, Scene};
 use std::collections::hash_map::DefaultHasher;
 use std::hash::{Hash, Hasher};
 use std::sync::Arc;
@@ -386,8 +386,12 @@ pub struct WaveletTechnique {
     /// Per mesh: (first shell, shell count, centre, step).
     mesh_shells: Vec<(u32, u32, Vec3, f32)>,
     /// Per cube pixel (world frame): direction, then the environment's radiance times the
-    /// pixel's solid angle.
-    dirs: Arc<Vec<u8>>,
+    /// pixel's solid angle, at the environment state it was made for.
+    dirs: (EnvironmentState, Arc<Vec<u8>>),
+    /// The map the cube's radiance comes from (the rest of it with key lights split off), kept
+    /// when the scene animates its environment: a frame at another state makes its own cube.
+    cube_env: Option<Environment>,
+    table: CubeTable,
     irradiance: Arc<Vec<u8>>,
     casts: Vec<bool>,
     deforming: Vec<String>,
@@ -403,8 +407,9 @@ pub struct WaveletTechnique {
     /// The frame's kd-tree for the local and key lights' shadow rays (`light_shadows = traced`,
     /// with local or key lights to shade).
     kd: Option<crate::kdtree::KdTreeBuilder>,
-    /// The key lights split off the environment, 2 per light (world axis + lambda, RGB
-    /// amplitude), shaded with the kd-tree's rays ([`SfwOptions::key_lights`]).
+    /// The key lights split off the environment, 2 per light (axis + lambda, RGB amplitude, in
+    /// the map's frame at intensity 1: `lighting::lobes_at` the frame's state), shaded with the
+    /// kd-tree's rays ([`SfwOptions::key_lights`]).
     key: Vec<[f32; 4]>,
 }
 
@@ -412,9 +417,9 @@ pub struct WaveletTechnique {
 const SELF_FORMAT: vk::Format = vk::Format::R16G16B16A16_SFLOAT;
 
 /// The environment on the cube of face resolution `table.n`, world frame: per pixel the mean
-/// radiance over the pixel (8 x 8 sub-directions, intensity and rotation applied) times its
-/// solid angle; zero without an environment.
-pub fn env_cube(env: Option<&Environment>, table: &CubeTable) -> Vec<[f32; 4]> {
+/// radiance over the pixel (8 x 8 sub-directions, `state`'s intensity and rotation applied)
+/// times its solid angle; zero without an environment.
+pub fn env_cube(env: Option<&Environment>, state: EnvironmentState, table: &CubeTable) -> Vec<[f32; 4]> {
     let n = table.n;
     let mut out = Vec::with_capacity(table.dirs.len());
     const SUB: usize = 8;
@@ -435,7 +440,7 @@ pub fn env_cube(env: Option<&Environment>, table: &CubeTable) -> Vec<[f32; 4]> {
                         let d = CubeTable::face_point(f, u as f64, v as f64).as_vec3();
                         let l = d.length();
                         let w = 1.0 / (l * l * l);
-                        let r = env.radiance(d / l);
+                        let r = env.radiance_at(d / l, state);
                         if r.is_finite() {
                             acc += w * r.max(Vec3::ZERO);
                         }
@@ -449,6 +454,13 @@ pub fn env_cube(env: Option<&Environment>, table: &CubeTable) -> Vec<[f32; 4]> {
         }
     }
     out
+}
+
+/// The shader's `dirs` buffer: the cube's directions, then [`env_cube`] at `state`.
+fn cube_dirs(env: Option<&Environment>, state: EnvironmentState, table: &CubeTable) -> Vec<u8> {
+    let mut dirs: Vec<[f32; 4]> = table.dirs.iter().map(|d| [d.x as f32, d.y as f32, d.z as f32, 0.0]).collect();
+    dirs.extend(env_cube(env, state, table));
+    bytes_of(&dirs)
 }
 
 impl WaveletTechnique {
@@ -559,9 +571,9 @@ impl WaveletTechnique {
         let max_key = if options.light_traced { options.key_lights } else { 0 };
         let (sky, key) = crate::lighting::split_key_lights(scene.environment.as_ref(), max_key)?;
         let env = sky.as_ref().or(scene.environment.as_ref());
-        let cube = env_cube(env, &table);
-        let mut dirs: Vec<[f32; 4]> = table.dirs.iter().map(|d| [d.x as f32, d.y as f32, d.z as f32, 0.0]).collect();
-        dirs.extend(cube);
+        let state = scene.environment.as_ref().map_or(EnvironmentState::NONE, Environment::state);
+        let cube_env = if scene.requirements().animated_environment { env.cloned() } else { None };
+        let dirs = cube_dirs(env, state, &table);
         let casts = crate::shadow_fields::casts_flags(scene);
         let deforming = crate::shadow_fields::deforming_objects(scene);
         Ok(WaveletTechnique {
@@ -573,7 +585,9 @@ impl WaveletTechnique {
             maps: Arc::new(maps),
             shells,
             mesh_shells,
-            dirs: Arc::new(bytes_of(&dirs)),
+            dirs: (state, Arc::new(dirs)),
+            cube_env,
+            table,
             irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(env))),
             casts,
             deforming,
@@ -710,10 +724,9 @@ impl crate::technique::Technique for WaveletTechnique {
         )?;
         let traced = traced as u32;
         let key_count = (self.key.len() / 2) as u32 * traced;
-        let key = graph.create_buffer_init(
-            "sfw_key_lights",
-            if self.key.is_empty() { vec![0u8; 32] } else { bytes_of(&self.key) },
-        );
+        let key = crate::lighting::lobes_at(&self.key, frame.environment);
+        let key =
+            graph.create_buffer_init("sfw_key_lights", if key.is_empty() { vec![0u8; 32] } else { bytes_of(&key) });
         let insts: Vec<GpuInst> = frame
             .instances
             .iter()
@@ -744,7 +757,12 @@ impl crate::technique::Technique for WaveletTechnique {
         let maps = graph.create_buffer_init("sfw_maps", bytes_of(self.maps.as_ref()));
         let shells = graph.create_buffer_init("sfw_shells", bytes_of(&self.shells));
         let inst_buf = graph.create_buffer_init("sfw_insts", inst_bytes);
-        let dirs = graph.create_buffer_init("sfw_dirs", self.dirs.as_ref().clone());
+        if self.dirs.0 != frame.environment {
+            if let Some(env) = &self.cube_env {
+                self.dirs = (frame.environment, Arc::new(cube_dirs(Some(env), frame.environment, &self.table)));
+            }
+        }
+        let dirs = graph.create_buffer_init("sfw_dirs", self.dirs.1.as_ref().clone());
         let irr = graph.create_buffer_init("sfw_irradiance", self.irradiance.as_ref().clone());
         let gb = inputs.gbuffer;
         let (w, hh) = (gb.width, gb.height);

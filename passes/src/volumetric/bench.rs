@@ -211,11 +211,6 @@ impl Runner {
         let mut g = Graph::new();
         let mut constants = FrameConstants::new(frame, self.prev_vp, w, h);
         constants.params[2] = self.env.mips.len() as f32;
-        constants.params[3] = self.env.intensity;
-        constants.env_rot = [self.env.rotation.cos(), self.env.rotation.sin(), 1.0, 0.0];
-        for (i, c) in self.env.sh.iter().enumerate() {
-            constants.sh[i] = [c[0], c[1], c[2], 0.0];
-        }
         self.prev_vp = Some(constants.view_proj());
         self.technique.prepare(&mut self.engine, &crate::technique::PrepareInputs { frame, width: w, height: h })?;
         let mut store = penumbra_engine::FrameStore::new(&mut self.engine);
