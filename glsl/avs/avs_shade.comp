@@ -250,19 +250,24 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 ng, vec3 v, vec3 albedo, int kind, Mate
 // The light-weighted SSDF visibility of the glossy lobe gj (the BRDF's specular SG times the
 // cosine): sum_k e_k V_k / sum_k e_k over the lighting lobes and the key lights split off the map
 // (e_k: the luminance of lobe k's inner product with gj; V_k: the visible fraction of their
-// product), as isg's (isg_lobes_glossy_visibility); a lobe narrower than about 4 degrees
+// product, through the SSDFs, or for a key light whose shadows are traced, through rays in the
+// product's cone), as isg's (isg_lobes_glossy_visibility); a lobe narrower than about 4 degrees
 // (lambda > 256), or one no light reaches, takes its own visible fraction.
-float glossy_visibility(SG gj) {
+float glossy_visibility(SG gj, vec3 po, vec3 ng) {
     if (!shadows_on() || gj.lambda > 256.0) return visible(gj);
     float num = 0.0, den = 0.0;
     uint nl = min(pc.lobe_count, 64u);
+    bool traced = (pc.flags & 2u) != 0u;
     for (uint k = 0u; k < nl + min(pc.key_count, 16u); ++k) {
         vec4 al = k < nl ? lobes[2u * k] : key[2u * (k - nl)];
         vec3 mu = k < nl ? lobes[2u * k + 1u].rgb : key[2u * (k - nl) + 1u].rgb;
         SG l = sg_make(al.xyz, al.w, 1.0);
         float e = dot(mu, vec3(0.2126, 0.7152, 0.0722)) * sg_inner_product(l, gj);
         if (!(e > 0.0)) continue;
-        num += e * visible(sg_product(l, gj));
+        SG pr = sg_product(l, gj);
+        // a key light's reflection through rays toward it (as its diffuse light), the lighting
+        // lobes' through the SSDFs
+        num += e * (k >= nl && traced ? cone_rays_visibility(po, pr.axis, 2.0 / sqrt(max(pr.lambda, 1e-4)), ng) : visible(pr));
         den += e;
     }
     return den > 0.0 ? clamp(num / den, 0.0, 1.0) : visible(gj);
@@ -332,7 +337,8 @@ void main() {
         vec3 amp;
         SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
         vec3 glossy = env_glossy(n, v, m);
-        if (max(glossy.r, max(glossy.g, glossy.b)) > 0.0) color += glossy * glossy_visibility(sg_product(gs, cosg));
+        vec3 po = pos + ng * 1e-3 * max(1.0, length(pos));
+        if (max(glossy.r, max(glossy.g, glossy.b)) > 0.0) color += glossy * glossy_visibility(sg_product(gs, cosg), po, ng);
     } else if (kind != 0) {
         // Beckmann warp (Wang et al. 2009), m = roughness^2 as the reference's SG mode.
         vec3 amp;

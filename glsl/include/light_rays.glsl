@@ -53,4 +53,29 @@ vec3 key_light_irradiance(vec4 axis_lambda, vec3 mu, vec3 p, vec3 n, vec3 ng) {
     return e * cone_rays_visibility(p, g.axis, 2.0 / sqrt(max(g.lambda, 1e-4)), ng);
 }
 
+// The glossy term's visibility where the environment's key lights were split off its map: each
+// key light's part of the glossy term (its SG light in the glossy lobe `gj`, the BRDF's specular
+// SG times the cosine, times the lobe's amplitude `amp`) is seen through rays in the cone of the
+// two lobes' product, the rest of the map's part (the glossy term's luminance less the key
+// lights', at least 0) as the technique sees it, and the shares are weighted by their light:
+// sum_k e_k V_k / sum_k e_k. A sharp key light's reflection is then occluded where the light is,
+// not where the mirror direction is (turning_light: the studio's key light behind the bunny,
+// reflected by the glossy floor in front of it). Per key light (axis + lambda, rgb amplitude),
+// adding (e V, e) to `acc`:
+void key_light_glossy_share(vec4 axis_lambda, vec3 mu, vec3 amp, SG gj, vec3 p, vec3 ng, inout vec2 acc) {
+    SG l = sg_make(axis_lambda.xyz, axis_lambda.w, 1.0);
+    float e = dot(mu * amp, vec3(0.2126, 0.7152, 0.0722)) * sg_inner_product(l, gj);
+    if (!(e > 0.0)) return;
+    SG pr = sg_product(l, gj);
+    acc += vec2(e * cone_rays_visibility(p, pr.axis, 2.0 / sqrt(max(pr.lambda, 1e-4)), ng), e);
+}
+
+// ... then the visible share of the whole glossy term (luminance `total`), the rest seen as
+// `rest_vis`.
+float glossy_share(vec2 acc, float total, float rest_vis) {
+    float rest = max(total - acc.y, 0.0);
+    float den = acc.y + rest;
+    return den > 0.0 ? clamp((acc.x + rest * rest_vis) / den, 0.0, 1.0) : rest_vis;
+}
+
 #endif

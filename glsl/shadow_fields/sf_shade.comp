@@ -5,10 +5,11 @@
 // through their source radiance fields and the environment SH (double products); mode 1
 // (vertex) reads the per-vertex radiance (self-occlusion transfer included, computed by
 // sf_points.comp for the visible vertices and interpolated by the sf_vertex raster pass).
-// Glossy materials add the prefiltered environment along the reflection (env_shade.glsl, as the
-// `env` technique), times the occluders'
-// visibility there, and the local lights' specular lobe, times the visibility toward the light
-// of the occluders nearer than it. With srf = 0 local lights are evaluated pointwise (BRDF
+// Glossy materials add the material model's glossy term (env_shade.glsl, as the `env`
+// technique) times the occluders' visibility along the reflection (with key lights split off:
+// each key light's share through rays toward it, light_rays.glsl's key_light_glossy_share), and
+// the local lights' specular lobe, times the visibility toward the light of the occluders nearer
+// than it. With srf = 0 local lights are evaluated pointwise (BRDF
 // times the occluders' visibility toward the light) instead of through their fields; with
 // traced = 1 (light_shadows = traced) pointwise and shadowed by rays through the kd-tree.
 // Sky pixels show the environment.
@@ -136,8 +137,21 @@ void main() {
     float roughness = env_roughness(m);
     if (kind != 0) {
         vec3 r = reflect(-v, n);
-        float vis = pc.key_count > 0u ? cone_rays_visibility(po, r, env_alpha(m), ng) : sf_visibility_along(pos, r, self_inst, pc.n_inst, 1e30);
-        color += vis * env_glossy(n, v, m);
+        vec3 glossy = env_glossy(n, v, m);
+        float vis;
+        if (pc.key_count > 0u) {
+            // the key lights' reflections through their own rays, the rest along the reflection
+            vec3 amp;
+            SG spec = sg_specular_lobe(kind, n, v, max(dot(n, v), 1e-4), m.extra.x, env_roughness(m), m.spec_rough.rgb, amp);
+            SG gj = sg_product(spec, sg_clamped_cosine(n));
+            vec2 acc = vec2(0.0);
+            for (uint k = 0u; k < pc.key_count; ++k)
+                key_light_glossy_share(key[2u * k], key[2u * k + 1u].rgb, amp, gj, po, ng, acc);
+            vis = glossy_share(acc, dot(glossy, vec3(0.2126, 0.7152, 0.0722)), cone_rays_visibility(po, r, env_alpha(m), ng));
+        } else {
+            vis = sf_visibility_along(pos, r, self_inst, pc.n_inst, 1e30);
+        }
+        color += vis * glossy;
     }
     color += local_lights(pos, n, ng, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);
     imageStore(hdr, p, vec4(material_reflected(color, n, v) + material_emission(m), 1.0));

@@ -311,8 +311,18 @@ void main() {
     if (kind != 0) {
         vec2 gs = s_red[128].xy;
         float vis = gs.y > 1e-12 ? clamp(gs.x / gs.y, 0.0, 1.0) : 1.0;
-        if (pc.key_count > 0u) vis = cone_rays_visibility(pk, reflect(-v, n), env_alpha(m), ng);
-        color += vis * env_glossy(n, v, m);
+        vec3 glossy = env_glossy(n, v, m);
+        if (pc.key_count > 0u) {
+            // the key lights' reflections through their own rays, the rest along the reflection
+            vec3 amp;
+            SG spec = sg_specular_lobe(kind, n, v, max(dot(n, v), 1e-4), m.extra.x, env_roughness(m), m.spec_rough.rgb, amp);
+            SG gj = sg_product(spec, sg_clamped_cosine(n));
+            vec2 acc = vec2(0.0);
+            for (uint k = 0u; k < pc.key_count; ++k)
+                key_light_glossy_share(key[2u * k], key[2u * k + 1u].rgb, amp, gj, pk, ng, acc);
+            vis = glossy_share(acc, dot(glossy, vec3(0.2126, 0.7152, 0.0722)), cone_rays_visibility(pk, reflect(-v, n), env_alpha(m), ng));
+        }
+        color += vis * glossy;
     }
     float roughness = env_roughness(m);
     for (uint i = 0u; i < pc.light_count; ++i) {
