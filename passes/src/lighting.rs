@@ -121,16 +121,18 @@ fn lighting_lobes_uncached(e: &Environment, k: usize) -> (Vec<[f32; 4]>, Option<
     else {
         return (Vec::new(), None);
     };
+    (lobe_pairs(&fit.lobes), Some(fit.rel_l2_error))
+}
+
+/// `lobes` as the shaders read them, 2 vec4 per lobe: `[axis, lambda], [rgb mu, 0]`; lobes that
+/// are not finite dropped.
+fn lobe_pairs(lobes: &[penumbra_math::sg::SgRgb]) -> Vec<[f32; 4]> {
     let mut out = Vec::new();
-    for l in &fit.lobes {
-        let (a, mu) = (l.axis, l.mu);
-        if !(a.is_finite() && l.lambda.is_finite() && mu.is_finite()) {
-            continue;
-        }
-        out.push([a.x as f32, a.y as f32, a.z as f32, l.lambda as f32]);
-        out.push([mu.x as f32, mu.y as f32, mu.z as f32, 0.0]);
+    for l in lobes.iter().filter(|l| l.axis.is_finite() && l.lambda.is_finite() && l.mu.is_finite()) {
+        out.push([l.axis.x as f32, l.axis.y as f32, l.axis.z as f32, l.lambda as f32]);
+        out.push([l.mu.x as f32, l.mu.y as f32, l.mu.z as f32, 0.0]);
     }
-    (out, Some(fit.rel_l2_error))
+    out
 }
 
 /// `lobes` (`[axis, lambda], [rgb mu, 0]` pairs in the map's frame at intensity 1,
@@ -247,12 +249,5 @@ pub fn split_key_lights(env: Option<&Environment>, max: usize) -> anyhow::Result
     if lobes.is_empty() {
         return Ok((None, Vec::new()));
     }
-    let mut out = Vec::new();
-    for l in &lobes {
-        if l.axis.is_finite() && l.lambda.is_finite() && l.mu.is_finite() {
-            out.push([l.axis.x as f32, l.axis.y as f32, l.axis.z as f32, l.lambda as f32]);
-            out.push([l.mu.x as f32, l.mu.y as f32, l.mu.z as f32, 0.0]);
-        }
-    }
-    Ok((Some(Environment { texels: sky, ..env.clone() }), out))
+    Ok((Some(Environment { texels: sky, ..env.clone() }), lobe_pairs(&lobes)))
 }
