@@ -8,7 +8,9 @@
 // longer cap converges further on still views, a shorter one forgets moving shadows sooner: the
 // floor under a falling object keeps its motion vector of zero while its shadow moves). The luminance moments give the
 // variance that steers the a-trous filter; a history shorter than 4 frames takes the 3x3
-// neighbourhood's spatial variance instead where that is larger.
+// neighbourhood's spatial variance instead where that is larger. Before the blend the history is
+// clipped to this frame's 3x3 neighbourhood (`clip`, variance clipping as in temporal
+// anti-aliasing; not SVGF's): lighting that changed without a motion vector leaves it.
 layout(local_size_x = 8, local_size_y = 8) in;
 #include "common.glsl"
 layout(binding = 0, rgba32f) uniform readonly image2D noisy;
@@ -30,7 +32,7 @@ layout(binding = 10) uniform sampler2DArray material_textures;
 
 layout(push_constant) uniform Push {
     vec4 eye_valid;  // eye, w: 1 when the history images hold the previous frame
-    uvec4 size;      // width, height, max history length, unused
+    uvec4 size;      // width, height, max history length, history clip (float bits; 0: off)
 } pc;
 
 void main() {
@@ -65,6 +67,26 @@ void main() {
                 mom = pa.xy;
             }
         }
+    }
+    float clip = uintBitsToFloat(pc.size.w);
+    if (len > 0.0 && clip > 0.0) {
+        // the history clipped to this frame's 3x3 neighbourhood, mean +- clip standard
+        // deviations per channel (Salvi 2016's variance clipping): what the lighting no longer
+        // shows (a shadow or highlight that moved without a motion vector) leaves the history
+        vec3 s1 = vec3(0.0), s2 = vec3(0.0);
+        float n = 0.0;
+        for (int dy = -1; dy <= 1; ++dy) {
+            for (int dx = -1; dx <= 1; ++dx) {
+                ivec2 r = clamp(px + ivec2(dx, dy), ivec2(0), size - 1);
+                if (!(texelFetch(gb_position, r, 0).w > 0.0)) continue;
+                vec3 ir = imageLoad(noisy, r).rgb / mcd_reflectance(texelFetch(gb_uv_mat, r, 0));
+                s1 += ir;
+                s2 += ir * ir;
+                n += 1.0;
+            }
+        }
+        vec3 mu = s1 / n, sigma = sqrt(max(s2 / n - mu * mu, vec3(0.0)));
+        hist = clamp(hist, mu - clip * sigma, mu + clip * sigma);
     }
     len = min(len + 1.0, float(max(pc.size.z, 1u)));
     float a = 1.0 / len;

@@ -167,6 +167,7 @@ const MC_DENOISED_PARAMS: &[ParamDoc] = &[
     p("phi_normal", "128", "> 0", "normal edge-stopping exponent (pow(n . n_q, phi_normal))"),
     p("phi_plane", "1", "> 0", "depth edge-stopping: distance from the pixel's tangent plane against phi_plane pixel footprints per tap spacing"),
     p("phi_lobe", "4", ">= 0", "specular-lobe edge-stopping on glossy pixels: taps weighted by how far their mirror direction falls inside the pixel's specular lobe (0: off)"),
+    p("clip", "1", ">= 0", "history clipped to the frame's 3x3 neighbourhood, mean +- clip standard deviations per channel (variance clipping: lighting that changes without a motion vector leaves the history; 0: off, SVGF's)"),
 ];
 
 const SHADOWMAPS_PARAMS: &[ParamDoc] = &[
