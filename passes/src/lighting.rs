@@ -116,6 +116,25 @@ pub fn lighting_lobes_local(env: Option<&Environment>, k: usize) -> (Vec<[f32; 4
     (lobes, (!err.is_nan()).then_some(err))
 }
 
+/// The lobe counts [`lobes_for_error`] tries, fewest first.
+pub const LOBE_COUNTS: [usize; 5] = [4, 8, 16, 32, 64];
+
+/// The fewest lighting lobes of [`LOBE_COUNTS`] whose fit of `env` has a relative L2 error of at
+/// most `target` (the last count when none does): (K, the lobes as [`lighting_lobes_local`]
+/// gives them, the fit's error). Each fit goes through the on-disk cache.
+pub fn lobes_for_error(env: Option<&Environment>, target: f64) -> (usize, Vec<[f32; 4]>, Option<f64>) {
+    let mut last = (0, Vec::new(), None);
+    for k in LOBE_COUNTS {
+        let (lobes, err) = lighting_lobes_local(env, k);
+        let done = err.is_none_or(|e| e <= target);
+        last = (k, lobes, err);
+        if done {
+            break;
+        }
+    }
+    last
+}
+
 fn lighting_lobes_uncached(e: &Environment, k: usize) -> (Vec<[f32; 4]>, Option<f64>) {
     let Ok(fit) = penumbra_math::envmap::fit_sg_lighting(e.width as usize, e.height as usize, &e.texels, k.max(1))
     else {

@@ -179,6 +179,7 @@ const SHADOWMAPS_PARAMS: &[ParamDoc] = &[
 
 const ISG_PARAMS: &[ParamDoc] = &[
     p("lobes", "16", "1..=64", "K spherical Gaussians fitted to the environment"),
+    p("fit_error", "0", "[0, 1)", "K chosen instead as the fewest of 4, 8, 16, 32, 64 lobes whose fit of the environment has at most this relative L2 error (0: off, `lobes` counts); the choice is noted"),
     p("spheres", "48", "0..=4096", "spheres per object of the sphere-set occluders"),
     p("side", "12", "1..=32", "patches per side of the discretized visibility region"),
     p("epsilon", "0.01", "1e-6..=0.5", "limiting-angle threshold (paper: 0.01)"),

@@ -171,8 +171,8 @@ mod registry {
         let isg = penumbra_passes::isg::IsgSettings::from_params(&defaults(lookup("isg").unwrap().params)).unwrap();
         let d = penumbra_passes::isg::IsgSettings::default();
         assert_eq!(
-            (isg.lobes, isg.spheres_per_object, isg.patch_side, isg.epsilon, isg.lod, isg.max_edge),
-            (d.lobes, d.spheres_per_object, d.patch_side, d.epsilon, d.lod, d.max_edge)
+            (isg.lobes, isg.fit_error, isg.spheres_per_object, isg.patch_side, isg.epsilon, isg.lod, isg.max_edge),
+            (d.lobes, d.fit_error, d.spheres_per_object, d.patch_side, d.epsilon, d.lod, d.max_edge)
         );
         assert_eq!(
             (isg.thin_tolerance, isg.traced_visibility, isg.min_lobe_fraction, isg.light_mesh),
@@ -832,5 +832,53 @@ mod hud {
         let q = Overlay::text(&["é".to_string()], 1);
         assert_eq!(q.texels, Overlay::text(&["?".to_string()], 1).texels);
         assert_eq!(Overlay::text(&[], 1).texels.len(), 16);
+    }
+}
+
+/// isg's `fit_error`: the fewest lobe counts whose fit of the environment meets the error target.
+mod lobe_count_for_an_error {
+    use penumbra_passes::lighting::{lighting_lobes_local, lobes_for_error, LOBE_COUNTS};
+    use penumbra_scene::Environment;
+
+    #[test]
+    fn the_fewest_lobes_within_the_target_are_chosen() {
+        // a sky gradient with three bright spots: more lobes fit it better
+        let (w, h) = (64u32, 32u32);
+        let texels: Vec<[f32; 3]> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as i32, (i / w) as i32);
+                let spot =
+                    [(10, 8), (40, 12), (55, 20)].iter().any(|&(sx, sy)| (x - sx).abs() <= 1 && (y - sy).abs() <= 1);
+                if spot {
+                    [30.0, 25.0, 20.0]
+                } else {
+                    let g = 1.0 - y as f32 / h as f32;
+                    [0.2 + 0.5 * g, 0.3 + 0.4 * g, 0.6 * g + 0.1]
+                }
+            })
+            .collect();
+        let e = Environment { width: w, height: h, texels, intensity: 1.0, rotation: 0.0 };
+        let errors: Vec<f64> = LOBE_COUNTS.iter().map(|&k| lighting_lobes_local(Some(&e), k).1.unwrap()).collect();
+        // a target between two counts' errors picks the first count that meets it
+        for (i, &k) in LOBE_COUNTS.iter().enumerate() {
+            let target = errors[i] * 1.0001;
+            if errors[..i].iter().any(|&x| x <= target) {
+                continue;
+            }
+            let (chosen, lobes, err) = lobes_for_error(Some(&e), target);
+            assert_eq!(chosen, k, "target {target}: errors {errors:?}");
+            assert_eq!(err, Some(errors[i]));
+            assert_eq!(lobes, lighting_lobes_local(Some(&e), k).0);
+        }
+        // an unreachable target takes the most lobes; no environment, none
+        assert_eq!(lobes_for_error(Some(&e), 0.0).0, *LOBE_COUNTS.last().unwrap());
+        assert!(lobes_for_error(None, 0.1).1.is_empty());
+        // and the parameter reads it (0: off)
+        let mut s = penumbra_passes::isg::IsgSettings::default();
+        s.set("fit_error", "0.2").unwrap();
+        assert_eq!(s.fit_error, Some(0.2));
+        s.set("fit_error", "0").unwrap();
+        assert_eq!(s.fit_error, None);
+        assert!(s.set("fit_error", "1.5").is_err());
     }
 }

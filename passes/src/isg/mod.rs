@@ -60,6 +60,10 @@ pub mod vertex;
 pub struct IsgSettings {
     /// Lighting SG lobes K (the reference's SG mode uses 16).
     pub lobes: usize,
+    /// With `Some(e)`: K is instead the fewest of `lighting::LOBE_COUNTS` (4 to 64) whose fit of
+    /// the environment has a relative L2 error of at most e (`fit_error`; the choice and the
+    /// error are in the technique's notes).
+    pub fit_error: Option<f64>,
     /// Spheres per object when the set is built at start-up.
     pub spheres_per_object: usize,
     /// Patches per side of the discretized region (paper: 100 to 400 patches -> 10 to 20).
@@ -132,6 +136,7 @@ impl Default for IsgSettings {
     fn default() -> Self {
         IsgSettings {
             lobes: 16,
+            fit_error: None,
             spheres_per_object: 48,
             patch_side: 12,
             epsilon: 0.01,
@@ -185,6 +190,10 @@ impl IsgSettings {
         let ratio_or_sg = [("ratio", true), ("sg", false)];
         match p.key() {
             "lobes" => self.lobes = count()?.clamp(1, 64) as usize,
+            "fit_error" => {
+                let e = p.number(|x| (0.0..1.0).contains(&x), "a number in [0, 1) (0: off)")?;
+                self.fit_error = (e > 0.0).then_some(e);
+            }
             "spheres" => self.spheres_per_object = count()?.min(4096) as usize,
             "side" => self.patch_side = count()?.clamp(1, 32) as u32,
             "epsilon" => self.epsilon = num(1e-6, 0.5)?,
@@ -207,7 +216,7 @@ impl IsgSettings {
                 self.rule = p.choice(&[("centre", PatchRule::Centre), ("center", PatchRule::Centre), ("paper", PatchRule::Paper)])?
             }
             "pixel_refine" => self.pixel_refine = at_least_0()?,
-            _ => return Err(p.unknown("lobes, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, diffuse, glossy, gpu_bvh, thin_shells, light_shadows, light_occluders, thin_tolerance, visibility, mode, max_edge, pixel_refine, isg_eval, patch_rule")),
+            _ => return Err(p.unknown("lobes, fit_error, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, diffuse, glossy, gpu_bvh, thin_shells, light_shadows, light_occluders, thin_tolerance, visibility, mode, max_edge, pixel_refine, isg_eval, patch_rule")),
         }
         Ok(())
     }
@@ -611,11 +620,23 @@ impl IsgTechnique {
             None
         };
         let table = IsgTable::default_table().to_gpu(settings.epsilon);
-        let (lobes, _) = crate::lighting::lighting_lobes_local(scene.environment.as_ref(), settings.lobes);
+        let env = scene.environment.as_ref();
+        let (lobes, fit) = match settings.fit_error {
+            Some(target) => {
+                let (k, lobes, err) = crate::lighting::lobes_for_error(env, target);
+                let say = err.map(|e| {
+                    let met = if e <= target { "within" } else { "the most lobes tried: over" };
+                    format!("isg: {k} lighting lobes fit the environment to a relative L2 error of {e:.3} ({met} fit_error = {target})")
+                });
+                (lobes, say)
+            }
+            None => (crate::lighting::lighting_lobes_local(env, settings.lobes).0, None),
+        };
         let prefiltered = crate::lighting::prefiltered_env(scene.environment.as_ref());
         let lobe_count = (lobes.len() / 2) as u32;
         let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
         let (sets, mut sphere_notes) = scene_sphere_sets_noting(scene, settings.spheres_per_object);
+        sphere_notes.extend(fit);
         let thin = thin_parts_with(scene, &sets, settings.thin_tolerance);
         for (i, part) in thin.iter().enumerate() {
             let (Some(Some(set)), Some(o)) = (sets.get(i), scene.objects.get(i)) else { continue };
