@@ -24,10 +24,6 @@ pub struct EnvMapGpu {
     /// frame of the loaded rotation: a CPU reference for tests (no shader reads it; the diffuse
     /// term reads the exact irradiance map, `lighting::camera_irradiance`).
     pub sh: [[f32; 3]; 9],
-    /// The loaded intensity and rotation; a frame's own (animated, `Frame::environment`) reach
-    /// the shaders through `FrameConstants`.
-    pub intensity: f32,
-    pub rotation: f32,
     /// Texels that were NaN/Inf/negative and were replaced by 0.
     pub repaired_texels: usize,
 }
@@ -183,15 +179,7 @@ impl EnvMapGpu {
             }
             mips.push((nw, nh, next));
         }
-        EnvMapGpu {
-            width: w,
-            height: h,
-            mips,
-            sh,
-            intensity: env.intensity,
-            rotation: env.rotation,
-            repaired_texels: repaired,
-        }
+        EnvMapGpu { width: w, height: h, mips, sh, repaired_texels: repaired }
     }
 
     pub fn desc(&self) -> ImageDesc {
@@ -306,7 +294,7 @@ impl EnvTables {
             sin_rot: 0.0,
             intensity: 0.0,
         };
-        t.set_state(EnvironmentState { rotation: env.rotation, intensity: env.intensity });
+        t.set_state(env.state());
         t
     }
 

@@ -175,6 +175,13 @@ pub fn lobes_at(lobes: &[[f32; 4]], state: EnvironmentState) -> Vec<[f32; 4]> {
     out
 }
 
+/// [`lobes_at`] as a storage buffer's bytes: one black stand-in pair when there are no lobes (a
+/// buffer is never empty; the shaders are told the count).
+pub fn lobes_bytes_at(lobes: &[[f32; 4]], state: EnvironmentState) -> Vec<u8> {
+    let lobes = lobes_at(lobes, state);
+    crate::util::bytes_of(if lobes.is_empty() { &[[0.0f32; 4]; 2][..] } else { &lobes })
+}
+
 /// SG sharpness levels of the prefiltered environment (0.25 and the math crate's default stack).
 pub const PREFILTER_LAMBDAS: [f64; 8] = [0.25, 1.0, 4.0, 16.0, 64.0, 256.0, 1024.0, 4096.0];
 

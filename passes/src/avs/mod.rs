@@ -786,12 +786,9 @@ pub struct AvsTechnique {
     /// unshadowed diffuse term.
     irradiance: Arc<Vec<u8>>,
     axis_table: Arc<Vec<u8>>,
-    lobe_count: u32,
     /// The environment's key lights split off its map ([`AvsSettings::key_lights`]), 2 vec4 per
-    /// light (axis + lambda, rgb amplitude; the map's frame at intensity 1, as `lobes`), and
-    /// their count.
+    /// light (axis + lambda, rgb amplitude; the map's frame at intensity 1, as `lobes`).
     key_lights: Vec<[f32; 4]>,
-    key_count: u32,
     /// Pool vertices of the current sample points (kept across frames): the traced ones.
     sample_vertices: Vec<usize>,
     /// Sample points kept but not traced (G-buffer culling).
@@ -859,8 +856,6 @@ impl AvsTechnique {
         let (sky, key) = crate::lighting::split_key_lights(scene.environment.as_ref(), max_key)?;
         let env = sky.as_ref().or(scene.environment.as_ref());
         let (lobes, _) = crate::lighting::lighting_lobes_local(env, settings.lobes);
-        let lobe_count = (lobes.len() / 2) as u32;
-        let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
         Ok(AvsTechnique {
             vis,
             sh,
@@ -872,10 +867,8 @@ impl AvsTechnique {
             lobes,
             prefiltered: Arc::new(bytes_of(&crate::lighting::prefiltered_env(env))),
             irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(env))),
-            key_count: (key.len() / 2) as u32,
             key_lights: key,
             axis_table: if settings.integration == Integration::Table { axis_table() } else { Arc::new(vec![0u8; 16]) },
-            lobe_count,
             builder: KdTreeBuilder::new(ctx, shaders)?,
             scene: scene.clone(),
             settings,
@@ -1656,13 +1649,12 @@ impl crate::technique::Technique for AvsTechnique {
         let grid_buf = graph.create_buffer_init("avs_grid", bytes_of(&grid_words(&grid, &slots)));
         // the lighting and key-light lobes turned and scaled to the frame's environment
         let state = inputs.frame.environment;
-        let lobes = graph.create_buffer_init("avs_lobes", bytes_of(&crate::lighting::lobes_at(&self.lobes, state)));
+        let lobes = graph.create_buffer_init("avs_lobes", crate::lighting::lobes_bytes_at(&self.lobes, state));
         let prefiltered = graph.create_buffer_init("avs_prefiltered", self.prefiltered.as_ref().clone());
         let table = graph.create_buffer_init("avs_axis_table", self.axis_table.as_ref().clone());
         let irradiance = graph.create_buffer_init("avs_irradiance", self.irradiance.as_ref().clone());
-        let key = crate::lighting::lobes_at(&self.key_lights, state);
         let key_lights =
-            graph.create_buffer_init("avs_key_lights", if key.is_empty() { vec![0u8; 32] } else { bytes_of(&key) });
+            graph.create_buffer_init("avs_key_lights", crate::lighting::lobes_bytes_at(&self.key_lights, state));
 
         let (scene, gb) = (inputs.handles, inputs.gbuffer);
         let (w, h) = (gb.width, gb.height);
@@ -1679,7 +1671,7 @@ impl crate::technique::Technique for AvsTechnique {
         let pos_scale = samp::scene_scale(&pool.iter().map(|p| p.pos).collect::<Vec<_>>());
         let s = &self.settings;
         let mut push: Vec<u8> = Vec::with_capacity(56);
-        push.extend(bytes_of(&[scene.light_count, self.lobe_count, r, s.neighbours.clamp(1, 8)]));
+        push.extend(bytes_of(&[scene.light_count, (self.lobes.len() / 2) as u32, r, s.neighbours.clamp(1, 8)]));
         let (wa, wscale) =
             if s.interp_alpha > 0.0 { (s.interp_alpha, 1.0 / shade_radius) } else { (s.alpha, 1.0 / pos_scale) };
         push.extend(bytes_of(&[wa, wscale, shade_radius]));
@@ -1697,7 +1689,7 @@ impl crate::technique::Technique for AvsTechnique {
         ]));
         // shadow rays leave the pixel's surface as the sample points' rays do
         push.extend(bytes_of(&[offset]));
-        push.extend(bytes_of(&[self.key_count]));
+        push.extend(bytes_of(&[(self.key_lights.len() / 2) as u32]));
         let pipe = self.shade.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {

@@ -597,7 +597,6 @@ pub struct IsgTechnique {
     prefiltered: Arc<Vec<u8>>,
     /// The environment's irradiance map (the ratio estimator's unshadowed diffuse term).
     irradiance: Arc<Vec<u8>>,
-    lobe_count: u32,
     /// Spheres, BVH nodes, thin-shell triangles and evaluated receiver vertices (per-vertex
     /// mode) of the last frame (for tests and reports).
     pub last_sphere_count: usize,
@@ -633,8 +632,6 @@ impl IsgTechnique {
             None => (crate::lighting::lighting_lobes_local(env, settings.lobes).0, None),
         };
         let prefiltered = crate::lighting::prefiltered_env(scene.environment.as_ref());
-        let lobe_count = (lobes.len() / 2) as u32;
-        let lobes = if lobes.is_empty() { vec![[0.0f32; 4]; 2] } else { lobes };
         let (sets, mut sphere_notes) = scene_sphere_sets_noting(scene, settings.spheres_per_object);
         sphere_notes.extend(fit);
         let thin = thin_parts_with(scene, &sets, settings.thin_tolerance);
@@ -698,13 +695,17 @@ impl IsgTechnique {
             lobes,
             prefiltered: Arc::new(bytes_of(&prefiltered)),
             irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(scene.environment.as_ref()))),
-            lobe_count,
             last_sphere_count: 0,
             last_node_count: 0,
             last_triangle_count: 0,
             last_vertex_count: 0,
             kd: if settings_traces_lights { Some(crate::kdtree::KdTreeBuilder::new(ctx, shaders)?) } else { None },
         })
+    }
+
+    /// The lighting lobes the shaders evaluate.
+    fn lobe_count(&self) -> u32 {
+        (self.lobes.len() / 2) as u32
     }
 
     /// The sphere sets (index = object).
@@ -782,7 +783,7 @@ impl IsgTechnique {
             [lobes, table, bvh, tris, tri_nodes].map(|h| p.read(h, Access::ComputeShaderReadStorage));
         let mut push = Vec::with_capacity(32);
         push.extend_from_slice(&count.to_le_bytes());
-        push.extend_from_slice(&self.lobe_count.to_le_bytes());
+        push.extend_from_slice(&self.lobe_count().to_le_bytes());
         push.extend_from_slice(&(if self.settings.shadows { node_count } else { 0 }).to_le_bytes());
         push.extend_from_slice(&(if self.settings.shadows { tri_node_count } else { 0 }).to_le_bytes());
         push.extend_from_slice(&(self.settings.patch_side.clamp(1, 32) as i32).to_le_bytes());
@@ -864,8 +865,8 @@ impl crate::technique::Technique for IsgTechnique {
         let (scene, gb) = (inputs.handles, inputs.gbuffer);
         let (w, h) = (gb.width, gb.height);
         let table = graph.create_buffer_init("isg_table", self.table.as_ref().clone());
-        let lobes = crate::lighting::lobes_at(&self.lobes, inputs.frame.environment);
-        let lobes = graph.create_buffer_init("isg_lobes", bytes_of(&lobes));
+        let lobes = crate::lighting::lobes_bytes_at(&self.lobes, inputs.frame.environment);
+        let lobes = graph.create_buffer_init("isg_lobes", lobes);
         let prefiltered = graph.create_buffer_init("isg_prefiltered", self.prefiltered.as_ref().clone());
         let irradiance = graph.create_buffer_init("isg_irradiance", self.irradiance.as_ref().clone());
         let (bvh, node_count) = if self.settings.gpu_bvh && spheres.len() >= 2 && spheres.len() <= GPU_BVH_MAX {
@@ -920,7 +921,7 @@ impl crate::technique::Technique for IsgTechnique {
         let kd = kd_bufs.map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let mut push = Vec::with_capacity(40);
         push.extend_from_slice(&scene.light_count.to_le_bytes());
-        push.extend_from_slice(&self.lobe_count.to_le_bytes());
+        push.extend_from_slice(&self.lobe_count().to_le_bytes());
         push.extend_from_slice(&node_count.to_le_bytes());
         push.extend_from_slice(&(self.settings.patch_side.clamp(1, 32) as i32).to_le_bytes());
         push.extend_from_slice(&self.settings.lod.to_le_bytes());

@@ -234,7 +234,6 @@ impl McTechnique {
         let env_changed = self.env.set_state(frame.environment);
         let reset = graph.persistent_is_new(accum)
             || env_changed
-            || frame.environment_changed
             || rebuilt
             || geometry_changed
             || frame.camera_moved

@@ -865,8 +865,6 @@ pub struct ShadowFieldsTechnique {
     /// The environment's SH that the frames shade with: [`Self::light`] less the key lights
     /// when they are split off ([`SfOptions::key_lights`]), in the map's frame at intensity 1.
     shade_light_local: [[f64; 3]; NCOEF],
-    /// The last frame's environment state and its SH ([`sh_at`] of `shade_light_local`).
-    shade_light: Option<(EnvironmentState, [[f64; 3]; NCOEF])>,
     /// The key lights, 2 per light: axis + lambda, RGB amplitude, in the map's frame at intensity
     /// 1 (`lighting::lobes_at` the frame's state).
     key: Vec<[f32; 4]>,
@@ -956,7 +954,6 @@ impl ShadowFieldsTechnique {
             tables,
             light,
             shade_light_local,
-            shade_light: None,
             tensor,
             adaptive,
             mode: o.mode,
@@ -1176,16 +1173,10 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         let srf = self.lights_through_fields();
         // the environment's SH and key lights turned and scaled to the frame's state
         let state = inputs.frame.environment;
-        let light = match self.shade_light {
-            Some((s, l)) if s == state => l,
-            _ => sh_at(&self.shade_light_local, state),
-        };
-        self.shade_light = Some((state, light));
+        let light = sh_at(&self.shade_light_local, state);
         let h = upload(graph, &self.tables, &self.casts, inputs.frame, &light, srf);
         let key_count = (self.key.len() / 2) as u32;
-        let key = crate::lighting::lobes_at(&self.key, state);
-        let key =
-            graph.create_buffer_init("sf_key_lights", if key.is_empty() { vec![0u8; 32] } else { bytes_of(&key) });
+        let key = graph.create_buffer_init("sf_key_lights", crate::lighting::lobes_bytes_at(&self.key, state));
         // the local lights' occluders: the frame's triangles (rebuilt when anything moved), or
         // four empty stand-ins the shader never reads (traced = 0)
         let (kd_bufs, traced) = crate::kdtree::KdTreeBuilder::add_frame_or_stand_ins(

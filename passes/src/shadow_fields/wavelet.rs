@@ -724,9 +724,8 @@ impl crate::technique::Technique for WaveletTechnique {
         )?;
         let traced = traced as u32;
         let key_count = (self.key.len() / 2) as u32 * traced;
-        let key = crate::lighting::lobes_at(&self.key, frame.environment);
         let key =
-            graph.create_buffer_init("sfw_key_lights", if key.is_empty() { vec![0u8; 32] } else { bytes_of(&key) });
+            graph.create_buffer_init("sfw_key_lights", crate::lighting::lobes_bytes_at(&self.key, frame.environment));
         let insts: Vec<GpuInst> = frame
             .instances
             .iter()
