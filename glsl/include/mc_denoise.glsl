@@ -8,6 +8,16 @@
 
 float mcd_luminance(vec3 c) { return dot(c, vec3(0.2126, 0.7152, 0.0722)); }
 
+// What the filter's luminance edge-stopping and variance see: the (demodulated) radiance's
+// luminance, or with the ratio estimator the visible fraction, shadowed over unshadowed
+// luminance in [0, 1] (1 where nothing lit it: nothing to tell apart), so that a hard shadow's
+// edge stops the filter and a highlight's noise does not.
+float mcd_edge_value(vec3 shadowed, vec3 unshadowed, bool ratio) {
+    if (!ratio) return mcd_luminance(shadowed);
+    float u = mcd_luminance(unshadowed);
+    return u > 0.0 ? clamp(mcd_luminance(shadowed) / u, 0.0, 1.0) : 1.0;
+}
+
 // Diffuse albedo plus specular colour of a textured material (of the pixel's, from its `uvm`),
 // floored so that black surfaces keep their (emitted) radiance.
 vec3 mcd_reflectance_of(MaterialData m) {

@@ -28,10 +28,13 @@ layout(binding = 9, rgba32f) uniform writeonly image2D hdr;
 layout(std430, binding = 10) readonly buffer Lights { vec4 lights[]; };
 // material texture maps (passes/src/textures.rs): layers resampled to 256^2, repeat, bilinear
 layout(binding = 11) uniform sampler2DArray material_textures;
+// with bit 3 of env_info.z (mc-denoised's ratio estimator): this dispatch's mean of the same
+// samples without their shadow rays (every visibility 1), written beside `hdr`; else a stand-in
+layout(binding = 12, rgba32f) uniform writeonly image2D unshadowed;
 layout(push_constant) uniform Push {
     mat4 inv_view_proj;
     uvec4 size_spp_seed;    // width, height, spp, frame seed
-    uvec4 env_info;         // env width, env height, bit 0 reset | bit 1 env can be sampled | bit 2 pixel centres (no jitter), light count
+    uvec4 env_info;         // env width, env height, bit 0 reset | bit 1 env can be sampled | bit 2 pixel centres (no jitter) | bit 3 write `unshadowed`, light count
     vec4 env_rot;           // cos, sin of the environment rotation, its intensity (the frame's)
 } pc;
 
@@ -195,13 +198,19 @@ bool light_sample(uint k, vec3 p, vec2 u, out vec3 wi, out float dist, out vec3 
     return true;
 }
 
-vec3 radiance_sample(vec2 ndc) {
+// The radiance through `ndc`, and in `lu` the same estimate with every shadow ray taken as
+// unoccluded (the denominator of mc-denoised's ratio estimator: shadowed over unshadowed with the
+// same samples, Heitz et al. 2018).
+vec3 radiance_sample(vec2 ndc, out vec3 lu) {
     vec4 nr = pc.inv_view_proj * vec4(ndc, 0.0, 1.0);
     vec4 fr = pc.inv_view_proj * vec4(ndc, 1.0, 1.0);
     vec3 o = nr.xyz / nr.w;
     vec3 d = normalize(fr.xyz / fr.w - o);
     KdHit hit = kd_trace(o, d, 0.0, 3.0e38, false);
-    if (hit.t < 0.0) return env_radiance(d);
+    if (hit.t < 0.0) {
+        lu = env_radiance(d);
+        return lu;
+    }
     uint ti = hit.tri;
     vec3 p0 = kd_tris[3u * ti].xyz, p1 = kd_tris[3u * ti + 1u].xyz, p2 = kd_tris[3u * ti + 2u].xyz;
     vec3 p = o + d * hit.t;
@@ -246,6 +255,7 @@ vec3 radiance_sample(vec2 ndc) {
     vec3 x = p + ng * (3e-5 * (1.0 + max(max(abs(p.x), abs(p.y)), abs(p.z))));
     // what the surface emits towards the eye (direct lighting only: it lights nothing)
     vec3 l = material_emission(mat);
+    lu = l;
     // environment sample
     vec4 ue = vec4(rnd(), rnd(), rnd(), rnd());
     vec3 wi, le;
@@ -256,9 +266,11 @@ vec3 radiance_sample(vec2 ndc) {
             vec3 lw = transpose(to_world) * wi;
             if (lw.z > 0.0 && wo.z > 0.0) f = brdf_eval(b, wo, lw) * lw.z;
         }
-        if (f != vec3(0.0) && unoccluded(x, wi)) {
+        if (f != vec3(0.0)) {
             float w = power_heuristic(pdf_l, brdf_pdf(b, wo, transpose(to_world) * wi));
-            l += f * le * (w / pdf_l);
+            vec3 c = f * le * (w / pdf_l);
+            lu += c;
+            if (unoccluded(x, wi)) l += c;
         }
     }
     // local lights, one sample each
@@ -273,9 +285,10 @@ vec3 radiance_sample(vec2 ndc) {
             vec3 lw = transpose(to_world) * lwi;
             if (lw.z > 0.0 && wo.z > 0.0) f = brdf_eval(b, wo, lw) * lw.z;
         }
-        if (f == vec3(0.0) || !unoccluded_to(x, lwi, ldist * (1.0 - 1e-4))) continue;
-        if (lpdf == 0.0) l += f * lli;
-        else l += f * lli * (power_heuristic(lpdf, brdf_pdf(b, wo, transpose(to_world) * lwi)) / lpdf);
+        if (f == vec3(0.0)) continue;
+        vec3 c = lpdf == 0.0 ? f * lli : f * lli * (power_heuristic(lpdf, brdf_pdf(b, wo, transpose(to_world) * lwi)) / lpdf);
+        lu += c;
+        if (unoccluded_to(x, lwi, ldist * (1.0 - 1e-4))) l += c;
     }
     // BRDF sample
     float ul = rnd();
@@ -287,18 +300,22 @@ vec3 radiance_sample(vec2 ndc) {
             vec3 lw = transpose(to_world) * wi2;
             float pdf_s = brdf_pdf(b, wo, lw);
             vec3 f = (lw.z > 0.0 && wo.z > 0.0) ? brdf_eval(b, wo, lw) * lw.z : vec3(0.0);
-            if (pdf_s > 0.0 && f != vec3(0.0) && unoccluded(x, wi2)) {
+            if (pdf_s > 0.0 && f != vec3(0.0)) {
                 float w = (pc.env_info.z & 2u) != 0u ? power_heuristic(pdf_s, env_pdf(wi2)) : 1.0;
-                l += f * env_radiance(wi2) * (w / pdf_s);
+                vec3 c = f * env_radiance(wi2) * (w / pdf_s);
+                lu += c;
+                if (unoccluded(x, wi2)) l += c;
             }
             if (pdf_s > 0.0 && f != vec3(0.0)) {
                 for (uint k = 0u; k < nlights; k++) {
                     if (uint(lights[4u * k].w) != 2u) continue;
                     float t = sphere_hit(k, p, wi2);
-                    if (t < 0.0 || !unoccluded_to(x, wi2, t * (1.0 - 1e-4))) continue;
+                    if (t < 0.0) continue;
                     float pdf_l = 1.0 / (M_TAU * sphere_one_minus(k, p));
                     vec3 le = lights[4u * k + 2u].rgb * medium_transmittance(lights[4u * k + 3u].yzw, t);
-                    l += f * le * (power_heuristic(pdf_s, pdf_l) / pdf_s);
+                    vec3 c = f * le * (power_heuristic(pdf_s, pdf_l) / pdf_s);
+                    lu += c;
+                    if (unoccluded_to(x, wi2, t * (1.0 - 1e-4))) l += c;
                 }
             }
         }
@@ -312,14 +329,36 @@ void main() {
     if (px.x >= w || px.y >= h) return;
     rng_state = pcg(pcg(px.y * w + px.x) ^ pcg(pc.size_spp_seed.w * 0x9E3779B9u + 17u));
     vec4 acc = (pc.env_info.z & 1u) != 0u ? vec4(0.0) : imageLoad(accum, ivec2(px));
+    vec3 acc_u = vec3(0.0);
+    vec3 moments = vec3(0.0);  // sums of s^2, s u, u^2 over the samples' luminances
     for (uint s = 0u; s < pc.size_spp_seed.z; s++) {
         vec2 j = vec2(rnd(), rnd());
         if ((pc.env_info.z & 4u) != 0u) j = vec2(0.5);
         vec2 ndc = vec2(2.0 * (float(px.x) + j.x) / float(w) - 1.0, 2.0 * (float(px.y) + j.y) / float(h) - 1.0);
-        vec3 c = radiance_sample(ndc);
-        if (!any(isinf(c)) && !any(isnan(c))) acc.rgb += c;
+        vec3 cu;
+        vec3 c = radiance_sample(ndc, cu);
+        if (!any(isinf(c)) && !any(isnan(c)) && !any(isinf(cu)) && !any(isnan(cu))) {
+            acc.rgb += c;
+            acc_u += cu;
+            float ls = luminance(c), lu = luminance(cu);
+            moments += vec3(ls * ls, ls * lu, lu * lu);
+        }
         acc.a += 1.0;
     }
     imageStore(accum, ivec2(px), acc);
+    if ((pc.env_info.z & 8u) != 0u) {
+        // alpha: the variance of the visible fraction R = S / U of this frame's mean (the ratio
+        // estimator's, by the delta method: Var(s - R u) / (n U^2)); 0 where every shadow ray
+        // agreed (nothing blocked, or everything), however noisy the lighting's samples
+        float n = float(max(pc.size_spp_seed.z, 1u));
+        float ms = luminance(acc.rgb) / n, mu = luminance(acc_u) / n;
+        float var_r = 0.0;
+        if (mu > 0.0) {
+            float r = ms / mu;
+            vec3 m = moments / n;
+            var_r = max(m.x - 2.0 * r * m.y + r * r * m.z, 0.0) / (n * mu * mu);
+        }
+        imageStore(unshadowed, ivec2(px), vec4(acc_u / n, var_r));
+    }
     imageStore(hdr, ivec2(px), vec4(acc.a > 0.0 ? acc.rgb / acc.a : vec3(0.0), 1.0));
 }

@@ -6,11 +6,14 @@
 // same instance at the same distance (else the history restarts: disocclusion), with weight
 // 1 / (history length), the length capped at `max_history` (5 by default: SVGF's alpha = 0.2; a
 // longer cap converges further on still views, a shorter one forgets moving shadows sooner: the
-// floor under a falling object keeps its motion vector of zero while its shadow moves). The luminance moments give the
-// variance that steers the a-trous filter; a history shorter than 4 frames takes the 3x3
-// neighbourhood's spatial variance instead where that is larger. Before the blend the history is
-// clipped to this frame's 3x3 neighbourhood (`clip`, variance clipping as in temporal
-// anti-aliasing; not SVGF's): lighting that changed without a motion vector leaves it.
+// floor under a falling object keeps its motion vector of zero while its shadow moves). Before
+// the blend the history is clipped to this frame's 3x3 neighbourhood (`clip`, variance clipping
+// as in temporal anti-aliasing; not SVGF's): lighting that changed without a motion vector
+// leaves it. With the ratio estimator (mode.x) the unshadowed estimate of the same samples is
+// accumulated and clipped alike, and the moments are the visible fraction's (S / U), whose
+// variance for a history shorter than 4 frames comes from mc's own samples; without it the
+// moments are the luminance's and a short history takes the 3x3 neighbourhood's spread instead
+// where that is larger (SVGF's).
 layout(local_size_x = 8, local_size_y = 8) in;
 #include "common.glsl"
 layout(binding = 0, rgba32f) uniform readonly image2D noisy;
@@ -27,13 +30,49 @@ layout(binding = 7, rgba32f) uniform writeonly image2D new_aux;
 layout(binding = 8, rgba32f) uniform writeonly image2D filter_in;
 layout(std430, binding = 9) readonly buffer Materials { MaterialData mats[]; };
 layout(binding = 10) uniform sampler2DArray material_textures;
+// the ratio estimator (`ratio`, Heitz et al. 2018): this frame's unshadowed estimate from the
+// same samples, its history (in and out) and its filter input, accumulated and clipped exactly
+// as the shadowed radiance is; stand-ins left alone without it
+layout(binding = 11, rgba32f) uniform readonly image2D noisy_u;
+layout(binding = 12, rgba32f) uniform readonly image2D prev_u;
+layout(binding = 13, rgba32f) uniform writeonly image2D new_u;
+layout(binding = 14, rgba32f) uniform writeonly image2D filter_u;
 #include "material.glsl"
 #include "mc_denoise.glsl"
 
 layout(push_constant) uniform Push {
     vec4 eye_valid;  // eye, w: 1 when the history images hold the previous frame
     uvec4 size;      // width, height, max history length, history clip (float bits; 0: off)
+    uvec4 mode;      // x: 1 with the ratio estimator's unshadowed images
 } pc;
+
+// This frame's demodulated estimate at r: the shadowed (u = false) or the unshadowed one.
+vec3 demodulated(ivec2 r, bool u) {
+    vec3 c = u ? imageLoad(noisy_u, r).rgb : imageLoad(noisy, r).rgb;
+    return c / mcd_reflectance(texelFetch(gb_uv_mat, r, 0));
+}
+
+// The history `hist` clipped to the 3x3 neighbourhood of this frame's estimate (`u`: the
+// unshadowed one) around px, mean +- clip standard deviations per channel (Salvi 2016's variance
+// clipping): what the lighting no longer shows (a shadow or highlight that moved without a motion
+// vector) leaves the history.
+vec3 clip_to_neighbourhood(ivec2 px, ivec2 size, vec3 hist, float clip, bool u) {
+    vec3 s1 = vec3(0.0), s2 = vec3(0.0);
+    float n = 0.0;
+    for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+            ivec2 r = clamp(px + ivec2(dx, dy), ivec2(0), size - 1);
+            if (!(texelFetch(gb_position, r, 0).w > 0.0)) continue;
+            vec3 ir = demodulated(r, u);
+            s1 += ir;
+            s2 += ir * ir;
+            n += 1.0;
+        }
+    }
+    // the pixel itself is covered: n >= 1
+    vec3 mu = s1 / n, sigma = sqrt(max(s2 / n - mu * mu, vec3(0.0)));
+    return clamp(hist, mu - clip * sigma, mu + clip * sigma);
+}
 
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
@@ -41,16 +80,23 @@ void main() {
     if (any(greaterThanEqual(px, size))) return;
     vec4 pos = texelFetch(gb_position, px, 0);
     vec3 c = imageLoad(noisy, px).rgb;
+    bool ratio = pc.mode.x != 0u;
     if (!(pos.w > 0.0)) {
         // Sky: mc's radiance is the environment's, without noise; nothing to keep.
         imageStore(new_color, px, vec4(0.0));
         imageStore(new_aux, px, vec4(0.0));
         imageStore(filter_in, px, vec4(c, 0.0));
+        if (ratio) {
+            imageStore(new_u, px, vec4(0.0));
+            imageStore(filter_u, px, vec4(c, 0.0));
+        }
         return;
     }
     vec4 uvm = texelFetch(gb_uv_mat, px, 0);
     vec3 illum = c / mcd_reflectance(uvm);
-    float l = mcd_luminance(illum);
+    vec3 illum_u = ratio ? imageLoad(noisy_u, px).rgb / mcd_reflectance(uvm) : vec3(0.0);
+    vec3 hist_u = vec3(0.0);
+    float l = mcd_edge_value(illum, illum_u, ratio);
     float dist = length(pos.xyz - pc.eye_valid.xyz);
     float len = 0.0;
     vec3 hist = vec3(0.0);
@@ -65,41 +111,38 @@ void main() {
                 len = pcol.a;
                 hist = pcol.rgb;
                 mom = pa.xy;
+                if (ratio) hist_u = imageLoad(prev_u, q).rgb;
             }
         }
     }
     float clip = uintBitsToFloat(pc.size.w);
     if (len > 0.0 && clip > 0.0) {
-        // the history clipped to this frame's 3x3 neighbourhood, mean +- clip standard
-        // deviations per channel (Salvi 2016's variance clipping): what the lighting no longer
-        // shows (a shadow or highlight that moved without a motion vector) leaves the history
-        vec3 s1 = vec3(0.0), s2 = vec3(0.0);
-        float n = 0.0;
-        for (int dy = -1; dy <= 1; ++dy) {
-            for (int dx = -1; dx <= 1; ++dx) {
-                ivec2 r = clamp(px + ivec2(dx, dy), ivec2(0), size - 1);
-                if (!(texelFetch(gb_position, r, 0).w > 0.0)) continue;
-                vec3 ir = imageLoad(noisy, r).rgb / mcd_reflectance(texelFetch(gb_uv_mat, r, 0));
-                s1 += ir;
-                s2 += ir * ir;
-                n += 1.0;
-            }
-        }
-        vec3 mu = s1 / n, sigma = sqrt(max(s2 / n - mu * mu, vec3(0.0)));
-        hist = clamp(hist, mu - clip * sigma, mu + clip * sigma);
+        hist = clip_to_neighbourhood(px, size, hist, clip, false);
+        if (ratio) hist_u = clip_to_neighbourhood(px, size, hist_u, clip, true);
     }
     len = min(len + 1.0, float(max(pc.size.z, 1u)));
     float a = 1.0 / len;
     vec3 acc = mix(hist, illum, a);
+    if (ratio) {
+        vec3 acc_u = mix(hist_u, illum_u, a);
+        imageStore(new_u, px, vec4(acc_u, 0.0));
+        imageStore(filter_u, px, vec4(acc_u, 0.0));
+    }
     vec2 m = mix(mom, vec2(l, l * l), a);
     float var = max(m.y - m.x * m.x, 0.0);
-    if (len < 4.0) {
+    if (len < 4.0 && ratio) {
+        // the visible fraction's variance from this frame's own samples (mc's): a hard shadow's
+        // edge, where every sample agrees, is not mistaken for noise as the neighbourhood's
+        // spread would have it
+        var = max(var, imageLoad(noisy_u, px).a * 4.0 / len);
+    } else if (len < 4.0) {
+        // SVGF's: the 3x3 neighbourhood's spread while the history is short
         float s1 = 0.0, s2 = 0.0, n = 0.0;
         for (int dy = -1; dy <= 1; ++dy) {
             for (int dx = -1; dx <= 1; ++dx) {
                 ivec2 r = clamp(px + ivec2(dx, dy), ivec2(0), size - 1);
                 if (!(texelFetch(gb_position, r, 0).w > 0.0)) continue;
-                float lr = mcd_luminance(imageLoad(noisy, r).rgb / mcd_reflectance(texelFetch(gb_uv_mat, r, 0)));
+                float lr = mcd_luminance(demodulated(r, false));
                 s1 += lr;
                 s2 += lr * lr;
                 n += 1.0;

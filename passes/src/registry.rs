@@ -163,11 +163,12 @@ const MC_DENOISED_PARAMS: &[ParamDoc] = &[
     p("spp", "4", "1..=64", "samples per pixel of mc per frame (through the pixel centres)"),
     p("iterations", "4", "1..=8", "a-trous filter iterations (taps 1, 2, 4, ... pixels apart)"),
     p("history", "5", "1..=1024", "longest temporal history in frames, reprojected through the motion vectors (5: SVGF's alpha = 0.2; longer converges further on still views and drags moving shadows)"),
-    p("phi_color", "4", "> 0", "luminance edge-stopping: differences against phi_color standard deviations of the pixel's noise"),
+    p("phi_color", "1", "> 0", "luminance edge-stopping: differences against phi_color standard deviations of the pixel's noise (with the ratio estimator: of the visible fraction; 4 suits ratio = false)"),
     p("phi_normal", "128", "> 0", "normal edge-stopping exponent (pow(n . n_q, phi_normal))"),
     p("phi_plane", "1", "> 0", "depth edge-stopping: distance from the pixel's tangent plane against phi_plane pixel footprints per tap spacing"),
     p("phi_lobe", "4", ">= 0", "specular-lobe edge-stopping on glossy pixels: taps weighted by how far their mirror direction falls inside the pixel's specular lobe (0: off)"),
     p("clip", "1", ">= 0", "history clipped to the frame's 3x3 neighbourhood, mean +- clip standard deviations per channel (variance clipping: lighting that changes without a motion vector leaves the history; 0: off, SVGF's)"),
+    p("ratio", "true", "true/false", "ratio estimator (Heitz et al. 2018): the analytic unshadowed radiance (the env technique's) times the filtered shadowed over the filtered unshadowed estimate of the same samples; false: SVGF's demodulated radiance filtered"),
 ];
 
 const SHADOWMAPS_PARAMS: &[ParamDoc] = &[

@@ -109,6 +109,16 @@ pub fn light_table(lights: &[penumbra_scene::LightInstance], sigma_t: Vec3) -> V
     out
 }
 
+/// What [`McTechnique::add_frame`] declared.
+pub struct McFrame {
+    /// The frame's radiance (the accumulated mean when progressive).
+    pub hdr: ImageHandle,
+    /// The frame's material table.
+    pub materials: BufferHandle,
+    /// The same samples' unshadowed estimate ([`McTechnique::unshadowed`]).
+    pub unshadowed: Option<ImageHandle>,
+}
+
 /// Technique `mc`.
 pub struct McTechnique {
     pipeline: Pipeline,
@@ -131,6 +141,10 @@ pub struct McTechnique {
     /// Accumulate over frames while nothing changes (`mc`); `false`: every frame's image holds
     /// only its own `spp` samples (`mc-denoised` accumulates with reprojection instead).
     pub progressive: bool,
+    /// Also write each frame's unshadowed estimate (the same samples, every shadow ray taken as
+    /// unoccluded: the denominator of `mc-denoised`'s ratio estimator). Only with `progressive =
+    /// false` and at most [`MAX_SPP_PER_DISPATCH`] samples per frame.
+    pub unshadowed: bool,
     frame_index: u32,
     /// Samples per pixel accumulated in the image after the last frame.
     pub accumulated: u32,
@@ -173,15 +187,16 @@ impl McTechnique {
             spp: DEFAULT_SPP,
             aa: true,
             progressive: true,
+            unshadowed: false,
             frame_index: 0,
             accumulated: 0,
             tri_count: None,
         })
     }
 
-    /// Declares the tree (rebuilt when geometry changed) and the `mc` pass; returns the HDR image
-    /// and the frame's material table (uploaded once for the passes that follow, `mc-denoised`'s
-    /// demodulation).
+    /// Declares the tree (rebuilt when geometry changed) and the `mc` pass; returns the HDR image,
+    /// the frame's material table (uploaded once for the passes that follow, `mc-denoised`'s
+    /// demodulation) and, with [`McTechnique::unshadowed`], the unshadowed estimate.
     pub fn add_frame(
         &mut self,
         engine: &mut FrameStore<'_>,
@@ -189,7 +204,11 @@ impl McTechnique {
         frame: &Frame,
         width: u32,
         height: u32,
-    ) -> Result<(ImageHandle, BufferHandle)> {
+    ) -> Result<McFrame> {
+        anyhow::ensure!(
+            !self.unshadowed || (!self.progressive && self.spp <= MAX_SPP_PER_DISPATCH),
+            "mc: the unshadowed estimate is written per frame by one dispatch (progressive off, at most {MAX_SPP_PER_DISPATCH} samples per pixel)"
+        );
         let geometry_changed = frame.any_moved() || frame.any_deformed();
         let kept =
             if geometry_changed || self.tri_count.is_none() { None } else { self.builder.add_kept(engine, graph) };
@@ -245,6 +264,9 @@ impl McTechnique {
             self.accumulated = 0;
         }
         let hdr = graph.create_image("mc.hdr", ImageDesc::new_2d(HDR_FORMAT, width, height));
+        // the unshadowed estimate, or a 1 x 1 stand-in the shader does not write
+        let (uw, uh) = if self.unshadowed { (width, height) } else { (1, 1) };
+        let mut unshadowed = graph.create_image("mc.unshadowed", ImageDesc::new_2d(HDR_FORMAT, uw, uh));
         let inv_vp = FrameConstants::new(frame, None, width, height).inv_view_proj;
         // Long frames are split into dispatches of at most MAX_SPP_PER_DISPATCH samples (one
         // pass each, the accumulator carried between them): no single dispatch runs long
@@ -262,7 +284,10 @@ impl McTechnique {
             push.extend(bytes_of(&[
                 self.env.width,
                 self.env.height,
-                (reset && chunk == 0) as u32 | (self.env.can_sample as u32) << 1 | (!self.aa as u32) << 2,
+                (reset && chunk == 0) as u32
+                    | (self.env.can_sample as u32) << 1
+                    | (!self.aa as u32) << 2
+                    | (self.unshadowed as u32) << 3,
                 light_count,
             ]));
             push.extend(bytes_of(&[self.env.cos_rot, self.env.sin_rot, self.env.intensity, 0.0]));
@@ -274,6 +299,7 @@ impl McTechnique {
                 [tridata, materials, env_texels, env_cdf].map(|h| p.read(h, Access::ComputeShaderReadStorage));
             let acc = p.write(accum, Access::ComputeShaderReadWriteStorage);
             let out = p.write(hdr, Access::ComputeShaderWriteStorage);
+            let un = p.write(unshadowed, Access::ComputeShaderWriteStorage);
             let lt = p.read(lights, Access::ComputeShaderReadStorage);
             let tex = p.read(textures, Access::ComputeShaderReadSampled);
             let repeat = self.repeat.sampler;
@@ -284,15 +310,17 @@ impl McTechnique {
                     Bind::StorageImage(out),
                     Bind::StorageBuffer(lt),
                     Bind::SampledImage(tex, repeat),
+                    Bind::StorageImage(un),
                 ];
                 let binds = [kd.binds().as_slice(), &crate::util::storage([td, mats, et, ec]), &images].concat();
                 crate::util::dispatch(rc, pipe, &binds, &push, [groups(width, 8), groups(height, 8), 1])
             });
             accum = acc;
             hdr = out;
+            unshadowed = un;
         }
         self.accumulated += self.spp;
-        Ok((hdr, materials))
+        Ok(McFrame { hdr, materials, unshadowed: self.unshadowed.then_some(unshadowed) })
     }
 
     fn persistent_upload_into(graph: &mut Graph, h: BufferHandle, data: Vec<u8>) -> BufferHandle {
@@ -310,9 +338,7 @@ impl crate::technique::Technique for McTechnique {
     }
     fn add(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle> {
         self.scene_textures = Some(inputs.handles.textures);
-        let r = self
-            .add_frame(engine, graph, inputs.frame, inputs.gbuffer.width, inputs.gbuffer.height)
-            .map(|(hdr, _)| hdr);
+        let r = self.add_frame(engine, graph, inputs.frame, inputs.gbuffer.width, inputs.gbuffer.height).map(|f| f.hdr);
         self.scene_textures = None;
         r
     }
