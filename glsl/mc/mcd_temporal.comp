@@ -10,10 +10,14 @@
 // the blend the history is clipped to this frame's 3x3 neighbourhood (`clip`, variance clipping
 // as in temporal anti-aliasing; not SVGF's): lighting that changed without a motion vector
 // leaves it. With the ratio estimator (mode.x) the unshadowed estimate of the same samples is
-// accumulated and clipped alike, and the moments are the visible fraction's (S / U), whose
-// variance for a history shorter than 4 frames comes from mc's own samples; without it the
-// moments are the luminance's and a short history takes the 3x3 neighbourhood's spread instead
-// where that is larger (SVGF's).
+// accumulated and clipped alike, and the variance that guides the filter is the visible
+// fraction's (S / U) as mc measured it from its own samples, averaged over the history like the
+// radiance (a shadow that moves across a pixel does not count as noise, as the temporal moments
+// of S / U would have it: god_rays 160x120 after five frames 0.108 -> 0.095), times 4 / length for
+// a history shorter than 4 frames (SVGF's boost); without it the moments are the luminance's and
+// a short history takes the 3x3 neighbourhood's spread instead where that is larger (SVGF's).
+// With `restart` (mode.y) a history that this frame's visible fraction contradicts restarts
+// (`history_contradicted`: a hard shadow moved over a floor whose motion vector is zero).
 layout(local_size_x = 8, local_size_y = 8) in;
 #include "common.glsl"
 layout(binding = 0, rgba32f) uniform readonly image2D noisy;
@@ -32,7 +36,8 @@ layout(std430, binding = 9) readonly buffer Materials { MaterialData mats[]; };
 layout(binding = 10) uniform sampler2DArray material_textures;
 // the ratio estimator (`ratio`, Heitz et al. 2018): this frame's unshadowed estimate from the
 // same samples, its history (in and out) and its filter input, accumulated and clipped exactly
-// as the shadowed radiance is; stand-ins left alone without it
+// as the shadowed radiance is; the history's alpha: mc's variance of the visible fraction
+// averaged over the history; stand-ins left alone without it
 layout(binding = 11, rgba32f) uniform readonly image2D noisy_u;
 layout(binding = 12, rgba32f) uniform readonly image2D prev_u;
 layout(binding = 13, rgba32f) uniform writeonly image2D new_u;
@@ -43,7 +48,8 @@ layout(binding = 14, rgba32f) uniform writeonly image2D filter_u;
 layout(push_constant) uniform Push {
     vec4 eye_valid;  // eye, w: 1 when the history images hold the previous frame
     uvec4 size;      // width, height, max history length, history clip (float bits; 0: off)
-    uvec4 mode;      // x: 1 with the ratio estimator's unshadowed images
+    uvec4 mode;      // x: 1 with the ratio estimator's unshadowed images; y: 1 restarts
+                     // histories this frame's visible fraction contradicts
 } pc;
 
 // This frame's demodulated estimate at r: the shadowed (u = false) or the unshadowed one.
@@ -74,6 +80,31 @@ vec3 clip_to_neighbourhood(ivec2 px, ivec2 size, vec3 hist, float clip, bool u) 
     return clamp(hist, mu - clip * sigma, mu + clip * sigma);
 }
 
+// Whether the history's visible fraction r_hist (its variance averaged over the history: var)
+// is out of this frame's at px, r: differing by more than half and by more than six standard
+// deviations of the two, the variance of this frame's taken as the largest mc measured in the
+// 3x3 neighbourhood (four samples that agreed by chance in a penumbra leave 0 at the pixel, rarely
+// at all nine), and with at least two neighbours measuring about the same (a moved shadow is an
+// area; a pixel whose samples all missed by chance is alone).
+bool history_contradicted(ivec2 px, ivec2 size, float r, float r_hist, float var) {
+    float dr = abs(r - r_hist);
+    if (!(dr > 0.5)) return false;
+    float v = 0.0;
+    int agree = 0;
+    for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+            ivec2 q = clamp(px + ivec2(dx, dy), ivec2(0), size - 1);
+            vec4 u = imageLoad(noisy_u, q);
+            v = max(v, u.a);
+            float lu = mcd_luminance(u.rgb);
+            if ((dx != 0 || dy != 0) && lu > 0.0 && abs(mcd_luminance(imageLoad(noisy, q).rgb) / lu - r) < 0.25) {
+                agree += 1;
+            }
+        }
+    }
+    return dr > 6.0 * sqrt(v + var) && agree >= 2;
+}
+
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
     ivec2 size = ivec2(pc.size.xy);
@@ -96,6 +127,7 @@ void main() {
     vec3 illum = c / mcd_reflectance(uvm);
     vec3 illum_u = ratio ? imageLoad(noisy_u, px).rgb / mcd_reflectance(uvm) : vec3(0.0);
     vec3 hist_u = vec3(0.0);
+    float hist_var = 0.0;
     float l = mcd_edge_value(illum, illum_u, ratio);
     float dist = length(pos.xyz - pc.eye_valid.xyz);
     float len = 0.0;
@@ -111,8 +143,23 @@ void main() {
                 len = pcol.a;
                 hist = pcol.rgb;
                 mom = pa.xy;
-                if (ratio) hist_u = imageLoad(prev_u, q).rgb;
+                if (ratio) {
+                    vec4 pu = imageLoad(prev_u, q);
+                    hist_u = pu.rgb;
+                    hist_var = pu.a;
+                }
             }
+        }
+    }
+    if (ratio && pc.mode.y != 0u && len > 0.0) {
+        // a shadow that moved over the pixel (the floor under a moving object keeps a motion
+        // vector of zero: variance clipping keeps a hard edge's history, whose neighbourhood
+        // spans lit and shadowed) restarts the history rather than dragging the old edge along
+        float lu = mcd_luminance(illum_u), lhu = mcd_luminance(hist_u);
+        if (lu > 0.0 && lhu > 0.0
+            && history_contradicted(px, size, mcd_luminance(illum) / lu, mcd_luminance(hist) / lhu, hist_var)) {
+            len = 0.0;
+            hist_var = 0.0;
         }
     }
     float clip = uintBitsToFloat(pc.size.w);
@@ -123,18 +170,17 @@ void main() {
     len = min(len + 1.0, float(max(pc.size.z, 1u)));
     float a = 1.0 / len;
     vec3 acc = mix(hist, illum, a);
-    if (ratio) {
-        vec3 acc_u = mix(hist_u, illum_u, a);
-        imageStore(new_u, px, vec4(acc_u, 0.0));
-        imageStore(filter_u, px, vec4(acc_u, 0.0));
-    }
     vec2 m = mix(mom, vec2(l, l * l), a);
     float var = max(m.y - m.x * m.x, 0.0);
-    if (len < 4.0 && ratio) {
-        // the visible fraction's variance from this frame's own samples (mc's): a hard shadow's
-        // edge, where every sample agrees, is not mistaken for noise as the neighbourhood's
-        // spread would have it
-        var = max(var, imageLoad(noisy_u, px).a * 4.0 / len);
+    if (ratio) {
+        vec3 acc_u = mix(hist_u, illum_u, a);
+        // the visible fraction's variance from mc's own samples, averaged as the radiance is: a
+        // hard shadow's edge, where every sample agrees, is not mistaken for noise as the
+        // neighbourhood's spread would have it, nor a moving shadow as the moments would
+        float avg_var = mix(hist_var, imageLoad(noisy_u, px).a, a);
+        imageStore(new_u, px, vec4(acc_u, avg_var));
+        imageStore(filter_u, px, vec4(acc_u, 0.0));
+        var = avg_var * max(4.0 / len, 1.0);
     } else if (len < 4.0) {
         // SVGF's: the 3x3 neighbourhood's spread while the history is short
         float s1 = 0.0, s2 = 0.0, n = 0.0;

@@ -78,6 +78,9 @@ pub struct TechniqueInfo {
     /// Precomputes visibility for static geometry only: refuses scenes whose objects move or
     /// deform.
     pub static_only: bool,
+    /// Precomputes a rigid field per shadow-casting object (moving is fine): refuses scenes
+    /// whose shadow-casting objects deform, naming them, rather than shadow by their rest mesh.
+    pub rigid_only: bool,
     /// Follows an animated environment (`Frame::environment`: rotation and intensity per frame);
     /// false: it bakes the lighting when created and refuses a scene whose environment is animated.
     pub animated_environment: bool,
@@ -109,6 +112,7 @@ impl std::fmt::Debug for TechniqueInfo {
         f.debug_struct("TechniqueInfo")
             .field("name", &self.name)
             .field("static_only", &self.static_only)
+            .field("rigid_only", &self.rigid_only)
             .field("animated_environment", &self.animated_environment)
             .field("shadows", &self.shadows)
             .field("budget", &self.budget)
@@ -169,6 +173,7 @@ const MC_DENOISED_PARAMS: &[ParamDoc] = &[
     p("phi_lobe", "4", ">= 0", "specular-lobe edge-stopping on glossy pixels: taps weighted by how far their mirror direction falls inside the pixel's specular lobe (0: off)"),
     p("clip", "1", ">= 0", "history clipped to the frame's 3x3 neighbourhood, mean +- clip standard deviations per channel (variance clipping: lighting that changes without a motion vector leaves the history; 0: off, SVGF's)"),
     p("ratio", "true", "true/false", "ratio estimator (Heitz et al. 2018): the analytic unshadowed radiance (the env technique's) times the filtered shadowed over the filtered unshadowed estimate of the same samples; false: SVGF's demodulated radiance filtered"),
+    p("restart", "true", "true/false", "with the ratio estimator: a history whose visible fraction this frame's samples contradict (by more than half and six standard deviations, two neighbours agreeing) restarts: a hard shadow that moved over a still floor (false: it drags)"),
 ];
 
 const SHADOWMAPS_PARAMS: &[ParamDoc] = &[
@@ -395,6 +400,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "environment (exact irradiance map, importance-sampled glossy lobe) and local lights, no visibility",
         params: &[],
         static_only: false,
+        rigid_only: false,
         animated_environment: true,
         shadows: false,
         budget: Budget::Baseline { source: "unshadowed baseline: no visibility, so no accuracy budget" },
@@ -406,6 +412,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "GPU Monte Carlo with the reference's estimator, progressive while nothing moves",
         params: MC_PARAMS,
         static_only: false,
+        rigid_only: false,
         animated_environment: true,
         shadows: true,
         budget: Budget::Unbiased {
@@ -420,6 +427,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "mc at a few samples per pixel per frame, denoised by spatio-temporal variance-guided filtering (SVGF): the baseline users pick today",
         params: MC_DENOISED_PARAMS,
         static_only: false,
+        rigid_only: false,
         animated_environment: true,
         shadows: true,
         budget: Budget::RmseRelMean {
@@ -434,6 +442,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "rasterized shadow maps: the environment as K shadowed directional lights, a cube map per local light (the papers' baseline)",
         params: SHADOWMAPS_PARAMS,
         static_only: false,
+        rigid_only: false,
         animated_environment: true,
         shadows: true,
         budget: Budget::RmseRelMean {
@@ -448,6 +457,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "integral spherical Gaussians, per-pixel visibility over sphere sets (Iwasaki et al. 2012)",
         params: ISG_PARAMS,
         static_only: false,
+        rigid_only: false,
         animated_environment: true,
         shadows: true,
         budget: ISG_BUDGET,
@@ -459,6 +469,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "integral spherical Gaussians with per-vertex visibility",
         params: ISG_PARAMS,
         static_only: false,
+        rigid_only: false,
         animated_environment: true,
         shadows: true,
         budget: ISG_BUDGET,
@@ -470,6 +481,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "adaptive visibility sampling with hemispherical distance transforms (Wang et al.)",
         params: AVS_PARAMS,
         static_only: false,
+        rigid_only: false,
         animated_environment: true,
         shadows: true,
         budget: Budget::RmseRelMean {
@@ -484,6 +496,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "adaptive shadow fields (SH occlusion and source radiance fields, adaptive shells)",
         params: SHADOW_FIELDS_PARAMS,
         static_only: false,
+        rigid_only: true,
         animated_environment: true,
         shadows: true,
         budget: SHADOW_FIELDS_BUDGET,
@@ -495,6 +508,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "shadow fields at fixed (non-adaptive) shell resolution",
         params: SHADOW_FIELDS_PARAMS,
         static_only: false,
+        rigid_only: true,
         animated_environment: true,
         shadows: true,
         budget: SHADOW_FIELDS_BUDGET,
@@ -506,6 +520,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "all-frequency shadow fields (Haar-compressed visibility cube maps, pixel-domain triple product)",
         params: SHADOW_FIELDS_WAVELET_PARAMS,
         static_only: false,
+        rigid_only: true,
         animated_environment: true,
         shadows: true,
         budget: Budget::RmseRelMean {
@@ -520,6 +535,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
         summary: "vectorized visibility with spherical Voronoi interpolation (static geometry)",
         params: VV_PARAMS,
         static_only: true,
+        rigid_only: false,
         animated_environment: false,
         shadows: true,
         budget: Budget::RmseRelMean {
@@ -613,8 +629,8 @@ pub fn lookup(name: &str) -> Result<&'static TechniqueInfo> {
 }
 
 /// Why technique `name` refuses `scene` before anything is built, if it does: a static-only
-/// technique on moving or deforming geometry (naming the object), a technique that bakes the
-/// lighting on an animated environment.
+/// technique on moving or deforming geometry (naming the object), a rigid-only one on deforming
+/// shadow casters (naming them), a technique that bakes the lighting on an animated environment.
 pub fn refusal(name: &str, scene: &Scene) -> Option<String> {
     let info = info(name)?;
     if !info.animated_environment && scene.requirements().animated_environment {
@@ -633,6 +649,22 @@ pub fn refusal(name: &str, scene: &Scene) -> Option<String> {
                     if oi.is_moving() { "moves" } else { "deforms" }
                 ));
             }
+        }
+    }
+    if info.rigid_only {
+        let deforming: Vec<String> = scene
+            .objects
+            .iter()
+            .enumerate()
+            .filter(|&(i, _)| scene.object_info(i).is_deforming() && scene.object_info(i).casts_shadow)
+            .map(|(_, o)| format!("'{}'", o.name))
+            .collect();
+        if !deforming.is_empty() {
+            return Some(format!(
+                "'{name}' precomputes a rigid field per shadow-casting object, which a deforming object would leave as its rest mesh's shadow; object(s) {} deform (give them `casts_shadow = false`, or pick a technique that follows deforming objects: {})",
+                deforming.join(", "),
+                REGISTRY.iter().filter(|t| !t.static_only && !t.rigid_only && t.shadows).map(|t| t.name).collect::<Vec<_>>().join(", ")
+            ));
         }
     }
     None
@@ -697,6 +729,9 @@ pub fn describe() -> String {
         s += &format!("\n{}\n    {}\n", t.name, t.summary);
         if t.static_only {
             s += "    static geometry only (refuses scenes whose objects move or deform)\n";
+        }
+        if t.rigid_only {
+            s += "    rigid shadow casters only (refuses scenes whose shadow-casting objects deform)\n";
         }
         if !t.animated_environment {
             s += "    fixed environment lighting (refuses scenes whose [[environment.keys]] turn or dim it)\n";

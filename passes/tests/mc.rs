@@ -14,7 +14,7 @@ use penumbra_scene::Scene;
 /// Renders one frame of `mc` and returns (image, kd-tree build passes in the graph).
 fn frame(engine: &mut Engine, mc: &mut McTechnique, f: &penumbra_scene::Frame, w: u32, h: u32) -> (Image, usize) {
     let mut g = Graph::new();
-    let (hdr, _) = mc.add_frame(&mut penumbra_engine::FrameStore::new(engine), &mut g, f, w, h).unwrap();
+    let hdr = mc.add_frame(&mut penumbra_engine::FrameStore::new(engine), &mut g, f, w, h).unwrap().hdr;
     let builds =
         g.passes().iter().filter(|p| p.name.starts_with("kdtree_level") && !p.name.ends_with("_small")).count();
     penumbra_passes::readback::add(&mut g, "readback", &[(hdr, "hdr")]);

@@ -140,6 +140,45 @@ mod registry {
         assert!(baked.iter().all(|t| refusal(t.name, &s).is_none() || t.static_only));
     }
 
+    /// The shadow fields precompute one rigid field per object: a scene whose shadow casters
+    /// deform is refused, naming them (rather than shadowed by their rest mesh), moving rigid
+    /// objects are accepted, and so is a deforming object that casts no shadow.
+    #[test]
+    fn rigid_field_techniques_refuse_deforming_shadow_casters_by_name() {
+        let scenes = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+        let mut hat = Scene::load(scenes.join("hat_on_cloth.toml")).unwrap();
+        let falling = Scene::load(scenes.join("falling.toml")).unwrap();
+        assert!(hat.requirements().deforming_objects && falling.requirements().moving_objects);
+        let rigid: Vec<_> = REGISTRY.iter().filter(|t| t.rigid_only).collect();
+        assert_eq!(rigid.len(), 3, "{rigid:?}");
+        for t in REGISTRY {
+            let why = refusal(t.name, &hat);
+            if t.rigid_only || t.static_only {
+                let why = why.unwrap_or_else(|| panic!("{} must refuse hat_on_cloth", t.name));
+                assert!(why.contains("deform"), "{why}");
+            } else {
+                assert!(why.is_none(), "{}: {why:?}", t.name);
+            }
+        }
+        for t in &rigid {
+            assert!(refusal(t.name, &falling).is_none(), "{}", t.name);
+            let why = refusal(t.name, &hat).unwrap();
+            assert!(
+                why.contains("'cloth', 'hat'") && why.contains("casts_shadow = false") && why.contains("shadowmaps"),
+                "{why}"
+            );
+        }
+        // the hat alone casts shadows: only it is named
+        let cloth = hat.objects.iter().position(|o| o.name == "cloth").unwrap();
+        hat.object_info[cloth].casts_shadow = false;
+        let why = refusal("shadow-fields", &hat).unwrap();
+        assert!(why.contains("'hat'") && !why.contains("'cloth'"), "{why}");
+        // neither casts: nothing a rigid field would get wrong
+        let h = hat.objects.iter().position(|o| o.name == "hat").unwrap();
+        hat.object_info[h].casts_shadow = false;
+        assert!(rigid.iter().all(|t| refusal(t.name, &hat).is_none()));
+    }
+
     /// `auto`: shadowmaps for a lit scene, mc where the device cannot render layered shadow
     /// maps, env without light; every choice is a registered technique.
     #[test]

@@ -250,6 +250,9 @@ fn from_pareto(file: &Path, scene: &Scene, o: &TuneOptions) -> Result<Choice> {
         .points
         .iter()
         .filter(|p| allowed.as_ref().is_none_or(|a| a.contains(&p.technique.as_str())))
+        // a front measured before a technique refused the scene (shadow fields on deforming
+        // casters since session 30) must not choose it
+        .filter(|p| registry::refusal(&p.technique, scene).is_none())
         .cloned()
         .collect();
     let p = cheapest_within(&points, o.max_error).ok_or_else(|| nothing_within(scene, o.max_error, o.size, &points))?;

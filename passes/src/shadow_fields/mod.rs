@@ -417,17 +417,6 @@ pub(crate) fn set_light_option(
     Ok(true)
 }
 
-/// The scene's deforming objects, named (quoted), whose rest mesh's field the fields keep.
-pub(crate) fn deforming_objects(scene: &Scene) -> Vec<String> {
-    scene
-        .object_info
-        .iter()
-        .enumerate()
-        .filter(|(_, o)| o.is_deforming())
-        .map(|(i, _)| scene.objects.get(i).map_or_else(|| format!("object {i}"), |o| format!("'{}'", o.name)))
-        .collect()
-}
-
 /// Order-4 SH (rgb) of the environment radiance in world space (its loaded intensity and
 /// rotation applied); zero without an environment.
 pub fn env_light_sh(env: Option<&Environment>) -> [[f64; 3]; NCOEF] {
@@ -1152,20 +1141,6 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
             "shadow-fields"
         } else {
             "shadow-fields-fixed"
-        }
-    }
-
-    fn limitations(&self, scene: &Scene) -> Vec<String> {
-        let deforming = deforming_objects(scene);
-        if deforming.is_empty() {
-            Vec::new()
-        } else {
-            vec![format!(
-                "{} precomputes rigid fields: deforming object(s) {} cast their rest mesh's shadow{}",
-                self.name(),
-                deforming.join(", "),
-                if self.kd.is_some() { " (but toward the local and key lights, whose shadows are traced)" } else { "" }
-            )]
         }
     }
 

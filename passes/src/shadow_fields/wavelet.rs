@@ -36,8 +36,8 @@
 //!   map as moment-matched lights with traced shadows, the cube and the irradiance map holding
 //!   the rest (a departure from the paper, which `light_shadows = fields` undoes).
 //!
-//! What it does not do: deforming objects (their rest mesh's field; reported by
-//! [`crate::technique::Technique::limitations`]), caching of the fields on disk, keeping the
+//! What it does not do: deforming shadow casters (refused by the registry, naming them, as the
+//! SH fields are: a rigid field cannot follow them), caching of the fields on disk, keeping the
 //! maps on the GPU between frames (uploaded every frame), sphere lights' extent (shadowed as
 //! points).
 
@@ -394,7 +394,6 @@ pub struct WaveletTechnique {
     table: CubeTable,
     irradiance: Arc<Vec<u8>>,
     casts: Vec<bool>,
-    deforming: Vec<String>,
     /// Self-occlusion: the per-vertex pass, the raster pass, every mesh's maps and each
     /// mesh's first word in them, each mesh's vertices (object position, normal), and each
     /// mesh's (first index, index count, vertex offset) in the scene's buffers.
@@ -575,7 +574,6 @@ impl WaveletTechnique {
         let cube_env = if scene.requirements().animated_environment { env.cloned() } else { None };
         let dirs = cube_dirs(env, state, &table);
         let casts = crate::shadow_fields::casts_flags(scene);
-        let deforming = crate::shadow_fields::deforming_objects(scene);
         Ok(WaveletTechnique {
             shade,
             nearest: Sampler::nearest(ctx)?,
@@ -590,7 +588,6 @@ impl WaveletTechnique {
             table,
             irradiance: Arc::new(bytes_of(&crate::lighting::irradiance_env(env))),
             casts,
-            deforming,
             self_pass,
             self_raster,
             self_data: Arc::new(self_data),
@@ -697,17 +694,6 @@ impl WaveletTechnique {
 impl crate::technique::Technique for WaveletTechnique {
     fn name(&self) -> &'static str {
         "shadow-fields-wavelet"
-    }
-
-    fn limitations(&self, _scene: &Scene) -> Vec<String> {
-        if self.deforming.is_empty() {
-            Vec::new()
-        } else {
-            vec![format!(
-                "shadow-fields-wavelet precomputes rigid fields: deforming object(s) {} cast their rest mesh's shadow",
-                self.deforming.join(", ")
-            )]
-        }
     }
 
     fn add(&mut self, engine: &mut FrameStore<'_>, graph: &mut Graph, inputs: &TechniqueInputs) -> Result<ImageHandle> {
