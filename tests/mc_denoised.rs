@@ -91,7 +91,7 @@ fn the_ratio_estimator_is_the_analytic_shading_where_nothing_is_shadowed() {
 /// and `restart` (default) drops it where variance clipping keeps it (the 3x3 neighbourhood of
 /// an edge spans lit and shadowed). Ten frames at 64x48 against mc's 1024 samples per pixel of
 /// the last frame (its pixel centres, as mc-denoised samples), validation clean. Measured:
-/// restart 0.083, without 0.217 rmse/mean (160x120 in the matrix: 0.013 against 0.053).
+/// restart 0.041, without 0.217 rmse/mean (160x120 in the matrix: 0.009 against 0.053).
 #[test]
 fn a_moved_hard_shadow_restarts_the_history() {
     let s = common::scene("god_rays.toml");
@@ -110,5 +110,5 @@ fn a_moved_hard_shadow_restarts_the_history() {
     let restart = err(&[]);
     let dragged = err(&[("restart", "false")]);
     eprintln!("god_rays 64x48 frame 30 after 11 frames, rmse/mean: restart {restart:.4}, without {dragged:.4}");
-    assert!(restart < 0.7 * dragged, "restart {restart} against {dragged} without");
+    assert!(restart < 0.4 * dragged, "restart {restart} against {dragged} without");
 }

@@ -84,9 +84,12 @@ vec3 clip_to_neighbourhood(ivec2 px, ivec2 size, vec3 hist, float clip, bool u) 
 // is out of this frame's at px, r: differing by more than half and by more than six standard
 // deviations of the two, the variance of this frame's taken as the largest mc measured in the
 // 3x3 neighbourhood (four samples that agreed by chance in a penumbra leave 0 at the pixel, rarely
-// at all nine), and with at least two neighbours measuring about the same (a moved shadow is an
-// area; a pixel whose samples all missed by chance is alone).
-bool history_contradicted(ivec2 px, ivec2 size, float r, float r_hist, float var) {
+// at all nine), and either the unshadowed estimate steady (`u_steady`: the lighting is the
+// history's, only the visibility changed; a sample far out in U's tail moves U too) or at least
+// two neighbours measuring about the same (a moved shadow is an area; a pixel whose samples all
+// missed by chance is alone; but a one-pixel shadow beside its occluder, whose unlit side has no
+// unshadowed light, has no such neighbours: god_rays at 40x30).
+bool history_contradicted(ivec2 px, ivec2 size, float r, float r_hist, float var, bool u_steady) {
     float dr = abs(r - r_hist);
     if (!(dr > 0.5)) return false;
     float v = 0.0;
@@ -102,7 +105,7 @@ bool history_contradicted(ivec2 px, ivec2 size, float r, float r_hist, float var
             }
         }
     }
-    return dr > 6.0 * sqrt(v + var) && agree >= 2;
+    return dr > 6.0 * sqrt(v + var) && (agree >= 2 || u_steady);
 }
 
 void main() {
@@ -156,8 +159,11 @@ void main() {
         // vector of zero: variance clipping keeps a hard edge's history, whose neighbourhood
         // spans lit and shadowed) restarts the history rather than dragging the old edge along
         float lu = mcd_luminance(illum_u), lhu = mcd_luminance(hist_u);
+        // the unshadowed estimate steady: the lighting is the history's, only the visibility
+        // changed (a sample far out in U's tail moves both S / U and U)
+        bool u_steady = abs(lu - lhu) < 0.25 * max(lu, lhu);
         if (lu > 0.0 && lhu > 0.0
-            && history_contradicted(px, size, mcd_luminance(illum) / lu, mcd_luminance(hist) / lhu, hist_var)) {
+            && history_contradicted(px, size, mcd_luminance(illum) / lu, mcd_luminance(hist) / lhu, hist_var, u_steady)) {
             len = 0.0;
             hist_var = 0.0;
         }

@@ -173,7 +173,7 @@ const MC_DENOISED_PARAMS: &[ParamDoc] = &[
     p("phi_lobe", "4", ">= 0", "specular-lobe edge-stopping on glossy pixels: taps weighted by how far their mirror direction falls inside the pixel's specular lobe (0: off)"),
     p("clip", "1", ">= 0", "history clipped to the frame's 3x3 neighbourhood, mean +- clip standard deviations per channel (variance clipping: lighting that changes without a motion vector leaves the history; 0: off, SVGF's)"),
     p("ratio", "true", "true/false", "ratio estimator (Heitz et al. 2018): the analytic unshadowed radiance (the env technique's) times the filtered shadowed over the filtered unshadowed estimate of the same samples; false: SVGF's demodulated radiance filtered"),
-    p("restart", "true", "true/false", "with the ratio estimator: a history whose visible fraction this frame's samples contradict (by more than half and six standard deviations, two neighbours agreeing) restarts: a hard shadow that moved over a still floor (false: it drags)"),
+    p("restart", "true", "true/false", "with the ratio estimator: a history whose visible fraction this frame's samples contradict (by more than half and six standard deviations, the unshadowed estimate steady or two neighbours agreeing) restarts: a hard shadow that moved over a still floor (false: it drags)"),
 ];
 
 const SHADOWMAPS_PARAMS: &[ParamDoc] = &[

@@ -19,8 +19,9 @@
 //!    over the history as the radiance is (a moving shadow is not noise, as the visible
 //!    fraction's temporal moments would take it), times 4 / length while the history is
 //!    shorter than 4 frames. A history whose visible fraction this frame's samples contradict
-//!    (by more than half and six standard deviations, with two neighbours agreeing with the
-//!    frame: a shadow that moved over a floor whose motion vector is zero) restarts: variance
+//!    (by more than half and six standard deviations, with the unshadowed estimate steady or two
+//!    neighbours agreeing with the frame: a shadow that moved over a floor whose motion vector
+//!    is zero, not a sample far out in U's tail) restarts: variance
 //!    clipping keeps a hard edge's history, whose neighbourhood spans lit and shadowed. The
 //!    history (three pairs of persistent images, ping-ponged) keeps the unfiltered
 //!    accumulations.
@@ -92,10 +93,11 @@ pub struct DenoiseSettings {
     /// noise cancels where nothing is shadowed; false: SVGF's demodulated radiance, filtered.
     pub ratio: bool,
     /// With the ratio estimator: a history whose visible fraction this frame's samples
-    /// contradict (by more than half and six standard deviations, two neighbours agreeing with
-    /// the frame) restarts (default true): a hard shadow moving over a still floor, whose history
-    /// variance clipping keeps (its neighbourhood spans lit and shadowed). god_rays at 160x120:
-    /// 0.053 -> 0.013 rmse/mean after two frames, 0.095 -> 0.017 after five.
+    /// contradict (by more than half and six standard deviations, the unshadowed estimate within
+    /// 25 % of its history's or two neighbours agreeing with the frame) restarts (default true):
+    /// a hard shadow moving over a still floor, whose history variance clipping keeps (its
+    /// neighbourhood spans lit and shadowed). god_rays at 160x120: 0.053 -> 0.009 rmse/mean after
+    /// two frames, 0.095 -> 0.009 after five; at 40x30 0.155 -> 0.025.
     pub restart: bool,
 }
 
