@@ -100,7 +100,9 @@ bool history_contradicted(ivec2 px, ivec2 size, float r, float r_hist, float var
             vec4 u = imageLoad(noisy_u, q);
             v = max(v, u.a);
             float lu = mcd_luminance(u.rgb);
-            if ((dx != 0 || dy != 0) && lu > 0.0 && abs(mcd_luminance(imageLoad(noisy, q).rgb) / lu - r) < 0.25) {
+            // (the sky's "visible fraction" is 1: not a surface's)
+            if ((dx != 0 || dy != 0) && lu > 0.0 && texelFetch(gb_position, q, 0).w > 0.0
+                && abs(mcd_luminance(imageLoad(noisy, q).rgb) / lu - r) < 0.25) {
                 agree += 1;
             }
         }
