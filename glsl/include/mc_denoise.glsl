@@ -8,7 +8,7 @@
 
 float mcd_luminance(vec3 c) { return dot(c, vec3(0.2126, 0.7152, 0.0722)); }
 
-// What the filter's luminance edge-stopping and variance see: the (demodulated) radiance's
+// What the a-trous filter's luminance edge-stopping compares: the (demodulated) radiance's
 // luminance, or with the ratio estimator the visible fraction, shadowed over unshadowed
 // luminance in [0, 1] (1 where nothing lit it: nothing to tell apart), so that a hard shadow's
 // edge stops the filter and a highlight's noise does not.

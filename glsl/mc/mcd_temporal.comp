@@ -133,7 +133,9 @@ void main() {
     vec3 illum_u = ratio ? imageLoad(noisy_u, px).rgb / mcd_reflectance(uvm) : vec3(0.0);
     vec3 hist_u = vec3(0.0);
     float hist_var = 0.0;
-    float l = mcd_edge_value(illum, illum_u, ratio);
+    // SVGF's luminance moments (with the ratio estimator mc's own variance guides the filter and
+    // they go unused)
+    float l = mcd_luminance(illum);
     float dist = length(pos.xyz - pc.eye_valid.xyz);
     float len = 0.0;
     vec3 hist = vec3(0.0);
