@@ -563,3 +563,73 @@ fn pixel_refine_evaluates_shadow_edges_per_pixel() {
     assert!(default < 0.3 * pure, "pixel_refine 0.2: {default} against per pixel, pure per-vertex {pure}");
     assert!(every < 0.2 * default, "pixel_refine 0: {every} against the default's {default}");
 }
+
+/// `sg_as_lobes` on the GPU (Ashikhmin-Shirley's seven SG lobes, `glsl/include/sg.glsl`) is the
+/// CPU's `sg7_hermite` in the shading frame of the normal and tangent: axes, sharpness and
+/// weights, for anisotropy both ways, isotropic exponents, tiny and huge exponents, grazing and
+/// below-horizon views and a tangent along the normal (the frame's fallback).
+#[test]
+fn ashikhmin_shirley_lobes_match_cpu() {
+    use glam::{DVec3, Vec3};
+    use penumbra_math::brdf::AshikhminShirley;
+    use penumbra_passes::kernels::isg::{gpu_as_lobes, AsLobesQuery};
+    let ctx = penumbra::engine::Context::new(&penumbra::engine::ContextDesc { validation: true, ..Default::default() })
+        .expect("context");
+    let log = ctx.validation.clone();
+    let mut engine = penumbra::engine::Engine::new(ctx, 1).expect("engine");
+    let shaders = penumbra::shader_library();
+    let frames = [
+        (Vec3::Z, Vec3::X),
+        (Vec3::new(0.3, 0.8, -0.5).normalize(), Vec3::new(1.0, 0.2, 0.4)),
+        (Vec3::new(-0.6, 0.0, 0.8), Vec3::new(-0.6, 0.0, 0.8)), // tangent along the normal
+    ];
+    let mut queries = Vec::new();
+    for (n, t) in frames {
+        for (nu, nv) in [(200.0, 40.0), (40.0, 200.0), (100.0, 100.0), (1e-4, 3.0), (1e5, 10.0)] {
+            for wo in [DVec3::Z, DVec3::new(0.5, 0.1, 0.86), DVec3::new(0.3, -0.95, 0.02), DVec3::new(0.6, 0.0, -0.8)] {
+                let wo = wo.normalize().as_vec3();
+                // world direction of the local wo in the frame brdf_frame(n, t) builds
+                let x = t - n * n.dot(t);
+                let x = if x.length_squared() > 1e-12 { x.normalize() } else { duff_basis(n) };
+                let y = n.cross(x);
+                queries.push(AsLobesQuery { n, t, v: x * wo.x + y * wo.y + n * wo.z, nu, nv, f0: 0.08 });
+            }
+        }
+    }
+    let gpu = gpu_as_lobes(&mut engine, &shaders, &queries).expect("gpu lobes");
+    let mut worst = (0.0f64, 0.0f64, 0.0f64);
+    for (q, g) in queries.iter().zip(&gpu) {
+        let x = q.t - q.n * q.n.dot(q.t);
+        let x = if x.length_squared() > 1e-12 { x.normalize() } else { duff_basis(q.n) };
+        let y = q.n.cross(x);
+        let wo = DVec3::new(q.v.dot(x) as f64, q.v.dot(y) as f64, q.v.dot(q.n) as f64);
+        let a = AshikhminShirley { nu: q.nu as f64, nv: q.nv as f64, f0: q.f0 as f64 };
+        let cpu = a.sg7_hermite(wo);
+        let wsum: f64 = cpu.iter().map(|l| l.mu).sum::<f64>().max(1e-30);
+        for (c, l) in cpu.iter().zip(g) {
+            assert!(l.axis.is_finite() && l.lambda.is_finite() && l.weight.is_finite(), "{q:?}: {l:?}");
+            let axis = (x.as_dvec3() * c.axis.x + y.as_dvec3() * c.axis.y + q.n.as_dvec3() * c.axis.z).as_vec3();
+            let da = if c.mu > 0.0 { (axis - l.axis).length() as f64 } else { 0.0 };
+            let dl = (c.lambda - l.lambda as f64).abs() / c.lambda.max(1.0);
+            let dw = (c.mu - l.weight as f64).abs() / wsum;
+            worst = (worst.0.max(da), worst.1.max(dl), worst.2.max(dw));
+            assert!(da < 1e-3 && dl < 1e-3 && dw < 1e-3, "{q:?}: cpu {c:?} gpu {l:?}");
+        }
+    }
+    println!(
+        "{} queries: worst axis {:.1e}, sharpness {:.1e}, weight {:.1e}",
+        queries.len(),
+        worst.0,
+        worst.1,
+        worst.2
+    );
+    assert_eq!(log.error_count(), 0, "validation errors: {:#?}", log.errors());
+}
+
+/// Duff et al. 2017's basis vector of `n` (`brdf_frame`'s fallback tangent).
+fn duff_basis(n: glam::Vec3) -> glam::Vec3 {
+    let s = if n.z >= 0.0 { 1.0 } else { -1.0 };
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    glam::Vec3::new(1.0 + s * n.x * n.x * a, s * b, -s * n.x)
+}

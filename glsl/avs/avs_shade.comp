@@ -221,7 +221,7 @@ float traced_light_visibility(vec3 o, LightData l, int lk) {
     return vis / float(n);
 }
 
-vec3 local_lights(vec3 pos, vec3 n, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
+vec3 local_lights(vec3 pos, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
     vec3 sum = vec3(0.0);
     bool traced = (pc.flags & 2u) != 0u;
     vec3 o = pos + n * pc.ray_offset;
@@ -231,7 +231,7 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 ng, vec3 v, vec3 albedo, int kind, Mate
         float dist, ndl;
         vec3 e = light_incident(l, pos, n, ng, wi, dist, ndl);
         if (ndl <= 0.0) continue;
-        vec3 f = light_brdf(wi, n, v, ndl, albedo, kind, m, roughness);
+        vec3 f = light_brdf(wi, n, t, v, albedo, m);
         int lk = int(l.pos_kind.w + 0.5);
         float vis = 1.0;
         if (traced) {
@@ -295,7 +295,8 @@ void main() {
     }
     vec4 gp = texelFetch(gb_position, px, 0);
     vec3 pos = gp.xyz, ng = gb_geometric_normal(gp.w);
-    vec3 n = oct_decode(texelFetch(gb_normal, px, 0).xy);
+    vec4 en = texelFetch(gb_normal, px, 0);
+    vec3 n = oct_decode(en.xy), tg = oct_decode(en.zw);
     MaterialData m = mats[uint(uvm.z)];
     vec3 v = normalize(cam.eye.xyz - pos);
     float ndv = max(dot(n, v), 1e-4);
@@ -328,15 +329,15 @@ void main() {
                 : mu * max(sg_cosine_integral(sg_make(axis_lambda.xyz, axis_lambda.w, 1.0), n), 0.0);
         }
     }
-    vec3 color = albedo / PI * diffuse;
+    vec3 color = material_diffuse_albedo(m, ndv) / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
-    color += local_lights(pos, n, ng, v, albedo, kind, m, roughness);
+    color += local_lights(pos, n, tg, ng, v, albedo, kind, m, roughness);
     if (kind != 0 && pc.specular_mode == 2u) {
         // Ratio: the material model's unshadowed glossy term (the `env` technique's split sum)
         // times the SSDF visibility of the specular SG lobe x cosine.
         vec3 amp;
         SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
-        vec3 glossy = env_glossy(n, v, m);
+        vec3 glossy = env_glossy(n, tg, v, m);
         vec3 po = pos + ng * 1e-3 * max(1.0, length(pos));
         if (max(glossy.r, max(glossy.g, glossy.b)) > 0.0) color += glossy * glossy_visibility(sg_product(gs, cosg), po, ng);
     } else if (kind != 0) {

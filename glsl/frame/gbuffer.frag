@@ -37,7 +37,12 @@ void main() {
     vec3 t = dpdu * sg;  // dP/du times det's magnitude, as before normal maps
     t -= n * dot(n, t);
     if (dot(t, t) < 1e-20) {
-        t = abs(n.y) < 0.99 ? cross(vec3(0, 1, 0), n) : cross(vec3(1, 0, 0), n);
+        // no usable uv: Duff et al. 2017's basis vector of n, the reference's tangent then
+        // (sampling.rs Frame::new, brdf_ref.glsl brdf_frame): Ashikhmin-Shirley's anisotropy
+        // runs along it in both
+        float s = n.z >= 0.0 ? 1.0 : -1.0;
+        float a = -1.0 / (s + n.z);
+        t = vec3(1.0 + s * n.x * n.x * a, s * n.x * n.y * a, -s * n.x);
     }
     t = normalize(t);
     o_position = vec4(v_world, gb_pack_geometric_normal(ng));

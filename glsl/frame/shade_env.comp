@@ -21,7 +21,7 @@ layout(set = 0, binding = 8) uniform sampler2DArray material_textures;
 layout(push_constant) uniform Push { uint light_count; } pc;
 
 // Radiance reflected from local lights (lights.glsl), unshadowed.
-vec3 local_lights(vec3 pos, vec3 n, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
+vec3 local_lights(vec3 pos, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
     vec3 sum = vec3(0.0);
     for (uint i = 0u; i < pc.light_count; ++i) {
         LightData l = lights[i];
@@ -29,7 +29,7 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 ng, vec3 v, vec3 albedo, int kind, Mate
         float dist, ndl;
         vec3 e = light_incident(l, pos, n, ng, wi, dist, ndl);
         if (ndl <= 0.0) continue;
-        vec3 f = light_brdf(wi, n, v, ndl, albedo, kind, m, roughness);
+        vec3 f = light_brdf(wi, n, t, v, albedo, m);
         sum += f * e * ndl;
     }
     return sum;
@@ -50,14 +50,15 @@ void main() {
     }
     vec4 gp = texelFetch(gb_position, p, 0);
     vec3 pos = gp.xyz, ng = gb_geometric_normal(gp.w);
-    vec3 n = oct_decode(texelFetch(gb_normal, p, 0).xy);
+    vec4 en = texelFetch(gb_normal, p, 0);
+    vec3 n = oct_decode(en.xy), tg = oct_decode(en.zw);
     MaterialData m = mats[uint(uvm.z)];
     vec3 v = normalize(cam.eye.xyz - pos);
     int kind = int(m.albedo_kind.w + 0.5);
     // Spatially varying materials: albedo map multiplies albedo, roughness map (G) multiplies
     // roughness and the Phong exponent follows 2 / r^2 - 2 (as in the reference renderer).
     m = material_at(m, uvm.xy, material_textures);
-    vec3 color = env_unshadowed(n, v, m);
-    color += local_lights(pos, n, ng, v, m.albedo_kind.rgb, kind, m, env_roughness(m));
+    vec3 color = env_unshadowed(n, tg, v, m);
+    color += local_lights(pos, n, tg, ng, v, m.albedo_kind.rgb, kind, m, env_roughness(m));
     imageStore(hdr, p, vec4(material_reflected(color, n, v) + material_emission(m), 1.0));
 }

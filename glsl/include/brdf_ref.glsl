@@ -21,6 +21,23 @@ float as_lobe(float nu, float nv, vec3 h) {
     return pow(h.z, e);
 }
 
+// The reference's shading frame (penumbra_reference::sampling::Frame::new) as columns (x, y, n):
+// x the tangent hint t made orthogonal to n (anisotropic lobes: Ashikhmin-Shirley's nu runs
+// along it), y = n x x; where t is unusable (zero, or along n) Duff et al. 2017's branchless
+// basis of n. brdf_eval, brdf_pdf and brdf_sample work in it: local = transpose(frame) * world.
+mat3 brdf_frame(vec3 n, vec3 t) {
+    vec3 x = t - n * dot(n, t);
+    if (dot(x, x) > 1e-12) {
+        x = normalize(x);
+    } else {
+        float s = n.z >= 0.0 ? 1.0 : -1.0;
+        float a = -1.0 / (s + n.z);
+        float bb = n.x * n.y * a;
+        x = vec3(1.0 + s * n.x * n.x * a, s * bb, -s * n.x);
+    }
+    return mat3(x, cross(n, x), n);
+}
+
 vec3 brdf_eval(Brdf b, vec3 wo, vec3 wi) {
     float co = wo.z, ci = wi.z;
     if (co <= 0.0 || ci <= 0.0) return vec3(0.0);

@@ -66,17 +66,20 @@ int env_glossy_samples(float alpha) {
 // level whose texels cover its share of the lobe's solid angle, half a level blurrier (GPU Gems 3
 // ch. 20 adds a whole level; half kept more of a bright sun's energy in the lobe). Unlike a split
 // sum (one lookup along the mirror direction times the lobe's albedo) it follows the lobe's
-// stretch and its cut at the horizon at grazing angles. Ashikhmin-Shirley is taken as isotropic
-// at the geometric mean of its exponents (no tangent here).
-vec3 env_glossy(vec3 n, vec3 v, MaterialData m) {
+// stretch and its cut at the horizon at grazing angles. In the reference's shading frame of n and
+// the tangent t (the G-buffer's; brdf_frame), so that Ashikhmin-Shirley's anisotropy runs along
+// it; a caller without a tangent passes vec3(0.0), and Ashikhmin-Shirley is then taken as
+// isotropic at the geometric mean of its exponents (vv's surfaces). Before the tangent reached
+// it every technique drew that isotropic lobe (chess's ebony pieces: nu 5 times nv).
+vec3 env_glossy(vec3 n, vec3 t, vec3 v, MaterialData m) {
     Brdf b = brdf_from_material(m);
     if (b.kind == 0u) return vec3(0.0);
-    if (b.kind == 3u) { b.nu = sqrt(b.nu * b.nv); b.nv = b.nu; }
+    if (b.kind == 3u && dot(t, t) == 0.0) { b.nu = sqrt(b.nu * b.nv); b.nv = b.nu; }
     b.p_spec = 1.0;
     b.albedo = vec3(0.0);
-    vec3 t = abs(n.x) > 0.9 ? vec3(0.0, 1.0, 0.0) : vec3(1.0, 0.0, 0.0);
-    vec3 tx = normalize(cross(t, n)), ty = cross(n, tx);
-    vec3 wo = vec3(dot(v, tx), dot(v, ty), dot(v, n));
+    mat3 frame = brdf_frame(n, t);
+    vec3 tx = frame[0], ty = frame[1];
+    vec3 wo = v * frame;
     if (wo.z <= 0.0) wo = normalize(vec3(wo.xy, 1e-4));
     vec2 size = vec2(textureSize(env_map, 0));
     // solid angle of a level-0 texel at the equator
@@ -116,17 +119,17 @@ vec3 env_irradiance(vec3 n) {
 }
 
 // Unshadowed environment radiance reflected towards v (unit, towards the eye) at a point of
-// normal n with material m (texture maps already applied by material_at): its diffuse and its
-// glossy part.
-void env_unshadowed_parts(vec3 n, vec3 v, MaterialData m, out vec3 diffuse, out vec3 glossy) {
-    diffuse = m.albedo_kind.rgb / PI * env_irradiance(n);
+// normal n and tangent t (env_glossy) with material m (texture maps already applied by
+// material_at): its diffuse and its glossy part.
+void env_unshadowed_parts(vec3 n, vec3 t, vec3 v, MaterialData m, out vec3 diffuse, out vec3 glossy) {
+    diffuse = material_diffuse_albedo(m, dot(n, v)) / PI * env_irradiance(n);
     glossy = vec3(0.0);
     int kind = int(m.albedo_kind.w + 0.5);
-    if (kind != 0) glossy = env_glossy(n, v, m);
+    if (kind != 0) glossy = env_glossy(n, t, v, m);
 }
 
-vec3 env_unshadowed(vec3 n, vec3 v, MaterialData m) {
+vec3 env_unshadowed(vec3 n, vec3 t, vec3 v, MaterialData m) {
     vec3 d, g;
-    env_unshadowed_parts(n, v, m, d, g);
+    env_unshadowed_parts(n, t, v, m, d, g);
     return d + g;
 }

@@ -60,21 +60,44 @@ vec3 isg_lobes_diffuse(vec3 p, vec3 n, uint nl, float min_fraction, out vec3 uns
     return isg_lobes_shadowed(p, n, nl, min_fraction, sg_clamped_cosine(n), true, unshadowed);
 }
 
-// The light-weighted visible share of the glossy lobe gj (the BRDF's specular SG times the
-// cosine): sum_k e_k V_k / sum_k e_k over the lighting lobes (e_k: lobe k's inner product with
-// gj), the ISG paper's specular visibility (eq. 9, per lighting lobe), as a scalar (luminance)
-// ratio for the material model's glossy term (where no lobe reaches gj, its own visible
-// fraction). The lobe's own visible fraction (every direction of gj weighted alike) darkened a
-// glossy surface whose lobe reaches both a bright sky and a dark occluder below it.
-// A lobe narrower than about 4 degrees (lambda > 256) sees nearly constant light: its own
-// visible fraction, one traversal instead of one per lighting lobe (isg_bunny's shininess-1000
-// and chess's ivory lobes at 160x120: the same error at 1.6-1.8x the time per frame).
+// The light the lighting lobes send through the glossy lobe gj (the BRDF's specular SG times the
+// cosine), shadowed (returned) and unshadowed (`open`), as luminance: sum_k e_k V_k and sum_k e_k
+// over the lighting lobes (e_k: lobe k's inner product with gj), the ISG paper's specular
+// visibility (eq. 9, per lighting lobe). A lobe narrower than about 4 degrees (lambda > 256) sees
+// nearly constant light: open times its own visible fraction, one traversal instead of one per
+// lighting lobe (isg_bunny's shininess-1000 and chess's ivory lobes at 160x120: the same error at
+// 1.6-1.8x the time per frame). Where no lighting lobe reaches gj, its own visible fraction with a
+// negligible weight (open = 1e-30). One traversal site each for the ISG and the lobes (lavapipe
+// compiles every inlined copy of the traversal: callers loop over lobes without unrolling).
+float isg_lobes_glossy_light(vec3 p, vec3 n, uint nl, float min_fraction, SG gj, out float open) {
+    const vec3 lum = vec3(0.2126, 0.7152, 0.0722);
+    bool sharp = gj.lambda > 256.0;
+    float shadowed = 0.0;
+    if (sharp) {
+        vec3 e = vec3(0.0);
+        for (uint k = 0u; k < min(nl, 64u); ++k)
+            e += lobes[2u * k + 1u].rgb * max(sg_inner_product(sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0), gj), 0.0);
+        open = dot(e, lum);
+    } else {
+        vec3 o;
+        shadowed = dot(isg_lobes_shadowed(p, n, nl, min_fraction, gj, false, o), lum);
+        open = dot(o, lum);
+    }
+    if (sharp || !(open > 0.0)) {
+        if (!(open > 0.0)) open = 1e-30;
+        shadowed = open * visible(p, n, gj);
+    }
+    return shadowed;
+}
+
+// The light-weighted visible share of the glossy lobe gj: isg_lobes_glossy_light's shadowed over
+// unshadowed light, as a scalar (luminance) ratio for the material model's glossy term. The
+// lobe's own visible fraction (every direction of gj weighted alike) darkened a glossy surface
+// whose lobe reaches both a bright sky and a dark occluder below it.
 float isg_lobes_glossy_visibility(vec3 p, vec3 n, uint nl, float min_fraction, SG gj) {
-    if (gj.lambda > 256.0) return visible(p, n, gj);
-    vec3 open;
-    vec3 shadowed = isg_lobes_shadowed(p, n, nl, min_fraction, gj, false, open);
-    float u = dot(open, vec3(0.2126, 0.7152, 0.0722));
-    return u > 0.0 ? clamp(dot(shadowed, vec3(0.2126, 0.7152, 0.0722)) / u, 0.0, 1.0) : visible(p, n, gj);
+    float open;
+    float shadowed = isg_lobes_glossy_light(p, n, nl, min_fraction, gj, open);
+    return clamp(shadowed / open, 0.0, 1.0);
 }
 
 #endif

@@ -1,7 +1,8 @@
 // ISG shading (Iwasaki et al. 2012) per pixel: environment as K SG lobes; diffuse: per lobe, the
 // unshadowed SG-cosine integral times the ISG visible fraction of the lobe times the cosine SG;
-// specular: one SG lobe of the BRDF (Blinn-Phong / Cook-Torrance warp; Ashikhmin-Shirley as a
-// Cook-Torrance lobe of its mean roughness) times the cosine SG, Gamma_L = int L G_j from the
+// specular: one SG lobe of the BRDF (Blinn-Phong / Cook-Torrance warp; Ashikhmin-Shirley as the
+// paper's seven, sg.glsl sg_as_lobes, or with `anisotropic = 1` a Cook-Torrance lobe of its
+// roughness) times the cosine SG, Gamma_L = int L G_j from the
 // prefiltered environment maps (or from the lighting lobes), times the ISG visible fraction of
 // G_j (eq. 9); with glossy ratio (default) the glossy term is the material model's unshadowed
 // one (env_shade.glsl, the `env` technique's) times that visible fraction; with diffuse_ratio (default) the diffuse term is the map's exact irradiance times
@@ -69,7 +70,7 @@ layout(push_constant) uniform Push {
     int node_count;
     int patch_side;
     float lod;
-    uint flags;  // bit 0: no shadows (debug); bit 1: local lights unshadowed; bit 2: their shadow rays through the meshes (kd-tree), not the spheres; bit 3: environment visibility traced through the kd-tree (traced_visible); bit 4: isg_paper_fit, bit 5: isg_paper_rule (isg.glsl)
+    uint flags;  // bit 0: no shadows (debug); bit 1: local lights unshadowed; bit 2: their shadow rays through the meshes (kd-tree), not the spheres; bit 3: environment visibility traced through the kd-tree (traced_visible); bit 4: isg_paper_fit, bit 5: isg_paper_rule (isg.glsl); bit 6: Ashikhmin-Shirley as seven SG lobes (sg.glsl sg_as_lobes)
     float min_fraction;
     uint specular_mode;  // 0: Gamma_L from the prefiltered maps (paper), 1: from the lighting SGs, 2: ratio (env_shade.glsl's glossy term x the ISG visible fraction)
     int tri_node_count;  // thin-shell triangle BVH nodes
@@ -100,7 +101,7 @@ float light_visibility(vec3 p, vec3 to_light, float radius) {
     return vis / float(LIGHT_DISK_POINTS);
 }
 
-vec3 local_lights(vec3 pos, vec3 p, vec3 n, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
+vec3 local_lights(vec3 pos, vec3 p, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
     vec3 sum = vec3(0.0);
     for (uint i = 0u; i < pc.light_count; ++i) {
         LightData l = lights[i];
@@ -108,7 +109,7 @@ vec3 local_lights(vec3 pos, vec3 p, vec3 n, vec3 ng, vec3 v, vec3 albedo, int ki
         float dist, ndl;
         vec3 e = light_incident(l, pos, n, ng, wi, dist, ndl);
         if (ndl <= 0.0) continue;
-        vec3 f = light_brdf(wi, n, v, ndl, albedo, kind, m, roughness);
+        vec3 f = light_brdf(wi, n, t, v, albedo, m);
         int lk = int(l.pos_kind.w + 0.5);
         float vis = light_visibility(p, light_vector(l, p), lk == 2 ? l.extra.x : 0.0);
         sum += f * e * ndl * vis;
@@ -175,7 +176,8 @@ void main() {
     }
     vec4 gp = texelFetch(gb_position, px, 0);
     vec3 pos = gp.xyz, ng = gb_geometric_normal(gp.w);
-    vec3 n = oct_decode(texelFetch(gb_normal, px, 0).xy);
+    vec4 en = texelFetch(gb_normal, px, 0);
+    vec3 n = oct_decode(en.xy), tg = oct_decode(en.zw);
     MaterialData m = mats[uint(uvm.z)];
     vec3 v = normalize(cam.eye.xyz - pos);
     float ndv = max(dot(n, v), 1e-4);
@@ -210,42 +212,82 @@ void main() {
         diffuse = isg_lobes_diffuse(p, n, nl, pc.min_fraction, unshadowed);
         if (pc.diffuse_ratio != 0u) diffuse = irr_ratio(n, diffuse, unshadowed);
     }
-    vec3 color = albedo / PI * diffuse;
+    vec3 color = material_diffuse_albedo(m, ndv) / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
-    color += local_lights(pos, p, n, ng, v, albedo, kind, m, roughness);
+    color += local_lights(pos, p, n, tg, ng, v, albedo, kind, m, roughness);
+    // Ashikhmin-Shirley as seven SG lobes (flags bit 6, per pixel: the vertices carry no tangent)
+    // or, as the other BRDFs, one (a Cook-Torrance lobe of the material's roughness).
+    bool as7 = kind == 3 && (pc.flags & 64u) != 0u && !per_vertex;
+    SG as_g[SG_AS_LOBES];
+    vec3 as_w[SG_AS_LOBES];
+    if (as7) {
+        sg_as_lobes(brdf_frame(n, tg), v, m.extra.x, m.extra.w, m.spec_rough.rgb, as_g, as_w);
+        for (int k = 0; k < SG_AS_LOBES; ++k) as_g[k] = sg_product(as_g[k], cosg);
+    }
     if (kind != 0 && pc.specular_mode == 2u) {
         // Ratio: the material model's unshadowed glossy term (the `env` technique's split sum,
         // env_shade.glsl) times the ISG visibility of the specular SG lobe x cosine. The
         // one SG lobe of eq. 9 loses the lobe's Fresnel and masking energy (balls_on_dish's
         // Cook-Torrance dish came out about 10 % dark with shadows off).
-        vec3 amp;
-        SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
-        SG gj = sg_product(gs, cosg);
-        vec3 glossy = env_glossy(n, v, m);
+        vec3 glossy = env_glossy(n, tg, v, m);
         if (max(glossy.r, max(glossy.g, glossy.b)) > 0.0) {
-            // the light-weighted visible share of the lobe (isg_lobes.glsl)
-            float vs = per_vertex ? ((pc.flags & 1u) != 0u ? 1.0 : clamp(vvis.a, 0.0, 1.0))
-                                  : isg_lobes_glossy_visibility(p, n, nl, pc.min_fraction, gj);
+            // the light-weighted visible share of the lobe (isg_lobes.glsl), over the BRDF's
+            // lobes (Ashikhmin-Shirley's seven weighted by their BRDF weights' luminance) in a
+            // loop the compiler does not unroll: one inlined traversal
+            float vs = 1.0;
+            if (per_vertex) {
+                vs = (pc.flags & 1u) != 0u ? 1.0 : clamp(vvis.a, 0.0, 1.0);
+            } else if ((pc.flags & 1u) == 0u) {
+                vec3 amp;
+                SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
+                SG g1 = sg_product(gs, cosg);
+                int count = as7 ? SG_AS_LOBES : 1;
+                // lobes under 1 % of the total weight are left out of the share (the two
+                // outermost of Ashikhmin-Shirley's seven carry 0.1 % each)
+                float wsum = 0.0;
+                for (int j = 0; j < count; ++j) wsum += as7 ? dot(as_w[j], vec3(0.2126, 0.7152, 0.0722)) : 1.0;
+                float num = 0.0, den = 0.0;
+                for (int j = 0; j < count; ++j) {
+                    float wj = as7 ? dot(as_w[j], vec3(0.2126, 0.7152, 0.0722)) : 1.0;
+                    if (!(wj > 0.01 * wsum)) continue;
+                    float open;
+                    num += wj * isg_lobes_glossy_light(p, n, nl, pc.min_fraction, as7 ? as_g[j] : g1, open);
+                    den += wj * open;
+                }
+                vs = den > 0.0 ? clamp(num / den, 0.0, 1.0) : 1.0;
+            }
             color += glossy * vs;
         }
     } else if (kind != 0) {
-        // Beckmann warp (Wang et al. 2009), m = roughness^2 as the reference's SG mode.
-        vec3 amp;
-        SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
-        SG gj = sg_product(gs, cosg);
-        vec3 gamma_l = vec3(0.0);
-        if (pc.specular_mode == 0u) {
-            // Eq. 10: int L G_j = mu_j Gamma_L(a_j, lambda_j), Gamma_L from the prefiltered maps.
-            gamma_l = pf_eval(gj.axis, gj.lambda) * sg_sphere_integral(gj);
-        } else {
-            for (uint k = 0u; k < pc.lobe_count; ++k) {
-                SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
-                gamma_l += lobes[2u * k + 1u].rgb * sg_inner_product(l, gj);
+        // Eq. 9: per BRDF lobe G_j (times the cosine), mu_j Gamma_L(a_j, lambda_j) times its
+        // visible fraction. One lobe: the Beckmann warp (Wang et al. 2009), m = roughness^2 as
+        // the reference's SG mode; Ashikhmin-Shirley with bit 6: its seven.
+        int count = as7 ? SG_AS_LOBES : 1;
+        for (int j = 0; j < count; ++j) {
+            vec3 amp;
+            SG gj;
+            if (as7) {
+                gj = as_g[j];
+                amp = as_w[j];
+                if (max(amp.r, max(amp.g, amp.b)) <= 0.0) continue;
+            } else {
+                SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
+                gj = sg_product(gs, cosg);
             }
-        }
-        if (max(gamma_l.r, max(gamma_l.g, gamma_l.b)) > 0.0) {
-            float vs = per_vertex ? ((pc.flags & 1u) != 0u ? 1.0 : clamp(vvis.a, 0.0, 1.0)) : visible(p, n, gj);
-            color += amp * gamma_l * vs;
+            vec3 gamma_l = vec3(0.0);
+            if (pc.specular_mode == 0u) {
+                // Eq. 10: int L G_j = mu_j Gamma_L(a_j, lambda_j), Gamma_L from the prefiltered maps.
+                gamma_l = pf_eval(gj.axis, gj.lambda) * sg_sphere_integral(gj);
+            } else {
+                for (uint k = 0u; k < pc.lobe_count; ++k) {
+                    SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+                    gamma_l += lobes[2u * k + 1u].rgb * sg_inner_product(l, gj);
+                }
+            }
+            if (max(gamma_l.r, max(gamma_l.g, gamma_l.b)) > 0.0) {
+                float vs = per_vertex ? ((pc.flags & 1u) != 0u ? 1.0 : clamp(vvis.a, 0.0, 1.0)) : visible(p, n, gj);
+                color += amp * gamma_l * vs;
+            }
         }
     }
     imageStore(hdr, px, vec4(material_reflected(max(color, vec3(0.0)), n, v) + material_emission(m), 1.0));

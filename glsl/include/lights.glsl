@@ -61,31 +61,24 @@ vec3 light_incident(LightData l, vec3 pos, vec3 n, vec3 ng, out vec3 wi, out flo
     return e;
 }
 
-// The BRDF for light from wi towards v: albedo / pi plus, for a glossy material (kind != 0), the
-// normalised Blinn-Phong lobe (kind 1, exponent m.extra.x) or GGX Cook-Torrance of perceptual
-// `roughness` (alpha = roughness^2), with Schlick's Fresnel of F0 = m.spec_rough.rgb.
-vec3 light_brdf(vec3 wi, vec3 n, vec3 v, float ndl, vec3 albedo, int kind, MaterialData m, float roughness) {
-    vec3 f = albedo / PI;
-    if (kind != 0) {
-        vec3 h = normalize(wi + v);
-        float ndh = max(dot(n, h), 0.0);
-        float ndv = max(dot(n, v), 1e-4);
-        vec3 F = m.spec_rough.rgb + (1.0 - m.spec_rough.rgb) * pow(1.0 - max(dot(wi, h), 0.0), 5.0);
-        if (kind == 1) {
-            float s = m.extra.x;
-            f += F * (s + 2.0) / (8.0 * PI) * pow(ndh, s);  // as penumbra-math and the reference
-        } else {
-            float a = roughness * roughness;
-            float a2 = a * a;
-            float dd = ndh * ndh * (a2 - 1.0) + 1.0;
-            float D = a2 / (PI * dd * dd);
-            float k = a * 0.5;
-            float G = ndl / (ndl * (1.0 - k) + k) * ndv / (ndv * (1.0 - k) + k);
-            f += F * D * G / (4.0 * ndl * ndv);
-        }
-    }
-    return f;
+#ifdef PENUMBRA_MATERIAL_GLSL
+#include "brdf_ref.glsl"
+// The BRDF for light from wi towards v (both unit, away from the surface) at a point of shading
+// normal n and tangent t: the reference's (brdf_ref.glsl brdf_eval of brdf_from_material, the
+// material model's BRDF, in the reference's shading frame brdf_frame(n, t)), with the diffuse
+// albedo replaced by `albedo` (a technique that brings the diffuse light another way passes
+// vec3(0.0)). A caller without a tangent passes vec3(0.0): Ashikhmin-Shirley is then isotropic at
+// the geometric mean of its exponents. (Before, an approximation of its own: Blinn-Phong with a
+// Schlick Fresnel rise the reference's has not, GGX with Schlick's k = alpha / 2 masking instead
+// of Smith's, Ashikhmin-Shirley as a GGX lobe of a roughness each technique chose differently.)
+vec3 light_brdf(vec3 wi, vec3 n, vec3 t, vec3 v, vec3 albedo, MaterialData m) {
+    Brdf b = brdf_from_material(m);
+    b.albedo = max(albedo, vec3(0.0));
+    if (b.kind == 3u && dot(t, t) == 0.0) { b.nu = sqrt(b.nu * b.nv); b.nv = b.nu; }
+    mat3 f = brdf_frame(n, t);
+    return brdf_eval(b, v * f, wi * f);
 }
+#endif
 
 // Shadow-ray targets on a sphere light (techniques that trace their local lights' shadows):
 // the centre and 8 points on the disk of radius `radius` facing the shading point (two rings at

@@ -51,6 +51,20 @@ vec3 material_reflected(vec3 color, vec3 n, vec3 v) {
     return dot(n, v) > 0.0 ? color : vec3(0.0);
 }
 
+// The albedo that multiplies albedo / pi x irradiance, the techniques' environment diffuse term,
+// for a viewer at n.v = ndv: the material's albedo, except for Ashikhmin-Shirley, whose diffuse
+// lobe (the reference's, brdf_ref.glsl: 28 / (23 pi) albedo (1 - F0) (1 - (1 - n.wi / 2)^5)
+// (1 - (1 - n.v / 2)^5)) reflects albedo (1 - F0) (1 - (1 - n.v / 2)^5) of uniform light (the
+// n.wi factor's cosine-weighted mean is 23 / 28): 11 % less than a Lambertian surface seen
+// head-on with F0 = 0.08, 30 % less at 60 degrees. Local lights go through light_brdf, exact.
+vec3 material_diffuse_albedo(MaterialData m, float ndv) {
+    vec3 a = m.albedo_kind.rgb;
+    if (int(m.albedo_kind.w + 0.5) != 3) return a;
+    float c = 1.0 - clamp(ndv, 0.0, 1.0) * 0.5;
+    float c2 = c * c;
+    return a * (vec3(1.0) - clamp(m.spec_rough.rgb, vec3(0.0), vec3(1.0))) * (1.0 - c2 * c2 * c);
+}
+
 // The radiance the surface emits towards the eye (after material_at: its map applied). It
 // lights nothing else: the reference and every technique compute direct lighting only.
 vec3 material_emission(MaterialData m) {

@@ -182,4 +182,49 @@ SG sg_specular_lobe(int kind, vec3 n, vec3 v, float ndv, float shininess, float 
     return sg_make(r, 2.0 / m2 / (4.0 * ndv), geo / (4.0 * rz * ndv) / (SG_PI * m2));
 }
 
+// Ashikhmin-Shirley's specular lobe as SG_AS_LOBES = 7 SGs (the ISG paper's J = 7 for this
+// BRDF), built in closed form per point, so that roughness maps and animated exponents need no
+// table. Near the normal the lobe's half-vector factor (n.h)^((nu hx^2 + nv hy^2) / (1 - hz^2))
+// is the anisotropic Gaussian exp(-(nu sx^2 + nv sy^2) / 2) of the half vector's slopes s. Along
+// its wide direction (the smaller exponent) it is the narrow Gaussian convolved with a Gaussian
+// of variance 1 / n_wide - 1 / n_narrow, and 7-point Gauss-Hermite quadrature of that convolution
+// gives seven lobes of the narrow width (sharpness n_narrow about their half vectors) spread
+// along the wide direction with the quadrature's weights times sqrt(n_narrow / n_wide / pi).
+// Each is warped to incident directions as the one-lobe warp is (Wang et al. 2009: axis the
+// mirror of v about the lobe's half vector h_k, sharpness n_narrow / (4 v.h_k)) and weighted by
+// the BRDF's remaining factors at its centre: sqrt((nu + 1)(nv + 1)) / (8 pi) / (h.v max(n.wi,
+// n.v)) times Schlick's Fresnel. Isotropic exponents put the seven on one axis with weights
+// summing to one lobe's. `frame` is the shading frame (brdf_ref.glsl brdf_frame: x along the
+// tangent, nu's direction; z the normal), v the unit direction to the eye. Lobes come back in
+// world space with amplitude 1 and their rgb weights in w; a lobe whose centre lies below the
+// horizon has weight 0. (math/src/brdf.rs AshikhminShirley::sg7_hermite is the same on the CPU.)
+const int SG_AS_LOBES = 7;
+void sg_as_lobes(mat3 frame, vec3 v, float nu, float nv, vec3 f0, out SG g[SG_AS_LOBES], out vec3 w[SG_AS_LOBES]) {
+    const float xi[7] = float[7](-2.651961356835233, -1.673551628767471, -0.816287882858965, 0.0,
+                                 0.816287882858965, 1.673551628767471, 2.651961356835233);
+    const float wt[7] = float[7](0.000971781245099520, 0.0545155828191270, 0.425607252610128, 0.810264617556807,
+                                 0.425607252610128, 0.0545155828191270, 0.000971781245099520);
+    vec3 wo = v * frame;
+    nu = clamp(nu, 1e-3, 1e6);
+    nv = clamp(nv, 1e-3, 1e6);
+    bool x_wide = nu <= nv;
+    float n_wide = min(nu, nv), n_narrow = max(nu, nv);
+    float sp = sqrt(max(1.0 / n_wide - 1.0 / n_narrow, 0.0)) * 1.4142135623730951;
+    float c = sqrt(n_narrow / n_wide / SG_PI) * sqrt((nu + 1.0) * (nv + 1.0)) / (8.0 * SG_PI);
+    for (int k = 0; k < SG_AS_LOBES; ++k) {
+        float s = sp * xi[k];
+        vec3 h = normalize(x_wide ? vec3(s, 0.0, 1.0) : vec3(0.0, s, 1.0));
+        float vh = dot(wo, h);
+        vec3 wi = 2.0 * vh * h - wo;
+        g[k] = sg_make(frame * wi, n_narrow / (4.0 * max(vh, 1e-4)), 1.0);
+        if (!(vh > 0.0 && wi.z > 0.0 && wo.z > 0.0)) {
+            w[k] = vec3(0.0);
+            continue;
+        }
+        float m = 1.0 - vh, m2 = m * m;
+        vec3 fresnel = f0 + (1.0 - f0) * (m2 * m2 * m);
+        w[k] = fresnel * (c * wt[k] / (vh * max(wi.z, wo.z)));
+    }
+}
+
 #endif // PENUMBRA_SG_GLSL

@@ -149,6 +149,12 @@ void vv_lights_arc(inout VvLights L, vec3 a, vec3 b) {
 // where unknown (the vertex stage). Light from below the face is blocked by it (lights.glsl).
 vec3 vv_face_normal = vec3(0.0);
 
+// The shaded point's tangent (dP/du, any length; brdf_ref.glsl brdf_frame makes the frame), set
+// by the fragment stages from derivatives as the G-buffer computes it; vec3(0.0) where unknown
+// (tessellation and vertex stages): Ashikhmin-Shirley is then isotropic at the geometric mean of
+// its exponents (env_glossy, light_brdf).
+vec3 vv_tangent = vec3(0.0);
+
 // Unoccluded fraction of light l seen from s (face normal ng) by shadow rays through the kd-tree.
 float vv_light_traced(LightData l, vec3 s, vec3 ng) {
     return light_rays_visibility(l, s + ng * 1e-3 * max(1.0, length(s)));
@@ -170,7 +176,7 @@ vec3 vv_lights_end(VvLights L, vec3 s, vec3 n, MaterialData m) {
         if (ndl <= 0.0) continue;
         float vis = traced ? vv_light_traced(lights[k], s, ng) : 1.0;
         if (vis <= 0.0) continue;
-        sum += light_brdf(wi, n, v, ndl, m.albedo_kind.rgb, kind, m, roughness) * e * ndl * vis;
+        sum += light_brdf(wi, n, vv_tangent, v, m.albedo_kind.rgb, m) * e * ndl * vis;
     }
     return sum;
 }
@@ -181,10 +187,10 @@ vec3 vv_lights_end(VvLights L, vec3 s, vec3 n, MaterialData m) {
 // environment, as the `env` technique draws it) times gamma (eq. 14: L_s = k_s gamma U with k_s U the unshadowed glossy term),
 // plus the visible local lights.
 vec3 vv_radiance(vec3 diffuse_sum, vec3 s, vec3 n, MaterialData m, bool glossy, float gamma, VvLights L) {
-    vec3 c = m.albedo_kind.rgb / PI * max(diffuse_sum, vec3(0.0)) * cam.params.w + vv_lights_end(L, s, n, m);
+    vec3 c = material_diffuse_albedo(m, dot(n, normalize(cam.eye.xyz - s))) / PI * max(diffuse_sum, vec3(0.0)) * cam.params.w + vv_lights_end(L, s, n, m);
     if (glossy) {
         vec3 d, g;
-        env_unshadowed_parts(n, normalize(cam.eye.xyz - s), m, d, g);
+        env_unshadowed_parts(n, vv_tangent, normalize(cam.eye.xyz - s), m, d, g);
         c += g * gamma;
     }
     return material_reflected(c, n, normalize(cam.eye.xyz - s)) + material_emission(m);

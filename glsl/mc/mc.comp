@@ -240,17 +240,8 @@ vec3 radiance_sample(vec2 ndc, out vec3 lu) {
         }
     }
     // shading frame (sampling.rs Frame::new)
-    vec3 tt = t3.xyz - ns * dot(ns, t3.xyz);
-    if (dot(tt, tt) > 1e-12) tt = normalize(tt);
-    else {
-        float s = ns.z >= 0.0 ? 1.0 : -1.0;
-        float a = -1.0 / (s + ns.z);
-        float bb = ns.x * ns.y * a;
-        tt = vec3(1.0 + s * ns.x * ns.x * a, s * bb, -s * ns.x);
-    }
-    vec3 bt = cross(ns, tt);
-    mat3 to_world = mat3(tt, bt, ns);
-    vec3 wo = vec3(dot(wo_w, tt), dot(wo_w, bt), dot(wo_w, ns));
+    mat3 to_world = brdf_frame(ns, t3.xyz);
+    vec3 wo = wo_w * to_world;
     Brdf b = brdf_from_material(mat);
     vec3 x = p + ng * (3e-5 * (1.0 + max(max(abs(p.x), abs(p.y)), abs(p.z))));
     // what the surface emits towards the eye (direct lighting only: it lights nothing)

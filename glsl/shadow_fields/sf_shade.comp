@@ -60,7 +60,7 @@ vec3 key_lights_irradiance(vec3 p, vec3 n, vec3 ng) {
 // Local lights (as shade_env.comp's local_lights, same BRDFs), pointwise: the specular lobe
 // always, the diffuse lobe only with srf = 0 (else it comes through the source radiance fields),
 // each shadowed by the order-4 visibility toward the light of the other objects nearer than it.
-vec3 local_lights(vec3 pos, vec3 n, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness, uint self_inst) {
+vec3 local_lights(vec3 pos, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness, uint self_inst) {
     vec3 sum = vec3(0.0);
     for (uint i = 0u; i < pc.light_count; ++i) {
         LightData l = lights[i];
@@ -70,7 +70,7 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 ng, vec3 v, vec3 albedo, int kind, Mate
         if (ndl <= 0.0) continue;
         // a directional light (kind 3) has no source radiance field: its diffuse lobe is here too
         bool via_srf = pc.srf != 0u && int(l.pos_kind.w + 0.5) != 3;
-        vec3 f = light_brdf(wi, n, v, ndl, via_srf ? vec3(0.0) : albedo, kind, m, roughness);
+        vec3 f = light_brdf(wi, n, t, v, via_srf ? vec3(0.0) : albedo, m);
         if (all(equal(f, vec3(0.0)))) continue;
         float vis = pc.traced != 0u ? light_rays_visibility(l, pos + ng * 1e-3 * max(1.0, length(pos)))
                                     : sf_visibility_along(pos, wi, self_inst, pc.n_inst, dist);
@@ -115,7 +115,8 @@ void main() {
     }
     vec4 gp = texelFetch(gb_position, p, 0);
     vec3 pos = gp.xyz, ng = gb_geometric_normal(gp.w);
-    vec3 n = oct_decode(texelFetch(gb_normal, p, 0).xy);
+    vec4 en = texelFetch(gb_normal, p, 0);
+    vec3 n = oct_decode(en.xy), tg = oct_decode(en.zw);
     MaterialData m = material_at(mats[uint(uvm.z)], uvm.xy, material_textures);
     uint self_inst = uint(uvm.w + 0.5) - 1u;
     vec3 diffuse;
@@ -129,15 +130,15 @@ void main() {
     }
     vec3 po = pos + ng * 1e-3 * max(1.0, length(pos));  // ray origin off the surface
     if (pc.key_count > 0u) diffuse += key_lights_irradiance(po, n, ng) / PI;
-    vec3 color = max(m.albedo_kind.rgb * diffuse, vec3(0.0));
+    vec3 v = normalize(cam.eye.xyz - pos);
+    vec3 color = max(material_diffuse_albedo(m, dot(n, v)) * diffuse, vec3(0.0));
     // Glossy materials: the material model's glossy environment term (the "env" technique's),
     // shadowed by the occluders' visibility along the reflection.
     int kind = int(m.albedo_kind.w + 0.5);
-    vec3 v = normalize(cam.eye.xyz - pos);
     float roughness = env_roughness(m);
     if (kind != 0) {
         vec3 r = reflect(-v, n);
-        vec3 glossy = env_glossy(n, v, m);
+        vec3 glossy = env_glossy(n, tg, v, m);
         float vis;
         if (pc.key_count > 0u) {
             // the key lights' reflections through their own rays, the rest along the reflection
@@ -153,6 +154,6 @@ void main() {
         }
         color += vis * glossy;
     }
-    color += local_lights(pos, n, ng, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);
+    color += local_lights(pos, n, tg, ng, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);
     imageStore(hdr, p, vec4(material_reflected(color, n, v) + material_emission(m), 1.0));
 }

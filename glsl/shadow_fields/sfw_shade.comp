@@ -205,7 +205,8 @@ void main() {
     }
     vec4 gp = texelFetch(gb_position, p, 0);
     vec3 pos = gp.xyz, ng = gb_geometric_normal(gp.w);
-    vec3 n = oct_decode(texelFetch(gb_normal, p, 0).xy);
+    vec4 en = texelFetch(gb_normal, p, 0);
+    vec3 n = oct_decode(en.xy), tg = oct_decode(en.zw);
     uint self_inst = uint(uvm.w + 0.5) - 1u;
     MaterialData m = material_at(mats[uint(uvm.z)], uvm.xy, material_textures);
     int kind = int(m.albedo_kind.w + 0.5);
@@ -303,15 +304,16 @@ void main() {
     if (lane != 0u) return;
     vec3 share_self = texelFetch(self_share, p, 0).rgb;
     vec4 lights_self = texelFetch(self_lights, p, 0);
-    vec3 diffuse = m.albedo_kind.rgb / PI * irr_ratio(n, s_red[0].rgb, s_red[64].rgb) * share_self;
+    vec3 da = material_diffuse_albedo(m, dot(n, v));
+    vec3 diffuse = da / PI * irr_ratio(n, s_red[0].rgb, s_red[64].rgb) * share_self;
     vec3 pk = pos + ng * 1e-3 * max(1.0, length(pos));
     for (uint k = 0u; k < pc.key_count; ++k)
-        diffuse += m.albedo_kind.rgb / PI * key_light_irradiance(key[2u * k], key[2u * k + 1u].rgb, pk, n, ng);
+        diffuse += da / PI * key_light_irradiance(key[2u * k], key[2u * k + 1u].rgb, pk, n, ng);
     vec3 color = diffuse;
     if (kind != 0) {
         vec2 gs = s_red[128].xy;
         float vis = gs.y > 1e-12 ? clamp(gs.x / gs.y, 0.0, 1.0) : 1.0;
-        vec3 glossy = env_glossy(n, v, m);
+        vec3 glossy = env_glossy(n, tg, v, m);
         if (pc.key_count > 0u) {
             // the key lights' reflections through their own rays, the rest along the reflection
             vec3 amp;
@@ -331,7 +333,7 @@ void main() {
         float dist, ndl;
         vec3 e = light_incident(l, pos, n, ng, wi, dist, ndl);
         if (ndl <= 0.0) continue;
-        vec3 f = light_brdf(wi, n, v, ndl, m.albedo_kind.rgb, kind, m, roughness);
+        vec3 f = light_brdf(wi, n, tg, v, m.albedo_kind.rgb, m);
         if (all(equal(f, vec3(0.0)))) continue;
         float vis;
         if (pc.traced != 0u) {

@@ -162,16 +162,8 @@ void main() {
     vec3 wo_w = normalize(cam.eye.xyz - p);
     // (two-sided: the G-buffer's normal is on the eye's side of its triangle; a normal map or an
     // interpolated normal at a silhouette can still turn it from the eye: material_reflected below)
-    vec3 tt = tg - ns * dot(ns, tg);
-    if (dot(tt, tt) > 1e-12) tt = normalize(tt);
-    else {
-        float sg = ns.z >= 0.0 ? 1.0 : -1.0;
-        float a = -1.0 / (sg + ns.z);
-        float bb = ns.x * ns.y * a;
-        tt = vec3(1.0 + sg * ns.x * ns.x * a, sg * bb, -sg * ns.x);
-    }
-    vec3 bt = cross(ns, tt);
-    vec3 wo = vec3(dot(wo_w, tt), dot(wo_w, bt), dot(wo_w, ns));
+    mat3 frame = brdf_frame(ns, tg);
+    vec3 wo = wo_w * frame;
     uint mi = uint(uvm.z + 0.5);
     MaterialData m = material_at(mats[mi], uvm.xy, material_textures);
     Brdf b = brdf_from_material(m);
@@ -185,7 +177,7 @@ void main() {
     glossy_b.albedo = vec3(0.0);
     for (uint k = 0u; k < pc.counts.x; k++) {
         vec3 wi = env_lights[2u * k].xyz;
-        vec3 lw = vec3(dot(wi, tt), dot(wi, bt), dot(wi, ns));
+        vec3 lw = wi * frame;
         if (lw.z <= 0.0 || wo.z <= 0.0) continue;
         vec3 w = env_lights[2u * k + 1u].rgb;
         // below the geometric surface: blocked by it (lights.glsl's rule)
@@ -218,7 +210,7 @@ void main() {
         // albedo (a narrow lobe between the directions falls back to the diffuse share). No
         // direction above the horizon: unshadowed.
         vec3 ud, ug;
-        env_unshadowed_parts(ns, wo_w, m, ud, ug);
+        env_unshadowed_parts(ns, tg, wo_w, m, ud, ug);
         vec3 rd = vec3(
             d_all.r > 0.0 ? d_vis.r / d_all.r : 1.0,
             d_all.g > 0.0 ? d_vis.g / d_all.g : 1.0,
@@ -242,7 +234,7 @@ void main() {
         if (lk == 3) {
             // directional: irradiance `power` along its direction, lit fraction from its map
             vec3 wi = -ld.dir_cos_outer.xyz;
-            vec3 lw = vec3(dot(wi, tt), dot(wi, bt), dot(wi, ns));
+            vec3 lw = wi * frame;
             if (lw.z <= 0.0 || wo.z <= 0.0 || dot(wi, ng) <= 0.0) continue;
             vec3 f = brdf_eval(b, wo, lw) * lw.z;
             l += f * ld.power_cos_inner.rgb * (vis_on ? lit_pcf(first_layer, p, dot(wi, ng)) : 1.0);
@@ -252,7 +244,7 @@ void main() {
         float d2 = dot(to_l, to_l);
         if (d2 <= 1e-12) continue;
         vec3 wi = to_l * inversesqrt(d2);
-        vec3 lw = vec3(dot(wi, tt), dot(wi, bt), dot(wi, ns));
+        vec3 lw = wi * frame;
         if (lw.z <= 0.0 || wo.z <= 0.0 || dot(wi, ng) <= 0.0) continue;
         vec3 intensity = ld.power_cos_inner.rgb;
         float radius = ld.extra.x;

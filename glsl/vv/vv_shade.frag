@@ -21,7 +21,12 @@ void main() {
     if (dot(ng, ng) > 1e-30) vv_face_normal = normalize(dot(ng, n) < 0.0 ? -ng : ng);
     vec2 duv1 = dFdx(v_uv), duv2 = dFdy(v_uv);
     float sg = duv1.x * duv2.y - duv1.y * duv2.x < 0.0 ? -1.0 : 1.0;
-    n = material_normal(m, v_uv, material_textures, n, (dp1 * duv2.y - dp2 * duv1.y) * sg, (dp2 * duv1.x - dp1 * duv2.x) * sg);
+    vec3 dpdu = (dp1 * duv2.y - dp2 * duv1.y) * sg;
+    n = material_normal(m, v_uv, material_textures, n, dpdu, (dp2 * duv1.x - dp1 * duv2.x) * sg);
+    // the G-buffer's tangent (dP/du times det), made a frame with n where it is shaded
+    vec3 tt = dpdu * sg;
+    tt -= n * dot(n, tt);
+    vv_tangent = dot(tt, tt) >= 1e-20 ? normalize(tt) : brdf_frame(n, vec3(0.0))[0];
     vec3 c = pc.sat.w == 0 || vv_tri_fallback(gl_PrimitiveID) ? vv_eval_three(vv_sat_tex, v_vids, lambda, v_world, n, m)
                                                               : vv_eval_interp(vv_sat_tex, gl_PrimitiveID, lambda, v_world, n, m);
     o_color = vec4(c, 1.0);

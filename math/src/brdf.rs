@@ -156,6 +156,67 @@ impl AshikhminShirley {
     }
 }
 
+/// Nodes of 7-point Gauss-Hermite quadrature (`int exp(-x^2) f(x) dx ~ sum w_k f(x_k)`).
+pub const GAUSS_HERMITE_7_NODES: [f64; 7] = [
+    -2.651961356835233,
+    -1.673551628767471,
+    -0.816287882858965,
+    0.0,
+    0.816287882858965,
+    1.673551628767471,
+    2.651961356835233,
+];
+/// Weights of 7-point Gauss-Hermite quadrature (they sum to sqrt(pi)).
+pub const GAUSS_HERMITE_7_WEIGHTS: [f64; 7] = [
+    0.000971781245099520,
+    0.0545155828191270,
+    0.425607252610128,
+    0.810264617556807,
+    0.425607252610128,
+    0.0545155828191270,
+    0.000971781245099520,
+];
+
+impl AshikhminShirley {
+    /// Seven lobes in closed form, no optimisation (what `sg_as_lobes` in `glsl/include/sg.glsl`
+    /// computes per pixel, so that roughness maps and animated exponents need no table). Near the
+    /// normal the half-vector factor `(n.h)^((nu hx^2 + nv hy^2) / (1 - hz^2))` is the anisotropic
+    /// Gaussian `exp(-(nu sx^2 + nv sy^2) / 2)` of the half vector's slopes; along the wide
+    /// direction (the smaller exponent) it is the narrow Gaussian convolved with a Gaussian of
+    /// variance `1/n_wide - 1/n_narrow`, and 7-point Gauss-Hermite quadrature of that convolution
+    /// gives seven lobes of sharpness `n_narrow` (about their half vectors) along the wide
+    /// direction with weights `w_k sqrt(n_narrow / n_wide / pi)`. Each is warped to incident
+    /// directions as the one-lobe warp (axis: `wo` mirrored about the lobe's half vector `h_k`,
+    /// sharpness `n_narrow / (4 wo.h_k)`) and scaled by the BRDF's remaining factors at its
+    /// centre (normalisation, `1 / (h.wo max(n.wi, n.wo))`, Schlick's Fresnel). A lobe whose centre
+    /// is below the horizon gets amplitude 0.
+    pub fn sg7_hermite(&self, wo: DVec3) -> Vec<Sg> {
+        let nu = self.nu.clamp(1e-3, 1e6);
+        let nv = self.nv.clamp(1e-3, 1e6);
+        let x_wide = nu <= nv;
+        let (n_wide, n_narrow) = (nu.min(nv), nu.max(nv));
+        let sp = (1.0 / n_wide - 1.0 / n_narrow).max(0.0).sqrt() * std::f64::consts::SQRT_2;
+        let c = (n_narrow / n_wide / PI).sqrt() * ((nu + 1.0) * (nv + 1.0)).sqrt() / (8.0 * PI);
+        GAUSS_HERMITE_7_NODES
+            .iter()
+            .zip(GAUSS_HERMITE_7_WEIGHTS)
+            .map(|(xi, wt)| {
+                let s = sp * xi;
+                let h = if x_wide { DVec3::new(s, 0.0, 1.0) } else { DVec3::new(0.0, s, 1.0) }.normalize();
+                let vh = wo.dot(h);
+                let wi = 2.0 * vh * h - wo;
+                let lambda = n_narrow / (4.0 * vh.max(1e-4));
+                let mu = if vh > 0.0 && wi.z > 0.0 && wo.z > 0.0 {
+                    schlick(self.f0, vh) * c * wt / (vh * wi.z.max(wo.z))
+                } else {
+                    0.0
+                };
+                Sg { axis: wi.normalize(), lambda, mu }
+            })
+            .collect()
+    }
+}
+
 /// Result of a BRDF lobe fit.
 #[derive(Clone, Debug)]
 pub struct BrdfFit {

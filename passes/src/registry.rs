@@ -206,6 +206,7 @@ const ISG_PARAMS: &[ParamDoc] = &[
     p("pixel_refine", "0.2", ">= 0", "per-vertex mode: triangles whose corners' visibilities differ by more than this are evaluated per pixel (1: never, the paper's pure per-vertex mode)"),
     p("isg_eval", "table", "table, sigmoid", "the patches' normalized ISG: the tabulated pre-integration or eq. 14's two sigmoids with the appendix polynomials (the paper's; poor below gamma of about 100)"),
     p("patch_rule", "centre", "centre, paper", "a sphere occludes the patches whose centre its cap covers, or every patch it overlaps (the paper's rule, conservative)"),
+    p("as_lobes", "7", "7, 1", "Ashikhmin-Shirley's specular lobe as the paper's seven SGs along its anisotropy (per pixel) or one Cook-Torrance lobe of its roughness"),
 ];
 
 const AVS_PARAMS: &[ParamDoc] = &[

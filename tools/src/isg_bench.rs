@@ -71,6 +71,7 @@ pub const VARIANTS: &[(&str, &[(&str, &str)], &str)] = &[
     ("isg", &[("patch_rule", "paper")], "the paper's overlap rule instead of patch centres"),
     ("isg", &[("isg_eval", "sigmoid"), ("patch_rule", "paper")], "both: the paper's visibility integral"),
     ("isg-vertex", &[("pixel_refine", "1")], "no per-pixel refinement: the paper's pure per-vertex mode"),
+    ("isg", &[("as_lobes", "1")], "Ashikhmin-Shirley as one Cook-Torrance lobe instead of the paper's seven"),
 ];
 
 impl IsgArgs {

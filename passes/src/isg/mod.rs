@@ -127,6 +127,11 @@ pub struct IsgSettings {
     /// Triangles farther than this fraction of their object's size outside its spheres cast
     /// shadows as thin shells ([`thin_parts_with`]; default [`THIN_PART_TOLERANCE`]).
     pub thin_tolerance: f32,
+    /// Ashikhmin-Shirley's specular lobe as the paper's seven SGs (`as_lobes = 7`, per pixel:
+    /// `sg_as_lobes` in `glsl/include/sg.glsl`, the closed-form Gauss-Hermite split of the
+    /// anisotropic lobe) or as one Cook-Torrance lobe of the material's roughness (`1`). The
+    /// per-vertex visibilities keep one lobe (the vertices carry no tangent).
+    pub as_seven_lobes: bool,
 }
 
 /// Most spheres the one-workgroup GPU LBVH takes.
@@ -157,6 +162,7 @@ impl Default for IsgSettings {
             light_mesh: true,
             traced_visibility: false,
             thin_tolerance: THIN_PART_TOLERANCE,
+            as_seven_lobes: true,
         }
     }
 }
@@ -178,7 +184,7 @@ impl IsgSettings {
     /// `vertex`), `max_edge` (per-vertex subdivision, world units, 0.1; 0: none), `pixel_refine`
     /// (per-vertex mode: the corner visibility spread above which a triangle is evaluated per
     /// pixel, 0.2; 1: never), `isg_eval` (`table` or the paper's `sigmoid`), `patch_rule`
-    /// (`centre` or the paper's `paper`). Unknown keys
+    /// (`centre` or the paper's `paper`), `as_lobes` (Ashikhmin-Shirley's SG lobes, 7 or 1). Unknown keys
     /// and bad values are errors.
     pub fn set(&mut self, key: &str, value: &str) -> anyhow::Result<()> {
         use penumbra_math::isg::{IsgModel, PatchRule};
@@ -216,7 +222,8 @@ impl IsgSettings {
                 self.rule = p.choice(&[("centre", PatchRule::Centre), ("center", PatchRule::Centre), ("paper", PatchRule::Paper)])?
             }
             "pixel_refine" => self.pixel_refine = at_least_0()?,
-            _ => return Err(p.unknown("lobes, fit_error, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, diffuse, glossy, gpu_bvh, thin_shells, light_shadows, light_occluders, thin_tolerance, visibility, mode, max_edge, pixel_refine, isg_eval, patch_rule")),
+            "as_lobes" => self.as_seven_lobes = p.choice(&[("7", true), ("1", false)])?,
+            _ => return Err(p.unknown("lobes, fit_error, spheres, side, epsilon, lod, min_fraction, shadows, prefiltered, diffuse, glossy, gpu_bvh, thin_shells, light_shadows, light_occluders, thin_tolerance, visibility, mode, max_edge, pixel_refine, isg_eval, patch_rule, as_lobes")),
         }
         Ok(())
     }
@@ -929,7 +936,8 @@ impl crate::technique::Technique for IsgTechnique {
             | (!self.settings.light_shadows as u32) << 1
             | ((kd_tree && self.settings.light_mesh) as u32) << 2
             | ((kd_tree && self.settings.traced_visibility) as u32) << 3
-            | self.settings.model_flags();
+            | self.settings.model_flags()
+            | (self.settings.as_seven_lobes as u32) << 6;
         push.extend_from_slice(&flags.to_le_bytes());
         push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
         let specular_mode = if self.settings.glossy_ratio { 2u32 } else { !self.settings.prefiltered_specular as u32 };

@@ -77,3 +77,74 @@ pub fn gpu_visibility(
     let bytes = bytes?;
     Ok(bytes.chunks_exact(4).take(queries.len()).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
 }
+
+/// One query of [`gpu_as_lobes`]: shading normal, tangent, unit direction to the eye, and the
+/// Ashikhmin-Shirley exponents and Fresnel F0.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AsLobesQuery {
+    pub n: Vec3,
+    pub t: Vec3,
+    pub v: Vec3,
+    pub nu: f32,
+    pub nv: f32,
+    pub f0: f32,
+}
+
+/// One lobe of [`gpu_as_lobes`]: world axis, sharpness and (grey) weight.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AsLobe {
+    pub axis: Vec3,
+    pub lambda: f32,
+    pub weight: f32,
+}
+
+/// Evaluates `sg_as_lobes` (`glsl/include/sg.glsl`: Ashikhmin-Shirley's seven SG lobes, in the
+/// frame `brdf_frame` of `glsl/include/brdf_ref.glsl`) on the GPU for `queries` (one dispatch of
+/// `glsl/tests/sg_as_parity.comp`): the shader side of the parity test against
+/// [`penumbra_math::brdf::AshikhminShirley::sg7_hermite`].
+pub fn gpu_as_lobes(
+    engine: &mut Engine,
+    shaders: &ShaderLibrary,
+    queries: &[AsLobesQuery],
+) -> Result<Vec<[AsLobe; 7]>> {
+    let ctx = engine.ctx.clone();
+    let pipeline = compute_pipeline(&ctx, shaders, "tests/sg_as_parity.comp", 4)?;
+    let q: Vec<[f32; 4]> = queries
+        .iter()
+        .flat_map(|q| {
+            [
+                [q.n.x, q.n.y, q.n.z, 0.0],
+                [q.t.x, q.t.y, q.t.z, 0.0],
+                [q.v.x, q.v.y, q.v.z, 0.0],
+                [q.nu, q.nv, q.f0, 0.0],
+            ]
+        })
+        .collect();
+    let q = if q.is_empty() { vec![[0.0f32; 4]; 4] } else { q };
+    let count = queries.len() as u32;
+    let out_bytes = count.max(1) as u64 * 14 * 16;
+    let mut graph = Graph::new();
+    let qb = graph.create_buffer_init("as_lobes_queries", bytes_of(&q));
+    let out = graph.create_buffer("as_lobes_out", out_bytes);
+    let mut p = graph.pass("sg_as_parity", PassKind::Compute);
+    let qb = p.read(qb, Access::ComputeShaderReadStorage);
+    let out_w = p.write(out, Access::ComputeShaderWriteStorage);
+    let push = count.to_le_bytes().to_vec();
+    let pipe = pipeline.handle();
+    p.record(move |rc| {
+        let binds = crate::util::storage([qb, out_w]);
+        crate::util::dispatch(rc, pipe, &binds, &push, [groups(count, 64), 1, 1])
+    });
+    let bytes = crate::util::submit_and_read(engine, graph, out_w, "sg_as_parity", out_bytes);
+    drop(pipeline);
+    let bytes = bytes?;
+    let f: Vec<f32> = bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+    Ok((0..queries.len())
+        .map(|i| {
+            std::array::from_fn(|k| {
+                let o = (14 * i + 2 * k) * 4;
+                AsLobe { axis: Vec3::new(f[o], f[o + 1], f[o + 2]), lambda: f[o + 3], weight: f[o + 4] }
+            })
+        })
+        .collect())
+}
