@@ -1,7 +1,7 @@
 // ISG shading (Iwasaki et al. 2012) per pixel: environment as K SG lobes; diffuse: per lobe, the
 // unshadowed SG-cosine integral times the ISG visible fraction of the lobe times the cosine SG;
 // specular: one SG lobe of the BRDF (Blinn-Phong / Cook-Torrance warp; Ashikhmin-Shirley as the
-// paper's seven, sg.glsl sg_as_lobes, or with `anisotropic = 1` a Cook-Torrance lobe of its
+// paper's seven, sg.glsl sg_as_lobes, or with `as_lobes = 1` a Cook-Torrance lobe of its
 // roughness) times the cosine SG, Gamma_L = int L G_j from the
 // prefiltered environment maps (or from the lighting lobes), times the ISG visible fraction of
 // G_j (eq. 9); with glossy ratio (default) the glossy term is the material model's unshadowed
