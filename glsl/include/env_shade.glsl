@@ -77,9 +77,20 @@ vec3 env_glossy(vec3 n, vec3 t, vec3 v, MaterialData m) {
     if (b.kind == 3u && dot(t, t) == 0.0) { b.nu = sqrt(b.nu * b.nv); b.nv = b.nu; }
     b.p_spec = 1.0;
     b.albedo = vec3(0.0);
-    mat3 frame = brdf_frame(n, t);
-    vec3 tx = frame[0], ty = frame[1];
-    vec3 wo = v * frame;
+    // Isotropic lobes keep a frame that varies smoothly with n alone: the fixed sample set turns
+    // with the frame, and a uv tangent would turn it at every uv seam (the estimate jumping
+    // there); only Ashikhmin-Shirley needs the tangent.
+    vec3 tx, ty;
+    if (b.kind == 3u && dot(t, t) > 0.0) {
+        mat3 frame = brdf_frame(n, t);
+        tx = frame[0];
+        ty = frame[1];
+    } else {
+        vec3 ta = abs(n.x) > 0.9 ? vec3(0.0, 1.0, 0.0) : vec3(1.0, 0.0, 0.0);
+        tx = normalize(cross(ta, n));
+        ty = cross(n, tx);
+    }
+    vec3 wo = vec3(dot(v, tx), dot(v, ty), dot(v, n));
     if (wo.z <= 0.0) wo = normalize(vec3(wo.xy, 1e-4));
     vec2 size = vec2(textureSize(env_map, 0));
     // solid angle of a level-0 texel at the equator
