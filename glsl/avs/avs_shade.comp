@@ -221,7 +221,7 @@ float traced_light_visibility(vec3 o, LightData l, int lk) {
     return vis / float(n);
 }
 
-vec3 local_lights(vec3 pos, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
+vec3 local_lights(vec3 pos, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, MaterialData m) {
     vec3 sum = vec3(0.0);
     bool traced = (pc.flags & 2u) != 0u;
     vec3 o = pos + n * pc.ray_offset;
@@ -331,7 +331,7 @@ void main() {
     }
     vec3 color = material_diffuse_albedo(m, ndv) / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
-    color += local_lights(pos, n, tg, ng, v, albedo, kind, m, roughness);
+    color += local_lights(pos, n, tg, ng, v, albedo, m);
     if (kind != 0 && pc.specular_mode == 2u) {
         // Ratio: the material model's unshadowed glossy term (the `env` technique's split sum)
         // times the SSDF visibility of the specular SG lobe x cosine.

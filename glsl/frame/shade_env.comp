@@ -21,7 +21,7 @@ layout(set = 0, binding = 8) uniform sampler2DArray material_textures;
 layout(push_constant) uniform Push { uint light_count; } pc;
 
 // Radiance reflected from local lights (lights.glsl), unshadowed.
-vec3 local_lights(vec3 pos, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
+vec3 local_lights(vec3 pos, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, MaterialData m) {
     vec3 sum = vec3(0.0);
     for (uint i = 0u; i < pc.light_count; ++i) {
         LightData l = lights[i];
@@ -54,11 +54,10 @@ void main() {
     vec3 n = oct_decode(en.xy), tg = oct_decode(en.zw);
     MaterialData m = mats[uint(uvm.z)];
     vec3 v = normalize(cam.eye.xyz - pos);
-    int kind = int(m.albedo_kind.w + 0.5);
     // Spatially varying materials: albedo map multiplies albedo, roughness map (G) multiplies
     // roughness and the Phong exponent follows 2 / r^2 - 2 (as in the reference renderer).
     m = material_at(m, uvm.xy, material_textures);
     vec3 color = env_unshadowed(n, tg, v, m);
-    color += local_lights(pos, n, tg, ng, v, m.albedo_kind.rgb, kind, m, env_roughness(m));
+    color += local_lights(pos, n, tg, ng, v, m.albedo_kind.rgb, m);
     imageStore(hdr, p, vec4(material_reflected(color, n, v) + material_emission(m), 1.0));
 }

@@ -101,7 +101,7 @@ float light_visibility(vec3 p, vec3 to_light, float radius) {
     return vis / float(LIGHT_DISK_POINTS);
 }
 
-vec3 local_lights(vec3 pos, vec3 p, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness) {
+vec3 local_lights(vec3 pos, vec3 p, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, MaterialData m) {
     vec3 sum = vec3(0.0);
     for (uint i = 0u; i < pc.light_count; ++i) {
         LightData l = lights[i];
@@ -214,7 +214,7 @@ void main() {
     }
     vec3 color = material_diffuse_albedo(m, ndv) / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
-    color += local_lights(pos, p, n, tg, ng, v, albedo, kind, m, roughness);
+    color += local_lights(pos, p, n, tg, ng, v, albedo, m);
     // Ashikhmin-Shirley as seven SG lobes (flags bit 6, per pixel: the vertices carry no tangent)
     // or, as the other BRDFs, one (a Cook-Torrance lobe of the material's roughness).
     bool as7 = kind == 3 && (pc.flags & 64u) != 0u && !per_vertex;

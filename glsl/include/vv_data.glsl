@@ -164,8 +164,6 @@ float vv_light_traced(LightData l, vec3 s, vec3 ng) {
 vec3 vv_lights_end(VvLights L, vec3 s, vec3 n, MaterialData m) {
     vec3 sum = vec3(0.0);
     vec3 v = normalize(cam.eye.xyz - s);
-    int kind = material_kind(m);
-    float roughness = env_roughness(m);
     bool traced = pc.par.w > 0.5;
     vec3 ng = vv_face_normal == vec3(0.0) ? n : vv_face_normal;
     for (int k = 0; k < L.count; k++) {

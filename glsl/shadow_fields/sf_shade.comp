@@ -60,7 +60,7 @@ vec3 key_lights_irradiance(vec3 p, vec3 n, vec3 ng) {
 // Local lights (as shade_env.comp's local_lights, same BRDFs), pointwise: the specular lobe
 // always, the diffuse lobe only with srf = 0 (else it comes through the source radiance fields),
 // each shadowed by the order-4 visibility toward the light of the other objects nearer than it.
-vec3 local_lights(vec3 pos, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, int kind, MaterialData m, float roughness, uint self_inst) {
+vec3 local_lights(vec3 pos, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, MaterialData m, uint self_inst) {
     vec3 sum = vec3(0.0);
     for (uint i = 0u; i < pc.light_count; ++i) {
         LightData l = lights[i];
@@ -135,7 +135,6 @@ void main() {
     // Glossy materials: the material model's glossy environment term (the "env" technique's),
     // shadowed by the occluders' visibility along the reflection.
     int kind = int(m.albedo_kind.w + 0.5);
-    float roughness = env_roughness(m);
     if (kind != 0) {
         vec3 r = reflect(-v, n);
         vec3 glossy = env_glossy(n, tg, v, m);
@@ -154,6 +153,6 @@ void main() {
         }
         color += vis * glossy;
     }
-    color += local_lights(pos, n, tg, ng, v, m.albedo_kind.rgb, kind, m, roughness, self_inst);
+    color += local_lights(pos, n, tg, ng, v, m.albedo_kind.rgb, m, self_inst);
     imageStore(hdr, p, vec4(material_reflected(color, n, v) + material_emission(m), 1.0));
 }

@@ -326,7 +326,6 @@ void main() {
         }
         color += vis * glossy;
     }
-    float roughness = env_roughness(m);
     for (uint i = 0u; i < pc.light_count; ++i) {
         LightData l = lights[i];
         vec3 wi;
