@@ -11,8 +11,12 @@ use penumbra_reference::ReferenceOptions;
 /// mc's error and keep the shadows (well under env's error), and its history clipped to the
 /// frame's neighbourhood must beat SVGF's unclipped one, whose shadows drag behind the objects;
 /// validation clean; the ratio estimator (default) must beat SVGF's demodulated radiance
-/// (`ratio = false`) clearly. Measured: mc 0.430, mc-denoised 0.126, without the ratio estimator
-/// 0.176, also unclipped 0.192, env 0.377 (with a 32-frame unclipped history instead of 5: 0.30).
+/// (`ratio = false`) clearly. Measured: mc 0.176, mc-denoised 0.117, without the ratio estimator
+/// 0.159, also unclipped 0.181, env 0.377. (Until session 32 mc's samples were independent: mc
+/// 0.430, mc-denoised 0.126, and the bound was 0.6 x mc; with the scrambled Sobol' points of
+/// `glsl/include/qmc.glsl` the same four samples are 2.4x closer, and what the denoiser leaves is
+/// its bias (the history's lag behind the moving objects: 0.098 with a 3-frame history), which
+/// the better input barely moves.)
 #[test]
 fn denoising_the_same_samples_lowers_the_error_and_keeps_the_shadows() {
     let s = common::scene("falling.toml");
@@ -40,7 +44,7 @@ fn denoising_the_same_samples_lowers_the_error_and_keeps_the_shadows() {
         "rmse/mean at frame 30: mc {mc:.4}, mc-denoised {denoised:.4} (without the ratio estimator {svgf:.4}, \
          also unclipped {unclipped:.4}), env {env:.4}"
     );
-    assert!(denoised < 0.6 * mc, "mc-denoised {denoised} against mc {mc} from the same samples");
+    assert!(denoised < 0.75 * mc, "mc-denoised {denoised} against mc {mc} from the same samples");
     assert!(denoised < 0.6 * env, "mc-denoised {denoised} against the unshadowed env {env}");
     assert!(denoised < 0.8 * svgf, "ratio estimator {denoised} against SVGF's demodulation {svgf}");
     assert!(svgf < 0.95 * unclipped, "clipped history {svgf} against the unclipped {unclipped}: moving shadows");

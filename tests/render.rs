@@ -187,6 +187,55 @@ fn mc_without_aa_samples_the_pixel_centres_like_the_reference_grid() {
     }
 }
 
+/// mc's sample points (`qmc_2d`, glsl/include/qmc.glsl: Owen-scrambled Sobol'): every aligned
+/// block of 2^k indices of any sequence is a (0,k,2)-net (each 2^a x 2^(k-a) cell of the unit
+/// square holds exactly one point: what makes 8 samples per pixel worth more than 8 independent
+/// ones), the points lie in [0, 1), and over many sequences (pixels) each point is uniform.
+#[test]
+fn mc_sample_points_are_scrambled_sobol_nets() {
+    use penumbra_passes::kernels::qmc::qmc_points;
+    let ctx = penumbra::engine::Context::new(&penumbra::engine::ContextDesc { validation: true, ..Default::default() })
+        .expect("context");
+    let log = ctx.validation.clone();
+    let mut engine = penumbra::engine::Engine::new(ctx, 1).expect("engine");
+    let shaders = penumbra::shader_library();
+    let seeds = [0u32, 1, 2, 0xdead_beef, u32::MAX];
+    let seqs = qmc_points(&mut engine, &shaders, &seeds, 0, 512).expect("points");
+    // a net of 2^k points: every elementary interval of area 2^-k holds exactly one
+    let is_net = |pts: &[[f32; 2]], k: u32| {
+        (0..=k).all(|a| {
+            let (nx, ny) = (1usize << a, 1usize << (k - a));
+            let mut cells = vec![0u32; nx * ny];
+            for p in pts {
+                cells[(p[1] * ny as f32) as usize * nx + (p[0] * nx as f32) as usize] += 1;
+            }
+            cells.iter().all(|&c| c == 1)
+        })
+    };
+    for (s, pts) in seeds.iter().zip(&seqs) {
+        assert!(pts.iter().flatten().all(|&v| (0.0..1.0).contains(&v)), "seed {s}: a point outside [0, 1)");
+        for k in [1u32, 2, 3, 8] {
+            for block in 0..(512usize >> k).min(4) {
+                let b = &pts[block << k..(block + 1) << k];
+                assert!(is_net(b, k), "seed {s}: points {}..{} are not a (0,{k},2)-net: {b:?}", block << k, (block + 1) << k);
+            }
+        }
+    }
+    // independent sequences: different points, and each point index uniform over the sequences
+    assert_ne!(seqs[0][0], seqs[1][0]);
+    let many: Vec<u32> = (0..4096u32).map(|i| i.wrapping_mul(0x9e37_79b9) ^ 0x1234).collect();
+    let seqs = qmc_points(&mut engine, &shaders, &many, 5, 1).expect("points");
+    for axis in 0..2 {
+        let mut hist = [0u32; 8];
+        for p in &seqs {
+            hist[(p[0][axis] * 8.0) as usize] += 1;
+        }
+        // 512 expected per bin, standard deviation about 21
+        assert!(hist.iter().all(|&c| (512 - 110..=512 + 110).contains(&c)), "axis {axis}: {hist:?}");
+    }
+    assert_eq!(log.error_count(), 0, "validation errors: {:#?}", log.errors());
+}
+
 /// Every registered technique that accepts `scene`, rendered at time 0 at `w` x `h` under the
 /// validation layer, with `adjust` setting up each one's `RenderSettings`: (technique, its
 /// frame, validation errors).

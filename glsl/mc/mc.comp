@@ -4,7 +4,8 @@
 // kd-tree (closest hit) and, at the first hit, direct lighting from the environment with one
 // environment sample (texel distribution proportional to luminance x solid angle, as the CPU
 // reference's alias table) and one BRDF sample, combined by the power heuristic; shadow rays are
-// any-hit queries through the same tree. Same estimator, BRDFs and conventions as
+// any-hit queries through the same tree; sample points are randomized quasi-Monte Carlo
+// (Owen-scrambled Sobol', include/qmc.glsl), not independent. Same estimator, BRDFs and conventions as
 // penumbra_reference (render.rs, brdf.rs, sampling.rs); see passes/src/mc/mod.rs for what is left out.
 // Progressive: accum.rgb sums samples, accum.a counts them; hdr = accum.rgb / accum.a.
 layout(local_size_x = 8, local_size_y = 8) in;
@@ -47,17 +48,20 @@ layout(push_constant) uniform Push {
 #define M_PI 3.14159265358979323846
 #define M_TAU 6.28318530717958647692
 
-// ---- random numbers: PCG hash per (pixel, frame, counter)
-uint rng_state;
-uint pcg(uint v) {
-    uint s = v * 747796405u + 2891336453u;
-    uint w = ((s >> ((s >> 28u) + 4u)) ^ s) * 277803737u;
-    return (w >> 22u) ^ w;
-}
-float rnd() {
-    rng_state = pcg(rng_state);
-    return float(rng_state >> 8) * (1.0 / 16777216.0);
-}
+// ---- sample points: randomized quasi-Monte Carlo (include/qmc.glsl). Sample `qmc_index` of
+// the pixel's sequence (the accumulator's count: a progressive image continues its sequence
+// frame after frame; a reset starts a new one, scrambled by the frame's seed); each estimator
+// dimension pair has its own scramble (QMC_DIM_*; light k: QMC_DIM_LIGHT + k).
+#include "qmc.glsl"
+uint qmc_index;
+uint qmc_pixel;
+#define QMC_DIM_PIXEL 0u
+#define QMC_DIM_ENV_TEXEL 1u
+#define QMC_DIM_ENV_WITHIN 2u
+#define QMC_DIM_BRDF_LOBE 3u
+#define QMC_DIM_BRDF 4u
+#define QMC_DIM_LIGHT 5u
+vec2 sample2(uint dim) { return qmc_2d(qmc_index, qmc_dim_seed(qmc_pixel, dim)); }
 
 float luminance(vec3 c) { return dot(c, vec3(0.2126, 0.7152, 0.0722)); }
 
@@ -248,7 +252,7 @@ vec3 radiance_sample(vec2 ndc, out vec3 lu) {
     vec3 l = material_emission(mat);
     lu = l;
     // environment sample
-    vec4 ue = vec4(rnd(), rnd(), rnd(), rnd());
+    vec4 ue = vec4(sample2(QMC_DIM_ENV_TEXEL), sample2(QMC_DIM_ENV_WITHIN));
     vec3 wi, le;
     float pdf_l;
     if (env_sample(ue, wi, le, pdf_l)) {
@@ -267,7 +271,7 @@ vec3 radiance_sample(vec2 ndc, out vec3 lu) {
     // local lights, one sample each
     uint nlights = pc.env_info.w;
     for (uint k = 0u; k < nlights; k++) {
-        vec2 u = vec2(rnd(), rnd());
+        vec2 u = sample2(QMC_DIM_LIGHT + k);
         vec3 lwi, lli;
         float ldist, lpdf;
         if (!light_sample(k, p, u, lwi, ldist, lli, lpdf)) continue;
@@ -282,8 +286,8 @@ vec3 radiance_sample(vec2 ndc, out vec3 lu) {
         if (unoccluded_to(x, lwi, ldist * (1.0 - 1e-4))) l += c;
     }
     // BRDF sample
-    float ul = rnd();
-    vec2 u2 = vec2(rnd(), rnd());
+    float ul = sample2(QMC_DIM_BRDF_LOBE).x;
+    vec2 u2 = sample2(QMC_DIM_BRDF);
     vec3 wl;
     if (brdf_sample(b, wo, ul, u2, wl)) {
         vec3 wi2 = normalize(to_world * wl);
@@ -318,12 +322,15 @@ void main() {
     uvec2 px = gl_GlobalInvocationID.xy;
     uint w = pc.size_spp_seed.x, h = pc.size_spp_seed.y;
     if (px.x >= w || px.y >= h) return;
-    rng_state = pcg(pcg(px.y * w + px.x) ^ pcg(pc.size_spp_seed.w * 0x9E3779B9u + 17u));
+    // the sequence's seed: the pixel and the seed of the frame that started the accumulation
+    qmc_pixel = qmc_hash(qmc_hash(px.y * w + px.x) ^ qmc_hash(pc.size_spp_seed.w * 0x9E3779B9u + 17u));
     vec4 acc = (pc.env_info.z & 1u) != 0u ? vec4(0.0) : imageLoad(accum, ivec2(px));
+    uint first = uint(acc.a);
     vec3 acc_u = vec3(0.0);
     vec3 moments = vec3(0.0);  // sums of s^2, s u, u^2 over the samples' luminances
     for (uint s = 0u; s < pc.size_spp_seed.z; s++) {
-        vec2 j = vec2(rnd(), rnd());
+        qmc_index = first + s;
+        vec2 j = sample2(QMC_DIM_PIXEL);
         if ((pc.env_info.z & 4u) != 0u) j = vec2(0.5);
         vec2 ndc = vec2(2.0 * (float(px.x) + j.x) / float(w) - 1.0, 2.0 * (float(px.y) + j.y) / float(h) - 1.0);
         vec3 cu;

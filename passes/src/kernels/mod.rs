@@ -5,4 +5,5 @@
 pub mod hsdt;
 pub mod isg;
 pub mod loop_probe;
+pub mod qmc;
 pub mod vv;

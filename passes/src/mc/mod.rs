@@ -146,6 +146,8 @@ pub struct McTechnique {
     /// false` and at most [`MAX_SPP_PER_DISPATCH`] samples per frame.
     pub unshadowed: bool,
     frame_index: u32,
+    /// The frame index that started the accumulation: the seed of its sample sequence.
+    sequence_seed: u32,
     /// Samples per pixel accumulated in the image after the last frame.
     pub accumulated: u32,
     tri_count: Option<usize>,
@@ -189,6 +191,7 @@ impl McTechnique {
             progressive: true,
             unshadowed: false,
             frame_index: 0,
+            sequence_seed: 0,
             accumulated: 0,
             tri_count: None,
         })
@@ -280,7 +283,12 @@ impl McTechnique {
             for c in inv_vp {
                 push.extend(bytes_of(&c));
             }
-            push.extend(bytes_of(&[width, height, spp, self.frame_index]));
+            // the sample sequence's seed: the frame that started the accumulation (a progressive
+            // image continues one scrambled sequence, its index the accumulator's count)
+            if reset && chunk == 0 {
+                self.sequence_seed = self.frame_index;
+            }
+            push.extend(bytes_of(&[width, height, spp, self.sequence_seed]));
             push.extend(bytes_of(&[
                 self.env.width,
                 self.env.height,

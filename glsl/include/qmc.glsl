@@ -1,0 +1,69 @@
+// Randomized quasi-Monte Carlo sample points: Owen-scrambled Sobol' points, shuffled per
+// dimension pair (Burley 2020, "Practical Hash-based Owen Scrambling", JCGT 9(4)).
+//
+// qmc_2d(i, seed) is point i of a 2D Sobol' (0,2)-sequence (its first two dimensions), with
+// the index and both coordinates nested-uniform (Owen) scrambled by hashes of `seed`. Any
+// aligned block of 2^k consecutive indices (in particular 0 .. 2^k - 1) is a (0,k,2)-net: every
+// elementary interval of area 2^-k (2^a x 2^(k-a) cells) holds exactly one point, whatever the
+// seed. Independent seeds per dimension pair pad the 2D points into as many dimensions as an
+// estimator needs (Kollig and Keller 2002), and independent seeds per pixel decorrelate pixels.
+// No loops (the 32 Sobol' steps are written out): nothing here counts against a driver's loop
+// limit.
+#ifndef PENUMBRA_QMC_GLSL
+#define PENUMBRA_QMC_GLSL
+
+// A hash of 32 bits (the PCG output permutation of one LCG step).
+uint qmc_hash(uint v) {
+    uint s = v * 747796405u + 2891336453u;
+    uint w = ((s >> ((s >> 28u) + 4u)) ^ s) * 277803737u;
+    return (w >> 22u) ^ w;
+}
+
+// Laine and Karras's permutation with Burley's constants: bit k of the result is bit k of x
+// flipped by a function of the bits below k (additions and products by even constants carry
+// upwards only), so on bit-reversed input it is an Owen scramble.
+uint qmc_lk_permute(uint x, uint seed) {
+    x += seed;
+    x ^= x * 0x6c50b47cu;
+    x ^= x * 0xb82f1e52u;
+    x ^= x * 0xc7afe638u;
+    x ^= x * 0x8d22f6e6u;
+    return x;
+}
+
+// Nested uniform scramble of x read as a binary fraction, most significant bit first.
+uint qmc_owen(uint x, uint seed) { return bitfieldReverse(qmc_lk_permute(bitfieldReverse(x), seed)); }
+
+// Sobol's second dimension (primitive polynomial x + 1: v_1 = 1/2, v_k = v_(k-1) xor v_(k-1)/2),
+// its 32 bits as a fraction.
+#define QMC_SOBOL1_STEP(b) r ^= v & (0u - ((i >> b) & 1u)); v ^= v >> 1u;
+uint qmc_sobol1(uint i) {
+    uint r = 0u, v = 0x80000000u;
+    QMC_SOBOL1_STEP(0u) QMC_SOBOL1_STEP(1u) QMC_SOBOL1_STEP(2u) QMC_SOBOL1_STEP(3u)
+    QMC_SOBOL1_STEP(4u) QMC_SOBOL1_STEP(5u) QMC_SOBOL1_STEP(6u) QMC_SOBOL1_STEP(7u)
+    QMC_SOBOL1_STEP(8u) QMC_SOBOL1_STEP(9u) QMC_SOBOL1_STEP(10u) QMC_SOBOL1_STEP(11u)
+    QMC_SOBOL1_STEP(12u) QMC_SOBOL1_STEP(13u) QMC_SOBOL1_STEP(14u) QMC_SOBOL1_STEP(15u)
+    QMC_SOBOL1_STEP(16u) QMC_SOBOL1_STEP(17u) QMC_SOBOL1_STEP(18u) QMC_SOBOL1_STEP(19u)
+    QMC_SOBOL1_STEP(20u) QMC_SOBOL1_STEP(21u) QMC_SOBOL1_STEP(22u) QMC_SOBOL1_STEP(23u)
+    QMC_SOBOL1_STEP(24u) QMC_SOBOL1_STEP(25u) QMC_SOBOL1_STEP(26u) QMC_SOBOL1_STEP(27u)
+    QMC_SOBOL1_STEP(28u) QMC_SOBOL1_STEP(29u) QMC_SOBOL1_STEP(30u) QMC_SOBOL1_STEP(31u)
+    return r;
+}
+#undef QMC_SOBOL1_STEP
+
+// Point i in [0, 1)^2 of the sequence `seed` names.
+vec2 qmc_2d(uint i, uint seed) {
+    uint s0 = qmc_hash(seed), s1 = qmc_hash(s0 ^ 0x5bd1e995u), s2 = qmc_hash(s1 ^ 0x27d4eb2fu);
+    uint j = qmc_owen(i, s0);
+    // Sobol's first dimension is the bit reversal of the index (van der Corput): scrambling it
+    // is the permutation without the reversals
+    uint x = bitfieldReverse(qmc_lk_permute(j, s1));
+    uint y = qmc_owen(qmc_sobol1(j), s2);
+    // 24 bits: the float of the fraction stays below 1
+    return vec2(float(x >> 8u), float(y >> 8u)) * (1.0 / 16777216.0);
+}
+
+// The seed of dimension pair `dim` of the pixel sequence `pixel_seed`.
+uint qmc_dim_seed(uint pixel_seed, uint dim) { return qmc_hash(pixel_seed ^ qmc_hash(dim + 0x9e3779b9u)); }
+
+#endif
