@@ -217,7 +217,12 @@ fn mc_sample_points_are_scrambled_sobol_nets() {
         for k in [1u32, 2, 3, 8] {
             for block in 0..(512usize >> k).min(4) {
                 let b = &pts[block << k..(block + 1) << k];
-                assert!(is_net(b, k), "seed {s}: points {}..{} are not a (0,{k},2)-net: {b:?}", block << k, (block + 1) << k);
+                assert!(
+                    is_net(b, k),
+                    "seed {s}: points {}..{} are not a (0,{k},2)-net: {b:?}",
+                    block << k,
+                    (block + 1) << k
+                );
             }
         }
     }

@@ -12,7 +12,7 @@
 //! 3. when nothing is within E: the knobs' costlier values (`registry::Knob::finer`, mc's
 //!    samples per pixel), in order, until one is.
 //!
-//! Measured points are cached per scene file, size, frame and device
+//! Measured points are cached per scene file, size, frame, device and build (the executable's size and time)
 //! (`<cache>/points/<stem>-WxH-f<K>-<key>.json`), so `render --max-error` after `tune` does not
 //! measure again. Nothing within E is an error that names the most accurate configuration seen.
 
@@ -182,7 +182,20 @@ fn nothing_within(scene: &Scene, max_error: f64, size: (u32, u32), points: &[Poi
     ))
 }
 
-/// The cache of measured points of one scene file, size, frame and device.
+/// This executable's identity, its size and modification time: a point measured by another
+/// build (a technique changed, e.g. mc's sample points in session 32) is measured again rather
+/// than trusted.
+fn build_id() -> String {
+    std::env::current_exe()
+        .and_then(std::fs::metadata)
+        .map(|m| {
+            let t = m.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).unwrap_or_default();
+            format!("exe {} bytes {}.{:09}", m.len(), t.as_secs(), t.subsec_nanos())
+        })
+        .unwrap_or_else(|_| "exe unknown".into())
+}
+
+/// The cache of measured points of one scene file, size, frame, device and build.
 struct PointCache {
     path: PathBuf,
     points: Vec<Point>,
@@ -191,8 +204,9 @@ struct PointCache {
 impl PointCache {
     fn open(dir: &Path, stem: &str, bytes: &[u8], o: &TuneOptions, ctx: &Context) -> Self {
         let key = format!(
-            "{} {}x{} f{} frames {} warmup {} {} {} {} pixel-grid references",
+            "{} {} {}x{} f{} frames {} warmup {} {} {} {} pixel-grid references",
             env!("CARGO_PKG_VERSION"),
+            build_id(),
             o.size.0,
             o.size.1,
             o.frame,

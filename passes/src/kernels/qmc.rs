@@ -35,6 +35,10 @@ pub fn qmc_points(
     let bytes = bytes?;
     let f: Vec<f32> = bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
     Ok((0..seeds.len())
-        .map(|s| (0..count as usize).map(|k| [f[2 * (s * count as usize + k)], f[2 * (s * count as usize + k) + 1]]).collect())
+        .map(|s| {
+            (0..count as usize)
+                .map(|k| [f[2 * (s * count as usize + k)], f[2 * (s * count as usize + k) + 1]])
+                .collect()
+        })
         .collect())
 }
