@@ -6,16 +6,21 @@
 //        integral of lighting lobe k, V_k: ISG visible fraction of lobe k times the cosine SG);
 //   a:   specular visibility, the light-weighted ISG visible share of G_j (eq. 9) for the vertex's
 //        material (isg_lobes_glossy_visibility)
-//        (base roughness; roughness maps are not applied per vertex) and view direction.
+//        (base roughness; roughness maps are not applied per vertex) and view direction;
+//        Ashikhmin-Shirley with flags bit 6: over its seven SG lobes (sg_as_lobes) in the frame
+//        of the vertex's uv tangent, weighted by their BRDF weights' luminance, as per pixel.
 #include "common.glsl"
 #include "sg.glsl"
+#include "brdf_ref.glsl"
 
 layout(local_size_x = 64) in;
 
 layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
 layout(set = 0, binding = 1) readonly buffer Materials { MaterialData mats[]; };
-// 2 per vertex: world position + material index, world normal + flags (bit 0: two-sided,
-// the normal is turned toward the eye; bit 1: skipped, no visible triangle uses it).
+// 3 per vertex: world position + material index, world normal + flags (bit 0: two-sided,
+// the normal is turned toward the eye; bit 1: skipped, no visible triangle uses it), world
+// tangent (zero: none, brdf_frame takes Duff et al.'s basis vector) + 0
+// (passes/src/isg/vertex.rs IsgVertex).
 layout(set = 0, binding = 2) readonly buffer Verts { vec4 verts[]; };
 layout(set = 0, binding = 3) writeonly buffer Out { vec4 vis_out[]; };
 layout(set = 0, binding = 4) readonly buffer Lobes { vec4 lobes[]; };
@@ -34,7 +39,7 @@ layout(push_constant) uniform Push {
     int patch_side;
     float lod;
     float min_fraction;
-    uint flags;  // bit 4: isg_paper_fit, bit 5: isg_paper_rule (glsl/include/isg.glsl)
+    uint flags;  // bit 4: isg_paper_fit, bit 5: isg_paper_rule (glsl/include/isg.glsl), bit 6: Ashikhmin-Shirley as seven SG lobes
 } pc;
 
 float visible(vec3 p, vec3 n, SG g) {
@@ -47,7 +52,7 @@ void main() {
     if (vi >= pc.vertex_count) return;
     isg_paper_fit = (pc.flags & 16u) != 0u;
     isg_paper_rule = (pc.flags & 32u) != 0u;
-    vec4 a = verts[2u * vi], b = verts[2u * vi + 1u];
+    vec4 a = verts[3u * vi], b = verts[3u * vi + 1u];
     if ((uint(b.w + 0.5) & 2u) != 0u) {  // no visible triangle uses it
         vis_out[vi] = vec4(1.0);
         return;
@@ -72,16 +77,37 @@ void main() {
     }
     float vs = 1.0;
     if (kind != 0) {
-        vec3 r = reflect(-v, n);
-        SG gs;
-        if (kind == 1) {
-            gs = sg_make(r, max(m.extra.x, 0.0) / (4.0 * ndv), 1.0);
+        if (kind == 3 && (pc.flags & 64u) != 0u) {
+            // Ashikhmin-Shirley as its seven lobes, the visible share weighted as isg_shade.glsl's
+            // per pixel (lobes under 1 % of the total weight left out; a loop the compiler does
+            // not unroll: one inlined traversal)
+            const vec3 lum = vec3(0.2126, 0.7152, 0.0722);
+            SG g[SG_AS_LOBES];
+            vec3 w[SG_AS_LOBES];
+            sg_as_lobes(brdf_frame(n, verts[3u * vi + 2u].xyz), v, m.extra.x, m.extra.w, m.spec_rough.rgb, g, w);
+            float wsum = 0.0;
+            for (int j = 0; j < SG_AS_LOBES; ++j) wsum += dot(w[j], lum);
+            float num = 0.0, den = 0.0;
+            for (int j = 0; j < SG_AS_LOBES; ++j) {
+                float wj = dot(w[j], lum);
+                if (!(wj > 0.01 * wsum)) continue;
+                float open;
+                num += wj * isg_lobes_glossy_light(p, n, pc.lobe_count, pc.min_fraction, sg_product(g[j], cosg), open);
+                den += wj * open;
+            }
+            vs = den > 0.0 ? clamp(num / den, 0.0, 1.0) : 1.0;
         } else {
-            float roughness = clamp(m.spec_rough.w, 0.02, 1.0);
-            float mb = max(roughness * roughness, 1e-3);
-            gs = sg_make(r, 2.0 / (mb * mb) / (4.0 * ndv), 1.0);
+            vec3 r = reflect(-v, n);
+            SG gs;
+            if (kind == 1) {
+                gs = sg_make(r, max(m.extra.x, 0.0) / (4.0 * ndv), 1.0);
+            } else {
+                float roughness = clamp(m.spec_rough.w, 0.02, 1.0);
+                float mb = max(roughness * roughness, 1e-3);
+                gs = sg_make(r, 2.0 / (mb * mb) / (4.0 * ndv), 1.0);
+            }
+            vs = isg_lobes_glossy_visibility(p, n, pc.lobe_count, pc.min_fraction, sg_product(gs, cosg));
         }
-        vs = isg_lobes_glossy_visibility(p, n, pc.lobe_count, pc.min_fraction, sg_product(gs, cosg));
     }
     vis_out[vi] = vec4(vd, vs);
 }

@@ -10,7 +10,7 @@
 
 layout(set = 0, binding = 0) uniform Camera { CameraData cam; };
 layout(set = 0, binding = 1) readonly buffer Vis { vec4 vis[]; };
-// 2 per vertex: world position + material index, world normal + flags (isg_vertex.comp)
+// 3 per vertex: world position + material index, world normal + flags, tangent (isg_vertex.comp)
 layout(set = 0, binding = 2) readonly buffer Verts { vec4 verts[]; };
 layout(set = 0, binding = 3) readonly buffer Indices { uint indices[]; };
 
@@ -28,5 +28,5 @@ void main() {
     float most = max(max(spread.r, spread.g), max(spread.b, spread.a));
     uint i = indices[corner];
     v_vis = most > pc.pixel_refine ? vec4(-1.0) : vis[i];
-    gl_Position = cam.view_proj * vec4(verts[2u * i].xyz, 1.0);
+    gl_Position = cam.view_proj * vec4(verts[3u * i].xyz, 1.0);
 }

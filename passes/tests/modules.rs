@@ -65,6 +65,40 @@ mod isg_vertex {
         let r = refine(&quad, &idx, 1.0, 1e-6);
         assert!(r.indices.len() / 3 <= MAX_REFINED_TRIANGLES && r.levels > 0);
     }
+
+    /// The per-vertex tangents Ashikhmin-Shirley's seven lobes turn with: the direction of
+    /// increasing u (as the G-buffer's dP/du per pixel), whatever the uv mapping's scale, sign or
+    /// rotation; zero without uvs and where every adjacent triangle's mapping is degenerate;
+    /// the subdivided mesh's midpoints sum their ends.
+    #[test]
+    fn vertex_tangents_follow_increasing_u() {
+        use glam::Vec2;
+        let quad = [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 0.0, -1.0), Vec3::NEG_Z];
+        let idx = [0, 1, 2, 0, 2, 3];
+        let dir = |uvs: &[Vec2]| -> Vec<Vec3> {
+            vertex_tangents(&quad, uvs, &idx).iter().map(|t| t.try_normalize().unwrap_or(Vec3::ZERO)).collect()
+        };
+        let near = |a: Vec3, b: Vec3| (a - b).length() < 1e-5;
+        // u along +x (scaled by 3), v along -z
+        let uv = [Vec2::ZERO, Vec2::new(3.0, 0.0), Vec2::new(3.0, 1.0), Vec2::new(0.0, 1.0)];
+        assert!(dir(&uv).iter().all(|&t| near(t, Vec3::X)), "{:?}", dir(&uv));
+        // u mirrored: along -x
+        let mirrored: Vec<Vec2> = uv.iter().map(|p| Vec2::new(-p.x, p.y)).collect();
+        assert!(dir(&mirrored).iter().all(|&t| near(t, Vec3::NEG_X)));
+        // the mapping turned by 90 degrees: u along the quad's -z edge
+        let turned = [Vec2::ZERO, Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0)];
+        assert!(dir(&turned).iter().all(|&t| near(t, Vec3::NEG_Z)), "{:?}", dir(&turned));
+        // no uvs, degenerate uvs: zero (the shaders then take Duff et al.'s basis vector)
+        assert!(vertex_tangents(&quad, &[], &idx).iter().all(|t| *t == Vec3::ZERO));
+        assert!(vertex_tangents(&quad, &[Vec2::ONE; 4], &idx).iter().all(|t| *t == Vec3::ZERO));
+        // bad indices are skipped
+        assert_eq!(vertex_tangents(&quad, &uv, &[0, 1, 9]), vec![Vec3::ZERO; 4]);
+        // subdivided: the midpoints' sums keep the direction
+        let r = refine(&quad, &idx, 1.0, 0.5);
+        let t = r.apply_sum(&vertex_tangents(&quad, &uv, &idx));
+        assert_eq!(t.len(), 4 + r.splits.len());
+        assert!(t.iter().all(|t| near(t.normalize(), Vec3::X)));
+    }
 }
 
 mod vv {

@@ -127,10 +127,10 @@ pub struct IsgSettings {
     /// Triangles farther than this fraction of their object's size outside its spheres cast
     /// shadows as thin shells ([`thin_parts_with`]; default [`THIN_PART_TOLERANCE`]).
     pub thin_tolerance: f32,
-    /// Ashikhmin-Shirley's specular lobe as the paper's seven SGs (`as_lobes = 7`, per pixel:
-    /// `sg_as_lobes` in `glsl/include/sg.glsl`, the closed-form Gauss-Hermite split of the
-    /// anisotropic lobe) or as one Cook-Torrance lobe of the material's roughness (`1`). The
-    /// per-vertex visibilities keep one lobe (the vertices carry no tangent).
+    /// Ashikhmin-Shirley's specular lobe as the paper's seven SGs (`as_lobes = 7`: `sg_as_lobes`
+    /// in `glsl/include/sg.glsl`, the closed-form Gauss-Hermite split of the anisotropic lobe,
+    /// per pixel in the G-buffer's tangent frame and per vertex in the mesh's uv tangent frame,
+    /// [`vertex::vertex_tangents`]) or as one Cook-Torrance lobe of the material's roughness (`1`).
     pub as_seven_lobes: bool,
 }
 
@@ -796,7 +796,9 @@ impl IsgTechnique {
         push.extend_from_slice(&(self.settings.patch_side.clamp(1, 32) as i32).to_le_bytes());
         push.extend_from_slice(&self.settings.lod.to_le_bytes());
         push.extend_from_slice(&self.settings.min_lobe_fraction.max(0.0).to_le_bytes());
-        push.extend_from_slice(&self.settings.model_flags().to_le_bytes());
+        push.extend_from_slice(
+            &(self.settings.model_flags() | (self.settings.as_seven_lobes as u32) << 6).to_le_bytes(),
+        );
         p.record(move |rc| {
             let storage = crate::util::storage([materials, verts_c, vis, lobes, table, bvh, tris, tri_nodes]);
             let binds = [&[Bind::UniformBuffer(camera)][..], &storage].concat();

@@ -27,7 +27,7 @@ use penumbra_scene::{Frame, MeshData, Scene};
 use std::collections::HashMap;
 use std::sync::Arc;
 
-/// Vertex as `isg_vertex.comp` reads it and `isg_vertex.vert` rasterizes it (32 bytes).
+/// Vertex as `isg_vertex.comp` reads it and `isg_vertex.vert` rasterizes it (48 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct IsgVertex {
@@ -36,6 +36,40 @@ pub struct IsgVertex {
     /// World normal, flags (bit 0: two-sided, the normal is turned toward the eye; bit 1: no
     /// visible triangle uses the vertex, not evaluated).
     pub normal_flags: [f32; 4],
+    /// World tangent (unit, perpendicular to the normal: the direction of increasing u, as the
+    /// G-buffer's per pixel; zero where the mesh has no usable uv: the shader's frame then takes
+    /// Duff et al.'s basis vector, as the G-buffer does), 0. Ashikhmin-Shirley's anisotropy runs
+    /// along it (`as_lobes = 7` per vertex).
+    pub tangent: [f32; 4],
+}
+
+/// Per-vertex tangents of a triangle mesh: at each vertex the sum of its triangles' unit dP/du
+/// (the direction of increasing u, from positions and uvs as the G-buffer computes it per pixel),
+/// not normalized (zero where no adjacent triangle has a usable uv mapping, and for every vertex
+/// when `uvs` does not match `positions`).
+pub fn vertex_tangents(positions: &[Vec3], uvs: &[glam::Vec2], indices: &[u32]) -> Vec<Vec3> {
+    let mut t = vec![Vec3::ZERO; positions.len()];
+    if uvs.len() != positions.len() {
+        return t;
+    }
+    for tri in indices.chunks_exact(3) {
+        let [a, b, c] = [tri[0] as usize, tri[1] as usize, tri[2] as usize];
+        if a >= positions.len() || b >= positions.len() || c >= positions.len() {
+            continue;
+        }
+        let (e1, e2) = (positions[b] - positions[a], positions[c] - positions[a]);
+        let (d1, d2) = (uvs[b] - uvs[a], uvs[c] - uvs[a]);
+        let det = d1.x * d2.y - d1.y * d2.x;
+        if !(det.abs() > 1e-12) {
+            continue;
+        }
+        // dP/du (its length and sign from the uv mapping, normalized: each triangle counts alike)
+        let Some(dpdu) = ((e1 * d2.y - e2 * d1.y) / det).try_normalize() else { continue };
+        for v in [a, b, c] {
+            t[v] += dpdu;
+        }
+    }
+    t
 }
 
 /// Subdivided topology of one mesh: vertices beyond the mesh's own are midpoints of two earlier
@@ -123,6 +157,16 @@ pub fn subdivision_levels(triangles: usize, longest: f32, max_edge: f32) -> (u32
 }
 
 impl Refined {
+    /// Per-vertex values of the subdivided mesh (summed at the midpoints, not normalized) from
+    /// the base mesh's, as tangents of [`vertex_tangents`].
+    pub fn apply_sum(&self, values: &[Vec3]) -> Vec<Vec3> {
+        let mut v: Vec<Vec3> = (0..self.base_vertices).map(|i| values.get(i).copied().unwrap_or(Vec3::ZERO)).collect();
+        for &(a, b) in &self.splits {
+            v.push(v[a as usize] + v[b as usize]);
+        }
+        v
+    }
+
     /// Positions and normals of the subdivided mesh from the base mesh's.
     pub fn apply(&self, positions: &[Vec3], normals: &[Vec3]) -> (Vec<Vec3>, Vec<Vec3>) {
         let mut p: Vec<Vec3> = positions.to_vec();
@@ -187,6 +231,9 @@ pub fn frame_receivers(
             *refined = refine(&rest.positions, &rest.indices, scale, max_edge);
         }
         let (p, n) = refined.apply(&mesh.positions, &mesh.normals);
+        let uvs = if mesh.uvs.len() == mesh.positions.len() { &mesh.uvs } else { &rest.uvs };
+        let tangents = refined.apply_sum(&vertex_tangents(&mesh.positions, uvs, &rest.indices));
+        let tm = Mat3::from_mat4(w);
         let nm = Mat3::from_mat4(w.inverse().transpose());
         let info = scene.object_info(inst.object);
         let two_sided = info.thin_shell
@@ -219,12 +266,15 @@ pub fn frame_receivers(
             }
             out.indices.extend_from_slice(&[base + t[0], base + t[1], base + t[2]]);
         }
-        for ((wp, wn), u) in wps.iter().zip(&wns).zip(&used) {
+        for (((wp, wn), u), t) in wps.iter().zip(&wns).zip(&used).zip(&tangents) {
             out.evaluated += *u as usize;
             let flags = if two_sided { 1.0 } else { 0.0 } + if *u { 0.0 } else { 2.0 };
+            let wt = tm * *t;
+            let wt = (wt - *wn * wn.dot(wt)).try_normalize().unwrap_or(Vec3::ZERO);
             out.vertices.push(IsgVertex {
                 pos_mat: [wp.x, wp.y, wp.z, inst.material as f32],
                 normal_flags: [wn.x, wn.y, wn.z, flags],
+                tangent: [wt.x, wt.y, wt.z, 0.0],
             });
         }
     }
