@@ -1,5 +1,5 @@
-//! The GPU Monte Carlo baseline (`mc`) converges to the CPU reference (lavapipe): PSNR against a
-//! high-spp reference rises with the accumulated spp, the accumulation restarts when the camera
+//! The GPU Monte Carlo baseline (`mc`) converges to the CPU reference (lavapipe): the relative RMSE against a
+//! high-spp reference falls with the accumulated spp, the accumulation restarts when the camera
 //! moves, and static geometry builds the kd-tree once.
 
 mod common;
@@ -49,7 +49,7 @@ fn mc_converges_to_the_cpu_reference() {
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     let mut mc = McTechnique::new(&ctx, &lib, &scene).unwrap();
     let f = scene.at(0.0, None);
-    let mut psnrs = Vec::new();
+    let mut errs = Vec::new();
     let mut total_builds = 0;
     let t0 = std::time::Instant::now();
     // spp per frame doubles: accumulated 4, 8, 16, ..., 512
@@ -59,22 +59,29 @@ fn mc_converges_to_the_cpu_reference() {
         let (im, builds) = frame(&mut engine, &mut mc, &f, w, h);
         total_builds += builds;
         let c = compare(&reference.radiance, "reference", &im, "mc").unwrap();
-        let psnr = c.psnr_db.unwrap_or(f64::INFINITY);
-        println!("mc {} spp: PSNR {:.2} dB, rel RMSE {:.4}", mc.accumulated, psnr, c.rel_rmse);
-        psnrs.push((mc.accumulated, psnr));
+        println!(
+            "mc {} spp: rel RMSE {:.4}, PSNR {:.2} dB",
+            mc.accumulated,
+            c.rel_rmse,
+            c.psnr_db.unwrap_or(f64::INFINITY)
+        );
+        errs.push((mc.accumulated, c.rel_rmse));
         img = Some(im);
     }
     println!("mc frames: {:.1} s", t0.elapsed().as_secs_f64());
     assert!(total_builds > 0, "the tree was built");
     let levels = mc.builder.last_levels as usize;
     assert_eq!(total_builds, levels, "static scene: the kd-tree is built once ({total_builds} level passes)");
-    // PSNR rises with spp: every doubling gains (noise halves in variance), overall by a lot.
-    for p in psnrs.windows(2) {
-        assert!(p[1].1 > p[0].1, "PSNR does not rise from {} to {} spp: {psnrs:?}", p[0].0, p[1].0);
+    // The error falls at every doubling, overall by a lot. (Relative RMSE, not PSNR: the
+    // quasi-Monte Carlo points of session 32 bring mc at 256 spp below the 2048-spp reference's
+    // own noise, where a PSNR whose peak is one pixel fluctuated: 49.7 dB at 256, 48.7 at 512,
+    // while the relative RMSE went on falling, 0.0194 -> 0.0162.)
+    for p in errs.windows(2) {
+        assert!(p[1].1 < p[0].1, "the error does not fall from {} to {} spp: {errs:?}", p[0].0, p[1].0);
     }
-    let (first, last) = (psnrs[0].1, psnrs[psnrs.len() - 1].1);
-    assert!(last - first > 12.0, "PSNR rises by only {:.1} dB: {psnrs:?}", last - first);
-    assert!(last > 40.0, "PSNR at {} spp is {last:.1} dB", psnrs.last().unwrap().0);
+    let (first, last) = (errs[0].1, errs[errs.len() - 1].1);
+    assert!(first > 8.0 * last, "the error falls {:.1}x only: {errs:?}", first / last);
+    assert!(last < 0.025, "relative RMSE at {} spp is {last:.4}", errs.last().unwrap().0);
 
     // Moving the camera restarts the accumulation.
     let mut f2 = scene.at(0.0, None);
@@ -108,21 +115,24 @@ fn mc_with_local_lights_and_textures_converges_to_the_cpu_reference() {
             "coarse.toml" => assert!(!f.lights.is_empty()),
             _ => assert!(!scene.textures.is_empty()),
         }
-        let mut psnrs = Vec::new();
+        let mut errs = Vec::new();
         for k in 0..6 {
             mc.spp = if k == 0 { 8 } else { mc.accumulated };
             let (im, _) = frame(&mut engine, &mut mc, &f, w, h);
             let c = compare(&reference.radiance, "reference", &im, "mc").unwrap();
             let psnr = c.psnr_db.unwrap_or(f64::INFINITY);
-            println!("{file}: mc {} spp: PSNR {:.2} dB, rel RMSE {:.4}", mc.accumulated, psnr, c.rel_rmse);
-            psnrs.push((mc.accumulated, psnr));
+            println!("{file}: mc {} spp: rel RMSE {:.4}, PSNR {:.2} dB", mc.accumulated, c.rel_rmse, psnr);
+            errs.push((mc.accumulated, c.rel_rmse));
         }
-        for p in psnrs.windows(2) {
-            assert!(p[1].1 > p[0].1, "{file}: PSNR does not rise from {} to {} spp: {psnrs:?}", p[0].0, p[1].0);
+        for p in errs.windows(2) {
+            assert!(p[1].1 < p[0].1, "{file}: the error does not fall from {} to {} spp: {errs:?}", p[0].0, p[1].0);
         }
-        // Noise-limited (256 spp against a 1024-spp reference): about 3 dB per doubling, no plateau.
-        let (first, last) = (psnrs[0].1, psnrs[psnrs.len() - 1].1);
-        assert!(last - first > 10.0 && last > 32.0, "{file}: {psnrs:?}");
+        // Relative RMSE (session 32): with quasi-Monte Carlo points mc at 256 spp is about as
+        // close as the 1024-spp reference's own noise (measured: chess 0.2225 at 8 spp, 0.0605 at
+        // 128, 0.0553 at 256, where the PSNR fell from 35.0 to 32.0 dB; against a 4096-spp
+        // reference it rose 38.1 -> 41.1); coarse 0.0984 -> 0.0169.
+        let (first, last) = (errs[0].1, errs[errs.len() - 1].1);
+        assert!(first > 3.0 * last && last < 0.07, "{file}: {errs:?}");
     }
     assert_eq!(ctx.validation.error_count(), 0, "validation errors: {:?}", ctx.validation.errors());
 }

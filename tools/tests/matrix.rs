@@ -278,9 +278,10 @@ fn max_error_picks_a_configuration_within_it() {
         .expect("run penumbra render --max-error");
     let text = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
     assert!(o.status.success(), "{text}");
-    // env (0.41 here) is out of reach; mc with enough samples per pixel is chosen, at the
-    // pixel centres it was measured at (the references sample them)
-    assert!(text.contains("chose mc aa=false,spp="), "{text}");
+    // env (0.41 here) is out of reach; mc with enough samples per pixel is chosen (since session
+    // 32's quasi-Monte Carlo points its default 4 per frame: 0.167), at the pixel centres it
+    // was measured at (the references sample them)
+    assert!(text.contains("chose mc aa=false"), "{text}");
     let reference = std::fs::read_dir(repo().join("tests/matrix/references"))
         .unwrap()
         .map(|e| e.unwrap().path())
