@@ -202,18 +202,35 @@ bool light_sample(uint k, vec3 p, vec2 u, out vec3 wi, out float dist, out vec3 
     return true;
 }
 
-// The radiance through `ndc`, and in `lu` the same estimate with every shadow ray taken as
-// unoccluded (the denominator of mc-denoised's ratio estimator: shadowed over unshadowed with the
-// same samples, Heitz et al. 2018).
-vec3 radiance_sample(vec2 ndc, out vec3 lu) {
+// This dispatch's sums: radiance (rgb) and samples (a, the accumulator's count), the same
+// samples' unshadowed estimate, and the moments of their luminances (s^2, s u, u^2).
+vec4 acc;
+vec3 acc_u;
+vec3 moments;
+void accumulate(vec3 c, vec3 cu) {
+    if (!any(isinf(c)) && !any(isnan(c)) && !any(isinf(cu)) && !any(isnan(cu))) {
+        acc.rgb += c;
+        acc_u += cu;
+        float ls = luminance(c), lu = luminance(cu);
+        moments += vec3(ls * ls, ls * lu, lu * lu);
+    }
+    acc.a += 1.0;
+}
+
+// Samples `first` .. `first + count` of the radiance through `ndc` (one primary ray, its hit
+// shaded `count` times: the pixel centres' samples share it), each with the same estimate with
+// every shadow ray taken as unoccluded (the denominator of mc-denoised's ratio estimator:
+// shadowed over unshadowed with the same samples, Heitz et al. 2018), accumulated.
+void radiance_samples(vec2 ndc, uint first, uint count) {
     vec4 nr = pc.inv_view_proj * vec4(ndc, 0.0, 1.0);
     vec4 fr = pc.inv_view_proj * vec4(ndc, 1.0, 1.0);
     vec3 o = nr.xyz / nr.w;
     vec3 d = normalize(fr.xyz / fr.w - o);
     KdHit hit = kd_trace(o, d, 0.0, 3.0e38, false);
     if (hit.t < 0.0) {
-        lu = env_radiance(d);
-        return lu;
+        vec3 e = env_radiance(d);
+        for (uint s = 0u; s < count; s++) accumulate(e, e);
+        return;
     }
     uint ti = hit.tri;
     vec3 p0 = kd_tris[3u * ti].xyz, p1 = kd_tris[3u * ti + 1u].xyz, p2 = kd_tris[3u * ti + 2u].xyz;
@@ -249,73 +266,76 @@ vec3 radiance_sample(vec2 ndc, out vec3 lu) {
     Brdf b = brdf_from_material(mat);
     vec3 x = p + ng * (3e-5 * (1.0 + max(max(abs(p.x), abs(p.y)), abs(p.z))));
     // what the surface emits towards the eye (direct lighting only: it lights nothing)
-    vec3 l = material_emission(mat);
-    lu = l;
-    // environment sample
-    vec4 ue = vec4(sample2(QMC_DIM_ENV_TEXEL), sample2(QMC_DIM_ENV_WITHIN));
-    vec3 wi, le;
-    float pdf_l;
-    if (env_sample(ue, wi, le, pdf_l)) {
-        vec3 f = vec3(0.0);
-        if (dot(wi, ng) > 0.0) {
-            vec3 lw = transpose(to_world) * wi;
-            if (lw.z > 0.0 && wo.z > 0.0) f = brdf_eval(b, wo, lw) * lw.z;
-        }
-        if (f != vec3(0.0)) {
-            float w = power_heuristic(pdf_l, brdf_pdf(b, wo, transpose(to_world) * wi));
-            vec3 c = f * le * (w / pdf_l);
-            lu += c;
-            if (unoccluded(x, wi)) l += c;
-        }
-    }
-    // local lights, one sample each
-    uint nlights = pc.env_info.w;
-    for (uint k = 0u; k < nlights; k++) {
-        vec2 u = sample2(QMC_DIM_LIGHT + k);
-        vec3 lwi, lli;
-        float ldist, lpdf;
-        if (!light_sample(k, p, u, lwi, ldist, lli, lpdf)) continue;
-        vec3 f = vec3(0.0);
-        if (dot(lwi, ng) > 0.0) {
-            vec3 lw = transpose(to_world) * lwi;
-            if (lw.z > 0.0 && wo.z > 0.0) f = brdf_eval(b, wo, lw) * lw.z;
-        }
-        if (f == vec3(0.0)) continue;
-        vec3 c = lpdf == 0.0 ? f * lli : f * lli * (power_heuristic(lpdf, brdf_pdf(b, wo, transpose(to_world) * lwi)) / lpdf);
-        lu += c;
-        if (unoccluded_to(x, lwi, ldist * (1.0 - 1e-4))) l += c;
-    }
-    // BRDF sample
-    float ul = sample2(QMC_DIM_BRDF_LOBE).x;
-    vec2 u2 = sample2(QMC_DIM_BRDF);
-    vec3 wl;
-    if (brdf_sample(b, wo, ul, u2, wl)) {
-        vec3 wi2 = normalize(to_world * wl);
-        if (dot(wi2, ng) > 0.0) {
-            vec3 lw = transpose(to_world) * wi2;
-            float pdf_s = brdf_pdf(b, wo, lw);
-            vec3 f = (lw.z > 0.0 && wo.z > 0.0) ? brdf_eval(b, wo, lw) * lw.z : vec3(0.0);
-            if (pdf_s > 0.0 && f != vec3(0.0)) {
-                float w = (pc.env_info.z & 2u) != 0u ? power_heuristic(pdf_s, env_pdf(wi2)) : 1.0;
-                vec3 c = f * env_radiance(wi2) * (w / pdf_s);
-                lu += c;
-                if (unoccluded(x, wi2)) l += c;
+    vec3 emitted = material_emission(mat);
+    for (uint s = 0u; s < count; s++) {
+        qmc_index = first + s;
+        vec3 l = emitted, lu = emitted;
+        // environment sample
+        vec4 ue = vec4(sample2(QMC_DIM_ENV_TEXEL), sample2(QMC_DIM_ENV_WITHIN));
+        vec3 wi, le;
+        float pdf_l;
+        if (env_sample(ue, wi, le, pdf_l)) {
+            vec3 f = vec3(0.0);
+            if (dot(wi, ng) > 0.0) {
+                vec3 lw = transpose(to_world) * wi;
+                if (lw.z > 0.0 && wo.z > 0.0) f = brdf_eval(b, wo, lw) * lw.z;
             }
-            if (pdf_s > 0.0 && f != vec3(0.0)) {
-                for (uint k = 0u; k < nlights; k++) {
-                    if (uint(lights[4u * k].w) != 2u) continue;
-                    float t = sphere_hit(k, p, wi2);
-                    if (t < 0.0) continue;
-                    float pdf_l = 1.0 / (M_TAU * sphere_one_minus(k, p));
-                    vec3 le = lights[4u * k + 2u].rgb * medium_transmittance(lights[4u * k + 3u].yzw, t);
-                    vec3 c = f * le * (power_heuristic(pdf_s, pdf_l) / pdf_s);
+            if (f != vec3(0.0)) {
+                float w = power_heuristic(pdf_l, brdf_pdf(b, wo, transpose(to_world) * wi));
+                vec3 c = f * le * (w / pdf_l);
+                lu += c;
+                if (unoccluded(x, wi)) l += c;
+            }
+        }
+        // local lights, one sample each
+        uint nlights = pc.env_info.w;
+        for (uint k = 0u; k < nlights; k++) {
+            vec2 u = sample2(QMC_DIM_LIGHT + k);
+            vec3 lwi, lli;
+            float ldist, lpdf;
+            if (!light_sample(k, p, u, lwi, ldist, lli, lpdf)) continue;
+            vec3 f = vec3(0.0);
+            if (dot(lwi, ng) > 0.0) {
+                vec3 lw = transpose(to_world) * lwi;
+                if (lw.z > 0.0 && wo.z > 0.0) f = brdf_eval(b, wo, lw) * lw.z;
+            }
+            if (f == vec3(0.0)) continue;
+            vec3 c = lpdf == 0.0 ? f * lli : f * lli * (power_heuristic(lpdf, brdf_pdf(b, wo, transpose(to_world) * lwi)) / lpdf);
+            lu += c;
+            if (unoccluded_to(x, lwi, ldist * (1.0 - 1e-4))) l += c;
+        }
+        // BRDF sample
+        float ul = sample2(QMC_DIM_BRDF_LOBE).x;
+        vec2 u2 = sample2(QMC_DIM_BRDF);
+        vec3 wl;
+        if (brdf_sample(b, wo, ul, u2, wl)) {
+            vec3 wi2 = normalize(to_world * wl);
+            if (dot(wi2, ng) > 0.0) {
+                vec3 lw = transpose(to_world) * wi2;
+                float pdf_s = brdf_pdf(b, wo, lw);
+                vec3 f = (lw.z > 0.0 && wo.z > 0.0) ? brdf_eval(b, wo, lw) * lw.z : vec3(0.0);
+                if (pdf_s > 0.0 && f != vec3(0.0)) {
+                    float w = (pc.env_info.z & 2u) != 0u ? power_heuristic(pdf_s, env_pdf(wi2)) : 1.0;
+                    vec3 c = f * env_radiance(wi2) * (w / pdf_s);
                     lu += c;
-                    if (unoccluded_to(x, wi2, t * (1.0 - 1e-4))) l += c;
+                    if (unoccluded(x, wi2)) l += c;
+                }
+                if (pdf_s > 0.0 && f != vec3(0.0)) {
+                    for (uint k = 0u; k < nlights; k++) {
+                        if (uint(lights[4u * k].w) != 2u) continue;
+                        float t = sphere_hit(k, p, wi2);
+                        if (t < 0.0) continue;
+                        float pdf_l = 1.0 / (M_TAU * sphere_one_minus(k, p));
+                        vec3 le = lights[4u * k + 2u].rgb * medium_transmittance(lights[4u * k + 3u].yzw, t);
+                        vec3 c = f * le * (power_heuristic(pdf_s, pdf_l) / pdf_s);
+                        lu += c;
+                        if (unoccluded_to(x, wi2, t * (1.0 - 1e-4))) l += c;
+                    }
                 }
             }
         }
+        accumulate(l, lu);
     }
-    return l;
 }
 
 void main() {
@@ -324,24 +344,20 @@ void main() {
     if (px.x >= w || px.y >= h) return;
     // the sequence's seed: the pixel and the seed of the frame that started the accumulation
     qmc_pixel = qmc_hash(qmc_hash(px.y * w + px.x) ^ qmc_hash(pc.size_spp_seed.w * 0x9E3779B9u + 17u));
-    vec4 acc = (pc.env_info.z & 1u) != 0u ? vec4(0.0) : imageLoad(accum, ivec2(px));
+    acc = (pc.env_info.z & 1u) != 0u ? vec4(0.0) : imageLoad(accum, ivec2(px));
+    acc_u = vec3(0.0);
+    moments = vec3(0.0);
     uint first = uint(acc.a);
-    vec3 acc_u = vec3(0.0);
-    vec3 moments = vec3(0.0);  // sums of s^2, s u, u^2 over the samples' luminances
-    for (uint s = 0u; s < pc.size_spp_seed.z; s++) {
-        qmc_index = first + s;
-        vec2 j = sample2(QMC_DIM_PIXEL);
-        if ((pc.env_info.z & 4u) != 0u) j = vec2(0.5);
-        vec2 ndc = vec2(2.0 * (float(px.x) + j.x) / float(w) - 1.0, 2.0 * (float(px.y) + j.y) / float(h) - 1.0);
-        vec3 cu;
-        vec3 c = radiance_sample(ndc, cu);
-        if (!any(isinf(c)) && !any(isnan(c)) && !any(isinf(cu)) && !any(isnan(cu))) {
-            acc.rgb += c;
-            acc_u += cu;
-            float ls = luminance(c), lu = luminance(cu);
-            moments += vec3(ls * ls, ls * lu, lu * lu);
+    uint spp = pc.size_spp_seed.z;
+    vec2 size = vec2(float(w), float(h));
+    if ((pc.env_info.z & 4u) != 0u) {
+        // pixel centres: one primary ray for all of the dispatch's samples
+        radiance_samples(2.0 * (vec2(px) + 0.5) / size - 1.0, first, spp);
+    } else {
+        for (uint s = 0u; s < spp; s++) {
+            qmc_index = first + s;
+            radiance_samples(2.0 * (vec2(px) + sample2(QMC_DIM_PIXEL)) / size - 1.0, first + s, 1u);
         }
-        acc.a += 1.0;
     }
     imageStore(accum, ivec2(px), acc);
     if ((pc.env_info.z & 8u) != 0u) {
