@@ -166,6 +166,7 @@ void main() {
                 ref_bounds(refs[off + j], blo, bhi, lo, hi);
                 bool l = lo[axis] <= split + pc.eps;
                 bool r = hi[axis] >= split - pc.eps || !l;
+                if (l || r) { bool tl, tr; kd_assign(refs[off + j], blo, bhi, axis, split, pc.eps, tl, tr); l = l && tl; r = r && tr; }
                 cl += l ? 1u : 0u;
                 cr += r ? 1u : 0u;
             }
@@ -198,6 +199,7 @@ void main() {
                     ref_bounds(ti, blo, bhi, lo, hi);
                     bool l = lo[axis] <= split + pc.eps;
                     bool r = hi[axis] >= split - pc.eps || !l;
+                    if (l || r) { bool tl, tr; kd_assign(ti, blo, bhi, axis, split, pc.eps, tl, tr); l = l && tl; r = r && tr; }
                     if (l) refs[ol + atomicAdd(s_wpos[0], 1u)] = ti;
                     if (r) refs[orr + atomicAdd(s_wpos[1], 1u)] = ti;
                 }

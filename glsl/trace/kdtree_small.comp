@@ -93,6 +93,7 @@ void main() {
                 ref_bounds(refs[off + j], blo, bhi, lo, hi);
                 bool l = lo[axis] <= split + pc.eps;
                 bool r = hi[axis] >= split - pc.eps || !l;
+                if (l || r) { bool tl, tr; kd_assign(refs[off + j], blo, bhi, axis, split, pc.eps, tl, tr); l = l && tl; r = r && tr; }
                 nl += l ? 1u : 0u;
                 nr += r ? 1u : 0u;
             }
@@ -117,6 +118,7 @@ void main() {
                 ref_bounds(ti, blo, bhi, lo, hi);
                 bool l = lo[axis] <= split + pc.eps;
                 bool r = hi[axis] >= split - pc.eps || !l;
+                if (l || r) { bool tl, tr; kd_assign(ti, blo, bhi, axis, split, pc.eps, tl, tr); l = l && tl; r = r && tr; }
                 if (l) refs[ol + wl++] = ti;
                 if (r) refs[orr + wr++] = ti;
             }
