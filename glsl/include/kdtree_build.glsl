@@ -1,5 +1,6 @@
-// Shared by the kd-tree build kernels (kdtree_build.comp, kdtree_small.comp): the large-node
-// lists in the header buffer `ctr` (see passes/src/kdtree.rs). Level L's nodes with more than
+// Shared by the kd-tree build kernels (kdtree_build.comp, kdtree_small.comp), which declare the
+// triangles as `tris` before including it: the references' bounds and assignment to children,
+// and the large-node lists in the header buffer `ctr` (see passes/src/kdtree.rs). Level L's nodes with more than
 // small_max references are listed (parity L & 1) by their parents, so the workgroup-per-node
 // kernel visits only them; an overflowing list makes that level scan all its nodes.
 #ifndef PENUMBRA_KDTREE_BUILD_GLSL
@@ -31,16 +32,29 @@ bool kd_tri_box_overlap(vec3 a, vec3 b, vec3 c, vec3 lo, vec3 hi) {
     return true;
 }
 
-// Which children of the cell [blo, bhi] split at `split` on `axis` take triangle ti: those whose
-// cell, grown by eps, it overlaps (a triangle whose box reaches a child's cell but which itself
-// passes beside it goes nowhere there: fewer references than the box rule, the same hits).
-void kd_assign(uint ti, vec3 blo, vec3 bhi, uint axis, float split, float eps, out bool l, out bool r) {
+// Bounds of triangle ti's box clipped to the cell [blo, bhi] (the build's SAH bins and tight
+// bounds).
+void ref_bounds(uint ti, vec3 blo, vec3 bhi, out vec3 lo, out vec3 hi) {
     vec3 a = tris[3u * ti].xyz, b = tris[3u * ti + 1u].xyz, c = tris[3u * ti + 2u].xyz;
+    lo = max(min(min(a, b), c), blo);
+    hi = min(max(max(a, b), c), bhi);
+}
+
+// Which children of the cell [blo, bhi] split at `split` on `axis` take triangle ti: those its
+// clipped box reaches within eps (one at least) and whose cell, grown by eps, the triangle
+// itself overlaps (a triangle whose box reaches a child's cell but which passes beside it goes
+// nowhere there: fewer references than the box rule, the same hits).
+void kd_children(uint ti, vec3 blo, vec3 bhi, uint axis, float split, float eps, out bool l, out bool r) {
+    vec3 a = tris[3u * ti].xyz, b = tris[3u * ti + 1u].xyz, c = tris[3u * ti + 2u].xyz;
+    float lo = max(min(min(a[axis], b[axis]), c[axis]), blo[axis]);
+    float hi = min(max(max(a[axis], b[axis]), c[axis]), bhi[axis]);
+    l = lo <= split + eps;
+    r = hi >= split - eps || !l;
     vec3 lhi = bhi, rlo = blo;
     lhi[axis] = split;
     rlo[axis] = split;
-    l = kd_tri_box_overlap(a, b, c, blo - eps, lhi + eps);
-    r = kd_tri_box_overlap(a, b, c, rlo - eps, bhi + eps);
+    l = l && kd_tri_box_overlap(a, b, c, blo - eps, lhi + eps);
+    r = r && kd_tri_box_overlap(a, b, c, rlo - eps, bhi + eps);
 }
 
 void kd_list_append(uint level, uint node) {

@@ -51,11 +51,6 @@ shared uint s_off[2];
 uint f2o(float f) { uint u = floatBitsToUint(f); return (u & 0x80000000u) != 0u ? ~u : (u | 0x80000000u); }
 float o2f(uint u) { return uintBitsToFloat((u & 0x80000000u) != 0u ? (u & 0x7fffffffu) : ~u); }
 
-void ref_bounds(uint ti, vec3 blo, vec3 bhi, out vec3 lo, out vec3 hi) {
-    vec3 a = tris[3u * ti].xyz, b = tris[3u * ti + 1u].xyz, c = tris[3u * ti + 2u].xyz;
-    lo = max(min(min(a, b), c), blo);
-    hi = min(max(max(a, b), c), bhi);
-}
 
 void main() {
     uint tid = gl_LocalInvocationIndex;
@@ -162,11 +157,8 @@ void main() {
             // ---- count
             uint cl = 0u, cr = 0u;
             for (uint j = tid; j < n; j += 64u) {
-                vec3 lo, hi;
-                ref_bounds(refs[off + j], blo, bhi, lo, hi);
-                bool l = lo[axis] <= split + pc.eps;
-                bool r = hi[axis] >= split - pc.eps || !l;
-                if (l || r) { bool tl, tr; kd_assign(refs[off + j], blo, bhi, axis, split, pc.eps, tl, tr); l = l && tl; r = r && tr; }
+                bool l, r;
+                kd_children(refs[off + j], blo, bhi, axis, split, pc.eps, l, r);
                 cl += l ? 1u : 0u;
                 cr += r ? 1u : 0u;
             }
@@ -195,11 +187,8 @@ void main() {
                 uint ol = s_off[0], orr = s_off[1];
                 for (uint j = tid; j < n; j += 64u) {
                     uint ti = refs[off + j];
-                    vec3 lo, hi;
-                    ref_bounds(ti, blo, bhi, lo, hi);
-                    bool l = lo[axis] <= split + pc.eps;
-                    bool r = hi[axis] >= split - pc.eps || !l;
-                    if (l || r) { bool tl, tr; kd_assign(ti, blo, bhi, axis, split, pc.eps, tl, tr); l = l && tl; r = r && tr; }
+                    bool l, r;
+                    kd_children(ti, blo, bhi, axis, split, pc.eps, l, r);
                     if (l) refs[ol + atomicAdd(s_wpos[0], 1u)] = ti;
                     if (r) refs[orr + atomicAdd(s_wpos[1], 1u)] = ti;
                 }

@@ -27,11 +27,6 @@ layout(push_constant) uniform Push {
 
 #include "kdtree_build.glsl"
 
-void ref_bounds(uint ti, vec3 blo, vec3 bhi, out vec3 lo, out vec3 hi) {
-    vec3 a = tris[3u * ti].xyz, b = tris[3u * ti + 1u].xyz, c = tris[3u * ti + 2u].xyz;
-    lo = max(min(min(a, b), c), blo);
-    hi = min(max(max(a, b), c), bhi);
-}
 
 void main() {
     uint L = pc.level;
@@ -89,11 +84,8 @@ void main() {
         uint nl = 0u, nr = 0u;
         if (split_ok) {
             for (uint j = 0u; j < n; j++) {
-                vec3 lo, hi;
-                ref_bounds(refs[off + j], blo, bhi, lo, hi);
-                bool l = lo[axis] <= split + pc.eps;
-                bool r = hi[axis] >= split - pc.eps || !l;
-                if (l || r) { bool tl, tr; kd_assign(refs[off + j], blo, bhi, axis, split, pc.eps, tl, tr); l = l && tl; r = r && tr; }
+                bool l, r;
+                kd_children(refs[off + j], blo, bhi, axis, split, pc.eps, l, r);
                 nl += l ? 1u : 0u;
                 nr += r ? 1u : 0u;
             }
@@ -114,11 +106,8 @@ void main() {
             uint orr = ol + nl, wl = 0u, wr = 0u;
             for (uint j = 0u; j < n; j++) {
                 uint ti = refs[off + j];
-                vec3 lo, hi;
-                ref_bounds(ti, blo, bhi, lo, hi);
-                bool l = lo[axis] <= split + pc.eps;
-                bool r = hi[axis] >= split - pc.eps || !l;
-                if (l || r) { bool tl, tr; kd_assign(ti, blo, bhi, axis, split, pc.eps, tl, tr); l = l && tl; r = r && tr; }
+                bool l, r;
+                kd_children(ti, blo, bhi, axis, split, pc.eps, l, r);
                 if (l) refs[ol + wl++] = ti;
                 if (r) refs[orr + wr++] = ti;
             }
