@@ -304,7 +304,11 @@ impl Renderer {
         };
         let engine = Engine::new(ctx.clone(), settings.frames_in_flight)?;
         let technique = penumbra_passes::registry::create(name, &ctx, shaders, scene, params)?;
-        let effects = penumbra_passes::effect::create_for(scene, &ctx, shaders, &settings.effects)?;
+        let mut effects = penumbra_passes::effect::create_for(scene, &ctx, shaders, &settings.effects)?;
+        // a technique that integrates the medium itself (mc) gets no volumetric effect on top
+        if technique.renders_medium() {
+            effects.retain(|e| e.name() != "volumetric");
+        }
         // An environment map over the device's largest image side is halved until it fits, and
         // the user is told (the loader's own limit, 16384, is what lavapipe allows).
         let fitted =

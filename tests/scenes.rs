@@ -133,6 +133,33 @@ fn acceleration_structures_are_rebuilt_only_for_changing_geometry() {
     assert!(frames.iter().all(|f| builds(f) > 0), "moving scene must rebuild every frame: {frames:?}");
 }
 
+/// `mc` integrates a scene's medium itself (attenuation and single scattering, as the
+/// reference): the renderer adds no volumetric effect to it and says so; `mc-denoised` (whose
+/// ratio estimator is of surface light) and the other techniques keep the effect.
+#[test]
+fn mc_integrates_the_medium_and_others_keep_the_volumetric_effect() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    let scene = Scene::load(dir.join("vol_dragon.toml")).unwrap();
+    assert!(scene.medium.is_some());
+    let effect = |passes: &Vec<String>| passes.iter().any(|p| p == "vol_composite");
+    let mc = passes_per_frame(&scene, "mc", 1);
+    assert!(!effect(&mc[0]), "mc got the volumetric effect: {:?}", mc[0]);
+    assert!(mc[0].iter().any(|p| p == "mc"), "{:?}", mc[0]);
+    for t in ["mc-denoised", "env"] {
+        let f = passes_per_frame(&scene, t, 1);
+        assert!(effect(&f[0]), "{t} lost the volumetric effect: {:?}", f[0]);
+    }
+    let settings = penumbra::RenderSettings {
+        width: 32,
+        height: 24,
+        technique: Some("mc".into()),
+        frames_in_flight: 1,
+        ..Default::default()
+    };
+    let r = penumbra::Renderer::new_headless(&scene, settings, false).unwrap();
+    assert!(r.notes().iter().any(|n| n.contains("integrates the medium itself")), "{:?}", r.notes());
+}
+
 /// A static-only technique refuses a moving scene with a message naming why. (Every technique
 /// on every scene renders validation clean in the accuracy matrix, `tools/tests/matrix.rs`,
 /// which runs each cell under synchronization validation.)

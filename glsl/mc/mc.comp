@@ -4,7 +4,8 @@
 // kd-tree (closest hit) and, at the first hit, direct lighting from the environment with one
 // environment sample (texel distribution proportional to luminance x solid angle, as the CPU
 // reference's alias table) and one BRDF sample, combined by the power heuristic; shadow rays are
-// any-hit queries through the same tree; sample points are randomized quasi-Monte Carlo
+// any-hit queries through the same tree; a participating medium as the reference has it
+// (attenuation from the eye, single scattering: medium_inscatter below); sample points are randomized quasi-Monte Carlo
 // (Owen-scrambled Sobol', include/qmc.glsl), not independent. Same estimator, BRDFs and conventions as
 // penumbra_reference (render.rs, brdf.rs, sampling.rs); see passes/src/mc/mod.rs for what is left out.
 // Progressive: accum.rgb sums samples, accum.a counts them; hdr = accum.rgb / accum.a.
@@ -32,6 +33,8 @@ layout(binding = 11) uniform sampler2DArray material_textures;
 // with bit 3 of env_info.z (mc-denoised's ratio estimator): this dispatch's mean of the same
 // samples without their shadow rays (every visibility 1), written beside `hdr`; else a stand-in
 layout(binding = 12, rgba32f) uniform writeonly image2D unshadowed;
+// the medium: (sigma_t, 1 when mc integrates it), (sigma_s, Henyey-Greenstein g), (eye, 0)
+layout(std430, binding = 13) readonly buffer Medium { vec4 medium[]; };
 layout(push_constant) uniform Push {
     mat4 inv_view_proj;
     uvec4 size_spp_seed;    // width, height, spp, frame seed
@@ -61,6 +64,8 @@ uint qmc_pixel;
 #define QMC_DIM_BRDF_LOBE 3u
 #define QMC_DIM_BRDF 4u
 #define QMC_DIM_LIGHT 5u
+// the medium's samples: per distance strategy 32 dimensions from here (include below)
+#define QMC_DIM_MEDIUM 64u
 vec2 sample2(uint dim) { return qmc_2d(qmc_index, qmc_dim_seed(qmc_pixel, dim)); }
 
 float luminance(vec3 c) { return dot(c, vec3(0.2126, 0.7152, 0.0722)); }
@@ -202,6 +207,167 @@ bool light_sample(uint k, vec3 p, vec2 u, out vec3 wi, out float dist, out vec3 
     return true;
 }
 
+// ---- the participating medium (penumbra_reference render.rs `sample` and `direct` with
+// Scatter::Medium): homogeneous, filling space from the eye; the surface's light and the
+// environment behind are attenuated by exp(-sigma_t t), t counted from the eye; single
+// scattering with one distance sample per strategy combined by the balance heuristic (the
+// transmittance, pdf ~ exp(-mean(sigma_t) t) on [0, t_hit], and per point, spot or sphere light
+// equiangular sampling, Kulla and Fajardo 2012), at each the environment, the local lights and
+// a Henyey-Greenstein phase sample combined by the power heuristic.
+// medium[0]: sigma_t, on (1: this technique integrates the medium); [1]: sigma_s, g; [2]: eye.
+#define MC_INF 3.0e38
+vec3 med_transmittance(float t) {
+    vec3 st = medium[0].rgb;
+    return t >= 1.0e30 ? vec3(st.r > 0.0 ? 0.0 : 1.0, st.g > 0.0 ? 0.0 : 1.0, st.b > 0.0 ? 0.0 : 1.0) : exp(-st * t);
+}
+float hg_phase(float cos_t) {
+    float g = medium[1].w;
+    float d = max(1.0 + g * g - 2.0 * g * cos_t, 1e-12);
+    return (1.0 - g * g) / (4.0 * M_PI * d * sqrt(d));
+}
+// A direction wi with pdf hg_phase(dot(wi, d)) (render.rs Scatter::Medium::sample).
+vec3 hg_sample(vec3 d, vec2 u) {
+    float g = medium[1].w;
+    float cos_t;
+    if (abs(g) < 1e-3) {
+        cos_t = 1.0 - 2.0 * u.x;
+    } else {
+        float s = (1.0 - g * g) / (1.0 - g + 2.0 * g * u.x);
+        cos_t = clamp((1.0 + g * g - s * s) / (2.0 * g), -1.0, 1.0);
+    }
+    float sin_t = sqrt(max(1.0 - cos_t * cos_t, 0.0));
+    float phi = M_TAU * u.y;
+    return normalize(onb(d) * vec3(sin_t * cos(phi), sin_t * sin(phi), cos_t));
+}
+// Direct light in-scattered at x towards -d; sample dimensions dim .. dim + 3 + lights.
+vec3 medium_direct(vec3 x, vec3 d, uint dim) {
+    vec3 l = vec3(0.0);
+    vec3 wi, le;
+    float pdf_l;
+    if (env_sample(vec4(sample2(dim), sample2(dim + 1u)), wi, le, pdf_l)) {
+        float f = hg_phase(dot(wi, d));
+        if (f > 0.0 && unoccluded(x, wi)) l += f * le * (power_heuristic(pdf_l, f) / pdf_l);
+    }
+    uint nlights = pc.env_info.w;
+    for (uint k = 0u; k < nlights; k++) {
+        vec3 lwi, lli;
+        float ldist, lpdf;
+        if (!light_sample(k, x, sample2(dim + 3u + k), lwi, ldist, lli, lpdf)) continue;
+        float f = hg_phase(dot(lwi, d));
+        if (!(f > 0.0) || !unoccluded_to(x, lwi, ldist * (1.0 - 1e-4))) continue;
+        l += lpdf == 0.0 ? f * lli : f * lli * (power_heuristic(lpdf, f) / lpdf);
+    }
+    // the phase sample: its pdf is the phase function, f / pdf = 1
+    vec3 wi2 = hg_sample(d, sample2(dim + 2u));
+    float fp = hg_phase(dot(wi2, d));
+    if (fp > 0.0) {
+        if (unoccluded(x, wi2)) l += env_radiance(wi2) * ((pc.env_info.z & 2u) != 0u ? power_heuristic(fp, env_pdf(wi2)) : 1.0);
+        for (uint k = 0u; k < nlights; k++) {
+            if (uint(lights[4u * k].w) != 2u) continue;
+            float t = sphere_hit(k, x, wi2);
+            if (t < 0.0) continue;
+            float pdf_s = 1.0 / (M_TAU * sphere_one_minus(k, x));
+            vec3 ls = lights[4u * k + 2u].rgb * medium_transmittance(lights[4u * k + 3u].yzw, t);
+            if (unoccluded_to(x, wi2, t * (1.0 - 1e-4))) l += ls * power_heuristic(fp, pdf_s);
+        }
+    }
+    return l;
+}
+// The part [t0, t1] of o + t d, t in [0, t_max), that light k can light: all of it, or for a
+// spot light (cos outer > 0: a convex cone) the ray's interval inside its cone (the breakpoints
+// are the roots of ((x - c).a)^2 = cos^2 |x - c|^2; each piece between them tested at its
+// middle). Returns false when no part is.
+bool light_range(uint k, vec3 o, vec3 d, float t_max, out vec2 r) {
+    float t_end = min(t_max, 1.0e6);
+    r = vec2(0.0, t_end);
+    if (uint(lights[4u * k].w) != 1u) return true;
+    vec3 c = lights[4u * k].xyz, a = normalize(lights[4u * k + 1u].xyz);
+    float co = lights[4u * k + 1u].w;
+    if (!(co > 0.0)) return true;
+    vec3 w = o - c;
+    float da = dot(d, a), wa = dot(w, a), c2 = co * co;
+    float qa = da * da - c2, qb = 2.0 * (da * wa - c2 * dot(d, w)), qc = wa * wa - c2 * dot(w, w);
+    float b0 = 0.0, b1 = t_end, b2 = t_end, b3 = t_end;  // breakpoints, sorted below
+    float disc = qb * qb - 4.0 * qa * qc;
+    if (abs(qa) > 1e-12 && disc >= 0.0) {
+        float sq = sqrt(disc);
+        float r1 = (-qb - sq) / (2.0 * qa), r2 = (-qb + sq) / (2.0 * qa);
+        b1 = clamp(min(r1, r2), 0.0, t_end);
+        b2 = clamp(max(r1, r2), 0.0, t_end);
+    } else if (abs(qa) <= 1e-12 && abs(qb) > 1e-12) {
+        b1 = clamp(-qc / qb, 0.0, t_end);
+    }
+    float lo = 1.0e30, hi = -1.0;
+    for (int i = 0; i < 3; i++) {
+        float s0 = i == 0 ? b0 : (i == 1 ? b1 : b2);
+        float s1 = i == 0 ? b1 : (i == 1 ? b2 : b3);
+        if (!(s1 > s0)) continue;
+        vec3 x = w + d * (0.5 * (s0 + s1));
+        float xa = dot(x, a);
+        if (xa >= 0.0 && xa * xa >= c2 * dot(x, x)) {
+            lo = min(lo, s0);
+            hi = max(hi, s1);
+        }
+    }
+    if (!(hi > lo)) return false;
+    r = vec2(lo, hi);
+    return true;
+}
+// Equiangular sampling (Kulla and Fajardo 2012; render.rs Equiangular) towards light k's
+// position along o + t d over the part light_range gives: (delta, h, theta_a, theta_b), the
+// range in `r`; false for a directional light or an empty range. (The reference samples
+// [0, t_hit] whole; a spot light's cone here: the same estimate, most of whose samples are lit.)
+bool equiangular(uint k, vec3 o, vec3 d, float t_max, out vec4 e, out vec2 r) {
+    e = vec4(0.0);
+    if (uint(lights[4u * k].w) == 3u || !light_range(k, o, d, t_max, r)) return false;
+    vec3 c = lights[4u * k].xyz;
+    float delta = dot(c - o, d);
+    float h = max(length(o + d * delta - c), 1e-4);
+    float ta = atan((r.x - delta) / h);
+    float tb = r.y >= 1.0e6 ? 0.5 * M_PI : atan((r.y - delta) / h);
+    e = vec4(delta, h, ta, tb);
+    return tb - ta > 1e-6;
+}
+float equiangular_pdf(vec4 e, vec2 r, float t) {
+    if (!(t >= r.x && t < r.y)) return 0.0;
+    float x = t - e.x;
+    return e.y / ((e.w - e.z) * (e.y * e.y + x * x));
+}
+// Single scattering along o + t d up to t_max (from the eye), one sample per strategy.
+vec3 medium_inscatter(vec3 o, vec3 d, float t_max) {
+    vec3 st = medium[0].rgb;
+    float sb = (st.r + st.g + st.b) / 3.0;
+    float sbt = sb * t_max;
+    float mass = t_max >= 1.0e30 ? 1.0 : (sbt < 1e-4 ? sbt * (1.0 - 0.5 * sbt) : 1.0 - exp(-sbt));
+    uint nlights = pc.env_info.w;
+    vec3 l = vec3(0.0);
+    for (uint s = 0u; s <= nlights; s++) {
+        uint dim = QMC_DIM_MEDIUM + 32u * s;
+        float u = sample2(dim + 31u).x;
+        float t;
+        if (s == 0u) {
+            if (!(mass > 0.0 && sb > 0.0)) continue;
+            t = -log(max(1.0 - u * mass, 1e-30)) / sb;
+        } else {
+            vec4 e;
+            vec2 r;
+            if (!equiangular(s - 1u, o, d, t_max, e, r)) continue;
+            t = clamp(e.x + e.y * tan(e.z + u * (e.w - e.z)), r.x, r.y);
+        }
+        if (!(t >= 0.0 && t < t_max)) continue;
+        // the balance heuristic over every strategy: f / the sum of their pdfs
+        float p = (mass > 0.0 && sb > 0.0) ? sb * exp(-sb * t) / mass : 0.0;
+        for (uint k = 0u; k < nlights; k++) {
+            vec4 e;
+            vec2 r;
+            if (equiangular(k, o, d, t_max, e, r)) p += equiangular_pdf(e, r, t);
+        }
+        if (!(p > 0.0) || isinf(p)) continue;
+        l += med_transmittance(t) * medium[1].rgb * medium_direct(o + d * t, d, dim) / p;
+    }
+    return l;
+}
+
 // This dispatch's sums: radiance (rgb) and samples (a, the accumulator's count), the same
 // samples' unshadowed estimate, and the moments of their luminances (s^2, s u, u^2).
 vec4 acc;
@@ -227,9 +393,18 @@ void radiance_samples(vec2 ndc, uint first, uint count) {
     vec3 o = nr.xyz / nr.w;
     vec3 d = normalize(fr.xyz / fr.w - o);
     KdHit hit = kd_trace(o, d, 0.0, 3.0e38, false);
+    // the medium counts from the eye, t0 before the near plane the ray starts on (render.rs)
+    bool med = medium[0].w != 0.0;
+    float t_eye = med ? max(dot(o - medium[2].xyz, d), 0.0) : 0.0;
+    vec3 oe = o - d * t_eye;
+    float t_hit = hit.t < 0.0 ? MC_INF : hit.t + t_eye;
+    vec3 surface_tr = med ? med_transmittance(t_hit) : vec3(1.0);
     if (hit.t < 0.0) {
         vec3 e = env_radiance(d);
-        for (uint s = 0u; s < count; s++) accumulate(e, e);
+        for (uint s = 0u; s < count; s++) {
+            qmc_index = first + s;
+            accumulate(surface_tr * e + (med ? medium_inscatter(oe, d, t_hit) : vec3(0.0)), e);
+        }
         return;
     }
     uint ti = hit.tri;
@@ -334,7 +509,7 @@ void radiance_samples(vec2 ndc, uint first, uint count) {
                 }
             }
         }
-        accumulate(l, lu);
+        accumulate(med ? surface_tr * l + medium_inscatter(oe, d, t_hit) : l, lu);
     }
 }
 

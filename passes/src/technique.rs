@@ -62,6 +62,11 @@ pub trait Technique: Send {
     fn notes(&self, _scene: &Scene) -> Vec<String> {
         Vec::new()
     }
+    /// Whether the technique integrates the scene's participating medium itself (attenuation and
+    /// in-scattering in its own image, as `mc` does): the renderer then adds no volumetric effect.
+    fn renders_medium(&self) -> bool {
+        false
+    }
     /// For a Monte Carlo technique: the samples per pixel in its image after the last frame
     /// (accumulated over frames where nothing changed); `None` for the others.
     fn samples_per_pixel(&self) -> Option<u32> {

@@ -23,8 +23,12 @@
 //! exponents to `2 / r^2 - 2`) are sampled bilinearly from the scene's texture array
 //! ([`crate::textures`], layers resampled to 256^2, so slightly smoother than the reference's
 //! texels). Materials are the scene's one material model (`glsl/include/material.glsl`), with
-//! anisotropic Ashikhmin-Shirley exponents. Not yet (the reference has it): the participating
-//! medium.
+//! anisotropic Ashikhmin-Shirley exponents. The participating medium as the reference has it
+//! (session 32): camera rays attenuated from the eye, single scattering with one distance sample
+//! per strategy (the transmittance and equiangular sampling per positional light, balance
+//! heuristic) lit by the environment, the local lights and a Henyey-Greenstein phase sample
+//! (power heuristic); `mc` then replaces the volumetric effect ([`crate::technique::Technique::renders_medium`]).
+//! `mc-denoised` keeps the effect (its ratio estimator is of surface light).
 //!
 //! [`denoise`]: the variant `mc-denoised`, a few samples per frame filtered spatio-temporally.
 
@@ -146,6 +150,10 @@ pub struct McTechnique {
     /// false` and at most [`MAX_SPP_PER_DISPATCH`] samples per frame.
     pub unshadowed: bool,
     frame_index: u32,
+    /// The scene's medium (sigma_t, sigma_s, Henyey-Greenstein g), integrated by `mc` itself
+    /// (attenuation from the eye and single scattering, as the reference) unless the unshadowed
+    /// estimate is asked (`mc-denoised`, whose volumetric effect then adds it).
+    medium: Option<(Vec3, Vec3, f32)>,
     /// The frame index that started the accumulation: the seed of its sample sequence.
     sequence_seed: u32,
     /// Samples per pixel accumulated in the image after the last frame.
@@ -174,6 +182,12 @@ impl McTechnique {
         Ok(())
     }
 
+    /// Whether this technique integrates the scene's medium itself (a medium, and no unshadowed
+    /// estimate asked): then the renderer adds no volumetric effect.
+    pub fn renders_medium(&self) -> bool {
+        self.medium.is_some() && !self.unshadowed
+    }
+
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene) -> Result<Self> {
         let pipeline = compute_pipeline(ctx, shaders, "mc/mc.comp", 112)?;
         Ok(McTechnique {
@@ -183,6 +197,7 @@ impl McTechnique {
             repeat: crate::util::Sampler::repeat(ctx)?,
             extras: (0..scene.materials.len()).map(|i| scene.material_extra(i)).collect(),
             sigma_t: scene.medium.map_or(Vec3::ZERO, |m| m.sigma_t().max(Vec3::ZERO)),
+            medium: scene.medium.map(|m| (m.sigma_t().max(Vec3::ZERO), m.sigma_s.max(Vec3::ZERO), m.g)),
             builder: KdTreeBuilder::new(ctx, shaders)?,
             scene: scene.clone(),
             env: EnvTables::new(scene.environment.as_ref()),
@@ -271,6 +286,12 @@ impl McTechnique {
         let (uw, uh) = if self.unshadowed { (width, height) } else { (1, 1) };
         let mut unshadowed = graph.create_image("mc.unshadowed", ImageDesc::new_2d(HDR_FORMAT, uw, uh));
         let inv_vp = FrameConstants::new(frame, None, width, height).inv_view_proj;
+        // the medium: (sigma_t, on), (sigma_s, g), (eye, 0) (glsl/mc/mc.comp `medium`)
+        let (st, ss, g) = self.medium.unwrap_or((Vec3::ZERO, Vec3::ZERO, 0.0));
+        let on = self.renders_medium() as u32 as f32;
+        let eye = frame.camera.eye;
+        let medium_data: [[f32; 4]; 3] = [[st.x, st.y, st.z, on], [ss.x, ss.y, ss.z, g], [eye.x, eye.y, eye.z, 0.0]];
+        let medium = graph.create_buffer_init("mc.medium", bytes_of(&medium_data));
         // Long frames are split into dispatches of at most MAX_SPP_PER_DISPATCH samples (one
         // pass each, the accumulator carried between them): no single dispatch runs long
         // enough for a desktop driver's watchdog.
@@ -309,6 +330,7 @@ impl McTechnique {
             let out = p.write(hdr, Access::ComputeShaderWriteStorage);
             let un = p.write(unshadowed, Access::ComputeShaderWriteStorage);
             let lt = p.read(lights, Access::ComputeShaderReadStorage);
+            let md = p.read(medium, Access::ComputeShaderReadStorage);
             let tex = p.read(textures, Access::ComputeShaderReadSampled);
             let repeat = self.repeat.sampler;
             let pipe = self.pipeline.handle();
@@ -319,6 +341,7 @@ impl McTechnique {
                     Bind::StorageBuffer(lt),
                     Bind::SampledImage(tex, repeat),
                     Bind::StorageImage(un),
+                    Bind::StorageBuffer(md),
                 ];
                 let binds = [kd.binds().as_slice(), &crate::util::storage([td, mats, et, ec]), &images].concat();
                 crate::util::dispatch(rc, pipe, &binds, &push, [groups(width, 8), groups(height, 8), 1])
@@ -339,6 +362,18 @@ impl McTechnique {
 impl crate::technique::Technique for McTechnique {
     fn samples_per_pixel(&self) -> Option<u32> {
         Some(self.accumulated)
+    }
+
+    fn renders_medium(&self) -> bool {
+        McTechnique::renders_medium(self)
+    }
+
+    fn notes(&self, _scene: &Scene) -> Vec<String> {
+        if self.renders_medium() {
+            vec!["mc integrates the medium itself (attenuation from the eye and single scattering, as the reference): no volumetric effect is added".into()]
+        } else {
+            Vec::new()
+        }
     }
 
     fn name(&self) -> &'static str {
