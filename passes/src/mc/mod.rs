@@ -368,14 +368,6 @@ impl crate::technique::Technique for McTechnique {
         McTechnique::renders_medium(self)
     }
 
-    fn notes(&self, _scene: &Scene) -> Vec<String> {
-        if self.renders_medium() {
-            vec!["mc integrates the medium itself (attenuation from the eye and single scattering, as the reference): no volumetric effect is added".into()]
-        } else {
-            Vec::new()
-        }
-    }
-
     fn name(&self) -> &'static str {
         "mc"
     }
