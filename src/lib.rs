@@ -241,8 +241,9 @@ pub struct Renderer {
     pending_spans: std::collections::BTreeMap<u64, Vec<penumbra_engine::CpuSpan>>,
     /// `technique = "auto"`: what it chose and why (the first of [`Renderer::notes`]).
     auto_choice: Option<String>,
-    /// Said when the environment map had to be downsampled for the device.
-    env_notes: Vec<String>,
+    /// The renderer's own notes on its setup: the environment map downsampled for the device, a
+    /// volumetric method asked for that the technique does not use (it integrates the medium).
+    setup_notes: Vec<String>,
 }
 
 impl Renderer {
@@ -306,11 +307,11 @@ impl Renderer {
         let technique = penumbra_passes::registry::create(name, &ctx, shaders, scene, params)?;
         let mut effects = penumbra_passes::effect::create_for(scene, &ctx, shaders, &settings.effects)?;
         // a technique that integrates the medium itself (mc) gets no volumetric effect on top
-        let mut env_notes = Vec::new();
+        let mut setup_notes = Vec::new();
         if technique.renders_medium() {
             effects.retain(|e| e.name() != "volumetric");
             if let Some(m) = &settings.effects.volumetric {
-                env_notes.push(format!(
+                setup_notes.push(format!(
                     "{} integrates the medium itself (attenuation and single scattering, as the reference): the volumetric method '{m}' is not used",
                     technique.name()
                 ));
@@ -320,7 +321,7 @@ impl Renderer {
         // the user is told (the loader's own limit, 16384, is what lavapipe allows).
         let fitted =
             scene.environment.as_ref().and_then(|e| penumbra_passes::env::fit_to_device(e, ctx.max_image_dimension_2d));
-        env_notes.extend(fitted.as_ref().zip(scene.environment.as_ref()).map(|(f, e)| {
+        setup_notes.extend(fitted.as_ref().zip(scene.environment.as_ref()).map(|(f, e)| {
             format!(
                 "the environment map ({}x{}) is larger than this device's largest image side ({}): shown downsampled to {}x{}",
                 e.width, e.height, ctx.max_image_dimension_2d, f.width, f.height
@@ -338,7 +339,7 @@ impl Renderer {
             overlay: None,
             scene_gpu: SceneGpu::new(&ctx, scene)?,
             env,
-            env_notes,
+            setup_notes,
             engine,
             settings,
             prev_view_proj: None,
@@ -372,7 +373,7 @@ impl Renderer {
             scene.technique = t.clone();
         }
         let mut v: Vec<String> = self.auto_choice.iter().cloned().collect();
-        v.extend(self.env_notes.iter().cloned());
+        v.extend(self.setup_notes.iter().cloned());
         v.extend(Self::limitations(&scene));
         v.extend(self.technique.limitations(&self.scene));
         v.extend(self.technique.notes(&self.scene));
