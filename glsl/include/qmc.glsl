@@ -7,8 +7,7 @@
 // elementary interval of area 2^-k (2^a x 2^(k-a) cells) holds exactly one point, whatever the
 // seed. Independent seeds per dimension pair pad the 2D points into as many dimensions as an
 // estimator needs (Kollig and Keller 2002), and independent seeds per pixel decorrelate pixels.
-// No loops (the 32 Sobol' steps are written out): nothing here counts against a driver's loop
-// limit.
+// No loops: nothing here counts against a driver's loop limit.
 #ifndef PENUMBRA_QMC_GLSL
 #define PENUMBRA_QMC_GLSL
 
@@ -35,21 +34,17 @@ uint qmc_lk_permute(uint x, uint seed) {
 uint qmc_owen(uint x, uint seed) { return bitfieldReverse(qmc_lk_permute(bitfieldReverse(x), seed)); }
 
 // Sobol's second dimension (primitive polynomial x + 1: v_1 = 1/2, v_k = v_(k-1) xor v_(k-1)/2),
-// its 32 bits as a fraction.
-#define QMC_SOBOL1_STEP(b) r ^= v & (0u - ((i >> b) & 1u)); v ^= v >> 1u;
+// its 32 bits as a fraction. Its generator matrix is Pascal's triangle mod 2: bit j of the
+// fraction (weight 2^-(j+1)) is the parity of the index bits i_k with j a bit subset of k (Lucas),
+// a superset-sum over the five bits of the position, i.e. five shift-xor steps.
 uint qmc_sobol1(uint i) {
-    uint r = 0u, v = 0x80000000u;
-    QMC_SOBOL1_STEP(0u) QMC_SOBOL1_STEP(1u) QMC_SOBOL1_STEP(2u) QMC_SOBOL1_STEP(3u)
-    QMC_SOBOL1_STEP(4u) QMC_SOBOL1_STEP(5u) QMC_SOBOL1_STEP(6u) QMC_SOBOL1_STEP(7u)
-    QMC_SOBOL1_STEP(8u) QMC_SOBOL1_STEP(9u) QMC_SOBOL1_STEP(10u) QMC_SOBOL1_STEP(11u)
-    QMC_SOBOL1_STEP(12u) QMC_SOBOL1_STEP(13u) QMC_SOBOL1_STEP(14u) QMC_SOBOL1_STEP(15u)
-    QMC_SOBOL1_STEP(16u) QMC_SOBOL1_STEP(17u) QMC_SOBOL1_STEP(18u) QMC_SOBOL1_STEP(19u)
-    QMC_SOBOL1_STEP(20u) QMC_SOBOL1_STEP(21u) QMC_SOBOL1_STEP(22u) QMC_SOBOL1_STEP(23u)
-    QMC_SOBOL1_STEP(24u) QMC_SOBOL1_STEP(25u) QMC_SOBOL1_STEP(26u) QMC_SOBOL1_STEP(27u)
-    QMC_SOBOL1_STEP(28u) QMC_SOBOL1_STEP(29u) QMC_SOBOL1_STEP(30u) QMC_SOBOL1_STEP(31u)
-    return r;
+    i ^= (i >> 1u) & 0x55555555u;
+    i ^= (i >> 2u) & 0x33333333u;
+    i ^= (i >> 4u) & 0x0f0f0f0fu;
+    i ^= (i >> 8u) & 0x00ff00ffu;
+    i ^= i >> 16u;
+    return bitfieldReverse(i);
 }
-#undef QMC_SOBOL1_STEP
 
 // Point i in [0, 1)^2 of the sequence `seed` names.
 vec2 qmc_2d(uint i, uint seed) {

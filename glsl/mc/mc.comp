@@ -5,7 +5,7 @@
 // environment sample (texel distribution proportional to luminance x solid angle, as the CPU
 // reference's alias table) and one BRDF sample, combined by the power heuristic; shadow rays are
 // any-hit queries through the same tree; a participating medium as the reference has it
-// (attenuation from the eye, single scattering: medium_inscatter below); sample points are randomized quasi-Monte Carlo
+// (attenuation from the eye, single scattering: medium_point below); sample points are randomized quasi-Monte Carlo
 // (Owen-scrambled Sobol', include/qmc.glsl), not independent. Same estimator, BRDFs and conventions as
 // penumbra_reference (render.rs, brdf.rs, sampling.rs); see passes/src/mc/mod.rs for what is left out.
 // Progressive: accum.rgb sums samples, accum.a counts them; hdr = accum.rgb / accum.a.
@@ -54,18 +54,15 @@ layout(push_constant) uniform Push {
 // ---- sample points: randomized quasi-Monte Carlo (include/qmc.glsl). Sample `qmc_index` of
 // the pixel's sequence (the accumulator's count: a progressive image continues its sequence
 // frame after frame; a reset starts a new one, scrambled by the frame's seed); each estimator
-// dimension pair has its own scramble (QMC_DIM_*; light k: QMC_DIM_LIGHT + k).
+// dimension pair has its own scramble (QMC_DIM_*).
 #include "qmc.glsl"
 uint qmc_index;
 uint qmc_pixel;
 #define QMC_DIM_PIXEL 0u
-#define QMC_DIM_ENV_TEXEL 1u
-#define QMC_DIM_ENV_WITHIN 2u
-#define QMC_DIM_BRDF_LOBE 3u
-#define QMC_DIM_BRDF 4u
-#define QMC_DIM_LIGHT 5u
-// the medium's samples: per distance strategy 32 dimensions from here (include below)
-#define QMC_DIM_MEDIUM 64u
+// the surface's direct light from here: the environment's texel (1) and position in it (2),
+// the BRDF's lobe (3) and direction (4), light k (5 + k) (vertex_direct); the medium's
+// distance samples after them, 5 + lights each (radiance_samples)
+#define QMC_DIM_SURFACE 1u
 vec2 sample2(uint dim) { return qmc_2d(qmc_index, qmc_dim_seed(qmc_pixel, dim)); }
 
 float luminance(vec3 c) { return dot(c, vec3(0.2126, 0.7152, 0.0722)); }
@@ -124,10 +121,6 @@ bool env_sample(vec4 u, out vec3 d, out vec3 le, out float pdf) {
 #include "brdf_ref.glsl"
 
 float power_heuristic(float a, float b) { float a2 = a * a, b2 = b * b; return a2 + b2 > 0.0 ? a2 / (a2 + b2) : 0.0; }
-
-bool unoccluded(vec3 x, vec3 d) {
-    return kd_trace(x, d, 0.0, 3.0e38, true).t < 0.0;
-}
 
 bool unoccluded_to(vec3 x, vec3 d, float tmax) {
     return kd_trace(x, d, 0.0, tmax, true).t < 0.0;
@@ -239,51 +232,6 @@ vec3 hg_sample(vec3 d, vec2 u) {
     float phi = M_TAU * u.y;
     return normalize(onb(d) * vec3(sin_t * cos(phi), sin_t * sin(phi), cos_t));
 }
-// Direct light in-scattered at x towards -d; sample dimensions dim .. dim + 3 + lights. Every
-// shadow ray goes through one kd_trace call site (slot j: 0 the environment sample, 1 the phase
-// sample towards the environment, then one per light sample, then one per sphere light the
-// phase sample hits): lavapipe compiles every inlined copy of the traversal (four sites here
-// took the shader's first compile from 5 s to 86 s).
-vec3 medium_direct(vec3 x, vec3 d, uint dim) {
-    vec3 l = vec3(0.0);
-    uint nlights = pc.env_info.w;
-    // the phase sample: its pdf is the phase function, f / pdf = 1
-    vec3 wp = hg_sample(d, sample2(dim + 2u));
-    float fp = hg_phase(dot(wp, d));
-    for (uint j = 0u; j < 2u + 2u * nlights; j++) {
-        vec3 wi = wp, c = vec3(0.0);
-        float tmax = MC_INF;
-        if (j == 0u) {
-            vec3 le;
-            float pdf_l;
-            if (env_sample(vec4(sample2(dim), sample2(dim + 1u)), wi, le, pdf_l)) {
-                float f = hg_phase(dot(wi, d));
-                if (f > 0.0) c = f * le * (power_heuristic(pdf_l, f) / pdf_l);
-            }
-        } else if (j == 1u) {
-            if (fp > 0.0) c = env_radiance(wp) * ((pc.env_info.z & 2u) != 0u ? power_heuristic(fp, env_pdf(wp)) : 1.0);
-        } else if (j < 2u + nlights) {
-            uint k = j - 2u;
-            vec3 lli;
-            float ldist, lpdf;
-            if (light_sample(k, x, sample2(dim + 3u + k), wi, ldist, lli, lpdf)) {
-                float f = hg_phase(dot(wi, d));
-                if (f > 0.0) c = lpdf == 0.0 ? f * lli : f * lli * (power_heuristic(lpdf, f) / lpdf);
-                tmax = ldist * (1.0 - 1e-4);
-            }
-        } else {
-            uint k = j - 2u - nlights;
-            float t = uint(lights[4u * k].w) == 2u && fp > 0.0 ? sphere_hit(k, x, wp) : -1.0;
-            if (t > 0.0) {
-                float pdf_s = 1.0 / (M_TAU * sphere_one_minus(k, x));
-                c = lights[4u * k + 2u].rgb * medium_transmittance(lights[4u * k + 3u].yzw, t) * power_heuristic(fp, pdf_s);
-                tmax = t * (1.0 - 1e-4);
-            }
-        }
-        if (c != vec3(0.0) && unoccluded_to(x, wi, tmax)) l += c;
-    }
-    return l;
-}
 // The part [t0, t1] of o + t d, t in [0, t_max), that light k can light: all of it, or for a
 // spot light (cos outer > 0: a convex cone) the ray's interval inside its cone (the breakpoints
 // are the roots of ((x - c).a)^2 = cos^2 |x - c|^2; each piece between them tested at its
@@ -344,39 +292,129 @@ float equiangular_pdf(vec4 e, vec2 r, float t) {
     float x = t - e.x;
     return e.y / ((e.w - e.z) * (e.y * e.y + x * x));
 }
-// Single scattering along o + t d up to t_max (from the eye), one sample per strategy.
-vec3 medium_inscatter(vec3 o, vec3 d, float t_max) {
+// Distance sample `s` of single scattering along o + t d, t in [0, t_max) (from the eye): s = 0
+// the transmittance (pdf ~ exp(-mean(sigma_t) t)), s = 1 + k equiangular towards light k; the
+// point's weight sigma_s Tr(t) over the balance heuristic's summed pdfs (false: no sample);
+// its sample dimension `dim`.
+bool medium_point(uint s, uint dim, vec3 o, vec3 d, float t_max, out float t, out vec3 w) {
     vec3 st = medium[0].rgb;
     float sb = (st.r + st.g + st.b) / 3.0;
     float sbt = sb * t_max;
     float mass = t_max >= 1.0e30 ? 1.0 : (sbt < 1e-4 ? sbt * (1.0 - 0.5 * sbt) : 1.0 - exp(-sbt));
     uint nlights = pc.env_info.w;
-    vec3 l = vec3(0.0);
-    for (uint s = 0u; s <= nlights; s++) {
-        uint dim = QMC_DIM_MEDIUM + 32u * s;
-        float u = sample2(dim + 31u).x;
-        float t;
-        if (s == 0u) {
-            if (!(mass > 0.0 && sb > 0.0)) continue;
-            t = -log(max(1.0 - u * mass, 1e-30)) / sb;
-        } else {
-            vec4 e;
-            vec2 r;
-            if (!equiangular(s - 1u, o, d, t_max, e, r)) continue;
-            t = clamp(e.x + e.y * tan(e.z + u * (e.w - e.z)), r.x, r.y);
-        }
-        if (!(t >= 0.0 && t < t_max)) continue;
-        // the balance heuristic over every strategy: f / the sum of their pdfs
-        float p = (mass > 0.0 && sb > 0.0) ? sb * exp(-sb * t) / mass : 0.0;
-        for (uint k = 0u; k < nlights; k++) {
-            vec4 e;
-            vec2 r;
-            if (equiangular(k, o, d, t_max, e, r)) p += equiangular_pdf(e, r, t);
-        }
-        if (!(p > 0.0) || isinf(p)) continue;
-        l += med_transmittance(t) * medium[1].rgb * medium_direct(o + d * t, d, dim) / p;
+    float u = sample2(dim).x;
+    t = -1.0;
+    w = vec3(0.0);
+    if (s == 0u) {
+        if (!(mass > 0.0 && sb > 0.0)) return false;
+        t = -log(max(1.0 - u * mass, 1e-30)) / sb;
+    } else {
+        vec4 e;
+        vec2 r;
+        if (!equiangular(s - 1u, o, d, t_max, e, r)) return false;
+        t = clamp(e.x + e.y * tan(e.z + u * (e.w - e.z)), r.x, r.y);
     }
-    return l;
+    if (!(t >= 0.0 && t < t_max)) return false;
+    // the balance heuristic over every strategy: f / the sum of their pdfs
+    float p = (mass > 0.0 && sb > 0.0) ? sb * exp(-sb * t) / mass : 0.0;
+    for (uint k = 0u; k < nlights; k++) {
+        vec4 e;
+        vec2 r;
+        if (equiangular(k, o, d, t_max, e, r)) p += equiangular_pdf(e, r, t);
+    }
+    if (!(p > 0.0) || isinf(p)) return false;
+    w = med_transmittance(t) * medium[1].rgb / p;
+    return true;
+}
+
+// ---- direct light at a scattering vertex: a surface point (its BRDF in the shading frame, the
+// cosine included) or a point of the medium (the Henyey-Greenstein phase function towards -d).
+struct Vertex {
+    bool surface;
+    vec3 x;         // shadow rays' origin (a surface point offset along ng)
+    vec3 p;         // the point lights are sampled from
+    vec3 ng;        // surface: the geometric normal on the viewer's side
+    mat3 to_world;  // surface: the shading frame
+    vec3 wo;        // surface: towards the viewer, local
+    vec3 d;         // medium: the ray's direction
+};
+// f (times the cosine on a surface) and the pdf of scattering into world direction wi.
+void vertex_eval(Vertex v, Brdf b, vec3 wi, out vec3 f, out float pdf) {
+    f = vec3(0.0);
+    pdf = 0.0;
+    if (v.surface) {
+        if (dot(wi, v.ng) <= 0.0) return;
+        vec3 lw = transpose(v.to_world) * wi;
+        pdf = brdf_pdf(b, v.wo, lw);
+        if (lw.z > 0.0 && v.wo.z > 0.0) f = brdf_eval(b, v.wo, lw) * lw.z;
+    } else {
+        pdf = hg_phase(dot(wi, v.d));
+        f = vec3(pdf);
+    }
+}
+// Direct light at v with sample dimensions dim (environment texel and position), dim + 2 (BRDF
+// lobe), dim + 3 (BRDF or phase direction), dim + 4 + k (light k): the environment, one
+// sample per light and a BRDF (phase) sample, combined by the power heuristic. Adds to l and
+// to lu (the same with every shadow ray unoccluded). Every shadow ray goes through one kd_trace
+// call site (slot j: 0 the environment sample, 1 .. nlights one sample per light, nlights + 1
+// the BRDF sample towards the environment, then one per sphere light the BRDF sample hits), and
+// this function has one call site: lavapipe compiles every inlined copy of the traversal.
+void vertex_direct(Vertex v, Brdf b, uint dim, inout vec3 l, inout vec3 lu) {
+    vec3 ws = vec3(0.0, 0.0, 1.0), fs = vec3(0.0);
+    float pdf_s = 0.0;
+    if (v.surface) {
+        vec3 wl;
+        if (brdf_sample(b, v.wo, sample2(dim + 2u).x, sample2(dim + 3u), wl)) {
+            ws = normalize(v.to_world * wl);
+            vertex_eval(v, b, ws, fs, pdf_s);
+        }
+    } else {
+        ws = hg_sample(v.d, sample2(dim + 3u));
+        vertex_eval(v, b, ws, fs, pdf_s);
+    }
+    bool bs = pdf_s > 0.0 && fs != vec3(0.0);
+    uint nlights = pc.env_info.w;
+    for (uint j = 0u; j < 2u + 2u * nlights; j++) {
+        vec3 wi = ws, c = vec3(0.0);
+        float tmax = MC_INF;
+        if (j <= nlights) {
+            // a light's sample: le over its pdf (pdf 0: a delta light), weighted against the BRDF's
+            vec3 le = vec3(0.0);
+            float pdf_l = 0.0;
+            if (j == 0u) {
+                if (!env_sample(vec4(sample2(dim), sample2(dim + 1u)), wi, le, pdf_l)) le = vec3(0.0);
+            } else {
+                uint k = j - 1u;
+                float ldist;
+                if (light_sample(k, v.p, sample2(dim + 4u + k), wi, ldist, le, pdf_l)) {
+                    tmax = ldist * (1.0 - 1e-4);
+                } else {
+                    le = vec3(0.0);
+                }
+            }
+            if (le != vec3(0.0)) {
+                vec3 f;
+                float pdf;
+                vertex_eval(v, b, wi, f, pdf);
+                if (f != vec3(0.0)) c = pdf_l == 0.0 ? f * le : f * le * (power_heuristic(pdf_l, pdf) / pdf_l);
+            }
+        } else if (j == nlights + 1u) {
+            if (bs) c = fs * env_radiance(ws) * (((pc.env_info.z & 2u) != 0u ? power_heuristic(pdf_s, env_pdf(ws)) : 1.0) / pdf_s);
+        } else {
+            uint k = j - nlights - 2u;
+            float t = bs && uint(lights[4u * k].w) == 2u ? sphere_hit(k, v.p, ws) : -1.0;
+            if (t > 0.0) {
+                float pdf_l = 1.0 / (M_TAU * sphere_one_minus(k, v.p));
+                vec3 le = lights[4u * k + 2u].rgb * medium_transmittance(lights[4u * k + 3u].yzw, t);
+                c = fs * le * (power_heuristic(pdf_s, pdf_l) / pdf_s);
+                tmax = t * (1.0 - 1e-4);
+            }
+        }
+        if (c != vec3(0.0)) {
+            lu += c;
+            if (unoccluded_to(v.x, wi, tmax)) l += c;
+        }
+    }
 }
 
 // This dispatch's sums: radiance (rgb) and samples (a, the accumulator's count), the same
@@ -413,8 +451,8 @@ void radiance_samples(vec2 ndc, uint first, uint count) {
     bool surf = hit.t >= 0.0;
     vec3 sky = vec3(0.0);
     if (!surf) {
-        // the sky: with a medium, its in-scattering per sample (medium_inscatter's one call site
-        // is below, shared with the surfaces; the surface's setup then reads triangle 0, unused)
+        // the sky: with a medium, its in-scattering per sample (vertex_direct's one call site is
+        // below, shared with the surfaces; the surface's setup then reads triangle 0, unused)
         sky = env_radiance(d);
         if (!med) {
             for (uint s = 0u; s < count; s++) accumulate(sky, sky);
@@ -456,76 +494,34 @@ void radiance_samples(vec2 ndc, uint first, uint count) {
     vec3 x = p + ng * (3e-5 * (1.0 + max(max(abs(p.x), abs(p.y)), abs(p.z))));
     // what the surface emits towards the eye (direct lighting only: it lights nothing)
     vec3 emitted = material_emission(mat);
+    Vertex sv = Vertex(true, x, p, ng, to_world, wo, d);
+    // with a medium, vertices 1 .. 1 + nlights are its distance samples (medium_point)
+    uint nv = med ? 2u + pc.env_info.w : 1u;
     for (uint s = 0u; s < count; s++) {
         qmc_index = first + s;
-        vec3 l = surf ? emitted : sky, lu = l;
-        if (surf) {
-            // environment sample
-            vec4 ue = vec4(sample2(QMC_DIM_ENV_TEXEL), sample2(QMC_DIM_ENV_WITHIN));
-            vec3 wi, le;
-            float pdf_l;
-            if (env_sample(ue, wi, le, pdf_l)) {
-                vec3 f = vec3(0.0);
-                if (dot(wi, ng) > 0.0) {
-                    vec3 lw = transpose(to_world) * wi;
-                    if (lw.z > 0.0 && wo.z > 0.0) f = brdf_eval(b, wo, lw) * lw.z;
-                }
-                if (f != vec3(0.0)) {
-                    float w = power_heuristic(pdf_l, brdf_pdf(b, wo, transpose(to_world) * wi));
-                    vec3 c = f * le * (w / pdf_l);
-                    lu += c;
-                    if (unoccluded(x, wi)) l += c;
-                }
+        vec3 l = surf ? emitted : sky, lu = l, lm = vec3(0.0);
+        for (uint vi = 0u; vi < nv; vi++) {
+            Vertex v = sv;
+            vec3 w = vec3(1.0);
+            // vertex_direct's dimensions, then (medium) the distance's
+            uint dim = QMC_DIM_SURFACE + vi * (5u + pc.env_info.w);
+            if (vi == 0u) {
+                if (!surf) continue;
+            } else {
+                float t;
+                if (!medium_point(vi - 1u, dim + 4u + pc.env_info.w, oe, d, t_hit, t, w)) continue;
+                v = Vertex(false, oe + d * t, oe + d * t, ng, to_world, wo, d);
             }
-            // local lights, one sample each
-            uint nlights = pc.env_info.w;
-            for (uint k = 0u; k < nlights; k++) {
-                vec2 u = sample2(QMC_DIM_LIGHT + k);
-                vec3 lwi, lli;
-                float ldist, lpdf;
-                if (!light_sample(k, p, u, lwi, ldist, lli, lpdf)) continue;
-                vec3 f = vec3(0.0);
-                if (dot(lwi, ng) > 0.0) {
-                    vec3 lw = transpose(to_world) * lwi;
-                    if (lw.z > 0.0 && wo.z > 0.0) f = brdf_eval(b, wo, lw) * lw.z;
-                }
-                if (f == vec3(0.0)) continue;
-                vec3 c = lpdf == 0.0 ? f * lli : f * lli * (power_heuristic(lpdf, brdf_pdf(b, wo, transpose(to_world) * lwi)) / lpdf);
-                lu += c;
-                if (unoccluded_to(x, lwi, ldist * (1.0 - 1e-4))) l += c;
-            }
-            // BRDF sample
-            float ul = sample2(QMC_DIM_BRDF_LOBE).x;
-            vec2 u2 = sample2(QMC_DIM_BRDF);
-            vec3 wl;
-            if (brdf_sample(b, wo, ul, u2, wl)) {
-                vec3 wi2 = normalize(to_world * wl);
-                if (dot(wi2, ng) > 0.0) {
-                    vec3 lw = transpose(to_world) * wi2;
-                    float pdf_s = brdf_pdf(b, wo, lw);
-                    vec3 f = (lw.z > 0.0 && wo.z > 0.0) ? brdf_eval(b, wo, lw) * lw.z : vec3(0.0);
-                    if (pdf_s > 0.0 && f != vec3(0.0)) {
-                        float w = (pc.env_info.z & 2u) != 0u ? power_heuristic(pdf_s, env_pdf(wi2)) : 1.0;
-                        vec3 c = f * env_radiance(wi2) * (w / pdf_s);
-                        lu += c;
-                        if (unoccluded(x, wi2)) l += c;
-                    }
-                    if (pdf_s > 0.0 && f != vec3(0.0)) {
-                        for (uint k = 0u; k < nlights; k++) {
-                            if (uint(lights[4u * k].w) != 2u) continue;
-                            float t = sphere_hit(k, p, wi2);
-                            if (t < 0.0) continue;
-                            float pdf_l = 1.0 / (M_TAU * sphere_one_minus(k, p));
-                            vec3 le = lights[4u * k + 2u].rgb * medium_transmittance(lights[4u * k + 3u].yzw, t);
-                            vec3 c = f * le * (power_heuristic(pdf_s, pdf_l) / pdf_s);
-                            lu += c;
-                            if (unoccluded_to(x, wi2, t * (1.0 - 1e-4))) l += c;
-                        }
-                    }
-                }
+            vec3 lv = vec3(0.0), luv = vec3(0.0);
+            vertex_direct(v, b, dim, lv, luv);
+            if (vi == 0u) {
+                l += lv;
+                lu += luv;
+            } else {
+                lm += w * lv;
             }
         }
-        accumulate(med ? surface_tr * l + medium_inscatter(oe, d, t_hit) : l, lu);
+        accumulate(med ? surface_tr * l + lm : l, lu);
     }
 }
 
