@@ -24,7 +24,7 @@
 //! ([`crate::textures`], layers resampled to 256^2, so slightly smoother than the reference's
 //! texels). Materials are the scene's one material model (`glsl/include/material.glsl`), with
 //! anisotropic Ashikhmin-Shirley exponents. The participating medium as the reference has it
-//! (session 32): camera rays attenuated from the eye, single scattering with one distance sample
+//! (session 33): camera rays attenuated from the eye, single scattering with one distance sample
 //! per strategy (the transmittance and equiangular sampling per positional light, balance
 //! heuristic) lit by the environment, the local lights and a Henyey-Greenstein phase sample
 //! (power heuristic); `mc` then replaces the volumetric effect ([`crate::technique::Technique::renders_medium`]).
