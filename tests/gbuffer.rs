@@ -117,3 +117,77 @@ fn motion_vectors_match_reprojection_of_moving_objects() {
     assert!(checked > 1000 && moving > 50, "checked {checked}, moving {moving}");
     assert!(worst < 0.02, "motion vector error {worst} (relative to 1 + |motion| px)");
 }
+
+/// Two-sided shading follows the reference's rule (render.rs; mc.comp): the face's normal on the
+/// vertex normals' side, turned towards the viewer, the vertex normal on its side. Flipping by
+/// the rasterizer's facing instead shaded every triangle whose vertex normals disagree with its
+/// winding from behind: black. Two walls facing the camera under a uniform sky, one wound
+/// clockwise with its normals towards the camera, one counter-clockwise with them away: the
+/// reference lights both (albedo x sky), and so must `env` through the G-buffer.
+#[test]
+fn vertex_normals_against_the_winding_shade_as_in_the_reference() {
+    use glam::{Mat4, Vec2, Vec3};
+    use penumbra_scene::{Material, MeshData, Object};
+    let sky = 0.8f32;
+    let wall = |x0: f32, clockwise: bool, nz: f32| {
+        let positions = vec![
+            Vec3::new(x0, -0.5, 0.0),
+            Vec3::new(x0 + 1.0, -0.5, 0.0),
+            Vec3::new(x0 + 1.0, 0.5, 0.0),
+            Vec3::new(x0, 0.5, 0.0),
+        ];
+        let indices = if clockwise { vec![0, 2, 1, 0, 3, 2] } else { vec![0, 1, 2, 0, 2, 3] };
+        MeshData {
+            name: format!("wall{x0}"),
+            positions,
+            normals: vec![Vec3::new(0.0, 0.0, nz); 4],
+            uvs: vec![Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::Y],
+            indices,
+        }
+    };
+    let mut s = penumbra_scene::Scene::default_scene();
+    // seen from +z: clockwise winding faces away, so its normals (+z) disagree; the second's
+    // winding faces the camera and its normals (-z) do not
+    s.meshes = vec![wall(-1.2, true, 1.0), wall(0.2, false, -1.0)];
+    s.materials = vec![Material::diffuse("grey", Vec3::splat(0.5))];
+    s.objects = (0..2)
+        .map(|i| Object { name: format!("wall{i}"), mesh: i, material: 0, transform: Mat4::IDENTITY })
+        .collect();
+    s.material_extras.clear();
+    s.object_info.clear();
+    s.material_animations.clear();
+    s.lights.clear();
+    s.medium = None;
+    s.camera_path = None;
+    s.camera.eye = Vec3::new(0.0, 0.0, 3.0);
+    s.camera.target = Vec3::ZERO;
+    s.camera.up = Vec3::Y;
+    s.camera.fov_y_deg = 40.0;
+    let s = common::with_env(&s, 8, 4, |_, _| [sky; 3]);
+    let lit = 0.5 * sky * s.environment.as_ref().unwrap().intensity;
+    let (w, h) = (48u32, 24u32);
+    let reference = penumbra_reference::render(
+        &s,
+        &penumbra_reference::ReferenceOptions { width: w, height: h, spp: 16, pixel_grid: 1, ..Default::default() },
+    )
+    .unwrap()
+    .radiance;
+    let (r, frames) = common::render_times(&s, "env", w, h, &[0.0], true);
+    let log = r.context().validation.clone();
+    drop(r);
+    assert_eq!(log.error_count(), 0, "{:#?}", log.errors());
+    let img = common::hdr_image(frames.last().unwrap());
+    let mut walls = [0usize; 2];
+    for y in 0..h {
+        for x in 0..w {
+            let (g, rf) = (img.get(x, y)[0], reference.get(x, y)[0]);
+            // the walls' pixels: the reference's lit value (the sky behind is `sky`, brighter)
+            if (rf - lit).abs() > 0.05 * lit {
+                continue;
+            }
+            walls[(x >= w / 2) as usize] += 1;
+            assert!((g - lit).abs() < 0.05 * lit, "pixel ({x}, {y}) of the wall: {g}, the reference's {rf}");
+        }
+    }
+    assert!(walls.iter().all(|&n| n >= 60), "walls' pixels (left, right): {walls:?}");
+}

@@ -20,14 +20,18 @@ layout(location = 3) out vec2 o_motion;    // pixels moved since the previous fr
 
 void main() {
     vec3 n = normalize(v_normal);
-    if (!gl_FrontFacing) n = -n;  // two-sided shading
     // dP/du and dP/dv from screen-space derivatives of position and uv: the material's normal map
     // bends the normal in their frame; the tangent (dP/du) is the local frame of anisotropic BRDFs.
     vec3 dp1 = dFdx(v_world), dp2 = dFdy(v_world);
-    // the face's normal (v_world is linear over the triangle), on the vertex normal's side
+    // Two-sided shading as the reference's (render.rs, mc.comp): the face's normal (v_world is
+    // linear over the triangle) on the vertex normal's side, then turned towards the viewer, and
+    // the vertex normal on its side. (Flipping by gl_FrontFacing instead shaded a front-facing
+    // triangle whose interpolated normal faces away, at a silhouette, from behind: black.)
     vec3 ng = cross(dp1, dp2);
     ng = dot(ng, ng) > 1e-30 ? normalize(ng) : n;
     if (dot(ng, n) < 0.0) ng = -ng;
+    if (dot(ng, cam.eye.xyz - v_world) < 0.0) ng = -ng;
+    if (dot(n, ng) < 0.0) n = -n;
     vec2 duv1 = dFdx(v_uv), duv2 = dFdy(v_uv);
     float det = duv1.x * duv2.y - duv1.y * duv2.x;
     float sg = det < 0.0 ? -1.0 : 1.0;
