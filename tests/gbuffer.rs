@@ -150,9 +150,8 @@ fn vertex_normals_against_the_winding_shade_as_in_the_reference() {
     // winding faces the camera and its normals (-z) do not
     s.meshes = vec![wall(-1.2, true, 1.0), wall(0.2, false, -1.0)];
     s.materials = vec![Material::diffuse("grey", Vec3::splat(0.5))];
-    s.objects = (0..2)
-        .map(|i| Object { name: format!("wall{i}"), mesh: i, material: 0, transform: Mat4::IDENTITY })
-        .collect();
+    s.objects =
+        (0..2).map(|i| Object { name: format!("wall{i}"), mesh: i, material: 0, transform: Mat4::IDENTITY }).collect();
     s.material_extras.clear();
     s.object_info.clear();
     s.material_animations.clear();

@@ -91,14 +91,15 @@ float light_visibility(vec3 p, vec3 to_light, float radius) {
     if ((pc.flags & 3u) != 0u) return 1.0;
     float d = length(to_light);
     if (!(d > 0.0)) return 1.0;
-    if (radius <= 0.0) return light_segment_blocked(p, to_light / d, d) ? 0.0 : 1.0;
+    // one loop, one call site of the traversals (lavapipe compiles every inlined copy)
+    int count = radius <= 0.0 ? 1 : LIGHT_DISK_POINTS;
     float vis = 0.0;
-    for (int k = 0; k < LIGHT_DISK_POINTS; ++k) {
-        vec3 q = light_disk_target(to_light, radius, k);
+    for (int k = 0; k < count; ++k) {
+        vec3 q = radius <= 0.0 ? to_light : light_disk_target(to_light, radius, k);
         float len = length(q);
         vis += light_segment_blocked(p, q / len, len) ? 0.0 : 1.0;
     }
-    return vis / float(LIGHT_DISK_POINTS);
+    return vis / float(count);
 }
 
 vec3 local_lights(vec3 pos, vec3 p, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, MaterialData m) {

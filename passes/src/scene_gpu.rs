@@ -78,6 +78,9 @@ pub struct SceneGpu {
     /// every technique attenuates local light on its way in by `exp(-sigma_t d)`
     /// (`light_transmittance` of `glsl/include/common.glsl`), as the reference does.
     sigma_t: Vec3,
+    /// Per object: the G-buffer culls its back faces (`MeshData::is_closed_outward`, neither a
+    /// thin shell nor a two-sided material): `InstanceData.ids.z`, see `glsl/frame/gbuffer.frag`.
+    cull_back: Vec<bool>,
     /// The specular albedo table (`penumbra_math::dfg::packed`) that follows the frame
     /// constants in the camera buffer (`cam_dfg` of `glsl/include/env_dfg.glsl`).
     dfg: Vec<[f32; 4]>,
@@ -163,8 +166,19 @@ impl SceneGpu {
         let extras = (0..scene.materials.len()).map(|i| scene.material_extra(i)).collect();
         let textures = MaterialTextures::new(ctx, &scene.textures)?;
         let sigma_t = scene.medium.map_or(Vec3::ZERO, |m| m.sigma_t().max(Vec3::ZERO));
+        let cull_back = scene
+            .objects
+            .iter()
+            .enumerate()
+            .map(|(i, o)| {
+                !scene.object_info(i).thin_shell
+                    && !scene.material_extras.get(o.material).is_some_and(|e| e.two_sided)
+                    && scene.meshes.get(o.mesh).is_some_and(|m| m.is_closed_outward())
+            })
+            .collect();
         Ok(SceneGpu {
             ctx: ctx.clone(),
+            cull_back,
             vertices,
             indices,
             meshes,
@@ -296,11 +310,22 @@ impl SceneGpu {
         let mut deformed_verts: Vec<Vertex> = Vec::new();
         for (i, it) in frame.instances.iter().enumerate() {
             let normal = it.world.inverse().transpose();
+            // back faces culled (1; 2: a mirroring transform turns the winding) for closed,
+            // outward-wound meshes at rest (a deformation could turn them inside out)
+            let cull = if self.cull_back.get(it.object).copied().unwrap_or(false) && it.deformed_mesh.is_none() {
+                if glam::Mat3::from_mat4(it.world).determinant() < 0.0 {
+                    2
+                } else {
+                    1
+                }
+            } else {
+                0
+            };
             inst.push(InstanceData {
                 model: it.world.to_cols_array_2d(),
                 prev_model: it.prev_world.to_cols_array_2d(),
                 normal_matrix: normal.to_cols_array_2d(),
-                ids: [it.material as u32, i as u32, 0, 0],
+                ids: [it.material as u32, i as u32, cull, 0],
             });
             let Some(r) = self.meshes.get(it.mesh) else { continue };
             if r.index_count == 0 {

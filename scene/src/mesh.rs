@@ -225,6 +225,36 @@ impl MeshData {
         !self.indices.is_empty() && self.edge_stats() == EdgeStats::default()
     }
 
+    /// Whether the mesh is closed, wound counter-clockwise seen from outside (positive signed
+    /// volume), with its vertex normals on the same side (a triangle's normal against the sum of
+    /// its vertex normals, agreeing over at least 95 % of the area). Then a triangle seen from
+    /// its back (by winding) is hidden behind the mesh's front except where a silhouette's
+    /// coverage comes down to rounding, and a rasterizer may cull it: a ray through that pixel
+    /// centre goes past the silhouette.
+    pub fn is_closed_outward(&self) -> bool {
+        if !self.is_closed() {
+            return false;
+        }
+        let np = self.positions.len();
+        let has_n = self.normals.len() == np;
+        let (mut volume, mut agree, mut total) = (0.0f64, 0.0f64, 0.0f64);
+        for t in self.indices.chunks_exact(3) {
+            let [a, b, c] = [t[0] as usize, t[1] as usize, t[2] as usize];
+            if a >= np || b >= np || c >= np {
+                return false;
+            }
+            let (pa, pb, pc) = (self.positions[a], self.positions[b], self.positions[c]);
+            volume += f64::from(pa.dot(pb.cross(pc)));
+            let g = (pb - pa).cross(pc - pa);
+            let area = f64::from(g.length());
+            total += area;
+            if !has_n || g.dot(self.normals[a] + self.normals[b] + self.normals[c]) > 0.0 {
+                agree += area;
+            }
+        }
+        volume > 0.0 && total > 0.0 && agree >= 0.95 * total
+    }
+
     /// Area-weighted smooth vertex normals from the triangles (vertices without a
     /// non-degenerate triangle get +Y).
     pub fn recompute_normals(&mut self) {

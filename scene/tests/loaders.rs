@@ -265,6 +265,7 @@ fn real_assets_load() {
     assert_eq!(m.positions.len(), 2826);
     assert_eq!(m.triangle_count(), 5648);
     assert!(m.is_closed(), "{:?}", m.edge_stats());
+    assert!(m.is_closed_outward(), "the bunny is wound counter-clockwise from outside");
     // suzi (open mesh) from the shared assets, when present.
     let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/assets/suzi.glb");
     if shared.exists() {
@@ -652,4 +653,35 @@ fn draco_bunny_decodes_to_the_plain_bunny() {
     };
     assert!((area(d) / area(p) - 1.0).abs() < 1e-3, "{} against {}", area(d), area(p));
     assert!(d.is_closed(), "the decoded bunny is closed like the plain one");
+}
+
+/// `is_closed_outward` (the G-buffer culls such meshes' back faces): closed, counter-clockwise
+/// from outside, the vertex normals on the same side; not an open mesh, a mesh wound inside
+/// out, or one whose normals point inwards.
+#[test]
+fn closed_outward_meshes_are_told_apart() {
+    use penumbra_scene::MeshData;
+    let sphere = MeshData::uv_sphere(0.7, 24, 12);
+    let (cube, torus) = (MeshData::cube(0.5), MeshData::torus(1.0, 0.3, 24, 12));
+    for m in [&sphere, &cube, &torus] {
+        assert!(m.is_closed_outward(), "{}", m.name);
+        let mut inside_out = m.clone();
+        for t in inside_out.indices.chunks_exact_mut(3) {
+            t.swap(1, 2);
+        }
+        assert!(inside_out.is_closed() && !inside_out.is_closed_outward(), "{} wound inside out", m.name);
+        let mut inward = m.clone();
+        for n in &mut inward.normals {
+            *n = -*n;
+        }
+        assert!(!inward.is_closed_outward(), "{} with inward normals", m.name);
+        // both: consistent, but the winding's outside is the normals' inside
+        let mut both = inside_out.clone();
+        both.normals = inward.normals.clone();
+        assert!(!both.is_closed_outward(), "{} inside out with inward normals", m.name);
+    }
+    assert!(!MeshData::plane(2.0, 2).is_closed_outward());
+    let mut open = sphere.clone();
+    open.indices.truncate(open.indices.len() - 3);
+    assert!(!open.is_closed_outward());
 }
