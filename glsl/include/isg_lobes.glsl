@@ -15,13 +15,16 @@
 // energy-weighted mean visibility of the lobes traversed. Measured against the visible light,
 // not the unshadowed total, the skip stays small in an umbra: where the dominant lobe (a sun, a
 // studio light) is blocked, the sky's lobes are traversed, not given the sun's visibility.
-vec3 isg_lobes_shadowed(vec3 p, vec3 n, uint nl, float min_fraction, SG kernel, bool cosine, out vec3 unshadowed) {
-    nl = min(nl, 64u);
+// With `own`, one constant lobe of radiance 1 instead of the lighting: the kernel's own visible
+// fraction (in every channel; `unshadowed` 1), through the same call of visible(), so that a
+// shader that asks for both inlines one traversal (lavapipe compiles every inlined copy).
+vec3 isg_lobes_shadowed(vec3 p, vec3 n, uint nl, float min_fraction, SG kernel, bool cosine, bool own, out vec3 unshadowed) {
+    nl = own ? 1u : min(nl, 64u);
     float ys[64];
     unshadowed = vec3(0.0);
     for (uint k = 0u; k < nl; ++k) {
-        SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
-        vec3 e = lobes[2u * k + 1u].rgb * max(cosine ? sg_cosine_integral(l, n) : sg_inner_product(l, kernel), 0.0);
+        SG l = own ? kernel : sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+        vec3 e = own ? vec3(1.0) : lobes[2u * k + 1u].rgb * max(cosine ? sg_cosine_integral(l, n) : sg_inner_product(l, kernel), 0.0);
         unshadowed += e;
         ys[k] = dot(e, vec3(0.2126, 0.7152, 0.0722));
     }
@@ -40,14 +43,14 @@ vec3 isg_lobes_shadowed(vec3 p, vec3 n, uint nl, float min_fraction, SG kernel, 
         if (best < 0) break;
         uint k = uint(best);
         ys[k] = -1.0;
-        SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
-        vec3 e = lobes[2u * k + 1u].rgb * max(cosine ? sg_cosine_integral(l, n) : sg_inner_product(l, kernel), 0.0);
+        SG l = own ? kernel : sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+        vec3 e = own ? vec3(1.0) : lobes[2u * k + 1u].rgb * max(cosine ? sg_cosine_integral(l, n) : sg_inner_product(l, kernel), 0.0);
         skipping = skipping || by < min_fraction * vis_sum;
         if (skipping) {
             skipped += e;
             continue;
         }
-        float vk = visible(p, n, sg_product(l, kernel));
+        float vk = visible(p, n, own ? kernel : sg_product(l, kernel));
         shadowed += e * vk;
         vis_sum += vk * by;
         vis_w += by;
@@ -57,7 +60,7 @@ vec3 isg_lobes_shadowed(vec3 p, vec3 n, uint nl, float min_fraction, SG kernel, 
 
 // Diffuse: isg_lobes_shadowed through the clamped cosine of n.
 vec3 isg_lobes_diffuse(vec3 p, vec3 n, uint nl, float min_fraction, out vec3 unshadowed) {
-    return isg_lobes_shadowed(p, n, nl, min_fraction, sg_clamped_cosine(n), true, unshadowed);
+    return isg_lobes_shadowed(p, n, nl, min_fraction, sg_clamped_cosine(n), true, false, unshadowed);
 }
 
 // The light the lighting lobes send through the glossy lobe gj (the BRDF's specular SG times the
@@ -67,25 +70,31 @@ vec3 isg_lobes_diffuse(vec3 p, vec3 n, uint nl, float min_fraction, out vec3 uns
 // nearly constant light: open times its own visible fraction, one traversal instead of one per
 // lighting lobe (isg_bunny's shininess-1000 and chess's ivory lobes at 160x120: the same error at
 // 1.6-1.8x the time per frame). Where no lighting lobe reaches gj, its own visible fraction with a
-// negligible weight (open = 1e-30). One traversal site each for the ISG and the lobes (lavapipe
-// compiles every inlined copy of the traversal: callers loop over lobes without unrolling).
+// negligible weight (open = 1e-30). One call of isg_lobes_shadowed in a loop of its two steps
+// (the lighting lobes; the lobe's own fraction): one inlined traversal (lavapipe compiles every
+// inlined copy: callers loop over lobes without unrolling).
+float isg_lobes_glossy_sharp_open(uint nl, SG gj) {
+    vec3 e = vec3(0.0);
+    for (uint k = 0u; k < min(nl, 64u); ++k)
+        e += lobes[2u * k + 1u].rgb * max(sg_inner_product(sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0), gj), 0.0);
+    return dot(e, vec3(0.2126, 0.7152, 0.0722));
+}
 float isg_lobes_glossy_light(vec3 p, vec3 n, uint nl, float min_fraction, SG gj, out float open) {
-    const vec3 lum = vec3(0.2126, 0.7152, 0.0722);
     bool sharp = gj.lambda > 256.0;
     float shadowed = 0.0;
-    if (sharp) {
-        vec3 e = vec3(0.0);
-        for (uint k = 0u; k < min(nl, 64u); ++k)
-            e += lobes[2u * k + 1u].rgb * max(sg_inner_product(sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0), gj), 0.0);
-        open = dot(e, lum);
-    } else {
+    open = sharp ? isg_lobes_glossy_sharp_open(nl, gj) : 0.0;
+    for (int step = 0; step < 2; ++step) {
+        bool own = step == 1;
+        if (own ? !(sharp || !(open > 0.0)) : sharp) continue;
         vec3 o;
-        shadowed = dot(isg_lobes_shadowed(p, n, nl, min_fraction, gj, false, o), lum);
-        open = dot(o, lum);
-    }
-    if (sharp || !(open > 0.0)) {
-        if (!(open > 0.0)) open = 1e-30;
-        shadowed = open * visible(p, n, gj);
+        vec3 r = isg_lobes_shadowed(p, n, nl, min_fraction, gj, false, own, o);
+        if (own) {
+            if (!(open > 0.0)) open = 1e-30;
+            shadowed = open * r.x;
+        } else {
+            shadowed = dot(r, vec3(0.2126, 0.7152, 0.0722));
+            open = dot(o, vec3(0.2126, 0.7152, 0.0722));
+        }
     }
     return shadowed;
 }

@@ -194,7 +194,8 @@ void main() {
     vvis = texelFetch(vertex_vis, px, 0);
 #endif
     bool per_vertex = vvis.r >= 0.0;
-    vec3 diffuse = vec3(0.0);
+    const vec3 lum = vec3(0.2126, 0.7152, 0.0722);
+    vec3 diffuse = vec3(0.0), unshadowed = vec3(0.0);
     uint nl = min(pc.lobe_count, 64u);
     if (per_vertex) {
         if (pc.diffuse_ratio != 0u) {
@@ -206,16 +207,8 @@ void main() {
             }
         }
         diffuse *= (pc.flags & 1u) != 0u ? vec3(1.0) : clamp(vvis.rgb, 0.0, 1.0);
-    } else {
-        // Diffuse: include/isg_lobes.glsl (lobes below min_fraction of the light found
-        // visible so far take the mean visibility of those traversed).
-        vec3 unshadowed;
-        diffuse = isg_lobes_diffuse(p, n, nl, pc.min_fraction, unshadowed);
-        if (pc.diffuse_ratio != 0u) diffuse = irr_ratio(n, diffuse, unshadowed);
     }
-    vec3 color = material_diffuse_albedo(m, ndv) / PI * diffuse;
     float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
-    color += local_lights(pos, p, n, tg, ng, v, albedo, m);
     // Ashikhmin-Shirley as seven SG lobes (flags bit 6, per pixel: the vertices carry no tangent)
     // or, as the other BRDFs, one (a Cook-Torrance lobe of the material's roughness).
     bool as7 = kind == 3 && (pc.flags & 64u) != 0u && !per_vertex;
@@ -225,71 +218,112 @@ void main() {
         sg_as_lobes(brdf_frame(n, tg), v, m.extra.x, m.extra.w, m.spec_rough.rgb, as_g, as_w);
         for (int k = 0; k < SG_AS_LOBES; ++k) as_g[k] = sg_product(as_g[k], cosg);
     }
-    if (kind != 0 && pc.specular_mode == 2u) {
-        // Ratio: the material model's unshadowed glossy term (the `env` technique's split sum,
-        // env_shade.glsl) times the ISG visibility of the specular SG lobe x cosine. The
-        // one SG lobe of eq. 9 loses the lobe's Fresnel and masking energy (balls_on_dish's
-        // Cook-Torrance dish came out about 10 % dark with shadows off).
-        vec3 glossy = env_glossy(n, tg, v, m);
-        if (max(glossy.r, max(glossy.g, glossy.b)) > 0.0) {
-            // the light-weighted visible share of the lobe (isg_lobes.glsl), over the BRDF's
-            // lobes (Ashikhmin-Shirley's seven weighted by their BRDF weights' luminance) in a
-            // loop the compiler does not unroll: one inlined traversal
-            float vs = 1.0;
-            if (per_vertex) {
-                vs = (pc.flags & 1u) != 0u ? 1.0 : clamp(vvis.a, 0.0, 1.0);
-            } else if ((pc.flags & 1u) == 0u) {
-                vec3 amp;
-                SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
-                SG g1 = sg_product(gs, cosg);
-                int count = as7 ? SG_AS_LOBES : 1;
-                // lobes under 1 % of the total weight are left out of the share (the two
-                // outermost of Ashikhmin-Shirley's seven carry 0.1 % each)
-                float wsum = 0.0;
-                for (int j = 0; j < count; ++j) wsum += as7 ? dot(as_w[j], vec3(0.2126, 0.7152, 0.0722)) : 1.0;
-                float num = 0.0, den = 0.0;
-                for (int j = 0; j < count; ++j) {
-                    float wj = as7 ? dot(as_w[j], vec3(0.2126, 0.7152, 0.0722)) : 1.0;
-                    if (!(wj > 0.01 * wsum)) continue;
-                    float open;
-                    num += wj * isg_lobes_glossy_light(p, n, nl, pc.min_fraction, as7 ? as_g[j] : g1, open);
-                    den += wj * open;
-                }
-                vs = den > 0.0 ? clamp(num / den, 0.0, 1.0) : 1.0;
-            }
-            color += glossy * vs;
-        }
-    } else if (kind != 0) {
-        // Eq. 9: per BRDF lobe G_j (times the cosine), mu_j Gamma_L(a_j, lambda_j) times its
-        // visible fraction. One lobe: the Beckmann warp (Wang et al. 2009), m = roughness^2 as
-        // the reference's SG mode; Ashikhmin-Shirley with bit 6: its seven.
-        int count = as7 ? SG_AS_LOBES : 1;
-        for (int j = 0; j < count; ++j) {
-            vec3 amp;
-            SG gj;
-            if (as7) {
-                gj = as_g[j];
-                amp = as_w[j];
-                if (max(amp.r, max(amp.g, amp.b)) <= 0.0) continue;
+    // Glossy, specular_mode 2 (ratio): the material model's unshadowed glossy term (the `env`
+    // technique's split sum, env_shade.glsl) times the light-weighted visible share of the BRDF's
+    // lobes (isg_lobes.glsl; Ashikhmin-Shirley's seven weighted by their BRDF weights'
+    // luminance, lobes under 1 % of the total weight left out: the two outermost carry 0.1 %
+    // each). The one SG lobe of eq. 9 loses the lobe's Fresnel and masking energy
+    // (balls_on_dish's Cook-Torrance dish came out about 10 % dark with shadows off).
+    // Otherwise eq. 9: per BRDF lobe G_j (times the cosine), mu_j Gamma_L(a_j, lambda_j) times
+    // its visible fraction. One lobe: the Beckmann warp (Wang et al. 2009), m = roughness^2 as
+    // the reference's SG mode; Ashikhmin-Shirley with bit 6: its seven.
+    bool ratio = kind != 0 && pc.specular_mode == 2u;
+    vec3 glossy = ratio ? env_glossy(n, tg, v, m) : vec3(0.0);
+    bool ratio_traced = ratio && max(glossy.r, max(glossy.g, glossy.b)) > 0.0 && !per_vertex && (pc.flags & 1u) == 0u;
+    int gcount = kind == 0 ? 0 : (as7 ? SG_AS_LOBES : 1);
+    SG g1;
+    float wsum = 0.0;
+    if (ratio_traced) {
+        vec3 amp;
+        g1 = sg_product(sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp), cosg);
+        for (int j = 0; j < gcount; ++j) wsum += as7 ? dot(as_w[j], lum) : 1.0;
+    }
+    float num = 0.0, den = 0.0;
+    vec3 spec9 = vec3(0.0);
+    // Every visibility query goes through one call of isg_lobes_shadowed (one inlined ISG
+    // traversal; lavapipe compiles every inlined copy, and four took this shader's first compile
+    // to 46 s): query 0 the diffuse lighting lobes through the clamped cosine (per pixel), query
+    // 1 + j the glossy lobe j, in up to two steps: the lighting lobes through it, then its own
+    // visible fraction (eq. 9; a lobe narrower than about 4 degrees; no lighting lobe reaching
+    // it: isg_lobes_glossy_light's rules).
+    for (int q = 0; q <= gcount; ++q) {
+        SG kernel = cosg;
+        bool need = q == 0 && !per_vertex, own_only = false;
+        float wj = 1.0;
+        vec3 amp = vec3(0.0), gamma_l = vec3(0.0);
+        if (q > 0) {
+            int j = q - 1;
+            if (ratio) {
+                wj = as7 ? dot(as_w[j], lum) : 1.0;
+                need = ratio_traced && wj > 0.01 * wsum;
+                kernel = as7 ? as_g[j] : g1;
             } else {
-                SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
-                gj = sg_product(gs, cosg);
-            }
-            vec3 gamma_l = vec3(0.0);
-            if (pc.specular_mode == 0u) {
-                // Eq. 10: int L G_j = mu_j Gamma_L(a_j, lambda_j), Gamma_L from the prefiltered maps.
-                gamma_l = pf_eval(gj.axis, gj.lambda) * sg_sphere_integral(gj);
-            } else {
-                for (uint k = 0u; k < pc.lobe_count; ++k) {
-                    SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
-                    gamma_l += lobes[2u * k + 1u].rgb * sg_inner_product(l, gj);
+                if (as7) {
+                    kernel = as_g[j];
+                    amp = as_w[j];
+                    if (max(amp.r, max(amp.g, amp.b)) <= 0.0) continue;
+                } else {
+                    kernel = sg_product(sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp), cosg);
                 }
-            }
-            if (max(gamma_l.r, max(gamma_l.g, gamma_l.b)) > 0.0) {
-                float vs = per_vertex ? ((pc.flags & 1u) != 0u ? 1.0 : clamp(vvis.a, 0.0, 1.0)) : visible(p, n, gj);
-                color += amp * gamma_l * vs;
+                if (pc.specular_mode == 0u) {
+                    // Eq. 10: int L G_j = mu_j Gamma_L(a_j, lambda_j), Gamma_L from the prefiltered maps.
+                    gamma_l = pf_eval(kernel.axis, kernel.lambda) * sg_sphere_integral(kernel);
+                } else {
+                    for (uint k = 0u; k < pc.lobe_count; ++k) {
+                        SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+                        gamma_l += lobes[2u * k + 1u].rgb * sg_inner_product(l, kernel);
+                    }
+                }
+                if (max(gamma_l.r, max(gamma_l.g, gamma_l.b)) <= 0.0) continue;
+                if (per_vertex) {
+                    spec9 += amp * gamma_l * ((pc.flags & 1u) != 0u ? 1.0 : clamp(vvis.a, 0.0, 1.0));
+                    continue;
+                }
+                need = true;
+                own_only = true;
             }
         }
+        if (!need) continue;
+        bool sharp = q > 0 && !own_only && kernel.lambda > 256.0;
+        float open = sharp ? isg_lobes_glossy_sharp_open(nl, kernel) : 0.0, shadowed = 0.0;
+        for (int step = 0; step < 2; ++step) {
+            bool own = step == 1;
+            if (own ? !(q > 0 && (own_only || sharp || !(open > 0.0))) : (own_only || sharp)) continue;
+            vec3 o;
+            vec3 r = isg_lobes_shadowed(p, n, nl, pc.min_fraction, kernel, q == 0, own, o);
+            if (q == 0) {
+                diffuse = r;
+                unshadowed = o;
+            } else if (own_only) {
+                spec9 += amp * gamma_l * r.x;
+            } else if (own) {
+                if (!(open > 0.0)) open = 1e-30;
+                shadowed = open * r.x;
+            } else {
+                shadowed = dot(r, lum);
+                open = dot(o, lum);
+            }
+        }
+        if (q > 0 && !own_only) {
+            num += wj * shadowed;
+            den += wj * open;
+        }
+    }
+    // Diffuse: lobes below min_fraction of the light found visible so far take the mean
+    // visibility of those traversed (isg_lobes.glsl).
+    if (!per_vertex && pc.diffuse_ratio != 0u) diffuse = irr_ratio(n, diffuse, unshadowed);
+    vec3 color = material_diffuse_albedo(m, ndv) / PI * diffuse;
+    color += local_lights(pos, p, n, tg, ng, v, albedo, m);
+    if (ratio && max(glossy.r, max(glossy.g, glossy.b)) > 0.0) {
+        float vs = 1.0;
+        if (per_vertex) {
+            vs = (pc.flags & 1u) != 0u ? 1.0 : clamp(vvis.a, 0.0, 1.0);
+        } else if ((pc.flags & 1u) == 0u) {
+            vs = den > 0.0 ? clamp(num / den, 0.0, 1.0) : 1.0;
+        }
+        color += glossy * vs;
+    } else if (kind != 0 && !ratio) {
+        color += spec9;
     }
     imageStore(hdr, px, vec4(material_reflected(max(color, vec3(0.0)), n, v) + material_emission(m), 1.0));
 }
