@@ -501,7 +501,7 @@ fn the_key_lights_umbra_keeps_the_rest_of_the_light() {
     }
 }
 
-/// The glossy term's visibility weighted by the light (`isg_lobes_glossy_visibility` in
+/// The glossy term's visibility weighted by the light (the glossy steps, `isg_glossy_*` in
 /// `glsl/include/isg_lobes.glsl`): sum_k e_k V_k / sum_k e_k over the lighting lobes, e_k the
 /// lobe's inner product with the BRDF lobe, as the paper's specular term (eq. 9, per lighting
 /// lobe). trace_test's Cook-Torrance ball (roughness 0.35) reflects the bright sky above and the

@@ -251,7 +251,7 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, Materi
 // cosine): sum_k e_k V_k / sum_k e_k over the lighting lobes and the key lights split off the map
 // (e_k: the luminance of lobe k's inner product with gj; V_k: the visible fraction of their
 // product, through the SSDFs, or for a key light whose shadows are traced, through rays in the
-// product's cone), as isg's (isg_lobes_glossy_visibility); a lobe narrower than about 4 degrees
+// product's cone), as isg's (isg_lobes.glsl's glossy steps); a lobe narrower than about 4 degrees
 // (lambda > 256), or one no light reaches, takes its own visible fraction.
 float glossy_visibility(SG gj, vec3 po, vec3 ng) {
     if (!shadows_on() || gj.lambda > 256.0) return visible(gj);

@@ -58,55 +58,44 @@ vec3 isg_lobes_shadowed(vec3 p, vec3 n, uint nl, float min_fraction, SG kernel, 
     return shadowed + skipped * (vis_w > 0.0 ? vis_sum / vis_w : 1.0);
 }
 
-// Diffuse: isg_lobes_shadowed through the clamped cosine of n.
-vec3 isg_lobes_diffuse(vec3 p, vec3 n, uint nl, float min_fraction, out vec3 unshadowed) {
-    return isg_lobes_shadowed(p, n, nl, min_fraction, sg_clamped_cosine(n), true, false, unshadowed);
-}
-
-// The light the lighting lobes send through the glossy lobe gj (the BRDF's specular SG times the
-// cosine), shadowed (returned) and unshadowed (`open`), as luminance: sum_k e_k V_k and sum_k e_k
-// over the lighting lobes (e_k: lobe k's inner product with gj), the ISG paper's specular
-// visibility (eq. 9, per lighting lobe). A lobe narrower than about 4 degrees (lambda > 256) sees
-// nearly constant light: open times its own visible fraction, one traversal instead of one per
-// lighting lobe (isg_bunny's shininess-1000 and chess's ivory lobes at 160x120: the same error at
-// 1.6-1.8x the time per frame). Where no lighting lobe reaches gj, its own visible fraction with a
-// negligible weight (open = 1e-30). One call of isg_lobes_shadowed in a loop of its two steps
-// (the lighting lobes; the lobe's own fraction): one inlined traversal (lavapipe compiles every
-// inlined copy: callers loop over lobes without unrolling).
-float isg_lobes_glossy_sharp_open(uint nl, SG gj) {
+// The glossy visibility (isg_glossy_*): the light the lighting lobes send through the glossy
+// lobe gj (the BRDF's specular SG times the cosine), shadowed and unshadowed (`open`), as
+// luminance: sum_k e_k V_k and sum_k e_k over the lighting lobes (e_k: lobe k's inner product
+// with gj), the ISG paper's specular visibility (eq. 9, per lighting lobe); their ratio weights
+// the material model's glossy term, since the lobe's own visible fraction (every direction of gj
+// weighted alike) darkened a glossy surface whose lobe reaches both a bright sky and a dark
+// occluder below it. A lobe narrower than about 4 degrees (lambda > 256) sees nearly constant
+// light: open times its own visible fraction, one traversal instead of one per lighting lobe
+// (isg_bunny's shininess-1000 and chess's ivory lobes at 160x120: the same error at 1.6-1.8x the
+// time per frame). Where no lighting lobe reaches gj, its own visible fraction with a negligible
+// weight (open = 1e-30). Callers run it as two steps of a loop around their one call of
+// isg_lobes_shadowed (step 0 the lighting lobes, step 1 gj's own fraction, `own`), with the
+// diffuse query and every other glossy lobe: one inlined traversal per shader (lavapipe compiles
+// every inlined copy; isg_shade.glsl's four had taken its first compile to 46 s).
+//
+// open before the steps: for a sharp lobe the lighting's luminance through it (no traversal).
+float isg_glossy_open(uint nl, SG gj) {
+    if (!(gj.lambda > 256.0)) return 0.0;
     vec3 e = vec3(0.0);
     for (uint k = 0u; k < min(nl, 64u); ++k)
         e += lobes[2u * k + 1u].rgb * max(sg_inner_product(sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0), gj), 0.0);
     return dot(e, vec3(0.2126, 0.7152, 0.0722));
 }
-float isg_lobes_glossy_light(vec3 p, vec3 n, uint nl, float min_fraction, SG gj, out float open) {
+// Whether step `step` runs for gj.
+bool isg_glossy_step(int step, SG gj, float open) {
     bool sharp = gj.lambda > 256.0;
-    float shadowed = 0.0;
-    open = sharp ? isg_lobes_glossy_sharp_open(nl, gj) : 0.0;
-    for (int step = 0; step < 2; ++step) {
-        bool own = step == 1;
-        if (own ? !(sharp || !(open > 0.0)) : sharp) continue;
-        vec3 o;
-        vec3 r = isg_lobes_shadowed(p, n, nl, min_fraction, gj, false, own, o);
-        if (own) {
-            if (!(open > 0.0)) open = 1e-30;
-            shadowed = open * r.x;
-        } else {
-            shadowed = dot(r, vec3(0.2126, 0.7152, 0.0722));
-            open = dot(o, vec3(0.2126, 0.7152, 0.0722));
-        }
-    }
-    return shadowed;
+    return step == 0 ? !sharp : (sharp || !(open > 0.0));
 }
-
-// The light-weighted visible share of the glossy lobe gj: isg_lobes_glossy_light's shadowed over
-// unshadowed light, as a scalar (luminance) ratio for the material model's glossy term. The
-// lobe's own visible fraction (every direction of gj weighted alike) darkened a glossy surface
-// whose lobe reaches both a bright sky and a dark occluder below it.
-float isg_lobes_glossy_visibility(vec3 p, vec3 n, uint nl, float min_fraction, SG gj) {
-    float open;
-    float shadowed = isg_lobes_glossy_light(p, n, nl, min_fraction, gj, open);
-    return clamp(shadowed / open, 0.0, 1.0);
+// Folds step `step`'s isg_lobes_shadowed result (r, its unshadowed o) into shadowed and open.
+void isg_glossy_fold(int step, vec3 r, vec3 o, inout float shadowed, inout float open) {
+    const vec3 lum = vec3(0.2126, 0.7152, 0.0722);
+    if (step == 1) {
+        if (!(open > 0.0)) open = 1e-30;
+        shadowed = open * r.x;
+    } else {
+        shadowed = dot(r, lum);
+        open = dot(o, lum);
+    }
 }
 
 #endif

@@ -245,7 +245,7 @@ void main() {
     // to 46 s): query 0 the diffuse lighting lobes through the clamped cosine (per pixel), query
     // 1 + j the glossy lobe j, in up to two steps: the lighting lobes through it, then its own
     // visible fraction (eq. 9; a lobe narrower than about 4 degrees; no lighting lobe reaching
-    // it: isg_lobes_glossy_light's rules).
+    // it: isg_lobes.glsl's glossy steps).
     for (int q = 0; q <= gcount; ++q) {
         SG kernel = cosg;
         bool need = q == 0 && !per_vertex, own_only = false;
@@ -284,24 +284,21 @@ void main() {
             }
         }
         if (!need) continue;
-        bool sharp = q > 0 && !own_only && kernel.lambda > 256.0;
-        float open = sharp ? isg_lobes_glossy_sharp_open(nl, kernel) : 0.0, shadowed = 0.0;
+        bool glossy_steps = q > 0 && !own_only;
+        float open = glossy_steps ? isg_glossy_open(nl, kernel) : 0.0, shadowed = 0.0;
         for (int step = 0; step < 2; ++step) {
-            bool own = step == 1;
-            if (own ? !(q > 0 && (own_only || sharp || !(open > 0.0))) : (own_only || sharp)) continue;
+            // the diffuse query: step 0; eq. 9: step 1 (the lobe's own fraction); the ratio's
+            // glossy lobes: isg_glossy_step's
+            if (q == 0 ? step != 0 : (own_only ? step != 1 : !isg_glossy_step(step, kernel, open))) continue;
             vec3 o;
-            vec3 r = isg_lobes_shadowed(p, n, nl, pc.min_fraction, kernel, q == 0, own, o);
+            vec3 r = isg_lobes_shadowed(p, n, nl, pc.min_fraction, kernel, q == 0, step == 1, o);
             if (q == 0) {
                 diffuse = r;
                 unshadowed = o;
             } else if (own_only) {
                 spec9 += amp * gamma_l * r.x;
-            } else if (own) {
-                if (!(open > 0.0)) open = 1e-30;
-                shadowed = open * r.x;
             } else {
-                shadowed = dot(r, lum);
-                open = dot(o, lum);
+                isg_glossy_fold(step, r, o, shadowed, open);
             }
         }
         if (q > 0 && !own_only) {

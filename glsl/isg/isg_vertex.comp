@@ -5,7 +5,7 @@
 //   rgb: diffuse visibility, sum_k e_k V_k / sum_k e_k per channel (e_k: unshadowed SG-cosine
 //        integral of lighting lobe k, V_k: ISG visible fraction of lobe k times the cosine SG);
 //   a:   specular visibility, the light-weighted ISG visible share of G_j (eq. 9) for the vertex's
-//        material (isg_lobes_glossy_visibility)
+//        material (isg_lobes.glsl's glossy steps)
 //        (base roughness; roughness maps are not applied per vertex) and view direction;
 //        Ashikhmin-Shirley with flags bit 6: over its seven SG lobes (sg_as_lobes) in the frame
 //        of the vertex's uv tangent, weighted by their BRDF weights' luminance, as per pixel.
@@ -69,45 +69,64 @@ void main() {
     float ndv = max(dot(n, v), 1e-4);
     SG cosg = sg_clamped_cosine(n);
     vec3 p = pos + n * 1e-3 * max(1.0, length(pos));
-    vec3 unshadowed;
-    vec3 shadowed = isg_lobes_diffuse(p, n, pc.lobe_count, pc.min_fraction, unshadowed);
+    // The glossy kernels: Ashikhmin-Shirley's seven lobes (flags bit 6), weighted as
+    // isg_shade.glsl's per pixel (lobes under 1 % of the total weight left out), or the BRDF's
+    // one specular lobe, each times the cosine.
+    const vec3 lum = vec3(0.2126, 0.7152, 0.0722);
+    bool as7 = kind == 3 && (pc.flags & 64u) != 0u;
+    int gcount = kind == 0 ? 0 : (as7 ? SG_AS_LOBES : 1);
+    SG g[SG_AS_LOBES];
+    vec3 w[SG_AS_LOBES];
+    float wsum = 0.0;
+    if (as7) {
+        sg_as_lobes(brdf_frame(n, verts[3u * vi + 2u].xyz), v, m.extra.x, m.extra.w, m.spec_rough.rgb, g, w);
+        for (int j = 0; j < SG_AS_LOBES; ++j) {
+            g[j] = sg_product(g[j], cosg);
+            wsum += dot(w[j], lum);
+        }
+    } else if (kind != 0) {
+        vec3 r = reflect(-v, n);
+        SG gs;
+        if (kind == 1) {
+            gs = sg_make(r, max(m.extra.x, 0.0) / (4.0 * ndv), 1.0);
+        } else {
+            float roughness = clamp(m.spec_rough.w, 0.02, 1.0);
+            float mb = max(roughness * roughness, 1e-3);
+            gs = sg_make(r, 2.0 / (mb * mb) / (4.0 * ndv), 1.0);
+        }
+        g[0] = sg_product(gs, cosg);
+    }
+    // Every visibility query through one call of isg_lobes_shadowed (one inlined traversal, as
+    // isg_shade.glsl): query 0 the diffuse lobes through the clamped cosine, query 1 + j glossy
+    // kernel j in isg_lobes.glsl's two glossy steps (the lighting lobes through it; its own
+    // visible fraction when it is sharp or no lighting lobe reaches it).
+    vec3 shadowed = vec3(0.0), unshadowed = vec3(0.0);
+    float num = 0.0, den = 0.0;
+    for (int q = 0; q <= gcount; ++q) {
+        float wj = q > 0 && as7 ? dot(w[q - 1], lum) : 1.0;
+        if (q > 0 && as7 && !(wj > 0.01 * wsum)) continue;
+        SG kernel = q == 0 ? cosg : g[q - 1];
+        float open = q > 0 ? isg_glossy_open(pc.lobe_count, kernel) : 0.0, sh = 0.0;
+        for (int step = 0; step < 2; ++step) {
+            if (q == 0 ? step != 0 : !isg_glossy_step(step, kernel, open)) continue;
+            vec3 o;
+            vec3 r = isg_lobes_shadowed(p, n, pc.lobe_count, pc.min_fraction, kernel, q == 0, step == 1, o);
+            if (q == 0) {
+                shadowed = r;
+                unshadowed = o;
+            } else {
+                isg_glossy_fold(step, r, o, sh, open);
+            }
+        }
+        if (q > 0) {
+            num += wj * sh;
+            den += wj * open;
+        }
+    }
     vec3 vd = vec3(1.0);
     for (int c = 0; c < 3; ++c) {
         if (unshadowed[c] > 0.0) vd[c] = clamp(shadowed[c] / unshadowed[c], 0.0, 1.0);
     }
-    float vs = 1.0;
-    if (kind != 0) {
-        if (kind == 3 && (pc.flags & 64u) != 0u) {
-            // Ashikhmin-Shirley as its seven lobes, the visible share weighted as isg_shade.glsl's
-            // per pixel (lobes under 1 % of the total weight left out; a loop the compiler does
-            // not unroll: one inlined traversal)
-            const vec3 lum = vec3(0.2126, 0.7152, 0.0722);
-            SG g[SG_AS_LOBES];
-            vec3 w[SG_AS_LOBES];
-            sg_as_lobes(brdf_frame(n, verts[3u * vi + 2u].xyz), v, m.extra.x, m.extra.w, m.spec_rough.rgb, g, w);
-            float wsum = 0.0;
-            for (int j = 0; j < SG_AS_LOBES; ++j) wsum += dot(w[j], lum);
-            float num = 0.0, den = 0.0;
-            for (int j = 0; j < SG_AS_LOBES; ++j) {
-                float wj = dot(w[j], lum);
-                if (!(wj > 0.01 * wsum)) continue;
-                float open;
-                num += wj * isg_lobes_glossy_light(p, n, pc.lobe_count, pc.min_fraction, sg_product(g[j], cosg), open);
-                den += wj * open;
-            }
-            vs = den > 0.0 ? clamp(num / den, 0.0, 1.0) : 1.0;
-        } else {
-            vec3 r = reflect(-v, n);
-            SG gs;
-            if (kind == 1) {
-                gs = sg_make(r, max(m.extra.x, 0.0) / (4.0 * ndv), 1.0);
-            } else {
-                float roughness = clamp(m.spec_rough.w, 0.02, 1.0);
-                float mb = max(roughness * roughness, 1e-3);
-                gs = sg_make(r, 2.0 / (mb * mb) / (4.0 * ndv), 1.0);
-            }
-            vs = isg_lobes_glossy_visibility(p, n, pc.lobe_count, pc.min_fraction, sg_product(gs, cosg));
-        }
-    }
+    float vs = kind != 0 && den > 0.0 ? clamp(num / den, 0.0, 1.0) : 1.0;
     vis_out[vi] = vec4(vd, vs);
 }
