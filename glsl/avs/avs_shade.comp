@@ -24,7 +24,7 @@
 // Diffuse (diffuse_ratio, default): the map's exact irradiance times the visible share of the
 // lobes' irradiance (include/irradiance.glsl), not the lobes alone (the paper's; its fit error).
 // Glossy (glossy ratio, default): the material model's glossy term (env_shade.glsl, the `env`
-// technique's) times the specular lobe's light-weighted SSDF visibility (glossy_visibility: the
+// technique's) times the specular lobe's light-weighted SSDF visibility (main's glossy items: the
 // lighting lobes' and key lights' visible shares weighted by their light in the lobe), not the
 // one SG lobe of the BRDF.
 // Key lights (key_lights, with light_shadows = traced): the environment's sun or studio lights
@@ -247,32 +247,6 @@ vec3 local_lights(vec3 pos, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, Materi
     return sum;
 }
 
-// The light-weighted SSDF visibility of the glossy lobe gj (the BRDF's specular SG times the
-// cosine): sum_k e_k V_k / sum_k e_k over the lighting lobes and the key lights split off the map
-// (e_k: the luminance of lobe k's inner product with gj; V_k: the visible fraction of their
-// product, through the SSDFs, or for a key light whose shadows are traced, through rays in the
-// product's cone), as isg's (isg_lobes.glsl's glossy steps); a lobe narrower than about 4 degrees
-// (lambda > 256), or one no light reaches, takes its own visible fraction.
-float glossy_visibility(SG gj, vec3 po, vec3 ng) {
-    if (!shadows_on() || gj.lambda > 256.0) return visible(gj);
-    float num = 0.0, den = 0.0;
-    uint nl = min(pc.lobe_count, 64u);
-    bool traced = (pc.flags & 2u) != 0u;
-    for (uint k = 0u; k < nl + min(pc.key_count, 16u); ++k) {
-        vec4 al = k < nl ? lobes[2u * k] : key[2u * (k - nl)];
-        vec3 mu = k < nl ? lobes[2u * k + 1u].rgb : key[2u * (k - nl) + 1u].rgb;
-        SG l = sg_make(al.xyz, al.w, 1.0);
-        float e = dot(mu, vec3(0.2126, 0.7152, 0.0722)) * sg_inner_product(l, gj);
-        if (!(e > 0.0)) continue;
-        SG pr = sg_product(l, gj);
-        // a key light's reflection through rays toward it (as its diffuse light), the lighting
-        // lobes' through the SSDFs
-        num += e * (k >= nl && traced ? cone_rays_visibility(po, pr.axis, 2.0 / sqrt(max(pr.lambda, 1e-4)), ng) : visible(pr));
-        den += e;
-    }
-    return den > 0.0 ? clamp(num / den, 0.0, 1.0) : visible(gj);
-}
-
 #include "env_background.glsl"
 
 #include "prefiltered.glsl"
@@ -307,20 +281,89 @@ void main() {
     gather_neighbours(pos, n);
     pix_frame = avs_frame(n);
     SG cosg = sg_clamped_cosine(n);
-    vec3 diffuse = vec3(0.0), diffuse_open = vec3(0.0);
-    uint nl = min(pc.lobe_count, 64u);
-    for (uint k = 0u; k < nl; ++k) {
-        SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
-        vec3 e = lobes[2u * k + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
-        if (max(e.r, max(e.g, e.b)) <= 0.0) continue;
-        diffuse += e * visible(sg_product(l, cosg));
-        diffuse_open += e;
+    uint nl = min(pc.lobe_count, 64u), nk = min(pc.key_count, 16u);
+    // ray origin off the surface along the geometric normal (as the shadow fields')
+    vec3 po = pos + ng * 1e-3 * max(1.0, length(pos));
+    float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
+    // The glossy term. Ratio (specular_mode 2): the material model's unshadowed glossy term (the
+    // `env` technique's split sum) times the light-weighted SSDF visibility of the specular SG
+    // lobe x cosine gj: sum_k e_k V_k / sum_k e_k over the lighting lobes and the key lights split
+    // off the map (e_k: the luminance of lobe k's inner product with gj; V_k: the visible fraction
+    // of their product, through the SSDFs, or for a key light whose shadows are traced, through
+    // rays in the product's cone), as isg's (isg_lobes.glsl's glossy steps); a lobe narrower than
+    // about 4 degrees (lambda > 256), or one no light reaches, takes its own visible fraction.
+    // Otherwise eq. 9 with the Beckmann warp (Wang et al. 2009), m = roughness^2 as the
+    // reference's SG mode: mu Gamma_L(a, lambda) times gj's visible fraction.
+    bool ratio = kind != 0 && pc.specular_mode == 2u;
+    vec3 amp = vec3(0.0), glossy = vec3(0.0), gamma_l = vec3(0.0);
+    SG gj = cosg;
+    bool glossy_vis = false;
+    if (kind != 0) {
+        gj = sg_product(sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp), cosg);
+        if (ratio) {
+            glossy = env_glossy(n, tg, v, m);
+            glossy_vis = max(glossy.r, max(glossy.g, glossy.b)) > 0.0;
+        } else {
+            if (pc.specular_mode == 0u) {
+                gamma_l = pf_eval(gj.axis, gj.lambda) * sg_sphere_integral(gj);
+            } else {
+                for (uint k = 0u; k < pc.lobe_count; ++k) {
+                    SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+                    gamma_l += lobes[2u * k + 1u].rgb * sg_inner_product(l, gj);
+                }
+            }
+            glossy_vis = max(gamma_l.r, max(gamma_l.g, gamma_l.b)) > 0.0;
+        }
     }
+    bool own_only = !ratio || !shadows_on() || gj.lambda > 256.0;
+    bool traced = (pc.flags & 2u) != 0u;
+    // Every visibility query of the pixel in one loop with one call of visible() (one inlined
+    // copy of the SSDF integration; lavapipe compiles every inlined copy): items 0 .. nl - 1
+    // the diffuse lighting lobes through the clamped cosine, then (with a glossy term) the
+    // lighting lobes and key lights through gj (the ratio's, unless own_only), then gj itself
+    // (own_only, or no light reaching it).
+    uint n_glossy = glossy_vis ? (own_only ? 0u : nl + nk) + 1u : 0u;
+    vec3 diffuse = vec3(0.0), diffuse_open = vec3(0.0);
+    float num = 0.0, den = 0.0, vs = 1.0;
+    for (uint it = 0u; it < nl + n_glossy; ++it) {
+        SG g = gj;
+        vec3 ed = vec3(0.0);
+        float eg = 0.0;
+        bool cone = false, own = false;
+        if (it < nl) {
+            SG l = sg_make(lobes[2u * it].xyz, lobes[2u * it].w, 1.0);
+            ed = lobes[2u * it + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
+            if (max(ed.r, max(ed.g, ed.b)) <= 0.0) continue;
+            g = sg_product(l, cosg);
+        } else if (it + 1u < nl + n_glossy) {
+            uint k = it - nl;
+            vec4 al = k < nl ? lobes[2u * k] : key[2u * (k - nl)];
+            vec3 mu = k < nl ? lobes[2u * k + 1u].rgb : key[2u * (k - nl) + 1u].rgb;
+            SG l = sg_make(al.xyz, al.w, 1.0);
+            eg = dot(mu, vec3(0.2126, 0.7152, 0.0722)) * sg_inner_product(l, gj);
+            if (!(eg > 0.0)) continue;
+            g = sg_product(l, gj);
+            // a key light's reflection through rays toward it (as its diffuse light)
+            cone = k >= nl && traced;
+        } else {
+            own = true;
+            if (!own_only && den > 0.0) continue;
+        }
+        float vis = cone ? cone_rays_visibility(po, g.axis, 2.0 / sqrt(max(g.lambda, 1e-4)), ng) : visible(g);
+        if (it < nl) {
+            diffuse += ed * vis;
+            diffuse_open += ed;
+        } else if (own) {
+            vs = vis;
+        } else {
+            num += eg * vis;
+            den += eg;
+        }
+    }
+    if (!own_only && den > 0.0) vs = clamp(num / den, 0.0, 1.0);
     if (pc.diffuse_ratio != 0u) diffuse = irr_ratio(n, diffuse, diffuse_open);
     if (pc.key_count > 0u) {
-        // ray origin off the surface along the geometric normal (as the shadow fields')
-        vec3 po = pos + ng * 1e-3 * max(1.0, length(pos));
-        for (uint k = 0u; k < min(pc.key_count, 16u); ++k) {
+        for (uint k = 0u; k < nk; ++k) {
             vec4 axis_lambda = key[2u * k];
             vec3 mu = key[2u * k + 1u].rgb;
             // shadows off (flags bit 1 clear): the same light, unshadowed
@@ -330,31 +373,7 @@ void main() {
         }
     }
     vec3 color = material_diffuse_albedo(m, ndv) / PI * diffuse;
-    float roughness = clamp(kind == 1 ? sqrt(2.0 / (m.extra.x + 2.0)) : m.spec_rough.w, 0.02, 1.0);
     color += local_lights(pos, n, tg, ng, v, albedo, m);
-    if (kind != 0 && pc.specular_mode == 2u) {
-        // Ratio: the material model's unshadowed glossy term (the `env` technique's split sum)
-        // times the SSDF visibility of the specular SG lobe x cosine.
-        vec3 amp;
-        SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
-        vec3 glossy = env_glossy(n, tg, v, m);
-        vec3 po = pos + ng * 1e-3 * max(1.0, length(pos));
-        if (max(glossy.r, max(glossy.g, glossy.b)) > 0.0) color += glossy * glossy_visibility(sg_product(gs, cosg), po, ng);
-    } else if (kind != 0) {
-        // Beckmann warp (Wang et al. 2009), m = roughness^2 as the reference's SG mode.
-        vec3 amp;
-        SG gs = sg_specular_lobe(kind, n, v, ndv, m.extra.x, roughness, m.spec_rough.rgb, amp);
-        SG gj = sg_product(gs, cosg);
-        vec3 gamma_l = vec3(0.0);
-        if (pc.specular_mode == 0u) {
-            gamma_l = pf_eval(gj.axis, gj.lambda) * sg_sphere_integral(gj);
-        } else {
-            for (uint k = 0u; k < pc.lobe_count; ++k) {
-                SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
-                gamma_l += lobes[2u * k + 1u].rgb * sg_inner_product(l, gj);
-            }
-        }
-        if (max(gamma_l.r, max(gamma_l.g, gamma_l.b)) > 0.0) color += amp * gamma_l * visible(gj);
-    }
+    if (glossy_vis) color += ratio ? glossy * vs : amp * gamma_l * vs;
     imageStore(hdr, px, vec4(material_reflected(max(color, vec3(0.0)), n, v) + material_emission(m), 1.0));
 }
