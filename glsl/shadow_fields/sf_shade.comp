@@ -60,21 +60,36 @@ vec3 key_lights_irradiance(vec3 p, vec3 n, vec3 ng) {
 // Local lights (as shade_env.comp's local_lights, same BRDFs), pointwise: the specular lobe
 // always, the diffuse lobe only with srf = 0 (else it comes through the source radiance fields),
 // each shadowed by the order-4 visibility toward the light of the other objects nearer than it.
-vec3 local_lights(vec3 pos, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, MaterialData m, uint self_inst) {
+// With `reflect_query`, one more query in the same loop: the occluders' visibility along r (the
+// glossy term's), in `reflect_vis`. One call of sf_visibility_along serves them all (one
+// inlined copy of the occluders' lookups: lavapipe compiles every inlined copy).
+vec3 local_lights(vec3 pos, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, MaterialData m, uint self_inst, bool reflect_query, vec3 r, out float reflect_vis) {
     vec3 sum = vec3(0.0);
-    for (uint i = 0u; i < pc.light_count; ++i) {
-        LightData l = lights[i];
-        vec3 wi;
-        float dist, ndl;
-        vec3 e = light_incident(l, pos, n, ng, wi, dist, ndl);
-        if (ndl <= 0.0) continue;
-        // a directional light (kind 3) has no source radiance field: its diffuse lobe is here too
-        bool via_srf = pc.srf != 0u && int(l.pos_kind.w + 0.5) != 3;
-        vec3 f = light_brdf(wi, n, t, v, via_srf ? vec3(0.0) : albedo, m);
-        if (all(equal(f, vec3(0.0)))) continue;
-        float vis = pc.traced != 0u ? light_rays_visibility(l, pos + ng * 1e-3 * max(1.0, length(pos)))
-                                    : sf_visibility_along(pos, wi, self_inst, pc.n_inst, dist);
-        sum += vis * f * e * ndl;
+    reflect_vis = 1.0;
+    uint count = pc.light_count + (reflect_query ? 1u : 0u);
+    for (uint i = 0u; i < count; ++i) {
+        bool reflection = i == pc.light_count;
+        vec3 wi = r, e = vec3(0.0), f = vec3(0.0);
+        float dist = 1e30, ndl = 0.0;
+        if (!reflection) {
+            LightData l = lights[i];
+            e = light_incident(l, pos, n, ng, wi, dist, ndl);
+            if (ndl <= 0.0) continue;
+            // a directional light (kind 3) has no source radiance field: its diffuse lobe is here too
+            bool via_srf = pc.srf != 0u && int(l.pos_kind.w + 0.5) != 3;
+            f = light_brdf(wi, n, t, v, via_srf ? vec3(0.0) : albedo, m);
+            if (all(equal(f, vec3(0.0)))) continue;
+            if (pc.traced != 0u) {
+                sum += light_rays_visibility(l, pos + ng * 1e-3 * max(1.0, length(pos))) * f * e * ndl;
+                continue;
+            }
+        }
+        float vis = sf_visibility_along(pos, wi, self_inst, pc.n_inst, dist);
+        if (reflection) {
+            reflect_vis = vis;
+        } else {
+            sum += vis * f * e * ndl;
+        }
     }
     return sum;
 }
@@ -135,8 +150,10 @@ void main() {
     // Glossy materials: the material model's glossy environment term (the "env" technique's),
     // shadowed by the occluders' visibility along the reflection.
     int kind = int(m.albedo_kind.w + 0.5);
+    vec3 r = reflect(-v, n);
+    float reflect_vis;
+    vec3 lit = local_lights(pos, n, tg, ng, v, m.albedo_kind.rgb, m, self_inst, kind != 0 && pc.key_count == 0u, r, reflect_vis);
     if (kind != 0) {
-        vec3 r = reflect(-v, n);
         vec3 glossy = env_glossy(n, tg, v, m);
         float vis;
         if (pc.key_count > 0u) {
@@ -149,10 +166,10 @@ void main() {
                 key_light_glossy_share(key[2u * k], key[2u * k + 1u].rgb, amp, gj, po, ng, acc);
             vis = glossy_share(acc, dot(glossy, vec3(0.2126, 0.7152, 0.0722)), cone_rays_visibility(po, r, env_alpha(m), ng));
         } else {
-            vis = sf_visibility_along(pos, r, self_inst, pc.n_inst, 1e30);
+            vis = reflect_vis;
         }
         color += vis * glossy;
     }
-    color += local_lights(pos, n, tg, ng, v, m.albedo_kind.rgb, m, self_inst);
+    color += lit;
     imageStore(hdr, p, vec4(material_reflected(color, n, v) + material_emission(m), 1.0));
 }
