@@ -59,22 +59,27 @@ void sf_add_sample(SfShell sh, uint idx, float w, inout float o[16]) {
     }
 }
 
-// Bilinear lookup of shell sh at polar angles, scaled by w, added to o.
-void sf_shell_lookup(SfShell sh, float theta, float phi, float w, inout float o[16]) {
-    uint r = max(sh.info.y, 1u);
-    float rf = float(r);
-    float u = clamp(theta / SF_PI * rf - 0.5, 0.0, rf - 1.0);
-    uint s0 = min(uint(floor(u)), r - 1u);
-    uint s1 = min(s0 + 1u, r - 1u);
-    float fs = u - float(s0);
-    float v = fract(phi / (2.0 * SF_PI)) * rf;
-    uint t0 = uint(floor(v)) % r;
-    uint t1 = (t0 + 1u) % r;
-    float ft = v - floor(v);
-    sf_add_sample(sh, s0 * r + t0, w * (1.0 - fs) * (1.0 - ft), o);
-    sf_add_sample(sh, s0 * r + t1, w * (1.0 - fs) * ft, o);
-    sf_add_sample(sh, s1 * r + t0, w * fs * (1.0 - ft), o);
-    sf_add_sample(sh, s1 * r + t1, w * fs * ft, o);
+// Bilinear lookups of shell c0 of `inst` at polar angles, scaled by w0, and (with `two`) of shell
+// c1 scaled by w1, added to o: one loop over the 4 (8) samples with one call of sf_add_sample,
+// whose trip count is not a constant, so the compiler inlines one copy, not eight (lavapipe
+// compiles every inlined copy).
+void sf_shells_lookup(SfInst inst, uint c0, uint c1, float w0, float w1, bool two, float theta, float phi, inout float o[16]) {
+    uint count = two ? 8u : 4u;
+    for (uint i = 0u; i < count; ++i) {
+        SfShell sh = sf_shells[inst.info.x + (i < 4u ? c0 : c1)];
+        float w = i < 4u ? w0 : w1;
+        uint r = max(sh.info.y, 1u);
+        float rf = float(r);
+        float u = clamp(theta / SF_PI * rf - 0.5, 0.0, rf - 1.0);
+        uint s0 = min(uint(floor(u)), r - 1u);
+        float fs = u - float(s0);
+        float v = fract(phi / (2.0 * SF_PI)) * rf;
+        uint t0 = uint(floor(v)) % r;
+        float ft = v - floor(v);
+        bool hi_s = (i & 2u) != 0u, hi_t = (i & 1u) != 0u;
+        uint sx = hi_s ? min(s0 + 1u, r - 1u) : s0, tx = hi_t ? (t0 + 1u) % r : t0;
+        sf_add_sample(sh, sx * r + tx, w * (hi_s ? fs : 1.0 - fs) * (hi_t ? ft : 1.0 - ft), o);
+    }
 }
 
 void sf_rotate(SfInst inst, float c[16], out float o[16]) {
@@ -111,8 +116,7 @@ bool sf_ocv(SfInst inst, vec3 pw, out float o[16]) {
     float w = x - float(c0);
     float loc[16];
     sf_zero(loc);
-    sf_shell_lookup(sf_shells[inst.info.x + c0], theta, phi, (c1 == c0) ? 1.0 : 1.0 - w, loc);
-    if (c1 != c0 && w > 0.0) sf_shell_lookup(sf_shells[inst.info.x + c1], theta, phi, w, loc);
+    sf_shells_lookup(inst, c0, c1, (c1 == c0) ? 1.0 : 1.0 - w, w, c1 != c0 && w > 0.0, theta, phi, loc);
     sf_rotate(inst, loc, o);
     return true;
 }
@@ -221,8 +225,7 @@ void sf_rcv(SfInst inst, vec3 pw, out float o[16]) {
         float r0 = step * float(c0 + 1u), r1 = step * float(c1 + 1u);
         float inv = 1.0 / (len * len);
         sf_zero(loc);
-        sf_shell_lookup(sf_shells[inst.info.x + c0], theta, phi, (1.0 - w) * r0 * r0 * inv, loc);
-        if (w > 0.0) sf_shell_lookup(sf_shells[inst.info.x + c1], theta, phi, w * r1 * r1 * inv, loc);
+        sf_shells_lookup(inst, c0, c1, (1.0 - w) * r0 * r0 * inv, w * r1 * r1 * inv, w > 0.0, theta, phi, loc);
     }
     sf_rotate(inst, loc, o);
 }
