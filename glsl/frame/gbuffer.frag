@@ -11,7 +11,7 @@ layout(location = 1) in vec3 v_normal;
 layout(location = 2) in vec2 v_uv;
 layout(location = 3) in vec4 v_clip;
 layout(location = 4) in vec4 v_prev_clip;
-layout(location = 5) flat in uvec3 v_ids;
+layout(location = 5) flat in uvec2 v_ids;
 
 layout(location = 0) out vec4 o_position;  // world position, geometric normal (common.glsl gb_pack_geometric_normal; > 0)
 layout(location = 1) out vec4 o_normal;    // octahedral normal.xy, octahedral tangent.xy
@@ -19,11 +19,6 @@ layout(location = 2) out vec4 o_uv_mat;    // uv, material index, instance id + 
 layout(location = 3) out vec2 o_motion;    // pixels moved since the previous frame
 
 void main() {
-    // A closed, outward-wound mesh (ids.z 1; 2 mirrored: passes/src/scene_gpu.rs) shows a back
-    // face only where a silhouette's coverage comes down to the rasterizer's rounding: a ray
-    // through the pixel centre (the reference's, mc's) goes past it to what lies behind, and
-    // shading the back face gave a pixel lit from inside the object (black). Culled here.
-    if ((v_ids.z == 1u && !gl_FrontFacing) || (v_ids.z == 2u && gl_FrontFacing)) discard;
     vec3 n = normalize(v_normal);
     // dP/du and dP/dv from screen-space derivatives of position and uv: the material's normal map
     // bends the normal in their frame; the tangent (dP/du) is the local frame of anisotropic BRDFs.

@@ -13,7 +13,7 @@ layout(location = 1) out vec3 v_normal;
 layout(location = 2) out vec2 v_uv;
 layout(location = 3) out vec4 v_clip;
 layout(location = 4) out vec4 v_prev_clip;
-layout(location = 5) flat out uvec3 v_ids;  // material, instance, back-face culling (InstanceData.ids.z)
+layout(location = 5) flat out uvec2 v_ids;
 
 void main() {
     InstanceData d = inst[gl_InstanceIndex];
@@ -23,6 +23,6 @@ void main() {
     v_uv = in_uv;
     v_clip = cam.view_proj * world;
     v_prev_clip = cam.prev_view_proj * (d.prev_model * vec4(in_pos, 1.0));
-    v_ids = d.ids.xyz;
+    v_ids = d.ids.xy;
     gl_Position = v_clip;
 }

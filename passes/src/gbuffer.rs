@@ -78,6 +78,8 @@ impl GBufferPass {
                 vertex_input: VertexInput::PositionNormalUv,
                 colors: &[POSITION_FORMAT, NORMAL_FORMAT, UV_MAT_FORMAT, MOTION_FORMAT],
                 depth: Some(DepthState { format: DEPTH_FORMAT, write: true, compare: vk::CompareOp::LESS }),
+                // closed meshes' back faces culled per draw (scene_gpu::Cull)
+                dynamic_cull: true,
                 ..Default::default()
             },
         )?;
@@ -124,7 +126,7 @@ impl GBufferPass {
                     Bind::SampledImage(textures, repeat),
                 ],
             )?;
-            crate::raster::draw_instances(rc, &meshes, &draws)?;
+            crate::raster::draw_instances_culled(rc, &meshes, &draws)?;
             unsafe { d.cmd_end_rendering(rc.cmd) };
             Ok(())
         });

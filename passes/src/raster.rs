@@ -75,6 +75,9 @@ pub struct RasterDesc<'a> {
     /// Control points per patch (with tessellation shaders; topology `PATCH_LIST`).
     pub patch_control_points: u32,
     pub cull: vk::CullModeFlags,
+    /// Cull mode and front face set per draw (`vkCmdSetCullMode`, `vkCmdSetFrontFace`, Vulkan
+    /// 1.3 core) instead of `cull`: [`draw_instances_culled`].
+    pub dynamic_cull: bool,
     pub colors: &'a [vk::Format],
     pub blend: Blend,
     pub depth: Option<DepthState>,
@@ -91,6 +94,7 @@ impl Default for RasterDesc<'_> {
             topology: vk::PrimitiveTopology::TRIANGLE_LIST,
             patch_control_points: 0,
             cull: vk::CullModeFlags::NONE,
+            dynamic_cull: false,
             colors: &[],
             blend: Blend::Replace,
             depth: None,
@@ -256,8 +260,14 @@ fn create(
     };
     let blend = vec![attachment; desc.colors.len()];
     let cb = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend);
-    let dyn_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
-    let dy = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dyn_states);
+    let dyn_states = [
+        vk::DynamicState::VIEWPORT,
+        vk::DynamicState::SCISSOR,
+        vk::DynamicState::CULL_MODE,
+        vk::DynamicState::FRONT_FACE,
+    ];
+    let dy = vk::PipelineDynamicStateCreateInfo::default()
+        .dynamic_states(&dyn_states[..if desc.dynamic_cull { 4 } else { 2 }]);
     let mut rendering = vk::PipelineRenderingCreateInfo::default()
         .color_attachment_formats(desc.colors)
         .depth_attachment_format(desc.depth.map_or(vk::Format::UNDEFINED, |d| d.format))
@@ -364,6 +374,27 @@ pub fn draw_instances(
 ) -> Result<()> {
     let d = rc.device();
     draw_meshes(rc, meshes, draws, |dr| unsafe {
+        let m = dr.mesh;
+        d.cmd_draw_indexed(rc.cmd, m.index_count, 1, m.first_index, m.vertex_offset, dr.instance);
+    })
+}
+
+/// [`draw_instances`] with each draw's [`crate::scene_gpu::Draw::cull`] set before it (the
+/// pipeline made with [`RasterDesc::dynamic_cull`]).
+pub fn draw_instances_culled(
+    rc: &penumbra_engine::RecordContext,
+    meshes: &MeshBuffers,
+    draws: &[crate::scene_gpu::Draw],
+) -> Result<()> {
+    let d = rc.device();
+    draw_meshes(rc, meshes, draws, |dr| unsafe {
+        let (mode, front) = match dr.cull {
+            crate::scene_gpu::Cull::None => (vk::CullModeFlags::NONE, vk::FrontFace::COUNTER_CLOCKWISE),
+            crate::scene_gpu::Cull::Back => (vk::CullModeFlags::BACK, vk::FrontFace::COUNTER_CLOCKWISE),
+            crate::scene_gpu::Cull::BackMirrored => (vk::CullModeFlags::BACK, vk::FrontFace::CLOCKWISE),
+        };
+        d.cmd_set_cull_mode(rc.cmd, mode);
+        d.cmd_set_front_face(rc.cmd, front);
         let m = dr.mesh;
         d.cmd_draw_indexed(rc.cmd, m.index_count, 1, m.first_index, m.vertex_offset, dr.instance);
     })

@@ -78,8 +78,8 @@ pub struct SceneGpu {
     /// every technique attenuates local light on its way in by `exp(-sigma_t d)`
     /// (`light_transmittance` of `glsl/include/common.glsl`), as the reference does.
     sigma_t: Vec3,
-    /// Per object: the G-buffer culls its back faces (`MeshData::is_closed_outward`, neither a
-    /// thin shell nor a two-sided material): `InstanceData.ids.z`, see `glsl/frame/gbuffer.frag`.
+    /// Per object: the G-buffer culls its back faces ([`Cull`]: `MeshData::is_closed_outward`,
+    /// neither a thin shell nor a two-sided material).
     cull_back: Vec<bool>,
     /// The specular albedo table (`penumbra_math::dfg::packed`) that follows the frame
     /// constants in the camera buffer (`cam_dfg` of `glsl/include/env_dfg.glsl`).
@@ -114,6 +114,22 @@ pub struct Draw {
     pub mesh: MeshRange,
     pub instance: u32,
     pub deformed: bool,
+    /// Back-face culling of the G-buffer's draw (`raster::draw_instances_culled`).
+    pub cull: Cull,
+}
+
+/// A draw's back-face culling in the G-buffer: for closed, outward-wound meshes at rest
+/// (`MeshData::is_closed_outward`; not thin shells, two-sided materials or deforming instances)
+/// a back face shows only where the rasterizer rounds a silhouette pixel onto it (a ray through
+/// the pixel centre goes past), shaded from inside the object: culled.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Cull {
+    #[default]
+    None,
+    /// Counter-clockwise triangles face the viewer.
+    Back,
+    /// A mirroring transform: clockwise ones do.
+    BackMirrored,
 }
 
 /// Per-frame draw list.
@@ -310,22 +326,22 @@ impl SceneGpu {
         let mut deformed_verts: Vec<Vertex> = Vec::new();
         for (i, it) in frame.instances.iter().enumerate() {
             let normal = it.world.inverse().transpose();
-            // back faces culled (1; 2: a mirroring transform turns the winding) for closed,
-            // outward-wound meshes at rest (a deformation could turn them inside out)
+            // back faces culled for closed, outward-wound meshes at rest (a deformation could
+            // turn them inside out); a mirroring transform turns the winding
             let cull = if self.cull_back.get(it.object).copied().unwrap_or(false) && it.deformed_mesh.is_none() {
                 if glam::Mat3::from_mat4(it.world).determinant() < 0.0 {
-                    2
+                    Cull::BackMirrored
                 } else {
-                    1
+                    Cull::Back
                 }
             } else {
-                0
+                Cull::None
             };
             inst.push(InstanceData {
                 model: it.world.to_cols_array_2d(),
                 prev_model: it.prev_world.to_cols_array_2d(),
                 normal_matrix: normal.to_cols_array_2d(),
-                ids: [it.material as u32, i as u32, cull, 0],
+                ids: [it.material as u32, i as u32, 0, 0],
             });
             let Some(r) = self.meshes.get(it.mesh) else { continue };
             if r.index_count == 0 {
@@ -342,9 +358,9 @@ impl SceneGpu {
                             uv: m.uvs[k].to_array(),
                         });
                     }
-                    draws.push(Draw { mesh, instance: i as u32, deformed: true });
+                    draws.push(Draw { mesh, instance: i as u32, deformed: true, cull });
                 }
-                _ => draws.push(Draw { mesh: *r, instance: i as u32, deformed: false }),
+                _ => draws.push(Draw { mesh: *r, instance: i as u32, deformed: false, cull }),
             }
         }
         if inst.is_empty() {
