@@ -126,7 +126,7 @@ impl GBufferPass {
                     Bind::SampledImage(textures, repeat),
                 ],
             )?;
-            crate::raster::draw_instances_culled(rc, &meshes, &draws)?;
+            crate::raster::draw_instances(rc, &meshes, &draws, true)?;
             unsafe { d.cmd_end_rendering(rc.cmd) };
             Ok(())
         });

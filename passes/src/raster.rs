@@ -76,7 +76,7 @@ pub struct RasterDesc<'a> {
     pub patch_control_points: u32,
     pub cull: vk::CullModeFlags,
     /// Cull mode and front face set per draw (`vkCmdSetCullMode`, `vkCmdSetFrontFace`, Vulkan
-    /// 1.3 core) instead of `cull`: [`draw_instances_culled`].
+    /// 1.3 core) instead of `cull`: [`draw_instances`] with `cull`.
     pub dynamic_cull: bool,
     pub colors: &'a [vk::Format],
     pub blend: Blend,
@@ -366,35 +366,25 @@ pub fn rendering_info<'a>(
 }
 
 /// Draws one instance of each of `draws` (instance index `Draw::instance`), as
-/// [`draw_meshes`] binds their buffers.
+/// [`draw_meshes`] binds their buffers; with `cull`, each draw's [`crate::scene_gpu::Draw::cull`]
+/// set before it (a pipeline made with [`RasterDesc::dynamic_cull`]).
 pub fn draw_instances(
     rc: &penumbra_engine::RecordContext,
     meshes: &MeshBuffers,
     draws: &[crate::scene_gpu::Draw],
+    cull: bool,
 ) -> Result<()> {
     let d = rc.device();
     draw_meshes(rc, meshes, draws, |dr| unsafe {
-        let m = dr.mesh;
-        d.cmd_draw_indexed(rc.cmd, m.index_count, 1, m.first_index, m.vertex_offset, dr.instance);
-    })
-}
-
-/// [`draw_instances`] with each draw's [`crate::scene_gpu::Draw::cull`] set before it (the
-/// pipeline made with [`RasterDesc::dynamic_cull`]).
-pub fn draw_instances_culled(
-    rc: &penumbra_engine::RecordContext,
-    meshes: &MeshBuffers,
-    draws: &[crate::scene_gpu::Draw],
-) -> Result<()> {
-    let d = rc.device();
-    draw_meshes(rc, meshes, draws, |dr| unsafe {
-        let (mode, front) = match dr.cull {
-            crate::scene_gpu::Cull::None => (vk::CullModeFlags::NONE, vk::FrontFace::COUNTER_CLOCKWISE),
-            crate::scene_gpu::Cull::Back => (vk::CullModeFlags::BACK, vk::FrontFace::COUNTER_CLOCKWISE),
-            crate::scene_gpu::Cull::BackMirrored => (vk::CullModeFlags::BACK, vk::FrontFace::CLOCKWISE),
-        };
-        d.cmd_set_cull_mode(rc.cmd, mode);
-        d.cmd_set_front_face(rc.cmd, front);
+        if cull {
+            let (mode, front) = match dr.cull {
+                crate::scene_gpu::Cull::None => (vk::CullModeFlags::NONE, vk::FrontFace::COUNTER_CLOCKWISE),
+                crate::scene_gpu::Cull::Back => (vk::CullModeFlags::BACK, vk::FrontFace::COUNTER_CLOCKWISE),
+                crate::scene_gpu::Cull::BackMirrored => (vk::CullModeFlags::BACK, vk::FrontFace::CLOCKWISE),
+            };
+            d.cmd_set_cull_mode(rc.cmd, mode);
+            d.cmd_set_front_face(rc.cmd, front);
+        }
         let m = dr.mesh;
         d.cmd_draw_indexed(rc.cmd, m.index_count, 1, m.first_index, m.vertex_offset, dr.instance);
     })

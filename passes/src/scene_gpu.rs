@@ -114,7 +114,7 @@ pub struct Draw {
     pub mesh: MeshRange,
     pub instance: u32,
     pub deformed: bool,
-    /// Back-face culling of the G-buffer's draw (`raster::draw_instances_culled`).
+    /// Back-face culling of the G-buffer's draw (`raster::draw_instances` with `cull`).
     pub cull: Cull,
 }
 

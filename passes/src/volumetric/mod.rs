@@ -782,7 +782,7 @@ impl Effect for VolumetricEffect {
                             &bytes_of(&m.concat()),
                         );
                     }
-                    crate::raster::draw_instances(rc, &meshes, &draws)?;
+                    crate::raster::draw_instances(rc, &meshes, &draws, false)?;
                 }
                 unsafe { d.cmd_end_rendering(rc.cmd) };
                 Ok(())
