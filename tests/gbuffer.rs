@@ -165,17 +165,7 @@ fn vertex_normals_against_the_winding_shade_as_in_the_reference() {
     let s = common::with_env(&s, 8, 4, |_, _| [sky; 3]);
     let lit = 0.5 * sky * s.environment.as_ref().unwrap().intensity;
     let (w, h) = (48u32, 24u32);
-    let reference = penumbra_reference::render(
-        &s,
-        &penumbra_reference::ReferenceOptions { width: w, height: h, spp: 16, pixel_grid: 1, ..Default::default() },
-    )
-    .unwrap()
-    .radiance;
-    let (r, frames) = common::render_times(&s, "env", w, h, &[0.0], true);
-    let log = r.context().validation.clone();
-    drop(r);
-    assert_eq!(log.error_count(), 0, "{:#?}", log.errors());
-    let img = common::hdr_image(frames.last().unwrap());
+    let (reference, img) = common::reference_and_frame(&s, "env", w, h, 16);
     let mut walls = [0usize; 2];
     for y in 0..h {
         for x in 0..w {

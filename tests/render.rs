@@ -475,17 +475,7 @@ fn local_lights_shade_with_the_reference_brdfs() {
         let path = dir.join(format!("{name}.toml"));
         std::fs::write(&path, text).unwrap();
         let s = penumbra_scene::Scene::load(&path).expect("scene");
-        let reference = penumbra_reference::render(
-            &s,
-            &penumbra_reference::ReferenceOptions { width: w, height: h, spp: 2, pixel_grid: 1, ..Default::default() },
-        )
-        .unwrap()
-        .radiance;
-        let (r, frames) = common::render_times(&s, "env", w, h, &[0.0], true);
-        let log = r.context().validation.clone();
-        drop(r);
-        assert_eq!(log.error_count(), 0, "{:#?}", log.errors());
-        let img = common::hdr_image(frames.last().unwrap());
+        let (reference, img) = common::reference_and_frame(&s, "env", w, h, 2);
         let (mut worst, mut peak) = (0.0f32, 0.0f32);
         for y in 0..h {
             for x in 0..w {

@@ -76,6 +76,28 @@ pub fn hdr_image(img: &FrameImages) -> penumbra_reference::image::Image {
     })
 }
 
+/// The CPU reference of `s` at time 0 through the pixel centres (`spp` samples each) and
+/// `technique`'s frame at time 0, rendered under validation (asserted clean).
+pub fn reference_and_frame(
+    s: &Scene,
+    technique: &str,
+    w: u32,
+    h: u32,
+    spp: u32,
+) -> (penumbra_reference::image::Image, penumbra_reference::image::Image) {
+    let reference = penumbra_reference::render(
+        s,
+        &penumbra_reference::ReferenceOptions { width: w, height: h, spp, pixel_grid: 1, ..Default::default() },
+    )
+    .unwrap()
+    .radiance;
+    let (r, frames) = render_times(s, technique, w, h, &[0.0], true);
+    let log = r.context().validation.clone();
+    drop(r);
+    assert_eq!(log.error_count(), 0, "{:#?}", log.errors());
+    (reference, hdr_image(frames.last().unwrap()))
+}
+
 /// The G-buffer's octahedral encoding (`oct_decode` of `glsl/include/common.glsl`).
 pub fn oct_decode(e: [f32; 2]) -> glam::Vec3 {
     let mut n = glam::Vec3::new(e[0], e[1], 1.0 - e[0].abs() - e[1].abs());
