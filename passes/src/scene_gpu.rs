@@ -182,6 +182,8 @@ impl SceneGpu {
         let extras = (0..scene.materials.len()).map(|i| scene.material_extra(i)).collect();
         let textures = MaterialTextures::new(ctx, &scene.textures)?;
         let sigma_t = scene.medium.map_or(Vec3::ZERO, |m| m.sigma_t().max(Vec3::ZERO));
+        // once per mesh (objects share meshes; welding hashes every vertex)
+        let closed: Vec<bool> = scene.meshes.iter().map(|m| m.is_closed_outward()).collect();
         let cull_back = scene
             .objects
             .iter()
@@ -189,7 +191,7 @@ impl SceneGpu {
             .map(|(i, o)| {
                 !scene.object_info(i).thin_shell
                     && !scene.material_extras.get(o.material).is_some_and(|e| e.two_sided)
-                    && scene.meshes.get(o.mesh).is_some_and(|m| m.is_closed_outward())
+                    && closed.get(o.mesh).copied().unwrap_or(false)
             })
             .collect();
         Ok(SceneGpu {
