@@ -145,19 +145,13 @@ fn vertex_normals_against_the_winding_shade_as_in_the_reference() {
             indices,
         }
     };
-    let mut s = penumbra_scene::Scene::default_scene();
     // seen from +z: clockwise winding faces away, so its normals (+z) disagree; the second's
     // winding faces the camera and its normals (-z) do not
-    s.meshes = vec![wall(-1.2, true, 1.0), wall(0.2, false, -1.0)];
-    s.materials = vec![Material::diffuse("grey", Vec3::splat(0.5))];
-    s.objects =
-        (0..2).map(|i| Object { name: format!("wall{i}"), mesh: i, material: 0, transform: Mat4::IDENTITY }).collect();
-    s.material_extras.clear();
-    s.object_info.clear();
-    s.material_animations.clear();
-    s.lights.clear();
-    s.medium = None;
-    s.camera_path = None;
+    let mut s = common::bare_scene(
+        vec![wall(-1.2, true, 1.0), wall(0.2, false, -1.0)],
+        vec![Material::diffuse("grey", Vec3::splat(0.5))],
+        (0..2).map(|i| Object { name: format!("wall{i}"), mesh: i, material: 0, transform: Mat4::IDENTITY }).collect(),
+    );
     s.camera.eye = Vec3::new(0.0, 0.0, 3.0);
     s.camera.target = Vec3::ZERO;
     s.camera.up = Vec3::Y;

@@ -128,16 +128,11 @@ fn mc_without_aa_samples_the_pixel_centres_like_the_reference_grid() {
     use glam::{Mat4, Vec3};
     use penumbra_scene::{Material, MeshData, Object};
     let sky = 0.8f32;
-    let mut s = penumbra_scene::Scene::default_scene();
-    s.meshes = vec![MeshData::plane(40.0, 1)];
-    s.materials = vec![Material::diffuse("black", Vec3::ZERO)];
-    s.objects = vec![Object { name: "ground".into(), mesh: 0, material: 0, transform: Mat4::IDENTITY }];
-    s.material_extras.clear();
-    s.object_info.clear();
-    s.material_animations.clear();
-    s.lights.clear();
-    s.medium = None;
-    s.camera_path = None;
+    let mut s = common::bare_scene(
+        vec![MeshData::plane(40.0, 1)],
+        vec![Material::diffuse("black", Vec3::ZERO)],
+        vec![Object { name: "ground".into(), mesh: 0, material: 0, transform: Mat4::IDENTITY }],
+    );
     s.camera.eye = Vec3::new(0.0, 1.0, 0.0);
     s.camera.target = Vec3::new(0.3, 1.13, -1.0);
     s.camera.up = Vec3::new(0.35, 1.0, 0.0).normalize();

@@ -76,6 +76,26 @@ pub fn hdr_image(img: &FrameImages) -> penumbra_reference::image::Image {
     })
 }
 
+/// The default scene with only `meshes`, `materials` and `objects` (its environment and camera
+/// kept; no material extras, object motion, material animations, lights, medium or camera path).
+pub fn bare_scene(
+    meshes: Vec<penumbra_scene::MeshData>,
+    materials: Vec<penumbra_scene::Material>,
+    objects: Vec<penumbra_scene::Object>,
+) -> Scene {
+    let mut s = Scene::default_scene();
+    s.meshes = meshes;
+    s.materials = materials;
+    s.objects = objects;
+    s.material_extras.clear();
+    s.object_info.clear();
+    s.material_animations.clear();
+    s.lights.clear();
+    s.medium = None;
+    s.camera_path = None;
+    s
+}
+
 /// The CPU reference of `s` at time 0 through the pixel centres (`spp` samples each) and
 /// `technique`'s frame at time 0, rendered under validation (asserted clean).
 pub fn reference_and_frame(

@@ -131,8 +131,6 @@ pub struct McTechnique {
     scene_textures: Option<ImageHandle>,
     repeat: crate::util::Sampler,
     extras: Vec<penumbra_scene::MaterialExtra>,
-    /// The medium's extinction (zero without a medium), for [`light_table`].
-    sigma_t: Vec3,
     pub builder: KdTreeBuilder,
     scene: Scene,
     env: EnvTables,
@@ -196,7 +194,6 @@ impl McTechnique {
             scene_textures: None,
             repeat: crate::util::Sampler::repeat(ctx)?,
             extras: (0..scene.materials.len()).map(|i| scene.material_extra(i)).collect(),
-            sigma_t: scene.medium.map_or(Vec3::ZERO, |m| m.sigma_t().max(Vec3::ZERO)),
             medium: scene.medium.map(|m| (m.sigma_t().max(Vec3::ZERO), m.sigma_s.max(Vec3::ZERO), m.g)),
             builder: KdTreeBuilder::new(ctx, shaders)?,
             scene: scene.clone(),
@@ -262,7 +259,8 @@ impl McTechnique {
             Some(t) => t,
             None => self.textures.add(graph),
         };
-        let light_data = light_table(&frame.lights, self.sigma_t);
+        // the medium's extinction (zero without one) attenuates local light on its way in
+        let light_data = light_table(&frame.lights, self.medium.map_or(Vec3::ZERO, |m| m.0));
         let light_count = (light_data.len() / 4) as u32;
         let lights = graph
             .create_buffer_init("mc.lights", if light_data.is_empty() { vec![0u8; 64] } else { bytes_of(&light_data) });
