@@ -111,8 +111,9 @@ fn file_round_trip_and_deformation() {
     }
     // Translating every vertex translates every sphere.
     let moved: Vec<Vec3> = p.iter().map(|v| *v + Vec3::new(0.0, 2.0, 0.0)).collect();
-    for (a, b) in set.spheres.iter().zip(set.deformed(&p, &moved)) {
+    for (a, b) in set.spheres.iter().zip(set.deformed(&p, &moved, &i)) {
         assert!((b.center - a.center - Vec3::new(0.0, 2.0, 0.0)).length() < 1e-5);
+        assert!((b.radius - a.radius).abs() < 1e-5 * a.radius, "a translation changed a radius");
     }
     // Bad files.
     for bad in [
@@ -137,4 +138,51 @@ fn bad_meshes_are_errors() {
     let s = approximate_spheres(&[Vec3::ZERO, Vec3::X, Vec3::Y], &[0, 1, 2], 4).unwrap();
     assert!(s.spheres.is_empty());
     assert!(approximate_spheres(&[Vec3::ZERO, Vec3::X, Vec3::Y], &[0, 1, 2], 0).unwrap().spheres.is_empty());
+}
+
+/// How far a sphere reaches out of the mesh (radius minus the centre's distance to the nearest
+/// triangle; negative: inset).
+fn poke_out(s: &BoundSphere, p: &[Vec3], i: &[u32]) -> f32 {
+    s.radius - penumbra_math::sphereset::surface_distance(s.center, p, i).unwrap()
+}
+
+#[test]
+fn squashed_spheres_shrink_with_the_mesh() {
+    // A box squashed to 0.5 of its height about its base, widened to keep its volume (the scene
+    // format's `squash`): the rest radii reach out of the flattened box; the deformed set's
+    // radii follow the clearance so that they reach out much less.
+    let (p, i) = box_mesh(Vec3::new(0.5, 0.5, 0.5));
+    let set = approximate_spheres(&p, &i, 8).unwrap();
+    let base = p.iter().fold(f32::MAX, |m, v| m.min(v.y));
+    let (sy, sx) = (0.5f32, 1.0 / 0.5f32.sqrt());
+    let squashed: Vec<Vec3> = p.iter().map(|v| Vec3::new(v.x * sx, base + (v.y - base) * sy, v.z * sx)).collect();
+    let deformed = set.deformed(&p, &squashed, &i);
+    let kept: Vec<BoundSphere> = set.deformed(&p, &squashed, &[]).into_iter().collect();
+    let worst = |v: &[BoundSphere]| v.iter().map(|s| poke_out(s, &squashed, &i)).fold(f32::MIN, f32::max);
+    let rest_worst = set.spheres.iter().map(|s| poke_out(s, &p, &i)).fold(f32::MIN, f32::max);
+    println!(
+        "reach out of the mesh: rest {rest_worst:.4}, squashed with rest radii {:.4}, deformed {:.4}",
+        worst(&kept),
+        worst(&deformed)
+    );
+    assert!(kept.iter().zip(&set.spheres).all(|(k, s)| k.radius == s.radius), "no triangles: radii kept");
+    assert!(worst(&kept) > 0.1, "the test's squash should push rest radii out: {}", worst(&kept));
+    assert!(worst(&deformed) < 0.5 * worst(&kept), "{} vs {}", worst(&deformed), worst(&kept));
+    for (d, s) in deformed.iter().zip(&set.spheres) {
+        assert!(d.radius < s.radius && d.radius > 0.5 * s.radius, "{} from {}", d.radius, s.radius);
+    }
+}
+
+#[test]
+fn closest_point_on_triangle_by_region() {
+    use penumbra_math::sphereset::closest_point_on_triangle as cp;
+    let (a, b, c) = (Vec3::ZERO, Vec3::X, Vec3::Y);
+    let near = |x: Vec3, y: Vec3| (x - y).length() < 1e-6;
+    assert!(near(cp(Vec3::new(0.2, 0.2, 1.0), a, b, c), Vec3::new(0.2, 0.2, 0.0)), "face");
+    assert!(near(cp(Vec3::new(-1.0, -1.0, 0.0), a, b, c), a), "vertex a");
+    assert!(near(cp(Vec3::new(2.0, -0.5, 0.3), a, b, c), b), "vertex b");
+    assert!(near(cp(Vec3::new(0.5, -1.0, 0.0), a, b, c), Vec3::new(0.5, 0.0, 0.0)), "edge ab");
+    assert!(near(cp(Vec3::new(1.0, 1.0, 0.0), a, b, c), Vec3::new(0.5, 0.5, 0.0)), "edge bc");
+    // degenerate (collinear) triangle: the nearest point of its edges
+    assert!(near(cp(Vec3::new(0.5, 1.0, 0.0), a, b, Vec3::new(2.0, 0.0, 0.0)), Vec3::new(0.5, 0.0, 0.0)), "degenerate");
 }

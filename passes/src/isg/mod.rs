@@ -7,7 +7,8 @@
 //! * CPU: every shadow-casting closed object's sphere set (built once at creation by
 //!   [`penumbra_math::sphereset::approximate_spheres`], or loaded from
 //!   `<scene dir>/<scene name>.<object name>.spheres` when that file exists) is moved to world
-//!   space: deforming objects through the spheres' vertex anchors on the deformed mesh, then the
+//!   space: deforming objects through the spheres' vertex anchors on the deformed mesh (radii
+//!   following the mesh's clearance, [`penumbra_math::sphereset::SphereSet::deformed`]), then the
 //!   instance transform (radius times the largest axis scale). A CPU binary BVH over the spheres is
 //!   built top-down by median splits on the longest axis of the centres (O(N log N); a few
 //!   hundred spheres take microseconds), inner nodes bound both children's spheres exactly. This
@@ -440,10 +441,10 @@ pub fn frame_spheres(scene: &Scene, sets: &[Option<SphereSet>], frame: &Frame) -
         let local = match &inst.deformed_mesh {
             Some(d) if d.positions.len() == rest.positions.len() => {
                 if baked == Vec3::ONE {
-                    set.deformed(&rest.positions, &d.positions)
+                    set.deformed(&rest.positions, &d.positions, &rest.indices)
                 } else {
                     let scaled = |v: &[Vec3]| v.iter().map(|&p| p * baked).collect::<Vec<_>>();
-                    set.deformed(&scaled(&rest.positions), &scaled(&d.positions))
+                    set.deformed(&scaled(&rest.positions), &scaled(&d.positions), &rest.indices)
                 }
             }
             _ => set.spheres.clone(),
