@@ -199,7 +199,7 @@ const ISG_PARAMS: &[ParamDoc] = &[
     p("thin_shells", "true", "true/false", "thin shells and open meshes cast shadows by their triangles"),
     p("light_shadows", "true", "true/false", "shadow rays toward local lights"),
     p("light_occluders", "mesh", "mesh, spheres", "what the local lights' shadow rays hit: the meshes (the frame's kd-tree) or the sphere sets and thin-shell triangles"),
-    p("thin_tolerance", "0.01", ">= 0", "triangles farther than this fraction of their object's size outside its spheres cast shadows as thin-shell triangles (0: every triangle outside them)"),
+    p("thin_tolerance", "0.005", ">= 0", "triangles farther than this fraction of their object's size outside its spheres cast shadows as thin-shell triangles (0: every triangle outside them)"),
     p("visibility", "isg", "isg, traced", "environment visibility: the ISG over the sphere proxies (the paper's) or 96 shadow rays per lobe through the meshes (traced: a measuring stick for the proxies' error; per-pixel mode only)"),
     p("mode", "pixel", "pixel, vertex", "visibility per pixel or per vertex"),
     p("max_edge", "0.1", ">= 0", "per-vertex mode: subdivide until edges are at most this (0: never)"),
