@@ -496,8 +496,13 @@ impl SphereSet {
                 }
                 let mean = |v: &[Vec3]| s.anchors.iter().map(|&a| v[a as usize]).sum::<Vec3>() / 4.0;
                 let center = s.center + mean(deformed) - mean(rest);
-                let clear_rest = surface_distance(s.center, rest, indices);
-                let clear_now = surface_distance(center, deformed, indices);
+                // the anchors are mesh vertices: their nearest bounds the clearance (and lets
+                // the search skip almost every triangle)
+                let near = |v: &[Vec3], c: Vec3| {
+                    s.anchors.iter().map(|&a| (v[a as usize] - c).length()).fold(f32::INFINITY, f32::min)
+                };
+                let clear_rest = nearest_triangle_below(s.center, rest, indices, near(rest, s.center));
+                let clear_now = nearest_triangle_below(center, deformed, indices, near(deformed, center));
                 let radius = match (clear_rest, clear_now) {
                     (Some(a), Some(b)) if a > 0.0 && b.is_finite() => s.radius * (b / a).sqrt(),
                     _ => s.radius,
@@ -567,13 +572,21 @@ impl SphereSet {
 
 /// Distance from `p` to the nearest triangle of the mesh (`None`: no valid triangle).
 pub fn surface_distance(p: Vec3, positions: &[Vec3], indices: &[u32]) -> Option<f32> {
-    let mut best = f32::INFINITY;
+    nearest_triangle_below(p, positions, indices, f32::INFINITY)
+}
+
+/// [`surface_distance`] given an upper bound of it (the distance to a mesh vertex: triangles
+/// that cannot come nearer are skipped; `None` when no triangle is valid).
+fn nearest_triangle_below(p: Vec3, positions: &[Vec3], indices: &[u32], bound: f32) -> Option<f32> {
+    let mut best = bound;
+    let mut any = false;
     for t in indices.chunks_exact(3) {
         let (Some(&a), Some(&b), Some(&c)) =
             (positions.get(t[0] as usize), positions.get(t[1] as usize), positions.get(t[2] as usize))
         else {
             continue;
         };
+        any = true;
         // a sphere about the triangle (centroid, farthest vertex) that cannot beat the best
         let m = (a + b + c) / 3.0;
         let reach = (a - m).length().max((b - m).length()).max((c - m).length());
@@ -582,7 +595,7 @@ pub fn surface_distance(p: Vec3, positions: &[Vec3], indices: &[u32]) -> Option<
         }
         best = best.min((p - closest_point_on_triangle(p, a, b, c)).length());
     }
-    best.is_finite().then_some(best)
+    (any && best.is_finite()).then_some(best)
 }
 
 /// The point of triangle `abc` nearest to `p` (Ericson, "Real-Time Collision Detection" 5.1.5,
