@@ -487,6 +487,8 @@ impl SphereSet {
     /// ratio 0.0604 / 0.0486 (no blotches, the crown's shadow on the brim too light), its square
     /// root 0.0579 / 0.0455. Anchors out of range keep the rest sphere.
     pub fn deformed(&self, rest: &[Vec3], deformed: &[Vec3], indices: &[u32]) -> Vec<BoundSphere> {
+        // each mesh's triangles bounded once, searched by every sphere
+        let (rest_tris, now_tris) = (MeshTriangles::new(rest, indices), MeshTriangles::new(deformed, indices));
         self.spheres
             .iter()
             .map(|s| {
@@ -501,8 +503,8 @@ impl SphereSet {
                 let near = |v: &[Vec3], c: Vec3| {
                     s.anchors.iter().map(|&a| (v[a as usize] - c).length()).fold(f32::INFINITY, f32::min)
                 };
-                let clear_rest = nearest_triangle_below(s.center, rest, indices, near(rest, s.center));
-                let clear_now = nearest_triangle_below(center, deformed, indices, near(deformed, center));
+                let clear_rest = rest_tris.distance_below(s.center, near(rest, s.center));
+                let clear_now = now_tris.distance_below(center, near(deformed, center));
                 let radius = match (clear_rest, clear_now) {
                     (Some(a), Some(b)) if a > 0.0 && b.is_finite() => s.radius * (b / a).sqrt(),
                     _ => s.radius,
@@ -572,30 +574,41 @@ impl SphereSet {
 
 /// Distance from `p` to the nearest triangle of the mesh (`None`: no valid triangle).
 pub fn surface_distance(p: Vec3, positions: &[Vec3], indices: &[u32]) -> Option<f32> {
-    nearest_triangle_below(p, positions, indices, f32::INFINITY)
+    MeshTriangles::new(positions, indices).distance_below(p, f32::INFINITY)
 }
 
-/// [`surface_distance`] given an upper bound of it (the distance to a mesh vertex: triangles
-/// that cannot come nearer are skipped; `None` when no triangle is valid).
-fn nearest_triangle_below(p: Vec3, positions: &[Vec3], indices: &[u32], bound: f32) -> Option<f32> {
-    let mut best = bound;
-    let mut any = false;
-    for t in indices.chunks_exact(3) {
-        let (Some(&a), Some(&b), Some(&c)) =
-            (positions.get(t[0] as usize), positions.get(t[1] as usize), positions.get(t[2] as usize))
-        else {
-            continue;
-        };
-        any = true;
-        // a sphere about the triangle (centroid, farthest vertex) that cannot beat the best
-        let m = (a + b + c) / 3.0;
-        let reach = (a - m).length().max((b - m).length()).max((c - m).length());
-        if (p - m).length() - reach >= best {
-            continue;
-        }
-        best = best.min((p - closest_point_on_triangle(p, a, b, c)).length());
+/// A mesh's valid triangles, each with a bounding sphere about its centroid (its farthest vertex
+/// the radius), for nearest-triangle searches.
+struct MeshTriangles {
+    tris: Vec<([Vec3; 3], Vec3, f32)>,
+}
+
+impl MeshTriangles {
+    fn new(positions: &[Vec3], indices: &[u32]) -> Self {
+        let tris = indices
+            .chunks_exact(3)
+            .filter_map(|t| {
+                let v = [positions.get(t[0] as usize)?, positions.get(t[1] as usize)?, positions.get(t[2] as usize)?];
+                let [a, b, c] = v.map(|p| *p);
+                let m = (a + b + c) / 3.0;
+                Some(([a, b, c], m, (a - m).length().max((b - m).length()).max((c - m).length())))
+            })
+            .collect();
+        MeshTriangles { tris }
     }
-    (any && best.is_finite()).then_some(best)
+
+    /// The distance from `p` to the nearest triangle given an upper bound of it (the distance to
+    /// a mesh vertex: triangles whose bounding sphere cannot come nearer are skipped; `None`
+    /// when there is no valid triangle).
+    fn distance_below(&self, p: Vec3, bound: f32) -> Option<f32> {
+        let mut best = bound;
+        for &([a, b, c], m, reach) in &self.tris {
+            if (p - m).length() - reach < best {
+                best = best.min((p - closest_point_on_triangle(p, a, b, c)).length());
+            }
+        }
+        (!self.tris.is_empty() && best.is_finite()).then_some(best)
+    }
 }
 
 /// The point of triangle `abc` nearest to `p` (Ericson, "Real-Time Collision Detection" 5.1.5,
