@@ -157,7 +157,7 @@ fn squashed_spheres_shrink_with_the_mesh() {
     let (sy, sx) = (0.5f32, 1.0 / 0.5f32.sqrt());
     let squashed: Vec<Vec3> = p.iter().map(|v| Vec3::new(v.x * sx, base + (v.y - base) * sy, v.z * sx)).collect();
     let deformed = set.deformed(&p, &squashed, &i);
-    let kept: Vec<BoundSphere> = set.deformed(&p, &squashed, &[]).into_iter().collect();
+    let kept = set.deformed(&p, &squashed, &[]);
     let worst = |v: &[BoundSphere]| v.iter().map(|s| poke_out(s, &squashed, &i)).fold(f32::MIN, f32::max);
     let rest_worst = set.spheres.iter().map(|s| poke_out(s, &p, &i)).fold(f32::MIN, f32::max);
     println!(
