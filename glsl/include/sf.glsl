@@ -246,7 +246,11 @@ bool sf_inside(SfInst inst, vec3 pw) {
 // the final u.
 // ng: the surface's geometric normal; a light whose centre lies below it is blocked by the
 // surface (lights.glsl's rule; vec3(0.0) where the face is unknown: per-vertex transfer).
-vec3 sf_shade_point(vec3 p, vec3 ng, uint self_inst, uint inst_count, uint light_count, uint tensor_count, uint window, inout float u[16]) {
+// With `two`, a second transfer u2 (the glossy lobe's, shadow_fields `glossy = transfer`) is
+// multiplied by the same occluders' visibilities, and c2 is its double product with the
+// environment (no lights: their glossy lobes are shaded pointwise).
+vec3 sf_shade_point(vec3 p, vec3 ng, uint self_inst, uint inst_count, uint light_count, uint tensor_count, uint window, inout float u[16],
+                    bool two, inout float u2[16], out vec3 c2) {
     uint ids[SF_MAX_ENT];
     float ds[SF_MAX_ENT];
     uint n = 0u;
@@ -276,6 +280,10 @@ vec3 sf_shade_point(vec3 p, vec3 ng, uint self_inst, uint inst_count, uint light
             float h[16];
             sf_triple(o, u, tensor_count, h);
             u = h;
+            if (two) {
+                sf_triple(o, u2, tensor_count, h);
+                u2 = h;
+            }
         } else {
             if (ng != vec3(0.0) && dot(sf_inst[j].center_world.xyz - p, ng) <= 0.0) continue;
             float s[16];
@@ -287,6 +295,7 @@ vec3 sf_shade_point(vec3 p, vec3 ng, uint self_inst, uint inst_count, uint light
             c += sf_inst[j].light_a.rgb * tr * dp;
         }
     }
+    c2 = two ? sf_double(u2) : vec3(0.0);
     return c + sf_double(u);
 }
 

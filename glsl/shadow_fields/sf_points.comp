@@ -29,6 +29,9 @@ void main() {
     for (int e = 0; e < 16; e++) t[e] = pt.t[e];
     float u[16];
     sf_rotate(sf_inst[self_inst], t, u);
-    vec3 c = pt.albedo.rgb * sf_shade_point(pt.pos.xyz, vec3(0.0), self_inst, pc.n_inst, pc.n_light, pc.tensor_count, pc.window, u);
+    float none[16];
+    sf_zero(none);
+    vec3 unused;
+    vec3 c = pt.albedo.rgb * sf_shade_point(pt.pos.xyz, vec3(0.0), self_inst, pc.n_inst, pc.n_light, pc.tensor_count, pc.window, u, false, none, unused);
     outv[pt.ids.y] = vec4(max(c, vec3(0.0)), min(c.r, min(c.g, c.b)));
 }

@@ -48,7 +48,7 @@ layout(set = 0, binding = 18) readonly buffer KdHeader { uint kd_hdr[]; };
 layout(set = 0, binding = 19) readonly buffer KeyLights { vec4 key[]; };
 // traced: local lights pointwise, shadowed by rays through the kd-tree (light_shadows = traced;
 // srf is then 0); key_count: key lights (traced only)
-layout(push_constant) uniform Push { uint n_inst; uint tensor_count; uint light_count; uint srf; uint window; uint mode; uint traced; uint key_count; } pc;
+layout(push_constant) uniform Push { uint n_inst; uint tensor_count; uint light_count; uint srf; uint window; uint mode; uint traced; uint key_count; uint glossy_sh; } pc;
 
 // Irradiance from the key lights at a point of normal n (offset point p, geometric normal ng).
 vec3 key_lights_irradiance(vec3 p, vec3 n, vec3 ng) {
@@ -116,6 +116,45 @@ void cosine_transfer(vec3 n, out float t[16]) {
     for (int e = 9; e < 16; e++) t[e] = 0.0;
 }
 
+// The normalized lobe exp(lam (a.w - 1)) (integral 1) as an order-4 SH transfer:
+// c_lm = A_l(lam) Y_lm(a), A_l the lobe's mean of the Legendre polynomial P_l (von Mises-Fisher:
+// A_1 = coth lam - 1/lam, A_2 = 1 - 3 A_1 / lam, A_3 = A_1 - 5 A_2 / lam; their series below
+// lam = 0.5, where the differences cancel). cosine_transfer is the same for max(n.w, 0) / pi.
+void lobe_transfer(vec3 a, float lam, out float t[16]) {
+    float a1, a2, a3;
+    if (lam < 0.5) {
+        float l2 = lam * lam;
+        a1 = lam / 3.0 - lam * l2 / 45.0;
+        a2 = l2 / 15.0;
+        a3 = lam * l2 / 105.0;
+    } else {
+        float e = exp(-2.0 * min(lam, 40.0));
+        a1 = (1.0 + e) / (1.0 - e) - 1.0 / lam;
+        a2 = 1.0 - 3.0 * a1 / lam;
+        a3 = a1 - 5.0 * a2 / lam;
+    }
+    sh16_basis(a, t);
+    for (int e = 1; e < 4; e++) t[e] *= a1;
+    for (int e = 4; e < 9; e++) t[e] *= a2;
+    for (int e = 9; e < 16; e++) t[e] *= a3;
+}
+
+// glossy = transfer: the key lights' glossy radiance (the part of the environment split off its
+// SH), each light's lobe against the specular lobe times the cosine (gj, amplitude amp), seen
+// through rays across their product (as key_light_glossy_share, in rgb).
+vec3 key_lights_glossy(vec3 amp, SG gj, vec3 p, vec3 ng) {
+    vec3 sum = vec3(0.0);
+    for (uint k = 0u; k < pc.key_count; ++k) {
+        vec4 al = key[2u * k];
+        SG l = sg_make(al.xyz, al.w, 1.0);
+        float e = sg_inner_product(l, gj);
+        if (!(e > 0.0)) continue;
+        SG pr = sg_product(l, gj);
+        sum += key[2u * k + 1u].rgb * amp * e * cone_rays_visibility(p, pr.axis, 2.0 / sqrt(max(pr.lambda, 1e-4)), ng);
+    }
+    return sum;
+}
+
 void main() {
     ivec2 p = ivec2(gl_GlobalInvocationID.xy);
     ivec2 size = imageSize(hdr);
@@ -134,32 +173,60 @@ void main() {
     vec3 n = oct_decode(en.xy), tg = oct_decode(en.zw);
     MaterialData m = material_at(mats[uint(uvm.z)], uvm.xy, material_textures);
     uint self_inst = uint(uvm.w + 0.5) - 1u;
-    vec3 diffuse;
-    if (pc.mode == 1u) {
+    vec3 v = normalize(cam.eye.xyz - pos);
+    int kind = int(m.albedo_kind.w + 0.5);
+    vec3 r = reflect(-v, n);
+    float ndv = max(dot(n, v), 1e-4);
+    // glossy = transfer: the specular lobe times the cosine as an SG (its amplitude amp), whose
+    // normalized shape is the second transfer of the one sf_shade_point call
+    bool glossy_sh = pc.glossy_sh != 0u && kind != 0;
+    vec3 amp = vec3(0.0);
+    SG gj;
+    gj.axis = n;
+    gj.lambda = 1.0;
+    gj.mu = 1.0;
+    float ug[16];
+    sf_zero(ug);
+    if (glossy_sh) {
+        // Ashikhmin-Shirley as the Cook-Torrance lobe of its width (env_alpha)
+        SG spec = sg_specular_lobe(kind == 1 ? 1 : 2, n, v, ndv, m.extra.x, env_roughness(m), m.spec_rough.rgb, amp);
+        gj = sg_product(spec, sg_clamped_cosine(n));
+        lobe_transfer(gj.axis, gj.lambda, ug);
+    }
+    vec3 diffuse, glossy_env = vec3(0.0);
+    if (pc.mode == 1u && !glossy_sh) {
         diffuse = texelFetch(vtx_radiance, p, 0).rgb;
     } else {
+        // pixel mode: the diffuse transfer (and the glossy lobe's); vertex mode: the glossy lobe's alone
         float u[16];
-        cosine_transfer(n, u);
-        uint n_light = pc.srf != 0u ? pc.light_count : 0u;
-        diffuse = sf_shade_point(pos, ng, self_inst, pc.n_inst, n_light, pc.tensor_count, pc.window, u);
+        if (pc.mode == 1u) u = ug; else cosine_transfer(n, u);
+        uint n_light = pc.srf != 0u && pc.mode == 0u ? pc.light_count : 0u;
+        vec3 c1 = sf_shade_point(pos, ng, self_inst, pc.n_inst, n_light, pc.tensor_count, pc.window, u, glossy_sh && pc.mode == 0u, ug, glossy_env);
+        if (pc.mode == 1u) {
+            diffuse = texelFetch(vtx_radiance, p, 0).rgb;
+            glossy_env = c1;
+        } else {
+            diffuse = c1;
+        }
     }
     vec3 po = pos + ng * 1e-3 * max(1.0, length(pos));  // ray origin off the surface
     if (pc.key_count > 0u) diffuse += key_lights_irradiance(po, n, ng) / PI;
-    vec3 v = normalize(cam.eye.xyz - pos);
     vec3 color = max(material_diffuse_albedo(m, dot(n, v)) * diffuse, vec3(0.0));
     // Glossy materials: the material model's glossy environment term (the "env" technique's),
-    // shadowed by the occluders' visibility along the reflection.
-    int kind = int(m.albedo_kind.w + 0.5);
-    vec3 r = reflect(-v, n);
+    // shadowed by the occluders' visibility along the reflection; or (glossy = transfer) the
+    // lobe's SH transfer through the fields times its directional albedo, the key lights apart.
     float reflect_vis;
-    vec3 lit = local_lights(pos, n, tg, ng, v, m.albedo_kind.rgb, m, self_inst, kind != 0 && pc.key_count == 0u, r, reflect_vis);
-    if (kind != 0) {
+    vec3 lit = local_lights(pos, n, tg, ng, v, m.albedo_kind.rgb, m, self_inst, kind != 0 && pc.key_count == 0u && !glossy_sh, r, reflect_vis);
+    if (glossy_sh) {
+        color += max(glossy_env, vec3(0.0)) * env_specular_albedo(m, ndv);
+        if (pc.key_count > 0u) color += key_lights_glossy(amp, gj, po, ng);
+    } else if (kind != 0) {
         vec3 glossy = env_glossy(n, tg, v, m);
         float vis;
         if (pc.key_count > 0u) {
             // the key lights' reflections through their own rays, the rest along the reflection
             vec3 amp;
-            SG spec = sg_specular_lobe(kind, n, v, max(dot(n, v), 1e-4), m.extra.x, env_roughness(m), m.spec_rough.rgb, amp);
+            SG spec = sg_specular_lobe(kind, n, v, ndv, m.extra.x, env_roughness(m), m.spec_rough.rgb, amp);
             SG gj = sg_product(spec, sg_clamped_cosine(n));
             vec2 acc = vec2(0.0);
             for (uint k = 0u; k < pc.key_count; ++k)

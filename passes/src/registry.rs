@@ -251,6 +251,7 @@ const SHADOW_FIELDS_PARAMS: &[ParamDoc] = &[
     p("srf", "true", "true/false", "local lights through source radiance fields (with light_shadows = fields)"),
     p("light_shadows", "traced", "traced, fields", "local lights' shadows by shadow rays through the frame's kd-tree (the lights then shaded pointwise) or from the fields (the paper's order-4 visibility toward the light)"),
     p("key_lights", "4", "0..=16", "with light_shadows = traced: the environment's compact bright lights split off its SH as at most this many moment-matched lights with traced shadows (and the glossy lobe's visibility traced); 0: the whole environment in the fields (the paper's)"),
+    p("glossy", "reflection", "reflection, transfer", "the environment's glossy term: the material model's glossy term times the occluders' visibility along the reflection, or the paper's transfer (the specular lobe projected into the order-4 SH, multiplied by the occluders' visibilities by triple products, closed by the environment's SH: band-limited, blurs sharp reflections)"),
 ];
 
 const SHADOW_FIELDS_WAVELET_PARAMS: &[ParamDoc] = &[

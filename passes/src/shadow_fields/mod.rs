@@ -90,6 +90,14 @@ pub struct SfOptions {
     /// of a light of a few degrees carrying 95 % of a floor's light (studio.exr); 0 keeps the
     /// whole environment in the fields (the paper's).
     pub key_lights: usize,
+    /// The environment's glossy term (`glossy`): `reflection` (default) the material model's
+    /// glossy environment term times the occluders' visibility along the reflection (traced
+    /// across the key lights' lobes); `transfer` the paper's: the specular lobe (times the
+    /// cosine) projected into the order-4 SH basis as a transfer vector that the occluders'
+    /// visibilities multiply by triple products and the environment's SH closes by a double
+    /// product, times the lobe's directional albedo; the key lights' share through their own
+    /// rays as before. Band-limited to l <= 3: a sharp lobe reflects a blurred environment.
+    pub glossy_transfer: bool,
 }
 
 impl Default for SfOptions {
@@ -104,6 +112,7 @@ impl Default for SfOptions {
             srf: true,
             light_traced: true,
             key_lights: 4,
+            glossy_transfer: false,
         }
     }
 }
@@ -118,8 +127,8 @@ impl SfOptions {
     /// 32, power of two 1..=256), `map_res` (occlusion map rows, 32, 2..=256), `threshold`
     /// (eq. 1, 0.010, >= 0), `mode` (`pixel` | `vertex`), `window` (`none` | `hanning` |
     /// `lanczos`), `srf` (local lights through source radiance fields: true/false or 1/0),
-    /// `light_shadows` (`traced` | `fields`), `key_lights` (0..=16).
-    /// Unknown keys and bad values are errors.
+    /// `light_shadows` (`traced` | `fields`), `key_lights` (0..=16), `glossy` (`reflection` |
+    /// `transfer`, [`SfOptions::glossy_transfer`]). Unknown keys and bad values are errors.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let p = crate::technique::Param::new("shadow-fields", key, value);
         if set_light_option(&mut self.light_traced, &mut self.key_lights, &p)? {
@@ -133,10 +142,11 @@ impl SfOptions {
             "mode" => self.mode = p.choice(&[("pixel", SfMode::Pixel), ("vertex", SfMode::Vertex)])?,
             "window" => self.window = Window::parse(p.text()).ok_or_else(|| p.bad("none, hanning or lanczos"))?,
             "srf" => self.srf = p.flag()?,
+            "glossy" => self.glossy_transfer = p.choice(&[("reflection", false), ("transfer", true)])?,
             _ => {
-                return Err(
-                    p.unknown("shells, resolution, map_res, threshold, mode, window, srf, light_shadows, key_lights")
-                )
+                return Err(p.unknown(
+                    "shells, resolution, map_res, threshold, mode, window, srf, light_shadows, key_lights, glossy",
+                ))
             }
         }
         Ok(())
@@ -862,6 +872,8 @@ pub struct ShadowFieldsTechnique {
     pub mode: SfMode,
     pub window: Window,
     pub srf: bool,
+    /// The environment's glossy term through the SH transfer ([`SfOptions::glossy_transfer`]).
+    pub glossy_transfer: bool,
     /// The frame's kd-tree for the local lights' shadow rays (`light_shadows = traced`, with
     /// local lights to shade): the lights are then shaded pointwise, not through their fields.
     kd: Option<crate::kdtree::KdTreeBuilder>,
@@ -899,11 +911,12 @@ impl ShadowFieldsTechnique {
         t.mode = options.mode;
         t.window = options.window;
         t.srf = options.srf;
+        t.glossy_transfer = options.glossy_transfer;
         Ok(t)
     }
 
     /// With fields built elsewhere (e.g. shared between the fixed and adaptive variants); mode,
-    /// window and srf from the fields' options.
+    /// window, srf and glossy from the fields' options.
     pub fn with_fields(
         ctx: &Arc<Context>,
         shaders: &ShaderLibrary,
@@ -911,7 +924,7 @@ impl ShadowFieldsTechnique {
         fields: Arc<SceneFields>,
         adaptive: bool,
     ) -> Result<Self> {
-        let shade = compute_pipeline(ctx, shaders, "shadow_fields/sf_shade.comp", 32)?;
+        let shade = compute_pipeline(ctx, shaders, "shadow_fields/sf_shade.comp", 36)?;
         let points = compute_pipeline(ctx, shaders, "shadow_fields/sf_points.comp", 20)?;
         let vertex = vertex_pipeline(ctx, shaders)?;
         let tensor = TripleProductTensor::new(sf::ORDER);
@@ -948,6 +961,7 @@ impl ShadowFieldsTechnique {
             mode: o.mode,
             window: o.window,
             srf: o.srf,
+            glossy_transfer: o.glossy_transfer,
             kd: if o.light_traced && (!scene.lights.is_empty() || !key.is_empty()) {
                 Some(crate::kdtree::KdTreeBuilder::new(ctx, shaders)?)
             } else {
@@ -1189,6 +1203,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
             mode,
             traced,
             key_count * traced,
+            self.glossy_transfer as u32,
         ]);
         p.record(move |rc| {
             let mut binds = io.binds(nearest, linear);
