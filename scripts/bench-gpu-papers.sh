@@ -1,0 +1,64 @@
+#!/bin/sh
+# The papers' own speed comparisons on a real GPU, in one run (a lent GPU machine's time is
+# short; `scripts/bench-gpu.sh` holds the speed/accuracy fronts of the avs scenes):
+# - isg's Figure 11 (isg against 30 and 1024 rasterized 256x256 shadow maps and against `mc` at
+#   equal error, isg_bunny at the figure's 400x400),
+# - vv's Figures 11/13 (`bench vv`: both methods, zeta = 1..4 and per fragment, 640x480) and
+#   Figure 16 (vv's knobs against mc's sample counts at 640x480 on one front),
+# - the tracer against obvhs on the paper scenes (51k-166k triangles),
+# - shadow-fields' Table 3 (GPU against CPU path, ms per frame),
+# - avs's frame split (GPU against CPU work) at 640x480.
+# Every step has its own time limit and writes its output to OUT/<step>.txt.
+#
+#   scripts/bench-gpu-papers.sh BIN OUT REFERENCE_CACHE [SMALL]
+#
+# REFERENCE_CACHE holds the converged references the comparisons read (rendered beforehand on the
+# CPU, since a GPU machine's minutes are few): isg_bunny at 400x400 (`bench pareto
+# scenes/isg_bunny.toml --techniques env --size 400x400 --cache DIR`: noise 0.01, one point per
+# pixel as `bench isg --paper-supersample 1` reads it) and vv_bunny at 640x480 (`bench pareto
+# scenes/vv_bunny.toml --techniques env --size 640x480 --reference-grid 2 --noise 0.02 --cache
+# DIR`). A missing one is rendered within `--max-spp` (the log then says so). SMALL=1 runs every
+# step at small sizes: a dry run of the script on lavapipe.
+set -u
+BIN=$1
+OUT=$2
+REFS=$3
+SMALL=${4:-0}
+mkdir -p "$OUT"
+: "${XDG_RUNTIME_DIR:=/tmp}"
+export XDG_RUNTIME_DIR
+log="$OUT/bench-gpu-papers.log"
+if [ "$SMALL" = 1 ]; then
+    ISG=80x80 VV=64x48 TRACE=64x48 RAYS=20000 AVS=64x48 L=4
+else
+    ISG=400x400 VV=640x480 TRACE=640x480 RAYS=1000000 AVS=640x480 L=1
+fi
+step() {
+    name=$1
+    limit=$(($2 * L))
+    shift 2
+    echo "== $name (limit ${limit}s): $*" | tee -a "$log"
+    t0=$(date +%s)
+    timeout "$limit" "$@" >"$OUT/$name.txt" 2>&1
+    rc=$?
+    echo "== $name: exit $rc after $(($(date +%s) - t0)) s" | tee -a "$log"
+    tr '\r' '\n' <"$OUT/$name.txt" | grep -v '^ *$' | grep -v '^ *\[' | tail -n 40 | tee -a "$log"
+}
+{
+    date -u
+    nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm --format=csv 2>&1
+    nproc
+} | tee -a "$log"
+step isg_fig11 100 "$BIN" bench isg scenes/isg_bunny.toml --size $ISG --frames 4 --spp 16 --no-variants \
+    --paper-supersample 1 --mc-spp 1,4,16,64,256,1024 --cache "$REFS" --out "$OUT/isg"
+step vv_fig13 90 "$BIN" bench vv scenes/vv_bunny.toml --size $VV --frames 4 --spp 16 --out "$OUT/vv"
+step vv_fig16 90 "$BIN" bench pareto scenes/vv_bunny.toml --techniques vv,mc --size $VV --reference-grid 2 \
+    --noise 0.02 --max-spp 64 --cache "$REFS" --out "$OUT/vv_pareto"
+for scene in paper/chess_set paper/rigid_bodies paper/cloth_bunnies falling; do
+    step "trace_$(basename $scene)" 25 "$BIN" bench trace "scenes/$scene.toml" --size $TRACE --incoherent $RAYS
+done
+step sf_table3 60 "$BIN" bench shadow-fields scenes/sf_statues.toml --no-images
+step sf_table3_bowling 40 "$BIN" bench shadow-fields scenes/sf_bowling.toml --no-images
+step avs_split 45 "$BIN" bench avs scenes/hat_on_cloth.toml --size $AVS --no-sweep --spp 8
+# one tarball of everything (a device run returns at most 8 files)
+(cd "$OUT" && tar czf results.tgz ./*.txt isg vv vv_pareto 2>/dev/null && rm -rf ./*.txt isg vv vv_pareto)
