@@ -18,7 +18,15 @@
 # pixel as `bench isg --paper-supersample 1` reads it) and vv_bunny at 640x480 (`bench pareto
 # scenes/vv_bunny.toml --techniques env --size 640x480 --reference-grid 2 --noise 0.02 --cache
 # DIR`). A missing one is rendered within `--max-spp` (the log then says so). SMALL=1 runs every
-# step at small sizes: a dry run of the script on lavapipe.
+# step at small sizes: a dry run of the script on lavapipe (session 35: every step ran).
+# Session 35 rendered both references (47 and 6 minutes on two cores; the scene files' hashes
+# key them, so a changed scene needs its reference again) into
+# scenes/fronts/gpu-papers/references/, and was then refused a machine. On a lent one, with the
+# Vulkan loader's deb and a stripped release build in an ignored folder .gl (device README):
+#   for f in .gl/*.deb; do dpkg -x $f /; done; ldconfig
+#   sh scripts/bench-gpu-papers.sh .gl/penumbra /tmp/o scenes/fronts/gpu-papers/references
+#   cp /tmp/o/bench-gpu-papers.log /tmp/o/results.tgz $OUT/
+# (about 5-8 minutes; each step's limit bounds it at 530 s).
 set -u
 BIN=$1
 OUT=$2
