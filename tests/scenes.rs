@@ -250,3 +250,21 @@ fn every_registered_technique_can_be_named_by_a_scene_file() {
     .to_string();
     assert!(e.contains("unknown.toml") && e.contains("unknown technique 'hsdt'") && e.contains("avs"), "{e}");
 }
+
+/// The papers' scenes at their scale (`scenes/paper/`, outside the matrix and the render test
+/// above) load, with the objects and vertex counts `scenes/README.md` states beside the papers'.
+#[test]
+fn paper_scenes_load_at_their_stated_scale() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/paper");
+    for (file, objects, vertices) in [
+        ("rigid_bodies.toml", 17, 63028),
+        ("chess_set.toml", 33, 99720),
+        ("cloth_bunnies.toml", 6, 25949),
+        ("sf_statues.toml", 6, 33235),
+        ("sf_bowling.toml", 15, 41435),
+        ("sf_falling.toml", 20, 88739),
+    ] {
+        let s = Scene::load(dir.join(file)).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!((s.objects.len(), s.vertex_count()), (objects, vertices), "{file}: objects, vertices");
+    }
+}
