@@ -6,7 +6,8 @@
 # - vv's Figures 11/13 (`bench vv`: both methods, zeta = 1..4 and per fragment, 640x480) and
 #   Figure 16 (vv's knobs against mc's sample counts at 640x480 on one front),
 # - the tracer against obvhs on the paper scenes (51k-166k triangles),
-# - shadow-fields' Table 3 (GPU against CPU path, ms per frame),
+# - shadow-fields' Tables 1-3 on the paper's three scenes at its scale (scenes/paper/sf_*.toml:
+#   per-shell resolutions, sizes, ms per frame of the GPU against the CPU path),
 # - avs's frame split (GPU against CPU work) at 640x480.
 # Every step has its own time limit and writes its output to OUT/<step>.txt.
 #
@@ -26,7 +27,7 @@
 #   for f in .gl/*.deb; do dpkg -x $f /; done; ldconfig
 #   sh scripts/bench-gpu-papers.sh .gl/penumbra /tmp/o scenes/fronts/gpu-papers/references
 #   cp /tmp/o/bench-gpu-papers.log /tmp/o/results.tgz $OUT/
-# (about 5-8 minutes; each step's limit bounds it at 530 s).
+# (about 5-8 minutes; each step's limit bounds it at 580 s).
 set -u
 BIN=$1
 OUT=$2
@@ -65,8 +66,9 @@ step vv_fig16 90 "$BIN" bench pareto scenes/vv_bunny.toml --techniques vv,mc --s
 for scene in paper/chess_set paper/rigid_bodies paper/cloth_bunnies falling; do
     step "trace_$(basename $scene)" 25 "$BIN" bench trace "scenes/$scene.toml" --size $TRACE --incoherent $RAYS
 done
-step sf_table3 60 "$BIN" bench shadow-fields scenes/sf_statues.toml --no-images
-step sf_table3_bowling 40 "$BIN" bench shadow-fields scenes/sf_bowling.toml --no-images
+for scene in sf_statues sf_bowling sf_falling; do
+    step "${scene}_table3" 50 "$BIN" bench shadow-fields "scenes/paper/$scene.toml" --no-images
+done
 step avs_split 45 "$BIN" bench avs scenes/hat_on_cloth.toml --size $AVS --no-sweep --spp 8
 # one tarball of everything (a device run returns at most 8 files)
 (cd "$OUT" && tar czf results.tgz ./*.txt isg vv vv_pareto 2>/dev/null && rm -rf ./*.txt isg vv vv_pareto)
