@@ -553,6 +553,125 @@ pub struct ShadowFieldsArgs {
     /// Also draw the image comparison as a chart (PNG): PSNR against GPU ms per variant.
     #[arg(long)]
     pub chart: Option<PathBuf>,
+    /// The paper's Figure 8: the fixed fields against the adaptive ones at each of these
+    /// thresholds (comma-separated, e.g. 0.02,0.01,0.005), rendered per vertex at --size with
+    /// the differences scaled 15 times, beside each threshold's adaptive size (runs without
+    /// --no-images too; needs no reference).
+    #[arg(long, value_delimiter = ',')]
+    pub thresholds: Vec<f64>,
+    /// Output directory of the threshold sweep: sf_thresholds.json, sf_thresholds.png.
+    #[arg(long, default_value = "bench-sf-thresholds")]
+    pub sweep_out: PathBuf,
+}
+
+/// `scene` rendered with `technique` at `w x h` and `time` (three frames of the same time, the
+/// last kept): its HDR image and GPU ms per frame.
+fn render_still(scene: &Scene, technique: &str, (w, h): (u32, u32), time: f32) -> Result<(Image, f64)> {
+    let settings = RenderSettings::with_technique(w, h, technique, &scene.technique_params);
+    let mut r = Renderer::new_headless(scene, settings, false)?;
+    let frame = scene.at(time, Some(time));
+    let mut out = Vec::new();
+    for _ in 0..3 {
+        out.extend(r.render(&frame, None, true)?);
+    }
+    out.extend(r.finish()?);
+    let img = crate::bench::hdr_image(out.last().context("no frame finished")?);
+    Ok((img, technique_gpu_ms(&r)))
+}
+
+/// The threshold sweep of the paper's Figure 8 (`--thresholds`): per threshold the adaptive
+/// fields' size and their per-vertex image against the fixed fields' (relative RMSE, PSNR), the
+/// images and their differences x 15 in a contact sheet, and JSON; the paper's path (every light
+/// through the fields: `light_shadows = fields`, `key_lights = 0`).
+fn threshold_sweep(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
+    use penumbra_passes::shadow_fields::SceneFields;
+    let size = parse_size(&args.size)?;
+    std::fs::create_dir_all(&args.sweep_out).with_context(|| format!("creating {}", args.sweep_out.display()))?;
+    let with = |threshold: f64| {
+        let mut s = scene.clone();
+        s.technique_params = [
+            ("mode", "vertex".to_string()),
+            ("shells", args.params.shells.to_string()),
+            ("resolution", args.params.resolution.to_string()),
+            ("map_res", args.params.map_res.to_string()),
+            ("threshold", threshold.to_string()),
+            // the paper's path: every light through the fields (traced shadows and key lights
+            // would hide the fields' differences)
+            ("light_shadows", "fields".to_string()),
+            ("key_lights", "0".to_string()),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect();
+        s
+    };
+    let bytes = |threshold: f64| -> Result<(usize, usize)> {
+        let mut o = args.params.options();
+        o.params.threshold = threshold;
+        let f = SceneFields::build(scene, &o)?;
+        let unique = f.reports.iter().filter(|r| r.shared_with.is_none());
+        Ok(unique.fold((0, 0), |(a, b), r| (a + r.fixed_bytes, b + r.adaptive_bytes)))
+    };
+    let (fixed, _) = render_still(&with(args.params.threshold), "shadow-fields-fixed", size, args.time)?;
+    let (fixed_bytes, _) = bytes(args.params.threshold)?;
+    println!(
+        "threshold sweep (the paper's Figure 8), per vertex at {}x{}, t = {} s: fixed fields {:.1} KB",
+        size.0,
+        size.1,
+        args.time,
+        fixed_bytes as f64 / 1024.0
+    );
+    println!("{:>10} {:>12} {:>9} {:>16} {:>11}", "threshold", "adaptive KB", "smaller", "relRMSE vs fixed", "PSNR dB");
+    let mut top =
+        vec![("fixed".to_string(), Some(fixed.clone()), format!("{:.0} KB", fixed_bytes as f64 / 1024.0), None)];
+    let mut bottom = vec![("fixed".to_string(), Some(fixed.clone()), String::new(), None)];
+    let mut rows = Vec::new();
+    for &t in &args.thresholds {
+        let (img, _) = render_still(&with(t), "shadow-fields", size, args.time)?;
+        let (_, adaptive_bytes) = bytes(t)?;
+        let c = compare(&fixed, "fixed", &img, "adaptive")?;
+        let smaller = 1.0 - adaptive_bytes as f64 / fixed_bytes.max(1) as f64;
+        let psnr = c.psnr_db.map_or("inf".into(), |p| format!("{p:.2}"));
+        println!(
+            "{t:>10} {:>12.1} {:>8.0}% {:>16.4} {psnr:>11}",
+            adaptive_bytes as f64 / 1024.0,
+            100.0 * smaller,
+            c.rel_rmse
+        );
+        let mut diff = img.clone();
+        for (d, f) in diff.pixels.iter_mut().zip(&fixed.pixels) {
+            for k in 0..3 {
+                d[k] = 15.0 * (d[k] - f[k]).abs();
+            }
+        }
+        let label = format!("{:.0} KB, {:.4}", adaptive_bytes as f64 / 1024.0, c.rel_rmse);
+        top.push((format!("threshold {t}"), Some(img), label, None));
+        bottom.push((format!("|diff| x 15, {t}"), Some(diff), String::new(), None));
+        rows.push(serde_json::json!({
+            "threshold": t,
+            "adaptive_bytes": adaptive_bytes,
+            "smaller": smaller,
+            "rel_rmse_vs_fixed": c.rel_rmse,
+            "psnr_db_vs_fixed": c.psnr_db,
+        }));
+    }
+    let json = serde_json::json!({
+        "scene": scene.name,
+        "size": [size.0, size.1],
+        "time_s": args.time,
+        "shells": args.params.shells,
+        "resolution": args.params.resolution,
+        "map_res": args.params.map_res,
+        "fixed_bytes": fixed_bytes,
+        "thresholds": rows,
+    });
+    let jp = args.sweep_out.join("sf_thresholds.json");
+    std::fs::write(&jp, serde_json::to_string_pretty(&json)?).with_context(|| format!("writing {}", jp.display()))?;
+    let png = args.sweep_out.join("sf_thresholds.png");
+    let sheet = [("adaptive".to_string(), top), ("differences".to_string(), bottom)];
+    crate::matrix::contact_sheet(&png, &sheet, size.0, size.1)?;
+    println!("wrote {} and {}", jp.display(), png.display());
+    Ok(())
 }
 
 /// The variants of the image comparison: (label, technique, `[technique_params]`).
@@ -622,6 +741,9 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
             100.0 * (1.0 - ta as f64 / tf.max(1) as f64)
         );
     }
+    if !args.thresholds.is_empty() {
+        threshold_sweep(args, scene)?;
+    }
     if args.no_images {
         return Ok(());
     }
@@ -658,16 +780,8 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
                 s.technique_params.insert(k.into(), v);
             }
         }
-        let settings = RenderSettings::with_technique(width, height, technique, &s.technique_params);
-        let mut r = Renderer::new_headless(&s, settings, false).with_context(|| format!("variant {label}"))?;
-        let frame = s.at(args.time, Some(args.time));
-        let mut out = Vec::new();
-        for _ in 0..3 {
-            out.extend(r.render(&frame, None, true)?);
-        }
-        out.extend(r.finish()?);
-        let img = crate::bench::hdr_image(out.last().context("no frame finished")?);
-        let ms = technique_gpu_ms(&r);
+        let (img, ms) =
+            render_still(&s, technique, (width, height), args.time).with_context(|| format!("variant {label}"))?;
         let c = compare(&reference.radiance, "reference", &img, label)?;
         println!(
             "{label:<22} {:>8} {:>9.4} {:>8.4} {ms:>11.2}",

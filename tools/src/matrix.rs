@@ -879,7 +879,7 @@ fn display_rgb8(img: &Image, key: f32) -> Vec<u8> {
 
 /// The contact sheet: one row per scene, the reference then each technique, each tile labelled
 /// with its technique, rmse_rel_mean and verdict (red frame: fails).
-fn contact_sheet(
+pub(crate) fn contact_sheet(
     path: &Path,
     rows: &[(String, Vec<(String, Option<Image>, String, Option<bool>)>)],
     w: u32,

@@ -480,6 +480,39 @@ fn shadow_field_precompute_and_bench() {
     let t = text(&o);
     assert!(o.status.success(), "{t}");
     assert!(t.contains("per-shell R") && t.contains("GPU vs CPU") && t.contains("ms per frame"), "{t}");
+    // the Figure 8 threshold sweep (statues: sf_spheres' smooth fields adapt only inside the
+    // spheres, where no receiver looks): a looser threshold keeps fewer samples and differs more
+    // from the fixed fields
+    let statues = root.join("scenes/sf_statues.toml");
+    let sweep = d.join("sweep");
+    let o = penumbra(&[
+        "bench",
+        "shadow-fields",
+        statues.to_str().unwrap(),
+        "--repeats",
+        "1",
+        "--no-images",
+        "--shells",
+        "8",
+        "--resolution",
+        "32",
+        "--map-res",
+        "8",
+        "--size",
+        "32x24",
+        "--thresholds",
+        "0.05,0.002",
+        "--sweep-out",
+        sweep.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(sweep.join("sf_thresholds.json")).unwrap()).unwrap();
+    let row = |k: usize, key: &str| j["thresholds"][k][key].as_f64().unwrap_or_else(|| panic!("{key} in {j}"));
+    assert!(row(0, "adaptive_bytes") < row(1, "adaptive_bytes"), "{j}");
+    assert!(row(1, "adaptive_bytes") <= j["fixed_bytes"].as_f64().unwrap(), "{j}");
+    assert!(row(1, "rel_rmse_vs_fixed") < row(0, "rel_rmse_vs_fixed"), "{j}");
+    assert!(sweep.join("sf_thresholds.png").is_file());
     let missing = root.join("scenes/nope.toml");
     expect_bad_input(&["precompute", "shadow-field", missing.to_str().unwrap()], &["nope.toml"]);
     expect_bad_input(
