@@ -34,30 +34,13 @@ OUT=$2
 REFS=$3
 SMALL=${4:-0}
 mkdir -p "$OUT"
-: "${XDG_RUNTIME_DIR:=/tmp}"
-export XDG_RUNTIME_DIR
 log="$OUT/bench-gpu-papers.log"
 if [ "$SMALL" = 1 ]; then
     ISG=80x80 VV=64x48 TRACE=64x48 RAYS=20000 AVS=64x48 L=4
 else
     ISG=400x400 VV=640x480 TRACE=640x480 RAYS=1000000 AVS=640x480 L=1
 fi
-step() {
-    name=$1
-    limit=$(($2 * L))
-    shift 2
-    echo "== $name (limit ${limit}s): $*" | tee -a "$log"
-    t0=$(date +%s)
-    timeout "$limit" "$@" >"$OUT/$name.txt" 2>&1
-    rc=$?
-    echo "== $name: exit $rc after $(($(date +%s) - t0)) s" | tee -a "$log"
-    tr '\r' '\n' <"$OUT/$name.txt" | grep -v '^ *$' | grep -v '^ *\[' | tail -n 40 | tee -a "$log"
-}
-{
-    date -u
-    nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm --format=csv 2>&1
-    nproc
-} | tee -a "$log"
+. "$(dirname "$0")/bench-steps.sh"
 step isg_fig11 100 "$BIN" bench isg scenes/isg_bunny.toml --size $ISG --frames 4 --spp 16 --no-variants \
     --paper-supersample 1 --mc-spp 1,4,16,64,256,1024 --cache "$REFS" --out "$OUT/isg"
 step vv_fig13 90 "$BIN" bench vv scenes/vv_bunny.toml --size $VV --frames 4 --spp 16 --out "$OUT/vv"

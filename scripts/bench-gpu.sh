@@ -21,25 +21,8 @@ OUT=$2
 REFS=$3
 NOISE=${4:-0.01}
 mkdir -p "$OUT"
-: "${XDG_RUNTIME_DIR:=/tmp}"
-export XDG_RUNTIME_DIR
 log="$OUT/bench-gpu.log"
-step() {
-    name=$1
-    limit=$2
-    shift 2
-    echo "== $name (limit ${limit}s): $*" | tee -a "$log"
-    t0=$(date +%s)
-    timeout "$limit" "$@" >"$OUT/$name.txt" 2>&1
-    rc=$?
-    echo "== $name: exit $rc after $(($(date +%s) - t0)) s" | tee -a "$log"
-    tr '\r' '\n' <"$OUT/$name.txt" | grep -v '^ *$' | grep -v '^ *\[' | tail -n 60 | tee -a "$log"
-}
-{
-    date -u
-    nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm --format=csv 2>&1
-    nproc
-} | tee -a "$log"
+. "$(dirname "$0")/bench-steps.sh"
 fast=env,mc,shadowmaps,isg,isg-vertex,shadow-fields,shadow-fields-fixed,shadow-fields-wavelet
 for scene in falling hat_on_cloth balls_on_dish; do
     # avs apart: its CPU rounds grow with the resolution, and a cut step loses only its own points
