@@ -39,6 +39,10 @@ pub struct BoundSphere {
 pub struct SphereSet {
     /// The spheres.
     pub spheres: Vec<BoundSphere>,
+    /// Per sphere, its centre's distance to the rest mesh ([`SphereSet::with_rest_clearances`]),
+    /// which [`SphereSet::deformed`] then reuses instead of searching the rest mesh every frame;
+    /// empty (or of another length): searched.
+    pub rest_clearance: Vec<Option<f32>>,
 }
 
 /// Problems with the input mesh or a sphere file.
@@ -422,7 +426,7 @@ pub fn approximate_spheres_with(
             BoundSphere { center, radius: ((r + 0.5) * vox.h) as f32, anchors: nearest4(positions, center) }
         })
         .collect();
-    Ok(SphereSet { spheres })
+    Ok(SphereSet { spheres, rest_clearance: Vec::new() })
 }
 
 fn nearest4(positions: &[Vec3], c: Vec3) -> [u32; 4] {
@@ -487,11 +491,15 @@ impl SphereSet {
     /// ratio 0.0604 / 0.0486 (no blotches, the crown's shadow on the brim too light), its square
     /// root 0.0579 / 0.0455. Anchors out of range keep the rest sphere.
     pub fn deformed(&self, rest: &[Vec3], deformed: &[Vec3], indices: &[u32]) -> Vec<BoundSphere> {
-        // each mesh's triangles bounded once, searched by every sphere
-        let (rest_tris, now_tris) = (MeshTriangles::new(rest, indices), MeshTriangles::new(deformed, indices));
+        // each mesh's triangles bounded once, searched by every sphere; the rest mesh's
+        // clearances from the cache when the set holds them
+        let cached = self.rest_clearance.len() == self.spheres.len();
+        let rest_tris = (!cached).then(|| MeshTriangles::new(rest, indices));
+        let now_tris = MeshTriangles::new(deformed, indices);
         self.spheres
             .iter()
-            .map(|s| {
+            .enumerate()
+            .map(|(i, s)| {
                 let ok = s.anchors.iter().all(|&a| (a as usize) < rest.len() && (a as usize) < deformed.len());
                 if !ok {
                     return *s;
@@ -503,7 +511,10 @@ impl SphereSet {
                 let near = |v: &[Vec3], c: Vec3| {
                     s.anchors.iter().map(|&a| (v[a as usize] - c).length()).fold(f32::INFINITY, f32::min)
                 };
-                let clear_rest = rest_tris.distance_below(s.center, near(rest, s.center));
+                let clear_rest = match &rest_tris {
+                    Some(t) => t.distance_below(s.center, near(rest, s.center)),
+                    None => self.rest_clearance[i],
+                };
                 let clear_now = now_tris.distance_below(center, near(deformed, center));
                 let radius = match (clear_rest, clear_now) {
                     (Some(a), Some(b)) if a > 0.0 && b.is_finite() => s.radius * (b / a).sqrt(),
@@ -512,6 +523,27 @@ impl SphereSet {
                 BoundSphere { center, radius, ..*s }
             })
             .collect()
+    }
+
+    /// The set with each sphere's rest clearance (its centre's distance to the nearest triangle
+    /// of `rest`, the mesh in the set's frame) stored, for [`SphereSet::deformed`] to reuse every
+    /// frame (the same clearances it would search for; a set built for a deforming object).
+    pub fn with_rest_clearances(mut self, rest: &[Vec3], indices: &[u32]) -> Self {
+        let tris = MeshTriangles::new(rest, indices);
+        self.rest_clearance = self
+            .spheres
+            .iter()
+            .map(|s| {
+                let ok = s.anchors.iter().all(|&a| (a as usize) < rest.len());
+                let near = if ok {
+                    s.anchors.iter().map(|&a| (rest[a as usize] - s.center).length()).fold(f32::INFINITY, f32::min)
+                } else {
+                    f32::INFINITY
+                };
+                tris.distance_below(s.center, near)
+            })
+            .collect();
+        self
     }
 
     /// The file text (format in the module docs).
@@ -568,7 +600,7 @@ impl SphereSet {
         if spheres.len() != n {
             return Err(SphereError::Parse(format!("header says {n} spheres, file has {}", spheres.len())));
         }
-        Ok(SphereSet { spheres })
+        Ok(SphereSet { spheres, rest_clearance: Vec::new() })
     }
 }
 

@@ -171,6 +171,11 @@ fn squashed_spheres_shrink_with_the_mesh() {
     for (d, s) in deformed.iter().zip(&set.spheres) {
         assert!(d.radius < s.radius && d.radius > 0.5 * s.radius, "{} from {}", d.radius, s.radius);
     }
+    // the rest clearances stored once (a deforming object's set) give the same spheres, bit for bit
+    let cached = set.clone().with_rest_clearances(&p, &i);
+    assert_eq!(cached.rest_clearance.len(), set.spheres.len());
+    assert!(cached.rest_clearance.iter().all(|c| c.is_some_and(|d| d > 0.0)), "{:?}", cached.rest_clearance);
+    assert_eq!(cached.deformed(&p, &squashed, &i), deformed);
 }
 
 #[test]

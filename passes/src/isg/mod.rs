@@ -427,6 +427,22 @@ pub fn scene_sphere_sets_noting(scene: &Scene, per_object: usize) -> (Vec<Option
             built.insert(key, set.clone());
             set
         })
+        .collect::<Vec<_>>();
+    // deforming objects' sets keep their rest clearances (each frame's `deformed` then searches
+    // only the deformed mesh)
+    let sets = sets
+        .into_iter()
+        .enumerate()
+        .map(|(i, set)| {
+            let set = set?;
+            let mesh = scene.meshes.get(scene.objects[i].mesh)?;
+            if !scene.object_info(i).is_deforming() {
+                return Some(set);
+            }
+            let baked = baked_scale(scene, i);
+            let scaled: Vec<Vec3> = mesh.positions.iter().map(|&p| p * baked).collect();
+            Some(set.with_rest_clearances(&scaled, &mesh.indices))
+        })
         .collect();
     (sets, notes)
 }
