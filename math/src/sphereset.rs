@@ -506,16 +506,11 @@ impl SphereSet {
                 }
                 let mean = |v: &[Vec3]| s.anchors.iter().map(|&a| v[a as usize]).sum::<Vec3>() / 4.0;
                 let center = s.center + mean(deformed) - mean(rest);
-                // the anchors are mesh vertices: their nearest bounds the clearance (and lets
-                // the search skip almost every triangle)
-                let near = |v: &[Vec3], c: Vec3| {
-                    s.anchors.iter().map(|&a| (v[a as usize] - c).length()).fold(f32::INFINITY, f32::min)
-                };
                 let clear_rest = match &rest_tris {
-                    Some(t) => t.distance_below(s.center, near(rest, s.center)),
+                    Some(t) => t.clearance(s.center, &s.anchors, rest),
                     None => self.rest_clearance[i],
                 };
-                let clear_now = now_tris.distance_below(center, near(deformed, center));
+                let clear_now = now_tris.clearance(center, &s.anchors, deformed);
                 let radius = match (clear_rest, clear_now) {
                     (Some(a), Some(b)) if a > 0.0 && b.is_finite() => s.radius * (b / a).sqrt(),
                     _ => s.radius,
@@ -530,19 +525,7 @@ impl SphereSet {
     /// frame (the same clearances it would search for; a set built for a deforming object).
     pub fn with_rest_clearances(mut self, rest: &[Vec3], indices: &[u32]) -> Self {
         let tris = MeshTriangles::new(rest, indices);
-        self.rest_clearance = self
-            .spheres
-            .iter()
-            .map(|s| {
-                let ok = s.anchors.iter().all(|&a| (a as usize) < rest.len());
-                let near = if ok {
-                    s.anchors.iter().map(|&a| (rest[a as usize] - s.center).length()).fold(f32::INFINITY, f32::min)
-                } else {
-                    f32::INFINITY
-                };
-                tris.distance_below(s.center, near)
-            })
-            .collect();
+        self.rest_clearance = self.spheres.iter().map(|s| tris.clearance(s.center, &s.anchors, rest)).collect();
         self
     }
 
@@ -627,6 +610,18 @@ impl MeshTriangles {
             })
             .collect();
         MeshTriangles { tris }
+    }
+
+    /// The distance from `c` to the nearest triangle, the search bounded by the nearest of the
+    /// `anchors` (mesh vertices of `positions`, the mesh the triangles were made from), which
+    /// lets it skip almost every triangle; unbounded when an anchor is out of range.
+    fn clearance(&self, c: Vec3, anchors: &[u32; 4], positions: &[Vec3]) -> Option<f32> {
+        let near = if anchors.iter().all(|&a| (a as usize) < positions.len()) {
+            anchors.iter().map(|&a| (positions[a as usize] - c).length()).fold(f32::INFINITY, f32::min)
+        } else {
+            f32::INFINITY
+        };
+        self.distance_below(c, near)
     }
 
     /// The distance from `p` to the nearest triangle given an upper bound of it (the distance to
