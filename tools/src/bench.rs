@@ -507,11 +507,20 @@ impl FieldParams {
     /// Rejects values the technique would reject (same ranges as its `[technique_params]`).
     pub fn check(&self) -> Result<()> {
         let mut o = penumbra_passes::shadow_fields::SfOptions::default();
-        o.set("shells", &self.shells.to_string())?;
-        o.set("resolution", &self.resolution.to_string())?;
-        o.set("map_res", &self.map_res.to_string())?;
-        o.set("threshold", &self.threshold.to_string())?;
+        for (k, v) in self.technique_params() {
+            o.set(k, &v)?;
+        }
         Ok(())
+    }
+
+    /// These parameters as the technique's `[technique_params]` keys and values.
+    fn technique_params(&self) -> [(&'static str, String); 4] {
+        [
+            ("shells", self.shells.to_string()),
+            ("resolution", self.resolution.to_string()),
+            ("map_res", self.map_res.to_string()),
+            ("threshold", self.threshold.to_string()),
+        ]
     }
 
     fn options(&self) -> penumbra_passes::shadow_fields::SfOptions {
@@ -589,20 +598,13 @@ fn threshold_sweep(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
     std::fs::create_dir_all(&args.sweep_out).with_context(|| format!("creating {}", args.sweep_out.display()))?;
     let with = |threshold: f64| {
         let mut s = scene.clone();
-        s.technique_params = [
-            ("mode", "vertex".to_string()),
-            ("shells", args.params.shells.to_string()),
-            ("resolution", args.params.resolution.to_string()),
-            ("map_res", args.params.map_res.to_string()),
-            ("threshold", threshold.to_string()),
-            // the paper's path: every light through the fields (traced shadows and key lights
-            // would hide the fields' differences)
-            ("light_shadows", "fields".to_string()),
-            ("key_lights", "0".to_string()),
-        ]
-        .into_iter()
-        .map(|(k, v)| (k.to_string(), v))
-        .collect();
+        s.technique_params = args.params.technique_params().into_iter().map(|(k, v)| (k.to_string(), v)).collect();
+        s.technique_params.insert("threshold".into(), threshold.to_string());
+        // per vertex, on the paper's path: every light through the fields (traced shadows and
+        // key lights would hide the fields' differences)
+        for (k, v) in [("mode", "vertex"), ("light_shadows", "fields"), ("key_lights", "0")] {
+            s.technique_params.insert(k.into(), v.into());
+        }
         s
     };
     let bytes = |threshold: f64| -> Result<(usize, usize)> {
@@ -770,15 +772,8 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
     for (label, technique, params) in sf_variants(!scene.lights.is_empty()) {
         let mut s = scene.clone();
         s.technique_params = params.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
-        for (k, v) in [
-            ("shells", args.params.shells.to_string()),
-            ("resolution", args.params.resolution.to_string()),
-            ("map_res", args.params.map_res.to_string()),
-            ("threshold", args.params.threshold.to_string()),
-        ] {
-            if technique != "env" {
-                s.technique_params.insert(k.into(), v);
-            }
+        if technique != "env" {
+            s.technique_params.extend(args.params.technique_params().map(|(k, v)| (k.to_string(), v)));
         }
         let (img, ms) =
             render_still(&s, technique, (width, height), args.time).with_context(|| format!("variant {label}"))?;
