@@ -53,6 +53,13 @@ vec3 key_light_irradiance(vec4 axis_lambda, vec3 mu, vec3 p, vec3 n, vec3 ng) {
     return e * cone_rays_visibility(p, g.axis, 2.0 / sqrt(max(g.lambda, 1e-4)), ng);
 }
 
+// The visibility of key light `l` (an SG light of amplitude 1) in the glossy lobe `gj`: rays in
+// the cone of the two lobes' product (where the light is, not where the mirror direction is).
+float key_light_lobe_visibility(SG l, SG gj, vec3 p, vec3 ng) {
+    SG pr = sg_product(l, gj);
+    return cone_rays_visibility(p, pr.axis, 2.0 / sqrt(max(pr.lambda, 1e-4)), ng);
+}
+
 // The glossy term's visibility where the environment's key lights were split off its map: each
 // key light's part of the glossy term (its SG light in the glossy lobe `gj`, the BRDF's specular
 // SG times the cosine, times the lobe's amplitude `amp`) is seen through rays in the cone of the
@@ -66,8 +73,7 @@ void key_light_glossy_share(vec4 axis_lambda, vec3 mu, vec3 amp, SG gj, vec3 p, 
     SG l = sg_make(axis_lambda.xyz, axis_lambda.w, 1.0);
     float e = dot(mu * amp, vec3(0.2126, 0.7152, 0.0722)) * sg_inner_product(l, gj);
     if (!(e > 0.0)) return;
-    SG pr = sg_product(l, gj);
-    acc += vec2(e * cone_rays_visibility(p, pr.axis, 2.0 / sqrt(max(pr.lambda, 1e-4)), ng), e);
+    acc += vec2(e * key_light_lobe_visibility(l, gj, p, ng), e);
 }
 
 // ... then the visible share of the whole glossy term (luminance `total`), the rest seen as

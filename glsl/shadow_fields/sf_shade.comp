@@ -141,7 +141,8 @@ void lobe_transfer(vec3 a, float lam, out float t[16]) {
 
 // glossy = transfer: the key lights' glossy radiance (the part of the environment split off its
 // SH), each light's lobe against the specular lobe times the cosine (gj, amplitude amp), seen
-// through rays across their product (as key_light_glossy_share, in rgb).
+// through rays across their product (light_rays.glsl's key_light_lobe_visibility, as
+// key_light_glossy_share, in rgb).
 vec3 key_lights_glossy(vec3 amp, SG gj, vec3 p, vec3 ng) {
     vec3 sum = vec3(0.0);
     for (uint k = 0u; k < pc.key_count; ++k) {
@@ -149,8 +150,7 @@ vec3 key_lights_glossy(vec3 amp, SG gj, vec3 p, vec3 ng) {
         SG l = sg_make(al.xyz, al.w, 1.0);
         float e = sg_inner_product(l, gj);
         if (!(e > 0.0)) continue;
-        SG pr = sg_product(l, gj);
-        sum += key[2u * k + 1u].rgb * amp * e * cone_rays_visibility(p, pr.axis, 2.0 / sqrt(max(pr.lambda, 1e-4)), ng);
+        sum += key[2u * k + 1u].rgb * amp * e * key_light_lobe_visibility(l, gj, p, ng);
     }
     return sum;
 }
