@@ -1,7 +1,7 @@
 //! The hemispherical map layout and the GPU HSDT on the Vulkan device (lavapipe): the GLSL layout
 //! functions agree with `penumbra_math::avs_maps`, the GPU transform equals the CPU one up to fp16
 //! rounding on random and adversarial maps (poles, seam, single-texel holes, slivers, all
-//! visible/occluded) at r = 32 and r = 256 (fp16 precision), across batches, validation clean
+//! visible/occluded) at r = 8, 24, 32, 64 and 256 (fp16 precision), across batches, validation clean
 //! (with synchronization validation).
 
 use glam::DVec3;
@@ -80,8 +80,9 @@ fn gpu_hsdt_matches_cpu_small_maps_and_batches() {
     check_maps(&ctx, 64, &m64, Some(4));
     let (mx, mean) = check_maps(&ctx, r, &maps, None);
     println!("r={r}: {} maps, max |GPU - CPU| {mx:.3e} rad, mean {mean:.3e}", maps.len());
-    // r = 8 (smallest)
+    // r = 8 (smallest) and r = 24 (rows straddle the 32-bit words the pass reads a row's bits by)
     check_maps(&ctx, 8, &test_maps(8, 6), None);
+    check_maps(&ctx, 24, &test_maps(24, 8), None);
     assert_eq!(ctx.validation.error_count(), 0, "validation errors: {:?}", ctx.validation.errors());
 }
 

@@ -46,6 +46,22 @@ float avs_asin(float x) {
     return x < 0.0 ? -r : r;
 }
 
+// Accurate f32 atan2(y, x) for y >= 0 (in [0, pi], ~1e-7 rad): Cephes atanf on a ratio <= 1.
+float avs_atan2_upper(float y, float x) {
+    float ax = abs(x);
+    bool swap = y > ax;
+    float t = swap ? ax / y : y / max(ax, 1e-37);
+    float base = 0.0;
+    if (t > 0.41421356) {
+        base = 0.25 * float(AVS_PI);
+        t = (t - 1.0) / (t + 1.0);
+    }
+    float z = t * t;
+    float a = base + ((((8.05374449538e-2 * z - 1.38776856032e-1) * z + 1.99777106478e-1) * z - 3.33329491539e-1) * z * t + t);
+    a = swap ? 0.5 * float(AVS_PI) - a : a;
+    return x < 0.0 ? float(AVS_PI) - a : a;
+}
+
 uint avs_words_per_map(uint r) { return r * r / 32u; }
 uint avs_ssdf_words_per_map(uint r) { return r * r / 2u; }
 float avs_texel_angle(uint r) { return float(AVS_PI) / float(r); }

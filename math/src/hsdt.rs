@@ -26,8 +26,10 @@
 //!    after the crossing. Both hold: `cos f_a - cos f_b = A cos(theta) + B sin(theta)` with
 //!    `A = cos(theta_a) - cos(theta_b) > 0` for `theta_a < theta_b`, a sinusoid with at most one
 //!    zero in `(0, pi)`, positive (a wins) at `theta = 0` and negative (b wins) at `theta = pi`.
-//!    The separator (first query row where the newer candidate is at least as close) is found by
-//!    bisection on the same comparison, so no closed form has to agree with it.
+//!    The separator (first query row where the newer candidate is at least as close) is found here
+//!    by bisection on the same comparison; the GPU pass takes it in closed form
+//!    ([`closed_form_separator`]), which differs only where the two distances agree to rounding,
+//!    and reads phase 1's answer off the row's bits ([`nearest_in_row`]).
 //!
 //! Hence the HSDT equals the brute-force transform over texel centres up to floating-point
 //! rounding (tests: max error ~1e-15 rad in f64; the GPU pass in f32 ~1e-6 rad, below fp16
@@ -60,6 +62,84 @@ pub fn latitude_scan(map: &VisMap, i: u32, feature: bool, out: &mut [u16]) {
             }
         }
     }
+}
+
+/// Phase 1 answered for one texel from the row's bits, as the GPU pass does (`glsl/hsdt/hsdt.comp`
+/// `nearest_in_row`): the column of the texel of row `i` nearest to column `j` by `|dphi|` (ties:
+/// the lower column) whose visibility is `feature`, or [`NONE`]; the highest such bit at or below
+/// the texel and the lowest above it, a word at a time. Equals [`latitude_scan`]'s `out[j]`.
+pub fn nearest_in_row(map: &VisMap, i: u32, j: u32, feature: bool) -> u16 {
+    let r = map.r as usize;
+    let (start, k, end) = (i as usize * r, i as usize * r + j as usize, (i as usize + 1) * r);
+    let word = |w: usize| if feature { map.bits[w] } else { !map.bits[w] };
+    let mut below = NONE;
+    let mut w = k / 32;
+    let mut x = word(w) & (((2u64 << (k % 32)) - 1) as u32);
+    while x == 0 && w > start / 32 {
+        w -= 1;
+        x = word(w);
+    }
+    if x != 0 {
+        let b = w * 32 + 31 - x.leading_zeros() as usize;
+        if b >= start {
+            below = (b - start) as u16;
+        }
+    }
+    if below == j as u16 {
+        return below;
+    }
+    let mut above = NONE;
+    let mut w = k / 32;
+    let mut x = word(w) & !(((2u64 << (k % 32)) - 1) as u32);
+    while x == 0 && w < (end - 1) / 32 {
+        w += 1;
+        x = word(w);
+    }
+    if x != 0 {
+        let b = w * 32 + x.trailing_zeros() as usize;
+        if b < end {
+            above = (b - start) as u16;
+        }
+    }
+    match (below, above) {
+        (NONE, a) => a,
+        (b, NONE) => b,
+        (b, a) => {
+            if j - b as u32 <= a as u32 - j {
+                b
+            } else {
+                a
+            }
+        }
+    }
+}
+
+/// A candidate's haversine weight for column `j`: `sin(theta_row) sin^2((j - col) h / 2)`, so
+/// that the haversine from texel `(i, j)` is `sin^2((theta_i - theta_row) / 2) + sin(theta_i) w`.
+pub fn haversine_weight(r: u32, j: u32, row: u32, col: u32) -> f64 {
+    let h = std::f64::consts::PI / r as f64;
+    let s = (0.5 * h * (j as f64 - col as f64)).sin();
+    ((row as f64 + 0.5) * h).sin() * s * s
+}
+
+/// The separator in closed form, as the GPU pass computes it (`glsl/hsdt/hsdt.comp`): for an
+/// older candidate (row `s`, weight `ws`, [`haversine_weight`]) and a newer one (row `u > s`,
+/// weight `wu`) of the same column, the first query row where the newer one is at least as close
+/// (`r` if none). With `m = (theta_s + theta_u) / 2` and `sg = sin((theta_s - theta_u) / 2) < 0`,
+/// `hav_u(i) - hav_s(i) = sin(theta_i - m) sg + sin(theta_i) (wu - ws)` (`sin^2 a - sin^2 b =
+/// sin(a + b) sin(a - b)`) `= alpha sin(theta_i) - beta cos(theta_i)` with `alpha = cos(m) sg + wu -
+/// ws` and `beta = sin(m) sg < 0`, which is `<= 0` exactly for `theta_i >= atan2(-beta, -alpha)`.
+/// Every term is a product of small exact factors, so where it decides differently from the
+/// comparison of the two haversines the two distances agree to rounding (test
+/// `closed_form_separator_matches_bisection`).
+pub fn closed_form_separator(r: u32, s: u32, ws: f64, u: u32, wu: f64) -> u32 {
+    let h = std::f64::consts::PI / r as f64;
+    let m = 0.5 * (s + u + 1) as f64 * h;
+    let sg = (0.5 * h * (s as f64 - u as f64)).sin();
+    let alpha = m.cos() * sg + (wu - ws);
+    let beta = m.sin() * sg;
+    let th = (-beta).atan2(-alpha);
+    ((th / h - 0.5).ceil().max(0.0) as u32).min(r)
 }
 
 fn hav_to_angle(h: f64) -> f64 {

@@ -811,6 +811,68 @@ mod hsdt {
         assert!(out.iter().all(|&g| g == NONE));
     }
 
+    /// The GPU's phase 1 (bits scanned a word at a time) gives the latitude scans' answer, also
+    /// where rows straddle words (r = 8, 24, 40).
+    #[test]
+    fn nearest_in_row_matches_latitude_scan() {
+        for r in [8, 24, 40] {
+            for (name, m) in test_maps(r, 3 + r as u64) {
+                for feature in [false, true] {
+                    let mut out = vec![0u16; r as usize];
+                    for i in 0..r {
+                        latitude_scan(&m, i, feature, &mut out);
+                        for j in 0..r {
+                            assert_eq!(
+                                nearest_in_row(&m, i, j, feature),
+                                out[j as usize],
+                                "r={r} {name} ({i}, {j}) {feature}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// The closed-form separator the GPU uses against bisection on the haversine comparison: where
+    /// they differ, the two candidates' distances at the rows between agree to rounding.
+    #[test]
+    fn closed_form_separator_matches_bisection() {
+        let mut seed = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = move |n: u32| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed % n as u64) as u32
+        };
+        let (mut differ, mut total) = (0, 0);
+        for r in [8u32, 64, 256] {
+            let tab = SinTables::new(r);
+            for _ in 0..20000 {
+                let (j, s, u) = (next(r), next(r), next(r));
+                if s >= u {
+                    continue;
+                }
+                // nearest-feature columns: often the query column itself, else anywhere
+                let (gs, gu) = (if next(3) == 0 { j } else { next(r) }, if next(3) == 0 { j } else { next(r) });
+                let pred = |i: u32| tab.hav(i, j, u, gu) <= tab.hav(i, j, s, gs);
+                let bisect = (0..r).find(|&i| pred(i)).unwrap_or(r);
+                let closed =
+                    closed_form_separator(r, s, haversine_weight(r, j, s, gs), u, haversine_weight(r, j, u, gu));
+                total += 1;
+                if closed != bisect {
+                    differ += 1;
+                    for i in closed.min(bisect)..closed.max(bisect) {
+                        let (a, b) = (tab.hav(i, j, u, gu), tab.hav(i, j, s, gs));
+                        assert!((a - b).abs() <= 1e-12 * a.max(b), "r={r} j={j} s=({s},{gs}) u=({u},{gu}): closed {closed}, bisection {bisect}, row {i}: {a} vs {b}");
+                    }
+                }
+            }
+        }
+        println!("{differ} of {total} separators differ from bisection (ties)");
+        assert!(total > 20000 && differ * 100 < total, "{differ} of {total} differ");
+    }
+
     #[test]
     fn hsdt_matches_brute_force_on_random_and_adversarial_maps() {
         for r in [16, 32] {

@@ -1,17 +1,16 @@
 //! GPU hemispherical signed distance transform (paper section 5, Algorithm 1): packed visibility
-//! maps in, fp16 SSDFs out, in two compute passes per batch of maps, declared through the graph:
-//!
-//! * `{name}_rows_b{k}` (`glsl/hsdt/hsdt_rows.comp`): latitude scans, one invocation per (map, row);
-//!   writes the nearest occluded / visible column of every texel in its row into a transient
-//!   `{name}_g` buffer (4 bytes per texel of a batch, reused by the batches).
-//! * `{name}_cols_b{k}` (`glsl/hsdt/hsdt_cols.comp`): longitude scans, one invocation per (map, pair
-//!   of columns) (so each invocation owns whole fp16x2 words); Meijster lower envelope with
-//!   spherical distances, writes the signed distances (radians, fp16).
+//! maps in, fp16 SSDFs out, in one compute pass per batch of maps, declared through the graph:
+//! `{name}_b{k}` (`glsl/hsdt/hsdt.comp`), one invocation per (map, pair of columns) (so each
+//! invocation owns whole fp16x2 words). The latitude scans' answer (the nearest occluded and
+//! visible column in a row) is read off the row's bits where the longitude scans need it, so no
+//! intermediate buffer is written or read: the pass reads `r * r / 8` bytes of bits and writes
+//! `2 r * r` bytes of SSDF per map. The longitude scans build Meijster's lower envelopes with
+//! spherical distances, each separator in closed form
+//! (`penumbra_math::hsdt::closed_form_separator`).
 //!
 //! Layouts (visibility bits, SSDF words, sign, units) are those of `penumbra_math::avs_maps`; the
 //! result equals `penumbra_math::hsdt::hsdt` up to f32 evaluation and fp16 rounding (both are
-//! exact transforms over texel centres). Maps are processed in batches so the intermediate buffer
-//! stays under [`G_BUDGET_BYTES`] (e.g. 512 maps at r = 128).
+//! exact transforms over texel centres). Batches only bound one dispatch's size (65535 maps).
 
 use crate::util::{bytes_of, compute_pipeline, dispatch, groups, Pipeline};
 use anyhow::{anyhow, Result};
@@ -20,31 +19,24 @@ use penumbra_engine::{Access, Bind, BufferHandle, Context, Graph, PassKind};
 use penumbra_math::avs_maps::{check_res, ssdf_words_per_map, words_per_map};
 use std::sync::Arc;
 
-/// Upper bound on the bytes of one batch's intermediate (phase 1) buffer.
-pub const G_BUDGET_BYTES: u64 = 32 << 20;
 /// Shaders this module needs.
-pub const SHADERS: [&str; 2] = ["hsdt/hsdt_rows.comp", "hsdt/hsdt_cols.comp"];
+pub const SHADERS: [&str; 1] = ["hsdt/hsdt.comp"];
 
-/// The two HSDT pipelines.
+/// The HSDT pipeline.
 pub struct Hsdt {
-    rows: Pipeline,
-    cols: Pipeline,
-    /// Maps per batch; `None`: [`batch_maps`].
+    pipe: Pipeline,
+    /// Maps per dispatch (at most 65535, the default).
     pub batch: Option<u32>,
 }
 
-/// Maps per batch at resolution `r` (bounded by [`G_BUDGET_BYTES`] and the dispatch limit).
-pub fn batch_maps(r: u32) -> u32 {
-    ((G_BUDGET_BYTES / (r as u64 * r as u64 * 4)) as u32).clamp(1, 65535)
+/// Bytes the pass reads and writes per map at resolution `r`: the map's bits and its fp16 SSDF.
+pub fn bytes_per_map(r: u32) -> u64 {
+    (words_per_map(r) + ssdf_words_per_map(r)) as u64 * 4
 }
 
 impl Hsdt {
     pub fn new(ctx: &Arc<Context>, shaders: &ShaderLibrary) -> Result<Self> {
-        Ok(Hsdt {
-            rows: compute_pipeline(ctx, shaders, "hsdt/hsdt_rows.comp", 16)?,
-            cols: compute_pipeline(ctx, shaders, "hsdt/hsdt_cols.comp", 16)?,
-            batch: None,
-        })
+        Ok(Hsdt { pipe: compute_pipeline(ctx, shaders, "hsdt/hsdt.comp", 16)?, batch: None })
     }
 
     /// Adds the HSDT of the first `n` maps of `vis` (packed bits, `words_per_map(r)` u32 each)
@@ -77,45 +69,28 @@ impl Hsdt {
         }
         let mut vis = vis;
         let mut out = out;
-        let batch = self.batch.unwrap_or_else(|| batch_maps(r)).clamp(1, 65535);
-        // one intermediate buffer, reused by every batch (the graph orders the batches)
-        let mut g = graph.create_buffer(&format!("{name}_g"), (batch.min(n).max(1) as u64) * r as u64 * r as u64 * 4);
+        let batch = self.batch.unwrap_or(65535).clamp(1, 65535);
         let mut first = 0u32;
         let mut b = 0;
         while first < n {
             let count = batch.min(n - first);
             let push = [r, count, first, 0];
-            {
-                let mut p = graph.pass(&format!("{name}_rows_b{b}"), PassKind::Compute);
-                let v = p.read(vis, Access::ComputeShaderReadStorage);
-                // each invocation re-reads only its own writes: a plain write for the graph
-                let gw = p.write(g, Access::ComputeShaderWriteStorage);
-                let pipe = self.rows.handle();
-                p.record(move |rc| {
-                    let binds = [Bind::StorageBuffer(v), Bind::StorageBuffer(gw)];
-                    dispatch(rc, pipe, &binds, &bytes_of(&push), [groups(r, 64), count, 1])
-                });
-                vis = v;
-                // `g` for the next pass
-                let mut p = graph.pass(&format!("{name}_cols_b{b}"), PassKind::Compute);
-                let v = p.read(vis, Access::ComputeShaderReadStorage);
-                let gr = p.read(gw, Access::ComputeShaderReadStorage);
-                // later batches keep the earlier batches' maps: a read-write for the graph (a plain
-                // write would let it cull the earlier batches' passes)
-                let o = if b == 0 {
-                    p.write(out, Access::ComputeShaderWriteStorage)
-                } else {
-                    p.write(out, Access::ComputeShaderReadWriteStorage)
-                };
-                let pipe = self.cols.handle();
-                p.record(move |rc| {
-                    let binds = [Bind::StorageBuffer(v), Bind::StorageBuffer(gr), Bind::StorageBuffer(o)];
-                    dispatch(rc, pipe, &binds, &bytes_of(&push), [groups(r / 2, 64), count, 1])
-                });
-                vis = v;
-                out = o;
-                g = gr;
-            }
+            let mut p = graph.pass(&format!("{name}_b{b}"), PassKind::Compute);
+            let v = p.read(vis, Access::ComputeShaderReadStorage);
+            // later batches keep the earlier batches' maps: a read-write for the graph (a plain
+            // write would let it cull the earlier batches' passes)
+            let o = if b == 0 {
+                p.write(out, Access::ComputeShaderWriteStorage)
+            } else {
+                p.write(out, Access::ComputeShaderReadWriteStorage)
+            };
+            let pipe = self.pipe.handle();
+            p.record(move |rc| {
+                let binds = [Bind::StorageBuffer(v), Bind::StorageBuffer(o)];
+                dispatch(rc, pipe, &binds, &bytes_of(&push), [groups(r / 2, 32), count, 1])
+            });
+            vis = v;
+            out = o;
             first += count;
             b += 1;
         }

@@ -35,6 +35,10 @@ pub struct HsdtArgs {
     /// Seed of the random maps.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Only the speed table (t_S, bytes moved, the host's memory bandwidth): skips the
+    /// brute-force checks and the integrals.
+    #[arg(long)]
+    pub speed_only: bool,
 }
 
 impl HsdtArgs {
@@ -105,6 +109,28 @@ fn bar(n: u64, msg: &str) -> ProgressBar {
     pb
 }
 
+/// The host's memory bandwidth in bytes per second (read + write): every core copies its part of
+/// a 256 MiB buffer (well past the caches) into another, best of five.
+fn host_copy_bandwidth() -> f64 {
+    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1).max(1);
+    let words = (256usize << 20) / 8;
+    let src: Vec<u64> = (0..words as u64).collect();
+    let mut dst = vec![0u64; words];
+    let chunk = words.div_ceil(threads);
+    let mut best = f64::MAX;
+    for _ in 0..5 {
+        let t0 = Instant::now();
+        std::thread::scope(|s| {
+            for (d, sr) in dst.chunks_mut(chunk).zip(src.chunks(chunk)) {
+                s.spawn(move || d.copy_from_slice(sr));
+            }
+        });
+        best = best.min(t0.elapsed().as_secs_f64());
+        std::hint::black_box(&dst);
+    }
+    2.0 * (words * 8) as f64 / best
+}
+
 fn gpu_ms(out: &penumbra::engine::FrameOutput, prefix: &[&str]) -> f64 {
     out.gpu_ms.iter().filter(|(n, _)| prefix.iter().any(|p| n.starts_with(p))).map(|(_, ms)| ms).sum()
 }
@@ -121,6 +147,7 @@ pub fn run(args: &HsdtArgs) -> Result<()> {
     pb.finish();
     let n = args.points;
     let mut speed_rows = Vec::new();
+    let mut traffic_rows = Vec::new();
     let mut acc_rows = Vec::new();
     let mut int_rows = Vec::new();
     for &r in &rs {
@@ -145,7 +172,7 @@ pub fn run(args: &HsdtArgs) -> Result<()> {
             add_copy_to_readback(&mut g, out, "ssdf", bytes);
             engine.submit(g)?;
             let o = engine.drain()?.pop().ok_or_else(|| anyhow!("no frame output"))?;
-            Ok((decode_ssdf(&o.readbacks["ssdf"], n as usize, r), gpu_ms(&o, &["hsdt_rows", "hsdt_cols"])))
+            Ok((decode_ssdf(&o.readbacks["ssdf"], n as usize, r), gpu_ms(&o, &["hsdt_b"])))
         };
         run_gpu()?;
         let (gpu, t_s) = run_gpu()?;
@@ -165,6 +192,10 @@ pub fn run(args: &HsdtArgs) -> Result<()> {
         let fp16_max = errs.iter().map(|e| e.0).fold(0.0, f64::max);
         let fp16_mean = errs.iter().map(|e| e.1).sum::<f64>() / errs.len() as f64;
         speed_rows.push((r, n, t_s, cpu_all_ms, cpu_one_ms, fp16_max, fp16_mean));
+        traffic_rows.push((r, t_s / n as f64, penumbra_passes::hsdt::bytes_per_map(r)));
+        if args.speed_only {
+            continue;
+        }
         // HSDT against brute force: random maps + adversarial ones (up to r = 128)
         let mut check: Vec<(String, VisMap)> =
             maps.iter().take(args.verify).enumerate().map(|(i, m)| (format!("random {i}"), m.clone())).collect();
@@ -277,7 +308,7 @@ pub fn run(args: &HsdtArgs) -> Result<()> {
         );
     }
     println!();
-    println!("HSDT speed ({} maps per resolution; t_S = GPU time of hsdt_rows + hsdt_cols, timestamps)", n);
+    println!("HSDT speed ({} maps per resolution; t_S = GPU time of the HSDT pass, timestamps)", n);
     println!(
         "{:>4} {:>12} {:>16} {:>18} {:>18} {:>9} {:>12} {:>12}",
         "r",
@@ -302,6 +333,29 @@ pub fn run(args: &HsdtArgs) -> Result<()> {
             fm,
             fmean
         );
+    }
+    println!();
+    let pb = bar(1, "host memory bandwidth");
+    let host = host_copy_bandwidth();
+    pb.finish();
+    println!(
+        "HSDT bytes moved (the pass's buffer reads and writes per map: the bits and the fp16 SSDF) against the host's memory bandwidth measured now: {:.2} GB/s (copy, read + write, all cores)",
+        host / 1e9
+    );
+    println!("{:>4} {:>12} {:>12} {:>12} {:>10}", "r", "t_S us/pt", "KB/pt", "GB/s", "of host");
+    for (r, t, bytes) in &traffic_rows {
+        let rate = *bytes as f64 / (t * 1e-3).max(1e-12);
+        println!(
+            "{:>4} {:>12.2} {:>12.1} {:>12.3} {:>9.1}%",
+            r,
+            t * 1e3,
+            *bytes as f64 / 1e3,
+            rate / 1e9,
+            100.0 * rate / host
+        );
+    }
+    if args.speed_only {
+        return Ok(());
     }
     println!();
     println!("HSDT against the brute-force spherical distance transform (radians; texel = pi/r)");

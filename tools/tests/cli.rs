@@ -705,7 +705,7 @@ fn no_shader_reaches_the_loop_limit_unlisted() {
     // every family of shaders ran, loops counted
     for s in [
         "avs/avs_vis.comp",
-        "hsdt/hsdt_cols.comp",
+        "hsdt/hsdt.comp",
         "mc/mc.comp",
         "mc/mcd_atrous.comp",
         "shadow_fields/sf_shade.comp",
