@@ -718,3 +718,32 @@ fn no_shader_reaches_the_loop_limit_unlisted() {
         assert!(ran.iter().any(|r| r["shader"] == s), "{s} did not run: {t}");
     }
 }
+
+/// `bench hsdt --speed-only`: t_S per point, the fp16 result against the exact transform, and the
+/// bytes moved against the host's bandwidth measured in the same run.
+#[test]
+fn hsdt_speed_only() {
+    let o = penumbra(&["bench", "hsdt", "--r", "16,24", "--points", "8", "--speed-only"]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(!t.contains("brute-force spherical distance"), "speed only: {t}");
+    let host: f64 = t
+        .split("memory bandwidth measured now: ")
+        .nth(1)
+        .and_then(|s| s.split(" GB/s").next())
+        .and_then(|s| s.trim().parse().ok())
+        .unwrap_or_else(|| panic!("host bandwidth: {t}"));
+    assert!(host > 0.1, "{t}");
+    for r in ["16", "24"] {
+        let rows: Vec<Vec<&str>> =
+            t.lines().map(|l| l.split_whitespace().collect::<Vec<_>>()).filter(|w| w.first() == Some(&r)).collect();
+        assert_eq!(rows.len(), 2, "speed and bytes rows for r = {r}: {t}");
+        // speed row: r, t_S us/pt, ms/1000, CPU all, CPU one, speedup, fp16 max, fp16 mean
+        let fp16_max: f64 = rows[0][6].parse().unwrap();
+        assert!(rows[0][1].parse::<f64>().unwrap() > 0.0 && fp16_max < 1e-3, "{t}");
+        // bytes row: r, t_S, KB per point (bits r*r/8 + fp16 2*r*r)
+        let kb: f64 = rows[1][2].parse().unwrap();
+        let rr: f64 = r.parse().unwrap();
+        assert!((kb * 1e3 - (rr * rr / 8.0 + 2.0 * rr * rr)).abs() < 60.0, "{t}");
+    }
+}
