@@ -328,6 +328,25 @@ pub fn copy_buffer(
     (s, d)
 }
 
+/// Fills the whole of `dst` with the 32-bit `value` in a transfer pass `name`; returns `dst`'s new
+/// version.
+pub fn fill_buffer(
+    graph: &mut penumbra_engine::Graph,
+    name: &str,
+    dst: penumbra_engine::BufferHandle,
+    value: u32,
+) -> penumbra_engine::BufferHandle {
+    use penumbra_engine::{Access, PassKind};
+    let mut p = graph.pass(name, PassKind::Transfer);
+    let d = p.write(dst, Access::TransferDst);
+    p.record(move |rc| {
+        let b = rc.buffer(d)?;
+        unsafe { rc.device().cmd_fill_buffer(rc.cmd, b.buffer, 0, vk::WHOLE_SIZE, value) };
+        Ok(())
+    });
+    d
+}
+
 /// Uploads `data` into `dst` through a new host-visible buffer `staging` and transfer pass
 /// `name`; returns `dst`'s new version.
 pub fn upload_into(

@@ -17,7 +17,7 @@ use penumbra_math::ssdf_integrate::{brute_force, visible_axis, visible_cells, Ax
 use penumbra_passes::hsdt::{decode_ssdf, Hsdt};
 use penumbra_passes::kernels::hsdt::IntegrateEval;
 use penumbra_passes::trace::add_copy_to_readback;
-use penumbra_passes::util::bytes_of;
+use penumbra_passes::util::{bytes_of, copy_buffer, fill_buffer};
 use std::time::Instant;
 
 #[derive(Args)]
@@ -129,6 +129,25 @@ fn host_copy_bandwidth() -> f64 {
         std::hint::black_box(&dst);
     }
     2.0 * (words * 8) as f64 / best
+}
+
+/// The device's memory bandwidth in bytes per second (read + write): a 256 MiB buffer copied into
+/// another by the device (the copy pass's timestamps), best of three.
+fn device_copy_bandwidth(engine: &mut Engine) -> Result<f64> {
+    let bytes = 256u64 << 20;
+    let mut best = f64::MAX;
+    for _ in 0..3 {
+        let mut g = Graph::new();
+        let src = g.create_buffer("bw_src", bytes);
+        let dst = g.create_buffer("bw_dst", bytes);
+        let src = fill_buffer(&mut g, "bw_fill", src, 0x3f80_0000);
+        let (_, dst) = copy_buffer(&mut g, "bw_copy", src, dst, None);
+        add_copy_to_readback(&mut g, dst, "bw", 4);
+        engine.submit(g)?;
+        let o = engine.drain()?.pop().ok_or_else(|| anyhow!("no frame output"))?;
+        best = best.min(gpu_ms(&o, &["bw_copy"]));
+    }
+    Ok(2.0 * bytes as f64 / (best * 1e-3).max(1e-9))
 }
 
 fn gpu_ms(out: &penumbra::engine::FrameOutput, prefix: &[&str]) -> f64 {
@@ -339,23 +358,30 @@ pub fn run(args: &HsdtArgs) -> Result<()> {
         );
     }
     println!();
-    let pb = bar(1, "host memory bandwidth");
+    let pb = bar(2, "memory bandwidth");
     let host = host_copy_bandwidth();
+    pb.inc(1);
+    let device = device_copy_bandwidth(&mut Engine::new(ctx.clone(), 1).map(|mut e| {
+        e.timestamps = true;
+        e
+    })?)?;
     pb.finish();
     println!(
-        "HSDT bytes moved (the pass's buffer reads and writes per map: the bits and the fp16 SSDF) against the host's memory bandwidth measured now: {:.2} GB/s (copy, read + write, all cores; a CPU driver's device memory, a discrete GPU has its own)",
-        host / 1e9
+        "HSDT bytes moved (the pass's buffer reads and writes per map: the bits and the fp16 SSDF) against the memory bandwidth measured now (a copy of 256 MiB, read + write): host {:.2} GB/s (all cores), device {:.2} GB/s (a copy pass; a CPU driver's device memory is the host's)",
+        host / 1e9,
+        device / 1e9
     );
-    println!("{:>4} {:>12} {:>12} {:>12} {:>10}", "r", "t_S us/pt", "KB/pt", "GB/s", "of host");
+    println!("{:>4} {:>12} {:>12} {:>12} {:>10} {:>10}", "r", "t_S us/pt", "KB/pt", "GB/s", "of host", "of device");
     for (r, t, bytes) in &traffic_rows {
         let rate = *bytes as f64 / (t * 1e-3).max(1e-12);
         println!(
-            "{:>4} {:>12.2} {:>12.1} {:>12.3} {:>9.1}%",
+            "{:>4} {:>12.2} {:>12.1} {:>12.3} {:>9.1}% {:>9.1}%",
             r,
             t * 1e3,
             *bytes as f64 / 1e3,
             rate / 1e9,
-            100.0 * rate / host
+            100.0 * rate / host,
+            100.0 * rate / device
         );
     }
     if args.speed_only {

@@ -995,14 +995,7 @@ impl AvsTechnique {
         // rays per entry, accumulated by the levels' workgroups with atomics: cleared first
         let mut stats = {
             let b = graph.create_buffer(&format!("avs_rays{tag}"), (n.max(1) as u64) * 4);
-            let mut p = graph.pass(&format!("avs_rays_clear{tag}"), PassKind::Transfer);
-            let u = p.write(b, Access::TransferDst);
-            p.record(move |rc| {
-                let b = rc.buffer(u)?;
-                unsafe { rc.device().cmd_fill_buffer(rc.cmd, b.buffer, 0, vk::WHOLE_SIZE, 0) };
-                Ok(())
-            });
-            u
+            crate::util::fill_buffer(graph, &format!("avs_rays_clear{tag}"), b, 0)
         };
         let levels = self.settings.levels();
         // without adaptivity only the final level runs (every texel traced at r: r^2 rays a map)
@@ -1707,16 +1700,7 @@ impl crate::technique::Technique for AvsTechnique {
             let pbuf = graph.create_buffer_init("avs_cull_points", bytes_of(&point_data(&all_pts, offset)));
             let gbuf = graph.create_buffer_init("avs_cull_grid", bytes_of(&grid_words(&grid_all, &ids)));
             let used = graph.create_buffer("avs_used", self.used_bytes());
-            let used = {
-                let mut p = graph.pass("avs_cull_clear", PassKind::Transfer);
-                let u = p.write(used, Access::TransferDst);
-                p.record(move |rc| {
-                    let b = rc.buffer(u)?;
-                    unsafe { rc.device().cmd_fill_buffer(rc.cmd, b.buffer, 0, vk::WHOLE_SIZE, 0) };
-                    Ok(())
-                });
-                u
-            };
+            let used = crate::util::fill_buffer(graph, "avs_cull_clear", used, 0);
             let mut p = graph.pass("avs_cull", PassKind::Compute);
             let g = gb.read_sampled(&mut p);
             let pb = p.read(pbuf, Access::ComputeShaderReadStorage);
