@@ -47,11 +47,11 @@ int top[4];
 float h;
 uint vbase;
 
-// The haversine weight of candidate x (row, column) for column j.
-float cand_w(uint x, uint j) {
-    float s = avs_sin(0.5 * h * (float(j) - float((x >> 8u) & 0xFFu)));
-    return avs_sin((float(x & 0xFFu) + 0.5) * h) * s * s;
-}
+// A candidate's haversine weight for column j: sin(theta_row) sin^2((j - col) h / 2), s_row =
+// sin(theta_row).
+float weight(float s_row, uint j, uint col) { return s_row * sq(avs_sin(0.5 * h * (float(j) - float(col)))); }
+// The haversine weight of stack entry x (row, column) for column j.
+float cand_w(uint x, uint j) { return weight(avs_sin((float(x & 0xFFu) + 0.5) * h), j, (x >> 8u) & 0xFFu); }
 
 uint feature_word(uint w, bool want_vis) {
     uint x = vis[vbase + w];
@@ -110,8 +110,9 @@ uint separator(vec2 ab) {
     return uint(max(ceil(th / h - 0.5), 0.0));
 }
 
-// Adds row u's candidate (nearest-feature column gu, weight wu) to envelope e of column j.
-void push(uint e, uint j, uint u, uint gu, float wu) {
+// Adds row u's candidate (nearest-feature column gu; su = sin(theta_u)) to envelope e of column j.
+void push(uint e, uint j, uint u, uint gu, float su) {
+    float wu = weight(su, j, gu);
     int q = top[e];
     // a feature texel of the column right below the top's (both at dphi = 0): the separator is
     // row u itself and nothing pops (the top is the closer one at and above its own row)
@@ -145,6 +146,13 @@ void push(uint e, uint j, uint u, uint gu, float wu) {
         tw[e] = wu;
     }
     top[e] = q;
+}
+
+// Row u's candidate for envelope e (feature e & 1: 0 the nearest occluded texel, 1 the nearest
+// visible) of column j, if the row has one; x0 = the map's word holding texel (u, j).
+void add_row(uint e, uint j, uint u, uint x0, float su) {
+    uint g = nearest_in_row(u, j, (e & 1u) == 1u, x0);
+    if (g != NONE) push(e, j, u, g, su);
 }
 
 // Moves envelope e's top down to the candidate of row i (rows visited downwards).
@@ -187,15 +195,10 @@ void main() {
     for (uint u = 0u; u < r; u++) {
         uint x0 = vis[vbase + ((u * r + j0) >> 5u)];
         float su = avs_sin((float(u) + 0.5) * h);
-        uint g;
-        g = nearest_in_row(u, j0, false, x0);
-        if (g != NONE) push(0u, j0, u, g, su * sq(avs_sin(0.5 * h * (float(j0) - float(g)))));
-        g = nearest_in_row(u, j0, true, x0);
-        if (g != NONE) push(1u, j0, u, g, su * sq(avs_sin(0.5 * h * (float(j0) - float(g)))));
-        g = nearest_in_row(u, j1, false, x0);
-        if (g != NONE) push(2u, j1, u, g, su * sq(avs_sin(0.5 * h * (float(j1) - float(g)))));
-        g = nearest_in_row(u, j1, true, x0);
-        if (g != NONE) push(3u, j1, u, g, su * sq(avs_sin(0.5 * h * (float(j1) - float(g)))));
+        add_row(0u, j0, u, x0, su);
+        add_row(1u, j0, u, x0, su);
+        add_row(2u, j1, u, x0, su);
+        add_row(3u, j1, u, x0, su);
     }
     uint obase = mp * avs_ssdf_words_per_map(r);
     for (int ii = int(r) - 1; ii >= 0; ii--) {
