@@ -263,6 +263,8 @@ fn paper_scenes_load_at_their_stated_scale() {
         ("sf_statues.toml", 6, 33235),
         ("sf_bowling.toml", 15, 41435),
         ("sf_falling.toml", 20, 88739),
+        ("avs_hat_on_cloth.toml", 2, 21954),
+        ("avs_balls_on_dish.toml", 4, 30922),
     ] {
         let s = Scene::load(dir.join(file)).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!((s.objects.len(), s.vertex_count()), (objects, vertices), "{file}: objects, vertices");

@@ -490,7 +490,7 @@ pub const REGISTRY: &[TechniqueInfo] = &[
             rmse_rel_mean: 0.10,
             source: "avs paper reports no error figure; documented approximation: visibility sampled at adaptive points with E_v,max = 10 % relative visibility error",
         },
-        knobs: &[k("r", &["32", "64"]), k("e_max", &["0.3"])],
+        knobs: &[k("r", &["64", "128"]), k("e_max", &["0.3"])],
         create: create_avs,
     },
     TechniqueInfo {

@@ -282,6 +282,7 @@ enum MeshSpec {
         radius: f32,
         height: f32,
         segments: Option<u32>,
+        rings: Option<u32>,
     },
     Dish {
         radius: f32,
@@ -891,9 +892,12 @@ fn primitive(ctx: &Ctx, span: std::ops::Range<usize>, what: &str, spec: &MeshSpe
                 fh,
             )
         }
-        MeshSpec::Hat { radius, height, segments } => {
-            MeshData::hat(p("radius", *radius)?, p("height", *height)?, seg(*segments, 32))
-        }
+        MeshSpec::Hat { radius, height, segments, rings } => MeshData::hat_refined(
+            p("radius", *radius)?,
+            p("height", *height)?,
+            seg(*segments, 32),
+            rings.unwrap_or(1).clamp(1, 128),
+        ),
         MeshSpec::Dish { radius, depth, segments, rings } => MeshData::dish(
             p("radius", *radius)?,
             p("depth", *depth)?,

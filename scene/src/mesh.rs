@@ -554,6 +554,13 @@ impl MeshData {
 
     /// A hat (crown and brim) as a closed surface of revolution, height `h`, brim radius `r`.
     pub fn hat(r: f32, h: f32, segments: u32) -> Self {
+        Self::hat_refined(r, h, segments, 1)
+    }
+
+    /// [`MeshData::hat`] with each of its profile's 8 segments cut into `rings` (>= 1) equal
+    /// pieces: the same shape, with vertices down its crown and across its brim (a lathe of the
+    /// 9-point profile has none there, so a mesh at a paper's vertex count needs them).
+    pub fn hat_refined(r: f32, h: f32, segments: u32, rings: u32) -> Self {
         let c = r * 0.55;
         let t = h * 0.04;
         let profile = [
@@ -567,7 +574,12 @@ impl MeshData {
             Vec2::new(c * 0.5, h),
             Vec2::new(0.0, h),
         ];
-        Self::revolve("hat", &profile, segments)
+        let n = rings.max(1);
+        let mut fine = vec![profile[0]];
+        for w in profile.windows(2) {
+            fine.extend((1..=n).map(|k| w[0].lerp(w[1], k as f32 / n as f32)));
+        }
+        Self::revolve("hat", &fine, segments)
     }
 
     /// A shallow dish (closed, with thickness) of radius `r` and depth `d`.
@@ -812,6 +824,7 @@ mod tests {
         let mut w = Vec::new();
         let closed = [
             MeshData::hat(0.6, 0.5, 24),
+            MeshData::hat_refined(0.6, 0.5, 24, 3),
             MeshData::dish(1.0, 0.2, 32, 4),
             MeshData::icosphere(1.0, 2),
             MeshData::uv_sphere(1.0, 12, 6),
