@@ -93,7 +93,8 @@ fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32
     // the maps are traced in waited rounds (`adaptation = rounds`, or a setup frame) or in the
     // frame's own graph (the late adaptation): both lists count
     let passes: Vec<(String, f64)> = st.round_ms.iter().chain(&f.gpu_ms).cloned().collect();
-    let t_v = sum(&passes, &["avs_vis", "avs_sh", "kdtree"]);
+    // the SH16 passes ("avs_sh{tag}", their copies), not the shading ("avs_shade", t_I)
+    let t_v = sum(&passes, &["avs_vis", "avs_sh", "kdtree"]) - sum(&passes, &["avs_shade"]);
     let t_s = sum(&f.gpu_ms, &["avs_hsdt"]);
     let t_i = sum(&f.gpu_ms, &["avs_shade"]);
     let total = passes.iter().map(|(_, m)| m).sum::<f64>();
