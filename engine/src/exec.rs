@@ -246,7 +246,17 @@ pub struct Engine {
 /// The default [`Engine::fence_timeout`].
 pub const DEFAULT_FENCE_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(600);
 
-const MAX_QUERIES: u32 = 256;
+const MAX_QUERIES: u32 = 384;
+
+/// Timestamp queries per pass: its start, its end, and a second write right after the start that
+/// settles it. lavapipe (llvmpipe) bins a timestamp into its command stream and takes the time when
+/// the stream is next flushed, which the next timestamp write or barrier does: a pass whose start
+/// no barrier follows (e.g. avs's HSDT, reading maps a previous submission wrote) had its start
+/// taken after its work and timed near zero, its work in no pass's interval (2084 maps at r =
+/// 128: 0.01-0.09 ms for about 700 ms of work). The second write flushes at once; on other
+/// devices it is one more timestamp.
+const QUERIES_PER_PASS: u32 = 3;
+const QPP: usize = QUERIES_PER_PASS as usize;
 
 impl Engine {
     pub fn new(ctx: Arc<Context>, frames_in_flight: usize) -> Result<Self> {
@@ -464,7 +474,7 @@ impl Engine {
             ms: wait_start.elapsed().as_secs_f64() * 1e3,
         });
         if self.timestamps && !f.passes.is_empty() {
-            let n = (f.passes.len() * 2) as u32;
+            let n = f.passes.len() as u32 * QUERIES_PER_PASS;
             let mut ts = vec![0u64; n as usize];
             unsafe {
                 d.get_query_pool_results(
@@ -481,11 +491,12 @@ impl Engine {
                 (1u64 << self.ctx.timestamp_valid_bits) - 1
             };
             for (i, name) in f.passes.iter().enumerate() {
-                let ticks = (ts[2 * i + 1] & mask).wrapping_sub(ts[2 * i] & mask) & mask;
+                let (b, e) = (ts[QPP * i], ts[QPP * i + 1]);
+                let ticks = (e & mask).wrapping_sub(b & mask) & mask;
                 let ms = ticks as f64 * self.ctx.timestamp_period * 1e-6;
                 self.profiler.add_gpu(name, ms);
                 out.gpu_ms.push((name.clone(), ms));
-                let start = (ts[2 * i] & mask).wrapping_sub(ts[0] & mask) & mask;
+                let start = (b & mask).wrapping_sub(ts[0] & mask) & mask;
                 out.timeline.gpu_intervals.push(GpuInterval {
                     name: name.clone(),
                     start_ms: start as f64 * self.ctx.timestamp_period * 1e-6,
@@ -786,7 +797,7 @@ impl Engine {
         let live: Vec<usize> = compiled.live_passes().map(|(i, _)| i).collect();
         // A frame with more passes than the slot's timestamp pool holds gets a bigger pool (the
         // slot's previous frame is complete: its queries were read when it was retired).
-        let needed = (live.len() as u32) * 2;
+        let needed = (live.len() as u32) * QUERIES_PER_PASS;
         if self.timestamps && needed > self.slots[slot].query_capacity {
             let cap = needed.next_power_of_two();
             let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(cap);
@@ -810,7 +821,7 @@ impl Engine {
         }
         let timestamps = self.timestamps && needed <= s.query_capacity;
         if timestamps {
-            unsafe { d.cmd_reset_query_pool(cmd, s.queries, 0, (live.len() * 2) as u32) };
+            unsafe { d.cmd_reset_query_pool(cmd, s.queries, 0, needed) };
         }
         let mut errors: Vec<String> = Vec::new();
         let mut pass_names = Vec::new();
@@ -819,7 +830,10 @@ impl Engine {
             self.ctx.begin_label(cmd, &cp.name);
             if timestamps {
                 unsafe {
-                    d.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, s.queries, (qi * 2) as u32)
+                    let q = qi as u32 * QUERIES_PER_PASS;
+                    d.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, s.queries, q);
+                    // settles the pass's start (see QUERIES_PER_PASS)
+                    d.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, s.queries, q + 2);
                 };
             }
             emit_barriers(d, cmd, &cp.barriers, &images, &buffers);
@@ -839,7 +853,12 @@ impl Engine {
             }
             if timestamps {
                 unsafe {
-                    d.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, s.queries, (qi * 2 + 1) as u32)
+                    d.cmd_write_timestamp2(
+                        cmd,
+                        vk::PipelineStageFlags2::ALL_COMMANDS,
+                        s.queries,
+                        qi as u32 * QUERIES_PER_PASS + 1,
+                    )
                 };
             }
             self.ctx.end_label(cmd);
