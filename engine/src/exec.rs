@@ -249,8 +249,8 @@ pub const DEFAULT_FENCE_TIMEOUT: std::time::Duration = std::time::Duration::from
 const MAX_QUERIES: u32 = 384;
 
 /// Timestamp queries per pass: its start, its end, and a second write right after the start that
-/// settles it. lavapipe (llvmpipe) bins a timestamp into its command stream and takes the time when
-/// the stream is next flushed, which the next timestamp write or barrier does: a pass whose start
+/// settles it. lavapipe (llvmpipe), as far as measured, takes a timestamp's time when its command
+/// stream is next flushed, which the next timestamp write or barrier does: a pass whose start
 /// no barrier follows (e.g. avs's HSDT, reading maps a previous submission wrote) had its start
 /// taken after its work and timed near zero, its work in no pass's interval (2084 maps at r =
 /// 128: 0.01-0.09 ms for about 700 ms of work). The second write flushes at once; on other
