@@ -1185,10 +1185,8 @@ fn glossy_visibility_is_weighted_by_the_light() {
 /// earlier submission), timed at 0.01-0.09 ms for about 700 ms of work (2084 maps at r = 128),
 /// its work in no pass's interval, until the executor settled each pass's start timestamp.
 fn hsdt_timed_in_the_frame(frames: &[FrameImages], maps: &[Vec<u32>], r: u32) {
-    use penumbra::engine::{Context, ContextDesc, Engine, Graph};
+    use penumbra::engine::{Context, ContextDesc, Engine};
     use penumbra_passes::hsdt::Hsdt;
-    use penumbra_passes::trace::add_copy_to_readback;
-    use penumbra_passes::util::bytes_of;
     let in_frame: f64 =
         frames.last().unwrap().gpu_ms.iter().filter(|(n, _)| n.starts_with("avs_hsdt")).map(|(_, ms)| ms).sum();
     let ctx = Context::new(&ContextDesc::default()).unwrap();
@@ -1199,13 +1197,7 @@ fn hsdt_timed_in_the_frame(frames: &[FrameImages], maps: &[Vec<u32>], r: u32) {
     let words: Vec<u32> = maps.iter().flatten().copied().collect();
     let mut alone = f64::MAX;
     for _ in 0..3 {
-        let mut g = Graph::new();
-        let vis = g.create_buffer_init("vis", bytes_of(&words));
-        let out = h.add(&mut g, "hsdt", vis, maps.len() as u32, r).unwrap();
-        let bytes = g.resource(out).desc.bytes();
-        add_copy_to_readback(&mut g, out, "ssdf", bytes);
-        engine.submit(g).unwrap();
-        let o = engine.drain().unwrap().pop().unwrap();
+        let o = h.transform_alone(&mut engine, &words, maps.len() as u32, r).unwrap();
         alone = alone.min(o.gpu_ms.iter().filter(|(n, _)| n.starts_with("hsdt")).map(|(_, ms)| ms).sum());
     }
     println!("HSDT of {} maps at r = {r}: {in_frame:.2} ms in the frame, {alone:.2} ms alone", maps.len());

@@ -24,14 +24,8 @@ fn gpu_hsdt(ctx: &std::sync::Arc<Context>, maps: &[VisMap], r: u32, batch: Optio
     let mut h = Hsdt::new(ctx, &lib).expect("pipelines");
     h.batch = batch;
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
-    let mut g = Graph::new();
     let words: Vec<u32> = maps.iter().flat_map(|m| m.bits.iter().copied()).collect();
-    let vis = g.create_buffer_init("vis", bytes_of(&words));
-    let out = h.add(&mut g, "hsdt", vis, maps.len() as u32, r).expect("hsdt passes");
-    let bytes = g.resource(out).desc.bytes();
-    add_copy_to_readback(&mut g, out, "ssdf", bytes);
-    engine.submit(g).unwrap();
-    let o = engine.drain().unwrap().pop().unwrap();
+    let o = h.transform_alone(&mut engine, &words, maps.len() as u32, r).expect("hsdt passes");
     decode_ssdf(&o.readbacks["ssdf"], maps.len(), r)
 }
 

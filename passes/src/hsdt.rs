@@ -47,6 +47,25 @@ impl Hsdt {
         self.add_into(graph, name, vis, n, r, out)
     }
 
+    /// Transforms `n` maps (`words`: packed bits, `words_per_map(r)` u32 each) in a submission of
+    /// their own, passes `hsdt_b{k}`, and waits for it: the output's readback `ssdf` holds the
+    /// SSDFs ([`decode_ssdf`]), its `gpu_ms` the passes' times when `engine` keeps timestamps.
+    pub fn transform_alone(
+        &self,
+        engine: &mut penumbra_engine::Engine,
+        words: &[u32],
+        n: u32,
+        r: u32,
+    ) -> Result<penumbra_engine::FrameOutput> {
+        let mut g = Graph::new();
+        let vis = g.create_buffer_init("vis", bytes_of(words));
+        let out = self.add(&mut g, "hsdt", vis, n, r)?;
+        let bytes = g.resource(out).desc.bytes();
+        crate::trace::add_copy_to_readback(&mut g, out, "ssdf", bytes);
+        engine.submit(g)?;
+        engine.drain()?.pop().ok_or_else(|| anyhow!("hsdt: no frame output"))
+    }
+
     /// As [`Hsdt::add`] but writing into `out` (e.g. a persistent buffer); returns its new
     /// version. Errors on an unsupported `r` or buffers too small for `n` maps.
     pub fn add_into(

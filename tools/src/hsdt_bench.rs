@@ -188,13 +188,7 @@ pub fn run(args: &HsdtArgs) -> Result<()> {
         let mut engine = Engine::new(ctx.clone(), 1)?;
         engine.timestamps = true;
         let mut run_gpu = || -> Result<(Vec<Vec<f32>>, f64)> {
-            let mut g = Graph::new();
-            let vis = g.create_buffer_init("vis", bytes_of(&words));
-            let out = hsdt_gpu.add(&mut g, "hsdt", vis, n, r)?;
-            let bytes = g.resource(out).desc.bytes();
-            add_copy_to_readback(&mut g, out, "ssdf", bytes);
-            engine.submit(g)?;
-            let o = engine.drain()?.pop().ok_or_else(|| anyhow!("no frame output"))?;
+            let o = hsdt_gpu.transform_alone(&mut engine, &words, n, r)?;
             Ok((decode_ssdf(&o.readbacks["ssdf"], n as usize, r), gpu_ms(&o, &["hsdt_b"])))
         };
         run_gpu()?;
