@@ -59,14 +59,14 @@ void sf_add_sample(SfShell sh, uint idx, float w, inout float o[16]) {
     }
 }
 
-// Bilinear lookups of shell c0 of `inst` at polar angles, scaled by w0, and (with `two`) of shell
+// Bilinear lookups of shell c0 of instance `ii` at polar angles, scaled by w0, and (with `two`) of shell
 // c1 scaled by w1, added to o: one loop over the 4 (8) samples with one call of sf_add_sample,
 // whose trip count is not a constant, so the compiler inlines one copy, not eight (lavapipe
 // compiles every inlined copy).
-void sf_shells_lookup(SfInst inst, uint c0, uint c1, float w0, float w1, bool two, float theta, float phi, inout float o[16]) {
+void sf_shells_lookup(uint ii, uint c0, uint c1, float w0, float w1, bool two, float theta, float phi, inout float o[16]) {
     uint count = two ? 8u : 4u;
     for (uint i = 0u; i < count; ++i) {
-        SfShell sh = sf_shells[inst.info.x + (i < 4u ? c0 : c1)];
+        SfShell sh = sf_shells[sf_inst[ii].info.x + (i < 4u ? c0 : c1)];
         float w = i < 4u ? w0 : w1;
         uint r = max(sh.info.y, 1u);
         float rf = float(r);
@@ -82,30 +82,30 @@ void sf_shells_lookup(SfInst inst, uint c0, uint c1, float w0, float w1, bool tw
     }
 }
 
-void sf_rotate(SfInst inst, float c[16], out float o[16]) {
-    o[0] = inst.rot[0] * c[0];
+void sf_rotate(uint ii, float c[16], out float o[16]) {
+    o[0] = sf_inst[ii].rot[0] * c[0];
     int off = 1;
     for (int l = 1; l < 4; l++) {
         int s = l * l;
         int bw = 2 * l + 1;
         for (int k = 0; k < bw; k++) {
             float acc = 0.0;
-            for (int j = 0; j < bw; j++) acc += inst.rot[off + k * bw + j] * c[s + j];
+            for (int j = 0; j < bw; j++) acc += sf_inst[ii].rot[off + k * bw + j] * c[s + j];
             o[s + k] = acc;
         }
         off += bw * bw;
     }
 }
 
-// Visibility coefficients of instance `inst` at world point p, in world frame; false if the
+// Visibility coefficients of instance `ii` at world point p, in world frame; false if the
 // point is outside its outermost shell (or it has no field).
-bool sf_ocv(SfInst inst, vec3 pw, out float o[16]) {
+bool sf_ocv(uint ii, vec3 pw, out float o[16]) {
     sf_zero(o);
-    uint nc = inst.info.y;
-    if (nc == 0u || inst.info.z == 0u) return false;
-    vec3 q = (inst.world_to_local * vec4(pw, 1.0)).xyz - inst.center_step.xyz;
+    uint nc = sf_inst[ii].info.y;
+    if (nc == 0u || sf_inst[ii].info.z == 0u) return false;
+    vec3 q = (sf_inst[ii].world_to_local * vec4(pw, 1.0)).xyz - sf_inst[ii].center_step.xyz;
     float len = length(q);
-    float x = len / inst.center_step.w - 1.0;
+    float x = len / sf_inst[ii].center_step.w - 1.0;
     if (!(x <= float(nc - 1u))) return false;
     float theta = len > 0.0 ? acos(clamp(q.z / len, -1.0, 1.0)) : 0.0;
     float phi = len > 0.0 ? atan(q.y, q.x) : 0.0;
@@ -116,8 +116,8 @@ bool sf_ocv(SfInst inst, vec3 pw, out float o[16]) {
     float w = x - float(c0);
     float loc[16];
     sf_zero(loc);
-    sf_shells_lookup(inst, c0, c1, (c1 == c0) ? 1.0 : 1.0 - w, w, c1 != c0 && w > 0.0, theta, phi, loc);
-    sf_rotate(inst, loc, o);
+    sf_shells_lookup(ii, c0, c1, (c1 == c0) ? 1.0 : 1.0 - w, w, c1 != c0 && w > 0.0, theta, phi, loc);
+    sf_rotate(ii, loc, o);
     return true;
 }
 
@@ -149,7 +149,7 @@ float sf_visibility_along(vec3 p, vec3 d, uint self_inst, uint inst_count, float
         if (j == self_inst) continue;
         if (!(distance(p, sf_inst[j].center_world.xyz) < max_dist)) continue;
         float o[16];
-        if (!sf_ocv(sf_inst[j], p, o)) continue;
+        if (!sf_ocv(j, p, o)) continue;
         float s = 0.0;
         for (int e = 0; e < 16; e++) s += o[e] * y[e];
         v *= clamp(s, 0.0, 1.0);
@@ -167,9 +167,9 @@ void sf_window(uint kind, inout float c[16]) {
     for (int e = 9; e < 16; e++) c[e] *= s.z;
 }
 
-// Analytic radiance coefficients (unit power, light frame) of light `inst` at light-frame
+// Analytic radiance coefficients (unit power, light frame) of light `ii` at light-frame
 // point q (LightSource::rcv).
-void sf_light_analytic(SfInst inst, vec3 q, out float o[16]) {
+void sf_light_analytic(uint ii, vec3 q, out float o[16]) {
     sf_zero(o);
     float r2 = dot(q, q);
     if (!(r2 > 0.0)) return;
@@ -177,9 +177,9 @@ void sf_light_analytic(SfInst inst, vec3 q, out float o[16]) {
     vec3 s = q / r;
     float y[16];
     sh16_basis(-s, y);
-    int kind = int(inst.light_a.w + 0.5);
+    int kind = int(sf_inst[ii].light_a.w + 0.5);
     if (kind == 2) {
-        float a = inst.light_b.z;
+        float a = sf_inst[ii].light_b.z;
         if (!(r > a)) return;
         float t = sqrt(max(1.0 - (a / r) * (a / r), 0.0));
         float ip[4] = float[4](1.0 - t, (1.0 - t * t) / 2.0, (t - t * t * t) / 2.0, (-0.25 - 1.25 * t * t * t * t + 1.5 * t * t) / 2.0);
@@ -189,7 +189,7 @@ void sf_light_analytic(SfInst inst, vec3 q, out float o[16]) {
     }
     float f = 1.0;
     if (kind == 1) {
-        float e0 = inst.light_b.y, e1 = inst.light_b.x;
+        float e0 = sf_inst[ii].light_b.y, e1 = sf_inst[ii].light_b.x;
         if (e1 <= e0) {
             f = s.z >= e0 ? 1.0 : 0.0;
         } else {
@@ -200,18 +200,18 @@ void sf_light_analytic(SfInst inst, vec3 q, out float o[16]) {
     for (int e = 0; e < 16; e++) o[e] = f / r2 * y[e];
 }
 
-// Radiance coefficients (unit power, world frame) of light `inst` at world point pw: its source
+// Radiance coefficients (unit power, world frame) of light `ii` at world point pw: its source
 // radiance field inside the outermost shell (linear in r^2 RCV between shells), analytic
 // outside (ObjectField::rcv / LightFrame::rcv_world).
-void sf_rcv(SfInst inst, vec3 pw, out float o[16]) {
-    vec3 q = (inst.world_to_local * vec4(pw, 1.0)).xyz - inst.center_step.xyz;
+void sf_rcv(uint ii, vec3 pw, out float o[16]) {
+    vec3 q = (sf_inst[ii].world_to_local * vec4(pw, 1.0)).xyz - sf_inst[ii].center_step.xyz;
     float len = length(q);
-    uint nc = inst.info.y;
-    float step = inst.center_step.w;
+    uint nc = sf_inst[ii].info.y;
+    float step = sf_inst[ii].center_step.w;
     float x = len / step - 1.0;
     float loc[16];
     if (nc == 0u || !(x <= float(nc - 1u))) {
-        sf_light_analytic(inst, q, loc);
+        sf_light_analytic(ii, q, loc);
     } else if (!(len > 0.0)) {
         sf_zero(loc);
     } else {
@@ -225,17 +225,17 @@ void sf_rcv(SfInst inst, vec3 pw, out float o[16]) {
         float r0 = step * float(c0 + 1u), r1 = step * float(c1 + 1u);
         float inv = 1.0 / (len * len);
         sf_zero(loc);
-        sf_shells_lookup(inst, c0, c1, (1.0 - w) * r0 * r0 * inv, w * r1 * r1 * inv, w > 0.0, theta, phi, loc);
+        sf_shells_lookup(ii, c0, c1, (1.0 - w) * r0 * r0 * inv, w * r1 * r1 * inv, w > 0.0, theta, phi, loc);
     }
-    sf_rotate(inst, loc, o);
+    sf_rotate(ii, loc, o);
 }
 
 // Whether world point p lies inside the outermost shell of object j's field.
-bool sf_inside(SfInst inst, vec3 pw) {
-    uint nc = inst.info.y;
-    if (nc == 0u || inst.info.z == 0u) return false;
-    vec3 q = (inst.world_to_local * vec4(pw, 1.0)).xyz - inst.center_step.xyz;
-    return length(q) / inst.center_step.w - 1.0 <= float(nc - 1u);
+bool sf_inside(uint ii, vec3 pw) {
+    uint nc = sf_inst[ii].info.y;
+    if (nc == 0u || sf_inst[ii].info.z == 0u) return false;
+    vec3 q = (sf_inst[ii].world_to_local * vec4(pw, 1.0)).xyz - sf_inst[ii].center_step.xyz;
+    return length(q) / sf_inst[ii].center_step.w - 1.0 <= float(nc - 1u);
 }
 
 // Radiance (before the albedo) at world point p of receiver `self_inst` with world-frame
@@ -257,7 +257,7 @@ vec3 sf_shade_point(vec3 p, vec3 ng, uint self_inst, uint inst_count, uint light
     uint total = inst_count + light_count;
     for (uint j = 0u; j < total; j++) {
         if (j == self_inst) continue;
-        if (j < inst_count && !sf_inside(sf_inst[j], p)) continue;
+        if (j < inst_count && !sf_inside(j, p)) continue;
         float d = distance(p, sf_inst[j].center_world.xyz);
         if (n == uint(SF_MAX_ENT) && !(d < ds[n - 1u])) continue;
         uint k = min(n, uint(SF_MAX_ENT) - 1u);
@@ -275,7 +275,7 @@ vec3 sf_shade_point(vec3 p, vec3 ng, uint self_inst, uint inst_count, uint light
         uint j = ids[k];
         if (j < inst_count) {
             float o[16];
-            if (!sf_ocv(sf_inst[j], p, o)) continue;
+            if (!sf_ocv(j, p, o)) continue;
             sf_window(window, o);
             float h[16];
             sf_triple(o, u, tensor_count, h);
@@ -287,7 +287,7 @@ vec3 sf_shade_point(vec3 p, vec3 ng, uint self_inst, uint inst_count, uint light
         } else {
             if (ng != vec3(0.0) && dot(sf_inst[j].center_world.xyz - p, ng) <= 0.0) continue;
             float s[16];
-            sf_rcv(sf_inst[j], p, s);
+            sf_rcv(j, p, s);
             float dp = 0.0;
             for (int e = 0; e < 16; e++) dp += s[e] * u[e];
             // Attenuated by the medium on the light's way to p (as the reference).

@@ -28,7 +28,7 @@ void main() {
     float t[16];
     for (int e = 0; e < 16; e++) t[e] = pt.t[e];
     float u[16];
-    sf_rotate(sf_inst[self_inst], t, u);
+    sf_rotate(self_inst, t, u);
     float none[16];
     sf_zero(none);
     vec3 unused;
