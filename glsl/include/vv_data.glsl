@@ -198,9 +198,26 @@ int vv_tri_vertex(int t, int k) {
     return vv_int(pc.off1.y + 3 * t + k);
 }
 
-// Radiance (diffuse, eq. 9/12, plus specular, eq. 14-16, for a glossy material) with the visibility
-// of model vertex v synthesized at s (eq. 3).
-vec3 vv_eval_vertex(sampler2D sat, int v, vec3 s, vec3 n, MaterialData m) {
+// Interpolated axis of one triple (eq. 21, penumbra_math::vv::interpolate): the barycentric blend
+// of its three points' directions from s, normalized (n where they cancel).
+vec3 vv_triple_axis(int j, vec3 lambda, vec3 s, vec3 n) {
+    vec3 a = vec3(0.0);
+    for (int k = 0; k < 3; k++) {
+        vec4 q = vv_point(vv_int(pc.off1.x + 3 * j + k));
+        vec3 d = q.xyz - q.w * s;
+        float l = length(d);
+        if (l > 1e-12) a += lambda[k] * (d / l);
+    }
+    float al = length(a);
+    return al > 1e-12 ? a / al : n;
+}
+
+// Radiance (diffuse, eq. 9/12, plus specular, eq. 14-16, for a glossy material) with the
+// vectorized visibility of model vertex `id` synthesized at s (eq. 3; interp false), or with the
+// interpolated vectorized visibility of triangle `id` (eq. 21, interp true: each triple's
+// direction from vv_triple_axis). One body for both: every function is inlined, and lavapipe
+// compiles every inlined copy (two copies of this one made vv_shade.frag twice as slow to build).
+vec3 vv_eval(sampler2D sat, bool interp, int id, vec3 lambda, vec3 s, vec3 n, MaterialData m) {
     ivec2 size = pc.sat.xy;
     vec2 cs = cam.env_rot.xy;
     vec3 nn = vv_nudge(vv_to_map(n, cs), 0.0);
@@ -211,14 +228,29 @@ vec3 vv_eval_vertex(sampler2D sat, int v, vec3 s, vec3 n, MaterialData m) {
     bool glossy = vv_spec_begin(s, n, m, sp);
     VvLights L;
     vv_lights_begin(s, L);
-    int first = vv_int(pc.off0.y + 2 * v), count = vv_int(pc.off0.y + 2 * v + 1);
-    for (int k = first; k < first + count; k++) {
-        int p0 = vv_int(pc.off0.x + k), p1 = vv_int(pc.off0.x + k + 1);
+    // the loops: [r0, r1) into the loop offsets at `base` (each loop's points p0 ..= p1, the last
+    // one closing it)
+    int r0, r1, base;
+    if (interp) {
+        r0 = vv_int(pc.off0.z + id) & 0x7fffffff;
+        r1 = vv_int(pc.off0.z + id + 1) & 0x7fffffff;
+        base = pc.off0.w;
+    } else {
+        r0 = vv_int(pc.off0.y + 2 * id);
+        r1 = r0 + vv_int(pc.off0.y + 2 * id + 1);
+        base = pc.off0.x;
+    }
+    for (int k = r0; k < r1; k++) {
+        int p0 = vv_int(base + k), p1 = vv_int(base + k + 1);
         if (p1 - p0 < 2) continue;
-        // one call site per integration (every function is inlined)
+        // one call site per integration
         vec3 d0 = vec3(0.0), prev = vec3(0.0);
         for (int i = p0; i <= p1; i++) {
-            vec3 d = i == p1 ? d0 : vv_to_map(vv_synth(vv_point(i), s, n, n), cs);
+            vec3 d = d0;
+            if (i != p1) {
+                vec4 q = interp ? vec4(vv_triple_axis(i, lambda, s, n), 0.0) : vv_point(i);
+                d = vv_to_map(vv_synth(q, interp ? vec3(0.0) : s, n, n), cs);
+            }
             if (i == p0) d0 = d;
             else {
                 vv_arc(sat, size, pc.par.x, prev, d, acc);
@@ -232,65 +264,25 @@ vec3 vv_eval_vertex(sampler2D sat, int v, vec3 s, vec3 n, MaterialData m) {
     return vv_radiance(vv_finish(sat, size, nn, acc), s, n, m, glossy, glossy ? vv_spec_gamma(sat, nn, sp) : 1.0, L);
 }
 
-// Eq. 19: three syntheses, three evaluations, blended barycentrically.
-vec3 vv_eval_three(sampler2D sat, ivec3 vids, vec3 lambda, vec3 s, vec3 n, MaterialData m) {
-    vec3 c = vec3(0.0);
-    for (int k = 0; k < 3; k++) c += lambda[k] * vv_eval_vertex(sat, vids[k], s, n, m);
-    return c;
+// Eq. 3's synthesized visibility of model vertex v at s.
+vec3 vv_eval_vertex(sampler2D sat, int v, vec3 s, vec3 n, MaterialData m) {
+    return vv_eval(sat, false, v, vec3(0.0), s, n, m);
 }
 
 // Bit 31 of triangle t's first loop offset: its correspondence is unsound
-// (VvSettings::fallback) and the interpolated modes shade it by eq. 19. Callers choose between
-// vv_eval_three and vv_eval_interp (one copy of each in a shader: lavapipe compiles every
-// inlined copy).
+// (VvSettings::fallback) and the interpolated modes shade it by eq. 19.
 bool vv_tri_fallback(int t) {
     return vv_int(pc.off0.z + t) < 0;
 }
 
-// Interpolated direction of one triple (eq. 21, penumbra_math::vv::interpolate).
-vec3 vv_triple_dir(int j, vec3 lambda, vec3 s, vec3 n) {
-    vec3 a = vec3(0.0);
-    for (int k = 0; k < 3; k++) {
-        vec4 q = vv_point(vv_int(pc.off1.x + 3 * j + k));
-        vec3 d = q.xyz - q.w * s;
-        float l = length(d);
-        if (l > 1e-12) a += lambda[k] * (d / l);
-    }
-    float al = length(a);
-    return vv_synth(vec4(al > 1e-12 ? a / al : n, 0.0), vec3(0.0), n, n);
-}
-
-// Radiance with the interpolated vectorized visibility of triangle t (eq. 21), evaluated once
-// (diffuse and, for a glossy material, specular).
-vec3 vv_eval_interp(sampler2D sat, int t, vec3 lambda, vec3 s, vec3 n, MaterialData m) {
-    ivec2 size = pc.sat.xy;
-    vec2 cs = cam.env_rot.xy;
-    vec3 nn = vv_nudge(vv_to_map(n, cs), 0.0);
-    VvAcc acc;
-    vv_acc_init(acc);
-    vv_add_hemisphere(sat, size, pc.par.x, nn, pc.sat.z, acc);
-    VvSpec sp;
-    bool glossy = vv_spec_begin(s, n, m, sp);
-    VvLights L;
-    vv_lights_begin(s, L);
-    int l0 = vv_int(pc.off0.z + t) & 0x7fffffff, l1 = vv_int(pc.off0.z + t + 1) & 0x7fffffff;
-    for (int l = l0; l < l1; l++) {
-        int a0 = vv_int(pc.off0.w + l), a1 = vv_int(pc.off0.w + l + 1);
-        if (a1 - a0 < 2) continue;
-        vec3 d0 = vec3(0.0), prev = vec3(0.0);
-        for (int j = a0; j <= a1; j++) {
-            vec3 d = j == a1 ? d0 : vv_to_map(vv_triple_dir(j, lambda, s, n), cs);
-            if (j == a0) d0 = d;
-            else {
-                vv_arc(sat, size, pc.par.x, prev, d, acc);
-                vv_lights_arc(L, prev, d);
-            }
-            if (glossy && j < a1) vv_clip_push(sat, size, pc.par.x, sp.clip, d, sp.acc);
-            prev = d;
-        }
-        if (glossy) vv_clip_end(sat, size, pc.par.x, sp.clip, sp.acc);
-    }
-    return vv_radiance(vv_finish(sat, size, nn, acc), s, n, m, glossy, glossy ? vv_spec_gamma(sat, nn, sp) : 1.0, L);
+// A point of triangle t (vertices vids, barycentrics lambda; a fragment or a tessellated vertex): eq. 19 (three = true: three
+// syntheses, three evaluations, blended barycentrically) or eq. 21 (the interpolated vectorized
+// visibility of t evaluated once), through one call of vv_eval.
+vec3 vv_eval_on_triangle(sampler2D sat, bool three, int t, ivec3 vids, vec3 lambda, vec3 s, vec3 n, MaterialData m) {
+    int count = three ? 3 : 1;
+    vec3 c = vec3(0.0);
+    for (int k = 0; k < count; k++) c += (three ? lambda[k] : 1.0) * vv_eval(sat, !three, three ? vids[k] : t, lambda, s, n, m);
+    return c;
 }
 
 #endif

@@ -27,7 +27,7 @@ void main() {
     vec3 tt = dpdu * sg;
     tt -= n * dot(n, tt);
     vv_tangent = dot(tt, tt) >= 1e-20 ? normalize(tt) : brdf_frame(n, vec3(0.0))[0];
-    vec3 c = pc.sat.w == 0 || vv_tri_fallback(gl_PrimitiveID) ? vv_eval_three(vv_sat_tex, v_vids, lambda, v_world, n, m)
-                                                              : vv_eval_interp(vv_sat_tex, gl_PrimitiveID, lambda, v_world, n, m);
+    bool three = pc.sat.w == 0 || vv_tri_fallback(gl_PrimitiveID);
+    vec3 c = vv_eval_on_triangle(vv_sat_tex, three, gl_PrimitiveID, v_vids, lambda, v_world, n, m);
     o_color = vec4(c, 1.0);
 }

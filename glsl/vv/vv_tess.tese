@@ -24,10 +24,7 @@ void main() {
     // the material (texture maps) at the tessellated vertex (fragments interpolate the radiance)
     vec2 uv = l.x * c_uv[0] + l.y * c_uv[1] + l.z * c_uv[2];
     MaterialData m = vv_material(c_vid[0], uv);
-    if (pc.sat.w == 2 && !vv_tri_fallback(c_tri[0])) {
-        e_color = vv_eval_interp(vv_sat_tex, c_tri[0], l, s, n, m);
-    } else {
-        e_color = vv_eval_three(vv_sat_tex, ivec3(c_vid[0], c_vid[1], c_vid[2]), l, s, n, m);
-    }
+    bool three = pc.sat.w != 2 || vv_tri_fallback(c_tri[0]);
+    e_color = vv_eval_on_triangle(vv_sat_tex, three, c_tri[0], ivec3(c_vid[0], c_vid[1], c_vid[2]), l, s, n, m);
     gl_Position = cam.view_proj * vec4(s, 1.0);
 }
