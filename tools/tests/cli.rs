@@ -6,9 +6,10 @@ use std::process::{Command, Output};
 mod common;
 use common::{text, tmp};
 
-/// The binary under test: `PENUMBRA_BIN` when set (scripts/test.sh runs these tests again
-/// against the release build: release-only behaviour such as wrapping arithmetic), else the
-/// one cargo built for this test.
+/// The binary under test: `PENUMBRA_BIN` when set (to run these tests against another build,
+/// e.g. `PENUMBRA_BIN=$PWD/target/release/penumbra`), else the one cargo built for this test
+/// (what scripts/test.sh runs: the test profile keeps overflow checks on, so arithmetic that
+/// a release build would wrap on hostile inputs panics here and fails the test).
 fn penumbra(args: &[&str]) -> Output {
     let bin =
         std::env::var_os("PENUMBRA_BIN").map_or_else(|| PathBuf::from(env!("CARGO_BIN_EXE_penumbra")), PathBuf::from);
@@ -680,10 +681,10 @@ fn registered_techniques() -> Vec<String> {
         .collect()
 }
 
-/// The sweep's isg half (`loop_guard_sweep`). Costly: run in the release pass of
-/// `scripts/test.sh` (`--run-ignored`), ignored in plain `cargo test`.
+/// The sweep's isg half (`loop_guard_sweep`). Costly: run by `scripts/test.sh` after the other
+/// tests (`--run-ignored only`), ignored in plain `cargo test`.
 #[test]
-#[ignore = "about 2 minutes: scripts/test.sh runs it against the release binary"]
+#[ignore = "about 2 minutes: scripts/test.sh runs it after the other tests"]
 fn no_shader_reaches_the_loop_limit_unlisted_isg() {
     let (ran, t) = loop_guard_sweep("loop_guard_isg", LOOP_GUARD_ISG);
     for s in ["isg/isg_shade.comp", "isg/isg_vertex.comp", "isg/isg_shade_vertex.comp", "trace/kdtree_build.comp"] {
@@ -696,7 +697,7 @@ fn no_shader_reaches_the_loop_limit_unlisted_isg() {
 
 /// The sweep's other half: every registered technique but isg's two modes.
 #[test]
-#[ignore = "about 2 minutes: scripts/test.sh runs it against the release binary"]
+#[ignore = "about 2 minutes: scripts/test.sh runs it after the other tests"]
 fn no_shader_reaches_the_loop_limit_unlisted() {
     let all = registered_techniques();
     assert!(all.len() >= 10 && LOOP_GUARD_ISG.iter().all(|t| all.iter().any(|a| a == t)), "{all:?}");
