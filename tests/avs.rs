@@ -117,6 +117,13 @@ fn accuracy_against_the_reference() {
     for (what, x) in [("axis", &a), ("cells", &c), ("table", &tb), ("no shadows", &o)] {
         println!("exact ref / avs {what}: PSNR {:.2} dB, relRMSE {:.4}, FLIP {:.4}", psnr(x), x.rel_rmse, x.flip_mean);
     }
+    // each integration mode is its own pipeline (avs_shade.comp's AVS_MODE, a specialization
+    // constant set when the technique is created): a mode that did not reach the shader would
+    // draw the axis mode's image
+    for (f, n) in [(&cells[0], "cells"), (&table[0], "table")] {
+        let d = compare(&image(&avs[0]), "avs axis", &image(f), n).unwrap();
+        assert!(d.rel_rmse > 1e-6, "the {n} integration draws the axis image: relRMSE {}", d.rel_rmse);
+    }
     // Shadows from the sampled visibility must bring the image much closer to the reference
     // than no shadows, in both integration modes. Measured (80x60, t = 0.5, r = 64, 240 initial
     // points, 1 round, 32-spp exact reference): relRMSE 0.334 (axis) / 0.335 (cells) against

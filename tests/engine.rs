@@ -263,3 +263,27 @@ fn every_shader_of_the_build_reflects() {
     }
     assert!(n > 50, "{n} shaders");
 }
+
+/// Specialization constants of a compute pipeline (`passes::util::compute_pipeline_specialized`):
+/// none on an ordinary library gives no specialization info, the loop guard's ids and an id given
+/// twice are refused by name, and a specialized pipeline is created and runs (avs_shade.comp's
+/// `AVS_MODE`; tests/avs.rs checks that each mode draws its own image).
+#[test]
+fn specialization_constants_are_checked() {
+    use penumbra::engine::shader::Specialization;
+    let ctx = Context::new(&ContextDesc::default()).unwrap();
+    let lib = penumbra::shader_library();
+    let shader = "avs/avs_shade.comp";
+    assert!(Specialization::for_shader(&ctx, &lib, shader, &[]).unwrap().is_none());
+    let s = Specialization::for_shader(&ctx, &lib, shader, &[(0, 3)]).unwrap().expect("one constant");
+    let info = s.info();
+    assert_eq!((info.map_entry_count, info.data_size), (1, 4));
+    let reserved = penumbra::engine::glsl_compile::LOOP_GUARD_CONSTANT_IDS[0];
+    let e = Specialization::for_shader(&ctx, &lib, shader, &[(reserved, 1)]).err().expect("reserved id");
+    assert!(e.to_string().contains("loop guard") && e.to_string().contains(shader), "{e}");
+    let e = Specialization::for_shader(&ctx, &lib, shader, &[(0, 1), (0, 2)]).err().expect("twice");
+    assert!(e.to_string().contains("twice"), "{e}");
+    for mode in 0..4 {
+        penumbra::passes::util::compute_pipeline_specialized(&ctx, &lib, shader, 56, &[(0, mode)]).unwrap();
+    }
+}

@@ -150,6 +150,60 @@ impl LoopGuardSpec {
     }
 }
 
+/// The specialization constants of one compute stage: the caller's `(constant_id, value)` pairs
+/// (mode switches that would otherwise leave every mode's code in the pipeline: lavapipe compiles
+/// all of it at the first dispatch) and, from a loop-guarded library, the loop guard's
+/// ([`LoopGuardSpec`]).
+pub struct Specialization {
+    /// The values, 4 bytes each in the device's (the host's) byte order.
+    data: Vec<u8>,
+    entries: Vec<ash::vk::SpecializationMapEntry>,
+}
+
+impl Specialization {
+    /// `None` without constants on an ordinary library; an error where a constant takes one of
+    /// the loop guard's ids ([`crate::glsl_compile::LOOP_GUARD_CONSTANT_IDS`]), is given twice, or
+    /// where [`LoopGuardSpec::for_shader`] fails.
+    pub fn for_shader(
+        ctx: &crate::Context,
+        shaders: &ShaderLibrary,
+        name: &str,
+        constants: &[(u32, u32)],
+    ) -> Result<Option<Specialization>> {
+        let reserved = crate::glsl_compile::LOOP_GUARD_CONSTANT_IDS;
+        for (i, (id, _)) in constants.iter().enumerate() {
+            if reserved.contains(id) {
+                return Err(anyhow!("'{name}': specialization constant id {id} is the loop guard's ({reserved:?})"));
+            }
+            if constants[..i].iter().any(|(other, _)| other == id) {
+                return Err(anyhow!("'{name}': specialization constant id {id} given twice"));
+            }
+        }
+        let guard = LoopGuardSpec::for_shader(ctx, shaders, name)?;
+        if guard.is_none() && constants.is_empty() {
+            return Ok(None);
+        }
+        let mut values: Vec<u32> = constants.iter().map(|&(_, v)| v).collect();
+        let mut ids: Vec<u32> = constants.iter().map(|&(id, _)| id).collect();
+        if let Some(g) = &guard {
+            values.extend(g.data);
+            ids.extend(g.entries.iter().map(|e| e.constant_id));
+        }
+        let data = values.iter().flat_map(|v| v.to_ne_bytes()).collect();
+        let entries = ids
+            .iter()
+            .enumerate()
+            .map(|(i, &constant_id)| ash::vk::SpecializationMapEntry { constant_id, offset: 4 * i as u32, size: 4 })
+            .collect();
+        Ok(Some(Specialization { data, entries }))
+    }
+
+    /// The specialization info (borrows `self`).
+    pub fn info(&self) -> ash::vk::SpecializationInfo<'_> {
+        ash::vk::SpecializationInfo::default().map_entries(&self.entries).data(&self.data)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

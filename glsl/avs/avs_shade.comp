@@ -87,7 +87,7 @@ layout(push_constant) uniform Push {
     float alpha;
     float inv_scale;
     float radius;
-    uint mode;       // 0 lobe axis, 1 cells, 2 table, 3 adaptive cells
+    uint mode;       // 0 lobe axis, 1 cells, 2 table, 3 adaptive cells (AVS_MODE decides; the same value)
     uint flags;      // bit 0: no SSDF visibility (shadows off, or no sample points); bit 1: local lights' and key lights' shadows traced
     uint cells;      // cells per side (mode 1)
     uint specular_mode;  // 0: Gamma_L from the prefiltered maps, 1: from the lighting SGs, 2: ratio (env_shade.glsl's glossy term x the lobe's SSDF visibility)
@@ -152,15 +152,19 @@ float ssdf_virtual(uint k) {
 #define SSDF_TABLE(i) axis_table[(i)]
 #include "ssdf_integrate.glsl"
 
+// The integration mode (the push constant's `mode`), a specialization constant: the pipeline
+// holds one mode's code (lavapipe compiles all of a pipeline's code at its first dispatch).
+layout(constant_id = 0) const uint AVS_MODE = 0u;
+
 float phi_cdf(float x) { return 0.5 * (1.0 + sg_erf(x * 0.70710678)); }
 
 // Visible fraction of SG lobe g (its mass) over the interpolated visible region.
 float visible(SG g) {
     if (!shadows_on()) return 1.0;
     float lam = max(g.lambda, 1e-3);
-    if (pc.mode == 0u) return phi_cdf(ssdf_at(g.axis) * sqrt(lam));
-    if (pc.mode == 2u) return ssdf_table_lookup(lam, ssdf_at(g.axis));
-    if (pc.mode == 3u) {
+    if (AVS_MODE == 0u) return phi_cdf(ssdf_at(g.axis) * sqrt(lam));
+    if (AVS_MODE == 2u) return ssdf_table_lookup(lam, ssdf_at(g.axis));
+    if (AVS_MODE == 3u) {
         vec3 la = transpose(pix_frame) * normalize(g.axis);
         float hemi = sg_hemisphere_integral(sg_make(la, lam, 1.0), vec3(0.0, 0.0, 1.0));
         return hemi > 1e-20 ? clamp(ssdf_visible_cells(la, lam, 1.0, false, pc.r) / hemi, 0.0, 1.0) : 1.0;

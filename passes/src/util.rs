@@ -98,17 +98,31 @@ pub fn compute_pipeline(
     shader: &str,
     push_bytes: u32,
 ) -> Result<Pipeline> {
+    compute_pipeline_specialized(ctx, shaders, shader, push_bytes, &[])
+}
+
+/// [`compute_pipeline`] with specialization constants, `(constant_id, value)` pairs
+/// (`layout(constant_id = N) const uint ...` in the shader): a mode chosen when the technique is
+/// created, so that the pipeline holds that mode's code alone (lavapipe compiles all of a
+/// pipeline's code at its first dispatch; avs_shade.comp's `integration` modes).
+pub fn compute_pipeline_specialized(
+    ctx: &Arc<Context>,
+    shaders: &ShaderLibrary,
+    shader: &str,
+    push_bytes: u32,
+    constants: &[(u32, u32)],
+) -> Result<Pipeline> {
     let spirv = shaders.get(shader)?;
     let iface = penumbra_engine::reflect::pipeline_interface(&[(shader, spirv)], push_bytes)
         .with_context(|| format!("compute pipeline '{shader}'"))?;
     let (set, block) = (iface.set, iface.push_bytes);
     let (set_layout, layout) = layouts(ctx, shader, &set, vk::ShaderStageFlags::COMPUTE, push_bytes)?;
-    let guard = penumbra_engine::shader::LoopGuardSpec::for_shader(ctx, shaders, shader)?;
-    let guard_info = guard.as_ref().map(|g| g.info());
+    let spec = penumbra_engine::shader::Specialization::for_shader(ctx, shaders, shader, constants)?;
+    let spec_info = spec.as_ref().map(|g| g.info());
     let module = ctx.create_shader_module(shader, spirv)?;
     let mut stage =
         vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::COMPUTE).module(module).name(c"main");
-    if let Some(info) = guard_info.as_ref() {
+    if let Some(info) = spec_info.as_ref() {
         stage = stage.specialization_info(info);
     }
     let ci = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];

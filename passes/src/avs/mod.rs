@@ -71,6 +71,20 @@ use penumbra_math::avs_sampling::{self as samp, Grid, SurfacePoint, SH_COUNT};
 use penumbra_scene::{Frame, Scene};
 use std::sync::Arc;
 
+/// `layout(constant_id = 0) AVS_MODE` of avs_shade.comp: the integration mode.
+const AVS_MODE_CONSTANT_ID: u32 = 0;
+
+/// avs_shade.comp's mode number of an integration (its `AVS_MODE`; the push constant `mode`
+/// carries it too).
+fn integration_mode(i: Integration) -> u32 {
+    match i {
+        Integration::Axis => 0,
+        Integration::Cells => 1,
+        Integration::Table => 2,
+        Integration::Adf => 3,
+    }
+}
+
 /// Visibility integration over the SSDF-bounded visible region.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Integration {
@@ -851,7 +865,15 @@ impl AvsTechnique {
         }
         let vis = compute_pipeline(ctx, shaders, "avs/avs_vis.comp", 32)?;
         let sh = compute_pipeline(ctx, shaders, "avs/avs_sh.comp", 8)?;
-        let shade = compute_pipeline(ctx, shaders, "avs/avs_shade.comp", 56)?;
+        // the integration mode as a specialization constant: the pipeline holds one mode's code
+        // (all four made lavapipe compile avs_shade for 18 s instead of 11 at the first frame)
+        let shade = crate::util::compute_pipeline_specialized(
+            ctx,
+            shaders,
+            "avs/avs_shade.comp",
+            56,
+            &[(AVS_MODE_CONSTANT_ID, integration_mode(settings.integration))],
+        )?;
         let cull = compute_pipeline(ctx, shaders, "avs/avs_cull.comp", 16)?;
         // the environment's key lights split off (`key_lights`): the SG lobes, the irradiance and
         // the prefiltered maps are the rest of the map's (also with `shadows = false`, where the
@@ -1673,12 +1695,7 @@ impl crate::technique::Technique for AvsTechnique {
             if s.interp_alpha > 0.0 { (s.interp_alpha, 1.0 / shade_radius) } else { (s.alpha, 1.0 / pos_scale) };
         push.extend(bytes_of(&[wa, wscale, shade_radius]));
         push.extend(bytes_of(&[
-            match s.integration {
-                Integration::Axis => 0u32,
-                Integration::Cells => 1,
-                Integration::Table => 2,
-                Integration::Adf => 3,
-            },
+            integration_mode(s.integration),
             (!s.shadows || points.is_empty()) as u32 | ((s.shadows && s.traced_lights) as u32) << 1,
             s.cells.clamp(1, 16),
             if s.glossy_ratio { 2 } else { (!s.prefiltered) as u32 },
