@@ -866,7 +866,7 @@ impl AvsTechnique {
         let vis = compute_pipeline(ctx, shaders, "avs/avs_vis.comp", 32)?;
         let sh = compute_pipeline(ctx, shaders, "avs/avs_sh.comp", 8)?;
         // the integration mode as a specialization constant: the pipeline holds one mode's code
-        // (all four made lavapipe compile avs_shade for 18 s instead of 11 at the first frame)
+        // (with all four, lavapipe compiled avs_shade for 18 s at the first frame; axis alone 9 s)
         let shade = crate::util::compute_pipeline_specialized(
             ctx,
             shaders,
