@@ -284,6 +284,6 @@ fn specialization_constants_are_checked() {
     let e = Specialization::for_shader(&ctx, &lib, shader, &[(0, 1), (0, 2)]).err().expect("twice");
     assert!(e.to_string().contains("twice"), "{e}");
     for mode in 0..4 {
-        penumbra::passes::util::compute_pipeline_specialized(&ctx, &lib, shader, 56, &[(0, mode)]).unwrap();
+        penumbra::passes::util::compute_pipeline_specialized(&ctx, &lib, shader, 52, &[(0, mode)]).unwrap();
     }
 }

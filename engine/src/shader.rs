@@ -113,17 +113,17 @@ impl ShaderLibrary {
     }
 }
 
-/// The loop guard's specialization constants for one shader stage: the guard buffer's address and
-/// the shader's slot. Pipelines built from a loop-guarded library set them on every stage.
-pub struct LoopGuardSpec {
-    data: [u32; 3],
-    entries: [ash::vk::SpecializationMapEntry; 3],
+/// The loop guard's specialization constants for one shader stage, `(constant_id, value)`: the
+/// guard buffer's address (low and high words) and the shader's slot. Pipelines built from a
+/// loop-guarded library set them on every stage, through [`Specialization`].
+struct LoopGuardSpec {
+    constants: [(u32, u32); 3],
 }
 
 impl LoopGuardSpec {
     /// `None` for an ordinary library; an error when the library counts loops but the context
     /// has no guard buffer (`ContextDesc::loop_guard`).
-    pub fn for_shader(ctx: &crate::Context, shaders: &ShaderLibrary, name: &str) -> Result<Option<LoopGuardSpec>> {
+    fn for_shader(ctx: &crate::Context, shaders: &ShaderLibrary, name: &str) -> Result<Option<LoopGuardSpec>> {
         let Some(slot) = shaders.loop_guard_slot(name) else { return Ok(None) };
         let address = ctx.loop_guard_address().ok_or_else(|| {
             anyhow!("'{name}' counts its loops (a loop-guarded library) but the context has no loop guard buffer")
@@ -131,29 +131,15 @@ impl LoopGuardSpec {
         if slot as usize >= ctx.loop_guard_slots() {
             return Err(anyhow!("loop guard: '{name}' has slot {slot}, the buffer {}", ctx.loop_guard_slots()));
         }
-        let ids = crate::glsl_compile::LOOP_GUARD_CONSTANT_IDS;
-        let entry = |i: usize| ash::vk::SpecializationMapEntry { constant_id: ids[i], offset: 4 * i as u32, size: 4 };
-        Ok(Some(LoopGuardSpec {
-            data: [address as u32, (address >> 32) as u32, slot],
-            entries: [entry(0), entry(1), entry(2)],
-        }))
-    }
-
-    fn bytes(&self) -> &[u8] {
-        // [u32; 3] as its 12 bytes (u8 has no alignment, every bit pattern valid)
-        unsafe { std::slice::from_raw_parts(self.data.as_ptr() as *const u8, 12) }
-    }
-
-    /// The specialization info (borrows `self`).
-    pub fn info(&self) -> ash::vk::SpecializationInfo<'_> {
-        ash::vk::SpecializationInfo::default().map_entries(&self.entries).data(self.bytes())
+        let [lo, hi, sl] = crate::glsl_compile::LOOP_GUARD_CONSTANT_IDS;
+        Ok(Some(LoopGuardSpec { constants: [(lo, address as u32), (hi, (address >> 32) as u32), (sl, slot)] }))
     }
 }
 
-/// The specialization constants of one compute stage: the caller's `(constant_id, value)` pairs
+/// The specialization constants of one shader stage: the caller's `(constant_id, value)` pairs
 /// (mode switches that would otherwise leave every mode's code in the pipeline: lavapipe compiles
-/// all of it at the first dispatch) and, from a loop-guarded library, the loop guard's
-/// ([`LoopGuardSpec`]).
+/// all of it at the first dispatch) and, from a loop-guarded library, the loop guard's (the guard
+/// buffer's address and the shader's slot, ids [`crate::glsl_compile::LOOP_GUARD_CONSTANT_IDS`]).
 pub struct Specialization {
     /// The values, 4 bytes each in the device's (the host's) byte order.
     data: Vec<u8>,
@@ -163,7 +149,8 @@ pub struct Specialization {
 impl Specialization {
     /// `None` without constants on an ordinary library; an error where a constant takes one of
     /// the loop guard's ids ([`crate::glsl_compile::LOOP_GUARD_CONSTANT_IDS`]), is given twice, or
-    /// where [`LoopGuardSpec::for_shader`] fails.
+    /// where the library counts loops and the context has no guard buffer
+    /// (`ContextDesc::loop_guard`).
     pub fn for_shader(
         ctx: &crate::Context,
         shaders: &ShaderLibrary,
@@ -183,17 +170,16 @@ impl Specialization {
         if guard.is_none() && constants.is_empty() {
             return Ok(None);
         }
-        let mut values: Vec<u32> = constants.iter().map(|&(_, v)| v).collect();
-        let mut ids: Vec<u32> = constants.iter().map(|&(id, _)| id).collect();
-        if let Some(g) = &guard {
-            values.extend(g.data);
-            ids.extend(g.entries.iter().map(|e| e.constant_id));
-        }
-        let data = values.iter().flat_map(|v| v.to_ne_bytes()).collect();
-        let entries = ids
+        let all: Vec<(u32, u32)> = constants.iter().chain(guard.iter().flat_map(|g| &g.constants)).copied().collect();
+        let data = all.iter().flat_map(|(_, v)| v.to_ne_bytes()).collect();
+        let entries = all
             .iter()
             .enumerate()
-            .map(|(i, &constant_id)| ash::vk::SpecializationMapEntry { constant_id, offset: 4 * i as u32, size: 4 })
+            .map(|(i, &(constant_id, _))| ash::vk::SpecializationMapEntry {
+                constant_id,
+                offset: 4 * i as u32,
+                size: 4,
+            })
             .collect();
         Ok(Some(Specialization { data, entries }))
     }

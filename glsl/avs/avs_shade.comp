@@ -87,7 +87,6 @@ layout(push_constant) uniform Push {
     float alpha;
     float inv_scale;
     float radius;
-    uint mode;       // 0 lobe axis, 1 cells, 2 table, 3 adaptive cells (AVS_MODE decides; the same value)
     uint flags;      // bit 0: no SSDF visibility (shadows off, or no sample points); bit 1: local lights' and key lights' shadows traced
     uint cells;      // cells per side (mode 1)
     uint specular_mode;  // 0: Gamma_L from the prefiltered maps, 1: from the lighting SGs, 2: ratio (env_shade.glsl's glossy term x the lobe's SSDF visibility)
@@ -152,8 +151,9 @@ float ssdf_virtual(uint k) {
 #define SSDF_TABLE(i) axis_table[(i)]
 #include "ssdf_integrate.glsl"
 
-// The integration mode (the push constant's `mode`), a specialization constant: the pipeline
-// holds one mode's code (lavapipe compiles all of a pipeline's code at its first dispatch).
+// The integration mode, a specialization constant (0 lobe axis, 1 cells, 2 table, 3 adaptive
+// cells): the pipeline holds one mode's code (lavapipe compiles all of a pipeline's code at its
+// first dispatch).
 layout(constant_id = 0) const uint AVS_MODE = 0u;
 
 float phi_cdf(float x) { return 0.5 * (1.0 + sg_erf(x * 0.70710678)); }

@@ -275,9 +275,10 @@ bool vv_tri_fallback(int t) {
     return vv_int(pc.off0.z + t) < 0;
 }
 
-// A point of triangle t (vertices vids, barycentrics lambda; a fragment or a tessellated vertex): eq. 19 (three = true: three
-// syntheses, three evaluations, blended barycentrically) or eq. 21 (the interpolated vectorized
-// visibility of t evaluated once), through one call of vv_eval.
+// A point of triangle t (vertices vids, barycentrics lambda; a fragment or a tessellated
+// vertex): eq. 19 (three = true: three syntheses, three evaluations, blended barycentrically) or
+// eq. 21 (the interpolated vectorized visibility of t evaluated once), through one call of
+// vv_eval.
 vec3 vv_eval_on_triangle(sampler2D sat, bool three, int t, ivec3 vids, vec3 lambda, vec3 s, vec3 n, MaterialData m) {
     int count = three ? 3 : 1;
     vec3 c = vec3(0.0);

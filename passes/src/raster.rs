@@ -155,7 +155,7 @@ pub fn raster_pipeline(ctx: &Arc<Context>, shaders: &ShaderLibrary, desc: &Raste
     let guards = desc
         .shaders
         .iter()
-        .map(|s| penumbra_engine::shader::LoopGuardSpec::for_shader(ctx, shaders, s))
+        .map(|s| penumbra_engine::shader::Specialization::for_shader(ctx, shaders, s, &[]))
         .collect::<Result<Vec<_>>>();
     let result = match (err, guards) {
         (Some(e), _) | (None, Err(e)) => Err(e),
@@ -171,7 +171,7 @@ fn create(
     ctx: &Arc<Context>,
     desc: &RasterDesc,
     modules: &[vk::ShaderModule],
-    guards: &[Option<penumbra_engine::shader::LoopGuardSpec>],
+    guards: &[Option<penumbra_engine::shader::Specialization>],
     stage_flags: vk::ShaderStageFlags,
     set: penumbra_engine::reflect::SetLayout,
 ) -> Result<Pipeline> {

@@ -74,8 +74,7 @@ use std::sync::Arc;
 /// `layout(constant_id = 0) AVS_MODE` of avs_shade.comp: the integration mode.
 const AVS_MODE_CONSTANT_ID: u32 = 0;
 
-/// avs_shade.comp's mode number of an integration (its `AVS_MODE`; the push constant `mode`
-/// carries it too).
+/// avs_shade.comp's mode number of an integration (its `AVS_MODE`).
 fn integration_mode(i: Integration) -> u32 {
     match i {
         Integration::Axis => 0,
@@ -871,7 +870,7 @@ impl AvsTechnique {
             ctx,
             shaders,
             "avs/avs_shade.comp",
-            56,
+            52,
             &[(AVS_MODE_CONSTANT_ID, integration_mode(settings.integration))],
         )?;
         let cull = compute_pipeline(ctx, shaders, "avs/avs_cull.comp", 16)?;
@@ -1689,13 +1688,12 @@ impl crate::technique::Technique for AvsTechnique {
                 .map(|h| p.read(h, Access::ComputeShaderReadStorage));
         let pos_scale = samp::scene_scale(&pool.iter().map(|p| p.pos).collect::<Vec<_>>());
         let s = &self.settings;
-        let mut push: Vec<u8> = Vec::with_capacity(56);
+        let mut push: Vec<u8> = Vec::with_capacity(52);
         push.extend(bytes_of(&[scene.light_count, (self.lobes.len() / 2) as u32, r, s.neighbours.clamp(1, 8)]));
         let (wa, wscale) =
             if s.interp_alpha > 0.0 { (s.interp_alpha, 1.0 / shade_radius) } else { (s.alpha, 1.0 / pos_scale) };
         push.extend(bytes_of(&[wa, wscale, shade_radius]));
         push.extend(bytes_of(&[
-            integration_mode(s.integration),
             (!s.shadows || points.is_empty()) as u32 | ((s.shadows && s.traced_lights) as u32) << 1,
             s.cells.clamp(1, 16),
             if s.glossy_ratio { 2 } else { (!s.prefiltered) as u32 },
