@@ -19,8 +19,10 @@ struct SfShell {
 struct SfInst {
     mat4 world_to_local;  // object (light) frame of the field (inverse of the rigid world transform)
     vec4 center_step;     // xyz shell centre (object space), w shell radius step 0.2 Vr
-    uvec4 info;           // x first shell, y shell count (0 = no field), z casts shadow, w 1 = light
-    vec4 center_world;    // xyz world position of the shell centre (entity sort key)
+    uvec4 info;           // x first shell, y shell count (0 = no field), z casts shadow, w 1 = light,
+                          // 2 = light with a fixture (its field extrapolated beyond the last shell)
+    vec4 center_world;    // xyz world position of the shell centre (entity sort key), w added to the
+                          // sort distance (a light's fixture: at its light's position, just after it)
     vec4 light_a;         // lights: rgb power, w kind (0 point, 1 spot, 2 sphere)
     vec4 light_b;         // lights: x cos(inner), y cos(outer), z sphere radius
     vec4 medium;          // lights: xyz the medium's extinction sigma_t (0 without a medium)
@@ -202,7 +204,8 @@ void sf_light_analytic(uint ii, vec3 q, out float o[16]) {
 
 // Radiance coefficients (unit power, world frame) of light `ii` at world point pw: its source
 // radiance field inside the outermost shell (linear in r^2 RCV between shells), analytic
-// outside (ObjectField::rcv / LightFrame::rcv_world).
+// outside, or the outermost shell extrapolated for a light with a fixture (info.w == 2;
+// ObjectField::rcv_beyond / LightFrame::rcv_world).
 void sf_rcv(uint ii, vec3 pw, out float o[16]) {
     vec3 q = (sf_inst[ii].world_to_local * vec4(pw, 1.0)).xyz - sf_inst[ii].center_step.xyz;
     float len = length(q);
@@ -210,7 +213,7 @@ void sf_rcv(uint ii, vec3 pw, out float o[16]) {
     float step = sf_inst[ii].center_step.w;
     float x = len / step - 1.0;
     float loc[16];
-    if (nc == 0u || !(x <= float(nc - 1u))) {
+    if (nc == 0u || !(x <= float(nc - 1u)) && sf_inst[ii].info.w != 2u) {
         sf_light_analytic(ii, q, loc);
     } else if (!(len > 0.0)) {
         sf_zero(loc);
@@ -218,7 +221,7 @@ void sf_rcv(uint ii, vec3 pw, out float o[16]) {
         float theta = acos(clamp(q.z / len, -1.0, 1.0));
         float phi = atan(q.y, q.x);
         if (phi < 0.0) phi += 2.0 * SF_PI;
-        x = max(x, 0.0);
+        x = clamp(x, 0.0, float(nc - 1u));
         uint c0 = min(uint(floor(x)), nc - 1u);
         uint c1 = min(c0 + 1u, nc - 1u);
         float w = c1 == c0 ? 0.0 : x - float(c0);
@@ -258,7 +261,7 @@ vec3 sf_shade_point(vec3 p, vec3 ng, uint self_inst, uint inst_count, uint light
     for (uint j = 0u; j < total; j++) {
         if (j == self_inst) continue;
         if (j < inst_count && !sf_inside(j, p)) continue;
-        float d = distance(p, sf_inst[j].center_world.xyz);
+        float d = distance(p, sf_inst[j].center_world.xyz) + sf_inst[j].center_world.w;
         if (n == uint(SF_MAX_ENT) && !(d < ds[n - 1u])) continue;
         uint k = min(n, uint(SF_MAX_ENT) - 1u);
         while (k > 0u && ds[k - 1u] > d) {

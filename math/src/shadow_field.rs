@@ -466,9 +466,12 @@ impl RawField {
     }
 
     /// The adaptive source radiance field: as [`RawField::to_adaptive`] with the threshold
-    /// relative to each shell's largest mean radiance (`max_s c_0 Y_0`), since radiance has
-    /// units and falls off as `1/r^2` across shells (visibility is in `[0, 1]`). A shell
-    /// without radiance collapses to the minimum resolution.
+    /// relative to each shell's peak radiance (the largest value over the shell's samples and
+    /// directions of the radiance they reconstruct), since radiance has units and falls off as
+    /// `1/r^2` across shells: the peak plays the part of visibility's 1 in an OOF's threshold
+    /// (relative to the mean, `c_0 Y_0`, a small light's field, whose order-4 lobe peaks about
+    /// 16 times above its mean, would need 16 times an OOF's accuracy and keep every sample).
+    /// A shell without radiance collapses to the minimum resolution.
     pub fn to_adaptive_relative(&self, threshold: f64, min_resolution: usize) -> ObjectField {
         self.adapt(threshold, min_resolution, true)
     }
@@ -480,7 +483,17 @@ impl RawField {
             .shells
             .par_iter()
             .map(|g| {
-                let scale = if relative { g.iter().map(|v| v[0].abs() as f64 * Y0).fold(0.0, f64::max) } else { 1.0 };
+                let scale = if relative {
+                    g.iter()
+                        .map(|v| {
+                            table.dirs.iter().fold(0.0f64, |m, (_, _, y)| {
+                                m.max(v.iter().zip(y).map(|(a, b)| *a as f64 * b).sum::<f64>().abs())
+                            })
+                        })
+                        .fold(0.0, f64::max)
+                } else {
+                    1.0
+                };
                 // tiny absolute floor: a zero shell adapts all the way down
                 let (r, grid, err) =
                     adapt_shell(g, r0, threshold * scale + if relative { 1e-30 } else { 0.0 }, min_resolution, &table);
@@ -887,7 +900,15 @@ pub struct InstanceFrame<'a> {
     pub rot: [f64; ROT_FLOATS],
     /// World position of the field's shell centre (the entity sort key of [`shade_point`]).
     pub center_world: DVec3,
+    /// Added to the distance that sorts this occluder among the entities of [`shade_point`]:
+    /// a light's fixture sorts at its light's position plus [`FIXTURE_SORT_BIAS`], just after
+    /// its light, whose source radiance field holds the fixture's occlusion already (0 for
+    /// every other object).
+    pub sort_bias: f64,
 }
+
+/// [`InstanceFrame::sort_bias`] of a light's fixture (scene units).
+pub const FIXTURE_SORT_BIAS: f64 = 1e-4;
 
 impl<'a> InstanceFrame<'a> {
     /// From an instance world matrix (rigid, optionally uniformly scaled).
@@ -902,6 +923,7 @@ impl<'a> InstanceFrame<'a> {
             world_to_local,
             rot: rotation_blocks(DMat3::from_quat(q)),
             center_world: world.transform_point3(c),
+            sort_bias: 0.0,
         }
     }
 }
@@ -1037,12 +1059,86 @@ impl LightSource {
     }
 }
 
+/// Directions per sphere light's cap sampled by [`LightSource::rcv_through`] (8 rings of 16).
+pub const CAP_SAMPLES: usize = 128;
+
+impl LightSource {
+    /// [`LightSource::rcv`] through the light's fixture (a shade or housing, in the light frame):
+    /// a point or spot light's radiance is zero where the fixture lies between `p` and the
+    /// light; a sphere light's cap loses the projection of its occluded part, from
+    /// [`CAP_SAMPLES`] stratified directions uniform in solid angle over the cap (the closed
+    /// form stays exact where nothing is occluded). `None` is [`LightSource::rcv`].
+    pub fn rcv_through(&self, p: DVec3, fixture: Option<&RayCaster>) -> [f64; NCOEF] {
+        let mut out = self.rcv(p);
+        let Some(caster) = fixture else { return out };
+        let r = p.length();
+        if !(r > 0.0) || !r.is_finite() || out.iter().all(|&x| x == 0.0) {
+            return out;
+        }
+        let toward = -p / r;
+        match *self {
+            LightSource::Point | LightSource::Spot { .. } => {
+                if caster.occluded(p, toward, r * (1.0 - 1e-9)) {
+                    out = [0.0; NCOEF];
+                }
+            }
+            LightSource::Sphere { radius } => {
+                let t = (1.0 - (radius / r).powi(2)).max(0.0).sqrt();
+                let (b1, b2) = orthonormal_pair(toward);
+                let (rings, per) = (8, CAP_SAMPLES / 8);
+                let w = 2.0 * PI * (1.0 - t) / CAP_SAMPLES as f64;
+                let mut y = [0.0; NCOEF];
+                for a in 0..rings {
+                    for b in 0..per {
+                        // stratified: cos theta uniform in [t, 1], phi uniform, cell centres
+                        let u = (a as f64 + 0.5) / rings as f64;
+                        let ct = 1.0 - u * (1.0 - t);
+                        let st = (1.0 - ct * ct).max(0.0).sqrt();
+                        let ph = 2.0 * PI * (b as f64 + 0.5 + 0.25 * (a % 2) as f64) / per as f64;
+                        let d = toward * ct + (b1 * ph.cos() + b2 * ph.sin()) * st;
+                        // distance to the sphere's near surface along d
+                        let disc = radius * radius - r * r * st * st;
+                        let thit = r * ct - disc.max(0.0).sqrt();
+                        if caster.occluded(p, d, thit.max(0.0)) {
+                            eval_basis_into(ORDER, d, &mut y);
+                            for e in 0..NCOEF {
+                                out[e] -= w * y[e];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Two unit vectors completing `n` (unit) to an orthonormal basis.
+fn orthonormal_pair(n: DVec3) -> (DVec3, DVec3) {
+    let a = if n.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
+    let b1 = n.cross(a).normalize();
+    (b1, n.cross(b1))
+}
+
 /// Computes the source radiance field of `src` (unit power) on `params.shells` shells around
 /// the light whose outermost radius is `reach` (shell `c` at `reach (c + 1) / C`, i.e. the
 /// object convention `0.2 Vr (1 + c)` with `Vr = reach / (0.2 C)`), `R x R` samples each. No
 /// self-transfer. `progress(n)` as for [`precompute`].
 pub fn precompute_srf(
     src: LightSource,
+    reach: f64,
+    params: &Params,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<RawField, String> {
+    precompute_srf_through(src, None, reach, params, progress)
+}
+
+/// [`precompute_srf`] of a real emitter: the light seen through its `fixture` (a shade or
+/// housing as triangles in the light frame; [`LightSource::rcv_through`]), the paper's source
+/// radiance field of a light with its fixture. `rays` counts the fixture's shadow rays.
+pub fn precompute_srf_through(
+    src: LightSource,
+    fixture: Option<&RayCaster>,
     reach: f64,
     params: &Params,
     progress: &(dyn Fn(u64) + Sync),
@@ -1066,7 +1162,7 @@ pub fn precompute_srf(
                 .into_par_iter()
                 .map(|i| {
                     let (th, ph) = sample_angles(r, i / r, i % r);
-                    src.rcv(radius * polar_dir(th, ph)).map(|x| x as f32)
+                    src.rcv_through(radius * polar_dir(th, ph), fixture).map(|x| x as f32)
                 })
                 .collect();
             progress((r * r) as u64);
@@ -1080,7 +1176,11 @@ pub fn precompute_srf(
         shells,
         self_transfer: Vec::new(),
         seconds: start.elapsed().as_secs_f64(),
-        rays: 0,
+        rays: match (fixture, src) {
+            (None, _) => 0,
+            (Some(_), LightSource::Sphere { .. }) => (params.shells * r * r * CAP_SAMPLES) as u64,
+            (Some(_), _) => (params.shells * r * r) as u64,
+        },
     })
 }
 
@@ -1092,6 +1192,13 @@ impl ObjectField {
     /// two innermost shells); inside the innermost shell the innermost shell is scaled by
     /// `r_0^2 / r^2`.
     pub fn rcv(&self, p: DVec3) -> Option<[f64; NCOEF]> {
+        self.rcv_beyond(p, false)
+    }
+
+    /// [`ObjectField::rcv`], and with `extrapolate` beyond the outermost shell too: the
+    /// outermost shell scaled by `r_N^2 / r^2` (exact for a point or spot light seen through a
+    /// fixture inside the shells, whose shadow is a cone from the light).
+    pub fn rcv_beyond(&self, p: DVec3, extrapolate: bool) -> Option<[f64; NCOEF]> {
         let nc = self.shells.len();
         if nc == 0 || !(self.bound_radius > 0.0) {
             return None;
@@ -1100,14 +1207,14 @@ impl ObjectField {
         let len = q.length();
         let step = self.shell_step();
         let x = len / step - 1.0;
-        if !x.is_finite() || x > (nc - 1) as f64 {
+        if !x.is_finite() || x > (nc - 1) as f64 && !extrapolate {
             return None;
         }
         if !(len > 0.0) {
             return Some([0.0; NCOEF]);
         }
         let (theta, phi) = angles_of(q);
-        let xc = x.max(0.0);
+        let xc = x.clamp(0.0, (nc - 1) as f64);
         let c0 = (xc.floor() as usize).min(nc - 1);
         let c1 = (c0 + 1).min(nc - 1);
         let w = if c1 == c0 { 0.0 } else { xc - c0 as f64 };
@@ -1198,9 +1305,31 @@ pub struct LightFrame<'a> {
     pub position: DVec3,
     /// rgb power (colour times intensity).
     pub power: DVec3,
+    /// Beyond the field's outermost shell: the outermost shell extrapolated
+    /// ([`ObjectField::rcv_beyond`]; a light with a fixture) rather than the analytic radiance.
+    pub extrapolate: bool,
 }
 
 impl<'a> LightFrame<'a> {
+    /// A light whose frame (light to world, rigid) is `world`: a light with a fixture, whose
+    /// frame moves with the fixture's motion ([`LightFrame::new`] would turn it by the shortest
+    /// arc to its direction, which does not follow a spin about the direction). Its field, if
+    /// any, is extrapolated beyond the outermost shell.
+    pub fn with_world(field: Option<&'a ObjectField>, source: LightSource, world: glam::DMat4, power: DVec3) -> Self {
+        let (_, q, t) = world.to_scale_rotation_translation();
+        let q = if q.is_finite() { q.normalize() } else { glam::DQuat::IDENTITY };
+        let world = glam::DMat4::from_rotation_translation(q, t);
+        LightFrame {
+            field,
+            source,
+            world_to_local: world.inverse(),
+            rot: rotation_blocks(DMat3::from_quat(q)),
+            position: t,
+            power,
+            extrapolate: true,
+        }
+    }
+
     /// A light at `position`; a spot's `+z` is turned to `direction`.
     pub fn new(
         field: Option<&'a ObjectField>,
@@ -1220,6 +1349,7 @@ impl<'a> LightFrame<'a> {
             rot: rotation_blocks(DMat3::from_quat(q)),
             position,
             power,
+            extrapolate: false,
         }
     }
 
@@ -1227,7 +1357,8 @@ impl<'a> LightFrame<'a> {
     /// outermost shell, the analytic radiance outside.
     pub fn rcv_world(&self, p: DVec3) -> [f64; NCOEF] {
         let local = self.world_to_local.transform_point3(p);
-        let c = self.field.and_then(|f| f.rcv(local)).unwrap_or_else(|| self.source.rcv(local));
+        let c =
+            self.field.and_then(|f| f.rcv_beyond(local, self.extrapolate)).unwrap_or_else(|| self.source.rcv(local));
         rotate(&self.rot, &c)
     }
 }
@@ -1267,7 +1398,7 @@ pub fn shade_point(
         let Some(field) = inst.field else { continue };
         let local = inst.world_to_local.transform_point3(p.pos);
         let Some(o) = field.ocv(local) else { continue };
-        ents.push(((p.pos - inst.center_world).length(), j, o));
+        ents.push(((p.pos - inst.center_world).length() + inst.sort_bias, j, o));
     }
     for (i, l) in lights.iter().enumerate() {
         ents.push(((p.pos - l.position).length(), insts.len() + i, [0.0; NCOEF]));

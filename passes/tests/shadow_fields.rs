@@ -869,3 +869,66 @@ fn shadow_fields_haar_self_visibility_maps() {
     assert!(bi >= 10, "inner vertex sees the far side of the ring: {bi}");
     assert_eq!(bo, 0, "outer vertex sees its whole upper hemisphere");
 }
+
+/// A real emitter's source radiance field (`precompute_srf_through`): a point light under a
+/// square plate (the fixture, light frame) is dark above the plate and unchanged below and
+/// beside it; a sphere light half hidden by a half-plane keeps about half its projected
+/// radiance, exactly the closed form where nothing hides it; no fixture is `rcv` bit for bit;
+/// the field stores the shadow and extrapolates it beyond its outermost shell.
+#[test]
+fn srf_through_a_fixture_holds_its_shadow() {
+    // a plate 0.5 above the light, 0.6 wide (two triangles)
+    let plate =
+        [Vec3::new(-0.3, -0.3, 0.5), Vec3::new(0.3, -0.3, 0.5), Vec3::new(0.3, 0.3, 0.5), Vec3::new(-0.3, 0.3, 0.5)];
+    let caster = sf::RayCaster::new(&plate, &[0, 1, 2, 0, 2, 3]);
+    let pt = LightSource::Point;
+    for p in [DVec3::new(0.0, 0.0, 2.0), DVec3::new(0.2, -0.1, 1.5), DVec3::new(0.05, 0.0, 0.6)] {
+        assert!(pt.rcv_through(p, Some(&caster)).iter().all(|&x| x == 0.0), "{p} is under the plate's shadow");
+    }
+    for p in [DVec3::new(0.0, 0.0, -2.0), DVec3::new(2.0, 0.0, 1.0), DVec3::new(0.0, 0.0, 0.4)] {
+        assert_eq!(pt.rcv_through(p, Some(&caster)), pt.rcv(p), "{p} sees the light");
+    }
+    let sph = LightSource::Sphere { radius: 0.3 };
+    let p = DVec3::new(0.0, 0.0, -3.0);
+    assert_eq!(sph.rcv_through(p, None), sph.rcv(p));
+    assert_eq!(sph.rcv_through(p, Some(&caster)), sph.rcv(p), "the plate is behind the light");
+    // a half-plane x > 0 between p and the light hides half the cap
+    let big = 50.0;
+    let half =
+        [Vec3::new(0.0, -big, -1.5), Vec3::new(big, -big, -1.5), Vec3::new(big, big, -1.5), Vec3::new(0.0, big, -1.5)];
+    let hider = sf::RayCaster::new(&half, &[0, 1, 2, 0, 2, 3]);
+    let open = sph.rcv(p);
+    let hidden = sph.rcv_through(p, Some(&hider));
+    let share = hidden[0] / open[0];
+    assert!((share - 0.5).abs() < 0.02, "half the cap: {share}");
+    // the projected radiance leans towards -x (the visible half)
+    let at =
+        |c: &[f64; NCOEF], d: DVec3| -> f64 { c.iter().zip(eval_basis(4, d.normalize())).map(|(a, b)| a * b).sum() };
+    let (left, right) = (DVec3::new(-0.1, 0.0, 1.0), DVec3::new(0.1, 0.0, 1.0));
+    // (order 4 barely resolves a 6-degree cap: a few percent)
+    assert!(at(&hidden, left) > 1.02 * at(&hidden, right), "{} {}", at(&hidden, left), at(&hidden, right));
+    assert!((at(&open, left) - at(&open, right)).abs() < 1e-9);
+
+    // The field: 8 shells to reach 4, the plate in it; above the plate beyond the outermost
+    // shell the extrapolated field is still dark, the analytic light is not.
+    let raw = sf::precompute_srf_through(pt, Some(&caster), 4.0, &srf_params(), &|_| {}).unwrap();
+    assert_eq!(raw.rays, (8 * 32 * 32) as u64);
+    let f = raw.to_fixed();
+    let above = DVec3::new(0.0, 0.0, 3.0);
+    let below = DVec3::new(0.0, 0.0, -3.0);
+    assert!(f.rcv(above).unwrap()[0].abs() < 1e-3 * pt.rcv(above)[0]);
+    let b = f.rcv(below).unwrap()[0];
+    assert!((b / pt.rcv(below)[0] - 1.0).abs() < 0.02, "below: {b} vs {}", pt.rcv(below)[0]);
+    let far_above = DVec3::new(0.0, 0.0, 9.0);
+    assert!(f.rcv(far_above).is_none());
+    assert!(f.rcv_beyond(far_above, true).unwrap()[0].abs() < 1e-3 * pt.rcv(far_above)[0]);
+    let far_below = DVec3::new(0.0, 0.1, -9.0);
+    let fb = f.rcv_beyond(far_below, true).unwrap()[0];
+    assert!((fb / pt.rcv(far_below)[0] - 1.0).abs() < 0.02, "{fb} vs {}", pt.rcv(far_below)[0]);
+    // light frames: a fixture's light frame extrapolates its field
+    let world = DMat4::from_rotation_translation(glam::DQuat::from_rotation_y(0.3), DVec3::new(1.0, 2.0, 3.0));
+    let lf = LightFrame::with_world(Some(&f), pt, world, DVec3::ONE);
+    assert!(lf.extrapolate && (lf.position - DVec3::new(1.0, 2.0, 3.0)).length() < 1e-12);
+    let up_world = world.transform_point3(far_above);
+    assert!(lf.rcv_world(up_world)[0].abs() < 1e-6, "dark far above the plate, in world");
+}

@@ -42,7 +42,7 @@ fn shadow_fields_gpu_matches_cpu_and_is_validation_clean() {
         for t in [0.0f32, 1.3] {
             let frame = scene.at(t, None);
             let points = vertex_points(&scene, &frame, &fields, None);
-            let insts = instance_frames(&scene, &frame, &fields, adaptive);
+            let insts = instance_frames(&scene, &frame, &fields, adaptive, true);
             let cpu = cpu_shade_points(&points, &insts, &[], &tech.light, &tech.tensor, Window::None);
             let (gpu, ms) = gpu_shade_points(&mut engine, &tech, &frame, &points).unwrap();
             assert_eq!(gpu.len(), points.len());
@@ -140,7 +140,7 @@ fn shadow_fields_gpu_lights_and_window_match_cpu() {
     for window in [Window::None, Window::Hanning] {
         let mut tech = ShadowFieldsTechnique::with_fields(&ctx, &lib, &scene, fields.clone(), true).unwrap();
         tech.window = window;
-        let insts = instance_frames(&scene, &frame, &fields, true);
+        let insts = instance_frames(&scene, &frame, &fields, true, true);
         let lights = light_frames(&frame, &fields, true, true);
         let cpu = cpu_shade_points(&points, &insts, &lights, &tech.light, &tech.tensor, window);
         let (gpu, _) = gpu_shade_points(&mut engine, &tech, &frame, &points).unwrap();
@@ -178,6 +178,89 @@ fn shadow_fields_gpu_lights_and_window_match_cpu() {
         assert!(lit > points.len() / 10 && shadowed > points.len() / 50, "lit {lit}, shadowed {shadowed}");
         assert!(worst <= 1e-3 * peak + 1e-6, "GPU vs CPU {worst} (peak {peak})");
         assert!((num / den).sqrt() < 0.05, "SRF vs analytic relRMSE {}", (num / den).sqrt());
+    }
+    drop(engine);
+    assert_eq!(ctx.validation.error_count(), 0, "validation errors: {:#?}", ctx.validation.errors());
+}
+
+/// A real emitter (sf_pendant: a sphere light in a swinging lamp shade, its fixture): the GPU
+/// path agrees with the CPU path (the light's frame follows the shade, its field extrapolated
+/// beyond the last shell, the shade sorted after its light); the bulb's source radiance field
+/// lets its light out of the shade's opening and holds the shade's shadow elsewhere, which the
+/// shade's own occlusion field (order 4, ending at its outermost shell) does not.
+#[test]
+fn shadow_fields_srf_of_a_light_in_its_shade() {
+    let scene = Scene::load(root().join("scenes/sf_pendant.toml")).expect("scene");
+    let k = scene.lights[0].fixture.expect("the bulb has a fixture");
+    let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
+    let lib = shaders();
+    let fields = Arc::new(SceneFields::build(&scene, &small_options()).unwrap());
+    let r = &fields.light_reports[0];
+    println!(
+        "{}: {} rays, SRF R {:?}, fixed {} B, adaptive {} B",
+        r.mesh, r.rays, r.resolutions, r.fixed_bytes, r.adaptive_bytes
+    );
+    assert!(r.mesh.contains("'shade'") && r.rays > 0 && r.adaptive_bytes <= r.fixed_bytes);
+    let mut engine = Engine::new(ctx.clone(), 1).unwrap();
+    let window = Window::None;
+    for t in [0.0, 0.9] {
+        let frame = scene.at(t, None);
+        let points = vertex_points(&scene, &frame, &fields, Some(4.0 / 3.0));
+        let tech = ShadowFieldsTechnique::with_fields(&ctx, &lib, &scene, fields.clone(), true).unwrap();
+        let insts = instance_frames(&scene, &frame, &fields, true, true);
+        let lights = light_frames(&frame, &fields, true, true);
+        let cpu = cpu_shade_points(&points, &insts, &lights, &tech.light, &tech.tensor, window);
+        let (gpu, _) = gpu_shade_points(&mut engine, &tech, &frame, &points).unwrap();
+        let peak = cpu.iter().map(|c| c.0.max_element()).fold(0.0f64, f64::max);
+        let worst = cpu
+            .iter()
+            .zip(&gpu)
+            .flat_map(|(c, g)| (0..3).map(move |k| (c.0[k] - g[k] as f64).abs()))
+            .fold(0.0f64, f64::max);
+        assert!(worst <= 1e-3 * peak + 1e-6, "t = {t}: GPU vs CPU {worst} (peak {peak})");
+
+        // Points that see the bulb's centre past the shade (a ray against its triangles) get
+        // most of the open bulb's light, the others little of it.
+        let shade = &scene.meshes[scene.objects[k].mesh];
+        let w = frame.instances[k].world;
+        let tris: Vec<glam::Vec3> = shade.positions.iter().map(|p| w.transform_point3(*p)).collect();
+        let rays = penumbra_math::shadow_field::RayCaster::new(&tris, &shade.indices);
+        let bulb = frame.lights[0].position.as_dvec3();
+        let none = [[0.0; 3]; 16];
+        let plain = instance_frames(&scene, &frame, &fields, true, false);
+        let no_shade: Vec<InstanceFrame> = plain
+            .iter()
+            .enumerate()
+            .map(|(i, f)| if i == k { InstanceFrame { field: None, ..*f } } else { *f })
+            .collect();
+        let lit = |insts: &[InstanceFrame], srf: bool| {
+            cpu_shade_points(&points, insts, &light_frames(&frame, &fields, true, srf), &none, &tech.tensor, window)
+        };
+        let (srf, open, oof) = (lit(&insts, true), lit(&no_shade, false), lit(&plain, false));
+        let (mut seen, mut hidden) = ([0.0; 3], [0.0; 3]);
+        let (mut n_seen, mut n_hidden) = (0, 0);
+        for (i, p) in points.iter().enumerate() {
+            if p.inst == k || open[i].0.length() < 1e-4 {
+                continue;
+            }
+            let d = bulb - p.pos;
+            let behind = rays.occluded(p.pos, d.normalize(), d.length() * 0.999);
+            let (acc, n) = if behind { (&mut hidden, &mut n_hidden) } else { (&mut seen, &mut n_seen) };
+            acc[0] += srf[i].0.length();
+            acc[1] += open[i].0.length();
+            acc[2] += oof[i].0.length();
+            *n += 1;
+        }
+        println!(
+            "t = {t}: GPU vs CPU max abs {worst:.2e} (peak {peak:.3}); {n_seen} points see the bulb (SRF {:.3} of open, the shade's OOF {:.3}), {n_hidden} behind the shade ({:.3}, {:.3})",
+            seen[0] / seen[1],
+            seen[2] / seen[1],
+            hidden[0] / hidden[1],
+            hidden[2] / hidden[1]
+        );
+        assert!(n_seen > 20 && n_hidden > 20, "{n_seen} / {n_hidden} points");
+        assert!(seen[0] > 0.6 * seen[1], "the light out of the shade: {} of open", seen[0] / seen[1]);
+        assert!(hidden[0] < 0.25 * hidden[1], "the shade's shadow: {} of open", hidden[0] / hidden[1]);
     }
     drop(engine);
     assert_eq!(ctx.validation.error_count(), 0, "validation errors: {:#?}", ctx.validation.errors());

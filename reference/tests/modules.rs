@@ -252,6 +252,7 @@ mod converge {
             color: glam::Vec3::ONE,
             intensity: 1.0,
             motion: penumbra_scene::RigidMotion::Static,
+            fixture: None,
         });
         let (kg, ks) = (scene_cache_key(&glow, b"scene", &o), scene_cache_key(&sun, b"scene", &o));
         assert!(kg != cache_key(b"scene", &o) && ks != cache_key(b"scene", &o) && kg != ks);

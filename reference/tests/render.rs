@@ -290,6 +290,7 @@ fn light(kind: penumbra_scene::LightKind, position: Vec3, color: Vec3, intensity
         color,
         intensity,
         motion: penumbra_scene::RigidMotion::Static,
+        fixture: None,
     }
 }
 

@@ -13,7 +13,7 @@
 //! [[light]]                  # type = "point" | "spot" | "sphere" | "directional", position (not for
 //!                            # "directional"), direction, color, intensity (W/sr; directional: the
 //!                            # irradiance it gives a surface facing it), inner_deg, outer_deg,
-//!                            # radius, motion = {...}
+//!                            # radius, motion = {...}, fixture = "object name" (moves with it)
 //! [medium]                   # sigma_a, sigma_s, g (Henyey-Greenstein), volumetric = "temporal" | "full"
 //! [materials.NAME]           # type = "diffuse" | "blinn_phong" | "cook_torrance" | "ashikhmin_shirley",
 //!                            # albedo, specular, roughness, shininess, shininess_v, two_sided, emission (rgb radiance the eye sees),
@@ -172,6 +172,8 @@ struct LightSpec {
     outer_deg: Option<f32>,
     radius: Option<f32>,
     motion: Option<MotionSpec>,
+    /// Name of the object that is the light's fixture (moves with it).
+    fixture: Option<String>,
 }
 
 #[derive(Deserialize)]
@@ -603,7 +605,8 @@ pub fn parse_toml_with(
         scene.environment = Some(env);
     }
 
-    // Lights.
+    // Lights (fixtures are resolved after the objects).
+    let mut fixtures: Vec<(usize, String, std::ops::Range<usize>, bool)> = Vec::new();
     for (i, l) in file.light.iter().enumerate() {
         let span = l.span();
         let l = l.get_ref();
@@ -656,6 +659,12 @@ pub fn parse_toml_with(
             Some(m) => motion(&ctx, span.clone(), &what, m)?,
             None => RigidMotion::Static,
         };
+        if let Some(f) = &l.fixture {
+            if matches!(l.kind, LightType::Directional) {
+                return Err(ctx.err_at(span, format!("{what}: a directional light has no fixture")));
+            }
+            fixtures.push((scene.lights.len(), f.clone(), span.clone(), l.motion.is_some()));
+        }
         scene.lights.push(Light {
             name,
             kind,
@@ -664,6 +673,7 @@ pub fn parse_toml_with(
             color,
             intensity: l.intensity,
             motion,
+            fixture: None,
         });
     }
 
@@ -833,6 +843,36 @@ pub fn parse_toml_with(
                 info.source = Some(path.to_path_buf());
             }
         }
+    }
+    for (li, name, span, own_motion) in fixtures {
+        let what = format!("light '{}'", scene.lights[li].name);
+        let found: Vec<usize> = (0..scene.objects.len()).filter(|&k| scene.objects[k].name == name).collect();
+        let k = match found[..] {
+            [k] => k,
+            [] => {
+                let known: Vec<&str> = scene.objects.iter().map(|o| o.name.as_str()).collect();
+                return Err(ctx.err_at(span, format!("{what}: fixture '{name}' is no object (objects: {known:?})")));
+            }
+            _ => return Err(ctx.err_at(span, format!("{what}: fixture '{name}' names {} objects", found.len()))),
+        };
+        let info = &scene.object_info[k];
+        if !info.deformations.is_empty() || info.node.as_ref().is_some_and(|n| n.rig.node_animated(n.node)) {
+            return Err(ctx.err_at(
+                span,
+                format!("{what}: fixture '{name}' deforms or is animated by its file; a fixture must be rigid"),
+            ));
+        }
+        if own_motion && scene.lights[li].motion != info.motion {
+            return Err(ctx.err_at(
+                span,
+                format!(
+                    "{what}: its motion differs from its fixture '{name}''s (leave the light's `motion` out: it \
+                     moves with its fixture)"
+                ),
+            ));
+        }
+        scene.lights[li].motion = info.motion.clone();
+        scene.lights[li].fixture = Some(k);
     }
     scene.check_finite_motion().map_err(|m| SceneError::invalid(path, m))?;
     if scene.environment.is_none() && scene.lights.is_empty() {

@@ -1478,6 +1478,7 @@ pub fn instantiate(
             color: l.color,
             intensity: l.intensity,
             motion: crate::RigidMotion::Static,
+            fixture: None,
         });
     }
     Ok(first..scene.objects.len())

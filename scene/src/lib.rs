@@ -270,6 +270,12 @@ pub struct Light {
     pub color: Vec3,
     pub intensity: f32,
     pub motion: RigidMotion,
+    /// The light's fixture (a lamp shade, a housing): an index into [`Scene::objects`] of a
+    /// rigid object that moves with the light (same [`RigidMotion`]). The reference and every
+    /// technique see it as an ordinary object; `shadow-fields` precomputes it into the light's
+    /// source radiance field (the paper's SRF of a real emitter) instead of applying its
+    /// occlusion to its own light again.
+    pub fixture: Option<usize>,
 }
 
 /// A light evaluated at one time.

@@ -513,6 +513,51 @@ fn directional_lights_in_scene_files() {
     assert!(e.to_string().contains("directional light 'sun'") && e.to_string().contains("medium.toml"), "{e}");
 }
 
+/// A light's fixture (`fixture = "object"`): the light takes the object's motion (or must give
+/// the same), the name must be one object, rigid; a directional light has none.
+#[test]
+fn light_fixtures_in_scene_files() {
+    let dir = common::temp_dir("fixture");
+    let head = "[camera]\neye = [0, 1, 4]\ntarget = [0, 0, 0]\n[[object]]\nname = \"b\"\nmesh = { type = \"cube\", size = 1 }\n\
+                [[object]]\nname = \"shade\"\nmesh = { type = \"dish\", radius = 0.4, depth = 0.3 }\nposition = [0, 2, 0]\n\
+                motion = { type = \"oscillate\", amplitude = [0.5, 0, 0], period = 2.0 }\n";
+    let ok =
+        format!("{head}[[light]]\ntype = \"sphere\"\nposition = [0, 1.8, 0]\nintensity = 1\nfixture = \"shade\"\n");
+    std::fs::write(dir.join("ok.toml"), ok).unwrap();
+    let s = Scene::load(dir.join("ok.toml")).unwrap();
+    assert_eq!(s.lights[0].fixture, Some(1));
+    assert_eq!(s.lights[0].motion, s.object_info[1].motion, "the light moves with its fixture");
+    let (a, b) = (s.at(0.5, None), s.at(0.0, None));
+    let moved = a.lights[0].position - b.lights[0].position;
+    let obj_moved = a.instances[1].world.w_axis.truncate() - b.instances[1].world.w_axis.truncate();
+    assert!((moved - obj_moved).length() < 1e-5 && moved.length() > 0.1, "{moved} {obj_moved}");
+    for (name, body, needle) in [
+        ("unknown.toml", "type = \"point\"\nposition = [0, 1, 0]\nintensity = 1\nfixture = \"lamp\"\n", "fixture 'lamp' is no object"),
+        (
+            "moves.toml",
+            "type = \"point\"\nposition = [0, 1, 0]\nintensity = 1\nfixture = \"shade\"\nmotion = { type = \"spin\", axis = [0, 1, 0], speed_deg = 10 }\n",
+            "its motion differs from its fixture 'shade'",
+        ),
+        (
+            "sun.toml",
+            "type = \"directional\"\ndirection = [0, -1, 0]\nintensity = 1\nfixture = \"shade\"\n",
+            "a directional light has no fixture",
+        ),
+    ] {
+        std::fs::write(dir.join(name), format!("{head}[[light]]\n{body}")).unwrap();
+        let e = Scene::load(dir.join(name)).unwrap_err().to_string();
+        assert!(e.contains(name) && e.contains(needle), "{name}: {e}");
+    }
+    let bent = format!(
+        "{head}[[object]]\nname = \"wavy\"\nmesh = {{ type = \"plane\", size = 1, divisions = 4 }}\n\
+         deform = [{{ type = \"wave\", amplitude = 0.1, wavelength = 1, period = 1 }}]\n\
+         [[light]]\ntype = \"point\"\nposition = [0, 1, 0]\nintensity = 1\nfixture = \"wavy\"\n"
+    );
+    std::fs::write(dir.join("bent.toml"), bent).unwrap();
+    let e = Scene::load(dir.join("bent.toml")).unwrap_err().to_string();
+    assert!(e.contains("bent.toml") && e.contains("must be rigid"), "{e}");
+}
+
 /// Emission in scene files (`emission = [r, g, b]`) and glTF (factor x
 /// KHR_materials_emissive_strength, with an emissive texture as a map); negative or non-finite
 /// emission is an error.

@@ -89,8 +89,8 @@ pub fn bench(ctx: &Arc<Context>, shaders: &ShaderLibrary, scene: &Scene, opts: &
     let tech = ShadowFieldsTechnique::with_fields(ctx, shaders, scene, fields.clone(), true)?;
     let frame = scene.at(opts.time, None);
     let points = vertex_points(scene, &frame, &fields, opts.cull);
-    let ia = instance_frames(scene, &frame, &fields, true);
-    let ifx = instance_frames(scene, &frame, &fields, false);
+    let ia = instance_frames(scene, &frame, &fields, true, opts.sf.srf);
+    let ifx = instance_frames(scene, &frame, &fields, false, opts.sf.srf);
     let srf = opts.sf.srf;
     let la = light_frames(&frame, &fields, true, srf);
     let lfx = light_frames(&frame, &fields, false, srf);

@@ -35,7 +35,7 @@ pub mod wavelet;
 use crate::technique::TechniqueInputs;
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline, Sampler};
 use anyhow::{anyhow, Result};
-use glam::{DVec3, Mat3, Vec3};
+use glam::{DMat4, DVec3, Mat3, Vec3};
 use penumbra_engine::graph::ImageDesc;
 use penumbra_engine::shader::ShaderLibrary;
 use penumbra_engine::{vk, Access, Bind, BufferHandle, Context, FrameStore, Graph, ImageHandle, PassKind};
@@ -187,7 +187,31 @@ pub struct SceneFields {
     pub light_sources: Vec<LightSource>,
     /// Per scene light: sizes and per-shell resolutions (`mesh` is the light's name).
     pub light_reports: Vec<FieldReport>,
+    /// Per scene light with a fixture (`Light::fixture`): the fixture's object index and the
+    /// light's frame in the fixture's frame (the light frame at time t is the fixture
+    /// instance's world matrix times it). Its source radiance field holds the fixture's
+    /// occlusion.
+    pub light_fixtures: Vec<Option<(usize, DMat4)>>,
     pub options: SfOptions,
+}
+
+/// The frame of light `l` at rest (its declared position, `+z` along its declared direction)
+/// in the frame of its fixture, object `f` (`None` if `f` is out of range or the result is
+/// not finite): with it the fixture is sampled in the light's frame at precomputation and the
+/// light's frame follows the fixture's motion when rendering.
+pub fn fixture_light_frame(scene: &Scene, l: &penumbra_scene::Light, f: usize) -> Option<DMat4> {
+    if f >= scene.objects.len() {
+        return None;
+    }
+    let dir = l.direction.as_dvec3();
+    let dir = if dir.is_finite() && dir.length_squared() > 0.0 { dir.normalize() } else { DVec3::Z };
+    let light_rest =
+        DMat4::from_rotation_translation(glam::DQuat::from_rotation_arc(DVec3::Z, dir), l.position.as_dvec3());
+    // the object's base transform: its world at t = 0 without its motion at t = 0
+    let m0 = l.motion.eval(0.0).as_dmat4();
+    let base = m0.inverse() * scene.world_at(f, 0.0).as_dmat4();
+    let light_in_fixture = base.inverse() * light_rest;
+    light_in_fixture.is_finite().then_some(light_in_fixture)
 }
 
 /// The [`LightSource`] of a scene light kind (cone angles as the reference renderer).
@@ -344,31 +368,52 @@ impl SceneFields {
         let mut lights = Vec::new();
         let mut light_sources = Vec::new();
         let mut light_reports = Vec::new();
+        let mut light_fixtures = Vec::new();
         for (li, l) in scene.lights.iter().enumerate() {
             let src = light_source(&l.kind);
             let reach = srf_reach(scene, li);
-            let raw = sf::precompute_srf(src, reach, &options.params, &|_| {})
+            let fixture = l.fixture.and_then(|f| Some((f, fixture_light_frame(scene, l, f)?)));
+            let caster = fixture.map(|(f, light_in_fixture)| {
+                let mesh = &scene.meshes[scene.objects[f].mesh];
+                let to_light = light_in_fixture.inverse();
+                let pos: Vec<Vec3> =
+                    mesh.positions.iter().map(|p| to_light.transform_point3(p.as_dvec3()).as_vec3()).collect();
+                (sf::RayCaster::new(&pos, &mesh.indices), mesh.indices.len() / 3, f)
+            });
+            let raw = sf::precompute_srf_through(src, caster.as_ref().map(|c| &c.0), reach, &options.params, &|_| {})
                 .map_err(|e| anyhow!("light {li} '{}': {e}", l.name))?;
             let f = raw.to_fixed();
             let a = raw.to_adaptive_relative(options.params.threshold, options.params.min_resolution);
             light_reports.push(FieldReport {
-                mesh: format!("light '{}'", l.name),
+                mesh: match &caster {
+                    Some((_, _, f)) => format!("light '{}' in '{}'", l.name, scene.objects[*f].name),
+                    None => format!("light '{}'", l.name),
+                },
                 vertices: 0,
-                triangles: 0,
+                triangles: caster.as_ref().map_or(0, |c| c.1),
                 fixed_bytes: f.data_bytes(),
                 adaptive_bytes: a.data_bytes(),
                 fixed_file_bytes: f.file_bytes(),
                 adaptive_file_bytes: a.file_bytes(),
                 resolutions: a.resolutions(),
                 seconds: raw.seconds,
-                rays: 0,
+                rays: raw.rays,
                 cached: false,
                 shared_with: None,
             });
             lights.push((Arc::new(f), Arc::new(a)));
             light_sources.push(src);
+            light_fixtures.push(fixture);
         }
-        Ok(SceneFields { fields, reports, lights, light_sources, light_reports, options: options.clone() })
+        Ok(SceneFields {
+            fields,
+            reports,
+            lights,
+            light_sources,
+            light_reports,
+            light_fixtures,
+            options: options.clone(),
+        })
     }
 
     /// The source radiance field of light `li` (adaptive or fixed).
@@ -492,14 +537,16 @@ pub fn casts_flags(scene: &Scene) -> Vec<bool> {
     (0..scene.objects.len()).map(|i| scene.object_info.get(i).is_none_or(|o| o.casts_shadow)).collect()
 }
 
-/// Per-frame instance setup for the CPU path.
+/// Per-frame instance setup for the CPU path. With `srf` a light's fixture sorts just after
+/// its light ([`fixture_sort_keys`]).
 pub fn instance_frames<'a>(
     scene: &Scene,
     frame: &Frame,
     fields: &'a SceneFields,
     adaptive: bool,
+    srf: bool,
 ) -> Vec<InstanceFrame<'a>> {
-    frame
+    let mut out: Vec<InstanceFrame<'a>> = frame
         .instances
         .iter()
         .map(|inst| {
@@ -507,7 +554,45 @@ pub fn instance_frames<'a>(
             let field = if casts { fields.field(inst.mesh, adaptive) } else { None };
             InstanceFrame::new(field, inst.world.as_dmat4())
         })
+        .collect();
+    if srf {
+        for (k, pos) in fixture_sort_keys(frame, fields) {
+            if let Some(f) = out.get_mut(k) {
+                f.center_world = pos;
+                f.sort_bias = sf::FIXTURE_SORT_BIAS;
+            }
+        }
+    }
+    out
+}
+
+/// Instance index and sort position of every light fixture of the frame: its light's world
+/// position, so that with [`sf::FIXTURE_SORT_BIAS`] it comes just after its light among a
+/// point's entities (the light's source radiance field holds the fixture's occlusion already;
+/// lights further away are shadowed by it).
+pub fn fixture_sort_keys(frame: &Frame, fields: &SceneFields) -> Vec<(usize, DVec3)> {
+    frame
+        .lights
+        .iter()
+        .filter_map(|l| {
+            let (k, _) = fixture_world(frame, &fields.light_fixtures, l)?;
+            l.position.is_finite().then(|| (k, l.position.as_dvec3()))
+        })
         .collect()
+}
+
+/// For frame light `l` with a fixture ([`SceneFields::light_fixtures`]): the fixture's
+/// instance index and the light's frame (light to world): the fixture instance's world matrix
+/// times the light's frame in the fixture's frame.
+fn fixture_world(
+    frame: &Frame,
+    fixtures: &[Option<(usize, DMat4)>],
+    l: &penumbra_scene::LightInstance,
+) -> Option<(usize, DMat4)> {
+    let (f, light_in_fixture) = fixtures.get(l.light).copied().flatten()?;
+    let k = frame.instances.iter().position(|i| i.object == f)?;
+    let w = frame.instances[k].world.as_dmat4() * light_in_fixture;
+    w.is_finite().then_some((k, w))
 }
 
 /// Whether light `l` emits through its source-radiance-field instance: the reference can emit
@@ -533,7 +618,10 @@ pub fn light_frames<'a>(frame: &Frame, fields: &'a SceneFields, adaptive: bool, 
             let ok = field_emits(l);
             let power = if ok { l.power.max(Vec3::ZERO).as_dvec3() } else { DVec3::ZERO };
             let pos = if l.position.is_finite() { l.position.as_dvec3() } else { DVec3::ZERO };
-            LightFrame::new(field, src, pos, l.direction.as_dvec3(), power)
+            match fixture_world(frame, &fields.light_fixtures, l) {
+                Some((_, w)) => LightFrame::with_world(field, src, w, power),
+                None => LightFrame::new(field, src, pos, l.direction.as_dvec3(), power),
+            }
         })
         .collect()
 }
@@ -690,6 +778,8 @@ pub struct GpuTables {
     light_shells: Vec<(u32, u32)>,
     light_geom: Vec<(Vec3, f32)>,
     light_sources: Vec<LightSource>,
+    /// [`SceneFields::light_fixtures`].
+    light_fixtures: Vec<Option<(usize, DMat4)>>,
     /// The scene medium's extinction (zero without one): local light is attenuated by
     /// `exp(-sigma_t d)` on its way in, as the reference does.
     pub sigma_t: Vec3,
@@ -744,6 +834,7 @@ impl GpuTables {
             light_shells,
             light_geom,
             light_sources: fields.light_sources.clone(),
+            light_fixtures: fields.light_fixtures.clone(),
             sigma_t: Vec3::ZERO,
             tensor: bytes_of(&entries),
             tensor_count: entries.len() as u32,
@@ -779,7 +870,15 @@ impl GpuTables {
             let ok = field_emits(l);
             let power = if ok { l.power.max(Vec3::ZERO) } else { Vec3::ZERO };
             let pos = if l.position.is_finite() { l.position } else { Vec3::ZERO };
-            let lf = LightFrame::new(None, src, pos.as_dvec3(), l.direction.as_dvec3(), power.as_dvec3());
+            let fixture = fixture_world(frame, &self.light_fixtures, l);
+            let lf = match fixture {
+                Some((_, w)) => LightFrame::with_world(None, src, w, power.as_dvec3()),
+                None => LightFrame::new(None, src, pos.as_dvec3(), l.direction.as_dvec3(), power.as_dvec3()),
+            };
+            if let (Some((k, _)), true) = (fixture, srf) {
+                // the fixture sorts just after its light (shade_point's rule)
+                out[k].center_world = [pos.x, pos.y, pos.z, sf::FIXTURE_SORT_BIAS as f32];
+            }
             let (first, count) = if srf { self.light_shells.get(l.light).copied().unwrap_or((0, 0)) } else { (0, 0) };
             let (c, step) = self.light_geom.get(l.light).copied().unwrap_or((Vec3::ZERO, 1.0));
             let (kind, ci, co, rad) = match src {
@@ -790,7 +889,7 @@ impl GpuTables {
             out.push(GpuInst {
                 world_to_local: lf.world_to_local.as_mat4().to_cols_array_2d(),
                 center_step: [c.x, c.y, c.z, step],
-                info: [first, count, 1, 1],
+                info: [first, count, 1, if fixture.is_some() { 2 } else { 1 }],
                 center_world: [pos.x, pos.y, pos.z, 0.0],
                 light_a: [power.x, power.y, power.z, kind],
                 light_b: [ci, co, rad, 0.0],
