@@ -93,6 +93,33 @@ pub struct ContextDesc {
     /// `ShaderLibrary::with_loop_guard` count their loop iterations
     /// ([`Context::loop_guard_counts`]).
     pub loop_guard: bool,
+    /// The structure the compute ray tracer walks (`passes::kdtree::Structure`).
+    pub tracer: TracerStructure,
+}
+
+/// Which acceleration structure the compute ray tracer builds and walks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum TracerStructure {
+    /// The device decides: a host-built threaded BVH on a CPU device (lavapipe, where its walk
+    /// is 2-3x faster), the device-built kd-tree on a GPU.
+    #[default]
+    Auto,
+    /// The kd-tree built on the device.
+    KdTree,
+    /// The threaded BVH built on the host.
+    Bvh,
+}
+
+impl TracerStructure {
+    /// `auto`, `kdtree` or `bvh`.
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "auto" => Some(TracerStructure::Auto),
+            "kdtree" | "kd-tree" | "kd" => Some(TracerStructure::KdTree),
+            "bvh" => Some(TracerStructure::Bvh),
+            _ => None,
+        }
+    }
 }
 
 impl Default for ContextDesc {
@@ -104,6 +131,7 @@ impl Default for ContextDesc {
             device_name: None,
             swapchain: false,
             loop_guard: false,
+            tracer: TracerStructure::Auto,
         }
     }
 }
@@ -349,6 +377,9 @@ pub struct Context {
     pub max_image_dimension_2d: u32,
     /// `maxStorageBufferRange`: the most bytes one storage-buffer binding may span.
     pub max_storage_buffer_range: u32,
+    /// The structure the compute ray tracer builds and walks ([`ContextDesc::tracer`]; `Auto`
+    /// for a context made from an embedding application's device).
+    pub tracer: TracerStructure,
     /// The loop guard's buffer and its device address ([`ContextDesc::loop_guard`]).
     loop_guard: Option<(GpuBuffer, u64)>,
     /// The Vulkan pipeline cache every pipeline of penumbra is created with.
@@ -549,6 +580,8 @@ impl Context {
             },
             desc.pipeline_cache_dir.clone(),
         )?;
+        let mut ctx = ctx;
+        ctx.tracer = desc.tracer;
         Ok(Arc::new(ctx))
     }
 
@@ -700,6 +733,7 @@ impl Context {
             timeline_semaphore: features.timeline_semaphore,
             max_image_dimension_2d,
             max_storage_buffer_range,
+            tracer: TracerStructure::Auto,
             pipeline_cache,
             pipeline_cache_file,
             pipeline_cache_loaded: initial.len(),

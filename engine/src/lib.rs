@@ -16,7 +16,7 @@ pub mod shader;
 
 pub use ash;
 pub use ash::vk;
-pub use context::{Context, ContextDesc, ExternalFeatures, GpuBuffer, GpuImage, ValidationLog};
+pub use context::{Context, ContextDesc, ExternalFeatures, GpuBuffer, GpuImage, TracerStructure, ValidationLog};
 pub use exec::{
     Bind, CpuSpan, Engine, FrameOutput, FrameStore, FrameTimeline, GpuInterval, HostSignal, LateReadback, PhysBuffer,
     PhysImage, RecordContext, SubmitSync, DEFAULT_FENCE_TIMEOUT, POOL_KEEP_FRAMES,

@@ -10,10 +10,20 @@
 //
 // Node (uvec4): y < 3: interior, x = split (float bits), y = axis, z = left child (right = z + 1);
 //               y == 3: leaf, z = first ref, w = ref count; y == 4: pending (build only).
+// The same buffers may hold a threaded BVH instead (header word KD_HDR_STRUCTURE = 1, built on
+// the host: passes::kdtree::Structure::Bvh): node i is KD_NODE(2i) = (lo.xyz as float bits,
+// miss link: the next node after its subtree, 0xffffffff ends), KD_NODE(2i + 1) = (hi.xyz,
+// leaf info: 0 interior, whose first child is node i + 1, else count << 24 | first triangle),
+// and the leaves' triangles are copied in leaf order after the nodes (from KD_NODE(base), base
+// = header word KD_HDR_BVH_TRIS), 3 uvec4 each (v0, v1, v2 as float bits; v0.w the triangle's
+// index | 1 << 31 if it casts no shadow).
 #ifndef PENUMBRA_KDTREE_GLSL
 #define PENUMBRA_KDTREE_GLSL
 
 #define KD_HDR_BOX 8u
+#define KD_HDR_STRUCTURE 7u
+#define KD_HDR_BVH_TRIS 65u
+#define KD_BVH_END 0xffffffffu
 #define KD_LEAF 3u
 #define KD_PENDING 4u
 // Short stack (Horn et al. 2007) of 6 entries held in registers (a shift register: push moves
@@ -23,6 +33,8 @@
 #define KD_SHORT_STACK 6
 // Guard against pathological inputs (NaN rays): give up after this many leaf visits.
 #define KD_MAX_LEAVES 65536u
+// The BVH walk's guard: node visits per ray.
+#define KD_BVH_MAX_STEPS 1048576u
 
 struct KdHit {
     float t;     // < 0: no hit
@@ -86,6 +98,42 @@ bool kd_intersect(KdRayW r, vec3 o, vec3 p0, vec3 p1, vec3 p2, float tmin, float
 vec3 kd_box_lo() { return vec3(uintBitsToFloat(KD_HDR(KD_HDR_BOX)), uintBitsToFloat(KD_HDR(KD_HDR_BOX + 1u)), uintBitsToFloat(KD_HDR(KD_HDR_BOX + 2u))); }
 vec3 kd_box_hi() { return vec3(uintBitsToFloat(KD_HDR(KD_HDR_BOX + 3u)), uintBitsToFloat(KD_HDR(KD_HDR_BOX + 4u)), uintBitsToFloat(KD_HDR(KD_HDR_BOX + 5u))); }
 
+// The threaded BVH's walk of o + t d over [t_enter, t_exit] (inside the scene box): no stack,
+// each node's box tested once; any_hit stops at the first hit, closest-hit shrinks the range.
+KdHit kd_trace_bvh(KdRayW rw, vec3 o, vec3 d, float t_enter, float t_exit, float tmin, bool any_hit) {
+    KdHit h;
+    h.t = -1.0; h.b1 = 0.0; h.b2 = 0.0; h.tri = 0xffffffffu;
+    // a zero component's reciprocal made finite: its slab then spans the whole line or none
+    vec3 dd = mix(d, mix(vec3(-1e-30), vec3(1e-30), greaterThanEqual(d, vec3(0.0))), lessThan(abs(d), vec3(1e-30)));
+    vec3 inv = 1.0 / dd;
+    float best = t_exit;
+    uint node = 0u;
+    uint base = KD_HDR(KD_HDR_BVH_TRIS);
+    for (uint steps = 0u; node != KD_BVH_END && steps < KD_BVH_MAX_STEPS; steps++) {
+        uvec4 a = KD_NODE(2u * node), b = KD_NODE(2u * node + 1u);
+        vec3 t0 = (uintBitsToFloat(a.xyz) - o) * inv, t1 = (uintBitsToFloat(b.xyz) - o) * inv;
+        vec3 tn = min(t0, t1), tf = max(t0, t1);
+        float enter = max(max(tn.x, tn.y), max(tn.z, t_enter));
+        float exit = min(min(tf.x, tf.y), min(tf.z, best));
+        if (!(enter <= exit)) { node = a.w; continue; }
+        if (b.w == 0u) { node++; continue; }
+        uint first = b.w & 0xffffffu, cnt = b.w >> 24u;
+        for (uint j = 0u; j < cnt; j++) {
+            uint r = base + 3u * (first + j);
+            uvec4 q0 = KD_NODE(r);
+            uint ti = q0.w;
+            if (any_hit && ti >= 0x80000000u) continue; // casts no shadow
+            float t, b1, b2;
+            if (kd_intersect(rw, o, uintBitsToFloat(q0.xyz), uintBitsToFloat(KD_NODE(r + 1u).xyz), uintBitsToFloat(KD_NODE(r + 2u).xyz), tmin, best, t, b1, b2)) {
+                best = t; h.t = t; h.b1 = b1; h.b2 = b2; h.tri = ti & 0x7fffffffu;
+                if (any_hit) return h;
+            }
+        }
+        node = a.w;
+    }
+    return h;
+}
+
 // Traces o + t d for t in [tmin, tmax]. any_hit: stop at the first hit found (visibility).
 KdHit kd_trace(vec3 o, vec3 d, float tmin, float tmax, bool any_hit) {
     KdHit h;
@@ -106,6 +154,7 @@ KdHit kd_trace(vec3 o, vec3 d, float tmin, float tmax, bool any_hit) {
     }
     if (t_enter > t_exit) return h;
     KdRayW rw = kd_ray_setup(d);
+    if (KD_HDR(KD_HDR_STRUCTURE) == 1u) return kd_trace_bvh(rw, o, d, t_enter, t_exit, tmin, any_hit);
 
     // entry i: node s<i>n, interval s<i>t (tmin, tmax); s0 is the top
     uint s0n = 0u, s1n = 0u, s2n = 0u, s3n = 0u, s4n = 0u, s5n = 0u;

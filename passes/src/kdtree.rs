@@ -1,6 +1,11 @@
 //! kd-tree over the frame's world-space triangles, built on the GPU in compute passes
 //! (`glsl/trace/kdtree_init.comp`, `glsl/trace/kdtree_build.comp`), kept in persistent buffers and rebuilt only
-//! when geometry moved or deformed (static scenes build once).
+//! when geometry moved or deformed (static scenes build once). The same buffers can hold a
+//! threaded BVH built on the host instead ([`Structure::Bvh`], session 39: `obvhs`'s BVH2 laid
+//! out depth first with miss links, the default on a CPU device such as lavapipe, where its
+//! stackless walk runs 2-3x faster than the kd-tree's and its host build is faster than the
+//! device build); `kd_trace` in `glsl/include/kdtree.glsl` walks whichever the header names, so
+//! every technique traces either without a change.
 //!
 //! # Build (after Zhou, Hou, Wang and Guo 2008, with the differences listed)
 //! Breadth first, two compute dispatches per tree level, with no host read-back (every dispatch
@@ -43,7 +48,11 @@
 //! - `kdtree.header`: 128 u32 counters, then the large-node lists: 0 references allocated, 1 leaves, 2 references in leaves,
 //!   3 deepest leaf level, 4 overflow flags (1 references, 2 nodes), 5 empty leaves, 6 triangles,
 //!   8..14 scene box (f32 bits), 16+L nodes allocated on level L, 64+L first node of level L,
-//!   112/113 large-node list lengths (level parity), 114/115 list overflow flags; 128.. lists.
+//!   112/113 large-node list lengths (level parity), 114/115 list overflow flags; 128.. lists;
+//!   word 7 = 1: the buffers hold a threaded BVH instead: `nodes` has 2 uvec4 per node, then
+//!   the leaves' triangles copied in leaf order, 3 uvec4 each (from word 65's index on), `refs`
+//!   is unused, the header holds 1 leaves, 2 triangles in leaves, 3 depth, 6 triangles, the box
+//!   and 64 the node count.
 
 use crate::util::{bytes_of, compute_pipeline, groups, Pipeline};
 use anyhow::{anyhow, bail, Result};
@@ -59,6 +68,8 @@ use std::sync::Arc;
 pub const HEADER_WORDS: u64 = 128 + 2 * 4096;
 /// Words of the header holding the counters and statistics.
 pub const STATS_WORDS: u64 = 128;
+/// Header word saying which structure the buffers hold (0 kd-tree, 1 threaded BVH).
+const HDR_STRUCTURE: usize = 7;
 const MAX_LEVELS: u32 = 40;
 
 /// Build parameters.
@@ -77,6 +88,25 @@ pub struct KdTreeParams {
     pub nodes_per_triangle: u32,
     /// Reference capacity per triangle (plus 32768); all levels' lists live in it.
     pub refs_per_triangle: u32,
+    /// The structure the tracer walks ([`KdTreeBuilder::new`] takes the context's
+    /// `ContextDesc::tracer`; `auto` picks [`Structure::Bvh`] on a CPU device).
+    pub structure: Structure,
+}
+
+/// The acceleration structure behind the tracer; both live in the same four buffers and
+/// `kd_trace` (`glsl/include/kdtree.glsl`) walks either, told by the header's word 7.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Structure {
+    /// The kd-tree built on the device (module docs), the default on a GPU.
+    #[default]
+    KdTree,
+    /// A threaded BVH built on the host by `obvhs` (binned PLOC, leaves of up to 8 triangles)
+    /// and uploaded (session 39): on lavapipe its walk is 2-3x faster than the kd-tree's (no
+    /// stack: each node holds its box and a miss link, the next node in depth-first order when
+    /// the ray misses it or after its leaf), and the host build is faster than the device build
+    /// there; the default on a CPU device. Any-hit queries end at the first hit; closest-hit
+    /// ones walk the whole tree in a fixed order, shrinking `tmax`.
+    Bvh,
 }
 
 impl Default for KdTreeParams {
@@ -88,6 +118,7 @@ impl Default for KdTreeParams {
             small_max: 64,
             nodes_per_triangle: 12,
             refs_per_triangle: 96,
+            structure: Structure::KdTree,
         }
     }
 }
@@ -109,8 +140,11 @@ pub struct KdStats {
     pub overflow: u32,
     /// Bytes of the tree buffers (triangles, nodes, references, header) as allocated.
     pub bytes_allocated: u64,
-    /// Bytes in use: triangles + nodes x 16 + references allocated x 4 + header.
+    /// Bytes in use: triangles + nodes x 16 + references allocated x 4 + header (a BVH: nodes
+    /// x 32, its leaves' triangle copies x 48, its counters).
     pub bytes_used: u64,
+    /// Which structure the header describes.
+    pub structure: Structure,
 }
 
 /// Handles of the tree in one frame's graph (latest versions).
@@ -251,10 +285,28 @@ pub fn parse_stats(header: &[u8], allocated: u64) -> Option<KdStats> {
     }
     let w = |i: usize| u32::from_le_bytes(header[4 * i..4 * i + 4].try_into().unwrap());
     let triangles = w(6);
+    if w(HDR_STRUCTURE) == 1 {
+        // threaded BVH: 32 bytes per node, a 48-byte copy per leaf triangle
+        let (nodes, refs) = (w(64), w(2));
+        return Some(KdStats {
+            triangles,
+            nodes,
+            leaves: w(1),
+            empty_leaves: 0,
+            leaf_refs: refs,
+            depth: w(3),
+            refs_allocated: refs,
+            overflow: 0,
+            bytes_allocated: allocated,
+            bytes_used: triangles as u64 * 48 + nodes as u64 * 32 + refs as u64 * 48 + STATS_WORDS * 4,
+            structure: Structure::Bvh,
+        });
+    }
     // Dispatch L writes the first node of level L + 1: the largest such entry is the total.
     let nodes = (0..=MAX_LEVELS as usize).map(|l| w(64 + l)).max().unwrap_or(0);
     let refs_allocated = w(0);
     Some(KdStats {
+        structure: Structure::KdTree,
         triangles,
         nodes,
         leaves: w(1),
@@ -290,11 +342,24 @@ impl KdTreeBuilder {
         let init = compute_pipeline(ctx, shaders, "trace/kdtree_init.comp", 32)?;
         let build = compute_pipeline(ctx, shaders, "trace/kdtree_build.comp", 32)?;
         let small = compute_pipeline(ctx, shaders, "trace/kdtree_small.comp", 32)?;
+        let structure = match ctx.tracer {
+            penumbra_engine::TracerStructure::KdTree => Structure::KdTree,
+            penumbra_engine::TracerStructure::Bvh => Structure::Bvh,
+            penumbra_engine::TracerStructure::Auto => {
+                // SAFETY: the context's instance and physical device are alive.
+                let props = unsafe { ctx.instance.get_physical_device_properties(ctx.physical) };
+                if props.device_type == penumbra_engine::vk::PhysicalDeviceType::CPU {
+                    Structure::Bvh
+                } else {
+                    Structure::KdTree
+                }
+            }
+        };
         Ok(KdTreeBuilder {
             init,
             build,
             small,
-            params: KdTreeParams::default(),
+            params: KdTreeParams { structure, ..KdTreeParams::default() },
             built: None,
             last_levels: 0,
             last_bytes: 0,
@@ -466,6 +531,56 @@ impl KdTreeBuilder {
         let upload = graph.create_buffer_init("kdtree.upload", bytes_of(&data));
         let size = data.len() as u64 * 4;
         h.tris = crate::util::copy_buffer(graph, "kdtree_upload", upload, h.tris, Some(size)).1;
+        if self.params.structure == Structure::Bvh {
+            if n >= 1 << 24 {
+                bail!("threaded BVH: {n} triangles is more than its 24-bit leaf references hold");
+            }
+            let bvh = ThreadedBvh::build(tris, eps);
+            let mut header = vec![0u32; STATS_WORDS as usize];
+            header[1] = bvh.leaves;
+            header[2] = bvh.refs.len() as u32;
+            header[3] = bvh.depth;
+            header[6] = n;
+            header[HDR_STRUCTURE] = 1;
+            for a in 0..3 {
+                header[8 + a] = lo[a].to_bits();
+                header[11 + a] = hi[a].to_bits();
+            }
+            header[64] = bvh.nodes.len() as u32;
+            // the leaves' triangles copied in leaf order after the nodes, 3 uvec4 each (v0, v1, v2;
+            // v0.w the input index, bit 31 set when the triangle casts no shadow): no indirection
+            let base = 2 * bvh.nodes.len() as u32;
+            header[65] = base;
+            let mut nodes: Vec<[u32; 4]> =
+                bvh.nodes.iter().flat_map(|n| [[n[0], n[1], n[2], n[3]], [n[4], n[5], n[6], n[7]]]).collect();
+            for &k in &bvh.refs {
+                let t = &tris[k as usize];
+                let flag = if no_shadow.is_some_and(|f| f[k as usize]) { 1 << 31 } else { 0 };
+                nodes.push([t[0].x.to_bits(), t[0].y.to_bits(), t[0].z.to_bits(), k | flag]);
+                nodes.push([t[1].x.to_bits(), t[1].y.to_bits(), t[1].z.to_bits(), 0]);
+                nodes.push([t[2].x.to_bits(), t[2].y.to_bits(), t[2].z.to_bits(), 0]);
+            }
+            if nodes.is_empty() {
+                nodes.push([0; 4]);
+            }
+            if nodes.len() as u64 > max_nodes {
+                bail!("threaded BVH: {} node words exceed the node buffer's {max_nodes}", nodes.len());
+            }
+            for (name, data, dst) in [
+                ("kdtree_bvh_nodes", bytes_of(&nodes), &mut h.nodes),
+                ("kdtree_bvh_header", bytes_of(&header), &mut h.header),
+            ] {
+                let size = data.len() as u64;
+                let src = graph.create_buffer_init(&format!("{name}.upload"), data);
+                *dst = crate::util::copy_buffer(graph, name, src, *dst, Some(size)).1;
+            }
+            h.built_this_frame = true;
+            self.built = Some(n);
+            self.extent = extent;
+            self.last_levels = 0;
+            self.last_bytes = bytes;
+            return Ok(h);
+        }
 
         // ---- init: root, counters
         let boxes = graph.create_buffer("kdtree.boxes", max_nodes * 32);
@@ -609,5 +724,85 @@ pub fn bounds(tris: &[[Vec3; 3]]) -> (Vec3, Vec3) {
         (Vec3::ZERO, Vec3::ZERO)
     } else {
         (lo, hi)
+    }
+}
+
+/// A threaded BVH in the tracer's buffers ([`Structure::Bvh`]).
+struct ThreadedBvh {
+    /// 8 words per node (`glsl/include/kdtree.glsl`): lo.xyz (f32 bits), miss link (the next
+    /// node in depth-first order after this one's subtree; `u32::MAX` ends the walk), hi.xyz,
+    /// leaf info (0: interior, its first child follows it; else count << 24 | first reference).
+    nodes: Vec<[u32; 8]>,
+    /// Triangle indices of the leaves, in leaf order (their triangles are copied in this order
+    /// after the nodes).
+    refs: Vec<u32>,
+    leaves: u32,
+    depth: u32,
+}
+
+impl ThreadedBvh {
+    /// `obvhs`'s BVH2 of `tris` (medium build: binned PLOC with reinsertion, leaves of up to 8),
+    /// laid out depth first with the left child next to its parent; boxes grown by `pad`
+    /// against rounding in the slab test (a triangle on a box's face must not be missed).
+    fn build(tris: &[[Vec3; 3]], pad: f32) -> Self {
+        use obvhs::{bvh2::builder::build_bvh2_from_tris, triangle::Triangle, BvhBuildParams};
+        let a = |v: Vec3| obvhs_glam::Vec3A::new(v.x, v.y, v.z);
+        let otris: Vec<Triangle> = tris.iter().map(|t| Triangle { v0: a(t[0]), v1: a(t[1]), v2: a(t[2]) }).collect();
+        if otris.is_empty() {
+            return ThreadedBvh { nodes: Vec::new(), refs: Vec::new(), leaves: 0, depth: 0 };
+        }
+        let bvh = build_bvh2_from_tris(&otris, BvhBuildParams::medium_build(), &mut Default::default());
+        // depth-first order, left child first, with each node's depth
+        let mut order = Vec::with_capacity(bvh.nodes.len());
+        let mut stack = vec![(0usize, 0u32)];
+        let mut depth = 0;
+        while let Some((n, d)) = stack.pop() {
+            order.push(n);
+            depth = depth.max(d);
+            let nd = &bvh.nodes[n];
+            if nd.prim_count == 0 {
+                stack.push((nd.first_index as usize + 1, d + 1));
+                stack.push((nd.first_index as usize, d + 1));
+            }
+        }
+        let mut size = vec![1usize; bvh.nodes.len()];
+        for &n in order.iter().rev() {
+            let nd = &bvh.nodes[n];
+            if nd.prim_count == 0 {
+                size[n] = 1 + size[nd.first_index as usize] + size[nd.first_index as usize + 1];
+            }
+        }
+        let mut pos = vec![0usize; bvh.nodes.len()];
+        for (i, &n) in order.iter().enumerate() {
+            pos[n] = i;
+        }
+        let mut leaves = 0;
+        let nodes = order
+            .iter()
+            .map(|&n| {
+                let nd = &bvh.nodes[n];
+                let miss = pos[n] + size[n];
+                let miss = if miss >= order.len() { u32::MAX } else { miss as u32 };
+                let info = if nd.prim_count == 0 {
+                    0
+                } else {
+                    leaves += 1;
+                    (nd.prim_count.min(255) << 24) | nd.first_index
+                };
+                let lo = Vec3::new(nd.aabb.min.x, nd.aabb.min.y, nd.aabb.min.z) - Vec3::splat(pad);
+                let hi = Vec3::new(nd.aabb.max.x, nd.aabb.max.y, nd.aabb.max.z) + Vec3::splat(pad);
+                [
+                    lo.x.to_bits(),
+                    lo.y.to_bits(),
+                    lo.z.to_bits(),
+                    miss,
+                    hi.x.to_bits(),
+                    hi.y.to_bits(),
+                    hi.z.to_bits(),
+                    info,
+                ]
+            })
+            .collect();
+        ThreadedBvh { nodes, refs: bvh.primitive_indices.clone(), leaves, depth }
     }
 }

@@ -3,7 +3,7 @@
 //! [`bench_trace`] (kd-tree build time, memory, GPU rays/s vs `obvhs` on all CPU cores for
 //! coherent, incoherent and shadow rays).
 
-use crate::kdtree::{parse_stats, KdStats, KdTreeBuilder};
+use crate::kdtree::{parse_stats, KdStats, KdTreeBuilder, Structure};
 use crate::trace::{add_copy_to_readback, decode_hits, upload_rays, CpuBvh, Hit, Ray, TraceMode, Tracer, HIT_BYTES};
 use anyhow::{anyhow, Result};
 use glam::Vec3;
@@ -126,6 +126,8 @@ pub struct GpuTraceRun {
     pub stats: KdStats,
     pub hits: Vec<SetHits>,
     pub gpu_ms: Vec<(String, f64)>,
+    /// Host time to add the structure to the graph (a threaded BVH's build included), ms.
+    pub record_ms: f64,
 }
 
 /// Builds the tree of `tris` and traces every (any-hit rays, closest-hit rays) set, in one graph.
@@ -137,7 +139,9 @@ pub fn run_gpu(
     sets: &[(Vec<Ray>, Vec<Ray>)],
 ) -> Result<GpuTraceRun> {
     let mut g = Graph::new();
+    let t0 = Instant::now();
     let mut tree = builder.add_triangles(&mut penumbra_engine::FrameStore::new(engine), &mut g, tris, true)?;
+    let record_ms = t0.elapsed().as_secs_f64() * 1e3;
     let stats_rb = KdTreeBuilder::add_stats_readback(&mut g, &mut tree, "kdtree_stats");
     let _ = stats_rb;
     for (i, (any, closest)) in sets.iter().enumerate() {
@@ -165,7 +169,7 @@ pub fn run_gpu(
         };
         hits.push((get("any", any.len()), get("closest", closest.len())));
     }
-    Ok(GpuTraceRun { stats, hits, gpu_ms: out.gpu_ms })
+    Ok(GpuTraceRun { stats, hits, gpu_ms: out.gpu_ms, record_ms })
 }
 
 /// One line of the benchmark.
@@ -175,6 +179,8 @@ pub struct BenchRow {
     pub rays: usize,
     /// Million rays per second through the kd-tree (GPU pass time from timestamps).
     pub gpu_mrays: f64,
+    /// Million rays per second through the threaded BVH ([`Structure::Bvh`]) on the device.
+    pub bvh_mrays: f64,
     /// Million rays per second through `obvhs` on all CPU cores (rayon).
     pub cpu_mrays: f64,
 }
@@ -186,6 +192,13 @@ pub struct BenchReport {
     pub stats: KdStats,
     /// GPU time of the build passes (upload, init, levels), ms.
     pub build_ms: f64,
+    /// The threaded BVH: its statistics, its host build (and recording) time and the device
+    /// time of its upload, ms.
+    pub bvh_stats: KdStats,
+    pub bvh_build_ms: f64,
+    pub bvh_upload_ms: f64,
+    /// The structure the device's techniques trace (`KdTreeBuilder::new`'s choice).
+    pub default_structure: Structure,
     /// `obvhs` CWBVH build on the CPU, ms.
     pub cpu_build_ms: f64,
     pub rows: Vec<BenchRow>,
@@ -208,21 +221,35 @@ impl std::fmt::Display for BenchReport {
             s.bytes_allocated as f64 / 1e6,
             if s.overflow != 0 { " (storage overflow: some leaves are large)" } else { "" }
         )?;
-        writeln!(f, "obvhs CWBVH build (CPU): {:.2} ms", self.cpu_build_ms)?;
+        let b = &self.bvh_stats;
         writeln!(
             f,
-            "{:<32} {:>9} {:>12} {:>14} {:>8}",
-            "rays (visibility)", "count", "GPU Mrays/s", "obvhs Mrays/s", "ratio"
+            "threaded BVH: build {:.2} ms (host) + upload {:.2} ms (device), {} nodes, {} leaves, depth {}, {:.2} MB used",
+            self.bvh_build_ms,
+            self.bvh_upload_ms,
+            b.nodes,
+            b.leaves,
+            b.depth,
+            b.bytes_used as f64 / 1e6
+        )?;
+        writeln!(f, "obvhs CWBVH build (CPU): {:.2} ms", self.cpu_build_ms)?;
+        writeln!(f, "the device's techniques trace the {:?} (any-hit rays, Mrays/s):", self.default_structure)?;
+        writeln!(
+            f,
+            "{:<32} {:>9} {:>10} {:>10} {:>14} {:>9} {:>9}",
+            "rays (visibility)", "count", "kd-tree", "BVH", "obvhs (CPU)", "kd ratio", "BVH ratio"
         )?;
         for r in &self.rows {
             writeln!(
                 f,
-                "{:<32} {:>9} {:>12.3} {:>14.3} {:>8.2}",
+                "{:<32} {:>9} {:>10.3} {:>10.3} {:>14.3} {:>9.2} {:>9.2}",
                 r.name,
                 r.rays,
                 r.gpu_mrays,
+                r.bvh_mrays,
                 r.cpu_mrays,
-                r.gpu_mrays / r.cpu_mrays.max(1e-12)
+                r.gpu_mrays / r.cpu_mrays.max(1e-12),
+                r.bvh_mrays / r.cpu_mrays.max(1e-12)
             )?;
         }
         Ok(())
@@ -247,6 +274,10 @@ pub fn bench_trace(
     let mut engine = Engine::new(ctx.clone(), 1)?;
     engine.timestamps = true;
     let mut builder = KdTreeBuilder::new(ctx, shaders)?;
+    let default_structure = builder.params.structure;
+    builder.params.structure = Structure::KdTree;
+    let mut bvh_builder = KdTreeBuilder::new(ctx, shaders)?;
+    bvh_builder.params.structure = Structure::Bvh;
     let tracer = Tracer::new(ctx, shaders)?;
     let coherent = camera_rays(&frame.camera, w, h);
     let random = random_rays(&tris, incoherent, 7, true);
@@ -256,29 +287,45 @@ pub fn bench_trace(
     let (lo, hi) = crate::kdtree::bounds(&tris);
     let eps = crate::kdtree::ray_epsilon((hi - lo).max_element());
     let shadow = shadow_rays(&cpu, &tris, &coherent, Vec3::new(0.4, 1.0, 0.3), eps);
-    // Warm-up run (pipelines, allocations), then the measured one.
-    run_gpu(&mut engine, &mut builder, &tracer, &tris, &[(coherent.clone(), Vec::new())])?;
-    let run = run_gpu(
-        &mut engine,
-        &mut builder,
-        &tracer,
-        &tris,
-        &[(coherent.clone(), Vec::new()), (random.clone(), Vec::new()), (shadow.clone(), Vec::new())],
-    )?;
+    let sets = [(coherent.clone(), Vec::new()), (random.clone(), Vec::new()), (shadow.clone(), Vec::new())];
+    let trace_ms = |run: &GpuTraceRun| -> Result<Vec<f64>> {
+        let ms: Vec<f64> = run.gpu_ms.iter().filter(|(n, _)| n.starts_with("trace_any:")).map(|(_, ms)| *ms).collect();
+        if ms.len() != 3 {
+            return Err(anyhow!("missing trace timestamps ({:?})", run.gpu_ms));
+        }
+        Ok(ms)
+    };
+    // Per structure: a warm-up run (pipelines, allocations), then the best of three (as the
+    // CPU's below: the device shares the 2 cores' noise).
+    let mut measure = |builder: &mut KdTreeBuilder| -> Result<(GpuTraceRun, Vec<f64>)> {
+        run_gpu(&mut engine, builder, &tracer, &tris, &sets[..1])?;
+        let mut best: Option<(GpuTraceRun, Vec<f64>)> = None;
+        for _ in 0..3 {
+            let run = run_gpu(&mut engine, builder, &tracer, &tris, &sets)?;
+            let ms = trace_ms(&run)?;
+            best = Some(match best {
+                None => (run, ms),
+                Some((r, b)) => {
+                    let m = b.iter().zip(&ms).map(|(x, y)| x.min(*y)).collect();
+                    (r, m)
+                }
+            });
+        }
+        best.ok_or_else(|| anyhow!("no run"))
+    };
+    let (run, kd_ms) = measure(&mut builder)?;
+    let (bvh_run, bvh_ms) = measure(&mut bvh_builder)?;
     let build_ms: f64 = run.gpu_ms.iter().filter(|(n, _)| n.starts_with("kdtree_")).map(|(_, ms)| ms).sum();
-    let trace_ms: Vec<f64> =
-        run.gpu_ms.iter().filter(|(n, _)| n.starts_with("trace_any:")).map(|(_, ms)| *ms).collect();
-    if trace_ms.len() != 3 {
-        return Err(anyhow!("missing trace timestamps ({:?})", run.gpu_ms));
-    }
+    let bvh_upload_ms: f64 = bvh_run.gpu_ms.iter().filter(|(n, _)| n.starts_with("kdtree_")).map(|(_, ms)| ms).sum();
     let mut rows = Vec::new();
-    for ((name, rays), ms) in [
+    for (((name, rays), ms), bvh_ms) in [
         ("coherent (camera)", &coherent),
         ("incoherent (random)", &random),
         ("shadow (hit points to a light)", &shadow),
     ]
     .into_iter()
-    .zip(trace_ms)
+    .zip(kd_ms)
+    .zip(bvh_ms)
     {
         // Warm-up (thread pool, caches), then the best of three.
         let mut hits: usize = rays.par_iter().map(|r| cpu.occluded(r) as usize).sum();
@@ -293,8 +340,19 @@ pub fn bench_trace(
             name: name.to_string(),
             rays: rays.len(),
             gpu_mrays: rays.len() as f64 / (ms.max(1e-6) * 1e-3) / 1e6,
+            bvh_mrays: rays.len() as f64 / (bvh_ms.max(1e-6) * 1e-3) / 1e6,
             cpu_mrays: rays.len() as f64 / cpu_s.max(1e-9) / 1e6,
         });
     }
-    Ok(BenchReport { triangles: tris.len(), stats: run.stats, build_ms, cpu_build_ms, rows })
+    Ok(BenchReport {
+        triangles: tris.len(),
+        stats: run.stats,
+        build_ms,
+        bvh_stats: bvh_run.stats,
+        bvh_build_ms: bvh_run.record_ms,
+        bvh_upload_ms,
+        default_structure,
+        cpu_build_ms,
+        rows,
+    })
 }

@@ -1,12 +1,13 @@
-//! The GPU kd-tree tracer against an `obvhs` CPU BVH on the same rays (lavapipe): every built-in
-//! scene plus the bunny glTF, incoherent random rays, coherent camera rays and secondary rays off
-//! surfaces; any-hit agreement >= 99.99%, closest-hit distance within 1e-4 relative.
+//! The GPU tracer, through both structures (the device-built kd-tree and the host-built threaded
+//! BVH), against an `obvhs` CPU BVH on the same rays (lavapipe): every built-in scene plus the
+//! bunny glTF, incoherent random rays, coherent camera rays and secondary rays off surfaces;
+//! any-hit agreement >= 99.99%, closest-hit distance within 1e-4 relative.
 
 mod common;
 use common::{root, shaders};
 use glam::Vec3;
 use penumbra_engine::{Context, ContextDesc, Engine};
-use penumbra_passes::kdtree::{ray_epsilon, world_triangles, KdTreeBuilder};
+use penumbra_passes::kdtree::{ray_epsilon, world_triangles, KdTreeBuilder, Structure};
 use penumbra_passes::trace::{CpuBvh, Ray, Tracer};
 use penumbra_passes::trace_bench::{camera_rays, random_rays, run_gpu, surface_rays};
 use penumbra_scene::Scene;
@@ -37,10 +38,20 @@ struct Tally {
 
 #[test]
 fn kdtree_tracer_agrees_with_obvhs_on_every_scene() {
+    tracer_agrees_with_obvhs_on_every_scene(Structure::KdTree);
+}
+
+#[test]
+fn bvh_tracer_agrees_with_obvhs_on_every_scene() {
+    tracer_agrees_with_obvhs_on_every_scene(Structure::Bvh);
+}
+
+fn tracer_agrees_with_obvhs_on_every_scene(structure: Structure) {
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
     let lib = shaders();
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     let mut builder = KdTreeBuilder::new(&ctx, &lib).unwrap();
+    builder.params.structure = structure;
     let tracer = Tracer::new(&ctx, &lib).unwrap();
     let mut all = Tally::default();
     for path in scene_paths() {
@@ -67,6 +78,7 @@ fn kdtree_tracer_agrees_with_obvhs_on_every_scene() {
         ];
         let run = run_gpu(&mut engine, &mut builder, &tracer, &tris, &sets).unwrap();
         let s = run.stats;
+        assert_eq!(s.structure, structure);
         println!(
             "{name}: {} tris, {} nodes, {} leaves ({} empty), {} leaf refs ({:.2}/tri), depth {}, {:.2} MB used, {:.2} MB allocated, overflow {}",
             s.triangles,
@@ -81,7 +93,10 @@ fn kdtree_tracer_agrees_with_obvhs_on_every_scene() {
             s.overflow
         );
         let build_ms: f64 = run.gpu_ms.iter().filter(|(n, _)| n.starts_with("kdtree_")).map(|(_, ms)| ms).sum();
-        println!("{name}: build {build_ms:.1} ms on the device");
+        println!(
+            "{name}: build {build_ms:.1} ms on the device, {:.1} ms recording (a BVH: its host build)",
+            run.record_ms
+        );
         assert_eq!(s.triangles as usize, tris.len());
         assert!(s.leaves > 0 && s.nodes >= s.leaves && s.leaf_refs as usize >= tris.len(), "{name}: {s:?}");
         let mut t = Tally::default();
@@ -168,7 +183,11 @@ fn bench_trace_reports_build_and_ray_rates() {
     assert!(r.rows[2].name.starts_with("shadow") && r.rows[2].rays > 0, "{:?}", r.rows[2]);
     for row in &r.rows {
         assert!(row.gpu_mrays > 0.0 && row.cpu_mrays > 0.0 && row.gpu_mrays.is_finite(), "{row:?}");
+        assert!(row.bvh_mrays > 0.0 && row.bvh_mrays.is_finite(), "{row:?}");
     }
+    assert!(
+        r.bvh_stats.structure == Structure::Bvh && r.bvh_stats.leaves > 0 && r.bvh_stats.nodes >= r.bvh_stats.leaves
+    );
 }
 
 /// The bench table over every scene (slow; run with `--ignored`).
@@ -197,10 +216,14 @@ fn tree_rebuilds_only_when_geometry_changes() {
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
     let lib = shaders();
     let tracer = Tracer::new(&ctx, &lib).unwrap();
-    for (file, dynamic) in [("falling.toml", true), ("hat_on_cloth.toml", true), ("chess.toml", false)] {
+    for ((file, dynamic), structure) in [("falling.toml", true), ("hat_on_cloth.toml", true), ("chess.toml", false)]
+        .into_iter()
+        .flat_map(|c| [(c, Structure::KdTree), (c, Structure::Bvh)])
+    {
         let scene = Scene::load(root().join("scenes").join(file)).unwrap();
         let mut engine = Engine::new(ctx.clone(), 2).unwrap();
         let mut builder = KdTreeBuilder::new(&ctx, &lib).unwrap();
+        builder.params.structure = structure;
         let mut prev = None;
         for k in 0..3 {
             let t = 0.4 + k as f32 / 30.0;
@@ -209,10 +232,10 @@ fn tree_rebuilds_only_when_geometry_changes() {
             let mut g = Graph::new();
             let tree =
                 builder.add_frame(&mut penumbra_engine::FrameStore::new(&mut engine), &mut g, &scene, &frame).unwrap();
-            let built = g.passes().iter().any(|p| p.name.starts_with("kdtree_level"));
+            let built = g.passes().iter().any(|p| p.name == "kdtree_upload");
             assert_eq!(built, tree.built_this_frame);
             let expect = k == 0 || (dynamic && (frame.any_moved() || frame.any_deformed()));
-            assert_eq!(built, expect, "{file} frame {k}: built {built}");
+            assert_eq!(built, expect, "{file} {structure:?} frame {k}: built {built}");
             let tris = world_triangles(&scene, &frame).unwrap();
             let cpu = CpuBvh::new(&tris);
             let rays = camera_rays(&frame.camera, 32, 24);
@@ -230,7 +253,7 @@ fn tree_rebuilds_only_when_geometry_changes() {
                     _ => bad += 1,
                 }
             }
-            assert!(bad <= 1, "{file} frame {k}: {bad} of {} camera rays disagree", rays.len());
+            assert!(bad <= 1, "{file} {structure:?} frame {k}: {bad} of {} camera rays disagree", rays.len());
         }
         if dynamic {
             assert!(scene.at(0.5, Some(0.45)).any_moved() || scene.at(0.5, Some(0.45)).any_deformed());
@@ -246,8 +269,15 @@ fn degenerate_inputs_are_misses() {
     let ctx = Context::new(&ContextDesc::default()).expect("context");
     let lib = shaders();
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
-    let mut builder = KdTreeBuilder::new(&ctx, &lib).unwrap();
     let tracer = Tracer::new(&ctx, &lib).unwrap();
+    for structure in [Structure::KdTree, Structure::Bvh] {
+        let mut builder = KdTreeBuilder::new(&ctx, &lib).unwrap();
+        builder.params.structure = structure;
+        degenerate_inputs(&mut engine, &mut builder, &tracer);
+    }
+}
+
+fn degenerate_inputs(engine: &mut Engine, builder: &mut KdTreeBuilder, tracer: &Tracer) {
     let o = Vec3::new(0.0, 0.0, -5.0);
     let valid = Ray::new(o, Vec3::Z, 0.0, f32::MAX);
     let bad = vec![
@@ -260,12 +290,12 @@ fn degenerate_inputs_are_misses() {
         Ray::new(o, Vec3::Z, 0.0, 4.0),
     ];
     // empty scene
-    let run = run_gpu(&mut engine, &mut builder, &tracer, &[], &[(bad.clone(), bad.clone())]).unwrap();
+    let run = run_gpu(engine, builder, tracer, &[], &[(bad.clone(), bad.clone())]).unwrap();
     assert_eq!(run.stats.triangles, 0);
     assert!(run.hits[0].0.iter().chain(&run.hits[0].1).all(|h| h.is_none()), "{:?}", run.hits);
     // one triangle across the z = 0 plane
     let tri = [[Vec3::new(-1.0, -1.0, 0.0), Vec3::new(1.0, -1.0, 0.0), Vec3::new(0.0, 1.0, 0.0)]];
-    let run = run_gpu(&mut engine, &mut builder, &tracer, &tri, &[(bad.clone(), bad.clone())]).unwrap();
+    let run = run_gpu(engine, builder, tracer, &tri, &[(bad.clone(), bad.clone())]).unwrap();
     for (mode, hits) in [("any", &run.hits[0].0), ("closest", &run.hits[0].1)] {
         assert!(hits[0].is_some_and(|h| (h.t - 5.0).abs() < 1e-5), "{mode}: valid ray {:?}", hits[0]);
         assert!(hits[1..].iter().all(|h| h.is_none()), "{mode}: {hits:?}");

@@ -22,6 +22,10 @@ const LOOP_PROBE: &str = "tests/loop_probe.comp";
 
 #[derive(Args, Clone)]
 pub struct LoopGuardArgs {
+    /// The compute ray tracer's structure: `auto` (a host-built threaded BVH on a CPU device, the
+    /// device-built kd-tree on a GPU), `kdtree` or `bvh`.
+    #[arg(long, default_value = "auto", value_parser = crate::parse_tracer)]
+    pub tracer: penumbra::engine::TracerStructure,
     /// Comma-separated scene files (default: every built-in scene, as `bench matrix`).
     #[arg(long)]
     pub scenes: Option<String>,
@@ -134,7 +138,12 @@ pub fn run(args: &LoopGuardArgs) -> Result<()> {
     let started = Instant::now();
     let shaders = penumbra::shader_library().with_loop_guard()?;
     eprintln!("loop guard: shaders compiled with counted loops in {:.1} s", started.elapsed().as_secs_f64());
-    let ctx = Context::new(&ContextDesc { validation: args.validation, loop_guard: true, ..Default::default() })?;
+    let ctx = Context::new(&ContextDesc {
+        validation: args.validation,
+        loop_guard: true,
+        tracer: args.tracer,
+        ..Default::default()
+    })?;
     // the driver's own limit (loop_probe): where it truncates, the counts stop where it ended the
     // loops, so a listed cell cannot be judged stale
     let driver_limit = {

@@ -84,6 +84,10 @@ pub(crate) fn seed_reference(
 
 #[derive(Args, Clone)]
 pub struct MatrixArgs {
+    /// The compute ray tracer's structure: `auto` (a host-built threaded BVH on a CPU device, the
+    /// device-built kd-tree on a GPU), `kdtree` or `bvh`.
+    #[arg(long, default_value = "auto", value_parser = crate::parse_tracer)]
+    pub tracer: penumbra::engine::TracerStructure,
     /// Comma-separated scene files (.toml) or glTF models (.glb/.gltf). Default: every
     /// scenes/*.toml except example.toml, plus the models in scenes/assets/.
     #[arg(long)]
@@ -473,7 +477,7 @@ pub fn run(args: &MatrixArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let cache = args.cache.clone().unwrap_or_else(|| std::env::temp_dir().join("penumbra-references"));
     let seeds = checked_in_references();
-    let ctx = Context::new(&ContextDesc { validation: args.validation, ..Default::default() })?;
+    let ctx = Context::new(&ContextDesc { validation: args.validation, tracer: args.tracer, ..Default::default() })?;
     // (cell, first messages) of every cell with validation errors
     let mut invalid: Vec<(String, Vec<String>)> = Vec::new();
     let device = ctx.device_name.clone();

@@ -190,6 +190,7 @@ impl Measure {
             write_known: false,
             validation: false,
             params: Vec::new(),
+            tracer: Default::default(),
         }
     }
 }

@@ -581,6 +581,7 @@ impl State {
         let ctx = Context::new(&ContextDesc {
             validation: args.validate,
             device_name: args.o.device.clone(),
+            tracer: args.o.tracer,
             instance_extensions,
             swapchain: true,
             ..Default::default()

@@ -638,7 +638,7 @@ fn headless_browser_shows(page: &Path, passes: &[String]) {
 /// checked-in known list (the guard's validation is `tests/loop_guard.rs`'s). The full sweep,
 /// every built-in scene, is a README command (about 11 min here). Returns `loop_guard.json`'s shaders that ran
 /// and the output.
-fn loop_guard_sweep(name: &str, techniques: &[&str]) -> (Vec<serde_json::Value>, String) {
+fn loop_guard_sweep(name: &str, techniques: &[&str], tracer: &str) -> (Vec<serde_json::Value>, String) {
     let d = tmp(name);
     let scenes: Vec<String> = ["chess.toml", "god_rays.toml"]
         .iter()
@@ -655,6 +655,8 @@ fn loop_guard_sweep(name: &str, techniques: &[&str]) -> (Vec<serde_json::Value>,
         "32x24",
         "--frames",
         "2",
+        "--tracer",
+        tracer,
         "--out",
         d.to_str().unwrap(),
     ]);
@@ -681,12 +683,14 @@ fn registered_techniques() -> Vec<String> {
         .collect()
 }
 
-/// The sweep's isg half (`loop_guard_sweep`). Costly: run by `scripts/test.sh` after the other
-/// tests (`--run-ignored only`), ignored in plain `cargo test`.
+/// The sweep's isg half (`loop_guard_sweep`), with the device-built kd-tree (`--tracer kdtree`:
+/// its build's loops and its walk; the other half traces what lavapipe picks, the host-built
+/// BVH). Costly: run by `scripts/test.sh` after the other tests (`--run-ignored only`), ignored
+/// in plain `cargo test`.
 #[test]
 #[ignore = "about 2 minutes: scripts/test.sh runs it after the other tests"]
 fn no_shader_reaches_the_loop_limit_unlisted_isg() {
-    let (ran, t) = loop_guard_sweep("loop_guard_isg", LOOP_GUARD_ISG);
+    let (ran, t) = loop_guard_sweep("loop_guard_isg", LOOP_GUARD_ISG, "kdtree");
     for s in ["isg/isg_shade.comp", "isg/isg_vertex.comp", "isg/isg_shade_vertex.comp", "trace/kdtree_build.comp"] {
         assert!(ran.iter().any(|r| r["shader"] == s), "{s} did not run: {t}");
     }
@@ -702,7 +706,7 @@ fn no_shader_reaches_the_loop_limit_unlisted() {
     let all = registered_techniques();
     assert!(all.len() >= 10 && LOOP_GUARD_ISG.iter().all(|t| all.iter().any(|a| a == t)), "{all:?}");
     let rest: Vec<&str> = all.iter().map(String::as_str).filter(|t| !LOOP_GUARD_ISG.contains(t)).collect();
-    let (ran, t) = loop_guard_sweep("loop_guard", &rest);
+    let (ran, t) = loop_guard_sweep("loop_guard", &rest, "auto");
     // every family of shaders ran, loops counted
     for s in [
         "avs/avs_vis.comp",
@@ -712,7 +716,6 @@ fn no_shader_reaches_the_loop_limit_unlisted() {
         "shadow_fields/sf_shade.comp",
         "shadow_fields/sfw_shade.comp",
         "shadowmaps/shadowmaps_shade.comp",
-        "trace/kdtree_build.comp",
         "volumetric/vol_march.frag",
         "vv/vv_shade.frag",
     ] {
