@@ -13,7 +13,10 @@
 // The same buffers may hold a threaded BVH instead (header word KD_HDR_STRUCTURE = 1, built on
 // the host: passes::kdtree::Structure::Bvh): node i is KD_NODE(2i) = (lo.xyz as float bits,
 // miss link: the next node after its subtree, 0xffffffff ends), KD_NODE(2i + 1) = (hi.xyz,
-// leaf info: 0 interior, whose first child is node i + 1, else count << 24 | first triangle),
+// leaf info: 0 interior, whose first child is node i + 1, else count << 24 | first triangle);
+// header word KD_HDR_BVH_LAYOUTS = 6: six such trees one after the other, the same tree in six
+// depth-first orders (per axis and sign, the nearer child first), a ray walking the one of its
+// direction's largest component;
 // and the leaves' triangles are copied in leaf order after the nodes (from KD_NODE(base), base
 // = header word KD_HDR_BVH_TRIS), 3 uvec4 each (v0, v1, v2 as float bits; v0.w the triangle's
 // index | 1 << 31 if it casts no shadow).
@@ -23,6 +26,7 @@
 #define KD_HDR_BOX 8u
 #define KD_HDR_STRUCTURE 7u
 #define KD_HDR_BVH_TRIS 65u
+#define KD_HDR_BVH_LAYOUTS 66u
 #define KD_BVH_END 0xffffffffu
 #define KD_LEAF 3u
 #define KD_PENDING 4u
@@ -109,8 +113,13 @@ KdHit kd_trace_bvh(KdRayW rw, vec3 o, vec3 d, float t_enter, float t_exit, float
     float best = t_exit;
     uint node = 0u;
     uint base = KD_HDR(KD_HDR_BVH_TRIS);
+    // the order of the direction's largest component and its sign, when the buffer holds all 6
+    uint layouts = KD_HDR(KD_HDR_BVH_LAYOUTS);
+    vec3 ad = abs(d);
+    uint layout_k = ad.x >= ad.y && ad.x >= ad.z ? (d.x < 0.0 ? 1u : 0u) : (ad.y >= ad.z ? (d.y < 0.0 ? 3u : 2u) : (d.z < 0.0 ? 5u : 4u));
+    uint off = layouts == 6u ? layout_k * (base / 6u) : 0u;
     for (uint steps = 0u; node != KD_BVH_END && steps < KD_BVH_MAX_STEPS; steps++) {
-        uvec4 a = KD_NODE(2u * node), b = KD_NODE(2u * node + 1u);
+        uvec4 a = KD_NODE(off + 2u * node), b = KD_NODE(off + 2u * node + 1u);
         vec3 t0 = (uintBitsToFloat(a.xyz) - o) * inv, t1 = (uintBitsToFloat(b.xyz) - o) * inv;
         vec3 tn = min(t0, t1), tf = max(t0, t1);
         float enter = max(max(tn.x, tn.y), max(tn.z, t_enter));

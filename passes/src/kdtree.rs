@@ -145,6 +145,9 @@ pub struct KdStats {
     pub bytes_used: u64,
     /// Which structure the header describes.
     pub structure: Structure,
+    /// A threaded BVH's depth-first orders in the buffers (6, or 1 when the node buffer cannot
+    /// hold six); 0 for a kd-tree.
+    pub bvh_orders: u32,
 }
 
 /// Handles of the tree in one frame's graph (latest versions).
@@ -298,8 +301,12 @@ pub fn parse_stats(header: &[u8], allocated: u64) -> Option<KdStats> {
             refs_allocated: refs,
             overflow: 0,
             bytes_allocated: allocated,
-            bytes_used: triangles as u64 * 48 + nodes as u64 * 32 + refs as u64 * 48 + STATS_WORDS * 4,
+            bytes_used: triangles as u64 * 48
+                + nodes as u64 * 32 * w(66).max(1) as u64
+                + refs as u64 * 48
+                + STATS_WORDS * 4,
             structure: Structure::Bvh,
+            bvh_orders: w(66),
         });
     }
     // Dispatch L writes the first node of level L + 1: the largest such entry is the total.
@@ -307,6 +314,7 @@ pub fn parse_stats(header: &[u8], allocated: u64) -> Option<KdStats> {
     let refs_allocated = w(0);
     Some(KdStats {
         structure: Structure::KdTree,
+        bvh_orders: 0,
         triangles,
         nodes,
         leaves: w(1),
@@ -546,7 +554,12 @@ impl KdTreeBuilder {
                 header[8 + a] = lo[a].to_bits();
                 header[11 + a] = hi[a].to_bits();
             }
-            header[64] = bvh.nodes.len() as u32;
+            let per_layout = bvh.nodes.len() / BVH_LAYOUTS;
+            header[64] = per_layout as u32;
+            // the orders fit the node buffer (leaves of ~2-8 triangles), else the first alone
+            let layouts = if (2 * bvh.nodes.len() + 3 * bvh.refs.len()) as u64 <= max_nodes { BVH_LAYOUTS } else { 1 };
+            header[66] = layouts as u32;
+            let bvh = ThreadedBvh { nodes: bvh.nodes[..per_layout * layouts].to_vec(), ..bvh };
             // the leaves' triangles copied in leaf order after the nodes, 3 uvec4 each (v0, v1, v2;
             // v0.w the input index, bit 31 set when the triangle casts no shadow): no indirection
             let base = 2 * bvh.nodes.len() as u32;
@@ -727,11 +740,17 @@ pub fn bounds(tris: &[[Vec3; 3]]) -> (Vec3, Vec3) {
     }
 }
 
+/// Depth-first orders of the threaded BVH: per axis (x, y, z) and direction sign, the child
+/// whose box centre lies nearer along it first; a ray walks the order of its direction's
+/// largest component (a closest hit is found, and `tmax` shrinks, sooner).
+const BVH_LAYOUTS: usize = 6;
+
 /// A threaded BVH in the tracer's buffers ([`Structure::Bvh`]).
 struct ThreadedBvh {
     /// 8 words per node (`glsl/include/kdtree.glsl`): lo.xyz (f32 bits), miss link (the next
     /// node in depth-first order after this one's subtree; `u32::MAX` ends the walk), hi.xyz,
-    /// leaf info (0: interior, its first child follows it; else count << 24 | first reference).
+    /// leaf info (0: interior, its first child follows it; else count << 24 | first reference);
+    /// [`BVH_LAYOUTS`] copies of the tree, one per depth-first order.
     nodes: Vec<[u32; 8]>,
     /// Triangle indices of the leaves, in leaf order (their triangles are copied in this order
     /// after the nodes).
@@ -752,57 +771,73 @@ impl ThreadedBvh {
             return ThreadedBvh { nodes: Vec::new(), refs: Vec::new(), leaves: 0, depth: 0 };
         }
         let bvh = build_bvh2_from_tris(&otris, BvhBuildParams::medium_build(), &mut Default::default());
-        // depth-first order, left child first, with each node's depth
-        let mut order = Vec::with_capacity(bvh.nodes.len());
-        let mut stack = vec![(0usize, 0u32)];
-        let mut depth = 0;
-        while let Some((n, d)) = stack.pop() {
-            order.push(n);
-            depth = depth.max(d);
-            let nd = &bvh.nodes[n];
-            if nd.prim_count == 0 {
-                stack.push((nd.first_index as usize + 1, d + 1));
-                stack.push((nd.first_index as usize, d + 1));
-            }
-        }
-        let mut size = vec![1usize; bvh.nodes.len()];
-        for &n in order.iter().rev() {
-            let nd = &bvh.nodes[n];
-            if nd.prim_count == 0 {
-                size[n] = 1 + size[nd.first_index as usize] + size[nd.first_index as usize + 1];
-            }
-        }
-        let mut pos = vec![0usize; bvh.nodes.len()];
-        for (i, &n) in order.iter().enumerate() {
-            pos[n] = i;
-        }
-        let mut leaves = 0;
-        let nodes = order
-            .iter()
-            .map(|&n| {
-                let nd = &bvh.nodes[n];
-                let miss = pos[n] + size[n];
-                let miss = if miss >= order.len() { u32::MAX } else { miss as u32 };
-                let info = if nd.prim_count == 0 {
-                    0
-                } else {
-                    leaves += 1;
-                    (nd.prim_count.min(255) << 24) | nd.first_index
-                };
-                let lo = Vec3::new(nd.aabb.min.x, nd.aabb.min.y, nd.aabb.min.z) - Vec3::splat(pad);
-                let hi = Vec3::new(nd.aabb.max.x, nd.aabb.max.y, nd.aabb.max.z) + Vec3::splat(pad);
-                [
-                    lo.x.to_bits(),
-                    lo.y.to_bits(),
-                    lo.z.to_bits(),
-                    miss,
-                    hi.x.to_bits(),
-                    hi.y.to_bits(),
-                    hi.z.to_bits(),
-                    info,
-                ]
+        let centre = |n: usize, axis: usize| {
+            let b = &bvh.nodes[n].aabb;
+            b.min[axis] + b.max[axis]
+        };
+        // BVH_LAYOUTS depth-first orders (in parallel): per axis and direction sign, the nearer
+        // child first
+        use rayon::prelude::*;
+        let layouts: Vec<(Vec<[u32; 8]>, u32, u32)> = (0..BVH_LAYOUTS)
+            .into_par_iter()
+            .map(|k| {
+                let (axis, back) = (k / 2, k % 2 == 1);
+                let (mut leaves, mut depth) = (0u32, 0u32);
+                let mut order = Vec::with_capacity(bvh.nodes.len());
+                let mut stack = vec![(0usize, 0u32)];
+                while let Some((n, d)) = stack.pop() {
+                    order.push(n);
+                    depth = depth.max(d);
+                    let nd = &bvh.nodes[n];
+                    if nd.prim_count == 0 {
+                        let (l, r) = (nd.first_index as usize, nd.first_index as usize + 1);
+                        let (near, far) = if (centre(l, axis) <= centre(r, axis)) != back { (l, r) } else { (r, l) };
+                        stack.push((far, d + 1));
+                        stack.push((near, d + 1));
+                    }
+                }
+                let mut size = vec![1usize; bvh.nodes.len()];
+                for &n in order.iter().rev() {
+                    let nd = &bvh.nodes[n];
+                    if nd.prim_count == 0 {
+                        size[n] = 1 + size[nd.first_index as usize] + size[nd.first_index as usize + 1];
+                    }
+                }
+                let mut pos = vec![0usize; bvh.nodes.len()];
+                for (i, &n) in order.iter().enumerate() {
+                    pos[n] = i;
+                }
+                let nodes = order
+                    .iter()
+                    .map(|&n| {
+                        let nd = &bvh.nodes[n];
+                        let miss = pos[n] + size[n];
+                        let miss = if miss >= order.len() { u32::MAX } else { miss as u32 };
+                        let info = if nd.prim_count == 0 {
+                            0
+                        } else {
+                            leaves += 1;
+                            (nd.prim_count.min(255) << 24) | nd.first_index
+                        };
+                        let lo = Vec3::new(nd.aabb.min.x, nd.aabb.min.y, nd.aabb.min.z) - Vec3::splat(pad);
+                        let hi = Vec3::new(nd.aabb.max.x, nd.aabb.max.y, nd.aabb.max.z) + Vec3::splat(pad);
+                        [
+                            lo.x.to_bits(),
+                            lo.y.to_bits(),
+                            lo.z.to_bits(),
+                            miss,
+                            hi.x.to_bits(),
+                            hi.y.to_bits(),
+                            hi.z.to_bits(),
+                            info,
+                        ]
+                    })
+                    .collect();
+                (nodes, leaves, depth)
             })
             .collect();
+        let (leaves, depth) = (layouts[0].1, layouts[0].2);
+        let nodes = layouts.into_iter().flat_map(|l| l.0).collect();
         ThreadedBvh { nodes, refs: bvh.primitive_indices.clone(), leaves, depth }
     }
 }

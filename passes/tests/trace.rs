@@ -38,22 +38,33 @@ struct Tally {
 
 #[test]
 fn kdtree_tracer_agrees_with_obvhs_on_every_scene() {
-    tracer_agrees_with_obvhs_on_every_scene(Structure::KdTree);
+    tracer_agrees_with_obvhs_on_every_scene(Structure::KdTree, None);
 }
 
 #[test]
 fn bvh_tracer_agrees_with_obvhs_on_every_scene() {
-    tracer_agrees_with_obvhs_on_every_scene(Structure::Bvh);
+    tracer_agrees_with_obvhs_on_every_scene(Structure::Bvh, None);
 }
 
-fn tracer_agrees_with_obvhs_on_every_scene(structure: Structure) {
+/// The threaded BVH in one depth-first order: a node buffer too small for its six orders (4
+/// nodes per triangle) keeps the first alone.
+#[test]
+fn bvh_tracer_in_one_order_agrees_with_obvhs_on_every_scene() {
+    tracer_agrees_with_obvhs_on_every_scene(Structure::Bvh, Some(4));
+}
+
+fn tracer_agrees_with_obvhs_on_every_scene(structure: Structure, nodes_per_triangle: Option<u32>) {
     let ctx = Context::new(&ContextDesc { validation: true, ..Default::default() }).expect("context");
     let lib = shaders();
     let mut engine = Engine::new(ctx.clone(), 1).unwrap();
     let mut builder = KdTreeBuilder::new(&ctx, &lib).unwrap();
     builder.params.structure = structure;
+    if let Some(n) = nodes_per_triangle {
+        builder.params.nodes_per_triangle = n;
+    }
     let tracer = Tracer::new(&ctx, &lib).unwrap();
     let mut all = Tally::default();
+    let mut one_order_scenes = 0;
     for path in scene_paths() {
         let name = path.file_stem().unwrap().to_string_lossy().to_string();
         let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
@@ -79,6 +90,13 @@ fn tracer_agrees_with_obvhs_on_every_scene(structure: Structure) {
         let run = run_gpu(&mut engine, &mut builder, &tracer, &tris, &sets).unwrap();
         let s = run.stats;
         assert_eq!(s.structure, structure);
+        if structure == Structure::Bvh && s.triangles > 0 {
+            // six orders when the node buffer holds them (2 uvec4 per node each, 3 per leaf triangle)
+            let cap = s.triangles as u64 * builder.params.nodes_per_triangle as u64 + 8192;
+            let six = 12 * s.nodes as u64 + 3 * s.leaf_refs as u64 <= cap;
+            assert_eq!(s.bvh_orders, if six { 6 } else { 1 }, "{name}");
+            one_order_scenes += (s.bvh_orders == 1) as usize;
+        }
         println!(
             "{name}: {} tris, {} nodes, {} leaves ({} empty), {} leaf refs ({:.2}/tri), depth {}, {:.2} MB used, {:.2} MB allocated, overflow {}",
             s.triangles,
@@ -161,6 +179,9 @@ fn tracer_agrees_with_obvhs_on_every_scene(structure: Structure) {
         all.max_rel
     );
     assert!(all.any_total > 50_000 && all.both_hit > 10_000);
+    if structure == Structure::Bvh {
+        assert_eq!(one_order_scenes > 0, nodes_per_triangle.is_some(), "scenes in one order: {one_order_scenes}");
+    }
     assert!(any_agree >= 0.9999, "any-hit agreement {any_agree}");
     assert!(closest_agree >= 0.9999, "closest-hit agreement {closest_agree}");
     let errors = ctx.validation.error_count();
