@@ -761,8 +761,9 @@ struct ThreadedBvh {
 
 impl ThreadedBvh {
     /// `obvhs`'s BVH2 of `tris` (medium build: binned PLOC with reinsertion, leaves of up to 8),
-    /// laid out depth first with the left child next to its parent; boxes grown by `pad`
-    /// against rounding in the slab test (a triangle on a box's face must not be missed).
+    /// laid out depth first in [`BVH_LAYOUTS`] orders, each node's first child next to it;
+    /// boxes grown by `pad` against rounding in the slab test (a triangle on a box's face must
+    /// not be missed).
     fn build(tris: &[[Vec3; 3]], pad: f32) -> Self {
         use obvhs::{bvh2::builder::build_bvh2_from_tris, triangle::Triangle, BvhBuildParams};
         let a = |v: Vec3| obvhs_glam::Vec3A::new(v.x, v.y, v.z);
