@@ -1,7 +1,7 @@
 //! The CPU side of the tracer's tests and benchmark: the same triangles in an `obvhs` CWBVH
 //! ([`CpuBvh`]), ray sets (coherent camera rays, incoherent random rays, secondary rays off surfaces), and
-//! [`bench_trace`] (kd-tree build time, memory, GPU rays/s vs `obvhs` on all CPU cores for
-//! coherent, incoherent and shadow rays).
+//! [`bench_trace`] (build time and memory of the kd-tree and of the threaded BVH, GPU rays/s
+//! through each vs `obvhs` on all CPU cores for coherent, incoherent and shadow rays).
 
 use crate::kdtree::{parse_stats, KdStats, KdTreeBuilder, Structure};
 use crate::trace::{add_copy_to_readback, decode_hits, upload_rays, CpuBvh, Hit, Ray, TraceMode, Tracer, HIT_BYTES};
@@ -256,11 +256,11 @@ impl std::fmt::Display for BenchReport {
     }
 }
 
-/// `penumbra bench trace SCENE`: builds the kd-tree of the scene's first frame on the device,
-/// traces coherent (camera, `w` x `h`), incoherent (random) and shadow (from the camera rays'
-/// hit points towards one distant light) visibility rays on the GPU and
-/// the same rays through `obvhs` on all CPU cores, in one run. GPU times come from the
-/// engine's timestamps (`engine.timestamps` must be on).
+/// `penumbra bench trace SCENE`: builds the kd-tree of the scene's first frame on the device and
+/// the threaded BVH on the host, traces coherent (camera, `w` x `h`), incoherent (random) and
+/// shadow (from the camera rays' hit points towards one distant light) visibility rays through
+/// each on the GPU (best of three runs) and the same rays through `obvhs` on all CPU cores (best
+/// of three), in one run. GPU times come from the engine's timestamps.
 pub fn bench_trace(
     ctx: &Arc<Context>,
     shaders: &ShaderLibrary,
