@@ -1289,6 +1289,13 @@ impl Window {
 // ---------------------------------------------------------------------------------------------
 // Per-point shading with local lights (Fig. 3)
 
+/// The rotation of a light's frame (light to world): `+z` turned to `direction` by the
+/// shortest arc (`+z` itself for a zero or non-finite direction).
+pub fn light_rotation(direction: DVec3) -> glam::DQuat {
+    let dir = if direction.is_finite() && direction.length_squared() > 0.0 { direction.normalize() } else { DVec3::Z };
+    glam::DQuat::from_rotation_arc(DVec3::Z, dir)
+}
+
 /// One local light of a frame: its source radiance field (or `None`: the analytic radiance
 /// everywhere), its frame and its rgb power.
 #[derive(Clone, Copy, Debug)]
@@ -1318,16 +1325,7 @@ impl<'a> LightFrame<'a> {
     pub fn with_world(field: Option<&'a ObjectField>, source: LightSource, world: glam::DMat4, power: DVec3) -> Self {
         let (_, q, t) = world.to_scale_rotation_translation();
         let q = if q.is_finite() { q.normalize() } else { glam::DQuat::IDENTITY };
-        let world = glam::DMat4::from_rotation_translation(q, t);
-        LightFrame {
-            field,
-            source,
-            world_to_local: world.inverse(),
-            rot: rotation_blocks(DMat3::from_quat(q)),
-            position: t,
-            power,
-            extrapolate: true,
-        }
+        Self::from_rotation(field, source, q, t, power, true)
     }
 
     /// A light at `position`; a spot's `+z` is turned to `direction`.
@@ -1338,9 +1336,17 @@ impl<'a> LightFrame<'a> {
         direction: DVec3,
         power: DVec3,
     ) -> Self {
-        let dir =
-            if direction.is_finite() && direction.length_squared() > 0.0 { direction.normalize() } else { DVec3::Z };
-        let q = glam::DQuat::from_rotation_arc(DVec3::Z, dir);
+        Self::from_rotation(field, source, light_rotation(direction), position, power, false)
+    }
+
+    fn from_rotation(
+        field: Option<&'a ObjectField>,
+        source: LightSource,
+        q: glam::DQuat,
+        position: DVec3,
+        power: DVec3,
+        extrapolate: bool,
+    ) -> Self {
         let world = glam::DMat4::from_rotation_translation(q, position);
         LightFrame {
             field,
@@ -1349,7 +1355,7 @@ impl<'a> LightFrame<'a> {
             rot: rotation_blocks(DMat3::from_quat(q)),
             position,
             power,
-            extrapolate: false,
+            extrapolate,
         }
     }
 

@@ -13,6 +13,11 @@ use penumbra_passes::shadow_fields::{
 use penumbra_scene::Scene;
 use std::sync::Arc;
 
+/// Largest channel difference between the CPU path's radiance and the GPU's.
+fn max_abs_diff(cpu: &[(glam::DVec3, f64)], gpu: &[[f32; 4]]) -> f64 {
+    cpu.iter().zip(gpu).flat_map(|(c, g)| (0..3).map(move |k| (c.0[k] - g[k] as f64).abs())).fold(0.0f64, f64::max)
+}
+
 fn small_options() -> SfOptions {
     SfOptions {
         params: Params { shells: 8, resolution: 16, map_res: 8, threshold: 0.010, min_resolution: 1 },
@@ -160,11 +165,7 @@ fn shadow_fields_gpu_lights_and_window_match_cpu() {
             window,
         );
         let peak = cpu.iter().map(|c| c.0.max_element()).fold(0.0f64, f64::max);
-        let worst = cpu
-            .iter()
-            .zip(&gpu)
-            .flat_map(|(c, g)| (0..3).map(move |k| (c.0[k] - g[k] as f64).abs()))
-            .fold(0.0f64, f64::max);
+        let worst = max_abs_diff(&cpu, &gpu);
         let (mut num, mut den) = (0.0, 0.0);
         for (a, b) in cpu.iter().zip(&analytic) {
             num += (a.0 - b.0).length_squared();
@@ -212,11 +213,7 @@ fn shadow_fields_srf_of_a_light_in_its_shade() {
         let cpu = cpu_shade_points(&points, &insts, &lights, &tech.light, &tech.tensor, window);
         let (gpu, _) = gpu_shade_points(&mut engine, &tech, &frame, &points).unwrap();
         let peak = cpu.iter().map(|c| c.0.max_element()).fold(0.0f64, f64::max);
-        let worst = cpu
-            .iter()
-            .zip(&gpu)
-            .flat_map(|(c, g)| (0..3).map(move |k| (c.0[k] - g[k] as f64).abs()))
-            .fold(0.0f64, f64::max);
+        let worst = max_abs_diff(&cpu, &gpu);
         assert!(worst <= 1e-3 * peak + 1e-6, "t = {t}: GPU vs CPU {worst} (peak {peak})");
 
         // Points that see the bulb's centre past the shade (a ray against its triangles) get

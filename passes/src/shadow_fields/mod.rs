@@ -203,10 +203,8 @@ pub fn fixture_light_frame(scene: &Scene, l: &penumbra_scene::Light, f: usize) -
     if f >= scene.objects.len() {
         return None;
     }
-    let dir = l.direction.as_dvec3();
-    let dir = if dir.is_finite() && dir.length_squared() > 0.0 { dir.normalize() } else { DVec3::Z };
     let light_rest =
-        DMat4::from_rotation_translation(glam::DQuat::from_rotation_arc(DVec3::Z, dir), l.position.as_dvec3());
+        DMat4::from_rotation_translation(sf::light_rotation(l.direction.as_dvec3()), l.position.as_dvec3());
     // the object's base transform: its world at t = 0 without its motion at t = 0
     let m0 = l.motion.eval(0.0).as_dmat4();
     let base = m0.inverse() * scene.world_at(f, 0.0).as_dmat4();
@@ -581,6 +579,24 @@ pub fn fixture_sort_keys(frame: &Frame, fields: &SceneFields) -> Vec<(usize, DVe
         .collect()
 }
 
+/// Frame light `l` as the CPU and GPU paths shade it, with `field` (or none: analytic): zero
+/// power where the reference cannot emit from it ([`field_emits`]), its frame following its
+/// fixture if it has one ([`fixture_world`]); and that fixture's instance index.
+fn light_frame<'a>(
+    frame: &Frame,
+    fixtures: &[Option<(usize, DMat4)>],
+    l: &penumbra_scene::LightInstance,
+    src: LightSource,
+    field: Option<&'a ObjectField>,
+) -> (LightFrame<'a>, Option<usize>) {
+    let power = if field_emits(l) { l.power.max(Vec3::ZERO).as_dvec3() } else { DVec3::ZERO };
+    let pos = if l.position.is_finite() { l.position.as_dvec3() } else { DVec3::ZERO };
+    match fixture_world(frame, fixtures, l) {
+        Some((k, w)) => (LightFrame::with_world(field, src, w, power), Some(k)),
+        None => (LightFrame::new(field, src, pos, l.direction.as_dvec3(), power), None),
+    }
+}
+
 /// For frame light `l` with a fixture ([`SceneFields::light_fixtures`]): the fixture's
 /// instance index and the light's frame (light to world): the fixture instance's world matrix
 /// times the light's frame in the fixture's frame.
@@ -615,13 +631,7 @@ pub fn light_frames<'a>(frame: &Frame, fields: &'a SceneFields, adaptive: bool, 
         .map(|l| {
             let src = fields.light_sources.get(l.light).copied().unwrap_or_else(|| light_source(&l.kind));
             let field = if srf { fields.light_field(l.light, adaptive) } else { None };
-            let ok = field_emits(l);
-            let power = if ok { l.power.max(Vec3::ZERO).as_dvec3() } else { DVec3::ZERO };
-            let pos = if l.position.is_finite() { l.position.as_dvec3() } else { DVec3::ZERO };
-            match fixture_world(frame, &fields.light_fixtures, l) {
-                Some((_, w)) => LightFrame::with_world(field, src, w, power),
-                None => LightFrame::new(field, src, pos, l.direction.as_dvec3(), power),
-            }
+            light_frame(frame, &fields.light_fixtures, l, src, field).0
         })
         .collect()
 }
@@ -867,15 +877,10 @@ impl GpuTables {
             .collect();
         for l in &frame.lights {
             let src = self.light_sources.get(l.light).copied().unwrap_or_else(|| light_source(&l.kind));
-            let ok = field_emits(l);
-            let power = if ok { l.power.max(Vec3::ZERO) } else { Vec3::ZERO };
+            let (lf, fixture) = light_frame(frame, &self.light_fixtures, l, src, None);
+            let power = lf.power.as_vec3();
             let pos = if l.position.is_finite() { l.position } else { Vec3::ZERO };
-            let fixture = fixture_world(frame, &self.light_fixtures, l);
-            let lf = match fixture {
-                Some((_, w)) => LightFrame::with_world(None, src, w, power.as_dvec3()),
-                None => LightFrame::new(None, src, pos.as_dvec3(), l.direction.as_dvec3(), power.as_dvec3()),
-            };
-            if let (Some((k, _)), true) = (fixture, srf) {
+            if let (Some(k), true) = (fixture, srf) {
                 // the fixture sorts just after its light (shade_point's rule)
                 out[k].center_world = [pos.x, pos.y, pos.z, sf::FIXTURE_SORT_BIAS as f32];
             }
