@@ -646,6 +646,102 @@ fn local_light_shadows_are_traced() {
     assert!(err < 1e-3, "traced light visibility: mean |error| {err}");
 }
 
+/// A sphere light's soft shadow traced through the kd-tree (`light_shadows = traced`): 9 rays
+/// toward its disk, the centre and the outer ring first, the inner ring only where those five
+/// disagree (a penumbra). A wall between a large sphere light and the floor: every floor pixel's
+/// traced visibility (shadowed / unshadowed avs, environment off) against the exact unoccluded
+/// share of the light's disk (a 48 x 48 grid of rays through it): fully lit and umbral pixels
+/// exact, the penumbra within the 9 rays' resolution and resolved into intermediate values (not
+/// the 0 / 1 of five agreeing rays). Measured (48 x 48): 131 penumbra pixels, mean |error| 0.022
+/// there, 9 distinct values; lit and umbra 0 errors.
+#[test]
+fn sphere_light_penumbra_takes_every_ray_of_the_disk() {
+    let (light, radius) = (glam::Vec3::new(0.9, 0.55, 0.0), 0.3f32);
+    let (wall_c, wall_half) = (glam::Vec3::new(0.0, 0.15, 0.0), glam::Vec3::new(0.02, 0.15, 0.6));
+    let toml = format!(
+        "name = \"penumbra\"\n[camera]\neye = [0.0, 2.4, 0.01]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 45\n\
+         [environment]\nprocedural = \"sky\"\nintensity = 0.0\n\
+         [[light]]\ntype = \"sphere\"\nposition = [{}, {}, {}]\nradius = {radius}\nintensity = 60\n\
+         [materials.floor]\ntype = \"diffuse\"\nalbedo = 0.8\n\
+         [[object]]\nname = \"floor\"\nmesh = {{ type = \"plane\", size = 2, divisions = 20 }}\nmaterial = \"floor\"\n\
+         [[object]]\nname = \"wall\"\nmesh = {{ type = \"cube\", size = 1 }}\nposition = [{}, {}, {}]\nscale = [{}, {}, {}]\n",
+        light.x,
+        light.y,
+        light.z,
+        wall_c.x,
+        wall_c.y,
+        wall_c.z,
+        2.0 * wall_half.x,
+        2.0 * wall_half.y,
+        2.0 * wall_half.z
+    );
+    let s = with(&scene_text("penumbra", &toml), &[("r", "32"), ("iterations", "0")]);
+    let (w, h) = (48u32, 48u32);
+    let (_r, shad) = render(&s, "avs", w, h, &[0.0], false);
+    let (_r, open) = render(&with(&s, &[("shadows", "false")]), "avs", w, h, &[0.0], false);
+    let frame = s.at(0.0, None);
+    let cam = &frame.camera;
+    let inv = (cam.proj(w as f32 / h as f32) * cam.view()).inverse();
+    // the exact unoccluded share of the disk facing p (lights.glsl's light_disk_target: the disk
+    // of the light's radius across the direction to its centre)
+    let exact = |p: glam::Vec3| {
+        let to = light - p;
+        let wdir = to.normalize();
+        let bx = if wdir.x.abs() < 0.9 { glam::Vec3::X.cross(wdir) } else { glam::Vec3::Y.cross(wdir) }.normalize();
+        let by = wdir.cross(bx);
+        let (mut free, mut all) = (0usize, 0usize);
+        for i in 0..48 {
+            for j in 0..48 {
+                let (u, v) = ((i as f32 + 0.5) / 24.0 - 1.0, (j as f32 + 0.5) / 24.0 - 1.0);
+                if u * u + v * v > 1.0 {
+                    continue;
+                }
+                all += 1;
+                let q = to + (bx * u + by * v) * radius;
+                if !ray_hits_box(p, q, wall_c - wall_half, wall_c + wall_half) {
+                    free += 1;
+                }
+            }
+        }
+        free as f64 / all as f64
+    };
+    let (mut lit_err, mut umbra_err, mut pen, mut pen_err) = (0usize, 0usize, 0usize, 0.0f64);
+    let mut values: Vec<i64> = Vec::new();
+    for py in 0..h {
+        for px in 0..w {
+            let k = (py * w + px) as usize;
+            let (a, b) = (shad[0].hdr[k][0], open[0].hdr[k][0]);
+            assert!(a.is_finite() && a >= 0.0, "pixel {px},{py} = {a}");
+            let Some(p) = floor_point(&inv, cam.eye, w, h, px, py) else { continue };
+            if p.x.abs() > 0.95 || p.z.abs() > 0.5 || b <= 1e-4 || (p - wall_c).abs().cmple(wall_half + 0.03).all() {
+                continue;
+            }
+            let (vis, truth) = ((a / b) as f64, exact(p));
+            if truth >= 1.0 {
+                lit_err += usize::from((vis - 1.0).abs() > 1e-3);
+            } else if truth <= 0.0 {
+                umbra_err += usize::from(vis > 1e-3);
+            } else if truth > 0.1 && truth < 0.9 {
+                pen += 1;
+                pen_err += (vis - truth).abs();
+                values.push((vis * 9.0).round() as i64);
+            }
+        }
+    }
+    values.sort_unstable();
+    values.dedup();
+    let pen_mean = pen_err / pen.max(1) as f64;
+    println!(
+        "penumbra pixels {pen}, mean |error| {pen_mean:.4}, {} distinct values; lit errors {lit_err}, umbra errors {umbra_err}",
+        values.len()
+    );
+    assert!(pen >= 40, "only {pen} penumbra pixels");
+    assert_eq!(lit_err, 0, "fully lit pixels shadowed");
+    assert_eq!(umbra_err, 0, "umbral pixels lit");
+    assert!(pen_mean < 0.08, "penumbra: mean |error| {pen_mean} against the exact disk share");
+    assert!(values.len() >= 6, "penumbra resolved into {} values only: {values:?}", values.len());
+}
+
 /// The environment's key lights split off its map (`key_lights = 4`, default with
 /// `light_shadows = traced`): a studio key light's sharp shadow comes from rays through the
 /// kd-tree, the rest of the map through the SSDFs. isg_bunny made diffuse (studio.exr, a long

@@ -29,7 +29,10 @@
 // one SG lobe of the BRDF.
 // Key lights (key_lights, with light_shadows = traced): the environment's sun or studio lights
 // split off the map (every SG lobe, the irradiance and the prefiltered maps are the rest's),
-// their diffuse light shadowed by 9 rays each through the kd-tree (light_rays.glsl).
+// their diffuse light shadowed by 9 rays each through the kd-tree (light_rays.glsl, the inner ring
+// only in a penumbra), the same rays weighted by the glossy lobe for their glossy light where the
+// lobe is nearly flat over the light (KEY_REUSE); a sharper lobe takes rays of its own in the
+// cone of its product with the light.
 // Local lights (light_shadows): shadow rays traced through the frame's kd-tree (default; the paper
 // lights by the environment only, and a point or spot light's hard shadow is finer than maps
 // interpolated between sample points), or the sign of the interpolated SSDF toward the light.
@@ -215,14 +218,16 @@ float visible(SG g) {
 float traced_light_visibility(vec3 o, LightData l, int lk) {
     vec3 to_light = light_vector(l, o);
     int n = lk == 2 ? LIGHT_DISK_POINTS : 1;
-    float vis = 0.0;
-    for (int k = 0; k < n; ++k) {
-        vec3 q = light_disk_target(to_light, lk == 2 ? l.extra.x : 0.0, k);
+    float vis = 0.0, cnt = 0.0;
+    for (int i = 0; i < n; ++i) {
+        if (disk_settled(i, vis, cnt)) break;
+        cnt += 1.0;
+        vec3 q = light_disk_target(to_light, lk == 2 ? l.extra.x : 0.0, disk_ray(i));
         float len = length(q);
         if (!(len > 0.0)) { vis += 1.0; continue; }
         vis += kd_trace(o, q / len, pc.ray_offset, len * (1.0 - 1e-4), true).t < 0.0 ? 1.0 : 0.0;
     }
-    return vis / float(n);
+    return vis / cnt;
 }
 
 vec3 local_lights(vec3 pos, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, MaterialData m) {
@@ -327,6 +332,38 @@ void main() {
     // lighting lobes and key lights through gj (the ratio's, unless own_only), then gj itself
     // (own_only, or no light reaching it).
     uint n_glossy = glossy_vis ? (own_only ? 0u : nl + nk) + 1u : 0u;
+    // Each key light's rays traced once (cone_rays_mask), for its diffuse light and for its share
+    // of a glossy lobe gj nearly flat over the light: gj.lambda <= KEY_REUSE lambda_l, so that gj
+    // varies by less than about 10 % over the light's disk (angular radius 2 / sqrt(lambda_l)),
+    // the rays weighted by gj. A sharper lobe's share takes rays of its own in the cone of its
+    // product with the light (below): weighting the light's rays by it instead measured
+    // turning_light's glossy floor 0.0420 -> 0.0457 rmse/mean at 160x120.
+    const float KEY_REUSE = 0.05;
+    uint kmask[16];
+    for (uint k = 0u; k < nk; ++k) {
+        kmask[k] = 0u;
+        if (!traced) continue;
+        SG l = sg_make(key[2u * k].xyz, key[2u * k].w, 1.0);
+        bool lit = max(sg_cosine_integral(l, n), 0.0) > 0.0
+            || (n_glossy > 1u && gj.lambda <= KEY_REUSE * l.lambda && sg_inner_product(l, gj) > 0.0);
+        if (lit) kmask[k] = cone_rays_mask(po, l.axis, 2.0 / sqrt(max(l.lambda, 1e-4)), ng);
+    }
+    // Lobes that bring less than LOBE_CULL of a ratio's light (the diffuse lobes' irradiance with
+    // diffuse_ratio, the glossy items' light in gj) are left out of both its sums: the ratio
+    // takes the visible share of the lobes that carry the light, at fewer SSDF lookups (0.02
+    // measured coarse 0.0399 -> 0.0416 rmse/mean at 160x120; 0.01 left it at 0.0399).
+    const float LOBE_CULL = 0.01;
+    float ed_sum = 0.0, eg_sum = 0.0;
+    for (uint k = 0u; k < nl; ++k) {
+        SG l = sg_make(lobes[2u * k].xyz, lobes[2u * k].w, 1.0);
+        ed_sum += dot(lobes[2u * k + 1u].rgb, vec3(0.2126, 0.7152, 0.0722)) * max(sg_cosine_integral(l, n), 0.0);
+        if (n_glossy > 1u) eg_sum += dot(lobes[2u * k + 1u].rgb, vec3(0.2126, 0.7152, 0.0722)) * max(sg_inner_product(l, gj), 0.0);
+    }
+    for (uint k = 0u; k < nk && n_glossy > 1u; ++k) {
+        SG l = sg_make(key[2u * k].xyz, key[2u * k].w, 1.0);
+        eg_sum += dot(key[2u * k + 1u].rgb, vec3(0.2126, 0.7152, 0.0722)) * max(sg_inner_product(l, gj), 0.0);
+    }
+    float ed_cut = pc.diffuse_ratio != 0u ? LOBE_CULL * ed_sum : 0.0, eg_cut = LOBE_CULL * eg_sum;
     vec3 diffuse = vec3(0.0), diffuse_open = vec3(0.0);
     float num = 0.0, den = 0.0, vs = 1.0;
     for (uint it = 0u; it < nl + n_glossy; ++it) {
@@ -337,7 +374,7 @@ void main() {
         if (it < nl) {
             SG l = sg_make(lobes[2u * it].xyz, lobes[2u * it].w, 1.0);
             ed = lobes[2u * it + 1u].rgb * max(sg_cosine_integral(l, n), 0.0);
-            if (max(ed.r, max(ed.g, ed.b)) <= 0.0) continue;
+            if (max(ed.r, max(ed.g, ed.b)) <= 0.0 || dot(ed, vec3(0.2126, 0.7152, 0.0722)) < ed_cut) continue;
             g = sg_product(l, cosg);
         } else if (it + 1u < nl + n_glossy) {
             uint k = it - nl;
@@ -345,7 +382,7 @@ void main() {
             vec3 mu = k < nl ? lobes[2u * k + 1u].rgb : key[2u * (k - nl) + 1u].rgb;
             SG l = sg_make(al.xyz, al.w, 1.0);
             eg = dot(mu, vec3(0.2126, 0.7152, 0.0722)) * sg_inner_product(l, gj);
-            if (!(eg > 0.0)) continue;
+            if (!(eg > 0.0) || eg < eg_cut) continue;
             g = sg_product(l, gj);
             // a key light's reflection through rays toward it (as its diffuse light)
             cone = k >= nl && traced;
@@ -353,7 +390,13 @@ void main() {
             own = true;
             if (!own_only && den > 0.0) continue;
         }
-        float vis = cone ? cone_rays_visibility(po, g.axis, 2.0 / sqrt(max(g.lambda, 1e-4)), ng) : visible(g);
+        float vis;
+        if (cone && gj.lambda <= KEY_REUSE * key[2u * (it - nl - nl)].w) {
+            SG l = sg_make(key[2u * (it - nl - nl)].xyz, key[2u * (it - nl - nl)].w, 1.0);
+            vis = cone_mask_weighted(kmask[it - nl - nl], l.axis, 2.0 / sqrt(max(l.lambda, 1e-4)), gj);
+        } else {
+            vis = cone ? cone_rays_visibility(po, g.axis, 2.0 / sqrt(max(g.lambda, 1e-4)), ng) : visible(g);
+        }
         if (it < nl) {
             diffuse += ed * vis;
             diffuse_open += ed;
@@ -371,9 +414,8 @@ void main() {
             vec4 axis_lambda = key[2u * k];
             vec3 mu = key[2u * k + 1u].rgb;
             // shadows off (flags bit 1 clear): the same light, unshadowed
-            diffuse += (pc.flags & 2u) != 0u
-                ? key_light_irradiance(axis_lambda, mu, po, n, ng)
-                : mu * max(sg_cosine_integral(sg_make(axis_lambda.xyz, axis_lambda.w, 1.0), n), 0.0);
+            vec3 e = mu * max(sg_cosine_integral(sg_make(axis_lambda.xyz, axis_lambda.w, 1.0), n), 0.0);
+            diffuse += traced ? e * cone_mask_fraction(kmask[k]) : e;
         }
     }
     vec3 color = material_diffuse_albedo(m, ndv) / PI * diffuse;

@@ -8,7 +8,9 @@
 // other texels take the parent's value. Every level writes a full r x r packed map (texel blocks
 // replicated) in the layout of include/avs_maps.glsl; rays are any-hit queries through the
 // kd-tree (include/kdtree.glsl) from the point offset along its normal. The map is assembled with
-// atomicOr directly in the output buffer (each workgroup first zeroes the words of its rows).
+// atomicOr directly in the output buffer (each workgroup first zeroes the words of its rows). A
+// workgroup first lists the texels it traces in shared memory, then traces the list, 64 rays
+// abreast.
 //
 // Work split: one workgroup per (batch entry, chunk of AVS_VIS_CHUNK texels of this level), so an
 // invocation traces at most AVS_VIS_CHUNK / 64 = 16 rays. lavapipe (gallivm) ends EVERY loop of a
@@ -60,6 +62,15 @@ layout(push_constant) uniform Push {
 #include "kdtree.glsl"
 
 shared uint straced;
+// this workgroup's texels to trace at this level (pass 1 lists them, pass 2 traces them: the rays
+// of a level's scattered boundary texels then fill the driver's SIMD groups instead of leaving
+// most of their lanes idle)
+shared uint slist[AVS_VIS_CHUNK];
+shared uint scount;
+// level > 0: per texel of the previous level under this workgroup's rows, bit 0: its children are
+// traced (a boundary texel here or in a neighbour's map), bit 1: its value (the test is per
+// parent, so it is made once for its four children)
+shared uint sparent[AVS_VIS_CHUNK / 4u];
 
 // Value of texel (a, b) of the previous level (resolution pres) of batch entry e.
 bool prev_bit(uint e, uint a, uint b, uint pres) {
@@ -82,6 +93,16 @@ bool boundary(uint e, uint a, uint b, uint pres) {
     return false;
 }
 
+// Sets texel (a, b)'s s x s block of the full-resolution map at word `base` (s divides 32: one
+// word per row).
+void set_block(uint base, uint a, uint b, uint s) {
+    uint mask = s >= 32u ? 0xffffffffu : ((1u << s) - 1u);
+    for (uint row = a * s; row < a * s + s; ++row) {
+        uint kk = row * pc.r + b * s;
+        atomicOr(outw[base + (kk >> 5u)], mask << (kk & 31u));
+    }
+}
+
 mat3 frame_of(uint slot) {
     vec3 t = pts[3u * slot + 1u].xyz, n = pts[3u * slot + 2u].xyz;
     return mat3(t, cross(n, t), n);
@@ -99,21 +120,22 @@ void main() {
         uint slot = batch[e];
         uint base = (pc.to_slot != 0u ? slot : e) * words;
         for (uint w = w0 + tid; w < w1; w += 64u) outw[base + w] = 0u;
-        if (tid == 0u) straced = 0u;
+        if (tid == 0u) {
+            straced = 0u;
+            scount = 0u;
+        }
         memoryBarrierBuffer();
         barrier();
         vec4 p0 = pts[3u * slot];
         mat3 fr = frame_of(slot);
         vec3 origin = p0.xyz + fr[2] * p0.w;
         uint traced = 0u;
-        for (uint t = t0 + tid; t < t1; t += 64u) {
-            uint a = t / res, b = t % res;
-            bool trace_it = pc.level == 0u || (pc.flags & 2u) != 0u;
-            bool value = false;
-            if (!trace_it) {
-                uint pa = a / 2u, pb = b / 2u;
-                value = prev_bit(e, pa, pb, pres);
-                trace_it = boundary(e, pa, pb, pres);
+        bool refine = pc.level > 0u && (pc.flags & 2u) == 0u;
+        uint pr0 = t0 / res / 2u;
+        if (refine) {
+            for (uint g = tid; g < chunk_len / 4u; g += 64u) {
+                uint pa = pr0 + g / pres, pb = g % pres;
+                bool trace_it = boundary(e, pa, pb, pres);
                 if (!trace_it && (pc.flags & 1u) != 0u) {
                     vec3 wd = fr * avs_texel_dir(pa, pb, pres);
                     for (uint q = 0u; q < pc.k && !trace_it; ++q) {
@@ -124,21 +146,34 @@ void main() {
                         if (avs_dir_to_texel(transpose(fq) * wd, pres, ij)) trace_it = boundary(ne, ij.x, ij.y, pres);
                     }
                 }
+                sparent[g] = (trace_it ? 1u : 0u) | (prev_bit(e, pa, pb, pres) ? 2u : 0u);
+            }
+            memoryBarrierShared();
+            barrier();
+        }
+        for (uint t = t0 + tid; t < t1; t += 64u) {
+            uint a = t / res, b = t % res;
+            bool trace_it = !refine;
+            bool value = false;
+            if (refine) {
+                uint f = sparent[(a / 2u - pr0) * pres + b / 2u];
+                trace_it = (f & 1u) != 0u;
+                value = (f & 2u) != 0u;
             }
             if (trace_it) {
-                vec3 d = fr * avs_texel_dir(a, b, res);
-                KdHit h = kd_trace(origin, d, 0.0, 1e30, true);
-                value = h.t < 0.0;
-                traced++;
+                slist[atomicAdd(scount, 1u)] = t;
+            } else if (value) {
+                set_block(base, a, b, s);
             }
-            if (value) {
-                // set the s x s block of the full-resolution map (s divides 32: one word per row)
-                uint mask = s >= 32u ? 0xffffffffu : ((1u << s) - 1u);
-                for (uint row = a * s; row < a * s + s; ++row) {
-                    uint kk = row * pc.r + b * s;
-                    atomicOr(outw[base + (kk >> 5u)], mask << (kk & 31u));
-                }
-            }
+        }
+        memoryBarrierShared();
+        barrier();
+        uint listed = scount;
+        for (uint i = tid; i < listed; i += 64u) {
+            uint t = slist[i];
+            uint a = t / res, b = t % res;
+            traced++;
+            if (kd_trace(origin, fr * avs_texel_dir(a, b, res), 0.0, 1e30, true).t < 0.0) set_block(base, a, b, s);
         }
         // Keeping hits (bit 2; issue 8, slim occluders): the boundary refinement re-traces an
         // occluded parent's four children, and an occluder thinner than a child cell that the

@@ -93,13 +93,15 @@ float light_visibility(vec3 p, vec3 to_light, float radius) {
     if (!(d > 0.0)) return 1.0;
     // one loop, one call site of the traversals (lavapipe compiles every inlined copy)
     int count = radius <= 0.0 ? 1 : LIGHT_DISK_POINTS;
-    float vis = 0.0;
-    for (int k = 0; k < count; ++k) {
-        vec3 q = radius <= 0.0 ? to_light : light_disk_target(to_light, radius, k);
+    float vis = 0.0, cnt = 0.0;
+    for (int i = 0; i < count; ++i) {
+        if (disk_settled(i, vis, cnt)) break;
+        cnt += 1.0;
+        vec3 q = radius <= 0.0 ? to_light : light_disk_target(to_light, radius, disk_ray(i));
         float len = length(q);
         vis += light_segment_blocked(p, q / len, len) ? 0.0 : 1.0;
     }
-    return vis / float(count);
+    return vis / cnt;
 }
 
 vec3 local_lights(vec3 pos, vec3 p, vec3 n, vec3 t, vec3 ng, vec3 v, vec3 albedo, MaterialData m) {

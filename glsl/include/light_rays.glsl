@@ -12,9 +12,11 @@ float light_rays_visibility(LightData l, vec3 p) {
     vec3 to_light = light_vector(l, p);
     float radius = int(l.pos_kind.w + 0.5) == 2 ? l.extra.x : 0.0;
     int taps = radius > 0.0 ? LIGHT_DISK_POINTS : 1;
-    float vis = 0.0;
-    for (int k = 0; k < taps; ++k) {
-        vec3 q = light_disk_target(to_light, radius, k);
+    float vis = 0.0, cnt = 0.0;
+    for (int i = 0; i < taps; ++i) {
+        if (disk_settled(i, vis, cnt)) break;
+        cnt += 1.0;
+        vec3 q = light_disk_target(to_light, radius, disk_ray(i));
         float len = length(q);
         if (!(len > 0.0)) {
             vis += 1.0;
@@ -22,7 +24,7 @@ float light_rays_visibility(LightData l, vec3 p) {
         }
         vis += kd_trace(p, q / len, 0.0, len * (1.0 - 1e-4), true).t >= 0.0 ? 0.0 : 1.0;
     }
-    return vis / float(taps);
+    return vis / cnt;
 }
 
 // The unoccluded share of a cone of directions about unit `axis`: 9 rays through the kd-tree
@@ -32,13 +34,58 @@ float light_rays_visibility(LightData l, vec3 p) {
 // split off key lights (whose sharp reflections their coarse visibility would leave unblocked).
 float cone_rays_visibility(vec3 p, vec3 axis, float radius, vec3 ng) {
     float vis = 0.0, cnt = 0.0;
-    for (int j = 0; j < LIGHT_DISK_POINTS; ++j) {
-        vec3 d = normalize(light_disk_target(axis, radius, j));
+    for (int i = 0; i < LIGHT_DISK_POINTS; ++i) {
+        if (disk_settled(i, vis, cnt)) break;
+        vec3 d = normalize(light_disk_target(axis, radius, disk_ray(i)));
         if (dot(d, ng) <= 0.0) continue;
         cnt += 1.0;
         vis += kd_trace(p, d, 0.0, 1e30, true).t >= 0.0 ? 0.0 : 1.0;
     }
     return cnt > 0.0 ? vis / cnt : 1.0;
+}
+
+// The same rays as a mask: bit j set where ray j (above the plane of ng) is unoccluded, bit
+// 16 + j where ray j was traced (above the plane; the inner ring only in a penumbra). A pixel lit by a key light in both its diffuse
+// and its glossy term traces the light's rays once (cone_mask_fraction for the diffuse light,
+// cone_mask_weighted for a glossy lobe about as wide as the light).
+uint cone_rays_mask(vec3 p, vec3 axis, float radius, vec3 ng) {
+    uint m = 0u;
+    for (int i = 0; i < LIGHT_DISK_POINTS; ++i) {
+        if (disk_settled(i, float(bitCount(m & 0xFFFFu)), float(bitCount(m >> 16u)))) break;
+        int j = disk_ray(i);
+        vec3 d = normalize(light_disk_target(axis, radius, j));
+        if (dot(d, ng) <= 0.0) continue;
+        m |= 1u << uint(16 + j);
+        if (kd_trace(p, d, 0.0, 1e30, true).t < 0.0) m |= 1u << uint(j);
+    }
+    return m;
+}
+
+// cone_rays_visibility's value from cone_rays_mask's mask.
+float cone_mask_fraction(uint m) {
+    uint traced = bitCount(m >> 16u);
+    return traced > 0u ? float(bitCount(m & 0xFFFFu)) / float(traced) : 1.0;
+}
+
+// The unoccluded share of the light of a uniform cone (cone_rays_mask's axis and radius) seen
+// through lobe g: the cone's rays weighted by g at their directions (relative to the largest
+// weight, so that a sharp lobe far from every ray does not underflow), the estimate of
+// int_cone G V / int_cone G with the rays as samples of the cone.
+float cone_mask_weighted(uint m, vec3 axis, float radius, SG g) {
+    float best = -2.0;
+    for (int j = 0; j < LIGHT_DISK_POINTS; ++j) {
+        if ((m & (1u << uint(16 + j))) == 0u) continue;
+        best = max(best, dot(g.axis, normalize(light_disk_target(axis, radius, j))));
+    }
+    if (best < -1.5) return 1.0;
+    float num = 0.0, den = 0.0;
+    for (int j = 0; j < LIGHT_DISK_POINTS; ++j) {
+        if ((m & (1u << uint(16 + j))) == 0u) continue;
+        float w = exp(g.lambda * (dot(g.axis, normalize(light_disk_target(axis, radius, j))) - best));
+        den += w;
+        if ((m & (1u << uint(j))) != 0u) num += w;
+    }
+    return den > 0.0 ? num / den : cone_mask_fraction(m);
 }
 
 // Irradiance at a point of normal n (offset point p, geometric normal ng) from one of the

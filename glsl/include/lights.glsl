@@ -96,4 +96,11 @@ vec3 light_disk_target(vec3 to_light, float radius, int k) {
     return to_light + (bx * cos(a) + by * sin(a)) * (ring * radius);
 }
 
+// The order in which a disk's 9 rays are traced: the centre and the outer ring first; where those
+// DISK_FIRST rays agree (the light wholly seen or wholly hidden: most pixels), the inner ring is
+// not traced. A penumbra, where they disagree, takes all nine.
+const int DISK_FIRST = 5;
+int disk_ray(int i) { return i == 0 ? 0 : (i <= 4 ? i + 4 : i - 4); }
+bool disk_settled(int i, float vis, float cnt) { return i == DISK_FIRST && cnt > 0.0 && (vis == 0.0 || vis == cnt); }
+
 #endif
