@@ -652,12 +652,12 @@ fn local_light_shadows_are_traced() {
 /// traced visibility (shadowed / unshadowed avs, environment off) against the exact unoccluded
 /// share of the light's disk (a 48 x 48 grid of rays through it): fully lit and umbral pixels
 /// exact, the penumbra within the 9 rays' resolution and resolved into intermediate values (not
-/// the 0 / 1 of five agreeing rays). Measured (48 x 48): 131 penumbra pixels, mean |error| 0.022
-/// there, 9 distinct values; lit and umbra 0 errors.
+/// the 0 / 1 of five agreeing rays, nor the fifths of five rays). Measured (48 x 48): 216
+/// penumbra pixels, mean |error| 0.058 there, 9 distinct values; lit and umbra 0 errors.
 #[test]
 fn sphere_light_penumbra_takes_every_ray_of_the_disk() {
     let (light, radius) = (glam::Vec3::new(0.9, 0.55, 0.0), 0.3f32);
-    let (wall_c, wall_half) = (glam::Vec3::new(0.0, 0.15, 0.0), glam::Vec3::new(0.02, 0.15, 0.6));
+    let (wall_c, wall_half) = (glam::Vec3::new(0.0, 0.06, 0.0), glam::Vec3::new(0.02, 0.06, 0.6));
     let toml = format!(
         "name = \"penumbra\"\n[camera]\neye = [0.0, 2.4, 0.01]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 45\n\
          [environment]\nprocedural = \"sky\"\nintensity = 0.0\n\
@@ -739,7 +739,7 @@ fn sphere_light_penumbra_takes_every_ray_of_the_disk() {
     assert_eq!(lit_err, 0, "fully lit pixels shadowed");
     assert_eq!(umbra_err, 0, "umbral pixels lit");
     assert!(pen_mean < 0.08, "penumbra: mean |error| {pen_mean} against the exact disk share");
-    assert!(values.len() >= 6, "penumbra resolved into {} values only: {values:?}", values.len());
+    assert!(values.len() >= 8, "penumbra resolved into {} values only: {values:?}", values.len());
 }
 
 /// The environment's key lights split off its map (`key_lights = 4`, default with
