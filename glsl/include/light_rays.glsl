@@ -45,9 +45,9 @@ float cone_rays_visibility(vec3 p, vec3 axis, float radius, vec3 ng) {
 }
 
 // The same rays as a mask: bit j set where ray j (above the plane of ng) is unoccluded, bit
-// 16 + j where ray j was traced (above the plane; the inner ring only in a penumbra). A pixel lit by a key light in both its diffuse
-// and its glossy term traces the light's rays once (cone_mask_fraction for the diffuse light,
-// cone_mask_weighted for a glossy lobe about as wide as the light).
+// 16 + j where ray j was traced (above the plane; the inner ring only in a penumbra). avs traces
+// a key light's rays once for its diffuse light (cone_mask_fraction) and for a glossy lobe
+// nearly flat over the light (cone_mask_weighted).
 uint cone_rays_mask(vec3 p, vec3 axis, float radius, vec3 ng) {
     uint m = 0u;
     for (int i = 0; i < LIGHT_DISK_POINTS; ++i) {
