@@ -498,6 +498,41 @@ mod avs_sampling {
         }
     }
 
+    /// `visit_ring` visits exactly the points of the cells at Chebyshev distance `ring` from the
+    /// query's cell (each once), at the grid's corners and edges too, and says when the ring
+    /// lies wholly outside.
+    #[test]
+    fn grid_rings_visit_exactly_their_cells() {
+        let pts: Vec<Vec3> = (0..800)
+            .map(|i| {
+                let f = i as f32;
+                Vec3::new((f * 0.37).sin() * 3.0, (f * 0.11).cos() * 2.0, (f * 0.73).sin() * 2.0)
+            })
+            .collect();
+        let g = Grid::new(&pts, 0.35);
+        for q in [Vec3::ZERO, Vec3::new(2.9, 1.9, -1.9), Vec3::new(-3.0, -2.0, 2.0), Vec3::new(30.0, 0.0, 0.0)] {
+            let c = g.cell_of(q);
+            for ring in 0..=(g.dims.iter().max().copied().unwrap() as i32 + 1) {
+                let mut seen = Vec::new();
+                let inside = g.visit_ring(q, ring, |i, d2| {
+                    assert!(((pts[i] - q).length_squared() - d2).abs() < 1e-4);
+                    seen.push(i);
+                });
+                seen.sort();
+                let mut expected: Vec<usize> = (0..pts.len())
+                    .filter(|&i| {
+                        let p = g.cell_of(pts[i]);
+                        (0..3).map(|a| (p[a] - c[a]).abs()).max().unwrap() == ring
+                    })
+                    .collect();
+                expected.sort();
+                assert_eq!(seen, expected, "q {q:?}, ring {ring}");
+                let any_cell = (0..3).any(|a| c[a] - ring >= 0 || c[a] + ring < g.dims[a] as i32);
+                assert_eq!(inside, any_cell, "q {q:?}, ring {ring}");
+            }
+        }
+    }
+
     #[test]
     fn sh_projection_of_full_and_empty_maps() {
         let f = point_frame(Vec3::Y);
