@@ -533,6 +533,27 @@ fn floor_point(inv: &glam::Mat4, eye: glam::Vec3, w: u32, h: u32, px: u32, py: u
     (d.y < -1e-3).then(|| eye + d * (-eye.y / d.y))
 }
 
+/// A 2 x 2 floor seen from above (48 x 48 pixels cover it), a wall box (centre `wall_c`, half
+/// extents `wall_half`) on it and one local light (`light`: the TOML keys of its `[[light]]`
+/// table), the environment off: the light-visibility tests' scene.
+fn wall_scene(name: &str, light: &str, wall_c: glam::Vec3, wall_half: glam::Vec3) -> Scene {
+    let toml = format!(
+        "name = \"{name}\"\n[camera]\neye = [0.0, 2.4, 0.01]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 45\n\
+         [environment]\nprocedural = \"sky\"\nintensity = 0.0\n\
+         [[light]]\n{light}\n\
+         [materials.floor]\ntype = \"diffuse\"\nalbedo = 0.8\n\
+         [[object]]\nname = \"floor\"\nmesh = {{ type = \"plane\", size = 2, divisions = 20 }}\nmaterial = \"floor\"\n\
+         [[object]]\nname = \"wall\"\nmesh = {{ type = \"cube\", size = 1 }}\nposition = [{}, {}, {}]\nscale = [{}, {}, {}]\n",
+        wall_c.x,
+        wall_c.y,
+        wall_c.z,
+        2.0 * wall_half.x,
+        2.0 * wall_half.y,
+        2.0 * wall_half.z
+    );
+    scene_text(name, &toml)
+}
+
 /// Floor pixels lit by one low point light whose direction from every floor point lies near the
 /// map's pole (along the tangent) or on its phi seam (along the bitangent), behind a wall:
 /// agreement of the shading's light visibility (avs / unshadowed avs, environment off) with the
@@ -553,22 +574,14 @@ fn light_visibility_agreement(
     // wall across u through the origin, 0.12 high, 1.2 long, 0.04 thick
     let wall_half = if u.x.abs() > 0.5 { glam::Vec3::new(0.02, 0.06, 0.6) } else { glam::Vec3::new(0.6, 0.06, 0.02) };
     let wall_c = glam::Vec3::new(0.0, 0.06, 0.0);
-    let toml = format!(
-        "name = \"wall_{tag}\"\n[camera]\neye = [0.0, 2.4, 0.01]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 45\n\
-         [environment]\nprocedural = \"sky\"\nintensity = 0.0\n\
-         [[light]]\ntype = \"point\"\nposition = [{}, {}, {}]\nintensity = 60\n\
-         [materials.floor]\ntype = \"diffuse\"\nalbedo = 0.8\n\
-         [[object]]\nname = \"floor\"\nmesh = {{ type = \"plane\", size = 2, divisions = 20 }}\nmaterial = \"floor\"\n\
-         [[object]]\nname = \"wall\"\nmesh = {{ type = \"cube\", size = 1 }}\nposition = [0.0, 0.06, 0.0]\nscale = [{}, {}, {}]\n",
-        light.x,
-        light.y,
-        light.z,
-        2.0 * wall_half.x,
-        2.0 * wall_half.y,
-        2.0 * wall_half.z
+    let point = format!("type = \"point\"\nposition = [{}, {}, {}]\nintensity = 60", light.x, light.y, light.z);
+    let s = with(
+        &with(
+            &wall_scene(&format!("wall_{tag}"), &point, wall_c, wall_half),
+            &[("r", &r.to_string()), ("iterations", "0")],
+        ),
+        extra,
     );
-    let s =
-        with(&with(&scene_text(&format!("wall_{tag}"), &toml), &[("r", &r.to_string()), ("iterations", "0")]), extra);
     let (w, h) = (48u32, 48u32);
     let (renderer, shad) = render(&s, "avs", w, h, &[0.0], false);
     // one mean sample spacing (the search radius is `radius` = 2 spacings)
@@ -658,24 +671,11 @@ fn local_light_shadows_are_traced() {
 fn sphere_light_penumbra_takes_every_ray_of_the_disk() {
     let (light, radius) = (glam::Vec3::new(0.9, 0.55, 0.0), 0.3f32);
     let (wall_c, wall_half) = (glam::Vec3::new(0.0, 0.06, 0.0), glam::Vec3::new(0.02, 0.06, 0.6));
-    let toml = format!(
-        "name = \"penumbra\"\n[camera]\neye = [0.0, 2.4, 0.01]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 45\n\
-         [environment]\nprocedural = \"sky\"\nintensity = 0.0\n\
-         [[light]]\ntype = \"sphere\"\nposition = [{}, {}, {}]\nradius = {radius}\nintensity = 60\n\
-         [materials.floor]\ntype = \"diffuse\"\nalbedo = 0.8\n\
-         [[object]]\nname = \"floor\"\nmesh = {{ type = \"plane\", size = 2, divisions = 20 }}\nmaterial = \"floor\"\n\
-         [[object]]\nname = \"wall\"\nmesh = {{ type = \"cube\", size = 1 }}\nposition = [{}, {}, {}]\nscale = [{}, {}, {}]\n",
-        light.x,
-        light.y,
-        light.z,
-        wall_c.x,
-        wall_c.y,
-        wall_c.z,
-        2.0 * wall_half.x,
-        2.0 * wall_half.y,
-        2.0 * wall_half.z
+    let sphere = format!(
+        "type = \"sphere\"\nposition = [{}, {}, {}]\nradius = {radius}\nintensity = 60",
+        light.x, light.y, light.z
     );
-    let s = with(&scene_text("penumbra", &toml), &[("r", "32"), ("iterations", "0")]);
+    let s = with(&wall_scene("penumbra", &sphere, wall_c, wall_half), &[("r", "32"), ("iterations", "0")]);
     let (w, h) = (48u32, 48u32);
     let (_r, shad) = render(&s, "avs", w, h, &[0.0], false);
     let (_r, open) = render(&with(&s, &[("shadows", "false")]), "avs", w, h, &[0.0], false);
