@@ -34,6 +34,8 @@ pub enum Access {
     /// imported resource's final/initial access).
     AnyShaderReadSampled,
     // ---- images or buffers
+    // (The four `*ReadSampled` accesses above also apply to buffers: a uniform texel buffer
+    // read, `usamplerBuffer` + `texelFetch`, bound with `record::Bind::TexelBuffer`.)
     /// Storage image/buffer read in a fragment shader.
     FragmentShaderReadStorage,
     /// Storage image/buffer read in a compute shader.
@@ -213,9 +215,9 @@ impl Access {
                 L::SHADER_READ_ONLY_OPTIMAL,
                 false,
                 false,
-                Applies::Image,
+                Applies::Both,
                 IU::SAMPLED,
-                BU::empty(),
+                BU::UNIFORM_TEXEL_BUFFER,
                 None,
             ),
             Access::FragmentShaderReadSampled => (
@@ -224,9 +226,9 @@ impl Access {
                 L::SHADER_READ_ONLY_OPTIMAL,
                 false,
                 false,
-                Applies::Image,
+                Applies::Both,
                 IU::SAMPLED,
-                BU::empty(),
+                BU::UNIFORM_TEXEL_BUFFER,
                 None,
             ),
             Access::ComputeShaderReadSampled => (
@@ -235,9 +237,9 @@ impl Access {
                 L::SHADER_READ_ONLY_OPTIMAL,
                 false,
                 false,
-                Applies::Image,
+                Applies::Both,
                 IU::SAMPLED,
-                BU::empty(),
+                BU::UNIFORM_TEXEL_BUFFER,
                 None,
             ),
             Access::AnyShaderReadSampled => (
@@ -246,9 +248,9 @@ impl Access {
                 L::SHADER_READ_ONLY_OPTIMAL,
                 false,
                 false,
-                Applies::Image,
+                Applies::Both,
                 IU::SAMPLED,
-                BU::empty(),
+                BU::UNIFORM_TEXEL_BUFFER,
                 None,
             ),
             Access::FragmentShaderReadStorage => (

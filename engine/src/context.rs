@@ -289,6 +289,10 @@ pub struct GpuBuffer {
     pub size: u64,
     pub usage: vk::BufferUsageFlags,
     pub host_visible: bool,
+    /// With `UNIFORM_TEXEL_BUFFER` usage: a `R32G32B32A32_UINT` view of the buffer's whole
+    /// 16-byte texels (at most `maxTexelBufferElements`), read in shaders as a `usamplerBuffer`
+    /// ([`crate::record::Bind::TexelBuffer`]); destroyed with the buffer.
+    pub texel_view: Option<vk::BufferView>,
     pub(crate) allocation: Option<Allocation>,
 }
 
@@ -377,6 +381,9 @@ pub struct Context {
     pub max_image_dimension_2d: u32,
     /// `maxStorageBufferRange`: the most bytes one storage-buffer binding may span.
     pub max_storage_buffer_range: u32,
+    /// `maxTexelBufferElements`: a buffer's texel view ([`GpuBuffer::texel_view`]) covers at
+    /// most this many 16-byte texels.
+    pub max_texel_buffer_elements: u32,
     /// The structure the compute ray tracer builds and walks ([`ContextDesc::tracer`]; `Auto`
     /// for a context made from an embedding application's device).
     pub tracer: TracerStructure,
@@ -690,6 +697,8 @@ impl Context {
             unsafe { instance.get_physical_device_properties(physical) }.limits.max_image_dimension2_d;
         let max_storage_buffer_range =
             unsafe { instance.get_physical_device_properties(physical) }.limits.max_storage_buffer_range;
+        let max_texel_buffer_elements =
+            unsafe { instance.get_physical_device_properties(physical) }.limits.max_texel_buffer_elements;
         let debug_utils = (debug_instance.is_some() || features.debug_utils)
             .then(|| ash::ext::debug_utils::Device::new(&instance, &device));
         // The pipeline cache, seeded from disk when this driver's file is there and sound.
@@ -733,6 +742,7 @@ impl Context {
             timeline_semaphore: features.timeline_semaphore,
             max_image_dimension_2d,
             max_storage_buffer_range,
+            max_texel_buffer_elements,
             tracer: TracerStructure::Auto,
             pipeline_cache,
             pipeline_cache_file,
@@ -961,9 +971,39 @@ impl Context {
                 return Err(e);
             }
         };
-        unsafe { self.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset())? };
+        if let Err(e) = unsafe { self.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) } {
+            unsafe { self.device.destroy_buffer(buffer, None) };
+            if let Ok(mut al) = self.allocator.lock() {
+                let _ = al.free(allocation);
+            }
+            return Err(anyhow::Error::from(e).context(format!("vkBindBufferMemory '{name}'")));
+        }
+        let mut b = GpuBuffer {
+            name: name.to_string(),
+            buffer,
+            size,
+            usage,
+            host_visible,
+            texel_view: None,
+            allocation: Some(allocation),
+        };
         self.set_name(buffer, name);
-        Ok(GpuBuffer { name: name.to_string(), buffer, size, usage, host_visible, allocation: Some(allocation) })
+        let texels = (size / 16).min(self.max_texel_buffer_elements as u64);
+        if usage.contains(vk::BufferUsageFlags::UNIFORM_TEXEL_BUFFER) && texels > 0 {
+            let ci = vk::BufferViewCreateInfo::default()
+                .buffer(buffer)
+                .format(vk::Format::R32G32B32A32_UINT)
+                .offset(0)
+                .range(texels * 16);
+            match unsafe { self.device.create_buffer_view(&ci, None) } {
+                Ok(v) => b.texel_view = Some(v),
+                Err(e) => {
+                    self.destroy_buffer(b);
+                    return Err(anyhow::Error::from(e).context(format!("vkCreateBufferView '{name}'")));
+                }
+            }
+        }
+        Ok(b)
     }
 
     /// A host-visible buffer holding `data` (meshes, constants): contents visible to the GPU at
@@ -987,6 +1027,9 @@ impl Context {
     }
 
     pub fn destroy_buffer(&self, mut buf: GpuBuffer) {
+        if let Some(v) = buf.texel_view.take() {
+            unsafe { self.device.destroy_buffer_view(v, None) };
+        }
         unsafe { self.device.destroy_buffer(buf.buffer, None) };
         if let Some(a) = buf.allocation.take() {
             if let Ok(mut al) = self.allocator.lock() {

@@ -543,7 +543,7 @@ impl Engine {
                     images[i] = Some(PhysImage { image, view, desc: d.clone() });
                 }
                 (Origin::Imported { .. }, ResourceDesc::Buffer(b), External::Buffer(buffer)) => {
-                    buffers[i] = Some(PhysBuffer { buffer, size: b.size });
+                    buffers[i] = Some(PhysBuffer { buffer, size: b.size, texel_view: None });
                 }
                 (Origin::Imported { .. }, _, _) => bail!("imported resource '{}' has no Vulkan handle", res.name),
                 (Origin::Persistent { .. }, desc, _) => {
@@ -567,6 +567,7 @@ impl Engine {
                                 b.size,
                                 info.buffer_usage
                                     | vk::BufferUsageFlags::STORAGE_BUFFER
+                                    | vk::BufferUsageFlags::UNIFORM_TEXEL_BUFFER
                                     | vk::BufferUsageFlags::TRANSFER_SRC
                                     | vk::BufferUsageFlags::TRANSFER_DST,
                                 false,
@@ -589,7 +590,16 @@ impl Engine {
                             }
                             images[i] = Some(PhysImage { image: img.image, view: img.view, desc: img.desc.clone() })
                         }
-                        PoolItem::Buffer(b) => buffers[i] = Some(PhysBuffer { buffer: b.buffer, size: b.size }),
+                        PoolItem::Buffer(b) => {
+                            if !b.usage.contains(info.buffer_usage) {
+                                bail!(
+                                    "persistent buffer '{}' was created without usage {:?}",
+                                    res.name,
+                                    info.buffer_usage
+                                );
+                            }
+                            buffers[i] = Some(PhysBuffer { buffer: b.buffer, size: b.size, texel_view: b.texel_view })
+                        }
                     }
                 }
                 (_, ResourceDesc::Image(d), _) => {
@@ -616,7 +626,7 @@ impl Engine {
                         if let Some(data) = &res.init_data {
                             buf.write(data)?;
                         }
-                        buffers[i] = Some(PhysBuffer { buffer: buf.buffer, size: b.size });
+                        buffers[i] = Some(PhysBuffer { buffer: buf.buffer, size: b.size, texel_view: buf.texel_view });
                     }
                     if matches!(origin, Origin::Readback) {
                         readbacks.push((res.name.clone(), transients.len()));

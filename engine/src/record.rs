@@ -20,6 +20,9 @@ pub struct PhysImage {
 pub struct PhysBuffer {
     pub buffer: vk::Buffer,
     pub size: u64,
+    /// The buffer's `R32G32B32A32_UINT` texel view where it has one (a buffer some pass reads
+    /// as a texel buffer, persistent buffers always).
+    pub texel_view: Option<vk::BufferView>,
 }
 
 /// What a pass's record closure gets.
@@ -114,6 +117,7 @@ impl<'a> RecordContext<'a> {
         enum Info {
             Image(vk::DescriptorImageInfo),
             Buffer(vk::DescriptorBufferInfo),
+            Texel(vk::BufferView),
         }
         let mut infos = Vec::with_capacity(binds.len());
         for (binding, b) in binds.iter().enumerate() {
@@ -176,6 +180,33 @@ impl<'a> RecordContext<'a> {
                     self.check_bind(h.raw().0, "a storage buffer", ok)?;
                     (T::STORAGE_BUFFER, h.raw().0, Info::Buffer(self.whole(h)?))
                 }
+                Bind::TexelBuffer(h) => {
+                    let ok = |a| {
+                        matches!(
+                            a,
+                            A::VertexShaderReadSampled
+                                | A::FragmentShaderReadSampled
+                                | A::ComputeShaderReadSampled
+                                | A::AnyShaderReadSampled
+                        )
+                    };
+                    self.check_bind(h.raw().0, "a texel buffer", ok)?;
+                    let b = self.buffer(h)?;
+                    let view = b.texel_view.ok_or_else(|| {
+                        anyhow!("pass '{}': buffer '{}' has no texel view (imported?)", self.pass, self.name(h.raw().0))
+                    })?;
+                    let limit = self.ctx.max_texel_buffer_elements as u64 * 16;
+                    if b.size > limit {
+                        bail!(
+                            "pass '{}': buffer '{}' ({} bytes) is larger than the device's texel buffers ({} bytes)",
+                            self.pass,
+                            self.name(h.raw().0),
+                            b.size,
+                            limit
+                        );
+                    }
+                    (T::UNIFORM_TEXEL_BUFFER, h.raw().0, Info::Texel(view))
+                }
             };
             match shader_set.map(|s| s.get(binding)) {
                 // no stage uses it: checked, not written
@@ -195,6 +226,7 @@ impl<'a> RecordContext<'a> {
                 match info {
                     Info::Image(x) => w.image_info(std::slice::from_ref(x)),
                     Info::Buffer(x) => w.buffer_info(std::slice::from_ref(x)),
+                    Info::Texel(x) => w.texel_buffer_view(std::slice::from_ref(x)),
                 }
             })
             .collect();
@@ -227,4 +259,10 @@ pub enum Bind {
     StorageImage(ImageHandle),
     UniformBuffer(BufferHandle),
     StorageBuffer(BufferHandle),
+    /// A buffer read as a `usamplerBuffer` (`texelFetch`, 16-byte `uvec4` texels) through its
+    /// `R32G32B32A32_UINT` view; declared as a sampled read (e.g.
+    /// [`crate::Access::ComputeShaderReadSampled`]). On a CPU
+    /// device (llvmpipe) a texel fetch at a per-invocation index is one gather of 16-byte texels,
+    /// where a storage-buffer read is a bounds-checked scalar load per lane and component.
+    TexelBuffer(BufferHandle),
 }

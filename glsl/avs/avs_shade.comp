@@ -69,13 +69,10 @@ layout(set = 0, binding = 14) readonly buffer AxisTable { float axis_table[]; };
 // unshadowed diffuse term
 layout(set = 0, binding = 15) readonly buffer Irradiance { float irr[]; };
 // the frame's kd-tree (include/kdtree.glsl): local lights' shadow rays (flags bit 1)
-layout(set = 0, binding = 16) readonly buffer Tris { vec4 kd_tris[]; };
-layout(set = 0, binding = 17) readonly buffer Nodes { uvec4 kd_nodes[]; };
-layout(set = 0, binding = 18) readonly buffer Refs { uint kd_refs[]; };
+layout(set = 0, binding = 16) uniform usamplerBuffer kd_tris;
+layout(set = 0, binding = 17) uniform usamplerBuffer kd_nodes;
+layout(set = 0, binding = 18) uniform usamplerBuffer kd_refs;
 layout(set = 0, binding = 19) readonly buffer Header { uint kd_hdr[]; };
-#define KD_TRI(i) kd_tris[i]
-#define KD_NODE(i) kd_nodes[i]
-#define KD_REF(i) kd_refs[i]
 #define KD_HDR(i) kd_hdr[i]
 #include "kdtree.glsl"
 #include "light_rays.glsl"

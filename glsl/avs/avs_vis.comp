@@ -24,9 +24,9 @@
 #include "avs_maps.glsl"
 
 layout(local_size_x = 64) in;
-layout(std430, binding = 0) readonly buffer Tris { vec4 kd_tris[]; };
-layout(std430, binding = 1) readonly buffer Nodes { uvec4 kd_nodes[]; };
-layout(std430, binding = 2) readonly buffer Refs { uint kd_refs[]; };
+layout(binding = 0) uniform usamplerBuffer kd_tris;
+layout(binding = 1) uniform usamplerBuffer kd_nodes;
+layout(binding = 2) uniform usamplerBuffer kd_refs;
 layout(std430, binding = 3) readonly buffer Header { uint kd_hdr[]; };
 // 3 vec4 per slot: (position, normal offset), (tangent, 0), (normal, 0)
 layout(std430, binding = 4) readonly buffer Points { vec4 pts[]; };
@@ -55,9 +55,6 @@ layout(push_constant) uniform Push {
 // texels of one workgroup (a multiple of every level's res <= 256)
 #define AVS_VIS_CHUNK 1024u
 
-#define KD_TRI(i) kd_tris[i]
-#define KD_NODE(i) kd_nodes[i]
-#define KD_REF(i) kd_refs[i]
 #define KD_HDR(i) kd_hdr[i]
 #include "kdtree.glsl"
 

@@ -55,13 +55,10 @@ layout(set = 0, binding = 15) readonly buffer Irradiance { float irr[]; };
 #else
 #define ISG_KD_BINDING 16
 #endif
-layout(set = 0, binding = ISG_KD_BINDING) readonly buffer KdTris { vec4 kd_tris[]; };
-layout(set = 0, binding = ISG_KD_BINDING + 1) readonly buffer KdNodes { uvec4 kd_nodes[]; };
-layout(set = 0, binding = ISG_KD_BINDING + 2) readonly buffer KdRefs { uint kd_refs[]; };
+layout(set = 0, binding = ISG_KD_BINDING) uniform usamplerBuffer kd_tris;
+layout(set = 0, binding = ISG_KD_BINDING + 1) uniform usamplerBuffer kd_nodes;
+layout(set = 0, binding = ISG_KD_BINDING + 2) uniform usamplerBuffer kd_refs;
 layout(set = 0, binding = ISG_KD_BINDING + 3) readonly buffer KdHeader { uint kd_hdr[]; };
-#define KD_TRI(i) kd_tris[i]
-#define KD_NODE(i) kd_nodes[i]
-#define KD_REF(i) kd_refs[i]
 #define KD_HDR(i) kd_hdr[i]
 #include "kdtree.glsl"
 layout(push_constant) uniform Push {

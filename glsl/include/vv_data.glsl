@@ -27,13 +27,10 @@ layout(set = 0, binding = 9) readonly buffer Lights { LightData lights[]; };
 #include "env_shade.glsl"
 #include "lights.glsl"
 // The scene's kd-tree (include/kdtree.glsl): the local lights' shadow rays (pc.par.w = 1).
-layout(set = 0, binding = 10) readonly buffer KdTris { vec4 kd_tris[]; };
-layout(set = 0, binding = 11) readonly buffer KdNodes { uvec4 kd_nodes[]; };
-layout(set = 0, binding = 12) readonly buffer KdRefs { uint kd_refs[]; };
+layout(set = 0, binding = 10) uniform usamplerBuffer kd_tris;
+layout(set = 0, binding = 11) uniform usamplerBuffer kd_nodes;
+layout(set = 0, binding = 12) uniform usamplerBuffer kd_refs;
 layout(set = 0, binding = 13) readonly buffer KdHeader { uint kd_hdr[]; };
-#define KD_TRI(i) kd_tris[i]
-#define KD_NODE(i) kd_nodes[i]
-#define KD_REF(i) kd_refs[i]
 #define KD_HDR(i) kd_hdr[i]
 #include "kdtree.glsl"
 #include "light_rays.glsl"

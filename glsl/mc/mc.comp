@@ -10,9 +10,9 @@
 // penumbra_reference (render.rs, brdf.rs, sampling.rs); see passes/src/mc/mod.rs for what is left out.
 // Progressive: accum.rgb sums samples, accum.a counts them; hdr = accum.rgb / accum.a.
 layout(local_size_x = 8, local_size_y = 8) in;
-layout(std430, binding = 0) readonly buffer Tris { vec4 kd_tris[]; };
-layout(std430, binding = 1) readonly buffer Nodes { uvec4 kd_nodes[]; };
-layout(std430, binding = 2) readonly buffer Refs { uint kd_refs[]; };
+layout(binding = 0) uniform usamplerBuffer kd_tris;
+layout(binding = 1) uniform usamplerBuffer kd_nodes;
+layout(binding = 2) uniform usamplerBuffer kd_refs;
 layout(std430, binding = 3) readonly buffer Header { uint kd_hdr[]; };
 // per triangle: (n0, material bits), (n1, 0), (n2, 0), (tangent, 0), (uv0, uv1), (uv2, 0, 0)
 layout(std430, binding = 4) readonly buffer TriData { vec4 tri_data[]; };
@@ -42,9 +42,6 @@ layout(push_constant) uniform Push {
     vec4 env_rot;           // cos, sin of the environment rotation, its intensity (the frame's)
 } pc;
 
-#define KD_TRI(i) kd_tris[i]
-#define KD_NODE(i) kd_nodes[i]
-#define KD_REF(i) kd_refs[i]
 #define KD_HDR(i) kd_hdr[i]
 #include "kdtree.glsl"
 
@@ -460,7 +457,7 @@ void radiance_samples(vec2 ndc, uint first, uint count) {
         }
     }
     uint ti = surf ? hit.tri : 0u;
-    vec3 p0 = kd_tris[3u * ti].xyz, p1 = kd_tris[3u * ti + 1u].xyz, p2 = kd_tris[3u * ti + 2u].xyz;
+    vec3 p0 = KD_TRI(3u * ti).xyz, p1 = KD_TRI(3u * ti + 1u).xyz, p2 = KD_TRI(3u * ti + 2u).xyz;
     vec3 p = o + d * (surf ? hit.t : 0.0);
     float b1 = clamp(hit.b1, 0.0, 1.0), b2 = clamp(hit.b2, 0.0, 1.0);
     float b0 = max(1.0 - b1 - b2, 0.0);

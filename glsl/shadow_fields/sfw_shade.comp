@@ -47,13 +47,10 @@ layout(set = 0, binding = 15) uniform sampler2D self_lights;
 #include "env_shade.glsl"
 #include "irradiance.glsl"
 // The frame's kd-tree (include/kdtree.glsl): the local lights' shadow rays (traced = 1).
-layout(set = 0, binding = 16) readonly buffer KdTris { vec4 kd_tris[]; };
-layout(set = 0, binding = 17) readonly buffer KdNodes { uvec4 kd_nodes[]; };
-layout(set = 0, binding = 18) readonly buffer KdRefs { uint kd_refs[]; };
+layout(set = 0, binding = 16) uniform usamplerBuffer kd_tris;
+layout(set = 0, binding = 17) uniform usamplerBuffer kd_nodes;
+layout(set = 0, binding = 18) uniform usamplerBuffer kd_refs;
 layout(set = 0, binding = 19) readonly buffer KdHeader { uint kd_hdr[]; };
-#define KD_TRI(i) kd_tris[i]
-#define KD_NODE(i) kd_nodes[i]
-#define KD_REF(i) kd_refs[i]
 #define KD_HDR(i) kd_hdr[i]
 #include "kdtree.glsl"
 #include "light_rays.glsl"

@@ -5,17 +5,14 @@
 // Hit i: (t, b1, b2, triangle index as float bits); t < 0 is a miss. Any-hit mode reports the
 // first hit found (not the closest), whose t is only meaningful as "occluded".
 layout(local_size_x = 64) in;
-layout(std430, binding = 0) readonly buffer Tris { vec4 kd_tris[]; };
-layout(std430, binding = 1) readonly buffer Nodes { uvec4 kd_nodes[]; };
-layout(std430, binding = 2) readonly buffer Refs { uint kd_refs[]; };
+layout(binding = 0) uniform usamplerBuffer kd_tris;
+layout(binding = 1) uniform usamplerBuffer kd_nodes;
+layout(binding = 2) uniform usamplerBuffer kd_refs;
 layout(std430, binding = 3) readonly buffer Header { uint kd_hdr[]; };
 layout(std430, binding = 4) readonly buffer Rays { vec4 rays[]; };
 layout(std430, binding = 5) writeonly buffer Hits { vec4 hits[]; };
 layout(push_constant) uniform Push { uint count; uint any_hit; } pc;
 
-#define KD_TRI(i) kd_tris[i]
-#define KD_NODE(i) kd_nodes[i]
-#define KD_REF(i) kd_refs[i]
 #define KD_HDR(i) kd_hdr[i]
 #include "kdtree.glsl"
 

@@ -182,21 +182,40 @@ pub struct KdTreeReads {
 }
 
 impl KdTreeHandles {
-    /// Declares the pass's storage reads of the tree by compute shaders.
+    /// Declares the pass's reads of the tree by compute shaders (texel reads of the triangles,
+    /// nodes and refs, a storage read of the header).
     pub fn read(&self, p: &mut PassBuilder<'_>) -> KdTreeReads {
-        KdTreeReads {
-            tris: p.read(self.tris, Access::ComputeShaderReadStorage),
-            nodes: p.read(self.nodes, Access::ComputeShaderReadStorage),
-            refs: p.read(self.refs, Access::ComputeShaderReadStorage),
-            header: p.read(self.header, Access::ComputeShaderReadStorage),
-        }
+        KdTreeReads::declare(p, self.buffers(), false)
     }
 }
 
 impl KdTreeReads {
-    /// The four storage-buffer bindings, in declaration order.
+    /// Declares a pass's reads of a tree's four buffers (triangles, nodes, refs, header: as
+    /// [`KdTreeHandles::buffers`] or stand-ins): texel reads of the first three and a storage
+    /// read of the header, by compute shaders, or by any stage (`any_stage`: a raster pass).
+    pub fn declare(p: &mut PassBuilder<'_>, b: [BufferHandle; 4], any_stage: bool) -> Self {
+        let (texel, storage) = if any_stage {
+            (Access::AnyShaderReadSampled, Access::AnyShaderReadStorage)
+        } else {
+            (Access::ComputeShaderReadSampled, Access::ComputeShaderReadStorage)
+        };
+        KdTreeReads {
+            tris: p.read(b[0], texel),
+            nodes: p.read(b[1], texel),
+            refs: p.read(b[2], texel),
+            header: p.read(b[3], storage),
+        }
+    }
+
+    /// The four bindings, in declaration order: the triangles, nodes and refs as texel buffers
+    /// (`usamplerBuffer`, `glsl/include/kdtree.glsl`), the header as a storage buffer.
     pub fn binds(&self) -> [Bind; 4] {
-        crate::util::storage([self.tris, self.nodes, self.refs, self.header])
+        [
+            Bind::TexelBuffer(self.tris),
+            Bind::TexelBuffer(self.nodes),
+            Bind::TexelBuffer(self.refs),
+            Bind::StorageBuffer(self.header),
+        ]
     }
 }
 
@@ -389,7 +408,8 @@ impl KdTreeBuilder {
         [
             ("kdtree.tris", tri_bytes),
             ("kdtree.nodes", max_nodes * 16),
-            ("kdtree.refs", refs * 4),
+            // whole 16-byte texels: the shaders read the refs four to a texel
+            ("kdtree.refs", (refs * 4).next_multiple_of(16)),
             ("kdtree.header", HEADER_WORDS * 4),
         ]
     }

@@ -1031,8 +1031,8 @@ impl AvsTechnique {
             // the shader's level: 0 traces every texel and reads no previous level
             let level = level - first;
             let mut p = graph.pass(&format!("avs_vis{tag}_l{level}"), PassKind::Compute);
-            let [t0, t1, t2, t3, pb, bb] = [tree.tris, tree.nodes, tree.refs, tree.header, points_buf, batch_buf]
-                .map(|h| p.read(h, Access::ComputeShaderReadStorage));
+            let kd = tree.read(&mut p);
+            let [pb, bb] = [points_buf, batch_buf].map(|h| p.read(h, Access::ComputeShaderReadStorage));
             // level 0 reads nothing: bind the output's sibling scratch as a dummy "previous"
             let prev_idx = (level as usize + 1) % 2;
             let prev = if level == 0 {
@@ -1059,7 +1059,8 @@ impl AvsTechnique {
             let chunks = (res * res).div_ceil(1024).max(1);
             let pipe = self.vis.handle();
             p.record(move |rc| {
-                let binds = crate::util::storage([t0, t1, t2, t3, pb, bb, prev.unwrap_or(out), out, st]);
+                let binds =
+                    [kd.binds().as_slice(), &crate::util::storage([pb, bb, prev.unwrap_or(out), out, st])].concat();
                 crate::util::dispatch(rc, pipe, &binds, &bytes_of(&push), [n.clamp(1, 65535), chunks, 1])
             });
             stats = st;

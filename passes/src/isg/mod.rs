@@ -948,7 +948,7 @@ impl crate::technique::Technique for IsgTechnique {
             [table, lobes, bvh, prefiltered, tris_buf, tri_bvh, irradiance]
                 .map(|h| p.read(h, Access::ComputeShaderReadStorage));
         let vertex_vis = vertex_vis.map(|v| p.read(v, Access::ComputeShaderReadSampled));
-        let kd = kd_bufs.map(|b| p.read(b, Access::ComputeShaderReadStorage));
+        let kd = crate::kdtree::KdTreeReads::declare(&mut p, kd_bufs, false);
         let mut push = Vec::with_capacity(40);
         push.extend_from_slice(&scene.light_count.to_le_bytes());
         push.extend_from_slice(&self.lobe_count().to_le_bytes());
@@ -976,7 +976,7 @@ impl crate::technique::Technique for IsgTechnique {
             if let Some(v) = vertex_vis {
                 binds.push(Bind::SampledImage(v, nearest));
             }
-            binds.extend(crate::util::storage(kd));
+            binds.extend(kd.binds());
             crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
         });
         Ok(hdr)

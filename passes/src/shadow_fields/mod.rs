@@ -1293,7 +1293,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
         let r = [h.data, h.shells, h.insts, h.tensor, h.light, inputs.handles.lights]
             .map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let tex = p.read(inputs.handles.textures, Access::ComputeShaderReadSampled);
-        let kd = kd_bufs.map(|b| p.read(b, Access::ComputeShaderReadStorage));
+        let kd = crate::kdtree::KdTreeReads::declare(&mut p, kd_bufs, false);
         let key = p.read(key, Access::ComputeShaderReadStorage);
         let pipe = self.shade.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
@@ -1314,7 +1314,7 @@ impl crate::technique::Technique for ShadowFieldsTechnique {
             binds.extend(r.iter().map(|&b| Bind::StorageBuffer(b)));
             binds.push(Bind::SampledImage(vtx, nearest));
             binds.push(Bind::SampledImage(tex, repeat));
-            binds.extend(crate::util::storage(kd));
+            binds.extend(kd.binds());
             binds.push(Bind::StorageBuffer(key));
             crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(hh, 8), 1])
         });

@@ -760,7 +760,7 @@ impl crate::technique::Technique for WaveletTechnique {
             .map(|b| p.read(b, Access::ComputeShaderReadStorage));
         let [tex, self_share, self_lights] =
             [inputs.handles.textures, self_share, self_lights].map(|h| p.read(h, Access::ComputeShaderReadSampled));
-        let kd = kd_bufs.map(|b| p.read(b, Access::ComputeShaderReadStorage));
+        let kd = crate::kdtree::KdTreeReads::declare(&mut p, kd_bufs, false);
         let key = p.read(key, Access::ComputeShaderReadStorage);
         let pipe = self.shade.handle();
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
@@ -779,7 +779,7 @@ impl crate::technique::Technique for WaveletTechnique {
             binds.push(Bind::SampledImage(tex, repeat));
             binds.push(Bind::SampledImage(self_share, nearest));
             binds.push(Bind::SampledImage(self_lights, nearest));
-            binds.extend(crate::util::storage(kd));
+            binds.extend(kd.binds());
             binds.push(Bind::StorageBuffer(key));
             // one workgroup of 64 per pixel: the cube's directions split over its invocations
             crate::util::dispatch(rc, pipe, &binds, &push, [w, hh, 1])

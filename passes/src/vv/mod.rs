@@ -862,7 +862,7 @@ impl crate::technique::Technique for VvTechnique {
         let materials = p.read(inputs.handles.materials, Access::AnyShaderReadStorage);
         let env_map = p.read(inputs.env, Access::AnyShaderReadSampled);
         let lights = p.read(inputs.handles.lights, Access::AnyShaderReadStorage);
-        let kd = kd_bufs.map(|b| p.read(b, Access::AnyShaderReadStorage));
+        let kd = crate::kdtree::KdTreeReads::declare(&mut p, kd_bufs, true);
         let mut off1 = self.up.off1;
         off1[3] = inputs.handles.light_count.min(MAX_LIGHTS) as i32;
         let mut push = Vec::with_capacity(64);
@@ -915,10 +915,10 @@ impl crate::technique::Technique for VvTechnique {
                     Bind::StorageBuffer(materials),
                     Bind::SampledImage(env_map, latlong),
                     Bind::StorageBuffer(lights),
-                    Bind::StorageBuffer(kd[0]),
-                    Bind::StorageBuffer(kd[1]),
-                    Bind::StorageBuffer(kd[2]),
-                    Bind::StorageBuffer(kd[3]),
+                    Bind::TexelBuffer(kd.tris),
+                    Bind::TexelBuffer(kd.nodes),
+                    Bind::TexelBuffer(kd.refs),
+                    Bind::StorageBuffer(kd.header),
                 ],
             )?;
             unsafe {
