@@ -106,12 +106,12 @@ impl Tracer {
         let kind = if mode == TraceMode::AnyHit { "trace_any" } else { "trace_closest" };
         let mut p = graph.pass(&format!("{kind}:{rays_name}"), PassKind::Compute);
         let kd = tree.read(&mut p);
-        let rays = p.read(rays, Access::ComputeShaderReadStorage);
+        let rays = p.read(rays, Access::ComputeShaderReadSampled);
         let hits = p.write(hits, Access::ComputeShaderWriteStorage);
         let push = [count, (mode == TraceMode::AnyHit) as u32];
         let pipe = self.pipeline.handle();
         p.record(move |rc| {
-            let binds = [kd.binds().as_slice(), &[Bind::StorageBuffer(rays), Bind::StorageBuffer(hits)]].concat();
+            let binds = [kd.binds().as_slice(), &[Bind::TexelBuffer(rays), Bind::StorageBuffer(hits)]].concat();
             crate::util::dispatch(rc, pipe, &binds, &bytes_of(&push), [groups(count, 64 * RAYS_PER_INVOCATION), 1, 1])
         });
         hits
