@@ -14,8 +14,18 @@ struct IsgNode {
     ivec4 info;   // x left child (-1 for a leaf), y right child, z sphere index, w unused
 };
 
-layout(set = 0, binding = ISG_TABLE_BINDING) readonly buffer IsgTableBuf { float isg_t[]; };
-layout(set = 0, binding = ISG_NODES_BINDING) readonly buffer IsgNodes { IsgNode isg_nodes[]; };
+// Read through uniform texel buffers (R32G32B32A32_UINT views: on a CPU device one gather per
+// texel where a storage-buffer read is a scalar load per lane and component): the table's floats
+// four to a texel, a node in two texels.
+layout(set = 0, binding = ISG_TABLE_BINDING) uniform usamplerBuffer isg_table;
+layout(set = 0, binding = ISG_NODES_BINDING) uniform usamplerBuffer isg_nodes;
+#define ISG_T(i) uintBitsToFloat(texelFetch(isg_table, int(i) >> 2)[int(i) & 3])
+IsgNode isg_node_at(usamplerBuffer b, int i) {
+    IsgNode nd;
+    nd.sphere = uintBitsToFloat(texelFetch(b, 2 * i));
+    nd.info = ivec4(texelFetch(b, 2 * i + 1));
+    return nd;
+}
 
 // The invocation's choices (penumbra_math::isg::{IsgModel, PatchRule}), set by the including
 // shader from its push constants before calling isg_visible:
@@ -27,12 +37,12 @@ bool isg_paper_fit = false;
 bool isg_paper_rule = false;
 
 float isg_level_gamma(int l) {
-    return pow(10.0, isg_t[2] + float(l) / isg_t[0]);
+    return pow(10.0, ISG_T(2) + float(l) / ISG_T(0));
 }
 
 float isg_lookup_level(int l, float th, float ph) {
-    int n = int(isg_t[1] + 0.5);
-    int levels = int(isg_t[3] + 0.5);
+    int n = int(ISG_T(1) + 0.5);
+    int levels = int(ISG_T(3) + 0.5);
     float k = sqrt(isg_level_gamma(l)) + 0.5;
     float an = atan(k * ISG_HALF_PI);
     float vt = (atan(k * (clamp(th, 0.0, 3.14159265) - ISG_HALF_PI)) / an + 1.0) * 0.5 * float(n - 1);
@@ -42,17 +52,17 @@ float isg_lookup_level(int l, float th, float ph) {
     float a = clamp(vt - float(i), 0.0, 1.0);
     float b = clamp(vp - float(j), 0.0, 1.0);
     int base = 4 + levels + l * n * n;
-    float d00 = isg_t[base + i * n + j];
-    float d01 = isg_t[base + i * n + j + 1];
-    float d10 = isg_t[base + (i + 1) * n + j];
-    float d11 = isg_t[base + (i + 1) * n + j + 1];
+    float d00 = ISG_T(base + i * n + j);
+    float d01 = ISG_T(base + i * n + j + 1);
+    float d10 = ISG_T(base + (i + 1) * n + j);
+    float d11 = ISG_T(base + (i + 1) * n + j + 1);
     return mix(mix(d00, d01, b), mix(d10, d11, b), a);
 }
 
 // Level position of a sharpness: (first level, weight of the next).
 vec2 isg_level_pos(float gamma) {
-    int levels = int(isg_t[3] + 0.5);
-    float x = clamp((log(max(gamma, 1e-2)) / log(10.0) - isg_t[2]) * isg_t[0], 0.0, float(levels - 1));
+    int levels = int(ISG_T(3) + 0.5);
+    float x = clamp((log(max(gamma, 1e-2)) / log(10.0) - ISG_T(2)) * ISG_T(0), 0.0, float(levels - 1));
     float l0 = min(floor(x), float(max(levels - 2, 0)));
     return vec2(l0, clamp(x - l0, 0.0, 1.0));
 }
@@ -63,10 +73,10 @@ float isg_sigmoid(float x) {
 
 // The appendix's quartic k (0: g, 1: h) in gamma / 100, gamma clamped to the fit's 1..1e4.
 float isg_paper_poly(int k, float gamma) {
-    int levels = int(isg_t[3] + 0.5), n = int(isg_t[1] + 0.5);
+    int levels = int(ISG_T(3) + 0.5), n = int(ISG_T(1) + 0.5);
     int c = 4 + levels + levels * n * n + 5 * k;
     float x = clamp(gamma, 1.0, 1e4) / 100.0;
-    return (((isg_t[c] * x + isg_t[c + 1]) * x + isg_t[c + 2]) * x + isg_t[c + 3]) * x + isg_t[c + 4];
+    return (((ISG_T(c) * x + ISG_T(c + 1)) * x + ISG_T(c + 2)) * x + ISG_T(c + 3)) * x + ISG_T(c + 4);
 }
 
 // Normalized ISG S(theta, phi) / S(pi, pi), in [0, 1].
@@ -89,7 +99,7 @@ float isg_eval(float th, float ph, float gamma) {
 float isg_limit(float gamma) {
     vec2 lp = isg_level_pos(gamma);
     int l0 = int(lp.x);
-    float a0 = isg_t[4 + l0], a1 = isg_t[4 + l0 + 1];
+    float a0 = ISG_T(4 + l0), a1 = ISG_T(4 + l0 + 1);
     // Interpolate the lobe width (1/angle scales like sqrt(gamma)) rather than the angle.
     float d = 1.0 / mix(1.0 / a0, 1.0 / a1, lp.y);
     return clamp(d, 1e-5, ISG_HALF_PI);
@@ -206,15 +216,16 @@ bool isg_mark_cap(vec3 c, float psi, vec3 fx, vec3 fy, vec3 fz, float delta, flo
 #ifdef ISG_TRIS_BINDING
 // Thin-shell triangles (world space, 3 vec4 per triangle, xyz used) and their BVH of bounding
 // spheres (IsgNode, info.z = triangle index).
-layout(set = 0, binding = ISG_TRIS_BINDING) readonly buffer IsgTris { vec4 isg_tris[]; };
-layout(set = 0, binding = ISG_TRI_NODES_BINDING) readonly buffer IsgTriNodes { IsgNode isg_tri_nodes[]; };
+layout(set = 0, binding = ISG_TRIS_BINDING) uniform usamplerBuffer isg_tris;
+layout(set = 0, binding = ISG_TRI_NODES_BINDING) uniform usamplerBuffer isg_tri_nodes;
+#define ISG_TRI(i) uintBitsToFloat(texelFetch(isg_tris, int(i)))
 
 // Marks the patches whose centre direction, seen from p, passes through the triangle
 // (projected triangle: the spherical triangle of the three vertex directions; candidates from
 // its bounding cap, then three plane-side tests per candidate patch). Triangles whose plane
 // contains p and triangles entirely below the tangent plane are skipped.
 bool isg_mark_triangle(int t, vec3 p, vec3 n, vec3 fx, vec3 fy, vec3 fz, float delta, float cone, float step_a, int side) {
-    vec3 a = isg_tris[3 * t].xyz - p, b = isg_tris[3 * t + 1].xyz - p, c = isg_tris[3 * t + 2].xyz - p;
+    vec3 a = ISG_TRI(3 * t).xyz - p, b = ISG_TRI(3 * t + 1).xyz - p, c = ISG_TRI(3 * t + 2).xyz - p;
     if (max(dot(a, n), max(dot(b, n), dot(c, n))) <= 0.0) return false;
     float la = length(a), lb = length(b), lc = length(c);
     if (!(la > 0.0 && lb > 0.0 && lc > 0.0)) return false;
@@ -277,7 +288,7 @@ bool isg_segment_blocked(vec3 p, vec3 dir, float len, int node_count, int tri_no
         ++guard;
         int ni = stack[--sp];
         if (ni < 0 || ni >= node_count) continue;
-        IsgNode node = isg_nodes[ni];
+        IsgNode node = isg_node_at(isg_nodes, ni);
         vec3 d = node.sphere.xyz - p;
         float r = node.sphere.w;
         if (!(r > 0.0)) continue;
@@ -302,7 +313,7 @@ bool isg_segment_blocked(vec3 p, vec3 dir, float len, int node_count, int tri_no
         ++guard;
         int ni = stack[--sp];
         if (ni < 0 || ni >= tri_node_count) continue;
-        IsgNode node = isg_tri_nodes[ni];
+        IsgNode node = isg_node_at(isg_tri_nodes, ni);
         vec3 d = node.sphere.xyz - p;
         float r = node.sphere.w;
         if (!(r >= 0.0)) continue;
@@ -318,7 +329,7 @@ bool isg_segment_blocked(vec3 p, vec3 dir, float len, int node_count, int tri_no
         }
         // Moller-Trumbore, hits strictly inside (0, len) beyond a relative epsilon.
         int tri = node.info.z;
-        vec3 a = isg_tris[3 * tri].xyz, e1 = isg_tris[3 * tri + 1].xyz - a, e2 = isg_tris[3 * tri + 2].xyz - a;
+        vec3 a = ISG_TRI(3 * tri).xyz, e1 = ISG_TRI(3 * tri + 1).xyz - a, e2 = ISG_TRI(3 * tri + 2).xyz - a;
         vec3 pv = cross(dir, e2);
         float det = dot(e1, pv);
         if (abs(det) < 1e-12) continue;
@@ -370,7 +381,7 @@ float isg_visible(vec3 p, vec3 n, vec3 axis, float gamma, int node_count, int tr
         ++guard;
         int ni = stack[--sp];
         if (ni < 0 || ni >= node_count) continue;
-        IsgNode node = isg_nodes[ni];
+        IsgNode node = isg_node_at(isg_nodes, ni);
         vec3 d = node.sphere.xyz - p;
         float r = node.sphere.w;
         if (!(r > 0.0)) continue;
@@ -406,7 +417,7 @@ float isg_visible(vec3 p, vec3 n, vec3 axis, float gamma, int node_count, int tr
         ++guard;
         int ni = stack[--sp];
         if (ni < 0 || ni >= tri_node_count) continue;
-        IsgNode node = isg_tri_nodes[ni];
+        IsgNode node = isg_node_at(isg_tri_nodes, ni);
         vec3 d = node.sphere.xyz - p;
         float r = node.sphere.w;
         if (!(r >= 0.0)) continue;

@@ -443,6 +443,13 @@ pub fn persistent_upload(
     crate::util::upload_into(graph, &format!("upload_{name}"), &format!("{name}.upload"), data, h)
 }
 
+/// `bytes` padded with zeros to whole 16-byte texels: the size of a buffer a shader reads as a
+/// texel buffer (`Bind::TexelBuffer`, whose view covers whole texels only).
+pub fn whole_texels(mut bytes: Vec<u8>) -> Vec<u8> {
+    bytes.resize(bytes.len().next_multiple_of(16).max(16), 0);
+    bytes
+}
+
 /// Storage-buffer binds of `bufs`, in binding order (most of a compute pass's bind list).
 pub fn storage<const N: usize>(bufs: [penumbra_engine::BufferHandle; N]) -> [penumbra_engine::Bind; N] {
     bufs.map(penumbra_engine::Bind::StorageBuffer)

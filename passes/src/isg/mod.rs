@@ -807,8 +807,9 @@ impl IsgTechnique {
         let materials = p.read(scene.materials, Access::ComputeShaderReadStorage);
         let verts_c = p.read(verts, Access::ComputeShaderReadStorage);
         let vis = p.write(vis, Access::ComputeShaderWriteStorage);
-        let [lobes, table, bvh, tris, tri_nodes] =
-            [lobes, table, bvh, tris, tri_nodes].map(|h| p.read(h, Access::ComputeShaderReadStorage));
+        let lobes = p.read(lobes, Access::ComputeShaderReadStorage);
+        let [table, bvh, tris, tri_nodes] =
+            [table, bvh, tris, tri_nodes].map(|h| p.read(h, Access::ComputeShaderReadSampled));
         let mut push = Vec::with_capacity(32);
         push.extend_from_slice(&count.to_le_bytes());
         push.extend_from_slice(&self.lobe_count().to_le_bytes());
@@ -821,8 +822,9 @@ impl IsgTechnique {
             &(self.settings.model_flags() | (self.settings.as_seven_lobes as u32) << 6).to_le_bytes(),
         );
         p.record(move |rc| {
-            let storage = crate::util::storage([materials, verts_c, vis, lobes, table, bvh, tris, tri_nodes]);
-            let binds = [&[Bind::UniformBuffer(camera)][..], &storage].concat();
+            let storage = crate::util::storage([materials, verts_c, vis, lobes]);
+            let texels = [table, bvh, tris, tri_nodes].map(Bind::TexelBuffer);
+            let binds = [&[Bind::UniformBuffer(camera)][..], &storage, &texels].concat();
             crate::util::dispatch(rc, vertex_pipe, &binds, &push, [groups(count, 64), 1, 1])
         });
         let image = graph.create_image("isg_vis", ImageDesc::new_2d(vertex::VIS_FORMAT, w, h));
@@ -894,7 +896,7 @@ impl crate::technique::Technique for IsgTechnique {
         self.last_sphere_count = spheres.len();
         let (scene, gb) = (inputs.handles, inputs.gbuffer);
         let (w, h) = (gb.width, gb.height);
-        let table = graph.create_buffer_init("isg_table", self.table.as_ref().clone());
+        let table = graph.create_buffer_init("isg_table", crate::util::whole_texels(self.table.as_ref().clone()));
         let lobes = crate::lighting::lobes_bytes_at(&self.lobes, inputs.frame.environment);
         let lobes = graph.create_buffer_init("isg_lobes", lobes);
         let prefiltered = graph.create_buffer_init("isg_prefiltered", self.prefiltered.as_ref().clone());
@@ -944,9 +946,11 @@ impl crate::technique::Technique for IsgTechnique {
         let hdr = io.hdr;
         let lights = p.read(scene.lights, Access::ComputeShaderReadStorage);
         let textures = p.read(scene.textures, Access::ComputeShaderReadSampled);
-        let [table, lobes, bvh, prefiltered, tris_buf, tri_bvh, irradiance] =
-            [table, lobes, bvh, prefiltered, tris_buf, tri_bvh, irradiance]
-                .map(|h| p.read(h, Access::ComputeShaderReadStorage));
+        // the ISG's table, sphere BVH and thin shells are texel buffers (glsl/include/isg.glsl)
+        let [table, bvh, tris_buf, tri_bvh] =
+            [table, bvh, tris_buf, tri_bvh].map(|h| p.read(h, Access::ComputeShaderReadSampled));
+        let [lobes, prefiltered, irradiance] =
+            [lobes, prefiltered, irradiance].map(|h| p.read(h, Access::ComputeShaderReadStorage));
         let vertex_vis = vertex_vis.map(|v| p.read(v, Access::ComputeShaderReadSampled));
         let kd = crate::kdtree::KdTreeReads::declare(&mut p, kd_bufs, false);
         let mut push = Vec::with_capacity(40);
@@ -972,7 +976,15 @@ impl crate::technique::Technique for IsgTechnique {
         p.record(move |rc| {
             let mut binds = io.binds(nearest, linear);
             binds.extend([Bind::StorageBuffer(lights), Bind::SampledImage(textures, repeat)]);
-            binds.extend(crate::util::storage([table, lobes, bvh, prefiltered, tris_buf, tri_bvh, irradiance]));
+            binds.extend([
+                Bind::TexelBuffer(table),
+                Bind::StorageBuffer(lobes),
+                Bind::TexelBuffer(bvh),
+                Bind::StorageBuffer(prefiltered),
+                Bind::TexelBuffer(tris_buf),
+                Bind::TexelBuffer(tri_bvh),
+                Bind::StorageBuffer(irradiance),
+            ]);
             if let Some(v) = vertex_vis {
                 binds.push(Bind::SampledImage(v, nearest));
             }

@@ -5,6 +5,7 @@ use crate::util::{bytes_of, compute_pipeline, groups};
 use anyhow::Result;
 use glam::Vec3;
 use penumbra_engine::shader::ShaderLibrary;
+use penumbra_engine::Bind;
 use penumbra_engine::{Access, Engine, Graph, PassKind};
 use penumbra_math::isg::IsgTable;
 
@@ -52,14 +53,14 @@ pub fn gpu_visibility(
     let mut graph = Graph::new();
     let qb = graph.create_buffer_init("isg_queries", bytes_of(&q));
     let out = graph.create_buffer("isg_parity_out", count.max(1) as u64 * 4);
-    let tb = graph.create_buffer_init("isg_table", bytes_of(&table));
+    let tb = graph.create_buffer_init("isg_table", crate::util::whole_texels(bytes_of(&table).to_vec()));
     let nb = graph.create_buffer_init("isg_bvh", bytes_of(&nodes));
     let trb = graph.create_buffer_init("isg_thin_triangles", bytes_of(&tri_data));
     let tnb = graph.create_buffer_init("isg_thin_bvh", bytes_of(&tri_nodes));
     let mut p = graph.pass("isg_parity", PassKind::Compute);
     let qb = p.read(qb, Access::ComputeShaderReadStorage);
     let out_w = p.write(out, Access::ComputeShaderWriteStorage);
-    let [tb, nb, trb, tnb] = [tb, nb, trb, tnb].map(|h| p.read(h, Access::ComputeShaderReadStorage));
+    let [tb, nb, trb, tnb] = [tb, nb, trb, tnb].map(|h| p.read(h, Access::ComputeShaderReadSampled));
     let mut push = Vec::with_capacity(24);
     push.extend_from_slice(&count.to_le_bytes());
     push.extend_from_slice(&node_count.to_le_bytes());
@@ -69,7 +70,7 @@ pub fn gpu_visibility(
     push.extend_from_slice(&crate::isg::model_flags(params.model, params.rule).to_le_bytes());
     let pipe = pipeline.handle();
     p.record(move |rc| {
-        let binds = crate::util::storage([qb, out_w, tb, nb, trb, tnb]);
+        let binds = [&crate::util::storage([qb, out_w])[..], &[tb, nb, trb, tnb].map(Bind::TexelBuffer)].concat();
         crate::util::dispatch(rc, pipe, &binds, &push, [groups(count, 64), 1, 1])
     });
     let bytes = crate::util::submit_and_read(engine, graph, out_w, "isg_parity", count.max(1) as u64 * 4);
