@@ -28,12 +28,19 @@ layout(binding = 0) uniform usamplerBuffer kd_tris;
 layout(binding = 1) uniform usamplerBuffer kd_nodes;
 layout(binding = 2) uniform usamplerBuffer kd_refs;
 layout(std430, binding = 3) readonly buffer Header { uint kd_hdr[]; };
-// 3 vec4 per slot: (position, normal offset), (tangent, 0), (normal, 0)
-layout(std430, binding = 4) readonly buffer Points { vec4 pts[]; };
-// [0, count): slot of batch entry e; then count * K neighbour batch entries (0xffffffff: none)
-layout(std430, binding = 5) readonly buffer Batch { uint batch[]; };
-// previous level's maps, indexed by batch entry (unused at level 0)
-layout(std430, binding = 6) readonly buffer Prev { uint prev[]; };
+// The points, the batch and the previous level's maps are read through texel buffers (one
+// gather per 16-byte texel on a CPU device, where a storage-buffer read is a scalar load per lane
+// and component):
+// 3 texels per slot: (position, normal offset), (tangent, 0), (normal, 0) as float bits
+layout(binding = 4) uniform usamplerBuffer pts_t;
+// [0, count): slot of batch entry e; then count * K neighbour batch entries (0xffffffff: none),
+// four to a texel
+layout(binding = 5) uniform usamplerBuffer batch_t;
+// previous level's maps, indexed by batch entry, four words to a texel (unused at level 0)
+layout(binding = 6) uniform usamplerBuffer prev_t;
+#define PTS(i) uintBitsToFloat(texelFetch(pts_t, int(i)))
+#define BATCH(i) (texelFetch(batch_t, int((i) >> 2u))[(i) & 3u])
+#define PREV_WORD(i) (texelFetch(prev_t, int((i) >> 2u))[(i) & 3u])
 // this level's maps: indexed by batch entry (scratch) or by slot (final level); read-write
 // (atomicOr)
 layout(std430, binding = 7) coherent buffer Out { uint outw[]; };
@@ -73,7 +80,7 @@ shared uint sparent[AVS_VIS_CHUNK / 4u];
 bool prev_bit(uint e, uint a, uint b, uint pres) {
     uint s = pc.r / pres;
     uint kk = (a * s) * pc.r + b * s;
-    return AVS_VIS_BIT(prev, e * avs_words_per_map(pc.r), kk);
+    return ((PREV_WORD(e * avs_words_per_map(pc.r) + (kk >> 5u)) >> (kk & 31u)) & 1u) == 1u;
 }
 
 // Texel (a, b) of the previous level has a neighbour (8-neighbourhood, no wrap in phi) of the
@@ -101,7 +108,7 @@ void set_block(uint base, uint a, uint b, uint s) {
 }
 
 mat3 frame_of(uint slot) {
-    vec3 t = pts[3u * slot + 1u].xyz, n = pts[3u * slot + 2u].xyz;
+    vec3 t = PTS(3u * slot + 1u).xyz, n = PTS(3u * slot + 2u).xyz;
     return mat3(t, cross(n, t), n);
 }
 
@@ -114,7 +121,7 @@ void main() {
     uint t0 = gl_WorkGroupID.y * chunk_len, t1 = t0 + chunk_len;
     uint w0 = (t0 / res) * s * pc.r / 32u, w1 = (t1 / res) * s * pc.r / 32u;
     for (uint e = gl_WorkGroupID.x; e < pc.count; e += gl_NumWorkGroups.x) {
-        uint slot = batch[e];
+        uint slot = BATCH(e);
         uint base = (pc.to_slot != 0u ? slot : e) * words;
         for (uint w = w0 + tid; w < w1; w += 64u) outw[base + w] = 0u;
         if (tid == 0u) {
@@ -123,7 +130,7 @@ void main() {
         }
         memoryBarrierBuffer();
         barrier();
-        vec4 p0 = pts[3u * slot];
+        vec4 p0 = PTS(3u * slot);
         mat3 fr = frame_of(slot);
         vec3 origin = p0.xyz + fr[2] * p0.w;
         uint traced = 0u;
@@ -136,9 +143,9 @@ void main() {
                 if (!trace_it && (pc.flags & 1u) != 0u) {
                     vec3 wd = fr * avs_texel_dir(pa, pb, pres);
                     for (uint q = 0u; q < pc.k && !trace_it; ++q) {
-                        uint ne = batch[pc.count + e * pc.k + q];
+                        uint ne = BATCH(pc.count + e * pc.k + q);
                         if (ne == 0xffffffffu) break;
-                        mat3 fq = frame_of(batch[ne]);
+                        mat3 fq = frame_of(BATCH(ne));
                         uvec2 ij;
                         if (avs_dir_to_texel(transpose(fq) * wd, pres, ij)) trace_it = boundary(ne, ij.x, ij.y, pres);
                     }

@@ -1011,8 +1011,9 @@ impl AvsTechnique {
             }
         }
         data.push(0);
-        let batch_buf = graph.create_buffer_init(&format!("avs_batch{tag}"), bytes_of(&data));
-        let scratch_bytes = (n.max(1) as u64) * words * 4;
+        let batch_buf = graph.create_buffer_init(&format!("avs_batch{tag}"), crate::util::whole_texels(bytes_of(&data).to_vec()));
+        // whole 16-byte texels: the next level reads these maps as a texel buffer
+        let scratch_bytes = ((n.max(1) as u64) * words * 4).next_multiple_of(16);
         let mut scratch = [
             graph.create_buffer(&format!("avs_scratch{tag}_a"), scratch_bytes),
             graph.create_buffer(&format!("avs_scratch{tag}_b"), scratch_bytes),
@@ -1032,14 +1033,13 @@ impl AvsTechnique {
             let level = level - first;
             let mut p = graph.pass(&format!("avs_vis{tag}_l{level}"), PassKind::Compute);
             let kd = tree.read(&mut p);
-            let [pb, bb] = [points_buf, batch_buf].map(|h| p.read(h, Access::ComputeShaderReadStorage));
-            // level 0 reads nothing: bind the output's sibling scratch as a dummy "previous"
+            let [pb, bb] = [points_buf, batch_buf].map(|h| p.read(h, Access::ComputeShaderReadSampled));
+            // level 0 reads no previous level (the points are bound in its place)
             let prev_idx = (level as usize + 1) % 2;
             let prev = if level == 0 {
-                // never read; declare it written first so the graph has a version to read
                 None
             } else {
-                Some(p.read(scratch[prev_idx], Access::ComputeShaderReadStorage))
+                Some(p.read(scratch[prev_idx], Access::ComputeShaderReadSampled))
             };
             // read-write: the map is zeroed and assembled with atomicOr in place (a write only on a
             // scratch buffer's first use, levels 0 and 1)
@@ -1059,8 +1059,9 @@ impl AvsTechnique {
             let chunks = (res * res).div_ceil(1024).max(1);
             let pipe = self.vis.handle();
             p.record(move |rc| {
-                let binds =
-                    [kd.binds().as_slice(), &crate::util::storage([pb, bb, prev.unwrap_or(out), out, st])].concat();
+                // level 0 reads no previous maps: the points stand in for them
+                let texels = [pb, bb, prev.unwrap_or(pb)].map(Bind::TexelBuffer);
+                let binds = [kd.binds().as_slice(), &texels, &crate::util::storage([out, st])].concat();
                 crate::util::dispatch(rc, pipe, &binds, &bytes_of(&push), [n.clamp(1, 65535), chunks, 1])
             });
             stats = st;
