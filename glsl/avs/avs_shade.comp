@@ -56,15 +56,28 @@ layout(set = 0, binding = 8) uniform sampler2DArray material_textures;
 #include "env_shade.glsl"
 layout(set = 0, binding = 9) readonly buffer Lobes { vec4 lobes[]; };
 layout(set = 0, binding = 10) readonly buffer Prefiltered { float pf[]; };
-// 3 vec4 per slot: (position, offset), (tangent, active), (normal, 0)
-layout(set = 0, binding = 11) readonly buffer Points { vec4 pts[]; };
-// uniform grid: [0..2] dims, [3] unused, [4..6] lower corner (float bits), [7] cell edge (float
-// bits), [8] first item word; cell_start at 16 (cells + 1 entries, relative to the first item
-// word), then slots
-layout(set = 0, binding = 12) readonly buffer Grid { uint grid[]; };
-layout(set = 0, binding = 13) readonly buffer Ssdf { uint ssdf[]; };
-// T(lambda, d), [SSDF_N_LAMBDA][SSDF_N_W] (penumbra_math::ssdf_integrate::AxisTable), mode 2
-layout(set = 0, binding = 14) readonly buffer AxisTable { float axis_table[]; };
+// Bindings 11-14 are texel buffers (R32G32B32A32_UINT views: one gather per 16-byte texel on a
+// CPU device, where a storage-buffer read at a per-pixel index is a scalar load per lane and
+// component).
+// 3 texels per slot: (position, offset), (tangent, active), (normal, 0) as float bits
+layout(set = 0, binding = 11) uniform usamplerBuffer pts_t;
+// uniform grid, four words to a texel: [0..2] dims, [3] unused, [4..6] lower corner (float bits),
+// [7] cell edge (float bits), [8] first item word; cell_start at 16 (cells + 1 entries, relative
+// to the first item word), then slots
+layout(set = 0, binding = 12) uniform usamplerBuffer grid_t;
+// the SSDFs (avs_maps.glsl: two fp16 texels to a word), four words to a texel
+layout(set = 0, binding = 13) uniform usamplerBuffer ssdf_t;
+// T(lambda, d), [SSDF_N_LAMBDA][SSDF_N_W] (penumbra_math::ssdf_integrate::AxisTable), mode 2;
+// four floats to a texel
+layout(set = 0, binding = 14) uniform usamplerBuffer axis_table_t;
+#define AVS_PTS(i) uintBitsToFloat(texelFetch(pts_t, int(i)))
+#define AVS_GRID(i) (texelFetch(grid_t, int(i) >> 2)[int(i) & 3])
+// the SSDF value of texel k of the map at word `base`
+float ssdf_at_word(uint base, uint k) {
+    uint wi = base + (k >> 1u);
+    vec2 h = unpackHalf2x16(texelFetch(ssdf_t, int(wi >> 2u))[wi & 3u]);
+    return (k & 1u) == 0u ? h.x : h.y;
+}
 // the environment's irradiance map (passes::lighting::irradiance_env): the ratio estimator's
 // unshadowed diffuse term
 layout(set = 0, binding = 15) readonly buffer Irradiance { float irr[]; };
@@ -102,7 +115,7 @@ bool shadows_on() { return (pc.flags & 1u) == 0u && nb_count > 0u; }
 
 // Corrected SSDF value of texel k of the map at slot.
 float ssdf_texel(uint base, uint k) {
-    float d = AVS_SSDF(ssdf, base, k);
+    float d = ssdf_at_word(base, k);
     float h = avs_texel_angle(pc.r);
     return abs(d) >= 3.0 ? d : d - sign(d) * 0.5 * h;
 }
@@ -124,10 +137,10 @@ float ssdf_point(uint q, vec3 w, bool corrected) {
     vec2 f = tp - vec2(i0);
     uint base = nb_slot[q] * avs_ssdf_words_per_map(pc.r);
     uvec4 k = uvec4(i0.x * pc.r + i0.y, i0.x * pc.r + i1.y, i1.x * pc.r + i0.y, i1.x * pc.r + i1.y);
-    float a = corrected ? ssdf_texel(base, k.x) : AVS_SSDF(ssdf, base, k.x);
-    float b = corrected ? ssdf_texel(base, k.y) : AVS_SSDF(ssdf, base, k.y);
-    float c = corrected ? ssdf_texel(base, k.z) : AVS_SSDF(ssdf, base, k.z);
-    float d = corrected ? ssdf_texel(base, k.w) : AVS_SSDF(ssdf, base, k.w);
+    float a = corrected ? ssdf_texel(base, k.x) : ssdf_at_word(base, k.x);
+    float b = corrected ? ssdf_texel(base, k.y) : ssdf_at_word(base, k.y);
+    float c = corrected ? ssdf_texel(base, k.z) : ssdf_at_word(base, k.z);
+    float d = corrected ? ssdf_texel(base, k.w) : ssdf_at_word(base, k.w);
     return mix(mix(a, b, f.y), mix(c, d, f.y), f.x) - below;
 }
 
@@ -148,7 +161,7 @@ float ssdf_virtual(uint k) {
     return s;
 }
 #define SSDF_FETCH(k) ssdf_virtual(k)
-#define SSDF_TABLE(i) axis_table[(i)]
+#define SSDF_TABLE(i) uintBitsToFloat(texelFetch(axis_table_t, int(i) >> 2)[int(i) & 3])
 #include "ssdf_integrate.glsl"
 
 // The integration mode, a specialization constant (0 lobe axis, 1 cells, 2 table, 3 adaptive

@@ -7,8 +7,16 @@
 //   grid[] : [0..2] dims, [4..6] lower corner (float bits), [7] cell edge (float bits), [8] first
 //            item word; cell_start at 16 (cells + 1 entries, relative to the first item word),
 //            then slots
+// or define AVS_PTS(i) (vec4) and AVS_GRID(i) (uint) reading them from elsewhere (avs_shade.comp:
+// texel buffers).
 #ifndef PENUMBRA_AVS_GATHER_GLSL
 #define PENUMBRA_AVS_GATHER_GLSL
+#ifndef AVS_PTS
+#define AVS_PTS(i) pts[i]
+#endif
+#ifndef AVS_GRID
+#define AVS_GRID(i) grid[i]
+#endif
 
 #define MAXN 8
 uint nb_slot[MAXN];
@@ -41,10 +49,10 @@ uint nb_count = 0u;
     }
 
 void avs_gather(vec3 pos, vec3 n, float radius, float alpha, float inv_scale, uint max_neighbours) {
-    uvec3 dims = uvec3(grid[0], grid[1], grid[2]);
-    vec3 lo = vec3(uintBitsToFloat(grid[4]), uintBitsToFloat(grid[5]), uintBitsToFloat(grid[6]));
-    float cell = uintBitsToFloat(grid[7]);
-    uint items = grid[8];
+    uvec3 dims = uvec3(AVS_GRID(0), AVS_GRID(1), AVS_GRID(2));
+    vec3 lo = vec3(uintBitsToFloat(AVS_GRID(4)), uintBitsToFloat(AVS_GRID(5)), uintBitsToFloat(AVS_GRID(6)));
+    float cell = uintBitsToFloat(AVS_GRID(7));
+    uint items = AVS_GRID(8);
     // the m smallest e_g of all candidates (nb_*, best_e) and of the unburied ones (open_*)
     float best_e[MAXN];
     float open_e[MAXN];
@@ -62,11 +70,11 @@ void avs_gather(vec3 pos, vec3 n, float radius, float alpha, float inv_scale, ui
             for (int y = a.y; y <= b.y; ++y)
                 for (int x = a.x; x <= b.x; ++x) {
                     uint ci = uint(x) + dims.x * (uint(y) + dims.y * uint(z));
-                    uint s0 = grid[16u + ci], s1 = grid[17u + ci];
+                    uint s0 = AVS_GRID(16u + ci), s1 = AVS_GRID(17u + ci);
                     for (uint it = s0; it < s1; ++it) {
-                        uint slot = grid[items + it];
-                        vec3 p = pts[3u * slot].xyz;
-                        vec4 pnb = pts[3u * slot + 2u];
+                        uint slot = AVS_GRID(items + it);
+                        vec3 p = AVS_PTS(3u * slot).xyz;
+                        vec4 pnb = AVS_PTS(3u * slot + 2u);
                         vec3 pn = pnb.xyz;
                         vec3 dp = p - pos;
                         if (dot(dp, dp) > rad * rad || dot(pn, n) <= 0.0 || abs(dot(dp, n)) > plane_tol) continue;
@@ -91,7 +99,7 @@ void avs_gather(vec3 pos, vec3 n, float radius, float alpha, float inv_scale, ui
     for (uint q = 0u; q < nb_count; ++q) {
         nb_w[q] = 1.0 / max(best_e[q], 1e-6);
         sum += nb_w[q];
-        vec3 t = pts[3u * nb_slot[q] + 1u].xyz, pn = pts[3u * nb_slot[q] + 2u].xyz;
+        vec3 t = AVS_PTS(3u * nb_slot[q] + 1u).xyz, pn = AVS_PTS(3u * nb_slot[q] + 2u).xyz;
         nb_frame[q] = mat3(t, cross(pn, t), pn);
     }
     for (uint q = 0u; q < nb_count; ++q) nb_w[q] /= sum;

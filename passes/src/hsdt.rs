@@ -42,7 +42,8 @@ impl Hsdt {
     /// Adds the HSDT of the first `n` maps of `vis` (packed bits, `words_per_map(r)` u32 each)
     /// into a new transient buffer `{name}_ssdf` (`ssdf_words_per_map(r)` u32 per map); returns it.
     pub fn add(&self, graph: &mut Graph, name: &str, vis: BufferHandle, n: u32, r: u32) -> Result<BufferHandle> {
-        let bytes = (n as u64 * ssdf_words_per_map(r) as u64 * 4).max(4);
+        // whole 16-byte texels: avs_shade reads the SSDFs as a texel buffer
+        let bytes = (n as u64 * ssdf_words_per_map(r) as u64 * 4).next_multiple_of(16).max(16);
         let out = graph.create_buffer(&format!("{name}_ssdf"), bytes);
         self.add_into(graph, name, vis, n, r, out)
     }

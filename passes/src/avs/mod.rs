@@ -1011,7 +1011,8 @@ impl AvsTechnique {
             }
         }
         data.push(0);
-        let batch_buf = graph.create_buffer_init(&format!("avs_batch{tag}"), crate::util::whole_texels(bytes_of(&data).to_vec()));
+        let batch_buf =
+            graph.create_buffer_init(&format!("avs_batch{tag}"), crate::util::whole_texels(bytes_of(&data).to_vec()));
         // whole 16-byte texels: the next level reads these maps as a texel buffer
         let scratch_bytes = ((n.max(1) as u64) * words * 4).next_multiple_of(16);
         let mut scratch = [
@@ -1036,11 +1037,8 @@ impl AvsTechnique {
             let [pb, bb] = [points_buf, batch_buf].map(|h| p.read(h, Access::ComputeShaderReadSampled));
             // level 0 reads no previous level (the points are bound in its place)
             let prev_idx = (level as usize + 1) % 2;
-            let prev = if level == 0 {
-                None
-            } else {
-                Some(p.read(scratch[prev_idx], Access::ComputeShaderReadSampled))
-            };
+            let prev =
+                if level == 0 { None } else { Some(p.read(scratch[prev_idx], Access::ComputeShaderReadSampled)) };
             // read-write: the map is zeroed and assembled with atomicOr in place (a write only on a
             // scratch buffer's first use, levels 0 and 1)
             let out = if last {
@@ -1666,12 +1664,14 @@ impl crate::technique::Technique for AvsTechnique {
             if all_pos.len() >= 2 { (self.settings.radius * mean_spacing(&all_pos)).max(1e-6) } else { self.radius };
         self.stats.radius = shade_radius;
         let grid = Grid::new(&pos, shade_radius);
-        let grid_buf = graph.create_buffer_init("avs_grid", bytes_of(&grid_words(&grid, &slots)));
+        let grid_buf = graph
+            .create_buffer_init("avs_grid", crate::util::whole_texels(bytes_of(&grid_words(&grid, &slots)).to_vec()));
         // the lighting and key-light lobes turned and scaled to the frame's environment
         let state = inputs.frame.environment;
         let lobes = graph.create_buffer_init("avs_lobes", crate::lighting::lobes_bytes_at(&self.lobes, state));
         let prefiltered = graph.create_buffer_init("avs_prefiltered", self.prefiltered.as_ref().clone());
-        let table = graph.create_buffer_init("avs_axis_table", self.axis_table.as_ref().clone());
+        let table =
+            graph.create_buffer_init("avs_axis_table", crate::util::whole_texels(self.axis_table.as_ref().clone()));
         let irradiance = graph.create_buffer_init("avs_irradiance", self.irradiance.as_ref().clone());
         let key_lights =
             graph.create_buffer_init("avs_key_lights", crate::lighting::lobes_bytes_at(&self.key_lights, state));
@@ -1685,9 +1685,11 @@ impl crate::technique::Technique for AvsTechnique {
         let hdr = io.hdr;
         let lights = p.read(scene.lights, Access::ComputeShaderReadStorage);
         let textures = p.read(scene.textures, Access::ComputeShaderReadSampled);
-        let [lobes, prefiltered, pts, gr, sd, tb, ir, kl] =
-            [lobes, prefiltered, points_buf, grid_buf, ssdf, table, irradiance, key_lights]
-                .map(|h| p.read(h, Access::ComputeShaderReadStorage));
+        let [lobes, prefiltered, ir, kl] =
+            [lobes, prefiltered, irradiance, key_lights].map(|h| p.read(h, Access::ComputeShaderReadStorage));
+        // the points, grid, SSDFs and axis table are texel buffers (avs_shade.comp)
+        let [pts, gr, sd, tb] =
+            [points_buf, grid_buf, ssdf, table].map(|h| p.read(h, Access::ComputeShaderReadSampled));
         let pos_scale = samp::scene_scale(&pool.iter().map(|p| p.pos).collect::<Vec<_>>());
         let s = &self.settings;
         let mut push: Vec<u8> = Vec::with_capacity(52);
@@ -1708,7 +1710,15 @@ impl crate::technique::Technique for AvsTechnique {
         let (nearest, linear, repeat) = (self.nearest.sampler, self.linear.sampler, self.repeat.sampler);
         p.record(move |rc| {
             let rest = [Bind::StorageBuffer(lights), Bind::SampledImage(textures, repeat)];
-            let storage = crate::util::storage([lobes, prefiltered, pts, gr, sd, tb, ir]);
+            let storage = [
+                Bind::StorageBuffer(lobes),
+                Bind::StorageBuffer(prefiltered),
+                Bind::TexelBuffer(pts),
+                Bind::TexelBuffer(gr),
+                Bind::TexelBuffer(sd),
+                Bind::TexelBuffer(tb),
+                Bind::StorageBuffer(ir),
+            ];
             let binds =
                 [&io.binds(nearest, linear)[..], &rest, &storage, &kd.binds(), &[Bind::StorageBuffer(kl)]].concat();
             crate::util::dispatch(rc, pipe, &binds, &push, [groups(w, 8), groups(h, 8), 1])
