@@ -498,6 +498,54 @@ mod avs_sampling {
         }
     }
 
+    /// `PointTree::nearest` is the brute-force nearest point, the lowest index among equally
+    /// near ones: on scattered points, on a regular grid (exact ties at cell centres and
+    /// midpoints), with duplicated points, far outside every point, and empty.
+    #[test]
+    fn point_tree_nearest_is_the_brute_force_nearest_with_ties_to_the_lowest_index() {
+        let brute = |pts: &[Vec3], q: Vec3| -> Option<usize> {
+            (0..pts.len()).min_by(|&x, &y| {
+                (pts[x] - q).length_squared().total_cmp(&(pts[y] - q).length_squared()).then(x.cmp(&y))
+            })
+        };
+        let scattered: Vec<Vec3> = (0..700)
+            .map(|i| {
+                let f = i as f32;
+                Vec3::new((f * 0.37).sin() * 3.0, (f * 0.11).cos(), (f * 0.73).sin() * 2.0)
+            })
+            .collect();
+        let mut lattice: Vec<Vec3> = Vec::new();
+        for x in 0..12 {
+            for z in 0..9 {
+                lattice.push(Vec3::new(x as f32 * 0.5, 0.0, z as f32 * 0.5));
+            }
+        }
+        // duplicates: the same positions again, at higher indices
+        let dup: Vec<Vec3> = lattice.iter().chain(lattice.iter()).copied().collect();
+        let mut queries: Vec<Vec3> = (0..400)
+            .map(|i| {
+                let f = i as f32;
+                Vec3::new((f * 1.3).sin() * 4.0, (f * 0.7).cos() * 0.6, (f * 0.9).sin() * 3.0)
+            })
+            .collect();
+        // cell centres and edge midpoints of the lattice: two or four points equally near
+        for x in 0..11 {
+            for z in 0..8 {
+                queries.push(Vec3::new(x as f32 * 0.5 + 0.25, 0.0, z as f32 * 0.5 + 0.25));
+                queries.push(Vec3::new(x as f32 * 0.5 + 0.25, 0.1, z as f32 * 0.5));
+            }
+        }
+        queries.extend([Vec3::splat(100.0), Vec3::new(-50.0, 3.0, 7.0)]);
+        for pts in [&scattered, &lattice, &dup] {
+            let t = PointTree::new(pts);
+            for &q in &queries {
+                assert_eq!(t.nearest(q), brute(pts, q), "query {q}");
+            }
+        }
+        assert_eq!(PointTree::new(&[]).nearest(Vec3::ZERO), None);
+        assert_eq!(PointTree::new(&[Vec3::ONE]).nearest(Vec3::ZERO), Some(0));
+    }
+
     /// `visit_ring` visits exactly the points of the cells at Chebyshev distance `ring` from the
     /// query's cell (each once), at the grid's corners and edges too, and says when the ring
     /// lies wholly outside.
@@ -562,7 +610,7 @@ mod avs_sampling {
         // interior points are interpolated exactly and become erase candidates, never two
         // neighbours at once.
         let pool = plane(41, 1);
-        let pool_grid = Grid::new(&pool.iter().map(|p| p.pos).collect::<Vec<_>>(), 0.0);
+        let pool_tree = PointTree::new(&pool.iter().map(|p| p.pos).collect::<Vec<_>>());
         let idx: Vec<usize> = (0..41).step_by(4).collect();
         let pts: Vec<SurfacePoint> = idx.iter().map(|&i| pool[i]).collect();
         let f = point_frame(Vec3::Y);
@@ -577,7 +625,7 @@ mod avs_sampling {
         let sh: Vec<[f32; SH_COUNT]> = pts.iter().map(|p| if p.pos.x < 20.0 { half } else { full }).collect();
         let params = AdaptParams { alpha: 0.3, radius: 4.5, e_max: 0.10, e_min: 0.05 };
         let open = vec![1.0; pts.len()];
-        let st = adapt_step(&pts, &idx, &sh, &open, &pool, &pool_grid, &params);
+        let st = adapt_step(&pts, &idx, &sh, &open, &pool, &pool_tree, &params);
         // the edge lies between x = 16 and x = 20: a point at x = 18 is inserted
         assert!(st.insert.contains(&18), "{:?}", st.insert);
         assert!(st.insert.iter().all(|&v| !idx.contains(&v)));
@@ -588,7 +636,7 @@ mod avs_sampling {
         // points next to the edge are not erased
         assert!(!st.erase.contains(&4) && !st.erase.contains(&5), "{:?}", st.erase);
         // a lone point (no neighbours) has no error and is kept
-        let st = adapt_step(&pts[..1], &idx[..1], &sh[..1], &open[..1], &pool, &pool_grid, &params);
+        let st = adapt_step(&pts[..1], &idx[..1], &sh[..1], &open[..1], &pool, &pool_tree, &params);
         assert_eq!(st.rel_error, vec![None]);
         assert!(st.insert.is_empty() && st.erase.is_empty());
         // a buried point (all occluded: zero SH, zero visible solid angle) has no error and is
@@ -598,12 +646,12 @@ mod avs_sampling {
         sh_b[1] = [0.0; SH_COUNT];
         let mut vis_b = open.clone();
         vis_b[1] = 0.0;
-        let st = adapt_step(&pts, &idx, &sh_b, &vis_b, &pool, &pool_grid, &params);
+        let st = adapt_step(&pts, &idx, &sh_b, &vis_b, &pool, &pool_tree, &params);
         assert_eq!(st.rel_error[1], None);
         assert!(!st.insert.contains(&2) && !st.insert.contains(&6), "{:?}", st.insert);
-        let st = adapt_step(&pts, &idx, &sh_b, &open, &pool, &pool_grid, &params);
+        let st = adapt_step(&pts, &idx, &sh_b, &open, &pool, &pool_tree, &params);
         assert!(st.insert.contains(&2) || st.insert.contains(&6), "{:?}", st.insert);
-        let st = adapt_step(&pts[..1], &idx[..1], &sh[..1], &open[..1], &pool, &pool_grid, &params);
+        let st = adapt_step(&pts[..1], &idx[..1], &sh[..1], &open[..1], &pool, &pool_tree, &params);
         assert_eq!(st.rel_error, vec![None]);
         assert!(st.insert.is_empty() && st.erase.is_empty());
     }

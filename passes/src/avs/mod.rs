@@ -1150,7 +1150,7 @@ impl AvsTechnique {
         let words = words_per_map(r) as u64;
         let cap = self.settings.max_points.max(self.sample_vertices.len()) as u64;
         let offset = ray_offset(pool);
-        let pool_grid = Grid::new(&pool.iter().map(|p| p.pos).collect::<Vec<_>>(), 0.0);
+        let pool_tree = samp::PointTree::new(&pool.iter().map(|p| p.pos).collect::<Vec<_>>());
         self.stats.inserted.clear();
         self.stats.erased.clear();
         self.stats.round_ms.clear();
@@ -1265,7 +1265,7 @@ impl AvsTechnique {
             let visible_now: Vec<f32> = sh_now.iter().map(samp::visible_solid_angle).collect();
             let stepped = std::time::Instant::now();
             let step =
-                samp::adapt_step(&points, &self.sample_vertices, &sh_now, &visible_now, pool, &pool_grid, &params);
+                samp::adapt_step(&points, &self.sample_vertices, &sh_now, &visible_now, pool, &pool_tree, &params);
             self.stats.rounds_step_ms += stepped.elapsed().as_secs_f64() * 1e3;
             let errs: Vec<f32> = step.rel_error.iter().flatten().copied().collect();
             self.stats.mean_rel_error =
@@ -1428,9 +1428,9 @@ impl AvsTechnique {
             e_max: self.settings.e_max,
             e_min: self.settings.e_min,
         };
-        let pool_grid = Grid::new(&pool.iter().map(|p| p.pos).collect::<Vec<_>>(), 0.0);
+        let pool_tree = samp::PointTree::new(&pool.iter().map(|p| p.pos).collect::<Vec<_>>());
         let stepped = std::time::Instant::now();
-        let step = samp::adapt_step(&points, &verts, &sh, &visible, pool, &pool_grid, &params);
+        let step = samp::adapt_step(&points, &verts, &sh, &visible, pool, &pool_tree, &params);
         self.stats.rounds_step_ms = stepped.elapsed().as_secs_f64() * 1e3;
         let errs: Vec<f32> = step.rel_error.iter().flatten().copied().collect();
         self.stats.mean_rel_error = if errs.is_empty() { 0.0 } else { errs.iter().sum::<f32>() / errs.len() as f32 };
