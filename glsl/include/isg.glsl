@@ -1,9 +1,9 @@
 // Integral spherical Gaussian (Iwasaki et al. 2012): the tabulated normalized ISG and the patch
 // visibility integral with sphere blockers. f32 mirror of penumbra_math::isg (IsgTable::eval,
 // visible_fraction). The including shader defines ISG_TABLE_BINDING and ISG_NODES_BINDING (set 0
-// storage buffers: the IsgTable::to_gpu floats and the sphere BVH, root 0, see passes/src/isg)
+// texel buffers: the IsgTable::to_gpu floats and the sphere BVH, root 0, see passes/src/isg)
 // and ISG_MAX_SIDE (patches per side, <= 32); optionally ISG_TRIS_BINDING and
-// ISG_TRI_NODES_BINDING (thin-shell triangles and their BVH).
+// ISG_TRI_NODES_BINDING (thin-shell triangles and their BVH, texel buffers too).
 #ifndef PENUMBRA_ISG_GLSL
 #define PENUMBRA_ISG_GLSL
 
