@@ -119,21 +119,22 @@ impl<'a> RecordContext<'a> {
             Buffer(vk::DescriptorBufferInfo),
             Texel(vk::BufferView),
         }
+        // what a sampled image and a texel buffer may be declared as
+        let sampled = |a| {
+            matches!(
+                a,
+                A::VertexShaderReadSampled
+                    | A::FragmentShaderReadSampled
+                    | A::ComputeShaderReadSampled
+                    | A::AnyShaderReadSampled
+            )
+        };
         let mut infos = Vec::with_capacity(binds.len());
         for (binding, b) in binds.iter().enumerate() {
             // the descriptor's type, the bound resource (its graph id) and its info
             let (ty, id, info) = match *b {
                 Bind::SampledImage(h, sampler) => {
-                    let ok = |a| {
-                        matches!(
-                            a,
-                            A::VertexShaderReadSampled
-                                | A::FragmentShaderReadSampled
-                                | A::ComputeShaderReadSampled
-                                | A::AnyShaderReadSampled
-                        )
-                    };
-                    self.check_bind(h.raw().0, "a sampled image", ok)?;
+                    self.check_bind(h.raw().0, "a sampled image", sampled)?;
                     let image_view = self.image(h)?.view;
                     let image_layout = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
                     (
@@ -181,16 +182,7 @@ impl<'a> RecordContext<'a> {
                     (T::STORAGE_BUFFER, h.raw().0, Info::Buffer(self.whole(h)?))
                 }
                 Bind::TexelBuffer(h) => {
-                    let ok = |a| {
-                        matches!(
-                            a,
-                            A::VertexShaderReadSampled
-                                | A::FragmentShaderReadSampled
-                                | A::ComputeShaderReadSampled
-                                | A::AnyShaderReadSampled
-                        )
-                    };
-                    self.check_bind(h.raw().0, "a texel buffer", ok)?;
+                    self.check_bind(h.raw().0, "a texel buffer", sampled)?;
                     let b = self.buffer(h)?;
                     let view = b.texel_view.ok_or_else(|| {
                         anyhow!("pass '{}': buffer '{}' has no texel view (imported?)", self.pass, self.name(h.raw().0))

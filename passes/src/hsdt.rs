@@ -43,7 +43,7 @@ impl Hsdt {
     /// into a new transient buffer `{name}_ssdf` (`ssdf_words_per_map(r)` u32 per map); returns it.
     pub fn add(&self, graph: &mut Graph, name: &str, vis: BufferHandle, n: u32, r: u32) -> Result<BufferHandle> {
         // whole 16-byte texels: avs_shade reads the SSDFs as a texel buffer
-        let bytes = (n as u64 * ssdf_words_per_map(r) as u64 * 4).next_multiple_of(16).max(16);
+        let bytes = crate::util::texel_bytes(n as u64 * ssdf_words_per_map(r) as u64 * 4);
         let out = graph.create_buffer(&format!("{name}_ssdf"), bytes);
         self.add_into(graph, name, vis, n, r, out)
     }

@@ -409,7 +409,7 @@ impl KdTreeBuilder {
             ("kdtree.tris", tri_bytes),
             ("kdtree.nodes", max_nodes * 16),
             // whole 16-byte texels: the shaders read the refs four to a texel
-            ("kdtree.refs", (refs * 4).next_multiple_of(16)),
+            ("kdtree.refs", crate::util::texel_bytes(refs * 4)),
             ("kdtree.header", HEADER_WORDS * 4),
         ]
     }

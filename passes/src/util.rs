@@ -446,8 +446,14 @@ pub fn persistent_upload(
 /// `bytes` padded with zeros to whole 16-byte texels: the size of a buffer a shader reads as a
 /// texel buffer (`Bind::TexelBuffer`, whose view covers whole texels only).
 pub fn whole_texels(mut bytes: Vec<u8>) -> Vec<u8> {
-    bytes.resize(bytes.len().next_multiple_of(16).max(16), 0);
+    bytes.resize(texel_bytes(bytes.len() as u64) as usize, 0);
     bytes
+}
+
+/// `bytes` rounded up to whole 16-byte texels (at least one): the size of a buffer a shader
+/// reads as a texel buffer.
+pub fn texel_bytes(bytes: u64) -> u64 {
+    bytes.next_multiple_of(16).max(16)
 }
 
 /// Storage-buffer binds of `bufs`, in binding order (most of a compute pass's bind list).

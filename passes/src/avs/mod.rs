@@ -1014,7 +1014,7 @@ impl AvsTechnique {
         let batch_buf =
             graph.create_buffer_init(&format!("avs_batch{tag}"), crate::util::whole_texels(bytes_of(&data).to_vec()));
         // whole 16-byte texels: the next level reads these maps as a texel buffer
-        let scratch_bytes = ((n.max(1) as u64) * words * 4).next_multiple_of(16);
+        let scratch_bytes = crate::util::texel_bytes((n.max(1) as u64) * words * 4);
         let mut scratch = [
             graph.create_buffer(&format!("avs_scratch{tag}_a"), scratch_bytes),
             graph.create_buffer(&format!("avs_scratch{tag}_b"), scratch_bytes),
