@@ -131,15 +131,27 @@ KdHit kd_trace_bvh(KdRayW rw, vec3 o, vec3 d, float t_enter, float t_exit, float
     vec3 ad = abs(d);
     uint layout_k = ad.x >= ad.y && ad.x >= ad.z ? (d.x < 0.0 ? 1u : 0u) : (ad.y >= ad.z ? (d.y < 0.0 ? 3u : 2u) : (d.z < 0.0 ? 5u : 4u));
     uint off = layouts == 6u ? layout_k * (base / 6u) : 0u;
-    for (uint steps = 0u; node != KD_BVH_END && steps < KD_BVH_MAX_STEPS; steps++) {
-        uvec4 a = KD_NODE(off + 2u * node), b = KD_NODE(off + 2u * node + 1u);
-        vec3 t0 = (uintBitsToFloat(a.xyz) - o) * inv, t1 = (uintBitsToFloat(b.xyz) - o) * inv;
-        vec3 tn = min(t0, t1), tf = max(t0, t1);
-        float enter = max(max(tn.x, tn.y), max(tn.z, t_enter));
-        float exit = min(min(tf.x, tf.y), min(tf.z, best));
-        if (!(enter <= exit)) { node = a.w; continue; }
-        if (b.w == 0u) { node++; continue; }
-        uint first = b.w & 0xffffffu, cnt = b.w >> 24u;
+    uint steps = 0u;
+    while (node != KD_BVH_END && steps < KD_BVH_MAX_STEPS) {
+        // Walk interior nodes until this ray enters a leaf's box, then test the leaf's triangles
+        // ("while-while", Aila and Laine 2009): on a SIMD device the lanes that found a leaf
+        // wait for the others, so the triangle loop runs with most lanes busy instead of
+        // starting in nearly every node step for the few lanes in a leaf.
+        uint leaf = 0u;
+        while (node != KD_BVH_END && steps < KD_BVH_MAX_STEPS) {
+            steps++;
+            uvec4 a = KD_NODE(off + 2u * node), b = KD_NODE(off + 2u * node + 1u);
+            vec3 t0 = (uintBitsToFloat(a.xyz) - o) * inv, t1 = (uintBitsToFloat(b.xyz) - o) * inv;
+            vec3 tn = min(t0, t1), tf = max(t0, t1);
+            float enter = max(max(tn.x, tn.y), max(tn.z, t_enter));
+            float exit = min(min(tf.x, tf.y), min(tf.z, best));
+            if (!(enter <= exit)) { node = a.w; continue; }
+            if (b.w == 0u) { node++; continue; }
+            leaf = b.w;
+            node = a.w;
+            break;
+        }
+        uint first = leaf & 0xffffffu, cnt = leaf >> 24u;
         for (uint j = 0u; j < cnt; j++) {
             uint r = base + 3u * (first + j);
             uvec4 q0 = KD_NODE(r);
@@ -151,7 +163,6 @@ KdHit kd_trace_bvh(KdRayW rw, vec3 o, vec3 d, float t_enter, float t_exit, float
                 if (any_hit) return h;
             }
         }
-        node = a.w;
     }
     return h;
 }
