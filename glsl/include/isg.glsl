@@ -121,36 +121,6 @@ uint isg_bit_range(int j0, int j1) {
     return hi & ~((1u << uint(j0)) - 1u);
 }
 
-// Bits of row i (patch centres at theta_i) whose centre lies in the cap of local centre
-// direction cl (rho = |cl.xz|, phc = atan(cl.z, cl.x)) and cosine radius cos_psi: per row,
-// cos(phi - phi_c) >= q, i.e. phi within phi_c +- acos(q): an index range, no per-patch
-// trigonometry.
-uint isg_cap_bits(int i, vec3 cl, float rho, float phc, float cos_psi, float phi0, float step_a, int side) {
-    float st = isg_sin_c[i], ct = isg_cos_c[i];
-    float rhs = cos_psi - ct * cl.y;
-    float den = st * rho;
-    uint bits = 0u;
-    if (den <= 1e-7) {
-        bits = rhs <= 0.0 ? 0xffffffffu : 0u;
-    } else {
-        float q = rhs / den;
-        if (q <= -1.0) {
-            bits = 0xffffffffu;
-        } else if (q <= 1.0) {
-            float w = acos(q);
-            for (int k = -1; k <= 1; ++k) {
-                float a = phc + 6.28318531 * float(k) - w;
-                float b = phc + 6.28318531 * float(k) + w;
-                int j0 = max(int(ceil((a - phi0) / step_a - 0.5)), 0);
-                int j1 = min(int(floor((b - phi0) / step_a - 0.5)), side - 1);
-                bits |= isg_bit_range(j0, j1);
-            }
-        }
-    }
-    if (side < 32) bits &= (1u << uint(side)) - 1u;
-    return bits;
-}
-
 // The cap's phi half-width at polar angle th (rho = |cl.xz|): pi when the whole circle of
 // latitude is inside, -1 when none of it is (penumbra_math::isg's cap_half_width).
 float isg_cap_half_width(float th, vec3 cl, float rho, float cos_psi) {
@@ -199,16 +169,31 @@ bool isg_mark_cap(vec3 c, float psi, vec3 fx, vec3 fy, vec3 fz, float delta, flo
     float cos_psi = cos(psi);
     vec3 cl = vec3(dot(c, fx), dot(c, fy), dot(c, fz));
     if (isg_paper_rule) return isg_mark_cap_paper(cl, psi, delta, step_a, side);
-    float rho = length(cl.xz);
-    float phc = atan(cl.z, cl.x);
     float phi0 = ISG_HALF_PI - delta;
     bool any_occ = false;
     // Only rows whose centre angle theta_i is within psi of the cap centre's can meet it.
     float thc = acos(clamp(cl.y, -1.0, 1.0));
     int r0 = max(int(ceil((thc - psi - phi0) / step_a - 0.5)), 0);
     int r1 = min(int(floor((thc + psi - phi0) / step_a - 0.5)), side - 1);
+    uint cols = side < 32 ? (1u << uint(side)) - 1u : 0xffffffffu;
     for (int i = r0; i <= r1; ++i) {
-        uint bits = isg_cap_bits(i, cl, rho, phc, cos_psi, phi0, step_a, side);
+        // patch centre d in the cap: dot(d, c) = sin theta_i (cos phi_j cl.x + sin phi_j cl.z)
+        // + cos theta_i cl.y >= cos psi, the row's patches tested with phi_j stepped by a
+        // rotation (as isg_mark_triangle: cheaper than the row's range from an acos)
+        uint cand = cols & ~isg_mask[i];
+        if (cand == 0u) continue;
+        float st = isg_sin_c[i], ct = isg_cos_c[i];
+        float X = cl.x * st, Z = cl.z * st, Y = cl.y * ct - cos_psi;
+        int j0 = findLSB(cand), j1 = findMSB(cand);
+        float cph = isg_cos_c[j0], sph = isg_sin_c[j0];
+        uint bits = 0u;
+        for (int j = j0; j <= j1; ++j) {
+            if (X * cph + Z * sph + Y >= 0.0) bits |= 1u << uint(j);
+            float c2 = cph * isg_rot.x - sph * isg_rot.y;
+            sph = sph * isg_rot.x + cph * isg_rot.y;
+            cph = c2;
+        }
+        bits &= cand;
         isg_mask[i] |= bits;
         any_occ = any_occ || bits != 0u;
     }
