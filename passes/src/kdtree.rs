@@ -104,8 +104,9 @@ pub enum Structure {
     KdTree,
     /// A threaded BVH built on the host by `obvhs` (binned PLOC, leaves of up to 8 triangles)
     /// and uploaded (session 39): on lavapipe its walk is 2-3x faster than the kd-tree's (no
-    /// stack: each node holds its box and a miss link, the next node in depth-first order when
-    /// the ray misses it or after its leaf), and the host build is faster than the device build
+    /// stack: each node, one texel, holds its box quantized to 16 bits per coordinate and a
+    /// miss link, the next node in depth-first order when the ray misses it; a leaf's walk goes
+    /// on at the next node), and the host build is faster than the device build
     /// there; the default on a CPU device. Any-hit queries end at the first hit; closest-hit
     /// ones walk the whole tree in a fixed order, shrinking `tmax`.
     Bvh,
@@ -797,7 +798,13 @@ impl ThreadedBvh {
         let a = |v: Vec3| obvhs_glam::Vec3A::new(v.x, v.y, v.z);
         let otris: Vec<Triangle> = tris.iter().map(|t| Triangle { v0: a(t[0]), v1: a(t[1]), v2: a(t[2]) }).collect();
         if otris.is_empty() {
-            return Ok(ThreadedBvh { nodes: Vec::new(), refs: Vec::new(), leaves: 0, depth: 0, quant: BvhQuant::new(Vec3::ZERO, Vec3::ONE) });
+            return Ok(ThreadedBvh {
+                nodes: Vec::new(),
+                refs: Vec::new(),
+                leaves: 0,
+                depth: 0,
+                quant: BvhQuant::new(Vec3::ZERO, Vec3::ONE),
+            });
         }
         let bvh = build_bvh2_from_tris(&otris, BvhBuildParams::medium_build(), &mut Default::default());
         let root = &bvh.nodes[0].aabb;
@@ -873,27 +880,31 @@ impl ThreadedBvh {
 /// needed: the shader's slab test evaluates it as `q * (scale / d) + (origin - o) / d`, whose
 /// rounding stays far below a step).
 #[derive(Clone, Copy, Debug)]
-struct BvhQuant {
-    origin: Vec3,
-    scale: Vec3,
+pub struct BvhQuant {
+    /// Coordinate of q = 0 per axis.
+    pub origin: Vec3,
+    /// One step per axis.
+    pub scale: Vec3,
 }
 
 impl BvhQuant {
     const STEPS: f32 = 65535.0;
 
-    fn new(lo: Vec3, hi: Vec3) -> Self {
+    /// The frame spanning the box `lo`..`hi` (grown by a relative margin).
+    pub fn new(lo: Vec3, hi: Vec3) -> Self {
         let margin = Vec3::splat(1e-5 * (hi - lo).max_element().max(f32::MIN_POSITIVE)) + 1e-5 * lo.abs().max(hi.abs());
         let origin = lo - margin;
         let scale = ((hi + margin - origin) / Self::STEPS).max(Vec3::splat(f32::MIN_POSITIVE));
         BvhQuant { origin, scale }
     }
 
-    fn at(&self, a: usize, q: u32) -> f32 {
+    /// Coordinate of step `q` on axis `a`.
+    pub fn at(&self, a: usize, q: u32) -> f32 {
         self.origin[a] + q as f32 * self.scale[a]
     }
 
     /// Quantized lower corner: at or below `v` (the step below its floor).
-    fn lo(&self, v: Vec3) -> [u32; 3] {
+    pub fn lo(&self, v: Vec3) -> [u32; 3] {
         std::array::from_fn(|a| {
             let mut q = (((v[a] - self.origin[a]) / self.scale[a]).floor() - 1.0).clamp(0.0, Self::STEPS) as u32;
             while q > 0 && self.at(a, q) > v[a] {
@@ -904,7 +915,7 @@ impl BvhQuant {
     }
 
     /// Quantized upper corner: at or above `v` (the step above its ceiling).
-    fn hi(&self, v: Vec3) -> [u32; 3] {
+    pub fn hi(&self, v: Vec3) -> [u32; 3] {
         std::array::from_fn(|a| {
             let mut q = (((v[a] - self.origin[a]) / self.scale[a]).ceil() + 1.0).clamp(0.0, Self::STEPS) as u32;
             while q < Self::STEPS as u32 && self.at(a, q) < v[a] {
