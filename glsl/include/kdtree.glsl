@@ -24,14 +24,9 @@
 // Node (uvec4): y < 3: interior, x = split (float bits), y = axis, z = left child (right = z + 1);
 //               y == 3: leaf, z = first ref, w = ref count; y == 4: pending (build only).
 // The same buffers may hold a threaded BVH instead (header word KD_HDR_STRUCTURE = 1, built on
-// the host: passes::kdtree::Structure::Bvh) of KD_HDR_BVH_NODES nodes, one texel each: node i
-// is KD_NODE(i) = (its box quantized to 16 bits per coordinate: x = lo.x | lo.y << 16, y = lo.z
-// | hi.x << 16, z = hi.y | hi.z << 16, a coordinate being origin + q * step with the origin and
-// step in header words KD_HDR_BVH_QUANT.., rounded outwards; w = link: bit 31 clear, an
-// interior node whose first child is node i + 1 and whose miss link is w, the next node after
-// its subtree; bit 31 set, a leaf of ((w >> 27) & 15) + 1 triangles from w & 0x7ffffff on,
-// after which the walk goes on at node i + 1; the walk ends at node KD_HDR_BVH_NODES). Half the
-// node reads of a full-precision box (two texels): on lavapipe 10-20 % faster rays (session 42);
+// the host: passes::kdtree::Structure::Bvh): node i is KD_NODE(2i) = (lo.xyz as float bits,
+// miss link: the next node after its subtree, 0xffffffff ends), KD_NODE(2i + 1) = (hi.xyz,
+// leaf info: 0 interior, whose first child is node i + 1, else count << 24 | first triangle);
 // header word KD_HDR_BVH_LAYOUTS = 6: six such trees one after the other, the same tree in six
 // depth-first orders (per axis and sign, the nearer child first), a ray walking the one of its
 // direction's largest component;
@@ -43,10 +38,9 @@
 
 #define KD_HDR_BOX 8u
 #define KD_HDR_STRUCTURE 7u
-#define KD_HDR_BVH_NODES 64u
 #define KD_HDR_BVH_TRIS 65u
 #define KD_HDR_BVH_LAYOUTS 66u
-#define KD_HDR_BVH_QUANT 67u
+#define KD_BVH_END 0xffffffffu
 #define KD_LEAF 3u
 #define KD_PENDING 4u
 // Short stack (Horn et al. 2007) of 6 entries held in registers (a shift register: push moves
@@ -132,39 +126,32 @@ KdHit kd_trace_bvh(KdRayW rw, vec3 o, vec3 d, float t_enter, float t_exit, float
     float best = t_exit;
     uint node = 0u;
     uint base = KD_HDR(KD_HDR_BVH_TRIS);
-    uint n_nodes = KD_HDR(KD_HDR_BVH_NODES);
     // the order of the direction's largest component and its sign, when the buffer holds all 6
     uint layouts = KD_HDR(KD_HDR_BVH_LAYOUTS);
     vec3 ad = abs(d);
     uint layout_k = ad.x >= ad.y && ad.x >= ad.z ? (d.x < 0.0 ? 1u : 0u) : (ad.y >= ad.z ? (d.y < 0.0 ? 3u : 2u) : (d.z < 0.0 ? 5u : 4u));
-    uint off = layouts == 6u ? layout_k * n_nodes : 0u;
-    // a slab's t at quantized coordinate q: q * qa + qb
-    vec3 q_origin = vec3(uintBitsToFloat(KD_HDR(KD_HDR_BVH_QUANT)), uintBitsToFloat(KD_HDR(KD_HDR_BVH_QUANT + 1u)), uintBitsToFloat(KD_HDR(KD_HDR_BVH_QUANT + 2u)));
-    vec3 q_step = vec3(uintBitsToFloat(KD_HDR(KD_HDR_BVH_QUANT + 3u)), uintBitsToFloat(KD_HDR(KD_HDR_BVH_QUANT + 4u)), uintBitsToFloat(KD_HDR(KD_HDR_BVH_QUANT + 5u)));
-    vec3 qa = q_step * inv, qb = (q_origin - o) * inv;
+    uint off = layouts == 6u ? layout_k * (base / 6u) : 0u;
     uint steps = 0u;
-    while (node < n_nodes && steps < KD_BVH_MAX_STEPS) {
+    while (node != KD_BVH_END && steps < KD_BVH_MAX_STEPS) {
         // Walk interior nodes until this ray enters a leaf's box, then test the leaf's triangles
         // ("while-while", Aila and Laine 2009): on a SIMD device the lanes that found a leaf
         // wait for the others, so the triangle loop runs with most lanes busy instead of
         // starting in nearly every node step for the few lanes in a leaf.
         uint leaf = 0u;
-        while (node < n_nodes && steps < KD_BVH_MAX_STEPS) {
+        while (node != KD_BVH_END && steps < KD_BVH_MAX_STEPS) {
             steps++;
-            uvec4 a = KD_NODE(off + node);
-            vec3 t0 = vec3(uvec3(a.x & 0xffffu, a.x >> 16u, a.y & 0xffffu)) * qa + qb;
-            vec3 t1 = vec3(uvec3(a.y >> 16u, a.z & 0xffffu, a.z >> 16u)) * qa + qb;
+            uvec4 a = KD_NODE(off + 2u * node), b = KD_NODE(off + 2u * node + 1u);
+            vec3 t0 = (uintBitsToFloat(a.xyz) - o) * inv, t1 = (uintBitsToFloat(b.xyz) - o) * inv;
             vec3 tn = min(t0, t1), tf = max(t0, t1);
             float enter = max(max(tn.x, tn.y), max(tn.z, t_enter));
             float exit = min(min(tf.x, tf.y), min(tf.z, best));
-            bool is_leaf = a.w >= 0x80000000u;
-            if (!(enter <= exit)) { node = is_leaf ? node + 1u : a.w; continue; }
-            if (!is_leaf) { node++; continue; }
-            leaf = a.w;
-            node++;
+            if (!(enter <= exit)) { node = a.w; continue; }
+            if (b.w == 0u) { node++; continue; }
+            leaf = b.w;
+            node = a.w;
             break;
         }
-        uint first = leaf & 0x7ffffffu, cnt = leaf >= 0x80000000u ? ((leaf >> 27u) & 15u) + 1u : 0u;
+        uint first = leaf & 0xffffffu, cnt = leaf >> 24u;
         for (uint j = 0u; j < cnt; j++) {
             uint r = base + 3u * (first + j);
             uvec4 q0 = KD_NODE(r);

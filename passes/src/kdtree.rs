@@ -70,8 +70,6 @@ pub const HEADER_WORDS: u64 = 128 + 2 * 4096;
 pub const STATS_WORDS: u64 = 128;
 /// Header word saying which structure the buffers hold (0 kd-tree, 1 threaded BVH).
 const HDR_STRUCTURE: usize = 7;
-/// Header words 67..73 of a threaded BVH: its boxes' quantization origin and step (f32 bits).
-const HDR_BVH_QUANT: usize = 67;
 const MAX_LEVELS: u32 = 40;
 
 /// Build parameters.
@@ -104,9 +102,8 @@ pub enum Structure {
     KdTree,
     /// A threaded BVH built on the host by `obvhs` (binned PLOC, leaves of up to 8 triangles)
     /// and uploaded (session 39): on lavapipe its walk is 2-3x faster than the kd-tree's (no
-    /// stack: each node, one texel, holds its box quantized to 16 bits per coordinate and a
-    /// miss link, the next node in depth-first order when the ray misses it; a leaf's walk goes
-    /// on at the next node), and the host build is faster than the device build
+    /// stack: each node holds its box and a miss link, the next node in depth-first order when
+    /// the ray misses it or after its leaf), and the host build is faster than the device build
     /// there; the default on a CPU device. Any-hit queries end at the first hit; closest-hit
     /// ones walk the whole tree in a fixed order, shrinking `tmax`.
     Bvh,
@@ -311,7 +308,7 @@ pub fn parse_stats(header: &[u8], allocated: u64) -> Option<KdStats> {
     let w = |i: usize| u32::from_le_bytes(header[4 * i..4 * i + 4].try_into().unwrap());
     let triangles = w(6);
     if w(HDR_STRUCTURE) == 1 {
-        // threaded BVH: 16 bytes per node, a 48-byte copy per leaf triangle
+        // threaded BVH: 32 bytes per node, a 48-byte copy per leaf triangle
         let (nodes, refs) = (w(64), w(2));
         return Some(KdStats {
             triangles,
@@ -324,7 +321,7 @@ pub fn parse_stats(header: &[u8], allocated: u64) -> Option<KdStats> {
             overflow: 0,
             bytes_allocated: allocated,
             bytes_used: triangles as u64 * 48
-                + nodes as u64 * 16 * w(66).max(1) as u64
+                + nodes as u64 * 32 * w(66).max(1) as u64
                 + refs as u64 * 48
                 + STATS_WORDS * 4,
             structure: Structure::Bvh,
@@ -563,10 +560,10 @@ impl KdTreeBuilder {
         let size = data.len() as u64 * 4;
         h.tris = crate::util::copy_buffer(graph, "kdtree_upload", upload, h.tris, Some(size)).1;
         if self.params.structure == Structure::Bvh {
-            if n >= 1 << 27 {
-                bail!("threaded BVH: {n} triangles is more than its 27-bit leaf references hold");
+            if n >= 1 << 24 {
+                bail!("threaded BVH: {n} triangles is more than its 24-bit leaf references hold");
             }
-            let bvh = ThreadedBvh::build(tris, eps)?;
+            let bvh = ThreadedBvh::build(tris, eps);
             let mut header = vec![0u32; STATS_WORDS as usize];
             header[1] = bvh.leaves;
             header[2] = bvh.refs.len() as u32;
@@ -577,21 +574,18 @@ impl KdTreeBuilder {
                 header[8 + a] = lo[a].to_bits();
                 header[11 + a] = hi[a].to_bits();
             }
-            for a in 0..3 {
-                header[HDR_BVH_QUANT + a] = bvh.quant.origin[a].to_bits();
-                header[HDR_BVH_QUANT + 3 + a] = bvh.quant.scale[a].to_bits();
-            }
             let per_layout = bvh.nodes.len() / BVH_LAYOUTS;
             header[64] = per_layout as u32;
             // the orders fit the node buffer (leaves of ~2-8 triangles), else the first alone
-            let layouts = if (bvh.nodes.len() + 3 * bvh.refs.len()) as u64 <= max_nodes { BVH_LAYOUTS } else { 1 };
+            let layouts = if (2 * bvh.nodes.len() + 3 * bvh.refs.len()) as u64 <= max_nodes { BVH_LAYOUTS } else { 1 };
             header[66] = layouts as u32;
             let bvh = ThreadedBvh { nodes: bvh.nodes[..per_layout * layouts].to_vec(), ..bvh };
             // the leaves' triangles copied in leaf order after the nodes, 3 uvec4 each (v0, v1, v2;
             // v0.w the input index, bit 31 set when the triangle casts no shadow): no indirection
-            let base = bvh.nodes.len() as u32;
+            let base = 2 * bvh.nodes.len() as u32;
             header[65] = base;
-            let mut nodes = bvh.nodes;
+            let mut nodes: Vec<[u32; 4]> =
+                bvh.nodes.iter().flat_map(|n| [[n[0], n[1], n[2], n[3]], [n[4], n[5], n[6], n[7]]]).collect();
             for &k in &bvh.refs {
                 let t = &tris[k as usize];
                 let flag = if no_shadow.is_some_and(|f| f[k as usize]) { 1 << 31 } else { 0 };
@@ -773,14 +767,11 @@ const BVH_LAYOUTS: usize = 6;
 
 /// A threaded BVH in the tracer's buffers ([`Structure::Bvh`]).
 struct ThreadedBvh {
-    /// One texel per node (`glsl/include/kdtree.glsl`): the box quantized to 16 bits per
-    /// coordinate in [`BvhQuant`]'s frame (lo.x | lo.y << 16, lo.z | hi.x << 16, hi.y | hi.z <<
-    /// 16), and a link word: an interior node's miss link (the next node in depth-first order
-    /// after its subtree, the node count ending the walk; its first child follows it), or a
-    /// leaf's `1 << 31 | (count - 1) << 27 | first reference` (the walk goes on at the next
-    /// node); [`BVH_LAYOUTS`] copies of the tree, one per depth-first order.
-    nodes: Vec<[u32; 4]>,
-    quant: BvhQuant,
+    /// 8 words per node (`glsl/include/kdtree.glsl`): lo.xyz (f32 bits), miss link (the next
+    /// node in depth-first order after this one's subtree; `u32::MAX` ends the walk), hi.xyz,
+    /// leaf info (0: interior, its first child follows it; else count << 24 | first reference);
+    /// [`BVH_LAYOUTS`] copies of the tree, one per depth-first order.
+    nodes: Vec<[u32; 8]>,
     /// Triangle indices of the leaves, in leaf order (their triangles are copied in this order
     /// after the nodes).
     refs: Vec<u32>,
@@ -793,28 +784,14 @@ impl ThreadedBvh {
     /// laid out depth first in [`BVH_LAYOUTS`] orders, each node's first child next to it;
     /// boxes grown by `pad` against rounding in the slab test (a triangle on a box's face must
     /// not be missed).
-    fn build(tris: &[[Vec3; 3]], pad: f32) -> Result<Self> {
+    fn build(tris: &[[Vec3; 3]], pad: f32) -> Self {
         use obvhs::{bvh2::builder::build_bvh2_from_tris, triangle::Triangle, BvhBuildParams};
         let a = |v: Vec3| obvhs_glam::Vec3A::new(v.x, v.y, v.z);
         let otris: Vec<Triangle> = tris.iter().map(|t| Triangle { v0: a(t[0]), v1: a(t[1]), v2: a(t[2]) }).collect();
         if otris.is_empty() {
-            return Ok(ThreadedBvh {
-                nodes: Vec::new(),
-                refs: Vec::new(),
-                leaves: 0,
-                depth: 0,
-                quant: BvhQuant::new(Vec3::ZERO, Vec3::ONE),
-            });
+            return ThreadedBvh { nodes: Vec::new(), refs: Vec::new(), leaves: 0, depth: 0 };
         }
         let bvh = build_bvh2_from_tris(&otris, BvhBuildParams::medium_build(), &mut Default::default());
-        let root = &bvh.nodes[0].aabb;
-        let quant = BvhQuant::new(
-            Vec3::new(root.min.x, root.min.y, root.min.z) - Vec3::splat(pad),
-            Vec3::new(root.max.x, root.max.y, root.max.z) + Vec3::splat(pad),
-        );
-        if let Some(n) = bvh.nodes.iter().find(|n| n.prim_count > 16) {
-            bail!("threaded BVH: a leaf of {} triangles (at most 16)", n.prim_count);
-        }
         let centre = |n: usize, axis: usize| {
             let b = &bvh.nodes[n].aabb;
             b.min[axis] + b.max[axis]
@@ -822,7 +799,7 @@ impl ThreadedBvh {
         // BVH_LAYOUTS depth-first orders (in parallel): per axis and direction sign, the nearer
         // child first
         use rayon::prelude::*;
-        let layouts: Vec<(Vec<[u32; 4]>, u32, u32)> = (0..BVH_LAYOUTS)
+        let layouts: Vec<(Vec<[u32; 8]>, u32, u32)> = (0..BVH_LAYOUTS)
             .into_par_iter()
             .map(|k| {
                 let (axis, back) = (k / 2, k % 2 == 1);
@@ -855,15 +832,26 @@ impl ThreadedBvh {
                     .iter()
                     .map(|&n| {
                         let nd = &bvh.nodes[n];
-                        let link = if nd.prim_count == 0 {
-                            (pos[n] + size[n]) as u32
+                        let miss = pos[n] + size[n];
+                        let miss = if miss >= order.len() { u32::MAX } else { miss as u32 };
+                        let info = if nd.prim_count == 0 {
+                            0
                         } else {
                             leaves += 1;
-                            1 << 31 | (nd.prim_count - 1) << 27 | nd.first_index
+                            (nd.prim_count.min(255) << 24) | nd.first_index
                         };
-                        let lo = quant.lo(Vec3::new(nd.aabb.min.x, nd.aabb.min.y, nd.aabb.min.z) - Vec3::splat(pad));
-                        let hi = quant.hi(Vec3::new(nd.aabb.max.x, nd.aabb.max.y, nd.aabb.max.z) + Vec3::splat(pad));
-                        [lo[0] | lo[1] << 16, lo[2] | hi[0] << 16, hi[1] | hi[2] << 16, link]
+                        let lo = Vec3::new(nd.aabb.min.x, nd.aabb.min.y, nd.aabb.min.z) - Vec3::splat(pad);
+                        let hi = Vec3::new(nd.aabb.max.x, nd.aabb.max.y, nd.aabb.max.z) + Vec3::splat(pad);
+                        [
+                            lo.x.to_bits(),
+                            lo.y.to_bits(),
+                            lo.z.to_bits(),
+                            miss,
+                            hi.x.to_bits(),
+                            hi.y.to_bits(),
+                            hi.z.to_bits(),
+                            info,
+                        ]
                     })
                     .collect();
                 (nodes, leaves, depth)
@@ -871,57 +859,6 @@ impl ThreadedBvh {
             .collect();
         let (leaves, depth) = (layouts[0].1, layouts[0].2);
         let nodes = layouts.into_iter().flat_map(|l| l.0).collect();
-        Ok(ThreadedBvh { nodes, refs: bvh.primitive_indices.clone(), leaves, depth, quant })
-    }
-}
-
-/// The threaded BVH's box quantization: per axis, `origin + q * scale` for q in 0..=65535 spans
-/// the (padded) scene box; a node's box is rounded outwards (one step more on each side than
-/// needed: the shader's slab test evaluates it as `q * (scale / d) + (origin - o) / d`, whose
-/// rounding stays far below a step).
-#[derive(Clone, Copy, Debug)]
-pub struct BvhQuant {
-    /// Coordinate of q = 0 per axis.
-    pub origin: Vec3,
-    /// One step per axis.
-    pub scale: Vec3,
-}
-
-impl BvhQuant {
-    const STEPS: f32 = 65535.0;
-
-    /// The frame spanning the box `lo`..`hi` (grown by a relative margin).
-    pub fn new(lo: Vec3, hi: Vec3) -> Self {
-        let margin = Vec3::splat(1e-5 * (hi - lo).max_element().max(f32::MIN_POSITIVE)) + 1e-5 * lo.abs().max(hi.abs());
-        let origin = lo - margin;
-        let scale = ((hi + margin - origin) / Self::STEPS).max(Vec3::splat(f32::MIN_POSITIVE));
-        BvhQuant { origin, scale }
-    }
-
-    /// Coordinate of step `q` on axis `a`.
-    pub fn at(&self, a: usize, q: u32) -> f32 {
-        self.origin[a] + q as f32 * self.scale[a]
-    }
-
-    /// Quantized lower corner: at or below `v` (the step below its floor).
-    pub fn lo(&self, v: Vec3) -> [u32; 3] {
-        std::array::from_fn(|a| {
-            let mut q = (((v[a] - self.origin[a]) / self.scale[a]).floor() - 1.0).clamp(0.0, Self::STEPS) as u32;
-            while q > 0 && self.at(a, q) > v[a] {
-                q -= 1;
-            }
-            q
-        })
-    }
-
-    /// Quantized upper corner: at or above `v` (the step above its ceiling).
-    pub fn hi(&self, v: Vec3) -> [u32; 3] {
-        std::array::from_fn(|a| {
-            let mut q = (((v[a] - self.origin[a]) / self.scale[a]).ceil() + 1.0).clamp(0.0, Self::STEPS) as u32;
-            while q < Self::STEPS as u32 && self.at(a, q) < v[a] {
-                q += 1;
-            }
-            q
-        })
+        ThreadedBvh { nodes, refs: bvh.primitive_indices.clone(), leaves, depth }
     }
 }
