@@ -114,6 +114,9 @@ float isg_cos_c[ISG_MAX_SIDE];
 // (cos, sin) of the patch step: the rotation from one patch centre angle to the next
 vec2 isg_rot;
 
+// (cos, sin) of the next patch centre angle after the one of cs.
+vec2 isg_next_angle(vec2 cs) { return vec2(cs.x * isg_rot.x - cs.y * isg_rot.y, cs.y * isg_rot.x + cs.x * isg_rot.y); }
+
 // Bits j0..=j1 of a row's mask (none when j1 < j0; 0 <= j0, j1 <= 31).
 uint isg_bit_range(int j0, int j1) {
     if (j1 < j0) return 0u;
@@ -185,13 +188,11 @@ bool isg_mark_cap(vec3 c, float psi, vec3 fx, vec3 fy, vec3 fz, float delta, flo
         float st = isg_sin_c[i], ct = isg_cos_c[i];
         float X = cl.x * st, Z = cl.z * st, Y = cl.y * ct - cos_psi;
         int j0 = findLSB(cand), j1 = findMSB(cand);
-        float cph = isg_cos_c[j0], sph = isg_sin_c[j0];
+        vec2 cs = vec2(isg_cos_c[j0], isg_sin_c[j0]);
         uint bits = 0u;
         for (int j = j0; j <= j1; ++j) {
-            if (X * cph + Z * sph + Y >= 0.0) bits |= 1u << uint(j);
-            float c2 = cph * isg_rot.x - sph * isg_rot.y;
-            sph = sph * isg_rot.x + cph * isg_rot.y;
-            cph = c2;
+            if (X * cs.x + Z * cs.y + Y >= 0.0) bits |= 1u << uint(j);
+            cs = isg_next_angle(cs);
         }
         bits &= cand;
         isg_mask[i] |= bits;
@@ -256,14 +257,12 @@ bool isg_mark_triangle(int t, vec3 p, vec3 n, vec3 fx, vec3 fy, vec3 fz, float d
         float st = isg_sin_c[i], ct = isg_cos_c[i];
         vec3 X = ex * st, Z = ez * st, Y = ey * ct;
         int j0 = findLSB(cand), j1 = findMSB(cand);
-        float cph = isg_cos_c[j0], sph = isg_sin_c[j0];
+        vec2 cs = vec2(isg_cos_c[j0], isg_sin_c[j0]);
         uint bits = 0u;
         for (int j = j0; j <= j1; ++j) {
-            vec3 f = X * cph + Z * sph + Y;
+            vec3 f = X * cs.x + Z * cs.y + Y;
             if (min(f.x, min(f.y, f.z)) >= 0.0) bits |= 1u << uint(j);
-            float c2 = cph * isg_rot.x - sph * isg_rot.y;
-            sph = sph * isg_rot.x + cph * isg_rot.y;
-            cph = c2;
+            cs = isg_next_angle(cs);
         }
         bits &= cand;
         isg_mask[i] |= bits;
