@@ -785,6 +785,14 @@ fn key_lights_split_off_the_environment_cast_their_shadows() {
     assert!(e_key < 0.1, "key lights split off: rmse/mean {e_key} over avs's budget 0.1");
     assert!(e_key < 0.7 * e_whole, "key lights split off {e_key} against the whole map {e_whole}");
     assert!(e_key < 0.3 * e_open, "key lights split off {e_key} against unshadowed {e_open}");
+    // the centre ray alone where the SSDF clears a key light's disk (key_rays = predicted, the
+    // default) draws what every ray of the disk draws
+    let (_r, every) = render(&with(&with(&s, &fast), &[("key_rays", "all")]), "avs", w, h, &[t], false);
+    let e_every = err(&every[0], "every key ray");
+    let c = compare(&image(&every[0]), "key_rays = all", &image(&key[0]), "key_rays = predicted").unwrap();
+    println!("key_rays = all: rmse/mean {e_every:.4}; predicted against all {:.5}", c.rmse / c.reference_mean);
+    assert!(c.rmse / c.reference_mean < 0.01, "key_rays = predicted differs from all by {}", c.rmse / c.reference_mean);
+    assert!(e_key < e_every + 0.003, "key_rays = predicted {e_key} against all {e_every}");
 }
 
 /// [`light_visibility_agreement`] at resolution `r`, asserted: at least 400 classified floor

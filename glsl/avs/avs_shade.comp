@@ -356,7 +356,24 @@ void main() {
         SG l = sg_make(key[2u * k].xyz, key[2u * k].w, 1.0);
         bool lit = max(sg_cosine_integral(l, n), 0.0) > 0.0
             || (n_glossy > 1u && gj.lambda <= KEY_REUSE * l.lambda && sg_inner_product(l, gj) > 0.0);
-        if (lit) kmask[k] = cone_rays_mask(po, l.axis, 2.0 / sqrt(max(l.lambda, 1e-4)), ng);
+        if (!lit) continue;
+        float rad = 2.0 / sqrt(max(l.lambda, 1e-4));
+        // key_rays = predicted (flags bit 2): where the interpolated SSDF puts the nearest
+        // visibility boundary farther from the light's axis than its disk plus two texels, the
+        // centre ray alone confirms the light wholly seen (or hidden); the disk where it disagrees
+        if ((pc.flags & 4u) != 0u && shadows_on()) {
+            float d = ssdf_at(l.axis);
+            float margin = atan(0.9 * rad) + 2.0 * avs_texel_angle(pc.r);
+            vec3 dc = normalize(l.axis);
+            if (abs(d) > margin && dot(dc, ng) > 0.0) {
+                bool seen = kd_trace(po, dc, 0.0, 1e30, true).t < 0.0;
+                if (seen == (d > 0.0)) {
+                    kmask[k] = (1u << 16u) | (seen ? 1u : 0u);
+                    continue;
+                }
+            }
+        }
+        kmask[k] = cone_rays_mask(po, l.axis, rad, ng);
     }
     // Lobes that bring less than LOBE_CULL of a ratio's light (the diffuse lobes' irradiance with
     // diffuse_ratio, the glossy items' light in gj) are left out of both its sums: the ratio

@@ -28,7 +28,11 @@ uint nb_count = 0u;
 // within `radius` whose normal faces the same side, ranked by e_g = alpha |dp| inv_scale +
 // sqrt(2 - 2 n.n'). Neighbours off the pixel's tangent plane by more than a quarter of the radius
 // lie on other surfaces (cloth under a hat brim): skipped unless nothing else is found (then the
-// radius grows 2.5x, then the plane test is dropped). Buried points (every direction occluded: a
+// radius grows 2.5x, then 5x and 10x, then the plane test is dropped at 2.5x). The wider passes
+// find the points of surfaces sampled more sparsely than the mean spacing the radius follows (a
+// big floor beside a finely meshed dish at the paper's vertex counts: without them discs around
+// its points were shadowed and the floor between them drawn unshadowed); they scan the grid's
+// coarse level (passes::avs::grid_words). Buried points (every direction occluded: a
 // candidate inside a closed object, or under something that closes its hemisphere) are taken only
 // when they are clearly the nearest (no unburied candidate within sqrt(2) of the nearest buried
 // one's distance: the pixel lies where the object stands, or in the closed space); otherwise only
@@ -49,10 +53,6 @@ uint nb_count = 0u;
     }
 
 void avs_gather(vec3 pos, vec3 n, float radius, float alpha, float inv_scale, uint max_neighbours) {
-    uvec3 dims = uvec3(AVS_GRID(0), AVS_GRID(1), AVS_GRID(2));
-    vec3 lo = vec3(uintBitsToFloat(AVS_GRID(4)), uintBitsToFloat(AVS_GRID(5)), uintBitsToFloat(AVS_GRID(6)));
-    float cell = uintBitsToFloat(AVS_GRID(7));
-    uint items = AVS_GRID(8);
     // the m smallest e_g of all candidates (nb_*, best_e) and of the unburied ones (open_*)
     float best_e[MAXN];
     float open_e[MAXN];
@@ -61,16 +61,23 @@ void avs_gather(vec3 pos, vec3 n, float radius, float alpha, float inv_scale, ui
     uint m = min(max_neighbours, uint(MAXN));
     nb_count = 0u;
     float near_buried = 1e30, near_open = 1e30;
-    for (int pass = 0; pass < 3 && nb_count == 0u; ++pass) {
-        float rad = pass == 0 ? radius : 2.5 * radius;
-        float plane_tol = pass == 2 ? 1e30 : 0.25 * rad;
+    for (int pass = 0; pass < 5 && nb_count == 0u; ++pass) {
+        float rad = radius * (pass == 0 ? 1.0 : (pass == 2 ? 5.0 : (pass == 3 ? 10.0 : 2.5)));
+        float plane_tol = pass == 4 ? 1e30 : 0.25 * rad;
+        // the fine level (cells of the radius), the coarse one (word 3: cells of 4 x the radius)
+        // for the passes at 5 and 10 x the radius
+        uint g0 = pass == 2 || pass == 3 ? AVS_GRID(3) : 0u;
+        uvec3 dims = uvec3(AVS_GRID(g0), AVS_GRID(g0 + 1u), AVS_GRID(g0 + 2u));
+        vec3 lo = vec3(uintBitsToFloat(AVS_GRID(g0 + 4u)), uintBitsToFloat(AVS_GRID(g0 + 5u)), uintBitsToFloat(AVS_GRID(g0 + 6u)));
+        float cell = uintBitsToFloat(AVS_GRID(g0 + 7u));
+        uint items = AVS_GRID(g0 + 8u);
         ivec3 a = clamp(ivec3(floor((pos - rad - lo) / cell)), ivec3(0), ivec3(dims) - 1);
         ivec3 b = clamp(ivec3(floor((pos + rad - lo) / cell)), ivec3(0), ivec3(dims) - 1);
         for (int z = a.z; z <= b.z; ++z)
             for (int y = a.y; y <= b.y; ++y)
                 for (int x = a.x; x <= b.x; ++x) {
                     uint ci = uint(x) + dims.x * (uint(y) + dims.y * uint(z));
-                    uint s0 = AVS_GRID(16u + ci), s1 = AVS_GRID(17u + ci);
+                    uint s0 = AVS_GRID(g0 + 16u + ci), s1 = AVS_GRID(g0 + 17u + ci);
                     for (uint it = s0; it < s1; ++it) {
                         uint slot = AVS_GRID(items + it);
                         vec3 p = AVS_PTS(3u * slot).xyz;

@@ -227,6 +227,11 @@ impl Grid {
         g
     }
 
+    /// The points the grid was built over.
+    pub fn points(&self) -> &[Vec3] {
+        &self.points
+    }
+
     /// Integer cell of `p` (clamped to the grid).
     pub fn cell_of(&self, p: Vec3) -> [i32; 3] {
         let q = ((p - self.lo) / self.cell).floor();

@@ -238,6 +238,7 @@ const AVS_PARAMS: &[ParamDoc] = &[
     p("cull", "true", "true/false", "trace only sample points the previous frame's pixels needed"),
     p("light_shadows", "traced", "traced, ssdf", "local lights' shadows: shadow rays through the frame's kd-tree (traced; the paper lights by the environment only) or the interpolated SSDF toward the light (ssdf)"),
     p("key_lights", "4", "0..=16", "with light_shadows = traced: the environment's compact bright lights split off its map as at most this many moment-matched lights whose diffuse light is shadowed by rays through the frame's kd-tree, the rest of the map through the SSDFs; 0: the whole map through the SSDFs (the paper's)"),
+    p("key_rays", "predicted", "predicted, all", "rays per key light and pixel: the centre ray alone where the interpolated SSDF clears the light's disk by two texels and the ray agrees with it, the disk's rays elsewhere (predicted), or the disk's rays everywhere (all)"),
     p("capture_maps", "false", "true/false", "read the final visibility maps back into the technique's stats (tests)"),
 ];
 

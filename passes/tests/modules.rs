@@ -956,3 +956,57 @@ mod lobe_count_for_an_error {
         assert!(s.set("fit_error", "1.5").is_err());
     }
 }
+
+/// The avs gather's grid buffer holds two levels over the same points (the coarse one at word 3,
+/// cells of `COARSE_CELLS` fine cells): each lists every point's slot once, in the cell holding it.
+#[test]
+fn avs_grid_words_hold_both_levels() {
+    use glam::Vec3;
+    use penumbra_math::avs_sampling::Grid;
+    let mut pts = Vec::new();
+    let mut x = 12345u32;
+    let mut rnd = || {
+        x = x.wrapping_mul(1664525).wrapping_add(1013904223);
+        (x >> 8) as f32 / 16777216.0
+    };
+    for _ in 0..500 {
+        // a dense patch and a sparse floor
+        let dense = pts.len() % 2 == 0;
+        let s = if dense { 0.5 } else { 8.0 };
+        pts.push(Vec3::new(rnd() * s, if dense { rnd() * 0.2 } else { 0.0 }, rnd() * s));
+    }
+    let slots: Vec<u32> = (0..pts.len() as u32).map(|i| 1000 + i).collect();
+    let grid = Grid::new(&pts, 0.05);
+    let w = penumbra_passes::avs::grid_words(&grid, &slots);
+    let coarse = w[3] as usize;
+    assert!(coarse > 16, "no coarse level");
+    for (base, edge) in [(0usize, grid.cell), (coarse, grid.cell * penumbra_passes::avs::COARSE_CELLS)] {
+        let dims = [w[base], w[base + 1], w[base + 2]];
+        let lo = Vec3::new(f32::from_bits(w[base + 4]), f32::from_bits(w[base + 5]), f32::from_bits(w[base + 6]));
+        let cell = f32::from_bits(w[base + 7]);
+        assert!(cell >= edge * 0.999, "level at {base}: cell {cell} below {edge}");
+        let items = w[base + 8] as usize;
+        let ncells = (dims[0] * dims[1] * dims[2]) as usize;
+        assert_eq!(items, base + 16 + ncells + 1);
+        let mut seen = vec![0u32; pts.len()];
+        for c in 0..ncells {
+            let (s0, s1) = (w[base + 16 + c] as usize, w[base + 17 + c] as usize);
+            for &slot in &w[items + s0..items + s1] {
+                let i = (slot - 1000) as usize;
+                seen[i] += 1;
+                let q = ((pts[i] - lo) / cell).floor();
+                let cc = [
+                    (q.x as i64).clamp(0, dims[0] as i64 - 1) as usize,
+                    (q.y as i64).clamp(0, dims[1] as i64 - 1) as usize,
+                    (q.z as i64).clamp(0, dims[2] as i64 - 1) as usize,
+                ];
+                assert_eq!(
+                    cc[0] + dims[0] as usize * (cc[1] + dims[1] as usize * cc[2]),
+                    c,
+                    "point {i} in the wrong cell"
+                );
+            }
+        }
+        assert!(seen.iter().all(|&n| n == 1), "level at {base}: points not listed exactly once");
+    }
+}

@@ -1,7 +1,9 @@
 //! `penumbra bench avs [SCENE]`: the adaptive-visibility-sampling technique (issue 8) per scene in
 //! the columns of the paper's Table 1 (pixels, vertices, sample points, memory, t_I, t_V, t_S,
 //! ms/frame), its error against the CPU reference, the GPU Monte Carlo baseline (`mc`) at the same
-//! GPU time and the time it needs to reach the same error, adaptive against brute-force
+//! GPU time and the time it needs to reach the same error (RMSE over the reference's mean; the
+//! reference samples the pixel centres where avs's G-buffer does, and so does `mc`, unless `--aa`),
+//! adaptive against brute-force
 //! visibility maps at r = 64, 128, 256, and an E_v,max x r sweep (error/time), in one run.
 //! Every avs measurement is the second of two frames (t - 1/30 s, t), so that G-buffer culling
 //! (parameter `cull`, on by default) works from the first frame's flags; a table compares it off
@@ -36,6 +38,16 @@ pub struct AvsArgs {
     /// Skip the r / E_v,max sweeps and the brute-force comparison.
     #[arg(long)]
     pub no_sweep: bool,
+    /// Compare against an anti-aliased reference (a box pixel filter) and let `mc` jitter its
+    /// primary rays over the pixel. Without it (default) the reference samples the pixel centres,
+    /// where avs's G-buffer does (as the accuracy matrix's references), and `mc` samples them too
+    /// (`aa = false`): both are then measured on their shading, not on avs's aliasing.
+    #[arg(long)]
+    pub aa: bool,
+    /// Write each scene's reference, avs frame and `mc` image (the frame that reached avs's
+    /// RMSE over the mean, or its last) as EXR under DIR/<scene>/, to look at side by side.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
     /// Extra avs parameters KEY=VALUE (as --param of render).
     #[arg(long = "param")]
     pub params: Vec<String>,
@@ -63,9 +75,13 @@ struct AvsRun {
     t_s: f64,
     total: f64,
     psnr: f64,
+    /// RMSE over the reference's mean radiance (the error `mc` is matched to).
+    rmse_mean: f64,
     rel_rmse: f64,
     /// Wall-clock ms of the measured frame's parts in the technique (`AvsStats::cpu_ms`).
     cpu_parts: Vec<(&'static str, f64)>,
+    /// The measured frame.
+    image: Image,
 }
 
 fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32, reference: &Image) -> Result<AvsRun> {
@@ -98,7 +114,8 @@ fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32
     let t_s = sum(&f.gpu_ms, &["avs_hsdt"]);
     let t_i = sum(&f.gpu_ms, &["avs_shade"]);
     let total = passes.iter().map(|(_, m)| m).sum::<f64>();
-    let c = compare(reference, "reference", &crate::bench::hdr_image(f), "avs")?;
+    let image = crate::bench::hdr_image(f);
+    let c = compare(reference, "reference", &image, "avs")?;
     let pool = penumbra_passes::avs::vertex_pool(&s, &s.at(t, Some(t0)), &st.pool_plan)?;
     Ok(AvsRun {
         sample_points: st.point_vertices.iter().map(|&v| pool[v]).collect(),
@@ -115,16 +132,30 @@ fn render_avs(scene: &Scene, params: &[(String, String)], w: u32, h: u32, t: f32
         t_s,
         total,
         psnr: c.psnr_db.unwrap_or(f64::INFINITY),
+        rmse_mean: c.rmse_rel_mean,
         rel_rmse: c.rel_rmse,
         cpu_parts: st.cpu_ms.clone(),
+        image,
     })
 }
 
-/// The MC baseline: (error at the avs time, frames and ms to reach the avs error).
+/// The MC baseline: (PSNR, RMSE over the reference's mean, frames) at the avs time, the ms and
+/// frames it takes to reach avs's RMSE over the mean, and its last frame's.
 struct McRun {
     at_time: Option<(f64, f64, u32)>,
     to_error: Option<(f64, u32)>,
+    /// The same for avs's relRMSE (a per-pixel relative error that weighs dark pixels most).
+    to_rel: Option<(f64, u32)>,
     last: (f64, f64, u32),
+    /// The frame that reached avs's RMSE over the mean (or the last).
+    image: Option<Image>,
+}
+
+/// What `mc` is measured against: avs's GPU ms per frame and RMSE over the reference's mean.
+struct McTarget {
+    avs_ms: f64,
+    avs_rmse_mean: f64,
+    avs_rel_rmse: f64,
 }
 
 fn render_mc(
@@ -133,11 +164,12 @@ fn render_mc(
     h: u32,
     t: f32,
     frames: u32,
+    aa: bool,
     reference: &Image,
-    avs_ms: f64,
-    avs_rel: f64,
+    target: McTarget,
 ) -> Result<McRun> {
-    let settings = RenderSettings { width: w, height: h, technique: Some("mc".into()), ..Default::default() };
+    let params: penumbra_passes::registry::Params = [("aa".to_string(), aa.to_string())].into_iter().collect();
+    let settings = RenderSettings::with_technique(w, h, "mc", &params);
     let mut r = Renderer::new_headless(scene, settings, false)?;
     // A warm-up frame first, left out of the curve: lavapipe compiles a shader at its first
     // dispatch, inside the pass's timestamps (mc's took 13.9 s with a cold shader cache, which
@@ -157,19 +189,26 @@ fn render_mc(
     }
     out.remove(0);
     let mut cum = 0.0;
-    let mut run = McRun { at_time: None, to_error: None, last: (0.0, 0.0, 0) };
+    let mut run = McRun { at_time: None, to_error: None, to_rel: None, last: (0.0, 0.0, 0), image: None };
     for (k, f) in out.iter().enumerate() {
         cum += f.gpu_ms.iter().map(|(_, m)| m).sum::<f64>();
-        let c = compare(reference, "reference", &crate::bench::hdr_image(f), "mc")?;
+        let image = crate::bench::hdr_image(f);
+        let c = compare(reference, "reference", &image, "mc")?;
         let psnr = c.psnr_db.unwrap_or(f64::INFINITY);
         let frames = k as u32 + 1;
-        if run.at_time.is_none() && cum >= avs_ms {
-            run.at_time = Some((psnr, c.rel_rmse, frames));
+        if run.at_time.is_none() && cum >= target.avs_ms {
+            run.at_time = Some((psnr, c.rmse_rel_mean, frames));
         }
-        if run.to_error.is_none() && c.rel_rmse <= avs_rel {
-            run.to_error = Some((cum, frames));
+        if run.to_error.is_none() {
+            if c.rmse_rel_mean <= target.avs_rmse_mean {
+                run.to_error = Some((cum, frames));
+            }
+            run.image = Some(image);
         }
-        run.last = (psnr, c.rel_rmse, frames);
+        if run.to_rel.is_none() && c.rel_rmse <= target.avs_rel_rmse {
+            run.to_rel = Some((cum, frames));
+        }
+        run.last = (psnr, c.rmse_rel_mean, frames);
     }
     Ok(run)
 }
@@ -204,9 +243,15 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
             .map(|n| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(n))
             .collect(),
     };
-    println!("## Table 1 (size {w}x{h}, t = {} s, reference {} spp, avs parameters: {:?})", args.time, args.spp, base);
-    println!("| scene | #pixels | #verts | #samples | maps+SSDF MB | t_I ms | t_V ms | t_S ms | ms/frame | rays | PSNR dB | relRMSE | MC same time: PSNR / relRMSE (frames) | MC to same relRMSE: ms (frames) |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!(
+        "## Table 1 (size {w}x{h}, t = {} s, reference {} spp {}, avs parameters: {:?})",
+        args.time,
+        args.spp,
+        if args.aa { "anti-aliased, mc aa = true" } else { "at the pixel centres, mc aa = false" },
+        base
+    );
+    println!("| scene | #pixels | #verts | #samples | maps+SSDF MB | t_I ms | t_V ms | t_S ms | ms/frame | rays | PSNR dB | rmse/mean | relRMSE | MC same time: PSNR / rmse/mean (frames) | MC to same rmse/mean: ms (frames) | MC to same relRMSE |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let mut first: Option<(Scene, Image)> = None;
     let mut cull_rows = Vec::new();
     let mut part_rows = Vec::new();
@@ -219,20 +264,34 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
             time: Some(args.time),
             mode: Mode::Exact,
             progress: true,
+            pixel_grid: if args.aa { 0 } else { 1 },
             ..Default::default()
         };
         let reference = reference_render(&scene, &opts)?.radiance;
         let a = render_avs(&scene, &base, w, h, args.time, &reference)?;
-        let mc = render_mc(&scene, w, h, args.time, args.mc_frames, &reference, a.total, a.rel_rmse)?;
+        let target = McTarget { avs_ms: a.total, avs_rmse_mean: a.rmse_mean, avs_rel_rmse: a.rel_rmse };
+        let mc = render_mc(&scene, w, h, args.time, args.mc_frames, args.aa, &reference, target)?;
+        if let Some(dir) = &args.out {
+            let d = dir.join(&scene.name);
+            std::fs::create_dir_all(&d).with_context(|| format!("creating {}", d.display()))?;
+            reference.write_exr(d.join("reference.exr"))?;
+            a.image.write_exr(d.join("avs.exr"))?;
+            if let Some(m) = &mc.image {
+                m.write_exr(d.join("mc.exr"))?;
+            }
+        }
         let same = mc
             .at_time
-            .map_or(format!("not reached in {} frames", mc.last.2), |(p, r, f)| format!("{p:.2} / {r:.3} ({f})"));
+            .map_or(format!("not reached in {} frames", mc.last.2), |(p, r, f)| format!("{p:.2} / {r:.4} ({f})"));
         let reach = mc.to_error.map_or(
-            format!("not reached in {} frames (last {:.2} dB / {:.3})", mc.last.2, mc.last.0, mc.last.1),
+            format!("not reached in {} frames (last {:.2} dB / {:.4})", mc.last.2, mc.last.0, mc.last.1),
             |(ms, f)| format!("{ms:.0} ({f}), {:.3}x the avs time", ms / a.total.max(1e-9)),
         );
+        let reach_rel = mc.to_rel.map_or(format!("not reached in {} frames", mc.last.2), |(ms, f)| {
+            format!("{ms:.0} ({f}), {:.3}x", ms / a.total.max(1e-9))
+        });
         println!(
-            "| {} | {} | {} | {} | {:.2} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.2} | {:.3} | {} | {} |",
+            "| {} | {} | {} | {} | {:.2} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.2} | {:.4} | {:.3} | {} | {} | {} |",
             scene.name,
             w * h,
             a.vertices,
@@ -244,9 +303,11 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
             a.total,
             a.rays,
             a.psnr,
+            a.rmse_mean,
             a.rel_rmse,
             same,
-            reach
+            reach,
+            reach_rel
         );
         part_rows.push(format!(
             "| {} | {} | {:.1} |",

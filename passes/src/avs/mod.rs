@@ -227,6 +227,12 @@ pub struct AvsSettings {
     /// long shadows drawn as blotches). The glossy term stays the whole map's glossy term times
     /// the lobe's SSDF visibility, the key lights among the lights that weigh it (`glossy`).
     pub key_lights: usize,
+    /// How many of a key light's rays a pixel traces (`key_rays`). `predicted` (default): where
+    /// the interpolated SSDF puts the nearest visibility boundary farther from the light's axis
+    /// than the light's disk plus two texels (the light wholly seen, or wholly hidden), the
+    /// centre ray alone, and the whole disk only where that ray disagrees; elsewhere the disk.
+    /// `all`: the disk's rays everywhere (its centre and outer ring, the inner ring in a penumbra).
+    pub key_rays_predicted: bool,
     /// Read the final visibility maps back into [`AvsStats::maps`] (one more copy per adaptation
     /// round; for tests comparing maps texel by texel).
     pub capture_maps: bool,
@@ -264,6 +270,7 @@ impl Default for AvsSettings {
             cull: true,
             traced_lights: true,
             key_lights: 4,
+            key_rays_predicted: true,
             capture_maps: false,
         }
     }
@@ -281,7 +288,7 @@ impl AvsSettings {
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
     /// `iterations` (2), `adaptation` (`rounds` | `late` | `cpu`), `cpu_grid` (16), `first_iterations` (8), `points` (0 = auto), `max_points` (4096; lowered to what the device binds, see `AvsTechnique::new`), `pool_points` (4096), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells` | `table` | `adf`), `cells` (6,
-    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `glossy` (`ratio` | `sg`), `lobes` (16), `light_shadows` (`traced` | `ssdf`). Unknown keys and bad values
+    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `glossy` (`ratio` | `sg`), `lobes` (16), `light_shadows` (`traced` | `ssdf`), `key_lights` (4, 0..16), `key_rays` (`predicted` | `all`). Unknown keys and bad values
     /// are errors naming the key.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let p = crate::technique::Param::new("avs", key, value);
@@ -332,8 +339,9 @@ impl AvsSettings {
             "cull" => self.cull = p.flag()?,
             "light_shadows" => self.traced_lights = p.choice(&[("traced", true), ("ssdf", false)])?,
             "key_lights" => self.key_lights = int(0, 16)? as usize,
+            "key_rays" => self.key_rays_predicted = p.choice(&[("predicted", true), ("all", false)])?,
             "capture_maps" => self.capture_maps = p.flag()?,
-            _ => return Err(p.unknown("r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, adaptation, first_iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, light_shadows, key_lights, capture_maps")),
+            _ => return Err(p.unknown("r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, adaptation, first_iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, light_shadows, key_lights, key_rays, capture_maps")),
         }
         Ok(())
     }
@@ -757,10 +765,30 @@ pub fn point_data(points: &[SurfacePoint], offset: f32) -> Vec<[f32; 4]> {
     out
 }
 
-/// The grid buffer `avs_shade.comp` reads (header, cell starts, slots).
+/// The grid buffer `avs_shade.comp` and `avs_cull.comp` read (`avs_gather.glsl`): two levels
+/// over the same points, each a header (dims, lower corner, cell edge, where its slots start),
+/// its cell starts and its slots: `grid` (cell edge: twice the search radius) for the gather's
+/// first pass, and one of [`COARSE_CELLS`] times its cell edge (word 3 of the first header: where
+/// the second starts) for the wider passes where the points lie farther apart (a big floor beside
+/// a finely meshed object), so that those scan a few coarse cells instead of thousands of fine
+/// ones.
 pub fn grid_words(grid: &Grid, slots: &[u32]) -> Vec<u32> {
+    let mut out = grid_level_words(grid, slots, 0);
+    let coarse = Grid::new(grid.points(), grid.cell * COARSE_CELLS);
+    out[3] = out.len() as u32;
+    let base = out.len() as u32;
+    out.extend(grid_level_words(&coarse, slots, base));
+    out
+}
+
+/// The coarse level's cell edge in fine cells (`avs_gather.glsl`'s wider passes: 4 and 8 times
+/// the radius, in cells of 8 times it).
+pub const COARSE_CELLS: f32 = 4.0;
+
+/// One level of [`grid_words`], its word offsets counted from `base`.
+fn grid_level_words(grid: &Grid, slots: &[u32], base: u32) -> Vec<u32> {
     let cells = grid.cell_start.len() - 1;
-    let items = 16 + cells as u32 + 1;
+    let items = base + 16 + cells as u32 + 1;
     let mut out = vec![0u32; 16];
     out[0] = grid.dims[0];
     out[1] = grid.dims[1];
@@ -1698,7 +1726,9 @@ impl crate::technique::Technique for AvsTechnique {
             if s.interp_alpha > 0.0 { (s.interp_alpha, 1.0 / shade_radius) } else { (s.alpha, 1.0 / pos_scale) };
         push.extend(bytes_of(&[wa, wscale, shade_radius]));
         push.extend(bytes_of(&[
-            (!s.shadows || points.is_empty()) as u32 | ((s.shadows && s.traced_lights) as u32) << 1,
+            (!s.shadows || points.is_empty()) as u32
+                | ((s.shadows && s.traced_lights) as u32) << 1
+                | (s.key_rays_predicted as u32) << 2,
             s.cells.clamp(1, 16),
             if s.glossy_ratio { 2 } else { (!s.prefiltered) as u32 },
             s.diffuse_ratio as u32,
