@@ -45,7 +45,8 @@ pub struct AvsArgs {
     #[arg(long)]
     pub aa: bool,
     /// Write each scene's reference, avs frame and `mc` image (the frame that reached avs's
-    /// RMSE over the mean, or its last) as EXR under DIR/<scene>/, to look at side by side.
+    /// RMSE over the mean, or its last) as EXR under DIR/<scene>/ with false-colour difference
+    /// PNGs against the reference, and DIR/avs_mc.png, a contact sheet of the three per scene.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Extra avs parameters KEY=VALUE (as --param of render).
@@ -255,6 +256,9 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
     let mut first: Option<(Scene, Image)> = None;
     let mut cull_rows = Vec::new();
     let mut part_rows = Vec::new();
+    // --out's contact sheet: per scene the reference, avs's frame and mc's
+    type Tile = (String, Option<Image>, String, Option<bool>);
+    let mut sheet: Vec<(String, Vec<Tile>)> = Vec::new();
     for path in &scenes {
         let scene = load(path)?;
         let opts = ReferenceOptions {
@@ -276,9 +280,29 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
             std::fs::create_dir_all(&d).with_context(|| format!("creating {}", d.display()))?;
             reference.write_exr(d.join("reference.exr"))?;
             a.image.write_exr(d.join("avs.exr"))?;
+            penumbra_reference::metrics::write_diff_png(&reference, &a.image, &d.join("avs_diff.png"))?;
+            let mut tiles = vec![
+                ("reference".to_string(), Some(reference.clone()), format!("{} spp", args.spp), None),
+                (
+                    "avs".to_string(),
+                    Some(a.image.clone()),
+                    format!("rmse/mean {:.4}, {:.0} ms", a.rmse_mean, a.total),
+                    None,
+                ),
+            ];
             if let Some(m) = &mc.image {
                 m.write_exr(d.join("mc.exr"))?;
+                penumbra_reference::metrics::write_diff_png(&reference, m, &d.join("mc_diff.png"))?;
+                let c = compare(&reference, "reference", m, "mc")?;
+                let frames = mc.to_error.map_or(mc.last.2, |(_, f)| f);
+                tiles.push((
+                    "mc".to_string(),
+                    Some(m.clone()),
+                    format!("rmse/mean {:.4}, {frames} frames", c.rmse_rel_mean),
+                    None,
+                ));
             }
+            sheet.push((scene.name.clone(), tiles));
         }
         let same = mc
             .at_time
@@ -356,6 +380,14 @@ pub fn run(args: &AvsArgs, load: impl Fn(&Path) -> Result<Scene>) -> Result<()> 
     );
     for r in &part_rows {
         println!("{r}");
+    }
+    if let Some(dir) = &args.out {
+        let path = dir.join("avs_mc.png");
+        crate::matrix::contact_sheet(&path, &sheet, w, h)?;
+        println!(
+            "\nwrote {} (per scene: reference, avs, mc at avs's error) and per-scene EXRs and difference PNGs",
+            path.display()
+        );
     }
     println!("\n## G-buffer culling (section 6 \"Optimization\"), second frame; each cell: off / on");
     println!("| scene | dormant points (on) | maps traced | t_V ms | t_S ms | rays | PSNR dB | relRMSE |");

@@ -370,6 +370,36 @@ fn spheres_approximate_a_closed_mesh_and_refuse_an_open_one() {
     );
 }
 
+/// `bench avs` against `mc` on the brief's metric, and its pictures: the contact sheet and each
+/// scene's EXRs and difference PNGs under --out.
+#[test]
+fn bench_avs_compares_with_mc_and_writes_its_pictures() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let scene = root.join("scenes/balls_on_dish.toml");
+    let out = tmp("bench_avs_out");
+    let o = penumbra(&[
+        "bench",
+        "avs",
+        scene.to_str().unwrap(),
+        "--size",
+        "24x18",
+        "--no-sweep",
+        "--spp",
+        "4",
+        "--mc-frames",
+        "2",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(t.contains("at the pixel centres, mc aa = false") && t.contains("MC to same rmse/mean"), "{t}");
+    assert!(out.join("avs_mc.png").exists(), "no contact sheet:\n{t}");
+    for f in ["reference.exr", "avs.exr", "mc.exr", "avs_diff.png", "mc_diff.png"] {
+        assert!(out.join("balls_on_dish").join(f).exists(), "no {f}:\n{t}");
+    }
+}
+
 #[test]
 fn bench_trace_and_volumetric_run_and_report() {
     let o = penumbra(&["bench", "trace", "--size", "32x24", "--incoherent", "500"]);
