@@ -793,6 +793,14 @@ fn key_lights_split_off_the_environment_cast_their_shadows() {
     println!("key_rays = all: rmse/mean {e_every:.4}; predicted against all {:.5}", c.rmse / c.reference_mean);
     assert!(c.rmse / c.reference_mean < 0.01, "key_rays = predicted differs from all by {}", c.rmse / c.reference_mean);
     assert!(e_key < e_every + 0.003, "key_rays = predicted {e_key} against all {e_every}");
+    // stratified rays per pixel: grain in the penumbrae instead of the fixed pattern's bands, a
+    // different image within the budget
+    let (_r, strat) = render(&with(&with(&s, &fast), &[("key_pattern", "stratified")]), "avs", w, h, &[t], false);
+    let e_strat = err(&strat[0], "stratified key rays");
+    let c = compare(&image(&key[0]), "fixed", &image(&strat[0]), "stratified").unwrap();
+    println!("key_pattern = stratified: rmse/mean {e_strat:.4}; against fixed {:.5}", c.rmse / c.reference_mean);
+    assert!(c.rmse > 0.0, "key_pattern = stratified drew the fixed pattern's image");
+    assert!(e_strat < 0.1 && e_strat < 0.7 * e_whole, "key_pattern = stratified: {e_strat} (whole map {e_whole})");
 }
 
 /// [`light_visibility_agreement`] at resolution `r`, asserted: at least 400 classified floor

@@ -88,7 +88,6 @@ layout(set = 0, binding = 18) uniform usamplerBuffer kd_refs;
 layout(set = 0, binding = 19) readonly buffer Header { uint kd_hdr[]; };
 #define KD_HDR(i) kd_hdr[i]
 #include "kdtree.glsl"
-#include "light_rays.glsl"
 // the environment's key lights split off its map (AvsSettings::key_lights), 2 per light: world
 // axis + lambda, rgb amplitude; their diffuse light is shadowed by rays through the kd-tree
 layout(set = 0, binding = 20) readonly buffer KeyLights { vec4 key[]; };
@@ -100,13 +99,16 @@ layout(push_constant) uniform Push {
     float alpha;
     float inv_scale;
     float radius;
-    uint flags;      // bit 0: no SSDF visibility (shadows off, or no sample points); bit 1: local lights' and key lights' shadows traced
+    uint flags;      // bit 0: no SSDF visibility (shadows off, or no sample points); bit 1: local lights' and key lights' shadows traced; bit 2: key_rays = predicted; bit 3: key_pattern = stratified
     uint cells;      // cells per side (mode 1)
     uint specular_mode;  // 0: Gamma_L from the prefiltered maps, 1: from the lighting SGs, 2: ratio (env_shade.glsl's glossy term x the lobe's SSDF visibility)
     uint diffuse_ratio;  // 1: the map's irradiance x the SG lobes' visible share; 0: the SG lobes alone
     float ray_offset;    // shadow rays start this far along the normal, and skip hits nearer than it (the sample points' offset, avs::ray_offset)
     uint key_count;      // key lights split off the environment (binding 20)
 } pc;
+// key_pattern = stratified (flags bit 3): light_rays.glsl's per-pixel stratified key-light rays
+#define CONE_STRATIFIED ((pc.flags & 8u) != 0u)
+#include "light_rays.glsl"
 
 #include "avs_gather.glsl"
 #include "irradiance.glsl"
@@ -420,7 +422,7 @@ void main() {
         float vis;
         if (cone && gj.lambda <= KEY_REUSE * key[2u * (it - nl - nl)].w) {
             SG l = sg_make(key[2u * (it - nl - nl)].xyz, key[2u * (it - nl - nl)].w, 1.0);
-            vis = cone_mask_weighted(kmask[it - nl - nl], l.axis, 2.0 / sqrt(max(l.lambda, 1e-4)), gj);
+            vis = cone_mask_weighted(kmask[it - nl - nl], po, l.axis, 2.0 / sqrt(max(l.lambda, 1e-4)), gj);
         } else {
             vis = cone ? cone_rays_visibility(po, g.axis, 2.0 / sqrt(max(g.lambda, 1e-4)), ng) : visible(g);
         }

@@ -7,6 +7,9 @@
 #ifndef PENUMBRA_LIGHT_RAYS_GLSL
 #define PENUMBRA_LIGHT_RAYS_GLSL
 #include "sg.glsl"
+#ifndef CONE_STRATIFIED
+#define CONE_STRATIFIED false
+#endif
 
 float light_rays_visibility(LightData l, vec3 p) {
     vec3 to_light = light_vector(l, p);
@@ -44,16 +47,43 @@ float cone_rays_visibility(vec3 p, vec3 axis, float radius, vec3 ng) {
     return cnt > 0.0 ? vis / cnt : 1.0;
 }
 
-// The same rays as a mask: bit j set where ray j (above the plane of ng) is unoccluded, bit
-// 16 + j where ray j was traced (above the plane; the inner ring only in a penumbra). avs traces
-// a key light's rays once for its diffuse light (cone_mask_fraction) and for a glossy lobe
-// nearly flat over the light (cone_mask_weighted).
+// The direction of ray j (lights.glsl's disk order) of the uniform cone of unit `axis` and
+// angular radius `radius` (its tangent) seen from point p. Fixed (CONE_STRATIFIED false, the
+// default): lights.glsl's pattern, the same in every pixel. Stratified: the disk cut into 9 cells
+// of equal area (the centre disk to radius / 3, whose ray is the axis; a ring of 4 quarter sectors
+// to radius sqrt(5) / 3; an outer ring of 4 sectors), each ray at a point of its own cell drawn by
+// a hash of p's bits, so that neighbouring pixels sample different points of their cells: a key
+// light's penumbra comes out as grain around the disk's integral instead of the fixed pattern's
+// flat bands (falling at 640x480: a hexagonal umbra ringed by steps), at more error against a
+// reference (the grain adds to its noise). The includer may define CONE_STRATIFIED (a bool).
+vec3 cone_cell_dir(vec3 p, vec3 axis, float radius, int j) {
+    vec3 w = normalize(axis);
+    if (!CONE_STRATIFIED) return normalize(light_disk_target(axis, radius, j));
+    if (j == 0) return w;
+    uvec3 b = floatBitsToUint(p);
+    uint h = b.x * 0x9E3779B1u ^ b.y * 0x85EBCA77u ^ b.z * 0xC2B2AE3Du ^ uint(j) * 0x27D4EB2Fu;
+    h ^= h >> 15u; h *= 0x2C1B3C6Du; h ^= h >> 12u; h *= 0x297A2D39u; h ^= h >> 15u;
+    float u = float(h & 0xFFFFu) / 65536.0, v = float(h >> 16u) / 65536.0;
+    // lights.glsl's rays 1-4: the inner ring at 0, 90, 180, 270 degrees; 5-8 the outer at 45 + k 90
+    bool inner = j <= 4;
+    float a = 1.5707963 * (float(j - 1) + (inner ? 0.0 : 0.5) + (u - 0.5));
+    float r = radius * sqrt(inner ? (1.0 + 4.0 * v) / 9.0 : (5.0 + 4.0 * v) / 9.0);
+    vec3 bx = normalize(abs(w.x) < 0.9 ? cross(vec3(1.0, 0.0, 0.0), w) : cross(vec3(0.0, 1.0, 0.0), w));
+    vec3 by = cross(w, bx);
+    return normalize(w + (bx * cos(a) + by * sin(a)) * r);
+}
+
+// Rays toward a key light as a mask: bit j set where ray j (above the plane of ng) is
+// unoccluded, bit 16 + j where ray j was traced (above the plane; the inner ring only in a
+// penumbra), in cone_cell_dir's stratified directions. avs traces a key light's rays once for its
+// diffuse light (cone_mask_fraction) and for a glossy lobe nearly flat over the light
+// (cone_mask_weighted).
 uint cone_rays_mask(vec3 p, vec3 axis, float radius, vec3 ng) {
     uint m = 0u;
     for (int i = 0; i < LIGHT_DISK_POINTS; ++i) {
         if (disk_settled(i, float(bitCount(m & 0xFFFFu)), float(bitCount(m >> 16u)))) break;
         int j = disk_ray(i);
-        vec3 d = normalize(light_disk_target(axis, radius, j));
+        vec3 d = cone_cell_dir(p, axis, radius, j);
         if (dot(d, ng) <= 0.0) continue;
         m |= 1u << uint(16 + j);
         if (kd_trace(p, d, 0.0, 1e30, true).t < 0.0) m |= 1u << uint(j);
@@ -67,21 +97,21 @@ float cone_mask_fraction(uint m) {
     return traced > 0u ? float(bitCount(m & 0xFFFFu)) / float(traced) : 1.0;
 }
 
-// The unoccluded share of the light of a uniform cone (cone_rays_mask's axis and radius) seen
-// through lobe g: the cone's rays weighted by g at their directions (relative to the largest
+// The unoccluded share of the light of a uniform cone (cone_rays_mask's point, axis and radius)
+// seen through lobe g: the cone's rays weighted by g at their directions (relative to the largest
 // weight, so that a sharp lobe far from every ray does not underflow), the estimate of
 // int_cone G V / int_cone G with the rays as samples of the cone.
-float cone_mask_weighted(uint m, vec3 axis, float radius, SG g) {
+float cone_mask_weighted(uint m, vec3 p, vec3 axis, float radius, SG g) {
     float best = -2.0;
     for (int j = 0; j < LIGHT_DISK_POINTS; ++j) {
         if ((m & (1u << uint(16 + j))) == 0u) continue;
-        best = max(best, dot(g.axis, normalize(light_disk_target(axis, radius, j))));
+        best = max(best, dot(g.axis, cone_cell_dir(p, axis, radius, j)));
     }
     if (best < -1.5) return 1.0;
     float num = 0.0, den = 0.0;
     for (int j = 0; j < LIGHT_DISK_POINTS; ++j) {
         if ((m & (1u << uint(16 + j))) == 0u) continue;
-        float w = exp(g.lambda * (dot(g.axis, normalize(light_disk_target(axis, radius, j))) - best));
+        float w = exp(g.lambda * (dot(g.axis, cone_cell_dir(p, axis, radius, j)) - best));
         den += w;
         if ((m & (1u << uint(j))) != 0u) num += w;
     }

@@ -233,6 +233,11 @@ pub struct AvsSettings {
     /// centre ray alone, and the whole disk only where that ray disagrees; elsewhere the disk.
     /// `all`: the disk's rays everywhere (its centre and outer ring, the inner ring in a penumbra).
     pub key_rays_predicted: bool,
+    /// Where a key light's rays point (`key_pattern`): `fixed` (default), lights.glsl's disk
+    /// pattern in every pixel (flat bands in a penumbra), or `stratified`, each ray at a point of
+    /// its own equal-area cell of the disk drawn per pixel (grain around the disk's integral:
+    /// closer to the reference's look, more error against it; see README).
+    pub key_pattern_stratified: bool,
     /// Read the final visibility maps back into [`AvsStats::maps`] (one more copy per adaptation
     /// round; for tests comparing maps texel by texel).
     pub capture_maps: bool,
@@ -271,6 +276,7 @@ impl Default for AvsSettings {
             traced_lights: true,
             key_lights: 4,
             key_rays_predicted: true,
+            key_pattern_stratified: false,
             capture_maps: false,
         }
     }
@@ -288,7 +294,7 @@ impl AvsSettings {
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
     /// `iterations` (2), `adaptation` (`rounds` | `late` | `cpu`), `cpu_grid` (16), `first_iterations` (8), `points` (0 = auto), `max_points` (4096; lowered to what the device binds, see `AvsTechnique::new`), `pool_points` (4096), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells` | `table` | `adf`), `cells` (6,
-    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `glossy` (`ratio` | `sg`), `lobes` (16), `light_shadows` (`traced` | `ssdf`), `key_lights` (4, 0..16), `key_rays` (`predicted` | `all`). Unknown keys and bad values
+    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `glossy` (`ratio` | `sg`), `lobes` (16), `light_shadows` (`traced` | `ssdf`), `key_lights` (4, 0..16), `key_rays` (`predicted` | `all`), `key_pattern` (`fixed` | `stratified`). Unknown keys and bad values
     /// are errors naming the key.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let p = crate::technique::Param::new("avs", key, value);
@@ -340,8 +346,9 @@ impl AvsSettings {
             "light_shadows" => self.traced_lights = p.choice(&[("traced", true), ("ssdf", false)])?,
             "key_lights" => self.key_lights = int(0, 16)? as usize,
             "key_rays" => self.key_rays_predicted = p.choice(&[("predicted", true), ("all", false)])?,
+            "key_pattern" => self.key_pattern_stratified = p.choice(&[("fixed", false), ("stratified", true)])?,
             "capture_maps" => self.capture_maps = p.flag()?,
-            _ => return Err(p.unknown("r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, adaptation, first_iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, light_shadows, key_lights, key_rays, capture_maps")),
+            _ => return Err(p.unknown("r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, adaptation, first_iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, light_shadows, key_lights, key_rays, key_pattern, capture_maps")),
         }
         Ok(())
     }
@@ -1728,7 +1735,8 @@ impl crate::technique::Technique for AvsTechnique {
         push.extend(bytes_of(&[
             (!s.shadows || points.is_empty()) as u32
                 | ((s.shadows && s.traced_lights) as u32) << 1
-                | (s.key_rays_predicted as u32) << 2,
+                | (s.key_rays_predicted as u32) << 2
+                | (s.key_pattern_stratified as u32) << 3,
             s.cells.clamp(1, 16),
             if s.glossy_ratio { 2 } else { (!s.prefiltered) as u32 },
             s.diffuse_ratio as u32,
