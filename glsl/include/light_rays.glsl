@@ -75,7 +75,7 @@ vec3 cone_cell_dir(vec3 p, vec3 axis, float radius, int j) {
 
 // Rays toward a key light as a mask: bit j set where ray j (above the plane of ng) is
 // unoccluded, bit 16 + j where ray j was traced (above the plane; the inner ring only in a
-// penumbra), in cone_cell_dir's stratified directions. avs traces a key light's rays once for its
+// penumbra), in cone_cell_dir's directions (fixed or stratified). avs traces a key light's rays once for its
 // diffuse light (cone_mask_fraction) and for a glossy lobe nearly flat over the light
 // (cone_mask_weighted).
 uint cone_rays_mask(vec3 p, vec3 axis, float radius, vec3 ng) {

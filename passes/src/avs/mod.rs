@@ -774,11 +774,11 @@ pub fn point_data(points: &[SurfacePoint], offset: f32) -> Vec<[f32; 4]> {
 
 /// The grid buffer `avs_shade.comp` and `avs_cull.comp` read (`avs_gather.glsl`): two levels
 /// over the same points, each a header (dims, lower corner, cell edge, where its slots start),
-/// its cell starts and its slots: `grid` (cell edge: twice the search radius) for the gather's
-/// first pass, and one of [`COARSE_CELLS`] times its cell edge (word 3 of the first header: where
-/// the second starts) for the wider passes where the points lie farther apart (a big floor beside
-/// a finely meshed object), so that those scan a few coarse cells instead of thousands of fine
-/// ones.
+/// its cell starts and its slots: `grid` (cell edge: the search radius) for the gather's passes
+/// at 1 and 2.5 radii, and one of [`COARSE_CELLS`] times its cell edge (word 3 of the first
+/// header: where the second starts) for the passes at 5 and 10 radii, where the points lie
+/// farther apart than the radius (a big floor beside a finely meshed object), so that those scan
+/// a few coarse cells instead of thousands of fine ones.
 pub fn grid_words(grid: &Grid, slots: &[u32]) -> Vec<u32> {
     let mut out = grid_level_words(grid, slots, 0);
     let coarse = Grid::new(grid.points(), grid.cell * COARSE_CELLS);
@@ -788,8 +788,8 @@ pub fn grid_words(grid: &Grid, slots: &[u32]) -> Vec<u32> {
     out
 }
 
-/// The coarse level's cell edge in fine cells (`avs_gather.glsl`'s wider passes: 4 and 8 times
-/// the radius, in cells of 8 times it).
+/// The coarse level's cell edge in fine cells (`avs_gather.glsl`'s passes at 5 and 10 radii scan
+/// cells of 4 radii).
 pub const COARSE_CELLS: f32 = 4.0;
 
 /// One level of [`grid_words`], its word offsets counted from `base`.
