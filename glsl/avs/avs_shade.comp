@@ -366,7 +366,7 @@ void main() {
         if ((pc.flags & 4u) != 0u && shadows_on()) {
             float d = ssdf_at(l.axis);
             float margin = atan(0.9 * rad) + 2.0 * avs_texel_angle(pc.r);
-            vec3 dc = normalize(l.axis);
+            vec3 dc = cone_cell_dir(po, l.axis, rad, 0);
             if (abs(d) > margin && dot(dc, ng) > 0.0) {
                 bool seen = kd_trace(po, dc, 0.0, 1e30, true).t < 0.0;
                 if (seen == (d > 0.0)) {

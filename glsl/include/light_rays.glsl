@@ -57,8 +57,8 @@ float cone_rays_visibility(vec3 p, vec3 axis, float radius, vec3 ng) {
 // flat bands (falling at 640x480: a hexagonal umbra ringed by steps), at more error against a
 // reference (the grain adds to its noise). The includer may define CONE_STRATIFIED (a bool).
 vec3 cone_cell_dir(vec3 p, vec3 axis, float radius, int j) {
-    vec3 w = normalize(axis);
     if (!CONE_STRATIFIED) return normalize(light_disk_target(axis, radius, j));
+    vec3 w = normalize(axis);
     if (j == 0) return w;
     uvec3 b = floatBitsToUint(p);
     uint h = b.x * 0x9E3779B1u ^ b.y * 0x85EBCA77u ^ b.z * 0xC2B2AE3Du ^ uint(j) * 0x27D4EB2Fu;
@@ -68,9 +68,7 @@ vec3 cone_cell_dir(vec3 p, vec3 axis, float radius, int j) {
     bool inner = j <= 4;
     float a = 1.5707963 * (float(j - 1) + (inner ? 0.0 : 0.5) + (u - 0.5));
     float r = radius * sqrt(inner ? (1.0 + 4.0 * v) / 9.0 : (5.0 + 4.0 * v) / 9.0);
-    vec3 bx = normalize(abs(w.x) < 0.9 ? cross(vec3(1.0, 0.0, 0.0), w) : cross(vec3(0.0, 1.0, 0.0), w));
-    vec3 by = cross(w, bx);
-    return normalize(w + (bx * cos(a) + by * sin(a)) * r);
+    return normalize(w + light_disk_offset(w, a) * r);
 }
 
 // Rays toward a key light as a mask: bit j set where ray j (above the plane of ng) is

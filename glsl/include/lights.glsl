@@ -86,14 +86,17 @@ vec3 light_brdf(vec3 wi, vec3 n, vec3 t, vec3 v, vec3 albedo, MaterialData m) {
 // penumbra follows the light's size. Returns the k-th target (0 <= k < LIGHT_DISK_POINTS) as a
 // vector from the shading point; `to_light` is light_vector's.
 const int LIGHT_DISK_POINTS = 9;
-vec3 light_disk_target(vec3 to_light, float radius, int k) {
-    if (k == 0) return to_light;
-    vec3 w = normalize(to_light);
+// The unit vector at angle a in the plane across unit direction w (the disk's own frame).
+vec3 light_disk_offset(vec3 w, float a) {
     vec3 bx = normalize(abs(w.x) < 0.9 ? cross(vec3(1.0, 0.0, 0.0), w) : cross(vec3(0.0, 1.0, 0.0), w));
     vec3 by = cross(w, bx);
+    return bx * cos(a) + by * sin(a);
+}
+vec3 light_disk_target(vec3 to_light, float radius, int k) {
+    if (k == 0) return to_light;
     float ring = k <= 4 ? 0.45 : 0.9;
     float a = 1.5707963 * float(k - 1) + (k <= 4 ? 0.0 : 0.7853982);
-    return to_light + (bx * cos(a) + by * sin(a)) * (ring * radius);
+    return to_light + light_disk_offset(normalize(to_light), a) * (ring * radius);
 }
 
 // The order in which a disk's 9 rays are traced: the centre and the outer ring first; where those
