@@ -264,13 +264,20 @@ fn every_technique(
     out
 }
 
-/// One material model: where a normal map bends the shading normal away from the eye, the BRDF
-/// is zero and only emission is seen, in the reference (`reference/src/render.rs`) and in every
-/// technique alike. A floor whose constant normal map lays the shading normal along +u (almost in
-/// the surface) faces the eye on one side of the image and turns from it on the other; the side
-/// that is black in the reference must be black in every technique, and the other side lit.
+/// One material model: where a normal map bends the shading normal away from the eye, the
+/// normal is turned back towards the eye until n.v = 0.01 (`facing_normal` in
+/// `reference/src/render.rs`, `material_facing_normal` in `glsl/include/material.glsl`), in the
+/// reference and in every technique alike (until session 44 the BRDF read zero there and such
+/// pixels were black in all of them). A floor whose constant normal map lays the shading normal
+/// along +u (almost in the surface) faces the eye on one side of the image and turns from it on
+/// the other; the turned side is lit in the reference, and every technique draws it lit, in the
+/// same proportion to the reference as the side that faces the eye (black, it was 0 of it). Where
+/// the map tilts the normal this far, the techniques whose unshadowed terms come from the `env`
+/// technique's maps draw both sides 21-24 % brighter than the reference (they take in light from
+/// below the face that the reference, `mc` and `isg` block): a normal-map error of its own, held
+/// under 30 % here, not this test's subject.
 #[test]
-fn a_normal_map_that_turns_from_the_eye_is_black_in_every_technique() {
+fn a_normal_map_that_turns_from_the_eye_is_turned_back_in_every_technique() {
     let text = r#"
 name = "facing_test"
 [camera]
@@ -308,27 +315,24 @@ material = "floor"
     let opts = penumbra_reference::render::ReferenceOptions {
         width: w,
         height: h,
-        spp: 16,
+        spp: 64,
         time: Some(0.0),
         ..Default::default()
     };
     let reference = penumbra_reference::render::render(&scene, &opts).expect("reference");
-    let (l, r) = quarters(&|x, y| reference.radiance.get(x, y));
-    // which side turns from the eye follows from the plane's u direction; the test asks only that
-    // one side is black and the other lit, and that every technique agrees
-    let black_right = r < l;
-    let (lit, dark) = if black_right { (l, r) } else { (r, l) };
-    assert!(lit > 0.0 && dark <= 1e-6 * lit, "reference: lit side {lit}, dark side {dark}");
+    let (rl, rr) = quarters(&|x, y| reference.radiance.get(x, y));
+    assert!(rl > 0.0 && rr > 0.0, "reference: left {rl}, right {rr}: a side is black");
     let mut failures = Vec::new();
     for (name, f, errors) in every_technique(&scene, w, h, |_, _| {}) {
         let (l, r) = quarters(&|x, y| {
             let p = f.hdr[(y * w + x) as usize];
             [p[0], p[1], p[2]]
         });
-        let (lit, dark) = if black_right { (l, r) } else { (r, l) };
-        if errors > 0 || !(lit > 0.0 && dark <= 1e-3 * lit) {
+        eprintln!("{name}: left {l:.4} (reference {rl:.4}), right {r:.4} (reference {rr:.4})");
+        let (sl, sr) = (l / rl, r / rr);
+        if errors > 0 || (sl - sr).abs() > 0.1 || (sl - 1.0).abs() > 0.3 || (sr - 1.0).abs() > 0.3 {
             failures.push(format!(
-                "{name}: lit side {lit:.4}, side turned from the eye {dark:.6}, {errors} validation errors"
+                "{name}: left {l:.4} (reference {rl:.4}), right {r:.4} (reference {rr:.4}), {errors} validation errors"
             ));
         }
     }

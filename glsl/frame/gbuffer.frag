@@ -38,6 +38,8 @@ void main() {
     vec3 dpdu = (dp1 * duv2.y - dp2 * duv1.y) * sg;
     vec3 dpdv = (dp2 * duv1.x - dp1 * duv2.x) * sg;
     n = material_normal(mats[v_ids.x], v_uv, material_textures, n, dpdu, dpdv);
+    // never below the eye's horizon (an interpolated normal at a silhouette, a normal map)
+    n = material_facing_normal(n, normalize(cam.eye.xyz - v_world));
     vec3 t = dpdu * sg;  // dP/du times det's magnitude, as before normal maps
     t -= n * dot(n, t);
     if (dot(t, t) < 1e-20) {

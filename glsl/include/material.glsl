@@ -42,11 +42,24 @@ vec3 material_normal(MaterialData m, vec2 uv, sampler2DArray tex, vec3 n, vec3 d
     return l2 > 0.0 ? nm * inversesqrt(l2) : n;
 }
 
+// The shading normal n (unit) turned towards the unit direction to the viewer v just as far as
+// needed to make n . v at least about 0.01, else n itself: the reference's facing_normal
+// (render.rs), which says why. Applied once after material_normal, where the G-buffer is written
+// (and by mc at its primary hits, vv where it shades): every technique shades with the result.
+vec3 material_facing_normal(vec3 n, vec3 v) {
+    const float min_cos = 0.01;
+    float c = dot(n, v);
+    if (!(c < min_cos)) return n;
+    vec3 b = n + v * (min_cos - c);
+    float l2 = dot(b, b);
+    return l2 > 1e-20 ? b * inversesqrt(l2) : v;
+}
+
 // The light a surface reflects towards the eye, `color`, where the eye sees the front of the
-// shading hemisphere of the (normal-mapped) normal n from the unit direction v; else nothing: there
-// the BRDF is zero and only emission is seen, the reference's rule (reference/src/render.rs; mc
-// applies it through wo.z). A normal map can turn n from the eye, and so can an interpolated
-// normal at a silhouette (the G-buffer flips it to the eye's side of the triangle, not further).
+// shading hemisphere of the normal n from the unit direction v; else nothing: there the BRDF is
+// zero and only emission is seen, the reference's rule (reference/src/render.rs; mc applies it
+// through wo.z). Normals that went through material_facing_normal always pass; the test guards
+// shading normals that did not.
 vec3 material_reflected(vec3 color, vec3 n, vec3 v) {
     return dot(n, v) > 0.0 ? color : vec3(0.0);
 }

@@ -182,13 +182,15 @@ vec3 vv_lights_end(VvLights L, vec3 s, vec3 n, MaterialData m) {
 // environment, as the `env` technique draws it) times gamma (eq. 14: L_s = k_s gamma U with k_s U the unshadowed glossy term),
 // plus the visible local lights.
 vec3 vv_radiance(vec3 diffuse_sum, vec3 s, vec3 n, MaterialData m, bool glossy, float gamma, VvLights L) {
-    vec3 c = material_diffuse_albedo(m, dot(n, normalize(cam.eye.xyz - s))) / PI * max(diffuse_sum, vec3(0.0)) * cam.params.w + vv_lights_end(L, s, n, m);
+    vec3 v = normalize(cam.eye.xyz - s);
+    n = material_facing_normal(n, v);  // the G-buffer's rule, for evaluations at vertices too
+    vec3 c = material_diffuse_albedo(m, dot(n, v)) / PI * max(diffuse_sum, vec3(0.0)) * cam.params.w + vv_lights_end(L, s, n, m);
     if (glossy) {
         vec3 d, g;
-        env_unshadowed_parts(n, vv_tangent, normalize(cam.eye.xyz - s), m, d, g);
+        env_unshadowed_parts(n, vv_tangent, v, m, d, g);
         c += g * gamma;
     }
-    return material_reflected(c, n, normalize(cam.eye.xyz - s)) + material_emission(m);
+    return material_reflected(c, n, v) + material_emission(m);
 }
 
 int vv_tri_vertex(int t, int k) {

@@ -484,6 +484,7 @@ void radiance_samples(vec2 ndc, uint first, uint count) {
             ns = material_normal(mat, uv, material_textures, ns, (e1 * d2.y - e2 * d1.y) / det, (e2 * d1.x - e1 * d2.x) / det);
         }
     }
+    ns = material_facing_normal(ns, wo_w);  // render.rs facing_normal
     // shading frame (sampling.rs Frame::new)
     mat3 to_world = brdf_frame(ns, t3.xyz);
     vec3 wo = wo_w * to_world;

@@ -23,6 +23,7 @@ void main() {
     float sg = duv1.x * duv2.y - duv1.y * duv2.x < 0.0 ? -1.0 : 1.0;
     vec3 dpdu = (dp1 * duv2.y - dp2 * duv1.y) * sg;
     n = material_normal(m, v_uv, material_textures, n, dpdu, (dp2 * duv1.x - dp1 * duv2.x) * sg);
+    n = material_facing_normal(n, normalize(cam.eye.xyz - v_world));  // as the G-buffer's
     // the G-buffer's tangent (dP/du times det), made a frame with n where it is shaded
     vec3 tt = dpdu * sg;
     tt -= n * dot(n, tt);

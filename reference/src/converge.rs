@@ -33,7 +33,9 @@ use std::time::Instant;
 /// - 1: converged references introduced; environment texels read as the GPU reads them.
 /// - 2: equiangular distance sampling towards local lights in media (same expectation, far
 ///   less noise near lights inside a medium).
-pub const REFERENCE_VERSION: u32 = 2;
+/// - 3: the shading normal is turned towards the viewer where it faced away
+///   (`render::facing_normal`): silhouette pixels of smooth meshes are no longer black.
+pub const REFERENCE_VERSION: u32 = 3;
 
 /// Options of [`render_converged`].
 #[derive(Clone, Debug)]

@@ -17,10 +17,11 @@
 //! Surfaces are two-sided: the geometric normal is flipped towards the viewer, and a direction
 //! below the geometric surface counts as blocked by it. Shading uses the interpolated vertex
 //! normal, bent by the material's tangent-space normal map (+x along dP/du, +y along dP/dv), and
-//! dP/du as tangent; where the viewer is below the shading hemisphere the BRDF is
-//! zero. Materials are the frame's (animated) materials with `albedo_map` (multiplies albedo)
-//! and `roughness_map` (G channel multiplies roughness; Phong exponents follow
-//! `2 / r^2 - 2`) sampled bilinearly at the interpolated UV.
+//! dP/du as tangent; where the viewer would be below the shading hemisphere the normal is
+//! turned towards the viewer until n.v = 0.01 ([`facing_normal`]; the BRDF would be zero and
+//! such silhouette pixels black). Materials are the frame's (animated) materials with
+//! `albedo_map` (multiplies albedo) and `roughness_map` (G channel multiplies roughness; Phong
+//! exponents follow `2 / r^2 - 2`) sampled bilinearly at the interpolated UV.
 //!
 //! **Medium** (`Scene::medium`): homogeneous, filling all space. Camera rays are attenuated by
 //! `exp(-sigma_t t)`, `t` counted from the eye (the ray itself starts on the near plane) (so the environment behind an infinite medium is invisible) and gain single
@@ -657,7 +658,7 @@ impl Context {
                 let wo_w = -d;
                 let ng = if hit.ng.dot(wo_w) >= 0.0 { hit.ng } else { -hit.ng };
                 let ns = if hit.ns.dot(ng) >= 0.0 { hit.ns } else { -hit.ns };
-                let ns = self.normal_at(hit.material, hit.uv, ns, hit.tangent, hit.bitangent);
+                let ns = facing_normal(self.normal_at(hit.material, hit.uv, ns, hit.tangent, hit.bitangent), wo_w);
                 let brdf = self.brdf_at(hit.material, hit.uv);
                 let frame = ShadingFrame::new(ns, hit.tangent);
                 let wo = frame.to_local(wo_w);
@@ -672,6 +673,31 @@ impl Context {
         } else {
             Vec3::ZERO
         }
+    }
+}
+
+/// The least the viewer's direction may rise above a shading hemisphere: [`facing_normal`].
+pub const FACING_MIN_COS: f32 = 0.01;
+
+/// The shading normal `n` (unit) turned towards the unit direction to the viewer `v` just as far
+/// as needed to make `n . v` at least about [`FACING_MIN_COS`] (`n`'s component along `v` raised
+/// to it, the rest kept), else `n` itself. An interpolated vertex normal at a smooth mesh's
+/// silhouette, or a normal map, can turn the shading hemisphere away from the eye on a triangle
+/// that faces it; the BRDF is zero for a viewer below it, and such pixels drew black (a
+/// rasterizer and a ray tracer disagreeing about one pixel centre on a sliver triangle then
+/// made a pixel black in one image and not in the other). Surfaces the eye sees this way are
+/// shaded as if seen at a grazing angle instead (as Falcor's `adjustShadingNormal` does); the
+/// GPU's `material_facing_normal` (material.glsl) is the same rule.
+pub fn facing_normal(n: Vec3, v: Vec3) -> Vec3 {
+    let c = n.dot(v);
+    if c >= FACING_MIN_COS || !c.is_finite() {
+        return n;
+    }
+    let b = (n + v * (FACING_MIN_COS - c)).normalize_or_zero();
+    if b == Vec3::ZERO || !b.is_finite() {
+        v
+    } else {
+        b
     }
 }
 

@@ -654,3 +654,40 @@ mod metrics {
         v
     }
 }
+
+mod facing {
+    use glam::Vec3;
+    use penumbra_reference::render::{facing_normal, FACING_MIN_COS};
+
+    /// `facing_normal` leaves normals the eye sees from above alone and turns the others towards
+    /// the eye just far enough: unit, only the component along v raised (to FACING_MIN_COS before
+    /// normalizing, so n.v = eps / sqrt(1 - (n.v)^2 + eps^2) >= eps), the rest kept; it survives
+    /// n = -v and non-finite input.
+    #[test]
+    fn normals_are_turned_to_the_eye_only_when_they_face_away() {
+        let eps = FACING_MIN_COS;
+        let v = Vec3::new(0.3, 0.2, 0.9).normalize();
+        for n in [v, Vec3::Z, Vec3::new(0.0, 1.0, 0.2).normalize()] {
+            assert!(n.dot(v) >= eps);
+            assert_eq!(facing_normal(n, v), n);
+        }
+        let t = Vec3::new(0.9, -0.3, 0.0);
+        let t = (t - v * t.dot(v)).normalize();
+        for k in 0..=64 {
+            // from just under the threshold (grazing) to straight away from the eye
+            let a = (eps * 0.99).asin() - k as f32 / 64.0 * 0.999 * std::f32::consts::FRAC_PI_2;
+            let n = (v * a.sin() + t * a.cos()).normalize();
+            let (c0, b) = (n.dot(v), facing_normal(n, v));
+            assert!(c0 < eps && (b.length() - 1.0).abs() < 1e-5, "{n} -> {b}");
+            let want = eps / (1.0 - c0 * c0 + eps * eps).sqrt();
+            let c = b.dot(v);
+            // (n almost -v: its part across v is a difference of nearly equal numbers)
+            assert!(c >= 0.999 * eps && (c - want).abs() < 1e-4 + 1e-3 * want, "{n} -> {b}: n.v {c}, want {want}");
+            let (tn, tb) = (n - v * c0, b - v * c);
+            assert!(tn.normalize().dot(tb.normalize()) > 0.999, "{n} -> {b}: turned sideways");
+        }
+        assert!((facing_normal(-v, v) - v).length() < 1e-4);
+        let nan = Vec3::new(f32::NAN, 0.0, 1.0);
+        assert!(facing_normal(nan, v).x.is_nan(), "non-finite n.v: n returned as it came");
+    }
+}
