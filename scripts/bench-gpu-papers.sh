@@ -22,7 +22,11 @@
 # step at small sizes: a dry run of the script on lavapipe (session 35: every step ran).
 # Session 35 rendered both references (47 and 6 minutes on two cores; the scene files' hashes
 # key them, so a changed scene needs its reference again) into
-# scenes/fronts/gpu-papers/references/, and was then refused a machine. On a lent one, with the
+# scenes/fronts/gpu-papers/references/, and was then refused a machine. Session 44 changed the
+# reference's shading rule (REFERENCE_VERSION 3: normals facing away from the eye turned to it)
+# and re-rendered vv_bunny's (520 s) but not isg_bunny's 400x400 (47 minutes; the stale one was
+# removed): render it with the command above into that folder before a device run, or the run
+# spends its first minutes rendering it. On a lent one, with the
 # Vulkan loader's deb and a stripped release build in an ignored folder .gl (device README):
 #   for f in .gl/*.deb; do dpkg -x $f /; done; ldconfig
 #   sh scripts/bench-gpu-papers.sh .gl/penumbra /tmp/o scenes/fronts/gpu-papers/references
