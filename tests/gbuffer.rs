@@ -181,7 +181,7 @@ fn vertex_normals_against_the_winding_shade_as_in_the_reference() {
 /// instead of the BRDF reading zero: such pixels drew black, and a pixel centre that the
 /// rasterizer's sub-pixel snapping put on a sliver triangle the reference's ray missed by 1e-4
 /// pixel made `vv_coarse`'s 40x30 isg cells fail. A wall seen from the side whose vertex normals
-/// lean away from the eye (n.v about -0.6 everywhere): not black in the reference, `env` shades
+/// lean away from the eye (n.v from -0.57 to -0.74): not black in the reference, `env` shades
 /// it as a surface seen at a grazing angle (albedo x sky under a uniform sky), and `mc`, which
 /// traces the reference's estimator on the GPU, agrees with the reference.
 #[test]
