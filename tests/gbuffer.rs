@@ -215,20 +215,8 @@ fn normals_facing_away_from_the_eye_are_turned_to_it_not_drawn_black() {
     let sky = sky * s.environment.as_ref().unwrap().intensity;
     let lit = 0.5 * sky;
     let (w, h) = (40u32, 30u32);
-    let reference = penumbra_reference::render(
-        &s,
-        &penumbra_reference::ReferenceOptions { width: w, height: h, spp: 256, pixel_grid: 1, ..Default::default() },
-    )
-    .unwrap()
-    .radiance;
-    let frame = |technique: &str| {
-        let (r, frames) = common::render_times(&s, technique, w, h, &[0.0], true);
-        let log = r.context().validation.clone();
-        drop(r);
-        assert_eq!(log.error_count(), 0, "{technique}: {:#?}", log.errors());
-        common::hdr_image(frames.last().unwrap())
-    };
-    let (env, mc) = (frame("env"), frame("mc"));
+    let (reference, env) = common::reference_and_frame(&s, "env", w, h, 256);
+    let mc = common::validated_frame(&s, "mc", w, h);
     let is_wall = |x: u32, y: u32| (env.get(x, y)[0] - sky).abs() >= 0.01 * sky; // else the sky
     let (mut wall_px, mut inner, mut sum_ref, mut sum_mc) = (0usize, 0usize, 0.0f64, 0.0f64);
     for y in 0..h {

@@ -111,11 +111,16 @@ pub fn reference_and_frame(
     )
     .unwrap()
     .radiance;
+    (reference, validated_frame(s, technique, w, h))
+}
+
+/// `technique`'s frame of `s` at time 0, rendered under validation (asserted clean).
+pub fn validated_frame(s: &Scene, technique: &str, w: u32, h: u32) -> penumbra_reference::image::Image {
     let (r, frames) = render_times(s, technique, w, h, &[0.0], true);
     let log = r.context().validation.clone();
     drop(r);
-    assert_eq!(log.error_count(), 0, "{:#?}", log.errors());
-    (reference, hdr_image(frames.last().unwrap()))
+    assert_eq!(log.error_count(), 0, "{technique}: {:#?}", log.errors());
+    hdr_image(frames.last().unwrap())
 }
 
 /// The G-buffer's octahedral encoding (`oct_decode` of `glsl/include/common.glsl`).
