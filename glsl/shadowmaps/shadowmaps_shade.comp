@@ -160,8 +160,9 @@ void main() {
     vec3 ns = oct_decode(en.xy);
     vec3 tg = oct_decode(en.zw);
     vec3 wo_w = normalize(cam.eye.xyz - p);
-    // (two-sided: the G-buffer's normal is on the eye's side of its triangle; a normal map or an
-    // interpolated normal at a silhouette can still turn it from the eye: material_reflected below)
+    // (two-sided: the G-buffer's normal is on the eye's side of its triangle and turned towards
+    // the eye where a normal map or an interpolated normal at a silhouette turned it away:
+    // material_facing_normal; material_reflected below only guards)
     mat3 frame = brdf_frame(ns, tg);
     vec3 wo = wo_w * frame;
     uint mi = uint(uvm.z + 0.5);
