@@ -8,7 +8,9 @@
 // technique's unshadowed lighting (env_shade.glsl), so glossy surfaces keep the environment's
 // reflection (K delta lights alone render a glossy dish black): its diffuse part times the
 // cosine- and weight-weighted lit fraction over the K directions, its glossy part times the
-// lobe-weighted lit fraction, trusted as far as the directions cover the lobe.
+// lobe-weighted lit fraction, trusted as far as the directions cover the lobe; where they do not,
+// the lit fraction under kernels around the mirror direction (as broad as the directions' spacing
+// needs), then the diffuse one.
 // Local lights: point and spot lights with a cube shadow map each (6 layers after the K), 3x3 PCF;
 // directional lights with one orthographic map each (as the K, 3x3 PCF);
 // sphere lights from the cube map of their centre with PCSS soft shadows (blocker search, then a
@@ -46,6 +48,11 @@ layout(push_constant) uniform Push {
 #include "brdf_ref.glsl"
 #include "env_shade.glsl"
 
+// The glossy share's fallbacks (shading = ratio): von Mises-Fisher kernels exp(kappa (w.r - 1))
+// around the mirror direction r, sharpest first, and the effective number of directions
+// ((sum w)^2 / sum w^2) a kernel or the lobe must hold to be trusted fully.
+#define SM_KERNELS 4
+#define SM_NEFF 4.0
 float lum(vec3 c) { return dot(c, vec3(0.2126, 0.7152, 0.0722)); }
 
 // Texels per side of layer l: the environment's K layers, then the local lights'.
@@ -176,9 +183,22 @@ void main() {
     float g_albedo = 0.0;                        // the lobe's directional albedo, estimated from them
     Brdf glossy_b = b;
     glossy_b.albedo = vec3(0.0);
+    float g_sq = 0.0;                            // sum of the lobe's weights squared
+    // ratio, glossy fallbacks: per kernel around the mirror direction, sum w V, sum w, sum w^2
+    // (w = kernel x cos) and sum kernel / (K pdf) over all K (its integral's estimate)
+    vec3 refl = reflect(-wo_w, ns);
+    const float KAPPA[SM_KERNELS] = float[SM_KERNELS](128.0, 32.0, 8.0, 2.0);
+    float kv[SM_KERNELS], ka[SM_KERNELS], kq[SM_KERNELS], kc[SM_KERNELS];
+    for (int j = 0; j < SM_KERNELS; j++) { kv[j] = 0.0; ka[j] = 0.0; kq[j] = 0.0; kc[j] = 0.0; }
+    bool kernels = pc.counts.w != 0u && b.kind != 0u;
     for (uint k = 0u; k < pc.counts.x; k++) {
         vec3 wi = env_lights[2u * k].xyz;
         vec3 lw = wi * frame;
+        float kpdf = env_lights[2u * k].w;
+        float cr = dot(wi, refl);
+        if (kernels && kpdf > 0.0) {
+            for (int j = 0; j < SM_KERNELS; j++) kc[j] += exp(KAPPA[j] * (cr - 1.0)) / kpdf;
+        }
         if (lw.z <= 0.0 || wo.z <= 0.0) continue;
         vec3 w = env_lights[2u * k + 1u].rgb;
         // below the geometric surface: blocked by it (lights.glsl's rule)
@@ -190,11 +210,17 @@ void main() {
         } else {
             d_all += lw.z * w;
             d_vis += lw.z * w * v;
-            if (b.kind != 0u) {
+            if (kernels) {
+                for (int j = 0; j < SM_KERNELS; j++) {
+                    float kw = exp(KAPPA[j] * (cr - 1.0)) * lw.z;
+                    ka[j] += kw;
+                    kq[j] += kw * kw;
+                    kv[j] += kw * v;
+                }
                 float g = lum(brdf_eval(glossy_b, wo, lw)) * lw.z;
                 g_all += g;
+                g_sq += g * g;
                 g_vis += g * v;
-                float kpdf = env_lights[2u * k].w;
                 if (kpdf > 0.0) g_albedo += g / kpdf;
             }
         }
@@ -218,10 +244,24 @@ void main() {
             d_all.b > 0.0 ? d_vis.b / d_all.b : 1.0);
         float rd_lum = lum(d_all) > 0.0 ? lum(d_vis) / lum(d_all) : 1.0;
         float rg = rd_lum;
+        // From the broadest estimate to the sharpest: the diffuse share, then each kernel around
+        // the mirror direction (the lobe-weighted visibility blurred to the directions' spacing),
+        // then the lobe itself, each trusted as far as the directions cover it (the estimate of
+        // its integral, sum w / (K pdf), against the exact one) and as far as it holds SM_NEFF
+        // directions (one direction in a lobe, or a few in its tail only, is not its visibility).
+        if (kernels) {
+            for (int j = SM_KERNELS - 1; j >= 0; j--) {
+                if (!(ka[j] > 1e-30)) continue;
+                float integral = M_TAU / KAPPA[j] * (1.0 - exp(-2.0 * KAPPA[j]));
+                float trust = clamp(kc[j] / integral, 0.0, 1.0) * clamp((ka[j] * ka[j] / kq[j] - 1.0) / (SM_NEFF - 1.0), 0.0, 1.0);
+                rg = mix(rg, kv[j] / ka[j], trust);
+            }
+        }
         if (b.kind != 0u && g_all > 1e-30) {
             float albedo = lum(env_specular_albedo(m, max(wo.z, 1e-4)));
             float cover = albedo > 0.0 ? clamp(g_albedo / albedo, 0.0, 1.0) : 0.0;
-            rg = mix(rd_lum, g_vis / g_all, cover);
+            float held = clamp((g_all * g_all / max(g_sq, 1e-30) - 1.0) / (SM_NEFF - 1.0), 0.0, 1.0);
+            rg = mix(rg, g_vis / g_all, cover * held);
         }
         l = ud * rd + ug * rg;
     }

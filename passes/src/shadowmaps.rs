@@ -23,7 +23,11 @@
 //! diffuse part (the irradiance map) times the cosine- and weight-weighted lit fraction over the K
 //! directions, its glossy part (prefiltered reflection) times the lobe-weighted lit fraction,
 //! trusted as far as the directions cover the lobe (their estimate of the lobe's albedo against
-//! the material model's DFG table; a narrow lobe between the directions takes the diffuse fraction). Local
+//! the material model's DFG table) and hold four effective directions; a lobe between the
+//! directions takes the lit fraction under the sharpest of four von Mises-Fisher kernels around
+//! the mirror direction (sharpness 128, 32, 8, 2) that they cover the same way, then the diffuse
+//! fraction (so the glossy share converges as K grows: balls_on_dish 160x120 0.172 at K = 32,
+//! 0.080 at K = 512, where the diffuse fallback alone gave 0.204 and 0.148). Local
 //! lights: BRDF x cosine x intensity / d^2 x lit fraction (3x3 PCF; sphere lights as points of
 //! intensity L pi r^2 with PCSS soft shadows from the cube of their centre). Sky pixels show the
 //! environment.
