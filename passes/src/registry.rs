@@ -181,6 +181,7 @@ const SHADOWMAPS_PARAMS: &[ParamDoc] = &[
     p("size", "256", "16..=4096", "resolution of the environment directions' depth maps, texels per side (the ISG paper: 256)"),
     p("light_size", "1024", "16..=4096", "resolution of the local lights' depth maps (cube faces; a directional light's map), texels per side"),
     p("shading", "ratio", "ratio|lights", "lights: the sum over the K lights (the papers' baseline); ratio: the unshadowed environment lighting times the K lights' shadowed/unshadowed ratio"),
+    p("march", "4", "0..=16", "ratio shading, glossy lobes the K directions do not cover: rays around the mirror direction marched through the visual hull of the K maps (0: off, the lit fraction under kernels around the mirror direction alone)"),
 ];
 
 const ISG_PARAMS: &[ParamDoc] = &[

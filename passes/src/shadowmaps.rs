@@ -69,11 +69,14 @@ pub struct ShadowMapsSettings {
     /// 1024).
     pub light_size: u32,
     pub shading: SmShading,
+    /// `shading = ratio`: rays around the mirror direction marched through the visual hull of the
+    /// K maps where the directions do not cover a glossy lobe, 0..=16 (0: off).
+    pub march: u32,
 }
 
 impl Default for ShadowMapsSettings {
     fn default() -> Self {
-        ShadowMapsSettings { count: 32, size: 256, light_size: 1024, shading: SmShading::Ratio }
+        ShadowMapsSettings { count: 32, size: 256, light_size: 1024, shading: SmShading::Ratio, march: 4 }
     }
 }
 
@@ -86,7 +89,8 @@ impl ShadowMapsSettings {
             "size" => self.size = p.int(16, 4096)? as u32,
             "light_size" => self.light_size = p.int(16, 4096)? as u32,
             "shading" => self.shading = p.choice(&[("lights", SmShading::Lights), ("ratio", SmShading::Ratio)])?,
-            _ => return Err(p.unknown("count, size, light_size, shading")),
+            "march" => self.march = p.int(0, 16)? as u32,
+            _ => return Err(p.unknown("count, size, light_size, shading, march")),
         }
         Ok(())
     }
@@ -397,7 +401,7 @@ impl ShadowMapsTechnique {
             SmShading::Ratio => 1,
         };
         push.extend(bytes_of(&[k, scene.light_count, self.visibility as u32, shading]));
-        push.extend(bytes_of(&[s, ls, 0, 0]));
+        push.extend(bytes_of(&[s, ls, self.settings.march, 0]));
         let mut p = graph.pass("shadowmaps_shade", PassKind::Compute);
         let io = ShadingIo::declare(&mut p, scene, gb, inputs.env, hdr);
         let lb = p.read(layer_buf, Access::ComputeShaderReadStorage);
