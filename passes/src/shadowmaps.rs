@@ -22,12 +22,15 @@
 //! the environment's reflection (K delta lights alone render a glossy dish near black): its
 //! diffuse part (the irradiance map) times the cosine- and weight-weighted lit fraction over the K
 //! directions, its glossy part (prefiltered reflection) times the lobe-weighted lit fraction,
-//! trusted as far as the directions cover the lobe (their estimate of the lobe's albedo against
-//! the material model's DFG table) and hold four effective directions; a lobe between the
-//! directions takes the lit fraction under the sharpest of four von Mises-Fisher kernels around
-//! the mirror direction (sharpness 128, 32, 8, 2) that they cover the same way, then the diffuse
-//! fraction (so the glossy share converges as K grows: balls_on_dish 160x120 0.172 at K = 32,
-//! 0.080 at K = 512, where the diffuse fallback alone gave 0.204 and 0.148). Local
+//! trusted as far as the directions hold the lobe's light (their estimate of its unshadowed light
+//! against the prefiltered one) and four effective directions. A lobe between the directions
+//! takes the darker of (a) the lit fraction under the sharpest of four von Mises-Fisher kernels
+//! around the mirror direction (sharpness 128, 32, 8, 2) that they cover (so the glossy share
+//! converges as K grows: balls_on_dish 160x120 0.172 at K = 32, 0.080 at K = 512, where the
+//! diffuse fallback alone gave 0.204 and 0.148), then the diffuse fraction, and (b)
+//! [`ShadowMapsSettings::march`] rays around the mirror direction marched through the visual hull
+//! of the K maps (blocked where every map sees a point behind its depth: inside a closed
+//! occluder), which finds the occluders no map looks along (balls_on_dish 0.075 at K = 32). Local
 //! lights: BRDF x cosine x intensity / d^2 x lit fraction (3x3 PCF; sphere lights as points of
 //! intensity L pi r^2 with PCSS soft shadows from the cube of their centre). Sky pixels show the
 //! environment.
