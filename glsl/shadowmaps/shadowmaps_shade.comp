@@ -230,8 +230,10 @@ void main() {
         vec3 lw = wi * frame;
         float kpdf = env_lights[2u * k].w;
         float cr = dot(wi, refl);
+        float kern[SM_KERNELS];  // each kernel's value at wi
+        for (int j = 0; j < SM_KERNELS; j++) kern[j] = kernels ? exp(KAPPA[j] * (cr - 1.0)) : 0.0;
         if (kernels && kpdf > 0.0) {
-            for (int j = 0; j < SM_KERNELS; j++) kc[j] += exp(KAPPA[j] * (cr - 1.0)) / kpdf;
+            for (int j = 0; j < SM_KERNELS; j++) kc[j] += kern[j] / kpdf;
             if (cr > c0) { near0 = k; c0 = cr; }
         }
         if (lw.z <= 0.0 || wo.z <= 0.0) continue;
@@ -247,7 +249,7 @@ void main() {
             d_vis += lw.z * w * v;
             if (kernels) {
                 for (int j = 0; j < SM_KERNELS; j++) {
-                    float kw = exp(KAPPA[j] * (cr - 1.0)) * lw.z;
+                    float kw = kern[j] * lw.z;
                     ka[j] += kw;
                     kq[j] += kw * kw;
                     kv[j] += kw * v;
