@@ -25,6 +25,7 @@ pub mod limits;
 pub mod mesh;
 pub mod motion;
 pub mod texture;
+pub mod walker;
 
 pub use error::SceneError;
 pub use limits::{Budget, Limits};

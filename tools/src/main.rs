@@ -82,6 +82,22 @@ enum Cmd {
     /// Approximate a closed mesh by N spheres (blockers of the ISG technique) and report the
     /// fraction of its volume they cover and the volume they put outside it.
     Spheres(spheres::SpheresArgs),
+    /// Generated models: `asset walker` writes the procedural walking figure with a hat (the
+    /// adaptive visibility sampling paper's third scene; `scenes/paper/walker.glb` is its output).
+    #[command(subcommand)]
+    Asset(AssetCmd),
+}
+
+#[derive(Subcommand)]
+enum AssetCmd {
+    /// A skinned figure (about 34k vertices, 14 joints, four materials) with a rigid hat on its
+    /// head joint, and one looping animation, `walk`: 8 s, once around a circle of radius 1.2 m
+    /// about the origin, a stride a second.
+    Walker {
+        /// Where to write the .glb.
+        #[arg(long, default_value = "scenes/paper/walker.glb")]
+        out: PathBuf,
+    },
 }
 
 #[derive(Subcommand)]
@@ -527,6 +543,18 @@ fn run(cli: Cli) -> Result<()> {
     let limits = Limits::with_memory_mib(cli.memory_budget);
     match cli.cmd {
         Cmd::Render(a) => render(&a, &limits),
+        Cmd::Asset(AssetCmd::Walker { out }) => {
+            let bytes = penumbra_scene::walker::walker_glb();
+            std::fs::write(&out, &bytes).with_context(|| format!("{}: cannot write", out.display()))?;
+            println!(
+                "wrote {} ({} bytes, {} vertices, animation 'walk' of {} s)",
+                out.display(),
+                bytes.len(),
+                penumbra_scene::walker::vertex_count(),
+                penumbra_scene::walker::WALK_DURATION
+            );
+            Ok(())
+        }
         Cmd::Techniques => {
             print!("{}", penumbra_passes::registry::describe());
             Ok(())
