@@ -8,8 +8,8 @@
 //! closed capsule-like tubes (torso, neck, head, upper and lower legs, feet, upper arms,
 //! forearms, hands) in four materials, skinned to 14 joints with linear-blend weights that
 //! blend neighbouring bones over the joints. Its hat is a separate rigid mesh on a child node
-//! of the head joint (a glossy lathe: crown and brim), so it moves with the head without being
-//! skinned. One animation, `walk`, loops every [`WALK_DURATION`] seconds: the figure walks once
+//! of the head joint (a lathe: crown and brim), so it moves with the head without being
+//! skinned. Every material is rough (roughness 1: the paper's man and hat are diffuse). One animation, `walk`, loops every [`WALK_DURATION`] seconds: the figure walks once
 //! around a circle of radius [`WALK_RADIUS`] about the origin, eight strides of
 //! [`STRIDE_PERIOD`] (hips bobbing and swaying, legs and arms swinging, knees and elbows
 //! bending), keyed 30 times a second.
@@ -331,9 +331,9 @@ fn build_meshes() -> (Vec<Part>, Part) {
         u: Vec3::X,
         radii: &torso_r,
         weights: &torso_w,
-        around: 64,
-        rings: 40,
-        cap_rings: 8,
+        around: 48,
+        rings: 30,
+        cap_rings: 6,
     });
     // neck and head
     let neck_r = |_s: f32| (0.055, 0.055);
@@ -347,8 +347,8 @@ fn build_meshes() -> (Vec<Part>, Part) {
         u: Vec3::X,
         radii: &neck_r,
         weights: &neck_w,
-        around: 36,
-        rings: 8,
+        around: 28,
+        rings: 6,
         cap_rings: 4,
     });
     let head_r = |_s: f32| (0.1, 0.108);
@@ -359,9 +359,9 @@ fn build_meshes() -> (Vec<Part>, Part) {
         u: Vec3::X,
         radii: &head_r,
         weights: &head_w,
-        around: 64,
+        around: 48,
         rings: 4,
-        cap_rings: 22,
+        cap_rings: 16,
     });
 
     for (sx, thigh, shin, foot, arm, forearm) in
@@ -379,9 +379,9 @@ fn build_meshes() -> (Vec<Part>, Part) {
             u: Vec3::X,
             radii: &thigh_r,
             weights: &thigh_w,
-            around: 48,
-            rings: 34,
-            cap_rings: 8,
+            around: 36,
+            rings: 26,
+            cap_rings: 6,
         });
         let shin_r = |s: f32| {
             let r = 0.055 - 0.015 * s;
@@ -394,9 +394,9 @@ fn build_meshes() -> (Vec<Part>, Part) {
             u: Vec3::X,
             radii: &shin_r,
             weights: &shin_w,
-            around: 48,
-            rings: 34,
-            cap_rings: 8,
+            around: 36,
+            rings: 26,
+            cap_rings: 6,
         });
         let foot_r = |_s: f32| (0.045, 0.04);
         let foot_w = move |_q: Vec3, _s: f32| -> Weights { [(foot, 1.0), (foot, 0.0), (foot, 0.0), (foot, 0.0)] };
@@ -406,9 +406,9 @@ fn build_meshes() -> (Vec<Part>, Part) {
             u: Vec3::X,
             radii: &foot_r,
             weights: &foot_w,
-            around: 40,
-            rings: 16,
-            cap_rings: 8,
+            around: 32,
+            rings: 12,
+            cap_rings: 6,
         });
         // arms
         let arm_r = |s: f32| {
@@ -422,9 +422,9 @@ fn build_meshes() -> (Vec<Part>, Part) {
             u: Vec3::X,
             radii: &arm_r,
             weights: &arm_w,
-            around: 40,
-            rings: 24,
-            cap_rings: 8,
+            around: 32,
+            rings: 18,
+            cap_rings: 6,
         });
         let forearm_r = |s: f32| {
             let r = 0.042 - 0.009 * s;
@@ -437,9 +437,9 @@ fn build_meshes() -> (Vec<Part>, Part) {
             u: Vec3::X,
             radii: &forearm_r,
             weights: &forearm_w,
-            around: 40,
-            rings: 22,
-            cap_rings: 8,
+            around: 32,
+            rings: 16,
+            cap_rings: 6,
         });
         let hand_r = |_s: f32| (0.022, 0.042);
         let hand_w =
@@ -450,9 +450,9 @@ fn build_meshes() -> (Vec<Part>, Part) {
             u: Vec3::X,
             radii: &hand_r,
             weights: &hand_w,
-            around: 32,
-            rings: 8,
-            cap_rings: 6,
+            around: 24,
+            rings: 6,
+            cap_rings: 5,
         });
     }
 
@@ -469,7 +469,7 @@ fn build_meshes() -> (Vec<Part>, Part) {
         (0.10, -0.014),
         (0.0, -0.014),
     ];
-    hat.add_lathe(Vec3::ZERO, &profile, 96, 4, [(HEAD, 1.0), (HEAD, 0.0), (HEAD, 0.0), (HEAD, 0.0)]);
+    hat.add_lathe(Vec3::ZERO, &profile, 72, 3, [(HEAD, 1.0), (HEAD, 0.0), (HEAD, 0.0), (HEAD, 0.0)]);
     (vec![skin, shirt, trousers, shoes], hat)
 }
 
@@ -724,11 +724,11 @@ pub fn walker_glb() -> Vec<u8> {
         "nodes": nodes,
         "meshes": [{ "name": "body", "primitives": body_prims }, { "name": "hat", "primitives": [hat_prim] }],
         "materials": [
-            material("skin", [0.78, 0.55, 0.45], 0.6),
-            material("shirt", [0.18, 0.32, 0.62], 0.7),
-            material("trousers", [0.24, 0.21, 0.19], 0.85),
-            material("shoes", [0.07, 0.05, 0.04], 0.4),
-            material("hat", [0.55, 0.12, 0.08], 0.35),
+            material("skin", [0.78, 0.55, 0.45], 1.0),
+            material("shirt", [0.18, 0.32, 0.62], 1.0),
+            material("trousers", [0.24, 0.21, 0.19], 1.0),
+            material("shoes", [0.07, 0.05, 0.04], 1.0),
+            material("hat", [0.55, 0.12, 0.08], 1.0),
         ],
         "skins": [{ "name": "figure", "joints": (HIPS..=R_FOREARM).collect::<Vec<_>>(), "inverseBindMatrices": ibm, "skeleton": HIPS }],
         "animations": [{ "name": "walk", "samplers": samplers, "channels": channels }],

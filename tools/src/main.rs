@@ -90,7 +90,7 @@ enum Cmd {
 
 #[derive(Subcommand)]
 enum AssetCmd {
-    /// A skinned figure (about 34k vertices, 14 joints, four materials) with a rigid hat on its
+    /// A skinned figure (17.3k vertices, 14 joints, four materials) with a rigid hat on its
     /// head joint, and one looping animation, `walk`: 8 s, once around a circle of radius 1.2 m
     /// about the origin, a stride a second.
     Walker {
