@@ -566,7 +566,7 @@ struct Writer {
 
 impl Writer {
     fn view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
-        while self.bin.len() % 4 != 0 {
+        while !self.bin.len().is_multiple_of(4) {
             self.bin.push(0);
         }
         let mut v = json!({ "buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len() });
@@ -737,11 +737,11 @@ pub fn walker_glb() -> Vec<u8> {
         "buffers": [{ "byteLength": w.bin.len() }],
     });
     let mut js = serde_json::to_vec(&doc).expect("a JSON value serializes");
-    while js.len() % 4 != 0 {
+    while !js.len().is_multiple_of(4) {
         js.push(b' ');
     }
     let mut bin = w.bin;
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let total = 12 + 8 + js.len() + 8 + bin.len();
