@@ -545,7 +545,7 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::Render(a) => render(&a, &limits),
         Cmd::Asset(AssetCmd::Walker { out }) => {
             let bytes = penumbra_scene::walker::walker_glb();
-            std::fs::write(&out, &bytes).with_context(|| format!("{}: cannot write", out.display()))?;
+            std::fs::write(&out, &bytes).map_err(|e| bad(format!("{}: cannot write: {e}", out.display())))?;
             println!(
                 "wrote {} ({} bytes, {} vertices, animation 'walk' of {} s)",
                 out.display(),

@@ -263,6 +263,21 @@ fn hostile_sizes_exit_2_before_allocating() {
     assert!(t.contains("'torus': subdivided 3 times, not the 31 times max_edge = 1e-10 asks"), "{t}");
 }
 
+/// `asset walker` writes the checked-in walking figure (its content is tested in
+/// scene/tests/walker.rs); an unwritable path is bad input naming the file.
+#[test]
+fn asset_walker_writes_the_checked_in_figure() {
+    let d = tmp("asset_walker");
+    let out = d.join("walker.glb");
+    let o = penumbra(&["asset", "walker", "--out", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("17308 vertices"), "{}", text(&o));
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/paper/walker.glb");
+    assert!(std::fs::read(&out).unwrap() == std::fs::read(&repo).unwrap(), "differs from {}", repo.display());
+    let bad = d.join("no/such/dir/w.glb");
+    expect_bad_input(&["asset", "walker", "--out", bad.to_str().unwrap()], &["w.glb", "cannot write"]);
+}
+
 #[test]
 fn help_documents_every_command_and_flag() {
     // the registry as text: every technique with its parameters, defaults and ranges
