@@ -801,6 +801,13 @@ fn key_lights_split_off_the_environment_cast_their_shadows() {
     println!("key_pattern = stratified: rmse/mean {e_strat:.4}; against fixed {:.5}", c.rmse / c.reference_mean);
     assert!(c.rmse > 0.0, "key_pattern = stratified drew the fixed pattern's image");
     assert!(e_strat < 0.1 && e_strat < 0.7 * e_whole, "key_pattern = stratified: {e_strat} (whole map {e_whole})");
+    // 16 more rays where the 9 disagree: a different image (only in penumbrae), no less accurate
+    let (_r, refine) = render(&with(&with(&s, &fast), &[("key_penumbra", "refine")]), "avs", w, h, &[t], false);
+    let e_refine = err(&refine[0], "refined penumbrae");
+    let c = compare(&image(&key[0]), "rays", &image(&refine[0]), "refine").unwrap();
+    println!("key_penumbra = refine: rmse/mean {e_refine:.4}; against rays {:.5}", c.rmse / c.reference_mean);
+    assert!(c.rmse > 0.0, "key_penumbra = refine drew the 9 rays' image");
+    assert!(e_refine < e_key + 0.002, "key_penumbra = refine {e_refine} against the 9 rays' {e_key}");
 }
 
 /// [`light_visibility_agreement`] at resolution `r`, asserted: at least 400 classified floor

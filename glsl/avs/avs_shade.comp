@@ -99,7 +99,7 @@ layout(push_constant) uniform Push {
     float alpha;
     float inv_scale;
     float radius;
-    uint flags;      // bit 0: no SSDF visibility (shadows off, or no sample points); bit 1: local lights' and key lights' shadows traced; bit 2: key_rays = predicted; bit 3: key_pattern = stratified
+    uint flags;      // bit 0: no SSDF visibility (shadows off, or no sample points); bit 1: local lights' and key lights' shadows traced; bit 2: key_rays = predicted; bit 3: key_pattern = stratified; bit 4: key_penumbra = refine
     uint cells;      // cells per side (mode 1)
     uint specular_mode;  // 0: Gamma_L from the prefiltered maps, 1: from the lighting SGs, 2: ratio (env_shade.glsl's glossy term x the lobe's SSDF visibility)
     uint diffuse_ratio;  // 1: the map's irradiance x the SG lobes' visible share; 0: the SG lobes alone
@@ -174,6 +174,32 @@ layout(constant_id = 0) const uint AVS_MODE = 0u;
 float phi_cdf(float x) { return 0.5 * (1.0 + sg_erf(x * 0.70710678)); }
 
 // Visible fraction of SG lobe g (its mass) over the interpolated visible region.
+// A key light's unoccluded share from its rays' mask (cone_rays_mask: the disk's 9 rays, the
+// same pattern in every pixel). In a penumbra (the rays disagree) with key_penumbra = refine
+// (flags bit 4; the default `rays` keeps the 9 rays' share), 16 more rays, one in each of 16 equal-area cells of the disk (4 rings of 4
+// sectors) at a point drawn per shading point, and the share of all of them: the fixed
+// pattern's 9 flat steps (each ray a shifted copy of the occluder's hard shadow, streaks under a
+// wide light) become 25 finer ones with a little grain.
+float key_penumbra_fraction(uint m, vec3 p, vec3 axis, float radius, vec3 ng) {
+    float vis = float(bitCount(m & 0xFFFFu)), cnt = float(bitCount(m >> 16u));
+    if ((pc.flags & 16u) == 0u || cnt == 0.0 || vis == 0.0 || vis == cnt) return cnt > 0.0 ? vis / cnt : 1.0;
+    vec3 w = normalize(axis);
+    uvec3 b = floatBitsToUint(p);
+    uint h0 = b.x * 0x9E3779B1u ^ b.y * 0x85EBCA77u ^ b.z * 0xC2B2AE3Du;
+    for (uint j = 0u; j < 16u; ++j) {
+        uint h = h0 ^ (j + 1u) * 0x27D4EB2Fu;
+        h ^= h >> 15u; h *= 0x2C1B3C6Du; h ^= h >> 12u; h *= 0x297A2D39u; h ^= h >> 15u;
+        float u = float(h & 0xFFFFu) / 65536.0, v = float(h >> 16u) / 65536.0;
+        float a = 1.5707963 * (float(j & 3u) + u);
+        float r = radius * sqrt((float(j >> 2u) + v) / 4.0);
+        vec3 d = normalize(w + light_disk_offset(w, a) * r);
+        if (dot(d, ng) <= 0.0) continue;
+        cnt += 1.0;
+        if (kd_trace(p, d, 0.0, 1e30, true).t < 0.0) vis += 1.0;
+    }
+    return vis / cnt;
+}
+
 float visible(SG g) {
     if (!shadows_on()) return 1.0;
     float lam = max(g.lambda, 1e-3);
@@ -352,8 +378,10 @@ void main() {
     // turning_light's glossy floor 0.0420 -> 0.0457 rmse/mean at 160x120.
     const float KEY_REUSE = 0.05;
     uint kmask[16];
+    float kfrac[16];
     for (uint k = 0u; k < nk; ++k) {
         kmask[k] = 0u;
+        kfrac[k] = 1.0;
         if (!traced) continue;
         SG l = sg_make(key[2u * k].xyz, key[2u * k].w, 1.0);
         bool lit = max(sg_cosine_integral(l, n), 0.0) > 0.0
@@ -371,11 +399,13 @@ void main() {
                 bool seen = kd_trace(po, dc, 0.0, 1e30, true).t < 0.0;
                 if (seen == (d > 0.0)) {
                     kmask[k] = (1u << 16u) | (seen ? 1u : 0u);
+                    kfrac[k] = seen ? 1.0 : 0.0;
                     continue;
                 }
             }
         }
         kmask[k] = cone_rays_mask(po, l.axis, rad, ng);
+        kfrac[k] = key_penumbra_fraction(kmask[k], po, l.axis, rad, ng);
     }
     // Lobes that bring less than LOBE_CULL of a ratio's light (the diffuse lobes' irradiance with
     // diffuse_ratio, the glossy items' light in gj) are left out of both its sums: the ratio
@@ -444,7 +474,7 @@ void main() {
             vec3 mu = key[2u * k + 1u].rgb;
             // shadows off (flags bit 1 clear): the same light, unshadowed
             vec3 e = mu * max(sg_cosine_integral(sg_make(axis_lambda.xyz, axis_lambda.w, 1.0), n), 0.0);
-            diffuse += traced ? e * cone_mask_fraction(kmask[k]) : e;
+            diffuse += traced ? e * kfrac[k] : e;
         }
     }
     vec3 color = material_diffuse_albedo(m, ndv) / PI * diffuse;

@@ -238,6 +238,12 @@ pub struct AvsSettings {
     /// its own equal-area cell of the disk drawn per pixel (grain around the disk's integral:
     /// closer to the reference's look, more error against it; see README).
     pub key_pattern_stratified: bool,
+    /// A key light's share inside a penumbra (`key_penumbra`): `rays` (default), the disk's 9
+    /// rays' share; `refine`, where they disagree, 16 more in equal-area cells of the disk at
+    /// points drawn per shading point, the share of all 25 (9 flat steps, streaks under a wide
+    /// light, become 25 finer ones with a little grain, at the cost of 16 rays per penumbra
+    /// pixel: see README).
+    pub key_penumbra_refine: bool,
     /// Read the final visibility maps back into [`AvsStats::maps`] (one more copy per adaptation
     /// round; for tests comparing maps texel by texel).
     pub capture_maps: bool,
@@ -277,6 +283,7 @@ impl Default for AvsSettings {
             key_lights: 4,
             key_rays_predicted: true,
             key_pattern_stratified: false,
+            key_penumbra_refine: false,
             capture_maps: false,
         }
     }
@@ -294,7 +301,7 @@ impl AvsSettings {
     /// most 256), `initial_grid` (16 or 32), `e_max` (0.10), `e_min` (0.05), `alpha` (0.3), `interp_alpha` (0 = the paper's form),
     /// `iterations` (2), `adaptation` (`rounds` | `late` | `cpu`), `cpu_grid` (16), `first_iterations` (8), `points` (0 = auto), `max_points` (4096; lowered to what the device binds, see `AvsTechnique::new`), `pool_points` (4096), `radius` (2.0), `neighbours`
     /// (6, 1..8), `ray_neighbours` (4, 0..8), `integration` (`axis` | `cells` | `table` | `adf`), `cells` (6,
-    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `glossy` (`ratio` | `sg`), `lobes` (16), `light_shadows` (`traced` | `ssdf`), `key_lights` (4, 0..16), `key_rays` (`predicted` | `all`), `key_pattern` (`fixed` | `stratified`). Unknown keys and bad values
+    /// 1..16), `shadows`, `adaptive`, `keep_hits`, `prefiltered`, `cull`, `capture_maps` (true/false), `diffuse` (`ratio` | `sg`), `glossy` (`ratio` | `sg`), `lobes` (16), `light_shadows` (`traced` | `ssdf`), `key_lights` (4, 0..16), `key_rays` (`predicted` | `all`), `key_pattern` (`fixed` | `stratified`), `key_penumbra` (`rays` | `refine`). Unknown keys and bad values
     /// are errors naming the key.
     pub fn set(&mut self, key: &str, value: &str) -> Result<()> {
         let p = crate::technique::Param::new("avs", key, value);
@@ -347,8 +354,9 @@ impl AvsSettings {
             "key_lights" => self.key_lights = int(0, 16)? as usize,
             "key_rays" => self.key_rays_predicted = p.choice(&[("predicted", true), ("all", false)])?,
             "key_pattern" => self.key_pattern_stratified = p.choice(&[("fixed", false), ("stratified", true)])?,
+            "key_penumbra" => self.key_penumbra_refine = p.choice(&[("rays", false), ("refine", true)])?,
             "capture_maps" => self.capture_maps = p.flag()?,
-            _ => return Err(p.unknown("r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, adaptation, first_iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, light_shadows, key_lights, key_rays, key_pattern, capture_maps")),
+            _ => return Err(p.unknown("r, initial_grid, e_max, e_min, alpha, interp_alpha, iterations, adaptation, first_iterations, points, max_points, pool_points, radius, neighbours, ray_neighbours, integration, cells, shadows, adaptive, keep_hits, prefiltered, diffuse, glossy, lobes, cull, light_shadows, key_lights, key_rays, key_pattern, key_penumbra, capture_maps")),
         }
         Ok(())
     }
@@ -1736,7 +1744,8 @@ impl crate::technique::Technique for AvsTechnique {
             (!s.shadows || points.is_empty()) as u32
                 | ((s.shadows && s.traced_lights) as u32) << 1
                 | (s.key_rays_predicted as u32) << 2
-                | (s.key_pattern_stratified as u32) << 3,
+                | (s.key_pattern_stratified as u32) << 3
+                | (s.key_penumbra_refine as u32) << 4,
             s.cells.clamp(1, 16),
             if s.glossy_ratio { 2 } else { (!s.prefiltered) as u32 },
             s.diffuse_ratio as u32,
