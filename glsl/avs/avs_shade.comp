@@ -173,13 +173,12 @@ layout(constant_id = 0) const uint AVS_MODE = 0u;
 
 float phi_cdf(float x) { return 0.5 * (1.0 + sg_erf(x * 0.70710678)); }
 
-// Visible fraction of SG lobe g (its mass) over the interpolated visible region.
 // A key light's unoccluded share from its rays' mask (cone_rays_mask: the disk's 9 rays, the
 // same pattern in every pixel). In a penumbra (the rays disagree) with key_penumbra = refine
-// (flags bit 4; the default `rays` keeps the 9 rays' share), 16 more rays, one in each of 16 equal-area cells of the disk (4 rings of 4
-// sectors) at a point drawn per shading point, and the share of all of them: the fixed
-// pattern's 9 flat steps (each ray a shifted copy of the occluder's hard shadow, streaks under a
-// wide light) become 25 finer ones with a little grain.
+// (flags bit 4; the default `rays` keeps the 9 rays' share), 16 more rays, one in each of 16
+// equal-area cells of the disk (4 rings of 4 sectors) at a point drawn per shading point, and
+// the share of all of them: the fixed pattern's 9 flat steps (each ray a shifted copy of the
+// occluder's hard shadow, streaks under a wide light) become 25 finer ones with a little grain.
 float key_penumbra_fraction(uint m, vec3 p, vec3 axis, float radius, vec3 ng) {
     float vis = float(bitCount(m & 0xFFFFu)), cnt = float(bitCount(m >> 16u));
     if ((pc.flags & 16u) == 0u || cnt == 0.0 || vis == 0.0 || vis == cnt) return cnt > 0.0 ? vis / cnt : 1.0;
@@ -200,6 +199,7 @@ float key_penumbra_fraction(uint m, vec3 p, vec3 axis, float radius, vec3 ng) {
     return vis / cnt;
 }
 
+// Visible fraction of SG lobe g (its mass) over the interpolated visible region.
 float visible(SG g) {
     if (!shadows_on()) return 1.0;
     float lam = max(g.lambda, 1e-3);

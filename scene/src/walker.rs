@@ -9,10 +9,11 @@
 //! forearms, hands) in four materials, skinned to 14 joints with linear-blend weights that
 //! blend neighbouring bones over the joints. Its hat is a separate rigid mesh on a child node
 //! of the head joint (a lathe: crown and brim), so it moves with the head without being
-//! skinned. Every material is rough (roughness 1: the paper's man and hat are diffuse). One animation, `walk`, loops every [`WALK_DURATION`] seconds: the figure walks once
-//! around a circle of radius [`WALK_RADIUS`] about the origin, eight strides of
-//! [`STRIDE_PERIOD`] (hips bobbing and swaying, legs and arms swinging, knees and elbows
-//! bending), keyed 30 times a second.
+//! skinned. Every material is rough (roughness 1: the paper's man and hat are diffuse). One
+//! animation, `walk`, loops every [`WALK_DURATION`] seconds: the figure walks once around a
+//! circle of radius [`WALK_RADIUS`] about the origin, eight strides of [`STRIDE_PERIOD`] (hips
+//! lowered so that the lower sole stays 4 mm above the floor, and swaying; legs and arms
+//! swinging, knees and elbows bending), keyed 30 times a second.
 //!
 //! `penumbra asset walker` writes it; `scenes/paper/walker.glb` is its output (a test checks
 //! that the file still decodes to what the generator makes, within 1e-5).
@@ -553,8 +554,9 @@ pub fn node_global(node: usize, t: f32) -> Mat4 {
     global_with(node, t, true)
 }
 
-/// Node index of the hat and of the head joint in the file.
+/// Node index of the hat in the file (a child of [`HEAD_NODE`]).
 pub const HAT_NODE: usize = HAT;
+/// Node index of the head joint in the file.
 pub const HEAD_NODE: usize = HEAD;
 
 /// Builds the file: binary chunk layout, accessors and the JSON document.
