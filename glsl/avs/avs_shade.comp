@@ -183,11 +183,8 @@ float key_penumbra_fraction(uint m, vec3 p, vec3 axis, float radius, vec3 ng) {
     float vis = float(bitCount(m & 0xFFFFu)), cnt = float(bitCount(m >> 16u));
     if ((pc.flags & 16u) == 0u || cnt == 0.0 || vis == 0.0 || vis == cnt) return cnt > 0.0 ? vis / cnt : 1.0;
     vec3 w = normalize(axis);
-    uvec3 b = floatBitsToUint(p);
-    uint h0 = b.x * 0x9E3779B1u ^ b.y * 0x85EBCA77u ^ b.z * 0xC2B2AE3Du;
     for (uint j = 0u; j < 16u; ++j) {
-        uint h = h0 ^ (j + 1u) * 0x27D4EB2Fu;
-        h ^= h >> 15u; h *= 0x2C1B3C6Du; h ^= h >> 12u; h *= 0x297A2D39u; h ^= h >> 15u;
+        uint h = cone_hash(p, j + 1u);
         float u = float(h & 0xFFFFu) / 65536.0, v = float(h >> 16u) / 65536.0;
         float a = 1.5707963 * (float(j & 3u) + u);
         float r = radius * sqrt((float(j >> 2u) + v) / 4.0);

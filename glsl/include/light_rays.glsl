@@ -56,13 +56,19 @@ float cone_rays_visibility(vec3 p, vec3 axis, float radius, vec3 ng) {
 // light's penumbra comes out as grain around the disk's integral instead of the fixed pattern's
 // flat bands (falling at 640x480: a hexagonal umbra ringed by steps), at more error against a
 // reference (the grain adds to its noise). The includer may define CONE_STRATIFIED (a bool).
+// 32 hashed bits of point p's float bits and ray number j: a per-point draw of ray j.
+uint cone_hash(vec3 p, uint j) {
+    uvec3 b = floatBitsToUint(p);
+    uint h = b.x * 0x9E3779B1u ^ b.y * 0x85EBCA77u ^ b.z * 0xC2B2AE3Du ^ j * 0x27D4EB2Fu;
+    h ^= h >> 15u; h *= 0x2C1B3C6Du; h ^= h >> 12u; h *= 0x297A2D39u; h ^= h >> 15u;
+    return h;
+}
+
 vec3 cone_cell_dir(vec3 p, vec3 axis, float radius, int j) {
     if (!CONE_STRATIFIED) return normalize(light_disk_target(axis, radius, j));
     vec3 w = normalize(axis);
     if (j == 0) return w;
-    uvec3 b = floatBitsToUint(p);
-    uint h = b.x * 0x9E3779B1u ^ b.y * 0x85EBCA77u ^ b.z * 0xC2B2AE3Du ^ uint(j) * 0x27D4EB2Fu;
-    h ^= h >> 15u; h *= 0x2C1B3C6Du; h ^= h >> 12u; h *= 0x297A2D39u; h ^= h >> 15u;
+    uint h = cone_hash(p, uint(j));
     float u = float(h & 0xFFFFu) / 65536.0, v = float(h >> 16u) / 65536.0;
     // lights.glsl's rays 1-4: the inner ring at 0, 90, 180, 270 degrees; 5-8 the outer at 45 + k 90
     bool inner = j <= 4;

@@ -151,6 +151,28 @@ pub struct GltfAsset {
     pub warnings: Vec<String>,
 }
 
+/// A binary glTF container (`.glb`) of a JSON document's bytes and a binary buffer: the
+/// 12-byte header, the JSON chunk padded with spaces and the BIN chunk padded with zeros to 4
+/// bytes.
+pub fn glb_bytes(json: &[u8], bin: &[u8]) -> Vec<u8> {
+    let pad = |n: usize| n.next_multiple_of(4);
+    let (jl, bl) = (pad(json.len()), pad(bin.len()));
+    let total = 12 + 8 + jl + 8 + bl;
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(jl as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(json);
+    out.resize(20 + jl, b' ');
+    out.extend_from_slice(&(bl as u32).to_le_bytes());
+    out.extend_from_slice(b"BIN\0");
+    out.extend_from_slice(bin);
+    out.resize(total, 0);
+    out
+}
+
 fn gerr(path: &Path, m: impl Into<String>) -> SceneError {
     SceneError::Gltf { path: path.to_path_buf(), message: m.into() }
 }

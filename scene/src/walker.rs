@@ -110,6 +110,11 @@ fn smoothstep(a: f32, b: f32, x: f32) -> f32 {
     t * t * (3.0 - 2.0 * t)
 }
 
+/// A vertex bound to joint node `j` alone.
+fn rigid(j: usize) -> Weights {
+    [(j, 1.0), (j, 0.0), (j, 0.0), (j, 0.0)]
+}
+
 /// Weights of a point at parameter `s` along a bone (0 at its start joint, 1 at its end) that
 /// blends with `before` over its first fifth and with `after` over its last: half and half at
 /// the joints themselves and beyond them (the end caps).
@@ -128,13 +133,12 @@ fn bone_weights(s: f32, own: usize, before: Option<usize>, after: Option<usize>)
     w
 }
 
-/// A closed tube around the segment a -> b: rings of an elliptic cross-section (radii along
-/// `u` and along axis x `u`) from `radii(s)`, closed at both ends by half-ellipsoid caps and
-/// poles.
+/// A closed tube around the segment a -> b (never along x): rings of an elliptic cross-section
+/// (radii along x, made perpendicular to the segment, and along axis x that) from `radii(s)`,
+/// closed at both ends by half-ellipsoid caps and poles.
 struct Tube<'a> {
     a: Vec3,
     b: Vec3,
-    u: Vec3,
     radii: &'a dyn Fn(f32) -> (f32, f32),
     weights: &'a dyn Fn(Vec3, f32) -> Weights,
     around: usize,
@@ -174,7 +178,8 @@ impl Part {
         let axis = t.b - t.a;
         let len = axis.length();
         let dir = axis / len;
-        let u = (t.u - dir * t.u.dot(dir)).normalize();
+        debug_assert!(dir.x.abs() < 0.9, "a tube along x has no cross-section frame from x");
+        let u = (Vec3::X - dir * dir.x).normalize();
         let v = dir.cross(u);
         // (centre, radius scale, s) per ring, from the start pole's first ring to the end's last
         let mut rings: Vec<(Vec3, f32, f32)> = Vec::new();
@@ -220,6 +225,35 @@ impl Part {
             }
         }
         self.orient_outwards(first as usize, (t.a + t.b) * 0.5);
+    }
+
+    /// A round limb from joint node `own` to `end`, its radius `r` at the start shrinking by
+    /// `taper` to the end, weighted to `own` and blended with `before` and `after` over its
+    /// joints ([`bone_weights`]).
+    fn add_limb(
+        &mut self,
+        own: usize,
+        end: Vec3,
+        (r, taper): (f32, f32),
+        before: Option<usize>,
+        after: Option<usize>,
+        around: usize,
+        rings: usize,
+    ) {
+        let radii = |s: f32| {
+            let x = r - taper * s;
+            (x, x)
+        };
+        let weights = |_q: Vec3, s: f32| bone_weights(s, own, before, after);
+        self.add_tube(&Tube {
+            a: rest_position(own),
+            b: end,
+            radii: &radii,
+            weights: &weights,
+            around,
+            rings,
+            cap_rings: 6,
+        });
     }
 
     /// A closed solid of revolution about +y through `origin`: `profile` (radius, height) from
@@ -329,7 +363,6 @@ fn build_meshes() -> (Vec<Part>, Part) {
     shirt.add_tube(&Tube {
         a: Vec3::new(0.0, y0, 0.0),
         b: Vec3::new(0.0, y1, 0.0),
-        u: Vec3::X,
         radii: &torso_r,
         weights: &torso_w,
         around: 48,
@@ -345,7 +378,6 @@ fn build_meshes() -> (Vec<Part>, Part) {
     skin.add_tube(&Tube {
         a: Vec3::new(0.0, 1.42, 0.0),
         b: Vec3::new(0.0, 1.56, 0.0),
-        u: Vec3::X,
         radii: &neck_r,
         weights: &neck_w,
         around: 28,
@@ -353,11 +385,10 @@ fn build_meshes() -> (Vec<Part>, Part) {
         cap_rings: 4,
     });
     let head_r = |_s: f32| (0.1, 0.108);
-    let head_w = |_q: Vec3, _s: f32| -> Weights { [(HEAD, 1.0), (HEAD, 0.0), (HEAD, 0.0), (HEAD, 0.0)] };
+    let head_w = |_q: Vec3, _s: f32| rigid(HEAD);
     skin.add_tube(&Tube {
         a: Vec3::new(0.0, 1.6, 0.005),
         b: Vec3::new(0.0, 1.64, 0.005),
-        u: Vec3::X,
         radii: &head_r,
         weights: &head_w,
         around: 48,
@@ -369,42 +400,13 @@ fn build_meshes() -> (Vec<Part>, Part) {
         [(1.0f32, L_THIGH, L_SHIN, L_FOOT, L_ARM, L_FOREARM), (-1.0, R_THIGH, R_SHIN, R_FOOT, R_ARM, R_FOREARM)]
     {
         // legs
-        let thigh_r = |s: f32| {
-            let r = 0.075 - 0.02 * s;
-            (r, r)
-        };
-        let thigh_w = move |_q: Vec3, s: f32| bone_weights(s, thigh, Some(HIPS), Some(shin));
-        trousers.add_tube(&Tube {
-            a: p(thigh),
-            b: p(shin),
-            u: Vec3::X,
-            radii: &thigh_r,
-            weights: &thigh_w,
-            around: 36,
-            rings: 26,
-            cap_rings: 6,
-        });
-        let shin_r = |s: f32| {
-            let r = 0.055 - 0.015 * s;
-            (r, r)
-        };
-        let shin_w = move |_q: Vec3, s: f32| bone_weights(s, shin, Some(thigh), Some(foot));
-        trousers.add_tube(&Tube {
-            a: p(shin),
-            b: p(foot) + Vec3::Y * 0.01,
-            u: Vec3::X,
-            radii: &shin_r,
-            weights: &shin_w,
-            around: 36,
-            rings: 26,
-            cap_rings: 6,
-        });
+        trousers.add_limb(thigh, p(shin), (0.075, 0.02), Some(HIPS), Some(shin), 36, 26);
+        trousers.add_limb(shin, p(foot) + Vec3::Y * 0.01, (0.055, 0.015), Some(thigh), Some(foot), 36, 26);
         let foot_r = |_s: f32| (0.045, 0.04);
-        let foot_w = move |_q: Vec3, _s: f32| -> Weights { [(foot, 1.0), (foot, 0.0), (foot, 0.0), (foot, 0.0)] };
+        let foot_w = move |_q: Vec3, _s: f32| rigid(foot);
         shoes.add_tube(&Tube {
             a: Vec3::new(0.1 * sx, 0.045, -0.04),
             b: Vec3::new(0.1 * sx, 0.045, 0.15),
-            u: Vec3::X,
             radii: &foot_r,
             weights: &foot_w,
             around: 32,
@@ -412,43 +414,13 @@ fn build_meshes() -> (Vec<Part>, Part) {
             cap_rings: 6,
         });
         // arms
-        let arm_r = |s: f32| {
-            let r = 0.05 - 0.008 * s;
-            (r, r)
-        };
-        let arm_w = move |_q: Vec3, s: f32| bone_weights(s, arm, Some(CHEST), Some(forearm));
-        shirt.add_tube(&Tube {
-            a: p(arm),
-            b: p(forearm),
-            u: Vec3::X,
-            radii: &arm_r,
-            weights: &arm_w,
-            around: 32,
-            rings: 18,
-            cap_rings: 6,
-        });
-        let forearm_r = |s: f32| {
-            let r = 0.042 - 0.009 * s;
-            (r, r)
-        };
-        let forearm_w = move |_q: Vec3, s: f32| bone_weights(s, forearm, Some(arm), None);
-        shirt.add_tube(&Tube {
-            a: p(forearm),
-            b: Vec3::new(0.23 * sx, 0.92, 0.0),
-            u: Vec3::X,
-            radii: &forearm_r,
-            weights: &forearm_w,
-            around: 32,
-            rings: 16,
-            cap_rings: 6,
-        });
+        shirt.add_limb(arm, p(forearm), (0.05, 0.008), Some(CHEST), Some(forearm), 32, 18);
+        shirt.add_limb(forearm, Vec3::new(0.23 * sx, 0.92, 0.0), (0.042, 0.009), Some(arm), None, 32, 16);
         let hand_r = |_s: f32| (0.022, 0.042);
-        let hand_w =
-            move |_q: Vec3, _s: f32| -> Weights { [(forearm, 1.0), (forearm, 0.0), (forearm, 0.0), (forearm, 0.0)] };
+        let hand_w = move |_q: Vec3, _s: f32| rigid(forearm);
         skin.add_tube(&Tube {
             a: Vec3::new(0.23 * sx, 0.9, 0.0),
             b: Vec3::new(0.23 * sx, 0.83, 0.0),
-            u: Vec3::X,
             radii: &hand_r,
             weights: &hand_w,
             around: 24,
@@ -470,7 +442,7 @@ fn build_meshes() -> (Vec<Part>, Part) {
         (0.10, -0.014),
         (0.0, -0.014),
     ];
-    hat.add_lathe(Vec3::ZERO, &profile, 72, 3, [(HEAD, 1.0), (HEAD, 0.0), (HEAD, 0.0), (HEAD, 0.0)]);
+    hat.add_lathe(Vec3::ZERO, &profile, 72, 3, rigid(HEAD));
     (vec![skin, shirt, trousers, shoes], hat)
 }
 
@@ -738,24 +710,5 @@ pub fn walker_glb() -> Vec<u8> {
         "bufferViews": w.views,
         "buffers": [{ "byteLength": w.bin.len() }],
     });
-    let mut js = serde_json::to_vec(&doc).expect("a JSON value serializes");
-    while !js.len().is_multiple_of(4) {
-        js.push(b' ');
-    }
-    let mut bin = w.bin;
-    while !bin.len().is_multiple_of(4) {
-        bin.push(0);
-    }
-    let total = 12 + 8 + js.len() + 8 + bin.len();
-    let mut out = Vec::with_capacity(total);
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(js.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&js);
-    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"BIN\0");
-    out.extend_from_slice(&bin);
-    out
+    crate::gltf_load::glb_bytes(&serde_json::to_vec(&doc).expect("a JSON value serializes"), &w.bin)
 }
