@@ -91,6 +91,13 @@ layout(set = 0, binding = 19) readonly buffer Header { uint kd_hdr[]; };
 // the environment's key lights split off its map (AvsSettings::key_lights), 2 per light: world
 // axis + lambda, rgb amplitude; their diffuse light is shadowed by rays through the kd-tree
 layout(set = 0, binding = 20) readonly buffer KeyLights { vec4 key[]; };
+// key_filter (flags bit 5): the key lights' diffuse light apart, for avs_key_filter.comp: rgb
+// the unshadowed radiance it would add (after material_reflected), a its visible share (the
+// lights' kfrac weighted by their luminance); `hdr` then holds the rest. Else a 1 x 1 stand-in.
+layout(set = 0, binding = 21, rgba32f) uniform writeonly image2D key_out;
+// ... and where its occluders are: x the mean distance to them along the blocked rays (0 where
+// none was hit), y the lights' angular radius (tangent), both weighted by the lights' luminance
+layout(set = 0, binding = 22, rgba32f) uniform writeonly image2D key_aux;
 layout(push_constant) uniform Push {
     uint light_count;
     uint lobe_count;
@@ -99,7 +106,7 @@ layout(push_constant) uniform Push {
     float alpha;
     float inv_scale;
     float radius;
-    uint flags;      // bit 0: no SSDF visibility (shadows off, or no sample points); bit 1: local lights' and key lights' shadows traced; bit 2: key_rays = predicted; bit 3: key_pattern = stratified; bit 4: key_penumbra = refine
+    uint flags;      // bit 0: no SSDF visibility (shadows off, or no sample points); bit 1: local lights' and key lights' shadows traced; bit 2: key_rays = predicted; bit 3: key_pattern = stratified; bit 4: key_penumbra = refine; bit 5: key_filter (the key rays stratified too)
     uint cells;      // cells per side (mode 1)
     uint specular_mode;  // 0: Gamma_L from the prefiltered maps, 1: from the lighting SGs, 2: ratio (env_shade.glsl's glossy term x the lobe's SSDF visibility)
     uint diffuse_ratio;  // 1: the map's irradiance x the SG lobes' visible share; 0: the SG lobes alone
@@ -107,6 +114,7 @@ layout(push_constant) uniform Push {
     uint key_count;      // key lights split off the environment (binding 20)
 } pc;
 // key_pattern = stratified (flags bit 3): light_rays.glsl's per-pixel stratified key-light rays
+// (and with key_filter, bit 5: the filter averages neighbours whose rays must differ)
 #define CONE_STRATIFIED ((pc.flags & 8u) != 0u)
 #include "light_rays.glsl"
 
@@ -309,6 +317,10 @@ void main() {
         vec2 ndc = (vec2(px) + 0.5) / vec2(size) * 2.0 - 1.0;
         vec4 far_p = cam.inv_view_proj * vec4(ndc, 1.0, 1.0);
         imageStore(hdr, px, vec4(env_background(far_p.xyz / far_p.w - cam.eye.xyz), 1.0));
+        if ((pc.flags & 32u) != 0u) {
+            imageStore(key_out, px, vec4(0.0, 0.0, 0.0, 1.0));
+            imageStore(key_aux, px, vec4(0.0));
+        }
         return;
     }
     vec4 gp = texelFetch(gb_position, px, 0);
@@ -376,9 +388,11 @@ void main() {
     const float KEY_REUSE = 0.05;
     uint kmask[16];
     float kfrac[16];
+    vec2 khits[16];
     for (uint k = 0u; k < nk; ++k) {
         kmask[k] = 0u;
         kfrac[k] = 1.0;
+        khits[k] = vec2(0.0);
         if (!traced) continue;
         SG l = sg_make(key[2u * k].xyz, key[2u * k].w, 1.0);
         bool lit = max(sg_cosine_integral(l, n), 0.0) > 0.0
@@ -393,15 +407,17 @@ void main() {
             float margin = atan(0.9 * rad) + 2.0 * avs_texel_angle(pc.r);
             vec3 dc = cone_cell_dir(po, l.axis, rad, 0);
             if (abs(d) > margin && dot(dc, ng) > 0.0) {
-                bool seen = kd_trace(po, dc, 0.0, 1e30, true).t < 0.0;
+                float th = kd_trace(po, dc, 0.0, 1e30, true).t;
+                bool seen = th < 0.0;
                 if (seen == (d > 0.0)) {
+                    if (!seen) khits[k] = vec2(th, 1.0);
                     kmask[k] = (1u << 16u) | (seen ? 1u : 0u);
                     kfrac[k] = seen ? 1.0 : 0.0;
                     continue;
                 }
             }
         }
-        kmask[k] = cone_rays_mask(po, l.axis, rad, ng);
+        kmask[k] = cone_rays_mask(po, l.axis, rad, ng, khits[k]);
         kfrac[k] = key_penumbra_fraction(kmask[k], po, l.axis, rad, ng);
     }
     // Lobes that bring less than LOBE_CULL of a ratio's light (the diffuse lobes' irradiance with
@@ -465,14 +481,34 @@ void main() {
     }
     if (!own_only && den > 0.0) vs = clamp(num / den, 0.0, 1.0);
     if (pc.diffuse_ratio != 0u) diffuse = irr_ratio(n, diffuse, diffuse_open);
+    bool split_key = (pc.flags & 32u) != 0u && traced;
+    vec3 key_open = vec3(0.0);
+    float key_num = 0.0, key_den = 0.0, key_t = 0.0, key_tw = 0.0, key_rad = 0.0;
     if (pc.key_count > 0u) {
         for (uint k = 0u; k < nk; ++k) {
             vec4 axis_lambda = key[2u * k];
             vec3 mu = key[2u * k + 1u].rgb;
             // shadows off (flags bit 1 clear): the same light, unshadowed
             vec3 e = mu * max(sg_cosine_integral(sg_make(axis_lambda.xyz, axis_lambda.w, 1.0), n), 0.0);
-            diffuse += traced ? e * kfrac[k] : e;
+            if (split_key) {
+                float le = dot(e, vec3(0.2126, 0.7152, 0.0722));
+                key_open += e;
+                key_num += le * kfrac[k];
+                key_den += le;
+                key_rad += le * 2.0 / sqrt(max(axis_lambda.w, 1e-4));
+                if (khits[k].y > 0.0) {
+                    key_t += le * khits[k].x / khits[k].y;
+                    key_tw += le;
+                }
+            } else {
+                diffuse += traced ? e * kfrac[k] : e;
+            }
         }
+    }
+    if ((pc.flags & 32u) != 0u) {
+        vec3 kd = material_reflected(material_diffuse_albedo(m, ndv) / PI * key_open, n, v);
+        imageStore(key_out, px, vec4(kd, key_den > 0.0 ? clamp(key_num / key_den, 0.0, 1.0) : 1.0));
+        imageStore(key_aux, px, vec4(key_tw > 0.0 ? key_t / key_tw : 0.0, key_den > 0.0 ? key_rad / key_den : 0.0, 0.0, 0.0));
     }
     vec3 color = material_diffuse_albedo(m, ndv) / PI * diffuse;
     color += local_lights(pos, n, tg, ng, v, albedo, m);

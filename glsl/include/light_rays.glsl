@@ -82,7 +82,8 @@ vec3 cone_cell_dir(vec3 p, vec3 axis, float radius, int j) {
 // penumbra), in cone_cell_dir's directions (fixed or stratified). avs traces a key light's rays once for its
 // diffuse light (cone_mask_fraction) and for a glossy lobe nearly flat over the light
 // (cone_mask_weighted).
-uint cone_rays_mask(vec3 p, vec3 axis, float radius, vec3 ng) {
+// `hits` adds the blocked rays' hit distances (x) and their count (y): where the occluders are.
+uint cone_rays_mask(vec3 p, vec3 axis, float radius, vec3 ng, inout vec2 hits) {
     uint m = 0u;
     for (int i = 0; i < LIGHT_DISK_POINTS; ++i) {
         if (disk_settled(i, float(bitCount(m & 0xFFFFu)), float(bitCount(m >> 16u)))) break;
@@ -90,7 +91,8 @@ uint cone_rays_mask(vec3 p, vec3 axis, float radius, vec3 ng) {
         vec3 d = cone_cell_dir(p, axis, radius, j);
         if (dot(d, ng) <= 0.0) continue;
         m |= 1u << uint(16 + j);
-        if (kd_trace(p, d, 0.0, 1e30, true).t < 0.0) m |= 1u << uint(j);
+        float t = kd_trace(p, d, 0.0, 1e30, true).t;
+        if (t < 0.0) m |= 1u << uint(j); else hits += vec2(t, 1.0);
     }
     return m;
 }

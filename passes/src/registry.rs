@@ -242,6 +242,7 @@ const AVS_PARAMS: &[ParamDoc] = &[
     p("key_rays", "predicted", "predicted, all", "rays per key light and pixel: the centre ray alone where the interpolated SSDF clears the light's disk by two texels and the ray agrees with it, the disk's rays elsewhere (predicted), or the disk's rays everywhere (all)"),
     p("key_pattern", "fixed", "fixed, stratified", "where a key light's rays point: the same disk pattern in every pixel (fixed: flat bands in a penumbra) or a point of each ray's equal-area cell of the disk drawn per pixel (stratified: grain around the disk's integral, more error against a reference)"),
     p("key_penumbra", "rays", "rays, refine", "a key light's share where its 9 rays disagree: the 9 rays' share (rays) or with 16 more rays in equal-area cells of its disk (refine: 25 finer steps instead of 9 flat bands, 16 more rays per penumbra pixel)"),
+    p("key_filter", "4", "0..=8", "with light_shadows = traced: the key lights' diffuse light filtered over at most this radius in pixels (0 off): each pixel's visible share averaged with a Gaussian a sixteenth of its penumbra's width (the lights' angular radius times the distance to what their rays hit) over neighbours on its surface, nothing where the 3x3 neighbourhood's rays agree (the fixed pattern's bands in a wide penumbra, or key_pattern = stratified's grain, blur out; contact shadows keep their edge)"),
     p("capture_maps", "false", "true/false", "read the final visibility maps back into the technique's stats (tests)"),
 ];
 
