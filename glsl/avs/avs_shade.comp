@@ -106,7 +106,7 @@ layout(push_constant) uniform Push {
     float alpha;
     float inv_scale;
     float radius;
-    uint flags;      // bit 0: no SSDF visibility (shadows off, or no sample points); bit 1: local lights' and key lights' shadows traced; bit 2: key_rays = predicted; bit 3: key_pattern = stratified; bit 4: key_penumbra = refine; bit 5: key_filter (the key rays stratified too)
+    uint flags;      // bit 0: no SSDF visibility (shadows off, or no sample points); bit 1: local lights' and key lights' shadows traced; bit 2: key_rays = predicted; bit 3: key_pattern = stratified; bit 4: key_penumbra = refine; bit 5: key_filter (the key lights' diffuse light written apart, key_out and key_aux)
     uint cells;      // cells per side (mode 1)
     uint specular_mode;  // 0: Gamma_L from the prefiltered maps, 1: from the lighting SGs, 2: ratio (env_shade.glsl's glossy term x the lobe's SSDF visibility)
     uint diffuse_ratio;  // 1: the map's irradiance x the SG lobes' visible share; 0: the SG lobes alone
@@ -114,7 +114,6 @@ layout(push_constant) uniform Push {
     uint key_count;      // key lights split off the environment (binding 20)
 } pc;
 // key_pattern = stratified (flags bit 3): light_rays.glsl's per-pixel stratified key-light rays
-// (and with key_filter, bit 5: the filter averages neighbours whose rays must differ)
 #define CONE_STRATIFIED ((pc.flags & 8u) != 0u)
 #include "light_rays.glsl"
 

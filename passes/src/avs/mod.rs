@@ -1737,7 +1737,10 @@ impl crate::technique::Technique for AvsTechnique {
         let (w, h) = (gb.width, gb.height);
         // key_filter: the key lights' diffuse light apart (a 1 x 1 stand-in without), the rest in
         // `avs_base`, both added in `avs_key_filter`
-        let filter = self.settings.key_filter > 0 && self.settings.shadows && self.settings.traced_lights;
+        let filter = self.settings.key_filter > 0
+            && self.settings.shadows
+            && self.settings.traced_lights
+            && !self.key_lights.is_empty();
         let hdr = graph.create_image(if filter { "avs_base" } else { "hdr" }, ImageDesc::new_2d(HDR_FORMAT, w, h));
         let key_img = if filter { (w, h) } else { (1, 1) };
         let key_out = graph.create_image("avs_key", ImageDesc::new_2d(HDR_FORMAT, key_img.0, key_img.1));
