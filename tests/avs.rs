@@ -742,6 +742,27 @@ fn sphere_light_penumbra_takes_every_ray_of_the_disk() {
     assert!(values.len() >= 8, "penumbra resolved into {} values only: {values:?}", values.len());
 }
 
+/// isg_bunny (the studio map's key light behind the bunny: a long shadow) without its scene
+/// parameters and with diffuse materials: the scene's shininess-1000 reflections of the key light
+/// are fireflies in a 256-spp reference, and the glossy term is not what the key-light tests
+/// measure.
+fn diffuse_isg_bunny() -> Scene {
+    let mut s = scene("isg_bunny.toml");
+    s.technique_params.clear();
+    for m in s.materials.iter_mut() {
+        *m = penumbra_scene::Material::diffuse(&m.name, m.albedo);
+    }
+    s
+}
+
+/// avs's frame of `s` at time `t` under the validation layer, asserted free of validation errors.
+fn render_validated(s: &Scene, w: u32, h: u32, t: f32) -> Vec<FrameImages> {
+    let (r, frames) = render(s, "avs", w, h, &[t], true);
+    let log = r.context().validation.clone();
+    assert_eq!(log.error_count(), 0, "validation errors: {:#?}", log.errors());
+    frames
+}
+
 /// The environment's key lights split off its map (`key_lights = 4`, default with
 /// `light_shadows = traced`): a studio key light's sharp shadow comes from rays through the
 /// kd-tree, the rest of the map through the SSDFs. isg_bunny made diffuse (studio.exr, a long
@@ -753,20 +774,11 @@ fn sphere_light_penumbra_takes_every_ray_of_the_disk() {
 /// into patches), 0.315 unshadowed.
 #[test]
 fn key_lights_split_off_the_environment_cast_their_shadows() {
-    let mut s = scene("isg_bunny.toml");
-    s.technique_params.clear();
-    // diffuse materials: the scene's shininess-1000 reflections of the key light are fireflies
-    // in a 256-spp reference, and the glossy term is not what this measures
-    for m in s.materials.iter_mut() {
-        *m = penumbra_scene::Material::diffuse(&m.name, m.albedo);
-    }
+    let s = diffuse_isg_bunny();
     let (w, h, t) = (64, 48, 0.5);
     let reference = reference_at(&s, (w, h), 256, t, Mode::Exact);
     let fast = [("r", "32"), ("iterations", "1")];
-    let (r, key) = render(&with(&s, &fast), "avs", w, h, &[t], true);
-    let log = r.context().validation.clone();
-    drop(r);
-    assert_eq!(log.error_count(), 0, "validation errors: {:#?}", log.errors());
+    let key = render_validated(&with(&s, &fast), w, h, t);
     let (_r, whole) = render(&with(&with(&s, &fast), &[("key_lights", "0")]), "avs", w, h, &[t], false);
     let (_r, open) = render(&with(&with(&s, &fast), &[("shadows", "false")]), "avs", w, h, &[t], false);
     let err = |f: &FrameImages, name: &str| {
@@ -820,18 +832,11 @@ fn key_lights_split_off_the_environment_cast_their_shadows() {
 /// stratified` 0.0697 and 0.0718.
 #[test]
 fn key_filter_smooths_penumbrae_and_leaves_lit_pixels_alone() {
-    let mut s = scene("isg_bunny.toml");
-    s.technique_params.clear();
-    for m in s.materials.iter_mut() {
-        *m = penumbra_scene::Material::diffuse(&m.name, m.albedo);
-    }
+    let s = diffuse_isg_bunny();
     let (w, h, t) = (160, 120, 0.5);
     let reference = reference_at(&s, (w, h), 256, t, Mode::Exact);
     let fast = [("r", "32"), ("iterations", "1")];
-    let (r, filtered) = render(&with(&s, &fast), "avs", w, h, &[t], true);
-    let log = r.context().validation.clone();
-    drop(r);
-    assert_eq!(log.error_count(), 0, "validation errors: {:#?}", log.errors());
+    let filtered = render_validated(&with(&s, &fast), w, h, t);
     let (_r, raw) = render(&with(&with(&s, &fast), &[("key_filter", "0")]), "avs", w, h, &[t], false);
     let (_r, open) = render(&with(&with(&s, &fast), &[("shadows", "false")]), "avs", w, h, &[t], false);
     let (f, u, o) = (image(&filtered[0]), image(&raw[0]), image(&open[0]));

@@ -480,7 +480,8 @@ void main() {
     }
     if (!own_only && den > 0.0) vs = clamp(num / den, 0.0, 1.0);
     if (pc.diffuse_ratio != 0u) diffuse = irr_ratio(n, diffuse, diffuse_open);
-    bool split_key = (pc.flags & 32u) != 0u && traced;
+    // (bit 5 is set only with traced key-light shadows)
+    bool split_key = (pc.flags & 32u) != 0u;
     vec3 key_open = vec3(0.0);
     float key_num = 0.0, key_den = 0.0, key_t = 0.0, key_tw = 0.0, key_rad = 0.0;
     if (pc.key_count > 0u) {
@@ -504,7 +505,7 @@ void main() {
             }
         }
     }
-    if ((pc.flags & 32u) != 0u) {
+    if (split_key) {
         vec3 kd = material_reflected(material_diffuse_albedo(m, ndv) / PI * key_open, n, v);
         imageStore(key_out, px, vec4(kd, key_den > 0.0 ? clamp(key_num / key_den, 0.0, 1.0) : 1.0));
         imageStore(key_aux, px, vec4(key_tw > 0.0 ? key_t / key_tw : 0.0, key_den > 0.0 ? key_rad / key_den : 0.0, 0.0, 0.0));
