@@ -159,7 +159,7 @@ const fn p(key: &'static str, default: &'static str, range: &'static str, doc: &
 }
 
 const MC_PARAMS: &[ParamDoc] = &[
-    p("spp", "4", "1..=16384", "samples per pixel per frame (accumulated over frames while nothing moves; split into dispatches of 256)"),
+    p("spp", "8", "1..=16384", "samples per pixel per frame (accumulated over frames while nothing moves; split into dispatches of 256)"),
     p("aa", "true", "true|false", "primary rays jittered over the pixel (anti-aliased); false: through the pixel centre, where rasterizing techniques sample (what `bench matrix` compares)"),
 ];
 

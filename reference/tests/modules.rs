@@ -210,6 +210,103 @@ mod converge {
     }
 
     #[test]
+    fn pixel_noise_is_the_root_mean_variance_over_the_mean() {
+        let img = Image { width: 2, height: 1, pixels: vec![[1.0; 3], [3.0; 3]] };
+        // mean 2.0; variances 0.01 and 0.03: root of their mean 0.1414
+        let n = pixel_noise(&img, &[[0.01; 3], [0.03; 3]]);
+        assert!((n - 0.02f64.sqrt() / 2.0).abs() < 1e-9, "{n}");
+        assert_eq!(pixel_noise(&img, &[[0.0; 3]; 2]), 0.0);
+        assert!(pixel_noise(&Image::new(2, 1), &[[0.01; 3]; 2]).is_infinite());
+        // a non-finite pixel is left out of both the variance and the mean
+        let nan = Image { width: 2, height: 1, pixels: vec![[1.0; 3], [f32::NAN; 3]] };
+        assert!((pixel_noise(&nan, &[[0.01; 3]; 2]) - 0.1).abs() < 1e-9);
+    }
+
+    /// Where one pixel holds the variance, the two halves' estimate is one draw of a chi-square
+    /// of about one degree of freedom (isg_bunny's 40x30 reference said 0.0034 where the truth
+    /// was 0.009); the per-pixel variance over the samples is steady, and right: independent
+    /// renders of the same count differ from each other by about sqrt(2) times it.
+    #[test]
+    fn pixel_variance_noise_is_steady_where_the_halves_are_not() {
+        let scene = Scene::default_scene();
+        let base = ReferenceOptions { width: 2, height: 1, frame: 3, pixel_grid: 1, ..Default::default() };
+        let (mut px, mut hv, mut err) = (Vec::new(), Vec::new(), Vec::new());
+        for seed in 0..10u64 {
+            let opts = ConvergeOptions {
+                base: ReferenceOptions { seed, ..base.clone() },
+                target_noise: 1e-9,
+                start_spp: 32,
+                max_spp: 64,
+                ..Default::default()
+            };
+            let c = render_converged(&scene, &opts).unwrap();
+            assert_eq!(c.meta.spp, 64);
+            assert_eq!(c.meta.noise_method, "pixel_variance");
+            px.push(c.meta.noise_rmse_rel_mean);
+            hv.push(c.meta.halves_noise_rmse_rel_mean.unwrap());
+            let other = render(&scene, &ReferenceOptions { spp: 64, seed: 1000 + seed, ..base.clone() }).unwrap();
+            err.push(
+                penumbra_reference::metrics::compare(&c.radiance, "a", &other.radiance, "b").unwrap().rmse_rel_mean,
+            );
+        }
+        let spread = |v: &[f64]| {
+            let m = v.iter().sum::<f64>() / v.len() as f64;
+            ((v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64).sqrt() / m, m)
+        };
+        let ((sp, mp), (sh, _)) = (spread(&px), spread(&hv));
+        assert!(mp > 0.0, "the scene's two pixels have no variance: {px:?}");
+        assert!(sp < 0.5 * sh, "pixel-variance spread {sp:.3} against the halves' {sh:.3}: {px:?} {hv:?}");
+        // mean squared difference of two independent renders: 2 noise^2
+        let msd = err.iter().map(|e| e * e).sum::<f64>() / err.len() as f64;
+        let ratio = (msd / 2.0).sqrt() / mp;
+        assert!((0.6..1.6).contains(&ratio), "independent renders' rms / sqrt(2) over the estimate: {ratio}");
+    }
+
+    /// A reference cached with the two halves' estimate only is re-estimated from fresh samples
+    /// when loaded, the old figure kept beside it, and its sidecar rewritten.
+    #[test]
+    fn a_cached_halves_estimate_is_re_estimated_once() {
+        let scene = Scene::default_scene();
+        let opts = ConvergeOptions {
+            base: ReferenceOptions { width: 8, height: 6, frame: 3, ..Default::default() },
+            target_noise: 0.05,
+            start_spp: 4,
+            max_spp: 1 << 12,
+            ..Default::default()
+        };
+        let dir = std::env::temp_dir().join(format!("penumbra-renoise-test-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let c = load_or_render(&scene, b"default", "default", &opts, Some(&dir)).unwrap();
+        let json = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .find(|p| p.extension().is_some_and(|e| e == "json"))
+            .unwrap();
+        // what a sidecar written before the per-pixel estimate looks like, with a low draw
+        let mut v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        let o = v.as_object_mut().unwrap();
+        o.remove("noise_method");
+        o.remove("halves_noise_rmse_rel_mean");
+        o.insert("noise_rmse_rel_mean".into(), serde_json::json!(1e-5));
+        std::fs::write(&json, serde_json::to_string_pretty(&v).unwrap()).unwrap();
+        let again = load_or_render(&scene, b"default", "default", &opts, Some(&dir)).unwrap();
+        assert!(again.cached);
+        assert_eq!(again.meta.noise_method, "pixel_variance_resampled");
+        assert_eq!(again.meta.halves_noise_rmse_rel_mean, Some(1e-5));
+        let ratio = again.meta.noise_rmse_rel_mean / c.meta.noise_rmse_rel_mean;
+        assert!(
+            (0.7..1.4).contains(&ratio),
+            "re-estimated {} against {}",
+            again.meta.noise_rmse_rel_mean,
+            c.meta.noise_rmse_rel_mean
+        );
+        let stored: ConvergedMeta = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        assert_eq!(stored.noise_method, "pixel_variance_resampled");
+        assert!((stored.noise_rmse_rel_mean / again.meta.noise_rmse_rel_mean - 1.0).abs() < 1e-12);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
     fn cache_key_changes_with_every_input() {
         let o = ConvergeOptions::default();
         let k = cache_key(b"scene", &o);

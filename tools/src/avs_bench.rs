@@ -170,7 +170,10 @@ fn render_mc(
     reference: &Image,
     target: McTarget,
 ) -> Result<McRun> {
-    let params: penumbra_passes::registry::Params = [("aa".to_string(), aa.to_string())].into_iter().collect();
+    // 4 samples per pixel per frame (mc's default until session 48): the curve's steps as the
+    // README's tables measured them
+    let params: penumbra_passes::registry::Params =
+        [("aa".to_string(), aa.to_string()), ("spp".to_string(), "4".to_string())].into_iter().collect();
     let settings = RenderSettings::with_technique(w, h, "mc", &params);
     let mut r = Renderer::new_headless(scene, settings, false)?;
     // A warm-up frame first, left out of the curve: lavapipe compiles a shader at its first
