@@ -56,49 +56,23 @@ pub fn random_rays(tris: &[[Vec3; 3]], n: usize, seed: u64, finite: bool) -> Vec
         .collect()
 }
 
-/// The pixels of a `w` x `h` image in tile order: 8 x 8 tiles row by row, each in Morton
-/// (Z) order, so that any 8 consecutive pixels of a full tile form a 4 x 2 block, 16 a 4 x 4
-/// block, and so on (partial tiles at the right and bottom edges keep the order, skipping the
-/// pixels outside).
-pub fn tile_order(w: u32, h: u32) -> Vec<(u32, u32)> {
-    let mut out = Vec::with_capacity((w * h) as usize);
-    for ty in (0..h).step_by(8) {
-        for tx in (0..w).step_by(8) {
-            for i in 0..64u32 {
-                // de-interleave the Morton index: even bits x, odd bits y
-                let (mut x, mut y) = (0u32, 0u32);
-                for b in 0..3 {
-                    x |= ((i >> (2 * b)) & 1) << b;
-                    y |= ((i >> (2 * b + 1)) & 1) << b;
-                }
-                let (px, py) = (tx + x, ty + y);
-                if px < w && py < h {
-                    out.push((px, py));
-                }
-            }
-        }
-    }
-    out
-}
-
-/// Coherent rays: the camera's primary rays through a `w` x `h` grid (pixel centres), in
-/// [`tile_order`] (as a renderer's 8 x 8 workgroups trace them, 8 neighbouring pixels per SIMD
-/// step on a CPU device).
+/// Coherent rays: the camera's primary rays through a `w` x `h` grid (pixel centres).
 pub fn camera_rays(cam: &Camera, w: u32, h: u32) -> Vec<Ray> {
     let fwd = (cam.target - cam.eye).normalize_or(Vec3::NEG_Z);
     let right = fwd.cross(cam.up).normalize_or(Vec3::X);
     let up = right.cross(fwd);
     let th = (cam.fov_y_deg.to_radians() * 0.5).tan();
     let aspect = w as f32 / h.max(1) as f32;
-    tile_order(w, h)
-        .into_iter()
-        .map(|(x, y)| {
+    let mut out = Vec::with_capacity((w * h) as usize);
+    for y in 0..h {
+        for x in 0..w {
             let u = (x as f32 + 0.5) / w as f32 * 2.0 - 1.0;
             let v = 1.0 - (y as f32 + 0.5) / h as f32 * 2.0;
             let d = (fwd + right * (u * th * aspect) + up * (v * th)).normalize();
-            Ray::new(cam.eye, d, 0.0, f32::MAX)
-        })
-        .collect()
+            out.push(Ray::new(cam.eye, d, 0.0, f32::MAX));
+        }
+    }
+    out
 }
 
 /// Secondary rays starting on surfaces: from the CPU closest hits of `primary`, offset by

@@ -556,7 +556,9 @@ pub struct ShadowFieldsArgs {
     #[arg(long)]
     pub no_images: bool,
     /// Also the all-frequency (Haar, largest 5% kept) fields' sizes fixed vs adaptive and
-    /// per-shell resolutions, with cube faces of this resolution (initial R = min(R, 32)).
+    /// per-shell resolutions, with cube faces of this resolution (a power of two, 2..=64) and
+    /// the initial R of `--resolution` (the paper: 64, with 64 x 64 maps, about `--haar 32`; one
+    /// object's raw maps, `shells x R^2 x 6 n^2` floats, must fit in 8 GiB: 3 GiB there).
     #[arg(long)]
     pub haar: Option<usize>,
     /// Also draw the image comparison as a chart (PNG): PSNR against GPU ms per variant.
@@ -704,12 +706,27 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
         repeats: args.repeats.max(1),
         ..Default::default()
     };
+    if let Some(n) = args.haar {
+        // checked before the low-frequency bench's minutes
+        let r0 = args.params.resolution.max(1);
+        if !(2..=64).contains(&n) || !n.is_power_of_two() {
+            return Err(crate::bad(format!("--haar {n}: the cube face resolution must be a power of two in 2..=64")));
+        }
+        let raw_bytes = args.params.shells as f64 * (r0 * r0) as f64 * (6 * n * n) as f64 * 4.0;
+        if raw_bytes > 8.0 * (1u64 << 30) as f64 {
+            return Err(crate::bad(format!(
+                "--haar {n} at R = {r0} with {} shells: {:.1} GiB of raw maps per object (at most 8)",
+                args.params.shells,
+                raw_bytes / (1u64 << 30) as f64
+            )));
+        }
+    }
     let report = penumbra_passes::shadow_fields::bench::bench(&ctx, &penumbra::shader_library(), scene, &opts)?;
     println!("{report}");
     if let Some(n) = args.haar {
         use penumbra_math::shadow_field::haar::{raw_maps, CubeTable, HaarField};
-        let table = CubeTable::new(n.clamp(2, 64));
-        let r0 = args.params.resolution.min(32);
+        let table = CubeTable::new(n);
+        let r0 = args.params.resolution.max(1);
         println!(
             "all frequency (Haar, 5% kept, 6x{0}x{0} cube maps, R = {r0}, {1} shells):",
             table.n, args.params.shells

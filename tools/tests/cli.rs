@@ -567,6 +567,15 @@ fn shadow_field_precompute_and_bench() {
         &["bench", "shadow-fields", scene.to_str().unwrap(), "--resolution", "12"],
         &["resolution", "power of two"],
     );
+    expect_bad_input(
+        &["bench", "shadow-fields", scene.to_str().unwrap(), "--haar", "12"],
+        &["--haar 12", "power of two"],
+    );
+    // the paper's R = 64 with 6 x 64 x 64 cube maps: 12 GiB of raw maps per object, refused up front
+    expect_bad_input(
+        &["bench", "shadow-fields", scene.to_str().unwrap(), "--resolution", "64", "--haar", "64"],
+        &["--haar 64", "GiB"],
+    );
     expect_bad_input(&["precompute", "shadow-field", scene.to_str().unwrap(), "--shells", "0"], &["shells"]);
     // technique parameters: unknown keys and bad values
     let r = d.join("r");
