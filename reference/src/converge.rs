@@ -14,7 +14,7 @@
 //! references before `noise_method = "pixel_variance"` carried. It rests on one difference per
 //! pixel, so where one pixel holds most of the variance (a sharp highlight) it is a single draw of
 //! a chi-square with about one degree of freedom: `isg_bunny`'s 40x30 reference said 0.0034 where
-//! the per-pixel variance says 0.008. A cached reference of that kind is re-estimated once on load
+//! the per-pixel variance says 0.0091. A cached reference of that kind is re-estimated once on load
 //! ([`PIXEL_NOISE_RESAMPLE_SPP`] fresh samples per pixel give the per-sample variance; the stored
 //! image's is that over its count) and its sidecar rewritten.
 //!
