@@ -406,7 +406,7 @@ void main() {
             float margin = atan(0.9 * rad) + 2.0 * avs_texel_angle(pc.r);
             vec3 dc = cone_cell_dir(po, l.axis, rad, 0);
             if (abs(d) > margin && dot(dc, ng) > 0.0) {
-                float th = kd_trace(po, dc, 0.0, 1e30, true).t;
+                float th = kd_trace_order(po, dc, 0.0, 1e30, true, false).t;  // its distance is kept
                 bool seen = th < 0.0;
                 if (seen == (d > 0.0)) {
                     if (!seen) khits[k] = vec2(th, 1.0);

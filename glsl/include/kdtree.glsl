@@ -27,9 +27,10 @@
 // the host: passes::kdtree::Structure::Bvh): node i is KD_NODE(2i) = (lo.xyz as float bits,
 // miss link: the next node after its subtree, 0xffffffff ends), KD_NODE(2i + 1) = (hi.xyz,
 // leaf info: 0 interior, whose first child is node i + 1, else count << 24 | first triangle);
-// header word KD_HDR_BVH_LAYOUTS = 6: six such trees one after the other, the same tree in six
-// depth-first orders (per axis and sign, the nearer child first), a ray walking the one of its
-// direction's largest component;
+// header word KD_HDR_BVH_LAYOUTS = 7: seven such trees one after the other, the same tree in
+// seven depth-first orders: six per axis and sign (the nearer child first), a ray walking the one
+// of its direction's largest component, and one for any-hit rays (the child likelier to stop a
+// ray per node it costs first: passes::kdtree's any-hit order); 1: the first order alone;
 // and the leaves' triangles are copied in leaf order after the nodes (from KD_NODE(base), base
 // = header word KD_HDR_BVH_TRIS), 3 uvec4 each (v0, v1, v2 as float bits; v0.w the triangle's
 // index | 1 << 31 if it casts no shadow).
@@ -117,7 +118,10 @@ vec3 kd_box_hi() { return vec3(uintBitsToFloat(KD_HDR(KD_HDR_BOX + 3u)), uintBit
 
 // The threaded BVH's walk of o + t d over [t_enter, t_exit] (inside the scene box): no stack,
 // each node's box tested once; any_hit stops at the first hit, closest-hit shrinks the range.
-KdHit kd_trace_bvh(KdRayW rw, vec3 o, vec3 d, float t_enter, float t_exit, float tmin, bool any_hit) {
+// occlusion_order (any_hit only, with the seventh layout): the children in the order likelier to
+// stop the ray per node visited (kdtree.rs), else the nearer child first along the direction's
+// largest component (a hit found early is then likely a near one).
+KdHit kd_trace_bvh(KdRayW rw, vec3 o, vec3 d, float t_enter, float t_exit, float tmin, bool any_hit, bool occlusion_order) {
     KdHit h;
     h.t = -1.0; h.b1 = 0.0; h.b2 = 0.0; h.tri = 0xffffffffu;
     // a zero component's reciprocal made finite: its slab then spans the whole line or none
@@ -126,11 +130,12 @@ KdHit kd_trace_bvh(KdRayW rw, vec3 o, vec3 d, float t_enter, float t_exit, float
     float best = t_exit;
     uint node = 0u;
     uint base = KD_HDR(KD_HDR_BVH_TRIS);
-    // the order of the direction's largest component and its sign, when the buffer holds all 6
+    // the order of the direction's largest component and its sign, when the buffer holds all 7
     uint layouts = KD_HDR(KD_HDR_BVH_LAYOUTS);
     vec3 ad = abs(d);
     uint layout_k = ad.x >= ad.y && ad.x >= ad.z ? (d.x < 0.0 ? 1u : 0u) : (ad.y >= ad.z ? (d.y < 0.0 ? 3u : 2u) : (d.z < 0.0 ? 5u : 4u));
-    uint off = layouts == 6u ? layout_k * (base / 6u) : 0u;
+    if (any_hit && occlusion_order && layouts == 7u) layout_k = 6u;
+    uint off = layouts == 7u ? layout_k * (base / 7u) : 0u;
     uint steps = 0u;
     while (node != KD_BVH_END && steps < KD_BVH_MAX_STEPS) {
         // Walk interior nodes until this ray enters a leaf's box, then test the leaf's triangles
@@ -167,8 +172,10 @@ KdHit kd_trace_bvh(KdRayW rw, vec3 o, vec3 d, float t_enter, float t_exit, float
     return h;
 }
 
-// Traces o + t d for t in [tmin, tmax]. any_hit: stop at the first hit found (visibility).
-KdHit kd_trace(vec3 o, vec3 d, float tmin, float tmax, bool any_hit) {
+// Traces o + t d for t in [tmin, tmax]. any_hit: stop at the first hit found (visibility);
+// occlusion_order: with any_hit, walk the threaded BVH in the order that finds some hit soonest
+// (its t is then any occluder's), else near children first (its t likelier the nearest's).
+KdHit kd_trace_order(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, bool occlusion_order) {
     KdHit h;
     h.t = -1.0; h.b1 = 0.0; h.b2 = 0.0; h.tri = 0xffffffffu;
     if (!(tmax >= tmin) || any(isnan(o)) || any(isnan(d)) || d == vec3(0.0)) return h;
@@ -187,7 +194,7 @@ KdHit kd_trace(vec3 o, vec3 d, float tmin, float tmax, bool any_hit) {
     }
     if (t_enter > t_exit) return h;
     KdRayW rw = kd_ray_setup(d);
-    if (KD_HDR(KD_HDR_STRUCTURE) == 1u) return kd_trace_bvh(rw, o, d, t_enter, t_exit, tmin, any_hit);
+    if (KD_HDR(KD_HDR_STRUCTURE) == 1u) return kd_trace_bvh(rw, o, d, t_enter, t_exit, tmin, any_hit, occlusion_order);
 
     // entry i: node s<i>n, interval s<i>t (tmin, tmax); s0 is the top
     uint s0n = 0u, s1n = 0u, s2n = 0u, s3n = 0u, s4n = 0u, s5n = 0u;
@@ -255,6 +262,12 @@ KdHit kd_trace(vec3 o, vec3 d, float tmin, float tmax, bool any_hit) {
         }
     }
     return h;
+}
+
+// Traces o + t d for t in [tmin, tmax]; any_hit: stop at the first hit found, in the order
+// that finds one soonest (visibility: only whether t >= 0 means anything).
+KdHit kd_trace(vec3 o, vec3 d, float tmin, float tmax, bool any_hit) {
+    return kd_trace_order(o, d, tmin, tmax, any_hit, true);
 }
 
 #endif

@@ -91,7 +91,8 @@ uint cone_rays_mask(vec3 p, vec3 axis, float radius, vec3 ng, inout vec2 hits) {
         vec3 d = cone_cell_dir(p, axis, radius, j);
         if (dot(d, ng) <= 0.0) continue;
         m |= 1u << uint(16 + j);
-        float t = kd_trace(p, d, 0.0, 1e30, true).t;
+        // near children first: the blocked rays' distances say where the occluders are
+        float t = kd_trace_order(p, d, 0.0, 1e30, true, false).t;
         if (t < 0.0) m |= 1u << uint(j); else hits += vec2(t, 1.0);
     }
     return m;
