@@ -226,6 +226,11 @@ impl Half {
         }
         self.spp += spp as u64;
     }
+    /// Both halves' samples together: the final image's sums.
+    fn merged(&self, o: &Half) -> Half {
+        let sum = self.sum.iter().zip(&o.sum).map(|(s, t)| [s[0] + t[0], s[1] + t[1], s[2] + t[2]]).collect();
+        Half { sum, spp: self.spp + o.spp }
+    }
     fn image(&self, w: u32, h: u32) -> Image {
         let n = self.spp.max(1) as f64;
         Image { width: w, height: h, pixels: self.sum.iter().map(|s| s.map(|v| (v / n) as f32)).collect() }
@@ -272,10 +277,7 @@ pub fn render_converged(scene: &Scene, opts: &ConvergeOptions) -> Result<Converg
         halves = halves_noise(&ia, &ib).unwrap_or(f64::INFINITY);
         let total = (a.spp + b.spp) as f64;
         let var: Vec<[f64; 3]> = var_sum.iter().map(|v| v.map(|x| x / (total * total))).collect();
-        let mut both = Half::new(npix);
-        both.add(&ia, 1);
-        both.add(&ib, 1);
-        noise = pixel_noise(&both.image(w, h), &var);
+        noise = pixel_noise(&a.merged(&b).image(w, h), &var);
         let spp_half = a.spp;
         if opts.progress {
             tracing::info!(
@@ -300,13 +302,7 @@ pub fn render_converged(scene: &Scene, opts: &ConvergeOptions) -> Result<Converg
         let more = need.saturating_sub(spp_half).max(spp_half).min(max_half - spp_half);
         batch = more.clamp(2, u32::MAX as u64) as u32;
     }
-    let mut sum = a;
-    for (s, t) in sum.sum.iter_mut().zip(&b.sum) {
-        for c in 0..3 {
-            s[c] += t[c];
-        }
-    }
-    sum.spp += b.spp;
+    let sum = a.merged(&b);
     let radiance = sum.image(w, h);
     Ok(Converged {
         radiance,

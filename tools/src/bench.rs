@@ -706,9 +706,9 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
         repeats: args.repeats.max(1),
         ..Default::default()
     };
+    // the all-frequency fields' initial R, checked before the low-frequency bench's minutes
+    let r0 = args.params.resolution.max(1);
     if let Some(n) = args.haar {
-        // checked before the low-frequency bench's minutes
-        let r0 = args.params.resolution.max(1);
         if !(2..=64).contains(&n) || !n.is_power_of_two() {
             return Err(crate::bad(format!("--haar {n}: the cube face resolution must be a power of two in 2..=64")));
         }
@@ -726,7 +726,6 @@ pub fn run_shadow_fields(args: &ShadowFieldsArgs, scene: &Scene) -> Result<()> {
     if let Some(n) = args.haar {
         use penumbra_math::shadow_field::haar::{raw_maps, CubeTable, HaarField};
         let table = CubeTable::new(n);
-        let r0 = args.params.resolution.max(1);
         println!(
             "all frequency (Haar, 5% kept, 6x{0}x{0} cube maps, R = {r0}, {1} shells):",
             table.n, args.params.shells
